@@ -1,0 +1,278 @@
+"""The deployment problem, exactly: carriers, stages, overlaps, the prior and the penalty rule.
+
+Everything here is pure numpy/scipy. Indices are 0-based: carrier ``r`` in ``0..R-1``,
+stage ``j`` in ``0..N-1``. A decision point ``(r, j)`` is flattened to ``r * N + j`` where a
+flat index is needed.
+
+Conventions shared by every planner and by the fleet:
+
+* observations are a float array ``x[R, N]``; ``NaN`` marks an invalid (∅) stage or one not
+  observed yet;
+* decisions are a bool array ``deployed[R, N]``;
+* validity ``valid[R, N]`` is the schedule known in advance; online surprises (a carrier that did
+  not report, or crashed) turn a stage ∅ in the realised observations.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol, Sequence
+
+import numpy as np
+from scipy import stats
+
+#: Quantile of the prior whose value normalises rewards for planning (the paper's 90th percentile).
+NORMALIZE_QUANTILE = 0.9
+
+
+def _conflict_matrix(n_carriers: int, n_stages: int, overlaps: Sequence[np.ndarray]) -> np.ndarray:
+    """``C[a, b]`` is true when flat decision points ``a != b`` share at least one overlap."""
+    size = n_carriers * n_stages
+    conflict = np.zeros((size, size), dtype=bool)
+    for group in overlaps:
+        flat = np.unique(group[:, 0] * n_stages + group[:, 1])
+        conflict[np.ix_(flat, flat)] = True
+    np.fill_diagonal(conflict, False)
+    return conflict
+
+
+@dataclass(frozen=True, eq=False)
+class Problem:
+    """One deployment problem instance (everything known before the mission starts).
+
+    Attributes:
+        passengers: int64 ``[R]``, passengers D_r each carrier must deploy.
+        valid: bool ``[R, N]``, stages at which the carrier is scheduled to be running.
+        overlaps: tuple of int64 ``[k, 2]`` arrays of ``(carrier, stage)`` pairs; a group of
+            decision points in close proximity. A carrier may appear twice in one group.
+        prior: frozen ``scipy.stats`` distribution of the feature count ``x`` at a valid stage.
+        scale: rewards are divided by this for planning (the prior's 90th percentile by default).
+        conflict: bool ``[R*N, R*N]``, derived: flat points sharing an overlap (zero diagonal).
+    """
+
+    passengers: np.ndarray
+    valid: np.ndarray
+    overlaps: tuple[np.ndarray, ...]
+    prior: object
+    scale: float
+    conflict: np.ndarray = field(repr=False)
+
+    @staticmethod
+    def build(
+        passengers: int | Sequence[int],
+        valid: np.ndarray,
+        overlaps: Sequence[Sequence[Sequence[int]]] = (),
+        prior: object | None = None,
+        normalize: str | float = "q90",
+    ) -> "Problem":
+        """Validate and assemble a problem.
+
+        Args:
+            passengers: D for every carrier, or one D per carrier.
+            valid: bool ``[R, N]`` schedule validity.
+            overlaps: groups of ``(carrier, stage)`` pairs.
+            prior: frozen scipy.stats distribution; Poisson(3) when omitted.
+            normalize: ``"q90"`` (prior's 90th percentile), ``"none"`` (1.0) or a positive number.
+
+        Raises:
+            ValueError: with a message naming what is wrong.
+        """
+        valid = np.asarray(valid, dtype=bool)
+        if valid.ndim != 2 or valid.shape[0] < 1 or valid.shape[1] < 1:
+            raise ValueError(f"valid must be a non-empty [carriers, stages] array, got shape {valid.shape}")
+        n_carriers, n_stages = valid.shape
+        d = np.broadcast_to(np.asarray(passengers, dtype=np.int64), (n_carriers,)).copy()
+        if (d < 0).any():
+            raise ValueError(f"passengers must be >= 0, got {d.tolist()}")
+        groups = []
+        for k, group in enumerate(overlaps):
+            arr = np.asarray(group, dtype=np.int64).reshape(-1, 2)
+            if len(arr) and (
+                (arr[:, 0] < 0).any() or (arr[:, 0] >= n_carriers).any()
+                or (arr[:, 1] < 0).any() or (arr[:, 1] >= n_stages).any()
+            ):
+                raise ValueError(
+                    f"overlaps[{k}] has a (carrier, stage) pair outside 0..{n_carriers - 1} x 0..{n_stages - 1}"
+                )
+            groups.append(arr)
+        prior = stats.poisson(3.0) if prior is None else prior
+        if normalize == "q90":
+            scale = float(prior.ppf(NORMALIZE_QUANTILE))
+        elif normalize in ("none", None):
+            scale = 1.0
+        else:
+            scale = float(normalize)
+        if not np.isfinite(scale) or scale <= 0:
+            raise ValueError(f"normalisation scale must be a positive number, got {scale}")
+        return Problem(d, valid, tuple(groups), prior, scale, _conflict_matrix(n_carriers, n_stages, groups))
+
+    @property
+    def n_carriers(self) -> int:
+        return self.valid.shape[0]
+
+    @property
+    def n_stages(self) -> int:
+        return self.valid.shape[1]
+
+
+def penalties(problem: Problem, deployed: np.ndarray) -> np.ndarray:
+    """p for every decision point: 1 + number of *other* selected points sharing an overlap.
+
+    Returns int64 ``[R, N]`` (meaningful where ``deployed``).
+    """
+    sel = np.asarray(deployed, dtype=bool).ravel()
+    p = 1 + problem.conflict[:, sel].sum(axis=1)
+    return p.reshape(problem.valid.shape)
+
+
+def rewards(problem: Problem, deployed: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Raw reward ``x / p`` of each selected deployment, 0 elsewhere. float ``[R, N]``."""
+    deployed = np.asarray(deployed, dtype=bool)
+    out = np.zeros(deployed.shape)
+    xs = np.where(deployed, np.nan_to_num(x, nan=0.0), 0.0)
+    np.divide(xs, penalties(problem, deployed), out=out, where=deployed)
+    return out
+
+
+def evaluate(problem: Problem, deployed: np.ndarray, x: np.ndarray) -> tuple[float, float]:
+    """Total (normalised reward, raw features) of a full set of deployments under the penalty rule."""
+    raw = float(rewards(problem, deployed, x).sum())
+    return raw / problem.scale, raw
+
+
+@dataclass(frozen=True, eq=False)
+class StageView:
+    """What an online planner may know when deciding stage ``stage``.
+
+    Attributes:
+        problem: the instance.
+        stage: the stage j being decided.
+        observations: float ``[R, N]``; real values at stages <= j, NaN at ∅ and at stages > j.
+        valid: bool ``[R, N]``; realised validity at stages <= j (∅ observations are invalid),
+            scheduled validity after j.
+        deployed: bool ``[R, N]``; decisions taken at stages < j (False from j on).
+    """
+
+    problem: Problem
+    stage: int
+    observations: np.ndarray
+    valid: np.ndarray
+    deployed: np.ndarray
+
+    @property
+    def passengers_left(self) -> np.ndarray:
+        """int64 ``[R]``."""
+        return self.problem.passengers - self.deployed.sum(axis=1)
+
+    @property
+    def stages_left(self) -> np.ndarray:
+        """int64 ``[R]``: valid stages from j (inclusive) to the end."""
+        return self.valid[:, self.stage:].sum(axis=1)
+
+    @property
+    def can_deploy(self) -> np.ndarray:
+        """bool ``[R]``: carriers allowed to deploy now."""
+        return self.valid[:, self.stage] & (self.passengers_left > 0)
+
+    @property
+    def must_deploy(self) -> np.ndarray:
+        """bool ``[R]``: carriers forced to deploy now (remaining valid stages == passengers left)."""
+        return self.can_deploy & (self.stages_left <= self.passengers_left)
+
+
+def make_view(
+    problem: Problem, stage: int, x: np.ndarray, deployed: np.ndarray
+) -> StageView:
+    """The causal view of stage ``stage`` given the realised observations ``x`` (NaN = ∅).
+
+    Only ``x[:, :stage + 1]`` is read; later columns are masked, so a planner cannot peek.
+    """
+    n_stages = problem.n_stages
+    seen = np.full(problem.valid.shape, np.nan)
+    seen[:, : stage + 1] = x[:, : stage + 1]
+    valid = problem.valid.copy()
+    valid[:, : stage + 1] &= ~np.isnan(seen[:, : stage + 1])
+    past = np.zeros(problem.valid.shape, dtype=bool)
+    past[:, :stage] = np.asarray(deployed, dtype=bool)[:, :stage]
+    assert 0 <= stage < n_stages
+    return StageView(problem, stage, seen, valid, past)
+
+
+class Planner(Protocol):
+    """An online planner: decides which carriers deploy at the current stage."""
+
+    name: str
+
+    def decide(self, view: StageView, rng: np.random.Generator) -> np.ndarray:
+        """Return bool ``[R]``: carriers deploying at ``view.stage``. Must respect
+        ``view.can_deploy`` and ``view.must_deploy``."""
+        ...
+
+
+def stage_rng(seed: int, stage: int) -> np.random.Generator:
+    """The planner's random stream for one stage of a mission with root seed ``seed``.
+
+    Derived from (seed, stage) alone, so an offline run, the distributed coordinator and a
+    coordinator recovered after a crash draw the same numbers at the same stage.
+    """
+    return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(int(stage),)))
+
+
+def enforce(view: StageView, decision: np.ndarray) -> np.ndarray:
+    """Check a planner's decision against the feasibility rules; return it as bool ``[R]``.
+
+    Raises:
+        AssertionError: when a planner breaks a rule (a bug in that planner).
+    """
+    decision = np.asarray(decision, dtype=bool).reshape(-1)
+    assert decision.shape == (view.problem.n_carriers,), decision.shape
+    bad = decision & ~view.can_deploy
+    assert not bad.any(), f"stage {view.stage}: carriers {np.flatnonzero(bad).tolist()} cannot deploy"
+    missing = view.must_deploy & ~decision
+    assert not missing.any(), f"stage {view.stage}: carriers {np.flatnonzero(missing).tolist()} must deploy"
+    return decision
+
+
+@dataclass(frozen=True)
+class OnlineResult:
+    """Outcome of one online run.
+
+    Attributes:
+        deployed: bool ``[R, N]``.
+        reward: normalised total reward with the penalty rule.
+        features: raw total (sum of x / p).
+        decision_ms: wall time of each stage's decision, milliseconds.
+    """
+
+    deployed: np.ndarray
+    reward: float
+    features: float
+    decision_ms: tuple[float, ...]
+
+
+def run_online(problem: Problem, x: np.ndarray, planner: Planner, seed: int) -> OnlineResult:
+    """Run ``planner`` stage by stage over realised observations ``x`` (NaN = ∅).
+
+    Stage j's random stream is :func:`stage_rng` ``(seed, j)``.
+    """
+    import time
+
+    x = np.asarray(x, dtype=float)
+    if x.shape != problem.valid.shape:
+        raise ValueError(f"observations shape {x.shape} != problem shape {problem.valid.shape}")
+    x = np.where(problem.valid, x, np.nan)
+    deployed = np.zeros(problem.valid.shape, dtype=bool)
+    times = []
+    for j in range(problem.n_stages):
+        view = make_view(problem, j, x, deployed)
+        t0 = time.perf_counter()
+        decision = planner.decide(view, stage_rng(seed, j))
+        times.append((time.perf_counter() - t0) * 1e3)
+        deployed[:, j] = enforce(view, decision)
+    reward, features = evaluate(problem, deployed, x)
+    return OnlineResult(deployed, reward, features, tuple(times))
+
+
+def sample_observations(problem: Problem, rng: np.random.Generator) -> np.ndarray:
+    """Draw ``x[R, N]`` from the prior at scheduled stages; NaN elsewhere."""
+    x = np.asarray(problem.prior.rvs(size=problem.valid.shape, random_state=rng), dtype=float)
+    return np.where(problem.valid, x, np.nan)

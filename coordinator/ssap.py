@@ -1,0 +1,110 @@
+"""Sequential Stochastic Assignment (Derman, Lieberman & Ross 1972) thresholds for one carrier.
+
+A carrier with ``n`` valid stages remaining (the current one included) and ``d`` passengers left
+deploys at the current stage iff its observation ``x`` exceeds ``a[n, n - d]``, where
+
+    a[n, 0] = -inf,   a[n, n] = +inf,
+    a[n + 1, i] = E[ min(max(X, a[n, i - 1]), a[n, i]) ]   for i = 1..n.
+
+``a[n + 1, 1..n]`` are also the expected values of the slots: the optimal expected total of a
+carrier with ``n`` stages and ``d`` passengers is the sum of the ``d`` largest of ``a[n + 1, 1..n]``.
+Exact for discrete priors (the expectation is a finite sum over the support, truncated where the
+tail mass is below 1e-15); continuous priors use numerical integration.
+"""
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+
+#: Tail mass ignored when enumerating an unbounded discrete support.
+TAIL = 1e-15
+
+
+def _is_discrete(prior) -> bool:
+    return hasattr(prior.dist, "pmf")
+
+
+def _support_grid(prior) -> tuple[np.ndarray, np.ndarray]:
+    """Support points and their probabilities of a discrete prior (truncated at mass TAIL)."""
+    lo, hi = prior.support()
+    if not np.isfinite(lo):
+        lo = prior.ppf(TAIL)
+    if not np.isfinite(hi):
+        hi = prior.ppf(1.0 - TAIL)
+    points = np.arange(lo, hi + 1, dtype=float)
+    return points, prior.pmf(points)
+
+
+def _clipped_mean_factory(prior):
+    """A function (a, b) -> E[min(max(X, a), b)] for a <= b (either may be infinite)."""
+    if _is_discrete(prior):
+        points, mass = _support_grid(prior)
+
+        def clipped_mean(a: float, b: float) -> float:
+            return float(np.dot(mass, np.clip(points, a, b)))
+
+        return clipped_mean
+
+    lo, hi = prior.support()
+
+    def clipped_mean(a: float, b: float) -> float:
+        lower = max(a, lo)
+        upper = min(b, hi)
+        total = 0.0
+        if np.isfinite(a):
+            total += a * prior.cdf(a)
+        if np.isfinite(b):
+            total += b * prior.sf(b)
+        if lower < upper:
+            total += prior.expect(lambda v: v, lb=lower, ub=upper)
+        return float(total)
+
+    return clipped_mean
+
+
+def thresholds(prior, n_max: int) -> np.ndarray:
+    """DLR threshold table.
+
+    Args:
+        prior: frozen scipy.stats distribution of an observation.
+        n_max: largest number of remaining stages needed.
+
+    Returns:
+        float ``[n_max + 2, n_max + 2]`` table ``a`` with ``a[n, i]`` for ``0 <= i <= n <= n_max + 1``
+        (NaN above the diagonal). Row ``n_max + 1`` holds the slot values for ``n_max`` stages.
+    """
+    size = n_max + 2
+    a = np.full((size, size), np.nan)
+    clipped_mean = _clipped_mean_factory(prior)
+    for n in range(1, size):
+        a[n, 0] = -np.inf
+        a[n, n] = np.inf
+        if n >= 2:
+            for i in range(1, n):
+                a[n, i] = clipped_mean(a[n - 1, i - 1], a[n - 1, i])
+    return a
+
+
+def decide(table: np.ndarray, x: float, stages_left: int, passengers_left: int) -> bool:
+    """Deploy now? ``stages_left`` counts the current stage; forced when it is <= passengers left."""
+    if passengers_left <= 0 or stages_left <= 0:
+        return False
+    if stages_left <= passengers_left:
+        return True
+    return bool(x > table[stages_left, stages_left - passengers_left])
+
+
+def expected_value(table: np.ndarray, stages_left: int, passengers_left: int) -> float:
+    """Optimal expected total of one carrier (raw units) with the given stages and passengers."""
+    d = min(passengers_left, stages_left)
+    if d <= 0:
+        return 0.0
+    slots = table[stages_left + 1, 1 : stages_left + 1]
+    return float(slots[stages_left - d :].sum())
+
+
+@functools.lru_cache(maxsize=128)
+def table_for(problem) -> np.ndarray:
+    """Threshold table for a :class:`coordinator.problem.Problem` (cached per instance)."""
+    return thresholds(problem.prior, problem.n_stages)
