@@ -1,0 +1,252 @@
+"""mission.db: the coordinator's durable, append-only mission log (SQLite, WAL).
+
+Every input the coordinator acts on is committed here before anything that depends on it is
+published: observations and liveliness events before the stage's decision, the decision before it
+is sent. A restarted coordinator replays the log (:meth:`MissionStore.replay`) and continues from
+the first undecided stage, drawing the same planner random numbers (planners are stateless).
+
+Tables:
+
+* ``meta(key, value)`` — mission identity (mission id, scenario name and hash, seed, planner).
+* ``events(seq, wall_time, kind, carrier, stage, payload)`` — every event in arrival order;
+  append-only (triggers forbid UPDATE and DELETE). ``payload`` is JSON.
+* ``observations(carrier, stage, ...)``, ``decisions(stage, ...)``, ``confirmations(carrier,
+  stage, ...)`` — typed copies of the first event of each kind per key; their primary keys make a
+  second decision for a stage, or a second observation per carrier and stage, impossible.
+"""
+from __future__ import annotations
+
+import json
+import sqlite3
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+SCHEMA_VERSION = 1
+
+_SCHEMA = """
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS events (
+    seq INTEGER PRIMARY KEY AUTOINCREMENT,
+    wall_time REAL NOT NULL,          -- seconds since the epoch
+    kind TEXT NOT NULL,               -- see EVENT_KINDS
+    carrier TEXT,                     -- carrier id or NULL
+    stage INTEGER,                    -- stage index or NULL
+    payload TEXT NOT NULL             -- JSON object
+);
+CREATE TRIGGER IF NOT EXISTS events_no_update BEFORE UPDATE ON events
+    BEGIN SELECT RAISE(ABORT, 'events is append-only'); END;
+CREATE TRIGGER IF NOT EXISTS events_no_delete BEFORE DELETE ON events
+    BEGIN SELECT RAISE(ABORT, 'events is append-only'); END;
+CREATE TABLE IF NOT EXISTS observations (
+    carrier TEXT NOT NULL, stage INTEGER NOT NULL,
+    x INTEGER,                        -- features sensed; NULL = ∅ (reported or missing)
+    missing INTEGER NOT NULL,         -- 1 if no observation arrived in time (coordinator's ∅)
+    pos_x REAL, pos_y REAL,           -- metres
+    seq INTEGER NOT NULL,
+    PRIMARY KEY (carrier, stage)
+);
+CREATE TABLE IF NOT EXISTS decisions (
+    stage INTEGER PRIMARY KEY,
+    deploy TEXT NOT NULL,             -- JSON array of carrier ids
+    planning_ms REAL NOT NULL,
+    seq INTEGER NOT NULL
+);
+CREATE TABLE IF NOT EXISTS confirmations (
+    carrier TEXT NOT NULL, stage INTEGER NOT NULL,
+    deployed INTEGER NOT NULL, status TEXT NOT NULL,
+    pos_x REAL, pos_y REAL,
+    latency_ms REAL,                  -- decision publication to confirmation, coordinator clock
+    seq INTEGER NOT NULL,
+    PRIMARY KEY (carrier, stage)
+);
+"""
+
+#: Event kinds written to ``events``.
+EVENT_KINDS = (
+    "open", "hello", "alive", "dead", "observation", "missing", "decision", "published",
+    "confirm", "bye", "rejected", "end",
+)
+
+
+class StoreMismatch(RuntimeError):
+    """The existing mission.db belongs to another mission (different scenario, seed or planner)."""
+
+
+@dataclass
+class MissionRecord:
+    """Everything :meth:`MissionStore.replay` recovers.
+
+    Attributes:
+        observations: ``{(carrier, stage): x or None}``; None = ∅ (reported or missing).
+        positions: ``{(carrier, stage): (x, y)}`` metres, where reported.
+        decisions: ``{stage: (deploy ids tuple, planning_ms)}``.
+        confirmations: ``{(carrier, stage): (deployed, status)}``.
+        carriers_info: ``{carrier: {"pid": int, "host": str}}`` from the last Hello.
+        ended: an ``end`` event was written.
+        events: number of events.
+    """
+
+    observations: dict = field(default_factory=dict)
+    positions: dict = field(default_factory=dict)
+    decisions: dict = field(default_factory=dict)
+    confirmations: dict = field(default_factory=dict)
+    carriers_info: dict = field(default_factory=dict)
+    ended: bool = False
+    events: int = 0
+
+    @property
+    def next_stage(self) -> int:
+        """First stage without a decision (stages are decided in order)."""
+        j = 0
+        while j in self.decisions:
+            j += 1
+        return j
+
+
+class MissionStore:
+    """Append-only mission log. Not thread-safe: use it from the coordinator's main thread only."""
+
+    def __init__(self, path: str | Path, meta: dict, synchronous: str = "FULL"):
+        """Open or create ``path``.
+
+        Args:
+            path: the database file (created with its parent directory if missing).
+            meta: the mission identity (JSON-able values). An existing file must hold the same.
+            synchronous: SQLite ``synchronous`` level; FULL survives power loss, NORMAL a process crash.
+
+        Raises:
+            StoreMismatch: when the file holds another mission.
+        """
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.existed = self.path.exists() and self.path.stat().st_size > 0
+        self.db = sqlite3.connect(str(self.path), isolation_level=None, timeout=10.0)
+        self.db.execute("PRAGMA journal_mode=WAL")
+        self.db.execute(f"PRAGMA synchronous={synchronous}")
+        self.db.executescript(_SCHEMA)
+        wanted = {k: json.dumps(v, sort_keys=True) for k, v in dict(meta, schema=SCHEMA_VERSION).items()}
+        stored = dict(self.db.execute("SELECT key, value FROM meta").fetchall())
+        if stored:
+            for key, value in wanted.items():
+                if key in stored and stored[key] != value:
+                    self.db.close()
+                    raise StoreMismatch(
+                        f"{self.path}: holds another mission ({key} is {stored[key]}, this run has {value}); "
+                        "use another --out directory"
+                    )
+        with self._tx():
+            self.db.executemany("INSERT OR IGNORE INTO meta (key, value) VALUES (?, ?)", wanted.items())
+            self._event("open", None, None, {"resumed": bool(stored)})
+
+    # ------------------------------------------------------------------ writing
+    def _tx(self):
+        db = self.db
+
+        class _Tx:
+            def __enter__(self):
+                db.execute("BEGIN IMMEDIATE")
+
+            def __exit__(self, kind, value, tb):
+                db.execute("COMMIT" if kind is None else "ROLLBACK")
+                return False
+
+        return _Tx()
+
+    def _event(self, kind: str, carrier, stage, payload: dict) -> int:
+        assert kind in EVENT_KINDS, kind
+        cur = self.db.execute(
+            "INSERT INTO events (wall_time, kind, carrier, stage, payload) VALUES (?, ?, ?, ?, ?)",
+            (time.time(), kind, carrier, stage, json.dumps(payload, sort_keys=True)),
+        )
+        return cur.lastrowid
+
+    def event(self, kind: str, carrier: str | None = None, stage: int | None = None, **payload) -> None:
+        """Append one event (committed on return)."""
+        with self._tx():
+            self._event(kind, carrier, stage, payload)
+
+    def observation(self, carrier: str, stage: int, x: int | None, position, **payload) -> bool:
+        """Record a carrier's observation; returns False (and records nothing) for a repeat."""
+        with self._tx():
+            if self.db.execute(
+                "SELECT 1 FROM observations WHERE carrier=? AND stage=?", (carrier, stage)
+            ).fetchone():
+                return False
+            seq = self._event("observation", carrier, stage, dict(payload, x=x, position=list(position)))
+            self.db.execute(
+                "INSERT INTO observations VALUES (?, ?, ?, 0, ?, ?, ?)",
+                (carrier, stage, x, float(position[0]), float(position[1]), seq),
+            )
+        return True
+
+    def missing(self, stage: int, carriers) -> None:
+        """Record that ``carriers`` sent no observation for ``stage`` in time (they are ∅)."""
+        with self._tx():
+            for cid in carriers:
+                seq = self._event("missing", cid, stage, {})
+                self.db.execute(
+                    "INSERT OR IGNORE INTO observations VALUES (?, ?, NULL, 1, NULL, NULL, ?)", (cid, stage, seq)
+                )
+
+    def decision(self, stage: int, deploy, planning_ms: float, **payload) -> None:
+        """Record the decision of ``stage``. Raises sqlite3.IntegrityError if it was decided before."""
+        with self._tx():
+            seq = self._event("decision", None, stage, dict(payload, deploy=list(deploy), planning_ms=planning_ms))
+            self.db.execute(
+                "INSERT INTO decisions VALUES (?, ?, ?, ?)", (stage, json.dumps(list(deploy)), planning_ms, seq)
+            )
+
+    def confirmation(self, carrier: str, stage: int, deployed: bool, status: str, position,
+                     latency_ms: float | None) -> bool:
+        """Record a carrier's Confirm; returns False for a repeat (the first one stands)."""
+        with self._tx():
+            if self.db.execute(
+                "SELECT 1 FROM confirmations WHERE carrier=? AND stage=?", (carrier, stage)
+            ).fetchone():
+                return False
+            seq = self._event("confirm", carrier, stage, {
+                "deployed": deployed, "status": status, "position": list(position), "latency_ms": latency_ms,
+            })
+            self.db.execute(
+                "INSERT INTO confirmations VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                (carrier, stage, int(deployed), status, float(position[0]), float(position[1]), latency_ms, seq),
+            )
+        return True
+
+    # ------------------------------------------------------------------ reading
+    def replay(self) -> MissionRecord:
+        """Rebuild the mission's state from the log."""
+        rec = MissionRecord()
+        for cid, stage, x, missing, px, py in self.db.execute(
+            "SELECT carrier, stage, x, missing, pos_x, pos_y FROM observations"
+        ):
+            rec.observations[(cid, stage)] = None if missing or x is None else int(x)
+            if px is not None:
+                rec.positions[(cid, stage)] = (px, py)
+        for stage, deploy, ms in self.db.execute("SELECT stage, deploy, planning_ms FROM decisions"):
+            rec.decisions[stage] = (tuple(json.loads(deploy)), ms)
+        for cid, stage, deployed, status in self.db.execute(
+            "SELECT carrier, stage, deployed, status FROM confirmations"
+        ):
+            rec.confirmations[(cid, stage)] = (bool(deployed), status)
+        for cid, payload in self.db.execute(
+            "SELECT carrier, payload FROM events WHERE kind='hello' ORDER BY seq"
+        ):
+            info = json.loads(payload)
+            rec.carriers_info[cid] = {"pid": info.get("pid"), "host": info.get("host")}
+        rec.ended = self.db.execute("SELECT 1 FROM events WHERE kind='end'").fetchone() is not None
+        rec.events = self.db.execute("SELECT COUNT(*) FROM events").fetchone()[0]
+        return rec
+
+    def latencies_ms(self) -> list[float]:
+        """Decision-to-confirmation round trips recorded, milliseconds."""
+        return [r[0] for r in self.db.execute(
+            "SELECT latency_ms FROM confirmations WHERE latency_ms IS NOT NULL ORDER BY seq"
+        )]
+
+    def close(self) -> None:
+        try:
+            self.db.close()
+        except Exception:
+            pass

@@ -1,0 +1,97 @@
+"""Key expressions of the fleet protocol: one prefix per mission, one subtree per publisher.
+
+Layout (``<m>`` = mission id, ``<id>`` = carrier id)::
+
+    marsupial/<m>/carrier/<id>/hello      carrier -> coordinator   Hello (put)
+    marsupial/<m>/carrier/<id>/obs        carrier -> coordinator   Observation (put)
+    marsupial/<m>/carrier/<id>/confirm    carrier -> coordinator   Confirm (put)
+    marsupial/<m>/carrier/<id>/bye        carrier -> coordinator   Bye (put)
+    marsupial/<m>/carrier/<id>/alive      liveliness token of a carrier
+    marsupial/<m>/coordinator/decision    coordinator -> carriers  Decision (put)
+    marsupial/<m>/coordinator/end         coordinator -> carriers  End (put)
+    marsupial/<m>/coordinator/state       queryable, replies State
+    marsupial/<m>/coordinator/alive       liveliness token of the coordinator
+
+Invariant: everything a carrier publishes (puts, liveliness token) lies under
+``marsupial/<m>/carrier/<id>/**`` and everything the coordinator publishes under
+``marsupial/<m>/coordinator/**``, so an access-control rule per subtree is enough.
+"""
+from __future__ import annotations
+
+import re
+
+ROOT = "marsupial"
+
+#: Mission and carrier ids are single key-expression chunks: no '/', wildcards or '$'.
+ID_PATTERN = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}$")
+
+#: The message kinds a carrier publishes under its own subtree.
+CARRIER_TOPICS = ("hello", "obs", "confirm", "bye")
+
+
+def check_id(value: str, what: str = "id") -> str:
+    """Return ``value`` if it is a valid mission or carrier id, else raise ValueError."""
+    if not isinstance(value, str) or not ID_PATTERN.match(value):
+        raise ValueError(
+            f"{what} must match {ID_PATTERN.pattern} (letters, digits, '_', '.', '-'), found {value!r}"
+        )
+    return value
+
+
+def mission_id_from_name(name: str) -> str:
+    """A valid mission id derived from a free-form scenario name."""
+    cleaned = re.sub(r"[^A-Za-z0-9_.-]+", "-", str(name)).strip("-.") or "mission"
+    if not re.match(r"[A-Za-z0-9_]", cleaned[0]):
+        cleaned = "m" + cleaned
+    return cleaned[:64]
+
+
+def prefix(mission: str) -> str:
+    return f"{ROOT}/{check_id(mission, 'mission')}"
+
+
+def carrier_key(mission: str, carrier: str, topic: str) -> str:
+    """Key of one carrier topic (``hello``, ``obs``, ``confirm``, ``bye``)."""
+    assert topic in CARRIER_TOPICS, topic
+    return f"{prefix(mission)}/carrier/{check_id(carrier, 'carrier')}/{topic}"
+
+
+def carrier_topic_pattern(mission: str, topic: str) -> str:
+    """Subscription pattern for one topic of every carrier."""
+    assert topic in CARRIER_TOPICS, topic
+    return f"{prefix(mission)}/carrier/*/{topic}"
+
+
+def carrier_alive(mission: str, carrier: str) -> str:
+    return f"{prefix(mission)}/carrier/{check_id(carrier, 'carrier')}/alive"
+
+
+def carrier_alive_pattern(mission: str) -> str:
+    return f"{prefix(mission)}/carrier/*/alive"
+
+
+def decision_key(mission: str) -> str:
+    return f"{prefix(mission)}/coordinator/decision"
+
+
+def end_key(mission: str) -> str:
+    return f"{prefix(mission)}/coordinator/end"
+
+
+def state_key(mission: str) -> str:
+    return f"{prefix(mission)}/coordinator/state"
+
+
+def coordinator_alive(mission: str) -> str:
+    return f"{prefix(mission)}/coordinator/alive"
+
+
+def parse_carrier_key(mission: str, key: str) -> tuple[str, str] | None:
+    """``(carrier id, topic)`` of a key under ``marsupial/<m>/carrier/``, or None if it is not one."""
+    head = f"{prefix(mission)}/carrier/"
+    if not key.startswith(head):
+        return None
+    rest = key[len(head):].split("/")
+    if len(rest) != 2 or not ID_PATTERN.match(rest[0]):
+        return None
+    return rest[0], rest[1]

@@ -1,0 +1,453 @@
+"""Every message of the fleet protocol, with a versioned msgpack codec and strict validation.
+
+A message on the wire is a msgpack map ``{"v": 1, "type": "<kind>", "mission": "<id>", ...}``.
+:func:`encode` turns a message dataclass into bytes; :func:`decode` turns bytes back into exactly one
+dataclass or raises :class:`ProtocolError` with a short ``reason`` code (used to count rejections)
+and a human detail. Decoding never raises anything else, whatever the bytes.
+
+Field types, units and meaning are documented on each dataclass and in docs/protocol.md.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+from typing import Any, Callable
+
+import msgpack
+
+from .keys import ID_PATTERN
+
+#: The protocol version this code speaks; messages with any other ``v`` are rejected.
+PROTOCOL_VERSION = 1
+
+#: Largest accepted payload, bytes. Larger payloads are rejected before parsing.
+MAX_PAYLOAD_BYTES = 64 * 1024
+
+#: Bounds that keep a hostile message from costing memory or time.
+MAX_STAGES = 10_000
+MAX_CARRIERS = 1_024
+MAX_TRAIL = 512
+MAX_COORD = 1e7  # metres
+MAX_TEXT = 200
+
+#: Every reason code :class:`ProtocolError` can carry (plus node-level ones in docs/protocol.md).
+REASONS = (
+    "oversized", "malformed", "not-a-map", "version", "unknown-type", "missing-field",
+    "unknown-field", "wrong-type", "out-of-range",
+)
+
+
+class ProtocolError(ValueError):
+    """A message that does not follow the protocol.
+
+    Attributes:
+        reason: short code, one of :data:`REASONS` or a node-level code (``wrong-mission``,
+            ``key-mismatch``, ``unknown-carrier``, ``stale-stage``, ``duplicate``, ...).
+        detail: one human-readable line.
+    """
+
+    def __init__(self, reason: str, detail: str = ""):
+        super().__init__(f"{reason}: {detail}" if detail else reason)
+        self.reason = reason
+        self.detail = detail
+
+
+# --------------------------------------------------------------------------- field validators
+# A validator takes (value, field name) and returns the normalised value (lists become tuples)
+# or raises ProtocolError.
+
+Validator = Callable[[Any, str], Any]
+
+
+def _int(lo: int, hi: int) -> Validator:
+    def check(value, name):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ProtocolError("wrong-type", f"{name}: expected integer, found {type(value).__name__}")
+        if not lo <= value <= hi:
+            raise ProtocolError("out-of-range", f"{name}: expected {lo}..{hi}, found {value}")
+        return value
+    return check
+
+
+def _float(lo: float, hi: float) -> Validator:
+    def check(value, name):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ProtocolError("wrong-type", f"{name}: expected number, found {type(value).__name__}")
+        value = float(value)
+        if not math.isfinite(value) or not lo <= value <= hi:
+            raise ProtocolError("out-of-range", f"{name}: expected finite {lo}..{hi}, found {value}")
+        return value
+    return check
+
+
+def _bool(value, name):
+    if not isinstance(value, bool):
+        raise ProtocolError("wrong-type", f"{name}: expected boolean, found {type(value).__name__}")
+    return value
+
+
+def _text(max_len: int = MAX_TEXT) -> Validator:
+    def check(value, name):
+        if not isinstance(value, str):
+            raise ProtocolError("wrong-type", f"{name}: expected string, found {type(value).__name__}")
+        if len(value) > max_len:
+            raise ProtocolError("out-of-range", f"{name}: longer than {max_len} characters")
+        return value
+    return check
+
+
+def _ident(value, name):
+    _text(64)(value, name)
+    if not ID_PATTERN.match(value):
+        raise ProtocolError("out-of-range", f"{name}: not a valid id: {value[:40]!r}")
+    return value
+
+
+def _optional(inner: Validator) -> Validator:
+    def check(value, name):
+        return None if value is None else inner(value, name)
+    return check
+
+
+def _list(inner: Validator, max_len: int) -> Validator:
+    def check(value, name):
+        if not isinstance(value, (list, tuple)):
+            raise ProtocolError("wrong-type", f"{name}: expected array, found {type(value).__name__}")
+        if len(value) > max_len:
+            raise ProtocolError("out-of-range", f"{name}: more than {max_len} items")
+        return tuple(inner(item, f"{name}[{k}]") for k, item in enumerate(value))
+    return check
+
+
+def _point(value, name):
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        raise ProtocolError("wrong-type", f"{name}: expected [x, y]")
+    coord = _float(-MAX_COORD, MAX_COORD)
+    return (coord(value[0], f"{name}[0]"), coord(value[1], f"{name}[1]"))
+
+
+def _unique_ids(value, name):
+    ids = _list(_ident, MAX_CARRIERS)(value, name)
+    if len(set(ids)) != len(ids):
+        raise ProtocolError("out-of-range", f"{name}: repeated carrier id")
+    return ids
+
+
+def _counts(value, name):
+    if not isinstance(value, dict):
+        raise ProtocolError("wrong-type", f"{name}: expected map, found {type(value).__name__}")
+    if len(value) > 64:
+        raise ProtocolError("out-of-range", f"{name}: more than 64 entries")
+    return tuple(sorted(
+        (_text(40)(k, f"{name} key"), _int(0, 2**53)(v, f"{name}[{k}]")) for k, v in value.items()
+    ))
+
+
+_STAGE = _int(0, MAX_STAGES - 1)
+_STAGE_COUNT = _int(0, MAX_STAGES)
+_PASSENGERS = _int(0, 1_000)
+_SECONDS = _float(-1e9, 1e9)
+_MS = _float(0.0, 1e9)
+
+
+def _spec(validator: Validator, as_map: bool = False):
+    """A dataclass field carrying its wire validator in metadata; ``as_map``: a tuple of sorted
+    (key, value) pairs in Python, a map on the wire."""
+    return field(metadata={"check": validator, "as_map": as_map})
+
+
+# --------------------------------------------------------------------------- messages
+
+@dataclass(frozen=True)
+class Hello:
+    """A carrier announces itself (on start and on re-join). carrier -> ``carrier/<id>/hello``.
+
+    Attributes:
+        carrier: carrier id (must equal the id in the key).
+        pid: OS process id of the carrier process.
+        host: host name of the carrier's machine.
+        passengers_left: passengers still on board.
+        next_stage: the first stage this carrier will observe.
+    """
+
+    mission: str = _spec(_ident)
+    carrier: str = _spec(_ident)
+    pid: int = _spec(_int(0, 2**31))
+    host: str = _spec(_text(255))
+    passengers_left: int = _spec(_PASSENGERS)
+    next_stage: int = _spec(_STAGE_COUNT)
+    v: int = PROTOCOL_VERSION
+    TYPE = "hello"
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What a carrier sensed at one stage time. carrier -> ``carrier/<id>/obs``.
+
+    Attributes:
+        carrier: carrier id (must equal the id in the key).
+        stage: stage index j, 0-based.
+        t: simulated mission time of the stage, seconds.
+        x: features sensed (count), or None (∅) when the carrier is not scheduled at this stage.
+        position: carrier position [x, y] at the stage time, metres.
+        passengers_left: passengers still on board before this stage's decision.
+        trail: positions [x, y] (metres) the carrier drove through since its previous observation,
+            oldest first, at most 512 points (for maps only).
+    """
+
+    mission: str = _spec(_ident)
+    carrier: str = _spec(_ident)
+    stage: int = _spec(_STAGE)
+    t: float = _spec(_SECONDS)
+    x: int | None = _spec(_optional(_int(0, 10**9)))
+    position: tuple[float, float] = _spec(_point)
+    passengers_left: int = _spec(_PASSENGERS)
+    trail: tuple[tuple[float, float], ...] = _spec(_list(_point, MAX_TRAIL))
+    v: int = PROTOCOL_VERSION
+    TYPE = "obs"
+
+
+@dataclass(frozen=True)
+class Decision:
+    """The joint decision of one stage. coordinator -> ``coordinator/decision``.
+
+    Attributes:
+        stage: stage index j.
+        t: simulated mission time of the stage, seconds.
+        deploy: ids of the carriers that deploy one passenger now (sorted, no repeats).
+        planning_ms: wall time the planner took, milliseconds.
+    """
+
+    mission: str = _spec(_ident)
+    stage: int = _spec(_STAGE)
+    t: float = _spec(_SECONDS)
+    deploy: tuple[str, ...] = _spec(_unique_ids)
+    planning_ms: float = _spec(_MS)
+    v: int = PROTOCOL_VERSION
+    TYPE = "decision"
+
+
+#: Confirm.status values.
+CONFIRM_STATUSES = ("deployed", "idle", "late", "refused", "already")
+
+
+@dataclass(frozen=True)
+class Confirm:
+    """A carrier's answer to one stage's decision. carrier -> ``carrier/<id>/confirm``.
+
+    Attributes:
+        carrier: carrier id (must equal the id in the key).
+        stage: the decision's stage.
+        deployed: True if a passenger was deployed at this stage because of this decision.
+        status: ``deployed``; ``idle`` (not selected); ``late`` (decision arrived after the carrier
+            had moved on: not deployed); ``refused`` (selected but no passenger left or not at the
+            stage: not deployed); ``already`` (a repeated decision for a stage handled before; the
+            first handling stands and ``deployed`` repeats its outcome).
+        position: where the passenger was released (or the carrier's position), metres.
+        passengers_left: passengers on board after handling the decision.
+    """
+
+    mission: str = _spec(_ident)
+    carrier: str = _spec(_ident)
+    stage: int = _spec(_STAGE)
+    deployed: bool = _spec(_bool)
+    status: str = _spec(_text(16))
+    position: tuple[float, float] = _spec(_point)
+    passengers_left: int = _spec(_PASSENGERS)
+    v: int = PROTOCOL_VERSION
+    TYPE = "confirm"
+
+    def __post_init__(self):
+        if self.status not in CONFIRM_STATUSES:
+            raise ProtocolError("out-of-range", f"status: expected one of {CONFIRM_STATUSES}, found {self.status!r}")
+
+
+@dataclass(frozen=True)
+class End:
+    """The mission is over; carriers say Bye and exit. coordinator -> ``coordinator/end``.
+
+    Attributes:
+        stages: number of stages decided.
+        reason: ``complete`` or ``stopped``.
+    """
+
+    mission: str = _spec(_ident)
+    stages: int = _spec(_STAGE_COUNT)
+    reason: str = _spec(_text(40))
+    v: int = PROTOCOL_VERSION
+    TYPE = "end"
+
+
+@dataclass(frozen=True)
+class Bye:
+    """A carrier's last message before it exits. carrier -> ``carrier/<id>/bye``.
+
+    Attributes:
+        carrier: carrier id.
+        deployments: stages at which this carrier deployed, ascending.
+        rejected: per reason, how many incoming messages this carrier rejected.
+        reason: why it exits: ``end``, ``coordinator-lost``, ``stopped``, ``finished``.
+    """
+
+    mission: str = _spec(_ident)
+    carrier: str = _spec(_ident)
+    deployments: tuple[int, ...] = _spec(_list(_STAGE, MAX_STAGES))
+    rejected: tuple[tuple[str, int], ...] = _spec(_counts, as_map=True)
+    reason: str = _spec(_text(40))
+    v: int = PROTOCOL_VERSION
+    TYPE = "bye"
+
+
+@dataclass(frozen=True)
+class CarrierState:
+    """One carrier's part of :class:`State` (a nested map, not a message of its own).
+
+    Attributes:
+        passengers_left: passengers not yet deployed according to the mission log.
+        deployments: stages with a deployment decided for this carrier and not refuted by a Confirm.
+        live: whether its liveliness token is currently present.
+    """
+
+    passengers_left: int = _spec(_PASSENGERS)
+    deployments: tuple[int, ...] = _spec(_list(_STAGE, MAX_STAGES))
+    live: bool = _spec(_bool)
+
+
+@dataclass(frozen=True)
+class State:
+    """The mission state, the reply of the ``coordinator/state`` queryable.
+
+    Attributes:
+        next_stage: the first stage not decided yet (== stages when all are decided).
+        stages: N, the number of stages of the mission.
+        ended: True once End was published.
+        carriers: per carrier id, its :class:`CarrierState` (sorted by id).
+        last_decision: the most recent Decision (None before stage 0 is decided).
+    """
+
+    mission: str = _spec(_ident)
+    next_stage: int = _spec(_STAGE_COUNT)
+    stages: int = _spec(_STAGE_COUNT)
+    ended: bool = _spec(_bool)
+    carriers: tuple[tuple[str, CarrierState], ...] = _spec(lambda v, n: _carrier_states(v, n), as_map=True)
+    last_decision: Decision | None = _spec(lambda v, n: None if v is None else _nested(Decision, v, n))
+    v: int = PROTOCOL_VERSION
+    TYPE = "state"
+
+    def carrier(self, cid: str) -> CarrierState | None:
+        return dict(self.carriers).get(cid)
+
+
+MESSAGE_TYPES = {cls.TYPE: cls for cls in (Hello, Observation, Decision, Confirm, End, Bye, State)}
+
+
+# --------------------------------------------------------------------------- codec
+
+def _to_wire(value, as_map: bool = False):
+    """Dataclasses become maps (with ``type`` for messages); (key, value) pair tuples of fields
+    marked ``as_map`` become maps; other tuples become arrays."""
+    if hasattr(value, "__dataclass_fields__"):
+        out = {f.name: _to_wire(getattr(value, f.name), f.metadata.get("as_map", False)) for f in fields(value)}
+        if hasattr(type(value), "TYPE"):
+            out["type"] = type(value).TYPE
+        return out
+    if as_map:
+        return {k: _to_wire(v) for k, v in value}
+    if isinstance(value, (tuple, list)):
+        return [_to_wire(v) for v in value]
+    return value
+
+
+def encode(message) -> bytes:
+    """Serialise one message dataclass to msgpack bytes (validated on the way out).
+
+    Raises:
+        ProtocolError: if the message would not pass :func:`decode` (a bug in the sender).
+    """
+    data = msgpack.packb(_to_wire(message), use_bin_type=True)
+    if len(data) > MAX_PAYLOAD_BYTES:
+        raise ProtocolError("oversized", f"{len(data)} bytes > {MAX_PAYLOAD_BYTES}")
+    decode(data)  # what we send must pass our own receiver's checks
+    return data
+
+
+def _build(cls, data: dict, where: str):
+    names = {f.name for f in fields(cls)} - {"v"}
+    unknown = set(data) - names
+    if unknown:
+        raise ProtocolError("unknown-field", f"{where}: unexpected field {sorted(map(str, unknown))[0]!r}")
+    values = {}
+    for f in fields(cls):
+        if f.name == "v":
+            continue
+        if f.name not in data:
+            raise ProtocolError("missing-field", f"{where}: missing field {f.name!r}")
+        values[f.name] = f.metadata["check"](data[f.name], f"{where}.{f.name}")
+    return cls(**values)
+
+
+def _nested(cls, value, name):
+    if not isinstance(value, dict):
+        raise ProtocolError("wrong-type", f"{name}: expected map, found {type(value).__name__}")
+    data = dict(value)
+    if cls is not CarrierState:
+        if data.pop("v", PROTOCOL_VERSION) != PROTOCOL_VERSION or data.pop("type", cls.TYPE) != cls.TYPE:
+            raise ProtocolError("wrong-type", f"{name}: not a {cls.TYPE} message")
+    return _build(cls, data, name)
+
+
+def _carrier_states(value, name):
+    if not isinstance(value, dict):
+        raise ProtocolError("wrong-type", f"{name}: expected map, found {type(value).__name__}")
+    if len(value) > MAX_CARRIERS:
+        raise ProtocolError("out-of-range", f"{name}: more than {MAX_CARRIERS} carriers")
+    return tuple(sorted(
+        (_ident(k, f"{name} key"), _nested(CarrierState, v, f"{name}[{k}]")) for k, v in value.items()
+    ))
+
+
+def decode(data: bytes, expected: type | tuple[type, ...] | None = None):
+    """Parse and validate one message.
+
+    Args:
+        data: the payload bytes.
+        expected: message class(es) acceptable here; another valid type is rejected as
+            ``unknown-type``.
+
+    Returns:
+        A frozen message dataclass.
+
+    Raises:
+        ProtocolError: for any defect, with the reason code of the first one found.
+    """
+    if not isinstance(data, (bytes, bytearray, memoryview)):
+        raise ProtocolError("malformed", f"payload is {type(data).__name__}, not bytes")
+    if len(data) > MAX_PAYLOAD_BYTES:
+        raise ProtocolError("oversized", f"{len(data)} bytes > {MAX_PAYLOAD_BYTES}")
+    try:
+        raw = msgpack.unpackb(
+            bytes(data), raw=False, strict_map_key=True, use_list=True,
+        )
+    except Exception as exc:  # msgpack raises several exception types for bad input
+        raise ProtocolError("malformed", f"not msgpack: {type(exc).__name__}") from None
+    if not isinstance(raw, dict):
+        raise ProtocolError("not-a-map", f"top level is {type(raw).__name__}")
+    version = raw.pop("v", None)
+    if version is None:
+        raise ProtocolError("missing-field", "missing field 'v'")
+    if version != PROTOCOL_VERSION or isinstance(version, bool):
+        raise ProtocolError("version", f"unsupported protocol version {str(version)[:20]!r}, this is {PROTOCOL_VERSION}")
+    kind = raw.pop("type", None)
+    cls = MESSAGE_TYPES.get(kind) if isinstance(kind, str) else None
+    if cls is None:
+        raise ProtocolError("unknown-type", f"unknown message type {str(kind)[:40]!r}")
+    if expected is not None:
+        allowed = expected if isinstance(expected, tuple) else (expected,)
+        if cls not in allowed:
+            raise ProtocolError("unknown-type", f"a {kind} message is not accepted here")
+    try:
+        return _build(cls, raw, kind)
+    except ProtocolError:
+        raise
+    except Exception as exc:  # defensive: a validator bug must still not crash a node
+        raise ProtocolError("malformed", f"{kind}: {type(exc).__name__}") from None

@@ -1,0 +1,142 @@
+"""Zenoh configuration for fleet processes, following zenoh's own CLI conventions.
+
+Order of precedence (later wins): zenoh's defaults, then the fleet's defaults (multicast
+scouting off, unless the config file mentions ``multicast``), then ``--zenoh-config FILE.json5``,
+then the ``--mode``, ``--listen`` and ``--connect`` flags, which override the file's keys.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import threading
+from typing import Sequence
+
+import zenoh
+
+#: Zenoh endpoint syntax accepted on the command line, e.g. ``tcp/127.0.0.1:7447``.
+ENDPOINT_PATTERN = re.compile(r"^[a-z0-9]+/[^\s]+$")
+
+#: Default port when a coordinator is started alone without --listen (zenoh's usual port).
+DEFAULT_PORT = 7447
+
+
+class ConfigError(ValueError):
+    """A bad Zenoh setting from the user: one line naming the flag or file."""
+
+
+def check_endpoint(endpoint: str, flag: str) -> str:
+    if not isinstance(endpoint, str) or not ENDPOINT_PATTERN.match(endpoint):
+        raise ConfigError(f"{flag}: expected an endpoint like tcp/127.0.0.1:7447, found {endpoint!r}")
+    return endpoint
+
+
+def make_config(
+    mode: str | None = None,
+    listen: Sequence[str] = (),
+    connect: Sequence[str] = (),
+    config_file: str | None = None,
+) -> zenoh.Config:
+    """Build a ``zenoh.Config``.
+
+    Args:
+        mode: ``peer``, ``client`` or ``router``; None keeps the file's (or zenoh's) mode.
+        listen: endpoints to listen on (replace the file's ``listen/endpoints``).
+        connect: endpoints to connect to (replace the file's ``connect/endpoints``).
+        config_file: a zenoh JSON5 config file.
+
+    Raises:
+        ConfigError: with one line naming the bad flag or file.
+    """
+    multicast_from_file = False
+    if config_file:
+        if not os.path.isfile(config_file):
+            raise ConfigError(f"--zenoh-config: file not found: {config_file}")
+        try:
+            with open(config_file, encoding="utf-8") as handle:
+                multicast_from_file = "multicast" in handle.read()
+            conf = zenoh.Config.from_file(config_file)
+        except Exception as exc:
+            raise ConfigError(f"{config_file}: not a valid zenoh config: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
+    else:
+        conf = zenoh.Config()
+    if not multicast_from_file:
+        conf.insert_json5("scouting/multicast/enabled", "false")
+    if mode is not None:
+        if mode not in ("peer", "client", "router"):
+            raise ConfigError(f"--mode: expected peer, client or router, found {mode!r}")
+        conf.insert_json5("mode", json.dumps(mode))
+    try:
+        if listen:
+            conf.insert_json5("listen/endpoints", json.dumps([check_endpoint(e, "--listen") for e in listen]))
+        if connect:
+            conf.insert_json5("connect/endpoints", json.dumps([check_endpoint(e, "--connect") for e in connect]))
+    except ConfigError:
+        raise
+    except Exception as exc:
+        raise ConfigError(f"zenoh rejected the endpoints: {exc}") from None
+    return conf
+
+
+def open_session(conf: zenoh.Config, timeout_s: float = 10.0, retry_s: float = 0.2) -> "zenoh.Session":
+    """``zenoh.open``, retried until ``timeout_s`` (a client started before its peer keeps trying),
+    each attempt bounded.
+
+    Raises:
+        ConfigError: when no session could be opened in time (e.g. no coordinator at the endpoint).
+    """
+    import time
+
+    deadline = time.monotonic() + timeout_s
+    last = "timed out"
+    while True:
+        result: dict = {}
+
+        def target():
+            try:
+                result["session"] = zenoh.open(conf)
+            except Exception as exc:  # zenoh.ZError and friends
+                result["error"] = exc
+
+        thread = threading.Thread(target=target, daemon=True, name="zenoh-open")
+        thread.start()
+        thread.join(max(0.5, deadline - time.monotonic()))
+        if "session" in result:
+            return result["session"]
+        if "error" in result:
+            last = str(result["error"]).splitlines()[0].split(" at /")[0]
+        if time.monotonic() >= deadline:
+            raise ConfigError(f"could not open a zenoh session within {timeout_s:.0f} s: {last}")
+        time.sleep(retry_s)
+
+
+def close_session(session, entities: Sequence = (), timeout_s: float = 3.0) -> bool:
+    """Undeclare ``entities`` (subscribers, tokens, queryables) and close ``session``, bounded.
+
+    Returns:
+        True if everything closed within ``timeout_s`` seconds (else it is left to process exit).
+    """
+    def target():
+        for entity in entities:
+            try:
+                entity.undeclare()
+            except Exception:
+                pass
+        try:
+            session.close()
+        except Exception:
+            pass
+
+    thread = threading.Thread(target=target, daemon=True, name="zenoh-close")
+    thread.start()
+    thread.join(timeout_s)
+    return not thread.is_alive()
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    """A TCP port free right now on ``host`` (for tests and the one-host fleet)."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+        sock.bind((host, 0))
+        return sock.getsockname()[1]
