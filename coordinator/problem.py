@@ -35,6 +35,38 @@ def _conflict_matrix(n_carriers: int, n_stages: int, overlaps: Sequence[np.ndarr
     return conflict
 
 
+def normalisation_scale(prior, normalize: str | float | None = "q90") -> float:
+    """The number rewards are divided by for planning.
+
+    Args:
+        prior: frozen scipy.stats distribution.
+        normalize: ``"q90"`` (the prior's 90th percentile, the paper's choice), ``"qNN"`` (the
+            NN-th percentile, 0 < NN < 100), ``"none"`` / ``None`` (1.0) or a positive number.
+
+    Raises:
+        ValueError: unknown spelling, or a scale that is not a positive finite number (e.g. the
+            90th percentile of a prior concentrated at 0).
+    """
+    if normalize in ("none", None):
+        scale = 1.0
+    elif isinstance(normalize, str):
+        text = normalize.strip().lower()
+        try:
+            if not text.startswith("q"):
+                raise ValueError
+            quantile = float(text[1:]) / 100.0
+        except ValueError:
+            raise ValueError(f'normalize must be "q90", "qNN", "none" or a positive number, got {normalize!r}') from None
+        if not 0.0 < quantile < 1.0:
+            raise ValueError(f"normalize quantile must be strictly between q0 and q100, got {normalize!r}")
+        scale = float(prior.ppf(quantile))
+    else:
+        scale = float(normalize)
+    if not np.isfinite(scale) or scale <= 0:
+        raise ValueError(f"normalisation scale must be a positive number, got {scale} from normalize={normalize!r}")
+    return scale
+
+
 @dataclass(frozen=True, eq=False)
 class Problem:
     """One deployment problem instance (everything known before the mission starts).
@@ -71,16 +103,19 @@ class Problem:
             valid: bool ``[R, N]`` schedule validity.
             overlaps: groups of ``(carrier, stage)`` pairs.
             prior: frozen scipy.stats distribution; Poisson(3) when omitted.
-            normalize: ``"q90"`` (prior's 90th percentile), ``"none"`` (1.0) or a positive number.
+            normalize: see :func:`normalisation_scale`.
 
         Raises:
             ValueError: with a message naming what is wrong.
         """
-        valid = np.asarray(valid, dtype=bool)
+        valid = np.array(valid, dtype=bool)
         if valid.ndim != 2 or valid.shape[0] < 1 or valid.shape[1] < 1:
             raise ValueError(f"valid must be a non-empty [carriers, stages] array, got shape {valid.shape}")
         n_carriers, n_stages = valid.shape
-        d = np.broadcast_to(np.asarray(passengers, dtype=np.int64), (n_carriers,)).copy()
+        d = np.asarray(passengers, dtype=np.int64)
+        if d.ndim > 1 or (d.ndim == 1 and len(d) != n_carriers):
+            raise ValueError(f"passengers must be one number or one per carrier ({n_carriers}), got {d.tolist()}")
+        d = np.broadcast_to(d, (n_carriers,)).copy()
         if (d < 0).any():
             raise ValueError(f"passengers must be >= 0, got {d.tolist()}")
         groups = []
@@ -95,15 +130,12 @@ class Problem:
                 )
             groups.append(arr)
         prior = stats.poisson(3.0) if prior is None else prior
-        if normalize == "q90":
-            scale = float(prior.ppf(NORMALIZE_QUANTILE))
-        elif normalize in ("none", None):
-            scale = 1.0
-        else:
-            scale = float(normalize)
-        if not np.isfinite(scale) or scale <= 0:
-            raise ValueError(f"normalisation scale must be a positive number, got {scale}")
-        return Problem(d, valid, tuple(groups), prior, scale, _conflict_matrix(n_carriers, n_stages, groups))
+        scale = normalisation_scale(prior, normalize)
+        conflict = _conflict_matrix(n_carriers, n_stages, groups)
+        # Instances are shared between planners and caches: make their arrays immutable.
+        for arr in (d, valid, conflict, *groups):
+            arr.setflags(write=False)
+        return Problem(d, valid, tuple(groups), prior, scale, conflict)
 
     @property
     def n_carriers(self) -> int:
@@ -186,19 +218,23 @@ def make_view(
 
     Only ``x[:, :stage + 1]`` is read; later columns are masked, so a planner cannot peek.
     """
-    n_stages = problem.n_stages
+    if not 0 <= stage < problem.n_stages:
+        raise ValueError(f"stage {stage} outside 0..{problem.n_stages - 1}")
     seen = np.full(problem.valid.shape, np.nan)
     seen[:, : stage + 1] = x[:, : stage + 1]
     valid = problem.valid.copy()
     valid[:, : stage + 1] &= ~np.isnan(seen[:, : stage + 1])
     past = np.zeros(problem.valid.shape, dtype=bool)
     past[:, :stage] = np.asarray(deployed, dtype=bool)[:, :stage]
-    assert 0 <= stage < n_stages
     return StageView(problem, stage, seen, valid, past)
 
 
 class Planner(Protocol):
-    """An online planner: decides which carriers deploy at the current stage."""
+    """An online planner: decides which carriers deploy at the current stage.
+
+    A planner may also offer ``warm_up(problem) -> None`` (compile or cache whatever the first
+    decision would otherwise pay for); callers that time decisions call it first when present.
+    """
 
     name: str
 
@@ -252,7 +288,10 @@ class OnlineResult:
 def run_online(problem: Problem, x: np.ndarray, planner: Planner, seed: int) -> OnlineResult:
     """Run ``planner`` stage by stage over realised observations ``x`` (NaN = ∅).
 
-    Stage j's random stream is :func:`stage_rng` ``(seed, j)``.
+    Stage j's random stream is :func:`stage_rng` ``(seed, j)``. A NaN at a scheduled stage is an
+    online surprise: the planner learns it only at that stage. If the planner has a
+    ``warm_up(problem)`` method (e.g. to compile numba code) it is called once before the first
+    timed decision, so ``decision_ms`` never includes compilation.
     """
     import time
 
@@ -261,6 +300,9 @@ def run_online(problem: Problem, x: np.ndarray, planner: Planner, seed: int) -> 
         raise ValueError(f"observations shape {x.shape} != problem shape {problem.valid.shape}")
     x = np.where(problem.valid, x, np.nan)
     deployed = np.zeros(problem.valid.shape, dtype=bool)
+    warm_up = getattr(planner, "warm_up", None)
+    if callable(warm_up):
+        warm_up(problem)
     times = []
     for j in range(problem.n_stages):
         view = make_view(problem, j, x, deployed)

@@ -13,8 +13,6 @@ tail mass is below 1e-15); continuous priors use numerical integration.
 """
 from __future__ import annotations
 
-import functools
-
 import numpy as np
 
 #: Tail mass ignored when enumerating an unbounded discrete support.
@@ -27,6 +25,12 @@ def _is_discrete(prior) -> bool:
 
 def _support_grid(prior) -> tuple[np.ndarray, np.ndarray]:
     """Support points and their probabilities of a discrete prior (truncated at mass TAIL)."""
+    if hasattr(prior.dist, "xk"):
+        # A table prior (scipy.stats.rv_discrete(values=(xk, pk))): arbitrary support points.
+        kwds = prior.kwds
+        loc, scale = kwds.get("loc", 0.0), kwds.get("scale", 1.0)
+        points = np.asarray(prior.dist.xk, dtype=float) * scale + loc
+        return points, np.asarray(prior.dist.pk, dtype=float)
     lo, hi = prior.support()
     if not np.isfinite(lo):
         lo = prior.ppf(TAIL)
@@ -104,7 +108,39 @@ def expected_value(table: np.ndarray, stages_left: int, passengers_left: int) ->
     return float(slots[stages_left - d :].sum())
 
 
-@functools.lru_cache(maxsize=128)
+def prior_key(prior) -> object:
+    """A hashable key equal for equal frozen distributions (same family, parameters, table).
+
+    Falls back to the distribution object itself (identity) when its parameters are unhashable.
+    """
+    dist = prior.dist
+    key = (type(dist).__name__, getattr(dist, "name", None), tuple(prior.args), tuple(sorted(prior.kwds.items())))
+    if hasattr(dist, "xk"):
+        key += (tuple(np.asarray(dist.xk).tolist()), tuple(np.asarray(dist.pk).tolist()))
+    try:
+        hash(key)
+    except TypeError:
+        return prior
+    return key
+
+
+#: Threshold tables by (prior key, n_max); cleared when it grows past _TABLES_MAX entries.
+_TABLES: dict = {}
+_TABLES_MAX = 1024
+
+
 def table_for(problem) -> np.ndarray:
-    """Threshold table for a :class:`coordinator.problem.Problem` (cached per instance)."""
-    return thresholds(problem.prior, problem.n_stages)
+    """Threshold table (read-only) for a :class:`coordinator.problem.Problem`.
+
+    Cached per (prior family and parameters, number of stages), so the thousands of instances of
+    an experiment that share a prior compute it once. Rows up to ``problem.n_stages + 1``.
+    """
+    key = (prior_key(problem.prior), problem.n_stages)
+    table = _TABLES.get(key)
+    if table is None:
+        if len(_TABLES) >= _TABLES_MAX:
+            _TABLES.clear()
+        table = thresholds(problem.prior, problem.n_stages)
+        table.setflags(write=False)
+        _TABLES[key] = table
+    return table

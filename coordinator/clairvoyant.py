@@ -1,0 +1,309 @@
+"""The clairvoyant bound: the offline optimum with every observation known in advance.
+
+No online planner can beat it on the same instance, so experiments report online rewards as a
+fraction of it.
+
+The offline problem: carrier r deploys at exactly ``k_r = min(D_r, its valid stages)`` of its valid
+stages (valid = scheduled and observed, i.e. not NaN), and the total ``sum x / p`` under the penalty
+rule of :func:`coordinator.problem.penalties` is maximised.
+
+Exact method (branch and bound, compiled with numba):
+
+* **Per-carrier options.** A valid point with no valid conflicting point is *free*: its reward is
+  ``x`` whatever the others do. When all observations are >= 0, some optimum uses, besides a set T
+  of the carrier's overlapped points, its ``k_r - |T|`` largest free points, and no point of T has a
+  smaller ``x`` than an unused free point (swapping such a point for the free one never lowers the
+  total: the free point earns at least as much and removing a deployment only lowers penalties).
+  A carrier's options are the sets T with that property. (With a negative observation anywhere,
+  all ``C(valid, k_r)`` subsets are options.)
+* **Depth-first search over carriers**, options in decreasing order of their conflict-free value.
+  Bound at a node: the selected points' rewards with the penalties among themselves (adding
+  deployments only raises penalties, so only lowers these) plus, for every carrier not yet
+  decided, its ``k_r`` largest ``x / (1 + conflicts with the selected points)`` (again, later
+  choices only lower them). Negative observations enter the bound as 0 (``x / p <= 0``).
+* **Limits.** More than :data:`MAX_OPTIONS` options for a carrier, or more than ``max_nodes``
+  search nodes, stops the exact search; the result is then the *conflict-free upper bound* (each
+  carrier's ``k_r`` largest observations, negatives counted as 0) with ``exact=False``, and
+  ``deployed`` holds the conflict-free choice, whose real penalised reward is lower than the
+  reported bound.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from itertools import combinations
+
+import numba
+import numpy as np
+
+from coordinator.problem import Problem, evaluate
+
+#: Largest number of options one carrier may have for the exact search.
+MAX_OPTIONS = 200_000
+#: Default search-node limit (one node = one carrier's option tried on top of a partial plan).
+MAX_NODES = 5_000_000
+
+
+@dataclass(frozen=True, eq=False)
+class ClairvoyantResult:
+    """Offline optimum (or upper bound) of one instance.
+
+    Attributes:
+        deployed: bool ``[R, N]``: the optimal deployments when ``exact``; the conflict-free
+            choice (each carrier's largest observations) otherwise.
+        reward: normalised total (raw / problem.scale): the optimum when ``exact``, otherwise an
+            upper bound on it (the conflict-free total).
+        features: raw total (sum of x / p), same meaning as ``reward``.
+        exact: whether ``reward`` is the optimum (True) or only an upper bound (False).
+        nodes: search nodes visited (0 when the search was not attempted).
+    """
+
+    deployed: np.ndarray
+    reward: float
+    features: float
+    exact: bool
+    nodes: int = 0
+
+
+def _valid_points(problem: Problem, x: np.ndarray) -> np.ndarray:
+    return problem.valid & ~np.isnan(x)
+
+
+def conflict_free_bound(problem: Problem, x: np.ndarray) -> ClairvoyantResult:
+    """Each carrier's ``k_r`` largest observations, penalties ignored (negatives counted as 0).
+
+    An upper bound on the offline optimum; ``deployed`` is that choice (ties: earlier stage).
+    """
+    x = np.asarray(x, dtype=float)
+    valid = _valid_points(problem, x)
+    deployed = np.zeros(valid.shape, dtype=bool)
+    total = 0.0
+    for r in range(problem.n_carriers):
+        stages = np.flatnonzero(valid[r])
+        k = min(int(problem.passengers[r]), len(stages))
+        top = stages[np.argsort(-x[r, stages], kind="stable")[:k]]
+        deployed[r, top] = True
+        total += float(np.maximum(x[r, top], 0.0).sum())
+    return ClairvoyantResult(deployed, total / problem.scale, total, exact=False)
+
+
+def _carrier_options(
+    x_r: np.ndarray, stages: np.ndarray, overlapped: np.ndarray, k: int, dominance: bool
+) -> list[tuple[int, ...]] | None:
+    """Candidate stage sets of one carrier (see the module docstring); None when too many."""
+    over = [int(j) for j in stages if overlapped[j]]
+    free = sorted((int(j) for j in stages if not overlapped[j]), key=lambda j: (-x_r[j], j))
+    if not dominance:
+        over, free = [int(j) for j in stages], []
+    lo = max(0, k - len(free))
+    hi = min(k, len(over))
+    if sum(math.comb(len(over), t) for t in range(lo, hi + 1)) > MAX_OPTIONS:
+        return None
+    options = []
+    for t in range(lo, hi + 1):
+        rest = free[: k - t]
+        unused_best = x_r[free[k - t]] if k - t < len(free) else -np.inf
+        for chosen in combinations(over, t):
+            if dominance and t and min(x_r[j] for j in chosen) < unused_best:
+                continue
+            options.append(tuple(sorted(chosen + tuple(rest))))
+    return options
+
+
+@numba.njit(cache=True)
+def _topk_sum(values: np.ndarray, k: int) -> float:
+    """Sum of the k largest entries of a small 1-D array (k <= len(values))."""
+    if k <= 0:
+        return 0.0
+    buf = np.full(k, -np.inf)
+    for v in values:
+        if v > buf[k - 1]:
+            i = k - 1
+            while i > 0 and buf[i - 1] < v:
+                buf[i] = buf[i - 1]
+                i -= 1
+            buf[i] = v
+    return buf.sum()
+
+
+@numba.njit(cache=True)
+def _branch_and_bound(
+    xs: np.ndarray,          # float [M] flat observations (0 at invalid points; never selected)
+    valid: np.ndarray,       # bool [M]
+    nbr_ptr: np.ndarray,     # int [M + 1] CSR rows of the valid-conflict graph
+    nbr_idx: np.ndarray,     # int [E]
+    order: np.ndarray,       # int [R] carrier searched at each level
+    opt_ptr: np.ndarray,     # int [R + 1] options of carrier r are opt_ptr[r]:opt_ptr[r+1]
+    opt_pts: np.ndarray,     # int [O, kmax] flat points of each option (first k_r used)
+    opt_ub: np.ndarray,      # float [O] conflict-free value of each option (negatives as 0)
+    ks: np.ndarray,          # int [R] deployments per carrier
+    n_stages: int,
+    incumbent: float,        # value of a known feasible plan (prune bounds <= it)
+    max_nodes: int,
+):
+    """Returns (best value, best option per carrier (-1 = incumbent kept), nodes, finished)."""
+    n_carriers = len(order)
+    n_points = len(xs)
+    pos = np.maximum(xs, 0.0)
+    cnt = np.zeros(n_points, dtype=np.int64)       # selected points conflicting with each point
+    selected = np.zeros(n_points, dtype=np.bool_)
+    idx = np.full(n_carriers, -1, dtype=np.int64)  # option index (global) tried at each level
+    added = np.zeros(n_carriers, dtype=np.bool_)
+    best = incumbent
+    best_opts = np.full(n_carriers, -1, dtype=np.int64)
+    nodes = 0
+    tol = 1e-9 * max(1.0, abs(incumbent))
+    # Upper bound of the points already selected; rest bound of the carriers below a level.
+    fixed_ub = np.zeros(n_carriers + 1)
+    rest_ub = np.zeros(n_carriers + 1)
+
+    row = np.empty(n_stages)
+    # Entering level 0: nothing selected; the carriers below are bounded by their best option.
+    for lv in range(1, n_carriers):
+        r = order[lv]
+        if opt_ptr[r + 1] > opt_ptr[r]:
+            rest_ub[0] += opt_ub[opt_ptr[r]]
+    level = 0
+    while level >= 0:
+        r = order[level]
+        if added[level]:
+            o = idx[level]
+            for q in range(ks[r]):
+                b = opt_pts[o, q]
+                selected[b] = False
+                for e in range(nbr_ptr[b], nbr_ptr[b + 1]):
+                    cnt[nbr_idx[e]] -= 1
+            added[level] = False
+        if idx[level] < 0:
+            idx[level] = opt_ptr[r]
+        else:
+            idx[level] += 1
+        o = idx[level]
+        # Options are sorted by conflict-free value: once one cannot beat the best, none can.
+        if o >= opt_ptr[r + 1] or fixed_ub[level] + opt_ub[o] + rest_ub[level] <= best + tol:
+            idx[level] = -1
+            level -= 1
+            continue
+        nodes += 1
+        if nodes > max_nodes:
+            return best, best_opts, nodes, False
+        for q in range(ks[r]):
+            b = opt_pts[o, q]
+            selected[b] = True
+            for e in range(nbr_ptr[b], nbr_ptr[b + 1]):
+                cnt[nbr_idx[e]] += 1
+        added[level] = True
+        # Value of the selected points among themselves (exact at a leaf, a bound otherwise).
+        value = 0.0
+        bound = 0.0
+        for a in range(n_points):
+            if selected[a]:
+                v = xs[a] / (1.0 + cnt[a])
+                value += v
+                bound += v if v > 0.0 else 0.0
+        if level == n_carriers - 1:
+            if value > best + tol:
+                best = value
+                for lv in range(n_carriers):
+                    best_opts[lv] = idx[lv]
+            continue
+        # Bound of the carriers below: their k largest x / (1 + conflicts with the selection).
+        rest = 0.0
+        rest_next = 0.0
+        for lv in range(level + 1, n_carriers):
+            c = order[lv]
+            if ks[c] == 0:
+                continue
+            for j in range(n_stages):
+                a = c * n_stages + j
+                row[j] = pos[a] / (1.0 + cnt[a]) if valid[a] else -1.0
+            s = _topk_sum(row, ks[c])
+            rest += s
+            if lv > level + 1:
+                rest_next += s
+        if bound + rest <= best + tol:
+            continue
+        level += 1
+        fixed_ub[level] = bound
+        rest_ub[level] = rest_next
+        idx[level] = -1
+    return best, best_opts, nodes, True
+
+
+def solve(problem: Problem, x: np.ndarray, max_nodes: int = MAX_NODES) -> ClairvoyantResult:
+    """Offline optimum of ``problem`` with all observations ``x[R, N]`` (NaN = ∅) known.
+
+    Args:
+        problem: the instance.
+        x: float ``[R, N]`` realised observations.
+        max_nodes: search-node limit; beyond it the conflict-free upper bound is returned.
+
+    Returns:
+        :class:`ClairvoyantResult`; ``exact=False`` marks an upper bound (see module docstring).
+    """
+    x = np.asarray(x, dtype=float)
+    if x.shape != problem.valid.shape:
+        raise ValueError(f"observations shape {x.shape} != problem shape {problem.valid.shape}")
+    n_carriers, n_stages = problem.valid.shape
+    valid = _valid_points(problem, x)
+    fallback = conflict_free_bound(problem, x)
+    flat_valid = valid.ravel()
+    xs = np.where(flat_valid, np.nan_to_num(x.ravel(), nan=0.0), 0.0)
+    # The conflict graph restricted to points that can be selected.
+    graph = problem.conflict & flat_valid[:, None] & flat_valid[None, :]
+    overlapped = graph.any(axis=1).reshape(n_carriers, n_stages)
+    dominance = bool((xs[flat_valid] >= 0).all())
+    ks = np.array(
+        [min(int(problem.passengers[r]), int(valid[r].sum())) for r in range(n_carriers)], dtype=np.int64
+    )
+    per_carrier = []
+    for r in range(n_carriers):
+        opts = _carrier_options(x[r], np.flatnonzero(valid[r]), overlapped[r], int(ks[r]), dominance)
+        if opts is None:
+            return fallback
+        values = [float(np.maximum(x[r, list(o)], 0.0).sum()) for o in opts]
+        per_carrier.append(sorted(zip(values, opts), key=lambda vo: (-vo[0], vo[1])))
+    kmax = max(1, int(ks.max()))
+    opt_ptr = np.zeros(n_carriers + 1, dtype=np.int64)
+    opt_pts, opt_ub = [], []
+    for r, opts in enumerate(per_carrier):
+        opt_ptr[r + 1] = opt_ptr[r] + len(opts)
+        for value, stages in opts:
+            row = [r * n_stages + j for j in stages] + [0] * (kmax - len(stages))
+            opt_pts.append(row)
+            opt_ub.append(value)
+    opt_pts = np.array(opt_pts, dtype=np.int64).reshape(-1, kmax)
+    opt_ub = np.array(opt_ub, dtype=float)
+    nbr_ptr = np.zeros(len(xs) + 1, dtype=np.int64)
+    nbr_ptr[1:] = np.cumsum(graph.sum(axis=1))
+    nbr_idx = np.flatnonzero(graph.ravel()) % len(xs)
+    # Carriers with more options first: the bound tightens where the branching is widest.
+    counts = np.diff(opt_ptr)
+    order = np.argsort(-counts, kind="stable").astype(np.int64)
+    # Incumbent: every carrier's best conflict-free option, evaluated with penalties.
+    first = np.zeros(valid.shape, dtype=bool)
+    for r, opts in enumerate(per_carrier):
+        first[r, list(opts[0][1])] = True
+    incumbent = float((xs / (1.0 + problem.conflict[:, first.ravel()].sum(axis=1)))[first.ravel()].sum())
+    best, best_opts, nodes, finished = _branch_and_bound(
+        xs, flat_valid, nbr_ptr, nbr_idx, order, opt_ptr, opt_pts, opt_ub, ks, n_stages,
+        incumbent, int(max_nodes),
+    )
+    if not finished:
+        return ClairvoyantResult(fallback.deployed, fallback.reward, fallback.features, False, int(nodes))
+    if best_opts[0] < 0:
+        deployed = first
+    else:
+        deployed = np.zeros(valid.shape, dtype=bool)
+        for level in range(n_carriers):
+            r = order[level]
+            o = best_opts[level]
+            deployed.reshape(-1)[opt_pts[o, : ks[r]]] = True
+    reward, features = evaluate(problem, deployed, x)
+    return ClairvoyantResult(deployed, reward, features, True, int(nodes))
+
+
+def warm_up() -> None:
+    """Compile (or load from the numba cache) the search on a tiny instance."""
+    tiny = Problem.build(1, np.ones((2, 3), dtype=bool), [[[0, 0], [1, 0]]])
+    solve(tiny, np.array([[1.0, 2.0, 0.0], [3.0, 0.0, 1.0]]))

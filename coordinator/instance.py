@@ -1,0 +1,353 @@
+"""Problem instances as JSON files, prior specifications, and random paper-style instances.
+
+The JSON format is documented field by field in ``docs/planner.md``. Loading validates everything
+and raises :class:`InstanceError` whose message is one line: ``FILE: field.path: expected ...,
+found ...``.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any, Callable, NamedTuple
+
+import numpy as np
+from scipy import stats
+
+from coordinator.problem import Problem, normalisation_scale, sample_observations
+
+#: Spawn key of the observation stream when an instance file omits its observations.
+OBSERVATION_SPAWN_KEY = (2000, 0)
+
+#: Default prior when an instance omits one.
+DEFAULT_PRIOR = {"kind": "poisson", "mean": 3.0}
+
+#: Top-level fields of an instance file.
+FIELDS = ("name", "comment", "carriers", "passengers", "stages", "prior", "normalize", "overlaps",
+          "valid", "observations")
+
+
+class Instance(NamedTuple):
+    """A problem and its realised observations ``x[R, N]`` (float, NaN = ∅)."""
+
+    problem: Problem
+    observations: np.ndarray
+
+
+class InstanceError(ValueError):
+    """A bad instance. ``str(err)`` is one line: ``source: field: expected ..., found ...``."""
+
+    def __init__(self, source: str, field: str, expected: str, found: str):
+        self.source, self.field, self.expected, self.found = source, field, expected, found
+        super().__init__(f"{source}: {field}: expected {expected}, found {found}")
+
+
+# ----------------------------------------------------------------------------- priors
+
+def _num(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _positive(v: Any) -> bool:
+    return _num(v) and v > 0
+
+
+def _probability(v: Any) -> bool:
+    return _num(v) and 0 < v <= 1
+
+
+def _table(spec: dict) -> object:
+    return stats.rv_discrete(values=(np.asarray(spec["values"], float), np.asarray(spec["probabilities"], float)))()
+
+
+#: kind -> (parameters: {name: (check, "expected ..." text)}, builder(spec) -> frozen distribution).
+#: Every kind and parameter is documented in docs/planner.md.
+PRIOR_KINDS: dict[str, tuple[dict[str, tuple[Callable[[Any], bool], str]], Callable[[dict], object]]] = {
+    "poisson": ({"mean": (_positive, "a number > 0")}, lambda s: stats.poisson(s["mean"])),
+    "binomial": (
+        {"n": (lambda v: _int(v) and v >= 1, "an integer >= 1"), "p": (_probability, "a number in (0, 1]")},
+        lambda s: stats.binom(s["n"], s["p"]),
+    ),
+    "geometric": (  # failures before the first success: support 0, 1, 2, ...
+        {"p": (_probability, "a number in (0, 1]")}, lambda s: stats.geom(s["p"], loc=-1)
+    ),
+    "negative_binomial": (
+        {"n": (_positive, "a number > 0"), "p": (_probability, "a number in (0, 1]")},
+        lambda s: stats.nbinom(s["n"], s["p"]),
+    ),
+    "discrete_uniform": (  # integers low..high inclusive
+        {"low": (_int, "an integer"), "high": (_int, "an integer")},
+        lambda s: stats.randint(s["low"], s["high"] + 1),
+    ),
+    "table": (
+        {"values": (lambda v: isinstance(v, list) and len(v) > 0 and all(_num(e) for e in v),
+                    "a non-empty list of numbers"),
+         "probabilities": (lambda v: isinstance(v, list) and len(v) > 0 and all(_num(e) and e >= 0 for e in v),
+                           "a non-empty list of numbers >= 0")},
+        _table,
+    ),
+    "gamma": (
+        {"shape": (_positive, "a number > 0"), "scale": (_positive, "a number > 0")},
+        lambda s: stats.gamma(s["shape"], scale=s["scale"]),
+    ),
+    "exponential": ({"mean": (_positive, "a number > 0")}, lambda s: stats.expon(scale=s["mean"])),
+    "lognormal": (  # log X ~ Normal(mu, sigma)
+        {"mu": (_num, "a number"), "sigma": (_positive, "a number > 0")},
+        lambda s: stats.lognorm(s["sigma"], scale=math.exp(s["mu"])),
+    ),
+    "normal": (
+        {"mean": (_num, "a number"), "std": (_positive, "a number > 0")},
+        lambda s: stats.norm(s["mean"], s["std"]),
+    ),
+    "uniform": (
+        {"low": (_num, "a number"), "high": (_num, "a number")},
+        lambda s: stats.uniform(s["low"], s["high"] - s["low"]),
+    ),
+}
+
+
+def make_prior(spec: Any, source: str = "<prior>", field: str = "prior") -> object:
+    """A frozen scipy.stats distribution from a prior specification ``{"kind": ..., params}``.
+
+    Raises:
+        InstanceError: unknown kind, missing/unknown/bad parameter.
+    """
+    if not isinstance(spec, dict):
+        raise InstanceError(source, field, 'an object like {"kind": "poisson", "mean": 3.0}', _show(spec))
+    kind = spec.get("kind")
+    if kind not in PRIOR_KINDS:
+        raise InstanceError(source, f"{field}.kind", f"one of {', '.join(sorted(PRIOR_KINDS))}", _show(kind))
+    params, build = PRIOR_KINDS[kind]
+    for name, (check, expected) in params.items():
+        if name not in spec:
+            raise InstanceError(source, f"{field}.{name}", f"{expected} ({kind} prior)", "nothing (missing)")
+        if not check(spec[name]):
+            raise InstanceError(source, f"{field}.{name}", expected, _show(spec[name]))
+    extra = sorted(set(spec) - set(params) - {"kind"})
+    if extra:
+        raise InstanceError(source, f"{field}.{extra[0]}", f"only {', '.join(['kind', *params])} for a {kind} prior",
+                            "an unknown parameter")
+    if kind == "discrete_uniform" and spec["high"] < spec["low"]:
+        raise InstanceError(source, f"{field}.high", f"an integer >= low ({spec['low']})", _show(spec["high"]))
+    if kind == "uniform" and spec["high"] <= spec["low"]:
+        raise InstanceError(source, f"{field}.high", f"a number > low ({spec['low']})", _show(spec["high"]))
+    if kind == "table":
+        values, probs = spec["values"], spec["probabilities"]
+        if len(probs) != len(values):
+            raise InstanceError(source, f"{field}.probabilities", f"{len(values)} entries (one per value)",
+                                f"{len(probs)}")
+        if abs(sum(probs) - 1.0) > 1e-9:
+            raise InstanceError(source, f"{field}.probabilities", "probabilities summing to 1", f"sum {sum(probs)}")
+        if len(set(values)) != len(values):
+            raise InstanceError(source, f"{field}.values", "distinct values", _show(values))
+    return build(spec)
+
+
+# ----------------------------------------------------------------------------- loading
+
+def _show(v: Any) -> str:
+    text = json.dumps(v) if not isinstance(v, float) or math.isfinite(v) else str(v)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _matrix(data: Any, source: str, field: str, shape: tuple[int, int], cell_ok: Callable[[Any], bool],
+            cell_expected: str) -> list[list[Any]]:
+    n_rows, n_cols = shape
+    if not isinstance(data, list) or len(data) != n_rows:
+        found = f"a list of {len(data)} rows" if isinstance(data, list) else _show(data)
+        raise InstanceError(source, field, f"a list of {n_rows} rows (one per carrier)", found)
+    for r, row in enumerate(data):
+        if not isinstance(row, list) or len(row) != n_cols:
+            found = f"{len(row)} entries" if isinstance(row, list) else _show(row)
+            raise InstanceError(source, f"{field}[{r}]", f"a list of {n_cols} entries (one per stage)", found)
+        for j, cell in enumerate(row):
+            if not cell_ok(cell):
+                raise InstanceError(source, f"{field}[{r}][{j}]", cell_expected, _show(cell))
+    return data
+
+
+def _in_support(prior, value: float) -> bool:
+    lo, hi = prior.support()
+    if not lo <= value <= hi:
+        return False
+    if hasattr(prior.dist, "pmf"):
+        return bool(prior.pmf(value) > 0)
+    return True
+
+
+def parse_instance(data: Any, source: str = "<instance>", seed: int = 0) -> tuple[Instance, bool]:
+    """Validate a decoded JSON instance.
+
+    Args:
+        data: the decoded JSON value.
+        source: name used in error messages (the file name).
+        seed: root seed; when the instance has no ``observations`` they are drawn from the prior
+            with ``SeedSequence(seed, spawn_key=OBSERVATION_SPAWN_KEY)`` at the valid stages.
+
+    Returns:
+        (instance, sampled): ``sampled`` tells whether the observations were drawn.
+
+    Raises:
+        InstanceError: the first problem found, as one line.
+    """
+    if not isinstance(data, dict):
+        raise InstanceError(source, "(top level)", "a JSON object", type(data).__name__ if data is not None else "null")
+    for key in data:
+        if key not in FIELDS:
+            raise InstanceError(source, key, f"only the fields {', '.join(FIELDS)}", "an unknown field")
+    for key in ("carriers", "passengers", "stages"):
+        if key not in data:
+            raise InstanceError(source, key, "a required field", "nothing (missing)")
+    n_carriers, n_stages = data["carriers"], data["stages"]
+    if not _int(n_carriers) or n_carriers < 1:
+        raise InstanceError(source, "carriers", "an integer >= 1", _show(n_carriers))
+    if not _int(n_stages) or n_stages < 1:
+        raise InstanceError(source, "stages", "an integer >= 1", _show(n_stages))
+    passengers = data["passengers"]
+    if isinstance(passengers, list):
+        if len(passengers) != n_carriers:
+            raise InstanceError(source, "passengers", f"one integer >= 0 or a list of {n_carriers} (one per carrier)",
+                                f"a list of {len(passengers)}")
+        for r, d in enumerate(passengers):
+            if not _int(d) or d < 0:
+                raise InstanceError(source, f"passengers[{r}]", "an integer >= 0", _show(d))
+    elif not _int(passengers) or passengers < 0:
+        raise InstanceError(source, "passengers", "an integer >= 0 or a list of them", _show(passengers))
+
+    prior = make_prior(data.get("prior", DEFAULT_PRIOR), source)
+    normalize = data.get("normalize", "q90")
+    if not (isinstance(normalize, str) or _positive(normalize)):
+        raise InstanceError(source, "normalize", '"q90", "qNN", "none" or a number > 0', _show(normalize))
+    try:
+        normalisation_scale(prior, normalize)
+    except ValueError as err:
+        raise InstanceError(source, "normalize", '"q90", "qNN", "none" or a number > 0 giving a positive scale',
+                            f"{_show(normalize)} ({err})") from None
+
+    overlaps = data.get("overlaps", [])
+    if not isinstance(overlaps, list):
+        raise InstanceError(source, "overlaps", "a list of overlaps, each a list of [carrier, stage] pairs",
+                            _show(overlaps))
+    for k, group in enumerate(overlaps):
+        if not isinstance(group, list) or not group:
+            raise InstanceError(source, f"overlaps[{k}]", "a non-empty list of [carrier, stage] pairs", _show(group))
+        for m, pair in enumerate(group):
+            field = f"overlaps[{k}][{m}]"
+            if not (isinstance(pair, list) and len(pair) == 2 and all(_int(v) for v in pair)):
+                raise InstanceError(source, field, "a [carrier, stage] pair of integers", _show(pair))
+            if not 0 <= pair[0] < n_carriers:
+                raise InstanceError(source, f"{field}[0]", f"a carrier index in 0..{n_carriers - 1}", _show(pair[0]))
+            if not 0 <= pair[1] < n_stages:
+                raise InstanceError(source, f"{field}[1]", f"a stage index in 0..{n_stages - 1}", _show(pair[1]))
+
+    shape = (n_carriers, n_stages)
+    valid = None
+    if "valid" in data:
+        valid = np.array(_matrix(data["valid"], source, "valid", shape, lambda v: isinstance(v, bool),
+                                 "true or false"), dtype=bool)
+    observations = data.get("observations")
+    if observations is not None:
+        _matrix(observations, source, "observations", shape, lambda v: v is None or _num(v),
+                "a finite number or null (∅)")
+        x = np.array([[np.nan if v is None else float(v) for v in row] for row in observations])
+        lo, hi = prior.support()
+        for r, j in zip(*np.nonzero(~np.isnan(x))):
+            if valid is not None and not valid[r, j]:
+                raise InstanceError(source, f"observations[{r}][{j}]", "null at a stage marked false in valid",
+                                    _show(observations[r][j]))
+            if not _in_support(prior, x[r, j]):
+                raise InstanceError(source, f"observations[{r}][{j}]",
+                                    f"a value the prior can produce (support {lo:g}..{hi:g})",
+                                    _show(observations[r][j]))
+        if valid is None:
+            valid = ~np.isnan(x)
+    if valid is None:
+        valid = np.ones(shape, dtype=bool)
+    problem = Problem.build(passengers, valid, overlaps, prior, normalize)
+    if observations is None:
+        rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=OBSERVATION_SPAWN_KEY))
+        return Instance(problem, sample_observations(problem, rng)), True
+    return Instance(problem, np.where(valid, x, np.nan)), False
+
+
+def load_instance(path: str | Path, seed: int = 0) -> tuple[Instance, bool]:
+    """Read and validate an instance file; see :func:`parse_instance`.
+
+    Raises:
+        InstanceError: unreadable file, invalid JSON, or any field problem (one line).
+    """
+    source = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise InstanceError(source, "(file)", "a readable UTF-8 JSON file", f"{type(err).__name__}: {err}") from None
+
+    def reject_constant(name: str):
+        raise ValueError(f"{name} is not allowed")
+
+    try:
+        data = json.loads(text, parse_constant=reject_constant)
+    except ValueError as err:
+        raise InstanceError(source, "(file)", "valid JSON", str(err).splitlines()[0]) from None
+    return parse_instance(data, source, seed)
+
+
+def instance_dict(instance: Instance, prior: dict | None = None, normalize: str | float = "q90") -> dict:
+    """The JSON object of an instance (observations with null for ∅, validity written out).
+
+    Args:
+        instance: problem and observations.
+        prior: the prior specification to write (the problem's prior object cannot be turned back
+            into one); ``{"kind": "poisson", "mean": 3.0}`` when omitted.
+        normalize: the normalisation to write.
+    """
+    problem, x = instance
+    d = problem.passengers.tolist()
+    return {
+        "carriers": problem.n_carriers,
+        "passengers": d[0] if len(set(d)) == 1 else d,
+        "stages": problem.n_stages,
+        "prior": dict(prior or DEFAULT_PRIOR),
+        "normalize": normalize,
+        "overlaps": [group.tolist() for group in problem.overlaps],
+        "valid": problem.valid.tolist(),
+        "observations": [[None if np.isnan(v) else (int(v) if float(v).is_integer() else float(v)) for v in row]
+                         for row in x],
+    }
+
+
+# ----------------------------------------------------------------------------- random instances
+
+def random_instance(
+    rng: np.random.Generator,
+    carriers: int = 4,
+    passengers: int | list[int] = 3,
+    stages: int = 10,
+    overlaps: int = 20,
+    mean: float = 3.0,
+    invalid_fraction: float = 0.0,
+) -> Instance:
+    """A paper-style random instance with Poisson(``mean``) observations.
+
+    * Each of the ``overlaps`` groups holds 2 or 3 (equally likely) distinct decision points drawn
+      uniformly from all ``carriers * stages`` points; two points of one carrier in one group make
+      that carrier conflict with itself.
+    * Each decision point is invalid (∅, known in advance) independently with probability
+      ``invalid_fraction``.
+    * Observations are drawn from the prior at valid stages (NaN elsewhere).
+
+    Draw order (fixed, so a seed gives one instance): validity, overlaps, observations.
+    """
+    n_points = carriers * stages
+    valid = rng.random((carriers, stages)) >= invalid_fraction
+    groups = []
+    for _ in range(overlaps):
+        size = min(int(rng.integers(2, 4)), n_points)
+        flat = rng.choice(n_points, size=size, replace=False)
+        groups.append([[int(a) // stages, int(a) % stages] for a in flat])
+    problem = Problem.build(passengers, valid, groups, stats.poisson(mean))
+    return Instance(problem, sample_observations(problem, rng))
