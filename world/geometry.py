@@ -1,0 +1,151 @@
+"""Plane geometry on numpy arrays: paths, line of sight, distances, polygons.
+
+Points are ``(x, y)`` in metres; segments are rows ``(x1, y1, x2, y2)`` of a float ``[W, 4]`` array.
+"""
+from __future__ import annotations
+
+import bisect
+import math
+from typing import Sequence
+
+import numpy as np
+
+
+def point_along(waypoints: Sequence[tuple[float, float]], cumulative: np.ndarray, s: float) -> tuple[float, float]:
+    """The point at arc length ``s`` (m) along the polyline ``waypoints`` whose cumulative leg
+    lengths are ``cumulative`` (``[K]``, starting at 0). ``s`` is clamped to the path."""
+    if s <= 0.0:
+        return (float(waypoints[0][0]), float(waypoints[0][1]))
+    if s >= cumulative[-1]:
+        return (float(waypoints[-1][0]), float(waypoints[-1][1]))
+    k = bisect.bisect_right(cumulative, s) - 1
+    k = min(max(k, 0), len(waypoints) - 2)
+    leg = cumulative[k + 1] - cumulative[k]
+    u = 0.0 if leg <= 0 else (s - cumulative[k]) / leg
+    (ax, ay), (bx, by) = waypoints[k], waypoints[k + 1]
+    return (ax + u * (bx - ax), ay + u * (by - ay))
+
+
+def direction_along(waypoints: Sequence[tuple[float, float]], cumulative: np.ndarray, s: float) -> tuple[float, float]:
+    """Unit direction of the leg containing arc length ``s`` ((0, 0) on a zero-length leg)."""
+    k = bisect.bisect_right(cumulative, s) - 1
+    k = min(max(k, 0), len(waypoints) - 2)
+    (ax, ay), (bx, by) = waypoints[k], waypoints[k + 1]
+    d = math.hypot(bx - ax, by - ay)
+    return (0.0, 0.0) if d == 0 else ((bx - ax) / d, (by - ay) / d)
+
+
+def _cross(ax, ay, bx, by):
+    return ax * by - ay * bx
+
+
+def crossings(origin: Sequence[float], targets: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """bool ``[K, W]``: does the sight line origin→targets[k] touch or cross segment w?
+
+    Closed test (touching counts as blocked) by orientation signs.
+    """
+    targets = np.asarray(targets, dtype=float).reshape(-1, 2)
+    if len(segments) == 0 or len(targets) == 0:
+        return np.zeros((len(targets), len(segments)), dtype=bool)
+    px, py = float(origin[0]), float(origin[1])
+    qx, qy = targets[:, 0:1], targets[:, 1:2]          # [K, 1]
+    ax, ay, bx, by = (segments[:, i][None, :] for i in range(4))  # [1, W]
+    d1 = _cross(bx - ax, by - ay, px - ax, py - ay)     # [1, W]: origin vs wall line
+    d2 = _cross(bx - ax, by - ay, qx - ax, qy - ay)     # [K, W]: target vs wall line
+    d3 = _cross(qx - px, qy - py, ax - px, ay - py)     # [K, W]: wall end a vs sight line
+    d4 = _cross(qx - px, qy - py, bx - px, by - py)     # [K, W]: wall end b vs sight line
+    return (d1 * d2 <= 0) & (d3 * d4 <= 0)
+
+
+def visible(origin: Sequence[float], targets: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """bool ``[K]``: targets with a clear line of sight from ``origin`` (no wall touched)."""
+    return ~crossings(origin, targets, segments).any(axis=1)
+
+
+def count_visible(origin: Sequence[float], points: np.ndarray, radius: float, segments: np.ndarray) -> int:
+    """Number of ``points`` (``[F, 2]``, m) within ``radius`` (m) of ``origin`` with line of sight."""
+    if len(points) == 0:
+        return 0
+    d2 = (points[:, 0] - origin[0]) ** 2 + (points[:, 1] - origin[1]) ** 2
+    near = points[d2 <= radius * radius]
+    if len(near) == 0:
+        return 0
+    if len(segments):
+        # only walls whose bounding box meets the sensing disc can block
+        x0, y0 = origin
+        lo_x = np.minimum(segments[:, 0], segments[:, 2])
+        hi_x = np.maximum(segments[:, 0], segments[:, 2])
+        lo_y = np.minimum(segments[:, 1], segments[:, 3])
+        hi_y = np.maximum(segments[:, 1], segments[:, 3])
+        keep = (hi_x >= x0 - radius) & (lo_x <= x0 + radius) & (hi_y >= y0 - radius) & (lo_y <= y0 + radius)
+        segments = segments[keep]
+    return int(visible(origin, near, segments).sum())
+
+
+def point_segment_distance(points: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """float ``[K, W]``: Euclidean distance from each point to each segment (m)."""
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    if len(segments) == 0:
+        return np.full((len(points), 0), np.inf)
+    px, py = points[:, 0:1], points[:, 1:2]
+    ax, ay, bx, by = (segments[:, i][None, :] for i in range(4))
+    dx, dy = bx - ax, by - ay
+    len2 = dx * dx + dy * dy
+    u = np.where(len2 > 0, ((px - ax) * dx + (py - ay) * dy) / np.where(len2 > 0, len2, 1.0), 0.0)
+    u = np.clip(u, 0.0, 1.0)
+    return np.hypot(px - (ax + u * dx), py - (ay + u * dy))
+
+
+def segment_segment_distance(a: Sequence[float], b: Sequence[float], segments: np.ndarray) -> np.ndarray:
+    """float ``[W]``: distance between segment a-b and each segment (0 when they cross) (m)."""
+    if len(segments) == 0:
+        return np.zeros(0)
+    cross = crossings(a, np.asarray([b], dtype=float), segments)[0]
+    ends = np.stack([segments[:, 0:2], segments[:, 2:4]], axis=0).reshape(-1, 2)
+    d_ends = point_segment_distance(ends, np.asarray([[a[0], a[1], b[0], b[1]]])).reshape(2, -1).min(axis=0)
+    d_ab = point_segment_distance(np.asarray([a, b], dtype=float), segments).min(axis=0)
+    return np.where(cross, 0.0, np.minimum(d_ends, d_ab))
+
+
+def first_blocking_segment(a: Sequence[float], b: Sequence[float], segments: np.ndarray, clearance: float = 0.0) -> int | None:
+    """Index of the first segment closer than ``clearance`` (m) to the leg a-b, or None."""
+    if len(segments) == 0:
+        return None
+    d = segment_segment_distance(a, b, segments)
+    hits = np.flatnonzero(d < clearance) if clearance > 0 else np.flatnonzero(d <= 0)
+    return int(hits[0]) if len(hits) else None
+
+
+def inside_polygon(points: np.ndarray, polygon: Sequence[tuple[float, float]]) -> np.ndarray:
+    """bool ``[K]``: points strictly inside the closed polygon (even-odd ray casting)."""
+    points = np.asarray(points, dtype=float).reshape(-1, 2)
+    poly = np.asarray(polygon, dtype=float)
+    x, y = points[:, 0:1], points[:, 1:2]
+    x1, y1 = poly[:, 0][None, :], poly[:, 1][None, :]
+    x2, y2 = np.roll(poly[:, 0], -1)[None, :], np.roll(poly[:, 1], -1)[None, :]
+    straddle = (y1 > y) != (y2 > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x_at = x1 + (y - y1) * (x2 - x1) / (y2 - y1)
+    hits = straddle & (x < x_at)
+    return (hits.sum(axis=1) % 2) == 1
+
+
+def maximal_cliques(adjacency: np.ndarray) -> list[list[int]]:
+    """All maximal cliques of an undirected graph (bool ``[n, n]``, zero diagonal), by
+    Bron–Kerbosch with pivoting. Each clique sorted; list sorted. Deterministic."""
+    n = len(adjacency)
+    nbrs = [frozenset(np.flatnonzero(adjacency[i]).tolist()) for i in range(n)]
+    out: list[list[int]] = []
+
+    def expand(r: list[int], p: set[int], x: set[int]) -> None:
+        if not p and not x:
+            out.append(sorted(r))
+            return
+        pivot = max(p | x, key=lambda u: (len(nbrs[u] & p), -u))
+        for v in sorted(p - nbrs[pivot]):
+            expand(r + [v], p & nbrs[v], x & nbrs[v])
+            p.discard(v)
+            x.add(v)
+
+    expand([], set(range(n)), set())
+    return sorted(out)

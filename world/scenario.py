@@ -1,0 +1,830 @@
+"""Scenario files: the schema, loading with full validation, and the value types.
+
+A scenario is a YAML mapping (every field and its unit is documented in ``docs/scenario.md``).
+:func:`load_scenario` validates the whole file and collects *every* problem before raising
+:class:`ScenarioError`, one line per problem::
+
+    FILE: field.path: expected WHAT, found WHAT
+
+Units: metres (m), seconds (s), metres per second (m/s), features per square metre (1/m²).
+"""
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import math
+import re
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+from scipy import stats
+
+from world import building as _building
+from world import geometry
+
+#: Default conflict radius as a multiple of the sensing radius (the paper's choice).
+CONFLICT_RADIUS_FACTOR = 3.0
+#: Default UCT exploration constant (c = 0.05·√2).
+DEFAULT_EXPLORATION = 0.05 * math.sqrt(2.0)
+#: Default planner and its iteration budget.
+DEFAULT_PLANNER = "mcts-ssap"
+DEFAULT_ITERATIONS = 10000
+#: Planner names a scenario may ask for (the coordinator builds them with ``make_planner``).
+PLANNER_NAMES = ("random", "ssap", "mcts-random", "mcts-ssap")
+#: Carrier body radius (m): paths must keep at least this clearance from walls.
+CARRIER_RADIUS = 0.4
+
+# kind -> (scipy distribution, required parameter names, optional parameter names)
+_PRIOR_TABLE: dict[str, tuple[Any, tuple[str, ...], tuple[str, ...]]] = {
+    "poisson": (stats.poisson, ("mu",), ("loc",)),
+    "binomial": (stats.binom, ("n", "p"), ("loc",)),
+    "geometric": (stats.geom, ("p",), ("loc",)),
+    "negative_binomial": (stats.nbinom, ("n", "p"), ("loc",)),
+    "discrete_uniform": (stats.randint, ("low", "high"), ("loc",)),
+    "gamma": (stats.gamma, ("a",), ("loc", "scale")),
+    "lognormal": (stats.lognorm, ("s",), ("loc", "scale")),
+    "normal": (stats.norm, ("loc", "scale"), ()),
+    "uniform": (stats.uniform, ("loc", "scale"), ()),
+    "exponential": (stats.expon, ("scale",), ("loc",)),
+}
+#: Alias -> canonical prior kind (scipy's own names are accepted too).
+PRIOR_ALIASES = {
+    "binom": "binomial", "geom": "geometric", "nbinom": "negative_binomial",
+    "negbinom": "negative_binomial", "randint": "discrete_uniform", "lognorm": "lognormal",
+    "norm": "normal", "gaussian": "normal", "expon": "exponential",
+}
+PRIOR_KINDS = tuple(_PRIOR_TABLE)
+
+# parameter -> (check, description) for explicit priors
+_PARAM_RULES = {
+    "mu": (lambda v: v > 0, "a number > 0"),
+    "n": (lambda v: v > 0, "a number > 0"),
+    "p": (lambda v: 0 < v <= 1, "a probability in (0, 1]"),
+    "a": (lambda v: v > 0, "a number > 0"),
+    "s": (lambda v: v > 0, "a number > 0"),
+    "scale": (lambda v: v > 0, "a number > 0"),
+    "loc": (lambda v: True, "a number"),
+    "low": (lambda v: float(v).is_integer(), "an integer"),
+    "high": (lambda v: float(v).is_integer(), "an integer"),
+}
+
+
+class ScenarioError(ValueError):
+    """A scenario file is wrong. ``problems`` holds one line per problem."""
+
+    def __init__(self, problems: list[str]):
+        self.problems = list(problems)
+        super().__init__("\n".join(self.problems))
+
+
+# --------------------------------------------------------------------------- value types
+
+
+@dataclass(frozen=True)
+class Building:
+    """A rooms-and-corridors building: a grid of ``cols x rows`` rectangular rooms separated and
+    surrounded by corridors, inside an outer wall.
+
+    Attributes:
+        origin: lower-left corner of the outer wall (m).
+        cols, rows: number of rooms along x and y.
+        room_size: (width, height) of each room (m).
+        corridor_width: width of every corridor (m).
+        door_width: width of the door gap in the middle of each room wall (m).
+        entrances: sides of the outer wall with an entrance ("west", "east", "south", "north").
+    """
+
+    origin: tuple[float, float]
+    cols: int
+    rows: int
+    room_size: tuple[float, float]
+    corridor_width: float
+    door_width: float
+    entrances: tuple[str, ...]
+
+    @property
+    def extent(self) -> tuple[float, float, float, float]:
+        """(xmin, ymin, xmax, ymax) of the outer wall (m)."""
+        return _building.extent(self)
+
+    def room_rect(self, col: int, row: int) -> tuple[float, float, float, float]:
+        """(xmin, ymin, xmax, ymax) of room (col, row) (m)."""
+        return _building.room_rect(self, col, row)
+
+
+@dataclass(frozen=True)
+class MapSpec:
+    """The map.
+
+    Attributes:
+        bounds: (xmin, ymin, xmax, ymax) of the world (m). Features live inside.
+        walls: polylines ((x, y), ...) (m) given in the file.
+        obstacles: closed polygons ((x, y), ...) (m): solid, no features inside.
+        building: optional generated building; its walls are added to ``segments``.
+    """
+
+    bounds: tuple[float, float, float, float]
+    walls: tuple[tuple[tuple[float, float], ...], ...] = ()
+    obstacles: tuple[tuple[tuple[float, float], ...], ...] = ()
+    building: Building | None = None
+
+    @cached_property
+    def segments(self) -> np.ndarray:
+        """float ``[W, 4]``: every wall segment (x1, y1, x2, y2) in m — file walls, obstacle
+        edges and generated building walls. Read-only."""
+        segs: list[tuple[float, float, float, float]] = []
+        for line in self.walls:
+            segs.extend((a[0], a[1], b[0], b[1]) for a, b in zip(line[:-1], line[1:]))
+        for poly in self.obstacles:
+            ring = list(poly) + [poly[0]]
+            segs.extend((a[0], a[1], b[0], b[1]) for a, b in zip(ring[:-1], ring[1:]))
+        if self.building is not None:
+            segs.extend(_building.wall_segments(self.building))
+        arr = np.asarray(segs, dtype=float).reshape(-1, 4)
+        arr.setflags(write=False)
+        return arr
+
+
+@dataclass(frozen=True)
+class Cluster:
+    """A denser region of features (a stairwell, a shaft...): an extra Poisson process.
+
+    Attributes:
+        shape: "disc" (params = (cx, cy, radius)) or "rect" (params = (xmin, ymin, xmax, ymax)), m.
+        params: see ``shape``.
+        density: extra features per m² inside the region (added to the background).
+        label: free text shown on the map.
+    """
+
+    shape: str
+    params: tuple[float, ...]
+    density: float
+    label: str = ""
+
+    @property
+    def area(self) -> float:
+        """Region area (m²)."""
+        if self.shape == "disc":
+            return math.pi * self.params[2] ** 2
+        xmin, ymin, xmax, ymax = self.params
+        return (xmax - xmin) * (ymax - ymin)
+
+
+@dataclass(frozen=True)
+class FeatureSpec:
+    """Features of interest: a Poisson point process of ``density`` features per m² over the free
+    area, plus the ``clusters``' extra processes."""
+
+    density: float
+    clusters: tuple[Cluster, ...] = ()
+
+
+@dataclass(frozen=True)
+class CarrierSpec:
+    """One carrier's declared schedule.
+
+    Attributes:
+        id: carrier id (string, unique).
+        passengers: passengers D it carries and must deploy.
+        start_time: when it starts driving (s, mission time).
+        stop_time: when it stops for good (s); the end of its path at nominal speed when the
+            file omits it. If later than that, it waits at the last waypoint until then.
+        speed: nominal speed along the path (m/s).
+        waypoints: the path ((x, y), ...) (m), at least two points.
+    """
+
+    id: str
+    passengers: int
+    start_time: float
+    stop_time: float
+    speed: float
+    waypoints: tuple[tuple[float, float], ...]
+
+    @cached_property
+    def _cumulative(self) -> np.ndarray:
+        pts = np.asarray(self.waypoints, dtype=float)
+        return np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(pts, axis=0).T))])
+
+    @property
+    def path_length(self) -> float:
+        """Total path length (m)."""
+        return float(self._cumulative[-1])
+
+    @property
+    def path_end_time(self) -> float:
+        """When it reaches its last waypoint at nominal speed (s)."""
+        return self.start_time + self.path_length / self.speed
+
+    def distance_at(self, t: float) -> float:
+        """Planned arc length travelled by time ``t`` (m)."""
+        moving = min(max(t, self.start_time), self.stop_time) - self.start_time
+        return min(self.speed * moving, self.path_length)
+
+    def position_at(self, t: float) -> tuple[float, float]:
+        """Planned position at mission time ``t`` (s): on the path at nominal speed from
+        ``start_time``, frozen before the start and after ``stop_time`` (m)."""
+        return geometry.point_along(self.waypoints, self._cumulative, self.distance_at(t))
+
+    def direction_at(self, t: float) -> tuple[float, float]:
+        """Unit direction of the path at mission time ``t`` ((0, 0) when not moving)."""
+        if not (self.start_time <= t < self.stop_time) or self.distance_at(t) >= self.path_length:
+            return (0.0, 0.0)
+        return geometry.direction_along(self.waypoints, self._cumulative, self.distance_at(t))
+
+
+@dataclass(frozen=True)
+class PlannerSpec:
+    """Planner settings: ``name`` for ``make_planner``; budget ``iterations`` per decision or
+    ``plan_ms`` milliseconds (anytime, takes precedence when given); UCT ``exploration``
+    constant; ``samples`` rollouts per iteration."""
+
+    name: str = DEFAULT_PLANNER
+    iterations: int = DEFAULT_ITERATIONS
+    plan_ms: float | None = None
+    exploration: float = DEFAULT_EXPLORATION
+    samples: int = 1
+
+    def options(self) -> dict[str, Any]:
+        """Keyword options for ``coordinator.planners.make_planner(name, **options)``."""
+        out: dict[str, Any] = {"iterations": self.iterations, "exploration": self.exploration,
+                               "samples": self.samples}
+        if self.plan_ms is not None:
+            out["plan_ms"] = self.plan_ms
+        return out
+
+
+@dataclass(frozen=True)
+class PriorSpec:
+    """The prior f(x) of a valid stage's feature count.
+
+    ``kind == "derived"``: Poisson with mean = background density × π r² (open-field sensed
+    area; walls and clusters ignored). Otherwise one of :data:`PRIOR_KINDS` with ``params`` as
+    (name, value) pairs in scipy's parametrisation.
+    """
+
+    kind: str = "derived"
+    params: tuple[tuple[str, float], ...] = ()
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A mission: everything every process needs to build the identical world.
+
+    Attributes:
+        name: scenario name.
+        seed: root seed (features and the planner's streams derive from it).
+        map: walls, obstacles, bounds.
+        features: the feature process.
+        sensing_radius: r (m).
+        stage_interval: Δt between stages (s).
+        stages: N, number of stages.
+        conflict_radius: decision points closer than this share an overlap (m).
+        carriers: the carriers, in index order r = 0..R-1.
+        planner: planner settings.
+        prior: prior spec; see :meth:`prior_distribution`.
+        first_stage_time: t_0 (s); stage j is at t_0 + j·Δt.
+        source: the file it was loaded from ("" if built in code).
+    """
+
+    name: str
+    seed: int
+    map: MapSpec
+    features: FeatureSpec
+    sensing_radius: float
+    stage_interval: float
+    stages: int
+    conflict_radius: float
+    carriers: tuple[CarrierSpec, ...]
+    planner: PlannerSpec = PlannerSpec()
+    prior: PriorSpec = PriorSpec()
+    first_stage_time: float = 0.0
+    source: str = field(default="", compare=False)
+
+    @property
+    def n_carriers(self) -> int:
+        return len(self.carriers)
+
+    @property
+    def carrier_ids(self) -> tuple[str, ...]:
+        return tuple(c.id for c in self.carriers)
+
+    @property
+    def passengers(self) -> np.ndarray:
+        """int64 ``[R]``."""
+        return np.array([c.passengers for c in self.carriers], dtype=np.int64)
+
+    def carrier_index(self, cid: str) -> int:
+        """Index r of carrier ``cid`` (KeyError if unknown)."""
+        for r, c in enumerate(self.carriers):
+            if c.id == cid:
+                return r
+        raise KeyError(f"no carrier {cid!r} in scenario {self.name!r}")
+
+    def stage_time(self, j: int) -> float:
+        """t_j = t_0 + j·Δt (s)."""
+        return self.first_stage_time + j * self.stage_interval
+
+    def stage_times(self) -> np.ndarray:
+        """float ``[N]`` stage times (s)."""
+        return self.first_stage_time + self.stage_interval * np.arange(self.stages)
+
+    def valid(self) -> np.ndarray:
+        """bool ``[R, N]``: stage j is valid for carrier r iff start_time <= t_j <= stop_time."""
+        t = self.stage_times()
+        return np.array([(c.start_time <= t) & (t <= c.stop_time) for c in self.carriers], dtype=bool)
+
+    def with_seed(self, seed: int) -> "Scenario":
+        """The same scenario with another root seed (other features, same schedules)."""
+        return dataclasses.replace(self, seed=int(seed))
+
+    @property
+    def mission_end(self) -> float:
+        """Time of the last stage (s)."""
+        return self.stage_time(self.stages - 1)
+
+    def prior_distribution(self):
+        """The frozen ``scipy.stats`` prior of a valid stage's feature count."""
+        if self.prior.kind == "derived":
+            return stats.poisson(self.derived_prior_mean())
+        dist, _, _ = _PRIOR_TABLE[self.prior.kind]
+        return dist(**dict(self.prior.params))
+
+    def derived_prior_mean(self) -> float:
+        """Background density × π r²: the open-field expected count (walls and clusters ignored)."""
+        return self.features.density * math.pi * self.sensing_radius**2
+
+
+# --------------------------------------------------------------------------- validation
+
+
+class _Checker:
+    """Collects problems as ``FILE: path: expected ..., found ...`` lines."""
+
+    def __init__(self, file: str):
+        self.file = file
+        self.problems: list[str] = []
+
+    def bad(self, path: str, expected: str, found: Any) -> None:
+        self.problems.append(f"{self.file}: {path}: expected {expected}, found {_show(found)}")
+
+    def raw(self, path: str, text: str) -> None:
+        self.problems.append(f"{self.file}: {path}: {text}")
+
+    def mapping(self, node: Any, path: str, allowed: tuple[str, ...], required: tuple[str, ...] = ()) -> dict | None:
+        if not isinstance(node, dict):
+            self.bad(path, "a mapping", node)
+            return None
+        for key in node:
+            if key not in allowed:
+                close = difflib.get_close_matches(str(key), allowed, n=1, cutoff=0.6)
+                hint = f" (did you mean '{close[0]}'?)" if close else f" (one of: {', '.join(allowed)})"
+                self.problems.append(
+                    f"{self.file}: {_join(path, key)}: expected a known key{hint}, found unknown key '{key}'"
+                )
+        for key in required:
+            if key not in node:
+                self.problems.append(f"{self.file}: {_join(path, key)}: expected a value, found nothing (missing)")
+        return node
+
+    def number(self, node: Any, path: str, *, minimum: float | None = None, exclusive: bool = False,
+               integer: bool = False) -> float | None:
+        kind = "an integer" if integer else "a number"
+        if isinstance(node, bool) or not isinstance(node, (int, float)) or not math.isfinite(node):
+            self.bad(path, kind + _bound_text(minimum, exclusive), node)
+            return None
+        if integer and not float(node).is_integer():
+            self.bad(path, kind + _bound_text(minimum, exclusive), node)
+            return None
+        if minimum is not None and (node <= minimum if exclusive else node < minimum):
+            self.bad(path, kind + _bound_text(minimum, exclusive), node)
+            return None
+        return int(node) if integer else float(node)
+
+    def string(self, node: Any, path: str) -> str | None:
+        if not isinstance(node, str) or not node.strip():
+            self.bad(path, "a non-empty string", node)
+            return None
+        return node
+
+    def point(self, node: Any, path: str) -> tuple[float, float] | None:
+        if (not isinstance(node, (list, tuple)) or len(node) != 2
+                or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) for v in node)):
+            self.bad(path, "a point [x, y] of two numbers (m)", node)
+            return None
+        return (float(node[0]), float(node[1]))
+
+    def points(self, node: Any, path: str, min_count: int) -> tuple[tuple[float, float], ...] | None:
+        if not isinstance(node, (list, tuple)) or len(node) < min_count:
+            self.bad(path, f"a list of at least {min_count} points [x, y] (m)", node)
+            return None
+        pts = [self.point(p, f"{path}[{i}]") for i, p in enumerate(node)]
+        if any(p is None for p in pts):
+            return None
+        return tuple(pts)  # type: ignore[arg-type]
+
+
+def _bound_text(minimum: float | None, exclusive: bool) -> str:
+    if minimum is None:
+        return ""
+    return f" {'>' if exclusive else '>='} {minimum:g}"
+
+
+def _join(path: str, key: Any) -> str:
+    return f"{path}.{key}" if path else str(key)
+
+
+def _show(value: Any) -> str:
+    if isinstance(value, dict):
+        return "a mapping"
+    if isinstance(value, (list, tuple)):
+        text = repr(list(value))
+        return text if len(text) <= 60 else f"a list of {len(value)} items"
+    if value is None:
+        return "nothing (null)"
+    if isinstance(value, str):
+        return repr(value)
+    return repr(value)
+
+
+_TOP_KEYS = ("name", "seed", "map", "features", "sensing_radius", "stage_interval", "stages",
+             "first_stage_time", "conflict_radius", "carriers", "planner", "prior")
+_TOP_REQUIRED = ("name", "seed", "map", "features", "sensing_radius", "stage_interval", "stages", "carriers")
+_MAP_KEYS = ("bounds", "walls", "obstacles", "building")
+_BUILDING_KEYS = ("origin", "rooms", "room_size", "corridor_width", "door_width", "entrances")
+_FEATURE_KEYS = ("density", "clusters")
+_CLUSTER_KEYS = ("disc", "rect", "room", "density", "label")
+_CARRIER_KEYS = ("id", "passengers", "start_time", "stop_time", "speed", "waypoints")
+_PLANNER_KEYS = ("name", "iterations", "plan_ms", "exploration", "samples")
+_SIDES = ("west", "east", "south", "north")
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """SafeLoader that rejects duplicate mapping keys (pyyaml silently keeps the last one)."""
+
+
+def _construct_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
+    seen: dict[Any, int] = {}
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=deep)
+        try:
+            hash(key)
+        except TypeError:
+            continue
+        if key in seen:
+            raise yaml.constructor.ConstructorError(
+                None, None, f"duplicate key '{key}' (first at line {seen[key] + 1})", key_node.start_mark)
+        seen[key] = key_node.start_mark.line
+    return loader.construct_mapping(node, deep=deep)
+
+
+_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario file.
+
+    Raises:
+        ScenarioError: listing every problem, one line each (file, field path, expected, found),
+            also for a missing file or a YAML syntax error (with its line number).
+    """
+    file = str(path)
+    try:
+        text = Path(path).read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ScenarioError([f"{file}: expected an existing scenario file, found no such file"]) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ScenarioError([f"{file}: expected a readable UTF-8 scenario file, found {exc.__class__.__name__}: {exc}"]) from None
+    try:
+        data = yaml.load(text, Loader=_UniqueKeyLoader)  # noqa: S506 - SafeLoader subclass
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}" if mark is not None else "YAML"
+        what = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ScenarioError([f"{file}: {where}: expected valid YAML, found {what}"]) from None
+    return parse_scenario(data, file)
+
+
+def parse_scenario(data: Any, file: str = "<scenario>") -> Scenario:
+    """Validate an already-parsed YAML document (a dict); see :func:`load_scenario`."""
+    ck = _Checker(file)
+    top = ck.mapping(data, "", _TOP_KEYS, _TOP_REQUIRED)
+    if top is None:
+        raise ScenarioError(ck.problems)
+    name = ck.string(top["name"], "name") if "name" in top else None
+    seed = ck.number(top["seed"], "seed", minimum=0, integer=True) if "seed" in top else None
+    radius = ck.number(top["sensing_radius"], "sensing_radius", minimum=0, exclusive=True) if "sensing_radius" in top else None
+    interval = ck.number(top["stage_interval"], "stage_interval", minimum=0, exclusive=True) if "stage_interval" in top else None
+    n_stages = ck.number(top["stages"], "stages", minimum=1, integer=True) if "stages" in top else None
+    t0 = ck.number(top.get("first_stage_time", 0.0), "first_stage_time", minimum=0)
+    conflict = None
+    if "conflict_radius" in top:
+        conflict = ck.number(top["conflict_radius"], "conflict_radius", minimum=0)
+    elif radius is not None:
+        conflict = CONFLICT_RADIUS_FACTOR * radius
+
+    the_map = _parse_map(ck, top["map"]) if "map" in top else None
+    feats = _parse_features(ck, top["features"], the_map) if "features" in top else None
+    carriers = _parse_carriers(ck, top["carriers"], the_map) if "carriers" in top else None
+    planner = _parse_planner(ck, top.get("planner", {}))
+    prior = _parse_prior(ck, top.get("prior", "derived"))
+
+    if carriers is not None and None not in (interval, n_stages, t0):
+        times = t0 + interval * np.arange(n_stages)
+        for r, c in enumerate(carriers):
+            n_valid = int(((c.start_time <= times) & (times <= c.stop_time)).sum())
+            if c.passengers > n_valid:
+                ck.bad(f"carriers[{r}].passengers",
+                       f"at most {n_valid} (the valid stages of carrier '{c.id}' between start_time and stop_time)",
+                       c.passengers)
+    if ck.problems:
+        raise ScenarioError(ck.problems)
+    return Scenario(name=name, seed=seed, map=the_map, features=feats, sensing_radius=radius,
+                    stage_interval=interval, stages=n_stages, conflict_radius=conflict,
+                    carriers=carriers, planner=planner, prior=prior, first_stage_time=t0, source=file)
+
+
+def _parse_map(ck: _Checker, node: Any) -> MapSpec | None:
+    m = ck.mapping(node, "map", _MAP_KEYS, ("bounds",))
+    if m is None:
+        return None
+    ok = True
+    bounds = None
+    if "bounds" in m:
+        b = m["bounds"]
+        if (not isinstance(b, (list, tuple)) or len(b) != 4
+                or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in b)):
+            ck.bad("map.bounds", "[xmin, ymin, xmax, ymax] of four numbers (m)", b)
+            ok = False
+        elif not (b[0] < b[2] and b[1] < b[3]):
+            ck.bad("map.bounds", "xmin < xmax and ymin < ymax", b)
+            ok = False
+        else:
+            bounds = tuple(float(v) for v in b)
+    walls: list = []
+    for key, min_count, out in (("walls", 2, walls),):
+        lines = m.get(key, [])
+        if not isinstance(lines, list):
+            ck.bad(f"map.{key}", "a list of polylines (each a list of points [x, y] in m)", lines)
+            ok = False
+        else:
+            for i, line in enumerate(lines):
+                pts = ck.points(line, f"map.{key}[{i}]", min_count)
+                ok &= pts is not None
+                if pts is not None:
+                    out.append(pts)
+    obstacles: list = []
+    polys = m.get("obstacles", [])
+    if not isinstance(polys, list):
+        ck.bad("map.obstacles", "a list of polygons (each a list of at least 3 points [x, y] in m)", polys)
+        ok = False
+    else:
+        for i, poly in enumerate(polys):
+            pts = ck.points(poly, f"map.obstacles[{i}]", 3)
+            ok &= pts is not None
+            if pts is not None:
+                obstacles.append(pts)
+    building = _parse_building(ck, m["building"]) if "building" in m else None
+    if "building" in m and building is None:
+        ok = False
+    if bounds is not None:
+        for what, groups in (("walls", walls), ("obstacles", obstacles)):
+            for i, pts in enumerate(groups):
+                for k, p in enumerate(pts):
+                    if not _inside(p, bounds):
+                        ck.bad(f"map.{what}[{i}][{k}]", f"a point inside map.bounds {list(bounds)}", list(p))
+                        ok = False
+        if building is not None and not _rect_inside(building.extent, bounds):
+            ck.bad("map.building", f"a building inside map.bounds {list(bounds)}",
+                   f"its outer wall spans {[round(v, 3) for v in building.extent]}")
+            ok = False
+    if not ok or bounds is None:
+        return None
+    return MapSpec(bounds=bounds, walls=tuple(walls), obstacles=tuple(obstacles), building=building)
+
+
+def _parse_building(ck: _Checker, node: Any) -> Building | None:
+    b = ck.mapping(node, "map.building", _BUILDING_KEYS, ("origin", "rooms", "room_size", "corridor_width", "door_width"))
+    if b is None:
+        return None
+    n0 = len(ck.problems)
+    origin = ck.point(b["origin"], "map.building.origin") if "origin" in b else None
+    rooms = b.get("rooms")
+    cols = rows = None
+    if "rooms" in b:
+        if (not isinstance(rooms, list) or len(rooms) != 2
+                or any(isinstance(v, bool) or not isinstance(v, int) or v < 1 for v in rooms)):
+            ck.bad("map.building.rooms", "[cols, rows], two integers >= 1", rooms)
+        else:
+            cols, rows = rooms
+    size = ck.point(b["room_size"], "map.building.room_size") if "room_size" in b else None
+    if size is not None and min(size) <= 0:
+        ck.bad("map.building.room_size", "[width, height], two numbers > 0 (m)", list(size))
+        size = None
+    corridor = ck.number(b["corridor_width"], "map.building.corridor_width", minimum=0, exclusive=True) if "corridor_width" in b else None
+    door = ck.number(b["door_width"], "map.building.door_width", minimum=0, exclusive=True) if "door_width" in b else None
+    if door is not None and size is not None and door >= min(size):
+        ck.bad("map.building.door_width", f"less than the smaller room side {min(size):g} m", door)
+    if door is not None and corridor is not None and door > corridor and "entrances" in b and b["entrances"]:
+        pass  # entrance gaps are door_width wide and centred on a corridor; a wider door is allowed
+    entrances = b.get("entrances", [])
+    if not isinstance(entrances, list) or any(e not in _SIDES for e in entrances):
+        ck.bad("map.building.entrances", f"a list of sides among {list(_SIDES)}", entrances)
+    if len(ck.problems) > n0:
+        return None
+    return Building(origin=origin, cols=cols, rows=rows, room_size=size, corridor_width=corridor,
+                    door_width=door, entrances=tuple(entrances))
+
+
+def _parse_features(ck: _Checker, node: Any, the_map: MapSpec | None) -> FeatureSpec | None:
+    f = ck.mapping(node, "features", _FEATURE_KEYS, ("density",))
+    if f is None:
+        return None
+    n0 = len(ck.problems)
+    density = ck.number(f["density"], "features.density", minimum=0) if "density" in f else None
+    clusters = []
+    raw = f.get("clusters", [])
+    if not isinstance(raw, list):
+        ck.bad("features.clusters", "a list of cluster regions", raw)
+        raw = []
+    for i, c in enumerate(raw):
+        path = f"features.clusters[{i}]"
+        cm = ck.mapping(c, path, _CLUSTER_KEYS, ("density",))
+        if cm is None:
+            continue
+        shapes = [k for k in ("disc", "rect", "room") if k in cm]
+        if len(shapes) != 1:
+            ck.bad(path, "exactly one region among disc, rect, room", f"{shapes or 'none'}")
+            continue
+        cdens = ck.number(cm["density"], f"{path}.density", minimum=0) if "density" in cm else None
+        label = cm.get("label", "")
+        if not isinstance(label, str):
+            ck.bad(f"{path}.label", "a string", label)
+        shape = shapes[0]
+        val = cm[shape]
+        params = None
+        if shape == "disc":
+            dm = ck.mapping(val, f"{path}.disc", ("center", "radius"), ("center", "radius"))
+            if dm is not None and "center" in dm and "radius" in dm:
+                ctr = ck.point(dm["center"], f"{path}.disc.center")
+                rad = ck.number(dm["radius"], f"{path}.disc.radius", minimum=0, exclusive=True)
+                if ctr is not None and rad is not None:
+                    params = (ctr[0], ctr[1], rad)
+        elif shape == "rect":
+            if (not isinstance(val, list) or len(val) != 4
+                    or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in val)
+                    or not (val[0] < val[2] and val[1] < val[3])):
+                ck.bad(f"{path}.rect", "[xmin, ymin, xmax, ymax] with xmin < xmax, ymin < ymax (m)", val)
+            else:
+                params = tuple(float(v) for v in val)
+        else:
+            bld = the_map.building if the_map is not None else None
+            if bld is None:
+                ck.bad(f"{path}.room", "a map.building to take the room from", "no building in map")
+            elif (not isinstance(val, list) or len(val) != 2
+                  or any(isinstance(v, bool) or not isinstance(v, int) for v in val)
+                  or not (0 <= val[0] < bld.cols and 0 <= val[1] < bld.rows)):
+                ck.bad(f"{path}.room", f"[col, row] with 0 <= col < {bld.cols} and 0 <= row < {bld.rows}", val)
+            else:
+                params = bld.room_rect(val[0], val[1])
+                shape = "rect"
+        if params is not None and cdens is not None and isinstance(label, str):
+            clusters.append(Cluster(shape=shape, params=params, density=cdens, label=label))
+    if len(ck.problems) > n0:
+        return None
+    return FeatureSpec(density=density, clusters=tuple(clusters))
+
+
+def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None) -> tuple[CarrierSpec, ...] | None:
+    if not isinstance(node, list) or not node:
+        ck.bad("carriers", "a non-empty list of carriers", node)
+        return None
+    n0 = len(ck.problems)
+    out = []
+    seen: dict[str, int] = {}
+    for r, c in enumerate(node):
+        path = f"carriers[{r}]"
+        cm = ck.mapping(c, path, _CARRIER_KEYS, ("id", "passengers", "start_time", "speed", "waypoints"))
+        if cm is None:
+            continue
+        k0 = len(ck.problems)
+        cid = cm.get("id")
+        if "id" in cm:
+            if isinstance(cid, bool) or not isinstance(cid, (str, int)) or not re.fullmatch(r"[A-Za-z0-9_\-]+", str(cid)):
+                ck.bad(f"{path}.id", "a string of letters, digits, '_' or '-'", cid)
+            else:
+                cid = str(cid)
+                if cid in seen:
+                    ck.bad(f"{path}.id", f"a unique id (carriers[{seen[cid]}] is already '{cid}')", cid)
+                seen.setdefault(cid, r)
+        pas = ck.number(cm["passengers"], f"{path}.passengers", minimum=0, integer=True) if "passengers" in cm else None
+        start = ck.number(cm["start_time"], f"{path}.start_time", minimum=0) if "start_time" in cm else None
+        speed = ck.number(cm["speed"], f"{path}.speed", minimum=0, exclusive=True) if "speed" in cm else None
+        wps = ck.points(cm["waypoints"], f"{path}.waypoints", 2) if "waypoints" in cm else None
+        stop = None
+        if "stop_time" in cm:
+            stop = ck.number(cm["stop_time"], f"{path}.stop_time", minimum=0)
+            if stop is not None and start is not None and stop < start:
+                ck.bad(f"{path}.stop_time", f"a time >= start_time ({start:g} s)", stop)
+        if wps is not None and the_map is not None:
+            for k, p in enumerate(wps):
+                if not _inside(p, the_map.bounds):
+                    ck.bad(f"{path}.waypoints[{k}]", f"a point inside map.bounds {list(the_map.bounds)}", list(p))
+            segs = the_map.segments
+            for k, (a, b) in enumerate(zip(wps[:-1], wps[1:])):
+                hit = geometry.first_blocking_segment(a, b, segs, clearance=CARRIER_RADIUS)
+                if hit is not None:
+                    w = segs[hit]
+                    ck.bad(f"{path}.waypoints[{k}]->[{k + 1}]",
+                           f"a leg clear of walls by {CARRIER_RADIUS:g} m",
+                           f"it meets the wall ({w[0]:g}, {w[1]:g})-({w[2]:g}, {w[3]:g})")
+                    break
+            if all(a == b for a, b in zip(wps[:-1], wps[1:])):
+                ck.bad(f"{path}.waypoints", "a path of non-zero length", "all points equal")
+        if len(ck.problems) > k0:
+            continue
+        length = float(np.hypot(*np.diff(np.asarray(wps), axis=0).T).sum())
+        if stop is None:
+            stop = start + length / speed
+        out.append(CarrierSpec(id=cid, passengers=pas, start_time=start, stop_time=stop, speed=speed, waypoints=wps))
+    if len(ck.problems) > n0:
+        return None
+    return tuple(out)
+
+
+def _parse_planner(ck: _Checker, node: Any) -> PlannerSpec | None:
+    p = ck.mapping(node, "planner", _PLANNER_KEYS)
+    if p is None:
+        return None
+    n0 = len(ck.problems)
+    name = p.get("name", DEFAULT_PLANNER)
+    if not isinstance(name, str) or name not in PLANNER_NAMES:
+        close = difflib.get_close_matches(str(name), PLANNER_NAMES, n=1, cutoff=0.5)
+        hint = f" (did you mean '{close[0]}'?)" if close else ""
+        ck.bad("planner.name", f"one of {', '.join(PLANNER_NAMES)}{hint}", name)
+    iters = ck.number(p.get("iterations", DEFAULT_ITERATIONS), "planner.iterations", minimum=1, integer=True)
+    plan_ms = None
+    if p.get("plan_ms") is not None:
+        plan_ms = ck.number(p["plan_ms"], "planner.plan_ms", minimum=0, exclusive=True)
+    expl = ck.number(p.get("exploration", DEFAULT_EXPLORATION), "planner.exploration", minimum=0)
+    samples = ck.number(p.get("samples", 1), "planner.samples", minimum=1, integer=True)
+    if len(ck.problems) > n0:
+        return None
+    return PlannerSpec(name=name, iterations=iters, plan_ms=plan_ms, exploration=expl, samples=samples)
+
+
+def _parse_prior(ck: _Checker, node: Any) -> PriorSpec | None:
+    if node == "derived" or node is None:
+        return PriorSpec()
+    p = ck.mapping(node, "prior", ("kind",) + tuple(_PARAM_RULES), ("kind",))
+    if p is None or "kind" not in p:
+        return None
+    kind = p["kind"]
+    kind = PRIOR_ALIASES.get(kind, kind) if isinstance(kind, str) else kind
+    if kind == "derived":
+        extra = [k for k in p if k != "kind"]
+        if extra:
+            ck.bad(f"prior.{extra[0]}", "no parameters for the derived prior", p[extra[0]])
+            return None
+        return PriorSpec()
+    if kind not in _PRIOR_TABLE:
+        options = PRIOR_KINDS + tuple(PRIOR_ALIASES) + ("derived",)
+        close = difflib.get_close_matches(str(p["kind"]), options, n=1, cutoff=0.5)
+        hint = f" (did you mean '{close[0]}'?)" if close else ""
+        ck.bad("prior.kind", f"one of derived, {', '.join(PRIOR_KINDS)}{hint}", p["kind"])
+        return None
+    _, required, optional = _PRIOR_TABLE[kind]
+    n0 = len(ck.problems)
+    params = []
+    for key in p:
+        if key != "kind" and key not in required + optional:
+            ck.bad(f"prior.{key}", f"a parameter of {kind} ({', '.join(required + optional)})", f"'{key}'")
+    for key in required:
+        if key not in p:
+            ck.problems.append(f"{ck.file}: prior.{key}: expected a value (required by {kind}), found nothing (missing)")
+    for key in required + optional:
+        if key in p:
+            rule, text = _PARAM_RULES[key]
+            v = p[key]
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not rule(v):
+                ck.bad(f"prior.{key}", text, v)
+            else:
+                params.append((key, float(v) if key not in ("low", "high") else int(v)))
+    if kind == "binomial" and "n" in p and isinstance(p["n"], (int, float)) and not float(p["n"]).is_integer():
+        ck.bad("prior.n", "an integer number of trials", p["n"])
+    if kind == "discrete_uniform" and len(ck.problems) == n0 and not p["low"] < p["high"]:
+        ck.bad("prior.high", f"an integer > low ({p['low']})", p["high"])
+    if len(ck.problems) > n0:
+        return None
+    return PriorSpec(kind=kind, params=tuple(params))
+
+
+def _inside(p: tuple[float, float], bounds: tuple[float, float, float, float]) -> bool:
+    return bounds[0] <= p[0] <= bounds[2] and bounds[1] <= p[1] <= bounds[3]
+
+
+def _rect_inside(rect: tuple[float, float, float, float], bounds: tuple[float, float, float, float]) -> bool:
+    return _inside(rect[:2], bounds) and _inside(rect[2:], bounds)

@@ -1,0 +1,264 @@
+"""The pymunk world: static walls, carrier bodies driven along their paths, deployed passengers,
+and sensing with line of sight.
+
+Invariant: a carrier's trajectory depends only on the scenario and its own id. Each carrier lives
+in its own pymunk space (the same static walls, only its own body), so a carrier process that
+simulates one carrier, the coordinator and :func:`observe_all` compute bit-identical positions.
+Carriers therefore never collide with each other; they do collide with walls.
+
+Control: every PHYSICS_DT the carrier's velocity is set to the path's feed-forward velocity plus
+CONTROL_GAIN × (reference − position), capped at MAX_SPEED_FACTOR × nominal speed, where the
+reference is the planned (schedule) position at the start of the step (so a carrier on
+schedule has zero error and moves exactly with the feed-forward). The physics then advances
+in SUBSTEPS equal sub-steps and resolves wall contacts.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+from typing import Iterable
+
+import numpy as np
+import pymunk
+
+from world import geometry
+from world.features import sample_features
+from world.scenario import CARRIER_RADIUS, Scenario
+
+#: Physics time step (s); the controller runs once per step.
+PHYSICS_DT = 0.05
+#: pymunk sub-steps per physics step.
+SUBSTEPS = 2
+#: Wall half-thickness for collisions (m).
+WALL_RADIUS = 0.05
+#: Carrier mass (kg); the body does not rotate (infinite moment).
+CARRIER_MASS = 50.0
+#: Position-error gain of the tracking controller (1/s).
+CONTROL_GAIN = 1.0
+#: Speed cap as a multiple of the nominal speed.
+MAX_SPEED_FACTOR = 1.5
+#: After stop_time the carrier is allowed this long to settle on its final reference, then it
+#: is frozen (s).
+SETTLE_TIME = 5.0
+#: A trajectory sample is recorded every TRACE_STEPS physics steps (1 s).
+TRACE_STEPS = 20
+#: Radius of a deployed passenger's marker body (m).
+PASSENGER_RADIUS = 0.3
+
+
+def step_of(t: float) -> int:
+    """Index of the first physics step boundary at or after time ``t`` (s)."""
+    return max(0, int(math.ceil(t / PHYSICS_DT - 1e-9)))
+
+
+@dataclass(frozen=True)
+class Deployment:
+    """A passenger deployed by carrier ``carrier`` at mission time ``time`` (s) at ``position`` (m)."""
+
+    carrier: str
+    time: float
+    position: tuple[float, float]
+
+
+class _CarrierBody:
+    """One carrier in its own pymunk space."""
+
+    def __init__(self, scenario: Scenario, r: int):
+        self.spec = scenario.carriers[r]
+        self.space = pymunk.Space()
+        self.space.iterations = 10
+        for x1, y1, x2, y2 in scenario.map.segments:
+            seg = pymunk.Segment(self.space.static_body, (float(x1), float(y1)), (float(x2), float(y2)), WALL_RADIUS)
+            seg.friction = 0.0
+            seg.elasticity = 0.0
+            self.space.add(seg)
+        self.body = pymunk.Body(CARRIER_MASS, math.inf)
+        self.body.position = self.spec.waypoints[0]
+        shape = pymunk.Circle(self.body, CARRIER_RADIUS)
+        shape.friction = 0.0
+        shape.elasticity = 0.0
+        self.space.add(self.body, shape)
+        self.step = 0
+        self.halted = False
+        self.max_speed = MAX_SPEED_FACTOR * self.spec.speed
+        self.frozen_after = step_of(self.spec.stop_time + SETTLE_TIME)
+        self.start_step = step_of(self.spec.start_time)
+        p = self.body.position
+        self.trace: list[tuple[float, float, float]] = [(0.0, p.x, p.y)]
+
+    def advance(self, target_step: int) -> None:
+        spec = self.spec
+        dt = PHYSICS_DT
+        sub = dt / SUBSTEPS
+        body = self.body
+        while self.step < target_step:
+            t = self.step * dt
+            # idle before the start, after settling past stop_time, or when halted: no motion
+            if not (self.halted or self.step + 1 <= self.start_step or self.step >= self.frozen_after):
+                rx, ry = spec.position_at(t)
+                fx, fy = spec.direction_at(t)
+                p = body.position
+                vx = fx * spec.speed + CONTROL_GAIN * (rx - p.x)
+                vy = fy * spec.speed + CONTROL_GAIN * (ry - p.y)
+                v = math.hypot(vx, vy)
+                if v > self.max_speed:
+                    vx, vy = vx * self.max_speed / v, vy * self.max_speed / v
+                body.velocity = (vx, vy)
+                for _ in range(SUBSTEPS):
+                    self.space.step(sub)
+            elif body.velocity.x != 0.0 or body.velocity.y != 0.0:
+                body.velocity = (0.0, 0.0)
+            self.step += 1
+            if self.step % TRACE_STEPS == 0:
+                p = body.position
+                self.trace.append((self.step * dt, p.x, p.y))
+
+    @property
+    def position(self) -> tuple[float, float]:
+        p = self.body.position
+        return (float(p.x), float(p.y))
+
+
+class Simulation:
+    """A pymunk world with walls and the given carriers' bodies (all by default).
+
+    Args:
+        scenario: the mission.
+        carriers: ids of the carriers to simulate (a carrier process passes its own id).
+        seed: root seed of the features (scenario.seed by default).
+
+    Attributes:
+        features: float ``[F, 2]`` feature positions (m).
+        deployments: list of :class:`Deployment`, in order.
+    """
+
+    def __init__(self, scenario: Scenario, carriers: Iterable[str] | None = None, seed: int | None = None):
+        self.scenario = scenario
+        ids = scenario.carrier_ids if carriers is None else tuple(carriers)
+        self._bodies = {cid: _CarrierBody(scenario, scenario.carrier_index(cid)) for cid in ids}
+        self.features = sample_features(scenario, seed)
+        self.deployments: list[Deployment] = []
+        self._left = {cid: scenario.carriers[scenario.carrier_index(cid)].passengers for cid in ids}
+        self._step = 0
+
+    @property
+    def time(self) -> float:
+        """Current mission time (s), a multiple of PHYSICS_DT."""
+        return self._step * PHYSICS_DT
+
+    @property
+    def carrier_ids(self) -> tuple[str, ...]:
+        return tuple(self._bodies)
+
+    def advance_to(self, t: float) -> None:
+        """Step the physics at PHYSICS_DT until the first step boundary at or after ``t`` (s)."""
+        target = step_of(t)
+        for body in self._bodies.values():
+            body.advance(target)
+        self._step = max(self._step, target)
+
+    def position(self, cid: str) -> tuple[float, float]:
+        """Actual position of carrier ``cid`` (m)."""
+        return self._bodies[cid].position
+
+    def sense(self, cid: str) -> int:
+        """Features within the sensing radius of ``cid``'s actual position with line of sight."""
+        return geometry.count_visible(self.position(cid), self.features, self.scenario.sensing_radius,
+                                      self.scenario.map.segments)
+
+    def passengers_left(self, cid: str) -> int:
+        return self._left[cid]
+
+    def deploy(self, cid: str) -> Deployment:
+        """Deploy one of ``cid``'s passengers where the carrier is now: a static marker body
+        (a sensor shape, so the carrier's motion is unchanged) appears in the carrier's space.
+
+        Raises:
+            ValueError: if the carrier has no passenger left.
+        """
+        if self._left[cid] <= 0:
+            raise ValueError(f"carrier {cid!r} has no passenger left to deploy")
+        self._left[cid] -= 1
+        carrier = self._bodies[cid]
+        pos = carrier.position
+        marker = pymunk.Body(body_type=pymunk.Body.STATIC)
+        marker.position = pos
+        shape = pymunk.Circle(marker, PASSENGER_RADIUS)
+        shape.sensor = True
+        carrier.space.add(marker, shape)
+        dep = Deployment(cid, self.time, pos)
+        self.deployments.append(dep)
+        return dep
+
+    def halt(self, cid: str) -> None:
+        """Stop carrier ``cid`` where it is for the rest of the mission (a stalled carrier)."""
+        self._bodies[cid].halted = True
+
+    def trajectory(self, cid: str) -> np.ndarray:
+        """float ``[K, 3]`` samples (t s, x m, y m) every TRACE_STEPS steps so far."""
+        return np.asarray(self._bodies[cid].trace, dtype=float)
+
+
+@dataclass(frozen=True, eq=False)
+class MissionTrace:
+    """A whole mission simulated without the network.
+
+    Attributes:
+        x: float ``[R, N]`` observations; NaN at invalid stages.
+        positions: float ``[R, N, 2]`` actual positions at the stage times (m); NaN where invalid.
+        trajectories: per carrier, float ``[K, 3]`` samples (t s, x m, y m) up to the last stage.
+        features: float ``[F, 2]`` feature positions (m).
+    """
+
+    x: np.ndarray
+    positions: np.ndarray
+    trajectories: tuple[np.ndarray, ...]
+    features: np.ndarray
+
+
+@lru_cache(maxsize=32)
+def _carrier_run(scenario: Scenario, r: int) -> tuple[np.ndarray, np.ndarray]:
+    """(positions ``[N, 2]`` at every stage time, trajectory ``[K, 3]``) of carrier r.
+
+    Cached: physics does not depend on the feature seed (callers pass ``with_seed(0)``)."""
+    body = _CarrierBody(scenario, r)
+    out = np.empty((scenario.stages, 2))
+    for j, t in enumerate(scenario.stage_times()):
+        body.advance(step_of(float(t)))
+        out[j] = body.position
+    out.setflags(write=False)
+    trace = np.asarray(body.trace, dtype=float)
+    trace.setflags(write=False)
+    return out, trace
+
+
+def simulate_mission(scenario: Scenario, seed: int | None = None) -> MissionTrace:
+    """Run every carrier (no network, no faults) and observe every valid stage.
+
+    ``seed`` overrides the scenario's root seed for the features; the physics is the same for
+    every seed and is computed once per scenario (cached).
+    """
+    seed = scenario.seed if seed is None else int(seed)
+    physics_key = scenario.with_seed(0)
+    features = sample_features(scenario, seed)
+    valid = scenario.valid()
+    x = np.full(valid.shape, np.nan)
+    pos = np.full(valid.shape + (2,), np.nan)
+    trajectories = []
+    segs = scenario.map.segments
+    for r in range(scenario.n_carriers):
+        stage_pos, trace = _carrier_run(physics_key, r)
+        trajectories.append(trace)
+        for j in np.flatnonzero(valid[r]):
+            pos[r, j] = stage_pos[j]
+            x[r, j] = geometry.count_visible(stage_pos[j], features, scenario.sensing_radius, segs)
+    return MissionTrace(x=x, positions=pos, trajectories=tuple(trajectories), features=features)
+
+
+def observe_all(scenario: Scenario, seed: int | None = None) -> np.ndarray:
+    """float ``[R, N]``: what the fleet observes with no faults (NaN at invalid stages).
+
+    ``seed`` overrides the root seed of the features (``scenario.with_seed(s)`` does the same).
+    """
+    return simulate_mission(scenario, seed).x

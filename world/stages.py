@@ -1,0 +1,77 @@
+"""Stage geometry known before the mission: planned decision points, validity and overlaps.
+
+Overlaps (the paper's "groups of decision points in close proximity") are defined here as the
+**maximal cliques** of the proximity graph whose nodes are the valid planned decision points
+(r, j) — of any carriers, the same carrier included — and whose edges join two points at most
+``conflict_radius`` apart. Consequences, which the tests check against brute force:
+
+* every pair of points inside one overlap is within the conflict radius;
+* two points share an overlap **iff** they are within the conflict radius (every edge lies in a
+  maximal clique), so the planner core's "shares an overlap" matrix is exactly the proximity
+  graph and the penalty p of a deployment counts the selected deployments near it;
+* no overlap is a subset of another; singletons (isolated points) are left out.
+
+Clusters (connected components) were rejected because chains of points along a path would merge
+into one large group penalising deployments far apart; "one group per point" centred groups
+were rejected because they make points up to 2× the radius apart conflict.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from world import geometry
+
+
+@dataclass(frozen=True, eq=False)
+class StageGeometry:
+    """Planned stage geometry.
+
+    Attributes:
+        times: float ``[N]`` stage times (s).
+        positions: float ``[R, N, 2]`` planned decision-point positions (m); NaN where invalid.
+        valid: bool ``[R, N]`` — start_time <= t_j <= stop_time.
+        overlaps: list of overlaps, each a sorted list of ``(r, j)`` tuples (planner core format).
+    """
+
+    times: np.ndarray
+    positions: np.ndarray
+    valid: np.ndarray
+    overlaps: list[list[tuple[int, int]]]
+
+
+def planned_positions(scenario) -> np.ndarray:
+    """float ``[R, N, 2]``: planned positions at every stage time, valid or not (m)."""
+    times = scenario.stage_times()
+    return np.array([[c.position_at(float(t)) for t in times] for c in scenario.carriers], dtype=float).reshape(
+        scenario.n_carriers, scenario.stages, 2)
+
+
+def proximity_overlaps(positions: np.ndarray, valid: np.ndarray, radius: float) -> list[list[tuple[int, int]]]:
+    """Maximal cliques (size >= 2) of the valid points within ``radius`` (m) of each other.
+
+    Args:
+        positions: float ``[R, N, 2]`` (m).
+        valid: bool ``[R, N]``.
+        radius: conflict radius (m); pairs at distance <= radius are joined.
+    """
+    idx = np.argwhere(valid)  # [M, 2] (r, j) in row-major order
+    if len(idx) < 2:
+        return []
+    pts = positions[idx[:, 0], idx[:, 1]]
+    dist = np.hypot(pts[:, None, 0] - pts[None, :, 0], pts[:, None, 1] - pts[None, :, 1])
+    adj = dist <= radius
+    np.fill_diagonal(adj, False)
+    groups = [g for g in geometry.maximal_cliques(adj) if len(g) >= 2]
+    return sorted([[(int(idx[m, 0]), int(idx[m, 1])) for m in g] for g in groups])
+
+
+def stage_geometry(scenario) -> StageGeometry:
+    """Planned decision points, validity and overlaps from the schedules alone."""
+    valid = scenario.valid()
+    pos = planned_positions(scenario)
+    overlaps = proximity_overlaps(pos, valid, scenario.conflict_radius)
+    pos = pos.copy()
+    pos[~valid] = np.nan
+    return StageGeometry(times=scenario.stage_times(), positions=pos, valid=valid, overlaps=overlaps)
