@@ -1,0 +1,428 @@
+"""Closed-loop rollout planner (``closed-loop``): search over the current stage only.
+
+The paper's MCTS tree is open-loop: below the root its actions are fixed whatever the sampled
+observations turn out to be, so with no conflicts it trails plain SSAP, which is optimal there.
+This planner keeps the search at the current stage and lets a policy *react* to every sampled
+future below it (a one-step rollout algorithm, i.e. policy improvement over its base policy):
+
+1. **Decomposition.** Carriers are linked when any of their still-relevant decision points
+   (past deployments, and scheduled stages >= j of carriers with passengers left) share an
+   overlap. Connected components of that graph cannot influence each other's reward, so each is
+   decided on its own. A component without any conflict is decided by plain SSAP, which is
+   exactly optimal for it (so with no overlaps this planner *is* SSAP).
+2. **Candidates.** For a component with ``k`` free carriers (may deploy, not forced) every one of
+   the ``2^k`` joint actions is a candidate when ``k <= ENUMERATE_MAX``; otherwise a coordinate
+   ascent from the base policy's action evaluates all single-carrier flips per round.
+3. **Evaluation with common random numbers.** Every candidate is scored on the *same* sampled
+   futures. A rollout applies the candidate at stage j, then the conflict-aware SSAP policy: at
+   each later stage, in carrier order, a carrier with ``d`` passengers and ``n`` valid stages
+   left deploys iff it is forced or the *marginal* gain of deploying,
+   ``x / (1 + c) - sum_k x_k (1/p_k - 1/(p_k + 1))`` over the ``c`` already chosen deployments
+   ``k`` sharing an overlap, exceeds its DLR threshold ``a[n, n - d]``.
+4. **Control variate.** Alongside, the same sampled future is run through plain independent SSAP,
+   whose expected raw total is known exactly (:func:`coordinator.ssap.expected_value`). The
+   estimate of a candidate is ``mean(aware - plain) + exact(plain)``: unbiased, with far less
+   variance, and exact when nothing conflicts.
+
+Budget: ``iterations`` full-fleet rollouts per decision (the MCTS meaning of an iteration), i.e.
+``iterations * R`` single-carrier trajectories split over the components that need a search; or
+``plan_ms`` milliseconds. Feasibility (at most one deployment per stage, at most D, none at ∅,
+forced deployments) holds in the executed action and in every rollout. Stateless across stages.
+"""
+from __future__ import annotations
+
+import time
+import weakref
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from coordinator import ssap
+from coordinator.problem import Problem, StageView, make_view
+
+#: Largest number of free carriers in one component whose 2^k joint actions are all evaluated.
+ENUMERATE_MAX = 6
+#: Bounds on the number of sampled futures per candidate (common to all candidates).
+SAMPLES_MIN = 16
+SAMPLES_MAX = 4096
+#: Sampled futures per batch in the time-budget mode.
+BATCH = 32
+#: Default budget: full-fleet rollouts per decision (as MCTS iterations).
+DEFAULT_ITERATIONS = 10_000
+
+
+# ----------------------------------------------------------------------------- numba kernels
+
+
+@njit(cache=True)
+def _marginal(q, xq, sel, p, xv, nbr_ptr, nbr_idx):
+    """Change of the total reward if flat point ``q`` with value ``xq`` joins the selection."""
+    c = 0
+    loss = 0.0
+    for e in range(nbr_ptr[q], nbr_ptr[q + 1]):
+        k = nbr_idx[e]
+        if sel[k]:
+            c += 1
+            pk = p[k]
+            loss += xv[k] / (pk * (pk + 1.0))  # x/p - x/(p+1)
+    return xq / (1.0 + c) - loss
+
+
+@njit(cache=True)
+def _select(q, xq, sel, p, xv, nbr_ptr, nbr_idx, log, nlog):
+    """Add ``q`` to the selection, logging every change (``-(k+1)``: p[k] incremented; ``q``: selected)."""
+    c = 0
+    for e in range(nbr_ptr[q], nbr_ptr[q + 1]):
+        k = nbr_idx[e]
+        if sel[k]:
+            p[k] += 1
+            log[nlog] = -(k + 1)
+            nlog += 1
+            c += 1
+    sel[q] = True
+    p[q] = 1 + c
+    xv[q] = xq
+    log[nlog] = q
+    nlog += 1
+    return nlog
+
+
+@njit(cache=True)
+def _undo(sel, p, log, nlog):
+    for i in range(nlog - 1, -1, -1):
+        v = log[i]
+        if v < 0:
+            p[-v - 1] -= 1
+        else:
+            sel[v] = False
+
+
+@njit(cache=True)
+def _evaluate(actions, members, stage, n_stages, xnow, left0, valid, nleft, table,
+              sel, p, xv, nbr_ptr, nbr_idx, samples, out):
+    """Per-sample control-variate values of every candidate.
+
+    Args:
+        actions: bool ``[K, m]`` candidate joint actions of the component's ``m`` carriers.
+        members: int64 ``[m]`` carrier indices, in decision order.
+        xnow: float ``[m]`` observations at the current stage.
+        left0: int64 ``[m]`` passengers left before the current stage.
+        valid: bool ``[R, N]``; nleft: int64 ``[R, N + 1]`` valid stages from t to the end.
+        table: DLR thresholds ``[N + 2, N + 2]`` (raw units).
+        sel, p, xv: selection state over flat points (past deployments), restored on return.
+        samples: float ``[S, m, N - stage - 1]`` sampled future observations.
+        out: float ``[K, S]`` receives ``aware_total - plain_future`` per candidate and sample
+            (raw units; constant offsets common to all candidates left out).
+    """
+    n_cand = actions.shape[0]
+    m = members.shape[0]
+    n_samples = samples.shape[0]
+    left = np.empty(m, np.int64)
+    lefti = np.empty(m, np.int64)
+    log = np.empty(sel.shape[0] + nbr_idx.shape[0] + 1, np.int64)
+    for k in range(n_cand):
+        for s in range(n_samples):
+            nlog = 0
+            total = 0.0
+            plain = 0.0
+            for i in range(m):
+                left[i] = left0[i]
+                if actions[k, i]:
+                    q = members[i] * n_stages + stage
+                    total += _marginal(q, xnow[i], sel, p, xv, nbr_ptr, nbr_idx)
+                    nlog = _select(q, xnow[i], sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
+                    left[i] -= 1
+                lefti[i] = left[i]
+            for t in range(stage + 1, n_stages):
+                for i in range(m):
+                    r = members[i]
+                    if not valid[r, t]:
+                        continue
+                    n = nleft[r, t]
+                    xs = samples[s, i, t - stage - 1]
+                    d = left[i]
+                    if d > 0:
+                        q = r * n_stages + t
+                        g = _marginal(q, xs, sel, p, xv, nbr_ptr, nbr_idx)
+                        if n <= d or g > table[n, n - d]:
+                            total += g
+                            nlog = _select(q, xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
+                            left[i] = d - 1
+                    d = lefti[i]
+                    if d > 0 and (n <= d or xs > table[n, n - d]):
+                        plain += xs
+                        lefti[i] = d - 1
+            _undo(sel, p, log, nlog)
+            out[k, s] = total - plain
+
+
+# ----------------------------------------------------------------------------- per-problem data
+
+
+@dataclass(frozen=True, eq=False)
+class _Prepared:
+    """Per-problem constants: thresholds, exact SSAP values, conflict lists, prior sampler."""
+
+    table: np.ndarray        # float [N + 2, N + 2] DLR thresholds
+    value: np.ndarray        # float [N + 1, N + 1]: value[n, d] optimal single-carrier total
+    nbr_ptr: np.ndarray      # int64 [R*N + 1] CSR of the conflict matrix
+    nbr_idx: np.ndarray      # int64 [nnz]
+    support: np.ndarray | None  # float [K] support of a discrete prior (None: continuous)
+    cdf: np.ndarray | None      # float [K] its cumulative probabilities
+
+
+_PREPARED: "weakref.WeakKeyDictionary[Problem, _Prepared]" = weakref.WeakKeyDictionary()
+
+
+def _prepare(problem: Problem) -> _Prepared:
+    prep = _PREPARED.get(problem)
+    if prep is not None:
+        return prep
+    n_stages = problem.n_stages
+    table = np.ascontiguousarray(ssap.table_for(problem), dtype=np.float64)
+    value = np.zeros((n_stages + 1, n_stages + 1))
+    for n in range(n_stages + 1):
+        for d in range(n_stages + 1):
+            value[n, d] = ssap.expected_value(table, n, d)
+    conflict = np.asarray(problem.conflict, dtype=bool)
+    counts = conflict.sum(axis=1)
+    nbr_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    nbr_idx = np.nonzero(conflict)[1].astype(np.int64)
+    support = cdf = None
+    if hasattr(problem.prior.dist, "pmf"):
+        lo, hi = problem.prior.support()
+        lo = problem.prior.ppf(ssap.TAIL) if not np.isfinite(lo) else lo
+        hi = problem.prior.ppf(1.0 - ssap.TAIL) if not np.isfinite(hi) else hi
+        support = np.arange(lo, hi + 1, dtype=float)
+        cdf = np.cumsum(problem.prior.pmf(support))
+        cdf[-1] = 1.0
+    prep = _Prepared(table, value, nbr_ptr, nbr_idx, support, cdf)
+    _PREPARED[problem] = prep
+    return prep
+
+
+def _sample(prep: _Prepared, problem: Problem, rng: np.random.Generator, shape) -> np.ndarray:
+    """Observations drawn from the prior by inverse CDF (exact for discrete priors)."""
+    u = rng.random(shape)
+    if prep.support is not None:
+        idx = np.minimum(np.searchsorted(prep.cdf, u, side="right"), len(prep.support) - 1)
+        return prep.support[idx]
+    return np.asarray(problem.prior.ppf(u), dtype=float)
+
+
+def _components(adjacency: np.ndarray) -> list[np.ndarray]:
+    """Connected components (sorted carrier indices) of a symmetric bool ``[R, R]`` graph."""
+    n = adjacency.shape[0]
+    label = np.full(n, -1)
+    comps = []
+    for start in range(n):
+        if label[start] >= 0:
+            continue
+        stack = [start]
+        label[start] = len(comps)
+        members = []
+        while stack:
+            r = stack.pop()
+            members.append(r)
+            for s in np.flatnonzero(adjacency[r] & (label < 0)):
+                label[s] = len(comps)
+                stack.append(s)
+        comps.append(np.array(sorted(members), dtype=np.int64))
+    return comps
+
+
+# ----------------------------------------------------------------------------- the planner
+
+
+class ClosedLoopPlanner:
+    """One-stage search with conflict-aware SSAP rollouts that react to each sampled future.
+
+    Args:
+        iterations: full-fleet rollouts per decision (default 10,000; ignored with ``plan_ms``).
+        plan_ms: time budget per decision, milliseconds (anytime; not bit-reproducible).
+    """
+
+    name = "closed-loop"
+
+    def __init__(self, iterations: int | None = None, plan_ms: float | None = None, **_ignored):
+        if iterations is not None and int(iterations) < 1:
+            raise ValueError(f"iterations must be >= 1, got {iterations}")
+        if plan_ms is not None and not float(plan_ms) > 0:
+            raise ValueError(f"plan_ms must be > 0, got {plan_ms}")
+        self.iterations = DEFAULT_ITERATIONS if iterations is None else int(iterations)
+        self.plan_ms = None if plan_ms is None else float(plan_ms)
+
+    def warm_up(self, problem: Problem) -> None:
+        """Compile the kernels (cached on disk) and prepare the problem's constants."""
+        tiny = Problem.build(2, np.ones((2, 4), dtype=bool), [[[0, 1], [1, 1]], [[0, 2], [1, 3]]])
+        x = np.full((2, 4), 3.0)
+        ClosedLoopPlanner(iterations=8).decide(make_view(tiny, 0, x, np.zeros((2, 4), bool)),
+                                               np.random.default_rng(0))
+        _prepare(problem)
+
+    # The decision -----------------------------------------------------------------------------
+
+    def decide(self, view: StageView, rng: np.random.Generator) -> np.ndarray:
+        problem = view.problem
+        n_carriers, n_stages = problem.n_carriers, problem.n_stages
+        j = view.stage
+        can = view.can_deploy
+        must = view.must_deploy
+        free = can & ~must
+        decision = must.copy()
+        if not free.any():
+            return decision
+        prep = _prepare(problem)
+        valid = np.ascontiguousarray(view.valid)
+        left = view.passengers_left.astype(np.int64)
+        nleft = np.zeros((n_carriers, n_stages + 1), dtype=np.int64)
+        nleft[:, :n_stages] = np.cumsum(valid[:, ::-1], axis=1)[:, ::-1]
+        xnow = np.nan_to_num(view.observations[:, j], nan=0.0)
+
+        # Relevant points: past deployments, and scheduled points from j on of carriers with
+        # passengers left. Carriers are linked when a conflict joins two relevant points of
+        # which at least one is still open (past-past conflicts are settled).
+        past = view.deployed.ravel()
+        open_ = (valid & (left > 0)[:, None]).copy()
+        open_[:, :j] = False
+        open_ = open_.ravel()
+        conflict = problem.conflict
+        live = conflict & (open_[:, None] & (open_ | past)[None, :])
+        live |= live.T
+        point_owner = np.repeat(np.arange(n_carriers), n_stages)
+        adjacency = np.zeros((n_carriers, n_carriers), dtype=bool)
+        rows, cols = np.nonzero(live)
+        adjacency[point_owner[rows], point_owner[cols]] = True
+        linked = adjacency.copy()
+        np.fill_diagonal(linked, True)
+
+        comps = _components(linked)
+        search = []
+        for comp in comps:
+            if not free[comp].any():
+                continue
+            if not adjacency[np.ix_(comp, comp)].any():
+                # No conflict can touch these carriers: independent SSAP is optimal.
+                for r in comp[free[comp]]:
+                    decision[r] = ssap.decide(prep.table, float(xnow[r]), int(nleft[r, j]), int(left[r]))
+                continue
+            search.append(comp)
+        if not search:
+            return decision
+
+        # Shared selection state: past deployments with their current penalties.
+        sel = past.copy()
+        p = (1 + conflict[:, sel].sum(axis=1)).astype(np.int64)
+        xv = np.nan_to_num(np.where(view.deployed, _past_values(view), 0.0), nan=0.0).ravel()
+        state = (sel, p, xv)
+
+        plans = []
+        for comp in search:
+            k = int(free[comp].sum())
+            rounds = 1 if k <= ENUMERATE_MAX else 3
+            n_cand = (1 << k) if k <= ENUMERATE_MAX else k + 1
+            plans.append((comp, k, n_cand * rounds))
+        weight = sum(len(c) * w for c, _, w in plans)
+        deadline = None if self.plan_ms is None else time.perf_counter() + self.plan_ms / 1e3
+        for comp, k, w in plans:
+            share = len(comp) * w / weight
+            samples = int(np.clip(self.iterations * n_carriers // max(weight, 1), SAMPLES_MIN, SAMPLES_MAX))
+            comp_deadline = None
+            if deadline is not None:
+                comp_deadline = time.perf_counter() + share * max(deadline - time.perf_counter(), 0.0)
+            action = self._search(comp, k, samples, comp_deadline, view, prep, state, valid, nleft,
+                                  left, xnow, must, free, rng)
+            decision[comp] = action
+        return decision
+
+    # Search of one component ------------------------------------------------------------------
+
+    def _search(self, comp, k, samples, deadline, view, prep, state, valid, nleft, left, xnow,
+                must, free, rng):
+        sel, p, xv = state
+        n_stages = view.problem.n_stages
+        j = view.stage
+        base = self._base_action(comp, view, prep, state, nleft, left, xnow, must, free)
+        free_idx = np.flatnonzero(free[comp])
+        if k <= ENUMERATE_MAX:
+            codes = np.arange(1 << k)
+            bits = ((codes[:, None] >> np.arange(k)[None, :]) & 1).astype(bool)
+            actions = np.repeat(base[None, :], len(codes), axis=0)
+            actions[:, free_idx] = bits
+            # The base policy's action first: it wins ties.
+            first = int(np.flatnonzero((actions == base).all(axis=1))[0])
+            order = np.r_[first, np.delete(np.arange(len(codes)), first)]
+            actions = actions[order]
+            score = self._score(actions, comp, samples, deadline, view, prep, state, valid, nleft, left, xnow, rng)
+            return actions[int(np.argmax(score))]
+        current = base
+        for _ in range(3 if deadline is None else 1 << 30):
+            actions = np.repeat(current[None, :], k + 1, axis=0)
+            for a, i in enumerate(free_idx, start=1):
+                actions[a, i] = not actions[a, i]
+            round_deadline = None
+            if deadline is not None:
+                if time.perf_counter() >= deadline:
+                    break
+                round_deadline = time.perf_counter() + (deadline - time.perf_counter()) / 2
+            score = self._score(actions, comp, samples, round_deadline, view, prep, state, valid, nleft,
+                                left, xnow, rng)
+            best = int(np.argmax(score))
+            if best == 0:
+                break
+            current = actions[best]
+        return current
+
+    def _score(self, actions, comp, samples, deadline, view, prep, state, valid, nleft, left, xnow, rng):
+        """Control-variate estimate (raw units, up to a common constant) of each candidate."""
+        sel, p, xv = state
+        problem = view.problem
+        j = view.stage
+        n_stages = problem.n_stages
+        horizon = n_stages - j - 1
+        comp_left = left[comp]
+        sums = np.zeros(len(actions))
+        count = 0
+        while True:
+            batch = samples if deadline is None else BATCH
+            draws = _sample(prep, problem, rng, (batch, len(comp), horizon))
+            out = np.empty((len(actions), batch))
+            _evaluate(actions, comp, j, n_stages, xnow[comp], comp_left, valid, nleft, prep.table,
+                      sel, p, xv, prep.nbr_ptr, prep.nbr_idx, draws, out)
+            sums += out.sum(axis=1)
+            count += batch
+            if deadline is None or time.perf_counter() >= deadline:
+                break
+        # Exact expected future of plain SSAP after each candidate's action.
+        n_after = nleft[comp, j + 1]
+        exact = prep.value[n_after[None, :], comp_left[None, :] - actions.astype(np.int64)].sum(axis=1)
+        return sums / count + exact
+
+    @staticmethod
+    def _base_action(comp, view, prep, state, nleft, left, xnow, must, free):
+        """The conflict-aware SSAP action at the current stage (carriers in index order)."""
+        sel, p, xv = state
+        n_stages = view.problem.n_stages
+        j = view.stage
+        action = must[comp].copy()
+        chosen = sel.copy()
+        pp = p.copy()
+        vv = xv.copy()
+        log = np.empty(len(sel) + len(prep.nbr_idx) + 1, dtype=np.int64)
+        for i, r in enumerate(comp):
+            q = int(r) * n_stages + j
+            if free[r]:
+                n, d = int(nleft[r, j]), int(left[r])
+                gain = _marginal(q, float(xnow[r]), chosen, pp, vv, prep.nbr_ptr, prep.nbr_idx)
+                action[i] = n <= d or gain > prep.table[n, n - d]
+            if action[i]:
+                _select(q, float(xnow[r]), chosen, pp, vv, prep.nbr_ptr, prep.nbr_idx, log, 0)
+        return action
+
+
+def _past_values(view: StageView) -> np.ndarray:
+    """Observations at past stages (the values of past deployments), float ``[R, N]``."""
+    out = np.zeros(view.observations.shape)
+    out[:, : view.stage] = np.nan_to_num(view.observations[:, : view.stage], nan=0.0)
+    return out
