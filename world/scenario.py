@@ -17,7 +17,7 @@ import re
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import yaml
@@ -38,39 +38,59 @@ PLANNER_NAMES = ("random", "ssap", "mcts-random", "mcts-ssap")
 #: Carrier body radius (m): paths must keep at least this clearance from walls.
 CARRIER_RADIUS = 0.4
 
-# kind -> (scipy distribution, required parameter names, optional parameter names)
-_PRIOR_TABLE: dict[str, tuple[Any, tuple[str, ...], tuple[str, ...]]] = {
-    "poisson": (stats.poisson, ("mu",), ("loc",)),
-    "binomial": (stats.binom, ("n", "p"), ("loc",)),
-    "geometric": (stats.geom, ("p",), ("loc",)),
-    "negative_binomial": (stats.nbinom, ("n", "p"), ("loc",)),
-    "discrete_uniform": (stats.randint, ("low", "high"), ("loc",)),
-    "gamma": (stats.gamma, ("a",), ("loc", "scale")),
-    "lognormal": (stats.lognorm, ("s",), ("loc", "scale")),
-    "normal": (stats.norm, ("loc", "scale"), ()),
-    "uniform": (stats.uniform, ("loc", "scale"), ()),
-    "exponential": (stats.expon, ("scale",), ("loc",)),
-}
-#: Alias -> canonical prior kind (scipy's own names are accepted too).
-PRIOR_ALIASES = {
-    "binom": "binomial", "geom": "geometric", "nbinom": "negative_binomial",
-    "negbinom": "negative_binomial", "randint": "discrete_uniform", "lognorm": "lognormal",
-    "norm": "normal", "gaussian": "normal", "expon": "exponential",
-}
-PRIOR_KINDS = tuple(_PRIOR_TABLE)
+def _num(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
 
-# parameter -> (check, description) for explicit priors
-_PARAM_RULES = {
-    "mu": (lambda v: v > 0, "a number > 0"),
-    "n": (lambda v: v > 0, "a number > 0"),
-    "p": (lambda v: 0 < v <= 1, "a probability in (0, 1]"),
-    "a": (lambda v: v > 0, "a number > 0"),
-    "s": (lambda v: v > 0, "a number > 0"),
-    "scale": (lambda v: v > 0, "a number > 0"),
-    "loc": (lambda v: True, "a number"),
-    "low": (lambda v: float(v).is_integer(), "an integer"),
-    "high": (lambda v: float(v).is_integer(), "an integer"),
+
+def _int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _positive(v: Any) -> bool:
+    return _num(v) and v > 0
+
+
+def _probability(v: Any) -> bool:
+    return _num(v) and 0 < v <= 1
+
+
+def _numbers(v: Any) -> bool:
+    return isinstance(v, list) and len(v) > 0 and all(_num(e) for e in v)
+
+
+def _table(p: dict) -> Any:
+    return stats.rv_discrete(values=(np.asarray(p["values"], float), np.asarray(p["probabilities"], float)))()
+
+
+#: Explicit prior kinds: kind -> ({parameter: (check, "expected" text)}, builder(params) -> frozen
+#: scipy.stats distribution). Same kinds, parameters and meanings as the planner's instance
+#: format (coordinator/instance.py), so a prior reads the same in both files.
+PRIOR_TABLE: dict[str, tuple[dict[str, tuple[Callable[[Any], bool], str]], Callable[[dict], Any]]] = {
+    "poisson": ({"mean": (_positive, "a number > 0")}, lambda p: stats.poisson(p["mean"])),
+    "binomial": ({"n": (lambda v: _int(v) and v >= 1, "an integer >= 1"), "p": (_probability, "a number in (0, 1]")},
+                 lambda p: stats.binom(p["n"], p["p"])),
+    # failures before the first success: support 0, 1, 2, ...
+    "geometric": ({"p": (_probability, "a number in (0, 1]")}, lambda p: stats.geom(p["p"], loc=-1)),
+    "negative_binomial": ({"n": (_positive, "a number > 0"), "p": (_probability, "a number in (0, 1]")},
+                          lambda p: stats.nbinom(p["n"], p["p"])),
+    # integers low..high inclusive
+    "discrete_uniform": ({"low": (_int, "an integer"), "high": (_int, "an integer")},
+                         lambda p: stats.randint(p["low"], p["high"] + 1)),
+    "table": ({"values": (_numbers, "a non-empty list of numbers"),
+               "probabilities": (lambda v: _numbers(v) and all(e >= 0 for e in v), "a non-empty list of numbers >= 0")},
+              _table),
+    "gamma": ({"shape": (_positive, "a number > 0"), "scale": (_positive, "a number > 0")},
+              lambda p: stats.gamma(p["shape"], scale=p["scale"])),
+    "exponential": ({"mean": (_positive, "a number > 0")}, lambda p: stats.expon(scale=p["mean"])),
+    # log X ~ Normal(mu, sigma)
+    "lognormal": ({"mu": (_num, "a number"), "sigma": (_positive, "a number > 0")},
+                  lambda p: stats.lognorm(p["sigma"], scale=math.exp(p["mu"]))),
+    "normal": ({"mean": (_num, "a number"), "std": (_positive, "a number > 0")},
+               lambda p: stats.norm(p["mean"], p["std"])),
+    "uniform": ({"low": (_num, "a number"), "high": (_num, "a number")},
+                lambda p: stats.uniform(p["low"], p["high"] - p["low"])),
 }
+PRIOR_KINDS = tuple(PRIOR_TABLE)
 
 
 class ScenarioError(ValueError):
@@ -263,7 +283,7 @@ class PriorSpec:
 
     ``kind == "derived"``: Poisson with mean = background density × π r² (open-field sensed
     area; walls and clusters ignored). Otherwise one of :data:`PRIOR_KINDS` with ``params`` as
-    (name, value) pairs in scipy's parametrisation.
+    (name, value) pairs (list values as tuples), as in the planner's instance format.
     """
 
     kind: str = "derived"
@@ -350,8 +370,8 @@ class Scenario:
         """The frozen ``scipy.stats`` prior of a valid stage's feature count."""
         if self.prior.kind == "derived":
             return stats.poisson(self.derived_prior_mean())
-        dist, _, _ = _PRIOR_TABLE[self.prior.kind]
-        return dist(**dict(self.prior.params))
+        _, build = PRIOR_TABLE[self.prior.kind]
+        return build(dict(self.prior.params))
 
     def derived_prior_mean(self) -> float:
         """Background density × π r²: the open-field expected count (walls and clusters ignored)."""
@@ -779,47 +799,49 @@ def _parse_planner(ck: _Checker, node: Any) -> PlannerSpec | None:
 def _parse_prior(ck: _Checker, node: Any) -> PriorSpec | None:
     if node == "derived" or node is None:
         return PriorSpec()
-    p = ck.mapping(node, "prior", ("kind",) + tuple(_PARAM_RULES), ("kind",))
-    if p is None or "kind" not in p:
+    if not isinstance(node, dict):
+        ck.bad("prior", "'derived' or a mapping like {kind: poisson, mean: 3.0}", node)
         return None
-    kind = p["kind"]
-    kind = PRIOR_ALIASES.get(kind, kind) if isinstance(kind, str) else kind
+    if "kind" not in node:
+        ck.problems.append(f"{ck.file}: prior.kind: expected a value (derived or one of {', '.join(PRIOR_KINDS)}), found nothing (missing)")
+        return None
+    kind = node["kind"]
     if kind == "derived":
-        extra = [k for k in p if k != "kind"]
+        extra = [k for k in node if k != "kind"]
         if extra:
-            ck.bad(f"prior.{extra[0]}", "no parameters for the derived prior", p[extra[0]])
+            ck.bad(f"prior.{extra[0]}", "no parameters for the derived prior", node[extra[0]])
             return None
         return PriorSpec()
-    if kind not in _PRIOR_TABLE:
-        options = PRIOR_KINDS + tuple(PRIOR_ALIASES) + ("derived",)
-        close = difflib.get_close_matches(str(p["kind"]), options, n=1, cutoff=0.5)
+    if not isinstance(kind, str) or kind not in PRIOR_TABLE:
+        close = difflib.get_close_matches(str(kind), PRIOR_KINDS + ("derived",), n=1, cutoff=0.5)
         hint = f" (did you mean '{close[0]}'?)" if close else ""
-        ck.bad("prior.kind", f"one of derived, {', '.join(PRIOR_KINDS)}{hint}", p["kind"])
+        ck.bad("prior.kind", f"derived or one of {', '.join(PRIOR_KINDS)}{hint}", kind)
         return None
-    _, required, optional = _PRIOR_TABLE[kind]
+    params, _ = PRIOR_TABLE[kind]
     n0 = len(ck.problems)
-    params = []
-    for key in p:
-        if key != "kind" and key not in required + optional:
-            ck.bad(f"prior.{key}", f"a parameter of {kind} ({', '.join(required + optional)})", f"'{key}'")
-    for key in required:
-        if key not in p:
-            ck.problems.append(f"{ck.file}: prior.{key}: expected a value (required by {kind}), found nothing (missing)")
-    for key in required + optional:
-        if key in p:
-            rule, text = _PARAM_RULES[key]
-            v = p[key]
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not rule(v):
-                ck.bad(f"prior.{key}", text, v)
-            else:
-                params.append((key, float(v) if key not in ("low", "high") else int(v)))
-    if kind == "binomial" and "n" in p and isinstance(p["n"], (int, float)) and not float(p["n"]).is_integer():
-        ck.bad("prior.n", "an integer number of trials", p["n"])
-    if kind == "discrete_uniform" and len(ck.problems) == n0 and not p["low"] < p["high"]:
-        ck.bad("prior.high", f"an integer > low ({p['low']})", p["high"])
+    ck.mapping(node, "prior", ("kind",) + tuple(params), ())
+    for name, (check, expected) in params.items():
+        if name not in node:
+            ck.problems.append(f"{ck.file}: prior.{name}: expected {expected} ({kind} prior), found nothing (missing)")
+        elif not check(node[name]):
+            ck.bad(f"prior.{name}", expected, node[name])
+    if len(ck.problems) == n0:
+        if kind == "discrete_uniform" and node["high"] < node["low"]:
+            ck.bad("prior.high", f"an integer >= low ({node['low']})", node["high"])
+        if kind == "uniform" and node["high"] <= node["low"]:
+            ck.bad("prior.high", f"a number > low ({node['low']})", node["high"])
+        if kind == "table":
+            values, probs = node["values"], node["probabilities"]
+            if len(probs) != len(values):
+                ck.bad("prior.probabilities", f"{len(values)} entries (one per value)", len(probs))
+            elif abs(sum(probs) - 1.0) > 1e-9:
+                ck.bad("prior.probabilities", "probabilities summing to 1", f"sum {sum(probs):g}")
+            if len(set(values)) != len(values):
+                ck.bad("prior.values", "distinct values", values)
     if len(ck.problems) > n0:
         return None
-    return PriorSpec(kind=kind, params=tuple(params))
+    vals = tuple((name, tuple(node[name]) if isinstance(node[name], list) else node[name]) for name in params)
+    return PriorSpec(kind=kind, params=vals)
 
 
 def _inside(p: tuple[float, float], bounds: tuple[float, float, float, float]) -> bool:
