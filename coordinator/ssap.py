@@ -14,6 +14,7 @@ tail mass is below 1e-15); continuous priors use numerical integration.
 from __future__ import annotations
 
 import numpy as np
+from scipy import integrate
 
 #: Tail mass ignored when enumerating an unbounded discrete support.
 TAIL = 1e-15
@@ -23,8 +24,12 @@ def _is_discrete(prior) -> bool:
     return hasattr(prior.dist, "pmf")
 
 
-def _support_grid(prior) -> tuple[np.ndarray, np.ndarray]:
-    """Support points and their probabilities of a discrete prior (truncated at mass TAIL)."""
+def support_grid(prior) -> tuple[np.ndarray, np.ndarray]:
+    """Support points float ``[K]`` and their probabilities ``[K]`` of a discrete prior.
+
+    Unbounded supports are truncated where the tail mass is below :data:`TAIL`. Table priors
+    (``scipy.stats.rv_discrete(values=...)``) give their own, possibly non-integer, points.
+    """
     if hasattr(prior.dist, "xk"):
         # A table prior (scipy.stats.rv_discrete(values=(xk, pk))): arbitrary support points.
         kwds = prior.kwds
@@ -43,7 +48,7 @@ def _support_grid(prior) -> tuple[np.ndarray, np.ndarray]:
 def _clipped_mean_factory(prior):
     """A function (a, b) -> E[min(max(X, a), b)] for a <= b (either may be infinite)."""
     if _is_discrete(prior):
-        points, mass = _support_grid(prior)
+        points, mass = support_grid(prior)
 
         def clipped_mean(a: float, b: float) -> float:
             return float(np.dot(mass, np.clip(points, a, b)))
@@ -51,18 +56,26 @@ def _clipped_mean_factory(prior):
         return clipped_mean
 
     lo, hi = prior.support()
+    mean = float(prior.mean())
 
+    def integral(f, u: float, v: float) -> float:
+        return float(integrate.quad(f, u, v, epsabs=1e-11, epsrel=1e-11, limit=200)[0])
+
+    # E[min(max(X, a), b)] through tail integrals: E[max(X, a)] = E[X] + ∫_lo^a F,
+    # E[min(X, b)] = E[X] - ∫_b^hi S, and for finite a <= b: max(a, lo) + ∫_max(a,lo)^min(b,hi) S.
     def clipped_mean(a: float, b: float) -> float:
-        lower = max(a, lo)
-        upper = min(b, hi)
-        total = 0.0
-        if np.isfinite(a):
-            total += a * prior.cdf(a)
-        if np.isfinite(b):
-            total += b * prior.sf(b)
-        if lower < upper:
-            total += prior.expect(lambda v: v, lb=lower, ub=upper)
-        return float(total)
+        if not np.isfinite(a) and not np.isfinite(b):
+            return mean
+        if not np.isfinite(a):
+            return mean if b >= hi else mean - integral(prior.sf, b, hi)
+        if not np.isfinite(b):
+            return mean if a <= lo else mean + integral(prior.cdf, lo, a)
+        if a >= hi:
+            return float(a)
+        if b <= lo:
+            return float(b)
+        lower, upper = max(a, lo), min(b, hi)
+        return lower + integral(prior.sf, lower, upper)
 
     return clipped_mean
 
