@@ -1,0 +1,241 @@
+"""Map pictures (matplotlib, PNG): walls, features, paths, decision points, overlaps, deployments."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Iterable, Mapping, Sequence
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.lines import Line2D  # noqa: E402
+from matplotlib.patches import Circle, Patch, Polygon, Rectangle  # noqa: E402
+
+from world.features import sample_features  # noqa: E402
+from world.stages import stage_geometry  # noqa: E402
+
+#: Carrier colours, in carrier order (cycled).
+CARRIER_COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#17becf", "#8c564b", "#e377c2")
+OVERLAP_COLOUR = "#7b3fa0"
+
+
+def _colour(r: int) -> str:
+    return CARRIER_COLOURS[r % len(CARRIER_COLOURS)]
+
+
+def _nice_length(span: float) -> float:
+    """A round scale-bar length near a fifth of ``span`` (m)."""
+    target = span / 5
+    base = 10 ** math.floor(math.log10(target))
+    for m in (5, 2, 1):
+        if m * base <= target:
+            return m * base
+    return base
+
+
+def _hull(points: np.ndarray) -> np.ndarray | None:
+    """Convex hull (counter-clockwise) of ``[K, 2]`` points, or None if they are collinear."""
+    pts = sorted(set(map(tuple, np.round(points, 9))))
+    if len(pts) < 3:
+        return None
+
+    def cross(o, a, b):
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+    lower: list = []
+    for p in pts:
+        while len(lower) >= 2 and cross(lower[-2], lower[-1], p) <= 0:
+            lower.pop()
+        lower.append(p)
+    upper: list = []
+    for p in reversed(pts):
+        while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= 0:
+            upper.pop()
+        upper.append(p)
+    hull = lower[:-1] + upper[:-1]
+    return np.asarray(hull) if len(hull) >= 3 else None
+
+
+def _deployment_spots(scenario, deployments: Any, positions: np.ndarray) -> list[tuple[int, tuple[float, float]]]:
+    """Normalise ``deployments`` to a list of (carrier index, (x, y))."""
+    if deployments is None:
+        return []
+    arr = np.asarray(deployments) if not isinstance(deployments, (list, tuple)) else None
+    if arr is not None and arr.dtype == bool:
+        return [(int(r), tuple(positions[r, j])) for r, j in np.argwhere(arr) if np.isfinite(positions[r, j]).all()]
+    out = []
+    for d in deployments:
+        if hasattr(d, "carrier"):
+            cid, pos = d.carrier, d.position
+        else:
+            cid, pos = d
+        r = scenario.carrier_index(cid) if isinstance(cid, str) else int(cid)
+        out.append((r, (float(pos[0]), float(pos[1]))))
+    return out
+
+
+def _trajectory_list(scenario, trajectories: Any) -> list[tuple[int, np.ndarray]]:
+    if trajectories is None:
+        return []
+    if isinstance(trajectories, Mapping):
+        items: Iterable = ((scenario.carrier_index(k) if isinstance(k, str) else int(k), v) for k, v in trajectories.items())
+    else:
+        items = enumerate(trajectories)
+    out = []
+    for r, tr in items:
+        tr = np.asarray(tr, dtype=float)
+        if tr.ndim == 2 and len(tr) >= 2:
+            out.append((r, tr[:, -2:] if tr.shape[1] >= 3 else tr))
+    return out
+
+
+def render_map(scenario, path: str | Path, deployments: Any = None, trajectories: Any = None,
+               title: str | None = None, positions: np.ndarray | None = None,
+               features: np.ndarray | None = None, stage_labels: bool = True, dpi: int = 130) -> Path:
+    """Draw the scenario's map to a PNG.
+
+    Args:
+        scenario: the mission.
+        path: output file (.png).
+        deployments: bool ``[R, N]`` (drawn at ``positions``, the planned points by default) or a
+            sequence of :class:`world.Deployment` / ``(carrier_id, (x, y))``.
+        trajectories: actual paths, ``{carrier_id: [K, 2 or 3]}`` or a sequence in carrier order
+            (e.g. ``MissionTrace.trajectories``; the last two columns are x, y in m).
+        title: figure title (the scenario name by default).
+        positions: float ``[R, N, 2]`` actual decision-point positions for bool deployments (m).
+        features: float ``[F, 2]`` (sampled from the scenario's seed by default).
+        stage_labels: write the stage number next to each decision point.
+        dpi: resolution.
+
+    Returns:
+        The path written.
+    """
+    geo = stage_geometry(scenario)
+    feats = sample_features(scenario) if features is None else np.asarray(features)
+    xmin, ymin, xmax, ymax = scenario.map.bounds
+    w, h = xmax - xmin, ymax - ymin
+    fig_w = 11.0
+    fig_h = max(4.5, min(11.0, 8.2 * h / w + 1.2))
+    fig, ax = plt.subplots(figsize=(fig_w, fig_h))
+    ax.set_aspect("equal")
+    ax.set_xlim(xmin - 0.02 * w, xmax + 0.02 * w)
+    ax.set_ylim(ymin - 0.02 * h, ymax + 0.02 * h)
+    ax.set_facecolor("#fbfbf8")
+    ax.add_patch(Rectangle((xmin, ymin), w, h, fill=False, ec="#999999", lw=0.8, ls=":"))
+
+    # clusters (denser feature regions)
+    for cl in scenario.features.clusters:
+        if cl.shape == "disc":
+            cx, cy, rad = cl.params
+            ax.add_patch(Circle((cx, cy), rad, color="#f4c542", alpha=0.25, lw=0))
+            lx, ly = cx, cy + rad
+        else:
+            x1, y1, x2, y2 = cl.params
+            ax.add_patch(Rectangle((x1, y1), x2 - x1, y2 - y1, color="#f4c542", alpha=0.22, lw=0))
+            lx, ly = (x1 + x2) / 2, y2
+        if cl.label:
+            ax.text(lx, ly, cl.label, ha="center", va="bottom", fontsize=7, color="#8a6d00", style="italic")
+
+    # obstacles and walls
+    for poly in scenario.map.obstacles:
+        ax.add_patch(Polygon(poly, closed=True, fc="#c9c9c9", ec="#333333", lw=1.2))
+    segs = scenario.map.segments
+    if len(segs):
+        from matplotlib.collections import LineCollection
+
+        ax.add_collection(LineCollection(segs.reshape(-1, 2, 2), colors="#222222", linewidths=1.8, zorder=3))
+
+    # features
+    if len(feats):
+        ax.scatter(feats[:, 0], feats[:, 1], s=5, c="#6b6b6b", alpha=0.7, lw=0, zorder=2)
+
+    # overlap groups: translucent hulls (3+ points) or thick bands (2 or collinear points)
+    pos = geo.positions
+    for group in geo.overlaps:
+        pts = np.array([pos[r, j] for r, j in group])
+        hull = _hull(pts)
+        if hull is not None:
+            ax.add_patch(Polygon(hull, closed=True, fc=OVERLAP_COLOUR, alpha=0.10, ec=OVERLAP_COLOUR, lw=0.8,
+                                 zorder=4))
+        else:
+            order = np.lexsort((pts[:, 1], pts[:, 0]))
+            ax.plot(pts[order, 0], pts[order, 1], color=OVERLAP_COLOUR, alpha=0.25, lw=6,
+                    solid_capstyle="round", zorder=4)
+
+    # planned paths and decision points; start labels of carriers sharing a start are stacked
+    starts_seen: dict[tuple[float, float], int] = {}
+    for r, c in enumerate(scenario.carriers):
+        col = _colour(r)
+        wp = np.asarray(c.waypoints)
+        ax.plot(wp[:, 0], wp[:, 1], color=col, lw=1.4, alpha=0.55, zorder=5)
+        ax.plot(wp[0, 0], wp[0, 1], marker="s", ms=7, color=col, mec="black", mew=0.6, zorder=7)
+        key = (round(float(wp[0, 0]), 3), round(float(wp[0, 1]), 3))
+        k = starts_seen[key] = starts_seen.get(key, -1) + 1
+        ax.annotate(c.id, wp[0], xytext=(-5, -4 - 10 * k), textcoords="offset points", ha="right", va="top",
+                    fontsize=8, fontweight="bold", color=col, zorder=8)
+        ok = geo.valid[r]
+        if ok.any():
+            ax.scatter(pos[r, ok, 0], pos[r, ok, 1], s=26, c=col, edgecolors="white", linewidths=0.7, zorder=6)
+        if stage_labels:
+            for j in np.flatnonzero(ok):
+                ax.annotate(str(j), pos[r, j], xytext=(3, 3), textcoords="offset points", fontsize=6.5,
+                            color=col, zorder=8)
+
+    # actual trajectories
+    for r, tr in _trajectory_list(scenario, trajectories):
+        ax.plot(tr[:, 0], tr[:, 1], color=_colour(r), lw=1.0, ls="--", alpha=0.9, zorder=6)
+
+    # deployments with the passenger's sensing disc
+    spot_pos = geo.positions if positions is None else np.asarray(positions)
+    spots = _deployment_spots(scenario, deployments, spot_pos)
+    for r, (x, y) in spots:
+        col = _colour(r)
+        ax.add_patch(Circle((x, y), scenario.sensing_radius, fc=col, alpha=0.15, ec=col, lw=1.2, ls="--", zorder=5))
+        ax.plot(x, y, marker="*", ms=14, color=col, mec="black", mew=0.7, zorder=9)
+
+    # scale bar (bottom-left, inside the bounds)
+    bar = _nice_length(w)
+    bx, by = xmin + 0.03 * w, ymin + 0.035 * h
+    ax.plot([bx, bx + bar], [by, by], color="black", lw=3, solid_capstyle="butt", zorder=10)
+    for xx in (bx, bx + bar):
+        ax.plot([xx, xx], [by - 0.008 * h, by + 0.008 * h], color="black", lw=1.2, zorder=10)
+    ax.text(bx + bar / 2, by + 0.012 * h, f"{bar:g} m", ha="center", va="bottom", fontsize=9, fontweight="bold",
+            zorder=10, bbox=dict(fc="white", ec="none", alpha=0.7, pad=1))
+
+    # legend
+    handles = [Line2D([], [], color=_colour(r), lw=2, marker="o", ms=5, label=f"{c.id} ({c.passengers} pass.)")
+               for r, c in enumerate(scenario.carriers)]
+    handles += [
+        Line2D([], [], color="none", marker="s", mfc="white", mec="black", ms=7, label="start"),
+        Line2D([], [], color="none", marker="o", mfc="#888888", mec="white", ms=6, label="decision point (stage no.)"),
+        Line2D([], [], color="none", marker="o", mfc="#6b6b6b", mec="none", ms=3, label=f"feature ({len(feats)})"),
+        Patch(fc=OVERLAP_COLOUR, alpha=0.25, ec=OVERLAP_COLOUR, label=f"overlap group ({len(geo.overlaps)})"),
+    ]
+    if len(segs):
+        handles.append(Line2D([], [], color="#222222", lw=2, label="wall"))
+    if scenario.map.obstacles:
+        handles.append(Patch(fc="#c9c9c9", ec="#333333", label="obstacle"))
+    if scenario.features.clusters:
+        handles.append(Patch(fc="#f4c542", alpha=0.4, label="feature cluster"))
+    if trajectories is not None:
+        handles.append(Line2D([], [], color="#444444", lw=1, ls="--", label="actual trajectory"))
+    if spots:
+        handles.append(Line2D([], [], color="none", marker="*", mfc="#888888", mec="black", ms=12,
+                              label=f"deployment ({len(spots)}) + sensing disc"))
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, frameon=False,
+              borderaxespad=0.0)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.tick_params(labelsize=8)
+    n_valid = int(geo.valid.sum())
+    sub = (f"R = {scenario.n_carriers}, N = {scenario.stages} stages every {scenario.stage_interval:g} s, "
+           f"{n_valid} decision points, sensing {scenario.sensing_radius:g} m, conflict {scenario.conflict_radius:g} m")
+    ax.set_title(f"{title or scenario.name}\n{sub}", fontsize=10)
+    fig.tight_layout()
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=dpi)
+    plt.close(fig)
+    return out
