@@ -81,7 +81,7 @@ class MissionRecord:
         observations: ``{(carrier, stage): x or None}``; None = ∅ (reported or missing).
         positions: ``{(carrier, stage): (x, y)}`` metres, where reported.
         decisions: ``{stage: (deploy ids tuple, planning_ms)}``.
-        confirmations: ``{(carrier, stage): (deployed, status)}``.
+        confirmations: ``{(carrier, stage): (deployed, status, (x, y))}``.
         carriers_info: ``{carrier: {"pid": int, "host": str}}`` from the last Hello.
         ended: an ``end`` event was written.
         events: number of events.
@@ -226,10 +226,10 @@ class MissionStore:
                 rec.positions[(cid, stage)] = (px, py)
         for stage, deploy, ms in self.db.execute("SELECT stage, deploy, planning_ms FROM decisions"):
             rec.decisions[stage] = (tuple(json.loads(deploy)), ms)
-        for cid, stage, deployed, status in self.db.execute(
-            "SELECT carrier, stage, deployed, status FROM confirmations"
+        for cid, stage, deployed, status, px, py in self.db.execute(
+            "SELECT carrier, stage, deployed, status, pos_x, pos_y FROM confirmations"
         ):
-            rec.confirmations[(cid, stage)] = (bool(deployed), status)
+            rec.confirmations[(cid, stage)] = (bool(deployed), status, (px, py))
         for cid, payload in self.db.execute(
             "SELECT carrier, payload FROM events WHERE kind='hello' ORDER BY seq"
         ):

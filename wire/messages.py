@@ -168,6 +168,8 @@ class Hello:
         host: host name of the carrier's machine.
         passengers_left: passengers still on board.
         next_stage: the first stage this carrier will observe.
+        fingerprint: hex digest of the carrier's scenario (with its seed); must equal the
+            coordinator's, else the carrier built another world and is refused.
     """
 
     mission: str = _spec(_ident)
@@ -176,6 +178,7 @@ class Hello:
     host: str = _spec(_text(255))
     passengers_left: int = _spec(_PASSENGERS)
     next_stage: int = _spec(_STAGE_COUNT)
+    fingerprint: str = _spec(_text(64))
     v: int = PROTOCOL_VERSION
     TYPE = "hello"
 
@@ -323,11 +326,13 @@ class State:
         ended: True once End was published.
         carriers: per carrier id, its :class:`CarrierState` (sorted by id).
         last_decision: the most recent Decision (None before stage 0 is decided).
+        fingerprint: hex digest of the coordinator's scenario (see Hello).
     """
 
     mission: str = _spec(_ident)
     next_stage: int = _spec(_STAGE_COUNT)
     stages: int = _spec(_STAGE_COUNT)
+    fingerprint: str = _spec(_text(64))
     ended: bool = _spec(_bool)
     carriers: tuple[tuple[str, CarrierState], ...] = _spec(lambda v, n: _carrier_states(v, n), as_map=True)
     last_decision: Decision | None = _spec(lambda v, n: None if v is None else _nested(Decision, v, n))
@@ -339,6 +344,23 @@ class State:
 
 
 MESSAGE_TYPES = {cls.TYPE: cls for cls in (Hello, Observation, Decision, Confirm, End, Bye, State)}
+
+
+def fingerprint(value) -> str:
+    """16 hex digits identifying a value by its ``repr`` (used for the scenario with its seed)."""
+    import hashlib
+
+    return hashlib.sha256(repr(value).encode("utf-8")).hexdigest()[:16]
+
+
+def scenario_fingerprint(scenario) -> str:
+    """Identifies the world a process built: the scenario dataclass's content with its seed
+    (its ``source`` path left out, so the same file anywhere on any host matches)."""
+    import dataclasses
+
+    if dataclasses.is_dataclass(scenario) and any(f.name == "source" for f in dataclasses.fields(scenario)):
+        scenario = dataclasses.replace(scenario, source="")
+    return fingerprint(scenario)
 
 
 # --------------------------------------------------------------------------- codec

@@ -1,0 +1,169 @@
+"""The only place that touches zenoh sessions: a node's session, its inbox and bounded shutdown.
+
+Invariant: zenoh callbacks only copy the sample's key and bytes (or the liveliness change, or the
+query object) into a thread-safe queue; all decoding, validation and zenoh calls happen in the
+node's own threads.
+"""
+from __future__ import annotations
+
+import queue
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass
+from typing import Any, Iterable
+
+import zenoh
+
+from . import messages
+from .zconfig import close_session, open_session
+
+
+@dataclass(frozen=True)
+class Inbound:
+    """One item of a node's inbox.
+
+    Attributes:
+        kind: ``sample`` (a put), ``alive`` (liveliness token appeared), ``gone`` (token vanished).
+        key: the key expression it arrived on.
+        payload: the raw bytes (``sample`` only).
+        received: ``time.monotonic()`` when it was enqueued, seconds.
+    """
+
+    kind: str
+    key: str
+    payload: bytes = b""
+    received: float = 0.0
+
+
+class Node:
+    """A zenoh session with declared entities, an inbox queue and rejection counters.
+
+    Args:
+        conf: the zenoh config (see :func:`wire.zconfig.make_config`).
+        open_timeout_s: how long to keep trying to open the session.
+    """
+
+    def __init__(self, conf: zenoh.Config, open_timeout_s: float = 10.0):
+        self.session = open_session(conf, open_timeout_s)
+        self.inbox: "queue.Queue[Inbound]" = queue.Queue()
+        self.rejected: Counter = Counter()
+        self._logged: set[str] = set()
+        self._entities: list[Any] = []
+        self._publishers: dict[str, Any] = {}
+        self._lock = threading.Lock()
+
+    # ------------------------------------------------------------------ declarations
+    def subscribe(self, key_expr: str) -> None:
+        """Puts on ``key_expr`` land in the inbox as ``Inbound("sample", key, bytes)``."""
+        inbox = self.inbox
+
+        def on_sample(sample):
+            try:
+                inbox.put(Inbound("sample", str(sample.key_expr), sample.payload.to_bytes(), time.monotonic()))
+            except Exception:
+                pass  # never raise into zenoh
+
+        self._entities.append(self.session.declare_subscriber(key_expr, on_sample))
+
+    def watch_liveliness(self, key_expr: str) -> None:
+        """Liveliness tokens matching ``key_expr`` (existing ones included) land in the inbox as
+        ``alive`` / ``gone`` items."""
+        inbox = self.inbox
+
+        def on_token(sample):
+            try:
+                kind = "alive" if sample.kind == zenoh.SampleKind.PUT else "gone"
+                inbox.put(Inbound(kind, str(sample.key_expr), b"", time.monotonic()))
+            except Exception:
+                pass
+
+        self._entities.append(self.session.liveliness().declare_subscriber(key_expr, on_token, history=True))
+
+    def token(self, key_expr: str) -> None:
+        """Declare this node's liveliness token (it vanishes when the session or process dies)."""
+        self._entities.append(self.session.liveliness().declare_token(key_expr))
+
+    def serve(self, key_expr: str, reply_bytes) -> None:
+        """Answer queries on ``key_expr`` with ``reply_bytes()`` (called in a server thread, must
+        not block). The zenoh callback only enqueues the query."""
+        queries: "queue.Queue[Any]" = queue.Queue()
+        stop = threading.Event()
+        self._serving = (queries, stop)
+
+        def on_query(query):
+            queries.put(query)
+
+        def server():
+            while not stop.is_set():
+                try:
+                    query = queries.get(timeout=0.1)
+                except queue.Empty:
+                    continue
+                try:
+                    query.reply(key_expr, reply_bytes())
+                except Exception:
+                    pass
+                finally:
+                    try:
+                        query.drop()
+                    except Exception:
+                        pass
+
+        self._entities.append(self.session.declare_queryable(key_expr, on_query))
+        self._server = threading.Thread(target=server, daemon=True, name="state-server")
+        self._server.start()
+
+    # ------------------------------------------------------------------ traffic
+    def put(self, key_expr: str, message) -> None:
+        """Encode and publish one message (reliable, blocking congestion control)."""
+        data = messages.encode(message)
+        pub = self._publishers.get(key_expr)
+        if pub is None:
+            pub = self.session.declare_publisher(
+                key_expr, congestion_control=zenoh.CongestionControl.BLOCK, reliability=zenoh.Reliability.RELIABLE
+            )
+            self._publishers[key_expr] = pub
+            self._entities.append(pub)
+        pub.put(data)
+
+    def put_raw(self, key_expr: str, data: bytes) -> None:
+        """Publish raw bytes (tests and fuzzers)."""
+        self.session.put(key_expr, data)
+
+    def query(self, key_expr: str, timeout_s: float = 2.0) -> list[bytes]:
+        """Payloads of the replies to a query on ``key_expr`` (empty list when nobody answers)."""
+        out = []
+        try:
+            for reply in self.session.get(key_expr, timeout=timeout_s):
+                if reply.ok is not None:
+                    out.append(reply.ok.payload.to_bytes())
+        except Exception:
+            pass
+        return out
+
+    def next(self, timeout_s: float) -> Inbound | None:
+        """The next inbox item, or None after ``timeout_s`` seconds."""
+        try:
+            return self.inbox.get(timeout=max(0.0, timeout_s))
+        except queue.Empty:
+            return None
+
+    def reject(self, reason: str, detail: str, log) -> None:
+        """Count a rejected message; log the first one of each reason."""
+        self.rejected[reason] += 1
+        if reason not in self._logged:
+            self._logged.add(reason)
+            log(f"rejected a message ({reason}): {detail} [further '{reason}' rejections are only counted]")
+
+    def close(self, timeout_s: float = 3.0) -> bool:
+        """Undeclare everything and close the session, bounded by ``timeout_s`` seconds."""
+        serving = getattr(self, "_serving", None)
+        if serving:
+            serving[1].set()
+        return close_session(self.session, list(reversed(self._entities)), timeout_s)
+
+
+def decode_from(item: Inbound, expected: Iterable[type] | type | None = None):
+    """Decode an inbox sample (raises :class:`wire.ProtocolError`)."""
+    return messages.decode(item.payload, tuple(expected) if isinstance(expected, (list, set)) else expected)
