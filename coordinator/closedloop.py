@@ -191,11 +191,10 @@ def _prepare(problem: Problem) -> _Prepared:
     nbr_idx = np.nonzero(conflict)[1].astype(np.int64)
     support = cdf = None
     if hasattr(problem.prior.dist, "pmf"):
-        lo, hi = problem.prior.support()
-        lo = problem.prior.ppf(ssap.TAIL) if not np.isfinite(lo) else lo
-        hi = problem.prior.ppf(1.0 - ssap.TAIL) if not np.isfinite(hi) else hi
-        support = np.arange(lo, hi + 1, dtype=float)
-        cdf = np.cumsum(problem.prior.pmf(support))
+        # The same support as the thresholds (tables give their own points).
+        support, mass = ssap.support_grid(problem.prior)
+        support = np.asarray(support, dtype=float)
+        cdf = np.cumsum(mass) / np.sum(mass)
         cdf[-1] = 1.0
     prep = _Prepared(table, value, nbr_ptr, nbr_idx, support, cdf)
     _PREPARED[problem] = prep
@@ -426,3 +425,12 @@ def _past_values(view: StageView) -> np.ndarray:
     out = np.zeros(view.observations.shape)
     out[:, : view.stage] = np.nan_to_num(view.observations[:, : view.stage], nan=0.0)
     return out
+
+
+def _register() -> None:
+    from coordinator.planners import register
+
+    register("closed-loop", lambda **options: ClosedLoopPlanner(**options))
+
+
+_register()

@@ -1,0 +1,4 @@
+"""``python -m experiments``: see :mod:`experiments.run`."""
+from experiments.run import main
+
+raise SystemExit(main())

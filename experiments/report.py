@@ -1,0 +1,211 @@
+"""Per-trial CSV, summaries (mean ± standard error, fraction of the clairvoyant bound), plots.
+
+The standard error of the mean is ``std(ddof=1) / sqrt(n)`` over trials. The fraction of the
+clairvoyant bound is computed per trial (planner reward / clairvoyant reward of the same trial)
+and then averaged; trials whose bound is 0 are left out of the fraction.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from experiments.trials import CLAIRVOYANT
+
+#: Columns of the per-trial CSV (one row per planner and trial).
+TRIAL_FIELDS = (
+    "sweep", "level", "trial", "planner", "reward", "features", "exact", "carriers", "passengers",
+    "stages", "overlaps", "iterations", "seed", "planner_seed", "world_seed", "decision_ms_mean",
+    "decision_ms_max", "wall_s", "deployed",
+)
+#: Columns of the summary CSV (one row per sweep level and planner).
+SUMMARY_FIELDS = (
+    "sweep", "level", "planner", "n", "reward_mean", "reward_sem", "features_mean", "features_sem",
+    "fraction_mean", "fraction_sem", "decision_ms_mean", "decision_ms_max", "bound_exact",
+)
+#: Plot order and style: (label, colour, marker, line style).
+STYLE = {
+    "closed-loop": ("Closed-loop (ours)", "#1b9e77", "D", "-"),
+    "mcts-ssap": ("MCTS-SSAP", "#d95f02", "o", "-"),
+    "mcts-random": ("MCTS-Random", "#7570b3", "s", "-"),
+    "ssap": ("SSAP", "#e7298a", "^", "-"),
+    "random": ("Random", "#666666", "v", "-"),
+    CLAIRVOYANT: ("Clairvoyant bound", "black", "", "--"),
+}
+
+
+def sem(values) -> float:
+    """Standard error of the mean (NaN for fewer than two values)."""
+    v = np.asarray(values, dtype=float)
+    return float(v.std(ddof=1) / math.sqrt(len(v))) if len(v) > 1 else float("nan")
+
+
+def write_trials(rows: list[dict], path: Path) -> None:
+    rows = sorted(rows, key=lambda r: (r["sweep"], r["level"], r["trial"], _order(r["planner"])))
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=TRIAL_FIELDS, extrasaction="ignore")
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({k: _fmt(row.get(k, "")) for k in TRIAL_FIELDS})
+
+
+def read_trials(path: Path) -> list[dict]:
+    """Rows of a per-trial CSV with numbers parsed back."""
+    out = []
+    with open(path, newline="") as f:
+        for row in csv.DictReader(f):
+            for k in ("level", "trial", "carriers", "passengers", "stages", "overlaps", "iterations", "seed"):
+                row[k] = int(row[k])
+            for k in ("reward", "features", "decision_ms_mean", "decision_ms_max", "wall_s"):
+                row[k] = float(row[k])
+            out.append(row)
+    return out
+
+
+def _fmt(v):
+    return f"{v:.6g}" if isinstance(v, float) else v
+
+
+def _order(name: str) -> int:
+    names = list(STYLE)
+    return names.index(name) if name in names else len(names)
+
+
+def summarise(rows: list[dict]) -> list[dict]:
+    """One summary row per (sweep, level, planner), planners in :data:`STYLE` order."""
+    bound = {(r["sweep"], r["level"], r["trial"]): r for r in rows if r["planner"] == CLAIRVOYANT}
+    groups: dict = defaultdict(list)
+    for r in rows:
+        groups[(r["sweep"], r["level"], r["planner"])].append(r)
+    out = []
+    for (sweep, level, planner), rs in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1], _order(kv[0][2]))):
+        rewards = [r["reward"] for r in rs]
+        features = [r["features"] for r in rs]
+        fractions = []
+        exact = []
+        for r in rs:
+            b = bound.get((sweep, level, r["trial"]))
+            if b is not None:
+                exact.append(str(b["exact"]) in ("1", "True"))
+                if b["reward"] > 0:
+                    fractions.append(r["reward"] / b["reward"])
+        out.append({
+            "sweep": sweep, "level": level, "planner": planner, "n": len(rs),
+            "reward_mean": float(np.mean(rewards)), "reward_sem": sem(rewards),
+            "features_mean": float(np.mean(features)), "features_sem": sem(features),
+            "fraction_mean": float(np.mean(fractions)) if fractions else float("nan"),
+            "fraction_sem": sem(fractions) if fractions else float("nan"),
+            "decision_ms_mean": float(np.mean([r["decision_ms_mean"] for r in rs])),
+            "decision_ms_max": float(np.max([r["decision_ms_max"] for r in rs])),
+            "bound_exact": f"{sum(exact)}/{len(exact)}" if exact else "",
+        })
+    return out
+
+
+def write_summary(summary: list[dict], path: Path) -> None:
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=SUMMARY_FIELDS)
+        writer.writeheader()
+        for row in summary:
+            writer.writerow({k: _fmt(row[k]) for k in SUMMARY_FIELDS})
+
+
+def paired(rows: list[dict], a: str, b: str) -> dict:
+    """Paired comparison of planners ``a`` and ``b`` per (sweep, level): mean difference ± SEM and wins.
+
+    Trials pair by (sweep, level, trial): both planners saw the same instance and observations.
+    """
+    by = defaultdict(dict)
+    for r in rows:
+        by[(r["sweep"], r["level"], r["trial"])][r["planner"]] = r["reward"]
+    diffs = defaultdict(list)
+    for (sweep, level, _), d in by.items():
+        if a in d and b in d:
+            diffs[(sweep, level)].append(d[a] - d[b])
+    return {k: {"n": len(v), "mean": float(np.mean(v)), "sem": sem(v),
+                "wins": int(np.sum(np.asarray(v) > 1e-12)), "losses": int(np.sum(np.asarray(v) < -1e-12))}
+            for k, v in sorted(diffs.items())}
+
+
+def markdown_table(summary: list[dict], level_name: str, features: bool = False) -> str:
+    """A Markdown table: one row per level, one column per planner (mean ± SEM, fraction of bound)."""
+    planners = sorted({r["planner"] for r in summary}, key=_order)
+    levels = sorted({r["level"] for r in summary})
+    cell = {(r["level"], r["planner"]): r for r in summary}
+    head = f"| {level_name} | " + " | ".join(STYLE.get(p, (p,))[0] for p in planners) + " |"
+    lines = [head, "|" + "---|" * (len(planners) + 1)]
+    for level in levels:
+        parts = []
+        for p in planners:
+            r = cell.get((level, p))
+            if r is None:
+                parts.append("")
+                continue
+            m, s = (r["features_mean"], r["features_sem"]) if features else (r["reward_mean"], r["reward_sem"])
+            text = f"{m:.2f} ± {s:.2f}"
+            if p == CLAIRVOYANT:
+                if r["bound_exact"] and not r["bound_exact"].startswith(str(r["n"])):
+                    text += f" (exact {r['bound_exact']}, else upper bound)"
+            elif not math.isnan(r["fraction_mean"]):
+                text += f" ({100 * r['fraction_mean']:.1f}%)"
+            parts.append(text)
+        lines.append(f"| {level} | " + " | ".join(parts) + " |")
+    return "\n".join(lines)
+
+
+def paired_table(rows: list[dict], a: str, others: list[str], level_name: str) -> str:
+    """Markdown: mean paired difference ``a - other`` ± SEM (wins/losses) per level."""
+    present = {r["planner"] for r in rows}
+    others = [o for o in others if o in present and o != a]
+    if a not in present or not others:
+        return ""
+    tables = {o: paired(rows, a, o) for o in others}
+    keys = sorted({k for t in tables.values() for k in t})
+    label = STYLE.get(a, (a,))[0]
+    lines = [f"| {level_name} | " + " | ".join(f"{label} − {STYLE.get(o, (o,))[0]}" for o in others) + " |",
+             "|" + "---|" * (len(others) + 1)]
+    for k in keys:
+        cells = []
+        for o in others:
+            d = tables[o].get(k)
+            cells.append("" if d is None else f"{d['mean']:+.3f} ± {d['sem']:.3f} ({d['wins']}/{d['losses']})")
+        lines.append(f"| {k[1]} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def plot(summary: list[dict], path: Path, xlabel: str, title: str, log_x: bool = False) -> None:
+    """Two panels: mean normalised reward and fraction of the clairvoyant bound, ±1 SEM bars."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    planners = sorted({r["planner"] for r in summary}, key=_order)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.6))
+    for p in planners:
+        rs = sorted((r for r in summary if r["planner"] == p), key=lambda r: r["level"])
+        label, colour, marker, ls = STYLE.get(p, (p, None, "x", "-"))
+        x = [r["level"] for r in rs]
+        axes[0].errorbar(x, [r["reward_mean"] for r in rs], yerr=[r["reward_sem"] for r in rs], label=label,
+                         color=colour, marker=marker, ls=ls, capsize=3, ms=5, lw=1.5)
+        if p != CLAIRVOYANT:
+            axes[1].errorbar(x, [100 * r["fraction_mean"] for r in rs], yerr=[100 * r["fraction_sem"] for r in rs],
+                             label=label, color=colour, marker=marker, ls=ls, capsize=3, ms=5, lw=1.5)
+    axes[0].set_ylabel("mean reward (normalised, ±1 SEM)")
+    axes[1].set_ylabel("% of the clairvoyant bound (±1 SEM)")
+    for ax in axes:
+        ax.set_xlabel(xlabel)
+        ax.grid(alpha=0.3)
+        if log_x:
+            ax.set_xscale("log", base=2)
+            levels = sorted({r["level"] for r in summary})
+            ax.set_xticks(levels)
+            ax.set_xticklabels([str(v) for v in levels])
+    axes[0].legend(fontsize=8)
+    fig.suptitle(title, fontsize=11)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

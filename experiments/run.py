@@ -1,0 +1,293 @@
+"""Reproduce the paper's experiments: overlap sweep, scaling sweep, Urban Circuit run.
+
+Usage::
+
+    python -m experiments all                      # everything at the paper's settings
+    python -m experiments overlap --trials 50 --iterations 10000 --jobs 2
+    python -m experiments scaling --carriers 2,3,4,5,6,12,24,32
+    python -m experiments urban --urban-trials 10
+    python -m experiments all --quick --out /tmp/results   # smoke test (seconds)
+
+Each sweep writes to ``--out`` (default ``docs/results``): ``<sweep>_trials.csv`` (one row per
+planner and trial, with the deployments), ``<sweep>_summary.csv`` (mean ± standard error, fraction
+of the clairvoyant bound), ``<sweep>.md`` (the tables), ``<sweep>.png`` (±1 SEM error bars), and
+``run_info.json`` (settings, wall times). The urban run also draws ``urban_map_<planner>.png``.
+
+Common random numbers: within a trial every planner sees the same instance, the same observations
+and the same planner seed (see :mod:`experiments.trials`). Tasks (one planner on one trial) run on a
+``spawn`` process pool of ``--jobs`` workers (default: all cores), longest first.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from multiprocessing import get_context
+from pathlib import Path
+
+from experiments import report
+from experiments.trials import CLAIRVOYANT, Task, decode, run_task, warm_up_worker
+
+ROOT = Path(__file__).resolve().parent.parent
+#: Default output directory (docs/results.md links the files there).
+DEFAULT_OUT = ROOT / "docs" / "results"
+DEFAULT_SCENARIO = ROOT / "scenarios" / "urban_alpha.yaml"
+#: The paper's four planners, plus ours.
+DEFAULT_PLANNERS = ("mcts-ssap", "mcts-random", "ssap", "random", "closed-loop")
+OVERLAP_LEVELS = (0, 4, 8, 12, 16, 20)
+CARRIER_LEVELS = (2, 3, 4, 5, 6, 12, 24, 32)
+QUICK = {"trials": 3, "iterations": 300, "overlaps": (0, 10, 20), "carriers": (2, 4, 8), "urban_trials": 2}
+#: The paper's Urban Circuit result (features captured): MCTS-SSAP, SSAP, MCTS-Random, Random.
+PAPER_URBAN = {"mcts-ssap": 157, "ssap": 122, "mcts-random": 114, "random": 68}
+
+
+class UsageError(Exception):
+    """Bad command-line value; reported as one line with exit code 2."""
+
+
+def _int_list(text: str, what: str, minimum: int) -> tuple[int, ...]:
+    try:
+        values = tuple(int(v) for v in text.split(",") if v.strip())
+    except ValueError:
+        raise UsageError(f"--{what}: expected comma-separated integers, found {text!r}") from None
+    if not values or min(values) < minimum:
+        raise UsageError(f"--{what}: expected integers >= {minimum}, found {text!r}")
+    return values
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(prog="python -m experiments", description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("what", nargs="?", default="all", choices=("overlap", "scaling", "urban", "all"),
+                   help="which experiment (default: all)")
+    p.add_argument("--trials", type=int, default=None, help="trials per level (default 50; quick 3)")
+    p.add_argument("--iterations", type=int, default=None,
+                   help="planning budget per decision: MCTS iterations (default 10000; quick 300)")
+    p.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
+    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)")
+    p.add_argument("--quick", action="store_true", help="tiny settings for a smoke test")
+    p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT.relative_to(ROOT)})")
+    p.add_argument("--planners", default=",".join(DEFAULT_PLANNERS),
+                   help="comma-separated planner names (the clairvoyant bound is always added)")
+    p.add_argument("--overlaps", default=None, help="overlap levels of the overlap sweep (default 0,4,...,20)")
+    p.add_argument("--carriers", default=None, help="fleet sizes of the scaling sweep (default 2,...,6,12,24,32)")
+    p.add_argument("--scaling-overlaps", type=int, default=10, help="overlaps in the scaling sweep (default 10)")
+    p.add_argument("--urban-trials", type=int, default=None, help="world seeds of the urban run (default 10; quick 2)")
+    p.add_argument("--scenario", type=Path, default=DEFAULT_SCENARIO, help="scenario of the urban run")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    return p.parse_args(argv)
+
+
+def _settings(args) -> dict:
+    quick = args.quick
+    trials = args.trials if args.trials is not None else (QUICK["trials"] if quick else 50)
+    iterations = args.iterations if args.iterations is not None else (QUICK["iterations"] if quick else 10_000)
+    urban_trials = args.urban_trials if args.urban_trials is not None else (QUICK["urban_trials"] if quick else 10)
+    if trials < 1:
+        raise UsageError(f"--trials: expected an integer >= 1, found {trials}")
+    if iterations < 1:
+        raise UsageError(f"--iterations: expected an integer >= 1, found {iterations}")
+    if urban_trials < 1:
+        raise UsageError(f"--urban-trials: expected an integer >= 1, found {urban_trials}")
+    if args.jobs < 1:
+        raise UsageError(f"--jobs: expected an integer >= 1, found {args.jobs}")
+    if args.scaling_overlaps < 0:
+        raise UsageError(f"--scaling-overlaps: expected an integer >= 0, found {args.scaling_overlaps}")
+    overlaps = _int_list(args.overlaps, "overlaps", 0) if args.overlaps else (QUICK["overlaps"] if quick else OVERLAP_LEVELS)
+    carriers = _int_list(args.carriers, "carriers", 1) if args.carriers else (QUICK["carriers"] if quick else CARRIER_LEVELS)
+    from coordinator import closedloop  # noqa: F401  (registers the closed-loop planner)
+    from coordinator.planners import planner_names
+
+    planners = tuple(p.strip() for p in args.planners.split(",") if p.strip())
+    unknown = [p for p in planners if p not in planner_names()]
+    if unknown or not planners:
+        raise UsageError(f"--planners: expected names among {', '.join(planner_names())}, found {args.planners!r}")
+    if args.what in ("urban", "all") and not args.scenario.is_file():
+        raise UsageError(f"--scenario: expected an existing scenario file, found {str(args.scenario)!r}")
+    return {"trials": trials, "iterations": iterations, "urban_trials": urban_trials, "overlaps": overlaps,
+            "carriers": carriers, "planners": planners, "seed": args.seed}
+
+
+def build_tasks(sweep: str, s: dict, args) -> list[Task]:
+    """Every (level, trial, planner) task of a sweep; the clairvoyant bound is one more 'planner'."""
+    names = (*s["planners"], CLAIRVOYANT)
+    tasks = []
+    if sweep == "overlap":
+        for level in s["overlaps"]:
+            for t in range(s["trials"]):
+                tasks += [Task("overlap", level, t, p, s["seed"], s["iterations"], carriers=4, overlaps=level)
+                          for p in names]
+    elif sweep == "scaling":
+        for level in s["carriers"]:
+            for t in range(s["trials"]):
+                tasks += [Task("scaling", level, t, p, s["seed"], s["iterations"], carriers=level,
+                               overlaps=args.scaling_overlaps) for p in names]
+    else:
+        for t in range(s["urban_trials"]):
+            tasks += [Task("urban", 0, t, p, s["seed"], s["iterations"], carriers=3, stages=19,
+                           scenario=str(args.scenario)) for p in names]
+    return tasks
+
+
+def run_tasks(tasks: list[Task], pool, desc: str, progress: bool) -> list[dict]:
+    """Run tasks (longest first) on the pool, or in this process when ``pool`` is None."""
+    from tqdm import tqdm
+
+    order = sorted(tasks, key=lambda t: -t.cost)
+    bar = tqdm(total=len(order), desc=desc, unit="task", disable=not progress, file=sys.stderr,
+               dynamic_ncols=True)
+    rows = []
+    if pool is None:
+        for task in order:
+            rows.append(run_task(task))
+            bar.update()
+    else:
+        futures = [pool.submit(run_task, task) for task in order]
+        for fut in as_completed(futures):
+            rows.append(fut.result())
+            bar.update()
+    bar.close()
+    return rows
+
+
+def _write_sweep(sweep: str, rows: list[dict], out: Path, seconds: float, s: dict, args) -> dict:
+    report.write_trials(rows, out / f"{sweep}_trials.csv")
+    summary = report.summarise(rows)
+    report.write_summary(summary, out / f"{sweep}_summary.csv")
+    if sweep == "overlap":
+        report.plot(summary, out / "overlap.png", "number of overlaps",
+                    f"Overlap sweep: R = 4, D = 3, N = 10, Poisson(3), {s['trials']} trials, "
+                    f"{s['iterations']} iterations")
+        text = ["## Overlap sweep", "",
+                f"R = 4 carriers, D = 3, N = 10, Poisson(3) observations, {s['trials']} trials per level, "
+                f"{s['iterations']} iterations per decision. Mean normalised reward ± SEM "
+                "(mean fraction of the clairvoyant bound).", "",
+                report.markdown_table(summary, "overlaps"), "",
+                "Paired differences on the same instances (mean ± SEM, wins/losses):", "",
+                report.paired_table(rows, "closed-loop", ["mcts-ssap", "ssap"], "overlaps"), "",
+                report.paired_table(rows, "mcts-ssap", ["mcts-random", "ssap"], "overlaps")]
+    elif sweep == "scaling":
+        report.plot(summary, out / "scaling.png", "carriers R",
+                    f"Scaling sweep: D = 3, N = 10, {args.scaling_overlaps} overlaps, {s['trials']} trials, "
+                    f"{s['iterations']} iterations", log_x=True)
+        text = ["## Scaling sweep", "",
+                f"D = 3, N = 10, {args.scaling_overlaps} overlaps, Poisson(3), {s['trials']} trials per level, "
+                f"{s['iterations']} iterations per decision. Mean normalised reward ± SEM "
+                "(mean fraction of the clairvoyant bound).", "",
+                report.markdown_table(summary, "R"), "",
+                "Paired differences on the same instances (mean ± SEM, wins/losses):", "",
+                report.paired_table(rows, "closed-loop", ["mcts-ssap", "ssap"], "R"), "",
+                report.paired_table(rows, "mcts-ssap", ["mcts-random", "ssap"], "R")]
+    else:
+        text = _urban_report(rows, summary, out, s, args)
+    timing = {"sweep": sweep, "seconds": round(seconds, 1), "tasks": len(rows), "jobs": args.jobs}
+    text += ["", f"Wall time: {seconds:.1f} s with {args.jobs} worker process(es) for {len(rows)} tasks."]
+    (out / f"{sweep}.md").write_text("\n".join(text) + "\n")
+    return timing
+
+
+def _urban_report(rows, summary, out: Path, s: dict, args) -> list[str]:
+    import numpy as np
+    import world
+
+    scenario = world.load_scenario(args.scenario)
+    trace = world.simulate_mission(scenario)
+    n_carriers, n_stages = scenario.n_carriers, scenario.stages
+    maps = []
+    for r in sorted((r for r in rows if r["trial"] == 0), key=lambda r: report._order(r["planner"])):
+        deployed = decode(r["deployed"], n_carriers, n_stages)
+        name = f"urban_map_{r['planner']}.png"
+        label = report.STYLE.get(r["planner"], (r["planner"],))[0]
+        world.render_map(scenario, out / name, deployments=deployed, trajectories=trace.trajectories,
+                         positions=trace.positions, features=trace.features,
+                         title=f"{scenario.name}: {label}, {r['features']:.2f} features captured")
+        maps.append(name)
+    feats = {p: [r["features"] for r in sorted(rows, key=lambda r: r["trial"]) if r["planner"] == p]
+             for p in {r["planner"] for r in rows}}
+    lines = ["## Urban run", "",
+             f"Scenario `{args.scenario.name}` through the world (`world.observe_all`): "
+             f"{n_carriers} carriers with staggered starts, N = {n_stages}, {scenario.conflict_radius:g} m "
+             f"conflicts, {s['urban_trials']} world seeds (trial 0 is the scenario's own seed), "
+             f"{s['iterations']} iterations. Features captured (sum of x / p), mean ± SEM over seeds.", "",
+             "| planner | features (mean ± SEM) | seed 0 | paper | ratio to SSAP (ours / paper) | ratio to Random (ours / paper) |",
+             "|---|---|---|---|---|---|"]
+    base_ssap = np.mean(feats.get("ssap", [np.nan]))
+    base_rand = np.mean(feats.get("random", [np.nan]))
+    for p in sorted(feats, key=report._order):
+        v = np.asarray(feats[p])
+        paper = PAPER_URBAN.get(p)
+        r_ssap = f"{v.mean() / base_ssap:.2f}" + (f" / {paper / PAPER_URBAN['ssap']:.2f}" if paper else "")
+        r_rand = f"{v.mean() / base_rand:.2f}" + (f" / {paper / PAPER_URBAN['random']:.2f}" if paper else "")
+        label = report.STYLE.get(p, (p,))[0]
+        lines.append(f"| {label} | {v.mean():.2f} ± {report.sem(v):.2f} | {v[0]:.2f} | {paper if paper else '–'} "
+                     f"| {r_ssap} | {r_rand} |")
+    lines += ["", "Paired differences in normalised reward on the same world seeds (mean ± SEM, wins/losses):", "",
+              report.paired_table(rows, "closed-loop", ["mcts-ssap", "ssap"], "run"), "",
+              report.paired_table(rows, "mcts-ssap", ["mcts-random", "ssap", "random"], "run"), "",
+              "Maps of the chosen deployments (seed 0): " + ", ".join(f"[{m}]({m})" for m in maps)]
+    return lines
+
+
+def _write_index(out: Path, timings: dict) -> None:
+    parts = ["# Experiment results", "", "Generated by `python -m experiments`; see docs/results.md for the discussion.", ""]
+    for sweep in ("overlap", "scaling", "urban"):
+        path = out / f"{sweep}.md"
+        if path.is_file():
+            parts += [path.read_text(), ""]
+    (out / "summary.md").write_text("\n".join(parts))
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    try:
+        s = _settings(args)
+    except UsageError as err:
+        print(f"python -m experiments: error: {err}", file=sys.stderr)
+        return 2
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    sweeps = ("overlap", "scaling", "urban") if args.what == "all" else (args.what,)
+    info_path = out / "run_info.json"
+    info = json.loads(info_path.read_text()) if info_path.is_file() else {}
+    info.setdefault("sweeps", {})
+    started = time.perf_counter()
+    pool = None
+    if args.jobs > 1:
+        pool = ProcessPoolExecutor(max_workers=args.jobs, mp_context=get_context("spawn"),
+                                   initializer=warm_up_worker)
+        # Start every worker (and load its compiled kernels) before any sweep is timed.
+        for fut in [pool.submit(time.sleep, 0.5) for _ in range(args.jobs)]:
+            fut.result()
+    else:
+        warm_up_worker()
+    info["warm_up_seconds"] = round(time.perf_counter() - started, 1)
+    try:
+        for sweep in sweeps:
+            tasks = build_tasks(sweep, s, args)
+            t0 = time.perf_counter()
+            rows = run_tasks(tasks, pool, sweep, not args.no_progress)
+            seconds = time.perf_counter() - t0
+            timing = _write_sweep(sweep, rows, out, seconds, s, args)
+            info["sweeps"][sweep] = {**timing, "trials": s["urban_trials"] if sweep == "urban" else s["trials"],
+                                     "iterations": s["iterations"], "seed": s["seed"],
+                                     "planners": list(s["planners"]),
+                                     "levels": list(s["overlaps"] if sweep == "overlap" else
+                                                    s["carriers"] if sweep == "scaling" else [0])}
+            print(f"{sweep}: {len(tasks)} tasks in {seconds:.1f} s -> {out / (sweep + '.md')}", file=sys.stderr)
+    finally:
+        if pool is not None:
+            pool.shutdown(cancel_futures=True)
+    info["machine"] = {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()}
+    info["last_run_seconds"] = round(time.perf_counter() - started, 1)
+    info_path.write_text(json.dumps(info, indent=2) + "\n")
+    _write_index(out, info)
+    print(f"total {time.perf_counter() - started:.1f} s; results in {out}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,184 @@
+"""One unit of work of an experiment: one planner (or the clairvoyant bound) on one trial.
+
+A trial is fully determined by ``(seed, trial index)`` and the sweep's settings, so every task of
+a trial rebuilds the *same* instance and observations (common random numbers) in whichever worker
+process runs it, and every planner gets the same planner seed. Tasks are plain frozen dataclasses
+so they pickle cheaply to ``spawn`` workers.
+
+Streams (``numpy.random.SeedSequence(seed, spawn_key=...)``):
+
+* ``(1000, t)``: trial t's instance (validity, overlaps, observations) of a random sweep;
+* ``(1000, t, 1)``: trial t's planner seed (the root seed handed to ``run_online``);
+* ``(1001, t)``: urban trial t's world seed (the features) and ``(1001, t, 1)`` its planner seed.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Name of the offline bound in result rows.
+CLAIRVOYANT = "clairvoyant"
+
+
+@dataclass(frozen=True)
+class Task:
+    """One planner on one trial.
+
+    Attributes:
+        sweep: ``overlap``, ``scaling`` or ``urban``.
+        level: the sweep's x value (overlaps, carriers, or 0 for urban).
+        trial: trial index t.
+        planner: planner name, or :data:`CLAIRVOYANT`.
+        seed: root seed of the experiment.
+        iterations: MCTS-style budget per decision.
+        carriers, passengers, stages, overlaps, mean: random-instance settings (R, D, N, number of
+            overlap groups, Poisson mean); unused for urban.
+        scenario: scenario file (urban only).
+    """
+
+    sweep: str
+    level: int
+    trial: int
+    planner: str
+    seed: int
+    iterations: int
+    carriers: int = 4
+    passengers: int = 3
+    stages: int = 10
+    overlaps: int = 10
+    mean: float = 3.0
+    scenario: str = ""
+
+    @property
+    def cost(self) -> float:
+        """Rough relative run time, used to start the longest tasks first (load balance)."""
+        if self.planner in ("random", "ssap"):
+            return 0.01
+        if self.planner == CLAIRVOYANT:
+            return 0.05 * self.carriers
+        scale = self.carriers * self.stages / 40.0
+        return scale * self.iterations / 10_000
+
+
+# ----------------------------------------------------------------------------- instances
+
+
+def trial_instance(task: Task):
+    """``(problem, observations, planner_seed, extra)`` of the task's trial (same for every planner)."""
+    if task.sweep == "urban":
+        return _urban_instance(task)
+    from coordinator.instance import random_instance
+
+    rng = np.random.default_rng(np.random.SeedSequence(task.seed, spawn_key=(1000, task.trial)))
+    inst = random_instance(rng, task.carriers, task.passengers, task.stages, task.overlaps, task.mean)
+    planner_seed = _seed_of(task.seed, (1000, task.trial, 1))
+    return inst.problem, inst.observations, planner_seed, {}
+
+
+def _seed_of(seed: int, key: tuple[int, ...]) -> int:
+    return int(np.random.SeedSequence(seed, spawn_key=key).generate_state(1, np.uint32)[0])
+
+
+_WORLD_CACHE: dict = {}
+
+
+def urban_world_seed(seed: int, trial: int) -> int:
+    """World (feature) seed of urban trial ``trial``."""
+    return _seed_of(seed, (1001, trial))
+
+
+def _urban_instance(task: Task):
+    import world
+    from coordinator.problem import Problem
+
+    key = task.scenario
+    if key not in _WORLD_CACHE:
+        scenario = world.load_scenario(task.scenario)
+        geo = world.stage_geometry(scenario)
+        problem = Problem.build(scenario.passengers, geo.valid, geo.overlaps, scenario.prior_distribution())
+        _WORLD_CACHE[key] = (scenario, problem)
+    scenario, problem = _WORLD_CACHE[key]
+    world_seed = scenario.seed if task.trial == 0 else urban_world_seed(task.seed, task.trial)
+    x = world.observe_all(scenario, seed=world_seed)
+    return problem, x, _seed_of(task.seed, (1001, task.trial, 1)), {"world_seed": world_seed}
+
+
+# ----------------------------------------------------------------------------- running
+
+_PLANNERS: dict = {}
+
+
+def _planner(name: str, iterations: int):
+    key = (name, iterations)
+    if key not in _PLANNERS:
+        from coordinator import closedloop  # noqa: F401  (registers "closed-loop")
+        from coordinator.planners import make_planner
+
+        _PLANNERS[key] = make_planner(name, iterations=iterations)
+    return _PLANNERS[key]
+
+
+def run_task(task: Task) -> dict:
+    """Run one task; returns one result row (a flat dict, see :data:`experiments.report.TRIAL_FIELDS`)."""
+    from coordinator import clairvoyant
+    from coordinator.problem import run_online
+
+    problem, x, planner_seed, extra = trial_instance(task)
+    row = {
+        "sweep": task.sweep, "level": task.level, "trial": task.trial, "planner": task.planner,
+        "carriers": problem.n_carriers, "passengers": int(problem.passengers.max()),
+        "stages": problem.n_stages, "overlaps": len(problem.overlaps), "iterations": task.iterations,
+        "seed": task.seed, "planner_seed": planner_seed, "world_seed": extra.get("world_seed", ""),
+    }
+    t0 = time.perf_counter()
+    if task.planner == CLAIRVOYANT:
+        result = clairvoyant.solve(problem, x)
+        elapsed = time.perf_counter() - t0
+        row.update(reward=result.reward, features=result.features, exact=int(result.exact),
+                   decision_ms_mean=elapsed * 1e3, decision_ms_max=elapsed * 1e3, wall_s=elapsed,
+                   deployed=_encode(result.deployed))
+        return row
+    planner = _planner(task.planner, task.iterations)
+    result = run_online(problem, x, planner, planner_seed)
+    elapsed = time.perf_counter() - t0
+    ms = np.asarray(result.decision_ms)
+    row.update(reward=result.reward, features=result.features, exact="",
+               decision_ms_mean=float(ms.mean()), decision_ms_max=float(ms.max()), wall_s=elapsed,
+               deployed=_encode(result.deployed))
+    return row
+
+
+def _encode(deployed: np.ndarray) -> str:
+    """Deployments as ``stage stage|stage ...`` (carriers separated by ``|``), for the CSV."""
+    return "|".join(" ".join(str(j) for j in np.flatnonzero(row)) for row in np.asarray(deployed))
+
+
+def decode(text: str, n_carriers: int, n_stages: int) -> np.ndarray:
+    """Inverse of :func:`_encode`: bool ``[R, N]``."""
+    out = np.zeros((n_carriers, n_stages), dtype=bool)
+    for r, part in enumerate(str(text).split("|")):
+        for j in part.split():
+            out[r, int(j)] = True
+    return out
+
+
+def warm_up_worker() -> None:
+    """Load (or compile) the numba kernels once per worker process before any timed decision."""
+    import warnings
+
+    warnings.filterwarnings("ignore", category=RuntimeWarning)
+    from coordinator import clairvoyant
+
+    clairvoyant.warm_up()
+    from coordinator import closedloop  # noqa: F401  (registers "closed-loop")
+    from coordinator.instance import random_instance
+    from coordinator.planners import make_planner, planner_names
+
+    inst = random_instance(np.random.default_rng(0), 2, 1, 3, 1, 3.0)
+    for name in planner_names():
+        planner = make_planner(name, iterations=16)
+        warm = getattr(planner, "warm_up", None)
+        if callable(warm):
+            warm(inst.problem)
