@@ -1,0 +1,287 @@
+"""Run a marsupial fleet mission: one coordinator and one process per carrier, talking over Zenoh.
+
+    python run_fleet.py scenarios/six_carriers.yaml                 # everything on this host
+    python run_fleet.py S.yaml --role coordinator --listen tcp/0.0.0.0:7447 --out runs/m1
+    python run_fleet.py S.yaml --role carrier --carrier a --connect tcp/HOST:7447
+
+With no --role, this script starts the coordinator (listening on tcp/127.0.0.1:<free port>) and
+one OS process per carrier (each a fresh interpreter running this script with --role carrier,
+so each opens its own Zenoh session after it starts), shows a line per stage, and leaves
+summary.json, mission.db and map.png in --out (default runs/<scenario>-<timestamp>).
+See docs/fleet.md and docs/protocol.md.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+if str(HERE) not in sys.path:
+    sys.path.insert(0, str(HERE))
+
+#: Exit code for bad user input (scenario, flags, config files).
+EXIT_USAGE = 2
+#: How long the launcher waits for carriers after the coordinator exits (s).
+CARRIER_EXIT_GRACE_S = 15.0
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    p = argparse.ArgumentParser(
+        prog="run_fleet.py", description="Run a marsupial fleet mission over Zenoh.",
+        formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 2)[1])
+    p.add_argument("scenario", help="scenario YAML file")
+    p.add_argument("--role", choices=("all", "coordinator", "carrier"), default="all",
+                   help="all (default): the whole fleet on this host; or one process's role")
+    p.add_argument("--carrier", metavar="ID", help="carrier id (with --role carrier)")
+    p.add_argument("--planner", help="planner name (overrides the scenario)")
+    p.add_argument("--iterations", type=int, help="MCTS iterations per stage (overrides the scenario)")
+    p.add_argument("--plan-ms", type=float, help="MCTS time budget per stage, ms (overrides the scenario)")
+    p.add_argument("--seed", type=int, help="root seed (overrides the scenario; every process needs the same)")
+    p.add_argument("--realtime", type=float, default=0.0, metavar="FACTOR",
+                   help="simulated seconds per wall second; 0 = as fast as possible (default)")
+    p.add_argument("--mission", help="mission id, the key-expression prefix (default: the scenario name)")
+    p.add_argument("--out", metavar="DIR", help="results directory (default runs/<scenario>-<timestamp>)")
+    z = p.add_argument_group("zenoh (flags override keys of --zenoh-config)")
+    z.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT",
+                   help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)")
+    z.add_argument("-e", "--connect", action="append", default=[], metavar="ENDPOINT",
+                   help="endpoint to connect to, e.g. tcp/192.168.1.10:7447 (repeatable)")
+    z.add_argument("-c", "--zenoh-config", metavar="FILE", help="zenoh JSON5 config file")
+    z.add_argument("-m", "--mode", choices=("peer", "client", "router"),
+                   help="zenoh mode (default: peer for the coordinator, client for carriers)")
+    t = p.add_argument_group("timeouts (seconds)")
+    t.add_argument("--join-timeout", type=float, default=20.0, help="coordinator: wait for carriers before stage 0")
+    t.add_argument("--stage-timeout", type=float, default=5.0, help="coordinator: wait per stage for observations")
+    t.add_argument("--decision-timeout", type=float, default=30.0, help="carrier: wait per stage for the decision")
+    t.add_argument("--coordinator-timeout", type=float, default=30.0,
+                   help="carrier: exit when the coordinator has been absent this long")
+    p.add_argument("--no-map", action="store_true", help="do not draw map.png")
+    p.add_argument("--quiet", action="store_true", help="carriers print nothing but errors")
+    return p.parse_args(argv)
+
+
+def fail(message: str) -> int:
+    print(f"run_fleet.py: {message}", file=sys.stderr)
+    return EXIT_USAGE
+
+
+def load(args):
+    """The scenario, or None after printing the world's one-line errors."""
+    import world
+
+    try:
+        return world.load_scenario(args.scenario)
+    except world.ScenarioError as exc:
+        for line in exc.problems:
+            print(line, file=sys.stderr)
+        return None
+    except OSError as exc:
+        print(f"{args.scenario}: cannot read the scenario: {exc.strerror or exc}", file=sys.stderr)
+        return None
+
+
+def check_flags(args, scenario) -> str | None:
+    """One line about the first bad flag, or None."""
+    from coordinator.node import planner_settings
+    from coordinator.planners import make_planner
+    from wire import keys
+
+    if args.realtime < 0:
+        return f"--realtime: expected a factor >= 0, found {args.realtime}"
+    if args.iterations is not None and args.iterations < 1:
+        return f"--iterations: expected an integer >= 1, found {args.iterations}"
+    if args.plan_ms is not None and args.plan_ms <= 0:
+        return f"--plan-ms: expected milliseconds > 0, found {args.plan_ms}"
+    if args.seed is not None and args.seed < 0:
+        return f"--seed: expected an integer >= 0, found {args.seed}"
+    for name in ("join_timeout", "stage_timeout", "decision_timeout", "coordinator_timeout"):
+        if getattr(args, name) <= 0:
+            return f"--{name.replace('_', '-')}: expected seconds > 0, found {getattr(args, name)}"
+    if args.mission is not None:
+        try:
+            keys.check_id(args.mission, "--mission")
+        except ValueError as exc:
+            return str(exc)
+    if args.role == "carrier":
+        if not args.carrier:
+            return "--role carrier needs --carrier ID"
+        if args.carrier not in scenario.carrier_ids:
+            return (f"--carrier: expected one of {', '.join(scenario.carrier_ids)} "
+                    f"(carriers of {args.scenario}), found {args.carrier!r}")
+    if args.role != "carrier":
+        name, options = planner_settings(scenario, args.planner, args.iterations, args.plan_ms)
+        try:
+            make_planner(name, **options)
+        except ValueError as exc:
+            return f"--planner: {exc}"
+    return None
+
+
+def zenoh_config(args, role: str):
+    from wire.zconfig import DEFAULT_PORT, make_config
+
+    listen, connect = list(args.listen), list(args.connect)
+    if not args.zenoh_config:
+        if role == "coordinator" and not listen:
+            listen = [f"tcp/127.0.0.1:{DEFAULT_PORT}"]
+        if role == "carrier" and not connect:
+            connect = [f"tcp/127.0.0.1:{DEFAULT_PORT}"]
+    mode = args.mode or ("peer" if role == "coordinator" else "client")
+    return make_config(mode, listen, connect, args.zenoh_config)
+
+
+def _stop_on_sigterm() -> None:
+    def handler(signum, frame):
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, handler)
+
+
+def run_coordinator(args, scenario) -> int:
+    from coordinator.node import Coordinator, CoordinatorConfig
+
+    out = args.out or default_out(scenario)
+    coord = Coordinator(scenario, CoordinatorConfig(
+        out_dir=out, mission=args.mission, planner=args.planner, iterations=args.iterations,
+        plan_ms=args.plan_ms, seed=args.seed, realtime=args.realtime, join_timeout_s=args.join_timeout,
+        stage_timeout_s=args.stage_timeout, render=not args.no_map), zenoh_config(args, "coordinator"),
+        scenario_path=args.scenario)
+    _stop_on_sigterm()
+    summary = coord.run()
+    return 0 if summary.get("ended") and summary["stages_decided"] == summary["stages"] else 130
+
+
+def run_carrier(args, scenario) -> int:
+    from carriers.node import EXIT_CODES, Carrier, CarrierConfig
+
+    log = (lambda line: None) if args.quiet else (lambda line: print(line, flush=True))
+    carrier = Carrier(scenario, CarrierConfig(
+        carrier=args.carrier, mission=args.mission, seed=args.seed, realtime=args.realtime,
+        decision_timeout_s=args.decision_timeout, coordinator_timeout_s=args.coordinator_timeout,
+        log=log), zenoh_config(args, "carrier"))
+    _stop_on_sigterm()
+    reason = carrier.run()
+    if reason not in ("end", "finished"):
+        print(f"carrier {args.carrier}: exiting ({reason})", file=sys.stderr, flush=True)
+    return EXIT_CODES.get(reason, 1)
+
+
+def default_out(scenario) -> str:
+    from wire import keys
+
+    return str(Path("runs") / f"{keys.mission_id_from_name(scenario.name)}-{time.strftime('%Y%m%d-%H%M%S')}")
+
+
+def _forward(args) -> list[str]:
+    """Flags every child gets from the launcher's own command line."""
+    out = []
+    for flag, value in (("--planner", args.planner), ("--iterations", args.iterations),
+                        ("--plan-ms", args.plan_ms), ("--seed", args.seed), ("--mission", args.mission),
+                        ("--zenoh-config", args.zenoh_config)):
+        if value is not None:
+            out += [flag, str(value)]
+    out += ["--realtime", str(args.realtime), "--join-timeout", str(args.join_timeout),
+            "--stage-timeout", str(args.stage_timeout), "--decision-timeout", str(args.decision_timeout),
+            "--coordinator-timeout", str(args.coordinator_timeout)]
+    return out
+
+
+def _stop_children(procs, grace_s: float = 5.0) -> None:
+    """SIGINT, then SIGTERM, then SIGKILL, each with a bounded wait; only our own children."""
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+        alive = [p for p in procs if p.poll() is None]
+        if not alive:
+            return
+        for p in alive:
+            try:
+                p.send_signal(sig)
+            except ProcessLookupError:
+                pass
+        deadline = time.monotonic() + grace_s
+        while time.monotonic() < deadline and any(p.poll() is None for p in alive):
+            time.sleep(0.05)
+
+
+def run_all(args, scenario) -> int:
+    from wire.zconfig import free_port
+
+    out = Path(args.out or default_out(scenario))
+    out.mkdir(parents=True, exist_ok=True)
+    listen = args.listen or [f"tcp/127.0.0.1:{free_port()}"]
+    connect = args.connect or [e.replace("0.0.0.0", "127.0.0.1") for e in listen]
+    script = [sys.executable, str(Path(__file__).resolve()), args.scenario]
+    common = _forward(args)
+    started = time.monotonic()
+    coordinator = subprocess.Popen(
+        script + ["--role", "coordinator", "--out", str(out)] + common
+        + sum((["--listen", e] for e in listen), []) + (["--no-map"] if args.no_map else []))
+    carriers = {}
+    for cid in scenario.carrier_ids:
+        carriers[cid] = subprocess.Popen(
+            script + ["--role", "carrier", "--carrier", cid] + common
+            + sum((["--connect", e] for e in connect), []) + (["--quiet"] if args.quiet else []))
+    procs = [coordinator, *carriers.values()]
+    print(f"run_fleet.py: coordinator pid {coordinator.pid} listening on {', '.join(listen)}; carriers "
+          + ", ".join(f"{cid} pid {p.pid}" for cid, p in carriers.items()), flush=True)
+    try:
+        code = coordinator.wait()
+        deadline = time.monotonic() + CARRIER_EXIT_GRACE_S
+        while time.monotonic() < deadline and any(p.poll() is None for p in carriers.values()):
+            time.sleep(0.05)
+        _stop_children(list(carriers.values()), grace_s=2.0)
+    except KeyboardInterrupt:
+        print("run_fleet.py: interrupted; stopping the fleet", file=sys.stderr, flush=True)
+        _stop_children(procs)
+        return 130
+    bad = {cid: p.returncode for cid, p in carriers.items() if p.returncode not in (0,)}
+    if bad:
+        print(f"run_fleet.py: carrier exit codes {bad}", file=sys.stderr, flush=True)
+    summary_path = out / "summary.json"
+    if code != 0 or not summary_path.exists():
+        print(f"run_fleet.py: the coordinator exited with code {code}", file=sys.stderr)
+        return code or 1
+    summary = json.loads(summary_path.read_text())
+    bound = summary.get("clairvoyant", {})
+    lat = summary.get("latency_ms", {})
+    print(f"total reward {summary['total_reward']:.3f} (features {summary['total_features']:.1f}); "
+          f"clairvoyant {'optimum' if bound.get('exact') else 'bound'} {bound.get('reward', float('nan')):.3f} "
+          f"({(bound.get('fraction') or 0) * 100:.0f}%); decision round trip p50 "
+          f"{_ms(lat.get('p50'))} p99 {_ms(lat.get('p99'))}; wall {time.monotonic() - started:.1f} s")
+    print(f"results: {out}/summary.json, mission.db" + ("" if args.no_map else ", map.png"))
+    return 0
+
+
+def _ms(value) -> str:
+    return "-" if value is None else f"{value:.1f} ms"
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    scenario = load(args)
+    if scenario is None:
+        return EXIT_USAGE
+    problem = check_flags(args, scenario)
+    if problem:
+        return fail(problem)
+    from wire.zconfig import ConfigError
+
+    try:
+        if args.role == "coordinator":
+            return run_coordinator(args, scenario)
+        if args.role == "carrier":
+            return run_carrier(args, scenario)
+        return run_all(args, scenario)
+    except ConfigError as exc:
+        return fail(str(exc))
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
