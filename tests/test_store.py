@@ -1,0 +1,84 @@
+"""mission.db: append-only, one decision per stage, faithful replay, refuses another mission."""
+from __future__ import annotations
+
+import sqlite3
+
+import pytest
+
+from coordinator.store import MissionStore, StoreMismatch
+
+META = {"mission": "tiny", "seed": 7, "planner": "ssap"}
+
+
+def test_replay_returns_what_was_recorded(tmp_path):
+    store = MissionStore(tmp_path / "mission.db", META)
+    assert store.observation("a", 0, 5, (1.0, 2.0), t=0.0)
+    assert not store.observation("a", 0, 9, (9.0, 9.0), t=0.0)  # the first report stands
+    store.missing(0, ["b"])
+    store.event("hello", "a", 0, pid=11, host="h1")
+    store.decision(0, ["a"], 3.5)
+    assert store.confirmation("a", 0, True, "deployed", (1.0, 2.0), 4.0)
+    assert not store.confirmation("a", 0, False, "late", (1.0, 2.0), 4.0)
+    store.observation("a", 1, 2, (3.0, 2.0))
+    store.observation("b", 1, None, (0.0, 0.0))
+    store.close()
+
+    store = MissionStore(tmp_path / "mission.db", META)
+    rec = store.replay()
+    assert store.existed
+    assert rec.observations == {("a", 0): 5, ("b", 0): None, ("a", 1): 2, ("b", 1): None}
+    assert rec.positions[("a", 0)] == (1.0, 2.0)
+    assert rec.decisions == {0: (("a",), 3.5)}
+    assert rec.confirmations == {("a", 0): (True, "deployed", (1.0, 2.0))}
+    assert rec.carriers_info == {"a": {"pid": 11, "host": "h1"}}
+    assert rec.next_stage == 1 and not rec.ended
+    assert store.latencies_ms() == [4.0]
+    assert store.db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    store.close()
+
+
+def test_a_stage_is_decided_once(tmp_path):
+    store = MissionStore(tmp_path / "m.db", META)
+    store.decision(0, [], 1.0)
+    with pytest.raises(sqlite3.IntegrityError):
+        store.decision(0, ["a"], 1.0)
+    # The failed attempt left no trace.
+    assert store.db.execute("SELECT COUNT(*) FROM events WHERE kind='decision'").fetchone()[0] == 1
+    assert store.replay().decisions == {0: ((), 1.0)}
+
+
+def test_events_are_append_only(tmp_path):
+    store = MissionStore(tmp_path / "m.db", META)
+    store.event("end", None, 3, reason="complete")
+    with pytest.raises(sqlite3.DatabaseError, match="append-only"):
+        store.db.execute("UPDATE events SET kind='x'")
+    with pytest.raises(sqlite3.DatabaseError, match="append-only"):
+        store.db.execute("DELETE FROM events")
+    assert store.replay().ended
+
+
+def test_refuses_another_mission(tmp_path):
+    MissionStore(tmp_path / "m.db", META).close()
+    with pytest.raises(StoreMismatch, match="seed"):
+        MissionStore(tmp_path / "m.db", dict(META, seed=8))
+
+
+def test_survives_a_killed_writer(tmp_path):
+    """Committed rows are durable even if the writing process dies without closing."""
+    import subprocess
+    import sys
+    import textwrap
+
+    code = textwrap.dedent(f"""
+        import os, sys
+        sys.path.insert(0, {str(__import__('pathlib').Path(__file__).resolve().parents[1])!r})
+        from coordinator.store import MissionStore
+        s = MissionStore({str(tmp_path / 'k.db')!r}, {META!r})
+        s.observation("a", 0, 4, (0.0, 0.0))
+        s.decision(0, ["a"], 1.0)
+        os.kill(os.getpid(), 9)
+    """)
+    proc = subprocess.run([sys.executable, "-c", code], timeout=60)
+    assert proc.returncode == -9
+    rec = MissionStore(tmp_path / "k.db", META).replay()
+    assert rec.decisions == {0: (("a",), 1.0)} and rec.observations == {("a", 0): 4}

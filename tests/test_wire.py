@@ -1,0 +1,196 @@
+"""The wire: key layout, message round trips, and explicit rejection of every kind of bad payload."""
+from __future__ import annotations
+
+import json
+
+import msgpack
+import pytest
+
+from wire import keys, zconfig
+from wire.messages import (
+    MAX_PAYLOAD_BYTES, PROTOCOL_VERSION, Bye, CarrierState, Confirm, Decision, End, Hello,
+    Observation, ProtocolError, State, _to_wire, decode, encode,
+)
+
+M = "tiny"
+
+SAMPLES = {
+    "hello": Hello(M, "a", 1234, "host-1", 3, 0, "0123456789abcdef"),
+    "obs": Observation(M, "a", 2, 10.0, 4, (1.5, -2.0), 3, ((0.0, 0.0), (1.0, 1.0))),
+    "obs-empty": Observation(M, "b", 0, 0.0, None, (0.0, 0.0), 1, ()),
+    "decision": Decision(M, 3, 15.0, ("a", "b"), 12.5),
+    "decision-none": Decision(M, 0, 0.0, (), 0.0),
+    "confirm": Confirm(M, "a", 3, True, "deployed", (3.0, 4.0), 2),
+    "end": End(M, 4, "complete"),
+    "bye": Bye(M, "a", (0, 3), (("duplicate", 2), ("malformed", 1)), "end"),
+    "state": State(mission=M, next_stage=2, stages=4, fingerprint="ab", ended=False,
+                   carriers=(("a", CarrierState(1, (0,), True)), ("b", CarrierState(1, (), False))),
+                   last_decision=Decision(M, 1, 5.0, ("a",), 1.0)),
+    "state-empty": State(mission=M, next_stage=0, stages=4, fingerprint="ab", ended=False, carriers=(),
+                         last_decision=None),
+}
+
+
+@pytest.mark.parametrize("name", sorted(SAMPLES))
+def test_round_trip(name):
+    message = SAMPLES[name]
+    data = encode(message)
+    assert isinstance(data, bytes) and len(data) < 1024
+    back = decode(data)
+    assert back == message and type(back) is type(message)
+    raw = msgpack.unpackb(data)
+    assert raw["v"] == PROTOCOL_VERSION and raw["type"] == type(message).TYPE and raw["mission"] == M
+
+
+def _raw(name: str) -> dict:
+    return _to_wire(SAMPLES[name])
+
+
+def _pack(obj) -> bytes:
+    return msgpack.packb(obj, use_bin_type=True)
+
+
+def _reason(data: bytes, expected=None) -> str:
+    with pytest.raises(ProtocolError) as info:
+        decode(data, expected)
+    return info.value.reason
+
+
+@pytest.mark.parametrize("data, reason", [
+    (b"", "malformed"),
+    (b"\xc1\xc1\xc1", "malformed"),
+    (b"\x92\x01", "malformed"),                      # truncated array
+    (_pack([1, 2, 3]), "not-a-map"),
+    (_pack("hello"), "not-a-map"),
+    (_pack({"type": "obs"}), "missing-field"),       # no version
+    (b"x" * (MAX_PAYLOAD_BYTES + 1), "oversized"),
+], ids=["empty", "garbage", "truncated", "array", "string", "no-version", "oversized"])
+def test_rejects_bad_bytes(data, reason):
+    assert _reason(data) == reason
+
+
+@pytest.mark.parametrize("version", [0, 2, 99, "1", 1.5, True, None])
+def test_rejects_unknown_versions(version):
+    raw = _raw("obs")
+    raw["v"] = version
+    assert _reason(_pack(raw)) in ("version", "missing-field")
+
+
+def test_rejects_unknown_type_and_unexpected_type():
+    raw = _raw("obs")
+    raw["type"] = "teleport"
+    assert _reason(_pack(raw)) == "unknown-type"
+    assert _reason(encode(SAMPLES["decision"]), Observation) == "unknown-type"
+    assert isinstance(decode(encode(SAMPLES["decision"]), (Observation, Decision)), Decision)
+
+
+@pytest.mark.parametrize("name, field, value, reason", [
+    ("obs", "stage", "2", "wrong-type"),
+    ("obs", "stage", -1, "out-of-range"),
+    ("obs", "stage", 2.0, "wrong-type"),
+    ("obs", "stage", True, "wrong-type"),
+    ("obs", "x", -3, "out-of-range"),
+    ("obs", "x", 2.5, "wrong-type"),
+    ("obs", "t", float("nan"), "out-of-range"),
+    ("obs", "t", float("inf"), "out-of-range"),
+    ("obs", "position", [1.0], "wrong-type"),
+    ("obs", "position", [1.0, "y"], "wrong-type"),
+    ("obs", "position", [1e12, 0.0], "out-of-range"),
+    ("obs", "trail", [[0.0, 0.0]] * 600, "out-of-range"),
+    ("obs", "carrier", "a/b", "out-of-range"),
+    ("obs", "carrier", "*", "out-of-range"),
+    ("obs", "carrier", 7, "wrong-type"),
+    ("obs", "mission", "", "out-of-range"),
+    ("obs", "passengers_left", -1, "out-of-range"),
+    ("decision", "deploy", ["a", "a"], "out-of-range"),
+    ("decision", "deploy", "a", "wrong-type"),
+    ("decision", "planning_ms", -1.0, "out-of-range"),
+    ("confirm", "deployed", 1, "wrong-type"),
+    ("confirm", "status", "teleported", "out-of-range"),
+    ("hello", "host", "h" * 300, "out-of-range"),
+    ("bye", "rejected", {"x": -1}, "out-of-range"),
+    ("bye", "rejected", [1, 2], "wrong-type"),
+    ("state", "carriers", {"a": {"passengers_left": 1}}, "missing-field"),
+    ("state", "last_decision", {"stage": 1}, "missing-field"),
+])
+def test_rejects_bad_fields(name, field, value, reason):
+    raw = _raw(name)
+    raw[field] = value
+    assert _reason(_pack(raw)) == reason
+
+
+@pytest.mark.parametrize("name", ["obs", "decision", "confirm", "hello", "state"])
+def test_rejects_missing_and_unknown_fields(name):
+    raw = _raw(name)
+    for field in [k for k in raw if k not in ("v", "type")]:
+        partial = {k: v for k, v in raw.items() if k != field}
+        assert _reason(_pack(partial)) == "missing-field", field
+    assert _reason(_pack({**raw, "extra": 1})) == "unknown-field"
+
+
+def test_encode_refuses_what_decode_would_reject():
+    with pytest.raises(ProtocolError):
+        encode(Observation(M, "a", -1, 0.0, 1, (0.0, 0.0), 1, ()))
+    with pytest.raises(ProtocolError):
+        encode(Observation(M, "a", 0, 0.0, 1, (0.0, 0.0), 1, ((0.0, 0.0),) * 5000))
+
+
+def test_decode_never_raises_anything_else():
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    good = [encode(m) for m in SAMPLES.values()]
+    for _ in range(3000):
+        base = bytearray(good[int(rng.integers(len(good)))])
+        for _ in range(int(rng.integers(1, 4))):
+            base[int(rng.integers(len(base)))] = int(rng.integers(256))
+        try:
+            decode(bytes(base))
+        except ProtocolError:
+            pass
+
+
+def test_key_layout_puts_each_publisher_under_its_own_subtree():
+    carrier_keys = [keys.carrier_key(M, "a", t) for t in keys.CARRIER_TOPICS] + [keys.carrier_alive(M, "a")]
+    assert all(k.startswith("marsupial/tiny/carrier/a/") for k in carrier_keys)
+    coordinator_keys = [keys.decision_key(M), keys.end_key(M), keys.state_key(M), keys.coordinator_alive(M)]
+    assert all(k.startswith("marsupial/tiny/coordinator/") for k in coordinator_keys)
+    assert keys.parse_carrier_key(M, "marsupial/tiny/carrier/a/obs") == ("a", "obs")
+    assert keys.parse_carrier_key(M, "marsupial/other/carrier/a/obs") is None
+    assert keys.parse_carrier_key(M, "marsupial/tiny/carrier/a/b/obs") is None
+    with pytest.raises(ValueError):
+        keys.carrier_key(M, "a/**", "obs")
+    assert keys.mission_id_from_name("six carriers: demo!") == "six-carriers-demo"
+
+
+def test_zenoh_config_flags_override_the_file(tmp_path):
+    path = tmp_path / "z.json5"
+    path.write_text('{ mode: "peer", listen: { endpoints: ["tcp/127.0.0.1:1111"] }, // comment\n }')
+    conf = zconfig.make_config(None, [], [], str(path))
+    assert json.loads(conf.get_json("listen/endpoints")) == ["tcp/127.0.0.1:1111"]
+    assert json.loads(conf.get_json("scouting/multicast/enabled")) is False
+    conf = zconfig.make_config("client", [], ["tcp/10.0.0.1:7447"], str(path))
+    assert json.loads(conf.get_json("mode")) == "client"
+    assert json.loads(conf.get_json("connect/endpoints")) == ["tcp/10.0.0.1:7447"]
+    conf = zconfig.make_config(None, ["tcp/127.0.0.1:2222"], [], str(path))
+    assert json.loads(conf.get_json("listen/endpoints")) == ["tcp/127.0.0.1:2222"]
+
+
+@pytest.mark.parametrize("kwargs, fragment", [
+    ({"listen": ["127.0.0.1:7447"]}, "--listen"),
+    ({"connect": ["tcp 1"]}, "--connect"),
+    ({"config_file": "/nonexistent/z.json5"}, "file not found"),
+    ({"mode": "satellite"}, "--mode"),
+])
+def test_zenoh_config_errors_are_one_line(kwargs, fragment, tmp_path):
+    with pytest.raises(zconfig.ConfigError) as info:
+        zconfig.make_config(**kwargs)
+    assert fragment in str(info.value) and "\n" not in str(info.value)
+
+
+def test_zenoh_config_bad_file(tmp_path):
+    path = tmp_path / "bad.json5"
+    path.write_text("{ mode: ")
+    with pytest.raises(zconfig.ConfigError) as info:
+        zconfig.make_config(config_file=str(path))
+    assert str(path) in str(info.value)
