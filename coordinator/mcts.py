@@ -1,0 +1,294 @@
+"""MCTS-SSAP and MCTS-Random, fast: a binary-level array tree searched by numba kernels.
+
+The algorithm is the paper's (see :mod:`coordinator.mcts_reference` for the plain version and
+docs/performance.md for the measured equivalence), with one structural change that keeps the
+2^R joint actions from ever being enumerated: **each tree level is one carrier's binary choice**.
+A stage is up to R consecutive levels, carriers in index order; carriers with no choice at a
+stage (∅ stage, no passenger left, or forced to deploy) get no level and their action is applied
+while walking. A path through the levels of one stage spells one feasible joint action, so the
+tree reaches exactly the joint actions the joint-action tree reaches; UCT statistics are shared
+between joint actions with a common prefix, and each iteration expands one binary node.
+
+Per iteration (in :func:`coordinator._mcts_kernel.search`): UCT selection with constant ``c``
+on normalised rewards, expansion of one untried binary child (uniformly random when both are
+untried), lazy sampling of future observations from the prior (only where a rollout decision or
+the evaluation reads them; open-loop), the SSAP rollout per carrier on the conflict-discounted
+observation ``x / (1 + conflicts with chosen deployments)`` or the uniformly random feasible
+rollout, evaluation of the whole trajectory with the exact penalty rule, backup.
+
+The executed action follows the **most visited** child at each binary level of the root stage
+(ties: higher mean, then "stay"). A level never expanded (only with budgets below ~R
+iterations) falls back to the SSAP rule on the conflict-discounted observation.
+
+Priors: a discrete prior is sampled exactly by inverse CDF over its support (truncated where the
+tail mass is below 1e-15, like the thresholds); a continuous prior is replaced by
+``CONTINUOUS_ATOMS`` equiprobable atoms at its quantiles ``(i + 1/2) / CONTINUOUS_ATOMS``.
+
+Randomness: one uint64 drawn from the decision's Generator seeds the kernel's splitmix64 stream
+once per decision, so a decision is a deterministic function of the view and the Generator (in
+iteration mode; in ``plan_ms`` mode the number of iterations depends on the clock).
+"""
+from __future__ import annotations
+
+import functools
+import math
+import time
+
+import numpy as np
+
+from coordinator import _mcts_kernel as _k
+from coordinator.problem import Problem, StageView, make_view
+from coordinator.ssap import TAIL, table_for
+
+#: Default UCT exploration constant on normalised rewards (the paper's 0.05·√2).
+DEFAULT_EXPLORATION = 0.05 * math.sqrt(2.0)
+#: Rollout policies.
+ROLLOUTS = {"ssap": _k.ROLLOUT_SSAP, "random": _k.ROLLOUT_RANDOM}
+#: Equiprobable atoms standing for a continuous prior inside the kernel.
+CONTINUOUS_ATOMS = 4096
+#: Guide-table entries per support point (inverse-CDF sampling takes ~1 comparison on average).
+GUIDE_FACTOR = 4
+#: Time-budget mode: the first kernel call runs this many iterations to measure the rate.
+FIRST_CHUNK = 16
+#: Time-budget mode: each later call aims at this fraction of the remaining time.
+CHUNK_FRACTION = 0.8
+#: Time-budget mode: stop when less than this fraction of the budget remains.
+STOP_FRACTION = 0.01
+#: Node capacity of the first allocation in time-budget mode (grown geometrically).
+INITIAL_CAPACITY = 4096
+
+
+@functools.lru_cache(maxsize=64)
+def prior_grid(problem: Problem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The prior as (support points float64 ``[K]``, cumulative probability float64 ``[K]``,
+    guide int64 ``[G]``) for inverse-CDF sampling in the kernel.
+
+    The last cumulative value is set above 1 so that sampling always terminates;
+    ``guide[m]`` is the first index whose cumulative probability exceeds ``m / G``.
+    """
+    prior = problem.prior
+    if hasattr(prior.dist, "pmf"):
+        lo, hi = prior.support()
+        lo = prior.ppf(TAIL) if not np.isfinite(lo) else lo
+        hi = prior.ppf(1.0 - TAIL) if not np.isfinite(hi) else hi
+        points = np.arange(lo, hi + 1, dtype=np.float64)
+        mass = prior.pmf(points)
+        cdf = np.cumsum(mass) / mass.sum()
+    else:
+        u = (np.arange(CONTINUOUS_ATOMS) + 0.5) / CONTINUOUS_ATOMS
+        points = np.asarray(prior.ppf(u), dtype=np.float64)
+        cdf = (np.arange(CONTINUOUS_ATOMS) + 1.0) / CONTINUOUS_ATOMS
+    cdf[-1] = 2.0
+    guide = np.searchsorted(cdf, np.arange(GUIDE_FACTOR * len(cdf)) / (GUIDE_FACTOR * len(cdf)), side="right")
+    return np.ascontiguousarray(points), np.ascontiguousarray(cdf), guide.astype(np.int64)
+
+
+@functools.lru_cache(maxsize=64)
+def threshold_cdf(problem: Problem) -> np.ndarray:
+    """float64 ``[N + 2, N + 2]``: P(X <= table[n, i]) under :func:`prior_grid`'s distribution,
+    so that a sample with uniform u exceeds the threshold iff u >= this value (2 where no
+    support point exceeds it, NaN-threshold entries included; they are never read)."""
+    table = table_for(problem)
+    points, cdf, _ = prior_grid(problem)
+    idx = np.searchsorted(points, np.nan_to_num(table, nan=np.inf), side="right") - 1
+    out = np.where(idx >= 0, cdf[np.clip(idx, 0, None)], 0.0)
+    return np.ascontiguousarray(out, dtype=np.float64)
+
+
+@functools.lru_cache(maxsize=64)
+def conflict_lists(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
+    """CSR form of ``problem.conflict``: (indptr int64 ``[R*N + 1]``, neighbours int64 ``[nnz]``)."""
+    rows, cols = np.nonzero(problem.conflict)
+    indptr = np.zeros(problem.conflict.shape[0] + 1, dtype=np.int64)
+    np.add.at(indptr, rows + 1, 1)
+    return np.cumsum(indptr), cols.astype(np.int64)
+
+
+@functools.lru_cache(maxsize=1)
+def _uct_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    return _k.uct_tables()
+
+
+class _Tree:
+    """Preallocated node arrays (see :mod:`coordinator._mcts_kernel`), grown geometrically."""
+
+    def __init__(self, capacity: int):
+        self.child = np.full((capacity, 2), _k.UNEXPANDED, dtype=np.int64)
+        self.visits = np.zeros(capacity, dtype=np.int64)
+        self.value = np.zeros(capacity, dtype=np.float64)
+        self.point = np.zeros(capacity, dtype=np.int64)
+        self.counter = np.ones(1, dtype=np.int64)  # the root exists
+
+    def reserve(self, more: int) -> None:
+        """Make room for ``more`` new nodes."""
+        need = int(self.counter[0]) + more
+        cap = self.visits.shape[0]
+        if need <= cap:
+            return
+        new = max(need, 2 * cap)
+        self.child = np.concatenate([self.child, np.full((new - cap, 2), _k.UNEXPANDED, dtype=np.int64)])
+        self.visits = np.concatenate([self.visits, np.zeros(new - cap, dtype=np.int64)])
+        self.value = np.concatenate([self.value, np.zeros(new - cap)])
+        self.point = np.concatenate([self.point, np.zeros(new - cap, dtype=np.int64)])
+
+
+class MCTSPlanner:
+    """The paper's MCTS planner, fast (see the module docstring).
+
+    Args:
+        rollout: ``"ssap"`` (MCTS-SSAP) or ``"random"`` (MCTS-Random).
+        iterations: iterations per decision (ignored when ``plan_ms`` is given).
+        plan_ms: wall-clock budget per decision, milliseconds (anytime mode; at least one
+            iteration runs).
+        exploration: UCT constant ``c`` on normalised rewards.
+        samples: Monte Carlo rollouts per iteration (their mean is backed up).
+    """
+
+    def __init__(self, rollout: str = "ssap", iterations: int = 10_000, plan_ms: float | None = None,
+                 exploration: float = DEFAULT_EXPLORATION, samples: int = 1):
+        if rollout not in ROLLOUTS:
+            raise ValueError(f"rollout must be one of {tuple(ROLLOUTS)}, got {rollout!r}")
+        if int(iterations) < 1:
+            raise ValueError(f"iterations must be >= 1, got {iterations}")
+        if int(samples) < 1:
+            raise ValueError(f"samples must be >= 1, got {samples}")
+        if plan_ms is not None and not plan_ms > 0:
+            raise ValueError(f"plan_ms must be > 0, got {plan_ms}")
+        if not exploration >= 0:
+            raise ValueError(f"exploration must be >= 0, got {exploration}")
+        self.rollout = rollout
+        self.iterations = int(iterations)
+        self.plan_ms = None if plan_ms is None else float(plan_ms)
+        self.exploration = float(exploration)
+        self.samples = int(samples)
+        self.name = f"mcts-{rollout}"
+        self.last_iterations = 0  # iterations run by the latest decision (for benchmarks)
+        self.last_nodes = 0  # tree nodes of the latest decision
+
+    def warm_up(self, problem: Problem | None = None) -> None:
+        """Load (or compile, the first time ever) the numba kernels with a tiny decision.
+
+        Call before timing decisions; compiled code is cached on disk across runs.
+        """
+        if problem is None:
+            problem = Problem.build(1, np.ones((2, 3), dtype=bool), [[(0, 0), (1, 0)]])
+        x = np.where(problem.valid, 1.0, np.nan)
+        view = make_view(problem, 0, x, np.zeros(problem.valid.shape, dtype=bool))
+        saved = (self.iterations, self.plan_ms)
+        self.iterations, self.plan_ms = 2, None
+        try:
+            if not (view.can_deploy & ~view.must_deploy).any():
+                view = make_view(*_tiny_view_args())
+            self.decide(view, np.random.default_rng(0))
+        finally:
+            self.iterations, self.plan_ms = saved
+
+    def decide(self, view: StageView, rng: np.random.Generator) -> np.ndarray:
+        """bool ``[R]``: carriers deploying at ``view.stage``."""
+        start = time.perf_counter()
+        problem = view.problem
+        n_carriers, n_stages = problem.valid.shape
+        j0 = view.stage
+        can, must = view.can_deploy, view.must_deploy
+        choice = can & ~must
+        if not choice.any():  # a single feasible joint action: nothing to plan
+            self.last_iterations = 0
+            self.last_nodes = 0
+            return must.copy()
+        state = rng.integers(2 ** 64, dtype=np.uint64, size=1)  # the kernel's random stream
+
+        valid = np.ascontiguousarray(view.valid, dtype=np.uint8)
+        vs_left = np.zeros((n_carriers, n_stages + 1), dtype=np.int64)
+        vs_left[:, :-1] = np.cumsum(view.valid[:, ::-1], axis=1)[:, ::-1]
+        d0 = np.ascontiguousarray(view.passengers_left, dtype=np.int64)
+        known = np.ascontiguousarray(np.nan_to_num(view.observations, nan=0.0), dtype=np.float64)
+        past = np.flatnonzero(view.deployed.reshape(-1)).astype(np.int64)
+        mark = np.zeros(n_carriers * n_stages, dtype=np.uint8)
+        mark[past] = 1
+        xval = np.zeros(n_carriers * n_stages, dtype=np.float64)
+        xval[past] = known.reshape(-1)[past]
+        indptr, nbr = conflict_lists(problem)
+        table = table_for(problem)
+        ucut = threshold_cdf(problem)
+        points, cdf, guide = prior_grid(problem)
+        scratch = (
+            np.zeros(n_carriers, dtype=np.int64),  # left
+            np.zeros(n_carriers, dtype=np.int64),  # left_tree
+            mark,
+            xval,
+            np.zeros(n_carriers * n_stages, dtype=np.int64),  # pts
+            np.zeros((n_stages - j0) * n_carriers + 2, dtype=np.int64),  # path
+        )
+        first = int(np.flatnonzero(choice)[0])  # the root is the first carrier with a choice
+        tree = _Tree(self.iterations + 1 if self.plan_ms is None else INITIAL_CAPACITY)
+        tree.point[_k.ROOT] = first
+        fixed = (state, j0, d0, valid, vs_left, known, past, indptr, nbr, table, ucut, points, cdf, guide,
+                 ROLLOUTS[self.rollout], self.exploration, self.samples, problem.scale) + _uct_tables() + scratch
+
+        def run(n_iter: int) -> None:
+            tree.reserve(n_iter)
+            _k.search(n_iter, tree.child, tree.visits, tree.value, tree.point, tree.counter, *fixed)
+
+        if self.plan_ms is None:
+            run(self.iterations)
+            done = self.iterations
+        else:
+            budget = self.plan_ms / 1e3
+            deadline = start + budget
+            t0 = time.perf_counter()
+            run(FIRST_CHUNK)
+            done = FIRST_CHUNK
+            while True:
+                now = time.perf_counter()
+                remaining = deadline - now
+                if remaining < STOP_FRACTION * budget:
+                    break
+                rate = done / (now - t0)
+                chunk = max(1, int(rate * remaining * CHUNK_FRACTION))
+                run(chunk)
+                done += chunk
+        self.last_iterations = done
+        self.last_nodes = int(tree.counter[0])
+        return self._extract(view, tree, choice, must)
+
+    def _extract(self, view: StageView, tree: _Tree, choice: np.ndarray, must: np.ndarray) -> np.ndarray:
+        """Follow the most visited child through the root stage's binary levels."""
+        problem = view.problem
+        n_stages = problem.n_stages
+        j0 = view.stage
+        decision = must.copy()
+        node = _k.ROOT
+        for r in np.flatnonzero(choice):
+            # Invariant: at the root stage the choice carriers are fixed, one level each.
+            assert node == _k.UNEXPANDED or tree.point[node] == r
+            kids = tree.child[node] if node != _k.UNEXPANDED else None
+            if kids is not None and (kids != _k.UNEXPANDED).any():
+                best, key = _k.UNEXPANDED, None
+                for b in (0, 1):
+                    c = kids[b]
+                    if c == _k.UNEXPANDED or tree.visits[c] == 0:
+                        continue
+                    k = (tree.visits[c], tree.value[c] / tree.visits[c])
+                    if key is None or k > key:
+                        best, key = b, k
+                deploy = best == 1
+                node = kids[best]
+            else:  # never expanded: the rollout's rule on the conflict-discounted observation
+                selected = view.deployed.copy()
+                selected[:, j0] = decision
+                a = r * n_stages + j0
+                conflicts = int(np.count_nonzero(problem.conflict[a] & selected.reshape(-1)))
+                n, d = int(view.stages_left[r]), int(view.passengers_left[r])
+                if self.rollout == "ssap":
+                    deploy = view.observations[r, j0] / (1 + conflicts) > table_for(problem)[n, n - d]
+                else:
+                    deploy = False
+                node = _k.UNEXPANDED
+            decision[r] = deploy
+        return decision
+
+
+def _tiny_view_args():
+    problem = Problem.build(1, np.ones((2, 3), dtype=bool), [[(0, 0), (1, 0)]])
+    x = np.ones((2, 3))
+    return problem, 0, x, np.zeros((2, 3), dtype=bool)
