@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import json
 import socket
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -20,6 +22,8 @@ import zenoh
 from tools import gen_certs
 from tools.gen_certs import FleetCerts, Identity
 
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ROOT / "scenarios" / "tiny.yaml"
 MISSION = "m"
 CARRIERS = ("c0", "c1")
 WAIT_S = 10.0  # upper bound on waiting for something that must happen
@@ -243,3 +247,132 @@ def test_config_examples_are_what_the_generator_writes():
     for name, config in expected.items():
         example = zenoh.Config.from_file(str(root / "config" / name))
         assert _zenoh_view(example) == _zenoh_view(zenoh.Config.from_json5(json.dumps(config))), name
+
+
+# --------------------------------------------------------------------------- whole fleets over TLS
+
+FLEET_TIMEOUT_S = 150.0  # upper bound on one fleet run (a hang fails the test instead of blocking)
+
+
+def _launch_fleet(tmp: Path, name: str, certs: FleetCerts, carrier_confs: dict[str, Path]) -> dict:
+    """Start the coordinator and one process per carrier of the tiny scenario, each with its own
+    --zenoh-config, over tls/127.0.0.1:<free port>. Returns the Popen objects and paths."""
+    out = tmp / name
+    out.mkdir()
+    port = free_port()
+    coord_conf = gen_certs.write_json5(out / "coordinator.json5", gen_certs.coordinator_config(certs))
+    base = [sys.executable, str(ROOT / "run_fleet.py"), str(TINY)]
+    logs = {}
+
+    def start(role: str, args: list[str]) -> subprocess.Popen:
+        logs[role] = out / f"{role}.log"
+        with open(logs[role], "wb") as log:
+            return subprocess.Popen(base + args, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT)
+
+    procs = {"coordinator": start("coordinator", [
+        "--role", "coordinator", "--zenoh-config", str(coord_conf), "--listen", f"tls/127.0.0.1:{port}",
+        "--out", str(out / "results"), "--join-timeout", "8", "--no-map"])}
+    for cid, conf in carrier_confs.items():
+        procs[cid] = start(cid, ["--role", "carrier", "--carrier", cid, "--zenoh-config", str(conf),
+                                 "--connect", f"tls/127.0.0.1:{port}", "--coordinator-timeout", "8"])
+    return {"procs": procs, "logs": logs, "out": out}
+
+
+def _wait_fleet(fleet: dict) -> dict:
+    deadline = time.monotonic() + FLEET_TIMEOUT_S
+    codes = {}
+    try:
+        for role, proc in fleet["procs"].items():
+            codes[role] = proc.wait(timeout=max(1.0, deadline - time.monotonic()))
+    finally:
+        for proc in fleet["procs"].values():
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    summary_path = fleet["out"] / "results" / "summary.json"
+    summary = json.loads(summary_path.read_text()) if summary_path.exists() else None
+    logs = {role: path.read_text(errors="replace") for role, path in fleet["logs"].items()}
+    return {"codes": codes, "summary": summary, "logs": logs}
+
+
+@pytest.fixture(scope="module")
+def tls_fleets(tmp_path_factory, certs_tiny, strangers_tiny):
+    """Two tiny missions over mutual TLS, run at the same time: every carrier with its own valid
+    certificate ("valid"), and carrier b with a certificate for its name from another CA ("forged")."""
+    tmp = tmp_path_factory.mktemp("fleets")
+    confs = {cid: gen_certs.write_json5(tmp / f"carrier-{cid}.json5", gen_certs.carrier_config(certs_tiny, cid))
+             for cid in certs_tiny.carriers}
+    forged = gen_certs.carrier_config(certs_tiny, "b")
+    forged["transport"]["link"]["tls"] = gen_certs.tls_section(certs_tiny.ca, strangers_tiny["forged-b"])
+    forged_conf = gen_certs.write_json5(tmp / "forged-b.json5", forged)
+    fleets = {
+        "valid": _launch_fleet(tmp, "valid", certs_tiny, confs),
+        "forged": _launch_fleet(tmp, "forged", certs_tiny, {"a": confs["a"], "b": forged_conf}),
+    }
+    return {name: _wait_fleet(fleet) for name, fleet in fleets.items()}
+
+
+@pytest.fixture(scope="module")
+def certs_tiny(tmp_path_factory) -> FleetCerts:
+    return gen_certs.generate_fleet_certs(tmp_path_factory.mktemp("certs-tiny"), gen_certs.scenario_carrier_ids(TINY))
+
+
+@pytest.fixture(scope="module")
+def strangers_tiny(tmp_path_factory) -> dict[str, Identity]:
+    out = tmp_path_factory.mktemp("strangers-tiny")
+    other_ca = gen_certs.make_ca(out, cn="some-other-ca", stem="other-ca")
+    return {"forged-b": gen_certs.issue(other_ca, out, "forged-b", gen_certs.carrier_cn("b"))}
+
+
+def offline_decisions(x_override=None) -> tuple[list[list[str]], list]:
+    """Per stage, the carriers the planner core deploys offline on the tiny scenario's
+    observations (optionally with some replaced), with the scenario's seed."""
+    import numpy as np
+
+    import world
+    from coordinator.node import build_problem, planner_settings
+    from coordinator.planners import make_planner
+    from coordinator.problem import run_online
+
+    scenario = world.load_scenario(str(TINY))
+    problem = build_problem(scenario)
+    x = world.observe_all(scenario) if x_override is None else np.asarray(x_override, dtype=float)
+    name, options = planner_settings(scenario)
+    result = run_online(problem, x, make_planner(name, **options), scenario.seed)
+    ids = list(scenario.carrier_ids)
+    return [[ids[r] for r in range(len(ids)) if result.deployed[r, j]] for j in range(scenario.stages)], x
+
+
+@pytest.mark.slow
+def test_tiny_mission_completes_over_mutual_tls(tls_fleets):
+    run = tls_fleets["valid"]
+    assert run["codes"] == {"coordinator": 0, "a": 0, "b": 0}, run["logs"]
+    summary = run["summary"]
+    assert summary["ended"] and summary["stages_decided"] == summary["stages"]
+    expected, _ = offline_decisions()
+    assert summary["decisions"] == expected
+    deployed = {c["id"]: len(c["deployments"]) for c in summary["carriers"]}
+    assert deployed == {"a": 2, "b": 1}  # every passenger deployed
+
+
+@pytest.mark.slow
+def test_carrier_without_valid_certificate_cannot_join(tls_fleets):
+    import numpy as np
+
+    run = tls_fleets["forged"]
+    summary = run["summary"]
+    assert run["codes"]["coordinator"] == 0, run["logs"]["coordinator"]
+    assert run["codes"]["a"] == 0, run["logs"]["a"]
+    assert run["codes"]["b"] != 0, "the forged carrier b claims success"
+    assert summary["ended"] and summary["stages_decided"] == summary["stages"]
+    ids = [c["id"] for c in summary["carriers"]]
+    b = summary["carriers"][ids.index("b")]
+    assert b["deployments"] == [] and not any("b" in d for d in summary["decisions"])
+    assert all(x is None for x in summary["observations"][ids.index("b")]), "b's stages must all be ∅"
+    assert "carrier b is live" not in run["logs"]["coordinator"]
+    # The rest of the mission is what the planner does offline with b's stages ∅.
+    _, x = offline_decisions()
+    x = np.array(x)
+    x[ids.index("b"), :] = np.nan
+    expected, _ = offline_decisions(x)
+    assert summary["decisions"] == expected
