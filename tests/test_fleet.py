@@ -1,0 +1,129 @@
+"""The fleet in one process: real Zenoh sessions on loopback (one per node), real worlds, real
+planner; coordinator and carriers as threads."""
+from __future__ import annotations
+
+import time
+
+import msgpack
+import numpy as np
+import pytest
+
+import world
+from wire import keys
+from wire.messages import Decision, Observation, encode
+from wire.transport import Node
+from wire.zconfig import make_config
+
+from fleet_helpers import TINY, InProcessFleet, db_rows, deployed_matrix, offline
+
+
+@pytest.fixture(scope="module")
+def tiny():
+    return world.load_scenario(TINY)
+
+
+def test_whole_mission_matches_the_offline_planner(tiny, tmp_path):
+    fleet = InProcessFleet(tiny, tmp_path)
+    fleet.start_coordinator()
+    for cid in tiny.carrier_ids:
+        fleet.start_carrier(cid)
+    summary = fleet.join()
+    reference, x = offline(tiny)
+
+    assert summary["ended"] and summary["stages_decided"] == tiny.stages
+    assert all(fleet.results[cid] == "end" for cid in tiny.carrier_ids)
+    np.testing.assert_array_equal(np.array(summary["observations"], dtype=float), x)
+    np.testing.assert_array_equal(deployed_matrix(summary, tiny), reference.deployed)
+    assert summary["total_reward"] == pytest.approx(reference.reward)
+    assert summary["total_features"] == pytest.approx(reference.features)
+    assert summary["clairvoyant"]["reward"] >= summary["total_reward"] - 1e-9
+    assert summary["latency_ms"]["count"] == tiny.n_carriers * tiny.stages
+    assert summary["rejected"]["coordinator"] == {}
+    for carrier, spec in zip(summary["carriers"], tiny.carriers):
+        assert len(carrier["deployments"]) == spec.passengers  # every passenger is deployed
+        assert carrier["pid"] is not None and carrier["host"]
+    # Everything is in mission.db, and each decision was committed before its confirmations.
+    db = tmp_path / "mission.db"
+    assert db_rows(db, "SELECT COUNT(*) FROM decisions")[0][0] == tiny.stages
+    order = dict(db_rows(db, "SELECT stage, seq FROM decisions"))
+    for cid, stage, seq in db_rows(db, "SELECT carrier, stage, seq FROM confirmations"):
+        assert seq > order[stage]
+    for cid, stage, seq in db_rows(db, "SELECT carrier, stage, seq FROM observations"):
+        assert seq < order[stage]
+
+
+def test_staggered_start_catches_up_from_the_mission_state(tiny, tmp_path):
+    # 10 x real time: a stage every 0.5 s. Carrier b's process starts after stage 0 is decided.
+    fleet = InProcessFleet(tiny, tmp_path, realtime=10.0, join_timeout_s=0.5)
+    fleet.start_coordinator()
+    fleet.start_carrier("a", realtime=10.0)
+    deadline = time.monotonic() + 30
+    while fleet.coordinator.next_stage < 1 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert fleet.coordinator.next_stage >= 1
+    fleet.start_carrier("b", realtime=10.0)
+    summary = fleet.join()
+    reference, x = offline(tiny)
+
+    assert summary["ended"] and fleet.results["b"] == "end"
+    hello = db_rows(tmp_path / "mission.db", "SELECT stage FROM events WHERE kind='hello' AND carrier='b'")
+    joined = hello[0][0]
+    assert joined >= 1  # b learnt from the state that stage 0 was decided already
+    obs = np.array(summary["observations"], dtype=float)
+    rb = tiny.carrier_index("b")
+    # From the stage after it joined on, b's observations are the world's own.
+    np.testing.assert_array_equal(obs[rb, joined + 1:], x[rb, joined + 1:])
+    assert np.isnan(obs[rb, :joined]).all()
+    b = summary["carriers"][rb]
+    assert len(b["deployments"]) == tiny.carriers[rb].passengers
+    assert len({d["stage"] for d in b["deployments"]}) == len(b["deployments"])
+
+
+def test_bad_messages_are_rejected_counted_and_change_nothing(tiny, tmp_path):
+    fleet = InProcessFleet(tiny, tmp_path)
+    fleet.start_coordinator()
+    time.sleep(0.3)
+    intruder = Node(make_config("client", [], [fleet.endpoint]))
+    m = fleet.coordinator.mission
+    obs_key = keys.carrier_key(m, "a", "obs")
+    good = Observation(m, "a", 3, 15.0, 99, (0.0, 0.0), 2, ())
+    raw = msgpack.unpackb(encode(good))
+    try:
+        intruder.put_raw(obs_key, b"\x00garbage")
+        intruder.put_raw(obs_key, msgpack.packb({**raw, "v": 9}))
+        intruder.put_raw(obs_key, msgpack.packb({**raw, "stage": "3"}))
+        intruder.put_raw(obs_key, msgpack.packb({**raw, "mission": "other"}))
+        intruder.put_raw(obs_key, msgpack.packb({**raw, "carrier": "b"}))
+        intruder.put_raw(keys.carrier_key(m, "zz", "obs"), msgpack.packb({**raw, "carrier": "zz"}))
+        intruder.put_raw(obs_key, b"\x01" * (70 * 1024))
+        intruder.put_raw(keys.decision_key(m), msgpack.packb({**msgpack.unpackb(encode(
+            Decision(m, 0, 0.0, ("a",), 1.0))), "deploy": "a"}))
+        time.sleep(0.3)
+        for cid in tiny.carrier_ids:
+            fleet.start_carrier(cid)
+        summary = fleet.join()
+    finally:
+        intruder.close()
+    reference, _ = offline(tiny)
+    np.testing.assert_array_equal(deployed_matrix(summary, tiny), reference.deployed)
+    rejected = summary["rejected"]["coordinator"]
+    for reason in ("malformed", "version", "wrong-type", "wrong-mission", "key-mismatch", "unknown-carrier",
+                   "oversized"):
+        assert rejected.get(reason) == 1, (reason, rejected)
+    # Each carrier saw the malformed decision once (if it had subscribed by then) and carried on.
+    for cid in tiny.carrier_ids:
+        assert set(summary["rejected"]["carriers"][cid]) <= {"wrong-type"}
+
+
+def test_a_carrier_of_another_world_is_refused(tiny, tmp_path):
+    fleet = InProcessFleet(tiny, tmp_path, join_timeout_s=0.5)
+    fleet.start_coordinator()
+    fleet.start_carrier("a")
+    fleet.start_carrier("b", seed=tiny.seed + 1)  # another seed: other features, another world
+    summary = fleet.join()
+    assert fleet.results["b"] == "world-mismatch"
+    assert summary["ended"]
+    assert any("another world" in line for line in fleet.log.lines)
+    rb = tiny.carrier_index("b")
+    assert np.isnan(np.array(summary["observations"], dtype=float)[rb]).all()
+    assert summary["carriers"][rb]["deployments"] == []
