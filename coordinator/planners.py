@@ -120,3 +120,13 @@ register("random", lambda **_: RandomPlanner())
 register("ssap", lambda **_: SSAPPlanner())
 register("mcts-random", _mcts_factory("random"))
 register("mcts-ssap", _mcts_factory("ssap"))
+
+
+def _closed_loop_factory(**options):
+    # Imported lazily (numba kernels); see coordinator/closedloop.py and docs/results.md.
+    from coordinator.closedloop import ClosedLoopPlanner
+
+    return ClosedLoopPlanner(**options)
+
+
+register("closed-loop", _closed_loop_factory)
