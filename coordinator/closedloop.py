@@ -426,11 +426,3 @@ def _past_values(view: StageView) -> np.ndarray:
     out[:, : view.stage] = np.nan_to_num(view.observations[:, : view.stage], nan=0.0)
     return out
 
-
-def _register() -> None:
-    from coordinator.planners import register
-
-    register("closed-loop", lambda **options: ClosedLoopPlanner(**options))
-
-
-_register()

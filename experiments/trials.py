@@ -113,7 +113,6 @@ _PLANNERS: dict = {}
 def _planner(name: str, iterations: int):
     key = (name, iterations)
     if key not in _PLANNERS:
-        from coordinator import closedloop  # noqa: F401  (registers "closed-loop")
         from coordinator.planners import make_planner
 
         _PLANNERS[key] = make_planner(name, iterations=iterations)
@@ -172,7 +171,6 @@ def warm_up_worker() -> None:
     from coordinator import clairvoyant
 
     clairvoyant.warm_up()
-    from coordinator import closedloop  # noqa: F401  (registers "closed-loop")
     from coordinator.instance import random_instance
     from coordinator.planners import make_planner, planner_names
 
