@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any, Callable, NamedTuple
 
 import numpy as np
-from scipy import stats
+import scipy  # scipy.stats is loaded on first use: quick errors for bad files
 
 from coordinator.problem import Problem, normalisation_scale, sample_observations
 
@@ -61,27 +61,27 @@ def _probability(v: Any) -> bool:
 
 
 def _table(spec: dict) -> object:
-    return stats.rv_discrete(values=(np.asarray(spec["values"], float), np.asarray(spec["probabilities"], float)))()
+    return scipy.stats.rv_discrete(values=(np.asarray(spec["values"], float), np.asarray(spec["probabilities"], float)))()
 
 
 #: kind -> (parameters: {name: (check, "expected ..." text)}, builder(spec) -> frozen distribution).
 #: Every kind and parameter is documented in docs/planner.md.
 PRIOR_KINDS: dict[str, tuple[dict[str, tuple[Callable[[Any], bool], str]], Callable[[dict], object]]] = {
-    "poisson": ({"mean": (_positive, "a number > 0")}, lambda s: stats.poisson(s["mean"])),
+    "poisson": ({"mean": (_positive, "a number > 0")}, lambda s: scipy.stats.poisson(s["mean"])),
     "binomial": (
         {"n": (lambda v: _int(v) and v >= 1, "an integer >= 1"), "p": (_probability, "a number in (0, 1]")},
-        lambda s: stats.binom(s["n"], s["p"]),
+        lambda s: scipy.stats.binom(s["n"], s["p"]),
     ),
     "geometric": (  # failures before the first success: support 0, 1, 2, ...
-        {"p": (_probability, "a number in (0, 1]")}, lambda s: stats.geom(s["p"], loc=-1)
+        {"p": (_probability, "a number in (0, 1]")}, lambda s: scipy.stats.geom(s["p"], loc=-1)
     ),
     "negative_binomial": (
         {"n": (_positive, "a number > 0"), "p": (_probability, "a number in (0, 1]")},
-        lambda s: stats.nbinom(s["n"], s["p"]),
+        lambda s: scipy.stats.nbinom(s["n"], s["p"]),
     ),
     "discrete_uniform": (  # integers low..high inclusive
         {"low": (_int, "an integer"), "high": (_int, "an integer")},
-        lambda s: stats.randint(s["low"], s["high"] + 1),
+        lambda s: scipy.stats.randint(s["low"], s["high"] + 1),
     ),
     "table": (
         {"values": (lambda v: isinstance(v, list) and len(v) > 0 and all(_num(e) for e in v),
@@ -92,20 +92,20 @@ PRIOR_KINDS: dict[str, tuple[dict[str, tuple[Callable[[Any], bool], str]], Calla
     ),
     "gamma": (
         {"shape": (_positive, "a number > 0"), "scale": (_positive, "a number > 0")},
-        lambda s: stats.gamma(s["shape"], scale=s["scale"]),
+        lambda s: scipy.stats.gamma(s["shape"], scale=s["scale"]),
     ),
-    "exponential": ({"mean": (_positive, "a number > 0")}, lambda s: stats.expon(scale=s["mean"])),
+    "exponential": ({"mean": (_positive, "a number > 0")}, lambda s: scipy.stats.expon(scale=s["mean"])),
     "lognormal": (  # log X ~ Normal(mu, sigma)
         {"mu": (_num, "a number"), "sigma": (_positive, "a number > 0")},
-        lambda s: stats.lognorm(s["sigma"], scale=math.exp(s["mu"])),
+        lambda s: scipy.stats.lognorm(s["sigma"], scale=math.exp(s["mu"])),
     ),
     "normal": (
         {"mean": (_num, "a number"), "std": (_positive, "a number > 0")},
-        lambda s: stats.norm(s["mean"], s["std"]),
+        lambda s: scipy.stats.norm(s["mean"], s["std"]),
     ),
     "uniform": (
         {"low": (_num, "a number"), "high": (_num, "a number")},
-        lambda s: stats.uniform(s["low"], s["high"] - s["low"]),
+        lambda s: scipy.stats.uniform(s["low"], s["high"] - s["low"]),
     ),
 }
 
@@ -218,15 +218,9 @@ def parse_instance(data: Any, source: str = "<instance>", seed: int = 0) -> tupl
     elif not _int(passengers) or passengers < 0:
         raise InstanceError(source, "passengers", "an integer >= 0 or a list of them", _show(passengers))
 
-    prior = make_prior(data.get("prior", DEFAULT_PRIOR), source)
     normalize = data.get("normalize", "q90")
     if not (isinstance(normalize, str) or _positive(normalize)):
         raise InstanceError(source, "normalize", '"q90", "qNN", "none" or a number > 0', _show(normalize))
-    try:
-        normalisation_scale(prior, normalize)
-    except ValueError as err:
-        raise InstanceError(source, "normalize", '"q90", "qNN", "none" or a number > 0 giving a positive scale',
-                            f"{_show(normalize)} ({err})") from None
 
     overlaps = data.get("overlaps", [])
     if not isinstance(overlaps, list):
@@ -253,6 +247,14 @@ def parse_instance(data: Any, source: str = "<instance>", seed: int = 0) -> tupl
     if observations is not None:
         _matrix(observations, source, "observations", shape, lambda v: v is None or _num(v),
                 "a finite number or null (∅)")
+    # The prior last: building it loads scipy.stats, so structural errors are reported quickly.
+    prior = make_prior(data.get("prior", DEFAULT_PRIOR), source)
+    try:
+        normalisation_scale(prior, normalize)
+    except ValueError as err:
+        raise InstanceError(source, "normalize", '"q90", "qNN", "none" or a number > 0 giving a positive scale',
+                            f"{_show(normalize)} ({err})") from None
+    if observations is not None:
         x = np.array([[np.nan if v is None else float(v) for v in row] for row in observations])
         lo, hi = prior.support()
         for r, j in zip(*np.nonzero(~np.isnan(x))):
@@ -349,5 +351,5 @@ def random_instance(
         size = min(int(rng.integers(2, 4)), n_points)
         flat = rng.choice(n_points, size=size, replace=False)
         groups.append([[int(a) // stages, int(a) % stages] for a in flat])
-    problem = Problem.build(passengers, valid, groups, stats.poisson(mean))
+    problem = Problem.build(passengers, valid, groups, scipy.stats.poisson(mean))
     return Instance(problem, sample_observations(problem, rng))

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from typing import Protocol, Sequence
 
 import numpy as np
-from scipy import stats
+import scipy  # scipy.stats is loaded on first use (its import takes ~1 s)
 
 #: Quantile of the prior whose value normalises rewards for planning (the paper's 90th percentile).
 NORMALIZE_QUANTILE = 0.9
@@ -129,7 +129,7 @@ class Problem:
                     f"overlaps[{k}] has a (carrier, stage) pair outside 0..{n_carriers - 1} x 0..{n_stages - 1}"
                 )
             groups.append(arr)
-        prior = stats.poisson(3.0) if prior is None else prior
+        prior = scipy.stats.poisson(3.0) if prior is None else prior
         scale = normalisation_scale(prior, normalize)
         conflict = _conflict_matrix(n_carriers, n_stages, groups)
         # Instances are shared between planners and caches: make their arrays immutable.

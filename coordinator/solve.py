@@ -25,7 +25,6 @@ from typing import Sequence
 
 import numpy as np
 
-from coordinator import clairvoyant
 from coordinator.instance import InstanceError, load_instance
 from coordinator.planners import make_planner, planner_names
 from coordinator.problem import run_online
@@ -118,6 +117,8 @@ def solve_instance(planner, args: argparse.Namespace) -> dict:
         "observations_sampled": sampled,
     }
     if not args.no_clairvoyant:
+        from coordinator import clairvoyant  # numba: loaded only when needed
+
         bound = clairvoyant.solve(problem, x)
         out["clairvoyant"] = {"reward": bound.reward, "features": bound.features, "exact": bound.exact}
     return out

@@ -14,7 +14,7 @@ tail mass is below 1e-15); continuous priors use numerical integration.
 from __future__ import annotations
 
 import numpy as np
-from scipy import integrate
+import scipy  # scipy.integrate is loaded on first use
 
 #: Tail mass ignored when enumerating an unbounded discrete support.
 TAIL = 1e-15
@@ -59,7 +59,7 @@ def _clipped_mean_factory(prior):
     mean = float(prior.mean())
 
     def integral(f, u: float, v: float) -> float:
-        return float(integrate.quad(f, u, v, epsabs=1e-11, epsrel=1e-11, limit=200)[0])
+        return float(scipy.integrate.quad(f, u, v, epsabs=1e-11, epsrel=1e-11, limit=200)[0])
 
     # E[min(max(X, a), b)] through tail integrals: E[max(X, a)] = E[X] + ∫_lo^a F,
     # E[min(X, b)] = E[X] - ∫_b^hi S, and for finite a <= b: max(a, lo) + ∫_max(a,lo)^min(b,hi) S.
