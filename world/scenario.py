@@ -21,7 +21,6 @@ from typing import Any, Callable
 
 import numpy as np
 import yaml
-from scipy import stats
 
 from world import building as _building
 from world import geometry
@@ -37,6 +36,13 @@ DEFAULT_ITERATIONS = 10000
 PLANNER_NAMES = ("random", "ssap", "mcts-random", "mcts-ssap")
 #: Carrier body radius (m): paths must keep at least this clearance from walls.
 CARRIER_RADIUS = 0.4
+
+def _stats():
+    """scipy.stats, imported on first use (it takes a second to import; carriers rarely need it)."""
+    from scipy import stats
+
+    return stats
+
 
 def _num(v: Any) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
@@ -59,36 +65,36 @@ def _numbers(v: Any) -> bool:
 
 
 def _table(p: dict) -> Any:
-    return stats.rv_discrete(values=(np.asarray(p["values"], float), np.asarray(p["probabilities"], float)))()
+    return _stats().rv_discrete(values=(np.asarray(p["values"], float), np.asarray(p["probabilities"], float)))()
 
 
 #: Explicit prior kinds: kind -> ({parameter: (check, "expected" text)}, builder(params) -> frozen
 #: scipy.stats distribution). Same kinds, parameters and meanings as the planner's instance
 #: format (coordinator/instance.py), so a prior reads the same in both files.
 PRIOR_TABLE: dict[str, tuple[dict[str, tuple[Callable[[Any], bool], str]], Callable[[dict], Any]]] = {
-    "poisson": ({"mean": (_positive, "a number > 0")}, lambda p: stats.poisson(p["mean"])),
+    "poisson": ({"mean": (_positive, "a number > 0")}, lambda p: _stats().poisson(p["mean"])),
     "binomial": ({"n": (lambda v: _int(v) and v >= 1, "an integer >= 1"), "p": (_probability, "a number in (0, 1]")},
-                 lambda p: stats.binom(p["n"], p["p"])),
+                 lambda p: _stats().binom(p["n"], p["p"])),
     # failures before the first success: support 0, 1, 2, ...
-    "geometric": ({"p": (_probability, "a number in (0, 1]")}, lambda p: stats.geom(p["p"], loc=-1)),
+    "geometric": ({"p": (_probability, "a number in (0, 1]")}, lambda p: _stats().geom(p["p"], loc=-1)),
     "negative_binomial": ({"n": (_positive, "a number > 0"), "p": (_probability, "a number in (0, 1]")},
-                          lambda p: stats.nbinom(p["n"], p["p"])),
+                          lambda p: _stats().nbinom(p["n"], p["p"])),
     # integers low..high inclusive
     "discrete_uniform": ({"low": (_int, "an integer"), "high": (_int, "an integer")},
-                         lambda p: stats.randint(p["low"], p["high"] + 1)),
+                         lambda p: _stats().randint(p["low"], p["high"] + 1)),
     "table": ({"values": (_numbers, "a non-empty list of numbers"),
                "probabilities": (lambda v: _numbers(v) and all(e >= 0 for e in v), "a non-empty list of numbers >= 0")},
               _table),
     "gamma": ({"shape": (_positive, "a number > 0"), "scale": (_positive, "a number > 0")},
-              lambda p: stats.gamma(p["shape"], scale=p["scale"])),
-    "exponential": ({"mean": (_positive, "a number > 0")}, lambda p: stats.expon(scale=p["mean"])),
+              lambda p: _stats().gamma(p["shape"], scale=p["scale"])),
+    "exponential": ({"mean": (_positive, "a number > 0")}, lambda p: _stats().expon(scale=p["mean"])),
     # log X ~ Normal(mu, sigma)
     "lognormal": ({"mu": (_num, "a number"), "sigma": (_positive, "a number > 0")},
-                  lambda p: stats.lognorm(p["sigma"], scale=math.exp(p["mu"]))),
+                  lambda p: _stats().lognorm(p["sigma"], scale=math.exp(p["mu"]))),
     "normal": ({"mean": (_num, "a number"), "std": (_positive, "a number > 0")},
-               lambda p: stats.norm(p["mean"], p["std"])),
+               lambda p: _stats().norm(p["mean"], p["std"])),
     "uniform": ({"low": (_num, "a number"), "high": (_num, "a number")},
-                lambda p: stats.uniform(p["low"], p["high"] - p["low"])),
+                lambda p: _stats().uniform(p["low"], p["high"] - p["low"])),
 }
 PRIOR_KINDS = tuple(PRIOR_TABLE)
 
@@ -369,7 +375,7 @@ class Scenario:
     def prior_distribution(self):
         """The frozen ``scipy.stats`` prior of a valid stage's feature count."""
         if self.prior.kind == "derived":
-            return stats.poisson(self.derived_prior_mean())
+            return _stats().poisson(self.derived_prior_mean())
         _, build = PRIOR_TABLE[self.prior.kind]
         return build(dict(self.prior.params))
 
@@ -389,7 +395,8 @@ class _Checker:
         self.problems: list[str] = []
 
     def bad(self, path: str, expected: str, found: Any) -> None:
-        self.problems.append(f"{self.file}: {path}: expected {expected}, found {_show(found)}")
+        """Record a problem; ``found`` is shown as YAML-ish text (a :class:`_Raw` verbatim)."""
+        self.problems.append(f"{self.file}: {path or '(top level)'}: expected {expected}, found {_show(found)}")
 
     def raw(self, path: str, text: str) -> None:
         self.problems.append(f"{self.file}: {path}: {text}")
@@ -457,7 +464,13 @@ def _join(path: str, key: Any) -> str:
     return f"{path}.{key}" if path else str(key)
 
 
+class _Raw(str):
+    """Text shown verbatim (not quoted) after "found"."""
+
+
 def _show(value: Any) -> str:
+    if isinstance(value, _Raw):
+        return str(value)
     if isinstance(value, dict):
         return "a mapping"
     if isinstance(value, (list, tuple)):
@@ -619,7 +632,7 @@ def _parse_map(ck: _Checker, node: Any) -> MapSpec | None:
                         ok = False
         if building is not None and not _rect_inside(building.extent, bounds):
             ck.bad("map.building", f"a building inside map.bounds {list(bounds)}",
-                   f"its outer wall spans {[round(v, 3) for v in building.extent]}")
+                   _Raw(f"its outer wall spans {[round(v, 3) for v in building.extent]}"))
             ok = False
     if not ok or bounds is None:
         return None
@@ -677,7 +690,7 @@ def _parse_features(ck: _Checker, node: Any, the_map: MapSpec | None) -> Feature
             continue
         shapes = [k for k in ("disc", "rect", "room") if k in cm]
         if len(shapes) != 1:
-            ck.bad(path, "exactly one region among disc, rect, room", f"{shapes or 'none'}")
+            ck.bad(path, "exactly one region among disc, rect, room", _Raw(", ".join(shapes) or "none"))
             continue
         cdens = ck.number(cm["density"], f"{path}.density", minimum=0) if "density" in cm else None
         label = cm.get("label", "")
@@ -703,7 +716,7 @@ def _parse_features(ck: _Checker, node: Any, the_map: MapSpec | None) -> Feature
         else:
             bld = the_map.building if the_map is not None else None
             if bld is None:
-                ck.bad(f"{path}.room", "a map.building to take the room from", "no building in map")
+                ck.bad(f"{path}.room", "a map.building to take the room from", _Raw("no building in map"))
             elif (not isinstance(val, list) or len(val) != 2
                   or any(isinstance(v, bool) or not isinstance(v, int) for v in val)
                   or not (0 <= val[0] < bld.cols and 0 <= val[1] < bld.rows)):
@@ -727,10 +740,10 @@ def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None) -> tuple[C
     seen: dict[str, int] = {}
     for r, c in enumerate(node):
         path = f"carriers[{r}]"
+        k0 = len(ck.problems)
         cm = ck.mapping(c, path, _CARRIER_KEYS, ("id", "passengers", "start_time", "speed", "waypoints"))
         if cm is None:
             continue
-        k0 = len(ck.problems)
         cid = cm.get("id")
         if "id" in cm:
             if isinstance(cid, bool) or not isinstance(cid, (str, int)) or not re.fullmatch(r"[A-Za-z0-9_\-]+", str(cid)):
@@ -748,7 +761,7 @@ def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None) -> tuple[C
         if "stop_time" in cm:
             stop = ck.number(cm["stop_time"], f"{path}.stop_time", minimum=0)
             if stop is not None and start is not None and stop < start:
-                ck.bad(f"{path}.stop_time", f"a time >= start_time ({start:g} s)", stop)
+                ck.bad(f"{path}.stop_time", f"a time >= start_time ({start:g} s)", cm["stop_time"])
         if wps is not None and the_map is not None:
             for k, p in enumerate(wps):
                 if not _inside(p, the_map.bounds):
@@ -760,10 +773,10 @@ def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None) -> tuple[C
                     w = segs[hit]
                     ck.bad(f"{path}.waypoints[{k}]->[{k + 1}]",
                            f"a leg clear of walls by {CARRIER_RADIUS:g} m",
-                           f"it meets the wall ({w[0]:g}, {w[1]:g})-({w[2]:g}, {w[3]:g})")
+                           _Raw(f"it meets the wall ({w[0]:g}, {w[1]:g})-({w[2]:g}, {w[3]:g})"))
                     break
             if all(a == b for a, b in zip(wps[:-1], wps[1:])):
-                ck.bad(f"{path}.waypoints", "a path of non-zero length", "all points equal")
+                ck.bad(f"{path}.waypoints", "a path of non-zero length", _Raw("all points equal"))
         if len(ck.problems) > k0:
             continue
         length = float(np.hypot(*np.diff(np.asarray(wps), axis=0).T).sum())
@@ -835,7 +848,7 @@ def _parse_prior(ck: _Checker, node: Any) -> PriorSpec | None:
             if len(probs) != len(values):
                 ck.bad("prior.probabilities", f"{len(values)} entries (one per value)", len(probs))
             elif abs(sum(probs) - 1.0) > 1e-9:
-                ck.bad("prior.probabilities", "probabilities summing to 1", f"sum {sum(probs):g}")
+                ck.bad("prior.probabilities", "probabilities summing to 1", _Raw(f"sum {sum(probs):g}"))
             if len(set(values)) != len(values):
                 ck.bad("prior.values", "distinct values", values)
     if len(ck.problems) > n0:
