@@ -326,3 +326,21 @@ def search(n_iter, child, visits, value, point, counter, state,
             visits[path[i]] += 1
             value[path[i]] += reward
     counter[0] = n_nodes
+
+
+@njit(cache=True)
+def sample_many(state, points, cdf, guide, count):
+    """``count`` draws of the prior from the stream ``state`` (for tests and diagnostics)."""
+    out = np.empty(count)
+    for i in range(count):
+        out[i] = _sample(state, points, cdf, guide)
+    return out
+
+
+@njit(cache=True)
+def quantiles(us, points, cdf, guide):
+    """The kernel's inverse CDF at each u of ``us`` (for tests and diagnostics)."""
+    out = np.empty(us.shape[0])
+    for i in range(us.shape[0]):
+        out[i] = _quantile(us[i], points, cdf, guide)
+    return out
