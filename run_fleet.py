@@ -63,6 +63,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="carrier: exit when the coordinator has been absent this long")
     p.add_argument("--no-map", action="store_true", help="do not draw map.png")
     p.add_argument("--quiet", action="store_true", help="carriers print nothing but errors")
+    p.add_argument("--verbose", action="store_true",
+                   help="one-host mode: let carriers print their own events (quiet by default)")
     return p.parse_args(argv)
 
 
@@ -136,10 +138,18 @@ def zenoh_config(args, role: str):
     return make_config(mode, listen, connect, args.zenoh_config)
 
 
-def _stop_on_sigterm() -> None:
-    def handler(signum, frame):
-        raise KeyboardInterrupt
+def _install_stop_handlers() -> None:
+    """SIGINT (Ctrl-C) and SIGTERM raise KeyboardInterrupt once; later ones are ignored, so a
+    process finishes its clean shutdown (End/Bye, summary.json) even when signalled twice.
+    Installed explicitly because a process started in the background inherits SIGINT ignored."""
+    count = {"n": 0}
 
+    def handler(signum, frame):
+        count["n"] += 1
+        if count["n"] == 1:
+            raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
 
 
@@ -152,7 +162,6 @@ def run_coordinator(args, scenario) -> int:
         plan_ms=args.plan_ms, seed=args.seed, realtime=args.realtime, join_timeout_s=args.join_timeout,
         stage_timeout_s=args.stage_timeout, render=not args.no_map), zenoh_config(args, "coordinator"),
         scenario_path=args.scenario)
-    _stop_on_sigterm()
     summary = coord.run()
     return 0 if summary.get("ended") and summary["stages_decided"] == summary["stages"] else 130
 
@@ -165,7 +174,6 @@ def run_carrier(args, scenario) -> int:
         carrier=args.carrier, mission=args.mission, seed=args.seed, realtime=args.realtime,
         decision_timeout_s=args.decision_timeout, coordinator_timeout_s=args.coordinator_timeout,
         log=log), zenoh_config(args, "carrier"))
-    _stop_on_sigterm()
     reason = carrier.run()
     if reason not in ("end", "finished"):
         print(f"carrier {args.carrier}: exiting ({reason})", file=sys.stderr, flush=True)
@@ -192,18 +200,20 @@ def _forward(args) -> list[str]:
     return out
 
 
-def _stop_children(procs, grace_s: float = 5.0) -> None:
-    """SIGINT, then SIGTERM, then SIGKILL, each with a bounded wait; only our own children."""
-    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+def _stop_children(procs, grace_s: float = 10.0) -> None:
+    """Stop our own children: give them a moment (a terminal's Ctrl-C reached them already), then
+    SIGINT once, then SIGKILL after ``grace_s`` seconds."""
+    for sig, wait_s in ((None, 1.0), (signal.SIGINT, grace_s), (signal.SIGKILL, 2.0)):
         alive = [p for p in procs if p.poll() is None]
         if not alive:
             return
-        for p in alive:
-            try:
-                p.send_signal(sig)
-            except ProcessLookupError:
-                pass
-        deadline = time.monotonic() + grace_s
+        if sig is not None:
+            for p in alive:
+                try:
+                    p.send_signal(sig)
+                except ProcessLookupError:
+                    pass
+        deadline = time.monotonic() + wait_s
         while time.monotonic() < deadline and any(p.poll() is None for p in alive):
             time.sleep(0.05)
 
@@ -225,7 +235,7 @@ def run_all(args, scenario) -> int:
     for cid in scenario.carrier_ids:
         carriers[cid] = subprocess.Popen(
             script + ["--role", "carrier", "--carrier", cid] + common
-            + sum((["--connect", e] for e in connect), []) + (["--quiet"] if args.quiet else []))
+            + sum((["--connect", e] for e in connect), []) + ([] if args.verbose else ["--quiet"]))
     procs = [coordinator, *carriers.values()]
     print(f"run_fleet.py: coordinator pid {coordinator.pid} listening on {', '.join(listen)}; carriers "
           + ", ".join(f"{cid} pid {p.pid}" for cid, p in carriers.items()), flush=True)
@@ -234,7 +244,7 @@ def run_all(args, scenario) -> int:
         deadline = time.monotonic() + CARRIER_EXIT_GRACE_S
         while time.monotonic() < deadline and any(p.poll() is None for p in carriers.values()):
             time.sleep(0.05)
-        _stop_children(list(carriers.values()), grace_s=2.0)
+        _stop_children(list(carriers.values()), grace_s=5.0)
     except KeyboardInterrupt:
         print("run_fleet.py: interrupted; stopping the fleet", file=sys.stderr, flush=True)
         _stop_children(procs)
@@ -269,6 +279,7 @@ def main(argv=None) -> int:
     problem = check_flags(args, scenario)
     if problem:
         return fail(problem)
+    _install_stop_handlers()
     from wire.zconfig import ConfigError
 
     try:

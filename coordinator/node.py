@@ -154,7 +154,7 @@ class Coordinator:
         self.carrier_rejected: dict[str, dict] = {}
         self.byes: set[str] = set()
         self.ended = False
-        self.coordinator_alive = False
+        self.end_reason = None
         self._state_bytes = b""
         self._stop = threading.Event()
         self.node: Node | None = None
@@ -490,6 +490,7 @@ class Coordinator:
         if not self.ended:
             self.store.event("end", None, self.next_stage, reason=reason)
             self.ended = True
+            self.end_reason = reason
             self._refresh_state()
         end = End(self.mission, self.next_stage, reason)
         deadline = time.monotonic() + self.config.bye_timeout_s
@@ -546,6 +547,7 @@ class Coordinator:
             "scenario": self.scenario.name, "scenario_file": str(self.scenario_path), "mission": self.mission,
             "planner": self.planner_name, "planner_options": self.planner_options, "seed": self.seed,
             "stages": self.n_stages, "stages_decided": len(self.decisions), "ended": self.ended,
+            "end_reason": self.end_reason,
             "resumed": self.resumed,
             "coordinator": {"pid": os.getpid(), "host": socket.gethostname()},
             "carriers": carriers,
