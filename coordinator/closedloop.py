@@ -395,7 +395,8 @@ class ClosedLoopPlanner:
                 break
         # Exact expected future of plain SSAP after each candidate's action.
         n_after = nleft[comp, j + 1]
-        exact = prep.value[n_after[None, :], comp_left[None, :] - actions.astype(np.int64)].sum(axis=1)
+        d_after = np.minimum(comp_left[None, :] - actions.astype(np.int64), n_stages)
+        exact = prep.value[n_after[None, :], d_after].sum(axis=1)
         return sums / count + exact
 
     @staticmethod
