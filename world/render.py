@@ -198,11 +198,13 @@ def render_map(scenario, path: str | Path, deployments: Any = None, trajectories
     # scale bar (bottom-left, inside the bounds)
     bar = _nice_length(w)
     bx, by = xmin + 0.03 * w, ymin + 0.035 * h
+    ax.add_patch(Rectangle((bx - 0.015 * w, by - 0.025 * h), bar + 0.03 * w, 0.075 * h, fc="white", ec="#999999",
+                           lw=0.6, alpha=0.9, zorder=9.5))
     ax.plot([bx, bx + bar], [by, by], color="black", lw=3, solid_capstyle="butt", zorder=10)
     for xx in (bx, bx + bar):
         ax.plot([xx, xx], [by - 0.008 * h, by + 0.008 * h], color="black", lw=1.2, zorder=10)
     ax.text(bx + bar / 2, by + 0.012 * h, f"{bar:g} m", ha="center", va="bottom", fontsize=9, fontweight="bold",
-            zorder=10, bbox=dict(fc="white", ec="none", alpha=0.7, pad=1))
+            zorder=10)
 
     # legend
     handles = [Line2D([], [], color=_colour(r), lw=2, marker="o", ms=5, label=f"{c.id} ({c.passengers} pass.)")

@@ -14,6 +14,7 @@ in SUBSTEPS equal sub-steps and resolves wall contacts.
 """
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 from functools import lru_cache
@@ -84,11 +85,34 @@ class _CarrierBody:
         self.max_speed = MAX_SPEED_FACTOR * self.spec.speed
         self.frozen_after = step_of(self.spec.stop_time + SETTLE_TIME)
         self.start_step = step_of(self.spec.start_time)
+        # path as plain floats for the per-step reference (legs of zero length are dropped)
+        pts = [tuple(map(float, w)) for w in self.spec.waypoints]
+        legs = [(a, b) for a, b in zip(pts[:-1], pts[1:]) if a != b]
+        self.points = [a for a, _ in legs]
+        self.units = [((b[0] - a[0]) / math.hypot(b[0] - a[0], b[1] - a[1]),
+                       (b[1] - a[1]) / math.hypot(b[0] - a[0], b[1] - a[1])) for a, b in legs]
+        self.cum = [0.0]
+        for a, b in legs:
+            self.cum.append(self.cum[-1] + math.hypot(b[0] - a[0], b[1] - a[1]))
+        self.length = self.cum[-1]
         p = self.body.position
         self.trace: list[tuple[float, float, float]] = [(0.0, p.x, p.y)]
 
-    def advance(self, target_step: int) -> None:
+    def _reference(self, t: float) -> tuple[float, float, float, float]:
+        """(x, y) of the planned position at time t and the feed-forward velocity (m, m/s)."""
         spec = self.spec
+        moving = min(max(t, spec.start_time), spec.stop_time) - spec.start_time
+        s = min(spec.speed * moving, self.length)
+        cum = self.cum
+        k = min(max(bisect.bisect_right(cum, s) - 1, 0), len(cum) - 2)
+        ux, uy = self.units[k]
+        ax, ay = self.points[k]
+        d = s - cum[k]
+        if spec.start_time <= t < spec.stop_time and s < self.length:
+            return ax + d * ux, ay + d * uy, ux * spec.speed, uy * spec.speed
+        return ax + d * ux, ay + d * uy, 0.0, 0.0
+
+    def advance(self, target_step: int) -> None:
         dt = PHYSICS_DT
         sub = dt / SUBSTEPS
         body = self.body
@@ -96,11 +120,10 @@ class _CarrierBody:
             t = self.step * dt
             # idle before the start, after settling past stop_time, or when halted: no motion
             if not (self.halted or self.step + 1 <= self.start_step or self.step >= self.frozen_after):
-                rx, ry = spec.position_at(t)
-                fx, fy = spec.direction_at(t)
+                rx, ry, fx, fy = self._reference(t)
                 p = body.position
-                vx = fx * spec.speed + CONTROL_GAIN * (rx - p.x)
-                vy = fy * spec.speed + CONTROL_GAIN * (ry - p.y)
+                vx = fx + CONTROL_GAIN * (rx - p.x)
+                vy = fy + CONTROL_GAIN * (ry - p.y)
                 v = math.hypot(vx, vy)
                 if v > self.max_speed:
                     vx, vy = vx * self.max_speed / v, vy * self.max_speed / v
