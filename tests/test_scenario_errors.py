@@ -59,6 +59,8 @@ CASES = [
      "carriers[0].waypoints[0]: expected a point [x, y] of two numbers (m), found [4]"),
     ("path-through-wall", _set(["carriers", 1, "waypoints"], [[20, 4], [20, 30]]),
      "carriers[1].waypoints[0]->[1]: expected a leg clear of walls by 0.4 m, found it meets the wall (12, 23.5)-(30, 23.5)"),
+    ("waypoint-in-obstacle", _set(["map", "obstacles"], [[[33, 17], [39, 17], [39, 23], [33, 23]]]),
+     "carriers[0].waypoints[1]: expected a point outside every obstacle, found [36.0, 20.0] inside map.obstacles[0]"),
     ("stop-before-start", _set(["carriers", 1, "stop_time"], 2),
      "carriers[1].stop_time: expected a time >= start_time (5 s), found 2"),
     ("duplicate-id", _set(["carriers", 1, "id"], "a"),

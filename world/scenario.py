@@ -766,6 +766,11 @@ def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None) -> tuple[C
             for k, p in enumerate(wps):
                 if not _inside(p, the_map.bounds):
                     ck.bad(f"{path}.waypoints[{k}]", f"a point inside map.bounds {list(the_map.bounds)}", list(p))
+            for k, p in enumerate(wps):
+                for i, poly in enumerate(the_map.obstacles):
+                    if geometry.inside_polygon(np.asarray([p]), poly)[0]:
+                        ck.bad(f"{path}.waypoints[{k}]", "a point outside every obstacle",
+                               _Raw(f"{list(p)} inside map.obstacles[{i}]"))
             segs = the_map.segments
             for k, (a, b) in enumerate(zip(wps[:-1], wps[1:])):
                 hit = geometry.first_blocking_segment(a, b, segs, clearance=CARRIER_RADIUS)
