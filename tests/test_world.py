@@ -308,14 +308,6 @@ def test_render_map_writes_png(tmp_path, tiny):
     assert out2.stat().st_size > 10000
 
 
-def test_world_does_not_import_fleet_or_planner():
-    code = ("import sys, world, world.render, world.report, world.__main__; "
-            "bad = [m for m in sys.modules if m.split('.')[0] in ('coordinator', 'carriers', 'zenoh', 'wire')]; "
-            "print(bad); sys.exit(1 if bad else 0)")
-    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=60)
-    assert out.returncode == 0, out.stdout + out.stderr
-
-
 def test_priors_explicit_and_derived(tmp_path):
     base = {"name": "p", "seed": 1, "map": {"bounds": [0, 0, 10, 10]}, "features": {"density": 0.1},
             "sensing_radius": 2.0, "stage_interval": 1.0, "stages": 3,

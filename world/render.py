@@ -156,12 +156,16 @@ def render_map(scenario, path: str | Path, deployments: Any = None, trajectories
     for group in geo.overlaps:
         pts = np.array([pos[r, j] for r, j in group])
         hull = _hull(pts)
-        if hull is not None:
+        if np.ptp(pts, axis=0).max() < 0.01 * max(w, h):
+            # (nearly) coincident points: a ring round them
+            ax.plot(*pts.mean(axis=0), marker="o", ms=15, mfc=OVERLAP_COLOUR, alpha=0.25, mec=OVERLAP_COLOUR,
+                    mew=1.5, zorder=4)
+        elif hull is not None:
             ax.add_patch(Polygon(hull, closed=True, fc=OVERLAP_COLOUR, alpha=0.10, ec=OVERLAP_COLOUR, lw=0.8,
                                  zorder=4))
         else:
             order = np.lexsort((pts[:, 1], pts[:, 0]))
-            ax.plot(pts[order, 0], pts[order, 1], color=OVERLAP_COLOUR, alpha=0.25, lw=6,
+            ax.plot(pts[order, 0], pts[order, 1], color=OVERLAP_COLOUR, alpha=0.35, lw=7,
                     solid_capstyle="round", zorder=4)
 
     # planned paths and decision points; start labels of carriers sharing a start are stacked
