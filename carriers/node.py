@@ -119,10 +119,7 @@ class Carrier:
                 returned = self.coordinator_seen and not self.coordinator_present
                 self.coordinator_present = self.coordinator_seen = True
                 if returned:
-                    self.log("coordinator is back; re-sending hello and the pending observation")
-                    self._hello()
-                    if self.pending is not None:
-                        self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.pending)
+                    self._resync()
             else:
                 self.coordinator_present = False
                 self.absent_since = time.monotonic()
@@ -136,7 +133,9 @@ class Carrier:
             return
         if item.key != keys.decision_key(self.mission):
             raise ProtocolError("bad-key", f"message on {item.key[:80]}")
-        msg = decode(item.payload, Decision)
+        self._on_decision(decode(item.payload, Decision))
+
+    def _on_decision(self, msg: Decision) -> None:
         if msg.mission != self.mission:
             raise ProtocolError("wrong-mission", f"mission {msg.mission!r}")
         if msg.stage >= self.n_stages:
@@ -154,6 +153,23 @@ class Carrier:
             raise ProtocolError("duplicate", f"second decision for stage {msg.stage}")
         self.buffered[msg.stage] = msg
         self.latest_decided = max(self.latest_decided, msg.stage)
+
+    def _resync(self) -> None:
+        """The coordinator came back (restarted, or a partition healed): announce ourselves again,
+        re-send the observation it may not have logged, and take the last decision from the
+        mission state (its re-publication may have raced our reconnection)."""
+        self.log("coordinator is back; re-sending hello and the pending observation")
+        self._hello()
+        if self.pending is not None:
+            self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.pending)
+        for payload in self.node.query(keys.state_key(self.mission), timeout_s=2.0):
+            state = decode(payload, State)
+            if state.mission == self.mission and state.last_decision is not None:
+                last = state.last_decision
+                if last.stage not in self.handled and last.stage not in self.buffered:
+                    self._on_decision(last)
+            if state.ended:
+                self.ended = True
 
     # ------------------------------------------------------------------ actions
     def _hello(self) -> None:

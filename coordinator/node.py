@@ -322,7 +322,9 @@ class Coordinator:
             if cid in self.info:
                 self.info[cid] = info
         self.next_stage = rec.next_stage
-        self.ended = rec.ended
+        # A stopped mission (Ctrl-C) resumes; only a complete one is final.
+        self.ended = rec.ended and rec.end_reason == "complete"
+        self.end_reason = rec.end_reason if self.ended else None
         self.log(f"coordinator: resumed from {self.store.path}: {len(rec.decisions)} stage(s) decided, "
                  f"continuing at stage {self.next_stage}")
 

@@ -84,6 +84,7 @@ class MissionRecord:
         confirmations: ``{(carrier, stage): (deployed, status, (x, y))}``.
         carriers_info: ``{carrier: {"pid": int, "host": str}}`` from the last Hello.
         ended: an ``end`` event was written.
+        end_reason: the reason of the last ``end`` event (``complete``, ``stopped``), or None.
         events: number of events.
     """
 
@@ -93,6 +94,7 @@ class MissionRecord:
     confirmations: dict = field(default_factory=dict)
     carriers_info: dict = field(default_factory=dict)
     ended: bool = False
+    end_reason: str | None = None
     events: int = 0
 
     @property
@@ -235,7 +237,9 @@ class MissionStore:
         ):
             info = json.loads(payload)
             rec.carriers_info[cid] = {"pid": info.get("pid"), "host": info.get("host")}
-        rec.ended = self.db.execute("SELECT 1 FROM events WHERE kind='end'").fetchone() is not None
+        last_end = self.db.execute("SELECT payload FROM events WHERE kind='end' ORDER BY seq DESC LIMIT 1").fetchone()
+        rec.ended = last_end is not None
+        rec.end_reason = json.loads(last_end[0]).get("reason") if last_end else None
         rec.events = self.db.execute("SELECT COUNT(*) FROM events").fetchone()[0]
         return rec
 

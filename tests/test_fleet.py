@@ -127,3 +127,44 @@ def test_a_carrier_of_another_world_is_refused(tiny, tmp_path):
     rb = tiny.carrier_index("b")
     assert np.isnan(np.array(summary["observations"], dtype=float)[rb]).all()
     assert summary["carriers"][rb]["deployments"] == []
+
+
+class _Crash(Exception):
+    pass
+
+
+def test_restarted_coordinator_recovers_from_mission_db(tiny, tmp_path):
+    """The coordinator dies after committing stage 1's decision but before publishing it; a new
+    coordinator on the same results directory replays mission.db, re-publishes that decision and
+    finishes the mission exactly as the offline planner would."""
+    from coordinator.node import Coordinator, CoordinatorConfig
+    from wire.zconfig import make_config
+
+    fleet = InProcessFleet(tiny, tmp_path)
+    crashing = fleet.coordinator
+
+    def publish_or_crash(decision, original=crashing._publish_decision):
+        if decision.stage == 1:
+            raise _Crash()
+        original(decision)
+
+    crashing._publish_decision = publish_or_crash
+    fleet._spawn("crashed", lambda: pytest.raises(_Crash, crashing.run))
+    for cid in tiny.carrier_ids:
+        fleet.start_carrier(cid)
+    fleet.threads[0].join(30)
+    assert crashing.next_stage == 2 and not crashing.ended
+    time.sleep(0.5)
+    restarted = Coordinator(tiny, CoordinatorConfig(out_dir=str(tmp_path), log=fleet.log, render=False),
+                            make_config("peer", [fleet.endpoint]))
+    fleet.coordinator = restarted
+    fleet.start_coordinator()
+    summary = fleet.join()
+    reference, x = offline(tiny)
+    assert summary["resumed"] and summary["ended"] and summary["end_reason"] == "complete"
+    assert all(fleet.results[cid] == "end" for cid in tiny.carrier_ids)
+    np.testing.assert_array_equal(np.array(summary["observations"], dtype=float), x)
+    np.testing.assert_array_equal(deployed_matrix(summary, tiny), reference.deployed)
+    decided = [s for (s,) in db_rows(tmp_path / "mission.db", "SELECT stage FROM decisions")]
+    assert sorted(decided) == list(range(tiny.stages))
+    assert any("resumed from" in line for line in fleet.log.lines)
