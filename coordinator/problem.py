@@ -120,7 +120,7 @@ class Problem:
             raise ValueError(f"passengers must be >= 0, got {d.tolist()}")
         groups = []
         for k, group in enumerate(overlaps):
-            arr = np.asarray(group, dtype=np.int64).reshape(-1, 2)
+            arr = np.array(group, dtype=np.int64).reshape(-1, 2)
             if len(arr) and (
                 (arr[:, 0] < 0).any() or (arr[:, 0] >= n_carriers).any()
                 or (arr[:, 1] < 0).any() or (arr[:, 1] >= n_stages).any()

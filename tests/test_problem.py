@@ -91,7 +91,9 @@ def test_build_rejects_bad_input_and_freezes_arrays():
         Problem.build([1, -1], np.ones((2, 4), bool))
     with pytest.raises(ValueError, match="overlaps\\[1\\]"):
         Problem.build(1, np.ones((2, 4), bool), [[[0, 0]], [[2, 0]]])
-    problem = Problem.build([1, 2], np.ones((2, 4), bool), [[[0, 0], [1, 3]]])
+    mine_valid, mine_group = np.ones((2, 4), bool), np.array([[0, 0], [1, 3]], dtype=np.int64)
+    problem = Problem.build([1, 2], mine_valid, [mine_group])
+    assert mine_valid.flags.writeable and mine_group.flags.writeable  # the caller's arrays stay theirs
     assert problem.passengers.tolist() == [1, 2]
     for arr in (problem.passengers, problem.valid, problem.conflict, problem.overlaps[0]):
         with pytest.raises(ValueError):
