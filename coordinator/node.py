@@ -473,9 +473,12 @@ class Coordinator:
             self.pump(0.0)
 
     def _finish(self) -> None:
-        if self.ended or self._stop.is_set():
+        if self._stop.is_set():
             if not self.ended:
                 self._end("stopped")
+            return
+        if self.ended:  # resumed a complete mission: only tell late carriers it is over
+            self._end(self.end_reason or "complete")
             return
         last = self.n_stages - 1
         deadline = time.monotonic() + self.config.confirm_timeout_s
