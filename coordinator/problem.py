@@ -259,12 +259,16 @@ def enforce(view: StageView, decision: np.ndarray) -> np.ndarray:
     Raises:
         AssertionError: when a planner breaks a rule (a bug in that planner).
     """
+    # Explicit raises, not assert statements: the checks must survive ``python -O``.
     decision = np.asarray(decision, dtype=bool).reshape(-1)
-    assert decision.shape == (view.problem.n_carriers,), decision.shape
+    if decision.shape != (view.problem.n_carriers,):
+        raise AssertionError(f"stage {view.stage}: decision shape {decision.shape}, expected ({view.problem.n_carriers},)")
     bad = decision & ~view.can_deploy
-    assert not bad.any(), f"stage {view.stage}: carriers {np.flatnonzero(bad).tolist()} cannot deploy"
+    if bad.any():
+        raise AssertionError(f"stage {view.stage}: carriers {np.flatnonzero(bad).tolist()} cannot deploy")
     missing = view.must_deploy & ~decision
-    assert not missing.any(), f"stage {view.stage}: carriers {np.flatnonzero(missing).tolist()} must deploy"
+    if missing.any():
+        raise AssertionError(f"stage {view.stage}: carriers {np.flatnonzero(missing).tolist()} must deploy")
     return decision
 
 
