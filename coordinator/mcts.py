@@ -50,8 +50,13 @@ CONTINUOUS_ATOMS = 4096
 GUIDE_FACTOR = 4
 #: Time-budget mode: the first kernel call runs this many iterations to measure the rate.
 FIRST_CHUNK = 16
-#: Time-budget mode: each later call aims at this fraction of the remaining time.
-CHUNK_FRACTION = 0.8
+#: Time-budget mode: a kernel call runs at most this many times the previous call's iterations
+#: (an iteration costs more as the tree deepens, so the rate is re-measured often).
+CHUNK_GROWTH = 4
+#: Time-budget mode: a kernel call aims at most at this fraction of the remaining time ...
+CHUNK_OF_REMAINING = 0.5
+#: ... and at most at this fraction of the whole budget.
+CHUNK_OF_BUDGET = 0.2
 #: Time-budget mode: stop when less than this fraction of the budget remains.
 STOP_FRACTION = 0.01
 #: Node capacity of the first allocation in time-budget mode (grown geometrically).
@@ -235,18 +240,19 @@ class MCTSPlanner:
         else:
             budget = self.plan_ms / 1e3
             deadline = start + budget
-            t0 = time.perf_counter()
-            run(FIRST_CHUNK)
-            done = FIRST_CHUNK
+            chunk = FIRST_CHUNK
+            done = 0
             while True:
-                now = time.perf_counter()
-                remaining = deadline - now
-                if remaining < STOP_FRACTION * budget:
-                    break
-                rate = done / (now - t0)
-                chunk = max(1, int(rate * remaining * CHUNK_FRACTION))
+                t0 = time.perf_counter()
                 run(chunk)
                 done += chunk
+                now = time.perf_counter()
+                remaining = deadline - now
+                per_iteration = (now - t0) / chunk  # the latest rate: iterations slow down as the tree grows
+                if remaining < max(STOP_FRACTION * budget, per_iteration):
+                    break
+                target = min(CHUNK_OF_REMAINING * remaining, CHUNK_OF_BUDGET * budget)
+                chunk = int(min(CHUNK_GROWTH * chunk, max(1.0, target / per_iteration)))
         self.last_iterations = done
         self.last_nodes = int(tree.counter[0])
         return self._extract(view, tree, choice, must)
@@ -258,7 +264,9 @@ class MCTSPlanner:
         j0 = view.stage
         decision = must.copy()
         node = _k.ROOT
-        for r in np.flatnonzero(choice):
+        passengers_left, stages_left = view.passengers_left, view.stages_left
+        table = table_for(problem)
+        for r in np.flatnonzero(choice).tolist():
             # Invariant: at the root stage the choice carriers are fixed, one level each.
             assert node == _k.UNEXPANDED or tree.point[node] == r
             kids = tree.child[node] if node != _k.UNEXPANDED else None
@@ -278,9 +286,9 @@ class MCTSPlanner:
                 selected[:, j0] = decision
                 a = r * n_stages + j0
                 conflicts = int(np.count_nonzero(problem.conflict[a] & selected.reshape(-1)))
-                n, d = int(view.stages_left[r]), int(view.passengers_left[r])
+                n, d = int(stages_left[r]), int(passengers_left[r])
                 if self.rollout == "ssap":
-                    deploy = view.observations[r, j0] / (1 + conflicts) > table_for(problem)[n, n - d]
+                    deploy = view.observations[r, j0] / (1 + conflicts) > table[n, n - d]
                 else:
                     deploy = False
                 node = _k.UNEXPANDED
