@@ -151,6 +151,8 @@ def main(argv=None) -> int:
     parser.add_argument("--instances", type=int, default=None, help="instances for the quality table")
     parser.add_argument("--reference-instances", type=int, default=None,
                         help="instances (of the same set) on which the reference runs, R <= 6")
+    parser.add_argument("--sections", default="warm,speed,quality,plan",
+                        help="comma-separated subset of warm,speed,quality,plan")
     parser.add_argument("--timing-decisions", type=int, default=None, help="stage-0 decisions timed per R")
     args = parser.parse_args(argv)
     try:
@@ -160,8 +162,14 @@ def main(argv=None) -> int:
     except ValueError:
         print(f"bench: --sizes: expected comma-separated positive integers, found {args.sizes!r}", file=sys.stderr)
         return 2
-    if args.iterations < 1:
-        print(f"bench: --iterations: expected a positive integer, found {args.iterations}", file=sys.stderr)
+    sections = {x.strip() for x in args.sections.split(",") if x.strip()}
+    if not sections or not sections <= {"warm", "speed", "quality", "plan"}:
+        print(f"bench: --sections: expected a subset of warm,speed,quality,plan, found {args.sections!r}",
+              file=sys.stderr)
+        return 2
+    iterations = args.iterations
+    if iterations < 1:
+        print(f"bench: --iterations: expected a positive integer, found {iterations}", file=sys.stderr)
         return 2
     quick = args.quick
     n_quality = args.instances or (6 if quick else 30)
@@ -171,10 +179,27 @@ def main(argv=None) -> int:
 
     import numba
 
-    print(f"# coordinator.bench  iterations={args.iterations}  D={PASSENGERS} N={STAGES} overlaps={OVERLAPS}"
+    print(f"# coordinator.bench  iterations={iterations}  D={PASSENGERS} N={STAGES} overlaps={OVERLAPS}"
           f"  quality instances={n_quality} (reference: {n_reference})  numba {numba.__version__}"
           f"  cpus={os.cpu_count()}  load average at start {os.getloadavg()[0]:.2f}")
 
+    fast = MCTSPlanner("ssap", iterations=args.iterations)
+    fast.warm_up()
+    reference = ReferenceMCTSPlanner("ssap", iterations=args.iterations)
+    if "warm" in sections:
+        warm_section()
+    if "speed" in sections:
+        speed_section(fast, reference, sizes, iterations, n_timing, n_reference_timing)
+    if "quality" in sections:
+        quality_section(fast, reference, sizes, iterations, n_quality, n_reference)
+    if "plan" in sections:
+        plan_section(4 if quick else 10)
+    print(f"\nload average at end {os.getloadavg()[0]:.2f}; process peak RSS "
+          f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
+    return 0
+
+
+def warm_section() -> None:
     ws = warm_start()
     ws2 = warm_start()
     print("\n## warm start (fresh interpreter: import + warm_up + first 10,000-iteration decision, R = 6)")
@@ -182,25 +207,25 @@ def main(argv=None) -> int:
         print(f"{label:>11}: process {w['process_s']:.2f} s  (import {w['import_s']:.2f} s, warm_up {w['warm_up_s']:.2f} s,"
               f" first decision {w['first_decision_s'] * 1e3:.1f} ms)")
 
-    fast = MCTSPlanner("ssap", iterations=args.iterations)
-    fast.warm_up()
-    reference = ReferenceMCTSPlanner("ssap", iterations=args.iterations)
 
-    print(f"\n## speed at stage 0, {args.iterations} iterations (mcts-ssap)")
+def speed_section(fast, reference, sizes, iterations, n_timing, n_reference_timing) -> None:
+    print(f"\n## speed at stage 0, {iterations} iterations (mcts-ssap)")
     print(f"{'R':>3} {'impl':>9} {'iter/s':>11} {'median ms':>10} {'p95 ms':>9} {'peak MB':>8} {'speed-up':>9}")
     for r in sizes:
         times, peak = stage0_times(fast, r, n_timing)
         med = float(np.median(times))
-        print(f"{r:>3} {'fast':>9} {args.iterations / med * 1e3:>11,.0f} {med:>10.2f} "
+        print(f"{r:>3} {'fast':>9} {iterations / med * 1e3:>11,.0f} {med:>10.2f} "
               f"{np.percentile(times, 95):>9.2f} {peak:>8.2f} {'':>9}", flush=True)
         if r <= REFERENCE_MAX_R:
             rtimes, rpeak = stage0_times(reference, r, n_reference_timing)
             rmed = float(np.median(rtimes))
-            print(f"{r:>3} {'reference':>9} {args.iterations / rmed * 1e3:>11,.0f} {rmed:>10.2f} "
+            print(f"{r:>3} {'reference':>9} {iterations / rmed * 1e3:>11,.0f} {rmed:>10.2f} "
                   f"{np.percentile(rtimes, 95):>9.2f} {rpeak:>8.2f} {rmed / med:>8.0f}x", flush=True)
     print(f"process peak RSS so far: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
 
-    print(f"\n## quality: mean normalised reward (± s.e.) of online runs, {args.iterations} iterations per stage")
+
+def quality_section(fast, reference, sizes, iterations, n_quality, n_reference) -> None:
+    print(f"\n## quality: mean normalised reward (± s.e.) of online runs, {iterations} iterations per stage")
     print(f"{'R':>3} {'mcts-ssap':>15} {'ssap':>15} {'random':>15} | {'n ref':>5} {'fast (same n)':>15}"
           f" {'reference':>15} {'fast - ref':>16}")
     for r in sizes:
@@ -217,14 +242,13 @@ def main(argv=None) -> int:
                      f" {d.mean():>+8.3f} ± {_se(d):<5.3f}")
         print(line, flush=True)
 
+
+def plan_section(repeats: int) -> None:
     print("\n## plan_ms accuracy (stage 0, mcts-ssap; wall time of decide())")
     print(f"{'R':>3} {'budget ms':>10} {'median ms':>10} {'max ms':>9} {'median error':>13} {'iterations':>11}")
     for r in (6, 32):
-        for budget, med, mx, iters in plan_ms_table(r, 4 if quick else 10):
+        for budget, med, mx, iters in plan_ms_table(r, repeats):
             print(f"{r:>3} {budget:>10.0f} {med:>10.2f} {mx:>9.2f} {100 * (med - budget) / budget:>+12.1f}% {iters:>11,}")
-    print(f"\nload average at end {os.getloadavg()[0]:.2f}; process peak RSS "
-          f"{resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
-    return 0
 
 
 if __name__ == "__main__":
