@@ -34,6 +34,12 @@ DEFAULT_PLANNER = "mcts-ssap"
 DEFAULT_ITERATIONS = 10000
 #: Planner names a scenario may ask for (the coordinator builds them with ``make_planner``).
 PLANNER_NAMES = ("random", "ssap", "mcts-random", "mcts-ssap")
+#: Sanity limits that keep a mistyped number from exhausting memory or time.
+MAX_COORDINATE = 1e6  # m
+MAX_STAGES = 100000
+MAX_PASSENGERS = 10000
+MAX_EXPECTED_FEATURES = 2e6  # expected features over the whole map (density x area)
+MAX_MISSION_TIME = 1e5  # s, time of the last stage (the physics runs at 20 steps per second)
 #: Carrier body radius (m): paths must keep at least this clearance from walls.
 CARRIER_RADIUS = 0.4
 
@@ -195,7 +201,7 @@ class Cluster:
     def area(self) -> float:
         """Region area (m²)."""
         if self.shape == "disc":
-            return math.pi * self.params[2] ** 2
+            return math.pi * self.params[2] * self.params[2]
         xmin, ymin, xmax, ymax = self.params
         return (xmax - xmin) * (ymax - ymin)
 
@@ -418,16 +424,21 @@ class _Checker:
         return node
 
     def number(self, node: Any, path: str, *, minimum: float | None = None, exclusive: bool = False,
-               integer: bool = False) -> float | None:
-        kind = "an integer" if integer else "a number"
+               integer: bool = False, maximum: float | None = None) -> float | None:
+        kind = ("an integer" if integer else "a number") + _bound_text(minimum, exclusive)
+        if maximum is not None:
+            kind += f" and <= {maximum:g}"
         if isinstance(node, bool) or not isinstance(node, (int, float)) or not math.isfinite(node):
-            self.bad(path, kind + _bound_text(minimum, exclusive), node)
+            self.bad(path, kind, node)
             return None
         if integer and not float(node).is_integer():
-            self.bad(path, kind + _bound_text(minimum, exclusive), node)
+            self.bad(path, kind, node)
             return None
         if minimum is not None and (node <= minimum if exclusive else node < minimum):
-            self.bad(path, kind + _bound_text(minimum, exclusive), node)
+            self.bad(path, kind, node)
+            return None
+        if maximum is not None and node > maximum:
+            self.bad(path, kind, node)
             return None
         return int(node) if integer else float(node)
 
@@ -439,8 +450,9 @@ class _Checker:
 
     def point(self, node: Any, path: str) -> tuple[float, float] | None:
         if (not isinstance(node, (list, tuple)) or len(node) != 2
-                or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) for v in node)):
-            self.bad(path, "a point [x, y] of two numbers (m)", node)
+                or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not abs(v) <= MAX_COORDINATE
+                       for v in node)):
+            self.bad(path, f"a point [x, y] of two numbers within +-{MAX_COORDINATE:g} (m)", node)
             return None
         return (float(node[0]), float(node[1]))
 
@@ -549,13 +561,13 @@ def parse_scenario(data: Any, file: str = "<scenario>") -> Scenario:
         raise ScenarioError(ck.problems)
     name = ck.string(top["name"], "name") if "name" in top else None
     seed = ck.number(top["seed"], "seed", minimum=0, integer=True) if "seed" in top else None
-    radius = ck.number(top["sensing_radius"], "sensing_radius", minimum=0, exclusive=True) if "sensing_radius" in top else None
+    radius = ck.number(top["sensing_radius"], "sensing_radius", minimum=0, exclusive=True, maximum=MAX_COORDINATE) if "sensing_radius" in top else None
     interval = ck.number(top["stage_interval"], "stage_interval", minimum=0, exclusive=True) if "stage_interval" in top else None
-    n_stages = ck.number(top["stages"], "stages", minimum=1, integer=True) if "stages" in top else None
+    n_stages = ck.number(top["stages"], "stages", minimum=1, integer=True, maximum=MAX_STAGES) if "stages" in top else None
     t0 = ck.number(top.get("first_stage_time", 0.0), "first_stage_time", minimum=0)
     conflict = None
     if "conflict_radius" in top:
-        conflict = ck.number(top["conflict_radius"], "conflict_radius", minimum=0)
+        conflict = ck.number(top["conflict_radius"], "conflict_radius", minimum=0, maximum=4 * MAX_COORDINATE)
     elif radius is not None:
         conflict = CONFLICT_RADIUS_FACTOR * radius
 
@@ -565,6 +577,16 @@ def parse_scenario(data: Any, file: str = "<scenario>") -> Scenario:
     planner = _parse_planner(ck, top.get("planner", {}))
     prior = _parse_prior(ck, top.get("prior", "derived"))
 
+    if None not in (interval, n_stages, t0) and t0 + interval * (n_stages - 1) > MAX_MISSION_TIME:
+        ck.bad("stages", f"a last stage (first_stage_time + (stages - 1) x stage_interval) at most {MAX_MISSION_TIME:g} s",
+               _Raw(f"{t0 + interval * (n_stages - 1):g} s"))
+        n_stages = None
+    if the_map is not None and feats is not None:
+        xmin, ymin, xmax, ymax = the_map.bounds
+        expected = feats.density * (xmax - xmin) * (ymax - ymin) + sum(c.density * c.area for c in feats.clusters)
+        if expected > MAX_EXPECTED_FEATURES:
+            ck.bad("features.density", f"densities giving at most {MAX_EXPECTED_FEATURES:g} expected features on the map",
+                   _Raw(f"{expected:.3g} expected features"))
     if carriers is not None and None not in (interval, n_stages, t0):
         times = t0 + interval * np.arange(n_stages)
         for r, c in enumerate(carriers):
@@ -589,8 +611,8 @@ def _parse_map(ck: _Checker, node: Any) -> MapSpec | None:
     if "bounds" in m:
         b = m["bounds"]
         if (not isinstance(b, (list, tuple)) or len(b) != 4
-                or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in b)):
-            ck.bad("map.bounds", "[xmin, ymin, xmax, ymax] of four numbers (m)", b)
+                or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not abs(v) <= MAX_COORDINATE for v in b)):
+            ck.bad("map.bounds", f"[xmin, ymin, xmax, ymax] of four numbers within +-{MAX_COORDINATE:g} (m)", b)
             ok = False
         elif not (b[0] < b[2] and b[1] < b[3]):
             ck.bad("map.bounds", "xmin < xmax and ymin < ymax", b)
@@ -640,24 +662,25 @@ def _parse_map(ck: _Checker, node: Any) -> MapSpec | None:
 
 
 def _parse_building(ck: _Checker, node: Any) -> Building | None:
+    n0 = len(ck.problems)
     b = ck.mapping(node, "map.building", _BUILDING_KEYS, ("origin", "rooms", "room_size", "corridor_width", "door_width"))
     if b is None:
         return None
-    n0 = len(ck.problems)
     origin = ck.point(b["origin"], "map.building.origin") if "origin" in b else None
     rooms = b.get("rooms")
     cols = rows = None
     if "rooms" in b:
         if (not isinstance(rooms, list) or len(rooms) != 2
-                or any(isinstance(v, bool) or not isinstance(v, int) or v < 1 for v in rooms)):
-            ck.bad("map.building.rooms", "[cols, rows], two integers >= 1", rooms)
+                or any(isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 100 for v in rooms)):
+            ck.bad("map.building.rooms", "[cols, rows], two integers from 1 to 100", rooms)
         else:
             cols, rows = rooms
     size = ck.point(b["room_size"], "map.building.room_size") if "room_size" in b else None
     if size is not None and min(size) <= 0:
         ck.bad("map.building.room_size", "[width, height], two numbers > 0 (m)", list(size))
         size = None
-    corridor = ck.number(b["corridor_width"], "map.building.corridor_width", minimum=0, exclusive=True) if "corridor_width" in b else None
+    corridor = ck.number(b["corridor_width"], "map.building.corridor_width", minimum=0, exclusive=True,
+                         maximum=MAX_COORDINATE) if "corridor_width" in b else None
     door = ck.number(b["door_width"], "map.building.door_width", minimum=0, exclusive=True) if "door_width" in b else None
     if door is not None and size is not None and door >= min(size):
         ck.bad("map.building.door_width", f"less than the smaller room side {min(size):g} m", door)
@@ -673,10 +696,10 @@ def _parse_building(ck: _Checker, node: Any) -> Building | None:
 
 
 def _parse_features(ck: _Checker, node: Any, the_map: MapSpec | None) -> FeatureSpec | None:
+    n0 = len(ck.problems)
     f = ck.mapping(node, "features", _FEATURE_KEYS, ("density",))
     if f is None:
         return None
-    n0 = len(ck.problems)
     density = ck.number(f["density"], "features.density", minimum=0) if "density" in f else None
     clusters = []
     raw = f.get("clusters", [])
@@ -703,19 +726,22 @@ def _parse_features(ck: _Checker, node: Any, the_map: MapSpec | None) -> Feature
             dm = ck.mapping(val, f"{path}.disc", ("center", "radius"), ("center", "radius"))
             if dm is not None and "center" in dm and "radius" in dm:
                 ctr = ck.point(dm["center"], f"{path}.disc.center")
-                rad = ck.number(dm["radius"], f"{path}.disc.radius", minimum=0, exclusive=True)
+                rad = ck.number(dm["radius"], f"{path}.disc.radius", minimum=0, exclusive=True, maximum=MAX_COORDINATE)
                 if ctr is not None and rad is not None:
                     params = (ctr[0], ctr[1], rad)
         elif shape == "rect":
             if (not isinstance(val, list) or len(val) != 4
-                    or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in val)
+                    or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not abs(v) <= MAX_COORDINATE
+                           for v in val)
                     or not (val[0] < val[2] and val[1] < val[3])):
                 ck.bad(f"{path}.rect", "[xmin, ymin, xmax, ymax] with xmin < xmax, ymin < ymax (m)", val)
             else:
                 params = tuple(float(v) for v in val)
         else:
             bld = the_map.building if the_map is not None else None
-            if bld is None:
+            if the_map is None:
+                pass  # the map's own problems are already reported
+            elif bld is None:
                 ck.bad(f"{path}.room", "a map.building to take the room from", _Raw("no building in map"))
             elif (not isinstance(val, list) or len(val) != 2
                   or any(isinstance(v, bool) or not isinstance(v, int) for v in val)
@@ -753,7 +779,7 @@ def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None) -> tuple[C
                 if cid in seen:
                     ck.bad(f"{path}.id", f"a unique id (carriers[{seen[cid]}] is already '{cid}')", cid)
                 seen.setdefault(cid, r)
-        pas = ck.number(cm["passengers"], f"{path}.passengers", minimum=0, integer=True) if "passengers" in cm else None
+        pas = ck.number(cm["passengers"], f"{path}.passengers", minimum=0, integer=True, maximum=MAX_PASSENGERS) if "passengers" in cm else None
         start = ck.number(cm["start_time"], f"{path}.start_time", minimum=0) if "start_time" in cm else None
         speed = ck.number(cm["speed"], f"{path}.speed", minimum=0, exclusive=True) if "speed" in cm else None
         wps = ck.points(cm["waypoints"], f"{path}.waypoints", 2) if "waypoints" in cm else None
@@ -794,21 +820,22 @@ def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None) -> tuple[C
 
 
 def _parse_planner(ck: _Checker, node: Any) -> PlannerSpec | None:
+    n0 = len(ck.problems)
     p = ck.mapping(node, "planner", _PLANNER_KEYS)
     if p is None:
         return None
-    n0 = len(ck.problems)
     name = p.get("name", DEFAULT_PLANNER)
     if not isinstance(name, str) or name not in PLANNER_NAMES:
         close = difflib.get_close_matches(str(name), PLANNER_NAMES, n=1, cutoff=0.5)
         hint = f" (did you mean '{close[0]}'?)" if close else ""
         ck.bad("planner.name", f"one of {', '.join(PLANNER_NAMES)}{hint}", name)
-    iters = ck.number(p.get("iterations", DEFAULT_ITERATIONS), "planner.iterations", minimum=1, integer=True)
+    iters = ck.number(p.get("iterations", DEFAULT_ITERATIONS), "planner.iterations", minimum=1, integer=True,
+                      maximum=1e9)
     plan_ms = None
     if p.get("plan_ms") is not None:
         plan_ms = ck.number(p["plan_ms"], "planner.plan_ms", minimum=0, exclusive=True)
     expl = ck.number(p.get("exploration", DEFAULT_EXPLORATION), "planner.exploration", minimum=0)
-    samples = ck.number(p.get("samples", 1), "planner.samples", minimum=1, integer=True)
+    samples = ck.number(p.get("samples", 1), "planner.samples", minimum=1, integer=True, maximum=1e6)
     if len(ck.problems) > n0:
         return None
     return PlannerSpec(name=name, iterations=iters, plan_ms=plan_ms, exploration=expl, samples=samples)

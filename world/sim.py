@@ -117,21 +117,32 @@ class _CarrierBody:
         sub = dt / SUBSTEPS
         body = self.body
         while self.step < target_step:
-            t = self.step * dt
-            # idle before the start, after settling past stop_time, or when halted: no motion
-            if not (self.halted or self.step + 1 <= self.start_step or self.step >= self.frozen_after):
-                rx, ry, fx, fy = self._reference(t)
-                p = body.position
-                vx = fx + CONTROL_GAIN * (rx - p.x)
-                vy = fy + CONTROL_GAIN * (ry - p.y)
-                v = math.hypot(vx, vy)
-                if v > self.max_speed:
-                    vx, vy = vx * self.max_speed / v, vy * self.max_speed / v
-                body.velocity = (vx, vy)
-                for _ in range(SUBSTEPS):
-                    self.space.step(sub)
-            elif body.velocity.x != 0.0 or body.velocity.y != 0.0:
+            # idle stretches (halted, before the start, frozen after stop_time) are skipped in one
+            # go: an idle step only zeroes the velocity, so this equals stepping one by one
+            if self.halted or self.step >= self.frozen_after:
+                idle_end = target_step
+            elif self.step < self.start_step:
+                idle_end = min(target_step, self.start_step)
+            else:
+                idle_end = self.step
+            if idle_end > self.step:
                 body.velocity = (0.0, 0.0)
+                p = body.position
+                first = (self.step // TRACE_STEPS + 1) * TRACE_STEPS
+                self.trace.extend((k * dt, p.x, p.y) for k in range(first, idle_end + 1, TRACE_STEPS))
+                self.step = idle_end
+                continue
+            t = self.step * dt
+            rx, ry, fx, fy = self._reference(t)
+            p = body.position
+            vx = fx + CONTROL_GAIN * (rx - p.x)
+            vy = fy + CONTROL_GAIN * (ry - p.y)
+            v = math.hypot(vx, vy)
+            if v > self.max_speed:
+                vx, vy = vx * self.max_speed / v, vy * self.max_speed / v
+            body.velocity = (vx, vy)
+            for _ in range(SUBSTEPS):
+                self.space.step(sub)
             self.step += 1
             if self.step % TRACE_STEPS == 0:
                 p = body.position
