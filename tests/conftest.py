@@ -11,6 +11,7 @@ ONLINE_PLANNERS = [
     ("ssap", {}),
     ("mcts-random", {"iterations": 40}),
     ("mcts-ssap", {"iterations": 40}),
+    ("closed-loop", {"iterations": 40}),
 ]
 
 
