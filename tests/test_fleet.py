@@ -82,9 +82,13 @@ def test_staggered_start_catches_up_from_the_mission_state(tiny, tmp_path):
 def test_bad_messages_are_rejected_counted_and_change_nothing(tiny, tmp_path):
     fleet = InProcessFleet(tiny, tmp_path)
     fleet.start_coordinator()
-    time.sleep(0.3)
-    intruder = Node(make_config("client", [], [fleet.endpoint]))
+    deadline = time.monotonic() + 60
+    while fleet.coordinator.node is None and time.monotonic() < deadline:  # planner warm-up first
+        time.sleep(0.05)
+    intruder = Node(make_config("client", [], [fleet.endpoint]), open_timeout_s=30)
     m = fleet.coordinator.mission
+    while not intruder.query(keys.state_key(m)) and time.monotonic() < deadline:
+        time.sleep(0.05)  # the state queryable is declared after the subscribers
     obs_key = keys.carrier_key(m, "a", "obs")
     good = Observation(m, "a", 3, 15.0, 99, (0.0, 0.0), 2, ())
     raw = msgpack.unpackb(encode(good))

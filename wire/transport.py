@@ -58,9 +58,15 @@ class Node:
         """Puts on ``key_expr`` land in the inbox as ``Inbound("sample", key, bytes)``."""
         inbox = self.inbox
 
+        limit = messages.MAX_PAYLOAD_BYTES
+
         def on_sample(sample):
             try:
-                inbox.put(Inbound("sample", str(sample.key_expr), sample.payload.to_bytes(), time.monotonic()))
+                payload = sample.payload
+                # An oversized payload is not copied: a marker one byte over the limit is enough
+                # for decode() to reject it as oversized.
+                data = payload.to_bytes() if len(payload) <= limit else b"\0" * (limit + 1)
+                inbox.put(Inbound("sample", str(sample.key_expr), data, time.monotonic()))
             except Exception:
                 pass  # never raise into zenoh
 
