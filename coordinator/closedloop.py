@@ -111,7 +111,7 @@ def _evaluate(actions, members, stage, n_stages, xnow, left0, valid, nleft, tabl
         valid: bool ``[R, N]``; nleft: int64 ``[R, N + 1]`` valid stages from t to the end.
         table: DLR thresholds ``[N + 2, N + 2]`` (raw units).
         sel, p, xv: selection state over flat points (past deployments), restored on return.
-        samples: float ``[S, m, N - stage - 1]`` sampled future observations.
+        samples: float ``[S, N - stage - 1, m]`` sampled future observations.
         out: float ``[K, S]`` receives ``aware_total - plain_future`` per candidate and sample
             (raw units; constant offsets common to all candidates left out).
     """
@@ -140,7 +140,7 @@ def _evaluate(actions, members, stage, n_stages, xnow, left0, valid, nleft, tabl
                     if not valid[r, t]:
                         continue
                     n = nleft[r, t]
-                    xs = samples[s, i, t - stage - 1]
+                    xs = samples[s, t - stage - 1, i]
                     d = left[i]
                     if d > 0:
                         q = r * n_stages + t
@@ -157,6 +157,25 @@ def _evaluate(actions, members, stage, n_stages, xnow, left0, valid, nleft, tabl
             out[k, s] = total - plain
 
 
+@njit(cache=True)
+def _inverse_cdf(u, cdf, support, guide):
+    """``support[first i with cdf[i] > u]`` for every uniform in ``u`` (same shape, float64).
+
+    ``guide[g]`` is the first index whose cdf exceeds ``g / len(guide)``: the scan starts there.
+    """
+    flat_u = u.ravel()
+    out = np.empty(flat_u.shape[0])
+    n_guide = guide.shape[0]
+    last = cdf.shape[0] - 1
+    for a in range(flat_u.shape[0]):
+        v = flat_u[a]
+        i = guide[min(int(v * n_guide), n_guide - 1)]
+        while i < last and cdf[i] <= v:
+            i += 1
+        out[a] = support[i]
+    return out.reshape(u.shape)
+
+
 # ----------------------------------------------------------------------------- per-problem data
 
 
@@ -170,6 +189,7 @@ class _Prepared:
     nbr_idx: np.ndarray      # int64 [nnz]
     support: np.ndarray | None  # float [K] support of a discrete prior (None: continuous)
     cdf: np.ndarray | None      # float [K] its cumulative probabilities
+    guide: np.ndarray | None    # int64 [G] first index whose cdf exceeds g / G
 
 
 _PREPARED: "weakref.WeakKeyDictionary[Problem, _Prepared]" = weakref.WeakKeyDictionary()
@@ -189,14 +209,16 @@ def _prepare(problem: Problem) -> _Prepared:
     counts = conflict.sum(axis=1)
     nbr_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     nbr_idx = np.nonzero(conflict)[1].astype(np.int64)
-    support = cdf = None
+    support = cdf = guide = None
     if hasattr(problem.prior.dist, "pmf"):
         # The same support as the thresholds (tables give their own points).
         support, mass = ssap.support_grid(problem.prior)
         support = np.asarray(support, dtype=float)
         cdf = np.cumsum(mass) / np.sum(mass)
         cdf[-1] = 1.0
-    prep = _Prepared(table, value, nbr_ptr, nbr_idx, support, cdf)
+        n_guide = 4 * len(support)
+        guide = np.searchsorted(cdf, np.arange(n_guide) / n_guide, side="right").astype(np.int64)
+    prep = _Prepared(table, value, nbr_ptr, nbr_idx, support, cdf, guide)
     _PREPARED[problem] = prep
     return prep
 
@@ -205,8 +227,7 @@ def _sample(prep: _Prepared, problem: Problem, rng: np.random.Generator, shape) 
     """Observations drawn from the prior by inverse CDF (exact for discrete priors)."""
     u = rng.random(shape)
     if prep.support is not None:
-        idx = np.minimum(np.searchsorted(prep.cdf, u, side="right"), len(prep.support) - 1)
-        return prep.support[idx]
+        return _inverse_cdf(u, prep.cdf, prep.support, prep.guide)
     return np.asarray(problem.prior.ppf(u), dtype=float)
 
 
@@ -385,7 +406,7 @@ class ClosedLoopPlanner:
         count = 0
         while True:
             batch = samples if deadline is None else BATCH
-            draws = _sample(prep, problem, rng, (batch, len(comp), horizon))
+            draws = _sample(prep, problem, rng, (batch, horizon, len(comp)))
             out = np.empty((len(actions), batch))
             _evaluate(actions, comp, j, n_stages, xnow[comp], comp_left, valid, nleft, prep.table,
                       sel, p, xv, prep.nbr_ptr, prep.nbr_idx, draws, out)
