@@ -76,7 +76,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--overlaps", default=None, help="overlap levels of the overlap sweep (default 0,4,...,20)")
     p.add_argument("--carriers", default=None, help="fleet sizes of the scaling sweep (default 2,...,6,12,24,32)")
     p.add_argument("--scaling-overlaps", type=int, default=10, help="overlaps in the scaling sweep (default 10)")
-    p.add_argument("--urban-trials", type=int, default=None, help="world seeds of the urban run (default 10; quick 2)")
+    p.add_argument("--urban-trials", type=int, default=None, help="world seeds of the urban run (default 20; quick 2)")
     p.add_argument("--scenario", type=Path, default=DEFAULT_SCENARIO, help="scenario of the urban run")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     return p.parse_args(argv)
@@ -86,7 +86,7 @@ def _settings(args) -> dict:
     quick = args.quick
     trials = args.trials if args.trials is not None else (QUICK["trials"] if quick else 50)
     iterations = args.iterations if args.iterations is not None else (QUICK["iterations"] if quick else 10_000)
-    urban_trials = args.urban_trials if args.urban_trials is not None else (QUICK["urban_trials"] if quick else 10)
+    urban_trials = args.urban_trials if args.urban_trials is not None else (QUICK["urban_trials"] if quick else 20)
     if trials < 1:
         raise UsageError(f"--trials: expected an integer >= 1, found {trials}")
     if iterations < 1:
