@@ -426,8 +426,6 @@ class _Checker:
     def number(self, node: Any, path: str, *, minimum: float | None = None, exclusive: bool = False,
                integer: bool = False, maximum: float | None = None) -> float | None:
         kind = ("an integer" if integer else "a number") + _bound_text(minimum, exclusive)
-        if maximum is not None:
-            kind += f" and <= {maximum:g}"
         if isinstance(node, bool) or not isinstance(node, (int, float)) or not math.isfinite(node):
             self.bad(path, kind, node)
             return None
@@ -438,7 +436,7 @@ class _Checker:
             self.bad(path, kind, node)
             return None
         if maximum is not None and node > maximum:
-            self.bad(path, kind, node)
+            self.bad(path, f"{kind} and <= {maximum:g}", node)
             return None
         return int(node) if integer else float(node)
 
@@ -450,8 +448,10 @@ class _Checker:
 
     def point(self, node: Any, path: str) -> tuple[float, float] | None:
         if (not isinstance(node, (list, tuple)) or len(node) != 2
-                or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not abs(v) <= MAX_COORDINATE
-                       for v in node)):
+                or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) for v in node)):
+            self.bad(path, "a point [x, y] of two numbers (m)", node)
+            return None
+        if any(abs(v) > MAX_COORDINATE for v in node):
             self.bad(path, f"a point [x, y] of two numbers within +-{MAX_COORDINATE:g} (m)", node)
             return None
         return (float(node[0]), float(node[1]))
