@@ -90,8 +90,6 @@ def load(args):
 
 def check_flags(args, scenario) -> str | None:
     """One line about the first bad flag, or None."""
-    from coordinator.node import planner_settings
-    from coordinator.planners import make_planner
     from wire import keys
 
     if args.realtime < 0:
@@ -117,6 +115,9 @@ def check_flags(args, scenario) -> str | None:
             return (f"--carrier: expected one of {', '.join(scenario.carrier_ids)} "
                     f"(carriers of {args.scenario}), found {args.carrier!r}")
     if args.role != "carrier":
+        from coordinator.node import planner_settings
+        from coordinator.planners import make_planner
+
         name, options = planner_settings(scenario, args.planner, args.iterations, args.plan_ms)
         try:
             make_planner(name, **options)

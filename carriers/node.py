@@ -164,10 +164,19 @@ class Carrier:
             self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.pending)
         for payload in self.node.query(keys.state_key(self.mission), timeout_s=2.0):
             state = decode(payload, State)
-            if state.mission == self.mission and state.last_decision is not None:
-                last = state.last_decision
-                if last.stage not in self.handled and last.stage not in self.buffered:
-                    self._on_decision(last)
+            if state.mission != self.mission:
+                continue
+            mine = state.carrier(self.cid)
+            last = state.last_decision
+            for j in (mine.deployments if mine else ()):
+                if (j <= self.stage and j not in self.handled and j not in self.buffered
+                        and (last is None or j != last.stage)):
+                    # Decided for us while we were cut off and never received: we did not deploy
+                    # there. Saying so lets the coordinator count the passenger as still on board.
+                    self._answer(Decision(self.mission, j, float(self.scenario.stage_time(j)), (self.cid,), 0.0),
+                                 allow=False)
+            if last is not None and last.stage not in self.handled and last.stage not in self.buffered:
+                self._on_decision(last)
             if state.ended:
                 self.ended = True
 
@@ -255,6 +264,8 @@ class Carrier:
         waited = 0.0
         last = time.monotonic()
         while not self._stop and not self.ended:
+            if j in self.handled:
+                return None  # answered already (as late, while resynchronising)
             if j in self.buffered:
                 return self.buffered.pop(j)
             if self.latest_decided > j:
