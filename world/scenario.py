@@ -684,8 +684,6 @@ def _parse_building(ck: _Checker, node: Any) -> Building | None:
     door = ck.number(b["door_width"], "map.building.door_width", minimum=0, exclusive=True) if "door_width" in b else None
     if door is not None and size is not None and door >= min(size):
         ck.bad("map.building.door_width", f"less than the smaller room side {min(size):g} m", door)
-    if door is not None and corridor is not None and door > corridor and "entrances" in b and b["entrances"]:
-        pass  # entrance gaps are door_width wide and centred on a corridor; a wider door is allowed
     entrances = b.get("entrances", [])
     if not isinstance(entrances, list) or any(e not in _SIDES for e in entrances):
         ck.bad("map.building.entrances", f"a list of sides among {list(_SIDES)}", entrances)
