@@ -321,3 +321,34 @@ def test_priors_explicit_and_derived(tmp_path):
     assert ln.median() == pytest.approx(np.e)
     tab = parse_scenario({**base, "prior": {"kind": "table", "values": [0, 5], "probabilities": [0.5, 0.5]}})
     assert tab.prior_distribution().mean() == pytest.approx(2.5)
+
+
+def test_building_generator_geometry():
+    from world import building as bld
+    from world.scenario import Building
+
+    b = Building(origin=(10.0, 5.0), cols=2, rows=1, room_size=(20.0, 10.0), corridor_width=4.0, door_width=2.0,
+                 entrances=("west",))
+    assert b.extent == (10.0, 5.0, 10 + 2 * 20 + 3 * 4, 5 + 10 + 2 * 4)
+    assert b.room_rect(1, 0) == (10 + 4 + 24, 9.0, 10 + 4 + 24 + 20, 19.0)
+    segs = np.asarray(bld.wall_segments(b))
+    assert len(segs) == 2 * 4 * 2 + 3 + 2  # 2 rooms x 4 walls x 2 halves; outer: 3 sides + west in 2
+    cx, cy = 24.0, 14.0  # centre of room (0, 0)
+    # straight out of the room through its south door into the corridor: visible
+    assert geometry.visible((cx, cy), np.array([[cx, 7.0]]), segs)[0]
+    # diagonally through the room's wall: hidden
+    assert not geometry.visible((cx, cy), np.array([[cx + 8, 7.0]]), segs)[0]
+    # the west entrance opens the corridor: from outside, a point in the corridor is visible
+    y_mid = bld.corridor_y(b, b.rows // 2)
+    assert geometry.visible((2.0, y_mid), np.array([[12.0, y_mid]]), segs)[0]
+    assert not geometry.visible((2.0, y_mid + 6), np.array([[12.0, y_mid + 6]]), segs)[0]
+
+
+def test_prior_report_pools_valid_stages(tiny):
+    from world.report import prior_report
+
+    rep = prior_report(tiny, seeds=4, first_seed=10)
+    xs = np.concatenate([world.observe_all(tiny, seed=10 + k)[tiny.valid()] for k in range(4)])
+    assert rep.samples == len(xs) == 4 * int(tiny.valid().sum())
+    assert rep.mean == pytest.approx(xs.mean()) and rep.var == pytest.approx(xs.var(ddof=1))
+    assert rep.prior_mean == pytest.approx(tiny.derived_prior_mean())
