@@ -156,6 +156,7 @@ def _install_stop_handlers() -> None:
 
 def run_coordinator(args, scenario) -> int:
     from coordinator.node import Coordinator, CoordinatorConfig
+    from coordinator.store import StoreMismatch
 
     out = args.out or default_out(scenario)
     coord = Coordinator(scenario, CoordinatorConfig(
@@ -163,7 +164,10 @@ def run_coordinator(args, scenario) -> int:
         plan_ms=args.plan_ms, seed=args.seed, realtime=args.realtime, join_timeout_s=args.join_timeout,
         stage_timeout_s=args.stage_timeout, render=not args.no_map), zenoh_config(args, "coordinator"),
         scenario_path=args.scenario)
-    summary = coord.run()
+    try:
+        summary = coord.run()
+    except StoreMismatch as exc:
+        return fail(str(exc))
     return 0 if summary.get("ended") and summary["stages_decided"] == summary["stages"] else 130
 
 

@@ -343,8 +343,12 @@ class Coordinator:
                 if self.problem.valid[r, j] and cid in self.live and cid not in self.incompatible}
 
     def _wait_for_carriers(self) -> None:
-        """Before stage 0: wait until every carrier's token is present (or the join timeout)."""
-        deadline = time.monotonic() + self.config.join_timeout_s
+        """Before the first stage: wait until every carrier's token is present (or the join
+        timeout; on resume at most the stage timeout, since some carriers may be gone for good)."""
+        wait_s = self.config.join_timeout_s
+        if self.resumed:
+            wait_s = min(wait_s, self.config.stage_timeout_s)
+        deadline = time.monotonic() + wait_s
         while not self._stop.is_set() and time.monotonic() < deadline:
             if set(self.ids) <= self.live:
                 return
@@ -352,7 +356,7 @@ class Coordinator:
         missing = sorted(set(self.ids) - self.live)
         if missing:
             self.log(f"coordinator: starting without carrier(s) {', '.join(missing)} (not live after "
-                     f"{self.config.join_timeout_s:.0f} s); they can join late")
+                     f"{wait_s:.0f} s); they can join late")
 
     def _decide(self, j: int) -> Decision:
         x_col = self._column(j)
