@@ -156,8 +156,11 @@ def markdown_table(summary: list[dict], level_name: str, features: bool = False)
     return "\n".join(lines)
 
 
-def paired_table(rows: list[dict], a: str, others: list[str], level_name: str) -> str:
-    """Markdown: mean paired difference ``a - other`` ± SEM (wins/losses) per level."""
+def paired_table(rows: list[dict], a: str, others: list[str], level_name: str, level_label=str) -> str:
+    """Markdown: mean paired difference ``a - other`` ± SEM (wins/losses) per level.
+
+    ``level_label(level)`` writes the first column (the level itself by default).
+    """
     present = {r["planner"] for r in rows}
     others = [o for o in others if o in present and o != a]
     if a not in present or not others:
@@ -172,7 +175,7 @@ def paired_table(rows: list[dict], a: str, others: list[str], level_name: str) -
         for o in others:
             d = tables[o].get(k)
             cells.append("" if d is None else f"{d['mean']:+.3f} ± {d['sem']:.3f} ({d['wins']}/{d['losses']})")
-        lines.append(f"| {k[1]} | " + " | ".join(cells) + " |")
+        lines.append(f"| {level_label(k[1])} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 

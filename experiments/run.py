@@ -79,6 +79,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--urban-trials", type=int, default=None, help="world seeds of the urban run (default 20; quick 2)")
     p.add_argument("--scenario", type=Path, default=DEFAULT_SCENARIO, help="scenario of the urban run")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--report-only", action="store_true",
+                   help="rewrite summaries, tables and plots from the CSVs already in --out (no planning)")
     return p.parse_args(argv)
 
 
@@ -153,7 +155,7 @@ def run_tasks(tasks: list[Task], pool, desc: str, progress: bool) -> list[dict]:
     return rows
 
 
-def _write_sweep(sweep: str, rows: list[dict], out: Path, seconds: float, s: dict, args) -> dict:
+def _write_sweep(sweep: str, rows: list[dict], out: Path, seconds: float, jobs: int, s: dict, args) -> dict:
     report.write_trials(rows, out / f"{sweep}_trials.csv")
     summary = report.summarise(rows)
     report.write_summary(summary, out / f"{sweep}_summary.csv")
@@ -183,8 +185,8 @@ def _write_sweep(sweep: str, rows: list[dict], out: Path, seconds: float, s: dic
                 report.paired_table(rows, "mcts-ssap", ["mcts-random", "ssap"], "R")]
     else:
         text = _urban_report(rows, summary, out, s, args)
-    timing = {"sweep": sweep, "seconds": round(seconds, 1), "tasks": len(rows), "jobs": args.jobs}
-    text += ["", f"Wall time: {seconds:.1f} s with {args.jobs} worker process(es) for {len(rows)} tasks."]
+    timing = {"sweep": sweep, "seconds": round(seconds, 1), "tasks": len(rows), "jobs": jobs}
+    text += ["", f"Wall time: {seconds:.1f} s with {jobs} worker process(es) for {len(rows)} tasks."]
     (out / f"{sweep}.md").write_text("\n".join(text) + "\n")
     return timing
 
@@ -214,6 +216,7 @@ def _urban_report(rows, summary, out: Path, s: dict, args) -> list[str]:
              f"{s['iterations']} iterations. Features captured (sum of x / p), mean ± SEM over seeds.", "",
              "| planner | features (mean ± SEM) | seed 0 | paper | ratio to SSAP (ours / paper) | ratio to Random (ours / paper) |",
              "|---|---|---|---|---|---|"]
+    seeds_label = lambda _level: f"all {s['urban_trials']}"  # noqa: E731
     base_ssap = np.mean(feats.get("ssap", [np.nan]))
     base_rand = np.mean(feats.get("random", [np.nan]))
     for p in sorted(feats, key=report._order):
@@ -225,8 +228,8 @@ def _urban_report(rows, summary, out: Path, s: dict, args) -> list[str]:
         lines.append(f"| {label} | {v.mean():.2f} ± {report.sem(v):.2f} | {v[0]:.2f} | {paper if paper else '–'} "
                      f"| {r_ssap} | {r_rand} |")
     lines += ["", "Paired differences in normalised reward on the same world seeds (mean ± SEM, wins/losses):", "",
-              report.paired_table(rows, "closed-loop", ["mcts-ssap", "ssap"], "run"), "",
-              report.paired_table(rows, "mcts-ssap", ["mcts-random", "ssap", "random"], "run"), "",
+              report.paired_table(rows, "closed-loop", ["mcts-ssap", "ssap"], "world seeds", seeds_label), "",
+              report.paired_table(rows, "mcts-ssap", ["mcts-random", "ssap", "random"], "world seeds", seeds_label), "",
               "Maps of the chosen deployments (seed 0): " + ", ".join(f"[{m}]({m})" for m in maps)]
     return lines
 
@@ -254,6 +257,19 @@ def main(argv=None) -> int:
     info = json.loads(info_path.read_text()) if info_path.is_file() else {}
     info.setdefault("sweeps", {})
     started = time.perf_counter()
+    if args.report_only:
+        for sweep in sweeps:
+            path = out / f"{sweep}_trials.csv"
+            prior = info["sweeps"].get(sweep)
+            if not path.is_file() or prior is None:
+                print(f"python -m experiments: error: --report-only: expected {path} and its entry in "
+                      f"{info_path}, found none", file=sys.stderr)
+                return 2
+            rows = report.read_trials(path)
+            s = {**s, "trials": prior["trials"], "urban_trials": prior["trials"], "iterations": prior["iterations"]}
+            _write_sweep(sweep, rows, out, prior["seconds"], prior["jobs"], s, args)
+        _write_index(out, info)
+        return 0
     pool = None
     if args.jobs > 1:
         pool = ProcessPoolExecutor(max_workers=args.jobs, mp_context=get_context("spawn"),
@@ -270,12 +286,13 @@ def main(argv=None) -> int:
             t0 = time.perf_counter()
             rows = run_tasks(tasks, pool, sweep, not args.no_progress)
             seconds = time.perf_counter() - t0
-            timing = _write_sweep(sweep, rows, out, seconds, s, args)
+            timing = _write_sweep(sweep, rows, out, seconds, args.jobs, s, args)
             info["sweeps"][sweep] = {**timing, "trials": s["urban_trials"] if sweep == "urban" else s["trials"],
                                      "iterations": s["iterations"], "seed": s["seed"],
                                      "planners": list(s["planners"]),
                                      "levels": list(s["overlaps"] if sweep == "overlap" else
                                                     s["carriers"] if sweep == "scaling" else [0])}
+            info_path.write_text(json.dumps(info, indent=2) + "\n")
             print(f"{sweep}: {len(tasks)} tasks in {seconds:.1f} s -> {out / (sweep + '.md')}", file=sys.stderr)
     finally:
         if pool is not None:
