@@ -9,7 +9,6 @@ has arrived the forbidden message would have arrived too.
 from __future__ import annotations
 
 import json
-import socket
 import subprocess
 import sys
 import threading
@@ -19,8 +18,10 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from localports import distinct_free_ports
 from tools import gen_certs
 from tools.gen_certs import FleetCerts, Identity
+from wire.zconfig import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = ROOT / "scenarios" / "tiny.yaml"
@@ -28,12 +29,6 @@ MISSION = "m"
 CARRIERS = ("c0", "c1")
 WAIT_S = 10.0  # upper bound on waiting for something that must happen
 NEVER_S = 2.0  # how long to watch for something that must not happen
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture(scope="module")
@@ -53,17 +48,24 @@ def strangers(tmp_path_factory, certs) -> dict[str, Identity]:
     }
 
 
-def open_session(config: dict, port: int, role: str) -> zenoh.Session:
-    """Open a peer session from a generated config, on tls/127.0.0.1:PORT."""
+def open_session(config: dict, port: int, role: str, mode: str | None = None) -> zenoh.Session:
+    """Open a session from a generated config on tls/127.0.0.1:PORT: the listener is a peer (as the
+    fleet's coordinator), a connecting session a client (as the fleet's carriers) unless `mode`."""
     config = json.loads(json.dumps(config))
-    config["mode"] = "peer"
     endpoint = f"tls/127.0.0.1:{port}"
     if role == "listen":
+        config["mode"] = mode or "peer"
         config["listen"] = {"endpoints": [endpoint]}
     else:
+        config["mode"] = mode or "client"
         config["connect"] = {"endpoints": [endpoint]}
         config["listen"] = {"endpoints": []}
     return zenoh.open(zenoh.Config.from_json5(json.dumps(config)))
+
+
+def neighbours(session: zenoh.Session) -> list:
+    """Zenoh ids of the sessions this one has a transport with (clients, peers, routers)."""
+    return [t.zid for t in session.info.transports()]
 
 
 def carrier_conf(certs: FleetCerts, identity: Identity | None, acl: bool = True) -> dict:
@@ -96,7 +98,7 @@ class Inbox:
 def wait_connected(session: zenoh.Session, timeout: float) -> bool:
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        if list(session.info.peers_zid()):
+        if neighbours(session):
             return True
         time.sleep(0.05)
     return False
@@ -147,28 +149,34 @@ def test_control_without_mtls_the_certificateless_client_connects(certs, strange
 
 
 @pytest.mark.parametrize("who", ["no-certificate", "other-ca", "plain-tcp"])
-def test_process_without_valid_certificate_cannot_connect_or_publish(certs, strangers, who):
+@pytest.mark.parametrize("mode", ["client", "peer"])
+def test_process_without_valid_certificate_cannot_connect_or_publish(certs, strangers, who, mode):
+    """A client fails to open; a peer opens alone (peers start without neighbours) and nothing it
+    publishes arrives."""
     port = free_port()
     coord_conf = gen_certs.coordinator_config(certs)
     with open_session(coord_conf, port, "listen") as coord:
         inbox = Inbox()
         coord.declare_subscriber(f"marsupial/{MISSION}/**", inbox)
         if who == "plain-tcp":
-            conf = {"scouting": {"multicast": {"enabled": False}}}
-            conf_endpoint = f"tcp/127.0.0.1:{port}"
-            conf["connect"] = {"endpoints": [conf_endpoint]}
-            conf["listen"] = {"endpoints": []}
-            conf["mode"] = "peer"
-            intruder = zenoh.open(zenoh.Config.from_json5(json.dumps(conf)))
+            conf = {"scouting": {"multicast": {"enabled": False}}, "mode": mode,
+                    "connect": {"endpoints": [f"tcp/127.0.0.1:{port}"]}, "listen": {"endpoints": []}}
+            config = zenoh.Config.from_json5(json.dumps(conf))
+            opener = lambda: zenoh.open(config)  # noqa: E731
         else:
-            intruder = open_session(intruder_conf(certs, strangers, who), port, "connect")
-        with intruder:
+            opener = lambda: open_session(intruder_conf(certs, strangers, who), port, "connect", mode)  # noqa: E731
+        if mode == "client":
+            with pytest.raises(zenoh.ZError):
+                opener().close()
+            assert inbox.items == [] and not neighbours(coord)
+            return
+        with opener() as intruder:
             deadline = time.monotonic() + NEVER_S
             while time.monotonic() < deadline:
                 intruder.put(f"marsupial/{MISSION}/carrier/c0/observation", b"intruder")
                 time.sleep(0.05)
-            assert not list(coord.info.peers_zid()), f"{who}: the coordinator accepted a session"
-            assert not list(intruder.info.peers_zid()), f"{who}: the intruder reached a peer"
+            assert not neighbours(coord), f"{who}: the coordinator accepted a session"
+            assert not neighbours(intruder), f"{who}: the intruder reached a peer"
             assert inbox.items == [], f"{who}: a publication got through: {inbox.items}"
 
 
@@ -188,6 +196,15 @@ def test_acl_carrier_publishes_only_under_its_own_keys(certs):
             deliver(car, inbox, forbidden, (f"marsupial/{MISSION}/carrier/c0/observation", b"own"))
             time.sleep(0.2)
             assert [item for item in forbidden if item in inbox.items] == []
+            # Nor is the forged decision forwarded to another carrier (the coordinator routes for its
+            # clients; the drop happens on ingress, before routing).
+            with open_session(carrier_conf(certs, certs.carriers["c1"]), port, "connect") as other:
+                assert wait_connected(other, WAIT_S)
+                other_inbox = Inbox()
+                other.declare_subscriber(f"marsupial/{MISSION}/**", other_inbox)
+                deliver(car, other_inbox, forbidden, (f"marsupial/{MISSION}/carrier/c0/observation", b"own 2"))
+                time.sleep(0.2)
+                assert [item for item in forbidden if item in other_inbox.items] == []
             # The coordinator's own decisions still reach the carrier (egress is allowed).
             deliver(coord, car_inbox, [], (decision, b"real decision"))
             # Liveliness: a token under the carrier's own keys is seen, one under the coordinator's is not.
@@ -254,12 +271,11 @@ def test_config_examples_are_what_the_generator_writes():
 FLEET_TIMEOUT_S = 150.0  # upper bound on one fleet run (a hang fails the test instead of blocking)
 
 
-def _launch_fleet(tmp: Path, name: str, certs: FleetCerts, carrier_confs: dict[str, Path]) -> dict:
+def _launch_fleet(tmp: Path, name: str, port: int, certs: FleetCerts, carrier_confs: dict[str, Path]) -> dict:
     """Start the coordinator and one process per carrier of the tiny scenario, each with its own
-    --zenoh-config, over tls/127.0.0.1:<free port>. Returns the Popen objects and paths."""
+    --zenoh-config, over tls/127.0.0.1:PORT. Returns the Popen objects and paths."""
     out = tmp / name
     out.mkdir()
-    port = free_port()
     coord_conf = gen_certs.write_json5(out / "coordinator.json5", gen_certs.coordinator_config(certs))
     base = [sys.executable, str(ROOT / "run_fleet.py"), str(TINY)]
     logs = {}
@@ -305,9 +321,10 @@ def tls_fleets(tmp_path_factory, certs_tiny, strangers_tiny):
     forged = gen_certs.carrier_config(certs_tiny, "b")
     forged["transport"]["link"]["tls"] = gen_certs.tls_section(certs_tiny.ca, strangers_tiny["forged-b"])
     forged_conf = gen_certs.write_json5(tmp / "forged-b.json5", forged)
+    ports = distinct_free_ports(2)
     fleets = {
-        "valid": _launch_fleet(tmp, "valid", certs_tiny, confs),
-        "forged": _launch_fleet(tmp, "forged", certs_tiny, {"a": confs["a"], "b": forged_conf}),
+        "valid": _launch_fleet(tmp, "valid", ports[0], certs_tiny, confs),
+        "forged": _launch_fleet(tmp, "forged", ports[1], certs_tiny, {"a": confs["a"], "b": forged_conf}),
     }
     return {name: _wait_fleet(fleet) for name, fleet in fleets.items()}
 

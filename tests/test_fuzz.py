@@ -1,0 +1,299 @@
+"""Bad input from the network: a fuzzer floods a running tiny mission and changes nothing.
+
+A real fleet (`run_fleet.py`, one coordinator and two carrier processes over tcp/127.0.0.1) runs
+the tiny scenario while this test, as one more Zenoh client of the coordinator, sends more than
+10,000 random and broken messages (tests/fuzz_messages.py) at the coordinator's subscriptions
+(`carrier/*/{hello,obs,confirm,bye}`) and at the carriers' (`coordinator/decision`,
+`coordinator/end`), plus replays of the real observations, confirmations and decisions it
+overhears (duplicate and stale stages). A clean run of the same scenario and seed runs alongside.
+
+Asserted: every process exits normally; the fuzzed mission's decisions, deployments and reward
+equal the clean run's (and the offline planner's); summary.json counts the rejected messages per
+reason, at least one per message sent; each reason is logged once per process.
+"""
+
+from __future__ import annotations
+
+import json
+import queue
+import re
+import subprocess
+import sys
+import threading
+import time
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zenoh
+
+from fuzz_messages import carrier_fuzz, coordinator_fuzz
+from localports import distinct_free_ports
+from wire import keys, messages
+from wire.zconfig import make_config, open_session
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = ROOT / "scenarios" / "tiny.yaml"
+MISSION = "tiny"
+CARRIERS = ["a", "b"]
+STAGES = 4
+SEED = 20261122  # the fuzzer's own stream (the mission keeps the scenario's seed)
+N_COORDINATOR = 6_000  # generated messages at the coordinator's keys
+N_CARRIERS = 5_000  # generated messages at the carriers' keys (each reaches both carriers)
+REPLAYS_PER_MESSAGE = 10  # altered copies of every real message overheard
+REPLAY_DELAY_S = 0.3  # a replay is sent this long after the original was overheard
+REALTIME = 1.0  # simulated seconds per wall second in the fuzzed mission (it lasts ~15 s)
+RUN_TIMEOUT_S = 180.0
+
+
+def start_fleet(out: Path, port: int, realtime: float) -> tuple[subprocess.Popen, Path]:
+    log = out.with_suffix(".log")
+    with open(log, "wb") as handle:
+        proc = subprocess.Popen(
+            [sys.executable, str(ROOT / "run_fleet.py"), str(TINY), "--out", str(out), "--no-map",
+             "--listen", f"tcp/127.0.0.1:{port}", "--realtime", str(realtime)],
+            cwd=ROOT, stdout=handle, stderr=subprocess.STDOUT,
+        )
+    return proc, log
+
+
+def finish(proc: subprocess.Popen, log: Path, out: Path) -> tuple[int, str, dict | None]:
+    try:
+        code = proc.wait(timeout=RUN_TIMEOUT_S)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    summary = out / "summary.json"
+    return code, log.read_text(errors="replace"), json.loads(summary.read_text()) if summary.exists() else None
+
+
+class Fuzzer:
+    """A Zenoh client of the coordinator that overhears the mission and sends the fuzz."""
+
+    def __init__(self, port: int):
+        conf = make_config("client", [], [f"tcp/127.0.0.1:{port}"])
+        self.session = open_session(conf, timeout_s=90.0)  # retried until the coordinator listens
+        self.overheard: "queue.Queue[tuple[float, str, bytes]]" = queue.Queue()
+        self.live: set[str] = set()
+        self.decided: set[int] = set()  # stages whose genuine decision the fuzzer overheard
+        self.sent_replays: set[bytes] = set()
+        self.confirmed: set[tuple[str, int]] = set()  # (carrier, stage) confirmations overheard
+        self._lock = threading.Lock()
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        for topic in ("obs", "confirm"):
+            self.session.declare_subscriber(keys.carrier_topic_pattern(MISSION, topic), self._on_sample)
+        self.session.declare_subscriber(keys.decision_key(MISSION), self._on_sample)
+        self.session.liveliness().declare_subscriber(
+            keys.carrier_alive_pattern(MISSION), self._on_token, history=True)
+
+    def _on_sample(self, sample) -> None:  # zenoh callback: copy and enqueue only
+        self.overheard.put((time.monotonic(), str(sample.key_expr), sample.payload.to_bytes()))
+
+    def _on_token(self, sample) -> None:
+        if sample.kind == zenoh.SampleKind.PUT:
+            with self._lock:
+                self.live.add(str(sample.key_expr).split("/")[-2])
+
+    def wait_carriers(self, timeout_s: float) -> bool:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            with self._lock:
+                if self.live >= set(CARRIERS):
+                    return True
+            time.sleep(0.05)
+        return False
+
+    def put(self, key: str, payload: bytes) -> None:
+        pub = self._publishers.get(key)
+        if pub is None:
+            # Blocking congestion control: nothing the fuzzer sends is dropped on the way.
+            pub = self.session.declare_publisher(
+                key, congestion_control=zenoh.CongestionControl.BLOCK, reliability=zenoh.Reliability.RELIABLE)
+            self._publishers[key] = pub
+        pub.put(payload)
+
+    def _genuine(self, key: str, payload: bytes):
+        """The decoded message if it is one the fleet itself sent (a valid message of this mission
+        on its own key, not one of the fuzzer's own replays heard back), else None."""
+        if payload in self.sent_replays:
+            return None
+        try:
+            msg = messages.decode(payload)
+        except messages.ProtocolError:
+            return None
+        if msg.mission != MISSION or getattr(msg, "stage", STAGES) >= STAGES:
+            return None
+        if isinstance(msg, messages.Decision):
+            return msg if key == keys.decision_key(MISSION) else None
+        parsed = keys.parse_carrier_key(MISSION, key)
+        if parsed is None or parsed[0] not in CARRIERS or parsed[0] != getattr(msg, "carrier", None):
+            return None
+        return msg
+
+    def drain(self, pending: list) -> None:
+        """Move overheard genuine messages into `pending` (heard_at, key, message)."""
+        while True:
+            try:
+                heard_at, key, payload = self.overheard.get_nowait()
+            except queue.Empty:
+                return
+            msg = self._genuine(key, payload)
+            if msg is not None:
+                pending.append((heard_at, key, msg))
+                if isinstance(msg, messages.Decision):
+                    self.decided.add(msg.stage)
+                elif isinstance(msg, messages.Confirm):
+                    self.confirmed.add((msg.carrier, msg.stage))
+
+    def replays(self, rng: np.random.Generator, pending: list, now: float) -> list[tuple[str, str, bytes]]:
+        """Altered copies of overheard genuine messages at least REPLAY_DELAY_S old:
+        (target, key, payload). The original reached its receiver before the fuzzer heard it, so
+        each copy is a duplicate or a stale stage there."""
+        self.drain(pending)
+        out, keep = [], []
+        for heard_at, key, msg in pending:
+            if now - heard_at < REPLAY_DELAY_S:
+                keep.append((heard_at, key, msg))
+                continue
+            for _ in range(REPLAYS_PER_MESSAGE):
+                if isinstance(msg, messages.Observation):
+                    copy = messages.Observation(msg.mission, msg.carrier, msg.stage, msg.t,
+                                                int(rng.integers(0, 50)), msg.position, msg.passengers_left, ())
+                    target = "coordinator"
+                elif isinstance(msg, messages.Confirm):
+                    deployed = bool(rng.integers(2))
+                    copy = messages.Confirm(msg.mission, msg.carrier, msg.stage, deployed,
+                                            "deployed" if deployed else "idle", msg.position, msg.passengers_left)
+                    target = "coordinator"
+                elif isinstance(msg, messages.Decision):
+                    deploy = tuple(CARRIERS[: int(rng.integers(0, len(CARRIERS) + 1))])
+                    copy = messages.Decision(msg.mission, msg.stage, msg.t, deploy, msg.planning_ms)
+                    target = "carriers"
+                else:
+                    break
+                payload = messages.encode(copy)
+                self.sent_replays.add(payload)
+                out.append((target, key, payload))
+        pending[:] = keep
+        return out
+
+    def close(self) -> None:
+        for pub in self._publishers.values():
+            pub.undeclare()
+        self.session.close()
+
+
+def rejections_logged(log: str) -> Counter:
+    """(process, reason) -> how many 'rejected a message (reason)' lines it printed."""
+    return Counter(re.findall(r"^(coordinator|carrier \w+): .*?rejected a message \(([\w-]+)\)", log, re.M))
+
+
+@pytest.mark.slow
+def test_fuzzed_mission_is_unchanged_and_every_bad_message_is_counted(tmp_path):
+    rng = np.random.default_rng(SEED)
+    to_coordinator = coordinator_fuzz(rng, MISSION, CARRIERS, STAGES, N_COORDINATOR)
+    to_carriers = carrier_fuzz(rng, MISSION, STAGES, N_CARRIERS)
+    # Interleave the two streams in a seeded order.
+    fuzz = to_coordinator + to_carriers
+    order = rng.permutation(len(fuzz))
+
+    clean_out, fuzzed_out = tmp_path / "clean", tmp_path / "fuzzed"
+    fuzzed_port, clean_port = distinct_free_ports(2)
+    fuzzed = start_fleet(fuzzed_out, fuzzed_port, REALTIME)
+    clean = start_fleet(clean_out, clean_port, 0.0)
+    fuzzer = None
+    sent = Counter()
+    try:
+        fuzzer = Fuzzer(fuzzed_port)
+        if not fuzzer.wait_carriers(90.0):
+            raise AssertionError("the fuzzed fleet's carriers never became live:\n"
+                                 + fuzzed[1].read_text(errors="replace")[-3000:])
+        pending: list = []
+        started = time.monotonic()
+
+        def replay_round(now: float) -> None:
+            for target, key, payload in fuzzer.replays(rng, pending, now):
+                fuzzer.put(key, payload)
+                sent[f"{target}-replay"] += 1
+
+        def until(condition, timeout_s: float = 60.0) -> None:
+            deadline = time.monotonic() + timeout_s
+            while not condition():
+                assert time.monotonic() < deadline, "the fuzzed mission stopped making progress"
+                time.sleep(0.05)
+                replay_round(time.monotonic())
+
+        # Three waves: before stage 0's decision, after it, after stage 1's confirmations, so
+        # the fuzz meets the mission in several states and the replays cover decided stages.
+        waves = np.array_split(order, 3)
+        gates = [lambda: True,
+                 lambda: 0 in fuzzer.decided,
+                 lambda: 1 in fuzzer.decided and any(j == 1 for _, j in fuzzer.confirmed)]
+        for wave, gate in zip(waves, gates):
+            until(gate)
+            for n, i in enumerate(wave):
+                f = fuzz[i]
+                fuzzer.put(f.key, f.payload)
+                sent[f.target] += 1
+                if n % 250 == 0:
+                    replay_round(time.monotonic())
+        # Replays of what was overheard while fuzzing, then stop: the mission runs on undisturbed.
+        time.sleep(REPLAY_DELAY_S)
+        replay_round(time.monotonic() + REPLAY_DELAY_S)
+        fuzz_s = time.monotonic() - started
+        fuzzer.drain(pending)
+        decided_while_fuzzing = set(fuzzer.decided)
+    finally:
+        fuzzed_result = finish(*fuzzed, fuzzed_out)
+        clean_result = finish(*clean, clean_out)
+        if fuzzer is not None:
+            fuzzer.close()
+
+    code, log, summary = fuzzed_result
+    clean_code, clean_log, clean_summary = clean_result
+    print(f"fuzz: sent {dict(sent)} in {fuzz_s:.1f} s; stages decided meanwhile {sorted(decided_while_fuzzing)}")
+    assert clean_code == 0 and clean_summary is not None, clean_log[-2000:]
+    # No process crashed: the launcher, the coordinator and both carriers ended normally.
+    assert code == 0 and summary is not None, log[-3000:]
+    assert "carrier exit codes" not in log and "Traceback" not in log, log[-3000:]
+    assert summary["ended"] and summary["stages_decided"] == STAGES
+    # The fuzz was over before the last stage was decided, so every message met a live mission.
+    assert STAGES - 1 not in decided_while_fuzzing, "fuzzing outlasted the mission; lower REALTIME's speed"
+
+    # The mission result is unchanged.
+    assert summary["decisions"] == clean_summary["decisions"]
+    assert summary["observations"] == clean_summary["observations"]
+    assert summary["total_reward"] == pytest.approx(clean_summary["total_reward"])
+    deployments = {c["id"]: [(d["stage"], d["x"]) for d in c["deployments"]] for c in summary["carriers"]}
+    clean_deployments = {c["id"]: [(d["stage"], d["x"]) for d in c["deployments"]] for c in clean_summary["carriers"]}
+    assert deployments == clean_deployments
+
+    # Every bad message was counted in summary.json, by reason.
+    rejected = summary["rejected"]
+    print(f"fuzz: rejected (summary.json) {json.dumps(rejected)}")
+    coordinator = Counter(rejected["coordinator"])
+    clean_coordinator = sum(clean_summary["rejected"]["coordinator"].values())
+    assert sent["coordinator"] == N_COORDINATOR and sent["carriers"] == N_CARRIERS
+    assert sent["coordinator-replay"] > 0 and sent["carriers-replay"] > 0
+    # At least one rejection per generated message; at most one more per replay (a replay may
+    # also be absorbed as an idempotent answer) and what a clean run rejects (late joiners).
+    assert sent["coordinator"] <= sum(coordinator.values()) <= (
+        sent["coordinator"] + sent["coordinator-replay"] + sent["carriers-replay"] * len(CARRIERS) + clean_coordinator + 4)
+    for reason in ("malformed", "not-a-map", "oversized", "version", "unknown-type", "missing-field",
+                   "unknown-field", "wrong-type", "out-of-range", "unknown-carrier", "wrong-mission",
+                   "key-mismatch", "duplicate", "stale-stage"):
+        assert coordinator[reason] > 0, f"coordinator counted no {reason!r}: {dict(coordinator)}"
+    for cid in CARRIERS:
+        counted = Counter(rejected["carriers"][cid])
+        assert sent["carriers"] <= sum(counted.values()) <= sent["carriers"] + sent["carriers-replay"], (cid, dict(counted))
+        for reason in ("malformed", "oversized", "version", "unknown-type", "missing-field", "wrong-type",
+                       "out-of-range", "wrong-mission"):
+            assert counted[reason] > 0, f"carrier {cid} counted no {reason!r}: {dict(counted)}"
+
+    # Each reason is logged once per process, however many messages it covers.
+    logged = rejections_logged(log)
+    assert logged, "no rejection was logged"
+    assert max(logged.values()) == 1, {k: v for k, v in logged.items() if v > 1}
+    assert {r for (p, r) in logged if p == "coordinator"} == set(coordinator)
