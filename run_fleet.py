@@ -127,7 +127,7 @@ def check_flags(args, scenario) -> str | None:
 
 
 def zenoh_config(args, role: str):
-    from wire.zconfig import DEFAULT_PORT, make_config
+    from wire.zconfig import DEFAULT_PORT, file_sets_mode, make_config
 
     listen, connect = list(args.listen), list(args.connect)
     if not args.zenoh_config:
@@ -135,7 +135,9 @@ def zenoh_config(args, role: str):
             listen = [f"tcp/127.0.0.1:{DEFAULT_PORT}"]
         if role == "carrier" and not connect:
             connect = [f"tcp/127.0.0.1:{DEFAULT_PORT}"]
-    mode = args.mode or ("peer" if role == "coordinator" else "client")
+    mode = args.mode
+    if mode is None and not file_sets_mode(args.zenoh_config):
+        mode = "peer" if role == "coordinator" else "client"
     return make_config(mode, listen, connect, args.zenoh_config)
 
 

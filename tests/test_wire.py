@@ -194,3 +194,12 @@ def test_zenoh_config_bad_file(tmp_path):
     with pytest.raises(zconfig.ConfigError) as info:
         zconfig.make_config(config_file=str(path))
     assert str(path) in str(info.value)
+
+
+def test_a_config_file_mode_beats_the_role_default(tmp_path):
+    with_mode = tmp_path / "router.json5"
+    with_mode.write_text('{ mode: "router" }')
+    nested = tmp_path / "nested.json5"
+    nested.write_text('{ routing: { peer: { mode: "peer_to_peer" } } }')
+    assert zconfig.file_sets_mode(str(with_mode))
+    assert not zconfig.file_sets_mode(str(nested)) and not zconfig.file_sets_mode(None)

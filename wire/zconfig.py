@@ -25,6 +25,17 @@ class ConfigError(ValueError):
     """A bad Zenoh setting from the user: one line naming the flag or file."""
 
 
+def file_sets_mode(config_file: str | None) -> bool:
+    """Whether a zenoh config file sets the top-level ``mode``; then a role's default mode does
+    not override it (an explicit --mode flag still does)."""
+    if not config_file or not os.path.isfile(config_file):
+        return False
+    try:
+        return json.loads(zenoh.Config.from_file(config_file).get_json("mode")) is not None
+    except Exception:
+        return False  # make_config reports a bad file
+
+
 def check_endpoint(endpoint: str, flag: str) -> str:
     if not isinstance(endpoint, str) or not ENDPOINT_PATTERN.match(endpoint):
         raise ConfigError(f"{flag}: expected an endpoint like tcp/127.0.0.1:7447, found {endpoint!r}")
