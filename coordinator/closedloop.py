@@ -100,7 +100,7 @@ def _undo(sel, p, log, nlog):
 
 @njit(cache=True)
 def _evaluate(actions, members, stage, n_stages, xnow, left0, valid, nleft, table,
-              sel, p, xv, nbr_ptr, nbr_idx, samples, out):
+              sel, p, xv, nbr_ptr, nbr_idx, samples, out, control_variate):
     """Per-sample control-variate values of every candidate.
 
     Args:
@@ -113,7 +113,8 @@ def _evaluate(actions, members, stage, n_stages, xnow, left0, valid, nleft, tabl
         sel, p, xv: selection state over flat points (past deployments), restored on return.
         samples: float ``[S, N - stage - 1, m]`` sampled future observations.
         out: float ``[K, S]`` receives ``aware_total - plain_future`` per candidate and sample
-            (raw units; constant offsets common to all candidates left out).
+            (raw units; constant offsets common to all candidates left out), or ``aware_total``
+            alone when ``control_variate`` is False.
     """
     n_cand = actions.shape[0]
     m = members.shape[0]
@@ -154,7 +155,7 @@ def _evaluate(actions, members, stage, n_stages, xnow, left0, valid, nleft, tabl
                         plain += xs
                         lefti[i] = d - 1
             _undo(sel, p, log, nlog)
-            out[k, s] = total - plain
+            out[k, s] = total - plain if control_variate else total
 
 
 @njit(cache=True)
@@ -394,8 +395,13 @@ class ClosedLoopPlanner:
             current = actions[best]
         return current
 
-    def _score(self, actions, comp, samples, deadline, view, prep, state, valid, nleft, left, xnow, rng):
-        """Control-variate estimate (raw units, up to a common constant) of each candidate."""
+    def _score(self, actions, comp, samples, deadline, view, prep, state, valid, nleft, left, xnow, rng,
+               control_variate=True):
+        """Estimated value (raw units, up to a constant common to all candidates) of each candidate.
+
+        With ``control_variate`` (the default) the estimate is ``mean(aware - plain) + exact(plain)``;
+        without, the plain Monte Carlo mean of the aware rollouts (for tests: same expectation).
+        """
         sel, p, xv = state
         problem = view.problem
         j = view.stage
@@ -409,11 +415,13 @@ class ClosedLoopPlanner:
             draws = _sample(prep, problem, rng, (batch, horizon, len(comp)))
             out = np.empty((len(actions), batch))
             _evaluate(actions, comp, j, n_stages, xnow[comp], comp_left, valid, nleft, prep.table,
-                      sel, p, xv, prep.nbr_ptr, prep.nbr_idx, draws, out)
+                      sel, p, xv, prep.nbr_ptr, prep.nbr_idx, draws, out, control_variate)
             sums += out.sum(axis=1)
             count += batch
             if deadline is None or time.perf_counter() >= deadline:
                 break
+        if not control_variate:
+            return sums / count
         # Exact expected future of plain SSAP after each candidate's action.
         n_after = nleft[comp, j + 1]
         d_after = np.minimum(comp_left[None, :] - actions.astype(np.int64), n_stages)
@@ -448,3 +456,35 @@ def _past_values(view: StageView) -> np.ndarray:
     out[:, : view.stage] = np.nan_to_num(view.observations[:, : view.stage], nan=0.0)
     return out
 
+
+
+def estimate(view: StageView, actions: np.ndarray, samples: int, rng: np.random.Generator,
+             control_variate: bool = True) -> np.ndarray:
+    """Estimated raw value of joint actions at ``view.stage``, all carriers taken as one group.
+
+    Args:
+        view: the stage's causal view.
+        actions: bool ``[K, R]`` feasible joint actions.
+        samples: sampled futures, common to all actions.
+        rng: the random stream.
+        control_variate: use the exact plain-SSAP control variate (the planner's estimator) or
+            the plain Monte Carlo mean of the conflict-aware rollouts.
+
+    Returns:
+        float ``[K]``: estimates, up to a constant common to all actions (only differences mean
+        something). Both estimators have the same expectation.
+    """
+    problem = view.problem
+    n_carriers, n_stages = problem.n_carriers, problem.n_stages
+    prep = _prepare(problem)
+    valid = np.ascontiguousarray(view.valid)
+    left = view.passengers_left.astype(np.int64)
+    nleft = np.zeros((n_carriers, n_stages + 1), dtype=np.int64)
+    nleft[:, :n_stages] = np.cumsum(valid[:, ::-1], axis=1)[:, ::-1]
+    xnow = np.nan_to_num(view.observations[:, view.stage], nan=0.0)
+    sel = view.deployed.ravel().copy()
+    p = (1 + problem.conflict[:, sel].sum(axis=1)).astype(np.int64)
+    xv = np.where(view.deployed, _past_values(view), 0.0).ravel()
+    return ClosedLoopPlanner()._score(np.asarray(actions, dtype=bool), np.arange(n_carriers, dtype=np.int64),
+                                      int(samples), None, view, prep, (sel, p, xv), valid, nleft, left, xnow,
+                                      rng, control_variate)
