@@ -156,6 +156,18 @@ def markdown_table(summary: list[dict], level_name: str, features: bool = False)
     return "\n".join(lines)
 
 
+def timing_table(summary: list[dict], level_name: str) -> str:
+    """Markdown: mean decision time per stage (ms) of each planner per level (noisy: shared cores)."""
+    planners = [p for p in sorted({r["planner"] for r in summary}, key=_order) if p != CLAIRVOYANT]
+    cell = {(r["level"], r["planner"]): r for r in summary}
+    lines = [f"| {level_name} | " + " | ".join(STYLE.get(p, (p,))[0] for p in planners) + " |",
+             "|" + "---|" * (len(planners) + 1)]
+    for level in sorted({r["level"] for r in summary}):
+        cells = [f"{cell[(level, p)]['decision_ms_mean']:.1f}" if (level, p) in cell else "" for p in planners]
+        lines.append(f"| {level} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def paired_table(rows: list[dict], a: str, others: list[str], level_name: str, level_label=str) -> str:
     """Markdown: mean paired difference ``a - other`` ± SEM (wins/losses) per level.
 

@@ -170,7 +170,9 @@ def _write_sweep(sweep: str, rows: list[dict], out: Path, seconds: float, jobs: 
                 report.markdown_table(summary, "overlaps"), "",
                 "Paired differences on the same instances (mean ± SEM, wins/losses):", "",
                 report.paired_table(rows, "closed-loop", ["mcts-ssap", "ssap"], "overlaps"), "",
-                report.paired_table(rows, "mcts-ssap", ["mcts-random", "ssap"], "overlaps")]
+                report.paired_table(rows, "mcts-ssap", ["mcts-random", "ssap"], "overlaps"), "",
+                "Mean decision time per stage, ms (two workers sharing two cores):", "",
+                report.timing_table(summary, "overlaps")]
     elif sweep == "scaling":
         report.plot(summary, out / "scaling.png", "carriers R",
                     f"Scaling sweep: D = 3, N = 10, {args.scaling_overlaps} overlaps, {s['trials']} trials, "
@@ -182,7 +184,9 @@ def _write_sweep(sweep: str, rows: list[dict], out: Path, seconds: float, jobs: 
                 report.markdown_table(summary, "R"), "",
                 "Paired differences on the same instances (mean ± SEM, wins/losses):", "",
                 report.paired_table(rows, "closed-loop", ["mcts-ssap", "ssap"], "R"), "",
-                report.paired_table(rows, "mcts-ssap", ["mcts-random", "ssap"], "R")]
+                report.paired_table(rows, "mcts-ssap", ["mcts-random", "ssap"], "R"), "",
+                "Mean decision time per stage, ms (two workers sharing two cores):", "",
+                report.timing_table(summary, "R")]
     else:
         text = _urban_report(rows, summary, out, s, args)
     timing = {"sweep": sweep, "seconds": round(seconds, 1), "tasks": len(rows), "jobs": jobs}
