@@ -306,11 +306,15 @@ class Carrier:
             else:
                 self._catch_up(state)
             self._hello()
+            joined = self.stage
             for j in range(self.stage, self.n_stages):
                 if self.ended or self._stop:
                     break
                 self.stage = j
-                self._advance(self.scenario.stage_time(j))
+                if j == joined:
+                    self.sim.advance_to(self.scenario.stage_time(j))  # catching up: not paced
+                else:
+                    self._advance(self.scenario.stage_time(j))
                 x = self.sim.sense(self.cid) if self.valid[j] else None
                 self.pending = Observation(
                     self.mission, self.cid, j, float(self.scenario.stage_time(j)), x,

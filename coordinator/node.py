@@ -7,7 +7,8 @@ committed to mission.db (coordinator/store.py), the StageView is built with
 
 Stage j (docs/protocol.md, "Stage handshake"):
 
-1. (``realtime > 0`` only) wait until wall time ``start + (t_j - t_0) / realtime``;
+1. (``realtime > 0`` only) wait until ``Δt / realtime`` after decision j-1 was published (the
+   carriers pace their physics from the same moment);
 2. wait until every *expected* carrier — live (liveliness token present), compatible (same
    world fingerprint) and scheduled at j — has sent its Observation of j, or ``stage_timeout_s``;
 3. scheduled carriers without an observation are ∅ at j (recorded as ``missing``);
@@ -445,14 +446,14 @@ class Coordinator:
         return summary
 
     def _stages(self) -> None:
-        wall0 = time.monotonic()
-        t_first = self.scenario.stage_time(self.next_stage)
+        last_published = None
         for j in range(self.next_stage, self.n_stages):
             if self._stop.is_set():
                 self._end("stopped")
                 return
-            if self.config.realtime > 0:
-                due = wall0 + (self.scenario.stage_time(j) - t_first) / self.config.realtime
+            if self.config.realtime > 0 and last_published is not None:
+                # Paced like the carriers: Δt / realtime after the previous decision went out.
+                due = last_published + self.scenario.stage_interval / self.config.realtime
                 while time.monotonic() < due and not self._stop.is_set():
                     self.pump(min(0.05, due - time.monotonic()))
             opened = time.monotonic()
@@ -473,6 +474,7 @@ class Coordinator:
                     self.reported[(cid, j)] = None
             decision = self._decide(j)
             self._publish_decision(decision)
+            last_published = self.published_at[j]
             self._progress(decision, (time.monotonic() - opened) * 1e3 - decision.planning_ms)
             self.pump(0.0)
 
