@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 from typing import Sequence
 
@@ -148,8 +149,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except InstanceError as err:
         print(str(err), file=sys.stderr)
         return EXIT_INPUT
-    json.dump(out, sys.stdout)
-    sys.stdout.write("\n")
+    try:
+        sys.stdout.write(json.dumps(out) + "\n")
+        sys.stdout.flush()
+    except BrokenPipeError:
+        # The reader went away (e.g. `| head`): not an error of ours; silence the exit flush.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
     return EXIT_OK
 
 
