@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -103,6 +102,12 @@ def check_flags(args, scenario) -> str | None:
     for name in ("join_timeout", "stage_timeout", "decision_timeout", "coordinator_timeout"):
         if getattr(args, name) <= 0:
             return f"--{name.replace('_', '-')}: expected seconds > 0, found {getattr(args, name)}"
+    for k, cid in enumerate(scenario.carrier_ids):
+        if not keys.ID_PATTERN.match(cid):
+            return (f"{args.scenario}: carriers[{k}].id: expected an id usable in key expressions "
+                    f"({keys.ID_PATTERN.pattern}), found {cid!r}")
+    if args.mission is None and not keys.ID_PATTERN.match(keys.mission_id_from_name(scenario.name)):
+        return f"{args.scenario}: name: cannot derive a mission id from {scenario.name!r}; pass --mission"
     if args.mission is not None:
         try:
             keys.check_id(args.mission, "--mission")

@@ -25,7 +25,6 @@ import json
 import math
 import os
 import socket
-import sys
 import threading
 import time
 from dataclasses import dataclass
