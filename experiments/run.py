@@ -8,7 +8,8 @@ Usage::
     python -m experiments urban --urban-trials 10
     python -m experiments all --quick --out /tmp/results   # smoke test (seconds)
 
-Each sweep writes to ``--out`` (default ``docs/results``): ``<sweep>_trials.csv`` (one row per
+Each sweep writes to ``--out`` (default ``docs/results``; ``--quick`` runs default to a temporary
+directory so they never overwrite the committed results): ``<sweep>_trials.csv`` (one row per
 planner and trial, with the deployments), ``<sweep>_summary.csv`` (mean ± standard error, fraction
 of the clairvoyant bound), ``<sweep>.md`` (the tables), ``<sweep>.png`` (±1 SEM error bars), and
 ``run_info.json`` (settings, wall times). The urban run also draws ``urban_map_<planner>.png``.
@@ -24,6 +25,7 @@ import json
 import os
 import platform
 import sys
+import tempfile
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
@@ -43,6 +45,10 @@ CARRIER_LEVELS = (2, 3, 4, 5, 6, 12, 24, 32)
 QUICK = {"trials": 3, "iterations": 300, "overlaps": (0, 10, 20), "carriers": (2, 4, 8), "urban_trials": 2}
 #: The paper's Urban Circuit result (features captured): MCTS-SSAP, SSAP, MCTS-Random, Random.
 PAPER_URBAN = {"mcts-ssap": 157, "ssap": 122, "mcts-random": 114, "random": 68}
+
+
+#: Default output of --quick runs (never the committed results).
+QUICK_OUT = Path(tempfile.gettempdir()) / "marsupial-experiments-quick"
 
 
 class UsageError(Exception):
@@ -70,7 +76,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)")
     p.add_argument("--quick", action="store_true", help="tiny settings for a smoke test")
-    p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output directory (default {DEFAULT_OUT.relative_to(ROOT)})")
+    p.add_argument("--out", type=Path, default=None,
+                   help=f"output directory (default {DEFAULT_OUT.relative_to(ROOT)}; with --quick {QUICK_OUT})")
     p.add_argument("--planners", default=",".join(DEFAULT_PLANNERS),
                    help="comma-separated planner names (the clairvoyant bound is always added)")
     p.add_argument("--overlaps", default=None, help="overlap levels of the overlap sweep (default 0,4,...,20)")
@@ -95,6 +102,8 @@ def _settings(args) -> dict:
         raise UsageError(f"--iterations: expected an integer >= 1, found {iterations}")
     if urban_trials < 1:
         raise UsageError(f"--urban-trials: expected an integer >= 1, found {urban_trials}")
+    if args.seed < 0:
+        raise UsageError(f"--seed: expected an integer >= 0, found {args.seed}")
     if args.jobs < 1:
         raise UsageError(f"--jobs: expected an integer >= 1, found {args.jobs}")
     if args.scaling_overlaps < 0:
@@ -254,7 +263,8 @@ def main(argv=None) -> int:
     except UsageError as err:
         print(f"python -m experiments: error: {err}", file=sys.stderr)
         return 2
-    out = args.out
+    out = args.out if args.out is not None else (QUICK_OUT if args.quick else DEFAULT_OUT)
+    args.out = out
     out.mkdir(parents=True, exist_ok=True)
     sweeps = ("overlap", "scaling", "urban") if args.what == "all" else (args.what,)
     info_path = out / "run_info.json"
