@@ -8,8 +8,9 @@ deploys at the current stage iff its observation ``x`` exceeds ``a[n, n - d]``, 
 
 ``a[n + 1, 1..n]`` are also the expected values of the slots: the optimal expected total of a
 carrier with ``n`` stages and ``d`` passengers is the sum of the ``d`` largest of ``a[n + 1, 1..n]``.
-Exact for discrete priors (the expectation is a finite sum over the support, truncated where the
-tail mass is below 1e-15); continuous priors use numerical integration.
+Exact for discrete priors: Poisson by a closed form in its CDF, others by a finite sum over the
+support (truncated where the tail mass is below 1e-15); continuous priors use adaptive quadrature
+of tail integrals.
 """
 from __future__ import annotations
 
@@ -45,8 +46,38 @@ def support_grid(prior) -> tuple[np.ndarray, np.ndarray]:
     return points, prior.pmf(points)
 
 
+def _is_plain_poisson(prior) -> bool:
+    kwds = prior.kwds
+    return (getattr(prior.dist, "name", None) == "poisson" and kwds.get("loc", 0) == 0
+            and len(prior.args) + ("mu" in kwds) == 1)
+
+
+def _poisson_clipped_mean(lam: float):
+    """Closed form for X ~ Poisson(lam), no truncation. With A = floor(a), B = floor(b) and F the
+    CDF: E[min(max(X, a), b)] = a F(A) + sum_{k=A+1..B} k p(k) + b (1 - F(B)), and
+    sum_{k=m..n} k p(k) = lam (F(n - 1) - F(m - 2)) because k p(k) = lam p(k - 1)."""
+    cdf = scipy.stats.poisson(lam).cdf
+
+    def clipped_mean(a: float, b: float) -> float:
+        total = 0.0
+        lower = 0.0  # F(A - 1): mass below the clipped middle's shifted range
+        upper = 1.0  # F(B - 1)
+        if np.isfinite(a):
+            fa = float(cdf(np.floor(a)))
+            total += a * fa
+            lower = float(cdf(np.floor(a) - 1))
+        if np.isfinite(b):
+            total += b * float(scipy.stats.poisson(lam).sf(np.floor(b)))
+            upper = float(cdf(np.floor(b) - 1))
+        return total + lam * max(upper - lower, 0.0)
+
+    return clipped_mean
+
+
 def _clipped_mean_factory(prior):
     """A function (a, b) -> E[min(max(X, a), b)] for a <= b (either may be infinite)."""
+    if _is_plain_poisson(prior):
+        return _poisson_clipped_mean(float(prior.args[0] if prior.args else prior.kwds["mu"]))
     if _is_discrete(prior):
         points, mass = support_grid(prior)
 

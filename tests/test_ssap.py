@@ -112,3 +112,16 @@ def test_table_for_is_cached_per_prior_parameters():
     assert ssap.table_for(a) is not ssap.table_for(c)
     assert ssap.table_for(a).shape == (12, 12)
     assert not ssap.table_for(a).flags.writeable
+
+
+@pytest.mark.parametrize("mean", [0.4, 3.0, 9.5])
+def test_poisson_closed_form_equals_enumeration(mean):
+    """Poisson thresholds use a closed form; the same distribution as a table uses the finite sum."""
+    points = np.arange(0, 120)
+    mass = stats.poisson(mean).pmf(points)
+    as_table = stats.rv_discrete(values=(points, mass / mass.sum()))()
+    closed = ssap.thresholds(stats.poisson(mean), 12)
+    summed = ssap.thresholds(as_table, 12)
+    finite = np.isfinite(closed)
+    assert np.array_equal(finite, np.isfinite(summed))
+    assert np.allclose(closed[finite], summed[finite], rtol=1e-12, atol=1e-12)
