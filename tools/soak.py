@@ -97,6 +97,8 @@ class Sampler(threading.Thread):
             now = time.monotonic() - self.t0
             for proc in self._me.children(recursive=True):
                 try:
+                    if proc.status() == psutil.STATUS_ZOMBIE:
+                        continue  # exited, not yet reaped: no memory, no fds
                     rss = proc.memory_info().rss
                     fds = proc.num_fds()
                     if proc.pid not in self.names:
