@@ -5,10 +5,11 @@ the tiny scenario while this test, as one more Zenoh client of the coordinator, 
 10,000 random and broken messages (tests/fuzz_messages.py) at the coordinator's subscriptions
 (`carrier/*/{hello,obs,confirm,bye}`) and at the carriers' (`coordinator/decision`,
 `coordinator/end`), plus replays of the real observations, confirmations and decisions it
-overhears (duplicate and stale stages). A clean run of the same scenario and seed runs alongside.
+overhears (duplicate and stale stages), and liveliness tokens of carriers that do not exist.
+A clean run of the same scenario and seed runs alongside.
 
-Asserted: every process exits normally; the fuzzed mission's decisions, deployments and reward
-equal the clean run's (and the offline planner's); summary.json counts the rejected messages per
+Asserted: every process exits normally; the fuzzed mission's decisions, observations,
+deployments and reward equal the clean run's; summary.json counts the rejected messages per
 reason, at least one per message sent; each reason is logged once per process.
 """
 
@@ -45,6 +46,7 @@ REPLAYS_PER_MESSAGE = 10  # altered copies of every real message overheard
 REPLAY_DELAY_S = 0.3  # a replay is sent this long after the original was overheard
 REALTIME = 1.0  # simulated seconds per wall second in the fuzzed mission (it lasts ~15 s)
 RUN_TIMEOUT_S = 180.0
+GHOST_TOKENS = ("zz9", "ghost", "c-404")  # liveliness tokens under unknown carrier ids
 
 
 def start_fleet(out: Path, port: int, realtime: float) -> tuple[subprocess.Popen, Path]:
@@ -231,6 +233,9 @@ def test_fuzzed_mission_is_unchanged_and_every_bad_message_is_counted(tmp_path):
         gates = [lambda: True,
                  lambda: 0 in fuzzer.decided,
                  lambda: 1 in fuzzer.decided and any(j == 1 for _, j in fuzzer.confirmed)]
+        # Liveliness tokens of carriers the scenario does not have, alive during the fuzz.
+        tokens = [fuzzer.session.liveliness().declare_token(keys.carrier_alive(MISSION, ghost))
+                  for ghost in GHOST_TOKENS]
         for wave, gate in zip(waves, gates):
             until(gate)
             for n, i in enumerate(wave):
@@ -239,6 +244,8 @@ def test_fuzzed_mission_is_unchanged_and_every_bad_message_is_counted(tmp_path):
                 sent[f.target] += 1
                 if n % 250 == 0:
                     replay_round(time.monotonic())
+        for token in tokens:
+            token.undeclare()
         # Replays of what was overheard while fuzzing, then stop: the mission runs on undisturbed.
         time.sleep(REPLAY_DELAY_S)
         replay_round(time.monotonic() + REPLAY_DELAY_S)
@@ -279,8 +286,11 @@ def test_fuzzed_mission_is_unchanged_and_every_bad_message_is_counted(tmp_path):
     assert sent["coordinator-replay"] > 0 and sent["carriers-replay"] > 0
     # At least one rejection per generated message; at most one more per replay (a replay may
     # also be absorbed as an idempotent answer) and what a clean run rejects (late joiners).
-    assert sent["coordinator"] <= sum(coordinator.values()) <= (
-        sent["coordinator"] + sent["coordinator-replay"] + sent["carriers-replay"] * len(CARRIERS) + clean_coordinator + 4)
+    # Each ghost token is rejected when it appears and when it vanishes (liveliness history may
+    # report an appearance twice).
+    assert sent["coordinator"] + 2 * len(GHOST_TOKENS) <= sum(coordinator.values()) <= (
+        sent["coordinator"] + sent["coordinator-replay"] + sent["carriers-replay"] * len(CARRIERS)
+        + 3 * len(GHOST_TOKENS) + clean_coordinator + 4)
     for reason in ("malformed", "not-a-map", "oversized", "version", "unknown-type", "missing-field",
                    "unknown-field", "wrong-type", "out-of-range", "unknown-carrier", "wrong-mission",
                    "key-mismatch", "duplicate", "stale-stage"):

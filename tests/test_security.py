@@ -393,3 +393,30 @@ def test_carrier_without_valid_certificate_cannot_join(tls_fleets):
     x[ids.index("b"), :] = np.nan
     expected, _ = offline_decisions(x)
     assert summary["decisions"] == expected
+
+
+@pytest.mark.parametrize("argv, expected", [
+    (["--scenario", "no/such/file.yaml"], "no/such/file.yaml: cannot read"),
+    (["--scenario", "{tmp}/no-carriers.yaml"], "no-carriers.yaml: carriers: expected a non-empty list"),
+    (["--scenario", "{tmp}/broken.yaml"], "broken.yaml: not valid YAML"),
+    (["--carriers", "a", "--listen", "tcp/127.0.0.1:7447"], "expected tls/HOST:PORT"),
+], ids=["missing-scenario", "no-carriers", "broken-yaml", "plain-tcp-endpoint"])
+def test_gen_certs_bad_input_is_one_line_and_exit_2(tmp_path, capsys, monkeypatch, argv, expected):
+    monkeypatch.chdir(ROOT)
+    (tmp_path / "no-carriers.yaml").write_text("name: x\nstages: 4\n")
+    (tmp_path / "broken.yaml").write_text("name: [x\n")
+    argv = [arg.replace("{tmp}", str(tmp_path)) for arg in argv]
+    assert gen_certs.main(["--out", str(tmp_path / "certs"), *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and expected in err, err
+    assert not (tmp_path / "certs").exists()
+
+
+def test_gen_certs_writes_configs_for_a_scenario(tmp_path, capsys):
+    assert gen_certs.main(["--out", str(tmp_path), "--scenario", str(TINY)]) == 0
+    for name in ("ca.pem", "coordinator.pem", "coordinator.key", "carrier-a.pem", "carrier-b.key",
+                 "coordinator.json5", "carrier-a.json5", "carrier-b.json5"):
+        assert (tmp_path / name).is_file(), name
+    assert (tmp_path / "carrier-a.key").stat().st_mode & 0o077 == 0  # private keys: owner only
+    conf = zenoh.Config.from_file(str(tmp_path / "carrier-a.json5"))
+    assert json.loads(conf.get_json("transport/link/tls"))["connect_certificate"] == str(tmp_path / "carrier-a.pem")
