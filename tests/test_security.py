@@ -21,6 +21,7 @@ import zenoh
 from localports import distinct_free_ports
 from tools import gen_certs
 from tools.gen_certs import FleetCerts, Identity
+from wire import keys
 from wire.zconfig import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -182,7 +183,7 @@ def test_process_without_valid_certificate_cannot_connect_or_publish(certs, stra
 
 def test_acl_carrier_publishes_only_under_its_own_keys(certs):
     port = free_port()
-    decision = f"marsupial/{MISSION}/coordinator/decision"
+    decision = keys.decision_key(MISSION)
     with open_session(gen_certs.coordinator_config(certs), port, "listen") as coord:
         inbox = Inbox()
         coord.declare_subscriber(f"marsupial/{MISSION}/**", inbox)
@@ -192,8 +193,8 @@ def test_acl_carrier_publishes_only_under_its_own_keys(certs):
             assert wait_connected(car, WAIT_S)
             car_inbox = Inbox()
             car.declare_subscriber(decision, car_inbox)
-            forbidden = [(decision, b"forged decision"), (f"marsupial/{MISSION}/carrier/c1/observation", b"spoof c1")]
-            deliver(car, inbox, forbidden, (f"marsupial/{MISSION}/carrier/c0/observation", b"own"))
+            forbidden = [(decision, b"forged decision"), (keys.carrier_key(MISSION, "c1", "obs"), b"spoof c1")]
+            deliver(car, inbox, forbidden, (keys.carrier_key(MISSION, "c0", "obs"), b"own"))
             time.sleep(0.2)
             assert [item for item in forbidden if item in inbox.items] == []
             # Nor is the forged decision forwarded to another carrier (the coordinator routes for its
@@ -202,23 +203,23 @@ def test_acl_carrier_publishes_only_under_its_own_keys(certs):
                 assert wait_connected(other, WAIT_S)
                 other_inbox = Inbox()
                 other.declare_subscriber(f"marsupial/{MISSION}/**", other_inbox)
-                deliver(car, other_inbox, forbidden, (f"marsupial/{MISSION}/carrier/c0/observation", b"own 2"))
+                deliver(car, other_inbox, forbidden, (keys.carrier_key(MISSION, "c0", "obs"), b"own 2"))
                 time.sleep(0.2)
                 assert [item for item in forbidden if item in other_inbox.items] == []
             # The coordinator's own decisions still reach the carrier (egress is allowed).
             deliver(coord, car_inbox, [], (decision, b"real decision"))
             # Liveliness: a token under the carrier's own keys is seen, one under the coordinator's is not.
-            car.liveliness().declare_token(f"marsupial/{MISSION}/coordinator/alive")
-            car.liveliness().declare_token(f"marsupial/{MISSION}/carrier/c0/alive")
-            assert tokens.wait_for((f"marsupial/{MISSION}/carrier/c0/alive", b""))
+            car.liveliness().declare_token(keys.coordinator_alive(MISSION))
+            car.liveliness().declare_token(keys.carrier_alive(MISSION, "c0"))
+            assert tokens.wait_for((keys.carrier_alive(MISSION, "c0"), b""))
             time.sleep(0.5)
-            assert {k for k, _ in tokens.items} == {f"marsupial/{MISSION}/carrier/c0/alive"}
+            assert {k for k, _ in tokens.items} == {keys.carrier_alive(MISSION, "c0")}
 
 
 def test_acl_control_without_access_control_the_forged_decision_arrives(certs):
     """The ACL test above can fail: the same forged decision is delivered when access control is off."""
     port = free_port()
-    decision = f"marsupial/{MISSION}/coordinator/decision"
+    decision = keys.decision_key(MISSION)
     coord_conf = gen_certs.coordinator_config(certs)
     coord_conf["access_control"]["enabled"] = False
     with open_session(coord_conf, port, "listen") as coord:
