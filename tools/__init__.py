@@ -1,0 +1,1 @@
+"""Command-line tools: certificates and Zenoh security configs (gen_certs), the soak run (soak)."""
