@@ -70,6 +70,23 @@ def _corrupt(rng: np.random.Generator, data: bytes) -> bytes:
     return bytes(data)
 
 
+def _junk(rng: np.random.Generator, kind: int, target: str, key: str, other_mission: bytes) -> Fuzz:
+    """Kinds both receivers get: 0 random bytes, 1 msgpack that is not a map, 2 a truncated or
+    byte-flipped encoding of `other_mission` (a valid message of another mission), 3 random bytes
+    over the payload limit."""
+    if kind == 3:
+        size = int(rng.integers(MAX_PAYLOAD_BYTES + 1, 2 * MAX_PAYLOAD_BYTES))
+        return Fuzz(target, key, rng.bytes(size), "oversized")
+    if kind == 0:
+        return Fuzz(target, key, rng.bytes(int(rng.integers(0, 300))), "random-bytes")
+    if kind == 1:
+        obj = [[1, 2], 7, "obs", None, 3.5, b"\x00"][int(rng.integers(6))]
+        return Fuzz(target, key, _pack(obj), "not-a-map")
+    if rng.random() < 0.5:
+        return Fuzz(target, key, other_mission[: int(rng.integers(len(other_mission)))], "truncated")
+    return Fuzz(target, key, _corrupt(rng, other_mission), "mutated")
+
+
 def _message_variants(rng, base: dict, mission: str) -> list[tuple[str, bytes]]:
     """Broken versions of one well-formed message map of this mission (each rejected by decode,
     or by the mission check)."""
@@ -104,18 +121,9 @@ def coordinator_fuzz(
         topic = COORDINATOR_TOPICS[int(rng.integers(len(COORDINATOR_TOPICS)))]
         key = keys.carrier_key(mission, cid, topic)
         kind = int(rng.integers(10))
-        if kind == 0:
-            out.append(Fuzz("coordinator", key, rng.bytes(int(rng.integers(0, 300))), "random-bytes"))
-        elif kind == 1:
-            obj = [[1, 2], 7, "obs", None, 3.5, b"\x00"][int(rng.integers(6))]
-            out.append(Fuzz("coordinator", key, _pack(obj), "not-a-map"))
-        elif kind == 2:
-            # Truncated or corrupted messages of another mission on a scenario carrier's key.
-            base = messages.encode(_templates(MUTATION_BASE_MISSION, cid, int(rng.integers(n_stages)), n_stages)[topic])
-            if rng.random() < 0.5:
-                out.append(Fuzz("coordinator", key, base[: int(rng.integers(len(base)))], "truncated"))
-            else:
-                out.append(Fuzz("coordinator", key, _corrupt(rng, base), "mutated"))
+        if kind <= 2:
+            other = _templates(MUTATION_BASE_MISSION, cid, int(rng.integers(n_stages)), n_stages)[topic]
+            out.append(_junk(rng, kind, "coordinator", key, messages.encode(other)))
         elif kind in (3, 4):
             base = _wire(_templates(mission, cid, int(rng.integers(n_stages)), n_stages)[topic])
             for category, payload in _message_variants(rng, base, mission):
@@ -146,8 +154,7 @@ def coordinator_fuzz(
             out.append(Fuzz("coordinator", key, messages.encode(msg), "wrong-topic"))
         else:
             if rng.random() < 0.02:
-                size = int(rng.integers(MAX_PAYLOAD_BYTES + 1, 2 * MAX_PAYLOAD_BYTES))
-                out.append(Fuzz("coordinator", key, rng.bytes(size), "oversized"))
+                out.append(_junk(rng, 3, "coordinator", key, b""))
             else:
                 # Structurally deep or huge-looking values.
                 base = _wire(_templates(mission, cid, 0, n_stages)["obs"])
@@ -156,49 +163,42 @@ def coordinator_fuzz(
     return out[:count]
 
 
-def carrier_fuzz(rng: np.random.Generator, mission: str, n_stages: int, count: int) -> list[Fuzz]:
+def carrier_fuzz(
+    rng: np.random.Generator, mission: str, carriers: list[str], n_stages: int, count: int
+) -> list[Fuzz]:
     """`count` messages for the carriers' subscriptions ``coordinator/decision`` and ``coordinator/end``."""
     out: list[Fuzz] = []
     decision_key, end_key = keys.decision_key(mission), keys.end_key(mission)
     while len(out) < count:
         key = decision_key if rng.random() < 0.8 else end_key
         kind = int(rng.integers(8))
-        good = (Decision(mission, int(rng.integers(n_stages)), 5.0, ("a",), 1.0) if key == decision_key
+        good = (Decision(mission, int(rng.integers(n_stages)), 5.0, (carriers[0],), 1.0) if key == decision_key
                 else End(mission, n_stages, "complete"))
-        if kind == 0:
-            out.append(Fuzz("carriers", key, rng.bytes(int(rng.integers(0, 300))), "random-bytes"))
-        elif kind == 1:
-            obj = [[1, 2], 7, "decision", None, 3.5, b"\x00"][int(rng.integers(6))]
-            out.append(Fuzz("carriers", key, _pack(obj), "not-a-map"))
-        elif kind == 2:
-            base_msg = (Decision(MUTATION_BASE_MISSION, int(rng.integers(n_stages)), 5.0, ("a", "b"), 1.0)
-                        if key == decision_key else End(MUTATION_BASE_MISSION, n_stages, "complete"))
-            base = messages.encode(base_msg)
-            if rng.random() < 0.5:
-                out.append(Fuzz("carriers", key, base[: int(rng.integers(len(base)))], "truncated"))
-            else:
-                out.append(Fuzz("carriers", key, _corrupt(rng, base), "mutated"))
+        if kind <= 2:
+            other = (Decision(MUTATION_BASE_MISSION, int(rng.integers(n_stages)), 5.0, tuple(carriers), 1.0)
+                     if key == decision_key else End(MUTATION_BASE_MISSION, n_stages, "complete"))
+            out.append(_junk(rng, kind, "carriers", key, messages.encode(other)))
         elif kind in (3, 4):
             for category, payload in _message_variants(rng, _wire(good), mission):
                 out.append(Fuzz("carriers", key, payload, category))
         elif kind == 5:
             # Decisions for stages the mission does not have, naming known and unknown carriers.
             stage = int(rng.integers(n_stages, messages.MAX_STAGES))
-            names = ["a", "b", "zz9", "ghost"]
+            names = [*carriers, *UNKNOWN_CARRIERS]
             deploy = tuple(sorted(rng.choice(names, size=int(rng.integers(1, 5)), replace=False).tolist()))
             msg = Decision(mission, stage, 5.0 * stage, deploy, 1.0)
             out.append(Fuzz("carriers", decision_key, messages.encode(msg), "out-of-range"))
         elif kind == 6:
             # Another message type on the decision or end key.
-            msg = Observation(mission, "a", 0, 0.0, 1, (0.0, 0.0), 1, ()) if rng.random() < 0.5 else \
-                Confirm(mission, "a", 0, True, "deployed", (0.0, 0.0), 0)
+            cid = carriers[int(rng.integers(len(carriers)))]
+            msg = Observation(mission, cid, 0, 0.0, 1, (0.0, 0.0), 1, ()) if rng.random() < 0.5 else \
+                Confirm(mission, cid, 0, True, "deployed", (0.0, 0.0), 0)
             out.append(Fuzz("carriers", key, messages.encode(msg), "wrong-topic"))
         else:
             if rng.random() < 0.02:
-                size = int(rng.integers(MAX_PAYLOAD_BYTES + 1, 2 * MAX_PAYLOAD_BYTES))
-                out.append(Fuzz("carriers", key, rng.bytes(size), "oversized"))
+                out.append(_junk(rng, 3, "carriers", key, b""))
             else:
                 bad_id = ["not an id!", "", "a/b", "*", "$x"][int(rng.integers(5))]
-                decision = _wire(Decision(mission, int(rng.integers(n_stages)), 5.0, ("a",), 1.0))
+                decision = _wire(Decision(mission, int(rng.integers(n_stages)), 5.0, (carriers[0],), 1.0))
                 out.append(Fuzz("carriers", decision_key, _pack({**decision, "deploy": [bad_id]}), "bad-id"))
     return out[:count]

@@ -187,6 +187,34 @@ class Fuzzer:
         self.session.close()
 
 
+def test_every_generated_message_fails_the_receivers_checks():
+    """The generator's promise, checked without a network: no message it builds passes decoding
+    plus the identity and stage checks a receiver applies before acting on a message."""
+    rng = np.random.default_rng(SEED + 1)
+    topic_types = {"hello": messages.Hello, "obs": messages.Observation,
+                   "confirm": messages.Confirm, "bye": messages.Bye}
+    for f in coordinator_fuzz(rng, MISSION, CARRIERS, STAGES, 3_000):
+        cid, topic = keys.parse_carrier_key(MISSION, f.key)
+        with pytest.raises(messages.ProtocolError):
+            if cid not in CARRIERS:
+                raise messages.ProtocolError("unknown-carrier")
+            msg = messages.decode(f.payload, topic_types[topic])
+            if msg.mission != MISSION or msg.carrier != cid:
+                raise messages.ProtocolError("wrong-mission or key-mismatch")
+            if topic in ("obs", "confirm") and msg.stage >= STAGES:
+                raise messages.ProtocolError("out-of-range")
+            print(f)  # accepted: shown in the failure report
+    for f in carrier_fuzz(rng, MISSION, CARRIERS, STAGES, 3_000):
+        with pytest.raises(messages.ProtocolError):
+            decision = f.key == keys.decision_key(MISSION)
+            msg = messages.decode(f.payload, messages.Decision if decision else messages.End)
+            if msg.mission != MISSION:
+                raise messages.ProtocolError("wrong-mission")
+            if decision and msg.stage >= STAGES:
+                raise messages.ProtocolError("out-of-range")
+            print(f)
+
+
 def rejections_logged(log: str) -> Counter:
     """(process, reason) -> how many 'rejected a message (reason)' lines it printed."""
     return Counter(re.findall(r"^(coordinator|carrier \w+): .*?rejected a message \(([\w-]+)\)", log, re.M))
@@ -196,7 +224,7 @@ def rejections_logged(log: str) -> Counter:
 def test_fuzzed_mission_is_unchanged_and_every_bad_message_is_counted(tmp_path):
     rng = np.random.default_rng(SEED)
     to_coordinator = coordinator_fuzz(rng, MISSION, CARRIERS, STAGES, N_COORDINATOR)
-    to_carriers = carrier_fuzz(rng, MISSION, STAGES, N_CARRIERS)
+    to_carriers = carrier_fuzz(rng, MISSION, CARRIERS, STAGES, N_CARRIERS)
     # Interleave the two streams in a seeded order.
     fuzz = to_coordinator + to_carriers
     order = rng.permutation(len(fuzz))
