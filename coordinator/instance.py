@@ -12,8 +12,8 @@ from pathlib import Path
 from typing import Any, Callable, NamedTuple
 
 import numpy as np
-import scipy  # scipy.stats is loaded on first use: quick errors for bad files
-
+import priors
+from priors import is_integer as _int, is_number as _num, is_positive as _positive
 from coordinator.problem import Problem, normalisation_scale, sample_observations
 
 #: Spawn key of the observation stream when an instance file omits its observations.
@@ -44,107 +44,22 @@ class InstanceError(ValueError):
 
 # ----------------------------------------------------------------------------- priors
 
-def _num(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
-def _int(v: Any) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
-def _positive(v: Any) -> bool:
-    return _num(v) and v > 0
-
-
-def _probability(v: Any) -> bool:
-    return _num(v) and 0 < v <= 1
-
-
-def _table(spec: dict) -> object:
-    return scipy.stats.rv_discrete(values=(np.asarray(spec["values"], float), np.asarray(spec["probabilities"], float)))()
-
-
-#: kind -> (parameters: {name: (check, "expected ..." text)}, builder(spec) -> frozen distribution).
-#: Every kind and parameter is documented in docs/planner.md.
-PRIOR_KINDS: dict[str, tuple[dict[str, tuple[Callable[[Any], bool], str]], Callable[[dict], object]]] = {
-    "poisson": ({"mean": (_positive, "a number > 0")}, lambda s: scipy.stats.poisson(s["mean"])),
-    "binomial": (
-        {"n": (lambda v: _int(v) and v >= 1, "an integer >= 1"), "p": (_probability, "a number in (0, 1]")},
-        lambda s: scipy.stats.binom(s["n"], s["p"]),
-    ),
-    "geometric": (  # failures before the first success: support 0, 1, 2, ...
-        {"p": (_probability, "a number in (0, 1]")}, lambda s: scipy.stats.geom(s["p"], loc=-1)
-    ),
-    "negative_binomial": (
-        {"n": (_positive, "a number > 0"), "p": (_probability, "a number in (0, 1]")},
-        lambda s: scipy.stats.nbinom(s["n"], s["p"]),
-    ),
-    "discrete_uniform": (  # integers low..high inclusive
-        {"low": (_int, "an integer"), "high": (_int, "an integer")},
-        lambda s: scipy.stats.randint(s["low"], s["high"] + 1),
-    ),
-    "table": (
-        {"values": (lambda v: isinstance(v, list) and len(v) > 0 and all(_num(e) for e in v),
-                    "a non-empty list of numbers"),
-         "probabilities": (lambda v: isinstance(v, list) and len(v) > 0 and all(_num(e) and e >= 0 for e in v),
-                           "a non-empty list of numbers >= 0")},
-        _table,
-    ),
-    "gamma": (
-        {"shape": (_positive, "a number > 0"), "scale": (_positive, "a number > 0")},
-        lambda s: scipy.stats.gamma(s["shape"], scale=s["scale"]),
-    ),
-    "exponential": ({"mean": (_positive, "a number > 0")}, lambda s: scipy.stats.expon(scale=s["mean"])),
-    "lognormal": (  # log X ~ Normal(mu, sigma)
-        {"mu": (_num, "a number"), "sigma": (_positive, "a number > 0")},
-        lambda s: scipy.stats.lognorm(s["sigma"], scale=math.exp(s["mu"])),
-    ),
-    "normal": (
-        {"mean": (_num, "a number"), "std": (_positive, "a number > 0")},
-        lambda s: scipy.stats.norm(s["mean"], s["std"]),
-    ),
-    "uniform": (
-        {"low": (_num, "a number"), "high": (_num, "a number")},
-        lambda s: scipy.stats.uniform(s["low"], s["high"] - s["low"]),
-    ),
-}
+#: The prior kinds an instance may name (the table is shared with scenario files).
+PRIOR_KINDS = priors.PRIOR_KINDS
 
 
 def make_prior(spec: Any, source: str = "<prior>", field: str = "prior") -> object:
     """A frozen scipy.stats distribution from a prior specification ``{"kind": ..., params}``.
 
     Raises:
-        InstanceError: unknown kind, missing/unknown/bad parameter.
+        InstanceError: unknown kind, missing/unknown/bad parameter (the first problem found).
     """
     if not isinstance(spec, dict):
         raise InstanceError(source, field, 'an object like {"kind": "poisson", "mean": 3.0}', _show(spec))
-    kind = spec.get("kind")
-    if kind not in PRIOR_KINDS:
-        raise InstanceError(source, f"{field}.kind", f"one of {', '.join(sorted(PRIOR_KINDS))}", _show(kind))
-    params, build = PRIOR_KINDS[kind]
-    for name, (check, expected) in params.items():
-        if name not in spec:
-            raise InstanceError(source, f"{field}.{name}", f"{expected} ({kind} prior)", "nothing (missing)")
-        if not check(spec[name]):
-            raise InstanceError(source, f"{field}.{name}", expected, _show(spec[name]))
-    extra = sorted(set(spec) - set(params) - {"kind"})
-    if extra:
-        raise InstanceError(source, f"{field}.{extra[0]}", f"only {', '.join(['kind', *params])} for a {kind} prior",
-                            "an unknown parameter")
-    if kind == "discrete_uniform" and spec["high"] < spec["low"]:
-        raise InstanceError(source, f"{field}.high", f"an integer >= low ({spec['low']})", _show(spec["high"]))
-    if kind == "uniform" and spec["high"] <= spec["low"]:
-        raise InstanceError(source, f"{field}.high", f"a number > low ({spec['low']})", _show(spec["high"]))
-    if kind == "table":
-        values, probs = spec["values"], spec["probabilities"]
-        if len(probs) != len(values):
-            raise InstanceError(source, f"{field}.probabilities", f"{len(values)} entries (one per value)",
-                                f"{len(probs)}")
-        if abs(sum(probs) - 1.0) > 1e-9:
-            raise InstanceError(source, f"{field}.probabilities", "probabilities summing to 1", f"sum {sum(probs)}")
-        if len(set(values)) != len(values):
-            raise InstanceError(source, f"{field}.values", "distinct values", _show(values))
-    return build(spec)
+    for problem in priors.prior_problems(spec):
+        found = str(problem.found) if isinstance(problem.found, priors.Text) else _show(problem.found)
+        raise InstanceError(source, f"{field}.{problem.field}", problem.expected, found)
+    return priors.build_prior(spec)
 
 
 # ----------------------------------------------------------------------------- loading
@@ -351,5 +266,5 @@ def random_instance(
         size = min(int(rng.integers(2, 4)), n_points)
         flat = rng.choice(n_points, size=size, replace=False)
         groups.append([[int(a) // stages, int(a) % stages] for a in flat])
-    problem = Problem.build(passengers, valid, groups, scipy.stats.poisson(mean))
+    problem = Problem.build(passengers, valid, groups, priors.build_prior({"kind": "poisson", "mean": mean}))
     return Instance(problem, sample_observations(problem, rng))

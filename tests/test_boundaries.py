@@ -17,7 +17,7 @@ REPO = Path(__file__).resolve().parents[1]
 #: coordinator/ modules that are process code (I/O), outside the pure planner core.
 CORE_EXCLUDED = {"node", "store"}
 #: Top-level packages the core may import besides the standard library and itself.
-CORE_ALLOWED = {"numpy", "scipy", "numba", "coordinator"}
+CORE_ALLOWED = {"numpy", "scipy", "numba", "coordinator", "priors"}
 #: Must never be loaded by importing the core. (yaml is absent on purpose: numba itself loads it to
 #: read its optional config file; the static check below still keeps the core from importing it.)
 CORE_FORBIDDEN = ("zenoh", "pymunk", "msgpack", "matplotlib", "world", "wire", "carriers",
@@ -95,10 +95,16 @@ def test_world_never_imports_coordinator_or_carriers():
     world = _modules("world")
     if (REPO / "world" / "__init__.py").exists():
         world = ["world", *world]
-    if not world:
-        pytest.skip("world/ has no modules yet")
     loaded = _loaded_after_import(world)
     assert _offending(loaded, WORLD_FORBIDDEN) == []
     bad = [f"{path.relative_to(REPO)}:{line}: {module}" for path in sorted((REPO / "world").rglob("*.py"))
            for line, module in _imports(path) if module.split(".")[0] in WORLD_FORBIDDEN]
+    assert bad == []
+
+
+def test_shared_priors_table_is_pure():
+    """priors/ is shared by the core and world/, so it may use only numpy and scipy."""
+    bad = [f"{path.relative_to(REPO)}:{line}: {module}" for path in sorted((REPO / "priors").rglob("*.py"))
+           for line, module in _imports(path)
+           if module.split(".")[0] not in sys.stdlib_module_names | {"__future__", "numpy", "scipy"}]
     assert bad == []

@@ -17,11 +17,12 @@ import re
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 import yaml
 
+import priors
 from world import building as _building
 from world import geometry
 
@@ -43,6 +44,7 @@ MAX_MISSION_TIME = 1e5  # s, time of the last stage (the physics runs at 20 step
 #: Carrier body radius (m): paths must keep at least this clearance from walls.
 CARRIER_RADIUS = 0.4
 
+
 def _stats():
     """scipy.stats, imported on first use (it takes a second to import; carriers rarely need it)."""
     from scipy import stats
@@ -50,59 +52,8 @@ def _stats():
     return stats
 
 
-def _num(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-
-
-def _int(v: Any) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
-def _positive(v: Any) -> bool:
-    return _num(v) and v > 0
-
-
-def _probability(v: Any) -> bool:
-    return _num(v) and 0 < v <= 1
-
-
-def _numbers(v: Any) -> bool:
-    return isinstance(v, list) and len(v) > 0 and all(_num(e) for e in v)
-
-
-def _table(p: dict) -> Any:
-    return _stats().rv_discrete(values=(np.asarray(p["values"], float), np.asarray(p["probabilities"], float)))()
-
-
-#: Explicit prior kinds: kind -> ({parameter: (check, "expected" text)}, builder(params) -> frozen
-#: scipy.stats distribution). Same kinds, parameters and meanings as the planner's instance
-#: format (coordinator/instance.py), so a prior reads the same in both files.
-PRIOR_TABLE: dict[str, tuple[dict[str, tuple[Callable[[Any], bool], str]], Callable[[dict], Any]]] = {
-    "poisson": ({"mean": (_positive, "a number > 0")}, lambda p: _stats().poisson(p["mean"])),
-    "binomial": ({"n": (lambda v: _int(v) and v >= 1, "an integer >= 1"), "p": (_probability, "a number in (0, 1]")},
-                 lambda p: _stats().binom(p["n"], p["p"])),
-    # failures before the first success: support 0, 1, 2, ...
-    "geometric": ({"p": (_probability, "a number in (0, 1]")}, lambda p: _stats().geom(p["p"], loc=-1)),
-    "negative_binomial": ({"n": (_positive, "a number > 0"), "p": (_probability, "a number in (0, 1]")},
-                          lambda p: _stats().nbinom(p["n"], p["p"])),
-    # integers low..high inclusive
-    "discrete_uniform": ({"low": (_int, "an integer"), "high": (_int, "an integer")},
-                         lambda p: _stats().randint(p["low"], p["high"] + 1)),
-    "table": ({"values": (_numbers, "a non-empty list of numbers"),
-               "probabilities": (lambda v: _numbers(v) and all(e >= 0 for e in v), "a non-empty list of numbers >= 0")},
-              _table),
-    "gamma": ({"shape": (_positive, "a number > 0"), "scale": (_positive, "a number > 0")},
-              lambda p: _stats().gamma(p["shape"], scale=p["scale"])),
-    "exponential": ({"mean": (_positive, "a number > 0")}, lambda p: _stats().expon(scale=p["mean"])),
-    # log X ~ Normal(mu, sigma)
-    "lognormal": ({"mu": (_num, "a number"), "sigma": (_positive, "a number > 0")},
-                  lambda p: _stats().lognorm(p["sigma"], scale=math.exp(p["mu"]))),
-    "normal": ({"mean": (_num, "a number"), "std": (_positive, "a number > 0")},
-               lambda p: _stats().norm(p["mean"], p["std"])),
-    "uniform": ({"low": (_num, "a number"), "high": (_num, "a number")},
-                lambda p: _stats().uniform(p["low"], p["high"] - p["low"])),
-}
-PRIOR_KINDS = tuple(PRIOR_TABLE)
+#: Explicit prior kinds (shared with the planner's instance format, see priors/).
+PRIOR_KINDS = tuple(priors.PRIOR_KINDS)
 
 
 class ScenarioError(ValueError):
@@ -382,8 +333,8 @@ class Scenario:
         """The frozen ``scipy.stats`` prior of a valid stage's feature count."""
         if self.prior.kind == "derived":
             return _stats().poisson(self.derived_prior_mean())
-        _, build = PRIOR_TABLE[self.prior.kind]
-        return build(dict(self.prior.params))
+        return priors.build_prior({"kind": self.prior.kind, **{k: list(v) if isinstance(v, tuple) else v
+                                                               for k, v in self.prior.params}})
 
     def derived_prior_mean(self) -> float:
         """Background density × π r²: the open-field expected count (walls and clusters ignored)."""
@@ -855,32 +806,17 @@ def _parse_prior(ck: _Checker, node: Any) -> PriorSpec | None:
             ck.bad(f"prior.{extra[0]}", "no parameters for the derived prior", node[extra[0]])
             return None
         return PriorSpec()
-    if not isinstance(kind, str) or kind not in PRIOR_TABLE:
+    if not isinstance(kind, str) or kind not in priors.PRIOR_KINDS:
         close = difflib.get_close_matches(str(kind), PRIOR_KINDS + ("derived",), n=1, cutoff=0.5)
         hint = f" (did you mean '{close[0]}'?)" if close else ""
         ck.bad("prior.kind", f"derived or one of {', '.join(PRIOR_KINDS)}{hint}", kind)
         return None
-    params, _ = PRIOR_TABLE[kind]
+    params, _ = priors.PRIOR_KINDS[kind]
     n0 = len(ck.problems)
     ck.mapping(node, "prior", ("kind",) + tuple(params), ())
-    for name, (check, expected) in params.items():
-        if name not in node:
-            ck.problems.append(f"{ck.file}: prior.{name}: expected {expected} ({kind} prior), found nothing (missing)")
-        elif not check(node[name]):
-            ck.bad(f"prior.{name}", expected, node[name])
-    if len(ck.problems) == n0:
-        if kind == "discrete_uniform" and node["high"] < node["low"]:
-            ck.bad("prior.high", f"an integer >= low ({node['low']})", node["high"])
-        if kind == "uniform" and node["high"] <= node["low"]:
-            ck.bad("prior.high", f"a number > low ({node['low']})", node["high"])
-        if kind == "table":
-            values, probs = node["values"], node["probabilities"]
-            if len(probs) != len(values):
-                ck.bad("prior.probabilities", f"{len(values)} entries (one per value)", len(probs))
-            elif abs(sum(probs) - 1.0) > 1e-9:
-                ck.bad("prior.probabilities", "probabilities summing to 1", _Raw(f"sum {sum(probs):g}"))
-            if len(set(values)) != len(values):
-                ck.bad("prior.values", "distinct values", values)
+    for problem in priors.prior_problems(node, unknown=False):
+        found = _Raw(problem.found) if isinstance(problem.found, priors.Text) else problem.found
+        ck.bad(f"prior.{problem.field}", problem.expected, found)
     if len(ck.problems) > n0:
         return None
     vals = tuple((name, tuple(node[name]) if isinstance(node[name], list) else node[name]) for name in params)
