@@ -53,15 +53,15 @@ def test_whole_mission_matches_the_offline_planner(tiny, tmp_path):
 
 
 def test_staggered_start_catches_up_from_the_mission_state(tiny, tmp_path):
-    # 10 x real time: a stage every 0.5 s. Carrier b's process starts after stage 0 is decided.
-    fleet = InProcessFleet(tiny, tmp_path, realtime=10.0, join_timeout_s=0.5)
+    # 5 x real time: a stage per wall second. Carrier b starts after stage 0 is decided.
+    fleet = InProcessFleet(tiny, tmp_path, realtime=5.0, join_timeout_s=0.5)
     fleet.start_coordinator()
-    fleet.start_carrier("a", realtime=10.0)
+    fleet.start_carrier("a", realtime=5.0)
     deadline = time.monotonic() + 30
     while fleet.coordinator.next_stage < 1 and time.monotonic() < deadline:
         time.sleep(0.01)
     assert fleet.coordinator.next_stage >= 1
-    fleet.start_carrier("b", realtime=10.0)
+    fleet.start_carrier("b", realtime=5.0)
     summary = fleet.join()
     reference, x = offline(tiny)
 
