@@ -244,7 +244,7 @@ def search(n_iter, child, visits, value, point, counter, state,
         d0: int64 ``[R]`` passengers left before the root stage.
         valid: uint8 ``[R, N]`` validity (realised up to j0, scheduled after).
         vs_left: int64 ``[R, N + 1]`` valid stages from k (inclusive) to the end.
-        known: float64 ``[R, N]`` observations (used at stage j0 only).
+        known: float64 ``[R, N]`` observations up to j0, NaN after it (read at stage j0 only).
         past: int64 ``[P]`` flat points deployed before j0 (marked in ``mark``, x in ``xval``).
         indptr, nbr: CSR lists of the points sharing an overlap with each flat point.
         table: float64 ``[N + 2, N + 2]`` SSAP thresholds.
@@ -261,6 +261,7 @@ def search(n_iter, child, visits, value, point, counter, state,
     n_carriers, n_stages = valid.shape
     end = (n_stages - j0) * n_carriers
     n_nodes = counter[0]
+    known_flat = known.reshape(known.size)
     for _ in range(n_iter):
         for r in range(n_carriers):
             left[r] = d0[r]
@@ -311,7 +312,8 @@ def search(n_iter, child, visits, value, point, counter, state,
         for _s in range(samples):
             for i in range(n_tree):
                 a = pts[i]
-                xval[a] = _observe(state, a // n_stages, a % n_stages, j0, known, points, cdf, guide)
+                x = known_flat[a]  # NaN after the root stage: sampled
+                xval[a] = _sample(state, points, cdf, guide) if np.isnan(x) else x
             for r in range(n_carriers):
                 left[r] = left_tree[r]
             n = _rollout(state, q, n_tree, j0, left, valid, vs_left, known, table, ucut, points, cdf, guide,

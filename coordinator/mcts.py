@@ -206,7 +206,7 @@ class MCTSPlanner:
         vs_left = np.zeros((n_carriers, n_stages + 1), dtype=np.int64)
         vs_left[:, :-1] = np.cumsum(view.valid[:, ::-1], axis=1)[:, ::-1]
         d0 = np.ascontiguousarray(view.passengers_left, dtype=np.int64)
-        known = np.ascontiguousarray(np.nan_to_num(view.observations, nan=0.0), dtype=np.float64)
+        known = np.ascontiguousarray(view.observations, dtype=np.float64)  # NaN after the root stage
         past = np.flatnonzero(view.deployed.reshape(-1)).astype(np.int64)
         mark = np.zeros(n_carriers * n_stages, dtype=np.uint8)
         mark[past] = 1
