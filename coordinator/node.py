@@ -248,6 +248,7 @@ class Coordinator:
                          f"{msg.fingerprint} != {self.fingerprint}); its observations are ignored")
             raise ProtocolError("world-mismatch", f"carrier {cid} fingerprint {msg.fingerprint}")
         self.incompatible.discard(cid)
+        self.byes.discard(cid)  # a restarted carrier: its earlier Bye is history
         self.info[cid] = {"pid": msg.pid, "host": msg.host}
         self.store.event("hello", cid, msg.next_stage, pid=msg.pid, host=msg.host,
                          passengers_left=msg.passengers_left, compatible=True)

@@ -172,3 +172,33 @@ def test_restarted_coordinator_recovers_from_mission_db(tiny, tmp_path):
     decided = [s for (s,) in db_rows(tmp_path / "mission.db", "SELECT stage FROM decisions")]
     assert sorted(decided) == list(range(tiny.stages))
     assert any("resumed from" in line for line in fleet.log.lines)
+
+
+def test_restarted_carrier_rejoins_with_its_recorded_deployments(tiny, tmp_path):
+    """Carrier a stops after deploying at stage 0; a new process for a (same id) learns from the
+    mission state that one passenger is gone and where it is in its schedule, and finishes."""
+    fleet = InProcessFleet(tiny, tmp_path, realtime=5.0)
+    fleet.start_coordinator()
+    first = fleet.start_carrier("a", realtime=5.0)
+    fleet.start_carrier("b", realtime=5.0)
+    deadline = time.monotonic() + 60
+    while fleet.coordinator.next_stage < 2 and time.monotonic() < deadline:
+        time.sleep(0.01)
+    ra = tiny.carrier_index("a")
+    before = int(fleet.coordinator.deployed()[ra].sum())
+    assert before >= 1  # tiny.yaml: a deploys at stage 0 (x = 8), so there is something to replay
+    first.stop()
+    fleet.threads[1].join(30)
+    assert fleet.results["a"] == "stopped"
+    second = fleet.start_carrier("a", realtime=5.0)
+    summary = fleet.join()
+    assert fleet.results["a"] == "end" and summary["ended"]
+    assert second.stage == tiny.stages
+    # The new process replayed what the log holds and never deployed a stage twice.
+    replayed = sorted(j for j, c in second.handled.items() if c.status == "deployed" and j < 2)
+    assert len(replayed) == before
+    a = summary["carriers"][ra]
+    stages = [d["stage"] for d in a["deployments"]]
+    assert len(stages) == len(set(stages)) <= tiny.carriers[ra].passengers
+    confirmed = db_rows(tmp_path / "mission.db", "SELECT stage FROM confirmations WHERE carrier='a' AND deployed=1")
+    assert len(confirmed) == len({s for (s,) in confirmed})
