@@ -92,6 +92,7 @@ class Carrier:
         self.absent_since = time.monotonic()
         self.pending: Observation | None = None
         self.stage = 0
+        self.joined = 0            # first stage this process handles itself (State.next_stage at join)
         self._trail_from = 0
         self._stop = False
 
@@ -140,6 +141,8 @@ class Carrier:
             raise ProtocolError("wrong-mission", f"mission {msg.mission!r}")
         if msg.stage >= self.n_stages:
             raise ProtocolError("out-of-range", f"decision for stage {msg.stage} >= {self.n_stages}")
+        if msg.stage < self.joined and msg.stage not in self.handled:
+            return  # decided before this process joined: the mission log has its outcome
         if msg.stage in self.handled:
             first = self.handled[msg.stage]
             self._confirm(Confirm(self.mission, self.cid, msg.stage, first.deployed, "already",
@@ -256,7 +259,7 @@ class Carrier:
                 dep = self.sim.deploy(self.cid)
                 self.handled[j] = Confirm(self.mission, self.cid, j, True, "deployed",
                                           tuple(map(float, dep.position)), self.sim.passengers_left(self.cid))
-        self.stage = state.next_stage
+        self.stage = self.joined = state.next_stage
         if state.next_stage > 0:
             self.log(f"joined at stage {state.next_stage} ({len(past)} deployment(s) on record)")
 
