@@ -3,6 +3,8 @@ carriers on separate hosts (network namespaces)."""
 from __future__ import annotations
 
 import json
+import os
+import re
 import signal
 import subprocess
 import sys
@@ -159,3 +161,37 @@ def test_separate_hosts_with_network_namespaces(tiny, tmp_path):
     np.testing.assert_array_equal(np.array(summary["observations"], dtype=float), x)
     np.testing.assert_array_equal(deployed_matrix(summary, tiny), reference.deployed)
     _check_no_double_deployment(summary, tmp_path / "mission.db", tiny)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+@pytest.mark.slow
+def test_ctrl_c_stops_every_process_cleanly(tiny, tmp_path):
+    out = tmp_path / "run"
+    # Its own process group, as a terminal would make it: Ctrl-C reaches the whole group.
+    proc = subprocess.Popen([sys.executable, RUN_FLEET, str(TINY), "--out", str(out), "--realtime", "1", "--no-map"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        lines = _read_until(proc, f"stage   1/{tiny.stages}", 120)
+        pids = [int(p) for p in re.findall(r"pid (\d+)", "".join(lines))]
+        assert len(pids) == 1 + tiny.n_carriers
+        os.killpg(proc.pid, signal.SIGINT)
+        rest, _ = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(10)
+    assert proc.returncode == 130, rest
+    assert "Traceback" not in rest
+    deadline = time.monotonic() + 5
+    while any(_alive(pid) for pid in pids) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(_alive(pid) for pid in pids)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["end_reason"] == "stopped" and summary["stages_decided"] < tiny.stages
