@@ -310,6 +310,8 @@ class Coordinator:
                 self.reported[(cid, j)] = x
                 if (cid, j) in rec.positions:
                     self.positions[(cid, j)] = rec.positions[(cid, j)]
+        for (cid, j) in sorted(self.positions, key=lambda key: key[1]):
+            self.trails[cid].append(self.positions[(cid, j)])  # the map's paths before the restart
         for j, (deploy, ms) in sorted(rec.decisions.items()):
             for cid in deploy:
                 self.decided[self.index[cid], j] = True
