@@ -86,6 +86,7 @@ class Carrier:
         self.handled: dict[int, Confirm] = {}      # stage -> our (first) answer
         self.buffered: dict[int, Decision] = {}    # decisions for stages we have not reached
         self.latest_decided = -1
+        self.state_next = 0        # the coordinator's next_stage, as last learnt from State
         self.ended = False
         self.coordinator_present = False
         self.coordinator_seen = False
@@ -159,21 +160,29 @@ class Carrier:
 
     def _resync(self) -> None:
         """The coordinator came back (restarted, or a partition healed): announce ourselves again,
-        re-send the observation it may not have logged, and take the last decision from the
-        mission state (its re-publication may have raced our reconnection)."""
+        learn from the mission state how far the mission got, take its last decision (the
+        re-publication may have raced our reconnection), re-send the pending observation if its
+        stage is still open, and repeat our answers (``already``) so a coordinator that lost
+        Confirms in flight has every outcome on record."""
         self.log("coordinator is back; re-sending hello and the pending observation")
         self._hello()
-        if self.pending is not None:
-            self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.pending)
+        state = None
         for payload in self.node.query(keys.state_key(self.mission), timeout_s=2.0):
-            state = decode(payload, State)
-            if state.mission != self.mission:
+            try:
+                candidate = decode(payload, State)
+            except ProtocolError as exc:
+                self.node.reject(exc.reason, exc.detail, self.log)
                 continue
+            if candidate.mission == self.mission:
+                state = candidate
+                break
+        if state is not None:
+            self.state_next = max(self.state_next, state.next_stage)
             mine = state.carrier(self.cid)
             last = state.last_decision
             for j in (mine.deployments if mine else ()):
-                if (j <= self.stage and j not in self.handled and j not in self.buffered
-                        and (last is None or j != last.stage)):
+                if (j < state.next_stage and j <= self.stage and j not in self.handled
+                        and j not in self.buffered and (last is None or j != last.stage)):
                     # Decided for us while we were cut off and never received: we did not deploy
                     # there. Saying so lets the coordinator count the passenger as still on board.
                     self._answer(Decision(self.mission, j, float(self.scenario.stage_time(j)), (self.cid,), 0.0),
@@ -182,6 +191,17 @@ class Carrier:
                 self._on_decision(last)
             if state.ended:
                 self.ended = True
+        if self.pending is not None and self.pending.stage >= self.state_next:
+            self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.pending)
+        for j, first in sorted(self.handled.items()):
+            if j >= self.joined:
+                self._confirm(Confirm(self.mission, self.cid, j, first.deployed, "already",
+                                      first.position, first.passengers_left))
+
+    def decided_upto(self) -> int:
+        """Stages known to be decided already (0..N): the carrier is behind the coordinator at
+        every stage below this (after a partition, or a coordinator that went on without it)."""
+        return max(self.latest_decided + 1, self.state_next)
 
     # ------------------------------------------------------------------ actions
     def _hello(self) -> None:
@@ -260,6 +280,7 @@ class Carrier:
                 self.handled[j] = Confirm(self.mission, self.cid, j, True, "deployed",
                                           tuple(map(float, dep.position)), self.sim.passengers_left(self.cid))
         self.stage = self.joined = state.next_stage
+        self.state_next = max(self.state_next, state.next_stage)
         if state.next_stage > 0:
             self.log(f"joined at stage {state.next_stage} ({len(past)} deployment(s) on record)")
 
@@ -271,7 +292,7 @@ class Carrier:
                 return None  # answered already (as late, while resynchronising)
             if j in self.buffered:
                 return self.buffered.pop(j)
-            if self.latest_decided > j:
+            if self.latest_decided > j or self.state_next > j:
                 return None  # the coordinator moved on: our decision was lost
             now = time.monotonic()
             if self.coordinator_present:
@@ -309,18 +330,29 @@ class Carrier:
             else:
                 self._catch_up(state)
             self._hello()
-            joined = self.stage
-            for j in range(self.stage, self.n_stages):
-                if self.ended or self._stop:
-                    break
+            at_once = True  # the first stage after joining is reached at once, not paced
+            j = self.stage
+            while j < self.n_stages and not self.ended and not self._stop:
                 self.stage = j
-                if j == joined:
-                    self.sim.advance_to(self.scenario.stage_time(j))  # catching up: not paced
+                t_j = self.scenario.stage_time(j)
+                if at_once or j < self.decided_upto():
+                    self.sim.advance_to(t_j)  # joining, or catching up with stages decided without us
                 else:
-                    self._advance(self.scenario.stage_time(j))
+                    self._advance(t_j)
+                if j < self.decided_upto():
+                    # The coordinator decided j without our observation (we were cut off, or too
+                    # slow): it is ∅ for us. Publishing it would only be rejected as stale; answer
+                    # its decision if it reached us; go on at once.
+                    decision = self.buffered.pop(j, None)
+                    if decision is not None and j not in self.handled:
+                        self._answer(decision, allow=True)
+                    at_once = True
+                    j += 1
+                    continue
+                at_once = False
                 x = self.sim.sense(self.cid) if self.valid[j] else None
                 self.pending = Observation(
-                    self.mission, self.cid, j, float(self.scenario.stage_time(j)), x,
+                    self.mission, self.cid, j, float(t_j), x,
                     tuple(map(float, self.sim.position(self.cid))), self.sim.passengers_left(self.cid),
                     self._trail())
                 self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.pending)
@@ -328,7 +360,8 @@ class Carrier:
                 self.pending = None
                 if decision is not None:
                     self._answer(decision, allow=True)
-                self.stage = j + 1
+                j += 1
+            self.stage = j
             deadline = time.monotonic() + self.config.end_timeout_s
             while not self.ended and not self._stop and time.monotonic() < deadline:
                 self._pump(0.05)

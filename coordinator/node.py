@@ -259,10 +259,10 @@ class Coordinator:
         j = msg.stage
         if j >= self.n_stages:
             raise ProtocolError("out-of-range", f"stage {j} >= {self.n_stages}")
+        if j < self.next_stage:  # checked first: a late observation of a stage made ∅ is stale
+            raise ProtocolError("stale-stage", f"observation of carrier {cid} for decided stage {j}")
         if (cid, j) in self.reported:
             raise ProtocolError("duplicate", f"second observation of carrier {cid} at stage {j}")
-        if j < self.next_stage:
-            raise ProtocolError("stale-stage", f"observation of carrier {cid} for decided stage {j}")
         # Committed before any decision that reads it.
         self.store.observation(cid, j, msg.x, msg.position, t=msg.t, passengers_left=msg.passengers_left)
         self.reported[(cid, j)] = msg.x
