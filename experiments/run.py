@@ -198,8 +198,14 @@ def _write_sweep(sweep: str, rows: list[dict], out: Path, seconds: float, jobs: 
                 report.timing_table(summary, "R")]
     else:
         text = _urban_report(rows, summary, out, s, args)
-    timing = {"sweep": sweep, "seconds": round(seconds, 1), "tasks": len(rows), "jobs": jobs}
-    text += ["", f"Wall time: {seconds:.1f} s with {jobs} worker process(es) for {len(rows)} tasks."]
+    cpu = {}
+    for r in rows:
+        cpu[r["planner"]] = cpu.get(r["planner"], 0.0) + float(r["wall_s"])
+    timing = {"sweep": sweep, "seconds": round(seconds, 1), "tasks": len(rows), "jobs": jobs,
+              "worker_seconds": {k: round(v, 1) for k, v in sorted(cpu.items(), key=lambda kv: report._order(kv[0]))}}
+    text += ["", f"Wall time: {seconds:.1f} s with {jobs} worker process(es) for {len(rows)} tasks. "
+             "Worker seconds per planner (sum of task run times): "
+             + ", ".join(f"{report.STYLE.get(k, (k,))[0]} {v:.0f} s" for k, v in timing["worker_seconds"].items()) + "."]
     (out / f"{sweep}.md").write_text("\n".join(text) + "\n")
     return timing
 
