@@ -320,6 +320,11 @@ def main(argv: Sequence[str] | None = None) -> int:
                 f" | peak RSS MB: {peaks}" + (f" | {f.error}" if f.error else ""),
                 flush=True,
             )
+            if f.returncode == 2 and i == 0:
+                # run_fleet.py's exit code for bad input: every further mission would fail alike.
+                print(f"error: run_fleet.py refused its input ({f.error}); see {args.out / 'missions' / '0001.log'}",
+                      file=sys.stderr)
+                return 2
             if not args.keep and i >= 3:
                 old = args.out / "missions" / f"{i - 2:04d}"
                 if old.is_dir() and figures[i - 3].completed:
