@@ -181,6 +181,28 @@ def test_process_without_valid_certificate_cannot_connect_or_publish(certs, stra
             assert inbox.items == [], f"{who}: a publication got through: {inbox.items}"
 
 
+@pytest.mark.parametrize("verify_name", [True, False])
+def test_carriers_check_the_coordinator_certificate_names_the_host_dialled(tmp_path, certs, verify_name):
+    """A coordinator certificate issued for another host name is refused when carriers verify
+    names (the default), accepted when `verify_name_on_connect` is off (chain still checked)."""
+    fleet_ca = Identity(gen_certs.CA_CN, certs.ca, certs.ca.with_suffix(".key"))
+    elsewhere = gen_certs.issue(fleet_ca, tmp_path, "coordinator-elsewhere", gen_certs.COORDINATOR_CN,
+                                hosts=("coordinator.example",))
+    coord_conf = gen_certs.coordinator_config(certs)
+    coord_conf["transport"]["link"]["tls"] = gen_certs.tls_section(certs.ca, elsewhere)
+    car_conf = carrier_conf(certs, certs.carriers["c0"])
+    car_conf["transport"]["link"]["tls"]["verify_name_on_connect"] = verify_name
+    port = free_port()
+    with open_session(coord_conf, port, "listen") as coord:
+        if verify_name:
+            with pytest.raises(zenoh.ZError):
+                open_session(car_conf, port, "connect").close()
+            assert not neighbours(coord)
+        else:
+            with open_session(car_conf, port, "connect") as car:
+                assert wait_connected(car, WAIT_S)
+
+
 def test_acl_carrier_publishes_only_under_its_own_keys(certs):
     port = free_port()
     decision = keys.decision_key(MISSION)
