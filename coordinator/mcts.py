@@ -1,7 +1,7 @@
 """MCTS-SSAP and MCTS-Random, fast: a binary-level array tree searched by numba kernels.
 
 The algorithm is the paper's (see :mod:`coordinator.mcts_reference` for the plain version and
-docs/performance.md for the measured equivalence), with one structural change that keeps the
+docs/performance.md for the measured comparison), with one structural change that keeps the
 2^R joint actions from ever being enumerated: **each tree level is one carrier's binary choice**.
 A stage is up to R consecutive levels, carriers in index order; carriers with no choice at a
 stage (∅ stage, no passenger left, or forced to deploy) get no level and their action is applied
