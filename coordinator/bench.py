@@ -6,7 +6,7 @@
 Prints, for each fleet size R (D = 3 passengers, N = 10 stages, 10 overlaps, Poisson(3) prior,
 instances from :func:`coordinator.instance.random_instance` with fixed seeds):
 
-* speed at stage 0 with ``--iterations`` (10,000) iterations: iterations per second, median and
+* speed at stage 0 with ``--iterations`` (10,000; 2,000 with ``--quick``) iterations: iterations per second, median and
   p95 decision time, peak memory of one decision (tracemalloc: every numpy allocation the planner
   makes, tree and scratch included), for ``mcts-ssap`` and, where feasible (R <= 6), for the
   plain reference implementation (:mod:`coordinator.mcts_reference`) measured in the same run;
@@ -151,9 +151,11 @@ def plan_ms_table(carriers: int, repeats: int) -> list[tuple[float, float, float
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="python -m coordinator.bench", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--quick", action="store_true", help="fewer instances and decisions (about a minute)")
+    parser.add_argument("--quick", action="store_true",
+                        help="2,000 iterations, fewer instances and decisions (a minute or two)")
     parser.add_argument("--sizes", default=",".join(map(str, SIZES)), help="fleet sizes R, comma-separated")
-    parser.add_argument("--iterations", type=int, default=10_000, help="MCTS iterations per decision")
+    parser.add_argument("--iterations", type=int, default=None,
+                        help="MCTS iterations per decision (10,000; 2,000 with --quick)")
     parser.add_argument("--instances", type=int, default=None, help="instances for the quality table")
     parser.add_argument("--reference-instances", type=int, default=None,
                         help="instances (of the same set) on which the reference runs, R <= 6")
@@ -173,7 +175,7 @@ def main(argv=None) -> int:
         print(f"bench: --sections: expected a subset of warm,speed,quality,plan, found {args.sections!r}",
               file=sys.stderr)
         return 2
-    iterations = args.iterations
+    iterations = args.iterations if args.iterations is not None else (2_000 if args.quick else 10_000)
     if iterations < 1:
         print(f"bench: --iterations: expected a positive integer, found {iterations}", file=sys.stderr)
         return 2
@@ -189,9 +191,9 @@ def main(argv=None) -> int:
           f"  quality instances={n_quality} (reference: {n_reference})  numba {numba.__version__}"
           f"  cpus={os.cpu_count()}  load average at start {os.getloadavg()[0]:.2f}")
 
-    fast = MCTSPlanner("ssap", iterations=args.iterations)
+    fast = MCTSPlanner("ssap", iterations=iterations)
     fast.warm_up()
-    reference = ReferenceMCTSPlanner("ssap", iterations=args.iterations)
+    reference = ReferenceMCTSPlanner("ssap", iterations=iterations)
     if "warm" in sections:
         warm_section()
     if "speed" in sections:
