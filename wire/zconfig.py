@@ -1,8 +1,7 @@
 """Zenoh configuration for fleet processes, following zenoh's own CLI conventions.
 
 Order of precedence (later wins): zenoh's defaults, then the fleet's defaults (multicast
-scouting off, unless the config file mentions ``multicast``; reconnection retried every 0.25-1 s,
-unless it mentions ``retry``), then ``--zenoh-config FILE.json5``,
+scouting off, unless the config file mentions ``multicast``), then ``--zenoh-config FILE.json5``,
 then the ``--mode``, ``--listen`` and ``--connect`` flags, which override the file's keys.
 """
 from __future__ import annotations
@@ -20,9 +19,6 @@ ENDPOINT_PATTERN = re.compile(r"^[a-z0-9]+/[^\s]+$")
 
 #: Default port when a coordinator is started alone without --listen (zenoh's usual port).
 DEFAULT_PORT = 7447
-
-#: The fleet's reconnection back-off (zenoh's ``connect/retry``; zenoh's own is 1 s up to 4 s).
-CONNECT_RETRY = {"period_init_ms": 250, "period_max_ms": 1000, "period_increase_factor": 2}
 
 
 class ConfigError(ValueError):
@@ -63,15 +59,13 @@ def make_config(
     Raises:
         ConfigError: with one line naming the bad flag or file.
     """
-    multicast_from_file = retry_from_file = False
+    multicast_from_file = False
     if config_file:
         if not os.path.isfile(config_file):
             raise ConfigError(f"--zenoh-config: file not found: {config_file}")
         try:
             with open(config_file, encoding="utf-8") as handle:
-                text = handle.read()
-            multicast_from_file = "multicast" in text
-            retry_from_file = "retry" in text
+                multicast_from_file = "multicast" in handle.read()
             conf = zenoh.Config.from_file(config_file)
         except Exception as exc:
             raise ConfigError(f"{config_file}: not a valid zenoh config: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
@@ -79,10 +73,6 @@ def make_config(
         conf = zenoh.Config()
     if not multicast_from_file:
         conf.insert_json5("scouting/multicast/enabled", "false")
-    if not retry_from_file:
-        # A client whose peer went away (a restarted coordinator, a healed partition) retries
-        # every second at most, instead of zenoh's up to 4 s: recovery is not held up by back-off.
-        conf.insert_json5("connect/retry", json.dumps(CONNECT_RETRY))
     if mode is not None:
         if mode not in ("peer", "client", "router"):
             raise ConfigError(f"--mode: expected peer, client or router, found {mode!r}")
