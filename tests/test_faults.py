@@ -2,7 +2,7 @@
 a coordinator SIGKILLed and restarted on the same results directory, a carrier SIGKILLed and
 restarted, and a carrier's network link cut for several seconds (network namespaces).
 
-Every test runs a 10-stage mission (``FAULTS_SCENARIO``) at ``--realtime 5`` (a stage per wall
+Every test runs a 10- or 12-stage mission (:func:`faults_yaml`) at ``--realtime 5`` (a stage per wall
 second), polls mission.db for the moment to strike (never sleeps and hopes), and then checks
 mission.db, summary.json and the carriers' own accounts (their Bye messages).
 """
@@ -29,35 +29,40 @@ from fleet_helpers import ROOT, db_rows, deployed_matrix
 
 RUN_FLEET = str(ROOT / "run_fleet.py")
 
-#: A longer tiny.yaml: 2 carriers, 10 stages 5 s apart (a: stages 0-9, b: 1-9), so a fault
-#: early in the mission leaves stages to recover in. 200 MCTS iterations: planning takes ~1 ms.
-FAULTS_SCENARIO = """\
+def faults_yaml(stages: int) -> str:
+    """A longer tiny.yaml: 2 carriers, ``stages`` stages 5 s apart (a: every stage, b: from
+    stage 1), so a fault early in the mission leaves stages to recover in. 200 MCTS iterations:
+    planning takes about 1 ms."""
+    length = 10.0 * stages  # metres at 2 m/s: a reaches its last waypoint at t = 5 * stages s
+    return f"""\
 name: faults
 seed: 11
 map:
-  bounds: [0, 0, 100, 40]
+  bounds: [0, 0, {length + 8:g}, 40]
   walls:
     - [[12, 23.5], [30, 23.5]]
 features:
   density: 0.05
 sensing_radius: 5.0
 stage_interval: 5.0
-stages: 10
+stages: {stages}
 carriers:
   - id: a
     passengers: 3
     start_time: 0
     speed: 2.0
-    waypoints: [[4, 20], [96, 20]]
+    waypoints: [[4, 20], [{length - 4:g}, 20]]
   - id: b
     passengers: 2
     start_time: 5
     speed: 2.0
-    waypoints: [[20, 4], [20, 22], [94, 22]]
+    waypoints: [[20, 4], [20, 22], [{length - 6:g}, 22]]
 planner:
   name: mcts-ssap
   iterations: 200
 """
+
+
 #: One stage per wall second.
 PACE = ["--realtime", "5"]
 
@@ -65,7 +70,7 @@ PACE = ["--realtime", "5"]
 @pytest.fixture(scope="module")
 def scenario_file(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("faults") / "faults.yaml"
-    path.write_text(FAULTS_SCENARIO)
+    path.write_text(faults_yaml(10))
     return path
 
 
@@ -204,7 +209,7 @@ def test_coordinator_sigkill_and_restart_recovers_from_mission_db(scenario_file,
         for cid in scenario.carrier_ids:
             fleet.carrier(cid)
         fleet.poll("stage 2 decided", lambda: fleet.decided() >= 2)
-        fleet.kill("coordinator-1")
+        killed_at = fleet.kill("coordinator-1")
         before = dict(fleet.rows("SELECT stage, deploy FROM decisions"))
         k = max(before)
         assert 2 <= k < scenario.stages - 1  # killed mid-mission: stages are left to the new process
@@ -224,6 +229,12 @@ def test_coordinator_sigkill_and_restart_recovers_from_mission_db(scenario_file,
     reopened = fleet.rows("SELECT seq FROM events WHERE kind='open' ORDER BY seq")[1][0]
     by_restarted = [s for (s,) in fleet.rows(f"SELECT stage FROM decisions WHERE seq > {reopened}")]
     assert sorted(by_restarted) == list(range(k + 1, scenario.stages))
+    reopened_at = fleet.rows(f"SELECT wall_time FROM events WHERE seq = {reopened}")[0][0]
+    back = fleet.rows(f"SELECT MAX(wall_time) FROM events WHERE kind='alive' AND seq > {reopened}")[0][0]
+    resumed = fleet.rows(f"SELECT wall_time FROM events WHERE kind='decision' AND stage = {k + 1}")[0][0]
+    print(f"coordinator SIGKILL after stage {k}: restarted process opened mission.db "
+          f"{reopened_at - killed_at:.1f} s after the kill; carriers live again {back - reopened_at:.1f} s "
+          f"and stage {k + 1} decided {resumed - reopened_at:.1f} s after that")
     # No observation was lost (the carriers held and re-sent theirs), and the decisions are an
     # uninterrupted run's: the planner core over the same observations with the same seed.
     x = _recorded_observations(summary)
@@ -300,15 +311,21 @@ _NO_NETNS = netns.unavailable()
 
 
 @pytest.mark.skipif(_NO_NETNS is not None, reason=f"network namespaces unavailable: {_NO_NETNS}")
-def test_network_partition_of_a_carrier(scenario_file, scenario, tmp_path):
+def test_network_partition_of_a_carrier(tmp_path):
     """Coordinator, carrier a and carrier b on three hosts (network namespaces); a's link goes
-    down for 6 s after stage 2, then up. Zenoh's lease is 3 s here (a --zenoh-config file), so
-    the cut outlasts it: a's token vanishes, a's session reconnects after the cut and
-    resynchronises. The mission completes; the stages decided while a was cut off are ∅ for a;
+    down for 6 s after stage 2, then up. Zenoh's lease is 3 s here and clients retry every second
+    at most (a --zenoh-config file), so the cut outlasts the lease: a's token vanishes, a's
+    session reconnects after the cut and resynchronises. The mission completes; the stages decided while a was cut off are ∅ for a;
     nothing is deployed twice; a joins the first undecided stage at once (no lagging behind)."""
     cut_s = 6.0
+    # 12 stages: a is away for the cut plus its reconnection (about 7 s) while the coordinator
+    # goes on at a stage per second; stages must be left for a to come back to.
+    scenario_file = tmp_path / "faults12.yaml"
+    scenario_file.write_text(faults_yaml(12))
+    scenario = world.load_scenario(scenario_file)
     zconf = tmp_path / "lease.json5"
-    zconf.write_text("{ transport: { link: { tx: { lease: 3000, keep_alive: 4 } } } }\n")
+    zconf.write_text("{ transport: { link: { tx: { lease: 3000, keep_alive: 4 } } },\n"
+                     "  connect: { retry: { period_init_ms: 250, period_max_ms: 1000, period_increase_factor: 2 } } }\n")
     lease = ["--zenoh-config", str(zconf)]
     with netns.hosts(3) as (coordinator_host, host_a, host_b):
         fleet = Fleet(scenario_file, tmp_path / "run", f"tcp/{coordinator_host.ip}:7447")
@@ -334,6 +351,8 @@ def test_network_partition_of_a_carrier(scenario_file, scenario, tmp_path):
                         "ORDER BY seq")
     assert [k for k, _ in tokens][:3] == ["alive", "dead", "alive"], tokens
     assert cut_at < tokens[1][1] < restored_at < tokens[2][1]
+    print(f"partition: a's token lost {tokens[1][1] - cut_at:.1f} s into the {cut_s:.0f} s cut, "
+          f"back {tokens[2][1] - restored_at:.1f} s after the link")
     published = {s: t for s, t in fleet.rows(
         "SELECT stage, wall_time FROM events WHERE kind='decision'")}
     # Stage j's observation is sent after decision j-1 arrives: when decision j-1 went out after
@@ -352,6 +371,7 @@ def test_network_partition_of_a_carrier(scenario_file, scenario, tmp_path):
         f"SELECT stage FROM decisions WHERE seq > {rejoined[0]} ORDER BY stage LIMIT 2")]
     assert next_two and any(s not in missing for s in next_two), (rejoined, next_two, sorted(missing))
     later = [s for s in range(max(cut_off) + 1, scenario.stages) if s not in missing]
+    print(f"partition: stages ∅ for a {sorted(missing)}, observed again from stage {min(later, default=None)}")
     answered = {s for (s,) in fleet.rows("SELECT stage FROM confirmations WHERE carrier='a'")}
     assert later and max(answered) == scenario.stages - 1
     truth = world.observe_all(scenario)
