@@ -165,7 +165,6 @@ class Carrier:
         stage is still open, and repeat our answers (``already``) so a coordinator that lost
         Confirms in flight has every outcome on record."""
         self.log("coordinator is back; re-sending hello and the pending observation")
-        self._hello()
         state = None
         for payload in self.node.query(keys.state_key(self.mission), timeout_s=2.0):
             try:
@@ -178,6 +177,8 @@ class Carrier:
                 break
         if state is not None:
             self.state_next = max(self.state_next, state.next_stage)
+        self._hello()  # after the state query: next_stage says where we go on from
+        if state is not None:
             mine = state.carrier(self.cid)
             last = state.last_decision
             for j in (mine.deployments if mine else ()):
@@ -207,7 +208,8 @@ class Carrier:
     def _hello(self) -> None:
         self.node.put(keys.carrier_key(self.mission, self.cid, "hello"), Hello(
             self.mission, self.cid, os.getpid(), socket.gethostname()[:255],
-            self.sim.passengers_left(self.cid), self.stage, self.fingerprint))
+            self.sim.passengers_left(self.cid), min(max(self.stage, self.state_next), self.n_stages),
+            self.fingerprint))
 
     def _confirm(self, confirm: Confirm) -> None:
         self.node.put(keys.carrier_key(self.mission, self.cid, "confirm"), confirm)

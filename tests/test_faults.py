@@ -367,6 +367,7 @@ def test_network_partition_of_a_carrier(tmp_path):
     # a resumes at once: of the first two stages decided after its new Hello, it observed one
     # (a carrier replaying the missed stages at its own pace would miss both).
     rejoined = fleet.rows("SELECT seq, stage FROM events WHERE kind='hello' AND carrier='a' ORDER BY seq")[-1]
+    assert rejoined[1] > max(cut_off)  # its Hello says it goes on after the stages it missed
     next_two = [s for (s,) in fleet.rows(
         f"SELECT stage FROM decisions WHERE seq > {rejoined[0]} ORDER BY stage LIMIT 2")]
     assert next_two and any(s not in missing for s in next_two), (rejoined, next_two, sorted(missing))
