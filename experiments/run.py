@@ -180,7 +180,7 @@ def _write_sweep(sweep: str, rows: list[dict], out: Path, seconds: float, jobs: 
                 "Paired differences on the same instances (mean ± SEM, wins/losses):", "",
                 report.paired_table(rows, "closed-loop", ["mcts-ssap", "ssap"], "overlaps"), "",
                 report.paired_table(rows, "mcts-ssap", ["mcts-random", "ssap"], "overlaps"), "",
-                "Mean decision time per stage, ms (two workers sharing two cores):", "",
+                f"Mean decision time per stage, ms ({jobs} worker process(es) on {os.cpu_count()} cores, shared with other work):", "",
                 report.timing_table(summary, "overlaps")]
     elif sweep == "scaling":
         report.plot(summary, out / "scaling.png", "carriers R",
@@ -194,7 +194,7 @@ def _write_sweep(sweep: str, rows: list[dict], out: Path, seconds: float, jobs: 
                 "Paired differences on the same instances (mean ± SEM, wins/losses):", "",
                 report.paired_table(rows, "closed-loop", ["mcts-ssap", "ssap"], "R"), "",
                 report.paired_table(rows, "mcts-ssap", ["mcts-random", "ssap"], "R"), "",
-                "Mean decision time per stage, ms (two workers sharing two cores):", "",
+                f"Mean decision time per stage, ms ({jobs} worker process(es) on {os.cpu_count()} cores, shared with other work):", "",
                 report.timing_table(summary, "R")]
     else:
         text = _urban_report(rows, summary, out, s, args)
