@@ -346,3 +346,162 @@ def quantiles(us, points, cdf, guide):
     for i in range(us.shape[0]):
         out[i] = _quantile(us[i], points, cdf, guide)
     return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Joint-action layout: the reference's tree (coordinator.mcts_reference), on arrays.
+#
+# A node is one stage's decision after its path's actions. Its children are the joint actions of
+# the carriers that have a choice at that stage (forced carriers deploy, carriers at ∅ stages or
+# without passengers stay), ``2^k`` of them for ``k`` choice carriers; a node with no choice has
+# one child (the forced action), exactly like the reference. The children of a node occupy one
+# contiguous block of node ids ``base[node] + slot``, reserved at its first expansion, so UCT
+# scans contiguous ``visits``/``value`` entries. The ``slot``-th expanded child is the joint
+# action ``(mult[node] * slot + offset[node]) mod 2^k`` (bit i = the i-th choice carrier
+# deploys): an odd ``mult`` makes this a permutation of the 2^k actions, drawn per node from the
+# random stream, so the untried actions are expanded in a random order without listing them.
+#
+# Tree arrays (capacity ``cap`` node ids, ``counter[0]`` reserved):
+#   base[i]      first id of node i's child block (valid once expanded[i] > 0);
+#   expanded[i]  children expanded so far (slots 0..expanded[i]-1 exist);
+#   mult[i], offset[i]   uint64 parameters of node i's expansion order;
+#   visits[i], value[i]  iterations through node i and the sum of their normalised rewards.
+# ---------------------------------------------------------------------------------------------
+
+_ONE = np.uint64(1)
+
+
+@njit(cache=True, inline="always")
+def _bits64(state):
+    """Next 64 random bits of the splitmix64 stream whose counter is ``state[0]``."""
+    z = state[0] + _GAMMA
+    state[0] = z
+    z = (z ^ (z >> _S30)) * _MIX1
+    z = (z ^ (z >> _S27)) * _MIX2
+    return z ^ (z >> _S31)
+
+
+@njit(cache=True)
+def search_joint(n_iter, base, expanded, mult, offset, visits, value, counter, state,
+                 j0, d0, valid, vs_left, known, past, indptr, nbr, table, ucut, points, cdf, guide,
+                 rollout, exploration, samples, scale, inv, inv_sqrt, sqrt_log,
+                 left, left_tree, mark, xval, pts, path, choice, max_block):
+    """Run up to ``n_iter`` MCTS iterations on the joint-action tree (see the block comment).
+
+    Stops early, before an iteration, when fewer than ``max_block`` (>= 2^k of any node) free
+    node ids remain; returns the number of iterations run (the caller grows the arrays and calls
+    again: the result does not depend on where the calls split the iterations).
+
+    Arguments are those of :func:`search` except the tree (``base, expanded, mult, offset,
+    visits, value, counter``), ``choice`` (int64 ``[R]`` scratch) and ``max_block``.
+    """
+    n_carriers, n_stages = valid.shape
+    cap = visits.shape[0]
+    n_nodes = counter[0]
+    known_flat = known.reshape(known.size)
+    done = 0
+    while done < n_iter:
+        if n_nodes + max_block > cap:
+            break
+        for r in range(n_carriers):
+            left[r] = d0[r]
+        node = ROOT
+        path[0] = ROOT
+        plen = 1
+        n = 0
+        k = j0
+        # Invariant: the path's joint actions (stages j0..k-1) are applied to left/mark/pts.
+        while k < n_stages:
+            nc = 0
+            for r in range(n_carriers):
+                if valid[r, k] and left[r] > 0:
+                    if vs_left[r, k] > left[r]:
+                        choice[nc] = r
+                        nc += 1
+                    else:  # forced
+                        a = r * n_stages + k
+                        mark[a] = 1
+                        pts[n] = a
+                        n += 1
+                        left[r] -= 1
+            n_act = np.int64(1) << nc
+            e = expanded[node]
+            if e < n_act:  # expansion: the e-th action of the node's order
+                if e == 0:
+                    base[node] = n_nodes
+                    n_nodes += n_act
+                    mult[node] = _bits64(state) | _ONE
+                    offset[node] = _bits64(state)
+                slot = e
+                child = base[node] + e
+                expanded[node] = e + 1
+                expanded[child] = 0
+                visits[child] = 0
+                value[child] = 0.0
+                expand = True
+            else:  # UCT among the node's children (ties to the earliest expanded)
+                b0 = base[node]
+                nv = visits[node]
+                best = 0
+                best_s = -np.inf
+                if nv < UCT_TABLE:  # then every child's visits are in the tables too
+                    ex = exploration * sqrt_log[nv]
+                    for i in range(n_act):
+                        v = visits[b0 + i]
+                        s = value[b0 + i] * inv[v] + ex * inv_sqrt[v]
+                        if s > best_s:
+                            best_s = s
+                            best = i
+                else:
+                    log_parent = math.log(nv)
+                    for i in range(n_act):
+                        v = visits[b0 + i]
+                        s = value[b0 + i] / v + exploration * math.sqrt(log_parent / v)
+                        if s > best_s:
+                            best_s = s
+                            best = i
+                slot = best
+                child = b0 + best
+                expand = False
+            act = (mult[node] * np.uint64(slot) + offset[node]) & np.uint64(n_act - 1)
+            for i in range(nc):
+                if (act >> np.uint64(i)) & _ONE:
+                    r = choice[i]
+                    a = r * n_stages + k
+                    mark[a] = 1
+                    pts[n] = a
+                    n += 1
+                    left[r] -= 1
+            node = child
+            path[plen] = node
+            plen += 1
+            k += 1
+            if expand:
+                break
+        q = (k - j0) * n_carriers
+        n_tree = n
+        for r in range(n_carriers):
+            left_tree[r] = left[r]
+        total = 0.0
+        for _s in range(samples):
+            for i in range(n_tree):
+                a = pts[i]
+                x = known_flat[a]  # NaN after the root stage: sampled
+                xval[a] = _sample(state, points, cdf, guide) if np.isnan(x) else x
+            for r in range(n_carriers):
+                left[r] = left_tree[r]
+            n = _rollout(state, q, n_tree, j0, left, valid, vs_left, known, table, ucut, points, cdf, guide,
+                         rollout, mark, xval, pts, indptr, nbr)
+            total += _evaluate(n, past, pts, mark, xval, indptr, nbr)
+            for i in range(n_tree, n):
+                mark[pts[i]] = 0
+        for i in range(n_tree):
+            mark[pts[i]] = 0
+        reward = total / (samples * scale)
+        for i in range(plen):
+            visits[path[i]] += 1
+            value[path[i]] += reward
+        done += 1
+    counter[0] = n_nodes
+    return done
+

@@ -61,6 +61,16 @@ CHUNK_OF_BUDGET = 0.2
 STOP_FRACTION = 0.01
 #: Node capacity of the first allocation in time-budget mode (grown geometrically).
 INITIAL_CAPACITY = 4096
+#: Tree layouts: ``"joint"`` (the reference's joint-action tree, expanded lazily), ``"binary"``
+#: (one binary level per carrier with a choice), ``"auto"`` (joint up to JOINT_MAX_CARRIERS).
+LAYOUTS = ("auto", "joint", "binary")
+#: ``layout="auto"`` uses the joint-action tree when at most this many carriers can still have a
+#: choice (2^8 = 256 root actions: 10,000 iterations try each about 40 times), the binary
+#: levels beyond (where the joint tree cannot even try each root action once).
+JOINT_MAX_CARRIERS = 8
+#: The joint layout reserves 2^k node ids per expanded node (k carriers with a choice): it is
+#: refused beyond this many (the binary layout has no such limit).
+JOINT_LIMIT = 16
 
 
 @functools.lru_cache(maxsize=64)
@@ -137,6 +147,27 @@ class _Tree:
         self.point = np.concatenate([self.point, np.zeros(new - cap, dtype=np.int64)])
 
 
+class _JointTree:
+    """Node arrays of the joint-action layout (see :func:`coordinator._mcts_kernel.search_joint`),
+    grown geometrically; ids are reserved a child block (``2^k`` ids) at a time."""
+
+    def __init__(self, capacity: int):
+        self.base = np.zeros(capacity, dtype=np.int64)
+        self.expanded = np.zeros(capacity, dtype=np.int64)
+        self.mult = np.zeros(capacity, dtype=np.uint64)
+        self.offset = np.zeros(capacity, dtype=np.uint64)
+        self.visits = np.zeros(capacity, dtype=np.int64)
+        self.value = np.zeros(capacity, dtype=np.float64)
+        self.counter = np.ones(1, dtype=np.int64)  # the root exists
+
+    def grow(self) -> None:
+        """Double the capacity."""
+        cap = self.visits.shape[0]
+        for name in ("base", "expanded", "mult", "offset", "visits", "value"):
+            old = getattr(self, name)
+            setattr(self, name, np.concatenate([old, np.zeros(cap, dtype=old.dtype)]))
+
+
 class MCTSPlanner:
     """The paper's MCTS planner, fast (see the module docstring).
 
@@ -147,10 +178,15 @@ class MCTSPlanner:
             iteration runs).
         exploration: UCT constant ``c`` on normalised rewards.
         samples: Monte Carlo rollouts per iteration (their mean is backed up).
+        layout: tree layout, ``"auto"`` (default), ``"joint"`` or ``"binary"`` (see the module
+            docstring; ``"auto"`` is joint when the problem has at most JOINT_MAX_CARRIERS
+            carriers, binary beyond, so the layout is fixed per problem).
     """
 
     def __init__(self, rollout: str = "ssap", iterations: int = 10_000, plan_ms: float | None = None,
-                 exploration: float = DEFAULT_EXPLORATION, samples: int = 1):
+                 exploration: float = DEFAULT_EXPLORATION, samples: int = 1, layout: str = "auto"):
+        if layout not in LAYOUTS:
+            raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
         if rollout not in ROLLOUTS:
             raise ValueError(f"rollout must be one of {tuple(ROLLOUTS)}, got {rollout!r}")
         if int(iterations) < 1:
@@ -166,9 +202,18 @@ class MCTSPlanner:
         self.plan_ms = None if plan_ms is None else float(plan_ms)
         self.exploration = float(exploration)
         self.samples = int(samples)
+        self.layout = layout
         self.name = f"mcts-{rollout}"
         self.last_iterations = 0  # iterations run by the latest decision (for benchmarks)
         self.last_nodes = 0  # tree nodes of the latest decision
+        self.last_reserved = 0  # node ids allocated by the latest decision (joint: whole child blocks)
+        self.last_layout = None  # layout used by the latest decision
+
+    def layout_for(self, problem: Problem) -> str:
+        """The layout used on ``problem`` ("joint" or "binary")."""
+        if self.layout != "auto":
+            return self.layout
+        return "joint" if problem.valid.shape[0] <= JOINT_MAX_CARRIERS else "binary"
 
     def warm_up(self, problem: Problem | None = None) -> None:
         """Load (or compile, the first time ever) the numba kernels with a tiny decision.
@@ -180,13 +225,18 @@ class MCTSPlanner:
         x = np.where(problem.valid, 1.0, np.nan)
         view = make_view(problem, 0, x, np.zeros(problem.valid.shape, dtype=bool))
         saved = (self.iterations, self.plan_ms)
+        layout = self.layout
         self.iterations, self.plan_ms = 2, None
         try:
             if not (view.can_deploy & ~view.must_deploy).any():
-                view = make_view(*_tiny_view_args())
+                tiny = _tiny_view_args()
+                view = make_view(*tiny)
+                if self.layout == "auto" and self.layout_for(problem) != self.layout_for(tiny[0]):
+                    self.layout = self.layout_for(problem)  # load the kernel the problem will use
             self.decide(view, np.random.default_rng(0))
         finally:
             self.iterations, self.plan_ms = saved
+            self.layout = layout
 
     def decide(self, view: StageView, rng: np.random.Generator) -> np.ndarray:
         """bool ``[R]``: carriers deploying at ``view.stage``."""
@@ -200,6 +250,8 @@ class MCTSPlanner:
             self.last_iterations = 0
             self.last_nodes = 0
             return must.copy()
+        layout = self.layout_for(problem)
+        self.last_layout = layout
         state = rng.integers(2 ** 64, dtype=np.uint64, size=1)  # the kernel's random stream
 
         valid = np.ascontiguousarray(view.valid, dtype=np.uint8)
@@ -224,15 +276,35 @@ class MCTSPlanner:
             np.zeros(n_carriers * n_stages, dtype=np.int64),  # pts
             np.zeros((n_stages - j0) * n_carriers + 2, dtype=np.int64),  # path
         )
-        first = int(np.flatnonzero(choice)[0])  # the root is the first carrier with a choice
-        tree = _Tree(self.iterations + 1 if self.plan_ms is None else INITIAL_CAPACITY)
-        tree.point[_k.ROOT] = first
         fixed = (state, j0, d0, valid, vs_left, known, past, indptr, nbr, table, ucut, points, cdf, guide,
                  ROLLOUTS[self.rollout], self.exploration, self.samples, problem.scale) + _uct_tables() + scratch
+        if layout == "joint":
+            # Upper bound of the choice carriers at any node: carriers with a passenger left and a
+            # valid stage from j0 on.
+            k_max = int(np.count_nonzero((d0 > 0) & (vs_left[:, j0] > 0)))
+            if k_max > JOINT_LIMIT:
+                raise ValueError(f"layout 'joint' supports at most {JOINT_LIMIT} carriers with a choice, "
+                                 f"found {k_max}")
+            max_block = 1 << k_max
+            budget_nodes = self.iterations if self.plan_ms is None else INITIAL_CAPACITY
+            tree = _JointTree(1 + max_block + min(4 * budget_nodes, budget_nodes * max_block))
+            fixed = fixed + (np.zeros(n_carriers, dtype=np.int64), max_block)
 
-        def run(n_iter: int) -> None:
-            tree.reserve(n_iter)
-            _k.search(n_iter, tree.child, tree.visits, tree.value, tree.point, tree.counter, *fixed)
+            def run(n_iter: int) -> None:
+                while n_iter > 0:
+                    ran = _k.search_joint(n_iter, tree.base, tree.expanded, tree.mult, tree.offset, tree.visits,
+                                          tree.value, tree.counter, *fixed)
+                    n_iter -= ran
+                    if n_iter > 0:
+                        tree.grow()
+        else:
+            first = int(np.flatnonzero(choice)[0])  # the root is the first carrier with a choice
+            tree = _Tree(self.iterations + 1 if self.plan_ms is None else INITIAL_CAPACITY)
+            tree.point[_k.ROOT] = first
+
+            def run(n_iter: int) -> None:
+                tree.reserve(n_iter)
+                _k.search(n_iter, tree.child, tree.visits, tree.value, tree.point, tree.counter, *fixed)
 
         if self.plan_ms is None:
             run(self.iterations)
@@ -254,8 +326,34 @@ class MCTSPlanner:
                 target = min(CHUNK_OF_REMAINING * remaining, CHUNK_OF_BUDGET * budget)
                 chunk = int(min(CHUNK_GROWTH * chunk, max(1.0, target / per_iteration)))
         self.last_iterations = done
+        if layout == "joint":
+            self.last_nodes = 1 + int(tree.expanded[: int(tree.counter[0])].sum())  # created, not reserved
+            self.last_reserved = int(tree.counter[0])
+            return self._extract_joint(tree, choice, must)
         self.last_nodes = int(tree.counter[0])
+        self.last_reserved = self.last_nodes
         return self._extract(view, tree, choice, must)
+
+    @staticmethod
+    def _extract_joint(tree: _JointTree, choice: np.ndarray, must: np.ndarray) -> np.ndarray:
+        """The most visited root child's joint action (ties: higher mean, then expansion order)."""
+        root = _k.ROOT
+        carriers = np.flatnonzero(choice)
+        n_act = 1 << len(carriers)
+        expanded = int(tree.expanded[root])
+        b0 = int(tree.base[root])
+        best, key = 0, None
+        for slot in range(expanded):
+            v = int(tree.visits[b0 + slot])
+            k = (v, float(tree.value[b0 + slot]) / v)
+            if key is None or k > key:
+                best, key = slot, k
+        # The action of a slot: (mult * slot + offset) mod 2^64 mod 2^k (2^k divides 2^64).
+        act = (int(tree.mult[root]) * best + int(tree.offset[root])) % n_act
+        decision = must.copy()
+        for i, r in enumerate(carriers.tolist()):
+            decision[r] = bool(act >> i & 1)
+        return decision
 
     def _extract(self, view: StageView, tree: _Tree, choice: np.ndarray, must: np.ndarray) -> np.ndarray:
         """Follow the most visited child through the root stage's binary levels."""
