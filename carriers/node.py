@@ -12,7 +12,10 @@ motion equals ``world.observe_all``'s). Per stage j (docs/protocol.md, "Stage ha
 4. deploy if selected (the passenger appears in the world) and publish a Confirm.
 
 A carrier that starts late, or restarts, first queries ``coordinator/state``: it replays its
-recorded deployments, skips the decided stages and joins at the first undecided one.
+recorded deployments, skips the decided stages and joins at the first undecided one. A carrier
+that finds the coordinator ahead of it (a partition healed, the coordinator came back, its
+decisions arrived in a burst) does the same: stages already decided are ∅ for it, reached at once
+without publishing a stale observation, and the first undecided stage is reached unpaced.
 Decisions are handled at most once per stage (a repeated one gets its first answer again), and
 a carrier never deploys more passengers than it carries: no double deployment.
 """
