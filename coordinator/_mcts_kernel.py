@@ -365,7 +365,9 @@ def quantiles(us, points, cdf, guide):
 #   base[i]      first id of node i's child block (valid once expanded[i] > 0);
 #   expanded[i]  children expanded so far (slots 0..expanded[i]-1 exist);
 #   mult[i], offset[i]   uint64 parameters of node i's expansion order;
-#   visits[i], value[i]  iterations through node i and the sum of their normalised rewards.
+#   visits[i], value[i]  iterations through node i and the sum of their normalised rewards;
+#   mean[i], isq[i]      value[i] / visits[i] and 1 / sqrt(visits[i]), kept by the backup so that
+#                        the UCT scan reads two contiguous arrays.
 # ---------------------------------------------------------------------------------------------
 
 _ONE = np.uint64(1)
@@ -382,7 +384,7 @@ def _bits64(state):
 
 
 @njit(cache=True)
-def search_joint(n_iter, base, expanded, mult, offset, visits, value, counter, state,
+def search_joint(n_iter, base, expanded, mult, offset, visits, value, mean, isq, counter, state,
                  j0, d0, valid, vs_left, known, past, indptr, nbr, table, ucut, points, cdf, guide,
                  rollout, exploration, samples, scale, inv, inv_sqrt, sqrt_log,
                  left, left_tree, mark, xval, pts, path, choice, max_block):
@@ -393,7 +395,7 @@ def search_joint(n_iter, base, expanded, mult, offset, visits, value, counter, s
     again: the result does not depend on where the calls split the iterations).
 
     Arguments are those of :func:`search` except the tree (``base, expanded, mult, offset,
-    visits, value, counter``), ``choice`` (int64 ``[R]`` scratch) and ``max_block``.
+    visits, value, mean, isq, counter``), ``choice`` (int64 ``[R]`` scratch) and ``max_block``.
     """
     n_carriers, n_stages = valid.shape
     cap = visits.shape[0]
@@ -442,24 +444,14 @@ def search_joint(n_iter, base, expanded, mult, offset, visits, value, counter, s
             else:  # UCT among the node's children (ties to the earliest expanded)
                 b0 = base[node]
                 nv = visits[node]
+                ex = exploration * (sqrt_log[nv] if nv < UCT_TABLE else math.sqrt(math.log(nv)))
                 best = 0
                 best_s = -np.inf
-                if nv < UCT_TABLE:  # then every child's visits are in the tables too
-                    ex = exploration * sqrt_log[nv]
-                    for i in range(n_act):
-                        v = visits[b0 + i]
-                        s = value[b0 + i] * inv[v] + ex * inv_sqrt[v]
-                        if s > best_s:
-                            best_s = s
-                            best = i
-                else:
-                    log_parent = math.log(nv)
-                    for i in range(n_act):
-                        v = visits[b0 + i]
-                        s = value[b0 + i] / v + exploration * math.sqrt(log_parent / v)
-                        if s > best_s:
-                            best_s = s
-                            best = i
+                for i in range(n_act):  # contiguous: the child block
+                    s = mean[b0 + i] + ex * isq[b0 + i]
+                    if s > best_s:
+                        best_s = s
+                        best = i
                 slot = best
                 child = b0 + best
                 expand = False
@@ -499,8 +491,16 @@ def search_joint(n_iter, base, expanded, mult, offset, visits, value, counter, s
             mark[pts[i]] = 0
         reward = total / (samples * scale)
         for i in range(plen):
-            visits[path[i]] += 1
-            value[path[i]] += reward
+            m = path[i]
+            v = visits[m] + 1
+            visits[m] = v
+            value[m] += reward
+            if v < UCT_TABLE:
+                mean[m] = value[m] * inv[v]
+                isq[m] = inv_sqrt[v]
+            else:
+                mean[m] = value[m] / v
+                isq[m] = 1.0 / math.sqrt(v)
         done += 1
     counter[0] = n_nodes
     return done

@@ -158,12 +158,14 @@ class _JointTree:
         self.offset = np.zeros(capacity, dtype=np.uint64)
         self.visits = np.zeros(capacity, dtype=np.int64)
         self.value = np.zeros(capacity, dtype=np.float64)
+        self.mean = np.zeros(capacity, dtype=np.float64)
+        self.isq = np.zeros(capacity, dtype=np.float64)
         self.counter = np.ones(1, dtype=np.int64)  # the root exists
 
     def grow(self) -> None:
         """Double the capacity."""
         cap = self.visits.shape[0]
-        for name in ("base", "expanded", "mult", "offset", "visits", "value"):
+        for name in ("base", "expanded", "mult", "offset", "visits", "value", "mean", "isq"):
             old = getattr(self, name)
             setattr(self, name, np.concatenate([old, np.zeros(cap, dtype=old.dtype)]))
 
@@ -293,7 +295,7 @@ class MCTSPlanner:
             def run(n_iter: int) -> None:
                 while n_iter > 0:
                     ran = _k.search_joint(n_iter, tree.base, tree.expanded, tree.mult, tree.offset, tree.visits,
-                                          tree.value, tree.counter, *fixed)
+                                          tree.value, tree.mean, tree.isq, tree.counter, *fixed)
                     n_iter -= ran
                     if n_iter > 0:
                         tree.grow()
