@@ -241,8 +241,10 @@ def _urban_report(rows, summary, out: Path, s: dict, args) -> list[str]:
     for p in sorted(feats, key=report._order):
         v = np.asarray(feats[p])
         paper = PAPER_URBAN.get(p)
-        r_ssap = f"{v.mean() / base_ssap:.2f}" + (f" / {paper / PAPER_URBAN['ssap']:.2f}" if paper else "")
-        r_rand = f"{v.mean() / base_rand:.2f}" + (f" / {paper / PAPER_URBAN['random']:.2f}" if paper else "")
+        r_ssap = (f"{v.mean() / base_ssap:.2f}" if np.isfinite(base_ssap) else "–") + (
+            f" / {paper / PAPER_URBAN['ssap']:.2f}" if paper else "")
+        r_rand = (f"{v.mean() / base_rand:.2f}" if np.isfinite(base_rand) else "–") + (
+            f" / {paper / PAPER_URBAN['random']:.2f}" if paper else "")
         label = report.STYLE.get(p, (p,))[0]
         lines.append(f"| {label} | {v.mean():.2f} ± {report.sem(v):.2f} | {v[0]:.2f} | {paper if paper else '–'} "
                      f"| {r_ssap} | {r_rand} |")
