@@ -134,8 +134,9 @@ class Node:
         pub.put(data)
 
     def put_raw(self, key_expr: str, data: bytes) -> None:
-        """Publish raw bytes (tests and fuzzers)."""
-        self.session.put(key_expr, data)
+        """Publish raw bytes (tests and fuzzers), with blocking congestion control like
+        :meth:`put`: zenoh's default (drop) may lose a large, fragmented payload under load."""
+        self.session.put(key_expr, data, congestion_control=zenoh.CongestionControl.BLOCK)
 
     def query(self, key_expr: str, timeout_s: float = 2.0) -> list[bytes]:
         """Payloads of the replies to a query on ``key_expr`` (empty list when nobody answers)."""
