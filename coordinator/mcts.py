@@ -162,6 +162,14 @@ class _JointTree:
         self.isq = np.zeros(capacity, dtype=np.float64)
         self.counter = np.ones(1, dtype=np.int64)  # the root exists
 
+    def reset(self) -> None:
+        """An empty tree (the root only). Other entries are garbage until the kernel writes them:
+        it reads a node's fields only after creating it (see search_joint)."""
+        self.counter[0] = 1
+        self.expanded[0] = 0
+        self.visits[0] = 0
+        self.value[0] = 0.0
+
     def grow(self) -> None:
         """Double the capacity."""
         cap = self.visits.shape[0]
@@ -210,6 +218,7 @@ class MCTSPlanner:
         self.last_nodes = 0  # tree nodes of the latest decision
         self.last_reserved = 0  # node ids allocated by the latest decision (joint: whole child blocks)
         self.last_layout = None  # layout used by the latest decision
+        self._joint_tree = None  # joint-layout node arrays, reused by the next decision
 
     def layout_for(self, problem: Problem) -> str:
         """The layout used on ``problem`` ("joint" or "binary")."""
@@ -289,7 +298,12 @@ class MCTSPlanner:
                                  f"found {k_max}")
             max_block = 1 << k_max
             budget_nodes = self.iterations if self.plan_ms is None else INITIAL_CAPACITY
-            tree = _JointTree(1 + max_block + min(4 * budget_nodes, budget_nodes * max_block))
+            want = 1 + max_block + min(16 * budget_nodes, budget_nodes * max_block)
+            tree = self._joint_tree
+            if tree is None or tree.visits.shape[0] < want:
+                # Kept across decisions: a fresh multi-megabyte tree per decision cost page faults.
+                tree = self._joint_tree = _JointTree(want)
+            tree.reset()
             fixed = fixed + (np.zeros(n_carriers, dtype=np.int64), max_block)
 
             def run(n_iter: int) -> None:
