@@ -234,7 +234,7 @@ def test_coordinator_sigkill_and_restart_recovers_from_mission_db(scenario_file,
     resumed = fleet.rows(f"SELECT wall_time FROM events WHERE kind='decision' AND stage = {k + 1}")[0][0]
     print(f"coordinator SIGKILL after stage {k}: restarted process opened mission.db "
           f"{reopened_at - killed_at:.1f} s after the kill; carriers live again {back - reopened_at:.1f} s "
-          f"and stage {k + 1} decided {resumed - reopened_at:.1f} s after that")
+          f"and stage {k + 1} decided {resumed - reopened_at:.1f} s after it opened mission.db")
     # No observation was lost (the carriers held and re-sent theirs), and the decisions are an
     # uninterrupted run's: the planner core over the same observations with the same seed.
     x = _recorded_observations(summary)
