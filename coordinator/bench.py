@@ -161,6 +161,8 @@ def main(argv=None) -> int:
                         help="instances (of the same set) on which the reference runs, R <= 6")
     parser.add_argument("--sections", default="warm,speed,quality,plan",
                         help="comma-separated subset of warm,speed,quality,plan")
+    parser.add_argument("--layout", default="auto", choices=("auto", "joint", "binary"),
+                        help="tree layout of the fast planner (auto: joint up to 8 carriers, binary beyond)")
     parser.add_argument("--timing-decisions", type=int, default=None, help="stage-0 decisions timed per R")
     args = parser.parse_args(argv)
     try:
@@ -189,9 +191,9 @@ def main(argv=None) -> int:
 
     print(f"# coordinator.bench  iterations={iterations}  D={PASSENGERS} N={STAGES} overlaps={OVERLAPS}"
           f"  quality instances={n_quality} (reference: {n_reference})  numba {numba.__version__}"
-          f"  cpus={os.cpu_count()}  load average at start {os.getloadavg()[0]:.2f}")
+          f"  cpus={os.cpu_count()}  layout={args.layout}  load average at start {os.getloadavg()[0]:.2f}")
 
-    fast = MCTSPlanner("ssap", iterations=iterations)
+    fast = MCTSPlanner("ssap", iterations=iterations, layout=args.layout)
     fast.warm_up()
     reference = ReferenceMCTSPlanner("ssap", iterations=iterations)
     if "warm" in sections:
@@ -240,6 +242,7 @@ def quality_section(fast, reference, sizes, iterations, n_quality, n_reference) 
     print(f"\n## quality: mean normalised reward (± s.e.) of online runs, {iterations} iterations per stage")
     print(f"{'R':>3} {'mcts-ssap':>15} {'ssap':>15} {'random':>15} | {'n ref':>5} {'fast (same n)':>15}"
           f" {'reference':>15} {'fast - ref':>16}")
+    layout_rows = []
     for r in sizes:
         f = rewards(fast, r, n_quality)
         s = rewards(SSAPPlanner(), r, n_quality)
@@ -253,6 +256,17 @@ def quality_section(fast, reference, sizes, iterations, n_quality, n_reference) 
             line += (f" {n_reference:>5} {fr.mean():>8.3f} ± {_se(fr):<4.2f} {ref.mean():>8.3f} ± {_se(ref):<4.2f}"
                      f" {d.mean():>+8.3f} ± {_se(d):<5.3f}")
         print(line, flush=True)
+        used = fast.layout_for(instance(r, 0)[0])
+        if used == "joint":  # the same instances with the other layout, paired
+            other = MCTSPlanner("ssap", iterations=iterations, exploration=fast.exploration, layout="binary")
+            b = rewards(other, r, n_quality)
+            layout_rows.append((r, f, b))
+    if layout_rows:
+        print(f"\nlayouts at equal iterations (same instances and seeds): joint-action tree vs binary levels")
+        print(f"{'R':>3} {'joint':>15} {'binary':>15} {'binary - joint':>18}")
+        for r, f, b in layout_rows:
+            d = b - f
+            print(f"{r:>3} {f.mean():>8.3f} ± {_se(f):<4.2f} {b.mean():>8.3f} ± {_se(b):<4.2f} {d.mean():>+10.3f} ± {_se(d):<5.3f}")
 
 
 def plan_section(repeats: int) -> None:
