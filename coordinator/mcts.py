@@ -1,13 +1,26 @@
-"""MCTS-SSAP and MCTS-Random, fast: a binary-level array tree searched by numba kernels.
+"""MCTS-SSAP and MCTS-Random, fast: array trees searched by numba kernels.
 
 The algorithm is the paper's (see :mod:`coordinator.mcts_reference` for the plain version and
-docs/performance.md for the measured comparison), with one structural change that keeps the
-2^R joint actions from ever being enumerated: **each tree level is one carrier's binary choice**.
-A stage is up to R consecutive levels, carriers in index order; carriers with no choice at a
-stage (∅ stage, no passenger left, or forced to deploy) get no level and their action is applied
-while walking. A path through the levels of one stage spells one feasible joint action, so the
-tree reaches exactly the joint actions the joint-action tree reaches; UCT statistics are shared
-between joint actions with a common prefix, and each iteration expands one binary node.
+docs/performance.md for the measured comparison), in one of two tree layouts (``layout=``):
+
+* ``"joint"`` — the reference's tree: a node is one stage, its children are the joint actions
+  of the carriers with a choice there (forced carriers fixed), ``2^k`` for ``k`` such carriers,
+  expanded one untried action per visit in a random order that is never listed (the ``i``-th
+  expanded child is ``(a * i + b) mod 2^k`` with ``a`` odd and ``a``, ``b`` drawn per node);
+  a node's children occupy one contiguous block of ids reserved at its first expansion
+  (:func:`coordinator._mcts_kernel.search_joint`). Refused beyond ``JOINT_LIMIT`` carriers
+  with a choice.
+* ``"binary"`` — **each tree level is one carrier's binary choice**. A stage is up to R
+  consecutive levels, carriers in index order; carriers with no choice at a stage (∅ stage, no
+  passenger left, or forced to deploy) get no level and their action is applied while walking.
+  A path through the levels of one stage spells one feasible joint action, so the tree reaches
+  exactly the joint actions the joint-action tree reaches; UCT statistics are shared between
+  joint actions with a common prefix, and each iteration expands one binary node
+  (:func:`coordinator._mcts_kernel.search`). At most ``iterations + 1`` nodes, whatever R.
+* ``"auto"`` (default) — joint for problems of at most ``JOINT_MAX_CARRIERS`` carriers, binary
+  beyond. With the paper's nearly greedy exploration constant the binary levels lose quality
+  against the joint tree at R = 6 (docs/performance.md); beyond 8 carriers the joint tree
+  cannot try each root action even a few times in 10,000 iterations.
 
 Per iteration (in :func:`coordinator._mcts_kernel.search`): UCT selection with constant ``c``
 on normalised rewards, expansion of one untried binary child (uniformly random when both are
@@ -16,9 +29,10 @@ the evaluation reads them; open-loop), the SSAP rollout per carrier on the confl
 observation ``x / (1 + conflicts with chosen deployments)`` or the uniformly random feasible
 rollout, evaluation of the whole trajectory with the exact penalty rule, backup.
 
-The executed action follows the **most visited** child at each binary level of the root stage
-(ties: higher mean, then "stay"). A level never expanded (only with budgets below ~R
-iterations) falls back to the SSAP rule on the conflict-discounted observation.
+The executed action is the **most visited** root child (joint layout; ties: higher mean, then
+expansion order), or follows the most visited child at each binary level of the root stage
+(binary layout; ties: higher mean, then "stay"; a level never expanded, only with budgets below
+~R iterations, falls back to the SSAP rule on the conflict-discounted observation).
 
 Priors: a discrete prior is sampled exactly by inverse CDF over its support (truncated where the
 tail mass is below 1e-15, like the thresholds); a continuous prior is replaced by
@@ -219,6 +233,10 @@ class MCTSPlanner:
         self.last_reserved = 0  # node ids allocated by the latest decision (joint: whole child blocks)
         self.last_layout = None  # layout used by the latest decision
         self._joint_tree = None  # joint-layout node arrays, reused by the next decision
+
+    def release(self) -> None:
+        """Drop the node arrays kept for the next decision (the next one allocates afresh)."""
+        self._joint_tree = None
 
     def layout_for(self, problem: Problem) -> str:
         """The layout used on ``problem`` ("joint" or "binary")."""
