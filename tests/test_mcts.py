@@ -21,6 +21,8 @@ PLANNERS = {
     "fast-ssap": lambda: MCTSPlanner("ssap", iterations=60),
     "fast-random": lambda: MCTSPlanner("random", iterations=60),
     "fast-ssap-samples": lambda: MCTSPlanner("ssap", iterations=30, samples=3),
+    "fast-ssap-binary": lambda: MCTSPlanner("ssap", iterations=60, layout="binary"),
+    "fast-random-binary": lambda: MCTSPlanner("random", iterations=60, layout="binary"),
     "reference-ssap": lambda: ReferenceMCTSPlanner("ssap", iterations=30),
     "reference-random": lambda: ReferenceMCTSPlanner("random", iterations=30),
 }
@@ -97,6 +99,49 @@ def test_plan_ms_mode_runs_iterations_and_stays_feasible():
     assert planner.last_nodes <= planner.last_iterations + 1
 
 
+def test_plan_ms_mode_joint_layout_grows_its_tree():
+    problem, x = random_instance(np.random.default_rng(4), carriers=6, passengers=3, stages=10, overlaps=10)
+    planner = MCTSPlanner("ssap", plan_ms=60.0, layout="joint")
+    planner.warm_up(problem)
+    view = make_view(problem, 0, x, np.zeros(problem.valid.shape, dtype=bool))
+    decision = planner.decide(view, np.random.default_rng(0))
+    assert planner.last_layout == "joint"
+    assert planner.last_reserved > 1 + 64 + 16 * 4096 or planner.last_iterations < 4096  # grown when needed
+    assert planner.last_nodes <= planner.last_iterations + 1
+    assert not (decision & ~view.can_deploy).any() and not (view.must_deploy & ~decision).any()
+
+
+def test_layout_choice_and_validation():
+    small, _ = random_instance(np.random.default_rng(1), carriers=8, passengers=3, stages=10, overlaps=10)
+    large, _ = random_instance(np.random.default_rng(1), carriers=9, passengers=3, stages=10, overlaps=10)
+    assert MCTSPlanner().layout_for(small) == "joint" and MCTSPlanner().layout_for(large) == "binary"
+    assert MCTSPlanner(layout="binary").layout_for(small) == "binary"
+    with pytest.raises(ValueError, match="layout"):
+        MCTSPlanner(layout="tree")
+    wide, x = random_instance(np.random.default_rng(2), carriers=20, passengers=3, stages=10, overlaps=5)
+    view = make_view(wide, 0, x, np.zeros(wide.valid.shape, dtype=bool))
+    with pytest.raises(ValueError, match="at most 16"):
+        MCTSPlanner(iterations=10, layout="joint").decide(view, np.random.default_rng(0))
+
+
+def test_joint_layout_expands_every_root_action_once_in_a_seeded_order():
+    """With 2^k iterations at a root of k choice carriers, the root's children are exactly the 2^k
+    joint actions (a permutation: none repeated, none missing), and the order depends on the seed."""
+    problem = Problem.build(3, np.ones((4, 6), dtype=bool), [[(0, 0), (1, 0)], [(2, 1), (3, 1)]])
+    x = np.full((4, 6), 2.0)
+    view = make_view(problem, 0, x, np.zeros((4, 6), dtype=bool))
+    orders = set()
+    for seed in range(4):
+        planner = MCTSPlanner("ssap", iterations=16, layout="joint")
+        planner.decide(view, np.random.default_rng(seed))
+        tree = planner._joint_tree
+        assert tree.expanded[0] == 16 and (tree.visits[tree.base[0]:tree.base[0] + 16] == 1).all()
+        order = tuple((int(tree.mult[0]) * i + int(tree.offset[0])) % 16 for i in range(16))
+        assert sorted(order) == list(range(16))
+        orders.add(order)
+    assert len(orders) > 1
+
+
 def kernel_first_chunk() -> int:
     from coordinator.mcts import FIRST_CHUNK
 
@@ -154,7 +199,7 @@ def test_feasible_joint_actions_contain_forced_and_only_allowed():
 
 
 def test_fast_matches_reference_quality():
-    """Binary levels + kernel vs the joint-action reference: same mean reward within noise.
+    """Fast planner (default layout: joint at this size) vs the reference: same mean reward within noise.
 
     Paired over instances and seeds; the tolerance (3 standard errors of the paired difference)
     is required to be well below the gap between MCTS-SSAP and random deployments, so the test
