@@ -34,7 +34,7 @@ DEFAULT_EXPLORATION = 0.05 * math.sqrt(2.0)
 DEFAULT_PLANNER = "mcts-ssap"
 DEFAULT_ITERATIONS = 10000
 #: Planner names a scenario may ask for (the coordinator builds them with ``make_planner``).
-PLANNER_NAMES = ("random", "ssap", "mcts-random", "mcts-ssap")
+PLANNER_NAMES = ("random", "ssap", "mcts-random", "mcts-ssap", "closed-loop")
 #: Sanity limits that keep a mistyped number from exhausting memory or time.
 MAX_COORDINATE = 1e6  # m
 MAX_STAGES = 100000
