@@ -260,6 +260,11 @@ class Coordinator:
         if j >= self.n_stages:
             raise ProtocolError("out-of-range", f"stage {j} >= {self.n_stages}")
         if j < self.next_stage:  # checked first: a late observation of a stage made ∅ is stale
+            if msg.x is None and not self.problem.valid[self.index[cid], j]:
+                # The per-stage ∅ of a stage the carrier is not scheduled at: nobody waited for
+                # it (a carrier joining at its staggered start sends one for the stage in
+                # progress); expected, so neither a problem nor worth counting.
+                return
             raise ProtocolError("stale-stage", f"observation of carrier {cid} for decided stage {j}")
         if (cid, j) in self.reported:
             raise ProtocolError("duplicate", f"second observation of carrier {cid} at stage {j}")
