@@ -200,6 +200,36 @@ def _evaluate(n, past, pts, mark, xval, indptr, nbr):
     return total
 
 
+@njit(cache=True)
+def _simulate(state, q, n_tree, n_carriers, samples, scale, j0, left, left_tree, valid, vs_left, known,
+              known_flat, table, ucut, points, cdf, guide, rollout, mark, xval, pts, past, indptr, nbr):
+    """Mean normalised reward of ``samples`` rollouts below a tree path.
+
+    On entry ``pts[:n_tree]`` are the path's deployments (marked in ``mark``), ``left`` the
+    passengers left after them and ``q`` the decision slot where the rollout starts. Observations
+    of the path's points are sampled afresh per sample where unknown (after the root stage).
+    On exit every mark is cleared; ``left`` is clobbered.
+    """
+    for r in range(n_carriers):
+        left_tree[r] = left[r]
+    total = 0.0
+    for _s in range(samples):
+        for i in range(n_tree):
+            a = pts[i]
+            x = known_flat[a]  # NaN after the root stage: sampled
+            xval[a] = _sample(state, points, cdf, guide) if np.isnan(x) else x
+        for r in range(n_carriers):
+            left[r] = left_tree[r]
+        n = _rollout(state, q, n_tree, j0, left, valid, vs_left, known, table, ucut, points, cdf, guide,
+                     rollout, mark, xval, pts, indptr, nbr)
+        total += _evaluate(n, past, pts, mark, xval, indptr, nbr)
+        for i in range(n_tree, n):
+            mark[pts[i]] = 0
+    for i in range(n_tree):
+        mark[pts[i]] = 0
+    return total / (samples * scale)
+
+
 @njit(cache=True, inline="always")
 def _uct(node, c0, c1, visits, value, exploration, inv, inv_sqrt, sqrt_log):
     """The UCT choice (0 or 1, ties to 0) between the two visited children of ``node``:
@@ -305,25 +335,8 @@ def search(n_iter, child, visits, value, point, counter, state,
             node = child[node, b]
             path[plen] = node
             plen += 1
-        n_tree = n
-        for r in range(n_carriers):
-            left_tree[r] = left[r]
-        total = 0.0
-        for _s in range(samples):
-            for i in range(n_tree):
-                a = pts[i]
-                x = known_flat[a]  # NaN after the root stage: sampled
-                xval[a] = _sample(state, points, cdf, guide) if np.isnan(x) else x
-            for r in range(n_carriers):
-                left[r] = left_tree[r]
-            n = _rollout(state, q, n_tree, j0, left, valid, vs_left, known, table, ucut, points, cdf, guide,
-                         rollout, mark, xval, pts, indptr, nbr)
-            total += _evaluate(n, past, pts, mark, xval, indptr, nbr)
-            for i in range(n_tree, n):
-                mark[pts[i]] = 0
-        for i in range(n_tree):
-            mark[pts[i]] = 0
-        reward = total / (samples * scale)
+        reward = _simulate(state, q, n, n_carriers, samples, scale, j0, left, left_tree, valid, vs_left, known,
+                           known_flat, table, ucut, points, cdf, guide, rollout, mark, xval, pts, past, indptr, nbr)
         for i in range(plen):
             visits[path[i]] += 1
             value[path[i]] += reward
@@ -471,25 +484,8 @@ def search_joint(n_iter, base, expanded, mult, offset, visits, value, mean, isq,
             if expand:
                 break
         q = (k - j0) * n_carriers
-        n_tree = n
-        for r in range(n_carriers):
-            left_tree[r] = left[r]
-        total = 0.0
-        for _s in range(samples):
-            for i in range(n_tree):
-                a = pts[i]
-                x = known_flat[a]  # NaN after the root stage: sampled
-                xval[a] = _sample(state, points, cdf, guide) if np.isnan(x) else x
-            for r in range(n_carriers):
-                left[r] = left_tree[r]
-            n = _rollout(state, q, n_tree, j0, left, valid, vs_left, known, table, ucut, points, cdf, guide,
-                         rollout, mark, xval, pts, indptr, nbr)
-            total += _evaluate(n, past, pts, mark, xval, indptr, nbr)
-            for i in range(n_tree, n):
-                mark[pts[i]] = 0
-        for i in range(n_tree):
-            mark[pts[i]] = 0
-        reward = total / (samples * scale)
+        reward = _simulate(state, q, n, n_carriers, samples, scale, j0, left, left_tree, valid, vs_left, known,
+                           known_flat, table, ucut, points, cdf, guide, rollout, mark, xval, pts, past, indptr, nbr)
         for i in range(plen):
             m = path[i]
             v = visits[m] + 1
