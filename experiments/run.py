@@ -168,34 +168,27 @@ def _write_sweep(sweep: str, rows: list[dict], out: Path, seconds: float, jobs: 
     report.write_trials(rows, out / f"{sweep}_trials.csv")
     summary = report.summarise(rows)
     report.write_summary(summary, out / f"{sweep}_summary.csv")
-    if sweep == "overlap":
-        report.plot(summary, out / "overlap.png", "number of overlaps",
-                    f"Overlap sweep: R = 4, D = 3, N = 10, Poisson(3), {s['trials']} trials, "
-                    f"{s['iterations']} iterations")
-        text = ["## Overlap sweep", "",
-                f"R = 4 carriers, D = 3, N = 10, Poisson(3) observations, {s['trials']} trials per level, "
+    if sweep in ("overlap", "scaling"):
+        if sweep == "overlap":
+            key, x_label, log_x = "overlaps", "number of overlaps", False
+            setting = "R = 4 carriers, D = 3, N = 10"
+            title = f"Overlap sweep: R = 4, D = 3, N = 10, Poisson(3), {s['trials']} trials, {s['iterations']} iterations"
+        else:
+            key, x_label, log_x = "R", "carriers R", True
+            setting = f"D = 3, N = 10, {args.scaling_overlaps} overlaps"
+            title = (f"Scaling sweep: D = 3, N = 10, {args.scaling_overlaps} overlaps, {s['trials']} trials, "
+                     f"{s['iterations']} iterations")
+        report.plot(summary, out / f"{sweep}.png", x_label, title, log_x=log_x)
+        text = [f"## {sweep.capitalize()} sweep", "",
+                f"{setting}, Poisson(3) observations, {s['trials']} trials per level, "
                 f"{s['iterations']} iterations per decision. Mean normalised reward ± SEM "
                 "(mean fraction of the clairvoyant bound).", "",
-                report.markdown_table(summary, "overlaps"), "",
+                report.markdown_table(summary, key), "",
                 "Paired differences on the same instances (mean ± SEM, wins/losses):", "",
-                report.paired_table(rows, "closed-loop", ["mcts-ssap", "ssap"], "overlaps"), "",
-                report.paired_table(rows, "mcts-ssap", ["mcts-random", "ssap"], "overlaps"), "",
+                report.paired_table(rows, "closed-loop", ["mcts-ssap", "ssap"], key), "",
+                report.paired_table(rows, "mcts-ssap", ["mcts-random", "ssap"], key), "",
                 f"Mean decision time per stage, ms ({jobs} worker process(es) on {os.cpu_count()} cores, shared with other work):", "",
-                report.timing_table(summary, "overlaps")]
-    elif sweep == "scaling":
-        report.plot(summary, out / "scaling.png", "carriers R",
-                    f"Scaling sweep: D = 3, N = 10, {args.scaling_overlaps} overlaps, {s['trials']} trials, "
-                    f"{s['iterations']} iterations", log_x=True)
-        text = ["## Scaling sweep", "",
-                f"D = 3, N = 10, {args.scaling_overlaps} overlaps, Poisson(3), {s['trials']} trials per level, "
-                f"{s['iterations']} iterations per decision. Mean normalised reward ± SEM "
-                "(mean fraction of the clairvoyant bound).", "",
-                report.markdown_table(summary, "R"), "",
-                "Paired differences on the same instances (mean ± SEM, wins/losses):", "",
-                report.paired_table(rows, "closed-loop", ["mcts-ssap", "ssap"], "R"), "",
-                report.paired_table(rows, "mcts-ssap", ["mcts-random", "ssap"], "R"), "",
-                f"Mean decision time per stage, ms ({jobs} worker process(es) on {os.cpu_count()} cores, shared with other work):", "",
-                report.timing_table(summary, "R")]
+                report.timing_table(summary, key)]
     else:
         text = _urban_report(rows, summary, out, s, args)
     cpu = {}
