@@ -27,7 +27,6 @@ in half.
 from __future__ import annotations
 
 import json
-import math
 import os
 import socket
 import threading
@@ -212,7 +211,7 @@ class Coordinator:
         self.state, effects = ms.step(self.state, event)
         for effect in effects:
             if isinstance(effect, ms.Record):
-                self._persist(effect)
+                self.store.record(effect, self.state)
             elif isinstance(effect, ms.Reject):
                 self._reject(effect.reason, effect.detail)
             elif isinstance(effect, ms.Refuse):
@@ -225,36 +224,6 @@ class Coordinator:
                 self.log(effect.line)
         if self.state is not before:
             self._refresh_state()
-
-    def _persist(self, record: ms.Record) -> None:
-        e, store = record.event, self.store
-        if isinstance(e, ev.Hello):
-            store.event("hello", e.carrier, record.stage, wall_time=e.at, pid=e.pid, host=e.host,
-                        passengers_left=e.passengers_left, next_stage=e.next_stage, fingerprint=e.fingerprint,
-                        compatible=e.fingerprint == self.fingerprint)
-        elif isinstance(e, ev.Observation):
-            store.observation(e.carrier, e.stage, e.x, e.position, wall_time=e.at, t=e.t,
-                              passengers_left=e.passengers_left, trail=[list(p) for p in e.trail])
-        elif isinstance(e, ev.LivelinessChanged):
-            store.event("alive" if e.alive else "dead", e.carrier, record.stage, wall_time=e.at)
-        elif isinstance(e, ev.Decided):
-            r_obs = {cid: (None if math.isnan(v) else v)
-                     for cid, v in zip(self.ids, (self.state.observation(r, e.stage) for r in range(len(self.ids))))}
-            store.decision(e.stage, e.deploy, e.planning_ms, missing=record.missing, wall_time=e.at,
-                           observations=r_obs)
-        elif isinstance(e, ev.Published):
-            store.event("published", None, e.stage, wall_time=e.at)
-        elif isinstance(e, ev.Confirmed):
-            store.confirmation(e.carrier, e.stage, e.deployed, e.status, e.position,
-                               self.state.confirms[(e.carrier, e.stage)].latency_ms, wall_time=e.at,
-                               passengers_left=e.passengers_left)
-        elif isinstance(e, ev.Bye):
-            store.event("bye", e.carrier, None, wall_time=e.at, reason=e.reason, rejected=dict(e.rejected),
-                        deployments=list(e.deployments))
-        elif isinstance(e, ev.Ended):
-            store.event("end", None, record.stage, wall_time=e.at, reason=e.reason)
-        else:
-            raise TypeError(f"cannot persist {e!r}")
 
     def _reject(self, reason: str, detail: str) -> None:
         first = reason not in self.node.rejected

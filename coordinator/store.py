@@ -267,19 +267,46 @@ class MissionStore:
         rec.events = self.db.execute("SELECT COUNT(*) FROM events").fetchone()[0]
         return rec
 
+    def record(self, record, state) -> None:
+        """Persist the event of a ``mission.state.Record`` effect (one transaction), given the
+        state the step produced (for the values the state derived: the latency, the column of
+        observations the decision read)."""
+        e = record.event
+        if isinstance(e, ev.Hello):
+            self.event("hello", e.carrier, record.stage, wall_time=e.at, pid=e.pid, host=e.host,
+                       passengers_left=e.passengers_left, next_stage=e.next_stage, fingerprint=e.fingerprint,
+                       compatible=e.fingerprint == state.spec.fingerprint)
+        elif isinstance(e, ev.Observation):
+            self.observation(e.carrier, e.stage, e.x, e.position, wall_time=e.at, t=e.t,
+                             passengers_left=e.passengers_left, trail=[list(p) for p in e.trail])
+        elif isinstance(e, ev.LivelinessChanged):
+            self.event("alive" if e.alive else "dead", e.carrier, record.stage, wall_time=e.at)
+        elif isinstance(e, ev.Decided):
+            column = {}
+            for r, cid in enumerate(state.spec.carriers):
+                value = state.observation(r, e.stage)
+                column[cid] = None if value != value else value  # NaN = ∅
+            self.decision(e.stage, e.deploy, e.planning_ms, missing=record.missing, wall_time=e.at,
+                          observations=column)
+        elif isinstance(e, ev.Published):
+            self.event("published", None, e.stage, wall_time=e.at)
+        elif isinstance(e, ev.Confirmed):
+            self.confirmation(e.carrier, e.stage, e.deployed, e.status, e.position,
+                              state.confirms[(e.carrier, e.stage)].latency_ms, wall_time=e.at,
+                              passengers_left=e.passengers_left)
+        elif isinstance(e, ev.Bye):
+            self.event("bye", e.carrier, None, wall_time=e.at, reason=e.reason, rejected=dict(e.rejected),
+                       deployments=list(e.deployments))
+        elif isinstance(e, ev.Ended):
+            self.event("end", None, record.stage, wall_time=e.at, reason=e.reason)
+        else:
+            raise TypeError(f"not a recorded mission event: {e!r}")
+
     def mission_events(self) -> list:
         """Every recorded mission event (mission.events), in the order they were committed: the
         input of ``mission.state.fold``. ``missing`` and ``rejected`` rows are not events (the
         fold derives the first from the decisions; the second changes nothing)."""
-        out = []
-        for wall, kind, cid, stage, payload in self.db.execute(
-            "SELECT wall_time, kind, carrier, stage, payload FROM events ORDER BY seq"
-        ):
-            p = json.loads(payload)
-            event = _EVENT_FROM_ROW.get(kind, lambda *a: None)(cid, stage, p, wall)
-            if event is not None:
-                out.append(event)
-        return out
+        return _mission_events(self.db)
 
     def latencies_ms(self) -> list[float]:
         """Decision-to-confirmation round trips recorded, milliseconds."""
@@ -292,6 +319,26 @@ class MissionStore:
             self.db.close()
         except Exception:
             pass
+
+
+def load_events(path: str | Path) -> list:
+    """The mission events of the mission.db at ``path``, read-only (for tools and tests)."""
+    db = sqlite3.connect(f"file:{Path(path)}?mode=ro", uri=True)
+    try:
+        return _mission_events(db)
+    finally:
+        db.close()
+
+
+def _mission_events(db) -> list:
+    out = []
+    for wall, kind, cid, stage, payload in db.execute(
+        "SELECT wall_time, kind, carrier, stage, payload FROM events ORDER BY seq"
+    ):
+        event = _EVENT_FROM_ROW.get(kind, lambda *a: None)(cid, stage, json.loads(payload), wall)
+        if event is not None:
+            out.append(event)
+    return out
 
 
 def _point(value) -> tuple[float, float]:

@@ -107,6 +107,8 @@ def open_session(conf: zenoh.Config, timeout_s: float = 10.0, retry_s: float = 0
     deadline = time.monotonic() + timeout_s
     last = "timed out"
     while True:
+        if stop is not None and stop.is_set():
+            raise OpenStopped("stop requested while opening the zenoh session")
         result: dict = {}
 
         def target():
@@ -120,10 +122,16 @@ def open_session(conf: zenoh.Config, timeout_s: float = 10.0, retry_s: float = 0
         attempt_end = time.monotonic() + max(0.5, deadline - time.monotonic())
         while thread.is_alive() and time.monotonic() < attempt_end and not (stop and stop.is_set()):
             thread.join(0.05)
+        if stop is not None and stop.is_set():
+            thread.join(5.0)  # an attempt in flight: let it finish, never leave a session behind
+            if "session" in result:
+                try:
+                    result["session"].close()
+                except Exception:
+                    pass
+            raise OpenStopped("stop requested while opening the zenoh session")
         if "session" in result:
             return result["session"]
-        if stop is not None and stop.is_set():
-            raise OpenStopped("stop requested while opening the zenoh session")
         if "error" in result:
             last = str(result["error"]).splitlines()[0].split(" at /")[0]
         if time.monotonic() >= deadline:
