@@ -242,7 +242,8 @@ class MissionStore:
 
     # ------------------------------------------------------------------ reading
     def replay(self) -> MissionRecord:
-        """Rebuild the mission's state from the log."""
+        """The typed tables' summary of the log (for tools and tests). The coordinator itself
+        recovers with :meth:`mission_events` folded through ``mission.state.step``."""
         rec = MissionRecord()
         for cid, stage, x, missing, px, py in self.db.execute(
             "SELECT carrier, stage, x, missing, pos_x, pos_y FROM observations"

@@ -325,3 +325,33 @@ def test_carrier_resync_after_the_coordinator_returns():
     # A deployment on record it never received is answered late (the passenger is on board).
     state2, effects = mc.step(state, mc.Resync(mc.StateSeen(2, (1,), None, False), P0))
     assert (1, "late", False) in confirms(effects) and state2.passengers_left == 2
+
+
+# --------------------------------------------------------------------------- purity
+FORBIDDEN = ("zenoh", "pymunk", "msgpack", "sqlite3", "world", "wire", "carriers", "coordinator.node",
+             "coordinator.store", "matplotlib")
+
+
+def test_mission_imports_no_process_library():
+    """Statically (every import statement, function bodies included) and in a fresh interpreter."""
+    import ast
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    for path in (root / "mission").glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module] if isinstance(node, ast.ImportFrom) and node.level == 0 else [])
+            for name in names:
+                assert not any(name == f or name.startswith(f + ".") for f in FORBIDDEN), (path.name, name)
+    code = ("import importlib, json, sys\n"
+            "for m in ('mission', 'mission.events', 'mission.state', 'mission.carrier', 'mission.summary',"
+            " 'mission.timeouts'):\n    importlib.import_module(m)\n"
+            "print(json.dumps(sorted(sys.modules)))\n")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    loaded = json.loads(proc.stdout.splitlines()[-1])
+    assert [m for m in loaded if any(m == f or m.startswith(f + ".") for f in FORBIDDEN)] == []
