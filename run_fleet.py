@@ -17,6 +17,7 @@ import json
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -31,6 +32,8 @@ CARRIER_EXIT_GRACE_S = 15.0
 
 
 def parse_args(argv=None) -> argparse.Namespace:
+    from mission.timeouts import DEFAULTS
+
     p = argparse.ArgumentParser(
         prog="run_fleet.py", description="Run a marsupial fleet mission over Zenoh.",
         formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 2)[1])
@@ -55,11 +58,14 @@ def parse_args(argv=None) -> argparse.Namespace:
     z.add_argument("-m", "--mode", choices=("peer", "client", "router"),
                    help="zenoh mode (default: peer for the coordinator, client for carriers)")
     t = p.add_argument_group("timeouts (seconds)")
-    t.add_argument("--join-timeout", type=float, default=20.0, help="coordinator: wait for carriers before stage 0")
-    t.add_argument("--stage-timeout", type=float, default=5.0, help="coordinator: wait per stage for observations")
-    t.add_argument("--decision-timeout", type=float, default=30.0, help="carrier: wait per stage for the decision")
-    t.add_argument("--coordinator-timeout", type=float, default=30.0,
-                   help="carrier: exit when the coordinator has been absent this long")
+    t.add_argument("--join-timeout", type=float, default=DEFAULTS.join_s,
+                   help="coordinator: wait for carriers before stage 0 (default %(default)s)")
+    t.add_argument("--stage-timeout", type=float, default=DEFAULTS.stage_s,
+                   help="coordinator: wait per stage for observations (default %(default)s)")
+    t.add_argument("--decision-timeout", type=float, default=DEFAULTS.decision_s,
+                   help="carrier: wait per stage for the decision (default %(default)s)")
+    t.add_argument("--coordinator-timeout", type=float, default=DEFAULTS.coordinator_s,
+                   help="carrier: exit when the coordinator has been absent this long (default %(default)s)")
     p.add_argument("--no-map", action="store_true", help="do not draw map.png")
     p.add_argument("--quiet", action="store_true", help="carriers print nothing but errors")
     p.add_argument("--verbose", action="store_true",
@@ -146,22 +152,30 @@ def zenoh_config(args, role: str):
     return make_config(mode, listen, connect, args.zenoh_config)
 
 
-def _install_stop_handlers() -> None:
-    """SIGINT (Ctrl-C) and SIGTERM raise KeyboardInterrupt once; later ones are ignored, so a
-    process finishes its clean shutdown (End/Bye, summary.json) even when signalled twice.
-    Installed explicitly because a process started in the background inherits SIGINT ignored."""
-    count = {"n": 0}
+def install_stop_handlers() -> threading.Event:
+    """SIGINT (Ctrl-C) and SIGTERM only set the returned stop request; the process's loop
+    honours it between steps (a store write or a message is never cut in half) and shuts down
+    cleanly (End/Bye, summary.json). Later signals change nothing. Installed explicitly because
+    a process started in the background inherits SIGINT ignored."""
+    stop = threading.Event()
 
     def handler(signum, frame):
-        count["n"] += 1
-        if count["n"] == 1:
-            raise KeyboardInterrupt
+        stop.set()
 
     signal.signal(signal.SIGINT, handler)
     signal.signal(signal.SIGTERM, handler)
+    return stop
 
 
-def run_coordinator(args, scenario) -> int:
+def _ignore_sigint() -> None:
+    """In a child before it runs Python: SIGINT ignored until the child's own
+    :func:`install_stop_handlers` (Python keeps an inherited ignored SIGINT instead of raising
+    KeyboardInterrupt), so a Ctrl-C during its start-up cannot interrupt it half-way; the
+    launcher forwards the stop again once the children are up (:func:`_stop_children`)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def run_coordinator(args, scenario, stop: threading.Event) -> int:
     from coordinator.node import Coordinator, CoordinatorConfig
     from coordinator.store import StoreMismatch
 
@@ -170,7 +184,7 @@ def run_coordinator(args, scenario) -> int:
         out_dir=out, mission=args.mission, planner=args.planner, iterations=args.iterations,
         plan_ms=args.plan_ms, seed=args.seed, realtime=args.realtime, join_timeout_s=args.join_timeout,
         stage_timeout_s=args.stage_timeout, render=not args.no_map), zenoh_config(args, "coordinator"),
-        scenario_path=args.scenario)
+        scenario_path=args.scenario, stop=stop)
     try:
         summary = coord.run()
     except StoreMismatch as exc:
@@ -178,14 +192,14 @@ def run_coordinator(args, scenario) -> int:
     return 0 if summary.get("ended") and summary["stages_decided"] == summary["stages"] else 130
 
 
-def run_carrier(args, scenario) -> int:
+def run_carrier(args, scenario, stop: threading.Event) -> int:
     from carriers.node import EXIT_CODES, Carrier, CarrierConfig
 
     log = (lambda line: None) if args.quiet else (lambda line: print(line, flush=True))
     carrier = Carrier(scenario, CarrierConfig(
         carrier=args.carrier, mission=args.mission, seed=args.seed, realtime=args.realtime,
         decision_timeout_s=args.decision_timeout, coordinator_timeout_s=args.coordinator_timeout,
-        log=log), zenoh_config(args, "carrier"))
+        log=log), zenoh_config(args, "carrier"), stop=stop)
     reason = carrier.run()
     if reason not in ("end", "finished"):
         print(f"carrier {args.carrier}: exiting ({reason})", file=sys.stderr, flush=True)
@@ -230,9 +244,11 @@ def _stop_children(procs, grace_s: float = 10.0) -> None:
             time.sleep(0.05)
 
 
-def run_all(args, scenario) -> int:
+def run_all(args, scenario, stop: threading.Event) -> int:
     from wire.zconfig import free_port
 
+    if stop.is_set():
+        return 130
     out = Path(args.out or default_out(scenario))
     out.mkdir(parents=True, exist_ok=True)
     listen = args.listen or [f"tcp/127.0.0.1:{free_port()}"]
@@ -242,25 +258,28 @@ def run_all(args, scenario) -> int:
     started = time.monotonic()
     coordinator = subprocess.Popen(
         script + ["--role", "coordinator", "--out", str(out)] + common
-        + sum((["--listen", e] for e in listen), []) + (["--no-map"] if args.no_map else []))
+        + sum((["--listen", e] for e in listen), []) + (["--no-map"] if args.no_map else []),
+        preexec_fn=_ignore_sigint)
     carriers = {}
     for cid in scenario.carrier_ids:
         carriers[cid] = subprocess.Popen(
             script + ["--role", "carrier", "--carrier", cid] + common
-            + sum((["--connect", e] for e in connect), []) + ([] if args.verbose else ["--quiet"]))
+            + sum((["--connect", e] for e in connect), []) + ([] if args.verbose else ["--quiet"]),
+            preexec_fn=_ignore_sigint)
     procs = [coordinator, *carriers.values()]
     print(f"run_fleet.py: coordinator pid {coordinator.pid} listening on {', '.join(listen)}; carriers "
           + ", ".join(f"{cid} pid {p.pid}" for cid, p in carriers.items()), flush=True)
-    try:
-        code = coordinator.wait()
-        deadline = time.monotonic() + CARRIER_EXIT_GRACE_S
-        while time.monotonic() < deadline and any(p.poll() is None for p in carriers.values()):
-            time.sleep(0.05)
-        _stop_children(list(carriers.values()), grace_s=5.0)
-    except KeyboardInterrupt:
+    while coordinator.poll() is None and not stop.is_set():
+        stop.wait(0.05)
+    if stop.is_set():
         print("run_fleet.py: interrupted; stopping the fleet", file=sys.stderr, flush=True)
         _stop_children(procs)
         return 130
+    code = coordinator.returncode
+    deadline = time.monotonic() + CARRIER_EXIT_GRACE_S
+    while time.monotonic() < deadline and any(p.poll() is None for p in carriers.values()):
+        time.sleep(0.05)
+    _stop_children(list(carriers.values()), grace_s=5.0)
     bad = {cid: p.returncode for cid, p in carriers.items() if p.returncode not in (0,)}
     if bad:
         print(f"run_fleet.py: carrier exit codes {bad}", file=sys.stderr, flush=True)
@@ -284,6 +303,7 @@ def _ms(value) -> str:
 
 
 def main(argv=None) -> int:
+    stop = install_stop_handlers()  # first: a signal from here on is a stop request, never an exception
     args = parse_args(argv)
     scenario = load(args)
     if scenario is None:
@@ -291,19 +311,16 @@ def main(argv=None) -> int:
     problem = check_flags(args, scenario)
     if problem:
         return fail(problem)
-    _install_stop_handlers()
     from wire.zconfig import ConfigError
 
     try:
         if args.role == "coordinator":
-            return run_coordinator(args, scenario)
+            return run_coordinator(args, scenario, stop)
         if args.role == "carrier":
-            return run_carrier(args, scenario)
-        return run_all(args, scenario)
+            return run_carrier(args, scenario, stop)
+        return run_all(args, scenario, stop)
     except ConfigError as exc:
         return fail(str(exc))
-    except KeyboardInterrupt:
-        return 130
 
 
 if __name__ == "__main__":

@@ -2,8 +2,13 @@
 
 Every input the coordinator acts on is committed here before anything that depends on it is
 published: observations and liveliness events before the stage's decision, the decision before it
-is sent. A restarted coordinator replays the log (:meth:`MissionStore.replay`) and continues from
-the first undecided stage, drawing the same planner random numbers (planners are stateless).
+is sent. A restarted coordinator loads the mission events (:meth:`MissionStore.mission_events`)
+and folds them through the same ``mission.state.step`` as live handling, then continues from the
+first undecided stage, drawing the same planner random numbers (planners are stateless).
+
+Each write is one SQLite transaction. The processes never raise KeyboardInterrupt (signals only
+set a stop request honoured between steps), so no write is ever cut in half; should one fail
+anyway, its transaction is rolled back and the connection is usable again.
 
 Tables:
 
@@ -21,6 +26,8 @@ import sqlite3
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from mission import events as ev
 
 SCHEMA_VERSION = 1
 
@@ -147,35 +154,44 @@ class MissionStore:
 
         class _Tx:
             def __enter__(self):
+                if db.in_transaction:  # a write that failed half-way: never build on it
+                    db.execute("ROLLBACK")
                 db.execute("BEGIN IMMEDIATE")
 
             def __exit__(self, kind, value, tb):
-                db.execute("COMMIT" if kind is None else "ROLLBACK")
+                if kind is None:
+                    db.execute("COMMIT")
+                elif db.in_transaction:
+                    db.execute("ROLLBACK")
                 return False
 
         return _Tx()
 
-    def _event(self, kind: str, carrier, stage, payload: dict) -> int:
+    def _event(self, kind: str, carrier, stage, payload: dict, wall_time: float | None = None) -> int:
         assert kind in EVENT_KINDS, kind
         cur = self.db.execute(
             "INSERT INTO events (wall_time, kind, carrier, stage, payload) VALUES (?, ?, ?, ?, ?)",
-            (time.time(), kind, carrier, stage, json.dumps(payload, sort_keys=True)),
+            (time.time() if wall_time is None else float(wall_time), kind, carrier, stage,
+             json.dumps(payload, sort_keys=True)),
         )
         return cur.lastrowid
 
-    def event(self, kind: str, carrier: str | None = None, stage: int | None = None, **payload) -> None:
-        """Append one event (committed on return)."""
+    def event(self, kind: str, carrier: str | None = None, stage: int | None = None, *,
+              wall_time: float | None = None, **payload) -> None:
+        """Append one event (committed on return); ``wall_time``: when it happened (s, epoch;
+        now by default)."""
         with self._tx():
-            self._event(kind, carrier, stage, payload)
+            self._event(kind, carrier, stage, payload, wall_time)
 
-    def observation(self, carrier: str, stage: int, x: int | None, position, **payload) -> bool:
+    def observation(self, carrier: str, stage: int, x: int | None, position, *, wall_time: float | None = None,
+                    **payload) -> bool:
         """Record a carrier's observation; returns False (and records nothing) for a repeat."""
         with self._tx():
             if self.db.execute(
                 "SELECT 1 FROM observations WHERE carrier=? AND stage=?", (carrier, stage)
             ).fetchone():
                 return False
-            seq = self._event("observation", carrier, stage, dict(payload, x=x, position=list(position)))
+            seq = self._event("observation", carrier, stage, dict(payload, x=x, position=list(position)), wall_time)
             self.db.execute(
                 "INSERT INTO observations VALUES (?, ?, ?, 0, ?, ?, ?)",
                 (carrier, stage, x, float(position[0]), float(position[1]), seq),
@@ -191,25 +207,33 @@ class MissionStore:
                     "INSERT OR IGNORE INTO observations VALUES (?, ?, NULL, 1, NULL, NULL, ?)", (cid, stage, seq)
                 )
 
-    def decision(self, stage: int, deploy, planning_ms: float, **payload) -> None:
-        """Record the decision of ``stage``. Raises sqlite3.IntegrityError if it was decided before."""
+    def decision(self, stage: int, deploy, planning_ms: float, *, missing=(), wall_time: float | None = None,
+                 **payload) -> None:
+        """Record the decision of ``stage``, and in the same transaction the ``missing`` carriers
+        (scheduled, no observation: ∅). Raises sqlite3.IntegrityError if it was decided before."""
         with self._tx():
-            seq = self._event("decision", None, stage, dict(payload, deploy=list(deploy), planning_ms=planning_ms))
+            for cid in missing:
+                seq = self._event("missing", cid, stage, {}, wall_time)
+                self.db.execute(
+                    "INSERT OR IGNORE INTO observations VALUES (?, ?, NULL, 1, NULL, NULL, ?)", (cid, stage, seq)
+                )
+            seq = self._event("decision", None, stage, dict(payload, deploy=list(deploy), planning_ms=planning_ms),
+                              wall_time)
             self.db.execute(
                 "INSERT INTO decisions VALUES (?, ?, ?, ?)", (stage, json.dumps(list(deploy)), planning_ms, seq)
             )
 
     def confirmation(self, carrier: str, stage: int, deployed: bool, status: str, position,
-                     latency_ms: float | None) -> bool:
+                     latency_ms: float | None, *, wall_time: float | None = None, **payload) -> bool:
         """Record a carrier's Confirm; returns False for a repeat (the first one stands)."""
         with self._tx():
             if self.db.execute(
                 "SELECT 1 FROM confirmations WHERE carrier=? AND stage=?", (carrier, stage)
             ).fetchone():
                 return False
-            seq = self._event("confirm", carrier, stage, {
-                "deployed": deployed, "status": status, "position": list(position), "latency_ms": latency_ms,
-            })
+            seq = self._event("confirm", carrier, stage, dict(
+                payload, deployed=deployed, status=status, position=list(position), latency_ms=latency_ms,
+            ), wall_time)
             self.db.execute(
                 "INSERT INTO confirmations VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
                 (carrier, stage, int(deployed), status, float(position[0]), float(position[1]), latency_ms, seq),
@@ -218,7 +242,8 @@ class MissionStore:
 
     # ------------------------------------------------------------------ reading
     def replay(self) -> MissionRecord:
-        """Rebuild the mission's state from the log."""
+        """The typed tables' summary of the log (for tools and tests). The coordinator itself
+        recovers with :meth:`mission_events` folded through ``mission.state.step``."""
         rec = MissionRecord()
         for cid, stage, x, missing, px, py in self.db.execute(
             "SELECT carrier, stage, x, missing, pos_x, pos_y FROM observations"
@@ -243,6 +268,47 @@ class MissionStore:
         rec.events = self.db.execute("SELECT COUNT(*) FROM events").fetchone()[0]
         return rec
 
+    def record(self, record, state) -> None:
+        """Persist the event of a ``mission.state.Record`` effect (one transaction), given the
+        state the step produced (for the values the state derived: the latency, the column of
+        observations the decision read)."""
+        e = record.event
+        if isinstance(e, ev.Hello):
+            self.event("hello", e.carrier, record.stage, wall_time=e.at, pid=e.pid, host=e.host,
+                       passengers_left=e.passengers_left, next_stage=e.next_stage, fingerprint=e.fingerprint,
+                       compatible=e.fingerprint == state.spec.fingerprint)
+        elif isinstance(e, ev.Observation):
+            self.observation(e.carrier, e.stage, e.x, e.position, wall_time=e.at, t=e.t,
+                             passengers_left=e.passengers_left, trail=[list(p) for p in e.trail])
+        elif isinstance(e, ev.LivelinessChanged):
+            self.event("alive" if e.alive else "dead", e.carrier, record.stage, wall_time=e.at)
+        elif isinstance(e, ev.Decided):
+            column = {}
+            for r, cid in enumerate(state.spec.carriers):
+                value = state.observation(r, e.stage)
+                column[cid] = None if value != value else value  # NaN = ∅
+            self.decision(e.stage, e.deploy, e.planning_ms, missing=record.missing, wall_time=e.at,
+                          observations=column)
+        elif isinstance(e, ev.Published):
+            self.event("published", None, e.stage, wall_time=e.at)
+        elif isinstance(e, ev.Confirmed):
+            self.confirmation(e.carrier, e.stage, e.deployed, e.status, e.position,
+                              state.confirms[(e.carrier, e.stage)].latency_ms, wall_time=e.at,
+                              passengers_left=e.passengers_left)
+        elif isinstance(e, ev.Bye):
+            self.event("bye", e.carrier, None, wall_time=e.at, reason=e.reason, rejected=dict(e.rejected),
+                       deployments=list(e.deployments))
+        elif isinstance(e, ev.Ended):
+            self.event("end", None, record.stage, wall_time=e.at, reason=e.reason)
+        else:
+            raise TypeError(f"not a recorded mission event: {e!r}")
+
+    def mission_events(self) -> list:
+        """Every recorded mission event (mission.events), in the order they were committed: the
+        input of ``mission.state.fold``. ``missing`` and ``rejected`` rows are not events (the
+        fold derives the first from the decisions; the second changes nothing)."""
+        return _mission_events(self.db)
+
     def latencies_ms(self) -> list[float]:
         """Decision-to-confirmation round trips recorded, milliseconds."""
         return [r[0] for r in self.db.execute(
@@ -254,3 +320,53 @@ class MissionStore:
             self.db.close()
         except Exception:
             pass
+
+
+def load_events(path: str | Path) -> list:
+    """The mission events of the mission.db at ``path``, read-only (for tools and tests)."""
+    db = sqlite3.connect(f"file:{Path(path)}?mode=ro", uri=True)
+    try:
+        return _mission_events(db)
+    finally:
+        db.close()
+
+
+def _mission_events(db) -> list:
+    out = []
+    for wall, kind, cid, stage, payload in db.execute(
+        "SELECT wall_time, kind, carrier, stage, payload FROM events ORDER BY seq"
+    ):
+        event = _EVENT_FROM_ROW.get(kind, lambda *a: None)(cid, stage, json.loads(payload), wall)
+        if event is not None:
+            out.append(event)
+    return out
+
+
+def _point(value) -> tuple[float, float]:
+    return (float(value[0]), float(value[1]))
+
+
+def _hello(cid, stage, p, at):
+    if "fingerprint" not in p:
+        return None  # written by an older version: pid and host only
+    return ev.Hello(cid, p.get("pid"), p.get("host"), p.get("passengers_left", 0), p.get("next_stage", stage or 0),
+                    p["fingerprint"], at)
+
+
+#: How each kind of ``events`` row becomes a mission event: (carrier, stage, payload, wall_time).
+_EVENT_FROM_ROW = {
+    "open": lambda cid, stage, p, at: ev.Opened(at),
+    "hello": _hello,
+    "alive": lambda cid, stage, p, at: ev.LivelinessChanged(cid, True, at),
+    "dead": lambda cid, stage, p, at: ev.LivelinessChanged(cid, False, at),
+    "observation": lambda cid, stage, p, at: ev.Observation(
+        cid, stage, p.get("t", 0.0), p["x"], _point(p["position"]), p.get("passengers_left", 0),
+        tuple(_point(q) for q in p.get("trail", ())), at),
+    "decision": lambda cid, stage, p, at: ev.Decided(stage, tuple(p["deploy"]), p["planning_ms"], at),
+    "published": lambda cid, stage, p, at: ev.Published(stage, at),
+    "confirm": lambda cid, stage, p, at: ev.Confirmed(
+        cid, stage, p["deployed"], p["status"], _point(p["position"]), p.get("passengers_left", 0), at),
+    "bye": lambda cid, stage, p, at: ev.Bye(
+        cid, tuple(p.get("deployments", ())), tuple(sorted(p.get("rejected", {}).items())), p["reason"], at),
+    "end": lambda cid, stage, p, at: ev.Ended(p["reason"], at),
+}

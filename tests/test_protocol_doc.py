@@ -3,19 +3,25 @@ msgpack (no wire/, no carriers/ code) takes part in a real mission next to a rea
 the mission ends exactly as the offline planner's run."""
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import queue
+import re
 import socket
 import threading
 import time
+from dataclasses import fields
+from pathlib import Path
 
 import msgpack
 import numpy as np
 import zenoh
 
 import world
-from fleet_helpers import TINY, InProcessFleet, deployed_matrix, offline
+from fleet_helpers import ROOT, TINY, InProcessFleet, deployed_matrix, offline
+
+PROTOCOL = (ROOT / "docs" / "protocol.md").read_text()
 
 
 def foreign_carrier(endpoint: str, mission: str, cid: str, x_row, positions, passengers: int, result: dict):
@@ -41,8 +47,14 @@ def foreign_carrier(endpoint: str, mission: str, cid: str, x_row, positions, pas
                                        lambda s, t=topic: inbox.put((t, s.payload.to_bytes())))
             for topic in ("decision", "end")]
 
-    def put(topic, body):
-        session.put(f"{mine}/{topic}", msgpack.packb({"v": 1, "type": topic, "mission": mission, **body}))
+    publishers = {}
+
+    def put(topic, body):  # reliable puts: one declared publisher per key (docs/protocol.md, Conventions)
+        if topic not in publishers:
+            publishers[topic] = session.declare_publisher(
+                f"{mine}/{topic}", reliability=zenoh.Reliability.RELIABLE,
+                congestion_control=zenoh.CongestionControl.BLOCK)
+        publishers[topic].put(msgpack.packb({"v": 1, "type": topic, "mission": mission, **body}))
 
     try:
         state = None
@@ -84,7 +96,7 @@ def foreign_carrier(endpoint: str, mission: str, cid: str, x_row, positions, pas
         result["deployments"] = deployments
         time.sleep(0.2)
     finally:
-        for entity in [*subs, token]:
+        for entity in [*subs, *publishers.values(), token]:
             entity.undeclare()
         session.close()
 
@@ -108,3 +120,113 @@ def test_a_carrier_written_from_the_protocol_document(tmp_path):
     np.testing.assert_array_equal(np.array(summary["observations"], dtype=float), x)
     np.testing.assert_array_equal(deployed_matrix(summary, tiny), reference.deployed)
     assert result["deployments"] == [int(j) for j in np.flatnonzero(reference.deployed[ra])]
+
+
+def test_the_fingerprint_worked_example():
+    """The algorithm as the page states it, run on the page's own example, gives the page's
+    value, and the code agrees (for the file's seed and for another one)."""
+    from wire.messages import scenario_fingerprint
+
+    m = re.search(r"\$ \{ printf '(.*?)\\n'; cat (\S+); \} \| sha256sum \| cut -c1-16\n\s+([0-9a-f]{16})", PROTOCOL)
+    assert m, "worked example not found"
+    header, path, value = m.groups()
+    data = header.encode() + b"\n" + (ROOT / path).read_bytes()
+    assert hashlib.sha256(data).hexdigest()[:16] == value
+    tiny = world.load_scenario(ROOT / path)
+    assert header == f"marsupial-fleet/1 seed={tiny.seed}"
+    assert scenario_fingerprint(tiny) == value
+    other = hashlib.sha256(f"marsupial-fleet/1 seed={tiny.seed + 1}\n".encode() + (ROOT / path).read_bytes())
+    assert scenario_fingerprint(tiny.with_seed(tiny.seed + 1)) == other.hexdigest()[:16] != value
+
+
+def _documented_fields(type_name: str) -> set[str]:
+    section = PROTOCOL.split(f'(`type: "{type_name}"`')[1].split("\n### ")[0].split("\n## ")[0]
+    return set(re.findall(r"^\| `(\w+)` \|", section, re.M))
+
+
+def test_every_message_field_is_documented():
+    from wire.messages import MESSAGE_TYPES
+
+    for type_name, cls in MESSAGE_TYPES.items():
+        in_code = {f.name for f in fields(cls)} - {"mission", "v"}
+        assert _documented_fields(type_name) == in_code, type_name
+
+
+def test_every_rejection_reason_is_documented():
+    from wire.messages import REASONS
+
+    table = PROTOCOL.split("## Rejections")[1].split("\n## ")[0]
+    documented = set(re.findall(r"^\| `([a-z-]+)` \|", table, re.M))
+    used = set(REASONS)
+    for path in [*(ROOT / "mission").glob("*.py"), *(ROOT / "wire").glob("*.py"),
+                 ROOT / "coordinator" / "node.py", ROOT / "carriers" / "node.py"]:
+        used |= set(re.findall(r"(?:Reject|ProtocolError)\(\s*\"([a-z-]+)\"", path.read_text()))
+    assert used - documented == set()
+
+
+def test_hello_is_required_and_a_refused_hello_is_answered(tmp_path):
+    """From the page alone: a Hello with another fingerprint is answered by a Refusal on
+    coordinator/refusal/<id>; a later bad Hello does not undo an accepted one; an Observation
+    without a Hello is rejected (no-hello)."""
+    tiny = world.load_scenario(TINY)
+    fleet = InProcessFleet(tiny, tmp_path, planner="ssap", join_timeout_s=30.0)
+    fleet.start_coordinator()
+    m = fleet.coordinator.mission
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
+    conf.insert_json5("connect/endpoints", json.dumps([fleet.endpoint]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    deadline = time.monotonic() + 60
+    while True:
+        try:
+            session = zenoh.open(conf)
+            break
+        except zenoh.ZError:
+            assert time.monotonic() < deadline, "no coordinator"
+            time.sleep(0.2)
+    refusals: "queue.Queue[dict]" = queue.Queue()
+    sub = session.declare_subscriber(f"marsupial/{m}/coordinator/refusal/a",
+                                     lambda s: refusals.put(msgpack.unpackb(s.payload.to_bytes())))
+    token = session.liveliness().declare_token(f"marsupial/{m}/carrier/a/alive")
+    pubs = {topic: session.declare_publisher(f"marsupial/{m}/carrier/{cid}/{topic}",
+                                             reliability=zenoh.Reliability.RELIABLE,
+                                             congestion_control=zenoh.CongestionControl.BLOCK)
+            for cid, topic in (("a", "hello"), ("b", "obs"))}
+
+    def hello(fingerprint):
+        pubs["hello"].put(msgpack.packb({"v": 1, "type": "hello", "mission": m, "carrier": "a", "pid": os.getpid(),
+                                         "host": "foreign", "passengers_left": 2, "next_stage": 0,
+                                         "fingerprint": fingerprint}))
+
+    try:
+        state = None
+        while state is None:
+            assert time.monotonic() < deadline, "no State"
+            for reply in session.get(f"marsupial/{m}/coordinator/state", timeout=2.0):
+                if reply.ok is not None:
+                    state = msgpack.unpackb(reply.ok.payload.to_bytes())
+        hello("0000000000000000")
+        refusal = refusals.get(timeout=10)
+        assert refusal == {"v": 1, "type": "refusal", "mission": m, "carrier": "a", "reason": "world-mismatch",
+                           "fingerprint": "0000000000000000", "expected": state["fingerprint"]}
+        hello(state["fingerprint"])
+        while "a" not in fleet.coordinator.state.accepted:
+            assert time.monotonic() < deadline
+            time.sleep(0.05)
+        hello("1111111111111111")
+        assert refusals.get(timeout=10)["fingerprint"] == "1111111111111111"
+        pubs["obs"].put(msgpack.packb({"v": 1, "type": "obs", "mission": m, "carrier": "b", "stage": 0, "t": 0.0,
+                                       "x": None, "position": [0.0, 0.0], "passengers_left": 1, "trail": []}))
+        while fleet.coordinator.node.rejected.get("no-hello", 0) < 1:
+            assert time.monotonic() < deadline, dict(fleet.coordinator.node.rejected)
+            time.sleep(0.05)
+        assert fleet.coordinator.state.accepted["a"].host == "foreign"  # the later bad Hello undid nothing
+        assert fleet.coordinator.state.refused == {}
+    finally:
+        fleet.coordinator.stop()
+        for entity in [sub, token, *pubs.values()]:
+            entity.undeclare()
+        session.close()
+    summary = fleet.join()
+    assert summary["end_reason"] == "stopped"
+    assert summary["rejected"]["coordinator"]["world-mismatch"] == 2

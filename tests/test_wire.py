@@ -9,7 +9,7 @@ import pytest
 from wire import keys, zconfig
 from wire.messages import (
     MAX_PAYLOAD_BYTES, PROTOCOL_VERSION, Bye, CarrierState, Confirm, Decision, End, Hello,
-    Observation, ProtocolError, State, _to_wire, decode, encode,
+    Observation, ProtocolError, Refusal, State, _to_wire, decode, encode,
 )
 
 M = "tiny"
@@ -22,6 +22,7 @@ SAMPLES = {
     "decision-none": Decision(M, 0, 0.0, (), 0.0),
     "confirm": Confirm(M, "a", 3, True, "deployed", (3.0, 4.0), 2),
     "end": End(M, 4, "complete"),
+    "refusal": Refusal(M, "a", "world-mismatch", "fedcba9876543210", "0123456789abcdef"),
     "bye": Bye(M, "a", (0, 3), (("duplicate", 2), ("malformed", 1)), "end"),
     "state": State(mission=M, next_stage=2, stages=4, fingerprint="ab", ended=False,
                    carriers=(("a", CarrierState(1, (0,), True)), ("b", CarrierState(1, (), False))),

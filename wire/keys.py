@@ -9,6 +9,7 @@ Layout (``<m>`` = mission id, ``<id>`` = carrier id)::
     marsupial/<m>/carrier/<id>/alive      liveliness token of a carrier
     marsupial/<m>/coordinator/decision    coordinator -> carriers  Decision (put)
     marsupial/<m>/coordinator/end         coordinator -> carriers  End (put)
+    marsupial/<m>/coordinator/refusal/<id> coordinator -> carrier  Refusal (put)
     marsupial/<m>/coordinator/state       queryable, replies State
     marsupial/<m>/coordinator/alive       liveliness token of the coordinator
 
@@ -76,6 +77,11 @@ def decision_key(mission: str) -> str:
 
 def end_key(mission: str) -> str:
     return f"{prefix(mission)}/coordinator/end"
+
+
+def refusal_key(mission: str, carrier: str) -> str:
+    """Where the coordinator answers a refused Hello of ``carrier``."""
+    return f"{prefix(mission)}/coordinator/refusal/{check_id(carrier, 'carrier')}"
 
 
 def state_key(mission: str) -> str:

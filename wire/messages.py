@@ -301,6 +301,35 @@ class Bye:
     TYPE = "bye"
 
 
+#: Refusal.reason values.
+REFUSAL_REASONS = ("world-mismatch",)
+
+
+@dataclass(frozen=True)
+class Refusal:
+    """The coordinator refuses a carrier's Hello. coordinator -> ``coordinator/refusal/<id>``.
+
+    Attributes:
+        carrier: the carrier whose Hello is refused (the id in the key).
+        reason: ``world-mismatch`` (the Hello's fingerprint is not the coordinator's).
+        fingerprint: the refused Hello's fingerprint (a carrier ignores a Refusal naming a
+            fingerprint it did not send: someone else spoke with its id).
+        expected: the coordinator's fingerprint.
+    """
+
+    mission: str = _spec(_ident)
+    carrier: str = _spec(_ident)
+    reason: str = _spec(_text(40))
+    fingerprint: str = _spec(_text(64))
+    expected: str = _spec(_text(64))
+    v: int = PROTOCOL_VERSION
+    TYPE = "refusal"
+
+    def __post_init__(self):
+        if self.reason not in REFUSAL_REASONS:
+            raise ProtocolError("out-of-range", f"reason: expected one of {REFUSAL_REASONS}, found {self.reason!r}")
+
+
 @dataclass(frozen=True)
 class CarrierState:
     """One carrier's part of :class:`State` (a nested map, not a message of its own).
@@ -343,21 +372,46 @@ class State:
         return dict(self.carriers).get(cid)
 
 
-MESSAGE_TYPES = {cls.TYPE: cls for cls in (Hello, Observation, Decision, Confirm, End, Bye, State)}
+MESSAGE_TYPES = {cls.TYPE: cls for cls in (Hello, Observation, Decision, Confirm, End, Bye, State, Refusal)}
 
 
 def fingerprint(value) -> str:
-    """16 hex digits identifying a value by its ``repr`` (used for the scenario with its seed)."""
+    """16 hex digits identifying a value by its ``repr`` (a project-internal identity, e.g. for
+    a scenario built in code without a file)."""
     import hashlib
 
     return hashlib.sha256(repr(value).encode("utf-8")).hexdigest()[:16]
 
 
-def scenario_fingerprint(scenario) -> str:
-    """Identifies the world a process built: the scenario dataclass's content with its seed
-    (its ``source`` path left out, so the same file anywhere on any host matches)."""
-    import dataclasses
+#: The header the scenario fingerprint hashes before the scenario file (docs/protocol.md,
+#: "Fingerprint"): ``FINGERPRINT_HEADER.format(seed=...)`` encoded as UTF-8.
+FINGERPRINT_HEADER = "marsupial-fleet/1 seed={seed}\n"
 
+
+def fingerprint_bytes(scenario_bytes: bytes, seed: int) -> str:
+    """The scenario fingerprint: the first 16 lowercase hex digits of SHA-256 over
+    ``b"marsupial-fleet/1 seed=<seed>\\n"`` followed by the scenario file's bytes as stored.
+
+    Args:
+        scenario_bytes: the scenario YAML file, byte for byte.
+        seed: the root seed the process runs with (the file's ``seed``, or ``--seed``), decimal.
+    """
+    import hashlib
+
+    header = FINGERPRINT_HEADER.format(seed=int(seed)).encode("utf-8")
+    return hashlib.sha256(header + bytes(scenario_bytes)).hexdigest()[:16]
+
+
+def scenario_fingerprint(scenario) -> str:
+    """Identifies the world a process built: its scenario file's bytes and its seed
+    (:func:`fingerprint_bytes`), so the same file with the same seed matches on any host, in any
+    language. A scenario built in code (no file) falls back to its content's ``repr``."""
+    import dataclasses
+    from pathlib import Path
+
+    source = getattr(scenario, "source", "")
+    if source and Path(source).is_file():
+        return fingerprint_bytes(Path(source).read_bytes(), scenario.seed)
     if dataclasses.is_dataclass(scenario) and any(f.name == "source" for f in dataclasses.fields(scenario)):
         scenario = dataclasses.replace(scenario, source="")
     return fingerprint(scenario)

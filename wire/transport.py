@@ -28,12 +28,14 @@ class Inbound:
         key: the key expression it arrived on.
         payload: the raw bytes (``sample`` only).
         received: ``time.monotonic()`` when it was enqueued, seconds.
+        wall: ``time.time()`` when it was enqueued, seconds since the epoch.
     """
 
     kind: str
     key: str
     payload: bytes = b""
     received: float = 0.0
+    wall: float = 0.0
 
 
 class Node:
@@ -42,10 +44,11 @@ class Node:
     Args:
         conf: the zenoh config (see :func:`wire.zconfig.make_config`).
         open_timeout_s: how long to keep trying to open the session.
+        stop: when set, stop trying to open the session (raises :class:`wire.zconfig.OpenStopped`).
     """
 
-    def __init__(self, conf: zenoh.Config, open_timeout_s: float = 10.0):
-        self.session = open_session(conf, open_timeout_s)
+    def __init__(self, conf: zenoh.Config, open_timeout_s: float = 10.0, stop: threading.Event | None = None):
+        self.session = open_session(conf, open_timeout_s, stop=stop)
         self.inbox: "queue.Queue[Inbound]" = queue.Queue()
         self.rejected: Counter = Counter()
         self._logged: set[str] = set()
@@ -66,7 +69,7 @@ class Node:
                 # An oversized payload is not copied: a marker one byte over the limit is enough
                 # for decode() to reject it as oversized.
                 data = payload.to_bytes() if len(payload) <= limit else b"\0" * (limit + 1)
-                inbox.put(Inbound("sample", str(sample.key_expr), data, time.monotonic()))
+                inbox.put(Inbound("sample", str(sample.key_expr), data, time.monotonic(), time.time()))
             except Exception:
                 pass  # never raise into zenoh
 
@@ -80,7 +83,7 @@ class Node:
         def on_token(sample):
             try:
                 kind = "alive" if sample.kind == zenoh.SampleKind.PUT else "gone"
-                inbox.put(Inbound(kind, str(sample.key_expr), b"", time.monotonic()))
+                inbox.put(Inbound(kind, str(sample.key_expr), b"", time.monotonic(), time.time()))
             except Exception:
                 pass
 
@@ -122,7 +125,9 @@ class Node:
 
     # ------------------------------------------------------------------ traffic
     def put(self, key_expr: str, message) -> None:
-        """Encode and publish one message (reliable, blocking congestion control)."""
+        """Encode and publish one message: reliable, blocking congestion control. In zenoh-python
+        1.x reliability is a property of a declared publisher (``Session.put`` has no
+        ``reliability`` option), so every key gets one publisher, declared on first use."""
         data = messages.encode(message)
         pub = self._publishers.get(key_expr)
         if pub is None:

@@ -89,18 +89,26 @@ def make_config(
     return conf
 
 
-def open_session(conf: zenoh.Config, timeout_s: float = 10.0, retry_s: float = 0.2) -> "zenoh.Session":
+class OpenStopped(Exception):
+    """:func:`open_session` gave up because a stop was requested (Ctrl-C, SIGTERM)."""
+
+
+def open_session(conf: zenoh.Config, timeout_s: float = 10.0, retry_s: float = 0.2,
+                 stop: threading.Event | None = None) -> "zenoh.Session":
     """``zenoh.open``, retried until ``timeout_s`` (a client started before its peer keeps trying),
-    each attempt bounded.
+    each attempt bounded; ``stop`` (when set) ends the attempts early.
 
     Raises:
         ConfigError: when no session could be opened in time (e.g. no coordinator at the endpoint).
+        OpenStopped: when ``stop`` was set first.
     """
     import time
 
     deadline = time.monotonic() + timeout_s
     last = "timed out"
     while True:
+        if stop is not None and stop.is_set():
+            raise OpenStopped("stop requested while opening the zenoh session")
         result: dict = {}
 
         def target():
@@ -111,14 +119,28 @@ def open_session(conf: zenoh.Config, timeout_s: float = 10.0, retry_s: float = 0
 
         thread = threading.Thread(target=target, daemon=True, name="zenoh-open")
         thread.start()
-        thread.join(max(0.5, deadline - time.monotonic()))
+        attempt_end = time.monotonic() + max(0.5, deadline - time.monotonic())
+        while thread.is_alive() and time.monotonic() < attempt_end and not (stop and stop.is_set()):
+            thread.join(0.05)
+        if stop is not None and stop.is_set():
+            thread.join(5.0)  # an attempt in flight: let it finish, never leave a session behind
+            if "session" in result:
+                try:
+                    result["session"].close()
+                except Exception:
+                    pass
+            raise OpenStopped("stop requested while opening the zenoh session")
         if "session" in result:
             return result["session"]
         if "error" in result:
             last = str(result["error"]).splitlines()[0].split(" at /")[0]
         if time.monotonic() >= deadline:
             raise ConfigError(f"could not open a zenoh session within {timeout_s:.0f} s: {last}")
-        time.sleep(retry_s)
+        if stop is not None:
+            if stop.wait(retry_s):
+                raise OpenStopped("stop requested while opening the zenoh session")
+        else:
+            time.sleep(retry_s)
 
 
 def close_session(session, entities: Sequence = (), timeout_s: float = 3.0) -> bool:

@@ -1,0 +1,370 @@
+"""The carrier's side of the stage handshake as a pure state machine.
+
+``step(state, event) -> (state, effects)``. The carrier process (carriers/node.py) owns the
+physics, the clock and the network: it tells the machine where it is (events carry the body's
+position at that moment) and carries out the effects in order (:class:`Deploy` before the
+:class:`SendConfirm` that reports it). Rules (docs/protocol.md, "Stage handshake"):
+
+* each stage's decision is handled **at most once**; a repeated Decision is answered
+  ``already`` with the first outcome, nothing happens again;
+* a Decision for a stage the carrier has passed (it gave up waiting, or it joined after that
+  stage) is answered ``late`` if it selects the carrier, ``idle`` otherwise, never deployed;
+* a Decision for a stage the carrier has not reached yet is held until it gets there (the
+  carrier is then *behind*: it reaches the stage at once and publishes no Observation);
+* a selected carrier deploys if it is scheduled at the stage and has a passenger left, else it
+  answers ``refused``;
+* when the coordinator comes back, the carrier resynchronises from State (:class:`Resync`).
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+Point = tuple[float, float]
+
+
+# --------------------------------------------------------------------------- events
+
+@dataclass(frozen=True)
+class Replayed:
+    """At join: a deployment on record at ``stage`` was replayed in the carrier's world (the
+    body advanced to t_j and released a passenger at ``position``)."""
+
+    stage: int
+    position: Point
+
+
+@dataclass(frozen=True)
+class Joined:
+    """The first State answer: the carrier joins at ``next_stage`` (or the mission has ended)."""
+
+    next_stage: int
+    ended: bool = False
+
+
+@dataclass(frozen=True)
+class DecisionHeard:
+    """A Decision of ``stage`` (at ``t`` s) arrived; ``position``: where the carrier is now."""
+
+    stage: int
+    t: float
+    deploy: tuple[str, ...]
+    position: Point
+
+
+@dataclass(frozen=True)
+class Observed:
+    """The carrier published its Observation of ``stage`` and waits for the decision."""
+
+    stage: int
+
+
+@dataclass(frozen=True)
+class Passed:
+    """The carrier is at t_j of a stage decided without it (behind): answer its decision if it
+    arrived, and go on."""
+
+    stage: int
+    position: Point
+
+
+@dataclass(frozen=True)
+class MovedOn:
+    """The carrier leaves ``stage`` (its decision was handled, lost, or timed out)."""
+
+    stage: int
+
+
+@dataclass(frozen=True)
+class StateSeen:
+    """What a State reply says (docs/protocol.md, "State"), for :class:`Resync`."""
+
+    next_stage: int
+    deployments: tuple[int, ...]
+    last_decision: tuple[int, float, tuple[str, ...]] | None  # (stage, t, deploy)
+    ended: bool
+
+
+@dataclass(frozen=True)
+class Resync:
+    """The coordinator's token reappeared; ``state``: its State reply (None if none came)."""
+
+    state: StateSeen | None
+    position: Point
+
+
+@dataclass(frozen=True)
+class EndHeard:
+    pass
+
+
+# --------------------------------------------------------------------------- effects
+
+@dataclass(frozen=True)
+class Deploy:
+    """Release one passenger now (the body is at the stage's position)."""
+
+    stage: int
+
+
+@dataclass(frozen=True)
+class SendConfirm:
+    stage: int
+    deployed: bool
+    status: str
+    position: Point
+    passengers_left: int
+
+
+@dataclass(frozen=True)
+class SendHello:
+    """Publish Hello with ``next_stage`` (where the carrier goes on from)."""
+
+    next_stage: int
+    passengers_left: int
+
+
+@dataclass(frozen=True)
+class ResendObservation:
+    """Publish the pending Observation again (its stage is still open at the coordinator)."""
+
+    stage: int
+
+
+@dataclass(frozen=True)
+class Reject:
+    reason: str
+    detail: str
+
+
+@dataclass(frozen=True)
+class Log:
+    line: str
+
+
+# --------------------------------------------------------------------------- state
+
+@dataclass(frozen=True)
+class Answer:
+    """A carrier's (first) answer to one stage's decision."""
+
+    deployed: bool
+    status: str
+    position: Point
+    passengers_left: int
+
+
+#: Largest accepted difference between a Decision's ``t`` and the stage time, seconds.
+T_TOLERANCE_S = 1e-3
+
+
+@dataclass(frozen=True)
+class CarrierState:
+    """One carrier's view of the mission.
+
+    Attributes:
+        cid: its id; valid: ``[N]`` scheduled at stage j; stage_times: ``[N]`` t_j seconds.
+        passengers_left: passengers on board.
+        stage: the stage it is at (driving to, observing or waiting for).
+        joined: the first stage this process handles itself (State's next_stage at join).
+        handled: stage -> the first :class:`Answer`.
+        buffered: stage -> deploy ids of a decision for a stage not reached yet.
+        latest_decided: the highest stage a Decision was heard for (-1: none).
+        state_next: the coordinator's next_stage, as last learnt from State.
+        pending: the stage of the Observation waiting for its decision, or None.
+        ended: End was heard (or State says the mission ended).
+    """
+
+    cid: str
+    valid: tuple[bool, ...]
+    stage_times: tuple[float, ...]
+    passengers_left: int
+    stage: int = 0
+    joined: int = 0
+    handled: dict = field(default_factory=dict)
+    buffered: dict = field(default_factory=dict)
+    latest_decided: int = -1
+    state_next: int = 0
+    pending: int | None = None
+    ended: bool = False
+
+    @property
+    def n_stages(self) -> int:
+        return len(self.stage_times)
+
+    def decided_upto(self) -> int:
+        """Stages known to be decided already (0..N): the carrier is behind the coordinator at
+        every stage below this."""
+        return max(self.latest_decided + 1, self.state_next)
+
+    def behind(self, j: int) -> bool:
+        return j < self.decided_upto()
+
+    def resolved(self, j: int) -> bool:
+        """The wait for stage j's decision is over: answered, or the coordinator moved on."""
+        return j in self.handled or self.latest_decided > j or self.state_next > j
+
+    def hello_stage(self) -> int:
+        return min(max(self.stage, self.state_next), self.n_stages)
+
+    def deployments(self) -> tuple[int, ...]:
+        return tuple(sorted(j for j, a in self.handled.items() if a.deployed))
+
+
+def initial(cid: str, valid, stage_times, passengers: int) -> CarrierState:
+    return CarrierState(cid, tuple(bool(v) for v in valid), tuple(float(t) for t in stage_times), int(passengers))
+
+
+def replay_plan(state: CarrierState, next_stage: int, deployments) -> list[int]:
+    """The recorded deployments a joining carrier replays in its world, ascending: those before
+    ``next_stage``, at most as many as it has passengers."""
+    return sorted(j for j in deployments if j < next_stage)[: state.passengers_left]
+
+
+# --------------------------------------------------------------------------- step
+
+def step(state: CarrierState, event) -> tuple[CarrierState, tuple]:
+    handler = _HANDLERS.get(type(event))
+    if handler is None:
+        raise TypeError(f"not a carrier event: {event!r}")
+    return handler(state, event)
+
+
+def _answer(state: CarrierState, j: int, deploy, position: Point, allow: bool):
+    """Execute (or decline) one decision and confirm it: at most once per stage."""
+    selected = state.cid in deploy
+    effects = []
+    left = state.passengers_left
+    if not selected:
+        status, deployed = "idle", False
+    elif not allow:
+        status, deployed = "late", False
+    elif left <= 0 or not state.valid[j]:
+        status, deployed = "refused", False
+    else:
+        status, deployed = "deployed", True
+        left -= 1
+        effects.append(Deploy(j))
+        effects.append(Log(f"deployed a passenger at stage {j} at ({position[0]:.1f}, {position[1]:.1f}) m"))
+    answer = Answer(deployed, status, (float(position[0]), float(position[1])), left)
+    effects.append(SendConfirm(j, deployed, status, answer.position, left))
+    new = dataclasses.replace(state, passengers_left=left, handled={**state.handled, j: answer},
+                              buffered={k: v for k, v in state.buffered.items() if k != j})
+    return new, effects
+
+
+def _already(state: CarrierState, j: int) -> SendConfirm:
+    first = state.handled[j]
+    return SendConfirm(j, first.deployed, "already", first.position, first.passengers_left)
+
+
+def _on_replayed(state: CarrierState, e: Replayed):
+    if state.passengers_left <= 0:
+        raise ValueError("no passenger left to replay a deployment")
+    left = state.passengers_left - 1
+    answer = Answer(True, "deployed", (float(e.position[0]), float(e.position[1])), left)
+    return dataclasses.replace(state, passengers_left=left, handled={**state.handled, e.stage: answer}), ()
+
+
+def _on_joined(state: CarrierState, e: Joined):
+    if e.ended:
+        return dataclasses.replace(state, ended=True), ()
+    effects = (Log(f"joined at stage {e.next_stage} ({len(state.handled)} deployment(s) on record)"),) \
+        if e.next_stage > 0 else ()
+    return dataclasses.replace(state, stage=e.next_stage, joined=e.next_stage,
+                               state_next=max(state.state_next, e.next_stage)), effects
+
+
+def _on_decision(state: CarrierState, e: DecisionHeard):
+    j = e.stage
+    if j >= state.n_stages:
+        return state, (Reject("out-of-range", f"decision for stage {j} >= {state.n_stages}"),)
+    if abs(e.t - state.stage_times[j]) > T_TOLERANCE_S:
+        return state, (Reject("out-of-range", f"t: stage {j} is at {state.stage_times[j]} s, found {e.t}"),)
+    if j in state.handled:
+        return state, (_already(state, j),)
+    if j < state.stage or j < state.joined:
+        # Passed (gave up waiting, or decided before this process joined): too late to deploy.
+        new, effects = _answer(state, j, e.deploy, e.position, allow=False)
+        if state.pending is not None and state.pending > j and state.pending >= state.decided_upto():
+            # The coordinator was behind us (we gave up waiting for j): our Observation of the
+            # stage we are at arrived too early and was rejected as future-stage; send it again.
+            effects.append(ResendObservation(state.pending))
+        return new, tuple(effects)
+    if j in state.buffered:
+        return state, (Reject("duplicate", f"second decision for stage {j}"),)
+    latest = max(state.latest_decided, j)
+    if j == state.stage and state.pending == j:
+        new, effects = _answer(state, j, e.deploy, e.position, allow=True)
+        return dataclasses.replace(new, latest_decided=latest), tuple(effects)
+    return dataclasses.replace(state, buffered={**state.buffered, j: tuple(e.deploy)}, latest_decided=latest), ()
+
+
+def _on_observed(state: CarrierState, e: Observed):
+    return dataclasses.replace(state, stage=e.stage, pending=e.stage), ()
+
+
+def _on_passed(state: CarrierState, e: Passed):
+    j = e.stage
+    new, effects = dataclasses.replace(state, stage=j), []
+    if j in state.buffered and j not in state.handled:
+        new, effects = _answer(new, j, state.buffered[j], e.position, allow=True)
+    return dataclasses.replace(new, stage=j + 1, pending=None), tuple(effects)
+
+
+def _on_moved_on(state: CarrierState, e: MovedOn):
+    return dataclasses.replace(state, stage=e.stage + 1, pending=None), ()
+
+
+def _on_resync(state: CarrierState, e: Resync):
+    """The coordinator came back (restarted, or a partition healed): announce ourselves again,
+    learn how far the mission got, take its last decision (its re-publication may have raced
+    our reconnection), re-send the pending Observation if its stage is still open, and repeat
+    our answers (``already``) so a coordinator that lost Confirms in flight has every outcome."""
+    s = e.state
+    new = state
+    if s is not None:
+        new = dataclasses.replace(new, state_next=max(new.state_next, s.next_stage))
+    effects: list = [Log("coordinator is back; re-sending hello and the pending observation"),
+                     SendHello(new.hello_stage(), new.passengers_left)]
+    if s is not None:
+        last = s.last_decision
+        for j in s.deployments:
+            if (j < s.next_stage and j <= new.stage and j not in new.handled
+                    and j not in new.buffered and (last is None or j != last[0])):
+                # Decided for us while we were cut off and never received: we did not deploy
+                # there. Saying so lets the coordinator count the passenger as still on board.
+                new, more = _answer(new, j, (new.cid,), e.position, allow=False)
+                effects += more
+        if last is not None and last[0] not in new.handled and last[0] not in new.buffered:
+            new, more = _on_decision(new, DecisionHeard(last[0], last[1], tuple(last[2]), e.position))
+            effects += more
+        if s.ended:
+            new = dataclasses.replace(new, ended=True)
+    if new.pending is not None and new.pending >= new.state_next and new.pending not in new.handled:
+        effects.append(ResendObservation(new.pending))
+    for j in sorted(new.handled):
+        if j >= new.joined:
+            effects.append(_already(new, j))
+    return new, tuple(_dedupe(effects))
+
+
+def _dedupe(effects):
+    """A Confirm sent in this step is not repeated as ``already`` in the same step."""
+    sent = set()
+    for effect in effects:
+        if isinstance(effect, SendConfirm):
+            if effect.stage in sent:
+                continue
+            sent.add(effect.stage)
+        yield effect
+
+
+def _on_end(state: CarrierState, e: EndHeard):
+    return dataclasses.replace(state, ended=True), ()
+
+
+_HANDLERS = {
+    Replayed: _on_replayed, Joined: _on_joined, DecisionHeard: _on_decision, Observed: _on_observed,
+    Passed: _on_passed, MovedOn: _on_moved_on, Resync: _on_resync, EndHeard: _on_end,
+}

@@ -1,0 +1,114 @@
+"""The coordinator's mission events: everything that can change a mission's state.
+
+Each event is a small frozen value with the time it happened as data (``at``: seconds since
+the epoch, wall clock). The coordinator process makes them from decoded messages (wire/), from
+liveliness changes and from its own stage clock, folds them through
+:func:`mission.state.step`, persists the accepted ones in mission.db and, after a restart, folds
+the stored ones again: live handling and recovery are the same function.
+
+Field meanings and units follow docs/protocol.md (stages 0-based, positions in metres).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+Point = tuple[float, float]
+
+
+@dataclass(frozen=True)
+class Opened:
+    """The coordinator process opened the mission (a fresh start or a restart). Liveliness is a
+    property of a session: nobody is live until its token is seen again by this process."""
+
+    at: float = 0.0
+
+
+@dataclass(frozen=True)
+class Hello:
+    """A carrier's Hello (docs/protocol.md, "Hello")."""
+
+    carrier: str
+    pid: int
+    host: str
+    passengers_left: int
+    next_stage: int
+    fingerprint: str
+    at: float = 0.0
+
+
+@dataclass(frozen=True)
+class Observation:
+    """A carrier's Observation of ``stage``: ``x`` features (None = ∅) at ``t`` seconds, at
+    ``position``, having driven through ``trail`` since its previous one."""
+
+    carrier: str
+    stage: int
+    t: float
+    x: int | None
+    position: Point
+    passengers_left: int
+    trail: tuple[Point, ...] = ()
+    at: float = 0.0
+
+
+@dataclass(frozen=True)
+class LivelinessChanged:
+    """A carrier's liveliness token appeared (``alive``) or vanished."""
+
+    carrier: str
+    alive: bool
+    at: float = 0.0
+
+
+@dataclass(frozen=True)
+class Decided:
+    """The coordinator decided ``stage``: ``deploy`` carriers deploy now. Scheduled carriers
+    without an observation of the stage become ∅ there (``missing``)."""
+
+    stage: int
+    deploy: tuple[str, ...]
+    planning_ms: float
+    at: float = 0.0
+
+
+@dataclass(frozen=True)
+class Published:
+    """The decision of ``stage`` left the process (the start of the Confirm round trip)."""
+
+    stage: int
+    at: float = 0.0
+
+
+@dataclass(frozen=True)
+class Confirmed:
+    """A carrier's Confirm of ``stage``'s decision."""
+
+    carrier: str
+    stage: int
+    deployed: bool
+    status: str
+    position: Point
+    passengers_left: int
+    at: float = 0.0
+
+
+@dataclass(frozen=True)
+class Bye:
+    """A carrier's Bye: the stages it deployed at, its rejection counts, why it exits."""
+
+    carrier: str
+    deployments: tuple[int, ...]
+    rejected: tuple[tuple[str, int], ...]
+    reason: str
+    at: float = 0.0
+
+
+@dataclass(frozen=True)
+class Ended:
+    """The coordinator ends the mission: ``complete`` or ``stopped``."""
+
+    reason: str
+    at: float = 0.0
+
+
+Event = Opened | Hello | Observation | LivelinessChanged | Decided | Published | Confirmed | Bye | Ended

@@ -1,0 +1,469 @@
+"""The coordinator's mission state machine: ``step(state, event) -> (state, effects)``.
+
+Like etcd-raft's ``Step``, :func:`step` takes one event (mission.events) and returns the new
+state and the effects the process must carry out, in order: :class:`Record` (persist the event
+in mission.db) always comes before :class:`Publish` or :class:`Refuse`, so what is published
+was stored first. Rejections are effects too (:class:`Reject`, with the reason codes of
+docs/protocol.md). The function does no I/O and reads no clock; a restarted coordinator folds
+the stored events through it (:func:`fold`) and reaches the state the live process had.
+
+Mission rules applied here (docs/protocol.md, "Stage handshake" and "Rejections"):
+
+* a Hello is **required**: Observations and Confirms of a carrier without an accepted Hello are
+  rejected (``no-hello``, or ``world-mismatch`` when its Hello was refused);
+* a Hello with another fingerprint is refused (a :class:`Refuse` answer) and never undoes an
+  accepted Hello of the same carrier;
+* an Observation counts only for the stage being collected (``next_stage``): earlier ones are
+  ``stale-stage``, later ones ``future-stage`` (rejected, never held), repeats ``duplicate``;
+  its ``t`` must be the stage time within :data:`T_TOLERANCE_S`;
+* a Confirm of a stage not decided yet is ``stale-stage``; a repeat with the same outcome (or
+  ``already``) is absorbed, a contradicting repeat is ``duplicate`` (the first one stands).
+
+The state is immutable by convention: :func:`step` never changes the state it is given (it
+builds new dicts for the fields it changes), so two states can be compared with ``==``.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import events as ev
+
+#: Largest accepted difference between an Observation's ``t`` and the stage time t_j, seconds.
+T_TOLERANCE_S = 1e-3
+
+#: Confirm statuses that count for the decision round-trip latency.
+LATENCY_STATUSES = ("deployed", "idle")
+
+
+# --------------------------------------------------------------------------- the mission's constants
+
+@dataclass(frozen=True)
+class MissionSpec:
+    """What every process knows before the mission starts (from the scenario).
+
+    Attributes:
+        carriers: carrier ids, in scenario order (index r).
+        valid: ``[R][N]`` bools, carrier r scheduled at stage j.
+        passengers: ``[R]`` passengers each carrier starts with.
+        stage_times: ``[N]`` t_j, seconds.
+        fingerprint: the scenario fingerprint (docs/protocol.md, "Fingerprint").
+    """
+
+    carriers: tuple[str, ...]
+    valid: tuple[tuple[bool, ...], ...]
+    passengers: tuple[int, ...]
+    stage_times: tuple[float, ...]
+    fingerprint: str
+
+    @classmethod
+    def build(cls, carriers, valid, passengers, stage_times, fingerprint: str) -> "MissionSpec":
+        return cls(tuple(carriers), tuple(tuple(bool(v) for v in row) for row in np.asarray(valid)),
+                   tuple(int(p) for p in passengers), tuple(float(t) for t in stage_times), str(fingerprint))
+
+    @property
+    def n_stages(self) -> int:
+        return len(self.stage_times)
+
+    def index(self, cid: str) -> int:
+        return self.carriers.index(cid)
+
+    def scheduled(self, cid: str, j: int) -> bool:
+        return self.valid[self.carriers.index(cid)][j]
+
+
+# --------------------------------------------------------------------------- records in the state
+
+@dataclass(frozen=True)
+class CarrierInfo:
+    """An accepted Hello: process id, host, and where the carrier said it goes on from."""
+
+    pid: int
+    host: str
+    next_stage: int
+
+
+@dataclass(frozen=True)
+class DecisionRecord:
+    deploy: tuple[str, ...]
+    planning_ms: float
+
+
+@dataclass(frozen=True)
+class ConfirmRecord:
+    deployed: bool
+    status: str
+    position: tuple[float, float]
+    passengers_left: int
+    latency_ms: float | None
+
+
+@dataclass(frozen=True)
+class MissionState:
+    """Everything the coordinator knows about a mission. Built by :func:`initial` and
+    :func:`step` only.
+
+    Attributes:
+        spec: the mission's constants.
+        opens: how many times a coordinator opened this mission (> 1: resumed).
+        accepted: carrier -> :class:`CarrierInfo` of its accepted Hello (latest).
+        refused: carrier -> the fingerprint of its refused Hello (carriers never accepted).
+        live: carriers whose liveliness token this coordinator process sees.
+        reported: (carrier, stage) -> x (None = ∅) of the accepted Observations.
+        missing: (carrier, stage) pairs scheduled but without an Observation when decided.
+        positions: (carrier, stage) -> (x, y) m, from the Observations.
+        trails: carrier -> the points it drove through, from its Observations.
+        decisions: stage -> :class:`DecisionRecord`.
+        next_stage: first undecided stage (stages are decided in order).
+        published_at: stage -> when its decision was published in this process (s, epoch).
+        confirms: (carrier, stage) -> :class:`ConfirmRecord` (the first one).
+        byes: carriers that said Bye since their last accepted Hello.
+        carrier_rejected: carrier -> its rejection counts, from its last Bye.
+        ended, end_reason: End was published (``complete`` or ``stopped``).
+    """
+
+    spec: MissionSpec
+    opens: int = 0
+    accepted: dict = field(default_factory=dict)
+    refused: dict = field(default_factory=dict)
+    live: frozenset = frozenset()
+    reported: dict = field(default_factory=dict)
+    missing: frozenset = frozenset()
+    positions: dict = field(default_factory=dict)
+    trails: dict = field(default_factory=dict)
+    decisions: dict = field(default_factory=dict)
+    next_stage: int = 0
+    published_at: dict = field(default_factory=dict)
+    confirms: dict = field(default_factory=dict)
+    byes: frozenset = frozenset()
+    carrier_rejected: dict = field(default_factory=dict)
+    ended: bool = False
+    end_reason: str | None = None
+
+    # ------------------------------------------------------------------ the stage clock's predicates
+    @property
+    def resumed(self) -> bool:
+        return self.opens > 1
+
+    def expected(self, j: int) -> frozenset:
+        """Carriers the coordinator waits for at stage j: live, Hello accepted, scheduled at j."""
+        return frozenset(cid for r, cid in enumerate(self.spec.carriers)
+                         if self.spec.valid[r][j] and cid in self.live and cid in self.accepted)
+
+    def waiting(self, j: int) -> frozenset:
+        """Expected carriers whose Observation of j has not arrived."""
+        return frozenset(cid for cid in self.expected(j) if (cid, j) not in self.reported)
+
+    def stage_complete(self, j: int) -> bool:
+        return not self.waiting(j)
+
+    def all_joined(self) -> bool:
+        """Every carrier is live with an accepted Hello, or was refused (it will not fly)."""
+        return all((cid in self.live and cid in self.accepted) or cid in self.refused
+                   for cid in self.spec.carriers)
+
+    def unconfirmed(self, j: int) -> frozenset:
+        """Live carriers without a Confirm of stage j."""
+        return frozenset(cid for cid in self.live if (cid, j) not in self.confirms)
+
+    def all_said_bye(self) -> bool:
+        return self.live <= self.byes
+
+    # ------------------------------------------------------------------ the planner's inputs
+    def observation(self, r: int, j: int) -> float:
+        """x of carrier r at stage j as the planner sees it (NaN = ∅: unscheduled, missing or
+        not reported)."""
+        value = self.reported.get((self.spec.carriers[r], j))
+        return float(value) if value is not None and self.spec.valid[r][j] else float("nan")
+
+    def observations(self, upto: int | None = None) -> np.ndarray:
+        """float ``[R, N]``: observations of stages ``< upto`` (all by default), NaN elsewhere."""
+        n_r, n = len(self.spec.carriers), self.spec.n_stages
+        upto = n if upto is None else upto
+        x = np.full((n_r, n), np.nan)
+        for r in range(n_r):
+            for j in range(upto):
+                x[r, j] = self.observation(r, j)
+        return x
+
+    def decided(self) -> np.ndarray:
+        """bool ``[R, N]``: deployments decided."""
+        out = np.zeros((len(self.spec.carriers), self.spec.n_stages), dtype=bool)
+        for j, d in self.decisions.items():
+            for cid in d.deploy:
+                out[self.spec.index(cid), j] = True
+        return out
+
+    def refuted(self) -> np.ndarray:
+        """bool ``[R, N]``: decided deployments a Confirm says did not happen."""
+        out = np.zeros((len(self.spec.carriers), self.spec.n_stages), dtype=bool)
+        for (cid, j), c in self.confirms.items():
+            if not c.deployed and cid in self.decisions.get(j, DecisionRecord((), 0.0)).deploy:
+                out[self.spec.index(cid), j] = True
+        return out
+
+    def deployed(self) -> np.ndarray:
+        """bool ``[R, N]``: decisions not refuted by a Confirm (the planner's view of the past)."""
+        return self.decided() & ~self.refuted()
+
+    def confirmed_deployments(self) -> np.ndarray:
+        """bool ``[R, N]``: deployments decided and confirmed (what summary.json counts)."""
+        out = np.zeros((len(self.spec.carriers), self.spec.n_stages), dtype=bool)
+        for (cid, j), c in self.confirms.items():
+            if c.deployed and cid in self.decisions.get(j, DecisionRecord((), 0.0)).deploy:
+                out[self.spec.index(cid), j] = True
+        return out
+
+    def passengers_left(self) -> np.ndarray:
+        return np.asarray(self.spec.passengers) - self.deployed().sum(axis=1)
+
+    def missing_stages(self, cid: str) -> list[int]:
+        """Scheduled, decided stages where the carrier was ∅ (no Observation, or x = nil)."""
+        r = self.spec.index(cid)
+        return [j for j in range(self.next_stage) if self.spec.valid[r][j]
+                and ((cid, j) in self.missing or ((cid, j) in self.reported and self.reported[(cid, j)] is None))]
+
+    def latencies_ms(self) -> list[float]:
+        return [c.latency_ms for c in self.confirms.values()
+                if c.latency_ms is not None and c.status in LATENCY_STATUSES]
+
+
+def initial(spec: MissionSpec) -> MissionState:
+    return MissionState(spec=spec, trails={cid: () for cid in spec.carriers})
+
+
+# --------------------------------------------------------------------------- effects
+
+@dataclass(frozen=True)
+class Record:
+    """Persist ``event`` (mission.db) before carrying out the effects after it. ``stage`` is the
+    stage the record is filed under (the stage being collected for liveliness changes)."""
+
+    event: object
+    stage: int | None = None
+    missing: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Reject:
+    """Drop the message that made the event; count it under ``reason``."""
+
+    reason: str
+    detail: str
+
+
+@dataclass(frozen=True)
+class Refuse:
+    """Answer the carrier's Hello with a Refusal (docs/protocol.md, "Refusal")."""
+
+    carrier: str
+    fingerprint: str
+    reason: str
+    detail: str
+
+
+@dataclass(frozen=True)
+class Publish:
+    """Publish the decision of ``stage`` (it is recorded already)."""
+
+    stage: int
+
+
+@dataclass(frozen=True)
+class Log:
+    line: str
+
+
+# --------------------------------------------------------------------------- the step function
+
+def step(state: MissionState, event) -> tuple[MissionState, tuple]:
+    """Fold one event into the state.
+
+    Returns:
+        ``(new state, effects)``; the state is unchanged (the same object) when the event is
+        rejected or brings nothing new.
+
+    Raises:
+        ValueError: for an event the process must never make (a decision out of order).
+    """
+    handler = _HANDLERS.get(type(event))
+    if handler is None:
+        raise TypeError(f"not a mission event: {event!r}")
+    return handler(state, event)
+
+
+def fold(spec: MissionSpec, events, state: MissionState | None = None) -> MissionState:
+    """The state after ``events`` (effects discarded): recovery from mission.db."""
+    state = initial(spec) if state is None else state
+    for event in events:
+        state, _ = step(state, event)
+    return state
+
+
+def _replace(state: MissionState, **changes) -> MissionState:
+    return dataclasses.replace(state, **changes)
+
+
+def _unknown(state, cid):
+    if cid not in state.spec.carriers:
+        return (Reject("unknown-carrier", f"carrier {cid!r} is not in the scenario"),)
+    return None
+
+
+def _no_hello(state, cid, what):
+    if cid in state.accepted:
+        return None
+    if cid in state.refused:
+        return (Reject("world-mismatch", f"{what} from carrier {cid}, whose Hello was refused"),)
+    return (Reject("no-hello", f"{what} from carrier {cid} before its Hello"),)
+
+
+def _on_opened(state: MissionState, e: ev.Opened):
+    # A new process: liveliness and publication times belong to the old session. A stopped
+    # mission resumes; only a complete one is final.
+    changes = dict(opens=state.opens + 1, live=frozenset(), published_at={})
+    if state.ended and state.end_reason != "complete":
+        changes.update(ended=False, end_reason=None)
+    return _replace(state, **changes), ()
+
+
+def _on_hello(state: MissionState, e: ev.Hello):
+    bad = _unknown(state, e.carrier)
+    if bad:
+        return state, bad
+    cid = e.carrier
+    if e.fingerprint != state.spec.fingerprint:
+        detail = f"carrier {cid} fingerprint {e.fingerprint} != {state.spec.fingerprint}"
+        effects = []
+        if cid in state.accepted:
+            new = state
+            effects.append(Log(f"coordinator: refused a later Hello of carrier {cid} (fingerprint "
+                               f"{e.fingerprint}); its accepted Hello stands"))
+        elif state.refused.get(cid) != e.fingerprint:
+            new = _replace(state, refused={**state.refused, cid: e.fingerprint})
+            effects.append(Record(e, None))
+            effects.append(Log(f"coordinator: carrier {cid} built another world (scenario/seed fingerprint "
+                               f"{e.fingerprint} != {state.spec.fingerprint}); its observations are ignored"))
+        else:
+            new = state
+        effects += [Refuse(cid, e.fingerprint, "world-mismatch", detail), Reject("world-mismatch", detail)]
+        return new, tuple(effects)
+    refused = {k: v for k, v in state.refused.items() if k != cid}
+    new = _replace(state, accepted={**state.accepted, cid: CarrierInfo(e.pid, e.host, e.next_stage)},
+                   refused=refused, byes=state.byes - {cid})  # a restarted carrier: its Bye is history
+    return new, (Record(e, e.next_stage),)
+
+
+def _check_time(state, e):
+    t_j = state.spec.stage_times[e.stage]
+    if abs(e.t - t_j) > T_TOLERANCE_S:
+        return (Reject("out-of-range", f"t: stage {e.stage} is at {t_j} s, found {e.t}"),)
+    return None
+
+
+def _on_observation(state: MissionState, e: ev.Observation):
+    cid, j = e.carrier, e.stage
+    bad = (_unknown(state, cid)
+           or (j >= state.spec.n_stages and (Reject("out-of-range", f"stage {j} >= {state.spec.n_stages}"),))
+           or _check_time(state, e)
+           or _no_hello(state, cid, "observation"))
+    if bad:
+        return state, bad
+    if j < state.next_stage:
+        if e.x is None and not state.spec.scheduled(cid, j):
+            # The per-stage ∅ of a stage the carrier is not scheduled at: nobody waited for it
+            # (a carrier joining at its staggered start sends one for the stage in progress).
+            return state, ()
+        return state, (Reject("stale-stage", f"observation of carrier {cid} for decided stage {j}"),)
+    if j > state.next_stage:
+        return state, (Reject("future-stage", f"observation of carrier {cid} for stage {j}, "
+                                              f"stage {state.next_stage} is being collected"),)
+    if (cid, j) in state.reported:
+        return state, (Reject("duplicate", f"second observation of carrier {cid} at stage {j}"),)
+    new = _replace(state, reported={**state.reported, (cid, j): e.x},
+                   positions={**state.positions, (cid, j): tuple(e.position)},
+                   trails={**state.trails, cid: state.trails.get(cid, ()) + tuple(e.trail) + (tuple(e.position),)})
+    return new, (Record(e, j),)
+
+
+def _on_liveliness(state: MissionState, e: ev.LivelinessChanged):
+    bad = _unknown(state, e.carrier)
+    if bad:
+        return state, bad
+    cid = e.carrier
+    if e.alive == (cid in state.live):
+        return state, ()
+    if e.alive:
+        return (_replace(state, live=state.live | {cid}),
+                (Record(e, state.next_stage), Log(f"coordinator: carrier {cid} is live")))
+    return (_replace(state, live=state.live - {cid}),
+            (Record(e, state.next_stage), Log(f"coordinator: carrier {cid} is gone (liveliness token vanished)")))
+
+
+def _on_decided(state: MissionState, e: ev.Decided):
+    j = e.stage
+    if state.ended or j != state.next_stage or j >= state.spec.n_stages:
+        raise ValueError(f"stage {j} cannot be decided now (next stage {state.next_stage}, ended {state.ended})")
+    unknown = set(e.deploy) - set(state.spec.carriers)
+    if unknown or len(set(e.deploy)) != len(e.deploy):
+        raise ValueError(f"decision of stage {j} names carriers {e.deploy}")
+    missing = tuple(cid for r, cid in enumerate(state.spec.carriers)
+                    if state.spec.valid[r][j] and (cid, j) not in state.reported)
+    new = _replace(state, decisions={**state.decisions, j: DecisionRecord(tuple(sorted(e.deploy)), float(e.planning_ms))},
+                   missing=state.missing | {(cid, j) for cid in missing}, next_stage=j + 1)
+    return new, (Record(e, j, missing), Publish(j))
+
+
+def _on_published(state: MissionState, e: ev.Published):
+    if e.stage not in state.decisions:
+        raise ValueError(f"stage {e.stage} published before it was decided")
+    return _replace(state, published_at={**state.published_at, e.stage: e.at}), (Record(e, e.stage),)
+
+
+def _on_confirmed(state: MissionState, e: ev.Confirmed):
+    cid, j = e.carrier, e.stage
+    bad = (_unknown(state, cid)
+           or (j >= state.spec.n_stages and (Reject("out-of-range", f"stage {j} >= {state.spec.n_stages}"),))
+           or _no_hello(state, cid, "confirmation"))
+    if bad:
+        return state, bad
+    if j >= state.next_stage:
+        return state, (Reject("stale-stage", f"confirmation of carrier {cid} for undecided stage {j}"),)
+    first = state.confirms.get((cid, j))
+    if first is not None:
+        if e.status == "already" or e.deployed == first.deployed:
+            return state, ()  # the answer to a re-published decision, or a repeat: nothing new
+        return state, (Reject("duplicate", f"second confirmation of carrier {cid} at stage {j}"),)
+    latency = (e.at - state.published_at[j]) * 1e3 if j in state.published_at else None
+    record = ConfirmRecord(bool(e.deployed), e.status, tuple(e.position), int(e.passengers_left), latency)
+    effects = [Record(e, j)]
+    selected = cid in state.decisions[j].deploy
+    if selected and not e.deployed:
+        effects.append(Log(f"coordinator: carrier {cid} did not deploy at stage {j} ({e.status})"))
+    if e.deployed and not selected:
+        effects.append(Log(f"coordinator: carrier {cid} reports an unrequested deployment at stage {j}"))
+    return _replace(state, confirms={**state.confirms, (cid, j): record}), tuple(effects)
+
+
+def _on_bye(state: MissionState, e: ev.Bye):
+    bad = _unknown(state, e.carrier)
+    if bad:
+        return state, bad
+    new = _replace(state, byes=state.byes | {e.carrier},
+                   carrier_rejected={**state.carrier_rejected, e.carrier: dict(e.rejected)})
+    return new, (Record(e, None),)
+
+
+def _on_ended(state: MissionState, e: ev.Ended):
+    if state.ended:
+        return state, ()
+    return _replace(state, ended=True, end_reason=e.reason), (Record(e, state.next_stage),)
+
+
+_HANDLERS = {
+    ev.Opened: _on_opened, ev.Hello: _on_hello, ev.Observation: _on_observation,
+    ev.LivelinessChanged: _on_liveliness, ev.Decided: _on_decided, ev.Published: _on_published,
+    ev.Confirmed: _on_confirmed, ev.Bye: _on_bye, ev.Ended: _on_ended,
+}

@@ -1,0 +1,108 @@
+"""summary.json as a function of the mission state (docs/fleet.md, "Results directory").
+
+:func:`summary` reads nothing but its arguments: the :class:`~mission.state.MissionState`, the
+planner core's problem (for the penalty rule and the clairvoyant bound) and :class:`RunInfo`,
+what the process knows about itself (ids, pid, host, wall time, its rejection counts).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from coordinator.problem import evaluate, rewards
+
+from .state import MissionState
+
+
+@dataclass(frozen=True)
+class RunInfo:
+    """The coordinator process's own facts for summary.json.
+
+    Attributes:
+        scenario, scenario_file, mission, planner, planner_options, seed: identify the run.
+        pid, host: the coordinator process.
+        wall_time_s: seconds from the start of the run to the summary.
+        rejected: the coordinator's rejection counts, reason -> n.
+    """
+
+    scenario: str
+    scenario_file: str
+    mission: str
+    planner: str
+    planner_options: dict
+    seed: int
+    pid: int | None = None
+    host: str | None = None
+    wall_time_s: float = 0.0
+    rejected: dict = field(default_factory=dict)
+
+
+def percentile(values, q) -> float | None:
+    return float(np.percentile(values, q)) if len(values) else None
+
+
+def clairvoyant_bound(problem, x: np.ndarray, total_reward: float) -> dict:
+    """The offline optimum for the realised observations (``{"error": ...}`` if it fails: the
+    bound is a report, never a reason to lose the summary)."""
+    from coordinator import clairvoyant
+
+    try:
+        bound = clairvoyant.solve(problem, np.where(problem.valid, x, np.nan))
+    except Exception as exc:
+        return {"error": f"{type(exc).__name__}: {exc}"}
+    return {"reward": bound.reward, "features": bound.features, "exact": bool(bound.exact),
+            "fraction": (total_reward / bound.reward) if bound.reward > 0 else None}
+
+
+def summary(state: MissionState, problem, run: RunInfo) -> dict:
+    """The summary.json dict of a mission in ``state``."""
+    spec = state.spec
+    x = state.observations()
+    actual = state.confirmed_deployments()
+    raw = rewards(problem, actual, x)
+    total_reward, total_features = evaluate(problem, actual, x)
+    decided = state.decided()
+    carriers = []
+    for r, cid in enumerate(spec.carriers):
+        deps = []
+        for j in np.flatnonzero(actual[r]):
+            c = state.confirms[(cid, int(j))]
+            deps.append({"stage": int(j), "t": spec.stage_times[int(j)],
+                         "x": None if math.isnan(x[r, j]) else float(x[r, j]),
+                         "position": list(c.position),
+                         "reward": float(raw[r, j] / problem.scale), "features": float(raw[r, j])})
+        info = state.accepted.get(cid)
+        carriers.append({
+            "id": cid, "pid": info.pid if info else None, "host": info.host if info else None,
+            "passengers": spec.passengers[r], "deployments": deps,
+            "decided_stages": [int(j) for j in np.flatnonzero(decided[r])],
+            "missing_stages": state.missing_stages(cid),
+            "live_at_end": cid in state.live,
+            "rejected": dict(state.carrier_rejected.get(cid, {})),
+        })
+    plan = [state.decisions[j].planning_ms for j in sorted(state.decisions)]
+    latencies = state.latencies_ms()
+    return {
+        "scenario": run.scenario, "scenario_file": run.scenario_file, "mission": run.mission,
+        "planner": run.planner, "planner_options": run.planner_options, "seed": run.seed,
+        "stages": spec.n_stages, "stages_decided": len(state.decisions), "ended": state.ended,
+        "end_reason": state.end_reason,
+        "resumed": state.resumed,
+        "coordinator": {"pid": run.pid, "host": run.host},
+        "carriers": carriers,
+        "decisions": [list(state.decisions[j].deploy) if j in state.decisions else None
+                      for j in range(spec.n_stages)],
+        "observations": [[None if math.isnan(v) else float(v) for v in row] for row in x],
+        "total_reward": float(total_reward), "total_features": float(total_features),
+        "clairvoyant": clairvoyant_bound(problem, x, float(total_reward)),
+        "wall_time_s": float(run.wall_time_s),
+        "latency_ms": {"p50": percentile(latencies, 50), "p99": percentile(latencies, 99),
+                       "count": len(latencies),
+                       "meaning": "decision publication to carrier confirmation, coordinator clock"},
+        "planning_ms": {"per_stage": plan, "mean": float(np.mean(plan)) if plan else None,
+                        "max": float(np.max(plan)) if plan else None},
+        "rejected": {"coordinator": dict(run.rejected),
+                     "carriers": {cid: dict(state.carrier_rejected.get(cid, {})) for cid in spec.carriers}},
+    }

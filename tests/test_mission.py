@@ -1,0 +1,357 @@
+"""The mission state machines without sockets: tables of events in, state and effects out.
+
+Mission: carriers a (2 passengers, scheduled at stages 0..2) and b (1 passenger, stages 1..2),
+3 stages 5 s apart, fingerprint "fp". Recovery is checked as the same fold: fold live events,
+persist what they say to record, reload mission.db, fold again: equal state, equal summary.
+"""
+from __future__ import annotations
+
+import pytest
+
+from mission import carrier as mc
+from mission import events as ev
+from mission import state as ms
+
+SPEC = ms.MissionSpec.build(("a", "b"), [[True, True, True], [False, True, True]], (2, 1), (0.0, 5.0, 10.0), "fp")
+
+
+def hello(cid, fp="fp", at=1.0, next_stage=0):
+    return ev.Hello(cid, 100, "host", 2, next_stage, fp, at)
+
+
+def obs(cid, j, x, t=None, at=2.0):
+    return ev.Observation(cid, j, SPEC.stage_times[j] if t is None else t, x, (1.0, 2.0), 2, ((0.5, 2.0),), at)
+
+
+def live(cid, alive=True, at=1.0):
+    return ev.LivelinessChanged(cid, alive, at)
+
+
+def decide(j, deploy=(), at=3.0):
+    return ev.Decided(j, tuple(deploy), 1.5, at)
+
+
+def confirm(cid, j, deployed, status, at=4.0):
+    return ev.Confirmed(cid, j, deployed, status, (1.0, 2.0), 1, at)
+
+
+READY = [ev.Opened(0.0), live("a"), live("b"), hello("a"), hello("b")]
+
+
+def run(events):
+    """Fold ``events``; the state and the effects of the last one."""
+    state, effects = ms.initial(SPEC), ()
+    for e in events:
+        state, effects = ms.step(state, e)
+    return state, effects
+
+
+def rejected(effects):
+    return [e.reason for e in effects if isinstance(e, ms.Reject)]
+
+
+def recorded(effects):
+    return [e.event for e in effects if isinstance(e, ms.Record)]
+
+
+# --------------------------------------------------------------------------- observations
+OBSERVATION_CASES = [
+    # id, events before, the event, rejection reason (None = accepted), (carrier, stage) -> x after
+    ("accepted", READY, obs("a", 0, 3), None, {("a", 0): 3}),
+    ("duplicate", READY + [obs("a", 0, 3)], obs("a", 0, 9), "duplicate", {("a", 0): 3}),
+    ("stale", READY + [decide(0)], obs("a", 0, 3), "stale-stage", {}),
+    ("future", READY, obs("a", 1, 99), "future-stage", {}),
+    ("future-then-real", READY + [obs("a", 1, 99), obs("a", 0, 3), decide(0)], obs("a", 1, 4), None,
+     {("a", 0): 3, ("a", 1): 4}),
+    ("unscheduled-empty-after-decision", READY + [decide(0)], obs("b", 0, None), "", {}),
+    ("wrong-time", READY, obs("a", 0, 3, t=0.5), "out-of-range", {}),
+    ("stage-out-of-range", READY, ev.Observation("a", 3, 15.0, 1, (0.0, 0.0), 2), "out-of-range", {}),
+    ("unknown-carrier", READY, ev.Observation("z", 0, 0.0, 1, (0.0, 0.0), 1), "unknown-carrier", {}),
+    ("no-hello", [ev.Opened(0.0), live("a")], obs("a", 0, 3), "no-hello", {}),
+    ("refused-hello", [ev.Opened(0.0), live("a"), hello("a", fp="other")], obs("a", 0, 3), "world-mismatch", {}),
+]
+
+
+@pytest.mark.parametrize("before,event,reason,after", [c[1:] for c in OBSERVATION_CASES],
+                         ids=[c[0] for c in OBSERVATION_CASES])
+def test_observation_rules(before, event, reason, after):
+    state, _ = run(before)
+    new, effects = ms.step(state, event)
+    if reason is None:
+        assert rejected(effects) == [] and recorded(effects) == [event]
+    elif reason == "":
+        assert effects == () and new is state  # expected and harmless: neither kept nor counted
+    else:
+        assert rejected(effects) == [reason] and new is state
+    assert new.reported == after
+
+
+def test_a_value_sent_before_its_stage_never_decides_anything():
+    """The hole: x = 99 for stage 1 sent while stage 0 is collected must not be the stage-1 value."""
+    state, _ = run(READY + [obs("a", 1, 99), obs("a", 0, 3), decide(0), obs("a", 1, 4), obs("b", 1, 2)])
+    assert state.observations()[0, 1] == 4
+
+
+# --------------------------------------------------------------------------- the stage clock
+CLOCK_CASES = [
+    # id, events, stage, expected carriers, waiting carriers
+    ("all-expected", READY, 1, {"a", "b"}, {"a", "b"}),
+    ("unscheduled-not-expected", READY, 0, {"a"}, {"a"}),
+    ("accepted-observation", READY + [obs("a", 0, 3)], 0, {"a"}, set()),
+    ("crash", READY + [live("a", False)], 1, {"b"}, {"b"}),
+    ("rejoin", READY + [live("a", False), live("a"), hello("a", at=5.0)], 1, {"a", "b"}, {"a", "b"}),
+    ("no-hello-not-expected", [ev.Opened(0.0), live("a"), live("b"), hello("b")], 1, {"b"}, {"b"}),
+    ("refused-not-expected", [ev.Opened(0.0), live("a"), live("b"), hello("a", fp="x"), hello("b")], 1, {"b"}, {"b"}),
+    ("restart-forgets-liveliness", READY + [ev.Opened(9.0)], 1, set(), set()),
+]
+
+
+@pytest.mark.parametrize("events,j,expected,waiting", [c[1:] for c in CLOCK_CASES], ids=[c[0] for c in CLOCK_CASES])
+def test_stage_clock_predicates(events, j, expected, waiting):
+    state, _ = run(events)
+    assert state.expected(j) == expected and state.waiting(j) == waiting
+    assert state.stage_complete(j) == (not waiting)
+
+
+def test_missing_carrier_is_empty_and_recorded_with_the_decision():
+    state, effects = run(READY + [decide(0, ())])
+    assert (("a", 0) in state.missing) and state.missing_stages("a") == [0]
+    assert [type(e) for e in effects] == [ms.Record, ms.Publish]  # stored before published
+    assert effects[0].missing == ("a",)
+    assert state.next_stage == 1 and state.observations()[0, 0] != state.observations()[0, 0]  # NaN
+
+
+def test_a_stage_is_decided_once_and_in_order():
+    state, _ = run(READY + [decide(0)])
+    with pytest.raises(ValueError):
+        ms.step(state, decide(0))
+    with pytest.raises(ValueError):
+        ms.step(state, decide(2))
+
+
+def test_join_waits_for_tokens_and_hellos():
+    assert not run([ev.Opened(0.0), live("a"), live("b"), hello("a")])[0].all_joined()
+    assert run(READY)[0].all_joined()
+    assert run([ev.Opened(0.0), live("a"), hello("a"), hello("b", fp="x")])[0].all_joined()
+
+
+# --------------------------------------------------------------------------- Hello
+def test_refused_hello_gets_an_explicit_refusal():
+    state, effects = run([ev.Opened(0.0), live("a"), hello("a", fp="other")])
+    assert "a" not in state.accepted and state.refused == {"a": "other"}
+    refusals = [e for e in effects if isinstance(e, ms.Refuse)]
+    assert refusals == [ms.Refuse("a", "other", "world-mismatch", refusals[0].detail)]
+    assert rejected(effects) == ["world-mismatch"]
+
+
+def test_a_later_bad_hello_never_undoes_an_accepted_one():
+    state, effects = run(READY + [hello("a", fp="other", at=7.0)])
+    assert state.accepted["a"] == ms.CarrierInfo(100, "host", 0) and "a" not in state.refused
+    assert any(isinstance(e, ms.Refuse) for e in effects) and recorded(effects) == []
+    assert state.expected(1) == {"a", "b"}
+    state, _ = ms.step(state, obs("a", 0, 3))
+    assert state.reported[("a", 0)] == 3  # its observations still count
+
+
+def test_a_good_hello_after_a_refusal_is_accepted():
+    state, _ = run([ev.Opened(0.0), live("a"), hello("a", fp="other"), hello("a")])
+    assert "a" in state.accepted and state.refused == {}
+
+
+# --------------------------------------------------------------------------- Confirm
+CONFIRM_CASES = [
+    # id, events before, the event, rejection reason (None = accepted, "" = absorbed)
+    ("accepted", READY + [obs("a", 0, 3), decide(0, ["a"])], confirm("a", 0, True, "deployed"), None),
+    ("undecided", READY, confirm("a", 0, False, "idle"), "stale-stage"),
+    ("out-of-range", READY, confirm("a", 3, False, "idle"), "out-of-range"),
+    ("no-hello", [ev.Opened(0.0), live("a")], confirm("a", 0, False, "idle"), "no-hello"),
+    ("repeat-same", READY + [decide(0, ()), confirm("a", 0, False, "idle")], confirm("a", 0, False, "late"), ""),
+    ("already", READY + [decide(0, ()), confirm("a", 0, False, "idle")], confirm("a", 0, True, "already"), ""),
+    ("contradiction", READY + [decide(0, ()), confirm("a", 0, False, "idle")], confirm("a", 0, True, "deployed"),
+     "duplicate"),
+]
+
+
+@pytest.mark.parametrize("before,event,reason", [c[1:] for c in CONFIRM_CASES], ids=[c[0] for c in CONFIRM_CASES])
+def test_confirm_rules(before, event, reason):
+    state, _ = run(before)
+    new, effects = ms.step(state, event)
+    if reason is None:
+        assert rejected(effects) == [] and recorded(effects) == [event]
+    elif reason == "":
+        assert effects == () and new is state
+    else:
+        assert rejected(effects) == [reason] and new is state
+
+
+def test_late_confirm_refutes_the_deployment():
+    state, _ = run(READY + [obs("a", 0, 3), decide(0, ["a"]), ev.Published(0, 3.5)])
+    assert state.deployed()[0, 0] and state.passengers_left()[0] == 1
+    state, effects = ms.step(state, confirm("a", 0, False, "late", at=3.6))
+    assert not state.deployed()[0, 0] and state.passengers_left()[0] == 2
+    assert state.confirms[("a", 0)].latency_ms == pytest.approx(100.0)
+    assert any(isinstance(e, ms.Log) and "did not deploy" in e.line for e in effects)
+
+
+def test_stopped_mission_resumes_complete_one_stays_ended():
+    stopped, _ = run(READY + [ev.Ended("stopped", 5.0), ev.Opened(6.0)])
+    assert not stopped.ended and stopped.resumed
+    complete, _ = run(READY + [ev.Ended("complete", 5.0), ev.Opened(6.0)])
+    assert complete.ended and complete.end_reason == "complete"
+
+
+# --------------------------------------------------------------------------- recovery = the same fold
+def _mission_events():
+    return [
+        live("a", at=1.0), live("b", at=1.1), hello("a", at=1.2), hello("b", at=1.3, next_stage=0),
+        obs("a", 0, 6, at=2.0), obs("z", 0, 1, at=2.05), decide(0, ["a"], at=2.1), ev.Published(0, 2.2),
+        confirm("a", 0, True, "deployed", at=2.3), obs("a", 1, 1, at=3.0), obs("b", 1, 4, at=3.1),
+        confirm("a", 0, True, "already", at=3.15), decide(1, ["b"], at=3.2), ev.Published(1, 3.3),
+        confirm("a", 1, False, "idle", at=3.4), confirm("b", 1, True, "deployed", at=3.45),
+        live("a", False, at=3.5), obs("b", 2, 2, at=4.0), decide(2, [], at=4.1), ev.Published(2, 4.2),
+        confirm("b", 2, False, "idle", at=4.3), ev.Ended("complete", 4.4),
+        ev.Bye("b", (1,), (("duplicate", 1),), "end", 4.5),
+    ]
+
+
+def test_recovery_is_the_same_fold(tmp_path):
+    from coordinator.problem import Problem
+    from coordinator.store import MissionStore, load_events
+    from mission.summary import RunInfo, summary
+    import numpy as np
+    from scipy import stats
+
+    store = MissionStore(tmp_path / "mission.db", {"mission": "m"})
+    live_state = ms.fold(SPEC, store.mission_events())  # the store's own "open"
+    for e in _mission_events():
+        live_state, effects = ms.step(live_state, e)
+        for effect in effects:
+            if isinstance(effect, ms.Record):
+                store.record(effect, live_state)
+    store.close()
+    replayed = ms.fold(SPEC, load_events(tmp_path / "mission.db"))
+    assert replayed == live_state
+    assert replayed.decided().tolist() == [[True, False, False], [False, True, False]]
+    assert replayed.confirmed_deployments().sum() == 2 and replayed.live == {"b"}
+
+    problem = Problem.build(np.array(SPEC.passengers), np.array(SPEC.valid), [], stats.poisson(3.0))
+    run_info = RunInfo("m", "m.yaml", "m", "ssap", {}, 7, 1, "h", 1.0, {})
+    assert summary(replayed, problem, run_info) == summary(live_state, problem, run_info)
+    assert summary(live_state, problem, run_info)["latency_ms"]["count"] == 4  # deployed/idle with a publication
+
+
+# --------------------------------------------------------------------------- the carrier's side
+P0 = (1.0, 2.0)
+
+
+def carrier(*events, passengers=2, valid=(True, True, True)):
+    state = mc.initial("a", valid, (0.0, 5.0, 10.0), passengers)
+    effects = ()
+    for e in events:
+        state, effects = mc.step(state, e)
+    return state, effects
+
+
+def confirms(effects):
+    return [(e.stage, e.status, e.deployed) for e in effects if isinstance(e, mc.SendConfirm)]
+
+
+def heard(j, deploy=("a",), t=None):
+    return mc.DecisionHeard(j, (0.0, 5.0, 10.0)[j] if t is None else t, tuple(deploy), P0)
+
+
+JOINED = [mc.Joined(0)]
+
+CARRIER_CASES = [
+    # id, events before, the event, confirms sent [(stage, status, deployed)], rejection reason
+    ("deployed", JOINED + [mc.Observed(0)], heard(0), [(0, "deployed", True)], None),
+    ("idle", JOINED + [mc.Observed(0)], heard(0, ()), [(0, "idle", False)], None),
+    ("duplicate-already", JOINED + [mc.Observed(0), heard(0)], heard(0, ()), [(0, "already", True)], None),
+    ("late-after-timeout", JOINED + [mc.Observed(0), mc.MovedOn(0), mc.Observed(1)], heard(0),
+     [(0, "late", False)], None),
+    ("before-join-selected", [mc.Joined(2)], heard(0), [(0, "late", False)], None),
+    ("before-join-not-selected", [mc.Joined(2)], heard(1, ()), [(1, "idle", False)], None),
+    ("future-held", JOINED + [mc.Observed(0)], heard(1), [], None),
+    ("future-duplicate", JOINED + [mc.Observed(0), heard(1)], heard(1), [], "duplicate"),
+    ("out-of-range", JOINED, mc.DecisionHeard(3, 15.0, ("a",), P0), [], "out-of-range"),
+    ("wrong-time", JOINED + [mc.Observed(0)], heard(0, t=1.0), [], "out-of-range"),
+]
+
+
+@pytest.mark.parametrize("before,event,sent,reason", [c[1:] for c in CARRIER_CASES], ids=[c[0] for c in CARRIER_CASES])
+def test_carrier_decision_rules(before, event, sent, reason):
+    state, _ = carrier(*before)
+    new, effects = mc.step(state, event)
+    assert confirms(effects) == sent
+    assert [e.reason for e in effects if isinstance(e, mc.Reject)] == ([reason] if reason else [])
+
+
+def test_carrier_deploys_once_and_never_beyond_its_passengers():
+    state, effects = carrier(*JOINED, mc.Observed(0), heard(0), passengers=1)
+    assert [type(e) for e in effects][0] is mc.Deploy and state.passengers_left == 0
+    state, _ = mc.step(state, mc.MovedOn(0))
+    state, _ = mc.step(state, mc.Observed(1))
+    state, effects = mc.step(state, heard(1))
+    assert confirms(effects) == [(1, "refused", False)] and not any(isinstance(e, mc.Deploy) for e in effects)
+    assert state.deployments() == (0,)
+
+
+def test_carrier_unscheduled_stage_is_refused():
+    _, effects = carrier(*JOINED, mc.Observed(0), heard(0), valid=(False, True, True))
+    assert confirms(effects) == [(0, "refused", False)]
+
+
+def test_carrier_behind_answers_the_held_decision_on_passing():
+    state, _ = carrier(*JOINED, mc.Observed(0), heard(0, ()), mc.MovedOn(0), heard(1))
+    assert state.behind(1)
+    state, effects = mc.step(state, mc.Passed(1, P0))
+    assert confirms(effects) == [(1, "deployed", True)] and state.stage == 2
+
+
+def test_carrier_resends_its_observation_when_the_coordinator_catches_up():
+    """It gave up waiting for stage 0 and observed stage 1 (rejected as future-stage); the late
+    decision of stage 0 tells it stage 1 is now being collected: it sends the observation again."""
+    state, effects = carrier(*JOINED, mc.Observed(0), mc.MovedOn(0), mc.Observed(1), heard(0, ()))
+    assert confirms(effects) == [(0, "idle", False)] and mc.ResendObservation(1) in effects
+
+
+def test_carrier_resync_after_the_coordinator_returns():
+    state, _ = carrier(*JOINED, mc.Observed(0), heard(0, ()), mc.MovedOn(0), mc.Observed(1))
+    seen = mc.StateSeen(next_stage=1, deployments=(), last_decision=(0, 0.0, ()), ended=False)
+    state, effects = mc.step(state, mc.Resync(seen, P0))
+    kinds = [type(e) for e in effects]
+    assert mc.SendHello in kinds and mc.ResendObservation(1) in effects
+    assert confirms(effects) == [(0, "already", False)]
+    # A deployment on record it never received is answered late (the passenger is on board).
+    state2, effects = mc.step(state, mc.Resync(mc.StateSeen(2, (1,), None, False), P0))
+    assert (1, "late", False) in confirms(effects) and state2.passengers_left == 2
+
+
+# --------------------------------------------------------------------------- purity
+FORBIDDEN = ("zenoh", "pymunk", "msgpack", "sqlite3", "world", "wire", "carriers", "coordinator.node",
+             "coordinator.store", "matplotlib")
+
+
+def test_mission_imports_no_process_library():
+    """Statically (every import statement, function bodies included) and in a fresh interpreter."""
+    import ast
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    for path in (root / "mission").glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module] if isinstance(node, ast.ImportFrom) and node.level == 0 else [])
+            for name in names:
+                assert not any(name == f or name.startswith(f + ".") for f in FORBIDDEN), (path.name, name)
+    code = ("import importlib, json, sys\n"
+            "for m in ('mission', 'mission.events', 'mission.state', 'mission.carrier', 'mission.summary',"
+            " 'mission.timeouts'):\n    importlib.import_module(m)\n"
+            "print(json.dumps(sorted(sys.modules)))\n")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    loaded = json.loads(proc.stdout.splitlines()[-1])
+    assert [m for m in loaded if any(m == f or m.startswith(f + ".") for f in FORBIDDEN)] == []
