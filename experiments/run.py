@@ -16,7 +16,9 @@ of the clairvoyant bound), ``<sweep>.md`` (the tables), ``<sweep>.png`` (±1 SEM
 
 Common random numbers: within a trial every planner sees the same instance, the same observations
 and the same planner seed (see :mod:`experiments.trials`). Tasks (one planner on one trial) run on a
-``spawn`` process pool of ``--jobs`` workers (default: all cores), longest first.
+``spawn`` process pool of ``--jobs`` workers (default: all cores), longest first, or on the
+workers of a Dask distributed cluster with ``--cluster tcp://HOST:8786`` (the same tasks, the same
+seeds, so the same results; see :func:`cluster_executor`).
 """
 from __future__ import annotations
 
@@ -75,6 +77,11 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="planning budget per decision: MCTS iterations (default 10000; quick 300)")
     p.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)")
+    p.add_argument("--cluster", default=None, metavar="ADDRESS",
+                   help="run the tasks on a Dask distributed scheduler (e.g. tcp://10.0.0.5:8786) "
+                        "instead of a local process pool; --jobs is then ignored")
+    p.add_argument("--cluster-timeout", type=float, default=20.0,
+                   help="seconds to wait for the --cluster scheduler and its first worker (default 20)")
     p.add_argument("--quick", action="store_true", help="tiny settings for a smoke test")
     p.add_argument("--out", type=Path, default=None,
                    help=f"output directory (default {DEFAULT_OUT.relative_to(ROOT)}; with --quick {QUICK_OUT})")
@@ -162,6 +169,41 @@ def run_tasks(tasks: list[Task], pool, desc: str, progress: bool) -> list[dict]:
             bar.update()
     bar.close()
     return rows
+
+
+def cluster_executor(address: str, timeout_s: float):
+    """A ``concurrent.futures`` executor running tasks on a Dask distributed cluster.
+
+    The workers must be able to import this project (start them from a checkout with the
+    project installed: ``pip install -e '.[cluster]'``, then ``dask worker ADDRESS``). Every
+    worker loads the planners' compiled kernels before any sweep is timed.
+
+    Returns:
+        (client, executor, workers): the client to close at the end, the executor, and the number
+        of worker threads the scheduler reports.
+
+    Raises:
+        UsageError: dask is not installed, the scheduler is unreachable, or no worker joined
+            within ``timeout_s``.
+    """
+    try:
+        from distributed import Client
+    except ImportError:
+        raise UsageError("--cluster: needs dask's distributed scheduler: pip install -e '.[cluster]'") from None
+    try:
+        client = Client(address, timeout=timeout_s, set_as_default=False)
+    except (OSError, TimeoutError, ValueError) as err:
+        raise UsageError(f"--cluster: expected a reachable Dask scheduler at {address!r}, "
+                         f"found none within {timeout_s:g} s ({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})") from None
+    try:
+        client.wait_for_workers(1, timeout=timeout_s)
+    except (OSError, TimeoutError) as err:
+        client.close()
+        raise UsageError(f"--cluster: the scheduler at {address!r} has no worker after {timeout_s:g} s") from None
+    client.run(warm_up_worker)
+    threads = sum(client.nthreads().values())
+    # pure=False: every task runs (a task's result never comes from another's cache).
+    return client, client.get_executor(pure=False), threads
 
 
 def _write_sweep(sweep: str, rows: list[dict], out: Path, seconds: float, jobs: int, s: dict, args) -> dict:
@@ -285,8 +327,15 @@ def main(argv=None) -> int:
             _write_sweep(sweep, rows, out, prior["seconds"], prior["jobs"], s, args)
         _write_index(out, info)
         return 0
-    pool = None
-    if args.jobs > 1:
+    pool = client = None
+    if args.cluster:
+        try:
+            client, pool, args.jobs = cluster_executor(args.cluster, args.cluster_timeout)
+        except UsageError as err:
+            print(f"python -m experiments: error: {err}", file=sys.stderr)
+            return 2
+        info["cluster"] = {"address": args.cluster, "worker_threads": args.jobs}
+    elif args.jobs > 1:
         pool = ProcessPoolExecutor(max_workers=args.jobs, mp_context=get_context("spawn"),
                                    initializer=warm_up_worker)
         # Start every worker (and load its compiled kernels) before any sweep is timed.
@@ -310,7 +359,10 @@ def main(argv=None) -> int:
             info_path.write_text(json.dumps(info, indent=2) + "\n")
             print(f"{sweep}: {len(tasks)} tasks in {seconds:.1f} s -> {out / (sweep + '.md')}", file=sys.stderr)
     finally:
-        if pool is not None:
+        if client is not None:
+            pool.shutdown(wait=False)
+            client.close()
+        elif pool is not None:
             pool.shutdown(cancel_futures=True)
     info["machine"] = {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()}
     info["last_run_seconds"] = round(time.perf_counter() - started, 1)
