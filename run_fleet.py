@@ -121,7 +121,7 @@ def check_flags(args, scenario) -> str | None:
                     f"(carriers of {args.scenario}), found {args.carrier!r}")
     if args.role != "carrier":
         from coordinator.node import planner_settings
-        from coordinator.planners import make_planner
+        from planner.registry import make_planner
 
         name, options = planner_settings(scenario, args.planner, args.iterations, args.plan_ms)
         try:

@@ -2,7 +2,7 @@
 
 A thin adapter around the pure planner core: observations arrive over Zenoh (wire/), are
 committed to mission.db (coordinator/store.py), the StageView is built with
-``coordinator.problem.make_view`` exactly as ``run_online`` builds it, the planner decides with
+``planner.problem.make_view`` exactly as ``run_online`` builds it, the planner decides with
 ``stage_rng(seed, j)``, the decision is committed and only then published.
 
 Stage j (docs/protocol.md, "Stage handshake"):
@@ -33,8 +33,8 @@ from pathlib import Path
 import numpy as np
 
 import world
-from coordinator.planners import make_planner
-from coordinator.problem import Problem, enforce, evaluate, make_view, rewards, stage_rng
+from planner.registry import make_planner
+from planner.problem import Problem, enforce, evaluate, make_view, rewards, stage_rng
 from coordinator.store import MissionStore
 from wire import keys
 from wire.messages import (
@@ -524,7 +524,7 @@ class Coordinator:
 
     # ------------------------------------------------------------------ results
     def _summary(self, wall_s: float) -> dict:
-        from coordinator import clairvoyant
+        from planner import clairvoyant
 
         x = np.full(self.problem.valid.shape, np.nan)
         for j in range(self.n_stages):

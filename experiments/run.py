@@ -110,7 +110,7 @@ def _settings(args) -> dict:
         raise UsageError(f"--scaling-overlaps: expected an integer >= 0, found {args.scaling_overlaps}")
     overlaps = _int_list(args.overlaps, "overlaps", 0) if args.overlaps else (QUICK["overlaps"] if quick else OVERLAP_LEVELS)
     carriers = _int_list(args.carriers, "carriers", 1) if args.carriers else (QUICK["carriers"] if quick else CARRIER_LEVELS)
-    from coordinator.planners import planner_names
+    from planner.registry import planner_names
 
     planners = tuple(p.strip() for p in args.planners.split(",") if p.strip())
     unknown = [p for p in planners if p not in planner_names()]

@@ -72,7 +72,7 @@ def test_core_modules_exist():
 def test_core_imports_no_process_libraries_in_a_fresh_interpreter():
     core = _modules("coordinator", CORE_EXCLUDED)
     loaded = _loaded_after_import(core)
-    assert "coordinator.problem" in loaded and "numpy" in loaded
+    assert "planner.problem" in loaded and "numpy" in loaded
     assert _offending(loaded, CORE_FORBIDDEN) == []
 
 

@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from coordinator import planners, ssap
-from coordinator.instance import random_instance
-from coordinator.planners import RandomPlanner, SSAPPlanner, make_planner, planner_names, register
-from coordinator.problem import Problem, run_online, sample_observations
+from planner import registry as planners, ssap
+from planner.instance import random_instance
+from planner.policies import RandomPlanner, SSAPPlanner
+from planner.registry import make_planner, planner_names, register
+from planner.problem import Problem, run_online, sample_observations
 
 
 def _instances(seed: int, count: int):

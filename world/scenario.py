@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-import priors
+from planner import priors
 from world import building as _building
 from world import geometry
 
@@ -232,7 +232,7 @@ class PlannerSpec:
     samples: int = 1
 
     def options(self) -> dict[str, Any]:
-        """Keyword options for ``coordinator.planners.make_planner(name, **options)``."""
+        """Keyword options for ``planner.registry.make_planner(name, **options)``."""
         out: dict[str, Any] = {"iterations": self.iterations, "exploration": self.exploration,
                                "samples": self.samples}
         if self.plan_ms is not None:

@@ -1,4 +1,4 @@
-"""Numba kernels of the fast MCTS planner (:mod:`coordinator.mcts`).
+"""Numba kernels of the fast MCTS planner (:mod:`planner.mcts.fast`).
 
 The tree is a set of preallocated arrays; node ``i`` is the decision of one carrier at one stage
 (a binary choice: deploy or not), so a stage is up to R consecutive binary levels and the 2^R
@@ -27,6 +27,9 @@ import math
 
 import numpy as np
 from numba import njit
+
+from planner.kernels import deploys, deploys_u, forced
+from planner.kernels import quantile as _quantile
 
 #: Index of the root node.
 ROOT = 0
@@ -69,16 +72,6 @@ def _random(state):
 
 
 @njit(cache=True, inline="always")
-def _quantile(u, points, cdf, guide):
-    """Inverse CDF with a guide table (Chen & Asau): the first support point whose cumulative
-    probability exceeds u in [0, 1). ``guide[m]`` is the first index with ``cdf > m / len(guide)``."""
-    i = guide[int(u * guide.shape[0])]
-    while cdf[i] <= u:
-        i += 1
-    return points[i]
-
-
-@njit(cache=True, inline="always")
 def _sample(state, points, cdf, guide):
     """One draw of the prior."""
     return _quantile(_random(state), points, cdf, guide)
@@ -113,7 +106,7 @@ def _advance(q, n, j0, left, valid, vs_left, mark, pts):
     while k < n_stages:
         while r < n_carriers:
             if valid[r, k] and left[r] > 0:
-                if vs_left[r, k] > left[r]:
+                if not forced(vs_left[r, k], left[r]):
                     return (k - j0) * n_carriers + r, n
                 a = r * n_stages + k
                 mark[a] = 1
@@ -148,24 +141,24 @@ def _rollout(state, q, n, j0, left, valid, vs_left, known, table, ucut, points, 
                 x = 0.0
                 if k == j0:  # only when the tree stopped inside the root stage
                     x = known[r, k]
-                    if ns <= d:
+                    if forced(ns, d):
                         go = True
                     elif rollout == ROLLOUT_SSAP:
-                        go = x / (1.0 + _conflicts(a, mark, indptr, nbr)) > table[ns, ns - d]
+                        go = deploys(table, x / (1.0 + _conflicts(a, mark, indptr, nbr)), ns, d)
                     else:
                         z += _GAMMA
                         go = _unit(z) * ns < d
                 else:
                     z += _GAMMA
                     u = _unit(z)
-                    if ns <= d:
+                    if forced(ns, d):
                         go = True
                     elif rollout == ROLLOUT_SSAP:
                         if indptr[a] == indptr[a + 1]:  # no overlap: x > t iff u >= ucut
-                            go = u >= ucut[ns, ns - d]
+                            go = deploys_u(ucut, u, ns, d)
                         else:
                             x = _quantile(u, points, cdf, guide)
-                            go = x / (1.0 + _conflicts(a, mark, indptr, nbr)) > table[ns, ns - d]
+                            go = deploys(table, x / (1.0 + _conflicts(a, mark, indptr, nbr)), ns, d)
                     else:
                         # deploy with probability d / ns: a uniform d-subset of the remaining valid stages
                         go = u * ns < d
@@ -362,7 +355,7 @@ def quantiles(us, points, cdf, guide):
 
 
 # ---------------------------------------------------------------------------------------------
-# Joint-action layout: the reference's tree (coordinator.mcts_reference), on arrays.
+# Joint-action layout: the reference's tree (planner.mcts.reference), on arrays.
 #
 # A node is one stage's decision after its path's actions. Its children are the joint actions of
 # the carriers that have a choice at that stage (forced carriers deploy, carriers at ∅ stages or
@@ -430,7 +423,7 @@ def search_joint(n_iter, base, expanded, mult, offset, visits, value, mean, isq,
             nc = 0
             for r in range(n_carriers):
                 if valid[r, k] and left[r] > 0:
-                    if vs_left[r, k] > left[r]:
+                    if not forced(vs_left[r, k], left[r]):
                         choice[nc] = r
                         nc += 1
                     else:  # forced

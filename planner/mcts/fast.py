@@ -1,6 +1,6 @@
 """MCTS-SSAP and MCTS-Random, fast: array trees searched by numba kernels.
 
-The algorithm is the paper's (see :mod:`coordinator.mcts_reference` for the plain version and
+The algorithm is the paper's (see :mod:`planner.mcts.reference` for the plain version and
 docs/performance.md for the measured comparison), in one of two tree layouts (``layout=``):
 
 * ``"joint"`` — the reference's tree: a node is one stage, its children are the joint actions
@@ -8,7 +8,7 @@ docs/performance.md for the measured comparison), in one of two tree layouts (``
   expanded one untried action per visit in a random order that is never listed (the ``i``-th
   expanded child is ``(a * i + b) mod 2^k`` with ``a`` odd and ``a``, ``b`` drawn per node);
   a node's children occupy one contiguous block of ids reserved at its first expansion
-  (:func:`coordinator._mcts_kernel.search_joint`). Refused beyond ``JOINT_LIMIT`` carriers
+  (:func:`planner.mcts.kernel.search_joint`). Refused beyond ``JOINT_LIMIT`` carriers
   with a choice.
 * ``"binary"`` — **each tree level is one carrier's binary choice**. A stage is up to R
   consecutive levels, carriers in index order; carriers with no choice at a stage (∅ stage, no
@@ -16,13 +16,13 @@ docs/performance.md for the measured comparison), in one of two tree layouts (``
   A path through the levels of one stage spells one feasible joint action, so the tree reaches
   exactly the joint actions the joint-action tree reaches; UCT statistics are shared between
   joint actions with a common prefix, and each iteration expands one binary node
-  (:func:`coordinator._mcts_kernel.search`). At most ``iterations + 1`` nodes, whatever R.
+  (:func:`planner.mcts.kernel.search`). At most ``iterations + 1`` nodes, whatever R.
 * ``"auto"`` (default) — joint for problems of at most ``JOINT_MAX_CARRIERS`` carriers, binary
   beyond. With the paper's nearly greedy exploration constant the binary levels lose quality
   against the joint tree at R = 6 (docs/performance.md); beyond 8 carriers the joint tree
   cannot try each root action even a few times in 10,000 iterations.
 
-Per iteration (in :func:`coordinator._mcts_kernel.search`): UCT selection with constant ``c``
+Per iteration (in :func:`planner.mcts.kernel.search`): UCT selection with constant ``c``
 on normalised rewards, expansion of one untried binary child (uniformly random when both are
 untried), lazy sampling of future observations from the prior (only where a rollout decision or
 the evaluation reads them; open-loop), the SSAP rollout per carrier on the conflict-discounted
@@ -34,9 +34,9 @@ expansion order), or follows the most visited child at each binary level of the 
 (binary layout; ties: higher mean, then "stay"; a level never expanded, only with budgets below
 ~R iterations, falls back to the SSAP rule on the conflict-discounted observation).
 
-Priors: a discrete prior is sampled exactly by inverse CDF over its support (truncated where the
-tail mass is below 1e-15, like the thresholds); a continuous prior is replaced by
-``CONTINUOUS_ATOMS`` equiprobable atoms at its quantiles ``(i + 1/2) / CONTINUOUS_ATOMS``.
+Priors: the kernels sample the compiled problem's sampler (:mod:`planner.compiled`): exact
+inverse CDF over a discrete prior's support (table priors on their own points), a continuous
+prior by ``CONTINUOUS_ATOMS`` equiprobable atoms at its quantiles.
 
 Randomness: one uint64 drawn from the decision's Generator seeds the kernel's splitmix64 stream
 once per decision, so a decision is a deterministic function of the view and the Generator (in
@@ -45,23 +45,18 @@ iteration mode; in ``plan_ms`` mode the number of iterations depends on the cloc
 from __future__ import annotations
 
 import functools
-import math
 import time
 
 import numpy as np
 
-from coordinator import _mcts_kernel as _k
-from coordinator.problem import Problem, StageView, make_view
-from coordinator.ssap import TAIL, table_for
+from planner import ssap
+from planner.compiled import compile_problem
+from planner.mcts import kernel as _k
+from planner.problem import Problem, StageView, make_view
+from planner.registry import DEFAULT_EXPLORATION, DEFAULT_ITERATIONS, LAYOUTS
 
-#: Default UCT exploration constant on normalised rewards (the paper's 0.05·√2).
-DEFAULT_EXPLORATION = 0.05 * math.sqrt(2.0)
 #: Rollout policies.
 ROLLOUTS = {"ssap": _k.ROLLOUT_SSAP, "random": _k.ROLLOUT_RANDOM}
-#: Equiprobable atoms standing for a continuous prior inside the kernel.
-CONTINUOUS_ATOMS = 4096
-#: Guide-table entries per support point (inverse-CDF sampling takes ~1 comparison on average).
-GUIDE_FACTOR = 4
 #: Time-budget mode: the first kernel call runs this many iterations to measure the rate.
 FIRST_CHUNK = 16
 #: Time-budget mode: a kernel call runs at most this many times the previous call's iterations
@@ -75,9 +70,6 @@ CHUNK_OF_BUDGET = 0.2
 STOP_FRACTION = 0.01
 #: Node capacity of the first allocation in time-budget mode (grown geometrically).
 INITIAL_CAPACITY = 4096
-#: Tree layouts: ``"joint"`` (the reference's joint-action tree, expanded lazily), ``"binary"``
-#: (one binary level per carrier with a choice), ``"auto"`` (joint up to JOINT_MAX_CARRIERS).
-LAYOUTS = ("auto", "joint", "binary")
 #: ``layout="auto"`` uses the joint-action tree when at most this many carriers can still have a
 #: choice (2^8 = 256 root actions: 10,000 iterations try each about 40 times), the binary
 #: levels beyond (where the joint tree cannot even try each root action once).
@@ -87,59 +79,13 @@ JOINT_MAX_CARRIERS = 8
 JOINT_LIMIT = 16
 
 
-@functools.lru_cache(maxsize=64)
-def prior_grid(problem: Problem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The prior as (support points float64 ``[K]``, cumulative probability float64 ``[K]``,
-    guide int64 ``[G]``) for inverse-CDF sampling in the kernel.
-
-    The last cumulative value is set above 1 so that sampling always terminates;
-    ``guide[m]`` is the first index whose cumulative probability exceeds ``m / G``.
-    """
-    prior = problem.prior
-    if hasattr(prior.dist, "pmf"):
-        lo, hi = prior.support()
-        lo = prior.ppf(TAIL) if not np.isfinite(lo) else lo
-        hi = prior.ppf(1.0 - TAIL) if not np.isfinite(hi) else hi
-        points = np.arange(lo, hi + 1, dtype=np.float64)
-        mass = prior.pmf(points)
-        cdf = np.cumsum(mass) / mass.sum()
-    else:
-        u = (np.arange(CONTINUOUS_ATOMS) + 0.5) / CONTINUOUS_ATOMS
-        points = np.asarray(prior.ppf(u), dtype=np.float64)
-        cdf = (np.arange(CONTINUOUS_ATOMS) + 1.0) / CONTINUOUS_ATOMS
-    cdf[-1] = 2.0
-    guide = np.searchsorted(cdf, np.arange(GUIDE_FACTOR * len(cdf)) / (GUIDE_FACTOR * len(cdf)), side="right")
-    return np.ascontiguousarray(points), np.ascontiguousarray(cdf), guide.astype(np.int64)
-
-
-@functools.lru_cache(maxsize=64)
-def threshold_cdf(problem: Problem) -> np.ndarray:
-    """float64 ``[N + 2, N + 2]``: P(X <= table[n, i]) under :func:`prior_grid`'s distribution,
-    so that a sample with uniform u exceeds the threshold iff u >= this value (2 where no
-    support point exceeds it, NaN-threshold entries included; they are never read)."""
-    table = table_for(problem)
-    points, cdf, _ = prior_grid(problem)
-    idx = np.searchsorted(points, np.nan_to_num(table, nan=np.inf), side="right") - 1
-    out = np.where(idx >= 0, cdf[np.clip(idx, 0, None)], 0.0)
-    return np.ascontiguousarray(out, dtype=np.float64)
-
-
-@functools.lru_cache(maxsize=64)
-def conflict_lists(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
-    """CSR form of ``problem.conflict``: (indptr int64 ``[R*N + 1]``, neighbours int64 ``[nnz]``)."""
-    rows, cols = np.nonzero(problem.conflict)
-    indptr = np.zeros(problem.conflict.shape[0] + 1, dtype=np.int64)
-    np.add.at(indptr, rows + 1, 1)
-    return np.cumsum(indptr), cols.astype(np.int64)
-
-
 @functools.lru_cache(maxsize=1)
 def _uct_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return _k.uct_tables()
 
 
 class _Tree:
-    """Preallocated node arrays (see :mod:`coordinator._mcts_kernel`), grown geometrically."""
+    """Preallocated node arrays (see :mod:`planner.mcts.kernel`), grown geometrically."""
 
     def __init__(self, capacity: int):
         self.child = np.full((capacity, 2), _k.UNEXPANDED, dtype=np.int64)
@@ -162,7 +108,7 @@ class _Tree:
 
 
 class _JointTree:
-    """Node arrays of the joint-action layout (see :func:`coordinator._mcts_kernel.search_joint`),
+    """Node arrays of the joint-action layout (see :func:`planner.mcts.kernel.search_joint`),
     grown geometrically; ids are reserved a child block (``2^k`` ids) at a time."""
 
     def __init__(self, capacity: int):
@@ -207,7 +153,7 @@ class MCTSPlanner:
             carriers, binary beyond, so the layout is fixed per problem).
     """
 
-    def __init__(self, rollout: str = "ssap", iterations: int = 10_000, plan_ms: float | None = None,
+    def __init__(self, rollout: str = "ssap", iterations: int = DEFAULT_ITERATIONS, plan_ms: float | None = None,
                  exploration: float = DEFAULT_EXPLORATION, samples: int = 1, layout: str = "auto"):
         if layout not in LAYOUTS:
             raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
@@ -284,8 +230,7 @@ class MCTSPlanner:
         state = rng.integers(2 ** 64, dtype=np.uint64, size=1)  # the kernel's random stream
 
         valid = np.ascontiguousarray(view.valid, dtype=np.uint8)
-        vs_left = np.zeros((n_carriers, n_stages + 1), dtype=np.int64)
-        vs_left[:, :-1] = np.cumsum(view.valid[:, ::-1], axis=1)[:, ::-1]
+        vs_left = view.stages_left_table
         d0 = np.ascontiguousarray(view.passengers_left, dtype=np.int64)
         known = np.ascontiguousarray(view.observations, dtype=np.float64)  # NaN after the root stage
         past = np.flatnonzero(view.deployed.reshape(-1)).astype(np.int64)
@@ -293,10 +238,9 @@ class MCTSPlanner:
         mark[past] = 1
         xval = np.zeros(n_carriers * n_stages, dtype=np.float64)
         xval[past] = known.reshape(-1)[past]
-        indptr, nbr = conflict_lists(problem)
-        table = table_for(problem)
-        ucut = threshold_cdf(problem)
-        points, cdf, guide = prior_grid(problem)
+        cp = compile_problem(problem)
+        indptr, nbr, table, ucut = cp.indptr, cp.nbr, cp.table, cp.ucut
+        points, cdf, guide = cp.sampler.points, cp.sampler.cdf, cp.sampler.guide
         scratch = (
             np.zeros(n_carriers, dtype=np.int64),  # left
             np.zeros(n_carriers, dtype=np.int64),  # left_tree
@@ -397,7 +341,7 @@ class MCTSPlanner:
         decision = must.copy()
         node = _k.ROOT
         passengers_left, stages_left = view.passengers_left, view.stages_left
-        table = table_for(problem)
+        table = compile_problem(problem).table
         for r in np.flatnonzero(choice).tolist():
             # Invariant: at the root stage the choice carriers are fixed, one level each.
             assert node == _k.UNEXPANDED or tree.point[node] == r
@@ -417,10 +361,10 @@ class MCTSPlanner:
                 selected = view.deployed.copy()
                 selected[:, j0] = decision
                 a = r * n_stages + j0
-                conflicts = int(np.count_nonzero(problem.conflict[a] & selected.reshape(-1)))
+                conflicts = int(np.count_nonzero(compile_problem(problem).conflict[a] & selected.reshape(-1)))
                 n, d = int(stages_left[r]), int(passengers_left[r])
                 if self.rollout == "ssap":
-                    deploy = view.observations[r, j0] / (1 + conflicts) > table[n, n - d]
+                    deploy = ssap.deploys(table, view.observations[r, j0] / (1 + conflicts), n, d)
                 else:
                     deploy = False
                 node = _k.UNEXPANDED
