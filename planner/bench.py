@@ -37,6 +37,7 @@ from planner.mcts.fast import MCTSPlanner
 from planner.mcts.reference import ReferenceMCTSPlanner
 from planner.policies import RandomPlanner, SSAPPlanner
 from planner.problem import make_view, run_online
+from planner.registry import DEFAULT_ITERATIONS
 from planner.ssap import table_for
 
 #: Root seed of the benchmark's instances (instance i uses SeedSequence(SEED, spawn_key=(i,))).
@@ -117,7 +118,7 @@ def warm_start(cache_dir: str | None = None) -> dict:
         "import numpy as np\n"
         "t1 = time.perf_counter()\n"
         "problem, x = random_instance(np.random.default_rng(0), carriers=6, passengers=3, stages=10, overlaps=10)\n"
-        "p = MCTSPlanner('ssap', iterations=10000); p.warm_up(problem)\n"
+        "p = MCTSPlanner('ssap'); p.warm_up(problem)\n"
         "t2 = time.perf_counter()\n"
         "p.decide(make_view(problem, 0, x, np.zeros(problem.valid.shape, dtype=bool)), np.random.default_rng(0))\n"
         "t3 = time.perf_counter()\n"
@@ -181,7 +182,7 @@ def main(argv=None) -> int:
         print(f"bench: --sections: expected a subset of warm,speed,quality,plan, found {args.sections!r}",
               file=sys.stderr)
         return 2
-    iterations = args.iterations if args.iterations is not None else (2_000 if args.quick else 10_000)
+    iterations = args.iterations if args.iterations is not None else (2_000 if args.quick else DEFAULT_ITERATIONS)
     if iterations < 1:
         print(f"bench: --iterations: expected a positive integer, found {iterations}", file=sys.stderr)
         return 2

@@ -147,7 +147,7 @@ def check_settings(name: Any, options: Mapping[str, Any]) -> list[SettingProblem
     """Everything wrong with a planner name and its options (``None`` values mean "default");
     empty when they are fine."""
     problems = []
-    names = planner_names()
+    names = tuple(_REGISTRY)  # registration order: the paper's planners first
     if not isinstance(name, str) or name not in names:
         close = difflib.get_close_matches(str(name), names, n=1, cutoff=0.5)
         hint = f" (did you mean '{close[0]}'?)" if close else ""
