@@ -79,47 +79,77 @@ JOINT_MAX_CARRIERS = 8
 JOINT_LIMIT = 16
 
 
+def _model(problem: Problem) -> _k.Model:
+    """The compiled problem as the kernels read it."""
+    cp = compile_problem(problem)
+    s = cp.sampler
+    return _k.Model(cp.table, cp.ucut, s.points, s.cdf, s.guide, cp.indptr, cp.nbr, float(cp.scale))
+
+
 @functools.lru_cache(maxsize=1)
-def _uct_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    return _k.uct_tables()
+def _uct_tables() -> _k.UCTTables:
+    return _k.UCTTables(*_k.uct_tables())
+
+
+def _stats(capacity: int) -> _k.Stats:
+    return _k.Stats(np.zeros(capacity, dtype=np.int64), np.zeros(capacity), np.zeros(capacity), np.zeros(capacity))
+
+
+def _grown(arrays: tuple, new: int, fill=0) -> list:
+    """Each array extended to ``new`` entries (``fill`` in the new ones)."""
+    return [np.concatenate([a, np.full(new - a.shape[0], fill, dtype=a.dtype)]) for a in arrays]
 
 
 class _Tree:
-    """Preallocated node arrays (see :mod:`planner.mcts.kernel`), grown geometrically."""
+    """Node arrays of the binary layout (:class:`planner.mcts.kernel.BinaryTree`), grown
+    geometrically; an expanded node reserves a block of 2 ids ``[stay, deploy]``."""
 
     def __init__(self, capacity: int):
-        self.child = np.full((capacity, 2), _k.UNEXPANDED, dtype=np.int64)
-        self.visits = np.zeros(capacity, dtype=np.int64)
-        self.value = np.zeros(capacity, dtype=np.float64)
+        self.base = np.full(capacity, _k.UNEXPANDED, dtype=np.int64)
         self.point = np.zeros(capacity, dtype=np.int64)
+        self.stats = _stats(capacity)
         self.counter = np.ones(1, dtype=np.int64)  # the root exists
 
     def reserve(self, more: int) -> None:
-        """Make room for ``more`` new nodes."""
+        """Make room for ``more`` new ids."""
         need = int(self.counter[0]) + more
-        cap = self.visits.shape[0]
+        cap = self.point.shape[0]
         if need <= cap:
             return
         new = max(need, 2 * cap)
-        self.child = np.concatenate([self.child, np.full((new - cap, 2), _k.UNEXPANDED, dtype=np.int64)])
-        self.visits = np.concatenate([self.visits, np.zeros(new - cap, dtype=np.int64)])
-        self.value = np.concatenate([self.value, np.zeros(new - cap)])
-        self.point = np.concatenate([self.point, np.zeros(new - cap, dtype=np.int64)])
+        (self.base,) = _grown((self.base,), new, _k.UNEXPANDED)
+        (self.point,) = _grown((self.point,), new)
+        self.stats = _k.Stats(*_grown(tuple(self.stats), new))
+
+    @property
+    def visits(self) -> np.ndarray:
+        """int64 ``[cap]`` iterations through each node."""
+        return self.stats.visits
+
+    @property
+    def value(self) -> np.ndarray:
+        """float64 ``[cap]`` sum of the normalised rewards of those iterations."""
+        return self.stats.value
+
+    def arrays(self) -> _k.BinaryTree:
+        return _k.BinaryTree(self.base, self.point, self.counter, self.stats)
+
+    def created(self) -> int:
+        """Nodes created (reserved block entries never expanded have no visit)."""
+        n = int(self.counter[0])
+        return 1 + int(np.count_nonzero(self.stats.visits[1:n]))
 
 
 class _JointTree:
-    """Node arrays of the joint-action layout (see :func:`planner.mcts.kernel.search_joint`),
-    grown geometrically; ids are reserved a child block (``2^k`` ids) at a time."""
+    """Node arrays of the joint-action layout (:class:`planner.mcts.kernel.JointTree`), grown
+    geometrically; ids are reserved a child block (``2^k`` ids) at a time."""
 
     def __init__(self, capacity: int):
         self.base = np.zeros(capacity, dtype=np.int64)
         self.expanded = np.zeros(capacity, dtype=np.int64)
         self.mult = np.zeros(capacity, dtype=np.uint64)
         self.offset = np.zeros(capacity, dtype=np.uint64)
-        self.visits = np.zeros(capacity, dtype=np.int64)
-        self.value = np.zeros(capacity, dtype=np.float64)
-        self.mean = np.zeros(capacity, dtype=np.float64)
-        self.isq = np.zeros(capacity, dtype=np.float64)
+        self.stats = _stats(capacity)
         self.counter = np.ones(1, dtype=np.int64)  # the root exists
 
     def reset(self) -> None:
@@ -127,15 +157,28 @@ class _JointTree:
         it reads a node's fields only after creating it (see search_joint)."""
         self.counter[0] = 1
         self.expanded[0] = 0
-        self.visits[0] = 0
-        self.value[0] = 0.0
+        self.stats.visits[0] = 0
+        self.stats.value[0] = 0.0
 
     def grow(self) -> None:
         """Double the capacity."""
-        cap = self.visits.shape[0]
-        for name in ("base", "expanded", "mult", "offset", "visits", "value", "mean", "isq"):
-            old = getattr(self, name)
-            setattr(self, name, np.concatenate([old, np.zeros(cap, dtype=old.dtype)]))
+        new = 2 * self.base.shape[0]
+        self.base, self.expanded, self.mult, self.offset = _grown(
+            (self.base, self.expanded, self.mult, self.offset), new)
+        self.stats = _k.Stats(*_grown(tuple(self.stats), new))
+
+    @property
+    def visits(self) -> np.ndarray:
+        """int64 ``[cap]`` iterations through each node."""
+        return self.stats.visits
+
+    @property
+    def value(self) -> np.ndarray:
+        """float64 ``[cap]`` sum of the normalised rewards of those iterations."""
+        return self.stats.value
+
+    def arrays(self) -> _k.JointTree:
+        return _k.JointTree(self.base, self.expanded, self.mult, self.offset, self.counter, self.stats)
 
 
 class MCTSPlanner:
@@ -238,19 +281,19 @@ class MCTSPlanner:
         mark[past] = 1
         xval = np.zeros(n_carriers * n_stages, dtype=np.float64)
         xval[past] = known.reshape(-1)[past]
-        cp = compile_problem(problem)
-        indptr, nbr, table, ucut = cp.indptr, cp.nbr, cp.table, cp.ucut
-        points, cdf, guide = cp.sampler.points, cp.sampler.cdf, cp.sampler.guide
-        scratch = (
+        root = _k.Root(j0, d0, valid, vs_left, known, known.reshape(-1), past)
+        scratch = _k.Scratch(
+            state,
             np.zeros(n_carriers, dtype=np.int64),  # left
             np.zeros(n_carriers, dtype=np.int64),  # left_tree
             mark,
             xval,
             np.zeros(n_carriers * n_stages, dtype=np.int64),  # pts
             np.zeros((n_stages - j0) * n_carriers + 2, dtype=np.int64),  # path
+            np.zeros(n_carriers, dtype=np.int64),  # choice
         )
-        fixed = (state, j0, d0, valid, vs_left, known, past, indptr, nbr, table, ucut, points, cdf, guide,
-                 ROLLOUTS[self.rollout], self.exploration, self.samples, problem.scale) + _uct_tables() + scratch
+        fixed = (root, _model(problem), _k.Settings(ROLLOUTS[self.rollout], self.exploration, self.samples),
+                 _uct_tables(), scratch)
         if layout == "joint":
             # Upper bound of the choice carriers at any node: carriers with a passenger left and a
             # valid stage from j0 on.
@@ -262,27 +305,25 @@ class MCTSPlanner:
             budget_nodes = self.iterations if self.plan_ms is None else INITIAL_CAPACITY
             want = 1 + max_block + min(16 * budget_nodes, budget_nodes * max_block)
             tree = self._joint_tree
-            if tree is None or tree.visits.shape[0] < want:
+            if tree is None or tree.base.shape[0] < want:
                 # Kept across decisions: a fresh multi-megabyte tree per decision cost page faults.
                 tree = self._joint_tree = _JointTree(want)
             tree.reset()
-            fixed = fixed + (np.zeros(n_carriers, dtype=np.int64), max_block)
 
             def run(n_iter: int) -> None:
                 while n_iter > 0:
-                    ran = _k.search_joint(n_iter, tree.base, tree.expanded, tree.mult, tree.offset, tree.visits,
-                                          tree.value, tree.mean, tree.isq, tree.counter, *fixed)
+                    ran = _k.search_joint(n_iter, tree.arrays(), *fixed, max_block)
                     n_iter -= ran
                     if n_iter > 0:
                         tree.grow()
         else:
             first = int(np.flatnonzero(choice)[0])  # the root is the first carrier with a choice
-            tree = _Tree(self.iterations + 1 if self.plan_ms is None else INITIAL_CAPACITY)
+            tree = _Tree(2 * self.iterations + 1 if self.plan_ms is None else INITIAL_CAPACITY)
             tree.point[_k.ROOT] = first
 
             def run(n_iter: int) -> None:
-                tree.reserve(n_iter)
-                _k.search(n_iter, tree.child, tree.visits, tree.value, tree.point, tree.counter, *fixed)
+                tree.reserve(2 * n_iter)  # a block of 2 ids per expansion
+                _k.search_binary(n_iter, tree.arrays(), *fixed)
 
         if self.plan_ms is None:
             run(self.iterations)
@@ -308,8 +349,8 @@ class MCTSPlanner:
             self.last_nodes = 1 + int(tree.expanded[: int(tree.counter[0])].sum())  # created, not reserved
             self.last_reserved = int(tree.counter[0])
             return self._extract_joint(tree, choice, must)
-        self.last_nodes = int(tree.counter[0])
-        self.last_reserved = self.last_nodes
+        self.last_nodes = tree.created()
+        self.last_reserved = int(tree.counter[0])
         return self._extract(view, tree, choice, must)
 
     @staticmethod
@@ -321,9 +362,10 @@ class MCTSPlanner:
         expanded = int(tree.expanded[root])
         b0 = int(tree.base[root])
         best, key = 0, None
+        visits, value = tree.stats.visits, tree.stats.value
         for slot in range(expanded):
-            v = int(tree.visits[b0 + slot])
-            k = (v, float(tree.value[b0 + slot]) / v)
+            v = int(visits[b0 + slot])
+            k = (v, float(value[b0 + slot]) / v)
             if key is None or k > key:
                 best, key = slot, k
         # The action of a slot: (mult * slot + offset) mod 2^64 mod 2^k (2^k divides 2^64).
@@ -345,18 +387,19 @@ class MCTSPlanner:
         for r in np.flatnonzero(choice).tolist():
             # Invariant: at the root stage the choice carriers are fixed, one level each.
             assert node == _k.UNEXPANDED or tree.point[node] == r
-            kids = tree.child[node] if node != _k.UNEXPANDED else None
-            if kids is not None and (kids != _k.UNEXPANDED).any():
+            first = int(tree.base[node]) if node != _k.UNEXPANDED else _k.UNEXPANDED
+            if first != _k.UNEXPANDED:  # a block exists: at least one of [stay, deploy] was created
+                visits, value = tree.stats.visits, tree.stats.value
                 best, key = _k.UNEXPANDED, None
                 for b in (0, 1):
-                    c = kids[b]
-                    if c == _k.UNEXPANDED or tree.visits[c] == 0:
+                    c = first + b
+                    if visits[c] == 0:  # never created
                         continue
-                    k = (tree.visits[c], tree.value[c] / tree.visits[c])
+                    k = (visits[c], value[c] / visits[c])
                     if key is None or k > key:
                         best, key = b, k
                 deploy = best == 1
-                node = kids[best]
+                node = first + best
             else:  # never expanded: the rollout's rule on the conflict-discounted observation
                 selected = view.deployed.copy()
                 selected[:, j0] = decision

@@ -1,29 +1,48 @@
-"""Numba kernels of the fast MCTS planner (:mod:`planner.mcts.fast`).
+"""Numba kernels of the fast MCTS planner (:mod:`planner.mcts.fast`), both tree layouts.
 
-The tree is a set of preallocated arrays; node ``i`` is the decision of one carrier at one stage
-(a binary choice: deploy or not), so a stage is up to R consecutive binary levels and the 2^R
-joint actions are never enumerated. Carriers without a choice (∅ stage, no passenger left, or
-forced) get no level: their deterministic action is applied while walking between levels.
+One iteration is the paper's five steps, each one named function shared by both layouts:
+
+==========================  ===================================================================
+step                        function
+==========================  ===================================================================
+UCT selection               :func:`uct_select` (argmax of ``mean + c sqrt(ln N_parent / N_child)``
+                            over a node's child block, ties to the lowest index)
+expansion                   :func:`expand` (creates one child; which one is the layout's
+                            choice: a random untried action, see the searches)
+rollout                     :func:`simulate` samples the unknown observations and runs
+                            :func:`rollout` (SSAP on conflict-discounted observations, or
+                            uniformly random feasible), ``samples`` times
+evaluation (penalty rule)   :func:`evaluate` (the whole trajectory: past + tree + rollout)
+backup                      :func:`backup` (visits, value sums, means along the path)
+==========================  ===================================================================
+
+:func:`search_binary` and :func:`search_joint` walk their tree with these steps.
+
+Arguments are named structures (NamedTuples of arrays, read by numba as tuples):
+:class:`Model` (the compiled problem, per problem), :class:`Root` (the decision's state),
+:class:`Settings`, :class:`UCTTables`, :class:`Scratch` (work arrays and the random stream) and
+the tree (:class:`BinaryTree` or :class:`JointTree`, both with :class:`Stats`).
+
+Trees are preallocated arrays. A node's children occupy one contiguous *block* of node ids,
+reserved at its first expansion, so UCT scans contiguous statistics:
+
+* binary layout — node ``i`` is one carrier's binary choice at one stage; its block is
+  ``[stay, deploy]`` at ``base[i]`` (indexed by the action), ``point[i]`` is the sequence
+  position of the choice. Carriers without a choice (∅ stage, no passenger left, or forced) get
+  no level: their action is applied while walking (:func:`_advance`).
+* joint layout — see the block comment above :func:`search_joint`.
 
 Decision points are visited in *sequence order* ``q = (k - j0) * R + r`` (stage ``k`` from the
 root stage ``j0``, carrier ``r``), flat point ``a = r * N + k``.
 
-Tree arrays (capacity ``cap`` nodes, ``n_nodes = counter[0]`` in use):
-
-* ``child[i, b]``: node reached by action ``b`` (0 = stay, 1 = deploy) at node ``i``, or
-  ``UNEXPANDED``;
-* ``visits[i]``, ``value[i]``: iterations through node ``i`` and the sum of their normalised
-  rewards;
-* ``point[i]``: sequence position of the node's choice, ``Q`` (= ``TERMINAL``) when no choice
-  is left after the path.
-
-Random numbers come from a splitmix64 stream (a 64-bit counter in ``state[0]``, seeded once
-per decision from the caller's numpy Generator): about 1 ns per draw, against about 20 ns for
-numba's ``np.random``, which matters at tens of draws per iteration.
+Random numbers come from a splitmix64 stream (a 64-bit counter in ``Scratch.state[0]``, seeded
+once per decision from the caller's numpy Generator): about 1 ns per draw, against about 20 ns
+for numba's ``np.random``, which matters at tens of draws per iteration.
 """
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -33,13 +52,11 @@ from planner.kernels import quantile as _quantile
 
 #: Index of the root node.
 ROOT = 0
-#: ``child`` entry of an action not tried yet.
+#: ``base`` of a node without children yet.
 UNEXPANDED = -1
-#: Rollout policies (the ``rollout`` argument of :func:`search`).
+#: Rollout policies (``Settings.rollout``).
 ROLLOUT_SSAP = 0
 ROLLOUT_RANDOM = 1
-
-
 #: Size of the lookup tables of 1/n, 1/sqrt(n) and sqrt(ln n) used by UCT for visit counts n.
 UCT_TABLE = 1 << 16
 
@@ -52,6 +69,98 @@ _S27 = np.uint64(27)
 _S31 = np.uint64(31)
 _S11 = np.uint64(11)
 _TO_UNIT = 1.0 / 9007199254740992.0  # 2**-53
+
+
+# ----------------------------------------------------------------------------- named structures
+
+
+class Model(NamedTuple):
+    """The compiled problem as the kernels read it (:class:`planner.compiled.CompiledProblem`)."""
+
+    table: np.ndarray   # float64 [N + 2, N + 2] DLR thresholds (raw units)
+    ucut: np.ndarray    # float64 [N + 2, N + 2] sampler CDF at the thresholds
+    points: np.ndarray  # float64 [K] sampler support points (atoms for a continuous prior)
+    cdf: np.ndarray     # float64 [K] cumulative probabilities, last == 1
+    guide: np.ndarray   # int64 [G] guide table of the inverse CDF
+    indptr: np.ndarray  # int64 [R*N + 1] CSR of "shares an overlap"
+    nbr: np.ndarray     # int64 [nnz]
+    scale: float        # rewards are divided by it (normalised rewards)
+
+
+class Root(NamedTuple):
+    """The state of one decision at root stage ``j0``."""
+
+    j0: int                 # root stage
+    d0: np.ndarray          # int64 [R] passengers left before the root stage
+    valid: np.ndarray       # uint8 [R, N] validity: realised up to j0, scheduled after
+    vs_left: np.ndarray     # int64 [R, N + 1] valid stages from k (inclusive) to the end
+    known: np.ndarray       # float64 [R, N] observations up to j0, NaN after it
+    known_flat: np.ndarray  # float64 [R*N] the same, flat
+    past: np.ndarray        # int64 [P] flat points deployed before j0
+
+
+class Settings(NamedTuple):
+    """Search settings."""
+
+    rollout: int        # ROLLOUT_SSAP or ROLLOUT_RANDOM
+    exploration: float  # UCT constant c on normalised rewards
+    samples: int        # rollouts per iteration (their mean is backed up)
+
+
+class UCTTables(NamedTuple):
+    """1/n, 1/sqrt(n), sqrt(ln n) for n < UCT_TABLE (entry 0 unused), float64 [UCT_TABLE] each."""
+
+    inv: np.ndarray
+    inv_sqrt: np.ndarray
+    sqrt_log: np.ndarray
+
+
+class Scratch(NamedTuple):
+    """Work arrays of one decision. ``mark``/``xval`` hold the past on entry and on exit."""
+
+    state: np.ndarray      # uint64 [1] splitmix64 counter (advanced in place)
+    left: np.ndarray       # int64 [R] passengers left along the current trajectory
+    left_tree: np.ndarray  # int64 [R] passengers left after the tree path
+    mark: np.ndarray       # uint8 [R*N] selected points of the current trajectory
+    xval: np.ndarray       # float64 [R*N] observation of each selected point
+    pts: np.ndarray        # int64 [R*N] selected points after the past, in order
+    path: np.ndarray       # int64 [(N - j0) * R + 2] node ids of the current tree path
+    choice: np.ndarray     # int64 [R] carriers with a choice at the current stage (joint layout)
+
+
+class Stats(NamedTuple):
+    """Node statistics, float/int ``[cap]``: iterations through the node, sum of their normalised
+    rewards, and ``value / visits`` and ``1 / sqrt(visits)`` kept by :func:`backup` for UCT."""
+
+    visits: np.ndarray
+    value: np.ndarray
+    mean: np.ndarray
+    isq: np.ndarray
+
+
+class BinaryTree(NamedTuple):
+    """Binary layout: ``base[i]`` first id of node i's ``[stay, deploy]`` block (or UNEXPANDED);
+    ``point[i]`` sequence position of its choice; ``counter[0]`` ids reserved. A block entry
+    exists iff its ``visits > 0`` (a child is backed up in the iteration that creates it)."""
+
+    base: np.ndarray
+    point: np.ndarray
+    counter: np.ndarray
+    stats: Stats
+
+
+class JointTree(NamedTuple):
+    """Joint layout (see the block comment above :func:`search_joint`)."""
+
+    base: np.ndarray
+    expanded: np.ndarray
+    mult: np.ndarray
+    offset: np.ndarray
+    counter: np.ndarray
+    stats: Stats
+
+
+# ----------------------------------------------------------------------------- low level
 
 
 @njit(cache=True, inline="always")
@@ -75,14 +184,6 @@ def _random(state):
 def _sample(state, points, cdf, guide):
     """One draw of the prior."""
     return _quantile(_random(state), points, cdf, guide)
-
-
-@njit(cache=True, inline="always")
-def _observe(state, r, k, j0, known, points, cdf, guide):
-    """The observation of carrier r at stage k: known at the root stage, sampled after it."""
-    if k == j0:
-        return known[r, k]
-    return _sample(state, points, cdf, guide)
 
 
 @njit(cache=True, inline="always")
@@ -120,14 +221,18 @@ def _advance(q, n, j0, left, valid, vs_left, mark, pts):
 
 
 @njit(cache=True)
-def _rollout(state, q, n, j0, left, valid, vs_left, known, table, ucut, points, cdf, guide, rollout,
-             mark, xval, pts, indptr, nbr):
+def rollout(state, q, n, root, model, policy, left, mark, xval, pts):
     """Complete the trajectory from position q with the rollout policy; returns len(pts).
 
+    SSAP: a carrier deploys by the threshold rule on its observation discounted for conflicts
+    with the deployments already chosen, ``x / (1 + c)``; random: with probability ``d / n``.
     A sampled observation x = quantile(u) exceeds the threshold t iff u >= P(X <= t) =
     ``ucut[ns, ns - d]``, so a conflict-free SSAP decision reads u alone and the quantile is
     looked up only for deployments (the same draws and decisions as sampling x first).
     """
+    valid, vs_left, known, j0 = root.valid, root.vs_left, root.known, root.j0
+    table, ucut, points, cdf, guide = model.table, model.ucut, model.points, model.cdf, model.guide
+    indptr, nbr = model.indptr, model.nbr
     n_carriers, n_stages = valid.shape
     z = state[0]  # the stream's counter, kept in a register and stored back at the end
     k = j0 + q // n_carriers
@@ -143,7 +248,7 @@ def _rollout(state, q, n, j0, left, valid, vs_left, known, table, ucut, points, 
                     x = known[r, k]
                     if forced(ns, d):
                         go = True
-                    elif rollout == ROLLOUT_SSAP:
+                    elif policy == ROLLOUT_SSAP:
                         go = deploys(table, x / (1.0 + _conflicts(a, mark, indptr, nbr)), ns, d)
                     else:
                         z += _GAMMA
@@ -153,7 +258,7 @@ def _rollout(state, q, n, j0, left, valid, vs_left, known, table, ucut, points, 
                     u = _unit(z)
                     if forced(ns, d):
                         go = True
-                    elif rollout == ROLLOUT_SSAP:
+                    elif policy == ROLLOUT_SSAP:
                         if indptr[a] == indptr[a + 1]:  # no overlap: x > t iff u >= ucut
                             go = deploys_u(ucut, u, ns, d)
                         else:
@@ -181,8 +286,9 @@ def _rollout(state, q, n, j0, left, valid, vs_left, known, table, ucut, points, 
 
 
 @njit(cache=True)
-def _evaluate(n, past, pts, mark, xval, indptr, nbr):
-    """Raw total of the trajectory (past + pts[:n]) under the exact penalty rule."""
+def evaluate(n, past, pts, mark, xval, indptr, nbr):
+    """Raw total of the trajectory (past + pts[:n]) under the exact penalty rule: every selected
+    point earns ``x / (1 + selected points sharing an overlap with it)``."""
     total = 0.0
     for i in range(past.shape[0]):
         a = past[i]
@@ -194,49 +300,75 @@ def _evaluate(n, past, pts, mark, xval, indptr, nbr):
 
 
 @njit(cache=True)
-def _simulate(state, q, n_tree, n_carriers, samples, scale, j0, left, left_tree, valid, vs_left, known,
-              known_flat, table, ucut, points, cdf, guide, rollout, mark, xval, pts, past, indptr, nbr):
-    """Mean normalised reward of ``samples`` rollouts below a tree path.
+def simulate(q, n_tree, root, model, settings, scratch):
+    """Mean normalised reward of ``settings.samples`` rollouts below a tree path.
 
     On entry ``pts[:n_tree]`` are the path's deployments (marked in ``mark``), ``left`` the
     passengers left after them and ``q`` the decision slot where the rollout starts. Observations
     of the path's points are sampled afresh per sample where unknown (after the root stage).
-    On exit every mark is cleared; ``left`` is clobbered.
+    On exit every mark of the path and rollout is cleared; ``left`` is clobbered.
     """
+    left, left_tree, mark, xval, pts = scratch.left, scratch.left_tree, scratch.mark, scratch.xval, scratch.pts
+    state = scratch.state
+    n_carriers = left.shape[0]
     for r in range(n_carriers):
         left_tree[r] = left[r]
     total = 0.0
-    for _s in range(samples):
+    for _s in range(settings.samples):
         for i in range(n_tree):
             a = pts[i]
-            x = known_flat[a]  # NaN after the root stage: sampled
-            xval[a] = _sample(state, points, cdf, guide) if np.isnan(x) else x
+            x = root.known_flat[a]  # NaN after the root stage: sampled
+            xval[a] = _sample(state, model.points, model.cdf, model.guide) if np.isnan(x) else x
         for r in range(n_carriers):
             left[r] = left_tree[r]
-        n = _rollout(state, q, n_tree, j0, left, valid, vs_left, known, table, ucut, points, cdf, guide,
-                     rollout, mark, xval, pts, indptr, nbr)
-        total += _evaluate(n, past, pts, mark, xval, indptr, nbr)
+        n = rollout(state, q, n_tree, root, model, settings.rollout, left, mark, xval, pts)
+        total += evaluate(n, root.past, pts, mark, xval, model.indptr, model.nbr)
         for i in range(n_tree, n):
             mark[pts[i]] = 0
     for i in range(n_tree):
         mark[pts[i]] = 0
-    return total / (samples * scale)
+    return total / (settings.samples * model.scale)
 
 
 @njit(cache=True, inline="always")
-def _uct(node, c0, c1, visits, value, exploration, inv, inv_sqrt, sqrt_log):
-    """The UCT choice (0 or 1, ties to 0) between the two visited children of ``node``:
-    argmax of ``value/visits + c * sqrt(ln visits[node] / visits[child])``."""
-    n, n0, n1 = visits[node], visits[c0], visits[c1]
-    if n < UCT_TABLE:  # then n0, n1 < n are in the tables too
-        e = exploration * sqrt_log[n]
-        s0 = value[c0] * inv[n0] + e * inv_sqrt[n0]
-        s1 = value[c1] * inv[n1] + e * inv_sqrt[n1]
-    else:
-        log_parent = math.log(n)
-        s0 = value[c0] / n0 + exploration * math.sqrt(log_parent / n0)
-        s1 = value[c1] / n1 + exploration * math.sqrt(log_parent / n1)
-    return 0 if s0 >= s1 else 1
+def uct_select(stats, first, count, parent, exploration, uct):
+    """UCT selection: the index ``i`` in ``0..count-1`` of the child ``first + i`` maximising
+    ``mean + c * sqrt(ln visits[parent] / visits[child])`` (ties: the lowest index). Every child
+    of the block must have been visited."""
+    nv = stats.visits[parent]
+    ex = exploration * (uct.sqrt_log[nv] if nv < UCT_TABLE else math.sqrt(math.log(nv)))
+    best = 0
+    best_s = -np.inf
+    for i in range(count):  # contiguous: the child block
+        s = stats.mean[first + i] + ex * stats.isq[first + i]
+        if s > best_s:
+            best_s = s
+            best = i
+    return best
+
+
+@njit(cache=True, inline="always")
+def expand(stats, child):
+    """Expansion: create node ``child`` with no visit (its first :func:`backup` writes its mean)."""
+    stats.visits[child] = 0
+    stats.value[child] = 0.0
+
+
+@njit(cache=True, inline="always")
+def backup(stats, path, plen, reward, uct):
+    """Backup: one more visit and ``reward`` for every node of ``path[:plen]``, with the mean and
+    ``1 / sqrt(visits)`` that :func:`uct_select` reads."""
+    for i in range(plen):
+        m = path[i]
+        v = stats.visits[m] + 1
+        stats.visits[m] = v
+        stats.value[m] += reward
+        if v < UCT_TABLE:
+            stats.mean[m] = stats.value[m] * uct.inv[v]
+            stats.isq[m] = uct.inv_sqrt[v]
+        else:
+            stats.mean[m] = stats.value[m] / v
+            stats.isq[m] = 1.0 / math.sqrt(v)
 
 
 @njit(cache=True)
@@ -253,58 +385,38 @@ def uct_tables():
 
 
 @njit(cache=True)
-def search(n_iter, child, visits, value, point, counter, state,
-           j0, d0, valid, vs_left, known, past, indptr, nbr, table, ucut, points, cdf, guide,
-           rollout, exploration, samples, scale, inv, inv_sqrt, sqrt_log,
-           left, left_tree, mark, xval, pts, path):
-    """Run ``n_iter`` MCTS iterations on the tree arrays (continuing from ``counter[0]`` nodes).
+def search_binary(n_iter, tree, root, model, settings, uct, scratch):
+    """Run ``n_iter`` MCTS iterations on the binary tree (continuing from ``tree.counter[0]`` ids);
+    the tree must have room for ``2 * n_iter`` more ids.
 
-    Args:
-        n_iter: iterations to run; the tree must have room for ``n_iter`` more nodes.
-        child, visits, value, point, counter: the tree (see the module docstring).
-        state: uint64 ``[1]`` random stream counter (advanced in place).
-        j0: root stage.
-        d0: int64 ``[R]`` passengers left before the root stage.
-        valid: uint8 ``[R, N]`` validity (realised up to j0, scheduled after).
-        vs_left: int64 ``[R, N + 1]`` valid stages from k (inclusive) to the end.
-        known: float64 ``[R, N]`` observations up to j0, NaN after it (read at stage j0 only).
-        past: int64 ``[P]`` flat points deployed before j0 (marked in ``mark``, x in ``xval``).
-        indptr, nbr: CSR lists of the points sharing an overlap with each flat point.
-        table: float64 ``[N + 2, N + 2]`` SSAP thresholds.
-        ucut: float64 ``[N + 2, N + 2]`` prior CDF at the thresholds (see :func:`_rollout`).
-        points, cdf, guide: the prior as support points, cumulative probabilities (last > 1)
-            and guide table (see :func:`_sample`).
-        rollout: ROLLOUT_SSAP or ROLLOUT_RANDOM.
-        exploration: UCT constant on normalised rewards.
-        samples: rollouts per iteration.
-        scale: normalisation of rewards.
-        inv, inv_sqrt, sqrt_log: :func:`uct_tables`.
-        left, left_tree, mark, xval, pts, path: scratch (mark/xval hold the past on entry and exit).
+    Selection walks the levels: UCT between the two children once both exist, otherwise the
+    node is expanded with an untried action (uniformly random when both are untried).
     """
+    valid, vs_left, j0 = root.valid, root.vs_left, root.j0
+    stats = tree.stats
+    left, mark, pts, path, state = scratch.left, scratch.mark, scratch.pts, scratch.path, scratch.state
     n_carriers, n_stages = valid.shape
     end = (n_stages - j0) * n_carriers
-    n_nodes = counter[0]
-    known_flat = known.reshape(known.size)
+    n_nodes = tree.counter[0]
     for _ in range(n_iter):
         for r in range(n_carriers):
-            left[r] = d0[r]
+            left[r] = root.d0[r]
         node = ROOT
         path[0] = ROOT
         plen = 1
         q, n = _advance(0, 0, j0, left, valid, vs_left, mark, pts)
         # Invariant: q == point[node] and the path's actions are applied to left/mark/pts.
         while q < end:
-            c0 = child[node, 0]
-            c1 = child[node, 1]
-            if c0 != UNEXPANDED and c1 != UNEXPANDED:
-                b = _uct(node, c0, c1, visits, value, exploration, inv, inv_sqrt, sqrt_log)
-                expand = False
+            first = tree.base[node]
+            if first == UNEXPANDED:
+                b = 1 if _random(state) < 0.5 else 0
+                grow = True
+            elif stats.visits[first] > 0 and stats.visits[first + 1] > 0:
+                b = uct_select(stats, first, 2, node, settings.exploration, uct)
+                grow = False
             else:
-                if c0 == UNEXPANDED and c1 == UNEXPANDED:
-                    b = 1 if _random(state) < 0.5 else 0
-                else:
-                    b = 0 if c0 == UNEXPANDED else 1
-                expand = True
+                b = 0 if stats.visits[first] == 0 else 1
+                grow = True
             if b == 1:
                 r = q % n_carriers
                 a = r * n_stages + j0 + q // n_carriers
@@ -313,27 +425,26 @@ def search(n_iter, child, visits, value, point, counter, state,
                 n += 1
                 left[r] -= 1
             q, n = _advance(q + 1, n, j0, left, valid, vs_left, mark, pts)
-            if expand:
-                new = n_nodes
-                n_nodes += 1
-                child[new, 0] = UNEXPANDED
-                child[new, 1] = UNEXPANDED
-                visits[new] = 0
-                value[new] = 0.0
-                point[new] = q
-                child[node, b] = new
-                path[plen] = new
+            if grow:
+                if first == UNEXPANDED:
+                    first = n_nodes
+                    n_nodes += 2
+                    tree.base[node] = first
+                    stats.visits[first] = 0  # both entries untried
+                    stats.visits[first + 1] = 0
+                child = first + b
+                expand(stats, child)
+                tree.base[child] = UNEXPANDED
+                tree.point[child] = q
+                path[plen] = child
                 plen += 1
                 break
-            node = child[node, b]
+            node = first + b
             path[plen] = node
             plen += 1
-        reward = _simulate(state, q, n, n_carriers, samples, scale, j0, left, left_tree, valid, vs_left, known,
-                           known_flat, table, ucut, points, cdf, guide, rollout, mark, xval, pts, past, indptr, nbr)
-        for i in range(plen):
-            visits[path[i]] += 1
-            value[path[i]] += reward
-    counter[0] = n_nodes
+        reward = simulate(q, n, root, model, settings, scratch)
+        backup(stats, path, plen, reward, uct)
+    tree.counter[0] = n_nodes
 
 
 @njit(cache=True)
@@ -367,13 +478,11 @@ def quantiles(us, points, cdf, guide):
 # deploys): an odd ``mult`` makes this a permutation of the 2^k actions, drawn per node from the
 # random stream, so the untried actions are expanded in a random order without listing them.
 #
-# Tree arrays (capacity ``cap`` node ids, ``counter[0]`` reserved):
+# Tree arrays (JointTree; capacity ``cap`` node ids, ``counter[0]`` reserved):
 #   base[i]      first id of node i's child block (valid once expanded[i] > 0);
 #   expanded[i]  children expanded so far (slots 0..expanded[i]-1 exist);
 #   mult[i], offset[i]   uint64 parameters of node i's expansion order;
-#   visits[i], value[i]  iterations through node i and the sum of their normalised rewards;
-#   mean[i], isq[i]      value[i] / visits[i] and 1 / sqrt(visits[i]), kept by the backup so that
-#                        the UCT scan reads two contiguous arrays.
+#   stats        visits, value sums, means and 1 / sqrt(visits) (Stats).
 # ---------------------------------------------------------------------------------------------
 
 _ONE = np.uint64(1)
@@ -390,29 +499,27 @@ def _bits64(state):
 
 
 @njit(cache=True)
-def search_joint(n_iter, base, expanded, mult, offset, visits, value, mean, isq, counter, state,
-                 j0, d0, valid, vs_left, known, past, indptr, nbr, table, ucut, points, cdf, guide,
-                 rollout, exploration, samples, scale, inv, inv_sqrt, sqrt_log,
-                 left, left_tree, mark, xval, pts, path, choice, max_block):
+def search_joint(n_iter, tree, root, model, settings, uct, scratch, max_block):
     """Run up to ``n_iter`` MCTS iterations on the joint-action tree (see the block comment).
 
     Stops early, before an iteration, when fewer than ``max_block`` (>= 2^k of any node) free
     node ids remain; returns the number of iterations run (the caller grows the arrays and calls
     again: the result does not depend on where the calls split the iterations).
-
-    Arguments are those of :func:`search` except the tree (``base, expanded, mult, offset,
-    visits, value, mean, isq, counter``), ``choice`` (int64 ``[R]`` scratch) and ``max_block``.
     """
+    valid, vs_left, j0 = root.valid, root.vs_left, root.j0
+    stats = tree.stats
+    left, mark, pts, path, state, choice = (scratch.left, scratch.mark, scratch.pts, scratch.path,
+                                            scratch.state, scratch.choice)
+    base, expanded = tree.base, tree.expanded
     n_carriers, n_stages = valid.shape
-    cap = visits.shape[0]
-    n_nodes = counter[0]
-    known_flat = known.reshape(known.size)
+    cap = stats.visits.shape[0]
+    n_nodes = tree.counter[0]
     done = 0
     while done < n_iter:
         if n_nodes + max_block > cap:
             break
         for r in range(n_carriers):
-            left[r] = d0[r]
+            left[r] = root.d0[r]
         node = ROOT
         path[0] = ROOT
         plen = 1
@@ -426,7 +533,7 @@ def search_joint(n_iter, base, expanded, mult, offset, visits, value, mean, isq,
                     if not forced(vs_left[r, k], left[r]):
                         choice[nc] = r
                         nc += 1
-                    else:  # forced
+                    else:
                         a = r * n_stages + k
                         mark[a] = 1
                         pts[n] = a
@@ -438,30 +545,19 @@ def search_joint(n_iter, base, expanded, mult, offset, visits, value, mean, isq,
                 if e == 0:
                     base[node] = n_nodes
                     n_nodes += n_act
-                    mult[node] = _bits64(state) | _ONE
-                    offset[node] = _bits64(state)
+                    tree.mult[node] = _bits64(state) | _ONE
+                    tree.offset[node] = _bits64(state)
                 slot = e
                 child = base[node] + e
                 expanded[node] = e + 1
                 expanded[child] = 0
-                visits[child] = 0
-                value[child] = 0.0
-                expand = True
-            else:  # UCT among the node's children (ties to the earliest expanded)
-                b0 = base[node]
-                nv = visits[node]
-                ex = exploration * (sqrt_log[nv] if nv < UCT_TABLE else math.sqrt(math.log(nv)))
-                best = 0
-                best_s = -np.inf
-                for i in range(n_act):  # contiguous: the child block
-                    s = mean[b0 + i] + ex * isq[b0 + i]
-                    if s > best_s:
-                        best_s = s
-                        best = i
-                slot = best
-                child = b0 + best
-                expand = False
-            act = (mult[node] * np.uint64(slot) + offset[node]) & np.uint64(n_act - 1)
+                expand(stats, child)
+                grow = True
+            else:
+                slot = uct_select(stats, base[node], n_act, node, settings.exploration, uct)
+                child = base[node] + slot
+                grow = False
+            act = (tree.mult[node] * np.uint64(slot) + tree.offset[node]) & np.uint64(n_act - 1)
             for i in range(nc):
                 if (act >> np.uint64(i)) & _ONE:
                     r = choice[i]
@@ -474,23 +570,11 @@ def search_joint(n_iter, base, expanded, mult, offset, visits, value, mean, isq,
             path[plen] = node
             plen += 1
             k += 1
-            if expand:
+            if grow:
                 break
         q = (k - j0) * n_carriers
-        reward = _simulate(state, q, n, n_carriers, samples, scale, j0, left, left_tree, valid, vs_left, known,
-                           known_flat, table, ucut, points, cdf, guide, rollout, mark, xval, pts, past, indptr, nbr)
-        for i in range(plen):
-            m = path[i]
-            v = visits[m] + 1
-            visits[m] = v
-            value[m] += reward
-            if v < UCT_TABLE:
-                mean[m] = value[m] * inv[v]
-                isq[m] = inv_sqrt[v]
-            else:
-                mean[m] = value[m] / v
-                isq[m] = 1.0 / math.sqrt(v)
+        reward = simulate(q, n, root, model, settings, scratch)
+        backup(stats, path, plen, reward, uct)
         done += 1
-    counter[0] = n_nodes
+    tree.counter[0] = n_nodes
     return done
-
