@@ -221,7 +221,8 @@ def _advance(q, n, j0, left, valid, vs_left, mark, pts):
 
 
 @njit(cache=True)
-def rollout(state, q, n, root, model, policy, left, mark, xval, pts):
+def rollout(state, q, n, j0, valid, vs_left, known, table, ucut, points, cdf, guide, indptr, nbr, policy,
+            left, mark, xval, pts):
     """Complete the trajectory from position q with the rollout policy; returns len(pts).
 
     SSAP: a carrier deploys by the threshold rule on its observation discounted for conflicts
@@ -230,9 +231,6 @@ def rollout(state, q, n, root, model, policy, left, mark, xval, pts):
     ``ucut[ns, ns - d]``, so a conflict-free SSAP decision reads u alone and the quantile is
     looked up only for deployments (the same draws and decisions as sampling x first).
     """
-    valid, vs_left, known, j0 = root.valid, root.vs_left, root.known, root.j0
-    table, ucut, points, cdf, guide = model.table, model.ucut, model.points, model.cdf, model.guide
-    indptr, nbr = model.indptr, model.nbr
     n_carriers, n_stages = valid.shape
     z = state[0]  # the stream's counter, kept in a register and stored back at the end
     k = j0 + q // n_carriers
@@ -310,37 +308,41 @@ def simulate(q, n_tree, root, model, settings, scratch):
     """
     left, left_tree, mark, xval, pts = scratch.left, scratch.left_tree, scratch.mark, scratch.xval, scratch.pts
     state = scratch.state
+    j0, _, valid, vs_left, known, known_flat, past = root
+    table, ucut, points, cdf, guide, indptr, nbr, scale = model
+    policy, _, samples = settings
     n_carriers = left.shape[0]
     for r in range(n_carriers):
         left_tree[r] = left[r]
     total = 0.0
-    for _s in range(settings.samples):
+    for _s in range(samples):
         for i in range(n_tree):
             a = pts[i]
-            x = root.known_flat[a]  # NaN after the root stage: sampled
-            xval[a] = _sample(state, model.points, model.cdf, model.guide) if np.isnan(x) else x
+            x = known_flat[a]  # NaN after the root stage: sampled
+            xval[a] = _sample(state, points, cdf, guide) if np.isnan(x) else x
         for r in range(n_carriers):
             left[r] = left_tree[r]
-        n = rollout(state, q, n_tree, root, model, settings.rollout, left, mark, xval, pts)
-        total += evaluate(n, root.past, pts, mark, xval, model.indptr, model.nbr)
+        n = rollout(state, q, n_tree, j0, valid, vs_left, known, table, ucut, points, cdf, guide, indptr, nbr,
+                    policy, left, mark, xval, pts)
+        total += evaluate(n, past, pts, mark, xval, indptr, nbr)
         for i in range(n_tree, n):
             mark[pts[i]] = 0
     for i in range(n_tree):
         mark[pts[i]] = 0
-    return total / (settings.samples * model.scale)
+    return total / (samples * scale)
 
 
 @njit(cache=True, inline="always")
-def uct_select(stats, first, count, parent, exploration, uct):
+def uct_select(visits, mean, isq, first, count, parent, exploration, sqrt_log):
     """UCT selection: the index ``i`` in ``0..count-1`` of the child ``first + i`` maximising
     ``mean + c * sqrt(ln visits[parent] / visits[child])`` (ties: the lowest index). Every child
-    of the block must have been visited."""
-    nv = stats.visits[parent]
-    ex = exploration * (uct.sqrt_log[nv] if nv < UCT_TABLE else math.sqrt(math.log(nv)))
+    of the block must have been visited. Arrays are :class:`Stats`' and :class:`UCTTables`'."""
+    nv = visits[parent]
+    ex = exploration * (sqrt_log[nv] if nv < UCT_TABLE else math.sqrt(math.log(nv)))
     best = 0
     best_s = -np.inf
     for i in range(count):  # contiguous: the child block
-        s = stats.mean[first + i] + ex * stats.isq[first + i]
+        s = mean[first + i] + ex * isq[first + i]
         if s > best_s:
             best_s = s
             best = i
@@ -348,27 +350,27 @@ def uct_select(stats, first, count, parent, exploration, uct):
 
 
 @njit(cache=True, inline="always")
-def expand(stats, child):
+def expand(visits, value, child):
     """Expansion: create node ``child`` with no visit (its first :func:`backup` writes its mean)."""
-    stats.visits[child] = 0
-    stats.value[child] = 0.0
+    visits[child] = 0
+    value[child] = 0.0
 
 
 @njit(cache=True, inline="always")
-def backup(stats, path, plen, reward, uct):
+def backup(visits, value, mean, isq, path, plen, reward, inv, inv_sqrt):
     """Backup: one more visit and ``reward`` for every node of ``path[:plen]``, with the mean and
     ``1 / sqrt(visits)`` that :func:`uct_select` reads."""
     for i in range(plen):
         m = path[i]
-        v = stats.visits[m] + 1
-        stats.visits[m] = v
-        stats.value[m] += reward
+        v = visits[m] + 1
+        visits[m] = v
+        value[m] += reward
         if v < UCT_TABLE:
-            stats.mean[m] = stats.value[m] * uct.inv[v]
-            stats.isq[m] = uct.inv_sqrt[v]
+            mean[m] = value[m] * inv[v]
+            isq[m] = inv_sqrt[v]
         else:
-            stats.mean[m] = stats.value[m] / v
-            stats.isq[m] = 1.0 / math.sqrt(v)
+            mean[m] = value[m] / v
+            isq[m] = 1.0 / math.sqrt(v)
 
 
 @njit(cache=True)
@@ -392,30 +394,34 @@ def search_binary(n_iter, tree, root, model, settings, uct, scratch):
     Selection walks the levels: UCT between the two children once both exist, otherwise the
     node is expanded with an untried action (uniformly random when both are untried).
     """
-    valid, vs_left, j0 = root.valid, root.vs_left, root.j0
-    stats = tree.stats
+    # Arrays unpacked once (no reference counting inside the loops).
+    valid, vs_left, j0, d0 = root.valid, root.vs_left, root.j0, root.d0
+    visits, value, mean, isq = tree.stats
+    inv, inv_sqrt, sqrt_log = uct
+    base, point = tree.base, tree.point
     left, mark, pts, path, state = scratch.left, scratch.mark, scratch.pts, scratch.path, scratch.state
+    exploration = settings.exploration
     n_carriers, n_stages = valid.shape
     end = (n_stages - j0) * n_carriers
     n_nodes = tree.counter[0]
     for _ in range(n_iter):
         for r in range(n_carriers):
-            left[r] = root.d0[r]
+            left[r] = d0[r]
         node = ROOT
         path[0] = ROOT
         plen = 1
         q, n = _advance(0, 0, j0, left, valid, vs_left, mark, pts)
         # Invariant: q == point[node] and the path's actions are applied to left/mark/pts.
         while q < end:
-            first = tree.base[node]
+            first = base[node]
             if first == UNEXPANDED:
                 b = 1 if _random(state) < 0.5 else 0
                 grow = True
-            elif stats.visits[first] > 0 and stats.visits[first + 1] > 0:
-                b = uct_select(stats, first, 2, node, settings.exploration, uct)
+            elif visits[first] > 0 and visits[first + 1] > 0:
+                b = uct_select(visits, mean, isq, first, 2, node, exploration, sqrt_log)
                 grow = False
             else:
-                b = 0 if stats.visits[first] == 0 else 1
+                b = 0 if visits[first] == 0 else 1
                 grow = True
             if b == 1:
                 r = q % n_carriers
@@ -429,13 +435,13 @@ def search_binary(n_iter, tree, root, model, settings, uct, scratch):
                 if first == UNEXPANDED:
                     first = n_nodes
                     n_nodes += 2
-                    tree.base[node] = first
-                    stats.visits[first] = 0  # both entries untried
-                    stats.visits[first + 1] = 0
+                    base[node] = first
+                    visits[first] = 0  # both entries untried
+                    visits[first + 1] = 0
                 child = first + b
-                expand(stats, child)
-                tree.base[child] = UNEXPANDED
-                tree.point[child] = q
+                expand(visits, value, child)
+                base[child] = UNEXPANDED
+                point[child] = q
                 path[plen] = child
                 plen += 1
                 break
@@ -443,7 +449,7 @@ def search_binary(n_iter, tree, root, model, settings, uct, scratch):
             path[plen] = node
             plen += 1
         reward = simulate(q, n, root, model, settings, scratch)
-        backup(stats, path, plen, reward, uct)
+        backup(visits, value, mean, isq, path, plen, reward, inv, inv_sqrt)
     tree.counter[0] = n_nodes
 
 
@@ -506,20 +512,24 @@ def search_joint(n_iter, tree, root, model, settings, uct, scratch, max_block):
     node ids remain; returns the number of iterations run (the caller grows the arrays and calls
     again: the result does not depend on where the calls split the iterations).
     """
+    # Arrays unpacked once (no reference counting inside the loops).
     valid, vs_left, j0 = root.valid, root.vs_left, root.j0
-    stats = tree.stats
+    visits, value, mean, isq = tree.stats
+    inv, inv_sqrt, sqrt_log = uct
     left, mark, pts, path, state, choice = (scratch.left, scratch.mark, scratch.pts, scratch.path,
                                             scratch.state, scratch.choice)
-    base, expanded = tree.base, tree.expanded
+    base, expanded, mult, offset = tree.base, tree.expanded, tree.mult, tree.offset
+    d0 = root.d0
+    exploration = settings.exploration
     n_carriers, n_stages = valid.shape
-    cap = stats.visits.shape[0]
+    cap = visits.shape[0]
     n_nodes = tree.counter[0]
     done = 0
     while done < n_iter:
         if n_nodes + max_block > cap:
             break
         for r in range(n_carriers):
-            left[r] = root.d0[r]
+            left[r] = d0[r]
         node = ROOT
         path[0] = ROOT
         plen = 1
@@ -545,19 +555,19 @@ def search_joint(n_iter, tree, root, model, settings, uct, scratch, max_block):
                 if e == 0:
                     base[node] = n_nodes
                     n_nodes += n_act
-                    tree.mult[node] = _bits64(state) | _ONE
-                    tree.offset[node] = _bits64(state)
+                    mult[node] = _bits64(state) | _ONE
+                    offset[node] = _bits64(state)
                 slot = e
                 child = base[node] + e
                 expanded[node] = e + 1
                 expanded[child] = 0
-                expand(stats, child)
+                expand(visits, value, child)
                 grow = True
             else:
-                slot = uct_select(stats, base[node], n_act, node, settings.exploration, uct)
+                slot = uct_select(visits, mean, isq, base[node], n_act, node, exploration, sqrt_log)
                 child = base[node] + slot
                 grow = False
-            act = (tree.mult[node] * np.uint64(slot) + tree.offset[node]) & np.uint64(n_act - 1)
+            act = (mult[node] * np.uint64(slot) + offset[node]) & np.uint64(n_act - 1)
             for i in range(nc):
                 if (act >> np.uint64(i)) & _ONE:
                     r = choice[i]
@@ -574,7 +584,7 @@ def search_joint(n_iter, tree, root, model, settings, uct, scratch, max_block):
                 break
         q = (k - j0) * n_carriers
         reward = simulate(q, n, root, model, settings, scratch)
-        backup(stats, path, plen, reward, uct)
+        backup(visits, value, mean, isq, path, plen, reward, inv, inv_sqrt)
         done += 1
     tree.counter[0] = n_nodes
     return done
