@@ -297,7 +297,7 @@ def evaluate(n, past, pts, mark, xval, indptr, nbr):
     return total
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def simulate(q, n_tree, root, model, settings, scratch):
     """Mean normalised reward of ``settings.samples`` rollouts below a tree path.
 
