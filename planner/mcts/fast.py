@@ -16,13 +16,14 @@ docs/performance.md for the measured comparison), in one of two tree layouts (``
   A path through the levels of one stage spells one feasible joint action, so the tree reaches
   exactly the joint actions the joint-action tree reaches; UCT statistics are shared between
   joint actions with a common prefix, and each iteration expands one binary node
-  (:func:`planner.mcts.kernel.search`). At most ``iterations + 1`` nodes, whatever R.
+  (:func:`planner.mcts.kernel.search_binary`). At most ``iterations + 1`` nodes, whatever R
+  (an expanded node reserves a ``[stay, deploy]`` block of 2 ids).
 * ``"auto"`` (default) — joint for problems of at most ``JOINT_MAX_CARRIERS`` carriers, binary
   beyond. With the paper's nearly greedy exploration constant the binary levels lose quality
   against the joint tree at R = 6 (docs/performance.md); beyond 8 carriers the joint tree
   cannot try each root action even a few times in 10,000 iterations.
 
-Per iteration (in :func:`planner.mcts.kernel.search`): UCT selection with constant ``c``
+Per iteration (the step functions of :mod:`planner.mcts.kernel`): UCT selection with constant ``c``
 on normalised rewards, expansion of one untried binary child (uniformly random when both are
 untried), lazy sampling of future observations from the prior (only where a rollout decision or
 the evaluation reads them; open-loop), the SSAP rollout per carrier on the conflict-discounted
