@@ -82,3 +82,23 @@ def test_solve_command_has_one_flag_per_registry_option(tmp_path, capsys):
         solve.main([str(tmp_path / "x.json"), "--planner", "mcts-ssap", "--layout", "tree"])
     assert stop.value.code == 2
     assert "--layout: expected one of auto, joint, binary, found 'tree'" in capsys.readouterr().err
+
+
+def test_run_fleet_takes_planner_options_from_the_registry():
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "run_fleet.py", "scenarios/tiny.yaml", "--planner-option", "layout=tree"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [
+        "run_fleet.py: --planner-option: layout: expected one of auto, joint, binary, found 'tree'"]
+
+
+def test_planner_settings_apply_planner_options(tmp_path):
+    from coordinator.node import planner_settings
+
+    scenario = world.load_scenario(ROOT / "scenarios" / "tiny.yaml")
+    name, options = planner_settings(scenario, "mcts-ssap", 50, None, (("layout", "binary"),))
+    assert name == "mcts-ssap" and options["layout"] == "binary" and options["iterations"] == 50
+    assert make_planner(name, **options).layout == "binary"
