@@ -44,6 +44,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--planner", help="planner name (overrides the scenario)")
     p.add_argument("--iterations", type=int, help="MCTS iterations per stage (overrides the scenario)")
     p.add_argument("--plan-ms", type=float, help="MCTS time budget per stage, ms (overrides the scenario)")
+    p.add_argument("--planner-option", action="append", default=[], metavar="KEY=VALUE",
+                   help="any planner option of planner.registry (e.g. layout=binary, exploration=0.1); repeatable")
     p.add_argument("--seed", type=int, help="root seed (overrides the scenario; every process needs the same)")
     p.add_argument("--realtime", type=float, default=0.0, metavar="FACTOR",
                    help="simulated seconds per wall second; 0 = as fast as possible (default)")
@@ -99,10 +101,18 @@ def check_flags(args, scenario) -> str | None:
 
     if args.realtime < 0:
         return f"--realtime: expected a factor >= 0, found {args.realtime}"
-    if args.iterations is not None and args.iterations < 1:
-        return f"--iterations: expected an integer >= 1, found {args.iterations}"
-    if args.plan_ms is not None and args.plan_ms <= 0:
-        return f"--plan-ms: expected milliseconds > 0, found {args.plan_ms}"
+    from planner.registry import OPTIONS, parse_option
+
+    for flag, key in (("--iterations", "iterations"), ("--plan-ms", "plan_ms")):
+        value = getattr(args, key)
+        try:
+            value is None or OPTIONS[key].check(value)
+        except ValueError as exc:
+            return f"{flag}: expected {exc}, found {value}"
+    try:
+        args.planner_options = tuple(parse_option(text) for text in args.planner_option)
+    except ValueError as exc:
+        return f"--planner-option: {exc}"
     if args.seed is not None and args.seed < 0:
         return f"--seed: expected an integer >= 0, found {args.seed}"
     for name in ("join_timeout", "stage_timeout", "decision_timeout", "coordinator_timeout"):
@@ -127,9 +137,9 @@ def check_flags(args, scenario) -> str | None:
                     f"(carriers of {args.scenario}), found {args.carrier!r}")
     if args.role != "carrier":
         from coordinator.node import planner_settings
-        from coordinator.planners import make_planner
+        from planner.registry import make_planner
 
-        name, options = planner_settings(scenario, args.planner, args.iterations, args.plan_ms)
+        name, options = planner_settings(scenario, args.planner, args.iterations, args.plan_ms, args.planner_options)
         try:
             make_planner(name, **options)
         except ValueError as exc:
@@ -182,7 +192,7 @@ def run_coordinator(args, scenario, stop: threading.Event) -> int:
     out = args.out or default_out(scenario)
     coord = Coordinator(scenario, CoordinatorConfig(
         out_dir=out, mission=args.mission, planner=args.planner, iterations=args.iterations,
-        plan_ms=args.plan_ms, seed=args.seed, realtime=args.realtime, join_timeout_s=args.join_timeout,
+        plan_ms=args.plan_ms, planner_options=getattr(args, "planner_options", ()), seed=args.seed, realtime=args.realtime, join_timeout_s=args.join_timeout,
         stage_timeout_s=args.stage_timeout, render=not args.no_map), zenoh_config(args, "coordinator"),
         scenario_path=args.scenario, stop=stop)
     try:
@@ -220,6 +230,8 @@ def _forward(args) -> list[str]:
                         ("--zenoh-config", args.zenoh_config)):
         if value is not None:
             out += [flag, str(value)]
+    for text in args.planner_option:
+        out += ["--planner-option", text]
     out += ["--realtime", str(args.realtime), "--join-timeout", str(args.join_timeout),
             "--stage-timeout", str(args.stage_timeout), "--decision-timeout", str(args.decision_timeout),
             "--coordinator-timeout", str(args.coordinator_timeout)]

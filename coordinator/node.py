@@ -37,8 +37,8 @@ from pathlib import Path
 import numpy as np
 
 import world
-from coordinator.planners import make_planner
-from coordinator.problem import Problem, enforce, make_view, stage_rng
+from planner.registry import make_planner
+from planner.problem import Problem, enforce, make_view, stage_rng
 from coordinator.store import MissionStore
 from mission import events as ev
 from mission import state as ms
@@ -78,6 +78,7 @@ class CoordinatorConfig:
     planner: str | None = None
     iterations: int | None = None
     plan_ms: float | None = None
+    planner_options: tuple = ()  # (key, value) pairs of planner.registry.OPTIONS, override the scenario
     seed: int | None = None
     realtime: float = 0.0
     join_timeout_s: float = DEFAULTS.join_s
@@ -94,7 +95,7 @@ def build_problem(scenario, geometry=None) -> Problem:
     return Problem.build(scenario.passengers, geometry.valid, geometry.overlaps, scenario.prior_distribution())
 
 
-def planner_settings(scenario, name=None, iterations=None, plan_ms=None) -> tuple[str, dict]:
+def planner_settings(scenario, name=None, iterations=None, plan_ms=None, extra=()) -> tuple[str, dict]:
     """(planner name, options for make_planner): the scenario's, overridden by non-None flags.
 
     An explicit ``iterations`` flag drops the scenario's ``plan_ms`` (which would take
@@ -107,6 +108,7 @@ def planner_settings(scenario, name=None, iterations=None, plan_ms=None) -> tupl
         options.pop("plan_ms", None)
     if plan_ms is not None:
         options["plan_ms"] = float(plan_ms)
+    options.update(dict(extra))  # --planner-option KEY=VALUE (checked by planner.registry)
     return (name or spec.name), options
 
 
@@ -150,7 +152,7 @@ class Coordinator:
         self.problem = build_problem(scenario)
         self.n_stages = self.problem.n_stages
         self.planner_name, self.planner_options = planner_settings(
-            scenario, config.planner, config.iterations, config.plan_ms)
+            scenario, config.planner, config.iterations, config.plan_ms, config.planner_options)
         self.planner = make_planner(self.planner_name, **self.planner_options)
         self.fingerprint = scenario_fingerprint(scenario)
         self.spec = ms.MissionSpec.build(self.ids, self.problem.valid, self.problem.passengers,

@@ -1,7 +1,11 @@
 """Run one planner online over one instance file and print the outcome as one JSON object.
 
     python -m coordinator.solve INSTANCE.json --planner NAME [--iterations K] [--plan-ms MS]
-                                [--seed S] [--exploration C] [--samples M] [--no-clairvoyant]
+                                [--seed S] [--exploration C] [--samples M] [--layout L]
+                                [--no-clairvoyant]
+
+A thin command line: planner names, options, their ranges and defaults come from
+:mod:`planner.registry` (one flag per option), the work from :func:`planner.solve.solve_instance`.
 
 Output (stdout, one JSON object)::
 
@@ -19,16 +23,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import sys
 from typing import Sequence
 
-import numpy as np
-
-from coordinator.instance import InstanceError, load_instance
-from coordinator.planners import make_planner, planner_names
-from coordinator.problem import run_online
+from planner.instance import InstanceError
+from planner.registry import OPTIONS, Option, make_planner, planner_names
+from planner.solve import solve_instance
 
 EXIT_OK = 0
 EXIT_PLANNER = 1
@@ -42,25 +43,22 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_INPUT, f"{self.prog}: error: {message}\n")
 
 
-def _number(kind: type, minimum: float, strict: bool):
-    """An argparse type: a finite ``kind`` (int or float) > ``minimum`` (``strict``) or >= it."""
-    expected = f"expected {'an integer' if kind is int else 'a number'} {'>' if strict else '>='} {minimum:g}"
+def _option_type(option: Option):
+    """An argparse type checking one registry option (type and range) with its own message."""
 
     def parse(text: str):
+        value = text
+        if option.kind in (int, float):
+            try:
+                value = option.kind(text)
+            except ValueError:
+                raise argparse.ArgumentTypeError(f"expected {option.expected()}, found {text!r}") from None
         try:
-            value = kind(text)
+            return option.check(value)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{expected}, found {text!r}") from None
-        if not math.isfinite(value) or value < minimum or (strict and value == minimum):
-            raise argparse.ArgumentTypeError(f"{expected}, found {text!r}")
-        return value
+            raise argparse.ArgumentTypeError(f"expected {option.expected()}, found {text!r}") from None
 
     return parse
-
-
-_positive_int = _number(int, 1, strict=False)
-_positive_float = _number(float, 0, strict=True)
-_nonnegative_float = _number(float, 0, strict=False)
 
 
 def _seed(text: str) -> int:
@@ -80,40 +78,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("instance", help="instance JSON file (format: docs/planner.md)")
     parser.add_argument("--planner", required=True, help=f"planner name: {', '.join(planner_names())}")
-    parser.add_argument("--iterations", type=_positive_int, help="MCTS iterations per stage")
-    parser.add_argument("--plan-ms", type=_positive_float, help="MCTS time budget per stage, milliseconds")
-    parser.add_argument("--exploration", type=_nonnegative_float, help="MCTS UCT constant c (default 0.05*sqrt(2))")
-    parser.add_argument("--samples", type=_positive_int, help="MCTS Monte Carlo samples per rollout")
+    for option in OPTIONS.values():
+        parser.add_argument("--" + option.name.replace("_", "-"), type=_option_type(option), help=option.help)
     parser.add_argument("--seed", type=_seed, default=0,
                         help="root seed: the planner's streams, and the observations when the file has none")
     parser.add_argument("--no-clairvoyant", action="store_true", help="skip the clairvoyant bound")
     return parser
-
-
-def solve_instance(planner, args: argparse.Namespace) -> dict:
-    """Load the instance, run ``planner`` online and evaluate; returns the output object.
-
-    Raises:
-        InstanceError: a bad instance file.
-    """
-    (problem, x), sampled = load_instance(args.instance, seed=args.seed)
-    result = run_online(problem, x, planner, args.seed)
-    out = {
-        "planner": args.planner,
-        "seed": args.seed,
-        "deployments": [np.flatnonzero(row).tolist() for row in result.deployed],
-        "reward": result.reward,
-        "features": result.features,
-        "decision_ms": [round(t, 3) for t in result.decision_ms],
-        "observations": [[None if np.isnan(v) else float(v) for v in row] for row in x],
-        "observations_sampled": sampled,
-    }
-    if not args.no_clairvoyant:
-        from coordinator import clairvoyant  # numba: loaded only when needed
-
-        bound = clairvoyant.solve(problem, x)
-        out["clairvoyant"] = {"reward": bound.reward, "features": bound.features, "exact": bound.exact}
-    return out
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -124,10 +94,7 @@ def main(argv: Sequence[str] | None = None) -> int:
               file=sys.stderr)
         return EXIT_INPUT
     try:
-        planner = make_planner(
-            args.planner, iterations=args.iterations, plan_ms=args.plan_ms,
-            exploration=args.exploration, samples=args.samples,
-        )
+        planner = make_planner(args.planner, **{name: getattr(args, name) for name in OPTIONS})
     except ImportError as err:
         print(f"{prog}: error: planner {args.planner!r} is not available: {err}", file=sys.stderr)
         return EXIT_PLANNER
@@ -136,7 +103,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{prog}: error: planner {args.planner!r}: {err}", file=sys.stderr)
         return EXIT_INPUT
     try:
-        out = solve_instance(planner, args)
+        out = solve_instance(args.instance, planner, args.planner, args.seed, clairvoyant=not args.no_clairvoyant)
     except InstanceError as err:
         print(str(err), file=sys.stderr)
         return EXIT_INPUT

@@ -35,6 +35,7 @@ from pathlib import Path
 
 from experiments import report
 from experiments.trials import CLAIRVOYANT, Task, decode, run_task, warm_up_worker
+from planner.registry import DEFAULT_ITERATIONS
 
 ROOT = Path(__file__).resolve().parent.parent
 #: Default output directory (docs/results.md links the files there).
@@ -74,7 +75,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="which experiment (default: all)")
     p.add_argument("--trials", type=int, default=None, help="trials per level (default 50; quick 3)")
     p.add_argument("--iterations", type=int, default=None,
-                   help="planning budget per decision: MCTS iterations (default 10000; quick 300)")
+                   help=f"planning budget per decision: MCTS iterations (default {DEFAULT_ITERATIONS}; quick 300)")
     p.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)")
     p.add_argument("--cluster", default=None, metavar="ADDRESS",
@@ -101,7 +102,7 @@ def parse_args(argv=None) -> argparse.Namespace:
 def _settings(args) -> dict:
     quick = args.quick
     trials = args.trials if args.trials is not None else (QUICK["trials"] if quick else 50)
-    iterations = args.iterations if args.iterations is not None else (QUICK["iterations"] if quick else 10_000)
+    iterations = args.iterations if args.iterations is not None else (QUICK["iterations"] if quick else DEFAULT_ITERATIONS)
     urban_trials = args.urban_trials if args.urban_trials is not None else (QUICK["urban_trials"] if quick else 20)
     if trials < 1:
         raise UsageError(f"--trials: expected an integer >= 1, found {trials}")
@@ -117,7 +118,7 @@ def _settings(args) -> dict:
         raise UsageError(f"--scaling-overlaps: expected an integer >= 0, found {args.scaling_overlaps}")
     overlaps = _int_list(args.overlaps, "overlaps", 0) if args.overlaps else (QUICK["overlaps"] if quick else OVERLAP_LEVELS)
     carriers = _int_list(args.carriers, "carriers", 1) if args.carriers else (QUICK["carriers"] if quick else CARRIER_LEVELS)
-    from coordinator.planners import planner_names
+    from planner.registry import planner_names
 
     planners = tuple(p.strip() for p in args.planners.split(",") if p.strip())
     unknown = [p for p in planners if p not in planner_names()]

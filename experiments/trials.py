@@ -69,7 +69,7 @@ def trial_instance(task: Task):
     """``(problem, observations, planner_seed, extra)`` of the task's trial (same for every planner)."""
     if task.sweep == "urban":
         return _urban_instance(task)
-    from coordinator.instance import random_instance
+    from planner.instance import random_instance
 
     rng = np.random.default_rng(np.random.SeedSequence(task.seed, spawn_key=(1000, task.trial)))
     inst = random_instance(rng, task.carriers, task.passengers, task.stages, task.overlaps, task.mean)
@@ -91,7 +91,7 @@ def urban_world_seed(seed: int, trial: int) -> int:
 
 def _urban_instance(task: Task):
     import world
-    from coordinator.problem import Problem
+    from planner.problem import Problem
 
     key = task.scenario
     if key not in _WORLD_CACHE:
@@ -113,7 +113,7 @@ _PLANNERS: dict = {}
 def _planner(name: str, iterations: int):
     key = (name, iterations)
     if key not in _PLANNERS:
-        from coordinator.planners import make_planner
+        from planner.registry import make_planner
 
         _PLANNERS[key] = make_planner(name, iterations=iterations)
     return _PLANNERS[key]
@@ -121,8 +121,8 @@ def _planner(name: str, iterations: int):
 
 def run_task(task: Task) -> dict:
     """Run one task; returns one result row (a flat dict, see :data:`experiments.report.TRIAL_FIELDS`)."""
-    from coordinator import clairvoyant
-    from coordinator.problem import run_online
+    from planner import clairvoyant
+    from planner.problem import run_online
 
     problem, x, planner_seed, extra = trial_instance(task)
     row = {
@@ -168,11 +168,11 @@ def warm_up_worker() -> None:
     import warnings
 
     warnings.filterwarnings("ignore", category=RuntimeWarning)
-    from coordinator import clairvoyant
+    from planner import clairvoyant
 
     clairvoyant.warm_up()
-    from coordinator.instance import random_instance
-    from coordinator.planners import make_planner, planner_names
+    from planner.instance import random_instance
+    from planner.registry import make_planner, planner_names
 
     inst = random_instance(np.random.default_rng(0), 2, 1, 3, 1, 3.0)
     for name in planner_names():

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from coordinator.problem import evaluate, rewards
+from planner.problem import evaluate, rewards
 
 from .state import MissionState
 
@@ -46,7 +46,7 @@ def percentile(values, q) -> float | None:
 def clairvoyant_bound(problem, x: np.ndarray, total_reward: float) -> dict:
     """The offline optimum for the realised observations (``{"error": ...}`` if it fails: the
     bound is a report, never a reason to lose the summary)."""
-    from coordinator import clairvoyant
+    from planner import clairvoyant
 
     try:
         bound = clairvoyant.solve(problem, np.where(problem.valid, x, np.nan))

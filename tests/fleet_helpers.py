@@ -10,8 +10,8 @@ import numpy as np
 import world
 from carriers.node import Carrier, CarrierConfig
 from coordinator.node import Coordinator, CoordinatorConfig, build_problem, planner_settings
-from coordinator.planners import make_planner
-from coordinator.problem import run_online
+from planner.registry import make_planner
+from planner.problem import run_online
 from wire.zconfig import free_port, make_config
 
 ROOT = Path(__file__).resolve().parents[1]

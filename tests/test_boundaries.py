@@ -1,5 +1,5 @@
-"""Import boundaries: the planner core uses numpy/scipy/numba only; world/ never imports coordinator/
-or carriers/. Checked twice: by importing in a fresh interpreter, and statically over every import
+"""Import boundaries: planner/ uses numpy/scipy/numba only (every module of it, no exclusions);
+world/ never imports coordinator/ or carriers/. Checked twice: by importing in a fresh interpreter, and statically over every import
 statement (so a lazy import inside a function cannot slip through)."""
 from __future__ import annotations
 
@@ -14,14 +14,15 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 
-#: coordinator/ modules that are process code (I/O), outside the pure planner core.
-CORE_EXCLUDED = {"node", "store"}
-#: Top-level packages the core may import besides the standard library and itself.
-CORE_ALLOWED = {"numpy", "scipy", "numba", "coordinator", "priors"}
-#: Must never be loaded by importing the core. (yaml is absent on purpose: numba itself loads it to
-#: read its optional config file; the static check below still keeps the core from importing it.)
-CORE_FORBIDDEN = ("zenoh", "pymunk", "msgpack", "matplotlib", "world", "wire", "carriers",
-                  "coordinator.node", "coordinator.store")
+#: Top-level packages the planner may import besides the standard library and itself.
+CORE_ALLOWED = {"numpy", "scipy", "numba", "planner"}
+#: Must never be loaded by importing any planner module. (yaml is absent on purpose: numba itself
+#: loads it to read its optional config file; the static check below still keeps planner/ from
+#: importing it.)
+CORE_FORBIDDEN = ("zenoh", "pymunk", "msgpack", "sqlite3", "_sqlite3", "matplotlib", "world", "wire",
+                  "coordinator", "carriers", "mission", "experiments")
+#: Stdlib modules the planner must not import either (process concerns).
+CORE_FORBIDDEN_STDLIB = {"sqlite3", "socket", "multiprocessing", "threading"}
 #: Must never be loaded by importing world/.
 WORLD_FORBIDDEN = ("coordinator", "carriers")
 
@@ -63,30 +64,44 @@ def _imports(path: Path) -> list[tuple[int, str]]:
     return out
 
 
-def test_core_modules_exist():
-    core = _modules("coordinator", CORE_EXCLUDED)
-    for name in ("problem", "ssap", "planners", "clairvoyant", "instance", "solve"):
-        assert f"coordinator.{name}" in core
+def _planner_modules() -> list[str]:
+    """Every module of planner/, subpackages included (from the files: nothing is skipped)."""
+    out = []
+    for path in sorted((REPO / "planner").rglob("*.py")):
+        parts = path.relative_to(REPO).with_suffix("").parts
+        out.append(".".join(parts[:-1] if parts[-1] == "__init__" else parts))
+    return out
 
 
-def test_core_imports_no_process_libraries_in_a_fresh_interpreter():
-    core = _modules("coordinator", CORE_EXCLUDED)
-    loaded = _loaded_after_import(core)
-    assert "coordinator.problem" in loaded and "numpy" in loaded
+def test_planner_modules_exist():
+    core = _planner_modules()
+    for name in ("limits", "priors", "problem", "compiled", "ssap", "policies", "registry", "closedloop",
+                 "clairvoyant", "instance", "solve", "bench", "kernels", "mcts.fast", "mcts.kernel",
+                 "mcts.reference"):
+        assert f"planner.{name}" in core
+
+
+@pytest.mark.parametrize("module", _planner_modules())
+def test_planner_module_imports_no_process_library_in_a_fresh_interpreter(module):
+    loaded = _loaded_after_import([module])
+    assert module in loaded
     assert _offending(loaded, CORE_FORBIDDEN) == []
 
 
-@pytest.mark.parametrize("name", [m.split(".")[-1] for m in _modules("coordinator", CORE_EXCLUDED)])
-def test_core_import_statements(name):
-    path = REPO / "coordinator" / f"{name}.py"
-    if not path.exists():
-        path = REPO / "coordinator" / name / "__init__.py"
+def test_planner_package_and_limits_are_light():
+    """Carriers import planner.limits: it must not load numpy, scipy or numba."""
+    loaded = _loaded_after_import(["planner", "planner.limits", "planner.registry"])
+    assert _offending(loaded, ("numpy", "scipy", "numba")) == []
+
+
+@pytest.mark.parametrize("path", sorted((REPO / "planner").rglob("*.py")), ids=lambda p: str(p.relative_to(REPO)))
+def test_planner_import_statements(path):
     bad = []
     for line, module in _imports(path):
         top = module.split(".")[0]
-        if top in sys.stdlib_module_names or top == "__future__":
+        if top == "__future__" or (top in sys.stdlib_module_names and top not in CORE_FORBIDDEN_STDLIB):
             continue
-        if top not in CORE_ALLOWED or module.split(".")[:2] in (["coordinator", "node"], ["coordinator", "store"]):
+        if top not in CORE_ALLOWED:
             bad.append(f"{path.name}:{line}: {module}")
     assert bad == []
 
@@ -102,9 +117,9 @@ def test_world_never_imports_coordinator_or_carriers():
     assert bad == []
 
 
-def test_shared_priors_table_is_pure():
-    """priors/ is shared by the core and world/, so it may use only numpy and scipy."""
-    bad = [f"{path.relative_to(REPO)}:{line}: {module}" for path in sorted((REPO / "priors").rglob("*.py"))
-           for line, module in _imports(path)
+def test_priors_table_is_pure():
+    """planner/priors.py is shared by the planner and world/, so it may use only numpy and scipy."""
+    path = REPO / "planner" / "priors.py"
+    bad = [f"{line}: {module}" for line, module in _imports(path)
            if module.split(".")[0] not in sys.stdlib_module_names | {"__future__", "numpy", "scipy"}]
     assert bad == []

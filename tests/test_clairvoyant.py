@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from coordinator import clairvoyant
-from coordinator.instance import random_instance
-from coordinator.planners import make_planner
-from coordinator.problem import Problem, evaluate, run_online
+from planner import clairvoyant
+from planner.instance import random_instance
+from planner.registry import make_planner
+from planner.problem import Problem, evaluate, run_online
 
 
 def brute_force(problem: Problem, x: np.ndarray) -> float:

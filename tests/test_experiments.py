@@ -17,10 +17,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from coordinator import closedloop
-from coordinator.instance import random_instance
-from coordinator.planners import make_planner
-from coordinator.problem import Problem, evaluate, make_view, run_online, sample_observations
+from planner import closedloop
+from planner.compiled import compile_problem
+from planner.instance import random_instance
+from planner.registry import make_planner
+from planner.problem import Problem, evaluate, make_view, run_online, sample_observations
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -108,7 +109,7 @@ def test_selection_bookkeeping_matches_the_penalty_rule():
     """Marginal gains summed over a selection sequence equal evaluate(); undo restores the state."""
     rng = np.random.default_rng(11)
     for problem, x in _instances(6, 30, carriers=4, stages=6, passengers=6, overlaps=10, invalid_fraction=0.0):
-        prep = closedloop._prepare(problem)
+        prep = compile_problem(problem)
         size = problem.n_carriers * problem.n_stages
         order = rng.permutation(size)[: int(rng.integers(1, size + 1))]
         n_past = int(rng.integers(0, len(order) + 1))
@@ -117,12 +118,12 @@ def test_selection_bookkeeping_matches_the_penalty_rule():
         p = (1 + problem.conflict[:, sel].sum(axis=1)).astype(np.int64)
         xv = np.where(sel, x.ravel(), 0.0)
         start = (sel.copy(), p.copy())
-        log = np.empty(size + len(prep.nbr_idx) + 1, dtype=np.int64)
+        log = np.empty(size + len(prep.nbr) + 1, dtype=np.int64)
         total = evaluate(problem, sel.reshape(x.shape), x)[1]
         nlog = 0
         for q in order[n_past:]:
-            total += closedloop._marginal(q, x.ravel()[q], sel, p, xv, prep.nbr_ptr, prep.nbr_idx)
-            nlog = closedloop._select(q, x.ravel()[q], sel, p, xv, prep.nbr_ptr, prep.nbr_idx, log, nlog)
+            total += closedloop._marginal(q, x.ravel()[q], sel, p, xv, prep.indptr, prep.nbr)
+            nlog = closedloop._select(q, x.ravel()[q], sel, p, xv, prep.indptr, prep.nbr, log, nlog)
         deployed = np.zeros(size, dtype=bool)
         deployed[order] = True
         assert total == pytest.approx(evaluate(problem, deployed.reshape(x.shape), x)[1], abs=1e-9)

@@ -20,8 +20,8 @@ import pytest
 
 import world
 from coordinator.node import build_problem, planner_settings
-from coordinator.planners import make_planner
-from coordinator.problem import run_online
+from planner.registry import make_planner
+from planner.problem import run_online
 from wire.zconfig import free_port
 
 import netns

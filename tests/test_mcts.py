@@ -1,4 +1,4 @@
-"""MCTS-SSAP and MCTS-Random, fast (coordinator.mcts) and reference (coordinator.mcts_reference):
+"""MCTS-SSAP and MCTS-Random, fast (planner.mcts.fast) and reference (planner.mcts.reference):
 feasibility, causality, determinism, the kernel's sampler, fast-vs-reference parity, the optimum
 when the future is deterministic, and the paper's ordering MCTS-SSAP > SSAP > Random."""
 from __future__ import annotations
@@ -9,13 +9,14 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from coordinator import _mcts_kernel as kernel
-from coordinator.instance import random_instance
-from coordinator.mcts import MCTSPlanner, prior_grid, threshold_cdf
-from coordinator.mcts_reference import ReferenceMCTSPlanner, feasible_joint_actions
-from coordinator.planners import RandomPlanner, SSAPPlanner
-from coordinator.problem import Problem, evaluate, make_view, run_online
-from coordinator.ssap import table_for
+from planner.mcts import kernel as kernel
+from planner.instance import random_instance
+from planner.compiled import compile_problem
+from planner.mcts.fast import MCTSPlanner
+from planner.mcts.reference import ReferenceMCTSPlanner, feasible_joint_actions
+from planner.policies import RandomPlanner, SSAPPlanner
+from planner.problem import Problem, evaluate, make_view, run_online
+from planner.ssap import table_for
 
 PLANNERS = {
     "fast-ssap": lambda: MCTSPlanner("ssap", iterations=60),
@@ -143,7 +144,7 @@ def test_joint_layout_expands_every_root_action_once_in_a_seeded_order():
 
 
 def kernel_first_chunk() -> int:
-    from coordinator.mcts import FIRST_CHUNK
+    from planner.mcts.fast import FIRST_CHUNK
 
     return FIRST_CHUNK
 
@@ -161,7 +162,8 @@ def test_large_fleet_tree_is_bounded_by_iterations():
                          ids=["poisson", "binom", "gamma"])
 def test_kernel_sampler_matches_the_prior(prior):
     problem = Problem.build(1, np.ones((1, 2), dtype=bool), prior=prior)
-    points, cdf, guide = prior_grid(problem)
+    sampler = compile_problem(problem).sampler
+    points, cdf, guide = sampler.points, sampler.cdf, sampler.guide
     draws = kernel.sample_many(np.array([12345], dtype=np.uint64), points, cdf, guide, 200_000)
     assert abs(draws.mean() - prior.mean()) < 5 * prior.std() / np.sqrt(len(draws))
     if hasattr(prior.dist, "pmf"):
@@ -177,8 +179,9 @@ def test_kernel_sampler_matches_the_prior(prior):
 def test_threshold_cdf_decides_like_the_threshold():
     for prior in (stats.poisson(3.0), stats.gamma(2.0, scale=1.5)):
         problem = Problem.build(3, np.ones((1, 10), dtype=bool), prior=prior)
-        points, cdf, guide = prior_grid(problem)
-        table, ucut = table_for(problem), threshold_cdf(problem)
+        sampler = compile_problem(problem).sampler
+        points, cdf, guide = sampler.points, sampler.cdf, sampler.guide
+        table, ucut = table_for(problem), compile_problem(problem).ucut
         us = np.linspace(0, 1, 2001, endpoint=False)
         xs = kernel.quantiles(us, points, cdf, guide)
         for n in range(2, 11):
@@ -248,7 +251,7 @@ def test_mcts_ssap_finds_the_optimum_when_the_future_is_known(planner_cls):
     (seen on the first instance here, by both implementations). A larger constant makes the
     search explore enough to be exact on these tiny trees."""
     try:
-        from coordinator.clairvoyant import solve as clairvoyant_solve
+        from planner.clairvoyant import solve as clairvoyant_solve
     except ImportError:  # pragma: no cover - the module belongs to the planner core
         clairvoyant_solve = None
     rng = np.random.default_rng(21)

@@ -215,7 +215,7 @@ def _mission_events():
 
 
 def test_recovery_is_the_same_fold(tmp_path):
-    from coordinator.problem import Problem
+    from planner.problem import Problem
     from coordinator.store import MissionStore, load_events
     from mission.summary import RunInfo, summary
     import numpy as np

@@ -8,10 +8,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from coordinator import planners, ssap
-from coordinator.instance import random_instance
-from coordinator.planners import RandomPlanner, SSAPPlanner, make_planner, planner_names, register
-from coordinator.problem import Problem, run_online, sample_observations
+from planner import registry as planners, ssap
+from planner.instance import random_instance
+from planner.policies import RandomPlanner, SSAPPlanner
+from planner.registry import make_planner, planner_names, register
+from planner.problem import Problem, run_online, sample_observations
 
 
 def _instances(seed: int, count: int):
@@ -156,7 +157,17 @@ def test_registry():
 
 
 def test_scenario_files_accept_exactly_the_registered_planners():
-    """world/ cannot import the registry, so it keeps its own list of names; keep them equal."""
-    from world.scenario import PLANNER_NAMES
+    """world/ reads planner names from the registry (it keeps no list of its own), so a planner
+    registered later is accepted by scenario files too, and an unregistered name is refused."""
+    import world.scenario
+    from planner.registry import check_settings
 
-    assert set(PLANNER_NAMES) == set(planner_names())
+    assert not hasattr(world.scenario, "PLANNER_NAMES")
+    register("test-late-planner", lambda **options: SSAPPlanner())
+    try:
+        assert check_settings("test-late-planner", {}) == []
+        assert set(planner_names()) >= {"random", "ssap", "mcts-random", "mcts-ssap", "closed-loop"}
+        assert all(check_settings(name, {}) == [] for name in planner_names())
+    finally:
+        planners._REGISTRY.pop("test-late-planner")
+    assert [p.field for p in check_settings("test-late-planner", {})] == ["name"]

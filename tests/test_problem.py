@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from coordinator.problem import (
+from planner.problem import (
     Problem, enforce, evaluate, make_view, normalisation_scale, penalties, rewards, run_online, stage_rng,
 )
 

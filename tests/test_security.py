@@ -371,8 +371,8 @@ def offline_decisions(x_override=None) -> tuple[list[list[str]], list]:
 
     import world
     from coordinator.node import build_problem, planner_settings
-    from coordinator.planners import make_planner
-    from coordinator.problem import run_online
+    from planner.registry import make_planner
+    from planner.problem import run_online
 
     scenario = world.load_scenario(str(TINY))
     problem = build_problem(scenario)

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from coordinator import solve
-from coordinator.instance import PRIOR_KINDS, InstanceError, instance_dict, load_instance, make_prior, random_instance
-from coordinator.problem import evaluate
+from planner.instance import PRIOR_KINDS, InstanceError, instance_dict, load_instance, make_prior, random_instance
+from planner.problem import evaluate
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 from scipy import integrate, stats
 
-from coordinator import ssap
-from coordinator.problem import Problem
+from planner import priors, ssap
+from planner.problem import Problem
 
 
 def _dp_discrete(prior, n_max):
@@ -85,7 +85,7 @@ def test_thresholds_match_dynamic_programme(prior_name):
 def test_thresholds_for_a_table_prior_with_non_integer_support():
     prior = stats.rv_discrete(values=([0.5, 2.25, 7.0], [0.5, 0.3, 0.2]))()
     table = ssap.thresholds(prior, 6)
-    points, mass = ssap.support_grid(prior)
+    points, mass = priors.support(prior)
     assert points.tolist() == [0.5, 2.25, 7.0]
 
     def expect_max(a, b):

@@ -240,7 +240,7 @@ def test_overlap_properties_on_scenarios(name):
 
 def test_overlaps_build_a_planner_problem(tiny):
     """The format is the planner core's: Problem.build accepts it and sees the same conflicts."""
-    problem_mod = pytest.importorskip("coordinator.problem")
+    problem_mod = pytest.importorskip("planner.problem")
     geo = world.stage_geometry(tiny)
     p = problem_mod.Problem.build(tiny.passengers, geo.valid, geo.overlaps, tiny.prior_distribution())
     n = tiny.stages

@@ -20,15 +20,9 @@ from .keys import ID_PATTERN
 #: The protocol version this code speaks; messages with any other ``v`` are rejected.
 PROTOCOL_VERSION = 1
 
-#: Largest accepted payload, bytes. Larger payloads are rejected before parsing.
-MAX_PAYLOAD_BYTES = 64 * 1024
-
-#: Bounds that keep a hostile message from costing memory or time.
-MAX_STAGES = 10_000
-MAX_CARRIERS = 1_024
-MAX_TRAIL = 512
-MAX_COORD = 1e7  # metres
-MAX_TEXT = 200
+#: Size limits (payload, stages, carriers, trail, coordinates, text): one home, shared with the
+#: scenario validation so that a valid scenario's messages always encode.
+from planner.limits import MAX_CARRIERS, MAX_COORD, MAX_PASSENGERS, MAX_PAYLOAD_BYTES, MAX_STAGES, MAX_TEXT, MAX_TRAIL  # noqa: E402
 
 #: Every reason code :class:`ProtocolError` can carry (plus node-level ones in docs/protocol.md).
 REASONS = (
@@ -145,7 +139,7 @@ def _counts(value, name):
 
 _STAGE = _int(0, MAX_STAGES - 1)
 _STAGE_COUNT = _int(0, MAX_STAGES)
-_PASSENGERS = _int(0, 1_000)
+_PASSENGERS = _int(0, MAX_PASSENGERS)
 _SECONDS = _float(-1e9, 1e9)
 _MS = _float(0.0, 1e9)
 

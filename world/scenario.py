@@ -22,23 +22,17 @@ from typing import Any
 import numpy as np
 import yaml
 
-import priors
+from planner import priors
+from planner import registry as planners
+from planner.limits import MAX_CARRIERS, MAX_PASSENGERS, MAX_STAGES
 from world import building as _building
 from world import geometry
 
 #: Default conflict radius as a multiple of the sensing radius (the paper's choice).
 CONFLICT_RADIUS_FACTOR = 3.0
-#: Default UCT exploration constant (c = 0.05·√2).
-DEFAULT_EXPLORATION = 0.05 * math.sqrt(2.0)
-#: Default planner and its iteration budget.
-DEFAULT_PLANNER = "mcts-ssap"
-DEFAULT_ITERATIONS = 10000
-#: Planner names a scenario may ask for (the coordinator builds them with ``make_planner``).
-PLANNER_NAMES = ("random", "ssap", "mcts-random", "mcts-ssap", "closed-loop")
-#: Sanity limits that keep a mistyped number from exhausting memory or time.
+#: Sanity limits that keep a mistyped number from exhausting memory or time. Stages, carriers and
+#: passengers share planner.limits with the wire, so a valid scenario's messages always encode.
 MAX_COORDINATE = 1e6  # m
-MAX_STAGES = 100000
-MAX_PASSENGERS = 10000
 MAX_EXPECTED_FEATURES = 2e6  # expected features over the whole map (density x area)
 MAX_MISSION_TIME = 1e5  # s, time of the last stage (the physics runs at 20 steps per second)
 #: Carrier body radius (m): paths must keep at least this clearance from walls.
@@ -52,7 +46,7 @@ def _stats():
     return stats
 
 
-#: Explicit prior kinds (shared with the planner's instance format, see priors/).
+#: Explicit prior kinds (shared with the planner's instance format, see planner/priors.py).
 PRIOR_KINDS = tuple(priors.PRIOR_KINDS)
 
 
@@ -219,24 +213,29 @@ class CarrierSpec:
         return geometry.direction_along(self.waypoints, self._cumulative, self.distance_at(t))
 
 
+_OPT = planners.OPTIONS
+
+
 @dataclass(frozen=True)
 class PlannerSpec:
     """Planner settings: ``name`` for ``make_planner``; budget ``iterations`` per decision or
     ``plan_ms`` milliseconds (anytime, takes precedence when given); UCT ``exploration``
-    constant; ``samples`` rollouts per iteration."""
+    constant; ``samples`` rollouts per iteration; MCTS tree ``layout``. Names, options and
+    defaults are :mod:`planner.registry`'s."""
 
-    name: str = DEFAULT_PLANNER
-    iterations: int = DEFAULT_ITERATIONS
-    plan_ms: float | None = None
-    exploration: float = DEFAULT_EXPLORATION
-    samples: int = 1
+    name: str = planners.DEFAULT_PLANNER
+    iterations: int = _OPT["iterations"].default
+    plan_ms: float | None = _OPT["plan_ms"].default
+    exploration: float = _OPT["exploration"].default
+    samples: int = _OPT["samples"].default
+    layout: str = _OPT["layout"].default
 
     def options(self) -> dict[str, Any]:
-        """Keyword options for ``coordinator.planners.make_planner(name, **options)``."""
-        out: dict[str, Any] = {"iterations": self.iterations, "exploration": self.exploration,
-                               "samples": self.samples}
-        if self.plan_ms is not None:
-            out["plan_ms"] = self.plan_ms
+        """Keyword options for ``planner.registry.make_planner(name, **options)`` (``plan_ms``
+        only when set)."""
+        out: dict[str, Any] = {key: getattr(self, key) for key in planners.OPTIONS}
+        if self.plan_ms is None:
+            out.pop("plan_ms")
         return out
 
 
@@ -454,7 +453,7 @@ _BUILDING_KEYS = ("origin", "rooms", "room_size", "corridor_width", "door_width"
 _FEATURE_KEYS = ("density", "clusters")
 _CLUSTER_KEYS = ("disc", "rect", "room", "density", "label")
 _CARRIER_KEYS = ("id", "passengers", "start_time", "stop_time", "speed", "waypoints")
-_PLANNER_KEYS = ("name", "iterations", "plan_ms", "exploration", "samples")
+_PLANNER_KEYS = ("name", *planners.OPTIONS)
 _SIDES = ("west", "east", "south", "north")
 
 
@@ -710,6 +709,9 @@ def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None) -> tuple[C
     if not isinstance(node, list) or not node:
         ck.bad("carriers", "a non-empty list of carriers", node)
         return None
+    if len(node) > MAX_CARRIERS:
+        ck.bad("carriers", f"a list of at most {MAX_CARRIERS} carriers", _Raw(f"{len(node)} carriers"))
+        return None
     n0 = len(ck.problems)
     out = []
     seen: dict[str, int] = {}
@@ -769,25 +771,19 @@ def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None) -> tuple[C
 
 
 def _parse_planner(ck: _Checker, node: Any) -> PlannerSpec | None:
-    n0 = len(ck.problems)
+    """The ``planner`` block, checked by the planner registry (names, option types and ranges)."""
     p = ck.mapping(node, "planner", _PLANNER_KEYS)
     if p is None:
         return None
-    name = p.get("name", DEFAULT_PLANNER)
-    if not isinstance(name, str) or name not in PLANNER_NAMES:
-        close = difflib.get_close_matches(str(name), PLANNER_NAMES, n=1, cutoff=0.5)
-        hint = f" (did you mean '{close[0]}'?)" if close else ""
-        ck.bad("planner.name", f"one of {', '.join(PLANNER_NAMES)}{hint}", name)
-    iters = ck.number(p.get("iterations", DEFAULT_ITERATIONS), "planner.iterations", minimum=1, integer=True,
-                      maximum=1e9)
-    plan_ms = None
-    if p.get("plan_ms") is not None:
-        plan_ms = ck.number(p["plan_ms"], "planner.plan_ms", minimum=0, exclusive=True)
-    expl = ck.number(p.get("exploration", DEFAULT_EXPLORATION), "planner.exploration", minimum=0)
-    samples = ck.number(p.get("samples", 1), "planner.samples", minimum=1, integer=True, maximum=1e6)
-    if len(ck.problems) > n0:
+    name = p.get("name", planners.DEFAULT_PLANNER)
+    options = {key: p[key] for key in planners.OPTIONS if key in p}
+    problems = planners.check_settings(name, options)
+    for problem in problems:
+        ck.bad(f"planner.{problem.field}", problem.expected, problem.found)
+    if problems:
         return None
-    return PlannerSpec(name=name, iterations=iters, plan_ms=plan_ms, exploration=expl, samples=samples)
+    checked = {key: planners.OPTIONS[key].check(v) for key, v in options.items() if v is not None}
+    return PlannerSpec(name=name, **checked)
 
 
 def _parse_prior(ck: _Checker, node: Any) -> PriorSpec | None:

@@ -1,7 +1,9 @@
 """Record the golden outputs that the planner and fleet must keep reproducing.
 
 Run once (``python tests/golden/record.py``) on the code whose behaviour is the reference; the
-test ``tests/test_golden.py`` recomputes every case with today's code and compares. Cases:
+test ``tests/test_golden.py`` recomputes every case with today's code and compares. Intended
+changes are listed in ``CHANGED`` there and their new outputs pinned by
+``python tests/golden/record.py --changed`` (into ``solve_changed.json``). Cases:
 
 * ``instances/*.json`` — instance files (every prior kind, paper-style random instances, a
   ten-carrier one for the binary MCTS layout), solved by ``python -m coordinator.solve`` with
@@ -49,9 +51,9 @@ PRIORS = {
 
 def instances() -> dict[str, dict]:
     """Instance JSON objects by case name (deterministic)."""
-    from coordinator.instance import instance_dict, random_instance
-    from coordinator.problem import Problem, sample_observations
-    import priors
+    from planner.instance import instance_dict, random_instance
+    from planner.problem import Problem, sample_observations
+    from planner import priors
 
     cases = {}
     for k in range(3):
@@ -99,6 +101,16 @@ def six_carriers() -> dict:
     }
 
 
+def record_changed(cases) -> None:
+    """Record today's output of the (case, planner) pairs whose change is intended (the
+    ``CHANGED`` list of tests/test_golden.py) into ``solve_changed.json``; solve.json is left
+    as recorded before the refactor."""
+    out: dict[str, dict] = {}
+    for case, planner in sorted(cases):
+        out.setdefault(case, {})[planner] = solve(HERE / "instances" / f"{case}.json", planner)
+    (HERE / "solve_changed.json").write_text(json.dumps(out, indent=1, sort_keys=True) + "\n")
+
+
 def main() -> None:
     inst_dir = HERE / "instances"
     inst_dir.mkdir(exist_ok=True)
@@ -113,4 +125,10 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    if sys.argv[1:] == ["--changed"]:  # after an intended change: pin the new outputs
+        sys.path.insert(0, str(ROOT / "tests"))
+        from test_golden import CHANGED
+
+        record_changed(CHANGED)
+    else:
+        main()

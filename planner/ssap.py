@@ -17,34 +17,7 @@ from __future__ import annotations
 import numpy as np
 import scipy  # scipy.integrate is loaded on first use
 
-#: Tail mass ignored when enumerating an unbounded discrete support.
-TAIL = 1e-15
-
-
-def _is_discrete(prior) -> bool:
-    return hasattr(prior.dist, "pmf")
-
-
-def support_grid(prior) -> tuple[np.ndarray, np.ndarray]:
-    """Support points float ``[K]`` and their probabilities ``[K]`` of a discrete prior.
-
-    Unbounded supports are truncated where the tail mass is below :data:`TAIL`. Table priors
-    (``scipy.stats.rv_discrete(values=...)``) give their own, possibly non-integer, points.
-    """
-    if hasattr(prior.dist, "xk"):
-        # A table prior (scipy.stats.rv_discrete(values=(xk, pk))): arbitrary support points.
-        kwds = prior.kwds
-        loc, scale = kwds.get("loc", 0.0), kwds.get("scale", 1.0)
-        points = np.asarray(prior.dist.xk, dtype=float) * scale + loc
-        return points, np.asarray(prior.dist.pk, dtype=float)
-    lo, hi = prior.support()
-    if not np.isfinite(lo):
-        lo = prior.ppf(TAIL)
-    if not np.isfinite(hi):
-        hi = prior.ppf(1.0 - TAIL)
-    points = np.arange(lo, hi + 1, dtype=float)
-    return points, prior.pmf(points)
-
+from planner.priors import is_discrete, support
 
 def _is_plain_poisson(prior) -> bool:
     kwds = prior.kwds
@@ -78,8 +51,8 @@ def _clipped_mean_factory(prior):
     """A function (a, b) -> E[min(max(X, a), b)] for a <= b (either may be infinite)."""
     if _is_plain_poisson(prior):
         return _poisson_clipped_mean(float(prior.args[0] if prior.args else prior.kwds["mu"]))
-    if _is_discrete(prior):
-        points, mass = support_grid(prior)
+    if is_discrete(prior):
+        points, mass = support(prior)
 
         def clipped_mean(a: float, b: float) -> float:
             return float(np.dot(mass, np.clip(points, a, b)))
@@ -134,13 +107,18 @@ def thresholds(prior, n_max: int) -> np.ndarray:
     return a
 
 
+def deploys(table: np.ndarray, x: float, n: int, d: int) -> bool:
+    """The threshold rule: with ``n`` valid stages left (current included) and ``d >= 1``
+    passengers left, deploy iff forced (``n <= d``) or ``x > table[n, n - d]``. The one
+    definition in Python; :func:`planner.kernels.deploys` is its numba twin."""
+    return n <= d or x > table[n, n - d]
+
+
 def decide(table: np.ndarray, x: float, stages_left: int, passengers_left: int) -> bool:
-    """Deploy now? ``stages_left`` counts the current stage; forced when it is <= passengers left."""
+    """Deploy now? Nothing to deploy or no stage left: no; otherwise :func:`deploys`."""
     if passengers_left <= 0 or stages_left <= 0:
         return False
-    if stages_left <= passengers_left:
-        return True
-    return bool(x > table[stages_left, stages_left - passengers_left])
+    return bool(deploys(table, x, stages_left, passengers_left))
 
 
 def expected_value(table: np.ndarray, stages_left: int, passengers_left: int) -> float:
@@ -173,18 +151,23 @@ _TABLES: dict = {}
 _TABLES_MAX = 1024
 
 
-def table_for(problem) -> np.ndarray:
-    """Threshold table (read-only) for a :class:`coordinator.problem.Problem`.
+def table_for_prior(prior, n_stages: int) -> np.ndarray:
+    """Threshold table (read-only) with rows up to ``n_stages + 1``.
 
     Cached per (prior family and parameters, number of stages), so the thousands of instances of
-    an experiment that share a prior compute it once. Rows up to ``problem.n_stages + 1``.
+    an experiment that share a prior compute it once.
     """
-    key = (prior_key(problem.prior), problem.n_stages)
+    key = (prior_key(prior), n_stages)
     table = _TABLES.get(key)
     if table is None:
         if len(_TABLES) >= _TABLES_MAX:
             _TABLES.clear()
-        table = thresholds(problem.prior, problem.n_stages)
+        table = thresholds(prior, n_stages)
         table.setflags(write=False)
         _TABLES[key] = table
     return table
+
+
+def table_for(problem) -> np.ndarray:
+    """Threshold table (read-only) of a :class:`planner.problem.Problem` (see :func:`table_for_prior`)."""
+    return table_for_prior(problem.prior, problem.n_stages)

@@ -20,7 +20,7 @@ future below it (a one-step rollout algorithm, i.e. policy improvement over its 
    ``x / (1 + c) - sum_k x_k (1/p_k - 1/(p_k + 1))`` over the ``c`` already chosen deployments
    ``k`` sharing an overlap, exceeds its DLR threshold ``a[n, n - d]``.
 4. **Control variate.** Alongside, the same sampled future is run through plain independent SSAP,
-   whose expected raw total is known exactly (:func:`coordinator.ssap.expected_value`). The
+   whose expected raw total is known exactly (:func:`planner.ssap.expected_value`). The
    estimate of a candidate is ``mean(aware - plain) + exact(plain)``: unbiased, with far less
    variance, and exact when nothing conflicts.
 
@@ -32,14 +32,15 @@ forced deployments) holds in the executed action and in every rollout. Stateless
 from __future__ import annotations
 
 import time
-import weakref
-from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
 
-from coordinator import ssap
-from coordinator.problem import Problem, StageView, make_view
+from planner import ssap
+from planner.compiled import compile_problem
+from planner.kernels import deploys
+from planner.problem import Problem, StageView, make_view
+from planner.registry import DEFAULT_ITERATIONS
 
 #: Largest number of free carriers in one component whose 2^k joint actions are all evaluated.
 ENUMERATE_MAX = 6
@@ -48,8 +49,6 @@ SAMPLES_MIN = 16
 SAMPLES_MAX = 4096
 #: Sampled futures per batch in the time-budget mode.
 BATCH = 32
-#: Default budget: full-fleet rollouts per decision (as MCTS iterations).
-DEFAULT_ITERATIONS = 10_000
 
 
 # ----------------------------------------------------------------------------- numba kernels
@@ -146,90 +145,19 @@ def _evaluate(actions, members, stage, n_stages, xnow, left0, valid, nleft, tabl
                     if d > 0:
                         q = r * n_stages + t
                         g = _marginal(q, xs, sel, p, xv, nbr_ptr, nbr_idx)
-                        if n <= d or g > table[n, n - d]:
+                        if deploys(table, g, n, d):
                             total += g
                             nlog = _select(q, xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
                             left[i] = d - 1
                     d = lefti[i]
-                    if d > 0 and (n <= d or xs > table[n, n - d]):
+                    if d > 0 and deploys(table, xs, n, d):
                         plain += xs
                         lefti[i] = d - 1
             _undo(sel, p, log, nlog)
             out[k, s] = total - plain if control_variate else total
 
 
-@njit(cache=True)
-def _inverse_cdf(u, cdf, support, guide):
-    """``support[first i with cdf[i] > u]`` for every uniform in ``u`` (same shape, float64).
-
-    ``guide[g]`` is the first index whose cdf exceeds ``g / len(guide)``: the scan starts there.
-    """
-    flat_u = u.ravel()
-    out = np.empty(flat_u.shape[0])
-    n_guide = guide.shape[0]
-    last = cdf.shape[0] - 1
-    for a in range(flat_u.shape[0]):
-        v = flat_u[a]
-        i = guide[min(int(v * n_guide), n_guide - 1)]
-        while i < last and cdf[i] <= v:
-            i += 1
-        out[a] = support[i]
-    return out.reshape(u.shape)
-
-
-# ----------------------------------------------------------------------------- per-problem data
-
-
-@dataclass(frozen=True, eq=False)
-class _Prepared:
-    """Per-problem constants: thresholds, exact SSAP values, conflict lists, prior sampler."""
-
-    table: np.ndarray        # float [N + 2, N + 2] DLR thresholds
-    value: np.ndarray        # float [N + 1, N + 1]: value[n, d] optimal single-carrier total
-    nbr_ptr: np.ndarray      # int64 [R*N + 1] CSR of the conflict matrix
-    nbr_idx: np.ndarray      # int64 [nnz]
-    support: np.ndarray | None  # float [K] support of a discrete prior (None: continuous)
-    cdf: np.ndarray | None      # float [K] its cumulative probabilities
-    guide: np.ndarray | None    # int64 [G] first index whose cdf exceeds g / G
-
-
-_PREPARED: "weakref.WeakKeyDictionary[Problem, _Prepared]" = weakref.WeakKeyDictionary()
-
-
-def _prepare(problem: Problem) -> _Prepared:
-    prep = _PREPARED.get(problem)
-    if prep is not None:
-        return prep
-    n_stages = problem.n_stages
-    table = np.ascontiguousarray(ssap.table_for(problem), dtype=np.float64)
-    value = np.zeros((n_stages + 1, n_stages + 1))
-    for n in range(n_stages + 1):
-        for d in range(n_stages + 1):
-            value[n, d] = ssap.expected_value(table, n, d)
-    conflict = np.asarray(problem.conflict, dtype=bool)
-    counts = conflict.sum(axis=1)
-    nbr_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    nbr_idx = np.nonzero(conflict)[1].astype(np.int64)
-    support = cdf = guide = None
-    if hasattr(problem.prior.dist, "pmf"):
-        # The same support as the thresholds (tables give their own points).
-        support, mass = ssap.support_grid(problem.prior)
-        support = np.asarray(support, dtype=float)
-        cdf = np.cumsum(mass) / np.sum(mass)
-        cdf[-1] = 1.0
-        n_guide = 4 * len(support)
-        guide = np.searchsorted(cdf, np.arange(n_guide) / n_guide, side="right").astype(np.int64)
-    prep = _Prepared(table, value, nbr_ptr, nbr_idx, support, cdf, guide)
-    _PREPARED[problem] = prep
-    return prep
-
-
-def _sample(prep: _Prepared, problem: Problem, rng: np.random.Generator, shape) -> np.ndarray:
-    """Observations drawn from the prior by inverse CDF (exact for discrete priors)."""
-    u = rng.random(shape)
-    if prep.support is not None:
-        return _inverse_cdf(u, prep.cdf, prep.support, prep.guide)
-    return np.asarray(problem.prior.ppf(u), dtype=float)
+# ----------------------------------------------------------------------------- helpers
 
 
 def _components(adjacency: np.ndarray) -> list[np.ndarray]:
@@ -280,7 +208,7 @@ class ClosedLoopPlanner:
         x = np.full((2, 4), 3.0)
         ClosedLoopPlanner(iterations=8).decide(make_view(tiny, 0, x, np.zeros((2, 4), bool)),
                                                np.random.default_rng(0))
-        _prepare(problem)
+        compile_problem(problem).slot_value
 
     # The decision -----------------------------------------------------------------------------
 
@@ -294,11 +222,10 @@ class ClosedLoopPlanner:
         decision = must.copy()
         if not free.any():
             return decision
-        prep = _prepare(problem)
+        prep = compile_problem(problem)
         valid = np.ascontiguousarray(view.valid)
         left = view.passengers_left.astype(np.int64)
-        nleft = np.zeros((n_carriers, n_stages + 1), dtype=np.int64)
-        nleft[:, :n_stages] = np.cumsum(valid[:, ::-1], axis=1)[:, ::-1]
+        nleft = view.stages_left_table
         xnow = np.nan_to_num(view.observations[:, j], nan=0.0)
 
         # Relevant points: past deployments, and scheduled points from j on of carriers with
@@ -308,7 +235,7 @@ class ClosedLoopPlanner:
         open_ = (valid & (left > 0)[:, None]).copy()
         open_[:, :j] = False
         open_ = open_.ravel()
-        conflict = problem.conflict
+        conflict = prep.conflict
         live = conflict & (open_[:, None] & (open_ | past)[None, :])
         live |= live.T
         point_owner = np.repeat(np.arange(n_carriers), n_stages)
@@ -412,10 +339,10 @@ class ClosedLoopPlanner:
         count = 0
         while True:
             batch = samples if deadline is None else BATCH
-            draws = _sample(prep, problem, rng, (batch, horizon, len(comp)))
+            draws = prep.sampler.sample(rng, (batch, horizon, len(comp)))
             out = np.empty((len(actions), batch))
             _evaluate(actions, comp, j, n_stages, xnow[comp], comp_left, valid, nleft, prep.table,
-                      sel, p, xv, prep.nbr_ptr, prep.nbr_idx, draws, out, control_variate)
+                      sel, p, xv, prep.indptr, prep.nbr, draws, out, control_variate)
             sums += out.sum(axis=1)
             count += batch
             if deadline is None or time.perf_counter() >= deadline:
@@ -425,7 +352,7 @@ class ClosedLoopPlanner:
         # Exact expected future of plain SSAP after each candidate's action.
         n_after = nleft[comp, j + 1]
         d_after = np.minimum(comp_left[None, :] - actions.astype(np.int64), n_stages)
-        exact = prep.value[n_after[None, :], d_after].sum(axis=1)
+        exact = prep.slot_value[n_after[None, :], d_after].sum(axis=1)
         return sums / count + exact
 
     @staticmethod
@@ -438,15 +365,15 @@ class ClosedLoopPlanner:
         chosen = sel.copy()
         pp = p.copy()
         vv = xv.copy()
-        log = np.empty(len(sel) + len(prep.nbr_idx) + 1, dtype=np.int64)
+        log = np.empty(len(sel) + len(prep.nbr) + 1, dtype=np.int64)
         for i, r in enumerate(comp):
             q = int(r) * n_stages + j
             if free[r]:
                 n, d = int(nleft[r, j]), int(left[r])
-                gain = _marginal(q, float(xnow[r]), chosen, pp, vv, prep.nbr_ptr, prep.nbr_idx)
-                action[i] = n <= d or gain > prep.table[n, n - d]
+                gain = _marginal(q, float(xnow[r]), chosen, pp, vv, prep.indptr, prep.nbr)
+                action[i] = ssap.deploys(prep.table, gain, n, d)
             if action[i]:
-                _select(q, float(xnow[r]), chosen, pp, vv, prep.nbr_ptr, prep.nbr_idx, log, 0)
+                _select(q, float(xnow[r]), chosen, pp, vv, prep.indptr, prep.nbr, log, 0)
         return action
 
 
@@ -476,14 +403,13 @@ def estimate(view: StageView, actions: np.ndarray, samples: int, rng: np.random.
     """
     problem = view.problem
     n_carriers, n_stages = problem.n_carriers, problem.n_stages
-    prep = _prepare(problem)
+    prep = compile_problem(problem)
     valid = np.ascontiguousarray(view.valid)
     left = view.passengers_left.astype(np.int64)
-    nleft = np.zeros((n_carriers, n_stages + 1), dtype=np.int64)
-    nleft[:, :n_stages] = np.cumsum(valid[:, ::-1], axis=1)[:, ::-1]
+    nleft = view.stages_left_table
     xnow = np.nan_to_num(view.observations[:, view.stage], nan=0.0)
     sel = view.deployed.ravel().copy()
-    p = (1 + problem.conflict[:, sel].sum(axis=1)).astype(np.int64)
+    p = (1 + prep.conflict[:, sel].sum(axis=1)).astype(np.int64)
     xv = np.where(view.deployed, _past_values(view), 0.0).ravel()
     return ClosedLoopPlanner()._score(np.asarray(actions, dtype=bool), np.arange(n_carriers, dtype=np.int64),
                                       int(samples), None, view, prep, (sel, p, xv), valid, nleft, left, xnow,

@@ -15,6 +15,7 @@ Conventions shared by every planner and by the fleet:
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Protocol, Sequence
 
 import numpy as np
@@ -171,6 +172,16 @@ def evaluate(problem: Problem, deployed: np.ndarray, x: np.ndarray) -> tuple[flo
     return raw / problem.scale, raw
 
 
+def valid_stages_left(valid: np.ndarray) -> np.ndarray:
+    """int64 ``[R, N + 1]``: ``out[r, k]`` = valid stages of carrier r from stage k (inclusive) to
+    the end; ``out[:, N] = 0``. The one definition of "valid stages left" (the forced-deployment
+    rule and the thresholds' ``n``)."""
+    valid = np.asarray(valid, dtype=bool)
+    out = np.zeros((valid.shape[0], valid.shape[1] + 1), dtype=np.int64)
+    out[:, :-1] = np.cumsum(valid[:, ::-1], axis=1)[:, ::-1]
+    return out
+
+
 @dataclass(frozen=True, eq=False)
 class StageView:
     """What an online planner may know when deciding stage ``stage``.
@@ -195,10 +206,16 @@ class StageView:
         """int64 ``[R]``."""
         return self.problem.passengers - self.deployed.sum(axis=1)
 
+    @cached_property
+    def stages_left_table(self) -> np.ndarray:
+        """int64 ``[R, N + 1]``: :func:`valid_stages_left` of this view's validity (realised up to
+        j, scheduled after)."""
+        return valid_stages_left(self.valid)
+
     @property
     def stages_left(self) -> np.ndarray:
         """int64 ``[R]``: valid stages from j (inclusive) to the end."""
-        return self.valid[:, self.stage:].sum(axis=1)
+        return self.stages_left_table[:, self.stage]
 
     @property
     def can_deploy(self) -> np.ndarray:

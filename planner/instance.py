@@ -12,9 +12,9 @@ from pathlib import Path
 from typing import Any, Callable, NamedTuple
 
 import numpy as np
-import priors
-from priors import is_integer as _int, is_number as _num, is_positive as _positive
-from coordinator.problem import Problem, normalisation_scale, sample_observations
+from planner import priors
+from planner.priors import is_integer as _int, is_number as _num, is_positive as _positive
+from planner.problem import Problem, normalisation_scale, sample_observations
 
 #: Spawn key of the observation stream when an instance file omits its observations.
 OBSERVATION_SPAWN_KEY = (2000, 0)

@@ -2,7 +2,7 @@
 
 This is the unoptimised algorithm: a tree of Python objects whose edges are *joint* actions
 (subsets of carriers deploying at one stage). It exists to be read and to be compared with the
-fast planner in :mod:`coordinator.mcts`, which must match its decision quality.
+fast planner in :mod:`planner.mcts.fast`, which must match its decision quality.
 
 One decision at stage ``j`` (the root):
 
@@ -19,7 +19,7 @@ One decision at stage ``j`` (the root):
    against the carrier's threshold ``table[n, n - d]``), or a uniformly random feasible rollout
    (deploy with probability ``d / n``: a uniform ``d``-subset of the remaining valid stages).
 4. **Evaluation.** The full trajectory (real past deployments + tree actions + rollout) is scored
-   by :func:`coordinator.problem.evaluate` (the exact penalty rule), normalised by the prior's
+   by :func:`planner.problem.evaluate` (the exact penalty rule), normalised by the prior's
    scale. With ``samples > 1`` steps 3-4 repeat with fresh observations and the mean is used.
 5. **Backup.** Every node on the path gets one more visit and the reward.
 
@@ -42,11 +42,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from coordinator.problem import StageView, evaluate
-from coordinator.ssap import table_for
-
-#: Default UCT exploration constant on normalised rewards (the paper's 0.05·√2).
-DEFAULT_EXPLORATION = 0.05 * math.sqrt(2.0)
+from planner import ssap
+from planner.compiled import compile_problem
+from planner.problem import StageView, evaluate
+from planner.registry import DEFAULT_EXPLORATION, DEFAULT_ITERATIONS
 #: Rollout policies.
 ROLLOUTS = ("ssap", "random")
 
@@ -102,10 +101,10 @@ class _Search:
         self.stage = view.stage
         self.n_carriers, self.n_stages = problem.valid.shape
         self.valid = view.valid
+        self.compiled = compile_problem(problem)
         # valid stages from k (inclusive) to the end, per carrier: int64 [R, N + 1]
-        self.stages_left = np.zeros((self.n_carriers, self.n_stages + 1), dtype=np.int64)
-        self.stages_left[:, :-1] = np.cumsum(self.valid[:, ::-1], axis=1)[:, ::-1]
-        self.table = table_for(problem)
+        self.stages_left = view.stages_left_table
+        self.table = self.compiled.table
         self.known = view.observations  # NaN after the current stage
         self.past = view.deployed
         self.root = self._make_node(self.stage, view.passengers_left.copy())
@@ -143,10 +142,7 @@ class _Search:
         x = self.known.copy()
         j = self.stage
         if j + 1 < self.n_stages:
-            draw = np.asarray(
-                self.problem.prior.rvs(size=(self.n_carriers, self.n_stages - j - 1), random_state=self.rng),
-                dtype=float,
-            )
+            draw = self.compiled.sampler.sample(self.rng, (self.n_carriers, self.n_stages - j - 1))
             x[:, j + 1:] = np.where(self.valid[:, j + 1:], draw, np.nan)
         return x
 
@@ -159,11 +155,11 @@ class _Search:
                 if not self.valid[r, k] or left[r] <= 0:
                     continue
                 n, d = int(self.stages_left[r, k]), int(left[r])
-                if n <= d:
+                if n <= d:  # forced: no draw (the random rollout draws only for a choice)
                     go = True
                 elif self.rollout == "ssap":
-                    conflicts = int(np.count_nonzero(self.problem.conflict[r * self.n_stages + k] & flat))
-                    go = x[r, k] / (1 + conflicts) > self.table[n, n - d]
+                    conflicts = int(np.count_nonzero(self.compiled.conflict[r * self.n_stages + k] & flat))
+                    go = ssap.deploys(self.table, x[r, k] / (1 + conflicts), n, d)
                 else:
                     go = self.rng.random() < d / n
                 if go:
@@ -220,7 +216,7 @@ class ReferenceMCTSPlanner:
         samples: Monte Carlo rollouts per iteration (their mean is backed up).
     """
 
-    def __init__(self, rollout: str = "ssap", iterations: int = 10_000, plan_ms: float | None = None,
+    def __init__(self, rollout: str = "ssap", iterations: int = DEFAULT_ITERATIONS, plan_ms: float | None = None,
                  exploration: float = DEFAULT_EXPLORATION, samples: int = 1):
         if rollout not in ROLLOUTS:
             raise ValueError(f"rollout must be one of {ROLLOUTS}, got {rollout!r}")

@@ -1,6 +1,6 @@
 """MCTS-SSAP and MCTS-Random, fast: array trees searched by numba kernels.
 
-The algorithm is the paper's (see :mod:`coordinator.mcts_reference` for the plain version and
+The algorithm is the paper's (see :mod:`planner.mcts.reference` for the plain version and
 docs/performance.md for the measured comparison), in one of two tree layouts (``layout=``):
 
 * ``"joint"`` — the reference's tree: a node is one stage, its children are the joint actions
@@ -8,7 +8,7 @@ docs/performance.md for the measured comparison), in one of two tree layouts (``
   expanded one untried action per visit in a random order that is never listed (the ``i``-th
   expanded child is ``(a * i + b) mod 2^k`` with ``a`` odd and ``a``, ``b`` drawn per node);
   a node's children occupy one contiguous block of ids reserved at its first expansion
-  (:func:`coordinator._mcts_kernel.search_joint`). Refused beyond ``JOINT_LIMIT`` carriers
+  (:func:`planner.mcts.kernel.search_joint`). Refused beyond ``JOINT_LIMIT`` carriers
   with a choice.
 * ``"binary"`` — **each tree level is one carrier's binary choice**. A stage is up to R
   consecutive levels, carriers in index order; carriers with no choice at a stage (∅ stage, no
@@ -16,13 +16,14 @@ docs/performance.md for the measured comparison), in one of two tree layouts (``
   A path through the levels of one stage spells one feasible joint action, so the tree reaches
   exactly the joint actions the joint-action tree reaches; UCT statistics are shared between
   joint actions with a common prefix, and each iteration expands one binary node
-  (:func:`coordinator._mcts_kernel.search`). At most ``iterations + 1`` nodes, whatever R.
+  (:func:`planner.mcts.kernel.search_binary`). At most ``iterations + 1`` nodes, whatever R
+  (an expanded node reserves a ``[stay, deploy]`` block of 2 ids).
 * ``"auto"`` (default) — joint for problems of at most ``JOINT_MAX_CARRIERS`` carriers, binary
   beyond. With the paper's nearly greedy exploration constant the binary levels lose quality
   against the joint tree at R = 6 (docs/performance.md); beyond 8 carriers the joint tree
   cannot try each root action even a few times in 10,000 iterations.
 
-Per iteration (in :func:`coordinator._mcts_kernel.search`): UCT selection with constant ``c``
+Per iteration (the step functions of :mod:`planner.mcts.kernel`): UCT selection with constant ``c``
 on normalised rewards, expansion of one untried binary child (uniformly random when both are
 untried), lazy sampling of future observations from the prior (only where a rollout decision or
 the evaluation reads them; open-loop), the SSAP rollout per carrier on the conflict-discounted
@@ -34,9 +35,9 @@ expansion order), or follows the most visited child at each binary level of the 
 (binary layout; ties: higher mean, then "stay"; a level never expanded, only with budgets below
 ~R iterations, falls back to the SSAP rule on the conflict-discounted observation).
 
-Priors: a discrete prior is sampled exactly by inverse CDF over its support (truncated where the
-tail mass is below 1e-15, like the thresholds); a continuous prior is replaced by
-``CONTINUOUS_ATOMS`` equiprobable atoms at its quantiles ``(i + 1/2) / CONTINUOUS_ATOMS``.
+Priors: the kernels sample the compiled problem's sampler (:mod:`planner.compiled`): exact
+inverse CDF over a discrete prior's support (table priors on their own points), a continuous
+prior by ``CONTINUOUS_ATOMS`` equiprobable atoms at its quantiles.
 
 Randomness: one uint64 drawn from the decision's Generator seeds the kernel's splitmix64 stream
 once per decision, so a decision is a deterministic function of the view and the Generator (in
@@ -45,23 +46,18 @@ iteration mode; in ``plan_ms`` mode the number of iterations depends on the cloc
 from __future__ import annotations
 
 import functools
-import math
 import time
 
 import numpy as np
 
-from coordinator import _mcts_kernel as _k
-from coordinator.problem import Problem, StageView, make_view
-from coordinator.ssap import TAIL, table_for
+from planner import ssap
+from planner.compiled import compile_problem
+from planner.mcts import kernel as _k
+from planner.problem import Problem, StageView, make_view
+from planner.registry import DEFAULT_EXPLORATION, DEFAULT_ITERATIONS, LAYOUTS
 
-#: Default UCT exploration constant on normalised rewards (the paper's 0.05·√2).
-DEFAULT_EXPLORATION = 0.05 * math.sqrt(2.0)
 #: Rollout policies.
 ROLLOUTS = {"ssap": _k.ROLLOUT_SSAP, "random": _k.ROLLOUT_RANDOM}
-#: Equiprobable atoms standing for a continuous prior inside the kernel.
-CONTINUOUS_ATOMS = 4096
-#: Guide-table entries per support point (inverse-CDF sampling takes ~1 comparison on average).
-GUIDE_FACTOR = 4
 #: Time-budget mode: the first kernel call runs this many iterations to measure the rate.
 FIRST_CHUNK = 16
 #: Time-budget mode: a kernel call runs at most this many times the previous call's iterations
@@ -75,9 +71,6 @@ CHUNK_OF_BUDGET = 0.2
 STOP_FRACTION = 0.01
 #: Node capacity of the first allocation in time-budget mode (grown geometrically).
 INITIAL_CAPACITY = 4096
-#: Tree layouts: ``"joint"`` (the reference's joint-action tree, expanded lazily), ``"binary"``
-#: (one binary level per carrier with a choice), ``"auto"`` (joint up to JOINT_MAX_CARRIERS).
-LAYOUTS = ("auto", "joint", "binary")
 #: ``layout="auto"`` uses the joint-action tree when at most this many carriers can still have a
 #: choice (2^8 = 256 root actions: 10,000 iterations try each about 40 times), the binary
 #: levels beyond (where the joint tree cannot even try each root action once).
@@ -87,93 +80,77 @@ JOINT_MAX_CARRIERS = 8
 JOINT_LIMIT = 16
 
 
-@functools.lru_cache(maxsize=64)
-def prior_grid(problem: Problem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The prior as (support points float64 ``[K]``, cumulative probability float64 ``[K]``,
-    guide int64 ``[G]``) for inverse-CDF sampling in the kernel.
-
-    The last cumulative value is set above 1 so that sampling always terminates;
-    ``guide[m]`` is the first index whose cumulative probability exceeds ``m / G``.
-    """
-    prior = problem.prior
-    if hasattr(prior.dist, "pmf"):
-        lo, hi = prior.support()
-        lo = prior.ppf(TAIL) if not np.isfinite(lo) else lo
-        hi = prior.ppf(1.0 - TAIL) if not np.isfinite(hi) else hi
-        points = np.arange(lo, hi + 1, dtype=np.float64)
-        mass = prior.pmf(points)
-        cdf = np.cumsum(mass) / mass.sum()
-    else:
-        u = (np.arange(CONTINUOUS_ATOMS) + 0.5) / CONTINUOUS_ATOMS
-        points = np.asarray(prior.ppf(u), dtype=np.float64)
-        cdf = (np.arange(CONTINUOUS_ATOMS) + 1.0) / CONTINUOUS_ATOMS
-    cdf[-1] = 2.0
-    guide = np.searchsorted(cdf, np.arange(GUIDE_FACTOR * len(cdf)) / (GUIDE_FACTOR * len(cdf)), side="right")
-    return np.ascontiguousarray(points), np.ascontiguousarray(cdf), guide.astype(np.int64)
-
-
-@functools.lru_cache(maxsize=64)
-def threshold_cdf(problem: Problem) -> np.ndarray:
-    """float64 ``[N + 2, N + 2]``: P(X <= table[n, i]) under :func:`prior_grid`'s distribution,
-    so that a sample with uniform u exceeds the threshold iff u >= this value (2 where no
-    support point exceeds it, NaN-threshold entries included; they are never read)."""
-    table = table_for(problem)
-    points, cdf, _ = prior_grid(problem)
-    idx = np.searchsorted(points, np.nan_to_num(table, nan=np.inf), side="right") - 1
-    out = np.where(idx >= 0, cdf[np.clip(idx, 0, None)], 0.0)
-    return np.ascontiguousarray(out, dtype=np.float64)
-
-
-@functools.lru_cache(maxsize=64)
-def conflict_lists(problem: Problem) -> tuple[np.ndarray, np.ndarray]:
-    """CSR form of ``problem.conflict``: (indptr int64 ``[R*N + 1]``, neighbours int64 ``[nnz]``)."""
-    rows, cols = np.nonzero(problem.conflict)
-    indptr = np.zeros(problem.conflict.shape[0] + 1, dtype=np.int64)
-    np.add.at(indptr, rows + 1, 1)
-    return np.cumsum(indptr), cols.astype(np.int64)
+def _model(problem: Problem) -> _k.Model:
+    """The compiled problem as the kernels read it."""
+    cp = compile_problem(problem)
+    s = cp.sampler
+    return _k.Model(cp.table, cp.ucut, s.points, s.cdf, s.guide, cp.indptr, cp.nbr, float(cp.scale))
 
 
 @functools.lru_cache(maxsize=1)
-def _uct_tables() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    return _k.uct_tables()
+def _uct_tables() -> _k.UCTTables:
+    return _k.UCTTables(*_k.uct_tables())
+
+
+def _stats(capacity: int) -> _k.Stats:
+    return _k.Stats(np.zeros(capacity, dtype=np.int64), np.zeros(capacity), np.zeros(capacity), np.zeros(capacity))
+
+
+def _grown(arrays: tuple, new: int, fill=0) -> list:
+    """Each array extended to ``new`` entries (``fill`` in the new ones)."""
+    return [np.concatenate([a, np.full(new - a.shape[0], fill, dtype=a.dtype)]) for a in arrays]
 
 
 class _Tree:
-    """Preallocated node arrays (see :mod:`coordinator._mcts_kernel`), grown geometrically."""
+    """Node arrays of the binary layout (:class:`planner.mcts.kernel.BinaryTree`), grown
+    geometrically; an expanded node reserves a block of 2 ids ``[stay, deploy]``."""
 
     def __init__(self, capacity: int):
-        self.child = np.full((capacity, 2), _k.UNEXPANDED, dtype=np.int64)
-        self.visits = np.zeros(capacity, dtype=np.int64)
-        self.value = np.zeros(capacity, dtype=np.float64)
+        self.base = np.full(capacity, _k.UNEXPANDED, dtype=np.int64)
         self.point = np.zeros(capacity, dtype=np.int64)
+        self.stats = _stats(capacity)
         self.counter = np.ones(1, dtype=np.int64)  # the root exists
 
     def reserve(self, more: int) -> None:
-        """Make room for ``more`` new nodes."""
+        """Make room for ``more`` new ids."""
         need = int(self.counter[0]) + more
-        cap = self.visits.shape[0]
+        cap = self.point.shape[0]
         if need <= cap:
             return
         new = max(need, 2 * cap)
-        self.child = np.concatenate([self.child, np.full((new - cap, 2), _k.UNEXPANDED, dtype=np.int64)])
-        self.visits = np.concatenate([self.visits, np.zeros(new - cap, dtype=np.int64)])
-        self.value = np.concatenate([self.value, np.zeros(new - cap)])
-        self.point = np.concatenate([self.point, np.zeros(new - cap, dtype=np.int64)])
+        (self.base,) = _grown((self.base,), new, _k.UNEXPANDED)
+        (self.point,) = _grown((self.point,), new)
+        self.stats = _k.Stats(*_grown(tuple(self.stats), new))
+
+    @property
+    def visits(self) -> np.ndarray:
+        """int64 ``[cap]`` iterations through each node."""
+        return self.stats.visits
+
+    @property
+    def value(self) -> np.ndarray:
+        """float64 ``[cap]`` sum of the normalised rewards of those iterations."""
+        return self.stats.value
+
+    def arrays(self) -> _k.BinaryTree:
+        return _k.BinaryTree(self.base, self.point, self.counter, self.stats)
+
+    def created(self) -> int:
+        """Nodes created (reserved block entries never expanded have no visit)."""
+        n = int(self.counter[0])
+        return 1 + int(np.count_nonzero(self.stats.visits[1:n]))
 
 
 class _JointTree:
-    """Node arrays of the joint-action layout (see :func:`coordinator._mcts_kernel.search_joint`),
-    grown geometrically; ids are reserved a child block (``2^k`` ids) at a time."""
+    """Node arrays of the joint-action layout (:class:`planner.mcts.kernel.JointTree`), grown
+    geometrically; ids are reserved a child block (``2^k`` ids) at a time."""
 
     def __init__(self, capacity: int):
         self.base = np.zeros(capacity, dtype=np.int64)
         self.expanded = np.zeros(capacity, dtype=np.int64)
         self.mult = np.zeros(capacity, dtype=np.uint64)
         self.offset = np.zeros(capacity, dtype=np.uint64)
-        self.visits = np.zeros(capacity, dtype=np.int64)
-        self.value = np.zeros(capacity, dtype=np.float64)
-        self.mean = np.zeros(capacity, dtype=np.float64)
-        self.isq = np.zeros(capacity, dtype=np.float64)
+        self.stats = _stats(capacity)
         self.counter = np.ones(1, dtype=np.int64)  # the root exists
 
     def reset(self) -> None:
@@ -181,15 +158,28 @@ class _JointTree:
         it reads a node's fields only after creating it (see search_joint)."""
         self.counter[0] = 1
         self.expanded[0] = 0
-        self.visits[0] = 0
-        self.value[0] = 0.0
+        self.stats.visits[0] = 0
+        self.stats.value[0] = 0.0
 
     def grow(self) -> None:
         """Double the capacity."""
-        cap = self.visits.shape[0]
-        for name in ("base", "expanded", "mult", "offset", "visits", "value", "mean", "isq"):
-            old = getattr(self, name)
-            setattr(self, name, np.concatenate([old, np.zeros(cap, dtype=old.dtype)]))
+        new = 2 * self.base.shape[0]
+        self.base, self.expanded, self.mult, self.offset = _grown(
+            (self.base, self.expanded, self.mult, self.offset), new)
+        self.stats = _k.Stats(*_grown(tuple(self.stats), new))
+
+    @property
+    def visits(self) -> np.ndarray:
+        """int64 ``[cap]`` iterations through each node."""
+        return self.stats.visits
+
+    @property
+    def value(self) -> np.ndarray:
+        """float64 ``[cap]`` sum of the normalised rewards of those iterations."""
+        return self.stats.value
+
+    def arrays(self) -> _k.JointTree:
+        return _k.JointTree(self.base, self.expanded, self.mult, self.offset, self.counter, self.stats)
 
 
 class MCTSPlanner:
@@ -207,7 +197,7 @@ class MCTSPlanner:
             carriers, binary beyond, so the layout is fixed per problem).
     """
 
-    def __init__(self, rollout: str = "ssap", iterations: int = 10_000, plan_ms: float | None = None,
+    def __init__(self, rollout: str = "ssap", iterations: int = DEFAULT_ITERATIONS, plan_ms: float | None = None,
                  exploration: float = DEFAULT_EXPLORATION, samples: int = 1, layout: str = "auto"):
         if layout not in LAYOUTS:
             raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
@@ -284,8 +274,7 @@ class MCTSPlanner:
         state = rng.integers(2 ** 64, dtype=np.uint64, size=1)  # the kernel's random stream
 
         valid = np.ascontiguousarray(view.valid, dtype=np.uint8)
-        vs_left = np.zeros((n_carriers, n_stages + 1), dtype=np.int64)
-        vs_left[:, :-1] = np.cumsum(view.valid[:, ::-1], axis=1)[:, ::-1]
+        vs_left = view.stages_left_table
         d0 = np.ascontiguousarray(view.passengers_left, dtype=np.int64)
         known = np.ascontiguousarray(view.observations, dtype=np.float64)  # NaN after the root stage
         past = np.flatnonzero(view.deployed.reshape(-1)).astype(np.int64)
@@ -293,20 +282,19 @@ class MCTSPlanner:
         mark[past] = 1
         xval = np.zeros(n_carriers * n_stages, dtype=np.float64)
         xval[past] = known.reshape(-1)[past]
-        indptr, nbr = conflict_lists(problem)
-        table = table_for(problem)
-        ucut = threshold_cdf(problem)
-        points, cdf, guide = prior_grid(problem)
-        scratch = (
+        root = _k.Root(j0, d0, valid, vs_left, known, known.reshape(-1), past)
+        scratch = _k.Scratch(
+            state,
             np.zeros(n_carriers, dtype=np.int64),  # left
             np.zeros(n_carriers, dtype=np.int64),  # left_tree
             mark,
             xval,
             np.zeros(n_carriers * n_stages, dtype=np.int64),  # pts
             np.zeros((n_stages - j0) * n_carriers + 2, dtype=np.int64),  # path
+            np.zeros(n_carriers, dtype=np.int64),  # choice
         )
-        fixed = (state, j0, d0, valid, vs_left, known, past, indptr, nbr, table, ucut, points, cdf, guide,
-                 ROLLOUTS[self.rollout], self.exploration, self.samples, problem.scale) + _uct_tables() + scratch
+        fixed = (root, _model(problem), _k.Settings(ROLLOUTS[self.rollout], self.exploration, self.samples),
+                 _uct_tables(), scratch)
         if layout == "joint":
             # Upper bound of the choice carriers at any node: carriers with a passenger left and a
             # valid stage from j0 on.
@@ -318,27 +306,25 @@ class MCTSPlanner:
             budget_nodes = self.iterations if self.plan_ms is None else INITIAL_CAPACITY
             want = 1 + max_block + min(16 * budget_nodes, budget_nodes * max_block)
             tree = self._joint_tree
-            if tree is None or tree.visits.shape[0] < want:
+            if tree is None or tree.base.shape[0] < want:
                 # Kept across decisions: a fresh multi-megabyte tree per decision cost page faults.
                 tree = self._joint_tree = _JointTree(want)
             tree.reset()
-            fixed = fixed + (np.zeros(n_carriers, dtype=np.int64), max_block)
 
             def run(n_iter: int) -> None:
                 while n_iter > 0:
-                    ran = _k.search_joint(n_iter, tree.base, tree.expanded, tree.mult, tree.offset, tree.visits,
-                                          tree.value, tree.mean, tree.isq, tree.counter, *fixed)
+                    ran = _k.search_joint(n_iter, tree.arrays(), *fixed, max_block)
                     n_iter -= ran
                     if n_iter > 0:
                         tree.grow()
         else:
             first = int(np.flatnonzero(choice)[0])  # the root is the first carrier with a choice
-            tree = _Tree(self.iterations + 1 if self.plan_ms is None else INITIAL_CAPACITY)
+            tree = _Tree(2 * self.iterations + 1 if self.plan_ms is None else INITIAL_CAPACITY)
             tree.point[_k.ROOT] = first
 
             def run(n_iter: int) -> None:
-                tree.reserve(n_iter)
-                _k.search(n_iter, tree.child, tree.visits, tree.value, tree.point, tree.counter, *fixed)
+                tree.reserve(2 * n_iter)  # a block of 2 ids per expansion
+                _k.search_binary(n_iter, tree.arrays(), *fixed)
 
         if self.plan_ms is None:
             run(self.iterations)
@@ -364,8 +350,8 @@ class MCTSPlanner:
             self.last_nodes = 1 + int(tree.expanded[: int(tree.counter[0])].sum())  # created, not reserved
             self.last_reserved = int(tree.counter[0])
             return self._extract_joint(tree, choice, must)
-        self.last_nodes = int(tree.counter[0])
-        self.last_reserved = self.last_nodes
+        self.last_nodes = tree.created()
+        self.last_reserved = int(tree.counter[0])
         return self._extract(view, tree, choice, must)
 
     @staticmethod
@@ -377,9 +363,10 @@ class MCTSPlanner:
         expanded = int(tree.expanded[root])
         b0 = int(tree.base[root])
         best, key = 0, None
+        visits, value = tree.stats.visits, tree.stats.value
         for slot in range(expanded):
-            v = int(tree.visits[b0 + slot])
-            k = (v, float(tree.value[b0 + slot]) / v)
+            v = int(visits[b0 + slot])
+            k = (v, float(value[b0 + slot]) / v)
             if key is None or k > key:
                 best, key = slot, k
         # The action of a slot: (mult * slot + offset) mod 2^64 mod 2^k (2^k divides 2^64).
@@ -397,30 +384,31 @@ class MCTSPlanner:
         decision = must.copy()
         node = _k.ROOT
         passengers_left, stages_left = view.passengers_left, view.stages_left
-        table = table_for(problem)
+        table = compile_problem(problem).table
         for r in np.flatnonzero(choice).tolist():
             # Invariant: at the root stage the choice carriers are fixed, one level each.
             assert node == _k.UNEXPANDED or tree.point[node] == r
-            kids = tree.child[node] if node != _k.UNEXPANDED else None
-            if kids is not None and (kids != _k.UNEXPANDED).any():
+            first = int(tree.base[node]) if node != _k.UNEXPANDED else _k.UNEXPANDED
+            if first != _k.UNEXPANDED:  # a block exists: at least one of [stay, deploy] was created
+                visits, value = tree.stats.visits, tree.stats.value
                 best, key = _k.UNEXPANDED, None
                 for b in (0, 1):
-                    c = kids[b]
-                    if c == _k.UNEXPANDED or tree.visits[c] == 0:
+                    c = first + b
+                    if visits[c] == 0:  # never created
                         continue
-                    k = (tree.visits[c], tree.value[c] / tree.visits[c])
+                    k = (visits[c], value[c] / visits[c])
                     if key is None or k > key:
                         best, key = b, k
                 deploy = best == 1
-                node = kids[best]
+                node = first + best
             else:  # never expanded: the rollout's rule on the conflict-discounted observation
                 selected = view.deployed.copy()
                 selected[:, j0] = decision
                 a = r * n_stages + j0
-                conflicts = int(np.count_nonzero(problem.conflict[a] & selected.reshape(-1)))
+                conflicts = int(np.count_nonzero(compile_problem(problem).conflict[a] & selected.reshape(-1)))
                 n, d = int(stages_left[r]), int(passengers_left[r])
                 if self.rollout == "ssap":
-                    deploy = view.observations[r, j0] / (1 + conflicts) > table[n, n - d]
+                    deploy = ssap.deploys(table, view.observations[r, j0] / (1 + conflicts), n, d)
                 else:
                     deploy = False
                 node = _k.UNEXPANDED

@@ -1,7 +1,9 @@
 """Prior kinds f(x) shared by the planner's instance files and the world's scenario files.
 
 One table, so a prior reads the same in a JSON instance and in a YAML scenario. Pure scipy:
-both the planner core and world/ import it (it imports neither). Every kind and parameter is
+both the planner core and world/ import it (it imports neither). :func:`support` gives a
+discrete prior's support points and masses, the one enumeration read by the thresholds
+(:mod:`planner.ssap`) and the sampler (:mod:`planner.compiled`). Every kind and parameter is
 documented in docs/planner.md.
 
 A spec is a mapping ``{"kind": KIND, PARAM: VALUE, ...}``. :func:`prior_problems` lists what is
@@ -132,3 +134,35 @@ def build_prior(spec: dict) -> Any:
     """The frozen ``scipy.stats`` distribution of a spec for which :func:`prior_problems` is empty."""
     _, build = PRIOR_KINDS[spec["kind"]]
     return build(spec)
+
+
+#: Tail mass ignored when enumerating an unbounded discrete support.
+TAIL = 1e-15
+
+
+def is_discrete(prior) -> bool:
+    """Whether a frozen scipy.stats distribution is discrete (has a pmf)."""
+    return hasattr(prior.dist, "pmf")
+
+
+def support(prior) -> tuple[np.ndarray, np.ndarray]:
+    """Support points float ``[K]`` (ascending) and their probabilities float ``[K]`` of a
+    discrete prior.
+
+    Unbounded supports are truncated where the tail mass is below :data:`TAIL` (the masses then
+    sum to slightly less than 1). Table priors (``scipy.stats.rv_discrete(values=...)``) give
+    their own, possibly non-integer, points; other discrete priors live on the integers.
+    """
+    if hasattr(prior.dist, "xk"):
+        # A table prior (scipy.stats.rv_discrete(values=(xk, pk))): arbitrary support points.
+        kwds = prior.kwds
+        loc, scale = kwds.get("loc", 0.0), kwds.get("scale", 1.0)
+        points = np.asarray(prior.dist.xk, dtype=float) * scale + loc
+        return points, np.asarray(prior.dist.pk, dtype=float)
+    lo, hi = prior.support()
+    if not np.isfinite(lo):
+        lo = prior.ppf(TAIL)
+    if not np.isfinite(hi):
+        hi = prior.ppf(1.0 - TAIL)
+    points = np.arange(lo, hi + 1, dtype=float)
+    return points, prior.pmf(points)

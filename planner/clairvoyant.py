@@ -5,7 +5,7 @@ fraction of it.
 
 The offline problem: carrier r deploys at exactly ``k_r = min(D_r, its valid stages)`` of its valid
 stages (valid = scheduled and observed, i.e. not NaN), and the total ``sum x / p`` under the penalty
-rule of :func:`coordinator.problem.penalties` is maximised.
+rule of :func:`planner.problem.penalties` is maximised.
 
 Exact method (branch and bound, compiled with numba):
 
@@ -36,7 +36,8 @@ from itertools import combinations
 import numba
 import numpy as np
 
-from coordinator.problem import Problem, evaluate
+from planner.compiled import compile_problem
+from planner.problem import Problem, evaluate
 
 #: Largest number of options one carrier may have for the exact search.
 MAX_OPTIONS = 200_000
@@ -250,7 +251,8 @@ def solve(problem: Problem, x: np.ndarray, max_nodes: int = MAX_NODES) -> Clairv
     flat_valid = valid.ravel()
     xs = np.where(flat_valid, np.nan_to_num(x.ravel(), nan=0.0), 0.0)
     # The conflict graph restricted to points that can be selected.
-    graph = problem.conflict & flat_valid[:, None] & flat_valid[None, :]
+    conflict = compile_problem(problem).conflict
+    graph = conflict & flat_valid[:, None] & flat_valid[None, :]
     overlapped = graph.any(axis=1).reshape(n_carriers, n_stages)
     dominance = bool((xs[flat_valid] >= 0).all())
     ks = np.array(
@@ -284,7 +286,7 @@ def solve(problem: Problem, x: np.ndarray, max_nodes: int = MAX_NODES) -> Clairv
     first = np.zeros(valid.shape, dtype=bool)
     for r, opts in enumerate(per_carrier):
         first[r, list(opts[0][1])] = True
-    incumbent = float((xs / (1.0 + problem.conflict[:, first.ravel()].sum(axis=1)))[first.ravel()].sum())
+    incumbent = float((xs / (1.0 + conflict[:, first.ravel()].sum(axis=1)))[first.ravel()].sum())
     best, best_opts, nodes, finished = _branch_and_bound(
         xs, flat_valid, nbr_ptr, nbr_idx, order, opt_ptr, opt_pts, opt_ub, ks, n_stages,
         incumbent, int(max_nodes),
@@ -310,13 +312,13 @@ def warm_up() -> None:
 
 
 def _benchmark(argv=None) -> None:
-    """``python -m coordinator.clairvoyant``: time the exact search on random paper-style instances."""
+    """``python -m planner.clairvoyant``: time the exact search on random paper-style instances."""
     import argparse
     import time
 
-    from coordinator.instance import random_instance
+    from planner.instance import random_instance
 
-    parser = argparse.ArgumentParser(prog="python -m coordinator.clairvoyant",
+    parser = argparse.ArgumentParser(prog="python -m planner.clairvoyant",
                                      description="Time the clairvoyant search on random instances.")
     parser.add_argument("--instances", type=int, default=200)
     parser.add_argument("--carriers", type=int, default=4)

@@ -1,0 +1,40 @@
+"""Numba twins of planner rules, shared by the MCTS and closed-loop kernels.
+
+Each function here is the compiled counterpart of exactly one Python definition; nothing else
+in the kernels restates these rules.
+"""
+from __future__ import annotations
+
+from numba import njit
+
+
+@njit(cache=True, inline="always")
+def forced(n, d):
+    """A carrier with ``n`` valid stages left (current included) and ``d`` passengers left must
+    deploy now: ``n <= d``."""
+    return n <= d
+
+
+@njit(cache=True, inline="always")
+def deploys(table, x, n, d):
+    """The threshold rule (twin of :func:`planner.ssap.deploys`): with ``d >= 1`` passengers
+    left, deploy iff forced or ``x > table[n, n - d]``."""
+    return n <= d or x > table[n, n - d]
+
+
+@njit(cache=True, inline="always")
+def deploys_u(ucut, u, n, d):
+    """:func:`deploys` for the draw ``x = quantile(u)`` of the compiled sampler, read from the
+    uniform alone: ``x > table[n, i]`` iff ``u >= ucut[n, i]`` (``ucut`` = CDF at the thresholds)."""
+    return n <= d or u >= ucut[n, n - d]
+
+
+@njit(cache=True, inline="always")
+def quantile(u, points, cdf, guide):
+    """Inverse CDF with a guide table (Chen & Asau), twin of :meth:`planner.compiled.Sampler.draw`
+    for discrete priors: the first point whose cumulative probability exceeds u in [0, 1).
+    ``guide[m]`` is the first index with ``cdf > m / len(guide)``; ``cdf[-1] == 1``."""
+    i = guide[int(u * guide.shape[0])]
+    while cdf[i] <= u:
+        i += 1
+    return points[i]

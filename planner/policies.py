@@ -1,0 +1,57 @@
+"""The two planners without a search: ``random`` and ``ssap`` (single-robot SSAP thresholds).
+
+Both follow :class:`planner.problem.Planner`: ``decide(view, rng) -> bool[R]`` reads only the causal
+:class:`~planner.problem.StageView` of the current stage and keeps no state across stages.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from planner import ssap
+from planner.compiled import compile_problem
+from planner.problem import Problem, StageView
+
+
+class RandomPlanner:
+    """Each carrier deploys at D uniformly random valid stages.
+
+    Stateless form: a carrier with ``d`` passengers left and ``n`` valid stages left (this one
+    included) deploys now with probability ``d / n``. Over a schedule without surprises this picks
+    ``min(D, valid stages)`` stages uniformly at random among all such subsets. ``d >= n`` gives
+    probability 1, which is exactly the forced deployment rule.
+    """
+
+    name = "random"
+
+    def decide(self, view: StageView, rng: np.random.Generator) -> np.ndarray:
+        d = view.passengers_left
+        n = view.stages_left
+        # One uniform per carrier, always drawn, so carrier r's draw does not depend on the others.
+        u = rng.random(view.problem.n_carriers)
+        prob = np.divide(d, n, out=np.zeros(len(d)), where=n > 0)
+        return view.can_deploy & (u < prob)
+
+
+class SSAPPlanner:
+    """Single-robot SSAP: each carrier applies its own DLR thresholds and ignores conflicts.
+
+    Deterministic (the random stream is unused): carrier r deploys iff its observation exceeds
+    ``a[n, n - d]`` for its ``n`` valid stages left and ``d`` passengers left, or it must deploy.
+    """
+
+    name = "ssap"
+
+    def warm_up(self, problem: Problem) -> None:
+        """Compute (and cache) the threshold table before the first timed decision."""
+        compile_problem(problem).table
+
+    def decide(self, view: StageView, rng: np.random.Generator) -> np.ndarray:
+        table = compile_problem(view.problem).table
+        x = view.observations[:, view.stage]
+        d = view.passengers_left
+        n = view.stages_left
+        can = view.can_deploy
+        out = np.zeros(view.problem.n_carriers, dtype=bool)
+        for r in np.flatnonzero(can):
+            out[r] = ssap.decide(table, float(x[r]), int(n[r]), int(d[r]))
+        return out

@@ -1,0 +1,257 @@
+"""Planner names, their options, defaults and validation: the one home for planner settings.
+
+Scenario files (``planner:`` block), the solve command, ``run_fleet.py`` and the experiments all
+take names and options from here:
+
+* :func:`planner_names` — every registered planner; :func:`register` adds one;
+* :data:`OPTIONS` — every option with its type, range, default and help text
+  (:data:`DEFAULT_ITERATIONS` and :data:`DEFAULT_EXPLORATION` live here and nowhere else);
+* :func:`check_settings` — validates a name and an options mapping, returning
+  :class:`SettingProblem` entries with field paths (``layout``, ``iterations``, ...) that callers
+  turn into their own one-line errors; :func:`parse_option` reads ``KEY=VALUE`` text;
+* :func:`make_planner` — builds a planner (heavy modules are imported lazily, on first use).
+
+Every planner follows :class:`planner.problem.Planner`. A planner uses only the options listed
+in its :class:`PlannerEntry`; the others are accepted and ignored (a scenario may switch planner
+without editing its budget).
+"""
+from __future__ import annotations
+
+import difflib
+import math
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping
+
+#: Default MCTS / closed-loop budget: iterations (full-fleet rollouts) per decision.
+DEFAULT_ITERATIONS = 10_000
+#: Default UCT exploration constant on normalised rewards (the paper's 0.05·√2).
+DEFAULT_EXPLORATION = 0.05 * math.sqrt(2.0)
+#: Default planner of a scenario.
+DEFAULT_PLANNER = "mcts-ssap"
+#: MCTS tree layouts (see planner.mcts.fast).
+LAYOUTS = ("auto", "joint", "binary")
+
+
+@dataclass(frozen=True)
+class Option:
+    """One planner option.
+
+    Attributes:
+        name: keyword of :func:`make_planner` (``plan_ms`` on the command line is ``--plan-ms``).
+        kind: ``int``, ``float`` or ``str``.
+        default: value used when the option is not given (``None``: "not set", e.g. ``plan_ms``).
+        minimum, maximum: inclusive range for numbers (``exclusive``: minimum excluded).
+        choices: allowed values of a ``str`` option.
+        help: one line, with units.
+    """
+
+    name: str
+    kind: type
+    default: Any
+    help: str
+    minimum: float | None = None
+    exclusive: bool = False
+    maximum: float | None = None
+    choices: tuple[str, ...] = ()
+
+    def expected(self) -> str:
+        """The "expected ..." text of an error about this option."""
+        if self.choices:
+            return f"one of {', '.join(self.choices)}"
+        text = "an integer" if self.kind is int else "a number"
+        if self.minimum is not None:
+            text += f" {'>' if self.exclusive else '>='} {self.minimum:g}"
+        if self.maximum is not None:
+            text += f"{' and' if self.minimum is not None else ''} <= {self.maximum:g}"
+        return text
+
+    def check(self, value: Any) -> Any:
+        """The value normalised (ints as int, numbers as float); raises ValueError with
+        :meth:`expected` when it is out of type or range."""
+        if self.choices:
+            if not isinstance(value, str) or value not in self.choices:
+                raise ValueError(self.expected())
+            return value
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise ValueError(self.expected())
+        if self.kind is int and not float(value).is_integer():
+            raise ValueError(self.expected())
+        if self.minimum is not None and (value <= self.minimum if self.exclusive else value < self.minimum):
+            raise ValueError(self.expected())
+        if self.maximum is not None and value > self.maximum:
+            raise ValueError(self.expected())
+        return int(value) if self.kind is int else float(value)
+
+
+#: Every planner option, in the order they are documented.
+OPTIONS: dict[str, Option] = {o.name: o for o in (
+    Option("iterations", int, DEFAULT_ITERATIONS, "iterations (full-fleet rollouts) per decision",
+           minimum=1, maximum=1e9),
+    Option("plan_ms", float, None, "time budget per decision, milliseconds (anytime; replaces iterations)",
+           minimum=0, exclusive=True),
+    Option("exploration", float, DEFAULT_EXPLORATION, "UCT constant c on normalised rewards (default 0.05*sqrt(2))",
+           minimum=0),
+    Option("samples", int, 1, "Monte Carlo rollouts per iteration", minimum=1, maximum=1e6),
+    Option("layout", str, "auto", "MCTS tree: auto (joint up to 8 carriers), joint or binary", choices=LAYOUTS),
+)}
+
+
+@dataclass(frozen=True)
+class PlannerEntry:
+    """A registered planner: ``factory(**options)`` receives only the ``options`` it uses."""
+
+    name: str
+    factory: Callable[..., object]
+    options: tuple[str, ...] = ()
+
+
+#: name -> entry. Filled by :func:`register` below and by other modules.
+_REGISTRY: dict[str, PlannerEntry] = {}
+
+
+def register(name: str, factory: Callable[..., object], options: tuple[str, ...] | None = None) -> None:
+    """Make ``make_planner(name, **options)`` return ``factory(**used)``.
+
+    ``options``: the option names the planner uses (all of :data:`OPTIONS` when None); ``used``
+    holds those the caller gave (not None). Re-registering a name replaces it.
+    """
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"planner name must be a non-empty string, got {name!r}")
+    used = tuple(OPTIONS) if options is None else tuple(options)
+    unknown = sorted(set(used) - set(OPTIONS))
+    if unknown:
+        raise ValueError(f"unknown planner option(s) {unknown}; expected some of: {', '.join(OPTIONS)}")
+    _REGISTRY[name] = PlannerEntry(name, factory, used)
+
+
+def planner_names() -> tuple[str, ...]:
+    """Registered planner names, sorted."""
+    return tuple(sorted(_REGISTRY))
+
+
+def defaults() -> dict[str, Any]:
+    """Every option's default (``plan_ms``: None)."""
+    return {name: opt.default for name, opt in OPTIONS.items()}
+
+
+@dataclass(frozen=True)
+class SettingProblem:
+    """One thing wrong with planner settings: ``field`` is ``"name"`` or an option name."""
+
+    field: str
+    expected: str
+    found: Any
+
+
+def check_settings(name: Any, options: Mapping[str, Any]) -> list[SettingProblem]:
+    """Everything wrong with a planner name and its options (``None`` values mean "default");
+    empty when they are fine."""
+    problems = []
+    names = tuple(_REGISTRY)  # registration order: the paper's planners first
+    if not isinstance(name, str) or name not in names:
+        close = difflib.get_close_matches(str(name), names, n=1, cutoff=0.5)
+        hint = f" (did you mean '{close[0]}'?)" if close else ""
+        problems.append(SettingProblem("name", f"one of {', '.join(names)}{hint}", name))
+    for key, value in options.items():
+        opt = OPTIONS.get(key)
+        if opt is None:
+            problems.append(SettingProblem(key, f"a planner option ({', '.join(OPTIONS)})", value))
+            continue
+        if value is None:
+            continue
+        try:
+            opt.check(value)
+        except ValueError as err:
+            problems.append(SettingProblem(key, str(err), value))
+    return problems
+
+
+def parse_option(text: str) -> tuple[str, Any]:
+    """``KEY=VALUE`` (command-line ``--planner-option``) -> (key, checked value).
+
+    Raises:
+        ValueError: one line, e.g. ``layout: expected one of auto, joint, binary, found 'tree'``.
+    """
+    key, sep, raw = text.partition("=")
+    key = key.strip().replace("-", "_")
+    if not sep or key not in OPTIONS:
+        raise ValueError(f"expected KEY=VALUE with KEY one of {', '.join(OPTIONS)}, found {text!r}")
+    opt = OPTIONS[key]
+    value: Any = raw.strip()
+    if opt.kind in (int, float):
+        try:
+            value = opt.kind(value)
+        except ValueError:
+            raise ValueError(f"{key}: expected {opt.expected()}, found {raw!r}") from None
+    try:
+        return key, opt.check(value)
+    except ValueError as err:
+        raise ValueError(f"{key}: expected {err}, found {raw!r}") from None
+
+
+def make_planner(name: str, **options) -> object:
+    """Build a planner by name.
+
+    Args:
+        name: one of :func:`planner_names`.
+        **options: any of :data:`OPTIONS`; ``None`` values mean "default". Options the planner
+            does not use are ignored.
+
+    Raises:
+        ValueError: unknown name (the message lists the valid names), unknown option, or a value
+            out of type or range (one line naming the option).
+    """
+    entry = _REGISTRY.get(name)
+    if entry is None:
+        raise ValueError(f"unknown planner {name!r}; expected one of: {', '.join(planner_names())}")
+    unknown = sorted(set(options) - set(OPTIONS))
+    if unknown:
+        raise ValueError(f"unknown planner option(s) {unknown}; expected some of: {', '.join(OPTIONS)}")
+    used = {}
+    for key, value in options.items():
+        if value is None or key not in entry.options:
+            continue
+        try:
+            used[key] = OPTIONS[key].check(value)
+        except ValueError as err:
+            raise ValueError(f"{key} must be {err}, got {value!r}") from None
+    return entry.factory(**used)
+
+
+# ----------------------------------------------------------------------------- the planners
+# Factories import their modules lazily: the MCTS and closed-loop modules load numba kernels.
+
+
+def _random(**_):
+    from planner.policies import RandomPlanner
+
+    return RandomPlanner()
+
+
+def _ssap(**_):
+    from planner.policies import SSAPPlanner
+
+    return SSAPPlanner()
+
+
+def _mcts(rollout: str) -> Callable[..., object]:
+    def factory(**options):
+        from planner.mcts.fast import MCTSPlanner
+
+        return MCTSPlanner(rollout=rollout, **options)
+
+    return factory
+
+
+def _closed_loop(**options):
+    from planner.closedloop import ClosedLoopPlanner  # see docs/results.md
+
+    return ClosedLoopPlanner(**options)
+
+
+_MCTS_OPTIONS = ("iterations", "plan_ms", "exploration", "samples", "layout")
+register("random", _random, options=())
+register("ssap", _ssap, options=())
+register("mcts-random", _mcts("random"), options=_MCTS_OPTIONS)
+register("mcts-ssap", _mcts("ssap"), options=_MCTS_OPTIONS)
+register("closed-loop", _closed_loop, options=("iterations", "plan_ms"))
