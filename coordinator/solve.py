@@ -2,7 +2,7 @@
 
     python -m coordinator.solve INSTANCE.json --planner NAME [--iterations K] [--plan-ms MS]
                                 [--seed S] [--exploration C] [--samples M] [--layout L]
-                                [--no-clairvoyant]
+                                [--no-clairvoyant] [--no-online-optimum]
 
 A thin command line: planner names, options, their ranges and defaults come from
 :mod:`planner.registry` (one flag per option), the work from :func:`planner.solve.solve_instance`.
@@ -13,7 +13,14 @@ Output (stdout, one JSON object)::
      "reward": normalised total with penalties, "features": raw total (sum of x / p),
      "decision_ms": [wall time per stage], "observations": [[x or null, ...] per carrier],
      "observations_sampled": bool,
-     "clairvoyant": {"reward": ..., "features": ..., "exact": bool}}
+     "clairvoyant": {"reward": ..., "features": ..., "exact": bool},
+     "online_optimum": {"expected_reward": V*, "exact": bool, "atoms": K,
+                        "planner_expected_reward": ...}}
+
+``online_optimum`` (planner/online_optimal.py) is the expected reward of the Bayes-optimal online
+policy, present only when the instance is small enough (``AUTO_WORK``); ``planner_expected_reward``
+is the exact expected reward of the planner run, for ``ssap``, ``random`` and ``online-optimal``.
+``--planner online-optimal`` on an instance beyond the exact solver's limits exits 2 with one line.
 
 Exit codes: 0 success; 2 bad input (unreadable or invalid instance file, bad arguments, unknown
 planner) with one line on stderr; 1 the planner could not be built (e.g. its module is missing).
@@ -28,6 +35,7 @@ import sys
 from typing import Sequence
 
 from planner.instance import InstanceError
+from planner.online_optimal import TooLarge
 from planner.registry import OPTIONS, Option, make_planner, planner_names
 from planner.solve import solve_instance
 
@@ -83,6 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=_seed, default=0,
                         help="root seed: the planner's streams, and the observations when the file has none")
     parser.add_argument("--no-clairvoyant", action="store_true", help="skip the clairvoyant bound")
+    parser.add_argument("--no-online-optimum", action="store_true",
+                        help="skip the exact online optimum (computed only for small instances anyway)")
     return parser
 
 
@@ -103,8 +113,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{prog}: error: planner {args.planner!r}: {err}", file=sys.stderr)
         return EXIT_INPUT
     try:
-        out = solve_instance(args.instance, planner, args.planner, args.seed, clairvoyant=not args.no_clairvoyant)
-    except InstanceError as err:
+        out = solve_instance(args.instance, planner, args.planner, args.seed, clairvoyant=not args.no_clairvoyant,
+                             online_optimum=not args.no_online_optimum)
+    except (InstanceError, TooLarge) as err:
         print(str(err), file=sys.stderr)
         return EXIT_INPUT
     try:

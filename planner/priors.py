@@ -145,12 +145,12 @@ def is_discrete(prior) -> bool:
     return hasattr(prior.dist, "pmf")
 
 
-def support(prior) -> tuple[np.ndarray, np.ndarray]:
+def support(prior, tail: float = TAIL) -> tuple[np.ndarray, np.ndarray]:
     """Support points float ``[K]`` (ascending) and their probabilities float ``[K]`` of a
     discrete prior.
 
-    Unbounded supports are truncated where the tail mass is below :data:`TAIL` (the masses then
-    sum to slightly less than 1). Table priors (``scipy.stats.rv_discrete(values=...)``) give
+    Unbounded supports are truncated where the tail mass is below ``tail`` (:data:`TAIL` by
+    default; the masses then sum to slightly less than 1). Table priors (``scipy.stats.rv_discrete(values=...)``) give
     their own, possibly non-integer, points; other discrete priors live on the integers.
     """
     if hasattr(prior.dist, "xk"):
@@ -161,8 +161,8 @@ def support(prior) -> tuple[np.ndarray, np.ndarray]:
         return points, np.asarray(prior.dist.pk, dtype=float)
     lo, hi = prior.support()
     if not np.isfinite(lo):
-        lo = prior.ppf(TAIL)
+        lo = prior.ppf(tail)
     if not np.isfinite(hi):
-        hi = prior.ppf(1.0 - TAIL)
+        hi = prior.ppf(1.0 - tail)
     points = np.arange(lo, hi + 1, dtype=float)
     return points, prior.pmf(points)

@@ -249,9 +249,17 @@ def _closed_loop(**options):
     return ClosedLoopPlanner(**options)
 
 
+def _online_optimal(**_):
+    # The exact Bayes-optimal policy for small instances; budget options do not apply to it.
+    from planner.online_optimal import OnlineOptimalPlanner
+
+    return OnlineOptimalPlanner()
+
+
 _MCTS_OPTIONS = ("iterations", "plan_ms", "exploration", "samples", "layout")
 register("random", _random, options=())
 register("ssap", _ssap, options=())
 register("mcts-random", _mcts("random"), options=_MCTS_OPTIONS)
 register("mcts-ssap", _mcts("ssap"), options=_MCTS_OPTIONS)
 register("closed-loop", _closed_loop, options=("iterations", "plan_ms"))
+register("online-optimal", _online_optimal, options=())

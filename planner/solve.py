@@ -13,16 +13,21 @@ from planner.instance import load_instance
 from planner.problem import run_online
 
 
-def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clairvoyant: bool = True) -> dict:
+def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clairvoyant: bool = True,
+                   online_optimum: bool = True) -> dict:
     """Load the instance at ``path``, run ``planner`` online with root seed ``seed``, evaluate.
 
     Returns:
         ``{"planner", "seed", "deployments" [[stage, ...] per carrier], "reward", "features",
         "decision_ms" [ms per stage], "observations" [[x or None]], "observations_sampled",
-        "clairvoyant" {"reward", "features", "exact"} (with ``clairvoyant``)}``.
+        "clairvoyant" {"reward", "features", "exact"} (with ``clairvoyant``),
+        "online_optimum" {"expected_reward", "exact", "atoms"[, "planner_expected_reward"]} (with
+        ``online_optimum``, when the instance is within :data:`planner.online_optimal.AUTO_WORK`)}``.
 
     Raises:
         planner.instance.InstanceError: a bad instance file (one line).
+        planner.online_optimal.TooLarge: ``planner`` is ``online-optimal`` and the instance is
+            beyond its limits (one line).
     """
     (problem, x), sampled = load_instance(path, seed=seed)
     result = run_online(problem, x, planner, seed)
@@ -41,4 +46,26 @@ def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clai
 
         bound = bound_mod.solve(problem, x)
         out["clairvoyant"] = {"reward": bound.reward, "features": bound.features, "exact": bound.exact}
+    if online_optimum:
+        optimum = _online_optimum(problem, planner_name)
+        if optimum is not None:
+            out["online_optimum"] = optimum
+    return out
+
+
+def _online_optimum(problem, planner_name: str) -> dict | None:
+    """V* (and the planner's own exact value when the recursion can weigh its actions), or None
+    when the instance is beyond :data:`planner.online_optimal.AUTO_WORK`."""
+    from planner import online_optimal
+
+    try:
+        best = online_optimal.online_value(problem, "optimal", max_work=online_optimal.AUTO_WORK)
+    except online_optimal.TooLarge:
+        return None
+    out = {"expected_reward": best.expected_reward, "exact": best.exact, "atoms": best.atoms}
+    if planner_name == "online-optimal":
+        out["planner_expected_reward"] = best.expected_reward
+    elif planner_name in ("ssap", "random"):
+        own = online_optimal.online_value(problem, planner_name, max_work=online_optimal.AUTO_WORK)
+        out["planner_expected_reward"] = own.expected_reward
     return out

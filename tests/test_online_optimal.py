@@ -1,0 +1,242 @@
+"""The exact online optimum V* against independent oracles.
+
+* one carrier, no overlaps: V* is the DLR optimum (``ssap.expected_value``), ∅ stages included;
+* no overlaps: V* is the sum of the carriers' DLR optima;
+* conflicted tiny instances: V* equals a plain full-history expectimax written here; the exact
+  values of ``ssap`` and of ``online-optimal`` itself equal the enumeration of every observation
+  matrix through ``run_online``; V* is at least the exact values of ssap and random and at most
+  the clairvoyant Monte Carlo mean;
+* simulating ``online-optimal`` over sampled observations reproduces V*;
+* too-large instances are refused quickly with one line (exit 2 from the CLI).
+"""
+from __future__ import annotations
+
+import itertools
+import json
+import time
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from coordinator import solve
+from planner import clairvoyant, online_optimal, priors, ssap
+from planner.instance import load_instance, random_instance
+from planner.online_optimal import OnlineOptimalPlanner, TooLarge, discretise, online_value
+from planner.registry import make_planner
+from planner.problem import Problem, evaluate, run_online, sample_observations
+
+#: A three-point prior that keeps enumerations small (q90 = 3, so rewards are in thirds).
+THREE = stats.rv_discrete(values=([0.0, 1.0, 3.0], [0.3, 0.4, 0.3]))()
+#: A two-point prior for the four-stage cases.
+TWO = stats.rv_discrete(values=([1.0, 4.0], [0.6, 0.4]))()
+
+
+def _naive_expectimax(problem: Problem, prior) -> float:
+    """Full-history expectimax: every valid carrier's observation enumerated at every stage, every
+    feasible joint action tried, the full trajectory scored by ``evaluate`` at the end."""
+    points, probs = priors.support(prior)
+    n_carriers, n_stages = problem.valid.shape
+
+    def rec(j, x, deployed):
+        if j == n_stages:
+            return evaluate(problem, deployed, x)[0]
+        left = problem.passengers - deployed.sum(axis=1)
+        stages_left = problem.valid[:, j:].sum(axis=1)
+        seen = np.flatnonzero(problem.valid[:, j])
+        can = [r for r in seen if left[r] > 0]
+        must = [r for r in can if stages_left[r] <= left[r]]
+        total = 0.0
+        for outcome in itertools.product(range(len(points)), repeat=len(seen)):
+            x2 = x.copy()
+            x2[seen, j] = points[list(outcome)]
+            best = -np.inf
+            for size in range(len(can) + 1):
+                for subset in itertools.combinations(can, size):
+                    if not set(must) <= set(subset):
+                        continue
+                    d2 = deployed.copy()
+                    d2[list(subset), j] = True
+                    best = max(best, rec(j + 1, x2, d2))
+            total += float(np.prod(probs[list(outcome)])) * best
+        return total
+
+    return rec(0, np.where(problem.valid, 0.0, np.nan), np.zeros(problem.valid.shape, bool))
+
+
+def _enumerated_policy_value(problem: Problem, prior, planner) -> float:
+    """Expected reward of a deterministic planner: ``run_online`` over every observation matrix."""
+    points, probs = priors.support(prior)
+    cells = np.argwhere(problem.valid)
+    total = 0.0
+    for outcome in itertools.product(range(len(points)), repeat=len(cells)):
+        x = np.full(problem.valid.shape, np.nan)
+        x[cells[:, 0], cells[:, 1]] = points[list(outcome)]
+        total += float(np.prod(probs[list(outcome)])) * run_online(problem, x, planner, 0).reward
+    return total
+
+
+# ----------------------------------------------------------------------------- DLR oracles
+
+@pytest.mark.parametrize("prior", [stats.poisson(3.0), THREE, stats.binom(5, 0.3)], ids=["poisson3", "table", "binomial"])
+def test_one_carrier_without_overlaps_is_the_dlr_optimum(prior):
+    table = ssap.thresholds(prior, 9)
+    for n in range(1, 9):
+        for d in range(0, n + 2):
+            problem = Problem.build(d, np.ones((1, n), bool), prior=prior)
+            got = online_value(problem).expected_reward * problem.scale
+            assert got == pytest.approx(ssap.expected_value(table, n, d), rel=1e-8, abs=1e-8), (n, d)
+
+
+def test_one_carrier_with_invalid_stages_is_the_dlr_optimum_of_its_valid_stages():
+    table = ssap.thresholds(stats.poisson(3.0), 9)
+    rng = np.random.default_rng(3)
+    for _ in range(12):
+        valid = rng.random((1, 9)) < 0.6
+        d = int(rng.integers(0, 5))
+        problem = Problem.build(d, valid)
+        got = online_value(problem).expected_reward * problem.scale
+        assert got == pytest.approx(ssap.expected_value(table, int(valid.sum()), d), rel=1e-8, abs=1e-8)
+
+
+def test_without_overlaps_it_is_the_sum_of_the_carriers_dlr_optima():
+    valid = np.array([[1, 1, 0, 1, 1, 1], [0, 1, 1, 1, 1, 0], [1, 1, 1, 1, 1, 1]], bool)
+    problem = Problem.build([2, 1, 3], valid)
+    table = ssap.table_for(problem)
+    expected = sum(ssap.expected_value(table, int(valid[r].sum()), int(d)) for r, d in enumerate([2, 1, 3]))
+    assert online_value(problem).expected_reward * problem.scale == pytest.approx(expected, rel=1e-8)
+    # With no conflicts SSAP is optimal: its exact value is the same.
+    assert online_value(problem, "ssap").expected_reward == pytest.approx(online_value(problem).expected_reward)
+
+
+# ----------------------------------------------------------------------------- conflicted tiny instances
+
+#: name -> (passengers, valid, overlaps, prior): R = 2 or 3, N = 2..4, self-conflicts, ∅ stages.
+TINY = {
+    "two-by-three": (1, np.ones((2, 3), bool), [[[0, 0], [1, 1]], [[0, 2], [1, 2]]], THREE),
+    "two-by-three-d2": (2, np.ones((2, 3), bool), [[[0, 0], [1, 0], [1, 2]], [[0, 1], [0, 2]]], THREE),
+    "three-by-two": ([1, 1, 2], np.ones((3, 2), bool), [[[0, 1], [1, 0], [2, 1]]], THREE),
+    "two-by-four-invalid": ([2, 1], np.array([[1, 1, 0, 1], [1, 1, 1, 1]], bool),
+                            [[[0, 0], [1, 3]], [[0, 1], [1, 1], [0, 3]]], TWO),
+}
+
+
+@pytest.mark.parametrize("case", list(TINY))
+def test_tiny_conflicted_instances_against_full_history_expectimax(case):
+    passengers, valid, overlaps, prior = TINY[case]
+    problem = Problem.build(passengers, valid, overlaps, prior)
+    best = online_value(problem)
+    assert best.exact
+    assert best.expected_reward == pytest.approx(_naive_expectimax(problem, prior), rel=1e-12)
+    # The policy's decisions achieve V*; the exact SSAP value is what SSAP achieves.
+    assert _enumerated_policy_value(problem, prior, OnlineOptimalPlanner()) == pytest.approx(best.expected_reward, rel=1e-12)
+    ssap_value = online_value(problem, "ssap").expected_reward
+    assert _enumerated_policy_value(problem, prior, make_planner("ssap")) == pytest.approx(ssap_value, rel=1e-12)
+    assert best.expected_reward >= ssap_value - 1e-12
+    assert best.expected_reward >= online_value(problem, "random").expected_reward - 1e-12
+
+
+def test_random_policy_value_matches_its_simulation():
+    problem = Problem.build(2, np.ones((2, 4), bool), [[[0, 1], [1, 1], [1, 2]], [[0, 3], [1, 0]]], THREE)
+    exact = online_value(problem, "random").expected_reward
+    rng = np.random.default_rng(11)
+    rewards = [run_online(problem, sample_observations(problem, rng), make_planner("random"), seed).reward
+               for seed in range(3000)]
+    se = np.std(rewards) / np.sqrt(len(rewards))
+    assert abs(np.mean(rewards) - exact) < 4 * se
+
+
+@pytest.fixture(scope="module")
+def poisson_instance():
+    """R = 2, N = 6, D = 2, Poisson(3), three overlap groups with a self-conflict."""
+    overlaps = [[[0, 1], [1, 2]], [[1, 3], [0, 4], [0, 5]], [[1, 0], [1, 4]]]
+    return Problem.build(2, np.ones((2, 6), bool), overlaps)
+
+
+def test_online_optimum_lies_between_ssap_and_the_clairvoyant_mean(poisson_instance):
+    problem = poisson_instance
+    best = online_value(problem).expected_reward
+    assert best >= online_value(problem, "ssap").expected_reward
+    rng = np.random.default_rng(5)
+    bounds = [clairvoyant.solve(problem, sample_observations(problem, rng)).reward for _ in range(1500)]
+    mean, se = np.mean(bounds), np.std(bounds) / np.sqrt(len(bounds))
+    assert best <= mean + 3 * se
+    assert best < mean  # not knowing the future has a price here
+
+
+def test_simulated_policy_reproduces_the_online_optimum(poisson_instance):
+    problem = poisson_instance
+    best = online_value(problem).expected_reward
+    planner = make_planner("online-optimal")
+    rng = np.random.default_rng(8)
+    rewards = [run_online(problem, sample_observations(problem, rng), planner, 0).reward for _ in range(1500)]
+    se = np.std(rewards) / np.sqrt(len(rewards))
+    assert abs(np.mean(rewards) - best) < 4 * se
+
+
+def test_policy_handles_online_surprises(poisson_instance):
+    """A scheduled stage turned ∅ online: decisions stay feasible (run_online enforces them)."""
+    problem = poisson_instance
+    x = sample_observations(problem, np.random.default_rng(2))
+    x[0, 1] = x[1, 4] = x[0, 5] = np.nan
+    result = run_online(problem, x, make_planner("online-optimal"), 0)
+    assert not result.deployed[0, 1] and not result.deployed[1, 4] and not result.deployed[0, 5]
+
+
+def test_continuous_prior_is_discretised_into_equiprobable_atoms():
+    prior = stats.gamma(2.0, scale=1.5)
+    atoms = discretise(prior)
+    assert not atoms.exact and len(atoms.points) == online_optimal.CONTINUOUS_ATOMS
+    assert np.allclose(atoms.probs, 1 / len(atoms.points))
+    assert float(atoms.points @ atoms.probs) == pytest.approx(prior.mean(), rel=1e-6)
+    assert np.all(np.diff(atoms.points) > 0)
+    poisson = discretise(stats.poisson(3.0))
+    assert poisson.exact and poisson.points[0] == 0
+    assert stats.poisson(3.0).sf(poisson.points[-1]) < online_optimal.TAIL_MASS
+    problem = Problem.build(1, np.ones((2, 3), bool), [[[0, 1], [1, 1]]], prior)
+    value = online_value(problem)
+    assert not value.exact and value.expected_reward > 0
+
+
+# ----------------------------------------------------------------------------- limits and the CLI
+
+def test_too_large_instances_are_refused_quickly():
+    problem = random_instance(np.random.default_rng(0)).problem  # the paper's size: R = 4, N = 10
+    start = time.perf_counter()
+    with pytest.raises(TooLarge) as err:
+        online_value(problem)
+    assert time.perf_counter() - start < 2.0
+    assert isinstance(err.value, ValueError) and "\n" not in str(err.value) and "too large" in str(err.value)
+    with pytest.raises(TooLarge):
+        OnlineOptimalPlanner().warm_up(problem)
+
+
+def _write(tmp_path, data, name="instance.json"):
+    path = tmp_path / name
+    path.write_text(json.dumps(data))
+    return str(path)
+
+
+def test_solve_reports_the_online_optimum_on_small_instances(tmp_path, capsys):
+    small = {"carriers": 2, "passengers": 2, "stages": 5, "overlaps": [[[0, 1], [1, 2]], [[1, 3], [0, 4]]]}
+    path = _write(tmp_path, small)
+    assert solve.main([path, "--planner", "ssap", "--no-clairvoyant"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    (problem, _), _ = load_instance(path)
+    assert out["online_optimum"]["exact"] is True
+    assert out["online_optimum"]["expected_reward"] == pytest.approx(online_value(problem).expected_reward)
+    assert out["online_optimum"]["planner_expected_reward"] == pytest.approx(online_value(problem, "ssap").expected_reward)
+    assert solve.main([path, "--planner", "online-optimal", "--no-clairvoyant", "--no-online-optimum"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert "online_optimum" not in out and len(out["deployments"][0]) == 2
+
+
+def test_solve_omits_it_on_large_instances_and_refuses_the_planner_with_exit_2(tmp_path, capsys):
+    large = {"carriers": 4, "passengers": 3, "stages": 10,
+             "overlaps": [[[r, j], [(r + 1) % 4, j + 1]] for r in range(4) for j in range(0, 9, 2)]}
+    path = _write(tmp_path, large)
+    assert solve.main([path, "--planner", "ssap", "--no-clairvoyant"]) == 0
+    assert "online_optimum" not in json.loads(capsys.readouterr().out)
+    assert solve.main([path, "--planner", "online-optimal", "--no-clairvoyant"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and len(captured.err.splitlines()) == 1 and "too large" in captured.err
