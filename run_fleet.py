@@ -300,7 +300,7 @@ def run_all(args, scenario, stop: threading.Event) -> int:
         print(f"run_fleet.py: the coordinator exited with code {code}", file=sys.stderr)
         return code or 1
     summary = json.loads(summary_path.read_text())
-    bound = summary.get("clairvoyant", {})
+    bound = summary.get("clairvoyant") or {}  # None: the coordinator was stopped before the bound
     lat = summary.get("latency_ms", {})
     print(f"total reward {summary['total_reward']:.3f} (features {summary['total_features']:.1f}); "
           f"clairvoyant {'optimum' if bound.get('exact') else 'bound'} {bound.get('reward', float('nan')):.3f} "

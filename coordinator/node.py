@@ -404,8 +404,13 @@ class Coordinator:
                 raise
             self.apply(ev.Ended("stopped", time.time()))
         finally:
-            summary = self.summary(time.monotonic() - started)
-            (out / "summary.json").write_text(json.dumps(summary, indent=2, default=_jsonable))
+            # Twice: at once without the clairvoyant bound, then with it, each write atomic, so a
+            # coordinator killed while the bound is computed (its launcher's grace after Ctrl-C is
+            # a few seconds) still leaves a complete summary.json.
+            wall_s = time.monotonic() - started
+            _write_json(out / "summary.json", self.summary(wall_s, bound=False))
+            summary = self.summary(wall_s)
+            _write_json(out / "summary.json", summary)
             if self.node is not None:
                 self.node.close(DEFAULTS.close_s)
             if self.config.render:
@@ -414,12 +419,12 @@ class Coordinator:
         return summary
 
     # ------------------------------------------------------------------ results
-    def summary(self, wall_s: float) -> dict:
+    def summary(self, wall_s: float, bound: bool = True) -> dict:
         return mission_summary(self.state, self.problem, RunInfo(
             scenario=self.scenario.name, scenario_file=str(self.scenario_path), mission=self.mission,
             planner=self.planner_name, planner_options=self.planner_options, seed=self.seed,
             pid=os.getpid(), host=socket.gethostname(), wall_time_s=wall_s,
-            rejected=dict(self.node.rejected) if self.node else {}))
+            rejected=dict(self.node.rejected) if self.node else {}), bound=bound)
 
     def _render(self, path: Path) -> None:
         st = self.state
@@ -432,6 +437,13 @@ class Coordinator:
                              title=f"{self.scenario.name}: {self.planner_name}, seed {self.seed}")
         except Exception as exc:
             self.log(f"coordinator: map.png not drawn: {type(exc).__name__}: {exc}")
+
+
+def _write_json(path: Path, data: dict) -> None:
+    """Replace ``path`` with ``data`` as JSON atomically (a reader sees the old or the new file)."""
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2, default=_jsonable))
+    os.replace(tmp, path)
 
 
 def _jsonable(value):

@@ -56,8 +56,12 @@ def clairvoyant_bound(problem, x: np.ndarray, total_reward: float) -> dict:
             "fraction": (total_reward / bound.reward) if bound.reward > 0 else None}
 
 
-def summary(state: MissionState, problem, run: RunInfo) -> dict:
-    """The summary.json dict of a mission in ``state``."""
+def summary(state: MissionState, problem, run: RunInfo, bound: bool = True) -> dict:
+    """The summary.json dict of a mission in ``state``.
+
+    ``bound=False`` leaves ``"clairvoyant"`` as None (the bound can take seconds when its
+    kernels are not compiled yet; a stopping coordinator writes the summary without it first).
+    """
     spec = state.spec
     x = state.observations()
     actual = state.confirmed_deployments()
@@ -96,7 +100,7 @@ def summary(state: MissionState, problem, run: RunInfo) -> dict:
                       for j in range(spec.n_stages)],
         "observations": [[None if math.isnan(v) else float(v) for v in row] for row in x],
         "total_reward": float(total_reward), "total_features": float(total_features),
-        "clairvoyant": clairvoyant_bound(problem, x, float(total_reward)),
+        "clairvoyant": clairvoyant_bound(problem, x, float(total_reward)) if bound else None,
         "wall_time_s": float(run.wall_time_s),
         "latency_ms": {"p50": percentile(latencies, 50), "p99": percentile(latencies, 99),
                        "count": len(latencies),

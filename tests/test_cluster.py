@@ -12,6 +12,9 @@ import pytest
 
 from localports import distinct_free_ports
 
+#: Marked slow (a Dask scheduler and two workers: about a minute): run by .ci/run after the default suite.
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[1]
 #: Every column of a trial row except the wall-clock timings.
 TIMING = {"decision_ms_mean", "decision_ms_max", "wall_s"}

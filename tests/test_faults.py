@@ -27,6 +27,9 @@ from wire.zconfig import free_port
 import netns
 from fleet_helpers import ROOT, db_rows, deployed_matrix
 
+#: Marked slow (faults over real processes and network namespaces: about a minute): run by .ci/run after the default suite.
+pytestmark = pytest.mark.slow
+
 RUN_FLEET = str(ROOT / "run_fleet.py")
 
 def faults_yaml(stages: int) -> str:

@@ -28,12 +28,13 @@ from fleet_helpers import ROOT, TINY
 RUN_FLEET = str(ROOT / "run_fleet.py")
 RUNS = 50
 CONCURRENT = 4
-#: Where the clock for the SIGINT starts: most runs from the coordinator's first line (its
-#: store is open and its session up: the signal lands in the join, the stages, the shutdown),
-#: the others from the launcher's first line (the children's start-up).
-MISSION_LINE, LAUNCH_LINE = "coordinator: mission", "run_fleet.py: coordinator pid"
-#: SIGINT lands this long (s, uniform) after that line.
-DELAY_S = (0.0, 2.5)
+#: Where the clock for the SIGINT starts, with the share of runs and the delay range (s,
+#: uniform): the launcher's first line (the children's start-up), the coordinator's first line
+#: (store open, session up: the join), and the first stage's line (the stages and the shutdown;
+#: at --realtime 10 a stage lasts 0.5 s, the whole mission about 2 s).
+LAUNCH_LINE, MISSION_LINE, STAGE_LINE = "run_fleet.py: coordinator pid", "coordinator: mission", "stage   1/"
+ANCHORS = ((LAUNCH_LINE, 0.2, (0.0, 1.5)), (MISSION_LINE, 0.3, (0.0, 1.5)), (STAGE_LINE, 0.5, (0.0, 2.2)))
+REALTIME = "10"
 
 
 def _alive(pid: int) -> bool:
@@ -47,7 +48,7 @@ def _alive(pid: int) -> bool:
 def _one_run(out, anchor: str, delay_s: float, result: dict) -> None:
     proc = subprocess.Popen(
         [sys.executable, RUN_FLEET, str(TINY), "--out", str(out), "--planner", "ssap", "--no-map",
-         "--realtime", "20", "--join-timeout", "10"],
+         "--realtime", REALTIME, "--join-timeout", "10"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     lines = []
     try:
@@ -79,8 +80,9 @@ def test_sigint_at_random_moments_never_cuts_a_step_in_half(tmp_path):
     spec = ms.MissionSpec.build(tiny.carrier_ids, problem.valid, problem.passengers, tiny.stage_times(),
                                 scenario_fingerprint(tiny))
     rng = np.random.default_rng(20261128)
-    delays = rng.uniform(*DELAY_S, size=RUNS)
-    anchors = [LAUNCH_LINE if u < 0.2 else MISSION_LINE for u in rng.uniform(size=RUNS)]
+    picks = rng.choice(len(ANCHORS), size=RUNS, p=[share for _, share, _ in ANCHORS])
+    anchors = [ANCHORS[k][0] for k in picks]
+    delays = [rng.uniform(*ANCHORS[k][2]) for k in picks]
     results = [dict() for _ in range(RUNS)]
     pending = list(range(RUNS))
     running: list[threading.Thread] = []
@@ -123,3 +125,4 @@ def test_sigint_at_random_moments_never_cuts_a_step_in_half(tmp_path):
           f"stages decided when stopped -> runs: {spread}")
     assert stopped >= RUNS // 2  # most signals landed inside a run
     assert len(spread) >= 3  # the signals landed at several points of the mission
+    assert sum(1 for n in stages if 0 < n < tiny.stages) >= RUNS // 5  # many in mid-mission
