@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 import world
-from planner.registry import make_planner
+from planner.registry import make_planner, used_options
 from planner.problem import Problem, enforce, make_view, stage_rng
 from coordinator.store import MissionStore
 from mission import events as ev
@@ -151,8 +151,10 @@ class Coordinator:
         self.ids = scenario.carrier_ids
         self.problem = build_problem(scenario)
         self.n_stages = self.problem.n_stages
-        self.planner_name, self.planner_options = planner_settings(
+        self.planner_name, options = planner_settings(
             scenario, config.planner, config.iterations, config.plan_ms, config.planner_options)
+        # Only the options this planner uses are kept (logged, stored in mission.db, summarised).
+        self.planner_options = used_options(self.planner_name, options)
         self.planner = make_planner(self.planner_name, **self.planner_options)
         self.fingerprint = scenario_fingerprint(scenario)
         self.spec = ms.MissionSpec.build(self.ids, self.problem.valid, self.problem.passengers,

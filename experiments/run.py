@@ -198,7 +198,7 @@ def cluster_executor(address: str, timeout_s: float):
                          f"found none within {timeout_s:g} s ({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})") from None
     try:
         client.wait_for_workers(1, timeout=timeout_s)
-    except (OSError, TimeoutError) as err:
+    except (OSError, TimeoutError):
         client.close()
         raise UsageError(f"--cluster: the scheduler at {address!r} has no worker after {timeout_s:g} s") from None
     client.run(warm_up_worker)

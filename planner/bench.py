@@ -267,7 +267,7 @@ def quality_section(fast, reference, sizes, iterations, n_quality, n_reference) 
             b = rewards(other, r, n_quality)
             layout_rows.append((r, f, b))
     if layout_rows:
-        print(f"\nlayouts at equal iterations (same instances and seeds): joint-action tree vs binary levels")
+        print("\nlayouts at equal iterations (same instances and seeds): joint-action tree vs binary levels")
         print(f"{'R':>3} {'joint':>15} {'binary':>15} {'binary - joint':>18}")
         for r, f, b in layout_rows:
             d = b - f

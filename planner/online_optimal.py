@@ -39,7 +39,6 @@ Pure: numpy and scipy only.
 from __future__ import annotations
 
 import itertools
-import math
 import weakref
 from dataclasses import dataclass
 

@@ -201,6 +201,15 @@ def make_planner(name: str, **options) -> object:
         ValueError: unknown name (the message lists the valid names), unknown option, or a value
             out of type or range (one line naming the option).
     """
+    return _REGISTRY[name].factory(**used_options(name, options))
+
+
+def used_options(name: str, options: Mapping[str, Any]) -> dict[str, Any]:
+    """The options planner ``name`` uses, checked: the others, and ``None`` values, are dropped.
+
+    Raises:
+        ValueError: unknown name or option, or a value out of type or range (one line).
+    """
     entry = _REGISTRY.get(name)
     if entry is None:
         raise ValueError(f"unknown planner {name!r}; expected one of: {', '.join(planner_names())}")
@@ -215,7 +224,7 @@ def make_planner(name: str, **options) -> object:
             used[key] = OPTIONS[key].check(value)
         except ValueError as err:
             raise ValueError(f"{key} must be {err}, got {value!r}") from None
-    return entry.factory(**used)
+    return used
 
 
 # ----------------------------------------------------------------------------- the planners

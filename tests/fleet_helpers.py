@@ -1,6 +1,7 @@
 """Shared helpers for the fleet tests: in-process nodes on loopback and the offline reference."""
 from __future__ import annotations
 
+import os
 import sqlite3
 import threading
 from pathlib import Path
@@ -91,3 +92,12 @@ def deployed_matrix(summary, scenario) -> np.ndarray:
         for dep in carrier["deployments"]:
             out[r, dep["stage"]] = True
     return out
+
+
+def alive(pid: int) -> bool:
+    """Whether process ``pid`` still exists."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    return True

@@ -17,7 +17,7 @@ import world
 from wire.zconfig import free_port
 
 import netns
-from fleet_helpers import ROOT, TINY, db_rows, deployed_matrix, offline
+from fleet_helpers import ROOT, TINY, alive, db_rows, deployed_matrix, offline
 
 RUN_FLEET = str(ROOT / "run_fleet.py")
 
@@ -163,14 +163,6 @@ def test_separate_hosts_with_network_namespaces(tiny, tmp_path):
     _check_no_double_deployment(summary, tmp_path / "mission.db", tiny)
 
 
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    return True
-
-
 @pytest.mark.slow
 def test_ctrl_c_stops_every_process_cleanly(tiny, tmp_path):
     out = tmp_path / "run"
@@ -190,8 +182,8 @@ def test_ctrl_c_stops_every_process_cleanly(tiny, tmp_path):
     assert proc.returncode == 130, rest
     assert "Traceback" not in rest
     deadline = time.monotonic() + 5
-    while any(_alive(pid) for pid in pids) and time.monotonic() < deadline:
+    while any(alive(pid) for pid in pids) and time.monotonic() < deadline:
         time.sleep(0.05)
-    assert not any(_alive(pid) for pid in pids)
+    assert not any(alive(pid) for pid in pids)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["end_reason"] == "stopped" and summary["stages_decided"] < tiny.stages

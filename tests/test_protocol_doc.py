@@ -12,7 +12,6 @@ import socket
 import threading
 import time
 from dataclasses import fields
-from pathlib import Path
 
 import msgpack
 import numpy as np

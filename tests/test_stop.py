@@ -23,7 +23,7 @@ from mission import events as ev
 from mission import state as ms
 from wire.messages import scenario_fingerprint
 
-from fleet_helpers import ROOT, TINY
+from fleet_helpers import ROOT, TINY, alive
 
 RUN_FLEET = str(ROOT / "run_fleet.py")
 RUNS = 50
@@ -35,14 +35,6 @@ CONCURRENT = 4
 LAUNCH_LINE, MISSION_LINE, STAGE_LINE = "run_fleet.py: coordinator pid", "coordinator: mission", "stage   1/"
 ANCHORS = ((LAUNCH_LINE, 0.2, (0.0, 1.5)), (MISSION_LINE, 0.3, (0.0, 1.5)), (STAGE_LINE, 0.5, (0.0, 2.2)))
 REALTIME = "10"
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    return True
 
 
 def _one_run(out, anchor: str, delay_s: float, result: dict) -> None:
@@ -87,7 +79,7 @@ def test_sigint_at_random_moments_never_cuts_a_step_in_half(tmp_path):
     pending = list(range(RUNS))
     running: list[threading.Thread] = []
     while pending or running:
-        running = [t for t in running if t.is_alive()]
+        running = [t for t in running if t.isalive()]
         while pending and len(running) < CONCURRENT:
             k = pending.pop(0)
             thread = threading.Thread(target=_one_run, args=(tmp_path / f"run{k}", anchors[k], delays[k], results[k]), daemon=True)
@@ -103,9 +95,9 @@ def test_sigint_at_random_moments_never_cuts_a_step_in_half(tmp_path):
         assert "Traceback" not in result["output"] and "Error" not in result["output"], where
         assert len(result["pids"]) == 1 + tiny.n_carriers, where
         deadline = time.monotonic() + 5
-        while any(_alive(pid) for pid in result["pids"]) and time.monotonic() < deadline:
+        while any(alive(pid) for pid in result["pids"]) and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert not any(_alive(pid) for pid in result["pids"]), where
+        assert not any(alive(pid) for pid in result["pids"]), where
         stopped += result["code"] == 130
         db = tmp_path / f"run{k}" / "mission.db"
         if not db.exists():

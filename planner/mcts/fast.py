@@ -101,7 +101,23 @@ def _grown(arrays: tuple, new: int, fill=0) -> list:
     return [np.concatenate([a, np.full(new - a.shape[0], fill, dtype=a.dtype)]) for a in arrays]
 
 
-class _Tree:
+class _NodeStats:
+    """The per-node statistics both layouts share (``self.stats``, a kernel ``Stats``)."""
+
+    stats: _k.Stats
+
+    @property
+    def visits(self) -> np.ndarray:
+        """int64 ``[cap]`` iterations through each node."""
+        return self.stats.visits
+
+    @property
+    def value(self) -> np.ndarray:
+        """float64 ``[cap]`` sum of the normalised rewards of those iterations."""
+        return self.stats.value
+
+
+class _Tree(_NodeStats):
     """Node arrays of the binary layout (:class:`planner.mcts.kernel.BinaryTree`), grown
     geometrically; an expanded node reserves a block of 2 ids ``[stay, deploy]``."""
 
@@ -122,16 +138,6 @@ class _Tree:
         (self.point,) = _grown((self.point,), new)
         self.stats = _k.Stats(*_grown(tuple(self.stats), new))
 
-    @property
-    def visits(self) -> np.ndarray:
-        """int64 ``[cap]`` iterations through each node."""
-        return self.stats.visits
-
-    @property
-    def value(self) -> np.ndarray:
-        """float64 ``[cap]`` sum of the normalised rewards of those iterations."""
-        return self.stats.value
-
     def arrays(self) -> _k.BinaryTree:
         return _k.BinaryTree(self.base, self.point, self.counter, self.stats)
 
@@ -141,7 +147,7 @@ class _Tree:
         return 1 + int(np.count_nonzero(self.stats.visits[1:n]))
 
 
-class _JointTree:
+class _JointTree(_NodeStats):
     """Node arrays of the joint-action layout (:class:`planner.mcts.kernel.JointTree`), grown
     geometrically; ids are reserved a child block (``2^k`` ids) at a time."""
 
@@ -167,16 +173,6 @@ class _JointTree:
         self.base, self.expanded, self.mult, self.offset = _grown(
             (self.base, self.expanded, self.mult, self.offset), new)
         self.stats = _k.Stats(*_grown(tuple(self.stats), new))
-
-    @property
-    def visits(self) -> np.ndarray:
-        """int64 ``[cap]`` iterations through each node."""
-        return self.stats.visits
-
-    @property
-    def value(self) -> np.ndarray:
-        """float64 ``[cap]`` sum of the normalised rewards of those iterations."""
-        return self.stats.value
 
     def arrays(self) -> _k.JointTree:
         return _k.JointTree(self.base, self.expanded, self.mult, self.offset, self.counter, self.stats)
