@@ -69,6 +69,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     t.add_argument("--coordinator-timeout", type=float, default=DEFAULTS.coordinator_s,
                    help="carrier: exit when the coordinator has been absent this long (default %(default)s)")
     p.add_argument("--no-map", action="store_true", help="do not draw map.png")
+    p.add_argument("--no-record", action="store_true", help="coordinator: do not write mission.mcap")
+    p.add_argument("--pose-interval", type=float, default=1.0, metavar="SECONDS",
+                   help="carrier: publish a Pose every this many simulated seconds (whole seconds; 0 = never; "
+                        "default %(default)s)")
     p.add_argument("--quiet", action="store_true", help="carriers print nothing but errors")
     p.add_argument("--verbose", action="store_true",
                    help="one-host mode: let carriers print their own events (quiet by default)")
@@ -113,6 +117,8 @@ def check_flags(args, scenario) -> str | None:
         args.planner_options = tuple(parse_option(text) for text in args.planner_option)
     except ValueError as exc:
         return f"--planner-option: {exc}"
+    if args.pose_interval < 0:
+        return f"--pose-interval: expected seconds >= 0, found {args.pose_interval}"
     if args.seed is not None and args.seed < 0:
         return f"--seed: expected an integer >= 0, found {args.seed}"
     for name in ("join_timeout", "stage_timeout", "decision_timeout", "coordinator_timeout"):
@@ -193,7 +199,8 @@ def run_coordinator(args, scenario, stop: threading.Event) -> int:
     coord = Coordinator(scenario, CoordinatorConfig(
         out_dir=out, mission=args.mission, planner=args.planner, iterations=args.iterations,
         plan_ms=args.plan_ms, planner_options=getattr(args, "planner_options", ()), seed=args.seed, realtime=args.realtime, join_timeout_s=args.join_timeout,
-        stage_timeout_s=args.stage_timeout, render=not args.no_map), zenoh_config(args, "coordinator"),
+        stage_timeout_s=args.stage_timeout, render=not args.no_map, record=not getattr(args, "no_record", False)),
+        zenoh_config(args, "coordinator"),
         scenario_path=args.scenario, stop=stop)
     try:
         summary = coord.run()
@@ -209,7 +216,7 @@ def run_carrier(args, scenario, stop: threading.Event) -> int:
     carrier = Carrier(scenario, CarrierConfig(
         carrier=args.carrier, mission=args.mission, seed=args.seed, realtime=args.realtime,
         decision_timeout_s=args.decision_timeout, coordinator_timeout_s=args.coordinator_timeout,
-        log=log), zenoh_config(args, "carrier"), stop=stop)
+        log=log, pose_interval_s=args.pose_interval), zenoh_config(args, "carrier"), stop=stop)
     reason = carrier.run()
     if reason not in ("end", "finished"):
         print(f"carrier {args.carrier}: exiting ({reason})", file=sys.stderr, flush=True)
@@ -234,7 +241,9 @@ def _forward(args) -> list[str]:
         out += ["--planner-option", text]
     out += ["--realtime", str(args.realtime), "--join-timeout", str(args.join_timeout),
             "--stage-timeout", str(args.stage_timeout), "--decision-timeout", str(args.decision_timeout),
-            "--coordinator-timeout", str(args.coordinator_timeout)]
+            "--coordinator-timeout", str(args.coordinator_timeout), "--pose-interval", str(args.pose_interval)]
+    if args.no_record:
+        out.append("--no-record")
     return out
 
 
