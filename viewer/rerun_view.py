@@ -42,8 +42,13 @@ def blueprint() -> rrb.Blueprint:
                          rrb.TextLogView(origin="/log", name="events")),
             column_shares=[3, 1]),
         rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"),
-        rrb.TimePanel(state="expanded"),
+        rrb.TimePanel(state="expanded", timeline=TIMELINE, play_state="following"),
     )
+
+
+def _light(colour: tuple[int, int, int], keep: float = 0.3) -> tuple[int, int, int]:
+    """``colour`` mixed with white (``keep`` of the colour): an opaque stand-in for a translucent fill."""
+    return tuple(int(round(255 - (255 - c) * keep)) for c in colour)
 
 
 def _circle(x: float, y: float, r: float, n: int = 48) -> np.ndarray:
@@ -130,7 +135,7 @@ class RerunView(Sink):
         self._at(t)
         base = f"world/deployments/{carrier}/{stage}"
         self.rec.log(f"{base}/disc", rr.Points2D([(x, y)], radii=self.scene.sensing_radius,
-                                                 colors=[rgb(c.colour) + (70,)], draw_order=5.0))
+                                                 colors=[_light(rgb(c.colour))], draw_order=5.0))
         self.rec.log(f"{base}/passenger", rr.Points2D([(x, y)], radii=0.9, colors=[rgb(c.colour)],
                                                       labels=[f"{carrier}@{stage}"], draw_order=28.0))
         self.rec.log("log", rr.TextLog(f"{carrier} deployed a passenger at stage {stage} ({x:.1f}, {y:.1f}) m",
