@@ -250,7 +250,11 @@ def run_viewer(args, scenario, stop: threading.Event) -> int:
         save=args.save, linger_s=args.linger, open_timeout_s=args.coordinator_timeout,
         ready_file=args.ready_file), zenoh_config(args, "viewer"),
         stop=stop)
-    return viewer.run()
+    try:
+        return viewer.run()
+    except RuntimeError as exc:  # the rerun server could not start (a port in use, no binary)
+        print(f"viewer: {exc}", file=sys.stderr, flush=True)
+        return 1
 
 
 def default_out(scenario) -> str:
@@ -337,7 +341,7 @@ def run_all(args, scenario, stop: threading.Event) -> int:
     procs = [coordinator, *carriers.values()] + ([viewer] if viewer is not None else [])
     print(f"run_fleet.py: coordinator pid {coordinator.pid} listening on {', '.join(listen)}; carriers "
           + ", ".join(f"{cid} pid {p.pid}" for cid, p in carriers.items()), flush=True)
-    if viewer is not None and not args.no_web:
+    if viewer is not None and viewer.poll() is None and not args.no_web:
         from viewer.node import viewer_url
 
         print(f"run_fleet.py: viewer pid {viewer.pid}; live view at {viewer_url(args.web_port, args.grpc_port)}",

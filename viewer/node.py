@@ -84,6 +84,52 @@ def _analytics_off_env(tmp: Path) -> dict:
     return env
 
 
+def _rerun_binary() -> str:
+    """The rerun executable shipped in rerun-sdk's ``rerun_cli`` package (run directly, so that
+    stopping it stops the server: ``python -m rerun`` is a wrapper around a child process)."""
+    try:
+        import rerun_cli
+
+        exe = Path(rerun_cli.__file__).parent / ("rerun.exe" if os.name == "nt" else "rerun")
+        if exe.is_file():
+            return str(exe)
+    except ImportError:
+        pass
+    import shutil
+
+    found = shutil.which("rerun")
+    if found is None:
+        raise RuntimeError("no rerun executable: pip install -e '.[view]'")
+    return found
+
+
+def _die_with_parent() -> None:
+    """In the rerun server child (Linux): SIGTERM when the viewer process dies, however it dies."""
+    try:
+        import ctypes
+        import signal
+
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
+    except Exception:
+        pass
+
+
+def _stop_group(proc: subprocess.Popen) -> None:
+    """Stop a child started in its own session, and anything it started."""
+    import signal
+
+    for sig, wait_s in ((signal.SIGTERM, 5.0), (signal.SIGKILL, 2.0)):
+        try:
+            os.killpg(proc.pid, sig)
+        except (ProcessLookupError, PermissionError):
+            return
+        try:
+            proc.wait(wait_s)
+            return
+        except subprocess.TimeoutExpired:
+            continue
+
+
 class Viewer:
     """One viewer. ``run()`` returns when the mission ended (plus ``linger_s``) or on stop."""
 
@@ -109,11 +155,19 @@ class Viewer:
 
     def _start_server(self, tmp: Path) -> None:
         """The rerun server child: gRPC on 127.0.0.1:grpc_port, the web viewer on 127.0.0.1:web_port."""
-        cmd = [sys.executable, "-m", "rerun", "--serve-web", "--bind", "127.0.0.1",
+        import socket
+
+        for flag, port in (("--grpc-port", self.config.grpc_port), ("--web-port", self.config.web_port)):
+            with socket.socket() as probe:
+                probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as a server binds
+                try:
+                    probe.bind(("127.0.0.1", port))
+                except OSError:
+                    raise RuntimeError(f"port {port} on 127.0.0.1 is in use: choose another with {flag}") from None
+        cmd = [_rerun_binary(), "--serve-web", "--bind", "127.0.0.1",
                "--port", str(self.config.grpc_port), "--web-viewer-port", str(self.config.web_port)]
         self.server = subprocess.Popen(cmd, env=_analytics_off_env(tmp), stdout=subprocess.DEVNULL,
-                                       stderr=subprocess.DEVNULL, start_new_session=True)
-        import socket
+                                       stderr=subprocess.DEVNULL, start_new_session=True, preexec_fn=_die_with_parent)
 
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline:
@@ -184,11 +238,7 @@ class Viewer:
                 except Exception:
                     pass
                 if self.server is not None:
-                    self.server.terminate()
-                    try:
-                        self.server.wait(5)
-                    except subprocess.TimeoutExpired:
-                        self.server.kill()
+                    _stop_group(self.server)
         return 0 if self.ended else 130
 
     def _handle(self, item, view, clock) -> None:
