@@ -15,7 +15,7 @@ Channels (docs/fleet.md, "mission.mcap"):
 =================  =======================  ==============================================
 topic              schema                   what
 =================  =======================  ==============================================
-/world             foxglove.SceneUpdate     the map once at t_0: bounds, walls, obstacles,
+/world             foxglove.SceneUpdate     the map once at t = 0: bounds, walls, obstacles,
                                             features, planned paths, overlap groups
 /carriers          foxglove.SceneUpdate     each carrier as a labelled entity, per pose
 /tf                foxglove.FrameTransform  map -> <carrier id>, per pose
@@ -147,7 +147,7 @@ class McapRecorder(Sink):
 
     Args:
         path: the file (overwritten).
-        scene: the mission's :class:`world.scene.Scene` (logged on ``/world`` at its first stage time).
+        scene: the mission's :class:`world.scene.Scene` (logged on ``/world`` at t = 0).
         problem: the planner problem, for the reward so far (None: no ``/reward`` values).
         metadata: strings written as the MCAP metadata record ``mission``.
     """
@@ -174,7 +174,7 @@ class McapRecorder(Sink):
         self.closed = False
         if metadata:
             self.writer.write_metadata("mission", {str(k): str(v) for k, v in metadata.items()})
-        t0 = float(scene.stage_times[0]) if len(scene.stage_times) else 0.0
+        t0 = min(0.0, float(scene.stage_times[0])) if len(scene.stage_times) else 0.0  # before the first pose
         self.world.log(SceneUpdate(entities=world_entities(scene, t0)), log_time=ns(t0))
 
     # ------------------------------------------------------------------ the stream

@@ -238,3 +238,24 @@ def test_pose_round_trip_and_size():
     with pytest.raises(Exception):
         encode(Pose("m", "c1", 1.0, (0.0, 0.0), 4.0, 1))  # heading outside [-pi, pi]
     assert np.isfinite(pose.heading)
+
+
+def test_the_scene_is_the_map_of_the_mission():
+    from matplotlib.path import Path as MplPath
+
+    from world.render import CARRIER_COLOURS
+    from world.scene import build_scene
+
+    scenario = world.load_scenario(SIX)
+    scene = build_scene(scenario)
+    geometry = world.stage_geometry(scenario)
+    assert [c.id for c in scene.carriers] == list(scenario.carrier_ids)
+    assert [c.colour for c in scene.carriers] == [CARRIER_COLOURS[r % len(CARRIER_COLOURS)] for r in range(6)]
+    assert len(scene.overlaps) == len(geometry.overlaps) > 0
+    for group, members in zip(scene.overlaps, geometry.overlaps):
+        assert group.members == tuple((scenario.carrier_ids[r], j) for r, j in members)
+        outline = MplPath(group.outline)
+        assert all(outline.contains_point(p, radius=-1e-6) or outline.contains_point(p, radius=1e-6)
+                   for p in group.points)  # every member lies inside its group's outline
+    np.testing.assert_array_equal(scene.features, world.sample_features(scenario))
+    assert scene.walls.shape == scenario.map.segments.shape
