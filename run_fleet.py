@@ -38,8 +38,9 @@ def parse_args(argv=None) -> argparse.Namespace:
         prog="run_fleet.py", description="Run a marsupial fleet mission over Zenoh.",
         formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 2)[1])
     p.add_argument("scenario", help="scenario YAML file")
-    p.add_argument("--role", choices=("all", "coordinator", "carrier"), default="all",
-                   help="all (default): the whole fleet on this host; or one process's role")
+    p.add_argument("--role", choices=("all", "coordinator", "carrier", "viewer"), default="all",
+                   help="all (default): the whole fleet on this host; or one process's role "
+                        "(viewer: a passive live view, needs rerun-sdk)")
     p.add_argument("--carrier", metavar="ID", help="carrier id (with --role carrier)")
     p.add_argument("--planner", help="planner name (overrides the scenario)")
     p.add_argument("--iterations", type=int, help="MCTS iterations per stage (overrides the scenario)")
@@ -59,6 +60,17 @@ def parse_args(argv=None) -> argparse.Namespace:
     z.add_argument("-c", "--zenoh-config", metavar="FILE", help="zenoh JSON5 config file")
     z.add_argument("-m", "--mode", choices=("peer", "client", "router"),
                    help="zenoh mode (default: peer for the coordinator, client for carriers)")
+    v = p.add_argument_group("live view (pip install -e '.[view]'; docs/fleet.md, \"Seeing a mission\")")
+    v.add_argument("--view", action="store_true",
+                   help="one-host mode: also start a viewer and print the address of its web view")
+    v.add_argument("--web-port", type=int, default=9090, help="viewer: web viewer port on 127.0.0.1 (default %(default)s)")
+    v.add_argument("--grpc-port", type=int, default=9876,
+                   help="viewer: rerun gRPC server port on 127.0.0.1 (default %(default)s)")
+    v.add_argument("--save", metavar="FILE.rrd", help="viewer: also write the stream to this rerun file")
+    v.add_argument("--no-web", action="store_true", help="viewer: no web viewer (with --save: only the file)")
+    v.add_argument("--linger", type=float, default=-1.0, metavar="SECONDS",
+                   help="viewer: keep serving this long after the mission ends; < 0 = until Ctrl-C (default)")
+    v.add_argument("--ready-file", help=argparse.SUPPRESS)  # one-host mode: the viewer is subscribed
     t = p.add_argument_group("timeouts (seconds)")
     t.add_argument("--join-timeout", type=float, default=DEFAULTS.join_s,
                    help="coordinator: wait for carriers before stage 0 (default %(default)s)")
@@ -69,6 +81,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     t.add_argument("--coordinator-timeout", type=float, default=DEFAULTS.coordinator_s,
                    help="carrier: exit when the coordinator has been absent this long (default %(default)s)")
     p.add_argument("--no-map", action="store_true", help="do not draw map.png")
+    p.add_argument("--no-record", action="store_true", help="coordinator: do not write mission.mcap")
+    p.add_argument("--pose-interval", type=float, default=1.0, metavar="SECONDS",
+                   help="carrier: publish a Pose every this many simulated seconds (whole seconds; 0 = never; "
+                        "default %(default)s)")
     p.add_argument("--quiet", action="store_true", help="carriers print nothing but errors")
     p.add_argument("--verbose", action="store_true",
                    help="one-host mode: let carriers print their own events (quiet by default)")
@@ -113,6 +129,8 @@ def check_flags(args, scenario) -> str | None:
         args.planner_options = tuple(parse_option(text) for text in args.planner_option)
     except ValueError as exc:
         return f"--planner-option: {exc}"
+    if args.pose_interval < 0:
+        return f"--pose-interval: expected seconds >= 0, found {args.pose_interval}"
     if args.seed is not None and args.seed < 0:
         return f"--seed: expected an integer >= 0, found {args.seed}"
     for name in ("join_timeout", "stage_timeout", "decision_timeout", "coordinator_timeout"):
@@ -129,13 +147,20 @@ def check_flags(args, scenario) -> str | None:
             keys.check_id(args.mission, "--mission")
         except ValueError as exc:
             return str(exc)
+    if (args.role == "viewer" or args.view) and args.no_web and not args.save:
+        return "--no-web needs --save FILE.rrd (else the viewer shows nothing)"
+    if args.role == "viewer" or args.view:
+        try:
+            import rerun  # noqa: F401
+        except ImportError:
+            return "the live view needs rerun-sdk: pip install -e '.[view]'"
     if args.role == "carrier":
         if not args.carrier:
             return "--role carrier needs --carrier ID"
         if args.carrier not in scenario.carrier_ids:
             return (f"--carrier: expected one of {', '.join(scenario.carrier_ids)} "
                     f"(carriers of {args.scenario}), found {args.carrier!r}")
-    if args.role != "carrier":
+    if args.role not in ("carrier", "viewer"):
         from coordinator.node import planner_settings
         from planner.registry import make_planner
 
@@ -154,7 +179,7 @@ def zenoh_config(args, role: str):
     if not args.zenoh_config:
         if role == "coordinator" and not listen:
             listen = [f"tcp/127.0.0.1:{DEFAULT_PORT}"]
-        if role == "carrier" and not connect:
+        if role in ("carrier", "viewer") and not connect:
             connect = [f"tcp/127.0.0.1:{DEFAULT_PORT}"]
     mode = args.mode
     if mode is None and not file_sets_mode(args.zenoh_config):
@@ -193,7 +218,8 @@ def run_coordinator(args, scenario, stop: threading.Event) -> int:
     coord = Coordinator(scenario, CoordinatorConfig(
         out_dir=out, mission=args.mission, planner=args.planner, iterations=args.iterations,
         plan_ms=args.plan_ms, planner_options=getattr(args, "planner_options", ()), seed=args.seed, realtime=args.realtime, join_timeout_s=args.join_timeout,
-        stage_timeout_s=args.stage_timeout, render=not args.no_map), zenoh_config(args, "coordinator"),
+        stage_timeout_s=args.stage_timeout, render=not args.no_map, record=not getattr(args, "no_record", False)),
+        zenoh_config(args, "coordinator"),
         scenario_path=args.scenario, stop=stop)
     try:
         summary = coord.run()
@@ -209,11 +235,26 @@ def run_carrier(args, scenario, stop: threading.Event) -> int:
     carrier = Carrier(scenario, CarrierConfig(
         carrier=args.carrier, mission=args.mission, seed=args.seed, realtime=args.realtime,
         decision_timeout_s=args.decision_timeout, coordinator_timeout_s=args.coordinator_timeout,
-        log=log), zenoh_config(args, "carrier"), stop=stop)
+        log=log, pose_interval_s=args.pose_interval), zenoh_config(args, "carrier"), stop=stop)
     reason = carrier.run()
     if reason not in ("end", "finished"):
         print(f"carrier {args.carrier}: exiting ({reason})", file=sys.stderr, flush=True)
     return EXIT_CODES.get(reason, 1)
+
+
+def run_viewer(args, scenario, stop: threading.Event) -> int:
+    from viewer.node import Viewer, ViewerConfig
+
+    viewer = Viewer(scenario, ViewerConfig(
+        mission=args.mission, seed=args.seed, web=not args.no_web, web_port=args.web_port, grpc_port=args.grpc_port,
+        save=args.save, linger_s=args.linger, open_timeout_s=args.coordinator_timeout,
+        ready_file=args.ready_file), zenoh_config(args, "viewer"),
+        stop=stop)
+    try:
+        return viewer.run()
+    except RuntimeError as exc:  # the rerun server could not start (a port in use, no binary)
+        print(f"viewer: {exc}", file=sys.stderr, flush=True)
+        return 1
 
 
 def default_out(scenario) -> str:
@@ -234,7 +275,9 @@ def _forward(args) -> list[str]:
         out += ["--planner-option", text]
     out += ["--realtime", str(args.realtime), "--join-timeout", str(args.join_timeout),
             "--stage-timeout", str(args.stage_timeout), "--decision-timeout", str(args.decision_timeout),
-            "--coordinator-timeout", str(args.coordinator_timeout)]
+            "--coordinator-timeout", str(args.coordinator_timeout), "--pose-interval", str(args.pose_interval)]
+    if args.no_record:
+        out.append("--no-record")
     return out
 
 
@@ -268,19 +311,41 @@ def run_all(args, scenario, stop: threading.Event) -> int:
     script = [sys.executable, str(Path(__file__).resolve()), args.scenario]
     common = _forward(args)
     started = time.monotonic()
+    viewer = None
     coordinator = subprocess.Popen(
         script + ["--role", "coordinator", "--out", str(out)] + common
         + sum((["--listen", e] for e in listen), []) + (["--no-map"] if args.no_map else []),
         preexec_fn=_ignore_sigint)
+    if args.view:  # subscribed before the carriers start, so the view misses nothing
+        ready = out / ".viewer-ready"
+        ready.unlink(missing_ok=True)
+        viewer = subprocess.Popen(
+            script + ["--role", "viewer", "--web-port", str(args.web_port), "--grpc-port", str(args.grpc_port),
+                      "--linger", str(args.linger), "--ready-file", str(ready)] + common
+            + sum((["--connect", e] for e in connect), [])
+            + (["--save", args.save] if args.save else []) + (["--no-web"] if args.no_web else []),
+            preexec_fn=_ignore_sigint)
+        deadline = time.monotonic() + 60
+        while not ready.exists() and viewer.poll() is None and not stop.is_set() and time.monotonic() < deadline:
+            stop.wait(0.05)
+        ready.unlink(missing_ok=True)
+        if viewer.poll() is not None:
+            print(f"run_fleet.py: the viewer exited with code {viewer.returncode}; going on without it",
+                  file=sys.stderr, flush=True)
     carriers = {}
     for cid in scenario.carrier_ids:
         carriers[cid] = subprocess.Popen(
             script + ["--role", "carrier", "--carrier", cid] + common
             + sum((["--connect", e] for e in connect), []) + ([] if args.verbose else ["--quiet"]),
             preexec_fn=_ignore_sigint)
-    procs = [coordinator, *carriers.values()]
+    procs = [coordinator, *carriers.values()] + ([viewer] if viewer is not None else [])
     print(f"run_fleet.py: coordinator pid {coordinator.pid} listening on {', '.join(listen)}; carriers "
           + ", ".join(f"{cid} pid {p.pid}" for cid, p in carriers.items()), flush=True)
+    if viewer is not None and viewer.poll() is None and not args.no_web:
+        from viewer.node import viewer_url
+
+        print(f"run_fleet.py: viewer pid {viewer.pid}; live view at {viewer_url(args.web_port, args.grpc_port)}",
+              flush=True)
     while coordinator.poll() is None and not stop.is_set():
         stop.wait(0.05)
     if stop.is_set():
@@ -298,6 +363,8 @@ def run_all(args, scenario, stop: threading.Event) -> int:
     summary_path = out / "summary.json"
     if code != 0 or not summary_path.exists():
         print(f"run_fleet.py: the coordinator exited with code {code}", file=sys.stderr)
+        if viewer is not None:
+            _stop_children([viewer], grace_s=5.0)
         return code or 1
     summary = json.loads(summary_path.read_text())
     bound = summary.get("clairvoyant") or {}  # None: the coordinator was stopped before the bound
@@ -306,8 +373,23 @@ def run_all(args, scenario, stop: threading.Event) -> int:
           f"clairvoyant {'optimum' if bound.get('exact') else 'bound'} {bound.get('reward', float('nan')):.3f} "
           f"({(bound.get('fraction') or 0) * 100:.0f}%); decision round trip p50 "
           f"{_ms(lat.get('p50'))} p99 {_ms(lat.get('p99'))}; wall {time.monotonic() - started:.1f} s")
-    print(f"results: {out}/summary.json, mission.db" + ("" if args.no_map else ", map.png"))
+    print(f"results: {out}/summary.json, mission.db" + ("" if args.no_record else ", mission.mcap")
+          + ("" if args.no_map else ", map.png"))
+    if viewer is not None:
+        _wait_for_viewer(args, viewer, stop)
     return 0
+
+
+def _wait_for_viewer(args, viewer, stop: threading.Event) -> None:
+    """The mission is over; the viewer keeps serving (``--linger``) until it exits or Ctrl-C."""
+    from viewer.node import viewer_url
+
+    if viewer.poll() is None and not args.no_web:
+        print(f"run_fleet.py: the live view stays at {viewer_url(args.web_port, args.grpc_port)}"
+              + (" until Ctrl-C" if args.linger < 0 else f" for {args.linger:g} s"), flush=True)
+    while viewer.poll() is None and not stop.is_set():
+        stop.wait(0.1)
+    _stop_children([viewer], grace_s=5.0)
 
 
 def _ms(value) -> str:
@@ -330,6 +412,8 @@ def main(argv=None) -> int:
             return run_coordinator(args, scenario, stop)
         if args.role == "carrier":
             return run_carrier(args, scenario, stop)
+        if args.role == "viewer":
+            return run_viewer(args, scenario, stop)
         return run_all(args, scenario, stop)
     except ConfigError as exc:
         return fail(str(exc))

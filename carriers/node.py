@@ -34,11 +34,14 @@ from wire import keys
 from wire.messages import (
     Bye, Confirm, Decision, End, Hello, Observation, ProtocolError, Refusal, State, decode, scenario_fingerprint,
 )
+from wire.messages import Pose
 
 #: Trail points per Observation at most (the protocol's limit).
 MAX_TRAIL = 512
 #: Sim-time chunk (s) between pacing sleeps when ``realtime > 0``.
 PACE_CHUNK_S = 0.5
+#: Default interval between two Pose messages, seconds of simulated time (docs/protocol.md, "Pose").
+POSE_INTERVAL_S = 1.0
 
 #: Exit reasons and the process exit code each maps to.
 EXIT_CODES = {"end": 0, "finished": 0, "stopped": 130, "coordinator-lost": 1, "world-mismatch": 2}
@@ -57,6 +60,8 @@ class CarrierConfig:
         coordinator_timeout_s: exit when the coordinator has been absent this long (s).
         end_timeout_s: after the last stage, wait this long (s) for End.
         log: callable taking one line.
+        pose_interval_s: publish a Pose every this many seconds of simulated time (rounded to
+            whole seconds, the physics trace's spacing); 0 = no poses.
     """
 
     carrier: str
@@ -67,6 +72,7 @@ class CarrierConfig:
     coordinator_timeout_s: float = DEFAULTS.coordinator_s
     end_timeout_s: float = DEFAULTS.end_s
     log: object = None
+    pose_interval_s: float = POSE_INTERVAL_S
 
 
 class _Exit(Exception):
@@ -105,6 +111,8 @@ class Carrier:
         self.absent_since = time.monotonic()
         self.pending: Observation | None = None
         self._trail_from = 0
+        self._pose_from = 0  # first trajectory sample not considered for a Pose yet
+        self._heading = 0.0
         self._refused: Refusal | None = None
 
     # ------------------------------------------------------------------ views for tests and logs
@@ -239,6 +247,7 @@ class Carrier:
         while self.sim.time < t - 1e-9 and not self._stop.is_set():
             target = min(t, self.sim.time + PACE_CHUNK_S)
             self.sim.advance_to(target)
+            self._publish_poses()
             due = wall0 + (self.sim.time - t0) / self.config.realtime
             while time.monotonic() < due and not self._stop.is_set():
                 self._pump(min(0.05, due - time.monotonic()))
@@ -251,6 +260,25 @@ class Carrier:
         if len(new) > MAX_TRAIL:
             new = new[np.linspace(0, len(new) - 1, MAX_TRAIL).astype(int)]
         return tuple((float(a), float(b)) for a, b in new)
+
+    def _publish_poses(self) -> None:
+        """A Pose for every pose tick the physics passed since the last call: the trajectory
+        samples (one per second of simulated time) whose time is a multiple of the interval."""
+        every = self.config.pose_interval_s
+        if every <= 0 or self.node is None:
+            return
+        samples = self.sim.trajectory(self.cid)
+        step = max(1, int(round(every)))
+        for k in range(self._pose_from, len(samples)):
+            if k > 0:
+                dx, dy = samples[k, 1] - samples[k - 1, 1], samples[k, 2] - samples[k - 1, 2]
+                if dx * dx + dy * dy > 1e-12:
+                    self._heading = float(np.arctan2(dy, dx))
+            if k % step == 0:
+                self.node.put(keys.carrier_key(self.mission, self.cid, "pose"), Pose(
+                    self.mission, self.cid, float(samples[k, 0]), (float(samples[k, 1]), float(samples[k, 2])),
+                    self._heading, self.machine.passengers_left))
+        self._pose_from = len(samples)
 
     def _check_refused(self) -> None:
         if self._refused is not None:
@@ -304,6 +332,7 @@ class Carrier:
                 self.sim.advance_to(t_j)  # joining, or catching up with stages decided without us
             else:
                 self._advance(t_j)
+            self._publish_poses()
             if self._stop.is_set():
                 break
             if self.machine.behind(j):

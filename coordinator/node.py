@@ -46,7 +46,7 @@ from mission.summary import RunInfo, summary as mission_summary
 from mission.timeouts import DEFAULTS
 from wire import keys
 from wire.messages import (
-    Bye, CarrierState, Confirm, Decision, End, Hello, Observation, ProtocolError, Refusal, State, decode,
+    Bye, CarrierState, Confirm, Decision, End, Hello, Observation, Pose, ProtocolError, Refusal, State, decode,
     encode, scenario_fingerprint,
 )
 from wire.transport import Node
@@ -71,6 +71,7 @@ class CoordinatorConfig:
         bye_timeout_s: after End, wait this long (s) for carriers' Bye messages.
         render: draw map.png at the end.
         log: where progress lines go (a callable taking one string).
+        record: write mission.mcap as the mission runs (recording/live.py).
     """
 
     out_dir: str
@@ -87,6 +88,7 @@ class CoordinatorConfig:
     bye_timeout_s: float = DEFAULTS.bye_s
     render: bool = True
     log: object = None
+    record: bool = True  # write mission.mcap (recording/live.py)
 
 
 def build_problem(scenario, geometry=None) -> Problem:
@@ -165,6 +167,7 @@ class Coordinator:
         self._stop = stop if stop is not None else threading.Event()
         self.node: Node | None = None
         self.store: MissionStore | None = None
+        self.recorder = None  # recording.live.LiveRecorder while mission.mcap is written
 
     # ------------------------------------------------------------------ views of the state
     def log(self, line: str) -> None:
@@ -216,6 +219,8 @@ class Coordinator:
         for effect in effects:
             if isinstance(effect, ms.Record):
                 self.store.record(effect, self.state)
+                if self.recorder is not None:
+                    self.recorder.event(effect.event)  # after mission.db has it
             elif isinstance(effect, ms.Reject):
                 self._reject(effect.reason, effect.detail)
             elif isinstance(effect, ms.Refuse):
@@ -258,6 +263,9 @@ class Coordinator:
             self.apply(ev.LivelinessChanged(parsed[0], item.kind == "alive", item.wall))
             return
         parsed = keys.parse_carrier_key(self.mission, item.key)
+        if parsed is not None and parsed[1] == "pose":
+            self._pose(parsed[0], item)
+            return
         if parsed is None or parsed[1] not in TOPIC_TYPES:
             raise ProtocolError("bad-key", f"message on {item.key[:80]}")
         cid, topic = parsed
@@ -269,6 +277,43 @@ class Coordinator:
         if msg.carrier != cid:
             raise ProtocolError("key-mismatch", f"carrier {msg.carrier!r} on the key of {cid!r}")
         self.apply(to_event(msg, item.wall))
+
+    def _pose(self, cid: str, item) -> None:
+        """A carrier's Pose: not a mission event and never a rejection (docs/protocol.md, "Pose");
+        only the recorder looks at it, and quietly drops one it cannot use."""
+        if self.recorder is None or cid not in self.spec.carriers:
+            return
+        try:
+            msg = decode(item.payload, Pose)
+        except ProtocolError:
+            return
+        if msg.mission == self.mission and msg.carrier == cid:
+            self.recorder.message(msg)
+
+    def _open_recorder(self, out: Path) -> None:
+        """Start mission.mcap (recording/live.py), replaying the events already in mission.db
+        (a resumed mission's past; a fresh mission's ``open``)."""
+        if not self.config.record:
+            return
+        try:
+            from recording.live import LiveRecorder
+
+            self.recorder = LiveRecorder(out, self.scenario, self.problem, metadata={
+                "mission": self.mission, "scenario": self.scenario.name, "seed": self.seed,
+                "planner": self.planner_name, "fingerprint": self.fingerprint}, log=self.log)
+            for event in self.store.mission_events():
+                self.recorder.event(event)
+        except Exception as exc:
+            self.log(f"coordinator: mission.mcap not recorded: {type(exc).__name__}: {exc}")
+            self.recorder = None
+
+    def _close_recorder(self) -> None:
+        if self.recorder is not None:
+            try:
+                self.recorder.close()
+            except Exception as exc:
+                self.log(f"coordinator: mission.mcap not finalised: {type(exc).__name__}: {exc}")
+            self.recorder = None
 
     # ------------------------------------------------------------------ the stage clock
     def _wait(self, seconds: float, done=lambda: False) -> None:
@@ -368,6 +413,7 @@ class Coordinator:
                 "seed": self.seed, "planner": self.planner_name, "planner_options": self.planner_options}
         self.store = MissionStore(out / "mission.db", meta)
         started = time.monotonic()
+        self._open_recorder(out)
         try:
             # Recovery is the live fold over the stored events (the last one is this process's open).
             self.state = ms.fold(self.spec, self.store.mission_events())
@@ -408,9 +454,11 @@ class Coordinator:
         finally:
             # Twice: at once without the clairvoyant bound, then with it, each write atomic, so a
             # coordinator killed while the bound is computed (its launcher's grace after Ctrl-C is
-            # a few seconds) still leaves a complete summary.json.
+            # a few seconds) still leaves a complete summary.json, and mission.mcap is finalised
+            # in between.
             wall_s = time.monotonic() - started
             _write_json(out / "summary.json", self.summary(wall_s, bound=False))
+            self._close_recorder()
             summary = self.summary(wall_s)
             _write_json(out / "summary.json", summary)
             if self.node is not None:

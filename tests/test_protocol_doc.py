@@ -229,3 +229,27 @@ def test_hello_is_required_and_a_refused_hello_is_answered(tmp_path):
     summary = fleet.join()
     assert summary["end_reason"] == "stopped"
     assert summary["rejected"]["coordinator"]["world-mismatch"] == 2
+
+
+def test_every_carrier_key_is_in_the_key_table():
+    from wire import keys
+
+    table = PROTOCOL.split("## Key expressions")[1].split("\n## ")[0]
+    for topic in keys.CARRIER_TOPICS:
+        assert f"| `marsupial/<m>/carrier/<id>/{topic}` |" in table, topic
+
+
+def test_a_pose_written_from_the_page_decodes():
+    """Pose from the page alone (plain msgpack): the project's decoder takes it as it is, and a
+    heading outside -pi..pi is out-of-range."""
+    from wire.messages import Pose, ProtocolError, decode
+
+    body = {"v": 1, "type": "pose", "mission": "tiny", "carrier": "a", "t": 3.0, "position": [10.0, 20.0],
+            "heading": 1.5707963, "passengers_left": 2}
+    pose = decode(msgpack.packb(body))
+    assert isinstance(pose, Pose) and pose.position == (10.0, 20.0) and pose.passengers_left == 2
+    try:
+        decode(msgpack.packb(dict(body, heading=4.0)))
+        raise AssertionError("accepted a heading of 4 rad")
+    except ProtocolError as exc:
+        assert exc.reason == "out-of-range"

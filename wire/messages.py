@@ -366,7 +366,32 @@ class State:
         return dict(self.carriers).get(cid)
 
 
-MESSAGE_TYPES = {cls.TYPE: cls for cls in (Hello, Observation, Decision, Confirm, End, Bye, State, Refusal)}
+@dataclass(frozen=True)
+class Pose:
+    """Where a carrier is, published at a steady rate of simulated time for viewers and recorders.
+    carrier -> ``carrier/<id>/pose``. Nobody acts on it: the coordinator ignores poses (they are
+    neither events of the mission nor rejections).
+
+    Attributes:
+        carrier: carrier id (must equal the id in the key).
+        t: simulated mission time of the pose, seconds (a multiple of the pose interval).
+        position: carrier position [x, y], metres.
+        heading: direction of travel, radians counter-clockwise from +x, in [-pi, pi]
+            (the last direction of motion while standing still; 0 before the first move).
+        passengers_left: passengers on board at ``t``.
+    """
+
+    mission: str = _spec(_ident)
+    carrier: str = _spec(_ident)
+    t: float = _spec(_SECONDS)
+    position: tuple[float, float] = _spec(_point)
+    heading: float = _spec(_float(-math.pi - 1e-6, math.pi + 1e-6))
+    passengers_left: int = _spec(_PASSENGERS)
+    v: int = PROTOCOL_VERSION
+    TYPE = "pose"
+
+
+MESSAGE_TYPES = {cls.TYPE: cls for cls in (Hello, Observation, Decision, Confirm, End, Bye, State, Refusal, Pose)}
 
 
 def fingerprint(value) -> str:

@@ -16,9 +16,7 @@ from matplotlib.patches import Circle, Patch, Polygon, Rectangle  # noqa: E402
 from world.features import sample_features  # noqa: E402
 from world.stages import stage_geometry  # noqa: E402
 
-#: Carrier colours, in carrier order (cycled).
-CARRIER_COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#17becf", "#8c564b", "#e377c2")
-OVERLAP_COLOUR = "#7b3fa0"
+from world.scene import CARRIER_COLOURS, OVERLAP_COLOUR  # noqa: E402  (one home for the colours)
 
 
 def _colour(r: int) -> str:

@@ -1,0 +1,170 @@
+"""Screenshot a web page (the live view) with headless Chromium over the DevTools protocol.
+
+    python tools/view_screenshot.py URL OUT.png [--wait 60] [--size 1600x900]
+
+Chromium's own ``--screenshot`` flag captures the page as soon as it loads (rerun's web viewer
+is still showing its loading screen then), so this starts Chromium with a remote-debugging
+port, opens the page, and takes screenshots over the DevTools protocol (``Page.captureScreenshot``)
+until ``ready(png_bytes)`` says the data is drawn, or the wait is over; the last one is saved.
+Software WebGL (SwiftShader) stands in for a GPU. Needs ``websocket-client`` and Pillow.
+"""
+from __future__ import annotations
+
+import argparse
+import base64
+import io
+import json
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.request
+from pathlib import Path
+
+CHROMIUM_FLAGS = (
+    "--headless", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+    "--disable-background-networking", "--no-first-run", "--disable-component-update", "--disable-sync",
+    "--disable-default-apps", "--mute-audio", "--hide-scrollbars",
+)
+
+
+def chromium_path() -> str | None:
+    for name in ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable"):
+        path = shutil.which(name)
+        if path:
+            return path
+    return None
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class _Cdp:
+    """A minimal DevTools protocol client over one websocket."""
+
+    def __init__(self, ws_url: str):
+        import websocket
+
+        self.ws = websocket.create_connection(ws_url, timeout=60, suppress_origin=True)
+        self.next_id = 0
+
+    def call(self, method: str, **params):
+        self.next_id += 1
+        my_id = self.next_id
+        self.ws.send(json.dumps({"id": my_id, "method": method, "params": params}))
+        while True:
+            reply = json.loads(self.ws.recv())
+            if reply.get("id") == my_id:
+                if "error" in reply:
+                    raise RuntimeError(f"{method}: {reply['error']}")
+                return reply.get("result", {})
+
+    def close(self):
+        self.ws.close()
+
+
+def capture(url: str, out: str | Path, ready=None, wait_s: float = 60.0, size=(1600, 900), settle_s: float = 3.0,
+            log=lambda line: None) -> bytes:
+    """Open ``url`` in headless Chromium and save a PNG screenshot to ``out``.
+
+    Args:
+        ready: ``ready(png_bytes) -> bool``; screenshots are taken every second until it is
+            true (then once more after ``settle_s`` seconds), or ``wait_s`` seconds pass.
+        size: viewport (width, height) in CSS pixels.
+
+    Returns:
+        The PNG bytes saved.
+    """
+    chromium = chromium_path()
+    if chromium is None:
+        raise FileNotFoundError("no chromium found")
+    port = _free_port()
+    with tempfile.TemporaryDirectory(prefix="marsupial-chromium-") as profile:
+        proc = subprocess.Popen(
+            [chromium, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", f"--remote-debugging-port={port}",
+             f"--window-size={size[0]},{size[1]}", "about:blank"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        cdp = None
+        try:
+            deadline = time.monotonic() + 30
+            page = None
+            while page is None:
+                try:
+                    with urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list", timeout=2) as r:
+                        page = next((t for t in json.load(r) if t.get("type") == "page"), None)
+                except OSError:
+                    pass
+                if page is None:
+                    if time.monotonic() > deadline or proc.poll() is not None:
+                        raise RuntimeError("chromium's DevTools endpoint did not come up")
+                    time.sleep(0.2)
+            cdp = _Cdp(page["webSocketDebuggerUrl"])
+            cdp.call("Emulation.setDeviceMetricsOverride", width=size[0], height=size[1], deviceScaleFactor=1,
+                     mobile=False)
+            cdp.call("Page.enable")
+            cdp.call("Page.navigate", url=url)
+            started = time.monotonic()
+            png = b""
+            while True:
+                time.sleep(1.0)
+                png = base64.b64decode(cdp.call("Page.captureScreenshot", format="png")["data"])
+                if ready is None or ready(png):
+                    if ready is not None and settle_s > 0:
+                        time.sleep(settle_s)
+                        png = base64.b64decode(cdp.call("Page.captureScreenshot", format="png")["data"])
+                    log(f"screenshot after {time.monotonic() - started:.1f} s")
+                    break
+                if time.monotonic() - started > wait_s:
+                    log(f"gave up waiting after {wait_s:.0f} s; saving the last screenshot")
+                    break
+            Path(out).parent.mkdir(parents=True, exist_ok=True)
+            Path(out).write_bytes(png)
+            return png
+        finally:
+            if cdp is not None:
+                try:
+                    cdp.close()
+                except Exception:
+                    pass
+            proc.terminate()
+            try:
+                proc.wait(10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+
+
+def colour_pixels(png: bytes, colours, tolerance: int = 24, box=None) -> list[int]:
+    """Per colour (``(r, g, b)`` 0..255), how many pixels of ``png`` are within ``tolerance`` on
+    every channel; ``box`` = (left, top, right, bottom) limits the count to that region."""
+    import numpy as np
+    from PIL import Image
+
+    img = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=int)
+    if box is not None:
+        left, top, right, bottom = box
+        img = img[top:bottom, left:right]
+    return [int((np.abs(img - np.asarray(c)).max(axis=2) <= tolerance).sum()) for c in colours]
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("url")
+    p.add_argument("out")
+    p.add_argument("--wait", type=float, default=30.0, help="seconds to wait before the screenshot")
+    p.add_argument("--size", default="1600x900", help="viewport WIDTHxHEIGHT")
+    args = p.parse_args(argv)
+    w, h = (int(v) for v in args.size.split("x"))
+    deadline = time.monotonic() + args.wait
+    capture(args.url, args.out, ready=lambda png: time.monotonic() >= deadline, wait_s=args.wait + 5, size=(w, h),
+            settle_s=0, log=print)
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
