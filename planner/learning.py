@@ -47,10 +47,11 @@ import numpy as np
 from planner import priors
 from planner.problem import Problem, StageView
 
-#: n0: pseudo-observations the stated prior is worth. Small against a mission's 40-60 pooled
-#: observations (urban_alpha, open_field): after two or three stages of a 3-4 carrier fleet the
-#: data weigh as much as the stated prior; a single stage's handful of counts cannot swing it.
-PRIOR_WEIGHT = 10.0
+#: n0: pseudo-observations the stated prior is worth: about one stage of a 3-4 carrier fleet's
+#: counts, against a mission's 40-60 (urban_alpha, open_field). After the first stage the data
+#: weigh as much as the stated prior; a wrong prior is mostly forgotten by mid-mission. (10 was
+#: too slow to forget a prior twice too high: see docs/results.md, "Learned priors".)
+PRIOR_WEIGHT = 4.0
 #: Relative overdispersion below which the count predictive stays Poisson (v <= m (1 + this)).
 POISSON_TOLERANCE = 1e-9
 #: Smallest mean of a fitted prior (all-zero observations and a stated mean of 0).

@@ -237,3 +237,17 @@ def test_used_options_keep_copy_semantics():
     before = copy.deepcopy(options)
     make_planner("mcts-ssap", **options)
     assert options == before
+
+
+def test_priors_sweep_tasks_share_units_seeds_and_observations():
+    from experiments.priors import CASES, summarise
+    from experiments.trials import Task, run_task
+
+    level = [c[0] for c in CASES].index("open_field ×2")
+    rows = [run_task(Task("priors", level, 1, "ssap", 0, 50, scenario=str(ROOT / CASES[level][1]), variant=v,
+                          prior_factor=CASES[level][2], oracle=(3.16, 3.26)))
+            for v in ("stated", "learned", "oracle")]
+    assert len({(r["scale"], r["world_seed"], r["planner_seed"]) for r in rows}) == 1
+    assert rows[0]["stated_mean"] == pytest.approx(2 * np.pi * 0.04 * 25)
+    (row,) = summarise(rows)
+    assert row["n"] == 1 and row["learned_oracle_ratio"] == pytest.approx(rows[1]["reward"] / rows[2]["reward"])
