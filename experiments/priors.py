@@ -219,3 +219,48 @@ def write(rows: list[dict], out: Path, settings: dict, seconds: float, jobs: int
             f"Wall time: {seconds:.1f} s with {jobs} worker process(es) for {len(rows)} tasks."]
     (out / "priors.md").write_text("\n".join(text) + "\n")
     return {"sweep": "priors", "seconds": round(seconds, 1), "tasks": len(rows), "jobs": jobs}
+
+
+def ablate_weight(planner: str, trials: int, weights: tuple[float, ...], seed: int = 1,
+                  iterations: int = 2000) -> list[str]:
+    """Learned/oracle and learned/stated reward ratios of ``planner`` for each prior weight n0
+    (planner.learning.PRIOR_WEIGHT candidates), on world seeds of root seed ``seed`` (the sweep
+    uses 0: use another to choose n0 on seeds the sweep does not score). One line per case."""
+    from experiments.trials import trial_instance
+    from planner.learning import LearnedPriorPlanner
+    from planner.problem import run_online
+    from planner.registry import make_planner
+
+    moments, lines = {}, []
+    for level, (label, path, factor) in enumerate(CASES):
+        if path not in moments:
+            moments[path] = oracle_moments(path)
+        learned = {w: [] for w in weights}
+        stated, oracle = [], []
+        inner = make_planner(planner, iterations=iterations)
+        for t in range(trials):
+            def task(variant):
+                return Task("priors", level, t, planner, seed, iterations, scenario=str(ROOT / path),
+                            variant=variant, prior_factor=factor, oracle=moments[path])
+
+            problem, x, planner_seed, _ = trial_instance(task("stated"))
+            oracle_problem = trial_instance(task("oracle"))[0]
+            stated.append(run_online(problem, x, inner, planner_seed).reward)
+            oracle.append(run_online(oracle_problem, x, inner, planner_seed).reward)
+            for w in weights:
+                learned[w].append(run_online(problem, x, LearnedPriorPlanner(inner, weight=w), planner_seed).reward)
+        o, s = float(np.mean(oracle)), float(np.mean(stated))
+        lines.append(f"{label}, {planner}: stated/oracle {100 * s / o:.1f}%; " + "; ".join(
+            f"n0 = {w:g}: learned/oracle {100 * np.mean(r) / o:.1f}%, learned/stated {100 * np.mean(r) / s:.1f}%"
+            for w, r in learned.items()))
+    return lines
+
+
+if __name__ == "__main__":
+    # python -m experiments.priors PLANNER TRIALS N0,N0,... [SEED]: the prior-weight ablation.
+    import sys
+
+    args = sys.argv[1:]
+    for line in ablate_weight(args[0], int(args[1]), tuple(float(w) for w in args[2].split(",")),
+                              int(args[3]) if len(args) > 3 else 1):
+        print(line, flush=True)
