@@ -2,7 +2,7 @@
 
     python -m coordinator.solve INSTANCE.json --planner NAME [--iterations K] [--plan-ms MS]
                                 [--seed S] [--exploration C] [--samples M] [--layout L]
-                                [--no-clairvoyant] [--no-online-optimum]
+                                [--learn-prior [true|false]] [--no-clairvoyant] [--no-online-optimum]
 
 A thin command line: planner names, options, their ranges and defaults come from
 :mod:`planner.registry` (one flag per option), the work from :func:`planner.solve.solve_instance`.
@@ -35,6 +35,7 @@ import sys
 from typing import Sequence
 
 from planner.instance import InstanceError
+from planner.learning import UnsupportedPrior
 from planner.online_optimal import TooLarge
 from planner.registry import OPTIONS, Option, make_planner, planner_names
 from planner.solve import solve_instance
@@ -55,14 +56,8 @@ def _option_type(option: Option):
     """An argparse type checking one registry option (type and range) with its own message."""
 
     def parse(text: str):
-        value = text
-        if option.kind in (int, float):
-            try:
-                value = option.kind(text)
-            except ValueError:
-                raise argparse.ArgumentTypeError(f"expected {option.expected()}, found {text!r}") from None
         try:
-            return option.check(value)
+            return option.parse(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected {option.expected()}, found {text!r}") from None
 
@@ -87,6 +82,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("instance", help="instance JSON file (format: docs/planner.md)")
     parser.add_argument("--planner", required=True, help=f"planner name: {', '.join(planner_names())}")
     for option in OPTIONS.values():
+        if option.kind is bool:  # --learn-prior alone means true; --learn-prior false also reads
+            parser.add_argument("--" + option.name.replace("_", "-"), type=_option_type(option), nargs="?",
+                                const=True, metavar="true|false", help=option.help)
+            continue
         parser.add_argument("--" + option.name.replace("_", "-"), type=_option_type(option), help=option.help)
     parser.add_argument("--seed", type=_seed, default=0,
                         help="root seed: the planner's streams, and the observations when the file has none")
@@ -115,7 +114,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         out = solve_instance(args.instance, planner, args.planner, args.seed, clairvoyant=not args.no_clairvoyant,
                              online_optimum=not args.no_online_optimum)
-    except (InstanceError, TooLarge) as err:
+    except (InstanceError, TooLarge, UnsupportedPrior) as err:
         print(str(err), file=sys.stderr)
         return EXIT_INPUT
     try:

@@ -35,7 +35,10 @@ class Task:
         iterations: MCTS-style budget per decision.
         carriers, passengers, stages, overlaps, mean: random-instance settings (R, D, N, number of
             overlap groups, Poisson mean); unused for urban.
-        scenario: scenario file (urban only).
+        scenario: scenario file (urban and priors).
+        variant, prior_factor, oracle: priors sweep only (experiments.priors): ``stated``,
+            ``learned`` or ``oracle``; factor on the stated (derived Poisson) prior's mean; the
+            world's observed (mean, variance) the oracle prior is fitted to.
     """
 
     sweep: str
@@ -50,6 +53,9 @@ class Task:
     overlaps: int = 10
     mean: float = 3.0
     scenario: str = ""
+    variant: str = ""
+    prior_factor: float = 1.0
+    oracle: tuple = ()
 
     @property
     def cost(self) -> float:
@@ -69,6 +75,8 @@ def trial_instance(task: Task):
     """``(problem, observations, planner_seed, extra)`` of the task's trial (same for every planner)."""
     if task.sweep == "urban":
         return _urban_instance(task)
+    if task.sweep == "priors":
+        return _priors_instance(task)
     from planner.instance import random_instance
 
     rng = np.random.default_rng(np.random.SeedSequence(task.seed, spawn_key=(1000, task.trial)))
@@ -105,17 +113,45 @@ def _urban_instance(task: Task):
     return problem, x, _seed_of(task.seed, (1001, task.trial, 1)), {"world_seed": world_seed}
 
 
+def _priors_instance(task: Task):
+    """The urban-style world trial with the task's prior variant: the stated prior (the scenario's,
+    its Poisson mean scaled by ``prior_factor``) for ``stated`` and ``learned``, the oracle for
+    ``oracle``; every variant keeps the stated prior's normalisation scale."""
+    import scipy.stats
+
+    from experiments.priors import oracle_prior
+
+    problem, x, planner_seed, extra = _urban_instance(task)
+    if task.prior_factor != 1.0:
+        stated = problem.prior
+        if getattr(stated.dist, "name", None) != "poisson":
+            raise ValueError(f"prior_factor needs a Poisson stated prior, found {stated.dist.name}")
+        problem = _replace_prior(problem, scipy.stats.poisson(float(stated.mean()) * task.prior_factor))
+    extra = {**extra, "scale": problem.scale, "stated_mean": float(problem.prior.mean()),
+             "oracle_mean": task.oracle[0], "oracle_var": task.oracle[1]}
+    if task.variant == "oracle":
+        problem = _replace_prior(problem, oracle_prior(*task.oracle), problem.scale)
+    return problem, x, planner_seed, extra
+
+
+def _replace_prior(problem, prior, scale=None):
+    from planner.problem import Problem
+
+    return Problem.build(problem.passengers, problem.valid, problem.overlaps, prior,
+                         normalize="q90" if scale is None else scale)
+
+
 # ----------------------------------------------------------------------------- running
 
 _PLANNERS: dict = {}
 
 
-def _planner(name: str, iterations: int):
-    key = (name, iterations)
+def _planner(name: str, iterations: int, learn_prior: bool = False):
+    key = (name, iterations, learn_prior)
     if key not in _PLANNERS:
         from planner.registry import make_planner
 
-        _PLANNERS[key] = make_planner(name, iterations=iterations)
+        _PLANNERS[key] = make_planner(name, iterations=iterations, learn_prior=learn_prior)
     return _PLANNERS[key]
 
 
@@ -131,6 +167,11 @@ def run_task(task: Task) -> dict:
         "stages": problem.n_stages, "overlaps": len(problem.overlaps), "iterations": task.iterations,
         "seed": task.seed, "planner_seed": planner_seed, "world_seed": extra.get("world_seed", ""),
     }
+    if task.sweep == "priors":
+        from experiments.priors import CASES
+
+        row.update(case=CASES[task.level][0], variant=task.variant, **{k: extra[k] for k in (
+            "scale", "stated_mean", "oracle_mean", "oracle_var")})
     t0 = time.perf_counter()
     if task.planner == CLAIRVOYANT:
         result = clairvoyant.solve(problem, x)
@@ -139,7 +180,7 @@ def run_task(task: Task) -> dict:
                    decision_ms_mean=elapsed * 1e3, decision_ms_max=elapsed * 1e3, wall_s=elapsed,
                    deployed=_encode(result.deployed))
         return row
-    planner = _planner(task.planner, task.iterations)
+    planner = _planner(task.planner, task.iterations, task.variant == "learned")
     result = run_online(problem, x, planner, planner_seed)
     elapsed = time.perf_counter() - t0
     ms = np.asarray(result.decision_ms)

@@ -13,7 +13,8 @@ take names and options from here:
 
 Every planner follows :class:`planner.problem.Planner`. A planner uses only the options listed
 in its :class:`PlannerEntry`; the others are accepted and ignored (a scenario may switch planner
-without editing its budget).
+without editing its budget). The :data:`GENERIC_OPTIONS` (``learn_prior``) apply to every
+planner: :func:`make_planner` wraps the planner it built.
 """
 from __future__ import annotations
 
@@ -32,13 +33,17 @@ DEFAULT_PLANNER = "mcts-ssap"
 LAYOUTS = ("auto", "joint", "binary")
 
 
+#: Command-line spellings of a ``bool`` option's values.
+_BOOL_TEXT = {"true": True, "false": False, "1": True, "0": False, "yes": True, "no": False}
+
+
 @dataclass(frozen=True)
 class Option:
     """One planner option.
 
     Attributes:
         name: keyword of :func:`make_planner` (``plan_ms`` on the command line is ``--plan-ms``).
-        kind: ``int``, ``float`` or ``str``.
+        kind: ``int``, ``float``, ``str`` or ``bool``.
         default: value used when the option is not given (``None``: "not set", e.g. ``plan_ms``).
         minimum, maximum: inclusive range for numbers (``exclusive``: minimum excluded).
         choices: allowed values of a ``str`` option.
@@ -58,6 +63,8 @@ class Option:
         """The "expected ..." text of an error about this option."""
         if self.choices:
             return f"one of {', '.join(self.choices)}"
+        if self.kind is bool:
+            return "true or false"
         text = "an integer" if self.kind is int else "a number"
         if self.minimum is not None:
             text += f" {'>' if self.exclusive else '>='} {self.minimum:g}"
@@ -65,11 +72,28 @@ class Option:
             text += f"{' and' if self.minimum is not None else ''} <= {self.maximum:g}"
         return text
 
+    def parse(self, text: str) -> Any:
+        """Command-line text -> checked value (``true``/``false``, ``1``/``0``, ``yes``/``no``
+        for a ``bool`` option); raises ValueError with :meth:`expected`."""
+        value: Any = text.strip()
+        if self.kind is bool:
+            value = _BOOL_TEXT.get(value.lower(), value)
+        elif self.kind in (int, float):
+            try:
+                value = self.kind(value)
+            except ValueError:
+                raise ValueError(self.expected()) from None
+        return self.check(value)
+
     def check(self, value: Any) -> Any:
         """The value normalised (ints as int, numbers as float); raises ValueError with
         :meth:`expected` when it is out of type or range."""
         if self.choices:
             if not isinstance(value, str) or value not in self.choices:
+                raise ValueError(self.expected())
+            return value
+        if self.kind is bool:
+            if not isinstance(value, bool):
                 raise ValueError(self.expected())
             return value
         if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
@@ -93,7 +117,12 @@ OPTIONS: dict[str, Option] = {o.name: o for o in (
            minimum=0),
     Option("samples", int, 1, "Monte Carlo rollouts per iteration", minimum=1, maximum=1e6),
     Option("layout", str, "auto", "MCTS tree: auto (joint up to 8 carriers), joint or binary", choices=LAYOUTS),
+    Option("learn_prior", bool, False, "learn the prior online from the observations so far (planner.learning); "
+           "applies to every planner"),
 )}
+#: Options every planner takes, applied by :func:`make_planner` around the planner it builds
+#: (``learn_prior``: :class:`planner.learning.LearnedPriorPlanner`).
+GENERIC_OPTIONS = ("learn_prior",)
 
 
 @dataclass(frozen=True)
@@ -117,7 +146,7 @@ def register(name: str, factory: Callable[..., object], options: tuple[str, ...]
     """
     if not isinstance(name, str) or not name:
         raise ValueError(f"planner name must be a non-empty string, got {name!r}")
-    used = tuple(OPTIONS) if options is None else tuple(options)
+    used = tuple(o for o in OPTIONS if o not in GENERIC_OPTIONS) if options is None else tuple(options)
     unknown = sorted(set(used) - set(OPTIONS))
     if unknown:
         raise ValueError(f"unknown planner option(s) {unknown}; expected some of: {', '.join(OPTIONS)}")
@@ -176,15 +205,8 @@ def parse_option(text: str) -> tuple[str, Any]:
     key = key.strip().replace("-", "_")
     if not sep or key not in OPTIONS:
         raise ValueError(f"expected KEY=VALUE with KEY one of {', '.join(OPTIONS)}, found {text!r}")
-    opt = OPTIONS[key]
-    value: Any = raw.strip()
-    if opt.kind in (int, float):
-        try:
-            value = opt.kind(value)
-        except ValueError:
-            raise ValueError(f"{key}: expected {opt.expected()}, found {raw!r}") from None
     try:
-        return key, opt.check(value)
+        return key, OPTIONS[key].parse(raw)
     except ValueError as err:
         raise ValueError(f"{key}: expected {err}, found {raw!r}") from None
 
@@ -201,7 +223,14 @@ def make_planner(name: str, **options) -> object:
         ValueError: unknown name (the message lists the valid names), unknown option, or a value
             out of type or range (one line naming the option).
     """
-    return _REGISTRY[name].factory(**used_options(name, options))
+    used = used_options(name, options)
+    learn = used.pop("learn_prior", False)
+    planner = _REGISTRY[name].factory(**used)
+    if learn:
+        from planner.learning import LearnedPriorPlanner
+
+        planner = LearnedPriorPlanner(planner)
+    return planner
 
 
 def used_options(name: str, options: Mapping[str, Any]) -> dict[str, Any]:
@@ -218,12 +247,14 @@ def used_options(name: str, options: Mapping[str, Any]) -> dict[str, Any]:
         raise ValueError(f"unknown planner option(s) {unknown}; expected some of: {', '.join(OPTIONS)}")
     used = {}
     for key, value in options.items():
-        if value is None or key not in entry.options:
+        if value is None or (key not in entry.options and key not in GENERIC_OPTIONS):
             continue
         try:
             used[key] = OPTIONS[key].check(value)
         except ValueError as err:
             raise ValueError(f"{key} must be {err}, got {value!r}") from None
+    if used.get("learn_prior") is False:
+        used.pop("learn_prior")  # the default: today's planner exactly, and today's recorded options
     return used
 
 

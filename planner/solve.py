@@ -47,7 +47,8 @@ def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clai
         bound = bound_mod.solve(problem, x)
         out["clairvoyant"] = {"reward": bound.reward, "features": bound.features, "exact": bound.exact}
     if online_optimum:
-        optimum = _online_optimum(problem, planner_name)
+        # A planner that learns its prior is no longer the policy the exact recursion weighs.
+        optimum = _online_optimum(problem, "" if getattr(planner, "learn_prior", False) else planner_name)
         if optimum is not None:
             out["online_optimum"] = optimum
     return out

@@ -220,7 +220,8 @@ _OPT = planners.OPTIONS
 class PlannerSpec:
     """Planner settings: ``name`` for ``make_planner``; budget ``iterations`` per decision or
     ``plan_ms`` milliseconds (anytime, takes precedence when given); UCT ``exploration``
-    constant; ``samples`` rollouts per iteration; MCTS tree ``layout``. Names, options and
+    constant; ``samples`` rollouts per iteration; MCTS tree ``layout``; ``learn_prior`` (learn the
+    prior online, any planner: planner.learning). Names, options and
     defaults are :mod:`planner.registry`'s."""
 
     name: str = planners.DEFAULT_PLANNER
@@ -229,6 +230,7 @@ class PlannerSpec:
     exploration: float = _OPT["exploration"].default
     samples: int = _OPT["samples"].default
     layout: str = _OPT["layout"].default
+    learn_prior: bool = _OPT["learn_prior"].default
 
     def options(self) -> dict[str, Any]:
         """Keyword options for ``planner.registry.make_planner(name, **options)`` (``plan_ms``
