@@ -36,6 +36,8 @@ class Task:
         carriers, passengers, stages, overlaps, mean: random-instance settings (R, D, N, number of
             overlap groups, Poisson mean); unused for urban.
         scenario: scenario file (urban only).
+        loss, delay: the communication model (comms sweeps; the deliveries are drawn from the
+            planner seed, so every planner of a trial meets the same ones).
     """
 
     sweep: str
@@ -50,6 +52,8 @@ class Task:
     overlaps: int = 10
     mean: float = 3.0
     scenario: str = ""
+    loss: float = 0.0
+    delay: int = 0
 
     @property
     def cost(self) -> float:
@@ -59,6 +63,8 @@ class Task:
         if self.planner == CLAIRVOYANT:
             return 0.05 * self.carriers
         scale = self.carriers * self.stages / 40.0
+        if self.planner.startswith("dec-"):
+            scale *= self.carriers
         return scale * self.iterations / 10_000
 
 
@@ -69,6 +75,7 @@ def trial_instance(task: Task):
     """``(problem, observations, planner_seed, extra)`` of the task's trial (same for every planner)."""
     if task.sweep == "urban":
         return _urban_instance(task)
+    # Comms sweeps: trial t is the same instance at every message-loss level (paired across P).
     from planner.instance import random_instance
 
     rng = np.random.default_rng(np.random.SeedSequence(task.seed, spawn_key=(1000, task.trial)))
@@ -140,7 +147,13 @@ def run_task(task: Task) -> dict:
                    deployed=_encode(result.deployed))
         return row
     planner = _planner(task.planner, task.iterations)
-    result = run_online(problem, x, planner, planner_seed)
+    if task.sweep.startswith("comms"):
+        from planner.comms import CommsSpec
+        from planner.decentralised import run_comms
+
+        result = run_comms(problem, x, planner, planner_seed, CommsSpec(task.loss, task.delay))
+    else:
+        result = run_online(problem, x, planner, planner_seed)
     elapsed = time.perf_counter() - t0
     ms = np.asarray(result.decision_ms)
     row.update(reward=result.reward, features=result.features, exact="",
