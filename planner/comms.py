@@ -67,8 +67,9 @@ class CommsSpec:
 
     @property
     def perfect(self) -> bool:
-        """Whether every message arrives at once (the central loop's assumption)."""
-        return self.loss == 0 and self.delay == 0 and len(self.groups) <= 1
+        """Whether every message arrives at once (the central loop's assumption): no loss, no
+        delay, no groups (a groups list, even of one group, is checked against the instance)."""
+        return self.loss == 0 and self.delay == 0 and not self.groups
 
     def check(self, n_carriers: int) -> None:
         """Raise ValueError when a group names a carrier outside ``0..n_carriers - 1``."""

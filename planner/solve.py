@@ -42,8 +42,9 @@ def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clai
 
         try:
             comms.check(problem.n_carriers)
-        except ValueError as err:
-            raise InstanceError(f"{path}: --groups: {err}") from None
+        except ValueError:
+            raise InstanceError(str(path), "--groups", f"carrier indices 0..{problem.n_carriers - 1}",
+                                repr([list(g) for g in comms.groups])) from None
         result = run_comms(problem, x, planner, seed, comms)
     out = {
         "planner": planner_name,
