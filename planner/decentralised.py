@@ -24,8 +24,8 @@ import numpy as np
 from numba import njit
 
 from planner import ssap
-from planner.closedloop import (ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, ClosedLoopPlanner, _components,
-                                _marginal, _select, _undo)
+from planner.closedloop import (BATCH, ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, ClosedLoopPlanner,
+                                _components, _marginal, _select, _undo)
 from planner.comms import CommsSpec, Deliveries, realise
 from planner.compiled import compile_problem
 from planner.kernels import deploys
@@ -366,18 +366,23 @@ class DecClosedLoopPlanner:
       deployments would crowd, instead of acting like plain SSAP.
 
     A component without conflicts is decided by SSAP (optimal there). Budget as closed-loop's:
-    ``iterations`` full-fleet rollouts per decision, per carrier. Publishes no intent (its policy
+    ``iterations`` full-fleet rollouts per decision, per carrier, or ``plan_ms`` milliseconds
+    per carrier (sampled futures in batches until the time is spent; not bit-reproducible, and
+    fully informed carriers then no longer share one joint action by construction). Publishes no intent (its policy
     is known in advance); it reads the histories that messages carry.
     """
 
     name = "dec-closed-loop"
     decentralised = True
 
-    def __init__(self, iterations: int | None = None, **_ignored):
+    def __init__(self, iterations: int | None = None, plan_ms: float | None = None, **_ignored):
         if iterations is not None and int(iterations) < 1:
             raise ValueError(f"iterations must be >= 1, got {iterations}")
+        if plan_ms is not None and not float(plan_ms) > 0:
+            raise ValueError(f"plan_ms must be > 0, got {plan_ms}")
         self.iterations = DEFAULT_ITERATIONS if iterations is None else int(iterations)
-        self._central = ClosedLoopPlanner(iterations=self.iterations)
+        self.plan_ms = None if plan_ms is None else float(plan_ms)
+        self._central = ClosedLoopPlanner(iterations=self.iterations, plan_ms=self.plan_ms)
         self._memo = None  # (key, joint decision): fully informed carriers compute the same thing
 
     def warm_up(self, problem: Problem) -> None:
@@ -458,16 +463,25 @@ class DecClosedLoopPlanner:
             actions[1, me] = not actions[1, me]
         samples = int(np.clip(self.iterations * R // max(len(comp) * len(actions), 1), SAMPLES_MIN, SAMPLES_MAX))
         m = len(comp)
-        past_draws = prep.sampler.sample(rng, (samples, N, m))
-        future = prep.sampler.sample(rng, (samples, N - j - 1, m))
-        out = np.empty((len(actions), samples))
-        _evaluate_imputed(actions, comp, known[comp], start[comp], left[comp], j, N,
-                          np.ascontiguousarray(local.observations), xnow_all[comp], left[comp], valid, nleft,
-                          prep.table, sel, p, xv, prep.indptr, prep.nbr, past_draws, future, out)
+        deadline = None if self.plan_ms is None else time.perf_counter() + self.plan_ms / 1e3
+        sums = np.zeros(len(actions))
+        count = 0
+        while True:
+            batch = samples if deadline is None else BATCH
+            past_draws = prep.sampler.sample(rng, (batch, N, m))
+            future = prep.sampler.sample(rng, (batch, N - j - 1, m))
+            out = np.empty((len(actions), batch))
+            _evaluate_imputed(actions, comp, known[comp], start[comp], left[comp], j, N,
+                              np.ascontiguousarray(local.observations), xnow_all[comp], left[comp], valid, nleft,
+                              prep.table, sel, p, xv, prep.indptr, prep.nbr, past_draws, future, out)
+            sums += out.sum(axis=1)
+            count += batch
+            if deadline is None or time.perf_counter() >= deadline:
+                break
         # Exact plain-SSAP future of the known members after each candidate (the control
         # variate's expectation; the unknown members' is common to all candidates).
         kn = known[comp]
         d_after = np.minimum(left[comp][None, :] - actions.astype(np.int64), N)
         exact = (prep.slot_value[nleft[comp, j + 1][None, :], np.maximum(d_after, 0)] * kn[None, :]).sum(axis=1)
-        score = out.mean(axis=1) + exact
+        score = sums / count + exact
         return bool(actions[int(np.argmax(score)), me])

@@ -23,7 +23,8 @@ Each carrier grows its own tree over its own action sequence and exchanges inten
   intents. The intent is published after the stage's decision (the comms model delivers it).
 * **Decision.** The most visited feasible root action.
 
-Budget: ``iterations`` tree iterations per carrier per stage (default the registry's 10,000).
+Budget: ``iterations`` tree iterations per carrier per stage (default the registry's 10,000), or
+``plan_ms`` milliseconds per carrier per stage (the intent's optimisation comes on top).
 A carrier whose conflict component has no overlap uses SSAP (optimal there; so with no overlaps
 ``dec-mcts`` is SSAP). Random numbers: a splitmix64 stream seeded from the carrier's copy of the
 stage stream and its index (deterministic for a seed). Stages must number at most 62 (own
@@ -32,6 +33,7 @@ sequences are 64-bit masks).
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 from numba import njit
@@ -57,6 +59,8 @@ BETA0 = 1.0
 #: Most stages a dec-mcts instance may have.
 MAX_STAGES = 62
 NO_CHILD = -1
+#: Iterations between clock checks with a time budget.
+CHUNK = 256
 
 
 @njit(cache=True)
@@ -136,13 +140,13 @@ def _draw_plans(state, icode, icum, ik, plan):
 
 
 @njit(cache=True)
-def _search(n_iter, c_uct, gamma, r, j, own_stages, valid, nleft, xobs, record, left_rec, known_pts, known_x,
-            icode, icum, ik, table, points, cdf, guide, indptr, nbr, scale, state,
+def _search(it0, n_iter, created, c_uct, gamma, r, j, own_stages, valid, nleft, xobs, record, left_rec,
+            known_pts, known_x, icode, icum, ik, table, points, cdf, guide, indptr, nbr, scale, state,
             child, pos, dleft, n_eff, w, last, bestv, bestm, left, mark, xval, pts, plan, path):
-    """Run ``n_iter`` Dec-MCTS iterations from the root (node 0); returns the nodes created."""
+    """Run iterations ``it0 .. it0 + n_iter - 1`` from the root (node 0) of a tree with
+    ``created`` nodes (capacity >= created + n_iter); returns the nodes created."""
     n_own = own_stages.shape[0]
-    created = 1
-    for it in range(n_iter):
+    for it in range(it0, it0 + n_iter):
         _draw_plans(state, icode, icum, ik, plan)
         node = 0
         depth = 0
@@ -229,6 +233,27 @@ def _values_given(masks, n_samples, r, j, valid, nleft, xobs, record, left_rec, 
         out[i] = acc / n_samples
 
 
+def _tree(capacity: int, d_root: int) -> tuple:
+    """Preallocated tree arrays for ``capacity`` nodes: children ``[C, 2]``, position, passengers
+    left, discounted visits, discounted value sums, last update, best rollout value and its own
+    sequence (root: position 0, ``d_root`` passengers)."""
+    child = np.full((capacity, 2), NO_CHILD, dtype=np.int64)
+    dleft = np.zeros(capacity, np.int64)
+    dleft[0] = d_root
+    return (child, np.zeros(capacity, np.int64), dleft, np.zeros(capacity), np.zeros(capacity),
+            np.zeros(capacity, np.int64), np.full(capacity, -np.inf), np.zeros(capacity, np.int64))
+
+
+def _grown(tree: tuple, capacity: int) -> tuple:
+    """The tree's arrays with room for ``capacity`` nodes (new entries as :func:`_tree`'s)."""
+    fresh = _tree(capacity, 0)
+    out = []
+    for old, new in zip(tree, fresh):
+        new[: len(old)] = old
+        out.append(new)
+    return tuple(out)
+
+
 def optimise_distribution(values: np.ndarray, steps: int = GRADIENT_STEPS, alpha: float = GRADIENT_ALPHA,
                           beta0: float = BETA0) -> np.ndarray:
     """Dec-MCTS's annealed gradient descent on this carrier's distribution over its candidate
@@ -253,16 +278,22 @@ class DecMCTSPlanner:
     Args:
         iterations: tree iterations per carrier per stage.
         exploration: D-UCT constant on normalised rewards.
+        plan_ms: time budget per carrier per stage, milliseconds (the tree search runs in chunks
+            of :data:`CHUNK` iterations until it is spent; anytime, not bit-reproducible).
     """
 
     name = "dec-mcts"
     decentralised = True
 
-    def __init__(self, iterations: int | None = None, exploration: float | None = None, **_ignored):
+    def __init__(self, iterations: int | None = None, exploration: float | None = None,
+                 plan_ms: float | None = None, **_ignored):
         if iterations is not None and int(iterations) < 1:
             raise ValueError(f"iterations must be >= 1, got {iterations}")
+        if plan_ms is not None and not float(plan_ms) > 0:
+            raise ValueError(f"plan_ms must be > 0, got {plan_ms}")
         self.iterations = DEFAULT_ITERATIONS if iterations is None else int(iterations)
         self.exploration = DEFAULT_EXPLORATION if exploration is None else float(exploration)
+        self.plan_ms = None if plan_ms is None else float(plan_ms)
 
     def warm_up(self, problem: Problem) -> None:
         tiny = Problem.build(1, np.ones((2, 3), dtype=bool), [[[0, 1], [1, 2]]])
@@ -309,24 +340,28 @@ class DecMCTSPlanner:
         known_x = np.nan_to_num(local.observations.ravel()[known], nan=0.0)
         icode, icum, ik = self._intent_arrays(local, R)
         own_stages = np.flatnonzero(valid[r, j:]).astype(np.int64) + j
-        cap = self.iterations + 1
-        child = np.full((cap, 2), NO_CHILD, dtype=np.int64)
-        pos = np.zeros(cap, np.int64)
-        dleft = np.zeros(cap, np.int64)
-        dleft[0] = d_own
-        n_eff = np.zeros(cap)
-        w = np.zeros(cap)
-        last = np.zeros(cap, np.int64)
-        bestv = np.full(cap, -np.inf)
-        bestm = np.zeros(cap, np.int64)
+        xobs = np.ascontiguousarray(local.observations)
         scratch = (np.zeros(R, np.int64), np.zeros(R * N, np.int8), np.zeros(R * N), np.zeros(R * N, np.int64),
                    np.zeros(R, np.int64), np.zeros(N + 2, np.int64))
-        xobs = np.ascontiguousarray(local.observations)
-        created = _search(self.iterations, self.exploration, GAMMA, r, j, own_stages, valid, nleft, xobs, record,
-                          left_rec, known, known_x, icode, icum, ik, prep.table, prep.sampler.points,
-                          prep.sampler.cdf, prep.sampler.guide, prep.indptr, prep.nbr, float(problem.scale), state,
-                          child, pos, dleft, n_eff, w, last, bestv, bestm, *scratch)
-        it = self.iterations - 1
+        tree = _tree(self.iterations + 1 if self.plan_ms is None else CHUNK + 1, d_own)
+        fixed = (self.exploration, GAMMA, r, j, own_stages, valid, nleft, xobs, record, left_rec, known, known_x,
+                 icode, icum, ik, prep.table, prep.sampler.points, prep.sampler.cdf, prep.sampler.guide,
+                 prep.indptr, prep.nbr, float(problem.scale), state)
+        if self.plan_ms is None:
+            done = self.iterations
+            created = _search(0, done, 1, *fixed, *tree, *scratch)
+        else:
+            deadline = time.perf_counter() + self.plan_ms / 1e3
+            done, created = 0, 1
+            while True:
+                if created + CHUNK >= len(tree[1]):
+                    tree = _grown(tree, 2 * len(tree[1]))
+                created = _search(done, CHUNK, created, *fixed, *tree, *scratch)
+                done += CHUNK
+                if time.perf_counter() >= deadline:
+                    break
+        child, pos, dleft, n_eff, w, last, bestv, bestm = tree
+        it = done - 1
         eff = n_eff[:created] * GAMMA ** (it - last[:created])
         kids = child[0]
         score = [eff[c] if c != NO_CHILD else -1.0 for c in kids]

@@ -277,5 +277,5 @@ register("closed-loop", _closed_loop, options=("iterations", "plan_ms"))
 register("online-optimal", _online_optimal, options=())
 # Decentralised planners (each carrier decides on board; ``decide_local``): run them under a
 # communication model with planner.decentralised.run_comms (run_online does so with perfect links).
-register("dec-mcts", _dec_mcts, options=("iterations", "exploration"))
-register("dec-closed-loop", _dec_closed_loop, options=("iterations",))
+register("dec-mcts", _dec_mcts, options=("iterations", "plan_ms", "exploration"))
+register("dec-closed-loop", _dec_closed_loop, options=("iterations", "plan_ms"))

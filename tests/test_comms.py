@@ -294,3 +294,12 @@ def test_comms_experiment_quick(tmp_path):
         assert (tmp_path / name).is_file()
     text = (tmp_path / "comms.md").read_text()
     assert "Dec-closed-loop" in text and "Dec-MCTS" in text
+
+
+@pytest.mark.parametrize("name", DECENTRALISED)
+def test_time_budget_per_carrier(name):
+    planner = make_planner(name, plan_ms=3.0)
+    for k, (problem, x) in enumerate(_instances(21, 3, carriers=3, overlaps=8, stages=6, passengers=2)):
+        result = run_comms(problem, x, planner, seed=k, comms=CommsSpec(loss=0.5))
+        valid = ~np.isnan(x)
+        assert result.deployed.sum(axis=1).tolist() == np.minimum(problem.passengers, valid.sum(axis=1)).tolist()
