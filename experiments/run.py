@@ -205,7 +205,7 @@ def run_tasks(tasks: list[Task], pool, desc: str, progress: bool) -> list[dict]:
     return rows
 
 
-def cluster_executor(address: str, timeout_s: float):
+def cluster_executor(address: str, timeout_s: float, planners: tuple[str, ...] | None = None):
     """A ``concurrent.futures`` executor running tasks on a Dask distributed cluster.
 
     The workers must be able to import this project (start them from a checkout with the
@@ -234,7 +234,7 @@ def cluster_executor(address: str, timeout_s: float):
     except (OSError, TimeoutError) as err:
         client.close()
         raise UsageError(f"--cluster: the scheduler at {address!r} has no worker after {timeout_s:g} s") from None
-    client.run(warm_up_worker)
+    client.run(warm_up_worker, planners)
     threads = sum(client.nthreads().values())
     # pure=False: every task runs (a task's result never comes from another's cache).
     return client, client.get_executor(pure=False), threads
@@ -392,19 +392,19 @@ def main(argv=None) -> int:
     pool = client = None
     if args.cluster:
         try:
-            client, pool, args.jobs = cluster_executor(args.cluster, args.cluster_timeout)
+            client, pool, args.jobs = cluster_executor(args.cluster, args.cluster_timeout, s["planners"])
         except UsageError as err:
             print(f"python -m experiments: error: {err}", file=sys.stderr)
             return 2
         info["cluster"] = {"address": args.cluster, "worker_threads": args.jobs}
     elif args.jobs > 1:
         pool = ProcessPoolExecutor(max_workers=args.jobs, mp_context=get_context("spawn"),
-                                   initializer=warm_up_worker)
+                                   initializer=warm_up_worker, initargs=(s["planners"],))
         # Start every worker (and load its compiled kernels) before any sweep is timed.
         for fut in [pool.submit(time.sleep, 0.5) for _ in range(args.jobs)]:
             fut.result()
     else:
-        warm_up_worker()
+        warm_up_worker(s["planners"])
     info["warm_up_seconds"] = round(time.perf_counter() - started, 1)
     try:
         for sweep in sweeps:

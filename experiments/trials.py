@@ -176,8 +176,9 @@ def decode(text: str, n_carriers: int, n_stages: int) -> np.ndarray:
     return out
 
 
-def warm_up_worker() -> None:
-    """Load (or compile) the numba kernels once per worker process before any timed decision."""
+def warm_up_worker(names: tuple[str, ...] | None = None) -> None:
+    """Load (or compile) the numba kernels once per worker process before any timed decision:
+    those of the planners ``names`` (every registered planner when None)."""
     import warnings
 
     warnings.filterwarnings("ignore", category=RuntimeWarning)
@@ -188,7 +189,7 @@ def warm_up_worker() -> None:
     from planner.registry import make_planner, planner_names
 
     inst = random_instance(np.random.default_rng(0), 2, 1, 3, 1, 3.0)
-    for name in planner_names():
+    for name in planner_names() if names is None else [n for n in names if n in planner_names()]:
         planner = make_planner(name, iterations=16)
         warm = getattr(planner, "warm_up", None)
         if callable(warm):
