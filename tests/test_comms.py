@@ -241,14 +241,18 @@ def test_intent_distribution_moves_to_the_better_sequences():
 
 
 def test_decentralised_planners_run_centrally_with_full_information():
+    from planner.problem import make_view, stage_rng
+
     problem, x = next(_instances(20, 1, carriers=3, overlaps=6, stages=6, passengers=2))
     for name in DECENTRALISED:
         a = run_online(problem, x, _planner(name), seed=1)  # run_online routes to run_comms
         b = run_comms(problem, x, _planner(name), seed=1)
         assert (a.deployed == b.deployed).all()
-        out = _planner(name).decide_local.__self__  # the carrier interface exists
-        assert callable(out.decide_local)
-    assert isinstance(LocalDecision(True).deploy, bool)
+        # decide(view, rng) on the full view (a central caller) is every carrier's own decision
+        # with full information: with perfect links, stage 0 has no intents yet, so it matches.
+        view = make_view(problem, 0, x, np.zeros(problem.valid.shape, bool))
+        assert (_planner(name).decide(view, stage_rng(1, 0)) == a.deployed[:, 0]).all()
+    assert LocalDecision(True).intent is None
 
 
 # ----------------------------------------------------------------------------- command line
