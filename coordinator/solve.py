@@ -3,6 +3,7 @@
     python -m coordinator.solve INSTANCE.json --planner NAME [--iterations K] [--plan-ms MS]
                                 [--seed S] [--exploration C] [--samples M] [--layout L]
                                 [--learn-prior [true|false]] [--no-clairvoyant] [--no-online-optimum]
+                                [--message-loss P] [--message-delay K] [--groups 0,1/2,3]
 
 A thin command line: planner names, options, their ranges and defaults come from
 :mod:`planner.registry` (one flag per option), the work from :func:`planner.solve.solve_instance`.
@@ -20,6 +21,13 @@ Output (stdout, one JSON object)::
 ``online_optimum`` (planner/online_optimal.py) is the expected reward of the Bayes-optimal online
 policy, present only when the instance is small enough (``AUTO_WORK``); ``planner_expected_reward``
 is the exact expected reward of the planner run, for ``ssap``, ``random`` and ``online-optimal``.
+Communication (planner/comms.py, docs/planner.md): ``--message-loss P`` drops every message
+(observation, intent, decision) with probability P in [0, 1]; ``--message-delay K`` delivers the
+others K stages late; ``--groups 0,1/2,3`` splits the carriers (indices, groups separated by ``/``)
+into groups that cannot hear each other, the coordinator hearing the first group only. The
+defaults (0, 0, one group) run exactly as without the flags; any other value adds
+``"comms": {"loss", "delay", "groups"}`` to the output.
+
 ``--planner online-optimal`` on an instance beyond the exact solver's limits exits 2 with one line.
 
 Exit codes: 0 success; 2 bad input (unreadable or invalid instance file, bad arguments, unknown
@@ -74,6 +82,35 @@ def _seed(text: str) -> int:
     return value
 
 
+def _loss(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"expected a probability in [0, 1], found {text!r}")
+    return value
+
+
+def _delay(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0 (stages), found {text!r}")
+    return value
+
+
+def _groups(text: str):
+    from planner.comms import parse_groups
+
+    try:
+        return parse_groups(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="python -m coordinator.solve",
@@ -92,6 +129,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-clairvoyant", action="store_true", help="skip the clairvoyant bound")
     parser.add_argument("--no-online-optimum", action="store_true",
                         help="skip the exact online optimum (computed only for small instances anyway)")
+    parser.add_argument("--message-loss", type=_loss, default=0.0, metavar="P",
+                        help="probability in [0, 1] that a message is dropped (default 0)")
+    parser.add_argument("--message-delay", type=_delay, default=0, metavar="K",
+                        help="stages every delivered message is late (default 0)")
+    parser.add_argument("--groups", type=_groups, default=(), metavar="0,1/2,3",
+                        help="carrier groups that cannot hear each other; the coordinator hears the first")
     return parser
 
 
@@ -111,9 +154,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         # Options the chosen planner rejects (e.g. a budget it cannot use).
         print(f"{prog}: error: planner {args.planner!r}: {err}", file=sys.stderr)
         return EXIT_INPUT
+    from planner.comms import CommsSpec
+
+    comms = CommsSpec(args.message_loss, args.message_delay, args.groups)
     try:
         out = solve_instance(args.instance, planner, args.planner, args.seed, clairvoyant=not args.no_clairvoyant,
-                             online_optimum=not args.no_online_optimum)
+                             online_optimum=not args.no_online_optimum, comms=None if comms.perfect else comms)
     except (InstanceError, TooLarge, UnsupportedPrior) as err:
         print(str(err), file=sys.stderr)
         return EXIT_INPUT

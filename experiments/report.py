@@ -28,6 +28,8 @@ SUMMARY_FIELDS = (
 )
 #: Plot order and style: (label, colour, marker, line style).
 STYLE = {
+    "dec-closed-loop": ("Dec-closed-loop (ours)", "#66a61e", "P", "-"),
+    "dec-mcts": ("Dec-MCTS", "#e6ab02", "X", "-"),
     "closed-loop": ("Closed-loop (ours)", "#1b9e77", "D", "-"),
     "mcts-ssap": ("MCTS-SSAP", "#d95f02", "o", "-"),
     "mcts-random": ("MCTS-Random", "#7570b3", "s", "-"),

@@ -7,9 +7,10 @@ Usage::
     python -m experiments scaling --carriers 2,3,4,5,6,12,24,32
     python -m experiments urban --urban-trials 10
     python -m experiments all --quick --out /tmp/results   # smoke test (seconds)
+    python -m experiments comms --trials 50 --iterations 10000   # reward against message loss
     python -m experiments priors --trials 20 --iterations 2000   # stated / learned / oracle priors
 
-``priors`` (experiments.priors) is not part of ``all``.
+``comms`` and ``priors`` (experiments.priors) are not part of ``all``.
 
 Each sweep writes to ``--out`` (default ``docs/results``; ``--quick`` runs default to a temporary
 directory so they never overwrite the committed results): ``<sweep>_trials.csv`` (one row per
@@ -48,7 +49,13 @@ DEFAULT_SCENARIO = ROOT / "scenarios" / "urban_alpha.yaml"
 DEFAULT_PLANNERS = ("mcts-ssap", "mcts-random", "ssap", "random", "closed-loop")
 OVERLAP_LEVELS = (0, 4, 8, 12, 16, 20)
 CARRIER_LEVELS = (2, 3, 4, 5, 6, 12, 24, 32)
-QUICK = {"trials": 3, "iterations": 300, "overlaps": (0, 10, 20), "carriers": (2, 4, 8), "urban_trials": 2}
+QUICK = {"trials": 3, "iterations": 300, "overlaps": (0, 10, 20), "carriers": (2, 4, 8), "urban_trials": 2,
+         "losses": (0.0, 0.5, 1.0)}
+#: The comms experiment: message-loss levels, and (sweep name, carriers, overlaps) configurations.
+LOSS_LEVELS = (0.0, 0.25, 0.5, 0.75, 0.9, 1.0)
+COMMS_CONFIGS = (("comms-r4", 4, 20), ("comms-r6", 6, 10))
+#: Planners of the comms experiment: centralised (with their fallback), decentralised, SSAP.
+COMMS_PLANNERS = ("dec-closed-loop", "dec-mcts", "closed-loop", "mcts-ssap", "ssap")
 #: The paper's Urban Circuit result (features captured): MCTS-SSAP, SSAP, MCTS-Random, Random.
 PAPER_URBAN = {"mcts-ssap": 157, "ssap": 122, "mcts-random": 114, "random": 68}
 
@@ -74,7 +81,7 @@ def _int_list(text: str, what: str, minimum: int) -> tuple[int, ...]:
 def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m experiments", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("what", nargs="?", default="all", choices=("overlap", "scaling", "urban", "all", "priors"),
+    p.add_argument("what", nargs="?", default="all", choices=("overlap", "scaling", "urban", "comms", "all", "priors"),
                    help="which experiment (default: all)")
     p.add_argument("--trials", type=int, default=None, help="trials per level (default 50; quick 3)")
     p.add_argument("--iterations", type=int, default=None,
@@ -89,8 +96,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--quick", action="store_true", help="tiny settings for a smoke test")
     p.add_argument("--out", type=Path, default=None,
                    help=f"output directory (default {DEFAULT_OUT.relative_to(ROOT)}; with --quick {QUICK_OUT})")
-    p.add_argument("--planners", default=",".join(DEFAULT_PLANNERS),
-                   help="comma-separated planner names (the clairvoyant bound is always added)")
+    p.add_argument("--planners", default=None,
+                   help="comma-separated planner names (the clairvoyant bound is always added; default: the "
+                        "paper's four and closed-loop, or for comms: " + ",".join(COMMS_PLANNERS) + ")")
+    p.add_argument("--losses", default=None,
+                   help="message-loss levels of the comms experiment (default 0,0.25,0.5,0.75,0.9,1)")
+    p.add_argument("--message-delay", type=int, default=0, help="message delay (stages) in the comms experiment")
     p.add_argument("--overlaps", default=None, help="overlap levels of the overlap sweep (default 0,4,...,20)")
     p.add_argument("--carriers", default=None, help="fleet sizes of the scaling sweep (default 2,...,6,12,24,32)")
     p.add_argument("--scaling-overlaps", type=int, default=10, help="overlaps in the scaling sweep (default 10)")
@@ -123,18 +134,32 @@ def _settings(args) -> dict:
     carriers = _int_list(args.carriers, "carriers", 1) if args.carriers else (QUICK["carriers"] if quick else CARRIER_LEVELS)
     from planner.registry import planner_names
 
+    if args.planners is None:
+        args.planners = ",".join(COMMS_PLANNERS if args.what == "comms" else DEFAULT_PLANNERS)
     planners = tuple(p.strip() for p in args.planners.split(",") if p.strip())
     if args.what == "priors" and args.planners == ",".join(DEFAULT_PLANNERS):
         from experiments.priors import DEFAULT_PLANNERS as PRIORS_PLANNERS
 
         planners = PRIORS_PLANNERS
+    if args.losses:
+        try:
+            losses = tuple(float(v) for v in args.losses.split(",") if v.strip())
+        except ValueError:
+            losses = ()
+        if not losses or not all(0.0 <= v <= 1.0 for v in losses):
+            raise UsageError(f"--losses: expected comma-separated probabilities in [0, 1], found {args.losses!r}")
+    else:
+        losses = QUICK["losses"] if quick else LOSS_LEVELS
+    if args.message_delay < 0:
+        raise UsageError(f"--message-delay: expected an integer >= 0, found {args.message_delay}")
     unknown = [p for p in planners if p not in planner_names()]
     if unknown or not planners:
         raise UsageError(f"--planners: expected names among {', '.join(planner_names())}, found {args.planners!r}")
     if args.what in ("urban", "all") and not args.scenario.is_file():
         raise UsageError(f"--scenario: expected an existing scenario file, found {str(args.scenario)!r}")
     return {"trials": trials, "iterations": iterations, "urban_trials": urban_trials, "overlaps": overlaps,
-            "carriers": carriers, "planners": planners, "seed": args.seed}
+            "carriers": carriers, "planners": planners, "seed": args.seed, "losses": losses,
+            "delay": args.message_delay}
 
 
 def build_tasks(sweep: str, s: dict, args) -> list[Task]:
@@ -155,6 +180,14 @@ def build_tasks(sweep: str, s: dict, args) -> list[Task]:
             for t in range(s["trials"]):
                 tasks += [Task("scaling", level, t, p, s["seed"], s["iterations"], carriers=level,
                                overlaps=args.scaling_overlaps) for p in names]
+    elif sweep == "comms":
+        # Level: message loss in percent. Every planner of a trial sees the same instance, the
+        # same observations, the same planner seed and so the same message deliveries.
+        for name, carriers, overlaps in COMMS_CONFIGS:
+            for loss in s["losses"]:
+                for t in range(s["trials"]):
+                    tasks += [Task(name, int(round(100 * loss)), t, p, s["seed"], s["iterations"], carriers=carriers,
+                                   overlaps=overlaps, loss=loss, delay=s["delay"]) for p in names]
     else:
         for t in range(s["urban_trials"]):
             tasks += [Task("urban", 0, t, p, s["seed"], s["iterations"], carriers=3, stages=19,
@@ -183,7 +216,7 @@ def run_tasks(tasks: list[Task], pool, desc: str, progress: bool) -> list[dict]:
     return rows
 
 
-def cluster_executor(address: str, timeout_s: float):
+def cluster_executor(address: str, timeout_s: float, planners: tuple[str, ...] | None = None):
     """A ``concurrent.futures`` executor running tasks on a Dask distributed cluster.
 
     The workers must be able to import this project (start them from a checkout with the
@@ -212,7 +245,7 @@ def cluster_executor(address: str, timeout_s: float):
     except (OSError, TimeoutError):
         client.close()
         raise UsageError(f"--cluster: the scheduler at {address!r} has no worker after {timeout_s:g} s") from None
-    client.run(warm_up_worker)
+    client.run(warm_up_worker, planners)
     threads = sum(client.nthreads().values())
     # pure=False: every task runs (a task's result never comes from another's cache).
     return client, client.get_executor(pure=False), threads
@@ -226,7 +259,9 @@ def _write_sweep(sweep: str, rows: list[dict], out: Path, seconds: float, jobs: 
     report.write_trials(rows, out / f"{sweep}_trials.csv")
     summary = report.summarise(rows)
     report.write_summary(summary, out / f"{sweep}_summary.csv")
-    if sweep in ("overlap", "scaling"):
+    if sweep == "comms":
+        text = _comms_report(rows, summary, out, s, jobs)
+    elif sweep in ("overlap", "scaling"):
         if sweep == "overlap":
             key, x_label, log_x = "overlaps", "number of overlaps", False
             setting = "R = 4 carriers, D = 3, N = 10"
@@ -306,9 +341,35 @@ def _urban_report(rows, summary, out: Path, s: dict, args) -> list[str]:
     return lines
 
 
+def _comms_report(rows, summary, out: Path, s: dict, jobs: int) -> list[str]:
+    """Tables and plots of the comms experiment, one block per configuration."""
+    text = ["## Comms sweep", "",
+            f"Reward against message loss P (each observation, intent and decision message dropped "
+            f"independently with probability P{', delayed ' + str(s['delay']) + ' stage(s)' if s['delay'] else ''}; "
+            f"planner/comms.py), D = 3, N = 10, Poisson(3), {s['trials']} paired trials per point, "
+            f"{s['iterations']} iterations per decision (per carrier for the decentralised planners). "
+            "Centralised planners use their fallback (a carrier whose decision is lost deploys only when "
+            "forced). Mean normalised reward ± SEM (mean fraction of the clairvoyant bound); level = P in percent."]
+    for name, carriers, overlaps in COMMS_CONFIGS:
+        sub = [r for r in summary if r["sweep"] == name]
+        rs = [r for r in rows if r["sweep"] == name]
+        if not sub:
+            continue
+        report.plot(sub, out / f"{name}.png", "message loss P (%)",
+                    f"R = {carriers}, {overlaps} overlaps, D = 3, N = 10: reward against message loss "
+                    f"({s['trials']} trials, {s['iterations']} iterations)")
+        text += ["", f"### R = {carriers}, {overlaps} overlaps", "", report.markdown_table(sub, "P (%)"), "",
+                 f"![R = {carriers}]({name}.png)", "",
+                 "Paired differences on the same trials and deliveries (mean ± SEM, wins/losses):", "",
+                 report.paired_table(rs, "dec-closed-loop", ["closed-loop", "mcts-ssap", "dec-mcts", "ssap"], "P (%)"),
+                 "", f"Mean decision time per stage, ms ({jobs} worker process(es); decentralised: the slowest carrier):",
+                 "", report.timing_table(sub, "P (%)")]
+    return text
+
+
 def _write_index(out: Path, timings: dict) -> None:
     parts = ["# Experiment results", "", "Generated by `python -m experiments`; see docs/results.md for the discussion.", ""]
-    for sweep in ("overlap", "scaling", "urban", "priors"):
+    for sweep in ("overlap", "scaling", "urban", "comms", "priors"):
         path = out / f"{sweep}.md"
         if path.is_file():
             parts += [path.read_text(), ""]
@@ -351,19 +412,19 @@ def main(argv=None) -> int:
     pool = client = None
     if args.cluster:
         try:
-            client, pool, args.jobs = cluster_executor(args.cluster, args.cluster_timeout)
+            client, pool, args.jobs = cluster_executor(args.cluster, args.cluster_timeout, s["planners"])
         except UsageError as err:
             print(f"python -m experiments: error: {err}", file=sys.stderr)
             return 2
         info["cluster"] = {"address": args.cluster, "worker_threads": args.jobs}
     elif args.jobs > 1:
         pool = ProcessPoolExecutor(max_workers=args.jobs, mp_context=get_context("spawn"),
-                                   initializer=warm_up_worker)
+                                   initializer=warm_up_worker, initargs=(s["planners"],))
         # Start every worker (and load its compiled kernels) before any sweep is timed.
         for fut in [pool.submit(time.sleep, 0.5) for _ in range(args.jobs)]:
             fut.result()
     else:
-        warm_up_worker()
+        warm_up_worker(s["planners"])
     info["warm_up_seconds"] = round(time.perf_counter() - started, 1)
     try:
         for sweep in sweeps:
@@ -376,7 +437,8 @@ def main(argv=None) -> int:
                                      "iterations": s["iterations"], "seed": s["seed"],
                                      "planners": list(s["planners"]),
                                      "levels": list(s["overlaps"] if sweep == "overlap" else
-                                                    s["carriers"] if sweep == "scaling" else [0])}
+                                                    s["carriers"] if sweep == "scaling" else
+                                                    s["losses"] if sweep == "comms" else [0])}
             info_path.write_text(json.dumps(info, indent=2) + "\n")
             print(f"{sweep}: {len(tasks)} tasks in {seconds:.1f} s -> {out / (sweep + '.md')}", file=sys.stderr)
     finally:

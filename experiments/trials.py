@@ -36,6 +36,8 @@ class Task:
         carriers, passengers, stages, overlaps, mean: random-instance settings (R, D, N, number of
             overlap groups, Poisson mean); unused for urban.
         scenario: scenario file (urban and priors).
+        loss, delay: the communication model (comms sweeps; the deliveries are drawn from the
+            planner seed, so every planner of a trial meets the same ones).
         variant, prior_factor, oracle: priors sweep only (experiments.priors): ``stated``,
             ``learned`` or ``oracle``; factor on the stated (derived Poisson) prior's mean; the
             world's observed (mean, variance) the oracle prior is fitted to.
@@ -56,6 +58,8 @@ class Task:
     variant: str = ""
     prior_factor: float = 1.0
     oracle: tuple = ()
+    loss: float = 0.0
+    delay: int = 0
 
     @property
     def cost(self) -> float:
@@ -65,6 +69,8 @@ class Task:
         if self.planner == CLAIRVOYANT:
             return 0.05 * self.carriers
         scale = self.carriers * self.stages / 40.0
+        if self.planner.startswith("dec-"):
+            scale *= self.carriers
         return scale * self.iterations / 10_000
 
 
@@ -77,6 +83,7 @@ def trial_instance(task: Task):
         return _urban_instance(task)
     if task.sweep == "priors":
         return _priors_instance(task)
+    # Comms sweeps: trial t is the same instance at every message-loss level (paired across P).
     from planner.instance import random_instance
 
     rng = np.random.default_rng(np.random.SeedSequence(task.seed, spawn_key=(1000, task.trial)))
@@ -181,7 +188,13 @@ def run_task(task: Task) -> dict:
                    deployed=_encode(result.deployed))
         return row
     planner = _planner(task.planner, task.iterations, task.variant == "learned")
-    result = run_online(problem, x, planner, planner_seed)
+    if task.sweep.startswith("comms"):
+        from planner.comms import CommsSpec
+        from planner.decentralised import run_comms
+
+        result = run_comms(problem, x, planner, planner_seed, CommsSpec(task.loss, task.delay))
+    else:
+        result = run_online(problem, x, planner, planner_seed)
     elapsed = time.perf_counter() - t0
     ms = np.asarray(result.decision_ms)
     row.update(reward=result.reward, features=result.features, exact="",
@@ -204,8 +217,9 @@ def decode(text: str, n_carriers: int, n_stages: int) -> np.ndarray:
     return out
 
 
-def warm_up_worker() -> None:
-    """Load (or compile) the numba kernels once per worker process before any timed decision."""
+def warm_up_worker(names: tuple[str, ...] | None = None) -> None:
+    """Load (or compile) the numba kernels once per worker process before any timed decision:
+    those of the planners ``names`` (every registered planner when None)."""
     import warnings
 
     warnings.filterwarnings("ignore", category=RuntimeWarning)
@@ -216,7 +230,7 @@ def warm_up_worker() -> None:
     from planner.registry import make_planner, planner_names
 
     inst = random_instance(np.random.default_rng(0), 2, 1, 3, 1, 3.0)
-    for name in planner_names():
+    for name in planner_names() if names is None else [n for n in names if n in planner_names()]:
         planner = make_planner(name, iterations=16)
         warm = getattr(planner, "warm_up", None)
         if callable(warm):

@@ -55,3 +55,12 @@ class SSAPPlanner:
         for r in np.flatnonzero(can):
             out[r] = ssap.decide(table, float(x[r]), int(n[r]), int(d[r]))
         return out
+
+    def decide_local(self, local, rng: np.random.Generator) -> bool:
+        """The same rule on board (:class:`planner.decentralised.LocalView`): it needs no message,
+        so under any communication model every carrier deploys exactly as with perfect links."""
+        can, must, n, d = local.own()
+        if not can:
+            return False
+        table = compile_problem(local.problem).table
+        return bool(ssap.decide(table, float(local.observations[local.carrier, local.stage]), n, d))

@@ -312,10 +312,16 @@ def run_online(problem: Problem, x: np.ndarray, planner: Planner, seed: int) -> 
     Stage j's random stream is :func:`stage_rng` ``(seed, j)``. A NaN at a scheduled stage is an
     online surprise: the planner learns it only at that stage. If the planner has a
     ``warm_up(problem)`` method (e.g. to compile numba code) it is called once before the first
-    timed decision, so ``decision_ms`` never includes compilation.
+    timed decision, so ``decision_ms`` never includes compilation. A decentralised planner
+    (``decentralised = True``, ``decide_local``) runs under perfect communication
+    (:func:`planner.decentralised.run_comms`).
     """
     import time
 
+    if callable(getattr(planner, "decide_local", None)) and getattr(planner, "decentralised", False):
+        from planner.decentralised import run_comms  # every carrier decides; links are perfect here
+
+        return run_comms(problem, x, planner, seed)
     x = np.asarray(x, dtype=float)
     if x.shape != problem.valid.shape:
         raise ValueError(f"observations shape {x.shape} != problem shape {problem.valid.shape}")

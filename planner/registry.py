@@ -289,6 +289,18 @@ def _closed_loop(**options):
     return ClosedLoopPlanner(**options)
 
 
+def _dec_mcts(**options):
+    from planner.decmcts import DecMCTSPlanner  # decentralised: see planner/decentralised.py
+
+    return DecMCTSPlanner(**options)
+
+
+def _dec_closed_loop(**options):
+    from planner.decentralised import DecClosedLoopPlanner
+
+    return DecClosedLoopPlanner(**options)
+
+
 def _online_optimal(**_):
     # The exact Bayes-optimal policy for small instances; budget options do not apply to it.
     from planner.online_optimal import OnlineOptimalPlanner
@@ -303,3 +315,7 @@ register("mcts-random", _mcts("random"), options=_MCTS_OPTIONS)
 register("mcts-ssap", _mcts("ssap"), options=_MCTS_OPTIONS)
 register("closed-loop", _closed_loop, options=("iterations", "plan_ms"))
 register("online-optimal", _online_optimal, options=())
+# Decentralised planners (each carrier decides on board; ``decide_local``): run them under a
+# communication model with planner.decentralised.run_comms (run_online does so with perfect links).
+register("dec-mcts", _dec_mcts, options=("iterations", "plan_ms", "exploration"))
+register("dec-closed-loop", _dec_closed_loop, options=("iterations", "plan_ms"))

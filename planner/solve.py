@@ -9,12 +9,12 @@ from pathlib import Path
 
 import numpy as np
 
-from planner.instance import load_instance
+from planner.instance import InstanceError, load_instance
 from planner.problem import run_online
 
 
 def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clairvoyant: bool = True,
-                   online_optimum: bool = True) -> dict:
+                   online_optimum: bool = True, comms=None) -> dict:
     """Load the instance at ``path``, run ``planner`` online with root seed ``seed``, evaluate.
 
     Returns:
@@ -22,7 +22,12 @@ def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clai
         "decision_ms" [ms per stage], "observations" [[x or None]], "observations_sampled",
         "clairvoyant" {"reward", "features", "exact"} (with ``clairvoyant``),
         "online_optimum" {"expected_reward", "exact", "atoms"[, "planner_expected_reward"]} (with
-        ``online_optimum``, when the instance is within :data:`planner.online_optimal.AUTO_WORK`)}``.
+        ``online_optimum``, when the instance is within :data:`planner.online_optimal.AUTO_WORK`),
+        "comms" {"loss", "delay", "groups"} (only with ``comms``)}``.
+
+    ``comms``: a :class:`planner.comms.CommsSpec`; None (the default) runs
+    :func:`planner.problem.run_online` exactly as before, otherwise
+    :func:`planner.decentralised.run_comms` under that communication model.
 
     Raises:
         planner.instance.InstanceError: a bad instance file (one line).
@@ -30,7 +35,17 @@ def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clai
             beyond its limits (one line).
     """
     (problem, x), sampled = load_instance(path, seed=seed)
-    result = run_online(problem, x, planner, seed)
+    if comms is None:
+        result = run_online(problem, x, planner, seed)
+    else:
+        from planner.decentralised import run_comms
+
+        try:
+            comms.check(problem.n_carriers)
+        except ValueError:
+            raise InstanceError(str(path), "--groups", f"carrier indices 0..{problem.n_carriers - 1}",
+                                repr([list(g) for g in comms.groups])) from None
+        result = run_comms(problem, x, planner, seed, comms)
     out = {
         "planner": planner_name,
         "seed": seed,
@@ -41,6 +56,8 @@ def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clai
         "observations": [[None if np.isnan(v) else float(v) for v in row] for row in x],
         "observations_sampled": sampled,
     }
+    if comms is not None:
+        out["comms"] = {"loss": comms.loss, "delay": comms.delay, "groups": [list(g) for g in comms.groups]}
     if clairvoyant:
         from planner import clairvoyant as bound_mod  # numba: loaded only when needed
 

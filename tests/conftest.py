@@ -12,6 +12,8 @@ ONLINE_PLANNERS = [
     ("mcts-random", {"iterations": 40}),
     ("mcts-ssap", {"iterations": 40}),
     ("closed-loop", {"iterations": 40}),
+    ("dec-mcts", {"iterations": 40}),
+    ("dec-closed-loop", {"iterations": 40}),
 ]
 
 

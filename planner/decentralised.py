@@ -1,0 +1,487 @@
+"""Planning under a communication model: the comms-aware online loop, the per-carrier view, and
+``dec-closed-loop``, our decentralised planner.
+
+Two kinds of planner run under :func:`run_comms`:
+
+* **centralised** (:class:`planner.problem.Planner`, ``decide(view, rng)``): the coordinator plans
+  from what reached it (:func:`coordinator_view`); carriers execute what reaches them in time,
+  else fall back (no deployment unless forced);
+* **decentralised** (``decide_local(local, rng) -> LocalDecision``): every carrier decides its own
+  action from a :class:`LocalView` — its own observations and deployments, everything known in
+  advance (schedules, overlaps, passengers, prior, the mission seed), and the messages it has
+  received — and publishes an :class:`Intent` for the others. This is the interface a carrier
+  process runs on board (issue 12): the runner here only simulates the message passing.
+
+The truth used for evaluation and for the carriers' own rules is what the carriers actually did.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from types import SimpleNamespace
+
+import numpy as np
+from numba import njit
+
+from planner import ssap
+from planner.closedloop import (BATCH, ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, ClosedLoopPlanner,
+                                _components, _marginal, _select, _undo)
+from planner.comms import CommsSpec, Deliveries, realise
+from planner.compiled import compile_problem
+from planner.kernels import deploys
+from planner.problem import (OnlineResult, Problem, StageView, enforce, evaluate, make_view,
+                             stage_rng, valid_stages_left)
+from planner.registry import DEFAULT_ITERATIONS
+
+
+# ----------------------------------------------------------------------------- messages and views
+
+
+@dataclass(frozen=True, eq=False)
+class Intent:
+    """A carrier's published plan: candidate deployment sequences and their probabilities.
+
+    Attributes:
+        stage: the stage after whose decision it was published.
+        sequences: bool ``[k, N]``: deployment stages of each candidate over the whole mission
+            (at stages ``<= stage`` the sender's actual deployments).
+        probs: float ``[k]``: probability of each candidate (sums to 1).
+    """
+
+    stage: int
+    sequences: np.ndarray
+    probs: np.ndarray
+
+
+@dataclass(frozen=True)
+class LocalDecision:
+    """What a carrier's planner returns: whether to deploy now, and the intent to publish."""
+
+    deploy: bool
+    intent: Intent | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class LocalView:
+    """What carrier ``carrier`` knows when deciding stage ``stage``.
+
+    Attributes:
+        problem: the instance (schedules, overlaps, passengers, prior: known in advance).
+        carrier: this carrier's index r.
+        stage: the stage j being decided.
+        seed: the mission's root seed (known in advance to all).
+        observations: float ``[R, N]``: ``x[b, t]`` for ``t < seen[b]`` (NaN there means ∅),
+            NaN where unknown; own row through j.
+        deployed: bool ``[R, N]``: known deployments, ``t < record[b]``; own row through j - 1.
+        seen: int64 ``[R]``: b's observations are known at stages ``t < seen[b]`` (own: j + 1).
+        record: int64 ``[R]``: b's deployments are known at stages ``t < record[b]`` (own: j).
+        intents: tuple of the latest :class:`Intent` received from each carrier (None if none;
+            own entry None).
+    """
+
+    problem: Problem
+    carrier: int
+    stage: int
+    seed: int
+    observations: np.ndarray
+    deployed: np.ndarray
+    seen: np.ndarray
+    record: np.ndarray
+    intents: tuple
+
+    @property
+    def valid(self) -> np.ndarray:
+        """bool ``[R, N]``: scheduled validity, with the ∅ this carrier knows of."""
+        v = self.problem.valid.copy()
+        known = np.arange(self.problem.n_stages)[None, :] < self.seen[:, None]
+        v &= ~(known & np.isnan(self.observations))
+        return v
+
+    @property
+    def complete(self) -> bool:
+        """Whether this carrier knows everything the coordinator would (all observations through
+        j, all deployments before j)."""
+        return bool((self.seen >= self.stage + 1).all() and (self.record >= self.stage).all())
+
+    def stage_view(self) -> StageView:
+        """The central :class:`StageView` of this knowledge (exact when :attr:`complete`)."""
+        return make_view(self.problem, self.stage, self.observations, self.deployed)
+
+    def own(self) -> tuple[bool, bool, int, int]:
+        """(can deploy, must deploy, valid stages left n, passengers left d) of this carrier."""
+        r, j = self.carrier, self.stage
+        valid = self.problem.valid[r].copy()
+        valid[: j + 1] &= ~np.isnan(self.observations[r, : j + 1])
+        n = int(valid[j:].sum())
+        d = int(self.problem.passengers[r] - self.deployed[r, :j].sum())
+        can = bool(valid[j]) and d > 0
+        return can, can and n <= d, n, d
+
+
+# ----------------------------------------------------------------------------- the comms-aware loop
+
+
+def local_views(view: StageView, seed: int = 0) -> list[LocalView]:
+    """Every carrier's :class:`LocalView` when it knows everything in ``view`` (perfect links, no
+    intents): what a central process can use to run a decentralised planner for the fleet."""
+    problem, j = view.problem, view.stage
+    R = problem.n_carriers
+    seen = np.full(R, j + 1, dtype=np.int64)
+    record = np.full(R, j, dtype=np.int64)
+    return [LocalView(problem, r, j, int(seed), view.observations, view.deployed, seen, record, (None,) * R)
+            for r in range(R)]
+
+
+def decide_all(planner, view: StageView, rng: np.random.Generator) -> np.ndarray:
+    """bool ``[R]``: every carrier's ``decide_local`` on full information, each with its own copy
+    of ``rng``'s state (the planners' :meth:`decide` for a central caller such as the fleet's
+    coordinator)."""
+    state = rng.bit_generator.state
+    out = np.zeros(view.problem.n_carriers, dtype=bool)
+    for r, local in enumerate(local_views(view)):
+        copy = np.random.default_rng()
+        copy.bit_generator.state = state
+        res = planner.decide_local(local, copy)
+        out[r] = res.deploy if isinstance(res, LocalDecision) else bool(res)
+    return out
+
+
+def coordinator_view(problem: Problem, stage: int, x: np.ndarray, heard: np.ndarray,
+                     belief: np.ndarray) -> StageView:
+    """The coordinator's view at ``stage``: observations it received (``heard[r]``: carrier r's
+    observations are known at stages ``< heard[r]``); a carrier whose stage-j observation did not
+    arrive is planned as unable to deploy now (its stage looks ∅, so it is not forced by the
+    coordinator either: the carrier applies the forced rule itself); ``belief`` the deployments it
+    believes happened (the truth up to each carrier's last delivered observation, its own
+    decisions after)."""
+    known = np.where(np.arange(problem.n_stages)[None, :] < heard[:, None], x, np.nan)
+    return make_view(problem, stage, known, belief)
+
+
+def _forced_truth(problem: Problem, x: np.ndarray, deployed: np.ndarray, j: int) -> tuple[np.ndarray, np.ndarray]:
+    """(can, must) bool ``[R]`` of the carriers' own rules at stage j from the truth."""
+    valid = problem.valid.copy()
+    valid[:, : j + 1] &= ~np.isnan(x[:, : j + 1])
+    n = valid_stages_left(valid)[:, j]
+    d = problem.passengers - deployed[:, :j].sum(axis=1)
+    can = valid[:, j] & (d > 0)
+    return can, can & (n <= d)
+
+
+def run_comms(problem: Problem, x: np.ndarray, planner, seed: int, comms: CommsSpec | None = None) -> OnlineResult:
+    """Run ``planner`` stage by stage with the messages of ``comms`` realised from ``seed``.
+
+    Stage j's planning stream is :func:`planner.problem.stage_rng` ``(seed, j)`` (each carrier of a
+    decentralised planner gets its own copy of it). With ``comms`` None or perfect, a centralised
+    planner gives exactly :func:`planner.problem.run_online`'s result.
+
+    ``decision_ms``: per stage, the coordinator's decision time (centralised) or the slowest
+    carrier's (decentralised: they plan in parallel).
+    """
+    x = np.asarray(x, dtype=float)
+    if x.shape != problem.valid.shape:
+        raise ValueError(f"observations shape {x.shape} != problem shape {problem.valid.shape}")
+    x = np.where(problem.valid, x, np.nan)
+    comms = CommsSpec() if comms is None else comms
+    comms.check(problem.n_carriers)
+    deliveries = realise(comms, problem.n_carriers, problem.n_stages, seed)
+    warm_up = getattr(planner, "warm_up", None)
+    if callable(warm_up):
+        warm_up(problem)
+    if callable(getattr(planner, "decide_local", None)):
+        deployed, times = _run_decentralised(problem, x, planner, seed, deliveries)
+    else:
+        deployed, times = _run_centralised(problem, x, planner, seed, deliveries)
+    reward, features = evaluate(problem, deployed, x)
+    return OnlineResult(deployed, reward, features, tuple(times))
+
+
+def _run_centralised(problem, x, planner, seed, dl: Deliveries):
+    R, N = problem.valid.shape
+    deployed = np.zeros((R, N), dtype=bool)   # the truth (carrier side)
+    decided = np.zeros((R, N), dtype=bool)    # the coordinator's decisions
+    times = []
+    for j in range(N):
+        # Latest observation message of each carrier at the coordinator: heard[r] = s + 1.
+        arrived = dl.observation[:, R, : j + 1] <= j
+        heard = np.where(arrived.any(axis=1), j + 1 - np.argmax(arrived[:, ::-1], axis=1), 0)
+        # Truth before each carrier's last delivered observation, the coordinator's decisions after.
+        before = np.arange(N)[None, :] < np.maximum(heard - 1, 0)[:, None]
+        belief = np.where(before, deployed, decided)
+        belief[:, j:] = False
+        view = coordinator_view(problem, j, x, heard, belief)
+        t0 = time.perf_counter()
+        decision = planner.decide(view, stage_rng(seed, j))
+        times.append((time.perf_counter() - t0) * 1e3)
+        decision = enforce(view, decision)
+        decided[:, j] = decision
+        can, must = _forced_truth(problem, x, deployed, j)
+        told = dl.decision[:, j] <= j
+        deployed[:, j] = (told & decision & can) | must
+    return deployed, times
+
+
+def _run_decentralised(problem, x, planner, seed, dl: Deliveries):
+    R, N = problem.valid.shape
+    deployed = np.zeros((R, N), dtype=bool)
+    sent: list[list] = [[None] * N for _ in range(R)]  # intents published, [carrier][stage]
+    stages = np.arange(N)
+    times = []
+    for j in range(N):
+        decision = np.zeros(R, dtype=bool)
+        slowest = 0.0
+        can, must = _forced_truth(problem, x, deployed, j)
+        for r in range(R):
+            # Observation messages (x <= s, deployments < s) and intent messages (x, deployments
+            # <= s, intent) from b that reached r by stage j.
+            obs_ok = dl.observation[:, r, : j + 1] <= j            # [R, j + 1]
+            int_ok = dl.intent[:, r, : j + 1] <= j
+            last_obs = np.where(obs_ok.any(axis=1), j - np.argmax(obs_ok[:, ::-1], axis=1), -1)
+            last_int = np.where(int_ok.any(axis=1), j - np.argmax(int_ok[:, ::-1], axis=1), -1)
+            seen = np.maximum(last_obs, last_int) + 1
+            record = np.maximum(last_obs, last_int + 1)
+            record = np.maximum(record, 0)
+            seen[r], record[r] = j + 1, j
+            obs = np.where(stages[None, :] < seen[:, None], x, np.nan)
+            dep = deployed & (stages[None, :] < record[:, None])
+            intents = tuple(sent[b][last_int[b]] if b != r and last_int[b] >= 0 else None for b in range(R))
+            local = LocalView(problem, r, j, int(seed), obs, dep, seen.astype(np.int64),
+                              record.astype(np.int64), intents)
+            t0 = time.perf_counter()
+            out = planner.decide_local(local, stage_rng(seed, j))
+            slowest = max(slowest, (time.perf_counter() - t0) * 1e3)
+            if not isinstance(out, LocalDecision):
+                out = LocalDecision(bool(out))
+            if out.deploy and not can[r]:
+                raise AssertionError(f"stage {j}: carrier {r} cannot deploy")
+            if must[r] and not out.deploy:
+                raise AssertionError(f"stage {j}: carrier {r} must deploy")
+            decision[r] = out.deploy
+            sent[r][j] = out.intent
+        deployed[:, j] = decision
+        times.append(slowest)
+    return deployed, times
+
+
+# ----------------------------------------------------------------------------- dec-closed-loop
+
+
+@njit(cache=True)
+def _evaluate_imputed(actions, members, known, start, left_start, stage, n_stages, xobs, xnow, left0,
+                      valid, nleft, table, sel, p, xv, nbr_ptr, nbr_idx, past, samples, out):
+    """Per-sample values of every candidate when some members' recent past is unknown.
+
+    Args:
+        actions: bool ``[K, m]`` candidate actions at ``stage`` (read for known members only).
+        members: int64 ``[m]``; known: bool ``[m]``: the member's stage-j state is known.
+        start: int64 ``[m]``: first stage of an unknown member whose deployment is unknown;
+            left_start: its passengers left there.
+        xobs: float ``[R, N]`` known observations (NaN unknown); xnow: float ``[m]`` stage-j
+            observations of known members; left0: int64 ``[m]`` their passengers left.
+        valid: bool ``[R, N]`` scheduled validity (with known ∅); nleft: its valid stages left.
+        sel, p, xv: selection state of the known past deployments, restored on return.
+        past: float ``[S, N, m]`` draws for the unknown stages of unknown members (stages
+            ``start..stage``, where the observation is not known); samples: float ``[S, N - stage
+            - 1, m]`` draws of the future.
+        out: float ``[K, S]``: conflict-aware total minus plain independent SSAP future (raw units).
+
+    Unknown members follow their known default policy (SSAP thresholds) on sampled observations
+    through ``stage``; then every member follows the conflict-aware SSAP rollout.
+    """
+    n_cand = actions.shape[0]
+    m = members.shape[0]
+    n_samples = samples.shape[0]
+    left = np.empty(m, np.int64)
+    lefti = np.empty(m, np.int64)
+    log = np.empty(sel.shape[0] + nbr_idx.shape[0] + 1, np.int64)
+    for k in range(n_cand):
+        for s in range(n_samples):
+            nlog = 0
+            total = 0.0
+            plain = 0.0
+            for i in range(m):
+                r = members[i]
+                if known[i]:
+                    left[i] = left0[i]
+                    if actions[k, i]:
+                        q = r * n_stages + stage
+                        total += _marginal(q, xnow[i], sel, p, xv, nbr_ptr, nbr_idx)
+                        nlog = _select(q, xnow[i], sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
+                        left[i] -= 1
+                else:
+                    d = left_start[i]
+                    for t in range(start[i], stage + 1):
+                        if not valid[r, t] or d <= 0:
+                            continue
+                        xs = xobs[r, t]
+                        if xs != xs:
+                            xs = past[s, t, i]
+                        if deploys(table, xs, nleft[r, t], d):
+                            q = r * n_stages + t
+                            total += _marginal(q, xs, sel, p, xv, nbr_ptr, nbr_idx)
+                            nlog = _select(q, xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
+                            d -= 1
+                    left[i] = d
+                lefti[i] = left[i]
+            for t in range(stage + 1, n_stages):
+                for i in range(m):
+                    r = members[i]
+                    if not valid[r, t]:
+                        continue
+                    n = nleft[r, t]
+                    xs = samples[s, t - stage - 1, i]
+                    d = left[i]
+                    if d > 0:
+                        q = r * n_stages + t
+                        g = _marginal(q, xs, sel, p, xv, nbr_ptr, nbr_idx)
+                        if deploys(table, g, n, d):
+                            total += g
+                            nlog = _select(q, xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
+                            left[i] = d - 1
+                    d = lefti[i]
+                    if d > 0 and deploys(table, xs, n, d):
+                        plain += xs
+                        lefti[i] = d - 1
+            _undo(sel, p, log, nlog)
+            out[k, s] = total - plain
+
+
+class DecClosedLoopPlanner:
+    """``dec-closed-loop``: every carrier runs the closed-loop evaluation itself.
+
+    Carrier r at stage j:
+
+    * knows everything (all observations of stage j and all deployments before it reached it):
+      it computes centralised closed-loop's joint action from the same view with the same stage
+      stream — the joint action every fully informed carrier computes — and executes its own part.
+      With perfect communication this *is* ``closed-loop``, decision for decision;
+    * otherwise it searches its own conflict component: candidates are the joint actions of the
+      members it knows (all ``2^k`` up to :data:`~planner.closedloop.ENUMERATE_MAX`, else its own
+      two choices with the others at the conflict-aware SSAP action), and every carrier it has
+      not heard from is *predicted by its known policy*: from its last known deployment on it
+      follows its SSAP thresholds on observations drawn from the prior (its own where received).
+      The sampled futures then run the conflict-aware SSAP rollout for all, with the plain-SSAP
+      control variate, as in closed-loop. So a carrier that hears nobody still expects the
+      others to deploy where their thresholds make it likely, and avoids the overlaps those
+      deployments would crowd, instead of acting like plain SSAP.
+
+    A component without conflicts is decided by SSAP (optimal there). Budget as closed-loop's:
+    ``iterations`` full-fleet rollouts per decision, per carrier, or ``plan_ms`` milliseconds
+    per carrier (sampled futures in batches until the time is spent; not bit-reproducible, and
+    fully informed carriers then no longer share one joint action by construction). Publishes no intent (its policy
+    is known in advance); it reads the histories that messages carry.
+    """
+
+    name = "dec-closed-loop"
+    decentralised = True
+
+    def __init__(self, iterations: int | None = None, plan_ms: float | None = None, **_ignored):
+        if iterations is not None and int(iterations) < 1:
+            raise ValueError(f"iterations must be >= 1, got {iterations}")
+        if plan_ms is not None and not float(plan_ms) > 0:
+            raise ValueError(f"plan_ms must be > 0, got {plan_ms}")
+        self.iterations = DEFAULT_ITERATIONS if iterations is None else int(iterations)
+        self.plan_ms = None if plan_ms is None else float(plan_ms)
+        self._central = ClosedLoopPlanner(iterations=self.iterations, plan_ms=self.plan_ms)
+        self._memo = None  # (key, joint decision): fully informed carriers compute the same thing
+
+    def warm_up(self, problem: Problem) -> None:
+        self._central.warm_up(problem)
+        tiny = Problem.build(1, np.ones((2, 3), dtype=bool), [[[0, 1], [1, 2]]])
+        xs = np.full((2, 3), 3.0)
+        local = LocalView(tiny, 0, 1, 0, np.where([[1, 1, 0], [0, 0, 0]], xs, np.nan), np.zeros((2, 3), bool),
+                          np.array([2, 0]), np.array([1, 0]), (None, None))
+        self.decide_local(local, np.random.default_rng(0))
+
+    def decide(self, view: StageView, rng: np.random.Generator) -> np.ndarray:
+        """With full information: closed-loop's joint action."""
+        return self._central.decide(view, rng)
+
+    def decide_local(self, local: LocalView, rng: np.random.Generator) -> LocalDecision:
+        can, must, n, d = local.own()
+        if not can or must:
+            return LocalDecision(bool(must))
+        r, j = local.carrier, local.stage
+        if local.complete:
+            view = local.stage_view()
+            key = (id(local.problem), j, view.observations.tobytes(), view.deployed.tobytes(),
+                   str(rng.bit_generator.state))
+            if self._memo is None or self._memo[0] != key:
+                self._memo = (key, enforce(view, self._central.decide(view, rng)))
+            return LocalDecision(bool(self._memo[1][r]))
+        return LocalDecision(self._decide_partial(local, rng, n, d))
+
+    def _decide_partial(self, local: LocalView, rng, n_own: int, d_own: int) -> bool:
+        problem = local.problem
+        prep = compile_problem(problem)
+        R, N = problem.valid.shape
+        r, j = local.carrier, local.stage
+        valid = np.ascontiguousarray(local.valid)
+        nleft = valid_stages_left(valid)
+        known = (local.seen >= j + 1) & (local.record >= j)
+        start = np.where(known, j, local.record).astype(np.int64)
+        left = (problem.passengers - local.deployed.sum(axis=1)).astype(np.int64)
+        # Open points: from each carrier's first undecided (or unknown) stage on.
+        open_ = valid & (left > 0)[:, None] & (np.arange(N)[None, :] >= start[:, None])
+        past = local.deployed.ravel()
+        flat = open_.ravel()
+        live = prep.conflict & (flat[:, None] & (flat | past)[None, :])
+        live |= live.T
+        owner = np.repeat(np.arange(R), N)
+        adjacency = np.zeros((R, R), dtype=bool)
+        rows, cols = np.nonzero(live)
+        adjacency[owner[rows], owner[cols]] = True
+        linked = adjacency | np.eye(R, dtype=bool)
+        comp = next(c for c in _components(linked) if r in c)
+        if not adjacency[np.ix_(comp, comp)].any():
+            return ssap.decide(prep.table, float(local.observations[r, j]), n_own, d_own)
+
+        xnow_all = np.nan_to_num(local.observations[:, j], nan=0.0)
+        can_all = known & valid[:, j] & (left > 0)
+        must_all = can_all & (nleft[:, j] <= left)
+        free = can_all & ~must_all
+        sel = past.copy()
+        p = (1 + prep.conflict[:, sel].sum(axis=1)).astype(np.int64)
+        xpast = np.zeros((R, N))
+        xpast[:, :j] = np.nan_to_num(local.observations[:, :j], nan=0.0)
+        xv = np.where(local.deployed, xpast, 0.0).ravel()
+        fake_view = SimpleNamespace(problem=problem, stage=j)
+        base = ClosedLoopPlanner._base_action(comp, fake_view, prep, (sel, p, xv), nleft, left, xnow_all,
+                                              must_all, free)
+        free_idx = np.flatnonzero(free[comp])
+        me = int(np.flatnonzero(comp == r)[0])
+        k = len(free_idx)
+        if k <= ENUMERATE_MAX:
+            codes = np.arange(1 << k)
+            bits = ((codes[:, None] >> np.arange(k)[None, :]) & 1).astype(bool)
+            actions = np.repeat(base[None, :], len(codes), axis=0)
+            actions[:, free_idx] = bits
+            first = int(np.flatnonzero((actions == base).all(axis=1))[0])
+            actions = actions[np.r_[first, np.delete(np.arange(len(codes)), first)]]
+        else:
+            actions = np.repeat(base[None, :], 2, axis=0)
+            actions[1, me] = not actions[1, me]
+        samples = int(np.clip(self.iterations * R // max(len(comp) * len(actions), 1), SAMPLES_MIN, SAMPLES_MAX))
+        m = len(comp)
+        deadline = None if self.plan_ms is None else time.perf_counter() + self.plan_ms / 1e3
+        sums = np.zeros(len(actions))
+        count = 0
+        while True:
+            batch = samples if deadline is None else BATCH
+            past_draws = prep.sampler.sample(rng, (batch, N, m))
+            future = prep.sampler.sample(rng, (batch, N - j - 1, m))
+            out = np.empty((len(actions), batch))
+            _evaluate_imputed(actions, comp, known[comp], start[comp], left[comp], j, N,
+                              np.ascontiguousarray(local.observations), xnow_all[comp], left[comp], valid, nleft,
+                              prep.table, sel, p, xv, prep.indptr, prep.nbr, past_draws, future, out)
+            sums += out.sum(axis=1)
+            count += batch
+            if deadline is None or time.perf_counter() >= deadline:
+                break
+        # Exact plain-SSAP future of the known members after each candidate (the control
+        # variate's expectation; the unknown members' is common to all candidates).
+        kn = known[comp]
+        d_after = np.minimum(left[comp][None, :] - actions.astype(np.int64), N)
+        exact = (prep.slot_value[nleft[comp, j + 1][None, :], np.maximum(d_after, 0)] * kn[None, :]).sum(axis=1)
+        score = sums / count + exact
+        return bool(actions[int(np.argmax(score)), me])
