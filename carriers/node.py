@@ -69,6 +69,28 @@ class CarrierConfig:
     log: object = None
 
 
+@dataclass(frozen=True)
+class SharedWorld:
+    """What every carrier of one process derives identically from the scenario, computed once
+    per process (:func:`shared_world`) when it simulates several carriers.
+
+    Attributes:
+        valid: bool ``[R, N]``, carrier r scheduled at stage j.
+        fingerprint: the scenario fingerprint.
+        features: float ``[F, 2]`` feature positions (m).
+    """
+
+    valid: np.ndarray
+    fingerprint: str
+    features: np.ndarray
+
+
+def shared_world(scenario) -> SharedWorld:
+    from world import sample_features
+
+    return SharedWorld(scenario.valid(), scenario_fingerprint(scenario), sample_features(scenario))
+
+
 class _Exit(Exception):
     """Leave the run loop with an exit reason (a key of :data:`EXIT_CODES`)."""
 
@@ -83,18 +105,20 @@ class Carrier:
     ``self.machine`` is the :class:`mission.carrier.CarrierState`, changed only by :meth:`apply`.
     """
 
-    def __init__(self, scenario, config: CarrierConfig, zconf, stop: threading.Event | None = None):
-        if config.seed is not None:
+    def __init__(self, scenario, config: CarrierConfig, zconf, stop: threading.Event | None = None,
+                 shared: SharedWorld | None = None):
+        if config.seed is not None and shared is None:
             scenario = scenario.with_seed(int(config.seed))
         self.scenario = scenario
+        self.shared = shared
         self.config = config
         self.zconf = zconf
         self.cid = keys.check_id(config.carrier, "carrier")
         self.r = scenario.carrier_index(self.cid)  # KeyError for an unknown id (checked by the CLI)
         self.mission = keys.check_id(config.mission or keys.mission_id_from_name(scenario.name), "mission")
-        self.valid = scenario.valid()[self.r]
+        self.valid = (scenario.valid() if shared is None else shared.valid)[self.r]
         self.n_stages = scenario.stages
-        self.fingerprint = scenario_fingerprint(scenario)
+        self.fingerprint = scenario_fingerprint(scenario) if shared is None else shared.fingerprint
         self.machine = mc.initial(self.cid, self.valid, scenario.stage_times(), scenario.carriers[self.r].passengers)
         self._log = config.log or (lambda line: print(line, flush=True))
         self._stop = stop if stop is not None else threading.Event()
@@ -331,7 +355,8 @@ class Carrier:
         from wire.zconfig import OpenStopped
 
         reason = "finished"
-        self.sim = world.Simulation(self.scenario, carriers=[self.cid])
+        self.sim = world.Simulation(self.scenario, carriers=[self.cid],
+                                    features=None if self.shared is None else self.shared.features)
         try:
             self.node = Node(self.zconf, open_timeout_s=self.config.coordinator_timeout_s, stop=self._stop)
         except OpenStopped:
@@ -360,3 +385,48 @@ class Carrier:
                 pass
             self.node.close(DEFAULTS.close_s)
         return reason
+
+
+def run_carriers(scenario, configs, zconf, stop: threading.Event | None = None) -> dict:
+    """Run several carriers in this process, one thread and one Zenoh session each (the protocol
+    and the coordinator cannot tell them from carriers in processes of their own); the world
+    (schedules, fingerprint, features) is derived once and shared.
+
+    Args:
+        scenario: the loaded scenario (every config must name the same ``seed``).
+        configs: one :class:`CarrierConfig` per carrier.
+        zconf: a zenoh config, or a callable returning a fresh one (one per session).
+        stop: the process's stop request, shared by all carriers.
+
+    Returns:
+        carrier id -> its exit reason (a key of :data:`EXIT_CODES`).
+    """
+    stop = stop if stop is not None else threading.Event()
+    configs = list(configs)
+    if len(configs) == 1:
+        conf = zconf() if callable(zconf) else zconf
+        return {configs[0].carrier: Carrier(scenario, configs[0], conf, stop=stop).run()}
+    seeds = {c.seed for c in configs}
+    if len(seeds) != 1:
+        raise ValueError("carriers of one process must share the seed")
+    seed = seeds.pop()
+    if seed is not None:
+        scenario = scenario.with_seed(int(seed))
+    shared = shared_world(scenario)
+    carriers = [Carrier(scenario, c, zconf() if callable(zconf) else zconf, stop=stop, shared=shared) for c in configs]
+    reasons: dict = {}
+
+    def body(carrier):
+        try:
+            reasons[carrier.cid] = carrier.run()
+        except Exception as exc:  # one carrier's bug must not take its neighbours down
+            carrier.log(f"crashed: {type(exc).__name__}: {exc}")
+            reasons[carrier.cid] = "crashed"
+
+    threads = [threading.Thread(target=body, args=(c,), name=f"carrier-{c.cid}", daemon=True) for c in carriers]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        while thread.is_alive():
+            thread.join(0.2)
+    return {c.cid: reasons.get(c.cid, "crashed") for c in carriers}

@@ -161,17 +161,20 @@ class Simulation:
         scenario: the mission.
         carriers: ids of the carriers to simulate (a carrier process passes its own id).
         seed: root seed of the features (scenario.seed by default).
+        features: the features ``[F, 2]`` (m) when the caller sampled them already (several
+            carriers of one process share one array); sampled from the seed otherwise.
 
     Attributes:
         features: float ``[F, 2]`` feature positions (m).
         deployments: list of :class:`Deployment`, in order.
     """
 
-    def __init__(self, scenario: Scenario, carriers: Iterable[str] | None = None, seed: int | None = None):
+    def __init__(self, scenario: Scenario, carriers: Iterable[str] | None = None, seed: int | None = None,
+                 features=None):
         self.scenario = scenario
         ids = scenario.carrier_ids if carriers is None else tuple(carriers)
         self._bodies = {cid: _CarrierBody(scenario, scenario.carrier_index(cid)) for cid in ids}
-        self.features = sample_features(scenario, seed)
+        self.features = sample_features(scenario, seed) if features is None else features
         self.deployments: list[Deployment] = []
         self._left = {cid: scenario.carriers[scenario.carrier_index(cid)].passengers for cid in ids}
         self._step = 0
