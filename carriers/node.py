@@ -225,7 +225,7 @@ class Carrier:
         self.apply(mc.DecisionHeard(msg.stage, msg.t, msg.deploy, self._position()))
 
     def _query_once(self) -> State | None:
-        for payload in self.node.query(keys.state_key(self.mission), timeout_s=DEFAULTS.state_query_s):
+        for payload in self.node.query(keys.state_selector(self.mission, self.cid), timeout_s=DEFAULTS.state_query_s):
             try:
                 state = decode(payload, State)
             except ProtocolError as exc:

@@ -94,8 +94,10 @@ class Node:
         self._entities.append(self.session.liveliness().declare_token(key_expr))
 
     def serve(self, key_expr: str, reply_bytes) -> None:
-        """Answer queries on ``key_expr`` with ``reply_bytes()`` (called in a server thread, must
-        not block). The zenoh callback only enqueues the query."""
+        """Answer queries on ``key_expr`` with ``reply_bytes(parameters)`` (called in a server
+        thread, must not block; ``parameters``: the selector's parameters as a dict of str, e.g.
+        ``{"carrier": "c1"}`` for ``key?carrier=c1``). The zenoh callback only enqueues the
+        query."""
         queries: "queue.Queue[Any]" = queue.Queue()
         stop = threading.Event()
         self._serving = (queries, stop)
@@ -110,7 +112,10 @@ class Node:
                 except queue.Empty:
                     continue
                 try:
-                    query.reply(key_expr, reply_bytes())
+                    text = str(query.parameters)
+                    params = dict(part.split("=", 1) if "=" in part else (part, "")
+                                  for part in text.split(";") if part)
+                    query.reply(key_expr, reply_bytes(params))
                 except Exception:
                     pass
                 finally:
