@@ -44,7 +44,7 @@ SPEED, STAGE_INTERVAL_S, STAGES, PASSENGERS = 1.0, 10.0, 12, 3
 def grid_scenario(n_carriers: int, seed: int = 1, planner: str = "closed-loop", stages: int = STAGES) -> dict:
     """A scenario (the YAML mapping) of ``n_carriers`` carriers on a street grid, fixed by ``seed``."""
     rng = np.random.default_rng(np.random.SeedSequence([seed, n_carriers]))
-    streets = max(2, math.ceil(math.sqrt(n_carriers)))
+    streets = max(4, math.ceil(math.sqrt(n_carriers)))
     size = (streets + 1) * STREET_SPACING_M
     travel = SPEED * STAGE_INTERVAL_S * (stages + 1)
     carriers = []
