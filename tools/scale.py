@@ -145,8 +145,8 @@ def message_counts(db: Path, n_carriers: int) -> dict:
     with sqlite3.connect(str(db)) as con:
         kinds = dict(con.execute("SELECT kind, COUNT(*) FROM events GROUP BY kind").fetchall())
         first, last = con.execute("SELECT MIN(wall_time), MAX(wall_time) FROM events "
-                                  "WHERE kind IN ('observation', 'confirmation')").fetchone()
-    received = sum(kinds.get(k, 0) for k in ("hello", "observation", "confirmation", "bye"))
+                                  "WHERE kind IN ('observation', 'confirm')").fetchone()
+    received = sum(kinds.get(k, 0) for k in ("hello", "observation", "confirm", "bye"))
     decisions = kinds.get("published", 0)
     return {"received": received, "decisions": decisions, "delivered": decisions * n_carriers,
             "span_s": (last - first) if first is not None else 0.0}
