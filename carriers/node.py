@@ -77,7 +77,7 @@ class SharedWorld:
     Attributes:
         valid: bool ``[R, N]``, carrier r scheduled at stage j.
         fingerprint: the scenario fingerprint.
-        features: float ``[F, 2]`` feature positions (m).
+        features: float ``[F, 2]`` feature positions (m), sorted by x.
     """
 
     valid: np.ndarray
@@ -88,7 +88,9 @@ class SharedWorld:
 def shared_world(scenario) -> SharedWorld:
     from world import sample_features
 
-    return SharedWorld(scenario.valid(), scenario_fingerprint(scenario), sample_features(scenario))
+    features = sample_features(scenario)
+    features = features[np.argsort(features[:, 0], kind="stable")]  # sorted by x: see Simulation.sense
+    return SharedWorld(scenario.valid(), scenario_fingerprint(scenario), features)
 
 
 class _Exit(Exception):
