@@ -7,7 +7,8 @@ generated grid scenarios fixed by seed, for growing numbers of carriers R.
 
 Per R it prints wall time, peak memory of the whole process tree (total and per carrier),
 the stage round trip p50/p99 (coordinator's decision publication to each carrier's Confirm),
-decision time (mean and max planner wall time per stage), messages per second and the reward
+decision time (mean and max planner wall time per stage), messages per second, carrier CPU
+time per carrier and stage (``carrier_cpu_ms``) and the reward
 against the clairvoyant bound (an exact optimum, or a labelled conflict-free upper bound when
 the exact search is too large). Results: ``<out>/scale.csv``, ``<out>/scale.json`` and, with
 ``--plot``, a PNG of cost against R. See docs/performance.md, "Fleet scale".
@@ -95,9 +96,10 @@ class TreeSampler:
     Attributes:
         peak_total: largest sum of RSS over the tree (bytes).
         peak: pid -> (largest RSS in bytes, role) where role is coordinator, carrier or launcher.
+        cpu: pid -> (user + system CPU seconds at the last sample, role).
     """
 
-    def __init__(self, pid: int, period_s: float = 0.25):
+    def __init__(self, pid: int, period_s: float = 0.5):
         import psutil
 
         self.root = psutil.Process(pid)
@@ -105,6 +107,7 @@ class TreeSampler:
         self.peak_total = 0
         self.peak_carriers = 0
         self.peak: dict[int, tuple[int, str]] = {}
+        self.cpu: dict[int, tuple[float, str]] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -122,6 +125,7 @@ class TreeSampler:
                 try:
                     rss = proc.memory_info().rss
                     cmd = proc.cmdline()
+                    times = proc.cpu_times()
                 except psutil.Error:
                     continue
                 role = ("carrier" if "carrier" in cmd and "--role" in cmd else
@@ -130,6 +134,7 @@ class TreeSampler:
                 carriers += rss if role == "carrier" else 0
                 old = self.peak.get(proc.pid, (0, role))[0]
                 self.peak[proc.pid] = (max(old, rss), role)
+                self.cpu[proc.pid] = (times.user + times.system, role)
             self.peak_total = max(self.peak_total, total)
             self.peak_carriers = max(self.peak_carriers, carriers)
             self._stop.wait(self.period_s)
@@ -177,7 +182,9 @@ def run_one(n_carriers: int, out: Path, seed: int, processes: int | None, planne
            "mem_coordinator_mb": max((v for v, role in sampler.peak.values() if role == "coordinator"),
                                      default=0) / 1e6,
            "mem_carrier_process_mb": max((v for v, role in sampler.peak.values() if role == "carrier"),
-                                         default=0) / 1e6}
+                                         default=0) / 1e6,
+           "cpu_carriers_s": sum(v for v, role in sampler.cpu.values() if role == "carrier"),
+           "cpu_coordinator_s": sum(v for v, role in sampler.cpu.values() if role == "coordinator")}
     summary_path = run_dir / "summary.json"
     if summary_path.exists():
         s = json.loads(summary_path.read_text())
@@ -192,6 +199,7 @@ def run_one(n_carriers: int, out: Path, seed: int, processes: int | None, planne
             "reward": s.get("total_reward"), "bound": bound.get("reward"), "bound_exact": bound.get("exact"),
             "fraction": bound.get("fraction"),
             "rejected": sum(s.get("rejected", {}).get("coordinator", {}).values()),
+            "carrier_cpu_ms": row["cpu_carriers_s"] * 1e3 / max(1, n_carriers * (s.get("stages_decided") or 1)),
         })
     if not quiet or proc.returncode != 0:
         print((output or "")[-3000:], file=sys.stderr)
@@ -201,7 +209,7 @@ def run_one(n_carriers: int, out: Path, seed: int, processes: int | None, planne
 COLUMNS = (("R", "{:d}"), ("processes", "{:d}"), ("wall_s", "{:.1f}"), ("mem_total_mb", "{:.0f}"),
            ("mem_per_carrier_mb", "{:.1f}"), ("mem_coordinator_mb", "{:.0f}"), ("rtt_p50_ms", "{:.0f}"),
            ("rtt_p99_ms", "{:.0f}"), ("decision_mean_ms", "{:.0f}"), ("decision_max_ms", "{:.0f}"),
-           ("messages_per_s", "{:.0f}"), ("fraction", "{:.2f}"), ("bound_exact", "{}"))
+           ("messages_per_s", "{:.0f}"), ("carrier_cpu_ms", "{:.1f}"), ("fraction", "{:.2f}"), ("bound_exact", "{}"))
 
 
 def table(rows) -> str:
