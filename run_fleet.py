@@ -34,6 +34,10 @@ if str(HERE) not in sys.path:
 EXIT_USAGE = 2
 #: How long the launcher waits for carriers after the coordinator exits (s).
 CARRIER_EXIT_GRACE_S = 15.0
+#: Zenoh sessions one node accepts reliably here: a peer or router of zenoh 1.10 refused every
+#: session beyond about 350 on this project's machines (docs/performance.md, "Fleet scale"), so
+#: the one-host launcher puts larger fleets behind routers of at most this many carriers each.
+CARRIERS_PER_ROUTER = 256
 #: Up to this many carriers the launcher starts one process per carrier; beyond, this many
 #: processes (``--carrier-processes`` overrides it).
 AUTO_CARRIER_PROCESSES = 16
@@ -55,6 +59,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--carrier-processes", type=int, metavar="K",
                    help=f"one-host mode: run the carriers in K OS processes (default: one per carrier up to "
                         f"{AUTO_CARRIER_PROCESSES} carriers, else {AUTO_CARRIER_PROCESSES})")
+    p.add_argument("--routers", type=int, metavar="N",
+                   help=f"one-host mode: start N zenoh routers connected to the coordinator and spread the "
+                        f"carrier processes over them (default: none up to {CARRIERS_PER_ROUTER} carriers, else "
+                        f"one per {CARRIERS_PER_ROUTER} carriers)")
     p.add_argument("--planner", help="planner name (overrides the scenario)")
     p.add_argument("--iterations", type=int, help="MCTS iterations per stage (overrides the scenario)")
     p.add_argument("--plan-ms", type=float, help="MCTS time budget per stage, ms (overrides the scenario)")
@@ -143,6 +151,8 @@ def check_flags(args, scenario) -> str | None:
             keys.check_id(args.mission, "--mission")
         except ValueError as exc:
             return str(exc)
+    if args.routers is not None and args.routers < 0:
+        return f"--routers: expected an integer >= 0, found {args.routers}"
     if args.carrier_processes is not None and args.carrier_processes < 1:
         return f"--carrier-processes: expected an integer >= 1, found {args.carrier_processes}"
     if args.role == "carrier":
@@ -347,16 +357,31 @@ def run_all(args, scenario, stop: threading.Event) -> int:
         + sum((["--listen", e] for e in listen), []) + sum((["--connect", e] for e in connect if not listen), [])
         + (["--no-map"] if args.no_map else []),
         preexec_fn=_ignore_sigint)
+    n_routers = args.routers
+    if n_routers is None:
+        n = scenario.n_carriers
+        n_routers = 0 if n <= CARRIERS_PER_ROUTER or not listen else -(-n // CARRIERS_PER_ROUTER)
+    routers, router_endpoints = [], []
+    for _ in range(n_routers):
+        endpoint = f"tcp/127.0.0.1:{free_port()}"
+        routers.append(subprocess.Popen(
+            [sys.executable, str(Path(__file__).resolve()), "--role", "router", "--listen", endpoint]
+            + sum((["--connect", e] for e in connect), [])
+            + (["--zenoh-config", args.zenoh_config] if args.zenoh_config else []),
+            stdout=subprocess.DEVNULL, preexec_fn=_ignore_sigint))
+        router_endpoints.append(endpoint)
     carriers = {}
-    for group in carrier_groups(scenario.carrier_ids, args.carrier_processes):
+    for g, group in enumerate(carrier_groups(scenario.carrier_ids, args.carrier_processes)):
+        via = [router_endpoints[g % len(router_endpoints)]] if router_endpoints else connect
         carriers[",".join(group)] = subprocess.Popen(
             script + ["--role", "carrier", "--carrier", ",".join(group)] + common
-            + sum((["--connect", e] for e in connect), []) + ([] if args.verbose else ["--quiet"]),
+            + sum((["--connect", e] for e in via), []) + ([] if args.verbose else ["--quiet"]),
             preexec_fn=_ignore_sigint)
-    procs = [coordinator, *carriers.values()]
+    procs = [coordinator, *carriers.values(), *routers]
     where = f"listening on {', '.join(listen)}" if listen else f"connected to {', '.join(connect)}"
     shown = ", ".join(f"{_short(cids)} pid {p.pid}" for cids, p in carriers.items())
-    print(f"run_fleet.py: coordinator pid {coordinator.pid} {where}; carriers {shown}", flush=True)
+    print(f"run_fleet.py: coordinator pid {coordinator.pid} {where}; carriers {shown}"
+          + (f"; {len(routers)} router(s) at {', '.join(router_endpoints)}" if routers else ""), flush=True)
     while coordinator.poll() is None and not stop.is_set():
         stop.wait(0.05)
     if stop.is_set():
@@ -368,6 +393,7 @@ def run_all(args, scenario, stop: threading.Event) -> int:
     while time.monotonic() < deadline and any(p.poll() is None for p in carriers.values()):
         time.sleep(0.05)
     _stop_children(list(carriers.values()), grace_s=5.0)
+    _stop_children(routers, grace_s=5.0)
     bad = {cid: p.returncode for cid, p in carriers.items() if p.returncode not in (0,)}
     if bad:
         print(f"run_fleet.py: carrier exit codes {bad}", file=sys.stderr, flush=True)

@@ -95,7 +95,7 @@ class TreeSampler:
 
     Attributes:
         peak_total: largest sum of RSS over the tree (bytes).
-        peak: pid -> (largest RSS in bytes, role) where role is coordinator, carrier or launcher.
+        peak: pid -> (largest RSS in bytes, role): coordinator, carrier, router or launcher.
         cpu: pid -> (user + system CPU seconds at the last sample, role).
     """
 
@@ -129,7 +129,7 @@ class TreeSampler:
                 except psutil.Error:
                     continue
                 role = ("carrier" if "carrier" in cmd and "--role" in cmd else
-                        "coordinator" if "coordinator" in cmd else "launcher")
+                        "coordinator" if "coordinator" in cmd else "router" if "router" in cmd else "launcher")
                 total += rss
                 carriers += rss if role == "carrier" else 0
                 old = self.peak.get(proc.pid, (0, role))[0]
@@ -179,6 +179,7 @@ def run_one(n_carriers: int, out: Path, seed: int, processes: int | None, planne
     row = {"R": n_carriers, "processes": k, "returncode": proc.returncode, "wall_s": wall,
            "mem_total_mb": sampler.peak_total / 1e6, "mem_carriers_mb": sampler.peak_carriers / 1e6,
            "mem_per_carrier_mb": sampler.peak_carriers / 1e6 / n_carriers,
+           "routers": sum(1 for _, role in sampler.peak.values() if role == "router"),
            "mem_coordinator_mb": max((v for v, role in sampler.peak.values() if role == "coordinator"),
                                      default=0) / 1e6,
            "mem_carrier_process_mb": max((v for v, role in sampler.peak.values() if role == "carrier"),
