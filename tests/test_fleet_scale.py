@@ -51,6 +51,18 @@ def test_carrier_processes_give_the_decisions_of_one_process_per_carrier(tmp_pat
     assert len(db_rows(out / "mission.db", "SELECT DISTINCT carrier FROM events WHERE kind='hello'")) == 6
 
 
+@pytest.mark.slow
+def test_one_host_fleet_through_launcher_started_routers(tiny, tmp_path):
+    """--routers: carriers connect to zenoh routers that connect to the coordinator (what the
+    launcher does beyond 256 carriers); the mission is the offline planner's."""
+    out = tmp_path / "run"
+    proc = subprocess.run([sys.executable, RUN_FLEET, str(TINY), "--out", str(out), "--no-map", "--routers", "1"],
+                          capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "1 router(s) at tcp/127.0.0.1:" in proc.stdout
+    _same_as_offline(json.loads((out / "summary.json").read_text()), tiny)
+
+
 def _role(role, extra, scenario=TINY):
     return subprocess.Popen([sys.executable, RUN_FLEET, str(scenario), "--role", role, *extra],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
