@@ -37,11 +37,12 @@ from wire.messages import (
 
 #: Trail points per Observation at most (the protocol's limit).
 MAX_TRAIL = 512
-#: Longest sleep (s) of a carrier waiting for a message (a decision, End): any message wakes it
-#: at once, so this only sets how often it looks at its timers and the stop request. Short
-#: polls cost CPU in proportion to the wait: with hundreds of carriers per process and stages of
-#: seconds, 50 ms polls were a third of the carriers' CPU time.
-IDLE_POLL_S = 0.25
+#: Longest sleep (s) of a carrier waiting for a message (a decision, End): any message, and a
+#: stop request (:meth:`Carrier.stop`, :func:`run_carriers`), wakes it at once, so this only sets
+#: how often it looks at its timers. Polls cost CPU in proportion to the wait: with hundreds of
+#: carriers per process and stages of seconds, 50 ms polls were a third of the carriers' CPU time,
+#: and 0.25 s polls most of it when stages took a minute (R = 1,024).
+IDLE_POLL_S = 2.0
 #: Sim-time chunk (s) between pacing sleeps when ``realtime > 0``.
 PACE_CHUNK_S = 0.5
 
@@ -144,6 +145,9 @@ class Carrier:
 
     def stop(self) -> None:
         self._stop.set()
+        node = self.node
+        if node is not None:
+            node.wake()
 
     @property
     def stage(self) -> int:
@@ -198,6 +202,8 @@ class Carrier:
             item = self.node.next(0.0)
 
     def _handle(self, item) -> None:
+        if item.kind == "wake":
+            return
         if item.kind in ("alive", "gone"):
             if item.key != keys.coordinator_alive(self.mission):
                 raise ProtocolError("bad-key", f"liveliness token on {item.key[:80]}")
@@ -412,15 +418,19 @@ def run_carriers(scenario, configs, zconf, stop: threading.Event | None = None) 
     configs = list(configs)
     if len(configs) == 1:
         conf = zconf() if callable(zconf) else zconf
-        return {configs[0].carrier: Carrier(scenario, configs[0], conf, stop=stop).run()}
-    seeds = {c.seed for c in configs}
-    if len(seeds) != 1:
-        raise ValueError("carriers of one process must share the seed")
-    seed = seeds.pop()
-    if seed is not None:
-        scenario = scenario.with_seed(int(seed))
-    shared = shared_world(scenario)
-    carriers = [Carrier(scenario, c, zconf() if callable(zconf) else zconf, stop=stop, shared=shared) for c in configs]
+        carriers = [Carrier(scenario, configs[0], conf, stop=stop)]
+    else:
+        carriers = None
+    if carriers is None:
+        seeds = {c.seed for c in configs}
+        if len(seeds) != 1:
+            raise ValueError("carriers of one process must share the seed")
+        seed = seeds.pop()
+        if seed is not None:
+            scenario = scenario.with_seed(int(seed))
+        shared = shared_world(scenario)
+        carriers = [Carrier(scenario, c, zconf() if callable(zconf) else zconf, stop=stop, shared=shared)
+                    for c in configs]
     reasons: dict = {}
 
     def body(carrier):
@@ -433,7 +443,12 @@ def run_carriers(scenario, configs, zconf, stop: threading.Event | None = None) 
     threads = [threading.Thread(target=body, args=(c,), name=f"carrier-{c.cid}", daemon=True) for c in carriers]
     for thread in threads:
         thread.start()
+    woken = False
     for thread in threads:
         while thread.is_alive():
             thread.join(0.2)
+            if stop.is_set() and not woken:  # a signal: wake every carrier from its wait
+                woken = True
+                for c in carriers:
+                    c.stop()
     return {c.cid: reasons.get(c.cid, "crashed") for c in carriers}

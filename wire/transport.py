@@ -24,7 +24,8 @@ class Inbound:
     """One item of a node's inbox.
 
     Attributes:
-        kind: ``sample`` (a put), ``alive`` (liveliness token appeared), ``gone`` (token vanished).
+        kind: ``sample`` (a put), ``alive`` (liveliness token appeared), ``gone`` (token vanished),
+            ``wake`` (no message: :meth:`Node.wake`).
         key: the key expression it arrived on.
         payload: the raw bytes (``sample`` only).
         received: ``time.monotonic()`` when it was enqueued, seconds.
@@ -165,6 +166,11 @@ class Node:
             return self.inbox.get(timeout=max(0.0, timeout_s))
         except queue.Empty:
             return None
+
+    def wake(self) -> None:
+        """Wake whoever waits in :meth:`next` (an ``Inbound("wake", "")`` item, which carries
+        nothing): how a stop request reaches a node that sleeps until its next message."""
+        self.inbox.put(Inbound("wake", "", b"", time.monotonic(), time.time()))
 
     def reject(self, reason: str, detail: str, log) -> None:
         """Count a rejected message; log the first one of each reason."""
