@@ -416,12 +416,8 @@ def run_carriers(scenario, configs, zconf, stop: threading.Event | None = None) 
     """
     stop = stop if stop is not None else threading.Event()
     configs = list(configs)
-    if len(configs) == 1:
-        conf = zconf() if callable(zconf) else zconf
-        carriers = [Carrier(scenario, configs[0], conf, stop=stop)]
-    else:
-        carriers = None
-    if carriers is None:
+    shared = None
+    if len(configs) > 1:
         seeds = {c.seed for c in configs}
         if len(seeds) != 1:
             raise ValueError("carriers of one process must share the seed")
@@ -429,15 +425,18 @@ def run_carriers(scenario, configs, zconf, stop: threading.Event | None = None) 
         if seed is not None:
             scenario = scenario.with_seed(int(seed))
         shared = shared_world(scenario)
-        carriers = [Carrier(scenario, c, zconf() if callable(zconf) else zconf, stop=stop, shared=shared)
-                    for c in configs]
+    carriers = [Carrier(scenario, c, zconf() if callable(zconf) else zconf, stop=stop, shared=shared)
+                for c in configs]
     reasons: dict = {}
 
     def body(carrier):
         try:
             reasons[carrier.cid] = carrier.run()
-        except Exception as exc:  # one carrier's bug must not take its neighbours down
-            carrier.log(f"crashed: {type(exc).__name__}: {exc}")
+        except Exception:  # one carrier's bug must not take its neighbours down
+            import sys
+            import traceback
+
+            print(f"carrier {carrier.cid}: crashed\n{traceback.format_exc()}", file=sys.stderr, flush=True)
             reasons[carrier.cid] = "crashed"
 
     threads = [threading.Thread(target=body, args=(c,), name=f"carrier-{c.cid}", daemon=True) for c in carriers]
