@@ -3,10 +3,14 @@
     python run_fleet.py scenarios/six_carriers.yaml                 # everything on this host
     python run_fleet.py S.yaml --role coordinator --listen tcp/0.0.0.0:7447 --out runs/m1
     python run_fleet.py S.yaml --role carrier --carrier a --connect tcp/HOST:7447
+    python run_fleet.py S.yaml --role carrier --carrier a,b,c --connect tcp/HOST:7447
+    python run_fleet.py --role router --listen tcp/0.0.0.0:7447
+    python run_fleet.py S.yaml --carrier-processes 8                 # R carriers in 8 processes
 
 With no --role, this script starts the coordinator (listening on tcp/127.0.0.1:<free port>) and
-one OS process per carrier (each a fresh interpreter running this script with --role carrier,
-so each opens its own Zenoh session after it starts), shows a line per stage, and leaves
+the carrier processes (fresh interpreters running this script with --role carrier; by default
+one per carrier up to 16 carriers, else 16 processes; each carrier keeps its own Zenoh session
+and liveliness token, whatever process it runs in), shows a line per stage, and leaves
 summary.json, mission.db and map.png in --out (default runs/<scenario>-<timestamp>).
 See docs/fleet.md and docs/protocol.md.
 """
@@ -14,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -29,6 +34,13 @@ if str(HERE) not in sys.path:
 EXIT_USAGE = 2
 #: How long the launcher waits for carriers after the coordinator exits (s).
 CARRIER_EXIT_GRACE_S = 15.0
+#: Zenoh sessions one node accepts reliably here: a peer or router of zenoh 1.10 refused every
+#: session beyond about 350 on this project's machines (docs/performance.md, "Fleet scale"), so
+#: the one-host launcher puts larger fleets behind routers of at most this many carriers each.
+CARRIERS_PER_ROUTER = 256
+#: Up to this many carriers the launcher starts one process per carrier; beyond, this many
+#: processes (``--carrier-processes`` overrides it).
+AUTO_CARRIER_PROCESSES = 16
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -37,11 +49,21 @@ def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
         prog="run_fleet.py", description="Run a marsupial fleet mission over Zenoh.",
         formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 2)[1])
-    p.add_argument("scenario", help="scenario YAML file")
-    p.add_argument("--role", choices=("all", "coordinator", "carrier", "viewer"), default="all",
+    p.add_argument("scenario", nargs="?", help="scenario YAML file (not needed with --role router)")
+    p.add_argument("--role", choices=("all", "coordinator", "carrier", "viewer", "router"), default="all",
                    help="all (default): the whole fleet on this host; or one process's role "
-                        "(viewer: a passive live view, needs rerun-sdk)")
-    p.add_argument("--carrier", metavar="ID", help="carrier id (with --role carrier)")
+                        "(viewer: a passive live view, needs rerun-sdk; router: a zenoh router that "
+                        "coordinators and carriers connect to)")
+    p.add_argument("--carrier", metavar="ID[,ID...]",
+                   help="carrier id(s) (with --role carrier); several ids run in one process, "
+                        "each with its own Zenoh session")
+    p.add_argument("--carrier-processes", type=int, metavar="K",
+                   help=f"one-host mode: run the carriers in K OS processes (default: one per carrier up to "
+                        f"{AUTO_CARRIER_PROCESSES} carriers, else {AUTO_CARRIER_PROCESSES})")
+    p.add_argument("--routers", type=int, metavar="N",
+                   help=f"one-host mode: start N zenoh routers connected to the coordinator and spread the "
+                        f"carrier processes over them (default: none up to {CARRIERS_PER_ROUTER} carriers, else "
+                        f"one per {CARRIERS_PER_ROUTER} carriers)")
     p.add_argument("--planner", help="planner name (overrides the scenario)")
     p.add_argument("--iterations", type=int, help="MCTS iterations per stage (overrides the scenario)")
     p.add_argument("--plan-ms", type=float, help="MCTS time budget per stage, ms (overrides the scenario)")
@@ -154,13 +176,22 @@ def check_flags(args, scenario) -> str | None:
             import rerun  # noqa: F401
         except ImportError:
             return "the live view needs rerun-sdk: pip install -e '.[view]'"
+    if args.routers is not None and args.routers < 0:
+        return f"--routers: expected an integer >= 0, found {args.routers}"
+    if args.carrier_processes is not None and args.carrier_processes < 1:
+        return f"--carrier-processes: expected an integer >= 1, found {args.carrier_processes}"
     if args.role == "carrier":
         if not args.carrier:
-            return "--role carrier needs --carrier ID"
-        if args.carrier not in scenario.carrier_ids:
-            return (f"--carrier: expected one of {', '.join(scenario.carrier_ids)} "
-                    f"(carriers of {args.scenario}), found {args.carrier!r}")
-    if args.role not in ("carrier", "viewer"):
+            return "--role carrier needs --carrier ID (or ID,ID,...)"
+        args.carriers = [c.strip() for c in args.carrier.split(",")]
+        known = set(scenario.carrier_ids)
+        for cid in args.carriers:
+            if cid not in known:
+                listed = ", ".join(scenario.carrier_ids[:20]) + (", ..." if len(known) > 20 else "")
+                return f"--carrier: expected one of {listed} (carriers of {args.scenario}), found {cid!r}"
+        if len(set(args.carriers)) != len(args.carriers):
+            return f"--carrier: a carrier id is repeated in {args.carrier!r}"
+    if args.role not in ("carrier", "viewer", "router"):
         from coordinator.node import planner_settings
         from planner.registry import make_planner
 
@@ -177,13 +208,18 @@ def zenoh_config(args, role: str):
 
     listen, connect = list(args.listen), list(args.connect)
     if not args.zenoh_config:
-        if role == "coordinator" and not listen:
+        if role in ("coordinator", "router") and not listen and not connect:
             listen = [f"tcp/127.0.0.1:{DEFAULT_PORT}"]
         if role in ("carrier", "viewer") and not connect:
             connect = [f"tcp/127.0.0.1:{DEFAULT_PORT}"]
     mode = args.mode
     if mode is None and not file_sets_mode(args.zenoh_config):
-        mode = "peer" if role == "coordinator" else "client"
+        if role == "router":
+            mode = "router"
+        elif role == "coordinator" and listen:
+            mode = "peer"  # it is the carriers' rendezvous
+        else:
+            mode = "client"  # a carrier, or a coordinator that only connects (to a router)
     return make_config(mode, listen, connect, args.zenoh_config)
 
 
@@ -229,17 +265,40 @@ def run_coordinator(args, scenario, stop: threading.Event) -> int:
 
 
 def run_carrier(args, scenario, stop: threading.Event) -> int:
-    from carriers.node import EXIT_CODES, Carrier, CarrierConfig
+    """One or several carriers (``--carrier a,b,c``) in this process: one thread and one Zenoh
+    session per carrier, the scenario loaded once. Exit code: the first non-zero carrier code."""
+    from carriers.node import EXIT_CODES, CarrierConfig, run_carriers
 
     log = (lambda line: None) if args.quiet else (lambda line: print(line, flush=True))
-    carrier = Carrier(scenario, CarrierConfig(
-        carrier=args.carrier, mission=args.mission, seed=args.seed, realtime=args.realtime,
+    configs = [CarrierConfig(
+        carrier=cid, mission=args.mission, seed=args.seed, realtime=args.realtime,
         decision_timeout_s=args.decision_timeout, coordinator_timeout_s=args.coordinator_timeout,
-        log=log, pose_interval_s=args.pose_interval), zenoh_config(args, "carrier"), stop=stop)
-    reason = carrier.run()
-    if reason not in ("end", "finished"):
-        print(f"carrier {args.carrier}: exiting ({reason})", file=sys.stderr, flush=True)
-    return EXIT_CODES.get(reason, 1)
+        log=log, pose_interval_s=args.pose_interval) for cid in getattr(args, "carriers", [args.carrier])]
+    reasons = run_carriers(scenario, configs, lambda: zenoh_config(args, "carrier"), stop=stop)
+    codes = []
+    for cid, reason in reasons.items():
+        if reason not in ("end", "finished"):
+            print(f"carrier {cid}: exiting ({reason})", file=sys.stderr, flush=True)
+        codes.append(EXIT_CODES.get(reason, 1))
+    return next((c for c in codes if c != 0), 0)
+
+
+def run_router(args, stop: threading.Event) -> int:
+    """A zenoh router (mode ``router``) for fleets across hosts: coordinators and carriers of any
+    number of missions connect to it as clients; missions stay apart by their key prefix
+    ``marsupial/<mission>/``. Runs until SIGINT/SIGTERM."""
+    from wire.zconfig import close_session, open_session
+
+    conf = zenoh_config(args, "router")
+    session = open_session(conf, 10.0, stop=stop)
+    where = ", ".join(args.listen) or "the config's endpoints"
+    print(f"run_fleet.py: zenoh router pid {os.getpid()} listening on {where}", flush=True)
+    try:
+        while not stop.wait(0.2):
+            pass
+    finally:
+        close_session(session, (), 3.0)
+    return 0
 
 
 def run_viewer(args, scenario, stop: threading.Event) -> int:
@@ -281,6 +340,28 @@ def _forward(args) -> list[str]:
     return out
 
 
+def carrier_groups(ids, processes: int | None = None) -> list[list[str]]:
+    """The carriers of each carrier process: ``processes`` contiguous blocks of ``ids`` (sizes
+    differ by at most one); None = one per carrier up to AUTO_CARRIER_PROCESSES carriers, else
+    AUTO_CARRIER_PROCESSES blocks."""
+    ids = list(ids)
+    k = processes if processes is not None else (len(ids) if len(ids) <= AUTO_CARRIER_PROCESSES
+                                                 else AUTO_CARRIER_PROCESSES)
+    k = max(1, min(k, len(ids)))
+    base, extra = divmod(len(ids), k)
+    out, start = [], 0
+    for g in range(k):
+        size = base + (1 if g < extra else 0)
+        out.append(ids[start:start + size])
+        start += size
+    return out
+
+
+def _short(cids: str) -> str:
+    ids = cids.split(",")
+    return cids if len(ids) <= 3 else f"{ids[0]}..{ids[-1]} ({len(ids)})"
+
+
 def _stop_children(procs, grace_s: float = 10.0) -> None:
     """Stop our own children: give them a moment (a terminal's Ctrl-C reached them already), then
     SIGINT once, then SIGKILL after ``grace_s`` seconds."""
@@ -306,15 +387,19 @@ def run_all(args, scenario, stop: threading.Event) -> int:
         return 130
     out = Path(args.out or default_out(scenario))
     out.mkdir(parents=True, exist_ok=True)
-    listen = args.listen or [f"tcp/127.0.0.1:{free_port()}"]
-    connect = args.connect or [e.replace("0.0.0.0", "127.0.0.1") for e in listen]
+    if args.connect and not args.listen:
+        listen, connect = [], list(args.connect)  # through a router: everyone connects to it
+    else:
+        listen = args.listen or [f"tcp/127.0.0.1:{free_port()}"]
+        connect = args.connect or [e.replace("0.0.0.0", "127.0.0.1") for e in listen]
     script = [sys.executable, str(Path(__file__).resolve()), args.scenario]
     common = _forward(args)
     started = time.monotonic()
     viewer = None
     coordinator = subprocess.Popen(
         script + ["--role", "coordinator", "--out", str(out)] + common
-        + sum((["--listen", e] for e in listen), []) + (["--no-map"] if args.no_map else []),
+        + sum((["--listen", e] for e in listen), []) + sum((["--connect", e] for e in connect if not listen), [])
+        + (["--no-map"] if args.no_map else []),
         preexec_fn=_ignore_sigint)
     if args.view:  # subscribed before the carriers start, so the view misses nothing
         ready = out / ".viewer-ready"
@@ -332,15 +417,31 @@ def run_all(args, scenario, stop: threading.Event) -> int:
         if viewer.poll() is not None:
             print(f"run_fleet.py: the viewer exited with code {viewer.returncode}; going on without it",
                   file=sys.stderr, flush=True)
+    n_routers = args.routers
+    if n_routers is None:
+        n = scenario.n_carriers
+        n_routers = 0 if n <= CARRIERS_PER_ROUTER or not listen else -(-n // CARRIERS_PER_ROUTER)
+    routers, router_endpoints = [], []
+    for _ in range(n_routers):
+        endpoint = f"tcp/127.0.0.1:{free_port()}"
+        routers.append(subprocess.Popen(
+            [sys.executable, str(Path(__file__).resolve()), "--role", "router", "--listen", endpoint]
+            + sum((["--connect", e] for e in connect), [])
+            + (["--zenoh-config", args.zenoh_config] if args.zenoh_config else []),
+            stdout=subprocess.DEVNULL, preexec_fn=_ignore_sigint))
+        router_endpoints.append(endpoint)
     carriers = {}
-    for cid in scenario.carrier_ids:
-        carriers[cid] = subprocess.Popen(
-            script + ["--role", "carrier", "--carrier", cid] + common
-            + sum((["--connect", e] for e in connect), []) + ([] if args.verbose else ["--quiet"]),
+    for g, group in enumerate(carrier_groups(scenario.carrier_ids, args.carrier_processes)):
+        via = [router_endpoints[g % len(router_endpoints)]] if router_endpoints else connect
+        carriers[",".join(group)] = subprocess.Popen(
+            script + ["--role", "carrier", "--carrier", ",".join(group)] + common
+            + sum((["--connect", e] for e in via), []) + ([] if args.verbose else ["--quiet"]),
             preexec_fn=_ignore_sigint)
-    procs = [coordinator, *carriers.values()] + ([viewer] if viewer is not None else [])
-    print(f"run_fleet.py: coordinator pid {coordinator.pid} listening on {', '.join(listen)}; carriers "
-          + ", ".join(f"{cid} pid {p.pid}" for cid, p in carriers.items()), flush=True)
+    procs = [coordinator, *carriers.values(), *routers] + ([viewer] if viewer is not None else [])
+    where = f"listening on {', '.join(listen)}" if listen else f"connected to {', '.join(connect)}"
+    shown = ", ".join(f"{_short(cids)} pid {p.pid}" for cids, p in carriers.items())
+    print(f"run_fleet.py: coordinator pid {coordinator.pid} {where}; carriers {shown}"
+          + (f"; {len(routers)} router(s) at {', '.join(router_endpoints)}" if routers else ""), flush=True)
     if viewer is not None and viewer.poll() is None and not args.no_web:
         from viewer.node import viewer_url
 
@@ -357,6 +458,7 @@ def run_all(args, scenario, stop: threading.Event) -> int:
     while time.monotonic() < deadline and any(p.poll() is None for p in carriers.values()):
         time.sleep(0.05)
     _stop_children(list(carriers.values()), grace_s=5.0)
+    _stop_children(routers, grace_s=5.0)
     bad = {cid: p.returncode for cid, p in carriers.items() if p.returncode not in (0,)}
     if bad:
         print(f"run_fleet.py: carrier exit codes {bad}", file=sys.stderr, flush=True)
@@ -399,13 +501,21 @@ def _ms(value) -> str:
 def main(argv=None) -> int:
     stop = install_stop_handlers()  # first: a signal from here on is a stop request, never an exception
     args = parse_args(argv)
+    from wire.zconfig import ConfigError
+
+    if args.role == "router":
+        try:
+            return run_router(args, stop)
+        except ConfigError as exc:
+            return fail(str(exc))
+    if args.scenario is None:
+        return fail("the scenario file is required (except with --role router)")
     scenario = load(args)
     if scenario is None:
         return EXIT_USAGE
     problem = check_flags(args, scenario)
     if problem:
         return fail(problem)
-    from wire.zconfig import ConfigError
 
     try:
         if args.role == "coordinator":

@@ -38,6 +38,12 @@ from wire.messages import Pose
 
 #: Trail points per Observation at most (the protocol's limit).
 MAX_TRAIL = 512
+#: Longest sleep (s) of a carrier waiting for a message (a decision, End): any message, and a
+#: stop request (:meth:`Carrier.stop`, :func:`run_carriers`), wakes it at once, so this only sets
+#: how often it looks at its timers. Polls cost CPU in proportion to the wait: with hundreds of
+#: carriers per process and stages of seconds, 50 ms polls were a third of the carriers' CPU time,
+#: and 0.25 s polls most of it when stages took a minute (R = 1,024).
+IDLE_POLL_S = 2.0
 #: Sim-time chunk (s) between pacing sleeps when ``realtime > 0``.
 PACE_CHUNK_S = 0.5
 #: Default interval between two Pose messages, seconds of simulated time (docs/protocol.md, "Pose").
@@ -75,6 +81,30 @@ class CarrierConfig:
     pose_interval_s: float = POSE_INTERVAL_S
 
 
+@dataclass(frozen=True)
+class SharedWorld:
+    """What every carrier of one process derives identically from the scenario, computed once
+    per process (:func:`shared_world`) when it simulates several carriers.
+
+    Attributes:
+        valid: bool ``[R, N]``, carrier r scheduled at stage j.
+        fingerprint: the scenario fingerprint.
+        features: float ``[F, 2]`` feature positions (m), sorted by x.
+    """
+
+    valid: np.ndarray
+    fingerprint: str
+    features: np.ndarray
+
+
+def shared_world(scenario) -> SharedWorld:
+    from world import sample_features
+
+    features = sample_features(scenario)
+    features = features[np.argsort(features[:, 0], kind="stable")]  # sorted by x: see Simulation.sense
+    return SharedWorld(scenario.valid(), scenario_fingerprint(scenario), features)
+
+
 class _Exit(Exception):
     """Leave the run loop with an exit reason (a key of :data:`EXIT_CODES`)."""
 
@@ -89,18 +119,20 @@ class Carrier:
     ``self.machine`` is the :class:`mission.carrier.CarrierState`, changed only by :meth:`apply`.
     """
 
-    def __init__(self, scenario, config: CarrierConfig, zconf, stop: threading.Event | None = None):
-        if config.seed is not None:
+    def __init__(self, scenario, config: CarrierConfig, zconf, stop: threading.Event | None = None,
+                 shared: SharedWorld | None = None):
+        if config.seed is not None and shared is None:
             scenario = scenario.with_seed(int(config.seed))
         self.scenario = scenario
+        self.shared = shared
         self.config = config
         self.zconf = zconf
         self.cid = keys.check_id(config.carrier, "carrier")
         self.r = scenario.carrier_index(self.cid)  # KeyError for an unknown id (checked by the CLI)
         self.mission = keys.check_id(config.mission or keys.mission_id_from_name(scenario.name), "mission")
-        self.valid = scenario.valid()[self.r]
+        self.valid = (scenario.valid() if shared is None else shared.valid)[self.r]
         self.n_stages = scenario.stages
-        self.fingerprint = scenario_fingerprint(scenario)
+        self.fingerprint = scenario_fingerprint(scenario) if shared is None else shared.fingerprint
         self.machine = mc.initial(self.cid, self.valid, scenario.stage_times(), scenario.carriers[self.r].passengers)
         self._log = config.log or (lambda line: print(line, flush=True))
         self._stop = stop if stop is not None else threading.Event()
@@ -121,6 +153,9 @@ class Carrier:
 
     def stop(self) -> None:
         self._stop.set()
+        node = self.node
+        if node is not None:
+            node.wake()
 
     @property
     def stage(self) -> int:
@@ -175,6 +210,8 @@ class Carrier:
             item = self.node.next(0.0)
 
     def _handle(self, item) -> None:
+        if item.kind == "wake":
+            return
         if item.kind in ("alive", "gone"):
             if item.key != keys.coordinator_alive(self.mission):
                 raise ProtocolError("bad-key", f"liveliness token on {item.key[:80]}")
@@ -209,7 +246,7 @@ class Carrier:
         self.apply(mc.DecisionHeard(msg.stage, msg.t, msg.deploy, self._position()))
 
     def _query_once(self) -> State | None:
-        for payload in self.node.query(keys.state_key(self.mission), timeout_s=DEFAULTS.state_query_s):
+        for payload in self.node.query(keys.state_selector(self.mission, self.cid), timeout_s=DEFAULTS.state_query_s):
             try:
                 state = decode(payload, State)
             except ProtocolError as exc:
@@ -321,7 +358,7 @@ class Carrier:
                 self.log(f"coordinator absent for {self.config.coordinator_timeout_s:.0f} s; exiting")
                 raise _Exit("coordinator-lost")
             last = now
-            self._pump(0.05)
+            self._pump(IDLE_POLL_S)
 
     def _fly(self) -> None:
         at_once = True  # the first stage after joining is reached at once, not paced
@@ -360,7 +397,8 @@ class Carrier:
         from wire.zconfig import OpenStopped
 
         reason = "finished"
-        self.sim = world.Simulation(self.scenario, carriers=[self.cid])
+        self.sim = world.Simulation(self.scenario, carriers=[self.cid],
+                                    features=None if self.shared is None else self.shared.features)
         try:
             self.node = Node(self.zconf, open_timeout_s=self.config.coordinator_timeout_s, stop=self._stop)
         except OpenStopped:
@@ -376,7 +414,7 @@ class Carrier:
             deadline = time.monotonic() + self.config.end_timeout_s
             while not self.machine.ended and not self._stop.is_set() and time.monotonic() < deadline:
                 self._check_refused()
-                self._pump(0.05)
+                self._pump(IDLE_POLL_S)
             reason = "stopped" if self._stop.is_set() else ("end" if self.machine.ended else "finished")
         except _Exit as exc:
             reason = exc.reason
@@ -389,3 +427,56 @@ class Carrier:
                 pass
             self.node.close(DEFAULTS.close_s)
         return reason
+
+
+def run_carriers(scenario, configs, zconf, stop: threading.Event | None = None) -> dict:
+    """Run several carriers in this process, one thread and one Zenoh session each (the protocol
+    and the coordinator cannot tell them from carriers in processes of their own); the world
+    (schedules, fingerprint, features) is derived once and shared.
+
+    Args:
+        scenario: the loaded scenario (every config must name the same ``seed``).
+        configs: one :class:`CarrierConfig` per carrier.
+        zconf: a zenoh config, or a callable returning a fresh one (one per session).
+        stop: the process's stop request, shared by all carriers.
+
+    Returns:
+        carrier id -> its exit reason (a key of :data:`EXIT_CODES`).
+    """
+    stop = stop if stop is not None else threading.Event()
+    configs = list(configs)
+    shared = None
+    if len(configs) > 1:
+        seeds = {c.seed for c in configs}
+        if len(seeds) != 1:
+            raise ValueError("carriers of one process must share the seed")
+        seed = seeds.pop()
+        if seed is not None:
+            scenario = scenario.with_seed(int(seed))
+        shared = shared_world(scenario)
+    carriers = [Carrier(scenario, c, zconf() if callable(zconf) else zconf, stop=stop, shared=shared)
+                for c in configs]
+    reasons: dict = {}
+
+    def body(carrier):
+        try:
+            reasons[carrier.cid] = carrier.run()
+        except Exception:  # one carrier's bug must not take its neighbours down
+            import sys
+            import traceback
+
+            print(f"carrier {carrier.cid}: crashed\n{traceback.format_exc()}", file=sys.stderr, flush=True)
+            reasons[carrier.cid] = "crashed"
+
+    threads = [threading.Thread(target=body, args=(c,), name=f"carrier-{c.cid}", daemon=True) for c in carriers]
+    for thread in threads:
+        thread.start()
+    woken = False
+    for thread in threads:
+        while thread.is_alive():
+            thread.join(0.2)
+            if stop.is_set() and not woken:  # a signal: wake every carrier from its wait
+                woken = True
+                for c in carriers:
+                    c.stop()
+    return {c.cid: reasons.get(c.cid, "crashed") for c in carriers}

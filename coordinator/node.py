@@ -46,8 +46,8 @@ from mission.summary import RunInfo, summary as mission_summary
 from mission.timeouts import DEFAULTS
 from wire import keys
 from wire.messages import (
-    Bye, CarrierState, Confirm, Decision, End, Hello, Observation, Pose, ProtocolError, Refusal, State, decode,
-    encode, scenario_fingerprint,
+    MAX_STATE_CARRIERS, Bye, CarrierState, Confirm, Decision, End, Hello, Observation, Pose, ProtocolError, Refusal,
+    State, decode, encode, scenario_fingerprint,
 )
 from wire.transport import Node
 
@@ -163,7 +163,7 @@ class Coordinator:
                                          scenario.stage_times(), self.fingerprint)
         self.state = ms.initial(self.spec)
         self._log = config.log or (lambda line: print(line, flush=True))
-        self._state_bytes = b""
+        self._served = self.state  # what State queries answer from: stored already
         self._stop = stop if stop is not None else threading.Event()
         self.node: Node | None = None
         self.store: MissionStore | None = None
@@ -198,17 +198,41 @@ class Coordinator:
         return Decision(self.mission, j, self.spec.stage_times[j], d.deploy, d.planning_ms)
 
     def _refresh_state(self) -> None:
-        st = self.state
-        left = st.passengers_left()
-        dep = st.deployed()
-        carriers = tuple(
-            (cid, CarrierState(int(left[r]), tuple(int(j) for j in np.flatnonzero(dep[r])), cid in st.live))
-            for r, cid in enumerate(self.ids)
-        )
-        last = self._decision(st.next_stage - 1) if (st.next_stage - 1) in st.decisions else None
-        self._state_bytes = encode(State(
+        """From now on State queries answer from the current state (it is stored). O(1): the
+        reply is built when asked (:meth:`state_reply`), not at every event."""
+        self._served = self.state
+
+    def state_reply(self, parameters: dict | None = None) -> bytes:
+        """The encoded State a query gets (docs/protocol.md, "State"): ``?carrier=<id>`` lists
+        that carrier only; an unscoped query lists every carrier of a mission of at most
+        MAX_STATE_CARRIERS carriers, none of a larger one. Runs in the queryable's thread on an
+        immutable snapshot."""
+        st = self._served
+        wanted = (parameters or {}).get("carrier")
+        if wanted is not None:
+            ids = [wanted] if wanted in self.spec.carriers else []
+        else:
+            ids = list(self.ids) if len(self.ids) <= MAX_STATE_CARRIERS else []
+        carriers = tuple(sorted((cid, self._carrier_state(st, cid)) for cid in ids))
+        last = None
+        if (st.next_stage - 1) in st.decisions:
+            d = st.decisions[st.next_stage - 1]
+            last = Decision(self.mission, st.next_stage - 1, self.spec.stage_times[st.next_stage - 1], d.deploy,
+                            d.planning_ms)
+        return encode(State(
             mission=self.mission, next_stage=st.next_stage, stages=self.n_stages, fingerprint=self.fingerprint,
-            ended=st.ended, carriers=tuple(sorted(carriers)), last_decision=last))
+            ended=st.ended, carriers=carriers, last_decision=last))
+
+    def _carrier_state(self, st, cid: str) -> CarrierState:
+        """One carrier's entry: decided deployments not refuted by a Confirm."""
+        deployments = []
+        for j in sorted(st.decisions):
+            if cid in st.decisions[j].deploy:
+                confirm = st.confirms.get((cid, j))
+                if confirm is None or confirm.deployed:
+                    deployments.append(j)
+        left = self.spec.passengers[self.spec.index(cid)] - len(deployments)
+        return CarrierState(int(left), tuple(deployments), cid in st.live)
 
     # ------------------------------------------------------------------ the one way state changes
     def apply(self, event) -> None:
@@ -428,7 +452,7 @@ class Coordinator:
                 self.node = Node(self.zconf, stop=self._stop)
                 self.node.subscribe(f"{keys.prefix(self.mission)}/carrier/**")
                 self.node.watch_liveliness(keys.carrier_alive_pattern(self.mission))
-                self.node.serve(keys.state_key(self.mission), lambda: self._state_bytes)
+                self.node.serve(keys.state_key(self.mission), self.state_reply)
                 self.node.token(keys.coordinator_alive(self.mission))
                 self.log(f"coordinator: mission {self.mission}, {len(self.ids)} carriers, {self.n_stages} stages, "
                          f"planner {self.planner_name} {self.planner_options}, seed {self.seed}")

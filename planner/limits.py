@@ -1,21 +1,31 @@
 """Size limits of a mission: one home for scenario validation (world/) and the wire (wire/).
 
 The values are chosen so that any scenario that passes validation produces messages that fit in
-one wire payload: the largest message is the coordinator's ``State`` reply, which lists every
-carrier (id of up to 64 characters) with its deployments (at most ``MAX_PASSENGERS`` stage
-indices below ``MAX_STAGES``): ``MAX_CARRIERS * (64 + 40 + 5 * MAX_PASSENGERS)`` bytes is about
-39 KiB < ``MAX_PAYLOAD_BYTES`` (tests/test_limits.py encodes such a State).
+one wire payload (tests/test_limits.py encodes each at the limits):
+
+* a ``Decision`` names up to ``MAX_CARRIERS`` carriers (ids of up to 64 characters):
+  ``MAX_CARRIERS * 66`` bytes, about 66 KiB at 1024 carriers, < ``MAX_PAYLOAD_BYTES``;
+* a ``State`` reply lists at most ``MAX_STATE_CARRIERS`` carriers with their deployments (at most
+  ``MAX_PASSENGERS`` stage indices below ``MAX_STAGES``): ``64 * (64 + 40 + 5 * 100)`` bytes,
+  about 39 KiB. A carrier asks for its own entry only (``?carrier=<id>``); an unscoped query
+  lists every carrier of a mission of at most ``MAX_STATE_CARRIERS`` carriers (as protocol
+  version 1 always did), none of a larger one.
+
+Every message of a mission of at most 64 carriers is byte for byte what it was when 64 carriers
+and 64 KiB were the limits, so older version-1 peers interoperate with such missions.
 """
 from __future__ import annotations
 
 #: Largest number of stages N of a mission (count).
 MAX_STAGES = 100_000
 #: Largest number of carriers R of a mission (count).
-MAX_CARRIERS = 64
+MAX_CARRIERS = 1024
+#: Most carriers listed in one State reply (count).
+MAX_STATE_CARRIERS = 64
 #: Largest number of passengers D of one carrier (count).
 MAX_PASSENGERS = 100
 #: Largest accepted wire payload, bytes; larger payloads are rejected before parsing.
-MAX_PAYLOAD_BYTES = 64 * 1024
+MAX_PAYLOAD_BYTES = 128 * 1024
 #: Longest free text field of a wire message (characters).
 MAX_TEXT = 200
 #: Most trail points [x, y] in one observation message.

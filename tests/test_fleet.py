@@ -10,7 +10,7 @@ import pytest
 
 import world
 from wire import keys
-from wire.messages import Decision, Observation, encode
+from wire.messages import MAX_PAYLOAD_BYTES, Decision, Observation, encode
 from wire.transport import Node
 from wire.zconfig import make_config
 
@@ -99,7 +99,7 @@ def test_bad_messages_are_rejected_counted_and_change_nothing(tiny, tmp_path):
         intruder.put_raw(obs_key, msgpack.packb({**raw, "mission": "other"}))
         intruder.put_raw(obs_key, msgpack.packb({**raw, "carrier": "b"}))
         intruder.put_raw(keys.carrier_key(m, "zz", "obs"), msgpack.packb({**raw, "carrier": "zz"}))
-        intruder.put_raw(obs_key, b"\x01" * (70 * 1024))
+        intruder.put_raw(obs_key, b"\x01" * (MAX_PAYLOAD_BYTES + 6 * 1024))
         intruder.put_raw(keys.decision_key(m), msgpack.packb({**msgpack.unpackb(encode(
             Decision(m, 0, 0.0, ("a",), 1.0))), "deploy": "a"}))
         time.sleep(0.3)

@@ -19,7 +19,7 @@ MISSION = "m" * 64  # the longest id the keys allow
 
 
 def _ids() -> list[str]:
-    return [f"{r:02d}" + "c" * 62 for r in range(limits.MAX_CARRIERS)]
+    return [f"{r:04d}" + "c" * 60 for r in range(limits.MAX_CARRIERS)]
 
 
 def test_wire_uses_the_shared_limits():
@@ -35,8 +35,11 @@ def test_messages_of_a_scenario_at_the_limits_encode():
     last = limits.MAX_STAGES - 1
     deployments = tuple(range(last - limits.MAX_PASSENGERS + 1, last + 1))  # D stages, the widest ints
     decision = Decision(MISSION, last, 1e9 - 0.5, tuple(sorted(ids)), 1e9 - 0.25)
+    # The largest State: as many carriers as one reply lists (an unscoped query on a mission of
+    # at most MAX_STATE_CARRIERS carriers), each with D deployments, and the largest Decision.
+    listed = sorted(ids)[:limits.MAX_STATE_CARRIERS]
     state = State(MISSION, limits.MAX_STAGES, limits.MAX_STAGES, "f" * 64, True,
-                  tuple((cid, CarrierState(limits.MAX_PASSENGERS, deployments, True)) for cid in sorted(ids)),
+                  tuple((cid, CarrierState(limits.MAX_PASSENGERS, deployments, True)) for cid in listed),
                   decision)
     trail = tuple((-limits.MAX_COORD + 0.123456789, limits.MAX_COORD - 0.987654321) for _ in range(limits.MAX_TRAIL))
     obs = Observation(MISSION, ids[-1], last, 1e9 - 0.5, 10**9, trail[0], limits.MAX_PASSENGERS, trail)
@@ -68,3 +71,18 @@ def test_scenario_validation_refuses_beyond_the_limits(tmp_path):
     data["carriers"] = [dict(data["carriers"][0], id=f"c{r}") for r in range(limits.MAX_CARRIERS + 1)]
     assert f"carriers: expected a list of at most {limits.MAX_CARRIERS} carriers, found {limits.MAX_CARRIERS + 1} carriers" \
         in _load(tmp_path, data)
+
+
+def test_a_state_lists_at_most_max_state_carriers():
+    ids = sorted(_ids())[:limits.MAX_STATE_CARRIERS + 1]
+    state = State(MISSION, 0, 10, "f" * 64, False, tuple((cid, CarrierState(1, (), True)) for cid in ids), None)
+    with pytest.raises(messages.ProtocolError, match="out-of-range"):
+        encode(state)
+
+
+def test_messages_of_a_mission_within_the_old_limits_keep_the_old_size():
+    """Every message of a mission of at most 64 carriers fits the 64 KiB of protocol version 1's
+    first limits, so older peers interoperate with such missions."""
+    ids = _ids()[:64]
+    decision = Decision(MISSION, limits.MAX_STAGES - 1, 1e9 - 0.5, tuple(sorted(ids)), 1e9 - 0.25)
+    assert len(encode(decision)) <= 64 * 1024

@@ -11,7 +11,7 @@ Layout (``<m>`` = mission id, ``<id>`` = carrier id)::
     marsupial/<m>/coordinator/decision    coordinator -> carriers  Decision (put)
     marsupial/<m>/coordinator/end         coordinator -> carriers  End (put)
     marsupial/<m>/coordinator/refusal/<id> coordinator -> carrier  Refusal (put)
-    marsupial/<m>/coordinator/state       queryable, replies State
+    marsupial/<m>/coordinator/state       queryable, replies State (``?carrier=<id>``: scoped)
     marsupial/<m>/coordinator/alive       liveliness token of the coordinator
 
 Invariant: everything a carrier publishes (puts, liveliness token) lies under
@@ -87,6 +87,12 @@ def refusal_key(mission: str, carrier: str) -> str:
 
 def state_key(mission: str) -> str:
     return f"{prefix(mission)}/coordinator/state"
+
+
+def state_selector(mission: str, carrier: str) -> str:
+    """The State query of one carrier: the state key with the parameter ``carrier=<id>``, so the
+    reply lists that carrier only (its size does not grow with the fleet)."""
+    return f"{state_key(mission)}?carrier={check_id(carrier, 'carrier')}"
 
 
 def coordinator_alive(mission: str) -> str:

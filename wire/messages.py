@@ -22,7 +22,9 @@ PROTOCOL_VERSION = 1
 
 #: Size limits (payload, stages, carriers, trail, coordinates, text): one home, shared with the
 #: scenario validation so that a valid scenario's messages always encode.
-from planner.limits import MAX_CARRIERS, MAX_COORD, MAX_PASSENGERS, MAX_PAYLOAD_BYTES, MAX_STAGES, MAX_TEXT, MAX_TRAIL  # noqa: E402
+from planner.limits import (  # noqa: E402
+    MAX_CARRIERS, MAX_COORD, MAX_PASSENGERS, MAX_PAYLOAD_BYTES, MAX_STAGES, MAX_STATE_CARRIERS, MAX_TEXT, MAX_TRAIL,
+)
 
 #: Every reason code :class:`ProtocolError` can carry (plus node-level ones in docs/protocol.md).
 REASONS = (
@@ -347,7 +349,9 @@ class State:
         next_stage: the first stage not decided yet (== stages when all are decided).
         stages: N, the number of stages of the mission.
         ended: True once End was published.
-        carriers: per carrier id, its :class:`CarrierState` (sorted by id).
+        carriers: per carrier id, its :class:`CarrierState` (sorted by id): only the asking
+            carrier's for a query ``?carrier=<id>``; every carrier's for an unscoped query on a
+            mission of at most MAX_STATE_CARRIERS carriers, none on a larger one.
         last_decision: the most recent Decision (None before stage 0 is decided).
         fingerprint: hex digest of the coordinator's scenario (see Hello).
     """
@@ -494,8 +498,8 @@ def _nested(cls, value, name):
 def _carrier_states(value, name):
     if not isinstance(value, dict):
         raise ProtocolError("wrong-type", f"{name}: expected map, found {type(value).__name__}")
-    if len(value) > MAX_CARRIERS:
-        raise ProtocolError("out-of-range", f"{name}: more than {MAX_CARRIERS} carriers")
+    if len(value) > MAX_STATE_CARRIERS:
+        raise ProtocolError("out-of-range", f"{name}: more than {MAX_STATE_CARRIERS} carriers")
     return tuple(sorted(
         (_ident(k, f"{name} key"), _nested(CarrierState, v, f"{name}[{k}]")) for k, v in value.items()
     ))

@@ -24,7 +24,8 @@ class Inbound:
     """One item of a node's inbox.
 
     Attributes:
-        kind: ``sample`` (a put), ``alive`` (liveliness token appeared), ``gone`` (token vanished).
+        kind: ``sample`` (a put), ``alive`` (liveliness token appeared), ``gone`` (token vanished),
+            ``wake`` (no message: :meth:`Node.wake`).
         key: the key expression it arrived on.
         payload: the raw bytes (``sample`` only).
         received: ``time.monotonic()`` when it was enqueued, seconds.
@@ -94,8 +95,10 @@ class Node:
         self._entities.append(self.session.liveliness().declare_token(key_expr))
 
     def serve(self, key_expr: str, reply_bytes) -> None:
-        """Answer queries on ``key_expr`` with ``reply_bytes()`` (called in a server thread, must
-        not block). The zenoh callback only enqueues the query."""
+        """Answer queries on ``key_expr`` with ``reply_bytes(parameters)`` (called in a server
+        thread, must not block; ``parameters``: the selector's parameters as a dict of str, e.g.
+        ``{"carrier": "c1"}`` for ``key?carrier=c1``). The zenoh callback only enqueues the
+        query."""
         queries: "queue.Queue[Any]" = queue.Queue()
         stop = threading.Event()
         self._serving = (queries, stop)
@@ -110,7 +113,10 @@ class Node:
                 except queue.Empty:
                     continue
                 try:
-                    query.reply(key_expr, reply_bytes())
+                    text = str(query.parameters)
+                    params = dict(part.split("=", 1) if "=" in part else (part, "")
+                                  for part in text.split(";") if part)
+                    query.reply(key_expr, reply_bytes(params))
                 except Exception:
                     pass
                 finally:
@@ -160,6 +166,11 @@ class Node:
             return self.inbox.get(timeout=max(0.0, timeout_s))
         except queue.Empty:
             return None
+
+    def wake(self) -> None:
+        """Wake whoever waits in :meth:`next` (an ``Inbound("wake", "")`` item, which carries
+        nothing): how a stop request reaches a node that sleeps until its next message."""
+        self.inbox.put(Inbound("wake", "", b"", time.monotonic(), time.time()))
 
     def reject(self, reason: str, detail: str, log) -> None:
         """Count a rejected message; log the first one of each reason."""

@@ -1,7 +1,9 @@
 """Zenoh configuration for fleet processes, following zenoh's own CLI conventions.
 
 Order of precedence (later wins): zenoh's defaults, then the fleet's defaults (multicast
-scouting off, unless the config file mentions ``multicast``), then ``--zenoh-config FILE.json5``,
+scouting off, unless the config file mentions ``multicast``; room for :data:`MAX_SESSIONS`
+sessions and :data:`ACCEPT_PENDING` handshakes in progress, unless the file mentions
+``max_sessions`` / ``accept_pending``), then ``--zenoh-config FILE.json5``,
 then the ``--mode``, ``--listen`` and ``--connect`` flags, which override the file's keys.
 """
 from __future__ import annotations
@@ -19,6 +21,12 @@ ENDPOINT_PATTERN = re.compile(r"^[a-z0-9]+/[^\s]+$")
 
 #: Default port when a coordinator is started alone without --listen (zenoh's usual port).
 DEFAULT_PORT = 7447
+#: Unicast sessions a node accepts (zenoh's default is 1,000: fewer than a 1,024-carrier
+#: mission's sessions on its coordinator or router).
+MAX_SESSIONS = 10_000
+#: Incoming sessions a node handshakes at once (zenoh's default 100; a large fleet's carriers
+#: connect within seconds of each other).
+ACCEPT_PENDING = 2_000
 
 
 class ConfigError(ValueError):
@@ -59,20 +67,24 @@ def make_config(
     Raises:
         ConfigError: with one line naming the bad flag or file.
     """
-    multicast_from_file = False
+    text = ""
     if config_file:
         if not os.path.isfile(config_file):
             raise ConfigError(f"--zenoh-config: file not found: {config_file}")
         try:
             with open(config_file, encoding="utf-8") as handle:
-                multicast_from_file = "multicast" in handle.read()
+                text = handle.read()
             conf = zenoh.Config.from_file(config_file)
         except Exception as exc:
             raise ConfigError(f"{config_file}: not a valid zenoh config: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
     else:
         conf = zenoh.Config()
-    if not multicast_from_file:
+    if "multicast" not in text:
         conf.insert_json5("scouting/multicast/enabled", "false")
+    if "max_sessions" not in text:
+        conf.insert_json5("transport/unicast/max_sessions", str(MAX_SESSIONS))
+    if "accept_pending" not in text:
+        conf.insert_json5("transport/unicast/accept_pending", str(ACCEPT_PENDING))
     if mode is not None:
         if mode not in ("peer", "client", "router"):
             raise ConfigError(f"--mode: expected peer, client or router, found {mode!r}")

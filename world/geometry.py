@@ -130,11 +130,19 @@ def inside_polygon(points: np.ndarray, polygon: Sequence[tuple[float, float]]) -
     return (hits.sum(axis=1) % 2) == 1
 
 
-def maximal_cliques(adjacency: np.ndarray) -> list[list[int]]:
-    """All maximal cliques of an undirected graph (bool ``[n, n]``, zero diagonal), by
-    Bron–Kerbosch with pivoting. Each clique sorted; list sorted. Deterministic."""
+def maximal_cliques(adjacency) -> list[list[int]]:
+    """All maximal cliques of an undirected graph, by Bron–Kerbosch with pivoting. Each clique
+    sorted; list sorted. Deterministic.
+
+    Args:
+        adjacency: bool ``[n, n]`` (zero diagonal), or the neighbour sets of the n nodes (a
+            sequence of sets of node indices, no self-loops).
+    """
     n = len(adjacency)
-    nbrs = [frozenset(np.flatnonzero(adjacency[i]).tolist()) for i in range(n)]
+    if isinstance(adjacency, np.ndarray):
+        nbrs = [frozenset(np.flatnonzero(adjacency[i]).tolist()) for i in range(n)]
+    else:
+        nbrs = [frozenset(s) for s in adjacency]
     out: list[list[int]] = []
 
     def expand(r: list[int], p: set[int], x: set[int]) -> None:

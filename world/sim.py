@@ -161,17 +161,26 @@ class Simulation:
         scenario: the mission.
         carriers: ids of the carriers to simulate (a carrier process passes its own id).
         seed: root seed of the features (scenario.seed by default).
+        features: the features ``[F, 2]`` (m) when the caller sampled them already (several
+            carriers of one process share one array); sampled from the seed otherwise.
 
     Attributes:
         features: float ``[F, 2]`` feature positions (m).
         deployments: list of :class:`Deployment`, in order.
     """
 
-    def __init__(self, scenario: Scenario, carriers: Iterable[str] | None = None, seed: int | None = None):
+    def __init__(self, scenario: Scenario, carriers: Iterable[str] | None = None, seed: int | None = None,
+                 features=None):
         self.scenario = scenario
         ids = scenario.carrier_ids if carriers is None else tuple(carriers)
         self._bodies = {cid: _CarrierBody(scenario, scenario.carrier_index(cid)) for cid in ids}
-        self.features = sample_features(scenario, seed)
+        self.features = sample_features(scenario, seed) if features is None else features
+        # Sensing looks at the features in an x window of the sensing disc: sorted by x once
+        # (no copy when the caller passes them sorted, as carriers sharing a process do).
+        xs = self.features[:, 0]
+        self._sense_pts = self.features if bool(np.all(xs[1:] >= xs[:-1])) else \
+            self.features[np.argsort(xs, kind="stable")]
+        self._sense_xs = self._sense_pts[:, 0]
         self.deployments: list[Deployment] = []
         self._left = {cid: scenario.carriers[scenario.carrier_index(cid)].passengers for cid in ids}
         self._step = 0
@@ -198,8 +207,12 @@ class Simulation:
 
     def sense(self, cid: str) -> int:
         """Features within the sensing radius of ``cid``'s actual position with line of sight."""
-        return geometry.count_visible(self.position(cid), self.features, self.scenario.sensing_radius,
-                                      self.scenario.map.segments)
+        origin = self.position(cid)
+        radius = self.scenario.sensing_radius
+        # Every feature within the radius has |dx| <= radius: the window loses none (the margin
+        # absorbs rounding), and the count is order-free, so it equals the count over all features.
+        lo, hi = np.searchsorted(self._sense_xs, [origin[0] - radius - 1e-6, origin[0] + radius + 1e-6])
+        return geometry.count_visible(origin, self._sense_pts[lo:hi], radius, self.scenario.map.segments)
 
     def passengers_left(self, cid: str) -> int:
         return self._left[cid]

@@ -60,11 +60,35 @@ def proximity_overlaps(positions: np.ndarray, valid: np.ndarray, radius: float) 
     if len(idx) < 2:
         return []
     pts = positions[idx[:, 0], idx[:, 1]]
-    dist = np.hypot(pts[:, None, 0] - pts[None, :, 0], pts[:, None, 1] - pts[None, :, 1])
-    adj = dist <= radius
-    np.fill_diagonal(adj, False)
-    groups = [g for g in geometry.maximal_cliques(adj) if len(g) >= 2]
+    groups = [g for g in geometry.maximal_cliques(neighbours(pts, radius)) if len(g) >= 2]
     return sorted([[(int(idx[m, 0]), int(idx[m, 1])) for m in g] for g in groups])
+
+
+#: Up to this many points :func:`neighbours` compares all pairs; beyond, candidates come from
+#: a k-d tree (memory and time near-linear in the points instead of quadratic).
+DENSE_PAIRS_MAX = 2000
+
+
+def neighbours(pts: np.ndarray, radius: float) -> list[frozenset]:
+    """For each point of ``pts`` (float ``[M, 2]``, m), the indices of the other points at most
+    ``radius`` (m) away. The test is always ``np.hypot(dx, dy) <= radius`` on the same floats,
+    so the k-d tree only proposes candidates (with a little slack) and never changes the answer."""
+    m = len(pts)
+    if m <= DENSE_PAIRS_MAX:
+        dist = np.hypot(pts[:, None, 0] - pts[None, :, 0], pts[:, None, 1] - pts[None, :, 1])
+        adj = dist <= radius
+        np.fill_diagonal(adj, False)
+        return [frozenset(np.flatnonzero(row).tolist()) for row in adj]
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(pts).query_pairs(radius * (1 + 1e-9) + 1e-9, output_type="ndarray")
+    a, b = pairs[:, 0], pairs[:, 1]
+    keep = np.hypot(pts[a, 0] - pts[b, 0], pts[a, 1] - pts[b, 1]) <= radius
+    sets: list[set] = [set() for _ in range(m)]
+    for u, v in zip(a[keep].tolist(), b[keep].tolist()):
+        sets[u].add(v)
+        sets[v].add(u)
+    return [frozenset(s) for s in sets]
 
 
 def stage_geometry(scenario) -> StageGeometry:
