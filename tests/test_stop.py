@@ -79,7 +79,7 @@ def test_sigint_at_random_moments_never_cuts_a_step_in_half(tmp_path):
     pending = list(range(RUNS))
     running: list[threading.Thread] = []
     while pending or running:
-        running = [t for t in running if t.isalive()]
+        running = [t for t in running if t.is_alive()]
         while pending and len(running) < CONCURRENT:
             k = pending.pop(0)
             thread = threading.Thread(target=_one_run, args=(tmp_path / f"run{k}", anchors[k], delays[k], results[k]), daemon=True)
