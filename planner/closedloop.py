@@ -98,6 +98,40 @@ def _undo(sel, p, log, nlog):
 
 
 @njit(cache=True)
+def _future(s, stage, n_stages, members, valid, nleft, table, samples, left, lefti,
+            sel, p, xv, nbr_ptr, nbr_idx, log, nlog, total, plain):
+    """The rollout after ``stage`` on sample ``s``: every member follows the conflict-aware SSAP
+    rule (threshold on its marginal value given the selection so far) and, for the control
+    variate, plain independent SSAP on the same draws.
+
+    ``left`` / ``lefti``: int64 ``[m]`` passengers left under the aware / plain rollout, updated.
+    Returns ``(total + aware gains, plain + plain gains, nlog)``; selections are logged in ``log``
+    for :func:`_undo`.
+    """
+    m = members.shape[0]
+    for t in range(stage + 1, n_stages):
+        for i in range(m):
+            r = members[i]
+            if not valid[r, t]:
+                continue
+            n = nleft[r, t]
+            xs = samples[s, t - stage - 1, i]
+            d = left[i]
+            if d > 0:
+                q = r * n_stages + t
+                g = _marginal(q, xs, sel, p, xv, nbr_ptr, nbr_idx)
+                if deploys(table, g, n, d):
+                    total += g
+                    nlog = _select(q, xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
+                    left[i] = d - 1
+            d = lefti[i]
+            if d > 0 and deploys(table, xs, n, d):
+                plain += xs
+                lefti[i] = d - 1
+    return total, plain, nlog
+
+
+@njit(cache=True)
 def _evaluate(actions, members, stage, n_stages, xnow, left0, valid, nleft, table,
               sel, p, xv, nbr_ptr, nbr_idx, samples, out, control_variate):
     """Per-sample control-variate values of every candidate.
@@ -134,25 +168,8 @@ def _evaluate(actions, members, stage, n_stages, xnow, left0, valid, nleft, tabl
                     nlog = _select(q, xnow[i], sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
                     left[i] -= 1
                 lefti[i] = left[i]
-            for t in range(stage + 1, n_stages):
-                for i in range(m):
-                    r = members[i]
-                    if not valid[r, t]:
-                        continue
-                    n = nleft[r, t]
-                    xs = samples[s, t - stage - 1, i]
-                    d = left[i]
-                    if d > 0:
-                        q = r * n_stages + t
-                        g = _marginal(q, xs, sel, p, xv, nbr_ptr, nbr_idx)
-                        if deploys(table, g, n, d):
-                            total += g
-                            nlog = _select(q, xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
-                            left[i] = d - 1
-                    d = lefti[i]
-                    if d > 0 and deploys(table, xs, n, d):
-                        plain += xs
-                        lefti[i] = d - 1
+            total, plain, nlog = _future(s, stage, n_stages, members, valid, nleft, table, samples, left, lefti,
+                                         sel, p, xv, nbr_ptr, nbr_idx, log, nlog, total, plain)
             _undo(sel, p, log, nlog)
             out[k, s] = total - plain if control_variate else total
 
@@ -288,9 +305,6 @@ class ClosedLoopPlanner:
 
     def _search(self, comp, k, samples, deadline, view, prep, state, valid, nleft, left, xnow,
                 must, free, rng):
-        sel, p, xv = state
-        n_stages = view.problem.n_stages
-        j = view.stage
         base = self._base_action(comp, view, prep, state, nleft, left, xnow, must, free)
         free_idx = np.flatnonzero(free[comp])
         if k <= ENUMERATE_MAX:
@@ -402,7 +416,7 @@ def estimate(view: StageView, actions: np.ndarray, samples: int, rng: np.random.
         something). Both estimators have the same expectation.
     """
     problem = view.problem
-    n_carriers, n_stages = problem.n_carriers, problem.n_stages
+    n_carriers = problem.n_carriers
     prep = compile_problem(problem)
     valid = np.ascontiguousarray(view.valid)
     left = view.passengers_left.astype(np.int64)

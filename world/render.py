@@ -16,7 +16,7 @@ from matplotlib.patches import Circle, Patch, Polygon, Rectangle  # noqa: E402
 from world.features import sample_features  # noqa: E402
 from world.stages import stage_geometry  # noqa: E402
 
-from world.scene import CARRIER_COLOURS, OVERLAP_COLOUR  # noqa: E402  (one home for the colours)
+from world.scene import CARRIER_COLOURS, OVERLAP_COLOUR, convex_hull  # noqa: E402  (one home for colours and hulls)
 
 
 def _colour(r: int) -> str:
@@ -31,29 +31,6 @@ def _nice_length(span: float) -> float:
         if m * base <= target:
             return m * base
     return base
-
-
-def _hull(points: np.ndarray) -> np.ndarray | None:
-    """Convex hull (counter-clockwise) of ``[K, 2]`` points, or None if they are collinear."""
-    pts = sorted(set(map(tuple, np.round(points, 9))))
-    if len(pts) < 3:
-        return None
-
-    def cross(o, a, b):
-        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
-
-    lower: list = []
-    for p in pts:
-        while len(lower) >= 2 and cross(lower[-2], lower[-1], p) <= 0:
-            lower.pop()
-        lower.append(p)
-    upper: list = []
-    for p in reversed(pts):
-        while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= 0:
-            upper.pop()
-        upper.append(p)
-    hull = lower[:-1] + upper[:-1]
-    return np.asarray(hull) if len(hull) >= 3 else None
 
 
 def _deployment_spots(scenario, deployments: Any, positions: np.ndarray) -> list[tuple[int, tuple[float, float]]]:
@@ -153,7 +130,7 @@ def render_map(scenario, path: str | Path, deployments: Any = None, trajectories
     pos = geo.positions
     for group in geo.overlaps:
         pts = np.array([pos[r, j] for r, j in group])
-        hull = _hull(pts)
+        hull = convex_hull(pts)
         if np.ptp(pts, axis=0).max() < 0.01 * max(w, h):
             # (nearly) coincident points: a ring round them
             ax.plot(*pts.mean(axis=0), marker="o", ms=15, mfc=OVERLAP_COLOUR, alpha=0.25, mec=OVERLAP_COLOUR,

@@ -122,14 +122,15 @@ def outline(points: np.ndarray, margin: float, segments: int = 24) -> np.ndarray
     angles = np.linspace(0.0, 2 * np.pi, segments, endpoint=False)
     ring = np.column_stack([np.cos(angles), np.sin(angles)]) * margin
     cloud = (pts[:, None, :] + ring[None, :, :]).reshape(-1, 2)
-    hull = _hull(cloud)
+    hull = convex_hull(cloud)
     return np.vstack([hull, hull[:1]])
 
 
-def _hull(points: np.ndarray) -> np.ndarray:
-    """Convex hull (counter-clockwise, Andrew's monotone chain) of ``[K, 2]`` points, K >= 3 not
-    all collinear."""
+def convex_hull(points: np.ndarray) -> np.ndarray | None:
+    """Convex hull (counter-clockwise) of ``[K, 2]`` points, or None if they are collinear."""
     pts = sorted(set(map(tuple, np.round(points, 9))))
+    if len(pts) < 3:
+        return None
 
     def cross(o, a, b):
         return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
@@ -144,7 +145,8 @@ def _hull(points: np.ndarray) -> np.ndarray:
         while len(upper) >= 2 and cross(upper[-2], upper[-1], p) <= 0:
             upper.pop()
         upper.append(p)
-    return np.asarray(lower[:-1] + upper[:-1], dtype=float)
+    hull = lower[:-1] + upper[:-1]
+    return np.asarray(hull) if len(hull) >= 3 else None
 
 
 def build_scene(scenario, seed: int | None = None) -> Scene:
