@@ -72,14 +72,20 @@ def _option_type(option: Option):
     return parse
 
 
-def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, found {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, found {text!r}")
-    return value
+def _nonnegative_int(unit: str = ""):
+    """An argparse type for an integer >= 0 (``unit`` is named in the message)."""
+    expected = "an integer >= 0" + (f" ({unit})" if unit else "")
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = -1
+        if value < 0:
+            raise argparse.ArgumentTypeError(f"expected {expected}, found {text!r}")
+        return value
+
+    return parse
 
 
 def _loss(text: str) -> float:
@@ -89,16 +95,6 @@ def _loss(text: str) -> float:
         value = float("nan")
     if not 0.0 <= value <= 1.0:
         raise argparse.ArgumentTypeError(f"expected a probability in [0, 1], found {text!r}")
-    return value
-
-
-def _delay(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        value = -1
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0 (stages), found {text!r}")
     return value
 
 
@@ -124,14 +120,14 @@ def build_parser() -> argparse.ArgumentParser:
                                 const=True, metavar="true|false", help=option.help)
             continue
         parser.add_argument("--" + option.name.replace("_", "-"), type=_option_type(option), help=option.help)
-    parser.add_argument("--seed", type=_seed, default=0,
+    parser.add_argument("--seed", type=_nonnegative_int(), default=0,
                         help="root seed: the planner's streams, and the observations when the file has none")
     parser.add_argument("--no-clairvoyant", action="store_true", help="skip the clairvoyant bound")
     parser.add_argument("--no-online-optimum", action="store_true",
                         help="skip the exact online optimum (computed only for small instances anyway)")
     parser.add_argument("--message-loss", type=_loss, default=0.0, metavar="P",
                         help="probability in [0, 1] that a message is dropped (default 0)")
-    parser.add_argument("--message-delay", type=_delay, default=0, metavar="K",
+    parser.add_argument("--message-delay", type=_nonnegative_int("stages"), default=0, metavar="K",
                         help="stages every delivered message is late (default 0)")
     parser.add_argument("--groups", type=_groups, default=(), metavar="0,1/2,3",
                         help="carrier groups that cannot hear each other; the coordinator hears the first")

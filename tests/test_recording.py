@@ -174,24 +174,11 @@ def test_a_sigkilled_coordinator_leaves_a_readable_prefix(tmp_path):
 
 @pytest.mark.slow
 def test_a_sigtermed_coordinator_leaves_a_readable_mcap(tmp_path):
-    out = tmp_path / "run"
-    proc = subprocess.Popen([sys.executable, RUN_FLEET, str(TINY), "--out", str(out), "--realtime", "2", "--no-map"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
-    lines = []
-    try:
-        pid = None
-        while pid is None:
-            line = proc.stdout.readline()
-            assert line, proc.stderr.read()[-2000:]
-            lines.append(line)
-            m = re.search(r"coordinator pid (\d+)", line)
-            pid = int(m.group(1)) if m else None
-        while not any("stage   2/" in line for line in lines):
-            line = proc.stdout.readline()
-            assert line, "".join(lines)
-            lines.append(line)
-        import os
+    import os
 
+    out = tmp_path / "run"
+    proc, pid = _run_until_stage_2(out)
+    try:
         os.kill(pid, signal.SIGTERM)  # mid-mission: stage 2 of 4 is decided, stage 3 is not yet
         proc.wait(timeout=60)
     finally:
