@@ -25,7 +25,7 @@ from numba import njit
 
 from planner import ssap
 from planner.closedloop import (BATCH, ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, ClosedLoopPlanner,
-                                _components, _future, _marginal, _select, _undo)
+                                _components, _marginal, _select, _undo)
 from planner.comms import CommsSpec, Deliveries, realise
 from planner.compiled import compile_problem
 from planner.kernels import deploys
@@ -323,8 +323,25 @@ def _evaluate_imputed(actions, members, known, start, left_start, stage, n_stage
                             d -= 1
                     left[i] = d
                 lefti[i] = left[i]
-            total, plain, nlog = _future(s, stage, n_stages, members, valid, nleft, table, samples, left, lefti,
-                                         sel, p, xv, nbr_ptr, nbr_idx, log, nlog, total, plain)
+            for t in range(stage + 1, n_stages):
+                for i in range(m):
+                    r = members[i]
+                    if not valid[r, t]:
+                        continue
+                    n = nleft[r, t]
+                    xs = samples[s, t - stage - 1, i]
+                    d = left[i]
+                    if d > 0:
+                        q = r * n_stages + t
+                        g = _marginal(q, xs, sel, p, xv, nbr_ptr, nbr_idx)
+                        if deploys(table, g, n, d):
+                            total += g
+                            nlog = _select(q, xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
+                            left[i] = d - 1
+                    d = lefti[i]
+                    if d > 0 and deploys(table, xs, n, d):
+                        plain += xs
+                        lefti[i] = d - 1
             _undo(sel, p, log, nlog)
             out[k, s] = total - plain
 
