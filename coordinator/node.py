@@ -46,13 +46,13 @@ from mission.summary import RunInfo, summary as mission_summary
 from mission.timeouts import DEFAULTS
 from wire import keys
 from wire.messages import (
-    MAX_STATE_CARRIERS, Bye, CarrierState, Confirm, Decision, End, Hello, Observation, Pose, ProtocolError, Refusal,
+    MAX_STATE_CARRIERS, Bye, CarrierState, Confirm, Decision, End, Hello, Observation, Own, Pose, ProtocolError, Refusal,
     State, decode, encode, scenario_fingerprint,
 )
 from wire.transport import Node
 
 #: Which message type each carrier topic carries.
-TOPIC_TYPES = {"hello": Hello, "obs": Observation, "confirm": Confirm, "bye": Bye}
+TOPIC_TYPES = {"hello": Hello, "obs": Observation, "confirm": Confirm, "own": Own, "bye": Bye}
 
 
 @dataclass(frozen=True)
@@ -122,6 +122,8 @@ def to_event(msg, at: float):
         return ev.Observation(msg.carrier, msg.stage, msg.t, msg.x, msg.position, msg.passengers_left, msg.trail, at)
     if isinstance(msg, Confirm):
         return ev.Confirmed(msg.carrier, msg.stage, msg.deployed, msg.status, msg.position, msg.passengers_left, at)
+    if isinstance(msg, Own):
+        return ev.Accounted(msg.carrier, msg.stage, msg.t, msg.x, msg.deployed, msg.position, msg.passengers_left, at)
     if isinstance(msg, Bye):
         return ev.Bye(msg.carrier, msg.deployments, msg.rejected, msg.reason, at)
     raise TypeError(type(msg).__name__)
@@ -190,7 +192,7 @@ class Coordinator:
         return self.state.resumed
 
     def deployed(self) -> np.ndarray:
-        """bool ``[R, N]``: decisions not refuted by a Confirm (the planner's view of the past)."""
+        """bool ``[R, N]``: the planner's view of the past (:meth:`mission.state.MissionState.deployed`)."""
         return self.state.deployed()
 
     def _decision(self, j: int) -> Decision:
@@ -224,13 +226,9 @@ class Coordinator:
             ended=st.ended, carriers=carriers, last_decision=last))
 
     def _carrier_state(self, st, cid: str) -> CarrierState:
-        """One carrier's entry: decided deployments not refuted by a Confirm."""
-        deployments = []
-        for j in sorted(st.decisions):
-            if cid in st.decisions[j].deploy:
-                confirm = st.confirms.get((cid, j))
-                if confirm is None or confirm.deployed:
-                    deployments.append(j)
+        """One carrier's entry: its deployments as the planner sees them (its accounts, its
+        Confirms, the decisions nobody answered)."""
+        deployments = st.deployments_of(cid)
         left = self.spec.passengers[self.spec.index(cid)] - len(deployments)
         return CarrierState(int(left), tuple(deployments), cid in st.live)
 
@@ -365,7 +363,7 @@ class Coordinator:
         return self.state.all_joined()
 
     def _plan(self, j: int) -> tuple[tuple[str, ...], float]:
-        view = make_view(self.problem, j, self.state.observations(upto=j + 1), self.state.deployed())
+        view = make_view(self.problem, j, self.state.planning_observations(j), self.state.deployed())
         t0 = time.perf_counter()
         choice = enforce(view, self.planner.decide(view, stage_rng(self.seed, j)))
         planning_ms = (time.perf_counter() - t0) * 1e3
@@ -502,9 +500,9 @@ class Coordinator:
 
     def _render(self, path: Path) -> None:
         st = self.state
-        deployments = [world.Deployment(cid, self.spec.stage_times[j], tuple(c.position))
-                       for (cid, j), c in sorted(st.confirms.items(), key=lambda kv: (kv[0][1], kv[0][0]))
-                       if c.deployed]
+        actual = st.confirmed_deployments()
+        deployments = [world.Deployment(cid, self.spec.stage_times[j], st.deployment_position(cid, j))
+                       for j in range(self.n_stages) for r, cid in enumerate(self.ids) if actual[r, j]]
         trajectories = {cid: np.asarray(pts, dtype=float).reshape(-1, 2) for cid, pts in st.trails.items() if pts}
         try:
             world.render_map(self.scenario, str(path), deployments=deployments, trajectories=trajectories,
