@@ -37,8 +37,8 @@ from pathlib import Path
 import numpy as np
 
 import world
-from planner.registry import make_planner, used_options
-from planner.problem import Problem, enforce, make_view, stage_rng
+from planner.registry import make_planner, planner_settings, used_options
+from planner.problem import enforce, make_view, stage_rng
 from coordinator.store import MissionStore
 from mission import events as ev
 from mission import state as ms
@@ -91,29 +91,6 @@ class CoordinatorConfig:
     record: bool = True  # write mission.mcap (recording/live.py)
 
 
-def build_problem(scenario, geometry=None) -> Problem:
-    """The planner core's instance for a scenario: schedules, overlaps and prior from world/."""
-    geometry = world.stage_geometry(scenario) if geometry is None else geometry
-    return Problem.build(scenario.passengers, geometry.valid, geometry.overlaps, scenario.prior_distribution())
-
-
-def planner_settings(scenario, name=None, iterations=None, plan_ms=None, extra=()) -> tuple[str, dict]:
-    """(planner name, options for make_planner): the scenario's, overridden by non-None flags.
-
-    An explicit ``iterations`` flag drops the scenario's ``plan_ms`` (which would take
-    precedence), so ``--iterations`` always means an iteration budget.
-    """
-    spec = scenario.planner
-    options = dict(spec.options())
-    if iterations is not None:
-        options["iterations"] = int(iterations)
-        options.pop("plan_ms", None)
-    if plan_ms is not None:
-        options["plan_ms"] = float(plan_ms)
-    options.update(dict(extra))  # --planner-option KEY=VALUE (checked by planner.registry)
-    return (name or spec.name), options
-
-
 def to_event(msg, at: float):
     """The mission event of a decoded carrier message received at ``at`` (s, epoch)."""
     if isinstance(msg, Hello):
@@ -153,7 +130,7 @@ class Coordinator:
         self.seed = int(scenario.seed)
         self.mission = keys.check_id(config.mission or keys.mission_id_from_name(scenario.name), "mission")
         self.ids = scenario.carrier_ids
-        self.problem = build_problem(scenario)
+        self.problem = world.build_problem(scenario)
         self.n_stages = self.problem.n_stages
         self.planner_name, options = planner_settings(
             scenario, config.planner, config.iterations, config.plan_ms, config.planner_options)

@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 
 import world
-from coordinator.node import build_problem, planner_settings
+from world import build_problem
+from planner.registry import planner_settings
 from planner.registry import make_planner
 from planner.problem import run_online
 from wire.zconfig import free_port
