@@ -441,6 +441,8 @@ class Carrier:
             return
         if state is None:
             raise _Exit("stopped" if self._stop.is_set() else "coordinator-lost")
+        if not self.coordinator_seen:  # it answered: present, even if its token is not pumped yet
+            self.coordinator_present = self.coordinator_seen = True
         if state.fingerprint != self.fingerprint:
             self.log(f"the coordinator runs another world (fingerprint {state.fingerprint}, ours "
                      f"{self.fingerprint}): use the same scenario file and --seed")
