@@ -289,7 +289,7 @@ def run_carrier(args, scenario, stop: threading.Event) -> int:
     log = (lambda line: None) if args.quiet else (lambda line: print(line, flush=True))
     mode = "decentralised" if args.decentralised else "coordinated" if args.no_autonomy else "hybrid"
     _, options = planner_settings(scenario, None, args.iterations, args.plan_ms, args.planner_options)
-    out = args.out or str(Path("runs") / (args.mission or _mission_id(scenario)))
+    out = args.out or default_out(scenario)  # its log: pass the same --out again to resume from it
     configs = [CarrierConfig(
         carrier=cid, mission=args.mission, seed=args.seed, realtime=args.realtime,
         decision_timeout_s=args.decision_timeout, coordinator_timeout_s=args.coordinator_timeout,
@@ -338,14 +338,10 @@ def run_viewer(args, scenario, stop: threading.Event) -> int:
         return 1
 
 
-def _mission_id(scenario) -> str:
+def default_out(scenario) -> str:
     from wire import keys
 
-    return keys.mission_id_from_name(scenario.name)
-
-
-def default_out(scenario) -> str:
-    return str(Path("runs") / f"{_mission_id(scenario)}-{time.strftime('%Y%m%d-%H%M%S')}")
+    return str(Path("runs") / f"{keys.mission_id_from_name(scenario.name)}-{time.strftime('%Y%m%d-%H%M%S')}")
 
 
 def _forward(args) -> list[str]:
