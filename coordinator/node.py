@@ -374,6 +374,12 @@ class Coordinator:
             if self.config.realtime > 0 and last_published is not None:
                 # Paced like the carriers: Δt / realtime after the previous decision went out.
                 self._wait(last_published + self.scenario.stage_interval / self.config.realtime - time.monotonic())
+            if j > 0 and not self.state.live:
+                # Nobody to decide for (cut off, or every carrier gone): deciding now would only
+                # record empty stages the carriers decide themselves. Hold until one is back (its
+                # Hello says where it is), at most the join timeout.
+                self.log(f"coordinator: no carrier is live; holding stage {j} (at most {self.config.join_timeout_s:.0f} s)")
+                self._wait(self.config.join_timeout_s, lambda: bool(self.state.live))
             opened = time.monotonic()
             self._wait(self.config.stage_timeout_s, lambda: self.state.stage_complete(j))
             if self._stop.is_set():

@@ -25,7 +25,7 @@ from planner.registry import make_planner
 from planner.problem import run_online
 from wire.zconfig import free_port
 
-import netns
+from tools import netns
 from fleet_helpers import ROOT, db_rows, deployed_matrix
 
 #: Marked slow (faults over real processes and network namespaces: about a minute): run by .ci/run after the default suite.

@@ -16,7 +16,7 @@ import pytest
 import world
 from wire.zconfig import free_port
 
-import netns
+from tools import netns
 from fleet_helpers import ROOT, TINY, alive, db_rows, deployed_matrix, offline
 
 RUN_FLEET = str(ROOT / "run_fleet.py")
