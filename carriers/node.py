@@ -138,15 +138,27 @@ def shared_world(scenario) -> SharedWorld:
 
 class Onboard:
     """The on-board planner (:data:`ONBOARD_PLANNER`) and the planner's instance of the scenario,
-    built at the first stage a carrier of this process decides itself — the planner core (numba,
-    scipy) and the stage geometry are loaded then, not before — and shared by the process's
-    carriers (fully informed carriers compute the same joint action: it is computed once)."""
+    shared by the process's carriers (fully informed carriers compute the same joint action: it is
+    computed once). Loading the planner core (numba, scipy, the compiled kernels) and the stage
+    geometry takes seconds — 3 s on an idle machine, three times that with six carriers starting
+    at once on two cores — so a carrier that may decide alone starts it in the background when it
+    starts (:meth:`prepare`), not when the coordinator is already gone; a carrier that never
+    decides alone (``coordinated``) never loads it."""
 
     def __init__(self, scenario, options=()):
         self.scenario = scenario
         self.options = dict(options)
         self._lock = threading.Lock()
         self._built = None
+        self._preparing = None
+
+    def prepare(self) -> None:
+        """Build in a background thread (once)."""
+        with self._lock:
+            if self._built is not None or self._preparing is not None:
+                return
+            self._preparing = threading.Thread(target=self.get, name="onboard-planner", daemon=True)
+        self._preparing.start()
 
     def get(self):
         """(problem, planner), built on first use."""
@@ -593,6 +605,7 @@ class Carrier:
             self.node.subscribe(keys.refusal_key(self.mission, self.cid))
             self.node.watch_liveliness(keys.coordinator_alive(self.mission))
             if self.config.mode != "coordinated":
+                self.onboard.prepare()
                 for topic in PEER_TOPICS:
                     self.node.subscribe(keys.carrier_topic_pattern(self.mission, topic))
                 self.node.watch_liveliness(keys.carrier_alive_pattern(self.mission))

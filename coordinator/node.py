@@ -371,8 +371,9 @@ class Coordinator:
         for j in range(self.state.next_stage, self.n_stages):
             if self._stop.is_set():
                 return
-            if self.config.realtime > 0 and last_published is not None:
-                # Paced like the carriers: Δt / realtime after the previous decision went out.
+            if self.config.realtime > 0 and last_published is not None and not self.state.behind(j):
+                # Paced like the carriers: Δt / realtime after the previous decision went out
+                # (not when the carriers are past j already: then it catches up at once).
                 self._wait(last_published + self.scenario.stage_interval / self.config.realtime - time.monotonic())
             if j > 0 and not self.state.live:
                 # Nobody to decide for (cut off, or every carrier gone): deciding now would only
