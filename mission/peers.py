@@ -15,8 +15,33 @@ from __future__ import annotations
 
 import numpy as np
 
-#: Action codes of :attr:`PeerBook.act`.
+#: Action codes of :attr:`PeerBook.source`.
 UNKNOWN, FROM_DECISION, FROM_CARRIER = 0, 1, 2
+#: A carrier listens to every carrier of its conflict component up to this many; in a larger
+#: component, to its direct conflict neighbours only (what it hears grows with its degree, not
+#: with the fleet).
+COMPONENT_MAX = 64
+
+
+def listened(problem, r: int, component_max: int = COMPONENT_MAX) -> list[int]:
+    """The carriers (indices, r excluded) carrier r listens to: those its deployments can conflict
+    with, directly or through others (its component of the conflict graph) when there are at most
+    ``component_max``, else its direct neighbours. With its whole component heard, a carrier
+    deciding alone knows everything its decision depends on."""
+    R = problem.n_carriers
+    adjacency = [set() for _ in range(R)]
+    for group in problem.overlaps:
+        members = set(int(c) for c in np.asarray(group)[:, 0])
+        for c in members:
+            adjacency[c] |= members
+    component, frontier = {r}, [r]
+    while frontier and len(component) <= component_max:
+        b = frontier.pop()
+        for c in adjacency[b] - component:
+            component.add(c)
+            frontier.append(c)
+    chosen = component if len(component) <= component_max else adjacency[r]
+    return sorted(chosen - {r})
 
 
 class PeerBook:
