@@ -33,8 +33,8 @@ COORDINATOR_SUMMARY = "summary.coordinator.json"
 #: name theirs (carriers decide with it when no coordinator is reachable).
 ON_BOARD_PLANNER = "dec-closed-loop"
 #: mission.db meta keys (coordinator/node.py writes them) a report checks, and carrier log keys.
-DB_IDENTITY = ("mission", "scenario", "fingerprint", "seed")
-LOG_IDENTITY = ("mission", "fingerprint", "seed")
+DB_IDENTITY = ("mission", "scenario", "seed", "fingerprint")  # the actionable differences first
+LOG_IDENTITY = ("mission", "seed", "fingerprint")
 
 
 class ReportError(RuntimeError):
