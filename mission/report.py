@@ -35,6 +35,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 
 from . import events as ev
 from .state import MissionSpec, MissionState, Reject, fold, step
@@ -113,10 +114,18 @@ class Merged:
             return BY_COORDINATOR
         return None
 
+    @cached_property
+    def _by_stage(self) -> dict:
+        return {cid: {e.stage: e for e in rec.entries} for cid, rec in self.logs.items()}
+
+    @cached_property
+    def counted(self):
+        """bool ``[R, N]``: the deployments counted (``MissionState.confirmed_deployments``)."""
+        return self.state.confirmed_deployments()
+
     def entry(self, cid: str, j: int):
         """Carrier ``cid``'s log entry of stage j, or None."""
-        record = self.logs.get(cid)
-        return None if record is None else next((e for e in record.entries if e.stage == j), None)
+        return self._by_stage.get(cid, {}).get(j)
 
     def sources(self, cid: str, j: int) -> list[str]:
         """The files holding a record of carrier ``cid`` at stage j."""
@@ -132,8 +141,7 @@ class Merged:
 
     def counted_from(self, cid: str, j: int) -> str | None:
         """The file whose record of carrier ``cid``'s deployment at stage j counts."""
-        r = self.state.spec.index(cid)
-        if not self.state.confirmed_deployments()[r, j]:
+        if not self.counted[self.state.spec.index(cid), j]:
             return None
         if (cid, j) not in self.added and self.db_source is not None:
             return self.db_source
@@ -162,7 +170,7 @@ class Merged:
         record), and ``conflict`` (why a log entry was not counted) when there is one.
         """
         st, spec = self.state, self.state.spec
-        counted = st.confirmed_deployments()
+        counted = self.counted
         conflicts = {(c.carrier, c.stage): c for c in self.conflicts}
         out = []
         for j in range(spec.n_stages):
@@ -203,6 +211,7 @@ def merge(spec: MissionSpec, events=(), logs=(), db_source: str | None = "missio
     state = dataclasses.replace(base, published_at={})
     logs = sorted(logs, key=lambda rec: spec.index(rec.carrier))
     added, by_coordinator, conflicts = set(), set(), []
+    counted = state.confirmed_deployments()  # kept up to date cell by cell: O(1) per entry
     for record in logs:
         cid, r = record.carrier, spec.index(record.carrier)
         if cid not in state.accepted:
@@ -220,8 +229,8 @@ def merge(spec: MissionSpec, events=(), logs=(), db_source: str | None = "missio
             if entry.position is None:
                 conflict("incomplete", "outcome without a position")
                 continue
-            counted = state.confirmed_deployments()[r]
-            if entry.deployed and not (0 <= j < spec.n_stages and counted[j]) and counted.sum() >= spec.passengers[r]:
+            if (entry.deployed and not (0 <= j < spec.n_stages and counted[r, j])
+                    and counted[r].sum() >= spec.passengers[r]):
                 conflict("passengers", f"carrier {cid} would release more than its {spec.passengers[r]} "
                                        f"passenger(s)")
                 continue
@@ -240,6 +249,8 @@ def merge(spec: MissionSpec, events=(), logs=(), db_source: str | None = "missio
                     conflict(effect.reason, effect.detail)
             if state is not before:
                 added.add((cid, j))
+                record_now = state.accounts.get((cid, j)) or state.confirms.get((cid, j))
+                counted[r, j] = record_now is not None and record_now.deployed
                 if coordinator_decided and isinstance(event, ev.Accounted):
                     by_coordinator.add((cid, j))
     return Merged(state=state, base=base, logs={rec.carrier: rec for rec in logs},
