@@ -80,7 +80,14 @@ def _identity(scenario, mission: str | None, seed: int | None):
     return scenario, mission, scenario_fingerprint(scenario)
 
 
+#: Meta keys without which a log cannot be told to be of this mission.
+REQUIRED = ("mission", "fingerprint")
+
+
 def _mismatch(meta: dict, wanted: dict, keys) -> str | None:
+    for key in REQUIRED:
+        if key not in meta:
+            return f"no {key} in its meta: cannot tell its mission"
     for key in keys:
         if key in meta and meta[key] != wanted[key]:
             flag = {"seed": " (pass --seed)", "mission": " (pass --mission)"}.get(key, "")

@@ -182,13 +182,13 @@ class Merged:
                 x = st.observation(r, j)
                 if math.isnan(x) and entry is not None and entry.observed and entry.x is not None and spec.valid[r][j]:
                     x = float(entry.x)  # sensed, never decided: shown, not counted
-                status = None
-                if (cid, j) in st.confirms:
+                # The status of the record that counts; the log's own only when nothing is on record.
+                if (cid, j) in st.accounts:
+                    status = entry.status if (cid, j) in self.by_coordinator else OWN
+                elif (cid, j) in st.confirms:
                     status = st.confirms[(cid, j)].status
-                if entry is not None and entry.status is not None:
-                    status = entry.status
-                elif (cid, j) in st.accounts and status is None:
-                    status = OWN
+                else:
+                    status = None if entry is None else entry.status
                 row = {"stage": j, "t": spec.stage_times[j], "carrier": cid,
                        "x": None if math.isnan(x) else x, "deployed": bool(counted[r, j]),
                        "decision": (cid in st.decisions[j].deploy) if j in st.decisions else None,

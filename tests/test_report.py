@@ -121,7 +121,8 @@ def test_a_log_that_contradicts_mission_db_is_a_conflict_and_the_first_record_st
     assert counted(merged) == {("a", 0)}
     assert [c.reason for c in merged.conflicts] == ["duplicate"]
     assert merged.conflicts[0].line().startswith("carriers/a.db: stage 0: ")
-    assert [r.get("conflict") is not None for r in merged.rows() if r["carrier"] == "a" and r["stage"] == 0] == [True]
+    [row] = [r for r in merged.rows() if r["carrier"] == "a" and r["stage"] == 0]
+    assert row["conflict"] and row["status"] == "deployed" and row["deployed"] and row["decided_by"] == "coordinator"
 
 
 def test_no_passenger_is_released_twice():
