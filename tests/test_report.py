@@ -336,3 +336,37 @@ def test_report_of_a_real_one_host_run_equals_the_coordinators_summary(tmp_path)
     assert alone["stages_decided"] == 0
     agree(alone, decisions=False)
     assert {d["by"] for c in alone["carriers"] for d in c["deployments"]} == {"coordinator"}
+
+
+@pytest.mark.slow
+def test_one_host_mode_reports_a_mission_whose_coordinator_was_killed(tmp_path):
+    import os
+    import re
+    import signal
+
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, RUN_FLEET, str(TINY), "--out", str(out), "--realtime", "2", "--no-map",
+                             "--no-record", "--coordinator-timeout", "3"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        lines, pid = [], None
+        while not any("stage   2/" in line for line in lines):
+            line = proc.stdout.readline()
+            assert line, "".join(lines)
+            lines.append(line)
+            m = re.search(r"coordinator pid (\d+)", line)
+            pid = int(m.group(1)) if m else pid
+        os.kill(pid, signal.SIGKILL)  # no summary.json of its own
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode != 0 and "Traceback" not in stderr
+    assert "report: total reward" in stdout, stderr[-2000:]
+    data = json.loads((out / "summary.json").read_text())
+    assert "report" in data and not data["ended"] and 2 <= data["stages_decided"] < 4
+    assert not (out / "summary.coordinator.json").exists()
+    for carrier, passengers in zip(data["carriers"], (2, 1)):
+        stages = [d["stage"] for d in carrier["deployments"]]
+        assert len(stages) == len(set(stages)) <= passengers
+    assert (out / "merged_log.jsonl").read_text().count("\n") >= 2
