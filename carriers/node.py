@@ -628,6 +628,9 @@ class Carrier:
             self.node.watch_liveliness(keys.coordinator_alive(self.mission))
             if self.config.mode != "coordinated":
                 self.onboard.prepare()
+            if self.config.mode == "decentralised":
+                # Subscribed before its token appears: a carrier that sees the token can reach it.
+                self._listen(wait=True)
             self.node.token(keys.carrier_alive(self.mission, self.cid))
             self._join()
             self._fly()

@@ -160,7 +160,7 @@ def run_report(scenario, out, mission: str | None = None, seed: int | None = Non
     Raises:
         ReportError: the report cannot be made (nothing is written).
     """
-    from coordinator.node import build_problem
+    from world import build_problem
     from coordinator.results import render_map, write_json
     from mission.state import MissionSpec
     from mission.summary import RunInfo, summary as mission_summary

@@ -257,7 +257,7 @@ def _logs_from_mission_db(db, out):
 def _truncate_mission_db(src, dst, stages):
     """A mission.db as a coordinator killed after deciding ``stages`` stages leaves it."""
     import world
-    from coordinator.node import build_problem
+    from world import build_problem
     from coordinator.store import MissionStore, load_events, load_meta
 
     scenario = world.load_scenario(TINY)
