@@ -30,8 +30,13 @@ HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
-#: Exit code for bad user input (scenario, flags, config files).
+#: Exit code for bad user input (scenario, flags, config files), and for a process that refuses
+#: to start because its role and id are taken (a live coordinator of the mission without
+#: --standby, a live carrier of the same id): docs/fleet.md, "Split brain".
 EXIT_USAGE = 2
+#: Exit code of a coordinator deposed by a coordinator of a higher epoch (it stopped deciding and
+#: published no End).
+EXIT_DEPOSED = 3
 #: How long the launcher waits for carriers after the coordinator exits (s).
 CARRIER_EXIT_GRACE_S = 15.0
 #: Zenoh sessions one node accepts reliably here: a peer or router of zenoh 1.10 refused every
@@ -74,6 +79,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="simulated seconds per wall second; 0 = as fast as possible (default)")
     p.add_argument("--mission", help="mission id, the key-expression prefix (default: the scenario name)")
     p.add_argument("--out", metavar="DIR", help="results directory (default runs/<scenario>-<timestamp>)")
+    p.add_argument("--standby", action="store_true",
+                   help="coordinator: if the mission already has a live coordinator, wait and take over when "
+                        "its liveliness token vanishes (without it: refuse to start, exit 2)")
     z = p.add_argument_group("zenoh (flags override keys of --zenoh-config)")
     z.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT",
                    help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)")
@@ -180,6 +188,8 @@ def check_flags(args, scenario) -> str | None:
         return f"--routers: expected an integer >= 0, found {args.routers}"
     if args.carrier_processes is not None and args.carrier_processes < 1:
         return f"--carrier-processes: expected an integer >= 1, found {args.carrier_processes}"
+    if args.standby and args.role != "coordinator":
+        return "--standby: only with --role coordinator"
     if args.role == "carrier":
         if not args.carrier:
             return "--role carrier needs --carrier ID (or ID,ID,...)"
@@ -247,34 +257,44 @@ def _ignore_sigint() -> None:
 
 
 def run_coordinator(args, scenario, stop: threading.Event) -> int:
-    from coordinator.node import Coordinator, CoordinatorConfig
+    from coordinator.node import Coordinator, CoordinatorConfig, DuplicateCoordinator
     from coordinator.store import StoreMismatch
 
     out = args.out or default_out(scenario)
     coord = Coordinator(scenario, CoordinatorConfig(
         out_dir=out, mission=args.mission, planner=args.planner, iterations=args.iterations,
         plan_ms=args.plan_ms, planner_options=getattr(args, "planner_options", ()), seed=args.seed, realtime=args.realtime, join_timeout_s=args.join_timeout,
-        stage_timeout_s=args.stage_timeout, render=not args.no_map, record=not getattr(args, "no_record", False)),
+        stage_timeout_s=args.stage_timeout, render=not args.no_map, record=not getattr(args, "no_record", False),
+        standby=getattr(args, "standby", False)),
         zenoh_config(args, "coordinator"),
         scenario_path=args.scenario, stop=stop)
     try:
         summary = coord.run()
-    except StoreMismatch as exc:
+    except (StoreMismatch, DuplicateCoordinator) as exc:
         return fail(str(exc))
+    if summary.get("deposed_by") is not None:
+        return EXIT_DEPOSED
     return 0 if summary.get("ended") and summary["stages_decided"] == summary["stages"] else 130
 
 
 def run_carrier(args, scenario, stop: threading.Event) -> int:
     """One or several carriers (``--carrier a,b,c``) in this process: one thread and one Zenoh
     session per carrier, the scenario loaded once. Exit code: the first non-zero carrier code."""
-    from carriers.node import EXIT_CODES, CarrierConfig, run_carriers
+    from carriers.node import EXIT_CODES, CarrierConfig, DuplicateCarriers, run_carriers
+    from wire.zconfig import ConfigError
 
     log = (lambda line: None) if args.quiet else (lambda line: print(line, flush=True))
     configs = [CarrierConfig(
         carrier=cid, mission=args.mission, seed=args.seed, realtime=args.realtime,
         decision_timeout_s=args.decision_timeout, coordinator_timeout_s=args.coordinator_timeout,
         log=log, pose_interval_s=args.pose_interval) for cid in getattr(args, "carriers", [args.carrier])]
-    reasons = run_carriers(scenario, configs, lambda: zenoh_config(args, "carrier"), stop=stop)
+    try:
+        reasons = run_carriers(scenario, configs, lambda: zenoh_config(args, "carrier"), stop=stop)
+    except DuplicateCarriers as exc:
+        return fail(str(exc))
+    except ConfigError as exc:  # nobody to connect to: the coordinator is not there
+        print(f"run_fleet.py: {exc}", file=sys.stderr, flush=True)
+        return EXIT_CODES["coordinator-lost"]
     codes = []
     for cid, reason in reasons.items():
         if reason not in ("end", "finished"):

@@ -116,13 +116,15 @@ class MissionRecord:
 class MissionStore:
     """Append-only mission log. Not thread-safe: use it from the coordinator's main thread only."""
 
-    def __init__(self, path: str | Path, meta: dict, synchronous: str = "FULL"):
+    def __init__(self, path: str | Path, meta: dict, synchronous: str = "FULL", epoch: int = 1):
         """Open or create ``path``.
 
         Args:
             path: the database file (created with its parent directory if missing).
             meta: the mission identity (JSON-able values). An existing file must hold the same.
             synchronous: SQLite ``synchronous`` level; FULL survives power loss, NORMAL a process crash.
+            epoch: the opening coordinator's epoch, written in its ``open`` event
+                (:func:`highest_epoch` reads it back).
 
         Raises:
             StoreMismatch: when the file holds another mission.
@@ -146,7 +148,7 @@ class MissionStore:
                     )
         with self._tx():
             self.db.executemany("INSERT OR IGNORE INTO meta (key, value) VALUES (?, ?)", wanted.items())
-            self._event("open", None, None, {"resumed": bool(stored)})
+            self._event("open", None, None, {"resumed": bool(stored), "epoch": int(epoch)})
 
     # ------------------------------------------------------------------ writing
     def _tx(self):
@@ -329,6 +331,24 @@ def load_events(path: str | Path) -> list:
         return _mission_events(db)
     finally:
         db.close()
+
+
+def highest_epoch(path: str | Path) -> int:
+    """The highest coordinator epoch recorded in the mission.db at ``path`` (read-only): 0 when
+    there is no such file or it holds no mission; an ``open`` written before epochs existed
+    counts as epoch 1 (its decisions carried none, which means 1)."""
+    path = Path(path)
+    if not path.is_file() or path.stat().st_size == 0:
+        return 0
+    try:
+        db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)
+        try:
+            rows = db.execute("SELECT payload FROM events WHERE kind='open'").fetchall()
+        finally:
+            db.close()
+    except sqlite3.Error:
+        return 0  # not a mission log (yet): opening it as a store reports what is wrong
+    return max((int(json.loads(p).get("epoch", 1)) for (p,) in rows), default=0)
 
 
 def _mission_events(db) -> list:
