@@ -1,0 +1,156 @@
+"""Split brain and duplicates, as real OS processes over real Zenoh (docs/fleet.md, "Split
+brain"): a second coordinator of a live mission and a second process of a live carrier refuse to
+start (one stderr line, exit code 2, nothing written); a standby coordinator takes over a
+SIGKILLed primary on the same results directory with epoch 2, and a Decision of the old epoch
+(crafted here on a raw zenoh session) is ignored by the carriers (``deposed`` in their Bye)."""
+from __future__ import annotations
+
+import json
+import queue
+import subprocess
+import sys
+import time
+
+import msgpack
+import numpy as np
+import pytest
+import zenoh
+
+import world
+from fleet_helpers import ROOT, TINY, db_rows
+from test_faults import Fleet, _check_at_most_once, _summary, faults_yaml
+from wire.zconfig import free_port, make_config, open_session
+
+RUN_FLEET = str(ROOT / "run_fleet.py")
+
+
+def _raw_session(endpoint: str):
+    return open_session(make_config("client", [], [endpoint]), 30.0)
+
+
+def _wait_token(session, key: str, present: bool = True, timeout_s: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        found = [r for r in session.liveliness().get(key, timeout=1.0) if r.ok is not None]
+        if bool(found) == present:
+            return
+        time.sleep(0.05)
+    raise AssertionError(f"token {key} {'never appeared' if present else 'never vanished'}")
+
+
+def _refused(argv: list[str]) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, RUN_FLEET, str(TINY), *argv], capture_output=True, text=True,
+                          cwd=str(ROOT), timeout=60)
+
+
+def test_a_second_coordinator_and_a_second_carrier_process_refuse_to_start(tmp_path):
+    """Primary coordinator and carrier a live (the coordinator waits for b before stage 0): a
+    second coordinator exits 2 with one stderr line and creates nothing in its --out; a process
+    for carriers a,b exits 2 naming a, before b ever shows up (no token of b reaches the
+    coordinator's mission.db); so does one for a alone."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    procs = []
+    session = None
+    try:
+        procs.append(subprocess.Popen(
+            [sys.executable, RUN_FLEET, str(TINY), "--role", "coordinator", "--listen", endpoint,
+             "--out", str(tmp_path / "primary"), "--no-map", "--no-record", "--join-timeout", "60"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=str(ROOT)))
+        session = _raw_session(endpoint)
+        _wait_token(session, "marsupial/tiny/coordinator/alive")
+        second = _refused(["--role", "coordinator", "--connect", endpoint, "--out", str(tmp_path / "second"),
+                           "--no-map"])
+        assert second.returncode == 2, second
+        assert second.stderr.splitlines() == [
+            "run_fleet.py: mission tiny already has a live coordinator; use --standby to wait for it, "
+            "or another --mission"], second.stderr
+        assert not (tmp_path / "second").exists()
+
+        procs.append(subprocess.Popen(
+            [sys.executable, RUN_FLEET, str(TINY), "--role", "carrier", "--carrier", "a", "--connect", endpoint,
+             "--quiet"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=str(ROOT)))
+        _wait_token(session, "marsupial/tiny/carrier/a/alive")
+        for ids in ("a,b", "a"):
+            dup = _refused(["--role", "carrier", "--carrier", ids, "--connect", endpoint])
+            assert dup.returncode == 2, dup
+            assert dup.stderr.splitlines() == [
+                "run_fleet.py: mission tiny already has live carrier(s) a; stop that process first, "
+                "or use another --mission"], dup.stderr
+        # b never flew: the coordinator never saw its token.
+        alive = db_rows(tmp_path / "primary" / "mission.db", "SELECT DISTINCT carrier FROM events WHERE kind='alive'")
+        assert alive == [("a",)]
+        assert all(p.poll() is None for p in procs)  # the originals were not disturbed
+    finally:
+        if session is not None:
+            session.close()
+        for p in procs:
+            p.kill()
+            p.wait(10)
+
+
+@pytest.mark.slow
+def test_standby_takes_over_a_killed_primary_with_a_higher_epoch(tmp_path):
+    """A router, a primary coordinator and a ``--standby`` coordinator on the same --out, two
+    carriers; SIGKILL the primary after stage 2: the standby takes over with epoch 2 and
+    finishes the mission; every stage is decided exactly once, nothing is deployed twice, and a
+    Decision of epoch 1 published afterwards on a raw session is rejected by both carriers
+    (``deposed``) and deploys nothing."""
+    scenario_file = tmp_path / "faults.yaml"
+    scenario_file.write_text(faults_yaml(10))
+    scenario = world.load_scenario(scenario_file)
+    router = f"tcp/127.0.0.1:{free_port()}"
+    fleet = Fleet(scenario_file, tmp_path / "run", router)
+    session = None
+    try:
+        fleet.start("router", ["--role", "router", "--listen", router])
+        session = _raw_session(router)
+        heard: "queue.Queue[dict]" = queue.Queue()
+        sub = session.declare_subscriber("marsupial/faults/coordinator/decision",
+                                         lambda s: heard.put(msgpack.unpackb(s.payload.to_bytes())))
+        coordinator = ["--role", "coordinator", "--connect", router, "--out", str(fleet.out), "--no-map",
+                       "--join-timeout", "60"]
+        fleet.start("primary", coordinator)
+        _wait_token(session, "marsupial/faults/coordinator/alive")
+        fleet.start("standby", coordinator + ["--standby"])
+        fleet.poll("the standby waiting", lambda: "standby:" in (fleet.logs / "standby.log").read_text())
+        for cid in scenario.carrier_ids:
+            fleet.carrier(cid)
+        fleet.poll("stage 2 decided", lambda: fleet.decided() >= 2)
+        fleet.kill("primary")
+        k = fleet.decided()
+        assert 2 <= k < scenario.stages - 2
+        fleet.poll("the standby took over", lambda: len(fleet.rows("SELECT seq FROM events WHERE kind='open'")) >= 2)
+        fleet.poll("a decision of epoch 2", lambda: fleet.decided() > k + 1)
+        stale = {"v": 1, "type": "decision", "mission": "faults", "stage": scenario.stages - 1,
+                 "t": 5.0 * (scenario.stages - 1), "deploy": ["a", "b"], "planning_ms": 0.0}  # epoch absent: 1
+        session.declare_publisher("marsupial/faults/coordinator/decision", reliability=zenoh.Reliability.RELIABLE,
+                                  congestion_control=zenoh.CongestionControl.BLOCK).put(msgpack.packb(stale))
+        codes = {name: fleet.procs[name].wait(90) for name in ("standby", "a", "b")}  # the router runs on
+        sub.undeclare()
+    finally:
+        if session is not None:
+            session.close()
+        fleet.cleanup()
+    assert codes["standby"] == 0 and codes["a"] == 0 and codes["b"] == 0, (codes, fleet.output())
+    summary = _summary(fleet)
+    assert summary["ended"] and summary["end_reason"] == "complete" and summary["resumed"]
+    assert summary["stages_decided"] == scenario.stages and summary["epoch"] == 2
+    opens = [json.loads(p)["epoch"] for (p,) in fleet.rows("SELECT payload FROM events WHERE kind='open' ORDER BY seq")]
+    assert opens == [1, 2]
+    decisions = []
+    while not heard.empty():
+        decisions.append(heard.get())
+    epochs = {}
+    for d in decisions:
+        if d != stale:
+            epochs.setdefault(d["stage"], set()).add(d.get("epoch", 1))
+    assert sorted(epochs) == list(range(scenario.stages))
+    assert all(epochs[j] == {2} for j in range(k + 1, scenario.stages)), epochs
+    _check_at_most_once(fleet, scenario, summary)
+    for cid in scenario.carrier_ids:
+        assert summary["rejected"]["carriers"][cid].get("deposed", 0) >= 1, summary["rejected"]
+    # The stale decision deployed nobody: every deployment is one of the coordinators' decisions.
+    for r, carrier in enumerate(summary["carriers"]):
+        for dep in carrier["deployments"]:
+            assert carrier["id"] in summary["decisions"][dep["stage"]]
+    assert np.isfinite(summary["total_reward"])
