@@ -327,8 +327,12 @@ class Coordinator:
     def _heard_decision(self, item) -> None:
         """A Decision on this mission's decision key (ours come back to us): one of a higher
         epoch means another coordinator took over (e.g. a partition healed after a standby
-        took over): stop deciding, publish no End, exit (docs/fleet.md, "Split brain")."""
-        msg = decode(item.payload, Decision)
+        took over): stop deciding, publish no End, exit (docs/fleet.md, "Split brain"). Anything
+        else there is not addressed to this coordinator: ignored, not counted (carriers count it)."""
+        try:
+            msg = decode(item.payload, Decision)
+        except ProtocolError:
+            return
         if msg.mission != self.mission or msg.epoch <= self.epoch or self.deposed_by is not None:
             return
         self.deposed_by = msg.epoch
