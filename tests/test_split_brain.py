@@ -154,3 +154,41 @@ def test_standby_takes_over_a_killed_primary_with_a_higher_epoch(tmp_path):
         for dep in carrier["deployments"]:
             assert carrier["id"] in summary["decisions"][dep["stage"]]
     assert np.isfinite(summary["total_reward"])
+
+
+def test_a_coordinator_that_hears_a_higher_epoch_stops_without_end(tmp_path):
+    """A Decision of epoch 5 on the mission's decision key (another coordinator took over, as a
+    healed partition would show it): the coordinator (epoch 1) logs one line and exits 3 at once,
+    publishes no End and writes no summary.json; mission.db has no end event."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    out = tmp_path / "out"
+    proc = subprocess.Popen(
+        [sys.executable, RUN_FLEET, str(TINY), "--role", "coordinator", "--listen", endpoint, "--out", str(out),
+         "--no-map", "--no-record", "--join-timeout", "60"],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=str(ROOT))
+    session = None
+    try:
+        session = _raw_session(endpoint)
+        ends: "queue.Queue[bytes]" = queue.Queue()
+        sub = session.declare_subscriber("marsupial/tiny/coordinator/end", lambda s: ends.put(s.payload.to_bytes()))
+        _wait_token(session, "marsupial/tiny/coordinator/alive")
+        newer = {"v": 1, "type": "decision", "mission": "tiny", "stage": 0, "t": 0.0, "deploy": [],
+                 "planning_ms": 0.0, "epoch": 5}
+        session.declare_publisher("marsupial/tiny/coordinator/decision", reliability=zenoh.Reliability.RELIABLE,
+                                  congestion_control=zenoh.CongestionControl.BLOCK).put(msgpack.packb(newer))
+        output, _ = proc.communicate(timeout=30)
+        time.sleep(0.5)
+        sub.undeclare()
+    finally:
+        if session is not None:
+            session.close()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(10)
+    assert proc.returncode == 3, output
+    assert [line for line in output.splitlines() if "deposed" in line] == [
+        "coordinator: deposed: a coordinator of epoch 5 decides mission tiny (this one has epoch 1); "
+        "stopping without End"], output
+    assert ends.empty()
+    assert not (out / "summary.json").exists()
+    assert db_rows(out / "mission.db", "SELECT COUNT(*) FROM events WHERE kind='end'") == [(0,)]
