@@ -400,18 +400,44 @@ def _stop_children(procs, grace_s: float = 10.0) -> None:
             time.sleep(0.05)
 
 
+def taken(args, scenario, connect) -> str | None:
+    """Through a router another mission with this id may be live: the one line a process of ours
+    would refuse with (a live coordinator, live carriers of our ids), or None. One liveliness
+    query over a short-lived session, before the launcher starts anything."""
+    from carriers.node import DuplicateCarriers, live_duplicates
+    from coordinator.node import DuplicateCoordinator
+    from mission.timeouts import DEFAULTS
+    from wire import keys
+    from wire.transport import Node
+    from wire.zconfig import make_config
+
+    mission = args.mission or keys.mission_id_from_name(scenario.name)
+    conf = lambda: make_config("client", [], connect, args.zenoh_config)  # noqa: E731
+    probe = Node(conf(), open_timeout_s=10.0)
+    try:
+        if probe.live_tokens(keys.coordinator_alive(mission), DEFAULTS.liveliness_check_s):
+            return str(DuplicateCoordinator(mission))
+    finally:
+        probe.close(DEFAULTS.close_s)
+    ids = live_duplicates(mission, scenario.carrier_ids, conf, open_timeout_s=10.0)
+    return str(DuplicateCarriers(mission, ids)) if ids else None
+
+
 def run_all(args, scenario, stop: threading.Event) -> int:
     from wire.zconfig import free_port
 
     if stop.is_set():
         return 130
-    out = Path(args.out or default_out(scenario))
-    out.mkdir(parents=True, exist_ok=True)
     if args.connect and not args.listen:
         listen, connect = [], list(args.connect)  # through a router: everyone connects to it
+        problem = taken(args, scenario, connect)  # else our carriers would join the live mission
+        if problem:
+            return fail(problem)
     else:
         listen = args.listen or [f"tcp/127.0.0.1:{free_port()}"]
         connect = args.connect or [e.replace("0.0.0.0", "127.0.0.1") for e in listen]
+    out = Path(args.out or default_out(scenario))
+    out.mkdir(parents=True, exist_ok=True)
     script = [sys.executable, str(Path(__file__).resolve()), args.scenario]
     common = _forward(args)
     started = time.monotonic()
@@ -467,13 +493,31 @@ def run_all(args, scenario, stop: threading.Event) -> int:
 
         print(f"run_fleet.py: viewer pid {viewer.pid}; live view at {viewer_url(args.web_port, args.grpc_port)}",
               flush=True)
+    refused = set()
     while coordinator.poll() is None and not stop.is_set():
         stop.wait(0.05)
+        for cids, p in carriers.items():
+            if p.poll() == EXIT_USAGE and cids not in refused:  # its one line is above
+                refused.add(cids)
+                print(f"run_fleet.py: carrier process {_short(cids)} refused to start (exit {EXIT_USAGE}); "
+                      f"the mission goes on without it", file=sys.stderr, flush=True)
     if stop.is_set():
         print("run_fleet.py: interrupted; stopping the fleet", file=sys.stderr, flush=True)
         _stop_children(procs)
         return 130
     code = coordinator.returncode
+    if code == EXIT_USAGE:  # refused to start (a live coordinator of the mission): nobody decides
+        _stop_children([*carriers.values(), *routers] + ([viewer] if viewer is not None else []), grace_s=5.0)
+        print(f"run_fleet.py: the coordinator refused to start (exit {code}, reason above); carriers stopped",
+              file=sys.stderr, flush=True)
+        return code
+    if code == EXIT_DEPOSED:  # a newer coordinator decides now: our carriers fly on under it
+        print(f"run_fleet.py: the coordinator was deposed by a coordinator of a newer epoch (exit {code}); the "
+              f"carriers go on under that one, whose --out holds the results", file=sys.stderr, flush=True)
+        while any(p.poll() is None for p in carriers.values()) and not stop.is_set():
+            stop.wait(0.1)
+        _stop_children([*carriers.values(), *routers] + ([viewer] if viewer is not None else []), grace_s=5.0)
+        return code
     deadline = time.monotonic() + CARRIER_EXIT_GRACE_S
     while time.monotonic() < deadline and any(p.poll() is None for p in carriers.values()):
         time.sleep(0.05)

@@ -192,3 +192,35 @@ def test_a_coordinator_that_hears_a_higher_epoch_stops_without_end(tmp_path):
     assert ends.empty()
     assert not (out / "summary.json").exists()
     assert db_rows(out / "mission.db", "SELECT COUNT(*) FROM events WHERE kind='end'") == [(0,)]
+
+
+def test_the_one_host_launcher_through_a_router_refuses_a_live_mission(tmp_path):
+    """``run_fleet.py S.yaml --connect ROUTER`` while a coordinator of the same mission is live
+    behind that router: the launcher starts nothing (its carriers would join the live mission),
+    prints the coordinator's one line and exits 2."""
+    router = f"tcp/127.0.0.1:{free_port()}"
+    procs = []
+    session = None
+    try:
+        procs.append(subprocess.Popen([sys.executable, RUN_FLEET, "--role", "router", "--listen", router],
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=str(ROOT)))
+        procs.append(subprocess.Popen(
+            [sys.executable, RUN_FLEET, str(TINY), "--role", "coordinator", "--connect", router,
+             "--out", str(tmp_path / "primary"), "--no-map", "--no-record", "--join-timeout", "60"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, cwd=str(ROOT)))
+        session = _raw_session(router)
+        _wait_token(session, "marsupial/tiny/coordinator/alive")
+        launcher = _refused(["--connect", router, "--out", str(tmp_path / "second"), "--no-map"])
+        assert launcher.returncode == 2, launcher
+        assert launcher.stderr.splitlines() == [
+            "run_fleet.py: mission tiny already has a live coordinator; use --standby to wait for it, "
+            "or another --mission"], launcher.stderr
+        assert not (tmp_path / "second").exists()
+        alive = db_rows(tmp_path / "primary" / "mission.db", "SELECT COUNT(*) FROM events WHERE kind='alive'")
+        assert alive == [(0,)]  # no carrier of the launcher joined the live mission
+    finally:
+        if session is not None:
+            session.close()
+        for p in procs:
+            p.kill()
+            p.wait(10)
