@@ -507,7 +507,6 @@ class Coordinator:
         from wire.zconfig import OpenStopped
 
         out = Path(self.config.out_dir)
-        started = time.monotonic()
         # The session first: a duplicate is refused (or waited for) before mission.db is touched.
         if not self._stop.is_set():
             try:
@@ -526,6 +525,7 @@ class Coordinator:
                 self.node = None
                 self.log(f"coordinator: standby for mission {self.mission} stopped; it never took over")
                 return {"ended": False, "standby": True}
+        started = time.monotonic()  # the mission's wall time: a standby's wait is not part of it
         out.mkdir(parents=True, exist_ok=True)
         meta = {"mission": self.mission, "scenario": self.scenario.name, "fingerprint": self.fingerprint,
                 "seed": self.seed, "planner": self.planner_name, "planner_options": self.planner_options}
