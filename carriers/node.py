@@ -226,7 +226,7 @@ class Carrier:
     def _hello(self, next_stage: int) -> None:
         self.node.put(keys.carrier_key(self.mission, self.cid, "hello"), Hello(
             self.mission, self.cid, os.getpid(), socket.gethostname()[:255], self.machine.passengers_left,
-            next_stage, self.fingerprint))
+            next_stage, self.fingerprint, max(1, self.machine.epoch)))
 
     # ------------------------------------------------------------------ inbound
     def _pump(self, timeout_s: float) -> None:

@@ -186,6 +186,7 @@ class Coordinator:
         # newer coordinator that deposed this one (None while not deposed).
         self.epoch = 1
         self.known_epoch = 0
+        self._first_stage = 0  # the first stage this process decides (a newer epoch is taken before it)
         self.deposed_by: int | None = None
 
     # ------------------------------------------------------------------ views of the state
@@ -322,7 +323,29 @@ class Coordinator:
             raise ProtocolError("wrong-mission", f"mission {msg.mission!r} on {self.mission!r}")
         if msg.carrier != cid:
             raise ProtocolError("key-mismatch", f"carrier {msg.carrier!r} on the key of {cid!r}")
+        if isinstance(msg, Hello) and msg.epoch > self.epoch and msg.fingerprint == self.fingerprint:
+            self._carrier_epoch(cid, msg.epoch)
         self.apply(to_event(msg, item.wall))
+
+    def _carrier_epoch(self, cid: str, epoch: int) -> None:
+        """A carrier has heard a higher epoch than ours. Before this process decided a stage (it
+        may have re-published the last decision) a coordinator that had that epoch is gone or out
+        of our reach: take the next epoch (recorded, so a restart goes higher still) and
+        re-publish. After it, a newer coordinator decides this mission: we are deposed."""
+        if self.deposed_by is not None:
+            return
+        if self.state.next_stage > self._first_stage:
+            self.deposed_by = epoch
+            self.log(f"coordinator: deposed: carrier {cid} has heard epoch {epoch} of mission {self.mission} "
+                     f"(this one has epoch {self.epoch}); stopping without End")
+            self._stop.set()
+            return
+        self.log(f"coordinator: carrier {cid} has heard epoch {epoch}; this coordinator takes epoch {epoch + 1}")
+        self.epoch = epoch + 1
+        self.store.event("epoch", epoch=self.epoch)
+        self._refresh_state()
+        if self.state.next_stage > 0:
+            self._publish_decision(self._decision(self.state.next_stage - 1))
 
     def _heard_decision(self, item) -> None:
         """A Decision on this mission's decision key (ours come back to us): one of a higher
@@ -537,6 +560,7 @@ class Coordinator:
         try:
             # Recovery is the live fold over the stored events (the last one is this process's open).
             self.state = ms.fold(self.spec, self.store.mission_events())
+            self._first_stage = self.state.next_stage
             if self.state.resumed:
                 self.log(f"coordinator: resumed from {self.store.path}: {len(self.state.decisions)} stage(s) "
                          f"decided, continuing at stage {self.state.next_stage}")

@@ -72,7 +72,7 @@ CREATE TABLE IF NOT EXISTS confirmations (
 #: Event kinds written to ``events``.
 EVENT_KINDS = (
     "open", "hello", "alive", "dead", "observation", "missing", "decision", "published",
-    "confirm", "bye", "rejected", "end",
+    "confirm", "bye", "rejected", "end", "epoch",
 )
 
 
@@ -334,8 +334,9 @@ def load_events(path: str | Path) -> list:
 
 
 def highest_epoch(path: str | Path) -> int:
-    """The highest coordinator epoch recorded in the mission.db at ``path`` (read-only): 0 when
-    there is no such file or it holds no mission; an ``open`` written before epochs existed
+    """The highest coordinator epoch recorded in the mission.db at ``path`` (read-only; in the
+    ``open`` events and the ``epoch`` events of a coordinator that raised its epoch after a
+    carrier's Hello): 0 when there is no such file or it holds no mission; an ``open`` written before epochs existed
     counts as epoch 1 (its decisions carried none, which means 1)."""
     path = Path(path)
     if not path.is_file() or path.stat().st_size == 0:
@@ -343,7 +344,7 @@ def highest_epoch(path: str | Path) -> int:
     try:
         db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)
         try:
-            rows = db.execute("SELECT payload FROM events WHERE kind='open'").fetchall()
+            rows = db.execute("SELECT payload FROM events WHERE kind IN ('open', 'epoch')").fetchall()
         finally:
             db.close()
     except sqlite3.Error:

@@ -224,3 +224,46 @@ def test_the_one_host_launcher_through_a_router_refuses_a_live_mission(tmp_path)
         for p in procs:
             p.kill()
             p.wait(10)
+
+
+def test_a_coordinator_on_a_fresh_out_takes_a_higher_epoch_than_its_carriers_heard(tmp_path):
+    """Carriers that heard epoch 4 (a coordinator that is gone): a coordinator on an empty --out
+    (epoch 1) gets a Hello reporting epoch 4 before stage 0, takes epoch 5, records it, and the
+    mission runs with epoch-5 decisions that the carriers accept (no ``deposed`` rejection)."""
+    from fleet_helpers import InProcessFleet
+    from wire.messages import Hello, encode
+    from wire.transport import Node
+
+    tiny = world.load_scenario(TINY)
+    fleet = InProcessFleet(tiny, tmp_path, planner="ssap", join_timeout_s=30.0)
+    fleet.start_coordinator()
+    coordinator = fleet.coordinator
+    deadline = time.monotonic() + 60
+    while coordinator.node is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    heard: "queue.Queue[dict]" = queue.Queue()
+    other = Node(make_config("client", [], [fleet.endpoint]), open_timeout_s=30)
+    try:
+        other.session.declare_subscriber("marsupial/tiny/coordinator/decision",
+                                         lambda s: heard.put(msgpack.unpackb(s.payload.to_bytes())))
+        while not other.query("marsupial/tiny/coordinator/state") and time.monotonic() < deadline:
+            time.sleep(0.05)
+        other.put("marsupial/tiny/carrier/a/hello",
+                  Hello("tiny", "a", 1, "elsewhere", 2, 0, coordinator.fingerprint, epoch=4))
+        while coordinator.epoch != 5 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert coordinator.epoch == 5
+        for cid in tiny.carrier_ids:
+            fleet.start_carrier(cid)
+        summary = fleet.join()
+    finally:
+        other.close()
+    assert summary["ended"] and summary["end_reason"] == "complete" and summary["epoch"] == 5
+    assert summary["stages_decided"] == tiny.stages
+    epochs = set()
+    while not heard.empty():
+        epochs.add(heard.get().get("epoch", 1))
+    assert epochs == {5}
+    assert all("deposed" not in counts for counts in summary["rejected"]["carriers"].values()), summary["rejected"]
+    from coordinator.store import highest_epoch
+    assert highest_epoch(tmp_path / "mission.db") == 5

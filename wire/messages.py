@@ -178,6 +178,8 @@ class Hello:
         next_stage: the first stage this carrier will observe.
         fingerprint: hex digest of the carrier's scenario (with its seed); must equal the
             coordinator's, else the carrier built another world and is refused.
+        epoch: the highest coordinator epoch the carrier has heard (1 when none; omitted on the
+            wire when 1): a coordinator that has not decided yet takes a higher one.
     """
 
     mission: str = _spec(_ident)
@@ -187,6 +189,7 @@ class Hello:
     passengers_left: int = _spec(_PASSENGERS)
     next_stage: int = _spec(_STAGE_COUNT)
     fingerprint: str = _spec(_text(64))
+    epoch: int = _spec(_EPOCH, absent=1)
     v: int = PROTOCOL_VERSION
     TYPE = "hello"
 
