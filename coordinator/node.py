@@ -39,7 +39,7 @@ import numpy as np
 import world
 from planner.registry import make_planner, used_options
 from planner.problem import Problem, enforce, make_view, stage_rng
-from coordinator.store import MissionStore, highest_epoch
+from coordinator.store import MissionStore
 from mission import events as ev
 from mission import state as ms
 from mission.summary import RunInfo, summary as mission_summary
@@ -554,8 +554,8 @@ class Coordinator:
                 "seed": self.seed, "planner": self.planner_name, "planner_options": self.planner_options}
         # Higher than every epoch used before for this mission: the ones in mission.db and the
         # one a primary reported while this process stood by; 1 for a fresh mission.
-        self.epoch = 1 + max(highest_epoch(out / "mission.db"), self.known_epoch)
-        self.store = MissionStore(out / "mission.db", meta, epoch=self.epoch)
+        self.store = MissionStore(out / "mission.db", meta, min_epoch=self.known_epoch + 1)
+        self.epoch = self.store.epoch
         self._open_recorder(out)
         try:
             # Recovery is the live fold over the stored events (the last one is this process's open).

@@ -116,15 +116,20 @@ class MissionRecord:
 class MissionStore:
     """Append-only mission log. Not thread-safe: use it from the coordinator's main thread only."""
 
-    def __init__(self, path: str | Path, meta: dict, synchronous: str = "FULL", epoch: int = 1):
+    def __init__(self, path: str | Path, meta: dict, synchronous: str = "FULL", min_epoch: int = 1):
         """Open or create ``path``.
 
         Args:
             path: the database file (created with its parent directory if missing).
             meta: the mission identity (JSON-able values). An existing file must hold the same.
             synchronous: SQLite ``synchronous`` level; FULL survives power loss, NORMAL a process crash.
-            epoch: the opening coordinator's epoch, written in its ``open`` event
-                (:func:`highest_epoch` reads it back).
+            min_epoch: the lowest epoch the opening coordinator may take (one more than an
+                epoch it learnt elsewhere, e.g. from a primary's State).
+
+        Attributes:
+            epoch: the opening coordinator's epoch: ``min_epoch``, or one more than the highest
+                epoch recorded here if that is higher (1 for a fresh mission); written in its
+                ``open`` event in the same transaction that reads the recorded ones.
 
         Raises:
             StoreMismatch: when the file holds another mission.
@@ -148,7 +153,8 @@ class MissionStore:
                     )
         with self._tx():
             self.db.executemany("INSERT OR IGNORE INTO meta (key, value) VALUES (?, ?)", wanted.items())
-            self._event("open", None, None, {"resumed": bool(stored), "epoch": int(epoch)})
+            self.epoch = max(int(min_epoch), 1 + _highest_epoch(self.db))
+            self._event("open", None, None, {"resumed": bool(stored), "epoch": self.epoch})
 
     # ------------------------------------------------------------------ writing
     def _tx(self):
@@ -341,14 +347,15 @@ def highest_epoch(path: str | Path) -> int:
     path = Path(path)
     if not path.is_file() or path.stat().st_size == 0:
         return 0
+    db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)
     try:
-        db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)
-        try:
-            rows = db.execute("SELECT payload FROM events WHERE kind IN ('open', 'epoch')").fetchall()
-        finally:
-            db.close()
-    except sqlite3.Error:
-        return 0  # not a mission log (yet): opening it as a store reports what is wrong
+        return _highest_epoch(db)
+    finally:
+        db.close()
+
+
+def _highest_epoch(db) -> int:
+    rows = db.execute("SELECT payload FROM events WHERE kind IN ('open', 'epoch')").fetchall()
     return max((int(json.loads(p).get("epoch", 1)) for (p,) in rows), default=0)
 
 
