@@ -373,6 +373,7 @@ class Coordinator:
             return True
         if not self.config.standby:
             raise DuplicateCoordinator(self.mission)
+        self.known_epoch = max(self.known_epoch, 1)  # a primary lives: its epoch is 1 at least
         self.log(f"coordinator: standby: mission {self.mission} has a live coordinator; waiting for its "
                  f"liveliness token to vanish")
         asked = None
