@@ -335,14 +335,11 @@ class Coordinator:
         if self.deposed_by is not None:
             return
         if self.state.next_stage > self._first_stage:
-            self.deposed_by = epoch
-            self.log(f"coordinator: deposed: carrier {cid} has heard epoch {epoch} of mission {self.mission} "
-                     f"(this one has epoch {self.epoch}); stopping without End")
-            self._stop.set()
+            self._deposed(epoch, f"carrier {cid} has heard it")
             return
         self.log(f"coordinator: carrier {cid} has heard epoch {epoch}; this coordinator takes epoch {epoch + 1}")
         self.epoch = epoch + 1
-        self.store.event("epoch", epoch=self.epoch)
+        self.store.raise_epoch(self.epoch)
         self._refresh_state()
         if self.state.next_stage > 0:
             self._publish_decision(self._decision(self.state.next_stage - 1))
@@ -356,11 +353,16 @@ class Coordinator:
             msg = decode(item.payload, Decision)
         except ProtocolError:
             return
-        if msg.mission != self.mission or msg.epoch <= self.epoch or self.deposed_by is not None:
+        if msg.mission == self.mission and msg.epoch > self.epoch:
+            self._deposed(msg.epoch, "it decides")
+
+    def _deposed(self, epoch: int, how: str) -> None:
+        """Stop deciding: a coordinator of a higher epoch took over (no End, no summary.json)."""
+        if self.deposed_by is not None:
             return
-        self.deposed_by = msg.epoch
-        self.log(f"coordinator: deposed: a coordinator of epoch {msg.epoch} decides mission {self.mission} "
-                 f"(this one has epoch {self.epoch}); stopping without End")
+        self.deposed_by = epoch
+        self.log(f"coordinator: deposed: a coordinator of epoch {epoch} took over mission {self.mission} ({how}; "
+                 f"this one has epoch {self.epoch}); stopping without End")
         self._stop.set()
 
     def _claim(self) -> bool:
@@ -501,6 +503,10 @@ class Coordinator:
             if self._stop.is_set():
                 return
             deploy, planning_ms = self._plan(j)
+            newer = self.store.newer_epoch()  # a standby took over on our disk while we were cut off
+            if newer is not None:
+                self._deposed(newer, "mission.db records it")
+                return
             self.apply(ev.Decided(j, deploy, planning_ms, time.time()))  # records, then publishes
             last_published = time.monotonic()
             self._progress(j, (last_published - opened) * 1e3 - planning_ms)

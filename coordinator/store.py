@@ -154,7 +154,7 @@ class MissionStore:
         with self._tx():
             self.db.executemany("INSERT OR IGNORE INTO meta (key, value) VALUES (?, ?)", wanted.items())
             self.epoch = max(int(min_epoch), 1 + _highest_epoch(self.db))
-            self._event("open", None, None, {"resumed": bool(stored), "epoch": self.epoch})
+            self._checked = self._event("open", None, None, {"resumed": bool(stored), "epoch": self.epoch})
 
     # ------------------------------------------------------------------ writing
     def _tx(self):
@@ -322,6 +322,25 @@ class MissionStore:
         return [r[0] for r in self.db.execute(
             "SELECT latency_ms FROM confirmations WHERE latency_ms IS NOT NULL ORDER BY seq"
         )]
+
+    def raise_epoch(self, epoch: int) -> None:
+        """This coordinator takes a higher epoch (learnt from a carrier): an ``epoch`` event
+        (:meth:`newer_epoch` then reports only epochs above it)."""
+        self.epoch = int(epoch)
+        with self._tx():
+            self._event("epoch", None, None, {"epoch": self.epoch})
+
+    def newer_epoch(self) -> int | None:
+        """The highest epoch another coordinator recorded in this file since the last call (or
+        since this store opened), if higher than ours: a standby that took over on the same
+        disk while this process was cut off from everyone (docs/fleet.md, "Split brain"). Reads
+        only the rows added since the last call (a range of the primary key)."""
+        rows = self.db.execute("SELECT seq, payload FROM events WHERE seq > ? AND kind IN ('open', 'epoch')",
+                               (self._checked,)).fetchall()
+        last = self.db.execute("SELECT MAX(seq) FROM events").fetchone()[0]
+        self._checked = max(self._checked, last or 0)
+        newer = max((int(json.loads(p).get("epoch", 1)) for _, p in rows), default=0)
+        return newer if newer > self.epoch else None
 
     def close(self) -> None:
         try:

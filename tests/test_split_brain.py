@@ -187,8 +187,8 @@ def test_a_coordinator_that_hears_a_higher_epoch_stops_without_end(tmp_path):
             proc.wait(10)
     assert proc.returncode == 3, output
     assert [line for line in output.splitlines() if "deposed" in line] == [
-        "coordinator: deposed: a coordinator of epoch 5 decides mission tiny (this one has epoch 1); "
-        "stopping without End"], output
+        "coordinator: deposed: a coordinator of epoch 5 took over mission tiny (it decides; this one has "
+        "epoch 1); stopping without End"], output
     assert ends.empty()
     assert not (out / "summary.json").exists()
     assert db_rows(out / "mission.db", "SELECT COUNT(*) FROM events WHERE kind='end'") == [(0,)]
