@@ -267,3 +267,57 @@ def test_a_coordinator_on_a_fresh_out_takes_a_higher_epoch_than_its_carriers_hea
     assert all("deposed" not in counts for counts in summary["rejected"]["carriers"].values()), summary["rejected"]
     from coordinator.store import highest_epoch
     assert highest_epoch(tmp_path / "mission.db") == 5
+
+
+@pytest.mark.slow
+def test_a_frozen_primary_that_comes_back_is_deposed(tmp_path):
+    """The primary is frozen (SIGSTOP) after stage 2, long enough for Zenoh's lease (3 s here)
+    to expire: the standby takes over with epoch 2 and carries on; when the primary runs again
+    (SIGCONT) it learns it was deposed (a newer epoch in mission.db, on the decision key or in a
+    carrier's Hello, whichever comes first) and exits 3 without deciding again; the mission
+    completes under the standby, every stage decided once."""
+    import signal
+
+    scenario_file = tmp_path / "faults.yaml"
+    scenario_file.write_text(faults_yaml(10))
+    scenario = world.load_scenario(scenario_file)
+    zconf = tmp_path / "lease.json5"
+    zconf.write_text("{ transport: { link: { tx: { lease: 3000, keep_alive: 4 } } },\n"
+                     "  connect: { retry: { period_init_ms: 250, period_max_ms: 1000, period_increase_factor: 2 } } }\n")
+    lease = ["--zenoh-config", str(zconf)]
+    router = f"tcp/127.0.0.1:{free_port()}"
+    fleet = Fleet(scenario_file, tmp_path / "run", router)
+    session = None
+    try:
+        fleet.start("router", ["--role", "router", "--listen", router, *lease])
+        session = _raw_session(router)
+        coordinator = ["--role", "coordinator", "--connect", router, "--out", str(fleet.out), "--no-map",
+                       "--join-timeout", "60", *lease]
+        fleet.start("primary", coordinator)
+        _wait_token(session, "marsupial/faults/coordinator/alive")
+        fleet.start("standby", coordinator + ["--standby"])
+        fleet.poll("the standby waiting", lambda: "standby:" in (fleet.logs / "standby.log").read_text())
+        for cid in scenario.carrier_ids:
+            fleet.carrier(cid, extra=lease)
+        fleet.poll("stage 2 decided", lambda: fleet.decided() >= 2)
+        fleet.killed.add("primary")  # it is expected to exit 3
+        fleet.procs["primary"].send_signal(signal.SIGSTOP)
+        k = fleet.decided()
+        fleet.poll("the standby took over", lambda: len(fleet.rows("SELECT seq FROM events WHERE kind='open'")) >= 2)
+        fleet.poll("a decision by the standby", lambda: fleet.decided() > k + 1)
+        fleet.procs["primary"].send_signal(signal.SIGCONT)
+        codes = {name: fleet.procs[name].wait(90) for name in ("primary", "standby", "a", "b")}
+    finally:
+        if session is not None:
+            session.close()
+        for proc in fleet.procs.values():
+            if proc.poll() is None:
+                proc.send_signal(signal.SIGCONT)
+        fleet.cleanup()
+    assert codes == {"primary": 3, "standby": 0, "a": 0, "b": 0}, (codes, fleet.output())
+    deposed = [line for line in (fleet.logs / "primary.log").read_text().splitlines() if "deposed" in line]
+    assert len(deposed) == 1 and "epoch 2" in deposed[0], fleet.output()
+    summary = _summary(fleet)
+    assert summary["ended"] and summary["end_reason"] == "complete" and summary["epoch"] == 2
+    assert summary["stages_decided"] == scenario.stages
+    _check_at_most_once(fleet, scenario, summary)
