@@ -499,8 +499,9 @@ def run_all(args, scenario, stop: threading.Event) -> int:
         for cids, p in carriers.items():
             if p.poll() == EXIT_USAGE and cids not in refused:  # its one line is above
                 refused.add(cids)
-                print(f"run_fleet.py: carrier process {_short(cids)} refused to start (exit {EXIT_USAGE}); "
-                      f"the mission goes on without it", file=sys.stderr, flush=True)
+                print(f"run_fleet.py: carrier process {_short(cids)} exited with code {EXIT_USAGE} (refused: a "
+                      f"duplicate or another world, reason above); the mission goes on without it",
+                      file=sys.stderr, flush=True)
     if stop.is_set():
         print("run_fleet.py: interrupted; stopping the fleet", file=sys.stderr, flush=True)
         _stop_children(procs)

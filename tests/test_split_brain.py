@@ -231,7 +231,7 @@ def test_a_coordinator_on_a_fresh_out_takes_a_higher_epoch_than_its_carriers_hea
     (epoch 1) gets a Hello reporting epoch 4 before stage 0, takes epoch 5, records it, and the
     mission runs with epoch-5 decisions that the carriers accept (no ``deposed`` rejection)."""
     from fleet_helpers import InProcessFleet
-    from wire.messages import Hello, encode
+    from wire.messages import Hello
     from wire.transport import Node
 
     tiny = world.load_scenario(TINY)
