@@ -258,7 +258,7 @@ def _ignore_sigint() -> None:
 
 def run_coordinator(args, scenario, stop: threading.Event) -> int:
     from coordinator.node import Coordinator, CoordinatorConfig, DuplicateCoordinator
-    from coordinator.store import StoreMismatch
+    from coordinator.store import StoreBusy, StoreMismatch
 
     out = args.out or default_out(scenario)
     coord = Coordinator(scenario, CoordinatorConfig(
@@ -272,6 +272,9 @@ def run_coordinator(args, scenario, stop: threading.Event) -> int:
         summary = coord.run()
     except (StoreMismatch, DuplicateCoordinator) as exc:
         return fail(str(exc))
+    except StoreBusy as exc:  # stopped while waiting for another process's lock
+        print(f"run_fleet.py: {exc}; stopped while waiting for it", file=sys.stderr, flush=True)
+        return 130
     if summary.get("deposed_by") is not None:
         return EXIT_DEPOSED
     return 0 if summary.get("ended") and summary["stages_decided"] == summary["stages"] else 130

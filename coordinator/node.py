@@ -39,7 +39,7 @@ import numpy as np
 import world
 from planner.registry import make_planner, used_options
 from planner.problem import Problem, enforce, make_view, stage_rng
-from coordinator.store import MissionStore
+from coordinator.store import MissionStore, StoreBusy
 from mission import events as ev
 from mission import state as ms
 from mission.summary import RunInfo, summary as mission_summary
@@ -390,6 +390,20 @@ class Coordinator:
             self._stop.wait(DEFAULTS.standby_poll_s)
         return False
 
+    def _open_store(self, path: Path, meta: dict) -> MissionStore:
+        """mission.db, waiting while another process holds its write lock (a standby taking over
+        from a primary that hangs in the middle of a write on the same disk)."""
+        logged = False
+        while True:
+            try:
+                return MissionStore(path, meta, min_epoch=self.known_epoch + 1)
+            except StoreBusy as exc:
+                if not logged:
+                    self.log(f"coordinator: {exc}; waiting for it")
+                    logged = True
+                if self._stop.wait(0.5):
+                    raise
+
     def _learn_epoch(self) -> None:
         """The primary's epoch, from its State (and the last Decision in it)."""
         for payload in self.node.query(keys.state_key(self.mission), timeout_s=DEFAULTS.state_query_s):
@@ -561,7 +575,12 @@ class Coordinator:
                 "seed": self.seed, "planner": self.planner_name, "planner_options": self.planner_options}
         # Higher than every epoch used before for this mission: the ones in mission.db and the
         # one a primary reported while this process stood by; 1 for a fresh mission.
-        self.store = MissionStore(out / "mission.db", meta, min_epoch=self.known_epoch + 1)
+        try:
+            self.store = self._open_store(out / "mission.db", meta)
+        except BaseException:
+            if self.node is not None:
+                self.node.close(DEFAULTS.close_s)
+            raise
         self.epoch = self.store.epoch
         self._open_recorder(out)
         try:

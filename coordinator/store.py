@@ -80,6 +80,11 @@ class StoreMismatch(RuntimeError):
     """The existing mission.db belongs to another mission (different scenario, seed or planner)."""
 
 
+class StoreBusy(RuntimeError):
+    """Another process holds mission.db's write lock longer than the busy timeout (a primary
+    that hangs, or was frozen, in the middle of a write): try again later."""
+
+
 @dataclass
 class MissionRecord:
     """Everything :meth:`MissionStore.replay` recovers.
@@ -133,6 +138,7 @@ class MissionStore:
 
         Raises:
             StoreMismatch: when the file holds another mission.
+            StoreBusy: when another process holds the write lock for more than 10 s.
         """
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -151,10 +157,16 @@ class MissionStore:
                         f"{self.path}: holds another mission ({key} is {stored[key]}, this run has {value}); "
                         "use another --out directory"
                     )
-        with self._tx():
-            self.db.executemany("INSERT OR IGNORE INTO meta (key, value) VALUES (?, ?)", wanted.items())
-            self.epoch = max(int(min_epoch), 1 + _highest_epoch(self.db))
-            self._checked = self._event("open", None, None, {"resumed": bool(stored), "epoch": self.epoch})
+        try:
+            with self._tx():
+                self.db.executemany("INSERT OR IGNORE INTO meta (key, value) VALUES (?, ?)", wanted.items())
+                self.epoch = max(int(min_epoch), 1 + _highest_epoch(self.db))
+                self._checked = self._event("open", None, None, {"resumed": bool(stored), "epoch": self.epoch})
+        except sqlite3.OperationalError as exc:
+            self.db.close()
+            if "locked" in str(exc) or "busy" in str(exc):
+                raise StoreBusy(f"{self.path}: locked by another process") from None
+            raise
 
     # ------------------------------------------------------------------ writing
     def _tx(self):
