@@ -129,6 +129,25 @@ def test_rejects_missing_and_unknown_fields(name):
     assert _reason(_pack({**raw, "extra": 1})) == "unknown-field"
 
 
+def test_epoch_is_optional_absent_means_1_and_left_out_when_1():
+    """docs/protocol.md, "Epochs" and "Compatibility": epoch 1 is not on the wire (the bytes of
+    a mission without takeover are unchanged), any other epoch is, and a receiver reads an
+    absent epoch as 1 and an explicit 1 as 1."""
+    assert "epoch" not in msgpack.unpackb(encode(SAMPLES["decision"]))
+    assert "epoch" not in msgpack.unpackb(encode(SAMPLES["state"]))
+    second = Decision(M, 3, 15.0, ("a",), 12.5, epoch=2)
+    assert msgpack.unpackb(encode(second))["epoch"] == 2 and decode(encode(second)) == second
+    state = State(mission=M, next_stage=4, stages=4, fingerprint="ab", ended=True, carriers=(),
+                  last_decision=second, epoch=2)
+    raw = msgpack.unpackb(encode(state))
+    assert raw["epoch"] == 2 and raw["last_decision"]["epoch"] == 2 and decode(encode(state)) == state
+    assert decode(_pack({**_raw("decision"), "epoch": 1})).epoch == 1
+    for value, reason in ((0, "out-of-range"), (-1, "out-of-range"), (2**31, "out-of-range"), ("2", "wrong-type"),
+                          (True, "wrong-type"), (None, "wrong-type")):
+        assert _reason(_pack({**_raw("decision"), "epoch": value})) == reason, value
+        assert _reason(_pack({**_raw("state"), "epoch": value})) == reason, value
+
+
 def test_encode_refuses_what_decode_would_reject():
     with pytest.raises(ProtocolError):
         encode(Observation(M, "a", -1, 0.0, 1, (0.0, 0.0), 1, ()))

@@ -146,10 +146,22 @@ _SECONDS = _float(-1e9, 1e9)
 _MS = _float(0.0, 1e9)
 
 
-def _spec(validator: Validator, as_map: bool = False):
+_NO_DEFAULT = object()
+
+
+def _spec(validator: Validator, as_map: bool = False, absent=_NO_DEFAULT):
     """A dataclass field carrying its wire validator in metadata; ``as_map``: a tuple of sorted
-    (key, value) pairs in Python, a map on the wire."""
-    return field(metadata={"check": validator, "as_map": as_map})
+    (key, value) pairs in Python, a map on the wire. ``absent``: the field is optional on the wire
+    and a missing one means this value; the encoder leaves it out when it has this value (so a
+    peer written before the field existed still reads every message that does not use it)."""
+    if absent is _NO_DEFAULT:
+        return field(metadata={"check": validator, "as_map": as_map})
+    return field(default=absent, metadata={"check": validator, "as_map": as_map, "absent": absent})
+
+
+#: A coordinator's epoch (docs/protocol.md, "Epochs"): 1 for a fresh mission, higher after
+#: every restart or takeover; absent on the wire = 1.
+_EPOCH = _int(1, 2**31 - 1)
 
 
 # --------------------------------------------------------------------------- messages
@@ -166,6 +178,8 @@ class Hello:
         next_stage: the first stage this carrier will observe.
         fingerprint: hex digest of the carrier's scenario (with its seed); must equal the
             coordinator's, else the carrier built another world and is refused.
+        epoch: the highest coordinator epoch the carrier has heard (1 when none; omitted on the
+            wire when 1): a coordinator that has not decided yet takes a higher one.
     """
 
     mission: str = _spec(_ident)
@@ -175,6 +189,7 @@ class Hello:
     passengers_left: int = _spec(_PASSENGERS)
     next_stage: int = _spec(_STAGE_COUNT)
     fingerprint: str = _spec(_text(64))
+    epoch: int = _spec(_EPOCH, absent=1)
     v: int = PROTOCOL_VERSION
     TYPE = "hello"
 
@@ -215,6 +230,8 @@ class Decision:
         t: simulated mission time of the stage, seconds.
         deploy: ids of the carriers that deploy one passenger now (sorted, no repeats).
         planning_ms: wall time the planner took, milliseconds.
+        epoch: the deciding coordinator's epoch (>= 1; omitted on the wire when 1): a carrier
+            ignores a Decision of an epoch lower than the highest it has heard (``deposed``).
     """
 
     mission: str = _spec(_ident)
@@ -222,6 +239,7 @@ class Decision:
     t: float = _spec(_SECONDS)
     deploy: tuple[str, ...] = _spec(_unique_ids)
     planning_ms: float = _spec(_MS)
+    epoch: int = _spec(_EPOCH, absent=1)
     v: int = PROTOCOL_VERSION
     TYPE = "decision"
 
@@ -382,6 +400,7 @@ class State:
             mission of at most MAX_STATE_CARRIERS carriers, none on a larger one.
         last_decision: the most recent Decision (None before stage 0 is decided).
         fingerprint: hex digest of the coordinator's scenario (see Hello).
+        epoch: the answering coordinator's epoch (>= 1; omitted on the wire when 1).
     """
 
     mission: str = _spec(_ident)
@@ -391,6 +410,7 @@ class State:
     ended: bool = _spec(_bool)
     carriers: tuple[tuple[str, CarrierState], ...] = _spec(lambda v, n: _carrier_states(v, n), as_map=True)
     last_decision: Decision | None = _spec(lambda v, n: None if v is None else _nested(Decision, v, n))
+    epoch: int = _spec(_EPOCH, absent=1)
     v: int = PROTOCOL_VERSION
     TYPE = "state"
 
@@ -475,7 +495,8 @@ def _to_wire(value, as_map: bool = False):
     """Dataclasses become maps (with ``type`` for messages); (key, value) pair tuples of fields
     marked ``as_map`` become maps; other tuples become arrays."""
     if hasattr(value, "__dataclass_fields__"):
-        out = {f.name: _to_wire(getattr(value, f.name), f.metadata.get("as_map", False)) for f in fields(value)}
+        out = {f.name: _to_wire(getattr(value, f.name), f.metadata.get("as_map", False)) for f in fields(value)
+               if "absent" not in f.metadata or getattr(value, f.name) != f.metadata["absent"]}
         if hasattr(type(value), "TYPE"):
             out["type"] = type(value).TYPE
         return out
@@ -509,6 +530,8 @@ def _build(cls, data: dict, where: str):
         if f.name == "v":
             continue
         if f.name not in data:
+            if "absent" in f.metadata:
+                continue  # optional: the dataclass default is the documented meaning of absent
             raise ProtocolError("missing-field", f"{where}: missing field {f.name!r}")
         values[f.name] = f.metadata["check"](data[f.name], f"{where}.{f.name}")
     return cls(**values)
