@@ -215,24 +215,27 @@ def outcome(scenario, out: Path) -> Outcome:
     return Outcome(x, deployed, float(reward), own, unresolved)
 
 
-def ssap_substitute(scenario, result: Outcome, cid: str) -> float:
-    """The mission's reward with carrier ``cid``'s deployments replaced by plain SSAP's on its
-    own observations (the others' unchanged)."""
+def ssap_substitute(scenario, result: Outcome, cid: str, out: Path) -> float:
+    """The mission's reward had carrier ``cid`` run plain SSAP on its own observations from the
+    first stage it decided alone to the end (its earlier deployments and the others' unchanged):
+    what a carrier cut off with SSAP would have earned."""
     import world
+    from carriers.log import log_path, read_log
     from planner import ssap
     from planner.compiled import compile_problem
     from planner.problem import evaluate, valid_stages_left
 
     problem = world.build_problem(scenario)
     r = scenario.carrier_index(cid)
+    first = min((e.stage for e in read_log(log_path(out, cid))[1] if e.own), default=problem.n_stages)
     valid = problem.valid[r] & ~np.isnan(result.x[r])
     left = valid_stages_left(valid[None, :])[0]
     table = compile_problem(problem).table
-    d = int(problem.passengers[r])
     deployed = result.deployed.copy()
-    deployed[r] = False
-    for j in np.flatnonzero(valid):
-        if d > 0 and ssap.decide(table, float(result.x[r, j]), int(left[j]), d):
+    deployed[r, first:] = False
+    d = int(problem.passengers[r] - deployed[r].sum())
+    for j in np.flatnonzero(valid[first:]) + first:
+        if d > 0 and (left[j] <= d or ssap.decide(table, float(result.x[r, j]), int(left[j]), d)):
             deployed[r, j] = True
             d -= 1
     return float(evaluate(problem, deployed, np.where(problem.valid, result.x, np.nan))[0])
@@ -299,7 +302,7 @@ def fault_run(name: str, scenario_path: Path, scenario, seed: int, out: Path) ->
             result, _ = _run(scenario_path, scenario, seed, out, hosts={"router": net, "coordinator": net,
                                                                           "carriers": fleet, cid: alone}, during=cut)
         details["carrier"] = cid
-        details["ssap_substitute"] = ssap_substitute(scenario.with_seed(seed), result, cid)
+        details["ssap_substitute"] = ssap_substitute(scenario.with_seed(seed), result, cid, out)
         return result, details
     if name == "lossy-links":
         with netns.hosts(2 + len(scenario.carrier_ids)) as hs:
