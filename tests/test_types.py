@@ -1,0 +1,145 @@
+"""Passenger types (issue 13): the generalised DLR rule against a brute-force dynamic programme
+over (stages left, set of passengers left), the equal-weight reduction to today's SSAP, and
+weighted problems through the planners, the clairvoyant bound and the instance format."""
+from __future__ import annotations
+
+import itertools
+from functools import lru_cache
+
+import numpy as np
+import pytest
+from scipy import integrate, stats
+
+from planner import priors, ssap
+from planner.problem import Problem
+
+WEIGHTS = (1.0, 0.6, 0.6, 0.25)  # a scout, two rovers of one type, a small probe: ties included
+
+
+class _Discrete:
+    """Expectations over a discrete prior by its (truncated) support."""
+
+    def __init__(self, prior):
+        self.points, self.mass = priors.support(prior)
+        self.points = np.asarray(self.points, dtype=float)
+
+    def expect_max(self, lines):
+        """E[max_k (c_k + w_k X)] for lines (c_k, w_k)."""
+        c = np.array([line[0] for line in lines])[:, None]
+        w = np.array([line[1] for line in lines])[:, None]
+        return float(np.dot(self.mass, (c + w * self.points[None, :]).max(axis=0)))
+
+    def grid(self):
+        return self.points[self.mass > 1e-9]
+
+
+class _Continuous:
+    """Expectations over a continuous prior by adaptive quadrature between the lines' crossings."""
+
+    def __init__(self, prior):
+        self.prior = prior
+
+    def expect_max(self, lines):
+        lo, hi = self.prior.support()
+        cross = sorted({(c2 - c1) / (w1 - w2) for (c1, w1), (c2, w2) in itertools.combinations(lines, 2)
+                        if w1 != w2 and lo < (c2 - c1) / (w1 - w2) < hi})
+        edges = [lo] + cross + [hi]
+        total = 0.0
+        for a, b in zip(edges[:-1], edges[1:]):
+            total += integrate.quad(lambda v: max(c + w * v for c, w in lines) * self.prior.pdf(v), a, b,
+                                    epsabs=1e-12, epsrel=1e-12, limit=200)[0]
+        return total
+
+    def grid(self):
+        return self.prior.ppf(np.linspace(0.005, 0.995, 60))
+
+
+def _options(n, left, weights):
+    """The feasible choices at a stage: release passenger i of ``left``, or none unless forced."""
+    opts = [(i, left - {i}) for i in sorted(left)]
+    if n > len(left):
+        opts.append((None, left))
+    return opts
+
+
+def _brute_force(dist, weights, n_max):
+    """V(n, S): optimal expected sum of w x over n stages with passengers S left (forced rule)."""
+
+    @lru_cache(maxsize=None)
+    def value(n, left):
+        if n == 0 or not left:
+            return 0.0
+        lines = [(value(n - 1, rest), 0.0 if i is None else weights[i]) for i, rest in _options(n, left, weights)]
+        return dist.expect_max(lines)
+
+    return value
+
+
+PRIORS = {
+    "poisson3": (stats.poisson(3.0), _Discrete, 1e-9, 8),
+    "table": (priors.build_prior({"kind": "table", "values": [0, 1, 2.5, 4, 9],
+                                  "probabilities": [0.3, 0.25, 0.2, 0.15, 0.1]}), _Discrete, 1e-9, 8),
+    "gamma": (stats.gamma(2.0, scale=1.5), _Continuous, 1e-6, 6),
+}
+
+
+@pytest.mark.parametrize("prior_name", list(PRIORS))
+def test_generalised_rule_matches_brute_force(prior_name):
+    prior, kind, tol, n_max = PRIORS[prior_name]
+    dist = kind(prior)
+    weights = WEIGHTS
+    value = _brute_force(dist, weights, n_max)
+    table = ssap.thresholds(prior, n_max)
+    everyone = frozenset(range(len(weights)))
+    checked_unique = 0
+    for n in range(1, n_max + 1):
+        for size in range(0, len(weights) + 1):
+            for left in map(frozenset, itertools.combinations(sorted(everyone), size)):
+                w_left = np.array([weights[i] for i in sorted(left)])
+                # The optimal expected value: the k-th weight times the k-th slot value.
+                assert ssap.weighted_value(table, n, w_left) == pytest.approx(value(n, left), abs=tol, rel=tol)
+                if not left:
+                    continue
+                for x in dist.grid():
+                    scores = {i: (0.0 if i is None else weights[i] * x) + value(n - 1, rest)
+                              for i, rest in _options(n, left, weights)}
+                    best = max(scores.values())
+                    if ssap.deploys(table, x, n, len(left)):
+                        pos = ssap.release(table, x, n, w_left)
+                        mine = sorted(left)[pos]
+                    else:
+                        mine = None
+                    assert scores[mine] >= best - 10 * tol, (n, sorted(left), x, mine, scores)
+                    ranked = sorted(scores.values(), reverse=True)
+                    if len(ranked) == 1 or ranked[0] - ranked[1] > 1e-6:
+                        # A unique optimum: the same decision, passenger included (up to equal weights).
+                        winner = max(scores, key=scores.get)
+                        same = mine == winner or (mine is not None and winner is not None
+                                                  and weights[mine] == weights[winner])
+                        assert same, (n, sorted(left), x, mine, winner)
+                        checked_unique += 1
+    assert checked_unique > 100
+
+
+@pytest.mark.parametrize("prior_name", list(PRIORS))
+def test_equal_weights_reduce_to_ssap(prior_name):
+    prior, _, _, n_max = PRIORS[prior_name]
+    table = ssap.thresholds(prior, n_max)
+    for n in range(1, n_max + 1):
+        for d in range(1, n_max + 2):
+            assert ssap.weighted_value(table, n, np.full(d, 2.0)) == pytest.approx(
+                2.0 * ssap.expected_value(table, n, d), rel=1e-12)
+            assert ssap.weighted_value(table, n, np.ones(d)) == pytest.approx(ssap.expected_value(table, n, d),
+                                                                               rel=1e-12)
+            # With equal weights the rank rule releases the lowest index (index order).
+            assert ssap.release(table, 1e9, n, np.ones(d)) == 0
+            assert ssap.release(table, -1e9, n, np.ones(d)) == 0
+
+
+def test_rank_twin_matches_python():
+    from planner.kernels import rank
+
+    table = ssap.thresholds(stats.poisson(3.0), 12)
+    for n in range(1, 13):
+        for x in np.arange(-1.0, 12.0, 0.5):
+            assert rank(table, x, n) == ssap.rank(table, x, n)
