@@ -192,8 +192,25 @@ def run_comms(problem: Problem, x: np.ndarray, planner, seed: int, comms: CommsS
         deployed, times = _run_decentralised(problem, x, planner, seed, deliveries)
     else:
         deployed, times = _run_centralised(problem, x, planner, seed, deliveries)
-    reward, features = evaluate(problem, deployed, x)
-    return OnlineResult(deployed, reward, features, tuple(times))
+    released = None
+    if problem.weights is not None or hasattr(planner, "release_passengers"):
+        released = _releases(problem, x, deployed, planner)
+    reward, features = evaluate(problem, deployed, x, released)
+    return OnlineResult(deployed, reward, features, tuple(times), released)
+
+
+def _releases(problem: Problem, x: np.ndarray, deployed: np.ndarray, planner) -> np.ndarray:
+    """int64 ``[R, N]``: the passenger each deployment released. A carrier picks its passenger on
+    board, from what it always knows itself (its observation, its valid stages left, who is still
+    aboard), by the planner's passenger rule (:func:`planner.passengers.release`), so the choice
+    needs no message."""
+    from planner.passengers import release
+
+    released = np.full(problem.valid.shape, -1, dtype=np.int64)
+    for j in range(problem.n_stages):
+        view = make_view(problem, j, x, deployed, released)
+        released[:, j] = release(planner, view, deployed[:, j])
+    return released
 
 
 def _run_centralised(problem, x, planner, seed, dl: Deliveries):

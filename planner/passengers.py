@@ -17,7 +17,7 @@ import numpy as np
 
 from planner import ssap
 from planner.compiled import compile_problem
-from planner.problem import Problem, StageView
+from planner.problem import Problem, StageView, in_order, penalties
 
 
 def choose(view: StageView, deploy: np.ndarray) -> np.ndarray:
@@ -95,3 +95,26 @@ class TypeBlind:
             if len(idx):
                 out[r] = idx[0]
         return out
+
+
+def best_assignment(problem: Problem, deployed: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """int64 ``[R, N]``: the offline best passenger for each deployment when every observation is
+    known: per carrier, positive ``x / p`` go to the heaviest passengers, largest value first, and
+    negative ones (continuous priors on the whole line) to the lightest, most negative first
+    (rearrangement inequality; equal weights or values: lower index, earlier stage). Index order
+    without values."""
+    deployed = np.asarray(deployed, dtype=bool)
+    if problem.weights is None:
+        return in_order(deployed)
+    value = np.nan_to_num(np.asarray(x, dtype=float), nan=0.0) / penalties(problem, deployed)
+    out = np.full(deployed.shape, -1, dtype=np.int64)
+    for r in range(problem.n_carriers):
+        stages = np.flatnonzero(deployed[r])
+        k = int(problem.passengers[r])
+        by_value = stages[np.argsort(-value[r, stages], kind="stable")]
+        by_weight = np.argsort(-problem.weights[r, :k], kind="stable")
+        m = int((value[r, by_value] >= 0).sum())
+        negatives = len(by_value) - m
+        out[r, by_value[:m]] = by_weight[:m]
+        out[r, by_value[m:]] = by_weight[k - negatives:]
+    return out

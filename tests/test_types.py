@@ -143,3 +143,77 @@ def test_rank_twin_matches_python():
     for n in range(1, 13):
         for x in np.arange(-1.0, 12.0, 0.5):
             assert rank(table, x, n) == ssap.rank(table, x, n)
+
+
+# ----------------------------------------------------------------------------- the clairvoyant bound
+
+
+def _weighted_brute_force(problem: Problem, x: np.ndarray) -> float:
+    """Largest raw total over every offline plan and every assignment of passengers to its points."""
+    from planner.problem import evaluate
+
+    valid = problem.valid & ~np.isnan(x)
+    per_carrier = []
+    for r in range(problem.n_carriers):
+        stages = np.flatnonzero(valid[r])
+        k = min(int(problem.passengers[r]), len(stages))
+        plans = []
+        for chosen in itertools.combinations(stages, k):
+            for who in itertools.permutations(range(int(problem.passengers[r])), k):
+                plans.append((chosen, who))
+        per_carrier.append(plans)
+    best = -np.inf
+    for plan in itertools.product(*per_carrier):
+        deployed = np.zeros(valid.shape, dtype=bool)
+        released = np.full(valid.shape, -1, dtype=np.int64)
+        for r, (stages, who) in enumerate(plan):
+            deployed[r, list(stages)] = True
+            released[r, list(stages)] = who
+        best = max(best, evaluate(problem, deployed, x, released)[1])
+    return best
+
+
+def _weighted_instances(seed: int, count: int, prior):
+    rng = np.random.default_rng(seed)
+    for _ in range(count):
+        carriers, stages = int(rng.integers(1, 4)), int(rng.integers(1, 6))
+        valid = rng.random((carriers, stages)) > 0.2
+        overlaps = [[[int(rng.integers(carriers)), int(rng.integers(stages))] for _ in range(int(rng.integers(2, 4)))]
+                    for _ in range(int(rng.integers(0, 6)))]
+        passengers = rng.integers(0, 4, size=carriers)
+        weights = [np.round(rng.uniform(0.2, 1.5, size=d), 2).tolist() for d in passengers]
+        problem = Problem.build(passengers, valid, overlaps, prior, normalize="none", weights=weights)
+        x = problem.prior.rvs(size=valid.shape, random_state=rng).astype(float)
+        yield problem, np.where(valid, x, np.nan)
+
+
+@pytest.mark.parametrize("prior", [stats.poisson(3.0), stats.norm(0.5, 2.0)], ids=["poisson", "normal-negatives"])
+def test_weighted_clairvoyant_matches_brute_force(prior):
+    from planner import clairvoyant
+    from planner.problem import evaluate
+
+    checked = 0
+    for problem, x in _weighted_instances(7, 60, prior):
+        result = clairvoyant.solve(problem, x)
+        assert result.exact
+        assert result.features == pytest.approx(_weighted_brute_force(problem, x), abs=1e-9)
+        assert evaluate(problem, result.deployed, x, result.released)[1] == pytest.approx(result.features)
+        checked += problem.passengers.sum() > 1
+    assert checked > 20
+
+
+def test_weighted_clairvoyant_stays_exact_at_the_papers_size():
+    from planner import clairvoyant
+    from planner.instance import random_instance
+
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        problem, x = random_instance(rng, carriers=4, passengers=3, stages=10, overlaps=20,
+                                     weights=[[1.0, 0.6, 0.6]] * 4)
+        result = clairvoyant.solve(problem, x)
+        assert result.exact
+        # Never below the type-blind optimum with its passengers in index order.
+        blind = clairvoyant.solve(Problem.build(3, problem.valid, problem.overlaps, problem.prior), x)
+        from planner.problem import evaluate
+
+        assert result.features >= evaluate(problem, blind.deployed, x)[1] - 1e-9
