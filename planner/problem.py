@@ -298,6 +298,9 @@ class StageView:
         rel = self.past_releases
         r, j = np.nonzero(rel >= 0)
         out[r, rel[r, j]] = False
+        # A deployment whose passenger the view does not know took the lowest index left.
+        for r, j in zip(*np.nonzero(self.deployed & (rel < 0))):
+            out[r, np.argmax(out[r])] = False
         return out
 
 

@@ -217,3 +217,141 @@ def test_weighted_clairvoyant_stays_exact_at_the_papers_size():
         from planner.problem import evaluate
 
         assert result.features >= evaluate(problem, blind.deployed, x)[1] - 1e-9
+
+
+# ----------------------------------------------------------------------------- planners
+
+
+TYPED_PLANNERS = ["random", "ssap", "mcts-random", "mcts-ssap", "closed-loop", "dec-mcts", "dec-closed-loop"]
+
+
+def _typed_instance(seed, carriers=3, stages=8, overlaps=8):
+    from planner.instance import random_instance
+
+    rng = np.random.default_rng(seed)
+    return random_instance(rng, carriers=carriers, passengers=3, stages=stages, overlaps=overlaps,
+                           weights=[[1.0, 0.6, 0.6], [0.3, 1.0, 0.6], [1.0, 1.0, 0.2]][:carriers])
+
+
+@pytest.mark.parametrize("name", TYPED_PLANNERS)
+def test_every_planner_releases_each_passenger_once_and_deterministically(name):
+    from planner.problem import evaluate, run_online
+    from planner.registry import make_planner
+
+    for seed in range(3):
+        problem, x = _typed_instance(seed)
+        options = {} if name in ("random", "ssap") else {"iterations": 60}
+        result = run_online(problem, x, make_planner(name, **options), seed=seed)
+        again = run_online(problem, x, make_planner(name, **options), seed=seed)
+        assert (result.released == again.released).all() and result.reward == again.reward
+        assert ((result.released >= 0) == result.deployed).all()
+        for r in range(problem.n_carriers):
+            got = result.released[r][result.deployed[r]]
+            assert len(set(got.tolist())) == len(got) and (got < problem.passengers[r]).all()
+        assert result.reward == pytest.approx(evaluate(problem, result.deployed, x, result.released)[0])
+
+
+def test_ssap_releases_by_the_rank_rule_and_keeps_its_deployments():
+    """SSAP's deployments do not depend on the values (DLR's thresholds do not); which passenger
+    goes does: each release is the rank of the observation's interval among those aboard."""
+    from planner.passengers import unweighted
+    from planner.problem import run_online
+    from planner.registry import make_planner
+
+    differs = 0
+    for seed in range(6):
+        problem, x = _typed_instance(seed)
+        typed = run_online(problem, x, make_planner("ssap"), seed=0)
+        plain = run_online(unweighted(problem), x, make_planner("ssap"), seed=0)
+        assert (typed.deployed == plain.deployed).all()
+        differs += int((typed.released != plain.released).any())
+        table = ssap.table_for(problem)
+        n_left = problem.valid[:, ::-1].cumsum(axis=1)[:, ::-1]
+        for r in range(problem.n_carriers):
+            aboard = list(range(int(problem.passengers[r])))
+            for j in np.flatnonzero(typed.deployed[r]):
+                w = problem.weights[r, aboard]
+                expect = aboard[ssap.release(table, x[r, j], int(n_left[r, j]), w)]
+                assert typed.released[r, j] == expect
+                aboard.remove(expect)
+    assert differs > 0
+
+
+def test_without_values_everything_is_unweighted():
+    """A problem without passenger values releases in index order and no planner reads weights."""
+    from planner.instance import random_instance
+    from planner.problem import in_order, run_online
+    from planner.registry import make_planner
+
+    problem, x = random_instance(np.random.default_rng(1), carriers=3, passengers=3, stages=8, overlaps=8)
+    result = run_online(problem, x, make_planner("closed-loop", iterations=60), seed=2)
+    assert (result.released == in_order(result.deployed)).all()
+
+
+def test_type_aware_beats_type_blind_on_average():
+    """Releasing the heavy passenger at the good observations must pay on average (SSAP)."""
+    from planner.passengers import TypeBlind
+    from planner.problem import run_online
+    from planner.registry import make_planner
+
+    aware, blind = [], []
+    for seed in range(30):
+        problem, x = _typed_instance(100 + seed, overlaps=0)
+        aware.append(run_online(problem, x, make_planner("ssap"), seed=0).reward)
+        blind.append(run_online(problem, x, TypeBlind(make_planner("ssap")), seed=0).reward)
+    assert np.mean(aware) > np.mean(blind)
+
+
+def test_weighted_closed_loop_is_ssap_without_conflicts():
+    from planner.problem import run_online
+    from planner.registry import make_planner
+
+    for seed in range(4):
+        problem, x = _typed_instance(seed, overlaps=0)
+        a = run_online(problem, x, make_planner("closed-loop", iterations=60), seed=seed)
+        b = run_online(problem, x, make_planner("ssap"), seed=seed)
+        assert (a.deployed == b.deployed).all() and (a.released == b.released).all()
+
+
+def test_weighted_choice_rule_reduces_to_the_threshold_rule():
+    """The conflict-aware rule with passenger values: equal weights give ``y - loss > a[n, n - d]``."""
+    from planner.closedloop import _weighted_choice
+
+    table = ssap.thresholds(stats.poisson(3.0), 10)
+    rng = np.random.default_rng(0)
+    for _ in range(500):
+        n = int(rng.integers(1, 11))
+        d = int(rng.integers(1, 4))
+        ws = np.zeros((1, 5))
+        ws[0, :d] = 1.0
+        y, loss = float(rng.uniform(0, 8)), float(rng.uniform(0, 2)) * (rng.random() < 0.5)
+        got = _weighted_choice(table, y, loss, n, d, ws, 0) >= 0
+        assert got == bool(ssap.deploys(table, y - loss, n, d))
+
+
+def test_dec_closed_loop_is_closed_loop_with_perfect_links_and_values():
+    from planner.problem import run_online
+    from planner.registry import make_planner
+
+    for seed in range(3):
+        problem, x = _typed_instance(seed)
+        a = run_online(problem, x, make_planner("closed-loop", iterations=60), seed=seed)
+        b = run_online(problem, x, make_planner("dec-closed-loop", iterations=60), seed=seed)
+        assert (a.deployed == b.deployed).all() and (a.released == b.released).all()
+
+
+@pytest.mark.parametrize("name", ["closed-loop", "dec-closed-loop", "dec-mcts", "ssap"])
+def test_planners_with_values_under_lossy_links(name):
+    from planner.comms import CommsSpec
+    from planner.decentralised import run_comms
+    from planner.problem import evaluate
+    from planner.registry import make_planner
+
+    problem, x = _typed_instance(5)
+    result = run_comms(problem, x, make_planner(name, **({} if name == "ssap" else {"iterations": 60})), seed=3,
+                       comms=CommsSpec(loss=0.5, delay=1))
+    assert ((result.released >= 0) == result.deployed).all()
+    for r in range(problem.n_carriers):
+        got = result.released[r][result.deployed[r]]
+        assert len(set(got.tolist())) == len(got)
+    assert result.reward == pytest.approx(evaluate(problem, result.deployed, x, result.released)[0])
