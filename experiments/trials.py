@@ -83,6 +83,8 @@ def trial_instance(task: Task):
         return _urban_instance(task)
     if task.sweep == "priors":
         return _priors_instance(task)
+    if task.sweep == "types":
+        return _types_instance(task)
     # Comms sweeps: trial t is the same instance at every message-loss level (paired across P).
     from planner.instance import random_instance
 
@@ -141,6 +143,33 @@ def _priors_instance(task: Task):
     return problem, x, planner_seed, extra
 
 
+def _types_instance(task: Task):
+    """A trial of the passenger-types sweep (experiments.types): the random or urban instance with
+    every carrier's passenger values."""
+    from experiments.types import fleet_values
+    from planner.instance import random_instance
+    from planner.problem import Problem
+
+    if task.scenario:
+        problem, x, planner_seed, extra = _urban_instance(task)
+        return (Problem.build(problem.passengers, problem.valid, problem.overlaps, problem.prior,
+                              weights=_scenario_values(task.scenario, problem.passengers)),
+                x, planner_seed, extra)
+    rng = np.random.default_rng(np.random.SeedSequence(task.seed, spawn_key=(1000, task.trial)))
+    inst = random_instance(rng, task.carriers, task.passengers, task.stages, task.overlaps, task.mean,
+                           weights=fleet_values([task.passengers] * task.carriers))
+    return inst.problem, inst.observations, _seed_of(task.seed, (1000, task.trial, 1)), {}
+
+
+def _scenario_values(scenario_file: str, passengers):
+    """The scenario's passenger values when it lists them, else the types sweep's two types."""
+    import world
+    from experiments.types import fleet_values
+
+    values = getattr(world.load_scenario(scenario_file), "passenger_values", lambda: None)()
+    return fleet_values(passengers) if values is None else values
+
+
 def _replace_prior(problem, prior, scale=None):
     from planner.problem import Problem
 
@@ -186,8 +215,14 @@ def run_task(task: Task) -> dict:
         row.update(reward=result.reward, features=result.features, exact=int(result.exact),
                    decision_ms_mean=elapsed * 1e3, decision_ms_max=elapsed * 1e3, wall_s=elapsed,
                    deployed=_encode(result.deployed))
+        if task.sweep == "types":
+            row.update(case=_types_case(task), variant=task.variant, released=_encode_released(result.released))
         return row
     planner = _planner(task.planner, task.iterations, task.variant == "learned")
+    if task.variant == "blind":
+        from planner.passengers import TypeBlind
+
+        planner = TypeBlind(planner)
     if task.sweep.startswith("comms"):
         from planner.comms import CommsSpec
         from planner.decentralised import run_comms
@@ -200,7 +235,20 @@ def run_task(task: Task) -> dict:
     row.update(reward=result.reward, features=result.features, exact="",
                decision_ms_mean=float(ms.mean()), decision_ms_max=float(ms.max()), wall_s=elapsed,
                deployed=_encode(result.deployed))
+    if task.sweep == "types":
+        row.update(case=_types_case(task), variant=task.variant, released=_encode_released(result.released))
     return row
+
+
+def _types_case(task: Task) -> str:
+    from experiments.types import CASES
+
+    return CASES[task.level][0]
+
+
+def _encode_released(released: np.ndarray) -> str:
+    """Passenger index of each deployment in stage order (carriers separated by ``|``)."""
+    return "|".join(" ".join(str(int(i)) for i in row if i >= 0) for row in np.asarray(released))
 
 
 def _encode(deployed: np.ndarray) -> str:
