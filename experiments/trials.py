@@ -219,10 +219,10 @@ def run_task(task: Task) -> dict:
             row.update(case=_types_case(task), variant=task.variant, released=_encode_released(result.released))
         return row
     planner = _planner(task.planner, task.iterations, task.variant == "learned")
-    if task.variant == "blind":
-        from planner.passengers import TypeBlind
+    if task.sweep == "types" and task.variant in ("blind", "choice"):
+        from planner.passengers import TypeBlind, UnweightedSearch
 
-        planner = TypeBlind(planner)
+        planner = (TypeBlind if task.variant == "blind" else UnweightedSearch)(planner)
     if task.sweep.startswith("comms"):
         from planner.comms import CommsSpec
         from planner.decentralised import run_comms

@@ -7,6 +7,9 @@ last, so that a fixed release order is not by chance the good one.
 * **aware** — the planner as registered: it decides with the passenger values (closed-loop's
   rollouts and control variate, the clairvoyant bound) and releases, at each deployment, the
   passenger of the observation's DLR rank (:mod:`planner.passengers`);
+* **choice** — :class:`planner.passengers.UnweightedSearch`: the planner decides *whether* to
+  deploy as if every passenger weighed 1, and the passenger is chosen by the rank rule (what the
+  values are worth inside a planner's search: aware − choice);
 * **blind** — :class:`planner.passengers.TypeBlind`: the same planner deciding as if every
   passenger weighed 1, releasing passengers in the listed order.
 
@@ -37,7 +40,7 @@ ROOT = Path(__file__).resolve().parent.parent
 SCOUT, ROVER = 1.0, 0.4
 #: (label, overlaps or None for the urban world).
 CASES = (("random, 0 overlaps", 0), ("random, 20 overlaps", 20), ("urban_alpha", None))
-VARIANTS = ("aware", "blind")
+VARIANTS = ("aware", "choice", "blind")
 DEFAULT_PLANNERS = ("closed-loop", "ssap", "mcts-ssap", "random")
 URBAN = ROOT / "scenarios" / "urban_alpha.yaml"
 
@@ -119,12 +122,17 @@ def summarise(rows: list[dict]) -> list[dict]:
     out = []
     for (level, planner), items in sorted(groups.items(), key=lambda kv: (kv[0][0], _order(kv[0][1]))):
         aware = np.array([d["aware"] for _, d in items])
+        choice = np.array([d["choice"] for _, d in items])
         blind = np.array([d["blind"] for _, d in items])
+        search = aware - choice
         clair = np.array([bound[level].get(t, np.nan) for t, _ in items])
         diff = aware - blind
         out.append({"level": level, "case": CASES[level][0], "planner": planner, "n": len(items),
                     "aware_mean": float(aware.mean()), "aware_sem": sem(aware),
                     "blind_mean": float(blind.mean()), "blind_sem": sem(blind),
+                    "choice_mean": float(choice.mean()), "choice_sem": sem(choice),
+                    "search_mean": float(search.mean()), "search_sem": sem(search),
+                    "search_wins": f"{int((search > 1e-12).sum())}/{int((search < -1e-12).sum())}",
                     "clairvoyant_mean": float(np.nanmean(clair)),
                     "aware_pct": float(100 * aware.mean() / np.nanmean(clair)),
                     "blind_pct": float(100 * blind.mean() / np.nanmean(clair)),
@@ -134,18 +142,22 @@ def summarise(rows: list[dict]) -> list[dict]:
     return out
 
 
-SUMMARY_FIELDS = ("case", "planner", "n", "aware_mean", "aware_sem", "blind_mean", "blind_sem", "clairvoyant_mean",
+SUMMARY_FIELDS = ("case", "planner", "n", "aware_mean", "aware_sem", "choice_mean", "choice_sem", "blind_mean",
+                  "blind_sem", "search_mean", "search_sem", "search_wins", "clairvoyant_mean",
                   "aware_pct", "blind_pct", "diff_mean", "diff_sem", "gain_pct", "wins")
 
 
 def markdown(summary: list[dict]) -> str:
-    lines = ["| case | planner | type-aware | type-blind | aware − blind (wins/losses) | aware / blind "
-             "| aware, % of clairvoyant | blind, % of clairvoyant |", "|---|---|---|---|---|---|---|---|"]
+    lines = ["| case | planner | type-aware | unweighted search | type-blind | aware − blind (wins/losses) "
+             "| aware / blind | aware − unweighted search (wins/losses) | aware, % of clairvoyant "
+             "| blind, % of clairvoyant |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in summary:
         label = STYLE.get(r["planner"], (r["planner"],))[0]
         lines.append(f"| {r['case']} | {label} | {r['aware_mean']:.3f} ± {r['aware_sem']:.3f} "
+                     f"| {r['choice_mean']:.3f} ± {r['choice_sem']:.3f} "
                      f"| {r['blind_mean']:.3f} ± {r['blind_sem']:.3f} "
                      f"| {r['diff_mean']:+.3f} ± {r['diff_sem']:.3f} ({r['wins']}) | {r['gain_pct']:+.1f}% "
+                     f"| {r['search_mean']:+.3f} ± {r['search_sem']:.3f} ({r['search_wins']}) "
                      f"| {r['aware_pct']:.1f}% | {r['blind_pct']:.1f}% |")
     return "\n".join(lines)
 
@@ -157,15 +169,16 @@ def plot(summary: list[dict], path: Path, title: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    colours = {"aware": "#1b9e77", "blind": "#999999"}
+    colours = {"aware": "#1b9e77", "choice": "#7570b3", "blind": "#999999"}
+    names = {"aware": "type-aware", "choice": "unweighted search, rank-rule passenger", "blind": "type-blind"}
     fig, ax = plt.subplots(figsize=(11, 4.6))
-    width = 0.38
+    width = 0.27
     labels = []
     for i, r in enumerate(summary):
         base = r["clairvoyant_mean"]
         for k, v in enumerate(VARIANTS):
-            ax.bar(i + (k - 0.5) * width, 100 * r[f"{v}_mean"] / base, width, yerr=100 * r[f"{v}_sem"] / base,
-                   color=colours[v], capsize=2, label=f"type-{v}" if i == 0 else None)
+            ax.bar(i + (k - 1) * width, 100 * r[f"{v}_mean"] / base, width, yerr=100 * r[f"{v}_sem"] / base,
+                   color=colours[v], capsize=2, label=names[v] if i == 0 else None)
         labels.append(f"{r['case']}\n{STYLE.get(r['planner'], (r['planner'],))[0]}")
     ax.axhline(100, color="black", lw=0.8)
     ax.set_xticks(range(len(summary)))

@@ -66,9 +66,10 @@ def unweighted(problem: Problem) -> Problem:
     return out
 
 
-class TypeBlind:
-    """A type-blind carrier fleet: ``inner`` decides as if every passenger weighed 1 and
-    passengers go in a fixed order (index order). The baseline of the types experiment.
+class UnweightedSearch:
+    """``inner`` deciding *whether* to deploy as if every passenger weighed 1, with the passenger
+    chosen by the rank rule (:func:`choose`): isolates what a planner's use of the values in its
+    search is worth (an experiment variant).
 
     Args:
         inner: any planner.
@@ -76,7 +77,7 @@ class TypeBlind:
 
     def __init__(self, inner):
         self.inner = inner
-        self.name = f"{inner.name} (type-blind)"
+        self.name = f"{inner.name} (unweighted search)"
 
     def warm_up(self, problem: Problem) -> None:
         warm_up = getattr(self.inner, "warm_up", None)
@@ -86,6 +87,20 @@ class TypeBlind:
     def decide(self, view: StageView, rng: np.random.Generator) -> np.ndarray:
         blind = StageView(unweighted(view.problem), view.stage, view.observations, view.valid, view.deployed)
         return self.inner.decide(blind, rng)
+
+
+class TypeBlind(UnweightedSearch):
+    """A type-blind carrier fleet: ``inner`` decides as if every passenger weighed 1 and passengers
+    go in a fixed order (index order, the order a scenario lists them). The baseline of the types
+    experiment.
+
+    Args:
+        inner: any planner.
+    """
+
+    def __init__(self, inner):
+        super().__init__(inner)
+        self.name = f"{inner.name} (type-blind)"
 
     def release_passengers(self, view: StageView, deploy: np.ndarray) -> np.ndarray:
         out = np.full(view.problem.n_carriers, -1, dtype=np.int64)
