@@ -114,7 +114,8 @@ def _urban_instance(task: Task):
     if key not in _WORLD_CACHE:
         scenario = world.load_scenario(task.scenario)
         geo = world.stage_geometry(scenario)
-        problem = Problem.build(scenario.passengers, geo.valid, geo.overlaps, scenario.prior_distribution())
+        problem = Problem.build(scenario.passengers, geo.valid, geo.overlaps, scenario.prior_distribution(),
+                                weights=scenario.passenger_values())
         _WORLD_CACHE[key] = (scenario, problem)
     scenario, problem = _WORLD_CACHE[key]
     world_seed = scenario.seed if task.trial == 0 else urban_world_seed(task.seed, task.trial)
@@ -152,22 +153,14 @@ def _types_instance(task: Task):
 
     if task.scenario:
         problem, x, planner_seed, extra = _urban_instance(task)
-        return (Problem.build(problem.passengers, problem.valid, problem.overlaps, problem.prior,
-                              weights=_scenario_values(task.scenario, problem.passengers)),
-                x, planner_seed, extra)
+        if problem.weights is None:  # a scenario without passenger types: the sweep's two types
+            problem = Problem.build(problem.passengers, problem.valid, problem.overlaps, problem.prior,
+                                    weights=fleet_values(problem.passengers))
+        return problem, x, planner_seed, extra
     rng = np.random.default_rng(np.random.SeedSequence(task.seed, spawn_key=(1000, task.trial)))
     inst = random_instance(rng, task.carriers, task.passengers, task.stages, task.overlaps, task.mean,
                            weights=fleet_values([task.passengers] * task.carriers))
     return inst.problem, inst.observations, _seed_of(task.seed, (1000, task.trial, 1)), {}
-
-
-def _scenario_values(scenario_file: str, passengers):
-    """The scenario's passenger values when it lists them, else the types sweep's two types."""
-    import world
-    from experiments.types import fleet_values
-
-    values = getattr(world.load_scenario(scenario_file), "passenger_values", lambda: None)()
-    return fleet_values(passengers) if values is None else values
 
 
 def _replace_prior(problem, prior, scale=None):

@@ -18,8 +18,9 @@ seed; the clairvoyant bound (with values) is the reference. Cases (``level``):
 
 0. random paper-style instances, R = 4, D = 3, N = 10, no overlaps (SSAP is optimal here);
 1. the same with 20 overlap groups;
-2. the ``urban_alpha`` world (R = 3, D = 3, N = 19) with the passengers of
-   ``scenarios/urban_types.yaml`` when it exists, else the same two types.
+2. ``scenarios/urban_types.yaml``: the ``urban_alpha`` world (R = 3, D = 3, 3, 2, N = 19) with the
+   passengers its file lists (a scout 1.0 and rovers 0.4 per carrier; the scout first on alpha
+   and charlie, last on bravo).
 
 Streams as the other sweeps (:mod:`experiments.trials`): trial t's instance ``(1000, t)`` (random
 cases) or world seed ``(1001, t)`` (urban), planner seed ``(1000|1001, t, 1)``.
@@ -39,10 +40,10 @@ from experiments.trials import CLAIRVOYANT, Task
 ROOT = Path(__file__).resolve().parent.parent
 SCOUT, ROVER = 1.0, 0.4
 #: (label, overlaps or None for the urban world).
-CASES = (("random, 0 overlaps", 0), ("random, 20 overlaps", 20), ("urban_alpha", None))
+CASES = (("random, 0 overlaps", 0), ("random, 20 overlaps", 20), ("urban_types", None))
 VARIANTS = ("aware", "choice", "blind")
 DEFAULT_PLANNERS = ("closed-loop", "ssap", "mcts-ssap", "random")
-URBAN = ROOT / "scenarios" / "urban_alpha.yaml"
+URBAN = ROOT / "scenarios" / "urban_types.yaml"
 
 
 def fleet_values(passengers) -> tuple[tuple[float, ...], ...]:
