@@ -180,10 +180,10 @@ def plot(summary: list[dict], path: Path, title: str) -> None:
         for k, v in enumerate(VARIANTS):
             ax.bar(i + (k - 1) * width, 100 * r[f"{v}_mean"] / base, width, yerr=100 * r[f"{v}_sem"] / base,
                    color=colours[v], capsize=2, label=names[v] if i == 0 else None)
-        labels.append(f"{r['case']}\n{STYLE.get(r['planner'], (r['planner'],))[0]}")
+        labels.append(f"{r['case'].replace('random, ', '')}\n{STYLE.get(r['planner'], (r['planner'],))[0]}")
     ax.axhline(100, color="black", lw=0.8)
     ax.set_xticks(range(len(summary)))
-    ax.set_xticklabels(labels, fontsize=7)
+    ax.set_xticklabels(labels, fontsize=6.5, rotation=20)
     ax.set_ylabel("mean reward, % of the clairvoyant bound (±1 SEM)")
     lo = min(100 * r[f"{v}_mean"] / r["clairvoyant_mean"] for r in summary for v in VARIANTS)
     ax.set_ylim(max(0.0, math.floor(lo / 10) * 10 - 10), None)
