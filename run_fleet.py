@@ -6,13 +6,16 @@
     python run_fleet.py S.yaml --role carrier --carrier a,b,c --connect tcp/HOST:7447
     python run_fleet.py --role router --listen tcp/0.0.0.0:7447
     python run_fleet.py S.yaml --carrier-processes 8                 # R carriers in 8 processes
+    python run_fleet.py S.yaml --decentralised                       # no coordinator at all
 
-With no --role, this script starts the coordinator (listening on tcp/127.0.0.1:<free port>) and
-the carrier processes (fresh interpreters running this script with --role carrier; by default
-one per carrier up to 16 carriers, else 16 processes; each carrier keeps its own Zenoh session
-and liveliness token, whatever process it runs in), shows a line per stage, and leaves
-summary.json, mission.db and map.png in --out (default runs/<scenario>-<timestamp>).
-See docs/fleet.md and docs/protocol.md.
+With no --role, this script starts a zenoh router (listening on tcp/127.0.0.1:<free port>: the
+fleet's network, which outlives any one process), the coordinator and the carrier processes
+(fresh interpreters running this script with --role carrier; by default one per carrier up to 16
+carriers, else 16 processes; each carrier keeps its own Zenoh session and liveliness token,
+whatever process it runs in), shows a line per stage, and leaves summary.json, mission.db,
+map.png and the carriers' logs (carriers/<id>.db) in --out (default runs/<scenario>-<timestamp>).
+Carriers decide on board when the coordinator is gone (hybrid, the default). See docs/fleet.md
+and docs/protocol.md.
 """
 from __future__ import annotations
 
@@ -60,6 +63,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--carrier-processes", type=int, metavar="K",
                    help=f"one-host mode: run the carriers in K OS processes (default: one per carrier up to "
                         f"{AUTO_CARRIER_PROCESSES} carriers, else {AUTO_CARRIER_PROCESSES})")
+    p.add_argument("--decentralised", action="store_true",
+                   help="no coordinator: every carrier decides its stages on board, with the others "
+                        "it can reach (one-host mode starts no coordinator; with --role carrier: this carrier)")
+    p.add_argument("--no-autonomy", action="store_true",
+                   help="carriers never decide on their own: they hold while the coordinator is away and "
+                        "exit after --coordinator-timeout")
     p.add_argument("--routers", type=int, metavar="N",
                    help=f"one-host mode: start N zenoh routers connected to the coordinator and spread the "
                         f"carrier processes over them (default: none up to {CARRIERS_PER_ROUTER} carriers, else "
@@ -101,7 +110,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     t.add_argument("--decision-timeout", type=float, default=DEFAULTS.decision_s,
                    help="carrier: wait per stage for the decision (default %(default)s)")
     t.add_argument("--coordinator-timeout", type=float, default=DEFAULTS.coordinator_s,
-                   help="carrier: exit when the coordinator has been absent this long (default %(default)s)")
+                   help="carrier: at the start, wait this long for a coordinator (then go on without it); "
+                        "with --no-autonomy, exit when it has been absent this long (default %(default)s)")
+    t.add_argument("--peer-timeout", type=float, default=DEFAULTS.stage_s,
+                   help="carrier deciding on board: wait per stage for the other carriers' observations "
+                        "(default %(default)s)")
     p.add_argument("--no-map", action="store_true", help="do not draw map.png")
     p.add_argument("--no-record", action="store_true", help="coordinator: do not write mission.mcap")
     p.add_argument("--pose-interval", type=float, default=1.0, metavar="SECONDS",
@@ -155,7 +168,11 @@ def check_flags(args, scenario) -> str | None:
         return f"--pose-interval: expected seconds >= 0, found {args.pose_interval}"
     if args.seed is not None and args.seed < 0:
         return f"--seed: expected an integer >= 0, found {args.seed}"
-    for name in ("join_timeout", "stage_timeout", "decision_timeout", "coordinator_timeout"):
+    if args.decentralised and args.no_autonomy:
+        return "--decentralised and --no-autonomy exclude each other"
+    if args.decentralised and args.role == "coordinator":
+        return "--decentralised runs no coordinator"
+    for name in ("join_timeout", "stage_timeout", "decision_timeout", "coordinator_timeout", "peer_timeout"):
         if getattr(args, name) <= 0:
             return f"--{name.replace('_', '-')}: expected seconds > 0, found {getattr(args, name)}"
     for k, cid in enumerate(scenario.carrier_ids):
@@ -191,9 +208,8 @@ def check_flags(args, scenario) -> str | None:
                 return f"--carrier: expected one of {listed} (carriers of {args.scenario}), found {cid!r}"
         if len(set(args.carriers)) != len(args.carriers):
             return f"--carrier: a carrier id is repeated in {args.carrier!r}"
-    if args.role not in ("carrier", "viewer", "router"):
-        from coordinator.node import planner_settings
-        from planner.registry import make_planner
+    if args.role not in ("carrier", "viewer", "router") and not args.decentralised:
+        from planner.registry import make_planner, planner_settings
 
         name, options = planner_settings(scenario, args.planner, args.iterations, args.plan_ms, args.planner_options)
         try:
@@ -268,12 +284,18 @@ def run_carrier(args, scenario, stop: threading.Event) -> int:
     """One or several carriers (``--carrier a,b,c``) in this process: one thread and one Zenoh
     session per carrier, the scenario loaded once. Exit code: the first non-zero carrier code."""
     from carriers.node import EXIT_CODES, CarrierConfig, run_carriers
+    from planner.registry import planner_settings
 
     log = (lambda line: None) if args.quiet else (lambda line: print(line, flush=True))
+    mode = "decentralised" if args.decentralised else "coordinated" if args.no_autonomy else "hybrid"
+    _, options = planner_settings(scenario, None, args.iterations, args.plan_ms, args.planner_options)
+    out = args.out or default_out(scenario)  # its log: pass the same --out again to resume from it
     configs = [CarrierConfig(
         carrier=cid, mission=args.mission, seed=args.seed, realtime=args.realtime,
         decision_timeout_s=args.decision_timeout, coordinator_timeout_s=args.coordinator_timeout,
-        log=log, pose_interval_s=args.pose_interval) for cid in getattr(args, "carriers", [args.carrier])]
+        log=log, pose_interval_s=args.pose_interval, mode=mode, out_dir=out, peer_timeout_s=args.peer_timeout,
+        join_timeout_s=args.join_timeout, planner_options=tuple(sorted(options.items())))
+        for cid in getattr(args, "carriers", [args.carrier])]
     reasons = run_carriers(scenario, configs, lambda: zenoh_config(args, "carrier"), stop=stop)
     codes = []
     for cid, reason in reasons.items():
@@ -334,9 +356,11 @@ def _forward(args) -> list[str]:
         out += ["--planner-option", text]
     out += ["--realtime", str(args.realtime), "--join-timeout", str(args.join_timeout),
             "--stage-timeout", str(args.stage_timeout), "--decision-timeout", str(args.decision_timeout),
-            "--coordinator-timeout", str(args.coordinator_timeout), "--pose-interval", str(args.pose_interval)]
-    if args.no_record:
-        out.append("--no-record")
+            "--coordinator-timeout", str(args.coordinator_timeout), "--pose-interval", str(args.pose_interval),
+            "--peer-timeout", str(args.peer_timeout)]
+    for flag in ("no_record", "decentralised", "no_autonomy"):
+        if getattr(args, flag):
+            out.append("--" + flag.replace("_", "-"))
     return out
 
 
@@ -387,20 +411,25 @@ def run_all(args, scenario, stop: threading.Event) -> int:
         return 130
     out = Path(args.out or default_out(scenario))
     out.mkdir(parents=True, exist_ok=True)
-    if args.connect and not args.listen:
-        listen, connect = [], list(args.connect)  # through a router: everyone connects to it
-    else:
-        listen = args.listen or [f"tcp/127.0.0.1:{free_port()}"]
-        connect = args.connect or [e.replace("0.0.0.0", "127.0.0.1") for e in listen]
     script = [sys.executable, str(Path(__file__).resolve()), args.scenario]
-    common = _forward(args)
+    routers = []
+    if args.connect and not args.listen:
+        listen, connect = [], list(args.connect)  # through a router of the user's: everyone connects to it
+    else:
+        # The fleet's network is a router of its own, not the coordinator: carriers keep talking
+        # to each other when the coordinator is gone.
+        listen = args.listen or [f"tcp/127.0.0.1:{free_port()}"]
+        connect = [e.replace("0.0.0.0", "127.0.0.1") for e in listen]
+        routers.append(_start_router(args, listen, []))
+    common = _forward(args) + ["--out", str(out)]
     started = time.monotonic()
     viewer = None
-    coordinator = subprocess.Popen(
-        script + ["--role", "coordinator", "--out", str(out)] + common
-        + sum((["--listen", e] for e in listen), []) + sum((["--connect", e] for e in connect if not listen), [])
-        + (["--no-map"] if args.no_map else []),
-        preexec_fn=_ignore_sigint)
+    coordinator = None
+    if not args.decentralised:
+        coordinator = subprocess.Popen(
+            script + ["--role", "coordinator"] + common + sum((["--connect", e] for e in connect), [])
+            + (["--no-map"] if args.no_map else []),
+            preexec_fn=_ignore_sigint)
     if args.view:  # subscribed before the carriers start, so the view misses nothing
         ready = out / ".viewer-ready"
         ready.unlink(missing_ok=True)
@@ -421,14 +450,10 @@ def run_all(args, scenario, stop: threading.Event) -> int:
     if n_routers is None:
         n = scenario.n_carriers
         n_routers = 0 if n <= CARRIERS_PER_ROUTER or not listen else -(-n // CARRIERS_PER_ROUTER)
-    routers, router_endpoints = [], []
-    for _ in range(n_routers):
+    router_endpoints = []
+    for _ in range(n_routers):  # more routers, joined to the first, each serving a share of the carriers
         endpoint = f"tcp/127.0.0.1:{free_port()}"
-        routers.append(subprocess.Popen(
-            [sys.executable, str(Path(__file__).resolve()), "--role", "router", "--listen", endpoint]
-            + sum((["--connect", e] for e in connect), [])
-            + (["--zenoh-config", args.zenoh_config] if args.zenoh_config else []),
-            stdout=subprocess.DEVNULL, preexec_fn=_ignore_sigint))
+        routers.append(_start_router(args, [endpoint], connect))
         router_endpoints.append(endpoint)
     carriers = {}
     for g, group in enumerate(carrier_groups(scenario.carrier_ids, args.carrier_processes)):
@@ -437,23 +462,33 @@ def run_all(args, scenario, stop: threading.Event) -> int:
             script + ["--role", "carrier", "--carrier", ",".join(group)] + common
             + sum((["--connect", e] for e in via), []) + ([] if args.verbose else ["--quiet"]),
             preexec_fn=_ignore_sigint)
-    procs = [coordinator, *carriers.values(), *routers] + ([viewer] if viewer is not None else [])
-    where = f"listening on {', '.join(listen)}" if listen else f"connected to {', '.join(connect)}"
+    procs = [p for p in (coordinator, *carriers.values(), *routers, viewer) if p is not None]
     shown = ", ".join(f"{_short(cids)} pid {p.pid}" for cids, p in carriers.items())
-    print(f"run_fleet.py: coordinator pid {coordinator.pid} {where}; carriers {shown}"
-          + (f"; {len(routers)} router(s) at {', '.join(router_endpoints)}" if routers else ""), flush=True)
+    print(f"run_fleet.py: network {', '.join(connect)}"
+          + (f" (router pid {routers[0].pid})" if listen else "")
+          + ("; no coordinator (decentralised)" if coordinator is None else f"; coordinator pid {coordinator.pid}")
+          + f"; carriers {shown}"
+          + (f"; {len(router_endpoints)} more router(s) at {', '.join(router_endpoints)}" if router_endpoints else ""),
+          flush=True)
     if viewer is not None and viewer.poll() is None and not args.no_web:
         from viewer.node import viewer_url
 
         print(f"run_fleet.py: viewer pid {viewer.pid}; live view at {viewer_url(args.web_port, args.grpc_port)}",
               flush=True)
-    while coordinator.poll() is None and not stop.is_set():
+    # The mission lasts as long as its coordinator; decentralised, or when the coordinator died,
+    # as long as its carriers (they go on without it).
+    while not stop.is_set():
+        if coordinator is not None and coordinator.poll() is not None and coordinator.returncode == 0:
+            break
+        if (coordinator is None or coordinator.poll() is not None) and all(p.poll() is not None
+                                                                          for p in carriers.values()):
+            break
         stop.wait(0.05)
     if stop.is_set():
         print("run_fleet.py: interrupted; stopping the fleet", file=sys.stderr, flush=True)
         _stop_children(procs)
         return 130
-    code = coordinator.returncode
+    code = 0 if coordinator is None else coordinator.returncode
     deadline = time.monotonic() + CARRIER_EXIT_GRACE_S
     while time.monotonic() < deadline and any(p.poll() is None for p in carriers.values()):
         time.sleep(0.05)
@@ -464,7 +499,8 @@ def run_all(args, scenario, stop: threading.Event) -> int:
         print(f"run_fleet.py: carrier exit codes {bad}", file=sys.stderr, flush=True)
     summary_path = out / "summary.json"
     if code != 0 or not summary_path.exists():
-        print(f"run_fleet.py: the coordinator exited with code {code}", file=sys.stderr)
+        print(f"run_fleet.py: the coordinator exited with code {code}" if coordinator is not None
+              else "run_fleet.py: no summary.json", file=sys.stderr)
         if viewer is not None:
             _stop_children([viewer], grace_s=5.0)
         return code or 1
@@ -480,6 +516,14 @@ def run_all(args, scenario, stop: threading.Event) -> int:
     if viewer is not None:
         _wait_for_viewer(args, viewer, stop)
     return 0
+
+
+def _start_router(args, listen, connect) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, str(Path(__file__).resolve()), "--role", "router"]
+        + sum((["--listen", e] for e in listen), []) + sum((["--connect", e] for e in connect), [])
+        + (["--zenoh-config", args.zenoh_config] if args.zenoh_config else []),
+        stdout=subprocess.DEVNULL, preexec_fn=_ignore_sigint)
 
 
 def _wait_for_viewer(args, viewer, stop: threading.Event) -> None:

@@ -9,10 +9,20 @@ moves bytes. Per stage j (docs/protocol.md, "Stage handshake"):
 
 1. advance the physics at fixed steps to t_j (paced at ``realtime`` × wall time when > 0);
 2. publish the Observation of j (x = features sensed, or None when not scheduled at j);
-3. wait for the Decision of j: the wait only counts while the coordinator's liveliness token is
-   present, and ends after ``decision_timeout_s`` (then the carrier goes on without deploying);
-   while the coordinator is absent the carrier holds, and exits after ``coordinator_timeout_s``;
-4. deploy if selected (the passenger appears in the world) and publish a Confirm.
+3. wait for the Decision of j while the coordinator's liveliness token is present, at most
+   ``decision_timeout_s``;
+4. deploy if selected (the passenger appears in the world) and publish a Confirm; or, when no
+   decision came in time or the coordinator is gone (mode ``hybrid``, the default), or always
+   (mode ``decentralised``: no coordinator at all), decide the stage itself: wait (at most
+   ``peer_timeout_s``) for the Observations of j of the other live carriers, run the on-board
+   planner (``dec-closed-loop``) on what it heard (:class:`mission.peers.PeerBook`), deploy or
+   not and publish an Own message. Mode ``coordinated`` never decides alone: it holds while the
+   coordinator is absent and exits after ``coordinator_timeout_s``.
+
+Every observation and every outcome is written to the carrier's durable log
+(carriers/log.py, ``<out>/carriers/<id>.db``) before the carrier acts on it. Started with no
+coordinator answering (decentralised, or a hybrid carrier whose coordinator is gone), a carrier
+resumes from its own log.
 
 Stopping: :meth:`Carrier.stop` (what SIGINT/SIGTERM call) only sets a request honoured between
 steps; the carrier then says Bye (``stopped``).
@@ -28,13 +38,15 @@ from dataclasses import dataclass
 import numpy as np
 
 import world
+from carriers.log import CarrierLog, LogMismatch, log_path
 from mission import carrier as mc
+from mission.peers import PeerBook
 from mission.timeouts import DEFAULTS
 from wire import keys
 from wire.messages import (
-    Bye, Confirm, Decision, End, Hello, Observation, ProtocolError, Refusal, State, decode, scenario_fingerprint,
+    Bye, Confirm, Decision, End, Hello, Observation, Own, Pose, ProtocolError, Refusal, State, decode,
+    scenario_fingerprint,
 )
-from wire.messages import Pose
 
 #: Trail points per Observation at most (the protocol's limit).
 MAX_TRAIL = 512
@@ -49,8 +61,16 @@ PACE_CHUNK_S = 0.5
 #: Default interval between two Pose messages, seconds of simulated time (docs/protocol.md, "Pose").
 POSE_INTERVAL_S = 1.0
 
+#: How a carrier gets its decisions (docs/fleet.md, "Without the coordinator").
+MODES = ("hybrid", "decentralised", "coordinated")
+#: The planner a carrier runs on board when it decides a stage itself.
+ONBOARD_PLANNER = "dec-closed-loop"
+#: What peers publish that a carrier reads, and the message type of each.
+PEER_TOPICS = {"obs": Observation, "own": Own, "confirm": Confirm}
+
 #: Exit reasons and the process exit code each maps to.
-EXIT_CODES = {"end": 0, "finished": 0, "stopped": 130, "coordinator-lost": 1, "world-mismatch": 2}
+EXIT_CODES = {"end": 0, "finished": 0, "stopped": 130, "coordinator-lost": 1, "world-mismatch": 2,
+              "log-mismatch": 2}
 
 
 @dataclass(frozen=True)
@@ -68,6 +88,12 @@ class CarrierConfig:
         log: callable taking one line.
         pose_interval_s: publish a Pose every this many seconds of simulated time (rounded to
             whole seconds, the physics trace's spacing); 0 = no poses.
+        mode: one of :data:`MODES`.
+        out_dir: where the durable log goes (``<out_dir>/carriers/<id>.db``); None: no log.
+        peer_timeout_s: deciding alone, wait this long for the other carriers' observations.
+        join_timeout_s: decentralised: before the first stage, wait this long for every
+            carrier's liveliness token.
+        planner_options: options of the on-board planner (iterations, plan_ms).
     """
 
     carrier: str
@@ -79,6 +105,11 @@ class CarrierConfig:
     end_timeout_s: float = DEFAULTS.end_s
     log: object = None
     pose_interval_s: float = POSE_INTERVAL_S
+    mode: str = "hybrid"
+    out_dir: str | None = None
+    peer_timeout_s: float = DEFAULTS.stage_s
+    join_timeout_s: float = DEFAULTS.join_s
+    planner_options: tuple = ()
 
 
 @dataclass(frozen=True)
@@ -105,6 +136,31 @@ def shared_world(scenario) -> SharedWorld:
     return SharedWorld(scenario.valid(), scenario_fingerprint(scenario), features)
 
 
+class Onboard:
+    """The on-board planner (:data:`ONBOARD_PLANNER`) and the planner's instance of the scenario,
+    built at the first stage a carrier of this process decides itself — the planner core (numba,
+    scipy) and the stage geometry are loaded then, not before — and shared by the process's
+    carriers (fully informed carriers compute the same joint action: it is computed once)."""
+
+    def __init__(self, scenario, options=()):
+        self.scenario = scenario
+        self.options = dict(options)
+        self._lock = threading.Lock()
+        self._built = None
+
+    def get(self):
+        """(problem, planner), built on first use."""
+        with self._lock:
+            if self._built is None:
+                from planner.registry import make_planner, used_options
+
+                problem = world.build_problem(self.scenario)
+                planner = make_planner(ONBOARD_PLANNER, **used_options(ONBOARD_PLANNER, self.options))
+                planner.warm_up(problem)
+                self._built = (problem, planner)
+            return self._built
+
+
 class _Exit(Exception):
     """Leave the run loop with an exit reason (a key of :data:`EXIT_CODES`)."""
 
@@ -120,7 +176,7 @@ class Carrier:
     """
 
     def __init__(self, scenario, config: CarrierConfig, zconf, stop: threading.Event | None = None,
-                 shared: SharedWorld | None = None):
+                 shared: SharedWorld | None = None, onboard: Onboard | None = None):
         if config.seed is not None and shared is None:
             scenario = scenario.with_seed(int(config.seed))
         self.scenario = scenario
@@ -130,7 +186,10 @@ class Carrier:
         self.cid = keys.check_id(config.carrier, "carrier")
         self.r = scenario.carrier_index(self.cid)  # KeyError for an unknown id (checked by the CLI)
         self.mission = keys.check_id(config.mission or keys.mission_id_from_name(scenario.name), "mission")
-        self.valid = (scenario.valid() if shared is None else shared.valid)[self.r]
+        if config.mode not in MODES:
+            raise ValueError(f"mode must be one of {MODES}, found {config.mode!r}")
+        valid = scenario.valid() if shared is None else shared.valid
+        self.valid = valid[self.r]
         self.n_stages = scenario.stages
         self.fingerprint = scenario_fingerprint(scenario) if shared is None else shared.fingerprint
         self.machine = mc.initial(self.cid, self.valid, scenario.stage_times(), scenario.carriers[self.r].passengers)
@@ -146,6 +205,11 @@ class Carrier:
         self._pose_from = 0  # first trajectory sample not considered for a Pose yet
         self._heading = 0.0
         self._refused: Refusal | None = None
+        self.onboard = onboard if onboard is not None else Onboard(scenario, config.planner_options)
+        self.book = PeerBook(scenario.carrier_ids, valid)  # what it heard of every carrier's stages
+        self.peers_live: set[str] = set()
+        self.store: CarrierLog | None = None  # the durable log, open while running
+        self._alone = False  # deciding stages itself (logged once per spell)
 
     # ------------------------------------------------------------------ views for tests and logs
     def log(self, line: str) -> None:
@@ -184,6 +248,19 @@ class Carrier:
                 self.node.put(keys.carrier_key(self.mission, self.cid, "confirm"), Confirm(
                     self.mission, self.cid, effect.stage, effect.deployed, effect.status, effect.position,
                     effect.passengers_left))
+            elif isinstance(effect, mc.LogObservation):
+                if self.store is not None:
+                    self.store.observed(effect.stage, self.scenario.stage_time(effect.stage), effect.x, effect.position)
+                self.book.observation(self.cid, effect.stage, effect.x)
+            elif isinstance(effect, mc.LogOutcome):
+                if self.store is not None:
+                    self.store.outcome(effect.stage, self.scenario.stage_time(effect.stage), effect.status,
+                                       effect.deployed, effect.position, effect.passengers_left, time.time())
+                self.book.outcome(self.cid, effect.stage, effect.deployed)
+            elif isinstance(effect, mc.SendOwn):
+                self.node.put(keys.carrier_key(self.mission, self.cid, "own"), Own(
+                    self.mission, self.cid, effect.stage, float(self.scenario.stage_time(effect.stage)), effect.x,
+                    effect.deployed, effect.position, effect.passengers_left))
             elif isinstance(effect, mc.SendHello):
                 self._hello(effect.next_stage)
             elif isinstance(effect, mc.ResendObservation):
@@ -213,6 +290,10 @@ class Carrier:
         if item.kind == "wake":
             return
         if item.kind in ("alive", "gone"):
+            parsed = keys.parse_carrier_key(self.mission, item.key)
+            if parsed is not None and parsed[1] == "alive" and parsed[0] in self.book.index:
+                (self.peers_live.add if item.kind == "alive" else self.peers_live.discard)(parsed[0])
+                return
             if item.key != keys.coordinator_alive(self.mission):
                 raise ProtocolError("bad-key", f"liveliness token on {item.key[:80]}")
             if item.kind == "alive":
@@ -223,7 +304,12 @@ class Carrier:
             else:
                 self.coordinator_present = False
                 self.absent_since = time.monotonic()
-                self.log("coordinator's liveliness token vanished; holding")
+                self.log("coordinator's liveliness token vanished; "
+                         + ("holding" if self.config.mode == "coordinated" else "deciding on board"))
+            return
+        parsed = keys.parse_carrier_key(self.mission, item.key)
+        if parsed is not None and parsed[1] in PEER_TOPICS:
+            self._peer(parsed[0], parsed[1], item.payload)
             return
         if item.key == keys.end_key(self.mission):
             msg = decode(item.payload, End)
@@ -243,7 +329,27 @@ class Carrier:
         msg = decode(item.payload, Decision)
         if msg.mission != self.mission:
             raise ProtocolError("wrong-mission", f"mission {msg.mission!r}")
+        if msg.stage < self.n_stages:
+            self.book.decision(msg.stage, msg.deploy)
         self.apply(mc.DecisionHeard(msg.stage, msg.t, msg.deploy, self._position()))
+
+    def _peer(self, cid: str, topic: str, payload: bytes) -> None:
+        """Another carrier's Observation, Own or Confirm: what it saw and did, for the book."""
+        if cid == self.cid:
+            return  # our own puts, delivered to our own subscription
+        if cid not in self.book.index:
+            raise ProtocolError("unknown-carrier", f"message from carrier {cid!r}")
+        msg = decode(payload, PEER_TOPICS[topic])
+        if msg.mission != self.mission:
+            raise ProtocolError("wrong-mission", f"mission {msg.mission!r}")
+        if msg.carrier != cid:
+            raise ProtocolError("key-mismatch", f"carrier {msg.carrier!r} on the key of {cid!r}")
+        if msg.stage >= self.n_stages:
+            raise ProtocolError("out-of-range", f"stage {msg.stage} >= {self.n_stages}")
+        if topic in ("obs", "own"):
+            self.book.observation(cid, msg.stage, msg.x)
+        if topic in ("own", "confirm"):
+            self.book.outcome(cid, msg.stage, msg.deployed)
 
     def _query_once(self) -> State | None:
         for payload in self.node.query(keys.state_selector(self.mission, self.cid), timeout_s=DEFAULTS.state_query_s):
@@ -325,9 +431,18 @@ class Carrier:
 
     # ------------------------------------------------------------------ the stages
     def _join(self) -> None:
+        if self.config.mode == "decentralised":
+            self._join_alone()
+            return
         state = self._query_state()
+        if state is None and self.config.mode == "hybrid" and not self._stop.is_set():
+            self.log(f"no coordinator answered within {self.config.coordinator_timeout_s:.0f} s; going on without it")
+            self._join_alone()
+            return
         if state is None:
             raise _Exit("stopped" if self._stop.is_set() else "coordinator-lost")
+        if not self.coordinator_seen:  # it answered: present, even if its token is not pumped yet
+            self.coordinator_present = self.coordinator_seen = True
         if state.fingerprint != self.fingerprint:
             self.log(f"the coordinator runs another world (fingerprint {state.fingerprint}, ours "
                      f"{self.fingerprint}): use the same scenario file and --seed")
@@ -338,22 +453,53 @@ class Carrier:
                 self.sim.advance_to(self.scenario.stage_time(j))
                 self.apply(mc.Replayed(j, self._position()))
                 self.sim.deploy(self.cid)
+                self.book.outcome(self.cid, j, True)
         self.apply(mc.Joined(state.next_stage, state.ended))
         self._hello(self.machine.hello_stage())
 
+    def _join_alone(self) -> None:
+        """Join with no coordinator: go on from the carrier's own log (the deployments on record
+        are replayed in its world), after waiting (at most ``join_timeout_s``) for every other
+        carrier's token, so that nobody starts the mission alone."""
+        entries = [e for e in self.store.entries() if e.status is not None] if self.store is not None else []
+        for e in entries:
+            if e.observed:
+                self.book.observation(self.cid, e.stage, e.x)
+            if e.deployed and self.machine.passengers_left > 0:
+                self.sim.advance_to(self.scenario.stage_time(e.stage))
+                self.apply(mc.Replayed(e.stage, self._position()))
+                self.sim.deploy(self.cid)
+            self.book.outcome(self.cid, e.stage, e.deployed)
+        next_stage = max((e.stage + 1 for e in entries), default=0)
+        others = set(self.book.carriers) - {self.cid}
+        deadline = time.monotonic() + self.config.join_timeout_s
+        while not self._stop.is_set() and not others <= self.peers_live and time.monotonic() < deadline:
+            self._pump(min(0.2, max(0.0, deadline - time.monotonic())))
+        missing = sorted(others - self.peers_live)
+        if missing and next_stage == 0:
+            self.log(f"starting without carrier(s) {', '.join(missing)} (no token after "
+                     f"{self.config.join_timeout_s:.0f} s)")
+        self.apply(mc.Joined(next_stage))
+
     def _wait_decision(self, j: int) -> None:
         """Until stage j is resolved (answered, or the coordinator moved on), the decision
-        timeout (coordinator present), End, or a stop request."""
+        timeout (coordinator present), End, or a stop request; deciding alone (hybrid without
+        the coordinator, decentralised) it does not wait."""
         waited = 0.0
         last = time.monotonic()
         while not self._stop.is_set() and not self.machine.ended and not self.machine.resolved(j):
             self._check_refused()
             now = time.monotonic()
+            if self.config.mode == "decentralised":
+                return
             if self.coordinator_present:
                 waited += now - last
                 if waited >= self.config.decision_timeout_s:
-                    self.log(f"no decision for stage {j} within {self.config.decision_timeout_s:.0f} s; going on")
+                    self.log(f"no decision for stage {j} within {self.config.decision_timeout_s:.0f} s; "
+                             + ("going on" if self.config.mode == "coordinated" else "deciding on board"))
                     return
+            elif self.config.mode == "hybrid":
+                return
             elif now - self.absent_since >= self.config.coordinator_timeout_s:
                 self.log(f"coordinator absent for {self.config.coordinator_timeout_s:.0f} s; exiting")
                 raise _Exit("coordinator-lost")
@@ -385,12 +531,42 @@ class Carrier:
             self.pending = Observation(
                 self.mission, self.cid, j, float(t_j), x, self._position(), self.machine.passengers_left,
                 self._trail())
-            self.apply(mc.Observed(j))
+            self.apply(mc.Observed(j, x, self._position()))
             self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.pending)
             self._wait_decision(j)
+            if (self.config.mode != "coordinated" and not self.machine.resolved(j) and not self.machine.ended
+                    and not self._stop.is_set()):
+                self._decide_alone(j)
+            elif self.machine.resolved(j):
+                self._alone = False
             self.apply(mc.MovedOn(j))
             self.pending = None
             j += 1
+
+    def _decide_alone(self, j: int) -> None:
+        """Decide stage j on board: wait (at most ``peer_timeout_s``) for the other live
+        carriers' observations of j — a decision arriving meanwhile still wins — then run the
+        on-board planner on what the carrier heard."""
+        from planner.decentralised import LocalDecision
+        from planner.problem import stage_rng
+
+        if not self._alone:
+            self._alone = True
+            self.log(f"deciding on board from stage {j} (dec-closed-loop, {len(self.peers_live - {self.cid})} "
+                     f"other carrier(s) reachable)")
+        deadline = time.monotonic() + self.config.peer_timeout_s
+        while not self._stop.is_set() and not self.machine.resolved(j) and not self.machine.ended:
+            left = deadline - time.monotonic()
+            if left <= 0 or not self.book.waiting(j, self.peers_live - {self.cid}):
+                break
+            self._pump(left)
+        if self._stop.is_set() or self.machine.resolved(j) or self.machine.ended:
+            return
+        problem, planner = self.onboard.get()
+        local = self.book.local_view(problem, self.cid, j, self.scenario.seed)
+        out = planner.decide_local(local, stage_rng(self.scenario.seed, j))
+        deploy = out.deploy if isinstance(out, LocalDecision) else bool(out)
+        self.apply(mc.DecidedOwn(j, bool(deploy), self._position()))
 
     def run(self) -> str:
         from wire.transport import Node
@@ -404,14 +580,27 @@ class Carrier:
         except OpenStopped:
             return "stopped"
         try:
+            if self.config.out_dir is not None:
+                try:
+                    self.store = CarrierLog(log_path(self.config.out_dir, self.cid), {
+                        "mission": self.mission, "carrier": self.cid, "scenario": self.scenario.name,
+                        "fingerprint": self.fingerprint, "seed": int(self.scenario.seed)})
+                except LogMismatch as exc:
+                    self.log(str(exc))
+                    raise _Exit("log-mismatch")
             self.node.subscribe(keys.decision_key(self.mission))
             self.node.subscribe(keys.end_key(self.mission))
             self.node.subscribe(keys.refusal_key(self.mission, self.cid))
             self.node.watch_liveliness(keys.coordinator_alive(self.mission))
+            if self.config.mode != "coordinated":
+                for topic in PEER_TOPICS:
+                    self.node.subscribe(keys.carrier_topic_pattern(self.mission, topic))
+                self.node.watch_liveliness(keys.carrier_alive_pattern(self.mission))
             self.node.token(keys.carrier_alive(self.mission, self.cid))
             self._join()
             self._fly()
-            deadline = time.monotonic() + self.config.end_timeout_s
+            # End comes from a coordinator: wait for it only while one is there.
+            deadline = time.monotonic() + (self.config.end_timeout_s if self.coordinator_present else 0.0)
             while not self.machine.ended and not self._stop.is_set() and time.monotonic() < deadline:
                 self._check_refused()
                 self._pump(IDLE_POLL_S)
@@ -426,6 +615,8 @@ class Carrier:
             except Exception:
                 pass
             self.node.close(DEFAULTS.close_s)
+            if self.store is not None:
+                self.store.close()
         return reason
 
 
@@ -454,7 +645,8 @@ def run_carriers(scenario, configs, zconf, stop: threading.Event | None = None) 
         if seed is not None:
             scenario = scenario.with_seed(int(seed))
         shared = shared_world(scenario)
-    carriers = [Carrier(scenario, c, zconf() if callable(zconf) else zconf, stop=stop, shared=shared)
+    onboard = Onboard(scenario, configs[0].planner_options) if configs else None
+    carriers = [Carrier(scenario, c, zconf() if callable(zconf) else zconf, stop=stop, shared=shared, onboard=onboard)
                 for c in configs]
     reasons: dict = {}
 

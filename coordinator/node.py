@@ -37,8 +37,8 @@ from pathlib import Path
 import numpy as np
 
 import world
-from planner.registry import make_planner, used_options
-from planner.problem import Problem, enforce, make_view, stage_rng
+from planner.registry import make_planner, planner_settings, used_options
+from planner.problem import enforce, make_view, stage_rng
 from coordinator.store import MissionStore
 from mission import events as ev
 from mission import state as ms
@@ -46,13 +46,13 @@ from mission.summary import RunInfo, summary as mission_summary
 from mission.timeouts import DEFAULTS
 from wire import keys
 from wire.messages import (
-    MAX_STATE_CARRIERS, Bye, CarrierState, Confirm, Decision, End, Hello, Observation, Pose, ProtocolError, Refusal,
+    MAX_STATE_CARRIERS, Bye, CarrierState, Confirm, Decision, End, Hello, Observation, Own, Pose, ProtocolError, Refusal,
     State, decode, encode, scenario_fingerprint,
 )
 from wire.transport import Node
 
 #: Which message type each carrier topic carries.
-TOPIC_TYPES = {"hello": Hello, "obs": Observation, "confirm": Confirm, "bye": Bye}
+TOPIC_TYPES = {"hello": Hello, "obs": Observation, "confirm": Confirm, "own": Own, "bye": Bye}
 
 
 @dataclass(frozen=True)
@@ -91,29 +91,6 @@ class CoordinatorConfig:
     record: bool = True  # write mission.mcap (recording/live.py)
 
 
-def build_problem(scenario, geometry=None) -> Problem:
-    """The planner core's instance for a scenario: schedules, overlaps and prior from world/."""
-    geometry = world.stage_geometry(scenario) if geometry is None else geometry
-    return Problem.build(scenario.passengers, geometry.valid, geometry.overlaps, scenario.prior_distribution())
-
-
-def planner_settings(scenario, name=None, iterations=None, plan_ms=None, extra=()) -> tuple[str, dict]:
-    """(planner name, options for make_planner): the scenario's, overridden by non-None flags.
-
-    An explicit ``iterations`` flag drops the scenario's ``plan_ms`` (which would take
-    precedence), so ``--iterations`` always means an iteration budget.
-    """
-    spec = scenario.planner
-    options = dict(spec.options())
-    if iterations is not None:
-        options["iterations"] = int(iterations)
-        options.pop("plan_ms", None)
-    if plan_ms is not None:
-        options["plan_ms"] = float(plan_ms)
-    options.update(dict(extra))  # --planner-option KEY=VALUE (checked by planner.registry)
-    return (name or spec.name), options
-
-
 def to_event(msg, at: float):
     """The mission event of a decoded carrier message received at ``at`` (s, epoch)."""
     if isinstance(msg, Hello):
@@ -122,6 +99,8 @@ def to_event(msg, at: float):
         return ev.Observation(msg.carrier, msg.stage, msg.t, msg.x, msg.position, msg.passengers_left, msg.trail, at)
     if isinstance(msg, Confirm):
         return ev.Confirmed(msg.carrier, msg.stage, msg.deployed, msg.status, msg.position, msg.passengers_left, at)
+    if isinstance(msg, Own):
+        return ev.Accounted(msg.carrier, msg.stage, msg.t, msg.x, msg.deployed, msg.position, msg.passengers_left, at)
     if isinstance(msg, Bye):
         return ev.Bye(msg.carrier, msg.deployments, msg.rejected, msg.reason, at)
     raise TypeError(type(msg).__name__)
@@ -151,7 +130,7 @@ class Coordinator:
         self.seed = int(scenario.seed)
         self.mission = keys.check_id(config.mission or keys.mission_id_from_name(scenario.name), "mission")
         self.ids = scenario.carrier_ids
-        self.problem = build_problem(scenario)
+        self.problem = world.build_problem(scenario)
         self.n_stages = self.problem.n_stages
         self.planner_name, options = planner_settings(
             scenario, config.planner, config.iterations, config.plan_ms, config.planner_options)
@@ -190,7 +169,7 @@ class Coordinator:
         return self.state.resumed
 
     def deployed(self) -> np.ndarray:
-        """bool ``[R, N]``: decisions not refuted by a Confirm (the planner's view of the past)."""
+        """bool ``[R, N]``: the planner's view of the past (:meth:`mission.state.MissionState.deployed`)."""
         return self.state.deployed()
 
     def _decision(self, j: int) -> Decision:
@@ -224,13 +203,9 @@ class Coordinator:
             ended=st.ended, carriers=carriers, last_decision=last))
 
     def _carrier_state(self, st, cid: str) -> CarrierState:
-        """One carrier's entry: decided deployments not refuted by a Confirm."""
-        deployments = []
-        for j in sorted(st.decisions):
-            if cid in st.decisions[j].deploy:
-                confirm = st.confirms.get((cid, j))
-                if confirm is None or confirm.deployed:
-                    deployments.append(j)
+        """One carrier's entry: its deployments as the planner sees them (its accounts, its
+        Confirms, the decisions nobody answered)."""
+        deployments = st.deployments_of(cid)
         left = self.spec.passengers[self.spec.index(cid)] - len(deployments)
         return CarrierState(int(left), tuple(deployments), cid in st.live)
 
@@ -365,7 +340,7 @@ class Coordinator:
         return self.state.all_joined()
 
     def _plan(self, j: int) -> tuple[tuple[str, ...], float]:
-        view = make_view(self.problem, j, self.state.observations(upto=j + 1), self.state.deployed())
+        view = make_view(self.problem, j, self.state.planning_observations(j), self.state.deployed())
         t0 = time.perf_counter()
         choice = enforce(view, self.planner.decide(view, stage_rng(self.seed, j)))
         planning_ms = (time.perf_counter() - t0) * 1e3
@@ -399,6 +374,12 @@ class Coordinator:
             if self.config.realtime > 0 and last_published is not None:
                 # Paced like the carriers: Δt / realtime after the previous decision went out.
                 self._wait(last_published + self.scenario.stage_interval / self.config.realtime - time.monotonic())
+            if j > 0 and not self.state.live:
+                # Nobody to decide for (cut off, or every carrier gone): deciding now would only
+                # record empty stages the carriers decide themselves. Hold until one is back (its
+                # Hello says where it is), at most the join timeout.
+                self.log(f"coordinator: no carrier is live; holding stage {j} (at most {self.config.join_timeout_s:.0f} s)")
+                self._wait(self.config.join_timeout_s, lambda: bool(self.state.live))
             opened = time.monotonic()
             self._wait(self.config.stage_timeout_s, lambda: self.state.stage_complete(j))
             if self._stop.is_set():
@@ -502,9 +483,9 @@ class Coordinator:
 
     def _render(self, path: Path) -> None:
         st = self.state
-        deployments = [world.Deployment(cid, self.spec.stage_times[j], tuple(c.position))
-                       for (cid, j), c in sorted(st.confirms.items(), key=lambda kv: (kv[0][1], kv[0][0]))
-                       if c.deployed]
+        actual = st.confirmed_deployments()
+        deployments = [world.Deployment(cid, self.spec.stage_times[j], st.deployment_position(cid, j))
+                       for j in range(self.n_stages) for r, cid in enumerate(self.ids) if actual[r, j]]
         trajectories = {cid: np.asarray(pts, dtype=float).reshape(-1, 2) for cid, pts in st.trails.items() if pts}
         try:
             world.render_map(self.scenario, str(path), deployments=deployments, trajectories=trajectories,

@@ -13,7 +13,8 @@ anyway, its transaction is rolled back and the connection is usable again.
 Tables:
 
 * ``meta(key, value)`` — mission identity (mission id, scenario name and hash, seed, planner).
-* ``events(seq, wall_time, kind, carrier, stage, payload)`` — every event in arrival order;
+* ``events(seq, wall_time, kind, carrier, stage, payload)`` — every event in arrival order
+  (``own``: a carrier's account of a stage it decided itself);
   append-only (triggers forbid UPDATE and DELETE). ``payload`` is JSON.
 * ``observations(carrier, stage, ...)``, ``decisions(stage, ...)``, ``confirmations(carrier,
   stage, ...)`` — typed copies of the first event of each kind per key; their primary keys make a
@@ -72,7 +73,7 @@ CREATE TABLE IF NOT EXISTS confirmations (
 #: Event kinds written to ``events``.
 EVENT_KINDS = (
     "open", "hello", "alive", "dead", "observation", "missing", "decision", "published",
-    "confirm", "bye", "rejected", "end",
+    "confirm", "own", "bye", "rejected", "end",
 )
 
 
@@ -295,6 +296,9 @@ class MissionStore:
             self.confirmation(e.carrier, e.stage, e.deployed, e.status, e.position,
                               state.confirms[(e.carrier, e.stage)].latency_ms, wall_time=e.at,
                               passengers_left=e.passengers_left)
+        elif isinstance(e, ev.Accounted):
+            self.event("own", e.carrier, e.stage, wall_time=e.at, t=e.t, x=e.x, deployed=e.deployed,
+                       position=list(e.position), passengers_left=e.passengers_left)
         elif isinstance(e, ev.Bye):
             self.event("bye", e.carrier, None, wall_time=e.at, reason=e.reason, rejected=dict(e.rejected),
                        deployments=list(e.deployments))
@@ -366,6 +370,8 @@ _EVENT_FROM_ROW = {
     "published": lambda cid, stage, p, at: ev.Published(stage, at),
     "confirm": lambda cid, stage, p, at: ev.Confirmed(
         cid, stage, p["deployed"], p["status"], _point(p["position"]), p.get("passengers_left", 0), at),
+    "own": lambda cid, stage, p, at: ev.Accounted(
+        cid, stage, p["t"], p["x"], p["deployed"], _point(p["position"]), p["passengers_left"], at),
     "bye": lambda cid, stage, p, at: ev.Bye(
         cid, tuple(p.get("deployments", ())), tuple(sorted(p.get("rejected", {}).items())), p["reason"], at),
     "end": lambda cid, stage, p, at: ev.Ended(p["reason"], at),

@@ -13,7 +13,13 @@ position at that moment) and carries out the effects in order (:class:`Deploy` b
   carrier is then *behind*: it reaches the stage at once and publishes no Observation);
 * a selected carrier deploys if it is scheduled at the stage and has a passenger left, else it
   answers ``refused``;
-* when the coordinator comes back, the carrier resynchronises from State (:class:`Resync`).
+* when no decision comes in time (or the coordinator is gone) the carrier decides the stage
+  itself (:class:`DecidedOwn`, its on-board planner's choice): status ``own``, announced in an
+  Own message; a coordinator's decision for that stage arriving later is answered ``already``;
+* every outcome is written to the carrier's durable log (:class:`LogOutcome`) before the carrier
+  acts on it (:class:`Deploy`), and every observation when it is made (:class:`LogObservation`);
+* when the coordinator comes back, the carrier resynchronises from State (:class:`Resync`) and
+  repeats its answers and its own decisions.
 """
 from __future__ import annotations
 
@@ -54,9 +60,21 @@ class DecisionHeard:
 
 @dataclass(frozen=True)
 class Observed:
-    """The carrier published its Observation of ``stage`` and waits for the decision."""
+    """The carrier sensed ``x`` (None = ∅) at ``stage`` at ``position``, published its
+    Observation and waits for the decision."""
 
     stage: int
+    x: int | None = None
+    position: Point = (0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class DecidedOwn:
+    """No decision of ``stage`` came in time: the carrier's own planner says ``deploy``."""
+
+    stage: int
+    deploy: bool
+    position: Point
 
 
 @dataclass(frozen=True)
@@ -117,6 +135,38 @@ class SendConfirm:
 
 
 @dataclass(frozen=True)
+class SendOwn:
+    """Publish an Own message: the carrier decided ``stage`` itself."""
+
+    stage: int
+    x: int | None
+    deployed: bool
+    position: Point
+    passengers_left: int
+
+
+@dataclass(frozen=True)
+class LogObservation:
+    """Write the observation of ``stage`` to the carrier's durable log."""
+
+    stage: int
+    x: int | None
+    position: Point
+
+
+@dataclass(frozen=True)
+class LogOutcome:
+    """Write how ``stage`` was resolved to the durable log; comes before the :class:`Deploy` and
+    the message that report it."""
+
+    stage: int
+    status: str
+    deployed: bool
+    position: Point
+    passengers_left: int
+
+
+@dataclass(frozen=True)
 class SendHello:
     """Publish Hello with ``next_stage`` (where the carrier goes on from)."""
 
@@ -146,12 +196,18 @@ class Log:
 
 @dataclass(frozen=True)
 class Answer:
-    """A carrier's (first) answer to one stage's decision."""
+    """A carrier's (first) answer to one stage's decision (``status`` ``own``: it decided the
+    stage itself, having observed ``x``)."""
 
     deployed: bool
     status: str
     position: Point
     passengers_left: int
+    x: int | None = None
+
+    @property
+    def own(self) -> bool:
+        return self.status == "own"
 
 
 #: Largest accepted difference between a Decision's ``t`` and the stage time, seconds.
@@ -172,6 +228,7 @@ class CarrierState:
         latest_decided: the highest stage a Decision was heard for (-1: none).
         state_next: the coordinator's next_stage, as last learnt from State.
         pending: the stage of the Observation waiting for its decision, or None.
+        sensed: what the carrier observed at ``pending`` (None = ∅).
         ended: End was heard (or State says the mission ended).
     """
 
@@ -186,6 +243,7 @@ class CarrierState:
     latest_decided: int = -1
     state_next: int = 0
     pending: int | None = None
+    sensed: int | None = None
     ended: bool = False
 
     @property
@@ -244,9 +302,11 @@ def _answer(state: CarrierState, j: int, deploy, position: Point, allow: bool):
     else:
         status, deployed = "deployed", True
         left -= 1
+    answer = Answer(deployed, status, (float(position[0]), float(position[1])), left)
+    effects.append(LogOutcome(j, status, deployed, answer.position, left))
+    if deployed:
         effects.append(Deploy(j))
         effects.append(Log(f"deployed a passenger at stage {j} at ({position[0]:.1f}, {position[1]:.1f}) m"))
-    answer = Answer(deployed, status, (float(position[0]), float(position[1])), left)
     effects.append(SendConfirm(j, deployed, status, answer.position, left))
     new = dataclasses.replace(state, passengers_left=left, handled={**state.handled, j: answer},
                               buffered={k: v for k, v in state.buffered.items() if k != j})
@@ -301,7 +361,28 @@ def _on_decision(state: CarrierState, e: DecisionHeard):
 
 
 def _on_observed(state: CarrierState, e: Observed):
-    return dataclasses.replace(state, stage=e.stage, pending=e.stage), ()
+    x = e.x if state.valid[e.stage] else None
+    return (dataclasses.replace(state, stage=e.stage, pending=e.stage, sensed=x),
+            (LogObservation(e.stage, x, (float(e.position[0]), float(e.position[1]))),))
+
+
+def _on_decided_own(state: CarrierState, e: DecidedOwn):
+    """The carrier's own decision of the stage it waits at: at most once per stage, like a
+    coordinator's; a deployment it cannot make (no passenger, not scheduled) is not made."""
+    j = e.stage
+    if j in state.handled or state.pending != j or state.resolved(j):
+        return state, ()
+    left = state.passengers_left
+    deployed = bool(e.deploy) and left > 0 and state.valid[j]
+    left -= int(deployed)
+    position = (float(e.position[0]), float(e.position[1]))
+    answer = Answer(deployed, "own", position, left, state.sensed)
+    effects = [LogOutcome(j, "own", deployed, position, left)]
+    if deployed:
+        effects += [Deploy(j), Log(f"deployed a passenger at stage {j} on its own at ({position[0]:.1f}, "
+                                   f"{position[1]:.1f}) m")]
+    effects.append(SendOwn(j, state.sensed, deployed, position, left))
+    return dataclasses.replace(state, passengers_left=left, handled={**state.handled, j: answer}), tuple(effects)
 
 
 def _on_passed(state: CarrierState, e: Passed):
@@ -345,7 +426,8 @@ def _on_resync(state: CarrierState, e: Resync):
         effects.append(ResendObservation(new.pending))
     for j in sorted(new.handled):
         if j >= new.joined:
-            effects.append(_already(new, j))
+            a = new.handled[j]
+            effects.append(SendOwn(j, a.x, a.deployed, a.position, a.passengers_left) if a.own else _already(new, j))
     return new, tuple(_dedupe(effects))
 
 
@@ -366,5 +448,5 @@ def _on_end(state: CarrierState, e: EndHeard):
 
 _HANDLERS = {
     Replayed: _on_replayed, Joined: _on_joined, DecisionHeard: _on_decision, Observed: _on_observed,
-    Passed: _on_passed, MovedOn: _on_moved_on, Resync: _on_resync, EndHeard: _on_end,
+    Passed: _on_passed, MovedOn: _on_moved_on, Resync: _on_resync, EndHeard: _on_end, DecidedOwn: _on_decided_own,
 }

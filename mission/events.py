@@ -93,6 +93,23 @@ class Confirmed:
 
 
 @dataclass(frozen=True)
+class Accounted:
+    """A carrier's own account of a stage it decided without the coordinator (an Own message,
+    or an entry of its durable log read back by the report): what it observed (``x``, None = ∅)
+    and whether it released a passenger there. A carrier's account is the truth about what it
+    did: it overrides a decision it may never have received."""
+
+    carrier: str
+    stage: int
+    t: float
+    x: int | None
+    deployed: bool
+    position: Point
+    passengers_left: int
+    at: float = 0.0
+
+
+@dataclass(frozen=True)
 class Bye:
     """A carrier's Bye: the stages it deployed at, its rejection counts, why it exits."""
 
@@ -111,4 +128,5 @@ class Ended:
     at: float = 0.0
 
 
-Event = Opened | Hello | Observation | LivelinessChanged | Decided | Published | Confirmed | Bye | Ended
+Event = (Opened | Hello | Observation | LivelinessChanged | Decided | Published | Confirmed | Accounted | Bye
+         | Ended)

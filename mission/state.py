@@ -17,7 +17,12 @@ Mission rules applied here (docs/protocol.md, "Stage handshake" and "Rejections"
   ``stale-stage``, later ones ``future-stage`` (rejected, never held), repeats ``duplicate``;
   its ``t`` must be the stage time within :data:`T_TOLERANCE_S`;
 * a Confirm of a stage not decided yet is ``stale-stage``; a repeat with the same outcome (or
-  ``already``) is absorbed, a contradicting repeat is ``duplicate`` (the first one stands).
+  ``already``) is absorbed, a contradicting repeat is ``duplicate`` (the first one stands);
+* an Own message (a carrier's account of a stage it decided without the coordinator) is the
+  truth about what that carrier did there, whichever stage the coordinator is at; a carrier
+  that has passed a stage (its account, or its Hello says it goes on from a later one) is
+  neither waited for nor planned at that stage. What the planner takes as deployed is, per
+  carrier and stage: its account, else its Confirm, else the decision (:meth:`deployed`).
 
 The state is immutable by convention: :func:`step` never changes the state it is given (it
 builds new dicts for the fields it changes), so two states can be compared with ``==``.
@@ -25,6 +30,7 @@ builds new dicts for the fields it changes), so two states can be compared with 
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -101,6 +107,16 @@ class ConfirmRecord:
 
 
 @dataclass(frozen=True)
+class AccountRecord:
+    """A carrier's account of a stage it decided itself (:class:`mission.events.Accounted`)."""
+
+    x: int | None
+    deployed: bool
+    position: tuple[float, float]
+    passengers_left: int
+
+
+@dataclass(frozen=True)
 class MissionState:
     """Everything the coordinator knows about a mission. Built by :func:`initial` and
     :func:`step` only.
@@ -119,6 +135,8 @@ class MissionState:
         next_stage: first undecided stage (stages are decided in order).
         published_at: stage -> when its decision was published in this process (s, epoch).
         confirms: (carrier, stage) -> :class:`ConfirmRecord` (the first one).
+        accounts: (carrier, stage) -> :class:`AccountRecord` of the stages carriers decided
+            themselves.
         byes: carriers that said Bye since their last accepted Hello.
         carrier_rejected: carrier -> its rejection counts, from its last Bye.
         ended, end_reason: End was published (``complete`` or ``stopped``).
@@ -137,6 +155,7 @@ class MissionState:
     next_stage: int = 0
     published_at: dict = field(default_factory=dict)
     confirms: dict = field(default_factory=dict)
+    accounts: dict = field(default_factory=dict)
     byes: frozenset = frozenset()
     carrier_rejected: dict = field(default_factory=dict)
     ended: bool = False
@@ -147,10 +166,18 @@ class MissionState:
     def resumed(self) -> bool:
         return self.opens > 1
 
+    def passed(self, cid: str, j: int) -> bool:
+        """Carrier ``cid`` is past stage j without the coordinator: it decided j itself, or its
+        latest Hello says it goes on from a later stage."""
+        info = self.accepted.get(cid)
+        return (cid, j) in self.accounts or (info is not None and info.next_stage > j)
+
     def expected(self, j: int) -> frozenset:
-        """Carriers the coordinator waits for at stage j: live, Hello accepted, scheduled at j."""
+        """Carriers the coordinator waits for at stage j: live, Hello accepted, scheduled at j,
+        not past it."""
         return frozenset(cid for r, cid in enumerate(self.spec.carriers)
-                         if self.spec.valid[r][j] and cid in self.live and cid in self.accepted)
+                         if self.spec.valid[r][j] and cid in self.live and cid in self.accepted
+                         and not self.passed(cid, j))
 
     def waiting(self, j: int) -> frozenset:
         """Expected carriers whose Observation of j has not arrived."""
@@ -173,9 +200,12 @@ class MissionState:
 
     # ------------------------------------------------------------------ the planner's inputs
     def observation(self, r: int, j: int) -> float:
-        """x of carrier r at stage j as the planner sees it (NaN = ∅: unscheduled, missing or
-        not reported)."""
-        value = self.reported.get((self.spec.carriers[r], j))
+        """x of carrier r at stage j (NaN = ∅: unscheduled, missing or not reported), from its
+        Observation or else its account."""
+        cid = self.spec.carriers[r]
+        value = self.reported.get((cid, j))
+        if value is None and (cid, j) in self.accounts:
+            value = self.accounts[(cid, j)].x
         return float(value) if value is not None and self.spec.valid[r][j] else float("nan")
 
     def observations(self, upto: int | None = None) -> np.ndarray:
@@ -188,6 +218,15 @@ class MissionState:
                 x[r, j] = self.observation(r, j)
         return x
 
+    def planning_observations(self, j: int) -> np.ndarray:
+        """The planner's observations at stage j: those of stages ``<= j``, with the carriers past
+        j (:meth:`passed`) as ∅ there (they decided it themselves, or never will see it)."""
+        x = self.observations(upto=j + 1)
+        for r, cid in enumerate(self.spec.carriers):
+            if self.passed(cid, j):
+                x[r, j] = np.nan
+        return x
+
     def decided(self) -> np.ndarray:
         """bool ``[R, N]``: deployments decided."""
         out = np.zeros((len(self.spec.carriers), self.spec.n_stages), dtype=bool)
@@ -196,25 +235,41 @@ class MissionState:
                 out[self.spec.index(cid), j] = True
         return out
 
-    def refuted(self) -> np.ndarray:
-        """bool ``[R, N]``: decided deployments a Confirm says did not happen."""
-        out = np.zeros((len(self.spec.carriers), self.spec.n_stages), dtype=bool)
+    def deployed(self) -> np.ndarray:
+        """bool ``[R, N]``: the planner's view of the past: per carrier and stage its account,
+        else its Confirm, else the decision (a decision nobody answered is taken as done)."""
+        out = self.decided()
         for (cid, j), c in self.confirms.items():
-            if not c.deployed and cid in self.decisions.get(j, DecisionRecord((), 0.0)).deploy:
-                out[self.spec.index(cid), j] = True
+            out[self.spec.index(cid), j] = c.deployed
+        for (cid, j), a in self.accounts.items():
+            out[self.spec.index(cid), j] = a.deployed
         return out
 
-    def deployed(self) -> np.ndarray:
-        """bool ``[R, N]``: decisions not refuted by a Confirm (the planner's view of the past)."""
-        return self.decided() & ~self.refuted()
+    def deployments_of(self, cid: str) -> list[int]:
+        """Stages of carrier ``cid``'s deployments as :meth:`deployed` sees them, O(N)."""
+        out = []
+        for j in range(self.spec.n_stages):
+            record = self.accounts.get((cid, j)) or self.confirms.get((cid, j))
+            if (record.deployed if record is not None
+                    else j in self.decisions and cid in self.decisions[j].deploy):
+                out.append(j)
+        return out
 
     def confirmed_deployments(self) -> np.ndarray:
-        """bool ``[R, N]``: deployments decided and confirmed (what summary.json counts)."""
+        """bool ``[R, N]``: deployments a carrier reported, by its account or its Confirm (what
+        summary.json counts)."""
         out = np.zeros((len(self.spec.carriers), self.spec.n_stages), dtype=bool)
         for (cid, j), c in self.confirms.items():
-            if c.deployed and cid in self.decisions.get(j, DecisionRecord((), 0.0)).deploy:
+            if c.deployed and (cid, j) not in self.accounts:
                 out[self.spec.index(cid), j] = True
+        for (cid, j), a in self.accounts.items():
+            out[self.spec.index(cid), j] = a.deployed
         return out
+
+    def deployment_position(self, cid: str, j: int) -> tuple[float, float]:
+        """Where carrier ``cid`` released its passenger of stage j (from its account or Confirm)."""
+        record = self.accounts.get((cid, j)) or self.confirms[(cid, j)]
+        return tuple(record.position)
 
     def passengers_left(self) -> np.ndarray:
         return np.asarray(self.spec.passengers) - self.deployed().sum(axis=1)
@@ -222,8 +277,12 @@ class MissionState:
     def missing_stages(self, cid: str) -> list[int]:
         """Scheduled, decided stages where the carrier was ∅ (no Observation, or x = nil)."""
         r = self.spec.index(cid)
-        return [j for j in range(self.next_stage) if self.spec.valid[r][j]
-                and ((cid, j) in self.missing or ((cid, j) in self.reported and self.reported[(cid, j)] is None))]
+        return [j for j in range(self.next_stage) if self.spec.valid[r][j] and math.isnan(self.observation(r, j))
+                and ((cid, j) in self.missing or (cid, j) in self.reported or (cid, j) in self.accounts)]
+
+    def own_stages(self, cid: str) -> list[int]:
+        """Stages carrier ``cid`` decided itself (it has an account of them)."""
+        return sorted(j for (c, j) in self.accounts if c == cid)
 
     def latencies_ms(self) -> list[float]:
         return [c.latency_ms for c in self.confirms.values()
@@ -431,6 +490,13 @@ def _on_confirmed(state: MissionState, e: ev.Confirmed):
         return state, bad
     if j >= state.next_stage:
         return state, (Reject("stale-stage", f"confirmation of carrier {cid} for undecided stage {j}"),)
+    account = state.accounts.get((cid, j))
+    if account is not None and (cid, j) not in state.confirms:
+        if e.deployed == account.deployed:
+            # Its answer to a decision of a stage it had decided itself (``already``): on record.
+            record = ConfirmRecord(bool(e.deployed), e.status, tuple(e.position), int(e.passengers_left), None)
+            return _replace(state, confirms={**state.confirms, (cid, j): record}), (Record(e, j),)
+        return state, (Reject("duplicate", f"confirmation of carrier {cid} at stage {j} contradicts its account"),)
     first = state.confirms.get((cid, j))
     if first is not None:
         if e.status == "already" or e.deployed == first.deployed:
@@ -445,6 +511,36 @@ def _on_confirmed(state: MissionState, e: ev.Confirmed):
     if e.deployed and not selected:
         effects.append(Log(f"coordinator: carrier {cid} reports an unrequested deployment at stage {j}"))
     return _replace(state, confirms={**state.confirms, (cid, j): record}), tuple(effects)
+
+
+def _on_accounted(state: MissionState, e: ev.Accounted):
+    cid, j = e.carrier, e.stage
+    bad = (_unknown(state, cid)
+           or (j >= state.spec.n_stages and (Reject("out-of-range", f"stage {j} >= {state.spec.n_stages}"),))
+           or _check_time(state, e)
+           or _no_hello(state, cid, "own decision"))
+    if bad:
+        return state, bad
+    r = state.spec.index(cid)
+    if e.deployed and not state.spec.valid[r][j]:
+        return state, (Reject("out-of-range", f"carrier {cid} accounts a deployment at stage {j}, where it is not "
+                                              f"scheduled"),)
+    record = AccountRecord(e.x if state.spec.valid[r][j] else None, bool(e.deployed), tuple(e.position),
+                           int(e.passengers_left))
+    first = state.accounts.get((cid, j))
+    if first is not None:
+        if first == record:
+            return state, ()  # repeated at a resynchronisation: nothing new
+        return state, (Reject("duplicate", f"second account of carrier {cid} at stage {j}"),)
+    confirm = state.confirms.get((cid, j))
+    if confirm is not None and confirm.deployed != record.deployed:
+        return state, (Reject("duplicate", f"account of carrier {cid} at stage {j} contradicts its confirmation"),)
+    effects = [Record(e, j)]
+    if e.deployed:
+        effects.append(Log(f"coordinator: carrier {cid} deployed on its own at stage {j}"))
+    new = _replace(state, accounts={**state.accounts, (cid, j): record},
+                   positions={**state.positions, (cid, j): tuple(e.position)})
+    return new, tuple(effects)
 
 
 def _on_bye(state: MissionState, e: ev.Bye):
@@ -465,5 +561,5 @@ def _on_ended(state: MissionState, e: ev.Ended):
 _HANDLERS = {
     ev.Opened: _on_opened, ev.Hello: _on_hello, ev.Observation: _on_observation,
     ev.LivelinessChanged: _on_liveliness, ev.Decided: _on_decided, ev.Published: _on_published,
-    ev.Confirmed: _on_confirmed, ev.Bye: _on_bye, ev.Ended: _on_ended,
+    ev.Confirmed: _on_confirmed, ev.Accounted: _on_accounted, ev.Bye: _on_bye, ev.Ended: _on_ended,
 }

@@ -72,16 +72,17 @@ def summary(state: MissionState, problem, run: RunInfo, bound: bool = True) -> d
     for r, cid in enumerate(spec.carriers):
         deps = []
         for j in np.flatnonzero(actual[r]):
-            c = state.confirms[(cid, int(j))]
             deps.append({"stage": int(j), "t": spec.stage_times[int(j)],
                          "x": None if math.isnan(x[r, j]) else float(x[r, j]),
-                         "position": list(c.position),
+                         "position": list(state.deployment_position(cid, int(j))),
+                         "by": "carrier" if (cid, int(j)) in state.accounts else "coordinator",
                          "reward": float(raw[r, j] / problem.scale), "features": float(raw[r, j])})
         info = state.accepted.get(cid)
         carriers.append({
             "id": cid, "pid": info.pid if info else None, "host": info.host if info else None,
             "passengers": spec.passengers[r], "deployments": deps,
             "decided_stages": [int(j) for j in np.flatnonzero(decided[r])],
+            "own_stages": state.own_stages(cid),
             "missing_stages": state.missing_stages(cid),
             "live_at_end": cid in state.live,
             "rejected": dict(state.carrier_rejected.get(cid, {})),

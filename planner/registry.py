@@ -233,6 +233,24 @@ def make_planner(name: str, **options) -> object:
     return planner
 
 
+def planner_settings(scenario, name=None, iterations=None, plan_ms=None, extra=()) -> tuple[str, dict]:
+    """(planner name, options for make_planner): the scenario's (``scenario.planner``), overridden
+    by non-None flags.
+
+    An explicit ``iterations`` flag drops the scenario's ``plan_ms`` (which would take
+    precedence), so ``--iterations`` always means an iteration budget.
+    """
+    spec = scenario.planner
+    options = dict(spec.options())
+    if iterations is not None:
+        options["iterations"] = int(iterations)
+        options.pop("plan_ms", None)
+    if plan_ms is not None:
+        options["plan_ms"] = float(plan_ms)
+    options.update(dict(extra))  # --planner-option KEY=VALUE (checked by planner.registry)
+    return (name or spec.name), options
+
+
 def used_options(name: str, options: Mapping[str, Any]) -> dict[str, Any]:
     """The options planner ``name`` uses, checked: the others, and ``None`` values, are dropped.
 

@@ -62,7 +62,7 @@ def rebuild(run_dir, scenario_path: str | None = None, out: str | None = None, p
         The path written.
     """
     import world
-    from coordinator.node import build_problem
+    from world import build_problem
     from coordinator.store import load_events
     from recording.mcap import McapRecorder
     from wire.messages import Pose

@@ -10,7 +10,9 @@ import numpy as np
 
 import world
 from carriers.node import Carrier, CarrierConfig
-from coordinator.node import Coordinator, CoordinatorConfig, build_problem, planner_settings
+from coordinator.node import Coordinator, CoordinatorConfig
+from planner.registry import planner_settings
+from world import build_problem
 from planner.registry import make_planner
 from planner.problem import run_online
 from wire.zconfig import free_port, make_config

@@ -19,12 +19,13 @@ import numpy as np
 import pytest
 
 import world
-from coordinator.node import build_problem, planner_settings
+from world import build_problem
+from planner.registry import planner_settings
 from planner.registry import make_planner
 from planner.problem import run_online
 from wire.zconfig import free_port
 
-import netns
+from tools import netns
 from fleet_helpers import ROOT, db_rows, deployed_matrix
 
 #: Marked slow (faults over real processes and network namespaces: about a minute): run by .ci/run after the default suite.
@@ -110,7 +111,7 @@ class Fleet:
 
     def carrier(self, cid, name=None, host=None, extra=()):
         return self.start(name or cid, ["--role", "carrier", "--carrier", cid, "--connect", self.endpoint,
-                                        "--quiet"], host, extra)
+                                        "--out", str(self.out), "--quiet"], host, extra)
 
     def output(self) -> str:
         return "\n".join(f"--- {p.name}\n{p.read_text()[-3000:]}" for p in sorted(self.logs.glob("*.log")))
@@ -210,7 +211,7 @@ def test_coordinator_sigkill_and_restart_recovers_from_mission_db(scenario_file,
     try:
         fleet.coordinator("coordinator-1")
         for cid in scenario.carrier_ids:
-            fleet.carrier(cid)
+            fleet.carrier(cid, extra=["--no-autonomy"])  # they hold: the recovery is mission.db's alone
         fleet.poll("stage 2 decided", lambda: fleet.decided() >= 2)
         killed_at = fleet.kill("coordinator-1")
         before = dict(fleet.rows("SELECT stage, deploy FROM decisions"))
@@ -315,8 +316,8 @@ _NO_NETNS = netns.unavailable()
 
 @pytest.mark.skipif(_NO_NETNS is not None, reason=f"network namespaces unavailable: {_NO_NETNS}")
 def test_network_partition_of_a_carrier(tmp_path):
-    """Coordinator, carrier a and carrier b on three hosts (network namespaces); a's link goes
-    down for 6 s after stage 2, then up. Zenoh's lease is 3 s here and clients retry every second
+    """Coordinator, carrier a and carrier b on three hosts (network namespaces), carriers that
+    never decide on their own (--no-autonomy); a's link goes down for 6 s after stage 2, then up. Zenoh's lease is 3 s here and clients retry every second
     at most (a --zenoh-config file), so the cut outlasts the lease: a's token vanishes, a's
     session reconnects after the cut and resynchronises. The mission completes; the stages decided while a was cut off are ∅ for a;
     nothing is deployed twice; a joins the first undecided stage at once (no lagging behind)."""
@@ -334,8 +335,8 @@ def test_network_partition_of_a_carrier(tmp_path):
         fleet = Fleet(scenario_file, tmp_path / "run", f"tcp/{coordinator_host.ip}:7447")
         try:
             fleet.coordinator(host=coordinator_host, extra=["--stage-timeout", "1.5", *lease])
-            fleet.carrier("a", host=host_a, extra=lease)
-            fleet.carrier("b", host=host_b, extra=lease)
+            fleet.carrier("a", host=host_a, extra=[*lease, "--no-autonomy"])
+            fleet.carrier("b", host=host_b, extra=[*lease, "--no-autonomy"])
             fleet.poll("stage 2 decided", lambda: fleet.decided() >= 2)
             cut_at = time.time()
             host_a.link(False)

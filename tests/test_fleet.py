@@ -140,7 +140,9 @@ class _Crash(Exception):
 def test_restarted_coordinator_recovers_from_mission_db(tiny, tmp_path):
     """The coordinator dies after committing stage 1's decision but before publishing it; a new
     coordinator on the same results directory replays mission.db, re-publishes that decision and
-    finishes the mission exactly as the offline planner would."""
+    finishes the mission exactly as the offline planner would. (Carriers that hold while the
+    coordinator is away, ``coordinated``: hybrid carriers would go on without it, see
+    test_hybrid.py.)"""
     from coordinator.node import Coordinator, CoordinatorConfig
     from wire.zconfig import make_config
 
@@ -155,7 +157,7 @@ def test_restarted_coordinator_recovers_from_mission_db(tiny, tmp_path):
     crashing._publish_decision = publish_or_crash
     fleet._spawn("crashed", lambda: pytest.raises(_Crash, crashing.run))
     for cid in tiny.carrier_ids:
-        fleet.start_carrier(cid)
+        fleet.start_carrier(cid, mode="coordinated")
     fleet.threads[0].join(30)
     assert crashing.next_stage == 2 and not crashing.ended
     time.sleep(0.5)

@@ -16,7 +16,7 @@ import pytest
 import world
 from wire.zconfig import free_port
 
-import netns
+from tools import netns
 from fleet_helpers import ROOT, TINY, alive, db_rows, deployed_matrix, offline
 
 RUN_FLEET = str(ROOT / "run_fleet.py")
@@ -172,7 +172,7 @@ def test_ctrl_c_stops_every_process_cleanly(tiny, tmp_path):
     try:
         lines = _read_until(proc, f"stage   1/{tiny.stages}", 120)
         pids = [int(p) for p in re.findall(r"pid (\d+)", "".join(lines))]
-        assert len(pids) == 1 + tiny.n_carriers
+        assert len(pids) == 2 + tiny.n_carriers  # the router, the coordinator, the carriers
         os.killpg(proc.pid, signal.SIGINT)
         rest, _ = proc.communicate(timeout=30)
     finally:

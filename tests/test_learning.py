@@ -187,7 +187,7 @@ def test_scenario_planner_block_takes_learn_prior(tmp_path):
 
 
 def test_run_fleet_and_coordinator_take_learn_prior():
-    from coordinator.node import planner_settings
+    from planner.registry import planner_settings
 
     scenario = world.load_scenario(ROOT / "scenarios" / "tiny.yaml")
     name, options = planner_settings(scenario, "closed-loop", 50, None, (parse_option("learn_prior=true"),))

@@ -96,7 +96,7 @@ def test_run_fleet_takes_planner_options_from_the_registry():
 
 
 def test_planner_settings_apply_planner_options(tmp_path):
-    from coordinator.node import planner_settings
+    from planner.registry import planner_settings
 
     scenario = world.load_scenario(ROOT / "scenarios" / "tiny.yaml")
     name, options = planner_settings(scenario, "mcts-ssap", 50, None, (("layout", "binary"),))

@@ -370,8 +370,8 @@ def offline_decisions(x_override=None) -> tuple[list[list[str]], list]:
     import numpy as np
 
     import world
-    from coordinator.node import build_problem, planner_settings
-    from planner.registry import make_planner
+    from world import build_problem
+    from planner.registry import make_planner, planner_settings
     from planner.problem import run_online
 
     scenario = world.load_scenario(str(TINY))

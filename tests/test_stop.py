@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 import world
-from coordinator.node import build_problem
+from world import build_problem
 from coordinator.store import load_events
 from mission import events as ev
 from mission import state as ms

@@ -183,7 +183,7 @@ class Viewer:
     def run(self) -> int:
         import rerun as rr
 
-        from coordinator.node import build_problem
+        from world import build_problem
         from viewer.rerun_view import RerunView, blueprint
         from wire.transport import Node
         from wire.zconfig import OpenStopped

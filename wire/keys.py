@@ -6,6 +6,7 @@ Layout (``<m>`` = mission id, ``<id>`` = carrier id)::
     marsupial/<m>/carrier/<id>/obs        carrier -> coordinator   Observation (put)
     marsupial/<m>/carrier/<id>/confirm    carrier -> coordinator   Confirm (put)
     marsupial/<m>/carrier/<id>/bye        carrier -> coordinator   Bye (put)
+    marsupial/<m>/carrier/<id>/own        carrier -> coordinator, carriers   Own (put: a stage it decided itself)
     marsupial/<m>/carrier/<id>/pose       carrier -> viewers       Pose (put, steady rate; the coordinator ignores it)
     marsupial/<m>/carrier/<id>/alive      liveliness token of a carrier
     marsupial/<m>/coordinator/decision    coordinator -> carriers  Decision (put)
@@ -28,7 +29,7 @@ ROOT = "marsupial"
 ID_PATTERN = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}$")
 
 #: The message kinds a carrier publishes under its own subtree.
-CARRIER_TOPICS = ("hello", "obs", "confirm", "bye", "pose")
+CARRIER_TOPICS = ("hello", "obs", "confirm", "own", "bye", "pose")
 
 
 def check_id(value: str, what: str = "id") -> str:
@@ -53,7 +54,7 @@ def prefix(mission: str) -> str:
 
 
 def carrier_key(mission: str, carrier: str, topic: str) -> str:
-    """Key of one carrier topic (``hello``, ``obs``, ``confirm``, ``bye``, ``pose``)."""
+    """Key of one carrier topic (``hello``, ``obs``, ``confirm``, ``own``, ``bye``, ``pose``)."""
     assert topic in CARRIER_TOPICS, topic
     return f"{prefix(mission)}/carrier/{check_id(carrier, 'carrier')}/{topic}"
 

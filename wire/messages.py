@@ -262,6 +262,34 @@ class Confirm:
 
 
 @dataclass(frozen=True)
+class Own:
+    """A carrier's account of a stage it decided itself, with no decision from the coordinator
+    in time (docs/protocol.md, "Deciding without the coordinator"). carrier ->
+    ``carrier/<id>/own``, read by the coordinator and by the other carriers.
+
+    Attributes:
+        carrier: carrier id (must equal the id in the key).
+        stage: the stage it decided.
+        t: the stage's mission time, seconds.
+        x: what it observed there (features), or None (∅: not scheduled).
+        deployed: True if it released a passenger at this stage.
+        position: where (the carrier's position at the stage time), metres.
+        passengers_left: passengers on board after the stage.
+    """
+
+    mission: str = _spec(_ident)
+    carrier: str = _spec(_ident)
+    stage: int = _spec(_STAGE)
+    t: float = _spec(_SECONDS)
+    x: int | None = _spec(_optional(_int(0, 10**9)))
+    deployed: bool = _spec(_bool)
+    position: tuple[float, float] = _spec(_point)
+    passengers_left: int = _spec(_PASSENGERS)
+    v: int = PROTOCOL_VERSION
+    TYPE = "own"
+
+
+@dataclass(frozen=True)
 class End:
     """The mission is over; carriers say Bye and exit. coordinator -> ``coordinator/end``.
 
@@ -395,7 +423,8 @@ class Pose:
     TYPE = "pose"
 
 
-MESSAGE_TYPES = {cls.TYPE: cls for cls in (Hello, Observation, Decision, Confirm, End, Bye, State, Refusal, Pose)}
+MESSAGE_TYPES = {cls.TYPE: cls for cls in (Hello, Observation, Decision, Confirm, Own, End, Bye, State, Refusal,
+                                            Pose)}
 
 
 def fingerprint(value) -> str:

@@ -14,6 +14,15 @@ from world.sim import (
 from world.stages import StageGeometry, stage_geometry
 
 
+def build_problem(scenario, geometry=None):
+    """The planner core's instance of a scenario (:class:`planner.problem.Problem`): schedules,
+    overlaps and prior (the planner is imported here, lazily, for processes that plan)."""
+    from planner.problem import Problem
+
+    geometry = stage_geometry(scenario) if geometry is None else geometry
+    return Problem.build(scenario.passengers, geometry.valid, geometry.overlaps, scenario.prior_distribution())
+
+
 def render_map(scenario, path, deployments=None, trajectories=None, title=None, **kwargs):
     """Draw the map PNG; see :func:`world.render.render_map` (matplotlib is imported lazily)."""
     from world.render import render_map as _render
@@ -22,7 +31,7 @@ def render_map(scenario, path, deployments=None, trajectories=None, title=None, 
 
 
 __all__ = [
-    "Building", "CarrierSpec", "Cluster", "Deployment", "FEATURES_SPAWN_KEY", "FeatureSpec", "MapSpec",
+    "Building", "CarrierSpec", "build_problem", "Cluster", "Deployment", "FEATURES_SPAWN_KEY", "FeatureSpec", "MapSpec",
     "MissionTrace", "PHYSICS_DT", "PlannerSpec", "PriorSpec", "SUBSTEPS", "Scenario", "ScenarioError",
     "Simulation", "StageGeometry", "load_scenario", "observe_all", "parse_scenario", "render_map",
     "sample_features", "simulate_mission", "stage_geometry",

@@ -1,4 +1,5 @@
-"""Separate hosts on one machine: Linux network namespaces joined by a bridge (needs root).
+"""Separate hosts on one machine: Linux network namespaces joined by a bridge (needs root;
+lossy links need iptables).
 
     with netns.hosts(2) as (coord_host, carrier_host):
         proc = coord_host.popen([sys.executable, "run_fleet.py", ...])
@@ -52,6 +53,16 @@ class Host:
     def link(self, up: bool) -> None:
         """Bring this host's link up or down (down = the host is cut off from the others)."""
         _ip("-n", self.switch, "link", "set", self.peer, "up" if up else "down")
+
+    def drop(self, probability: float) -> None:
+        """Drop each packet this host receives with ``probability`` (iptables ``statistic``
+        match in its namespace; ``tc netem`` is not available everywhere); 0 removes the rule."""
+        subprocess.run(["ip", "netns", "exec", self.ns, "iptables", "-F", "INPUT"], capture_output=True, timeout=10,
+                       check=True)
+        if probability > 0:
+            subprocess.run(["ip", "netns", "exec", self.ns, "iptables", "-A", "INPUT", "-m", "statistic", "--mode",
+                            "random", "--probability", f"{probability:g}", "-j", "DROP"],
+                           capture_output=True, text=True, timeout=10, check=True)
 
 
 def unavailable() -> str | None:

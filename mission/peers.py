@@ -1,0 +1,100 @@
+"""What one carrier knows of the fleet's stages from the messages it heard: its input for
+deciding a stage on its own (:class:`planner.decentralised.LocalView`).
+
+A carrier hears the other carriers' Observations (x at each stage), their Own messages (a stage
+they decided themselves: x and whether they deployed), their Confirms (whether they deployed on
+the coordinator's decision) and the coordinator's Decisions (whom it selected). Per carrier b and
+stage t the book keeps x (known once b's Observation or Own arrived) and b's action: its own word
+(Confirm, Own) when heard, else the coordinator's decision (selected: taken as deployed, not
+selected: not deployed). A stage b is not scheduled at is known at once (∅, no deployment).
+
+The book has no clock and does no I/O; the carrier process feeds it (its own observations and
+outcomes too) and asks it for a :class:`LocalView`.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+#: Action codes of :attr:`PeerBook.act`.
+UNKNOWN, FROM_DECISION, FROM_CARRIER = 0, 1, 2
+
+
+class PeerBook:
+    """Observations and deployments of every carrier of a mission, as heard.
+
+    Args:
+        carriers: carrier ids in scenario order (index r).
+        valid: bool ``[R, N]``, carrier r scheduled at stage j.
+    """
+
+    def __init__(self, carriers, valid):
+        self.carriers = tuple(carriers)
+        self.index = {cid: r for r, cid in enumerate(self.carriers)}
+        self.valid = np.asarray(valid, dtype=bool)
+        R, N = self.valid.shape
+        self.x = np.full((R, N), np.nan)
+        self.x_known = ~self.valid.copy()          # unscheduled stages are ∅, known in advance
+        self.deployed = np.zeros((R, N), dtype=bool)
+        self.source = np.where(self.valid, UNKNOWN, FROM_CARRIER).astype(np.int8)
+
+    @property
+    def n_stages(self) -> int:
+        return self.valid.shape[1]
+
+    def observation(self, cid: str, stage: int, x) -> None:
+        """Carrier ``cid`` observed ``x`` (None = ∅) at ``stage``."""
+        r = self.index[cid]
+        if self.valid[r, stage]:
+            self.x[r, stage] = np.nan if x is None else float(x)
+            self.x_known[r, stage] = True
+
+    def outcome(self, cid: str, stage: int, deployed: bool) -> None:
+        """Carrier ``cid`` says whether it deployed at ``stage`` (its Confirm or Own)."""
+        r = self.index[cid]
+        if self.valid[r, stage]:
+            self.deployed[r, stage] = bool(deployed)
+            self.source[r, stage] = FROM_CARRIER
+
+    def decision(self, stage: int, deploy) -> None:
+        """The coordinator's decision of ``stage`` selected ``deploy``; carriers whose own word
+        about the stage is heard already keep it."""
+        selected = np.zeros(len(self.carriers), dtype=bool)
+        for cid in deploy:
+            if cid in self.index:
+                selected[self.index[cid]] = True
+        col = self.source[:, stage] < FROM_CARRIER
+        self.deployed[col, stage] = selected[col]
+        self.source[col, stage] = FROM_DECISION
+
+    def waiting(self, stage: int, among) -> list[str]:
+        """Carriers of ``among`` whose observation of ``stage`` has not been heard."""
+        return [cid for cid in among if not self.x_known[self.index[cid], stage]]
+
+    def local_view(self, problem, carrier: str, stage: int, seed: int):
+        """Carrier ``carrier``'s :class:`~planner.decentralised.LocalView` of ``stage``: per other
+        carrier, its observations up to the first one not heard and its deployments up to the
+        first stage whose action is unknown; its own row through ``stage`` (observations) and
+        ``stage - 1`` (deployments), which it must have fed in."""
+        from planner.decentralised import LocalView
+
+        r, j = self.index[carrier], int(stage)
+        R, N = self.valid.shape
+        seen = _prefix(self.x_known)
+        record = _prefix(self.source > UNKNOWN)
+        seen = np.minimum(seen, j + 1)
+        record = np.minimum(record, j)
+        seen[r], record[r] = j + 1, j
+        stages = np.arange(N)
+        obs = np.where(stages[None, :] < seen[:, None], self.x, np.nan)
+        dep = self.deployed & (stages[None, :] < record[:, None])
+        return LocalView(problem, r, j, int(seed), obs, dep, seen.astype(np.int64), record.astype(np.int64),
+                         (None,) * R)
+
+
+def _prefix(known: np.ndarray) -> np.ndarray:
+    """int ``[R]``: per row, the length of the leading run of True."""
+    out = np.full(known.shape[0], known.shape[1], dtype=np.int64)
+    gaps = ~known
+    has = gaps.any(axis=1)
+    out[has] = np.argmax(gaps[has], axis=1)
+    return out
