@@ -38,7 +38,8 @@ import numpy as np
 
 import world
 from planner.registry import make_planner, planner_settings, used_options
-from planner.problem import enforce, make_view, stage_rng
+from planner.passengers import release
+from planner.problem import enforce, fill_releases, make_view, stage_rng
 from coordinator.store import MissionStore
 from mission import events as ev
 from mission import state as ms
@@ -98,7 +99,8 @@ def to_event(msg, at: float):
     if isinstance(msg, Observation):
         return ev.Observation(msg.carrier, msg.stage, msg.t, msg.x, msg.position, msg.passengers_left, msg.trail, at)
     if isinstance(msg, Confirm):
-        return ev.Confirmed(msg.carrier, msg.stage, msg.deployed, msg.status, msg.position, msg.passengers_left, at)
+        return ev.Confirmed(msg.carrier, msg.stage, msg.deployed, msg.status, msg.position, msg.passengers_left, at,
+                            msg.passenger)
     if isinstance(msg, Own):
         return ev.Accounted(msg.carrier, msg.stage, msg.t, msg.x, msg.deployed, msg.position, msg.passengers_left, at)
     if isinstance(msg, Bye):
@@ -174,7 +176,7 @@ class Coordinator:
 
     def _decision(self, j: int) -> Decision:
         d = self.state.decisions[j]
-        return Decision(self.mission, j, self.spec.stage_times[j], d.deploy, d.planning_ms)
+        return Decision(self.mission, j, self.spec.stage_times[j], d.deploy, d.planning_ms, d.passengers)
 
     def _refresh_state(self) -> None:
         """From now on State queries answer from the current state (it is stored). O(1): the
@@ -197,7 +199,7 @@ class Coordinator:
         if (st.next_stage - 1) in st.decisions:
             d = st.decisions[st.next_stage - 1]
             last = Decision(self.mission, st.next_stage - 1, self.spec.stage_times[st.next_stage - 1], d.deploy,
-                            d.planning_ms)
+                            d.planning_ms, d.passengers)
         return encode(State(
             mission=self.mission, next_stage=st.next_stage, stages=self.n_stages, fingerprint=self.fingerprint,
             ended=st.ended, carriers=carriers, last_decision=last))
@@ -339,12 +341,16 @@ class Coordinator:
     def state_all_joined(self) -> bool:
         return self.state.all_joined()
 
-    def _plan(self, j: int) -> tuple[tuple[str, ...], float]:
-        view = make_view(self.problem, j, self.state.planning_observations(j), self.state.deployed())
+    def _plan(self, j: int) -> tuple[tuple[str, ...], float, tuple[int, ...]]:
+        """(deploying carrier ids, sorted; planning time, ms; the passenger each releases, parallel)."""
+        view = make_view(self.problem, j, self.state.planning_observations(j), self.state.deployed(),
+                         self.state.releases() if self.problem.weights is not None else None)
         t0 = time.perf_counter()
         choice = enforce(view, self.planner.decide(view, stage_rng(self.seed, j)))
+        who = release(self.planner, view, choice)  # the passenger of each deployment (passenger types)
         planning_ms = (time.perf_counter() - t0) * 1e3
-        return tuple(sorted(self.ids[r] for r in np.flatnonzero(choice))), planning_ms
+        rs = sorted(np.flatnonzero(choice), key=lambda r: self.ids[r])
+        return tuple(self.ids[r] for r in rs), planning_ms, tuple(int(who[r]) for r in rs)
 
     def _publish_decision(self, decision: Decision) -> None:
         self.node.put(keys.decision_key(self.mission), decision)
@@ -384,8 +390,8 @@ class Coordinator:
             self._wait(self.config.stage_timeout_s, lambda: self.state.stage_complete(j))
             if self._stop.is_set():
                 return
-            deploy, planning_ms = self._plan(j)
-            self.apply(ev.Decided(j, deploy, planning_ms, time.time()))  # records, then publishes
+            deploy, planning_ms, passengers = self._plan(j)
+            self.apply(ev.Decided(j, deploy, planning_ms, time.time(), passengers))  # records, then publishes
             last_published = time.monotonic()
             self._progress(j, (last_published - opened) * 1e3 - planning_ms)
             self.pump(0.0)
@@ -479,17 +485,24 @@ class Coordinator:
             scenario=self.scenario.name, scenario_file=str(self.scenario_path), mission=self.mission,
             planner=self.planner_name, planner_options=self.planner_options, seed=self.seed,
             pid=os.getpid(), host=socket.gethostname(), wall_time_s=wall_s,
-            rejected=dict(self.node.rejected) if self.node else {}), bound=bound)
+            rejected=dict(self.node.rejected) if self.node else {},
+            passenger_types=tuple(c.passenger_types for c in self.scenario.carriers)), bound=bound)
 
     def _render(self, path: Path) -> None:
         st = self.state
         actual = st.confirmed_deployments()
         deployments = [world.Deployment(cid, self.spec.stage_times[j], st.deployment_position(cid, j))
                        for j in range(self.n_stages) for r, cid in enumerate(self.ids) if actual[r, j]]
+        labels = None
+        if self.problem.weights is not None:  # passenger types: which type went where
+            released = fill_releases(self.problem, actual, st.releases())
+            labels = [self.scenario.passenger_type(r, int(released[r, j])) or f"#{int(released[r, j])}"
+                      for j in range(self.n_stages) for r, cid in enumerate(self.ids) if actual[r, j]]
         trajectories = {cid: np.asarray(pts, dtype=float).reshape(-1, 2) for cid, pts in st.trails.items() if pts}
         try:
             world.render_map(self.scenario, str(path), deployments=deployments, trajectories=trajectories,
-                             title=f"{self.scenario.name}: {self.planner_name}, seed {self.seed}")
+                             title=f"{self.scenario.name}: {self.planner_name}, seed {self.seed}",
+                             deployment_labels=labels)
         except Exception as exc:
             self.log(f"coordinator: map.png not drawn: {type(exc).__name__}: {exc}")
 

@@ -108,14 +108,11 @@ def urban_world_seed(seed: int, trial: int) -> int:
 
 def _urban_instance(task: Task):
     import world
-    from planner.problem import Problem
 
     key = task.scenario
     if key not in _WORLD_CACHE:
         scenario = world.load_scenario(task.scenario)
-        geo = world.stage_geometry(scenario)
-        problem = Problem.build(scenario.passengers, geo.valid, geo.overlaps, scenario.prior_distribution(),
-                                weights=scenario.passenger_values())
+        problem = world.build_problem(scenario)
         _WORLD_CACHE[key] = (scenario, problem)
     scenario, problem = _WORLD_CACHE[key]
     world_seed = scenario.seed if task.trial == 0 else urban_world_seed(task.seed, task.trial)

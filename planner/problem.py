@@ -181,6 +181,24 @@ def in_order(deployed: np.ndarray) -> np.ndarray:
     return np.where(deployed, np.cumsum(deployed, axis=1) - 1, -1).astype(np.int64)
 
 
+def fill_releases(problem: Problem, deployed: np.ndarray, released: np.ndarray | None) -> np.ndarray:
+    """int64 ``[R, N]``: ``released`` with every deployment whose passenger is unknown (-1) given
+    the lowest index still aboard at that stage (what a carrier that was told no passenger
+    releases); index order when ``released`` is None."""
+    deployed = np.asarray(deployed, dtype=bool)
+    if released is None:
+        return in_order(deployed)
+    out = np.where(deployed, np.asarray(released, dtype=np.int64), -1)
+    for r in np.flatnonzero((deployed & (out < 0)).any(axis=1)):
+        gone = set(out[r][out[r] >= 0].tolist())
+        for j in np.flatnonzero(deployed[r] & (out[r] < 0)):
+            free = next((i for i in range(int(problem.passengers[r])) if i not in gone), None)
+            if free is not None:
+                out[r, j] = free
+                gone.add(free)
+    return out
+
+
 def point_weights(problem: Problem, released: np.ndarray) -> np.ndarray:
     """float ``[R, N]``: the weight of the passenger released at each point (0.0 where none)."""
     released = np.asarray(released, dtype=np.int64)
@@ -214,12 +232,13 @@ def evaluate(problem: Problem, deployed: np.ndarray, x: np.ndarray,
     """Total (normalised reward, raw features) of a full set of deployments under the penalty rule.
 
     With passenger values (``problem.weights``) a deployment earns ``w * x / p`` for the weight w
-    of the passenger ``released[r, j]`` (index order, :func:`in_order`, when ``released`` is None);
-    without, ``released`` is ignored and this is ``sum x / p``.
+    of the passenger ``released[r, j]`` (index order, :func:`in_order`, when ``released`` is None;
+    an unknown -1 is filled by :func:`fill_releases`); without, ``released`` is ignored and this
+    is ``sum x / p``.
     """
     if problem.weights is not None:
         deployed = np.asarray(deployed, dtype=bool)
-        released = in_order(deployed) if released is None else released
+        released = fill_releases(problem, deployed, released)
         x = np.nan_to_num(np.asarray(x, dtype=float), nan=0.0) * point_weights(problem, released)
     raw = float(rewards(problem, deployed, x).sum())
     return raw / problem.scale, raw
@@ -295,12 +314,9 @@ class StageView:
         out = np.arange(self.problem.weights.shape[1] if self.problem.weights is not None
                         else max(1, int(self.problem.passengers.max(initial=0))))[None, :] \
             < self.problem.passengers[:, None]
-        rel = self.past_releases
+        rel = fill_releases(self.problem, self.deployed, self.past_releases)
         r, j = np.nonzero(rel >= 0)
         out[r, rel[r, j]] = False
-        # A deployment whose passenger the view does not know took the lowest index left.
-        for r, j in zip(*np.nonzero(self.deployed & (rel < 0))):
-            out[r, np.argmax(out[r])] = False
         return out
 
 

@@ -10,7 +10,7 @@ Field types, units and meaning are documented on each dataclass and in docs/prot
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import MISSING, dataclass, field, fields
 from typing import Any, Callable
 
 import msgpack
@@ -146,10 +146,11 @@ _SECONDS = _float(-1e9, 1e9)
 _MS = _float(0.0, 1e9)
 
 
-def _spec(validator: Validator, as_map: bool = False):
+def _spec(validator: Validator, as_map: bool = False, default=MISSING):
     """A dataclass field carrying its wire validator in metadata; ``as_map``: a tuple of sorted
-    (key, value) pairs in Python, a map on the wire."""
-    return field(metadata={"check": validator, "as_map": as_map})
+    (key, value) pairs in Python, a map on the wire. With a ``default`` the field is optional on
+    the wire: a message without it decodes with the default (fields added to a message later)."""
+    return field(default=default, metadata={"check": validator, "as_map": as_map})
 
 
 # --------------------------------------------------------------------------- messages
@@ -215,6 +216,9 @@ class Decision:
         t: simulated mission time of the stage, seconds.
         deploy: ids of the carriers that deploy one passenger now (sorted, no repeats).
         planning_ms: wall time the planner took, milliseconds.
+        passengers: the passenger index each carrier of ``deploy`` releases, parallel to it
+            (passenger types, docs/planner.md); empty when the decision names none (optional on
+            the wire).
     """
 
     mission: str = _spec(_ident)
@@ -222,8 +226,21 @@ class Decision:
     t: float = _spec(_SECONDS)
     deploy: tuple[str, ...] = _spec(_unique_ids)
     planning_ms: float = _spec(_MS)
+    passengers: tuple[int, ...] = _spec(_list(_int(0, MAX_PASSENGERS - 1), MAX_CARRIERS), default=())
     v: int = PROTOCOL_VERSION
     TYPE = "decision"
+
+    def __post_init__(self):
+        if self.passengers and len(self.passengers) != len(self.deploy):
+            raise ProtocolError("out-of-range", f"passengers: expected one per deploying carrier "
+                                                f"({len(self.deploy)}) or none, found {len(self.passengers)}")
+
+    def passenger_of(self, cid: str) -> int | None:
+        """The passenger index the decision names for carrier ``cid`` (None: none named, or not
+        selected)."""
+        if not self.passengers or cid not in self.deploy:
+            return None
+        return self.passengers[self.deploy.index(cid)]
 
 
 #: Confirm.status values.
@@ -244,6 +261,8 @@ class Confirm:
             first handling stands and ``deployed`` repeats its outcome).
         position: where the passenger was released (or the carrier's position), metres.
         passengers_left: passengers on board after handling the decision.
+        passenger: the index of the passenger released (None when nothing was released or the
+            carrier does not say; optional on the wire).
     """
 
     mission: str = _spec(_ident)
@@ -253,6 +272,7 @@ class Confirm:
     status: str = _spec(_text(16))
     position: tuple[float, float] = _spec(_point)
     passengers_left: int = _spec(_PASSENGERS)
+    passenger: int | None = _spec(_optional(_int(0, MAX_PASSENGERS - 1)), default=None)
     v: int = PROTOCOL_VERSION
     TYPE = "confirm"
 
@@ -509,6 +529,8 @@ def _build(cls, data: dict, where: str):
         if f.name == "v":
             continue
         if f.name not in data:
+            if f.default is not MISSING:
+                continue  # an optional field: its default
             raise ProtocolError("missing-field", f"{where}: missing field {f.name!r}")
         values[f.name] = f.metadata["check"](data[f.name], f"{where}.{f.name}")
     return cls(**values)
