@@ -379,3 +379,34 @@ def test_weighted_closed_loop_control_variate_is_unbiased():
         assert np.abs(cv - cv[0]).max() > 0.25  # the actions do differ: the check can fail
         checked += 1
     assert checked >= 2
+
+
+def test_types_experiment_smoke(tmp_path):
+    """``python -m experiments types --quick``: every file, paired variants, the exact weighted
+    bound above every planner of its trial."""
+    import csv
+
+    from experiments.run import main
+
+    out = tmp_path / "types"
+    assert main(["types", "--quick", "--trials", "2", "--iterations", "40", "--jobs", "1", "--no-progress",
+                 "--planners", "ssap,closed-loop", "--out", str(out)]) == 0
+    for name in ("types_trials.csv", "types_summary.csv", "types.md"):
+        assert (out / name).is_file()
+    assert (out / "types.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with open(out / "types_trials.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == 3 * 2 * (1 + 2 * 3)  # cases x trials x (bound + planners x variants)
+    by_trial = {}
+    for r in rows:
+        by_trial.setdefault((r["level"], r["trial"]), []).append(r)
+    for group in by_trial.values():
+        assert len({r["planner_seed"] for r in group}) == 1
+        bound = next(r for r in group if r["planner"] == "clairvoyant")
+        assert all(float(r["reward"]) <= float(bound["reward"]) + 1e-9 for r in group)
+        # SSAP's deployments do not depend on the values; type-blind ones release in listed order.
+        ssap_rows = {r["variant"]: r for r in group if r["planner"] == "ssap"}
+        assert ssap_rows["aware"]["deployed"] == ssap_rows["blind"]["deployed"]
+        for part in ssap_rows["blind"]["released"].split("|"):
+            got = [int(i) for i in part.split()]
+            assert got == list(range(len(got)))
