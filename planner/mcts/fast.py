@@ -280,10 +280,12 @@ class MCTSPlanner:
         xval[past] = known.reshape(-1)[past]
         weighted = problem.weights is not None
         if weighted:  # passenger values: past deployments with their passengers' weights
-            xval[past] *= point_weights(problem, view.past_releases).reshape(-1)[past]
+            # In units of the mean passenger value, so the exploration constant keeps its meaning.
+            unit = float(problem.weights[problem.weights > 0].mean())
+            xval[past] *= point_weights(problem, view.past_releases).reshape(-1)[past] / unit
             ws0 = np.zeros((n_carriers, problem.weights.shape[1] + 1))
             for r in range(n_carriers):
-                w = np.sort(problem.weights[r, view.aboard[r]])[::-1]
+                w = np.sort(problem.weights[r, view.aboard[r]])[::-1] / unit
                 ws0[r, : len(w)] = w
         else:
             ws0 = np.zeros((1, 1))
