@@ -432,3 +432,13 @@ def test_unit_values_decide_as_without_values(name):
         assert (a.deployed == b.deployed).all() and a.reward == pytest.approx(b.reward)
         changed += int((c.deployed != a.deployed).any())
     assert changed > 0
+
+
+def test_online_optimal_refuses_passenger_values():
+    from planner.online_optimal import TooLarge, estimate, online_value
+
+    problem, _ = _typed_instance(0, carriers=2, stages=4, overlaps=1)
+    with pytest.raises(TooLarge, match="passenger values"):
+        estimate(problem)
+    with pytest.raises(TooLarge, match="passenger values"):
+        online_value(problem)
