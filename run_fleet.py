@@ -7,6 +7,7 @@
     python run_fleet.py --role router --listen tcp/0.0.0.0:7447
     python run_fleet.py S.yaml --carrier-processes 8                 # R carriers in 8 processes
     python run_fleet.py S.yaml --decentralised                       # no coordinator at all
+    python run_fleet.py S.yaml --role report --out runs/m1          # results from whatever logs exist
 
 With no --role, this script starts a zenoh router (listening on tcp/127.0.0.1:<free port>: the
 fleet's network, which outlives any one process), the coordinator and the carrier processes
@@ -53,10 +54,11 @@ def parse_args(argv=None) -> argparse.Namespace:
         prog="run_fleet.py", description="Run a marsupial fleet mission over Zenoh.",
         formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 2)[1])
     p.add_argument("scenario", nargs="?", help="scenario YAML file (not needed with --role router)")
-    p.add_argument("--role", choices=("all", "coordinator", "carrier", "viewer", "router"), default="all",
+    p.add_argument("--role", choices=("all", "coordinator", "carrier", "viewer", "router", "report"), default="all",
                    help="all (default): the whole fleet on this host; or one process's role "
                         "(viewer: a passive live view, needs rerun-sdk; router: a zenoh router that "
-                        "coordinators and carriers connect to)")
+                        "coordinators and carriers connect to; report: summary.json, map.png and "
+                        "merged_log.jsonl from the logs in --out, run after every one-host mission)")
     p.add_argument("--carrier", metavar="ID[,ID...]",
                    help="carrier id(s) (with --role carrier); several ids run in one process, "
                         "each with its own Zenoh session")
@@ -208,7 +210,9 @@ def check_flags(args, scenario) -> str | None:
                 return f"--carrier: expected one of {listed} (carriers of {args.scenario}), found {cid!r}"
         if len(set(args.carriers)) != len(args.carriers):
             return f"--carrier: a carrier id is repeated in {args.carrier!r}"
-    if args.role not in ("carrier", "viewer", "router") and not args.decentralised:
+    if args.role == "report" and not args.out:
+        return "--role report needs --out DIR (the results directory to read)"
+    if args.role not in ("carrier", "viewer", "router", "report") and not args.decentralised:
         from planner.registry import make_planner, planner_settings
 
         name, options = planner_settings(scenario, args.planner, args.iterations, args.plan_ms, args.planner_options)
@@ -320,6 +324,21 @@ def run_router(args, stop: threading.Event) -> int:
             pass
     finally:
         close_session(session, (), 3.0)
+    return 0
+
+
+def run_report(args, scenario) -> int:
+    """summary.json, merged_log.jsonl and map.png from the logs in ``--out`` (coordinator/report.py):
+    one line with the totals and the files; a one-line error and exit 2 when it cannot be made."""
+    from coordinator.report import ReportError, run_report as report
+
+    try:
+        result = report(scenario, args.out, mission=args.mission, seed=args.seed, scenario_path=args.scenario,
+                        render=not args.no_map, log=lambda line: print(f"run_fleet.py: {line}", file=sys.stderr,
+                                                                       flush=True))
+    except ReportError as exc:
+        return fail(str(exc))
+    print(result.line(Path(args.out)), flush=True)
     return 0
 
 
@@ -497,10 +516,11 @@ def run_all(args, scenario, stop: threading.Event) -> int:
     bad = {cid: p.returncode for cid, p in carriers.items() if p.returncode not in (0,)}
     if bad:
         print(f"run_fleet.py: carrier exit codes {bad}", file=sys.stderr, flush=True)
+    _report(script, out, args)  # summary.json from whatever logs exist, also when the coordinator died
     summary_path = out / "summary.json"
     if code != 0 or not summary_path.exists():
         print(f"run_fleet.py: the coordinator exited with code {code}" if coordinator is not None
-              else "run_fleet.py: no summary.json", file=sys.stderr)
+              else "run_fleet.py: no summary.json (the report failed)", file=sys.stderr)
         if viewer is not None:
             _stop_children([viewer], grace_s=5.0)
         return code or 1
@@ -511,7 +531,7 @@ def run_all(args, scenario, stop: threading.Event) -> int:
           f"clairvoyant {'optimum' if bound.get('exact') else 'bound'} {bound.get('reward', float('nan')):.3f} "
           f"({(bound.get('fraction') or 0) * 100:.0f}%); decision round trip p50 "
           f"{_ms(lat.get('p50'))} p99 {_ms(lat.get('p99'))}; wall {time.monotonic() - started:.1f} s")
-    print(f"results: {out}/summary.json, mission.db" + ("" if args.no_record else ", mission.mcap")
+    print(f"results: {out}/summary.json, mission.db, merged_log.jsonl" + ("" if args.no_record else ", mission.mcap")
           + ("" if args.no_map else ", map.png"))
     if viewer is not None:
         _wait_for_viewer(args, viewer, stop)
@@ -524,6 +544,19 @@ def _start_router(args, listen, connect) -> subprocess.Popen:
         + sum((["--listen", e] for e in listen), []) + sum((["--connect", e] for e in connect), [])
         + (["--zenoh-config", args.zenoh_config] if args.zenoh_config else []),
         stdout=subprocess.DEVNULL, preexec_fn=_ignore_sigint)
+
+
+def _report(script, out: Path, args) -> int:
+    """One-host mode, after the mission: ``--role report`` on ``out`` (a child like the others,
+    SIGINT ignored so a late Ctrl-C cannot cut it half-way; its files are replaced atomically)."""
+    flags = [f for flag, value in (("--seed", args.seed), ("--mission", args.mission)) if value is not None
+             for f in (flag, str(value))]
+    try:
+        return subprocess.run(script + ["--role", "report", "--out", str(out)] + flags
+                              + (["--no-map"] if args.no_map else []), preexec_fn=_ignore_sigint, timeout=300).returncode
+    except subprocess.TimeoutExpired:
+        print("run_fleet.py: the report did not finish in 300 s", file=sys.stderr, flush=True)
+        return 1
 
 
 def _wait_for_viewer(args, viewer, stop: threading.Event) -> None:
@@ -568,6 +601,8 @@ def main(argv=None) -> int:
             return run_carrier(args, scenario, stop)
         if args.role == "viewer":
             return run_viewer(args, scenario, stop)
+        if args.role == "report":
+            return run_report(args, scenario)
         return run_all(args, scenario, stop)
     except ConfigError as exc:
         return fail(str(exc))

@@ -40,7 +40,7 @@ import numpy as np
 import world
 from carriers.log import CarrierLog, LogMismatch, log_path
 from mission import carrier as mc
-from mission.peers import PeerBook
+from mission.peers import PeerBook, listened
 from mission.timeouts import DEFAULTS
 from wire import keys
 from wire.messages import (
@@ -138,15 +138,30 @@ def shared_world(scenario) -> SharedWorld:
 
 class Onboard:
     """The on-board planner (:data:`ONBOARD_PLANNER`) and the planner's instance of the scenario,
-    built at the first stage a carrier of this process decides itself — the planner core (numba,
-    scipy) and the stage geometry are loaded then, not before — and shared by the process's
-    carriers (fully informed carriers compute the same joint action: it is computed once)."""
+    shared by the process's carriers (fully informed carriers compute the same joint action: it is
+    computed once). Loading the planner core (numba, scipy, the compiled kernels) and the stage
+    geometry takes seconds — 3 s on an idle machine, three times that with six carriers starting
+    at once on two cores — so a carrier that may decide alone starts it in the background when it
+    starts (:meth:`prepare`), not when the coordinator is already gone; a carrier that never
+    decides alone (``coordinated``) never loads it."""
 
     def __init__(self, scenario, options=()):
         self.scenario = scenario
         self.options = dict(options)
         self._lock = threading.Lock()
         self._built = None
+        self._preparing = None
+
+    def prepare(self) -> None:
+        """Build in a background thread (once)."""
+        with self._lock:
+            if self._built is not None or self._preparing is not None:
+                return
+            self._preparing = threading.Thread(target=self.get, name="onboard-planner", daemon=True)
+        self._preparing.start()
+
+    def ready(self) -> bool:
+        return self._built is not None
 
     def get(self):
         """(problem, planner), built on first use."""
@@ -212,6 +227,7 @@ class Carrier:
         self._named: dict[int, int] = {}
         self._released_at: dict[int, int] = {}
         self.peers_live: set[str] = set()
+        self.listening: tuple[str, ...] | None = None  # the carriers it hears (:meth:`_listen`)
         self.store: CarrierLog | None = None  # the durable log, open while running
         self._alone = False  # deciding stages itself (logged once per spell)
 
@@ -282,7 +298,23 @@ class Carrier:
             next_stage, self.fingerprint))
 
     # ------------------------------------------------------------------ inbound
+    def _listen(self, wait: bool = False) -> None:
+        """Subscribe to the carriers this one listens to (:func:`mission.peers.listened`: its
+        conflict component, or its neighbours in a large one) once the on-board planner's
+        instance is built (``wait``: build it now)."""
+        if self.listening is not None or self.config.mode == "coordinated" or not (wait or self.onboard.ready()):
+            return
+        problem, _ = self.onboard.get()
+        ids = self.scenario.carrier_ids
+        self.listening = tuple(ids[b] for b in listened(problem, self.r))
+        for cid in self.listening:
+            for topic in PEER_TOPICS:
+                self.node.subscribe(keys.carrier_key(self.mission, cid, topic))
+            self.node.watch_liveliness(keys.carrier_alive(self.mission, cid))
+
     def _pump(self, timeout_s: float) -> None:
+        if self.listening is None:
+            self._listen()
         item = self.node.next(timeout_s)
         while item is not None:
             try:
@@ -489,7 +521,8 @@ class Carrier:
                 self.sim.deploy(self.cid)
             self.book.outcome(self.cid, e.stage, e.deployed)
         next_stage = max((e.stage + 1 for e in entries), default=0)
-        others = set(self.book.carriers) - {self.cid}
+        self._listen(wait=True)
+        others = set(self.listening)
         deadline = time.monotonic() + self.config.join_timeout_s
         while not self._stop.is_set() and not others <= self.peers_live and time.monotonic() < deadline:
             self._pump(min(0.2, max(0.0, deadline - time.monotonic())))
@@ -568,6 +601,7 @@ class Carrier:
         from planner.decentralised import LocalDecision
         from planner.problem import stage_rng
 
+        self._listen(wait=True)
         if not self._alone:
             self._alone = True
             self.log(f"deciding on board from stage {j} (dec-closed-loop, {len(self.peers_live - {self.cid})} "
@@ -611,9 +645,10 @@ class Carrier:
             self.node.subscribe(keys.refusal_key(self.mission, self.cid))
             self.node.watch_liveliness(keys.coordinator_alive(self.mission))
             if self.config.mode != "coordinated":
-                for topic in PEER_TOPICS:
-                    self.node.subscribe(keys.carrier_topic_pattern(self.mission, topic))
-                self.node.watch_liveliness(keys.carrier_alive_pattern(self.mission))
+                self.onboard.prepare()
+            if self.config.mode == "decentralised":
+                # Subscribed before its token appears: a carrier that sees the token can reach it.
+                self._listen(wait=True)
             self.node.token(keys.carrier_alive(self.mission, self.cid))
             self._join()
             self._fly()

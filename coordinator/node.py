@@ -26,7 +26,6 @@ in half.
 """
 from __future__ import annotations
 
-import json
 import os
 import socket
 import threading
@@ -39,7 +38,8 @@ import numpy as np
 import world
 from planner.registry import make_planner, planner_settings, used_options
 from planner.passengers import release
-from planner.problem import enforce, fill_releases, make_view, stage_rng
+from planner.problem import enforce, make_view, stage_rng
+from coordinator.results import render_map, write_json as _write_json
 from coordinator.store import MissionStore
 from mission import events as ev
 from mission import state as ms
@@ -377,8 +377,9 @@ class Coordinator:
         for j in range(self.state.next_stage, self.n_stages):
             if self._stop.is_set():
                 return
-            if self.config.realtime > 0 and last_published is not None:
-                # Paced like the carriers: Δt / realtime after the previous decision went out.
+            if self.config.realtime > 0 and last_published is not None and not self.state.behind(j):
+                # Paced like the carriers: Δt / realtime after the previous decision went out
+                # (not when the carriers are past j already: then it catches up at once).
                 self._wait(last_published + self.scenario.stage_interval / self.config.realtime - time.monotonic())
             if j > 0 and not self.state.live:
                 # Nobody to decide for (cut off, or every carrier gone): deciding now would only
@@ -489,36 +490,7 @@ class Coordinator:
             passenger_types=tuple(c.passenger_types for c in self.scenario.carriers)), bound=bound)
 
     def _render(self, path: Path) -> None:
-        st = self.state
-        actual = st.confirmed_deployments()
-        deployments = [world.Deployment(cid, self.spec.stage_times[j], st.deployment_position(cid, j))
-                       for j in range(self.n_stages) for r, cid in enumerate(self.ids) if actual[r, j]]
-        labels = None
-        if self.problem.weights is not None:  # passenger types: which type went where
-            released = fill_releases(self.problem, actual, st.releases())
-            labels = [self.scenario.passenger_type(r, int(released[r, j])) or f"#{int(released[r, j])}"
-                      for j in range(self.n_stages) for r, cid in enumerate(self.ids) if actual[r, j]]
-        trajectories = {cid: np.asarray(pts, dtype=float).reshape(-1, 2) for cid, pts in st.trails.items() if pts}
         try:
-            world.render_map(self.scenario, str(path), deployments=deployments, trajectories=trajectories,
-                             title=f"{self.scenario.name}: {self.planner_name}, seed {self.seed}",
-                             deployment_labels=labels)
+            render_map(self.scenario, self.state, path, title=f"{self.scenario.name}: {self.planner_name}, seed {self.seed}")
         except Exception as exc:
             self.log(f"coordinator: map.png not drawn: {type(exc).__name__}: {exc}")
-
-
-def _write_json(path: Path, data: dict) -> None:
-    """Replace ``path`` with ``data`` as JSON atomically (a reader sees the old or the new file)."""
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=_jsonable))
-    os.replace(tmp, path)
-
-
-def _jsonable(value):
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (np.floating,)):
-        return float(value)
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    return str(value)

@@ -335,6 +335,16 @@ def load_events(path: str | Path) -> list:
         db.close()
 
 
+def load_meta(path: str | Path) -> dict:
+    """The mission identity in the ``meta`` table of the mission.db at ``path`` (JSON values
+    decoded), read-only."""
+    db = sqlite3.connect(f"file:{Path(path)}?mode=ro", uri=True)
+    try:
+        return {k: json.loads(v) for k, v in db.execute("SELECT key, value FROM meta")}
+    finally:
+        db.close()
+
+
 def _mission_events(db) -> list:
     out = []
     for wall, kind, cid, stage, payload in db.execute(

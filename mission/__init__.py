@@ -7,6 +7,8 @@
   unknown carrier, no Hello, fingerprint refusal, ...). Live handling and recovery from
   mission.db are the same fold;
 * :mod:`mission.summary` — summary.json as a function of the state;
+* :mod:`mission.report` — the report's merge of mission.db's events and the carriers' logs, by
+  the same fold;
 * :mod:`mission.carrier` — the carrier's side: which stage it is at, decisions handled at most
   once with their first answer, late / idle / already, resynchronisation from State;
 * :mod:`mission.timeouts` — every timeout default.

@@ -6,7 +6,11 @@ they decided themselves: x and whether they deployed), their Confirms (whether t
 the coordinator's decision) and the coordinator's Decisions (whom it selected). Per carrier b and
 stage t the book keeps x (known once b's Observation or Own arrived) and b's action: its own word
 (Confirm, Own) when heard, else the coordinator's decision (selected: taken as deployed, not
-selected: not deployed). A stage b is not scheduled at is known at once (∅, no deployment).
+selected: not deployed). A stage b is not scheduled at is known at once (∅, no deployment). The
+x of a stage where b is known not to have deployed is known too, as far as planning goes: what
+a decision depends on is the current stage's observations and the past deployments with their
+x (the state of the fleet), not the values of points passed by — so a lost Observation of such a
+stage does not blind a carrier to b for the rest of the mission.
 
 The book has no clock and does no I/O; the carrier process feeds it (its own observations and
 outcomes too) and asks it for a :class:`LocalView`.
@@ -15,8 +19,33 @@ from __future__ import annotations
 
 import numpy as np
 
-#: Action codes of :attr:`PeerBook.act`.
+#: Action codes of :attr:`PeerBook.source`.
 UNKNOWN, FROM_DECISION, FROM_CARRIER = 0, 1, 2
+#: A carrier listens to every carrier of its conflict component up to this many; in a larger
+#: component, to its direct conflict neighbours only (what it hears grows with its degree, not
+#: with the fleet).
+COMPONENT_MAX = 64
+
+
+def listened(problem, r: int, component_max: int = COMPONENT_MAX) -> list[int]:
+    """The carriers (indices, r excluded) carrier r listens to: those its deployments can conflict
+    with, directly or through others (its component of the conflict graph) when there are at most
+    ``component_max``, else its direct neighbours. With its whole component heard, a carrier
+    deciding alone knows everything its decision depends on."""
+    R = problem.n_carriers
+    adjacency = [set() for _ in range(R)]
+    for group in problem.overlaps:
+        members = set(int(c) for c in np.asarray(group)[:, 0])
+        for c in members:
+            adjacency[c] |= members
+    component, frontier = {r}, [r]
+    while frontier and len(component) <= component_max:
+        b = frontier.pop()
+        for c in adjacency[b] - component:
+            component.add(c)
+            frontier.append(c)
+    chosen = component if len(component) <= component_max else adjacency[r]
+    return sorted(chosen - {r})
 
 
 class PeerBook:
@@ -54,6 +83,8 @@ class PeerBook:
         if self.valid[r, stage]:
             self.deployed[r, stage] = bool(deployed)
             self.source[r, stage] = FROM_CARRIER
+            if not deployed:
+                self.x_known[r, stage] = True
 
     def decision(self, stage: int, deploy) -> None:
         """The coordinator's decision of ``stage`` selected ``deploy``; carriers whose own word
@@ -65,6 +96,7 @@ class PeerBook:
         col = self.source[:, stage] < FROM_CARRIER
         self.deployed[col, stage] = selected[col]
         self.source[col, stage] = FROM_DECISION
+        self.x_known[col & ~selected, stage] = True
 
     def waiting(self, stage: int, among) -> list[str]:
         """Carriers of ``among`` whose observation of ``stage`` has not been heard."""

@@ -174,6 +174,10 @@ class MissionState:
         info = self.accepted.get(cid)
         return (cid, j) in self.accounts or (info is not None and info.next_stage > j)
 
+    def behind(self, j: int) -> bool:
+        """Every live carrier is past stage j (the coordinator catches up with them)."""
+        return bool(self.live) and all(self.passed(cid, j) for cid in self.live)
+
     def expected(self, j: int) -> frozenset:
         """Carriers the coordinator waits for at stage j: live, Hello accepted, scheduled at j,
         not past it."""

@@ -181,10 +181,11 @@ def in_order(deployed: np.ndarray) -> np.ndarray:
     return np.where(deployed, np.cumsum(deployed, axis=1) - 1, -1).astype(np.int64)
 
 
-def fill_releases(problem: Problem, deployed: np.ndarray, released: np.ndarray | None) -> np.ndarray:
+def fill_releases(passengers, deployed: np.ndarray, released: np.ndarray | None) -> np.ndarray:
     """int64 ``[R, N]``: ``released`` with every deployment whose passenger is unknown (-1) given
     the lowest index still aboard at that stage (what a carrier that was told no passenger
-    releases); index order when ``released`` is None."""
+    releases); index order when ``released`` is None. ``passengers``: int ``[R]`` passengers
+    per carrier (``Problem.passengers``)."""
     deployed = np.asarray(deployed, dtype=bool)
     if released is None:
         return in_order(deployed)
@@ -192,7 +193,7 @@ def fill_releases(problem: Problem, deployed: np.ndarray, released: np.ndarray |
     for r in np.flatnonzero((deployed & (out < 0)).any(axis=1)):
         gone = set(out[r][out[r] >= 0].tolist())
         for j in np.flatnonzero(deployed[r] & (out[r] < 0)):
-            free = next((i for i in range(int(problem.passengers[r])) if i not in gone), None)
+            free = next((i for i in range(int(passengers[r])) if i not in gone), None)
             if free is not None:
                 out[r, j] = free
                 gone.add(free)
@@ -238,7 +239,7 @@ def evaluate(problem: Problem, deployed: np.ndarray, x: np.ndarray,
     """
     if problem.weights is not None:
         deployed = np.asarray(deployed, dtype=bool)
-        released = fill_releases(problem, deployed, released)
+        released = fill_releases(problem.passengers, deployed, released)
         x = np.nan_to_num(np.asarray(x, dtype=float), nan=0.0) * point_weights(problem, released)
     raw = float(rewards(problem, deployed, x).sum())
     return raw / problem.scale, raw
@@ -314,7 +315,7 @@ class StageView:
         out = np.arange(self.problem.weights.shape[1] if self.problem.weights is not None
                         else max(1, int(self.problem.passengers.max(initial=0))))[None, :] \
             < self.problem.passengers[:, None]
-        rel = fill_releases(self.problem, self.deployed, self.past_releases)
+        rel = fill_releases(self.problem.passengers, self.deployed, self.past_releases)
         r, j = np.nonzero(rel >= 0)
         out[r, rel[r, j]] = False
         return out
