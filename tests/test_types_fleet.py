@@ -49,3 +49,14 @@ def test_typed_mission_matches_the_offline_planner(typed, tmp_path):
         for j in np.flatnonzero(reference.deployed[r]):
             assert named[(cid, int(j))] == int(reference.released[r, j])
     assert (tmp_path / "map.png").stat().st_size > 0
+    # The report rebuilds summary.json from mission.db and the carriers' logs: the same passengers.
+    import json
+
+    from coordinator.report import run_report
+
+    run_report(typed, tmp_path, render=False, log=lambda line: None)
+    again = json.loads((tmp_path / "summary.json").read_text())
+    assert again["total_reward"] == pytest.approx(summary["total_reward"])
+    for before, after in zip(summary["carriers"], again["carriers"]):
+        assert [(d["stage"], d["passenger"], d["type"]) for d in before["deployments"]] == \
+            [(d["stage"], d["passenger"], d["type"]) for d in after["deployments"]]
