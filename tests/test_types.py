@@ -442,3 +442,20 @@ def test_online_optimal_refuses_passenger_values():
         estimate(problem)
     with pytest.raises(TooLarge, match="passenger values"):
         online_value(problem)
+
+
+def test_learned_prior_keeps_the_released_passengers():
+    """learn_prior hands the inner planner the same view (passengers released included)."""
+    from planner.learning import LearnedPriorPlanner
+    from planner.problem import make_view
+    from planner.registry import make_planner
+
+    problem, x = _typed_instance(2)
+    deployed = np.zeros(x.shape, dtype=bool)
+    deployed[0, 0] = True
+    released = np.full(x.shape, -1, dtype=np.int64)
+    released[0, 0] = 2
+    view = make_view(problem, 3, x, deployed, released)
+    inner = LearnedPriorPlanner(make_planner("ssap")).view_for(view)
+    assert inner.problem is not problem and (inner.released == view.released).all()
+    assert inner.aboard[0].tolist() == [True, True, False]
