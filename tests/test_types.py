@@ -412,7 +412,7 @@ def test_types_experiment_smoke(tmp_path):
             assert got == list(range(len(got)))
 
 
-@pytest.mark.parametrize("name", ["mcts-ssap", "closed-loop"])
+@pytest.mark.parametrize("name", ["mcts-ssap", "closed-loop", "dec-mcts"])
 def test_unit_values_decide_as_without_values(name):
     """Passenger values all 1 are the unweighted problem: the same decisions (the weighted
     search paths reduce exactly), and values that differ change some decision (they are read)."""
