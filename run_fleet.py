@@ -34,8 +34,13 @@ HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
-#: Exit code for bad user input (scenario, flags, config files).
+#: Exit code for bad user input (scenario, flags, config files), and for a process that refuses
+#: to start because its role and id are taken (a live coordinator of the mission without
+#: --standby, a live carrier of the same id): docs/fleet.md, "Split brain".
 EXIT_USAGE = 2
+#: Exit code of a coordinator deposed by a coordinator of a higher epoch (it stopped deciding and
+#: published no End).
+EXIT_DEPOSED = 3
 #: How long the launcher waits for carriers after the coordinator exits (s).
 CARRIER_EXIT_GRACE_S = 15.0
 #: Zenoh sessions one node accepts reliably here: a peer or router of zenoh 1.10 refused every
@@ -85,6 +90,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="simulated seconds per wall second; 0 = as fast as possible (default)")
     p.add_argument("--mission", help="mission id, the key-expression prefix (default: the scenario name)")
     p.add_argument("--out", metavar="DIR", help="results directory (default runs/<scenario>-<timestamp>)")
+    p.add_argument("--standby", action="store_true",
+                   help="coordinator: if the mission already has a live coordinator, wait and take over when "
+                        "its liveliness token vanishes (without it: refuse to start, exit 2)")
     z = p.add_argument_group("zenoh (flags override keys of --zenoh-config)")
     z.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT",
                    help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)")
@@ -199,6 +207,8 @@ def check_flags(args, scenario) -> str | None:
         return f"--routers: expected an integer >= 0, found {args.routers}"
     if args.carrier_processes is not None and args.carrier_processes < 1:
         return f"--carrier-processes: expected an integer >= 1, found {args.carrier_processes}"
+    if args.standby and args.role != "coordinator":
+        return "--standby: only with --role coordinator"
     if args.role == "carrier":
         if not args.carrier:
             return "--role carrier needs --carrier ID (or ID,ID,...)"
@@ -267,28 +277,35 @@ def _ignore_sigint() -> None:
 
 
 def run_coordinator(args, scenario, stop: threading.Event) -> int:
-    from coordinator.node import Coordinator, CoordinatorConfig
-    from coordinator.store import StoreMismatch
+    from coordinator.node import Coordinator, CoordinatorConfig, DuplicateCoordinator
+    from coordinator.store import StoreBusy, StoreMismatch
 
     out = args.out or default_out(scenario)
     coord = Coordinator(scenario, CoordinatorConfig(
         out_dir=out, mission=args.mission, planner=args.planner, iterations=args.iterations,
         plan_ms=args.plan_ms, planner_options=getattr(args, "planner_options", ()), seed=args.seed, realtime=args.realtime, join_timeout_s=args.join_timeout,
-        stage_timeout_s=args.stage_timeout, render=not args.no_map, record=not getattr(args, "no_record", False)),
+        stage_timeout_s=args.stage_timeout, render=not args.no_map, record=not getattr(args, "no_record", False),
+        standby=getattr(args, "standby", False)),
         zenoh_config(args, "coordinator"),
         scenario_path=args.scenario, stop=stop)
     try:
         summary = coord.run()
-    except StoreMismatch as exc:
+    except (StoreMismatch, DuplicateCoordinator) as exc:
         return fail(str(exc))
+    except StoreBusy as exc:  # stopped while waiting for another process's lock
+        print(f"run_fleet.py: {exc}; stopped while waiting for it", file=sys.stderr, flush=True)
+        return 130
+    if summary.get("deposed_by") is not None:
+        return EXIT_DEPOSED
     return 0 if summary.get("ended") and summary["stages_decided"] == summary["stages"] else 130
 
 
 def run_carrier(args, scenario, stop: threading.Event) -> int:
     """One or several carriers (``--carrier a,b,c``) in this process: one thread and one Zenoh
     session per carrier, the scenario loaded once. Exit code: the first non-zero carrier code."""
-    from carriers.node import EXIT_CODES, CarrierConfig, run_carriers
+    from carriers.node import EXIT_CODES, CarrierConfig, DuplicateCarriers, run_carriers
     from planner.registry import planner_settings
+    from wire.zconfig import ConfigError
 
     log = (lambda line: None) if args.quiet else (lambda line: print(line, flush=True))
     mode = "decentralised" if args.decentralised else "coordinated" if args.no_autonomy else "hybrid"
@@ -300,7 +317,13 @@ def run_carrier(args, scenario, stop: threading.Event) -> int:
         log=log, pose_interval_s=args.pose_interval, mode=mode, out_dir=out, peer_timeout_s=args.peer_timeout,
         join_timeout_s=args.join_timeout, planner_options=tuple(sorted(options.items())))
         for cid in getattr(args, "carriers", [args.carrier])]
-    reasons = run_carriers(scenario, configs, lambda: zenoh_config(args, "carrier"), stop=stop)
+    try:
+        reasons = run_carriers(scenario, configs, lambda: zenoh_config(args, "carrier"), stop=stop)
+    except DuplicateCarriers as exc:
+        return fail(str(exc))
+    except ConfigError as exc:  # nobody to connect to
+        print(f"run_fleet.py: {exc}", file=sys.stderr, flush=True)
+        return EXIT_CODES["coordinator-lost"]
     codes = []
     for cid, reason in reasons.items():
         if reason not in ("end", "finished"):
@@ -423,11 +446,38 @@ def _stop_children(procs, grace_s: float = 10.0) -> None:
             time.sleep(0.05)
 
 
+def taken(args, scenario, connect) -> str | None:
+    """Through a router another mission with this id may be live: the one line a process of ours
+    would refuse with (a live coordinator, live carriers of our ids), or None. One liveliness
+    query over a short-lived session, before the launcher starts anything."""
+    from carriers.node import DuplicateCarriers, live_duplicates
+    from coordinator.node import DuplicateCoordinator
+    from mission.timeouts import DEFAULTS
+    from wire import keys
+    from wire.transport import Node
+    from wire.zconfig import make_config
+
+    mission = args.mission or keys.mission_id_from_name(scenario.name)
+    conf = lambda: make_config("client", [], connect, args.zenoh_config)  # noqa: E731
+    probe = Node(conf(), open_timeout_s=10.0)
+    try:
+        if probe.live_tokens(keys.coordinator_alive(mission), DEFAULTS.liveliness_check_s):
+            return str(DuplicateCoordinator(mission))
+    finally:
+        probe.close(DEFAULTS.close_s)
+    ids = live_duplicates(mission, scenario.carrier_ids, conf, open_timeout_s=10.0)
+    return str(DuplicateCarriers(mission, ids)) if ids else None
+
+
 def run_all(args, scenario, stop: threading.Event) -> int:
     from wire.zconfig import free_port
 
     if stop.is_set():
         return 130
+    if args.connect and not args.listen:
+        problem = taken(args, scenario, list(args.connect))  # else our carriers would join the live mission
+        if problem:
+            return fail(problem)
     out = Path(args.out or default_out(scenario))
     out.mkdir(parents=True, exist_ok=True)
     script = [sys.executable, str(Path(__file__).resolve()), args.scenario]
@@ -496,18 +546,39 @@ def run_all(args, scenario, stop: threading.Event) -> int:
               flush=True)
     # The mission lasts as long as its coordinator; decentralised, or when the coordinator died,
     # as long as its carriers (they go on without it).
+    refused = set()
     while not stop.is_set():
         if coordinator is not None and coordinator.poll() is not None and coordinator.returncode == 0:
             break
         if (coordinator is None or coordinator.poll() is not None) and all(p.poll() is not None
                                                                           for p in carriers.values()):
             break
+        if coordinator is not None and coordinator.poll() in (EXIT_USAGE, EXIT_DEPOSED):
+            break
+        for cids, p in carriers.items():
+            if p.poll() == EXIT_USAGE and cids not in refused:  # its one line is above
+                refused.add(cids)
+                print(f"run_fleet.py: carrier process {_short(cids)} exited with code {EXIT_USAGE} (refused: a "
+                      f"duplicate or another world, reason above); the mission goes on without it",
+                      file=sys.stderr, flush=True)
         stop.wait(0.05)
     if stop.is_set():
         print("run_fleet.py: interrupted; stopping the fleet", file=sys.stderr, flush=True)
         _stop_children(procs)
         return 130
     code = 0 if coordinator is None else coordinator.returncode
+    if code == EXIT_USAGE:  # refused to start (a live coordinator of the mission): nobody decides
+        _stop_children([*carriers.values(), *routers] + ([viewer] if viewer is not None else []), grace_s=5.0)
+        print(f"run_fleet.py: the coordinator refused to start (exit {code}, reason above); carriers stopped",
+              file=sys.stderr, flush=True)
+        return code
+    if code == EXIT_DEPOSED:  # a newer coordinator decides now: our carriers fly on under it
+        print(f"run_fleet.py: the coordinator was deposed by a coordinator of a newer epoch (exit {code}); the "
+              f"carriers go on under that one, whose --out holds the results", file=sys.stderr, flush=True)
+        while any(p.poll() is None for p in carriers.values()) and not stop.is_set():
+            stop.wait(0.1)
+        _stop_children([*carriers.values(), *routers] + ([viewer] if viewer is not None else []), grace_s=5.0)
+        return code
     deadline = time.monotonic() + CARRIER_EXIT_GRACE_S
     while time.monotonic() < deadline and any(p.poll() is None for p in carriers.values()):
         time.sleep(0.05)

@@ -73,6 +73,35 @@ EXIT_CODES = {"end": 0, "finished": 0, "stopped": 130, "coordinator-lost": 1, "w
               "log-mismatch": 2}
 
 
+class DuplicateCarriers(RuntimeError):
+    """Carriers of this process already have live liveliness tokens elsewhere (another process
+    runs them): the process refuses to start, before any of its carriers flies."""
+
+    def __init__(self, mission: str, ids):
+        self.mission, self.ids = mission, tuple(ids)
+        super().__init__(f"mission {mission} already has live carrier(s) {', '.join(self.ids)}; stop that "
+                         f"process first, or use another --mission")
+
+
+def live_duplicates(mission: str, ids, zconf, stop: threading.Event | None = None,
+                    open_timeout_s: float = DEFAULTS.coordinator_s) -> list[str]:
+    """Which of ``ids`` already have a live token on ``mission`` (one liveliness query over a
+    short-lived session of its own; docs/fleet.md, "Split brain")."""
+    from wire.transport import Node
+    from wire.zconfig import OpenStopped
+
+    try:
+        probe = Node(zconf() if callable(zconf) else zconf, open_timeout_s=open_timeout_s, stop=stop)
+    except OpenStopped:
+        return []
+    try:
+        live = probe.live_tokens(keys.carrier_alive_pattern(mission), DEFAULTS.liveliness_check_s)
+    finally:
+        probe.close(DEFAULTS.close_s)
+    wanted = {keys.carrier_alive(mission, cid): cid for cid in ids}
+    return sorted(wanted[k] for k in live if k in wanted)
+
+
 @dataclass(frozen=True)
 class CarrierConfig:
     """Settings of one carrier process.
@@ -295,7 +324,7 @@ class Carrier:
     def _hello(self, next_stage: int) -> None:
         self.node.put(keys.carrier_key(self.mission, self.cid, "hello"), Hello(
             self.mission, self.cid, os.getpid(), socket.gethostname()[:255], self.machine.passengers_left,
-            next_stage, self.fingerprint))
+            next_stage, self.fingerprint, max(1, self.machine.epoch)))
 
     # ------------------------------------------------------------------ inbound
     def _listen(self, wait: bool = False) -> None:
@@ -366,12 +395,12 @@ class Carrier:
         msg = decode(item.payload, Decision)
         if msg.mission != self.mission:
             raise ProtocolError("wrong-mission", f"mission {msg.mission!r}")
-        if msg.stage < self.n_stages:
+        if msg.stage < self.n_stages and msg.epoch >= self.machine.epoch:
             self.book.decision(msg.stage, msg.deploy)
         named = msg.passenger_of(self.cid)
-        if named is not None:
+        if named is not None and msg.epoch >= self.machine.epoch:
             self._named.setdefault(msg.stage, named)
-        self.apply(mc.DecisionHeard(msg.stage, msg.t, msg.deploy, self._position()))
+        self.apply(mc.DecisionHeard(msg.stage, msg.t, msg.deploy, self._position(), msg.epoch))
 
     def _passenger_for(self, j: int) -> int:
         """The passenger released at stage j: the one the Decision named if still on board, else
@@ -402,15 +431,17 @@ class Carrier:
             self.book.outcome(cid, msg.stage, msg.deployed)
 
     def _query_once(self) -> State | None:
+        """The State reply of the highest epoch (two coordinators may answer across a split)."""
+        best = None
         for payload in self.node.query(keys.state_selector(self.mission, self.cid), timeout_s=DEFAULTS.state_query_s):
             try:
                 state = decode(payload, State)
             except ProtocolError as exc:
                 self.node.reject(exc.reason, exc.detail, self.log)
                 continue
-            if state.mission == self.mission:
-                return state
-        return None
+            if state.mission == self.mission and (best is None or state.epoch > best.epoch):
+                best = state
+        return best
 
     def _query_state(self) -> State | None:
         """Ask the coordinator for the mission state, retrying until coordinator_timeout_s."""
@@ -428,7 +459,8 @@ class Carrier:
         mine = state.carrier(self.cid)
         last = state.last_decision
         return mc.StateSeen(state.next_stage, tuple(mine.deployments) if mine else (),
-                            None if last is None else (last.stage, last.t, tuple(last.deploy)), state.ended)
+                            None if last is None else (last.stage, last.t, tuple(last.deploy)), state.ended,
+                            state.epoch)
 
     # ------------------------------------------------------------------ physics
     def _advance(self, t: float) -> None:
@@ -504,7 +536,7 @@ class Carrier:
                 self.apply(mc.Replayed(j, self._position()))
                 self.sim.deploy(self.cid)
                 self.book.outcome(self.cid, j, True)
-        self.apply(mc.Joined(state.next_stage, state.ended))
+        self.apply(mc.Joined(state.next_stage, state.ended, state.epoch))
         self._hello(self.machine.hello_stage())
 
     def _join_alone(self) -> None:
@@ -686,9 +718,18 @@ def run_carriers(scenario, configs, zconf, stop: threading.Event | None = None) 
 
     Returns:
         carrier id -> its exit reason (a key of :data:`EXIT_CODES`).
+
+    Raises:
+        DuplicateCarriers: some of these carriers are live elsewhere (checked before any flies).
     """
     stop = stop if stop is not None else threading.Event()
     configs = list(configs)
+    if configs:
+        mission = configs[0].mission or keys.mission_id_from_name(scenario.name)
+        taken = live_duplicates(mission, [c.carrier for c in configs], zconf, stop,
+                                configs[0].coordinator_timeout_s)
+        if taken:
+            raise DuplicateCarriers(mission, taken)
     shared = None
     if len(configs) > 1:
         seeds = {c.seed for c in configs}

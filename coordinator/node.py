@@ -40,7 +40,7 @@ from planner.registry import make_planner, planner_settings, used_options
 from planner.passengers import release
 from planner.problem import enforce, make_view, stage_rng
 from coordinator.results import render_map, write_json as _write_json
-from coordinator.store import MissionStore
+from coordinator.store import MissionStore, StoreBusy
 from mission import events as ev
 from mission import state as ms
 from mission.summary import RunInfo, summary as mission_summary
@@ -51,6 +51,16 @@ from wire.messages import (
     State, decode, encode, scenario_fingerprint,
 )
 from wire.transport import Node
+
+class DuplicateCoordinator(RuntimeError):
+    """Another coordinator's liveliness token for this mission is live (and this one is no
+    standby): refuse to start, before mission.db is touched."""
+
+    def __init__(self, mission: str):
+        super().__init__(f"mission {mission} already has a live coordinator; use --standby to wait for it, "
+                         f"or another --mission")
+        self.mission = mission
+
 
 #: Which message type each carrier topic carries.
 TOPIC_TYPES = {"hello": Hello, "obs": Observation, "confirm": Confirm, "own": Own, "bye": Bye}
@@ -73,6 +83,8 @@ class CoordinatorConfig:
         render: draw map.png at the end.
         log: where progress lines go (a callable taking one string).
         record: write mission.mcap as the mission runs (recording/live.py).
+        standby: when another coordinator of this mission is live, wait until its liveliness
+            token vanishes and take over (else refuse to start: :class:`DuplicateCoordinator`).
     """
 
     out_dir: str
@@ -90,6 +102,7 @@ class CoordinatorConfig:
     render: bool = True
     log: object = None
     record: bool = True  # write mission.mcap (recording/live.py)
+    standby: bool = False
 
 
 def to_event(msg, at: float):
@@ -149,6 +162,13 @@ class Coordinator:
         self.node: Node | None = None
         self.store: MissionStore | None = None
         self.recorder = None  # recording.live.LiveRecorder while mission.mcap is written
+        # Split brain (docs/fleet.md): this process's epoch (set when it opens mission.db), the
+        # highest epoch a live primary reported while this one stood by, and the epoch of a
+        # newer coordinator that deposed this one (None while not deposed).
+        self.epoch = 1
+        self.known_epoch = 0
+        self._first_stage = 0  # the first stage this process decides (a newer epoch is taken before it)
+        self.deposed_by: int | None = None
 
     # ------------------------------------------------------------------ views of the state
     def log(self, line: str) -> None:
@@ -176,7 +196,8 @@ class Coordinator:
 
     def _decision(self, j: int) -> Decision:
         d = self.state.decisions[j]
-        return Decision(self.mission, j, self.spec.stage_times[j], d.deploy, d.planning_ms, d.passengers)
+        return Decision(self.mission, j, self.spec.stage_times[j], d.deploy, d.planning_ms, self.epoch,
+                        passengers=d.passengers)
 
     def _refresh_state(self) -> None:
         """From now on State queries answer from the current state (it is stored). O(1): the
@@ -199,10 +220,10 @@ class Coordinator:
         if (st.next_stage - 1) in st.decisions:
             d = st.decisions[st.next_stage - 1]
             last = Decision(self.mission, st.next_stage - 1, self.spec.stage_times[st.next_stage - 1], d.deploy,
-                            d.planning_ms, d.passengers)
+                            d.planning_ms, self.epoch, passengers=d.passengers)
         return encode(State(
             mission=self.mission, next_stage=st.next_stage, stages=self.n_stages, fingerprint=self.fingerprint,
-            ended=st.ended, carriers=carriers, last_decision=last))
+            ended=st.ended, carriers=carriers, last_decision=last, epoch=self.epoch))
 
     def _carrier_state(self, st, cid: str) -> CarrierState:
         """One carrier's entry: its deployments as the planner sees them (its accounts, its
@@ -263,6 +284,9 @@ class Coordinator:
                 raise ProtocolError("bad-key", f"liveliness token on {item.key[:80]}")
             self.apply(ev.LivelinessChanged(parsed[0], item.kind == "alive", item.wall))
             return
+        if item.key == keys.decision_key(self.mission):
+            self._heard_decision(item)
+            return
         parsed = keys.parse_carrier_key(self.mission, item.key)
         if parsed is not None and parsed[1] == "pose":
             self._pose(parsed[0], item)
@@ -277,7 +301,97 @@ class Coordinator:
             raise ProtocolError("wrong-mission", f"mission {msg.mission!r} on {self.mission!r}")
         if msg.carrier != cid:
             raise ProtocolError("key-mismatch", f"carrier {msg.carrier!r} on the key of {cid!r}")
+        if isinstance(msg, Hello) and msg.epoch > self.epoch and msg.fingerprint == self.fingerprint:
+            self._carrier_epoch(cid, msg.epoch)
         self.apply(to_event(msg, item.wall))
+
+    def _carrier_epoch(self, cid: str, epoch: int) -> None:
+        """A carrier has heard a higher epoch than ours. Before this process decided a stage (it
+        may have re-published the last decision) a coordinator that had that epoch is gone or out
+        of our reach: take the next epoch (recorded, so a restart goes higher still) and
+        re-publish. After it, a newer coordinator decides this mission: we are deposed."""
+        if self.deposed_by is not None:
+            return
+        if self.state.next_stage > self._first_stage:
+            self._deposed(epoch, f"carrier {cid} has heard it")
+            return
+        self.log(f"coordinator: carrier {cid} has heard epoch {epoch}; this coordinator takes epoch {epoch + 1}")
+        self.epoch = epoch + 1
+        self.store.raise_epoch(self.epoch)
+        self._refresh_state()
+        if self.state.next_stage > 0:
+            self._publish_decision(self._decision(self.state.next_stage - 1))
+
+    def _heard_decision(self, item) -> None:
+        """A Decision on this mission's decision key (ours come back to us): one of a higher
+        epoch means another coordinator took over (e.g. a partition healed after a standby
+        took over): stop deciding, publish no End, exit (docs/fleet.md, "Split brain"). Anything
+        else there is not addressed to this coordinator: ignored, not counted (carriers count it)."""
+        try:
+            msg = decode(item.payload, Decision)
+        except ProtocolError:
+            return
+        if msg.mission == self.mission and msg.epoch > self.epoch:
+            self._deposed(msg.epoch, "it decides")
+
+    def _deposed(self, epoch: int, how: str) -> None:
+        """Stop deciding: a coordinator of a higher epoch took over (no End, no summary.json)."""
+        if self.deposed_by is not None:
+            return
+        self.deposed_by = epoch
+        self.log(f"coordinator: deposed: a coordinator of epoch {epoch} took over mission {self.mission} ({how}; "
+                 f"this one has epoch {self.epoch}); stopping without End")
+        self._stop.set()
+
+    def _claim(self) -> bool:
+        """Before this coordinator declares its token: is another coordinator of the mission
+        live? Not a standby: raise :class:`DuplicateCoordinator`. A standby waits while the
+        primary's token is present, querying its State now and then for its epoch; returns
+        False when stopped before the primary vanished, True when this process may go on."""
+        alive = keys.coordinator_alive(self.mission)
+        if not self.node.live_tokens(alive, DEFAULTS.liveliness_check_s):
+            return True
+        if not self.config.standby:
+            raise DuplicateCoordinator(self.mission)
+        self.known_epoch = max(self.known_epoch, 1)  # a primary lives: its epoch is 1 at least
+        self.log(f"coordinator: standby: mission {self.mission} has a live coordinator; waiting for its "
+                 f"liveliness token to vanish")
+        asked = None
+        while not self._stop.is_set():
+            if asked is None or time.monotonic() - asked >= DEFAULTS.standby_state_s:
+                self._learn_epoch()
+                asked = time.monotonic()
+            if not self.node.live_tokens(alive, DEFAULTS.liveliness_check_s):
+                self.log(f"coordinator: the primary's liveliness token vanished; taking over mission "
+                         f"{self.mission} (it had epoch {self.known_epoch or 'unknown'})")
+                return True
+            self._stop.wait(DEFAULTS.standby_poll_s)
+        return False
+
+    def _open_store(self, path: Path, meta: dict) -> MissionStore:
+        """mission.db, waiting while another process holds its write lock (a standby taking over
+        from a primary that hangs in the middle of a write on the same disk)."""
+        logged = False
+        while True:
+            try:
+                return MissionStore(path, meta, min_epoch=self.known_epoch + 1)
+            except StoreBusy as exc:
+                if not logged:
+                    self.log(f"coordinator: {exc}; waiting for it")
+                    logged = True
+                if self._stop.wait(0.5):
+                    raise
+
+    def _learn_epoch(self) -> None:
+        """The primary's epoch, from its State (and the last Decision in it)."""
+        for payload in self.node.query(keys.state_key(self.mission), timeout_s=DEFAULTS.state_query_s):
+            try:
+                state = decode(payload, State)
+            except ProtocolError:
+                continue
+            if state.mission == self.mission:
+                last = state.last_decision.epoch if state.last_decision is not None else 0
+                self.known_epoch = max(self.known_epoch, state.epoch, last)
 
     def _pose(self, cid: str, item) -> None:
         """A carrier's Pose: not a mission event and never a rejection (docs/protocol.md, "Pose");
@@ -392,6 +506,10 @@ class Coordinator:
             if self._stop.is_set():
                 return
             deploy, planning_ms, passengers = self._plan(j)
+            newer = self.store.newer_epoch()  # a standby took over on our disk while we were cut off
+            if newer is not None:
+                self._deposed(newer, "mission.db records it")
+                return
             self.apply(ev.Decided(j, deploy, planning_ms, time.time(), passengers))  # records, then publishes
             last_published = time.monotonic()
             self._progress(j, (last_published - opened) * 1e3 - planning_ms)
@@ -419,16 +537,45 @@ class Coordinator:
         Returns:
             The summary dict.
         """
+        from wire.zconfig import OpenStopped
+
         out = Path(self.config.out_dir)
+        # The session first: a duplicate is refused (or waited for) before mission.db is touched.
+        if not self._stop.is_set():
+            try:
+                self.node = Node(self.zconf, stop=self._stop)
+            except OpenStopped:
+                self.node = None
+        if self.node is not None:
+            try:
+                claimed = self._claim()
+            except BaseException:
+                self.node.close(DEFAULTS.close_s)
+                self.node = None
+                raise
+            if not claimed:  # a standby stopped while the primary lived: nothing of ours to record
+                self.node.close(DEFAULTS.close_s)
+                self.node = None
+                self.log(f"coordinator: standby for mission {self.mission} stopped; it never took over")
+                return {"ended": False, "standby": True}
+        started = time.monotonic()  # the mission's wall time: a standby's wait is not part of it
         out.mkdir(parents=True, exist_ok=True)
         meta = {"mission": self.mission, "scenario": self.scenario.name, "fingerprint": self.fingerprint,
                 "seed": self.seed, "planner": self.planner_name, "planner_options": self.planner_options}
-        self.store = MissionStore(out / "mission.db", meta)
-        started = time.monotonic()
+        # Higher than every epoch used before for this mission: the ones in mission.db and the
+        # one a primary reported while this process stood by; 1 for a fresh mission.
+        try:
+            self.store = self._open_store(out / "mission.db", meta)
+        except BaseException:
+            if self.node is not None:
+                self.node.close(DEFAULTS.close_s)
+            raise
+        self.epoch = self.store.epoch
         self._open_recorder(out)
         try:
             # Recovery is the live fold over the stored events (the last one is this process's open).
             self.state = ms.fold(self.spec, self.store.mission_events())
+            self._first_stage = self.state.next_stage
             if self.state.resumed:
                 self.log(f"coordinator: resumed from {self.store.path}: {len(self.state.decisions)} stage(s) "
                          f"decided, continuing at stage {self.state.next_stage}")
@@ -436,14 +583,14 @@ class Coordinator:
             if callable(warm) and not self._stop.is_set():
                 warm(self.problem)
             self._refresh_state()
-            if not self._stop.is_set():
-                self.node = Node(self.zconf, stop=self._stop)
+            if self.node is not None and not self._stop.is_set():
                 self.node.subscribe(f"{keys.prefix(self.mission)}/carrier/**")
+                self.node.subscribe(keys.decision_key(self.mission))  # a newer epoch deposes us
                 self.node.watch_liveliness(keys.carrier_alive_pattern(self.mission))
                 self.node.serve(keys.state_key(self.mission), self.state_reply)
                 self.node.token(keys.coordinator_alive(self.mission))
                 self.log(f"coordinator: mission {self.mission}, {len(self.ids)} carriers, {self.n_stages} stages, "
-                         f"planner {self.planner_name} {self.planner_options}, seed {self.seed}")
+                         f"planner {self.planner_name} {self.planner_options}, seed {self.seed}, epoch {self.epoch}")
                 if self.state.next_stage > 0:
                     self._publish_decision(self._decision(self.state.next_stage - 1))  # idempotent re-publication
                 if self.state.ended:  # resumed a complete mission: only tell late carriers it is over
@@ -454,12 +601,11 @@ class Coordinator:
                     if not self._stop.is_set():
                         self._wait(self.config.confirm_timeout_s,
                                    lambda: not self.state.unconfirmed(self.n_stages - 1))
-                    self._end("stopped" if self._stop.is_set() else "complete")
+                    if self.deposed_by is None:  # deposed: the newer coordinator ends the mission
+                        self._end("stopped" if self._stop.is_set() else "complete")
             else:  # stopped before the session opened: nothing to tell anyone, but on record
                 self.apply(ev.Ended("stopped", time.time()))
         except Exception as exc:
-            from wire.zconfig import OpenStopped
-
             if not isinstance(exc, OpenStopped):
                 raise
             self.apply(ev.Ended("stopped", time.time()))
@@ -468,26 +614,35 @@ class Coordinator:
             # coordinator killed while the bound is computed (its launcher's grace after Ctrl-C is
             # a few seconds) still leaves a complete summary.json, and mission.mcap is finalised
             # in between.
+            # A deposed coordinator writes no summary.json or map.png: the results are the newer
+            # coordinator's (which may share this --out directory).
             wall_s = time.monotonic() - started
-            _write_json(out / "summary.json", self.summary(wall_s, bound=False))
+            deposed = self.deposed_by is not None
+            if not deposed:
+                _write_json(out / "summary.json", self.summary(wall_s, bound=False))
             self._close_recorder()
-            summary = self.summary(wall_s)
-            _write_json(out / "summary.json", summary)
+            summary = self.summary(wall_s, bound=not deposed)
+            if not deposed:
+                _write_json(out / "summary.json", summary)
             if self.node is not None:
                 self.node.close(DEFAULTS.close_s)
-            if self.config.render:
+            if self.config.render and not deposed:
                 self._render(out / "map.png")
             self.store.close()
         return summary
 
     # ------------------------------------------------------------------ results
     def summary(self, wall_s: float, bound: bool = True) -> dict:
-        return mission_summary(self.state, self.problem, RunInfo(
+        out = mission_summary(self.state, self.problem, RunInfo(
             scenario=self.scenario.name, scenario_file=str(self.scenario_path), mission=self.mission,
             planner=self.planner_name, planner_options=self.planner_options, seed=self.seed,
             pid=os.getpid(), host=socket.gethostname(), wall_time_s=wall_s,
             rejected=dict(self.node.rejected) if self.node else {},
             passenger_types=tuple(c.passenger_types for c in self.scenario.carriers)), bound=bound)
+        out["epoch"] = self.epoch  # of the coordinator that wrote this summary (docs/fleet.md)
+        if self.deposed_by is not None:
+            out["deposed_by"] = self.deposed_by
+        return out
 
     def _render(self, path: Path) -> None:
         try:

@@ -73,12 +73,17 @@ CREATE TABLE IF NOT EXISTS confirmations (
 #: Event kinds written to ``events``.
 EVENT_KINDS = (
     "open", "hello", "alive", "dead", "observation", "missing", "decision", "published",
-    "confirm", "own", "bye", "rejected", "end",
+    "confirm", "own", "bye", "rejected", "end", "epoch",
 )
 
 
 class StoreMismatch(RuntimeError):
     """The existing mission.db belongs to another mission (different scenario, seed or planner)."""
+
+
+class StoreBusy(RuntimeError):
+    """Another process holds mission.db's write lock longer than the busy timeout (a primary
+    that hangs, or was frozen, in the middle of a write): try again later."""
 
 
 @dataclass
@@ -117,16 +122,24 @@ class MissionRecord:
 class MissionStore:
     """Append-only mission log. Not thread-safe: use it from the coordinator's main thread only."""
 
-    def __init__(self, path: str | Path, meta: dict, synchronous: str = "FULL"):
+    def __init__(self, path: str | Path, meta: dict, synchronous: str = "FULL", min_epoch: int = 1):
         """Open or create ``path``.
 
         Args:
             path: the database file (created with its parent directory if missing).
             meta: the mission identity (JSON-able values). An existing file must hold the same.
             synchronous: SQLite ``synchronous`` level; FULL survives power loss, NORMAL a process crash.
+            min_epoch: the lowest epoch the opening coordinator may take (one more than an
+                epoch it learnt elsewhere, e.g. from a primary's State).
+
+        Attributes:
+            epoch: the opening coordinator's epoch: ``min_epoch``, or one more than the highest
+                epoch recorded here if that is higher (1 for a fresh mission); written in its
+                ``open`` event in the same transaction that reads the recorded ones.
 
         Raises:
             StoreMismatch: when the file holds another mission.
+            StoreBusy: when another process holds the write lock for more than 10 s.
         """
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -145,9 +158,16 @@ class MissionStore:
                         f"{self.path}: holds another mission ({key} is {stored[key]}, this run has {value}); "
                         "use another --out directory"
                     )
-        with self._tx():
-            self.db.executemany("INSERT OR IGNORE INTO meta (key, value) VALUES (?, ?)", wanted.items())
-            self._event("open", None, None, {"resumed": bool(stored)})
+        try:
+            with self._tx():
+                self.db.executemany("INSERT OR IGNORE INTO meta (key, value) VALUES (?, ?)", wanted.items())
+                self.epoch = max(int(min_epoch), 1 + _highest_epoch(self.db))
+                self._checked = self._event("open", None, None, {"resumed": bool(stored), "epoch": self.epoch})
+        except sqlite3.OperationalError as exc:
+            self.db.close()
+            if "locked" in str(exc) or "busy" in str(exc):
+                raise StoreBusy(f"{self.path}: locked by another process") from None
+            raise
 
     # ------------------------------------------------------------------ writing
     def _tx(self):
@@ -319,6 +339,25 @@ class MissionStore:
             "SELECT latency_ms FROM confirmations WHERE latency_ms IS NOT NULL ORDER BY seq"
         )]
 
+    def raise_epoch(self, epoch: int) -> None:
+        """This coordinator takes a higher epoch (learnt from a carrier): an ``epoch`` event
+        (:meth:`newer_epoch` then reports only epochs above it)."""
+        self.epoch = int(epoch)
+        with self._tx():
+            self._event("epoch", None, None, {"epoch": self.epoch})
+
+    def newer_epoch(self) -> int | None:
+        """The highest epoch another coordinator recorded in this file since the last call (or
+        since this store opened), if higher than ours: a standby that took over on the same
+        disk while this process was cut off from everyone (docs/fleet.md, "Split brain"). Reads
+        only the rows added since the last call (a range of the primary key)."""
+        rows = self.db.execute("SELECT seq, payload FROM events WHERE seq > ? AND kind IN ('open', 'epoch')",
+                               (self._checked,)).fetchall()
+        last = self.db.execute("SELECT MAX(seq) FROM events").fetchone()[0]
+        self._checked = max(self._checked, last or 0)
+        newer = max((int(json.loads(p).get("epoch", 1)) for _, p in rows), default=0)
+        return newer if newer > self.epoch else None
+
     def close(self) -> None:
         try:
             self.db.close()
@@ -343,6 +382,26 @@ def load_meta(path: str | Path) -> dict:
         return {k: json.loads(v) for k, v in db.execute("SELECT key, value FROM meta")}
     finally:
         db.close()
+
+
+def highest_epoch(path: str | Path) -> int:
+    """The highest coordinator epoch recorded in the mission.db at ``path`` (read-only; in the
+    ``open`` events and the ``epoch`` events of a coordinator that raised its epoch after a
+    carrier's Hello): 0 when there is no such file or it holds no mission; an ``open`` written before epochs existed
+    counts as epoch 1 (its decisions carried none, which means 1)."""
+    path = Path(path)
+    if not path.is_file() or path.stat().st_size == 0:
+        return 0
+    db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)
+    try:
+        return _highest_epoch(db)
+    finally:
+        db.close()
+
+
+def _highest_epoch(db) -> int:
+    rows = db.execute("SELECT payload FROM events WHERE kind IN ('open', 'epoch')").fetchall()
+    return max((int(json.loads(p).get("epoch", 1)) for (p,) in rows), default=0)
 
 
 def _mission_events(db) -> list:

@@ -19,7 +19,9 @@ position at that moment) and carries out the effects in order (:class:`Deploy` b
 * every outcome is written to the carrier's durable log (:class:`LogOutcome`) before the carrier
   acts on it (:class:`Deploy`), and every observation when it is made (:class:`LogObservation`);
 * when the coordinator comes back, the carrier resynchronises from State (:class:`Resync`) and
-  repeats its answers and its own decisions.
+  repeats its answers and its own decisions;
+* a Decision of an epoch lower than the highest the carrier has heard (in a Decision or a
+  State) comes from a deposed coordinator: rejected (``deposed``), never answered.
 """
 from __future__ import annotations
 
@@ -46,6 +48,7 @@ class Joined:
 
     next_stage: int
     ended: bool = False
+    epoch: int = 1
 
 
 @dataclass(frozen=True)
@@ -56,6 +59,7 @@ class DecisionHeard:
     t: float
     deploy: tuple[str, ...]
     position: Point
+    epoch: int = 1
 
 
 @dataclass(frozen=True)
@@ -101,6 +105,7 @@ class StateSeen:
     deployments: tuple[int, ...]
     last_decision: tuple[int, float, tuple[str, ...]] | None  # (stage, t, deploy)
     ended: bool
+    epoch: int = 1
 
 
 @dataclass(frozen=True)
@@ -230,6 +235,7 @@ class CarrierState:
         pending: the stage of the Observation waiting for its decision, or None.
         sensed: what the carrier observed at ``pending`` (None = ∅).
         ended: End was heard (or State says the mission ended).
+        epoch: the highest coordinator epoch heard (Decision, State); 0 before any.
     """
 
     cid: str
@@ -245,6 +251,7 @@ class CarrierState:
     pending: int | None = None
     sensed: int | None = None
     ended: bool = False
+    epoch: int = 0
 
     @property
     def n_stages(self) -> int:
@@ -332,10 +339,15 @@ def _on_joined(state: CarrierState, e: Joined):
     effects = (Log(f"joined at stage {e.next_stage} ({len(state.handled)} deployment(s) on record)"),) \
         if e.next_stage > 0 else ()
     return dataclasses.replace(state, stage=e.next_stage, joined=e.next_stage,
-                               state_next=max(state.state_next, e.next_stage)), effects
+                               state_next=max(state.state_next, e.next_stage),
+                               epoch=max(state.epoch, e.epoch)), effects
 
 
 def _on_decision(state: CarrierState, e: DecisionHeard):
+    if e.epoch < state.epoch:
+        return state, (Reject("deposed", f"decision for stage {e.stage} of epoch {e.epoch}; "
+                                         f"epoch {state.epoch} decides now"),)
+    state = dataclasses.replace(state, epoch=e.epoch) if e.epoch > state.epoch else state
     j = e.stage
     if j >= state.n_stages:
         return state, (Reject("out-of-range", f"decision for stage {j} >= {state.n_stages}"),)
@@ -403,9 +415,11 @@ def _on_resync(state: CarrierState, e: Resync):
     our reconnection), re-send the pending Observation if its stage is still open, and repeat
     our answers (``already``) so a coordinator that lost Confirms in flight has every outcome."""
     s = e.state
+    if s is not None and s.epoch < state.epoch:
+        s = None  # a deposed coordinator's view: nothing to learn from it
     new = state
     if s is not None:
-        new = dataclasses.replace(new, state_next=max(new.state_next, s.next_stage))
+        new = dataclasses.replace(new, state_next=max(new.state_next, s.next_stage), epoch=max(new.epoch, s.epoch))
     effects: list = [Log("coordinator is back; re-sending hello and the pending observation"),
                      SendHello(new.hello_stage(), new.passengers_left)]
     if s is not None:
@@ -418,7 +432,7 @@ def _on_resync(state: CarrierState, e: Resync):
                 new, more = _answer(new, j, (new.cid,), e.position, allow=False)
                 effects += more
         if last is not None and last[0] not in new.handled and last[0] not in new.buffered:
-            new, more = _on_decision(new, DecisionHeard(last[0], last[1], tuple(last[2]), e.position))
+            new, more = _on_decision(new, DecisionHeard(last[0], last[1], tuple(last[2]), e.position, s.epoch))
             effects += more
         if s.ended:
             new = dataclasses.replace(new, ended=True)

@@ -444,12 +444,19 @@ def _check_time(state, e):
     return None
 
 
+def _check_carrier_stage(state, e, what: str, timed: bool):
+    """The rejection of a carrier's message about a stage (unknown carrier, stage >= N, ``t`` not
+    the stage time when ``timed``, no accepted Hello), or None."""
+    j = e.stage
+    return (_unknown(state, e.carrier)
+            or (j >= state.spec.n_stages and (Reject("out-of-range", f"stage {j} >= {state.spec.n_stages}"),))
+            or (timed and _check_time(state, e))
+            or _no_hello(state, e.carrier, what))
+
+
 def _on_observation(state: MissionState, e: ev.Observation):
     cid, j = e.carrier, e.stage
-    bad = (_unknown(state, cid)
-           or (j >= state.spec.n_stages and (Reject("out-of-range", f"stage {j} >= {state.spec.n_stages}"),))
-           or _check_time(state, e)
-           or _no_hello(state, cid, "observation"))
+    bad = _check_carrier_stage(state, e, "observation", timed=True)
     if bad:
         return state, bad
     if j < state.next_stage:
@@ -508,9 +515,7 @@ def _on_published(state: MissionState, e: ev.Published):
 
 def _on_confirmed(state: MissionState, e: ev.Confirmed):
     cid, j = e.carrier, e.stage
-    bad = (_unknown(state, cid)
-           or (j >= state.spec.n_stages and (Reject("out-of-range", f"stage {j} >= {state.spec.n_stages}"),))
-           or _no_hello(state, cid, "confirmation"))
+    bad = _check_carrier_stage(state, e, "confirmation", timed=False)
     if bad:
         return state, bad
     if j >= state.next_stage:
@@ -542,10 +547,7 @@ def _on_confirmed(state: MissionState, e: ev.Confirmed):
 
 def _on_accounted(state: MissionState, e: ev.Accounted):
     cid, j = e.carrier, e.stage
-    bad = (_unknown(state, cid)
-           or (j >= state.spec.n_stages and (Reject("out-of-range", f"stage {j} >= {state.spec.n_stages}"),))
-           or _check_time(state, e)
-           or _no_hello(state, cid, "own decision"))
+    bad = _check_carrier_stage(state, e, "own decision", timed=True)
     if bad:
         return state, bad
     r = state.spec.index(cid)

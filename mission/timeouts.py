@@ -25,6 +25,13 @@ class Timeouts:
             (``finished``).
         state_query_s: either side: one State query waits this long for replies.
         close_s: either side: bound on undeclaring everything and closing the Zenoh session.
+        liveliness_check_s: either side, at start: how long the liveliness query that looks for
+            a live process with the same role and id (a duplicate) waits for answers.
+        standby_poll_s: a standby coordinator: how often it looks whether the primary's
+            liveliness token is still there (the takeover delay is at most this, after zenoh
+            noticed the primary's loss).
+        standby_state_s: a standby coordinator: how often it queries the primary's State to
+            learn its epoch.
     """
 
     join_s: float = 20.0
@@ -37,6 +44,9 @@ class Timeouts:
     end_s: float = 10.0
     state_query_s: float = 2.0
     close_s: float = 3.0
+    liveliness_check_s: float = 1.5
+    standby_poll_s: float = 0.25
+    standby_state_s: float = 2.0
 
 
 #: The defaults.

@@ -152,7 +152,9 @@ def test_an_unscoped_state_of_a_large_mission_lists_no_carrier(tmp_path):
 
 
 def test_a_carrier_process_loads_no_planner_kernels():
-    """A carrier does not plan on board: no numba, scipy or matplotlib in its process."""
+    """Building a carrier and stepping its world loads no numba, scipy or matplotlib: the on-board
+    planner is loaded only by a running carrier that may decide alone (in the background), never
+    by one run with --no-autonomy."""
     code = (
         "import sys, runpy\n"
         "sys.argv = ['run_fleet.py', %r, '--role', 'carrier', '--carrier', 'a']\n"

@@ -328,6 +328,30 @@ def test_carrier_resync_after_the_coordinator_returns():
     assert (1, "late", False) in confirms(effects) and state2.passengers_left == 2
 
 
+
+def test_carrier_ignores_a_deposed_coordinators_decisions():
+    """Epochs (docs/protocol.md, "Epochs"): once epoch 2 was heard (State at join, a Decision, a
+    Resync), a Decision of epoch 1 is rejected as ``deposed``, unanswered and without effect; a
+    State of a lower epoch teaches nothing; equal and higher epochs are handled as usual."""
+    state, _ = carrier(mc.Joined(0, epoch=2), mc.Observed(0))
+    assert state.epoch == 2
+    new, effects = mc.step(state, mc.DecisionHeard(0, 0.0, ("a",), P0, epoch=1))
+    assert new == state and confirms(effects) == []
+    assert [e.reason for e in effects if isinstance(e, mc.Reject)] == ["deposed"]
+    new, effects = mc.step(state, mc.DecisionHeard(0, 0.0, ("a",), P0, epoch=3))
+    assert confirms(effects) == [(0, "deployed", True)] and new.epoch == 3
+    _, effects = mc.step(new, mc.DecisionHeard(0, 0.0, ("a",), P0, epoch=2))
+    assert confirms(effects) == [] and [e.reason for e in effects if isinstance(e, mc.Reject)] == ["deposed"]
+    # A stale State (epoch 1) after epoch 3: its next_stage and last decision are not taken.
+    stale = mc.StateSeen(next_stage=2, deployments=(1,), last_decision=(1, 5.0, ("a",)), ended=True, epoch=1)
+    back, effects = mc.step(new, mc.Resync(stale, P0))
+    assert back.state_next == new.state_next and not back.ended and 1 not in back.handled
+    # A Decision without an epoch (an earlier coordinator) is epoch 1: fine while nothing higher was heard.
+    fresh, _ = carrier(*JOINED, mc.Observed(0))
+    _, effects = mc.step(fresh, heard(0))
+    assert confirms(effects) == [(0, "deployed", True)]
+
+
 # --------------------------------------------------------------------------- purity
 FORBIDDEN = ("zenoh", "pymunk", "msgpack", "sqlite3", "world", "wire", "carriers", "coordinator.node",
              "coordinator.store", "matplotlib")

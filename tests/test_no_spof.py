@@ -14,7 +14,7 @@ import pytest
 import world
 from tools import faults, netns
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(1800)]
 
 SCENARIO = world.load_scenario(faults.SCENARIO)
 _NO_NETNS = netns.unavailable()

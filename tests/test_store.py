@@ -82,3 +82,25 @@ def test_survives_a_killed_writer(tmp_path):
     assert proc.returncode == -9
     rec = MissionStore(tmp_path / "k.db", META).replay()
     assert rec.decisions == {0: (("a",), 1.0)} and rec.observations == {("a", 0): 4}
+
+
+def test_epochs_grow_with_every_open_and_a_newer_one_on_the_same_file_is_seen(tmp_path):
+    """docs/protocol.md, "Epochs": 1 for a fresh mission, one more at every reopening, at least
+    the floor a standby learnt; a store sees a newer epoch opened on its file by another process
+    (a standby on the same disk), once, and never its own."""
+    from coordinator.store import highest_epoch
+
+    path = tmp_path / "mission.db"
+    assert highest_epoch(path) == 0
+    first = MissionStore(path, META)
+    assert first.epoch == 1 and first.newer_epoch() is None
+    first.event("rejected", reason="x", detail="y")
+    second = MissionStore(path, META)  # the standby, while the first still runs
+    assert second.epoch == 2 and second.newer_epoch() is None
+    assert first.newer_epoch() == 2 and first.newer_epoch() is None  # rows already seen are not read again
+    second.close()
+    first.close()
+    third = MissionStore(path, META, min_epoch=7)
+    assert third.epoch == 7 and highest_epoch(path) == 7
+    third.close()
+    assert MissionStore(path, META).epoch == 8

@@ -139,7 +139,7 @@ def test_decision_and_confirm_name_the_passenger():
     """Passenger types: a Decision names the passenger of each deploying carrier (parallel to
     ``deploy``), a Confirm the passenger released; both round-trip, and a Decision whose list is
     not parallel to ``deploy`` is refused."""
-    d = Decision(M, 3, 15.0, ("a", "b"), 12.5, (2, 0))
+    d = Decision(M, 3, 15.0, ("a", "b"), 12.5, passengers=(2, 0))
     back = decode(encode(d))
     assert back == d and back.passenger_of("a") == 2 and back.passenger_of("b") == 0
     assert back.passenger_of("c") is None and Decision(M, 3, 15.0, ("a",), 1.0).passenger_of("a") is None
@@ -148,6 +148,25 @@ def test_decision_and_confirm_name_the_passenger():
     bad = {**_to_wire(d), "passengers": [1]}
     assert _reason(_pack(bad)) == "out-of-range"
     assert _reason(_pack({**_to_wire(c), "passenger": -1})) == "out-of-range"
+
+
+def test_epoch_is_optional_absent_means_1_and_left_out_when_1():
+    """docs/protocol.md, "Epochs" and "Compatibility": epoch 1 is not on the wire (the bytes of
+    a mission without takeover are unchanged), any other epoch is, and a receiver reads an
+    absent epoch as 1 and an explicit 1 as 1."""
+    assert "epoch" not in msgpack.unpackb(encode(SAMPLES["decision"]))
+    assert "epoch" not in msgpack.unpackb(encode(SAMPLES["state"]))
+    second = Decision(M, 3, 15.0, ("a",), 12.5, epoch=2)
+    assert msgpack.unpackb(encode(second))["epoch"] == 2 and decode(encode(second)) == second
+    state = State(mission=M, next_stage=4, stages=4, fingerprint="ab", ended=True, carriers=(),
+                  last_decision=second, epoch=2)
+    raw = msgpack.unpackb(encode(state))
+    assert raw["epoch"] == 2 and raw["last_decision"]["epoch"] == 2 and decode(encode(state)) == state
+    assert decode(_pack({**_raw("decision"), "epoch": 1})).epoch == 1
+    for value, reason in ((0, "out-of-range"), (-1, "out-of-range"), (2**31, "out-of-range"), ("2", "wrong-type"),
+                          (True, "wrong-type"), (None, "wrong-type")):
+        assert _reason(_pack({**_raw("decision"), "epoch": value})) == reason, value
+        assert _reason(_pack({**_raw("state"), "epoch": value})) == reason, value
 
 
 def test_encode_refuses_what_decode_would_reject():

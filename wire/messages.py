@@ -10,7 +10,7 @@ Field types, units and meaning are documented on each dataclass and in docs/prot
 from __future__ import annotations
 
 import math
-from dataclasses import MISSING, dataclass, field, fields
+from dataclasses import dataclass, field, fields
 from typing import Any, Callable
 
 import msgpack
@@ -146,11 +146,22 @@ _SECONDS = _float(-1e9, 1e9)
 _MS = _float(0.0, 1e9)
 
 
-def _spec(validator: Validator, as_map: bool = False, default=MISSING):
+_NO_DEFAULT = object()
+
+
+def _spec(validator: Validator, as_map: bool = False, absent=_NO_DEFAULT):
     """A dataclass field carrying its wire validator in metadata; ``as_map``: a tuple of sorted
-    (key, value) pairs in Python, a map on the wire. With a ``default`` the field is optional on
-    the wire: a message without it decodes with the default (fields added to a message later)."""
-    return field(default=default, metadata={"check": validator, "as_map": as_map})
+    (key, value) pairs in Python, a map on the wire. ``absent``: the field is optional on the wire
+    and a missing one means this value; the encoder leaves it out when it has this value (so a
+    peer written before the field existed still reads every message that does not use it)."""
+    if absent is _NO_DEFAULT:
+        return field(metadata={"check": validator, "as_map": as_map})
+    return field(default=absent, metadata={"check": validator, "as_map": as_map, "absent": absent})
+
+
+#: A coordinator's epoch (docs/protocol.md, "Epochs"): 1 for a fresh mission, higher after
+#: every restart or takeover; absent on the wire = 1.
+_EPOCH = _int(1, 2**31 - 1)
 
 
 # --------------------------------------------------------------------------- messages
@@ -167,6 +178,8 @@ class Hello:
         next_stage: the first stage this carrier will observe.
         fingerprint: hex digest of the carrier's scenario (with its seed); must equal the
             coordinator's, else the carrier built another world and is refused.
+        epoch: the highest coordinator epoch the carrier has heard (1 when none; omitted on the
+            wire when 1): a coordinator that has not decided yet takes a higher one.
     """
 
     mission: str = _spec(_ident)
@@ -176,6 +189,7 @@ class Hello:
     passengers_left: int = _spec(_PASSENGERS)
     next_stage: int = _spec(_STAGE_COUNT)
     fingerprint: str = _spec(_text(64))
+    epoch: int = _spec(_EPOCH, absent=1)
     v: int = PROTOCOL_VERSION
     TYPE = "hello"
 
@@ -216,9 +230,11 @@ class Decision:
         t: simulated mission time of the stage, seconds.
         deploy: ids of the carriers that deploy one passenger now (sorted, no repeats).
         planning_ms: wall time the planner took, milliseconds.
+        epoch: the deciding coordinator's epoch (>= 1; omitted on the wire when 1): a carrier
+            ignores a Decision of an epoch lower than the highest it has heard (``deposed``).
         passengers: the passenger index each carrier of ``deploy`` releases, parallel to it
-            (passenger types, docs/planner.md); empty when the decision names none (optional on
-            the wire).
+            (passenger types, docs/planner.md); empty when the decision names none (omitted on
+            the wire when empty).
     """
 
     mission: str = _spec(_ident)
@@ -226,7 +242,8 @@ class Decision:
     t: float = _spec(_SECONDS)
     deploy: tuple[str, ...] = _spec(_unique_ids)
     planning_ms: float = _spec(_MS)
-    passengers: tuple[int, ...] = _spec(_list(_int(0, MAX_PASSENGERS - 1), MAX_CARRIERS), default=())
+    epoch: int = _spec(_EPOCH, absent=1)
+    passengers: tuple[int, ...] = _spec(_list(_int(0, MAX_PASSENGERS - 1), MAX_CARRIERS), absent=())
     v: int = PROTOCOL_VERSION
     TYPE = "decision"
 
@@ -262,7 +279,7 @@ class Confirm:
         position: where the passenger was released (or the carrier's position), metres.
         passengers_left: passengers on board after handling the decision.
         passenger: the index of the passenger released (None when nothing was released or the
-            carrier does not say; optional on the wire).
+            carrier does not say; omitted on the wire when None).
     """
 
     mission: str = _spec(_ident)
@@ -272,7 +289,7 @@ class Confirm:
     status: str = _spec(_text(16))
     position: tuple[float, float] = _spec(_point)
     passengers_left: int = _spec(_PASSENGERS)
-    passenger: int | None = _spec(_optional(_int(0, MAX_PASSENGERS - 1)), default=None)
+    passenger: int | None = _spec(_optional(_int(0, MAX_PASSENGERS - 1)), absent=None)
     v: int = PROTOCOL_VERSION
     TYPE = "confirm"
 
@@ -402,6 +419,7 @@ class State:
             mission of at most MAX_STATE_CARRIERS carriers, none on a larger one.
         last_decision: the most recent Decision (None before stage 0 is decided).
         fingerprint: hex digest of the coordinator's scenario (see Hello).
+        epoch: the answering coordinator's epoch (>= 1; omitted on the wire when 1).
     """
 
     mission: str = _spec(_ident)
@@ -411,6 +429,7 @@ class State:
     ended: bool = _spec(_bool)
     carriers: tuple[tuple[str, CarrierState], ...] = _spec(lambda v, n: _carrier_states(v, n), as_map=True)
     last_decision: Decision | None = _spec(lambda v, n: None if v is None else _nested(Decision, v, n))
+    epoch: int = _spec(_EPOCH, absent=1)
     v: int = PROTOCOL_VERSION
     TYPE = "state"
 
@@ -495,7 +514,8 @@ def _to_wire(value, as_map: bool = False):
     """Dataclasses become maps (with ``type`` for messages); (key, value) pair tuples of fields
     marked ``as_map`` become maps; other tuples become arrays."""
     if hasattr(value, "__dataclass_fields__"):
-        out = {f.name: _to_wire(getattr(value, f.name), f.metadata.get("as_map", False)) for f in fields(value)}
+        out = {f.name: _to_wire(getattr(value, f.name), f.metadata.get("as_map", False)) for f in fields(value)
+               if "absent" not in f.metadata or getattr(value, f.name) != f.metadata["absent"]}
         if hasattr(type(value), "TYPE"):
             out["type"] = type(value).TYPE
         return out
@@ -529,8 +549,8 @@ def _build(cls, data: dict, where: str):
         if f.name == "v":
             continue
         if f.name not in data:
-            if f.default is not MISSING:
-                continue  # an optional field: its default
+            if "absent" in f.metadata:
+                continue  # optional: the dataclass default is the documented meaning of absent
             raise ProtocolError("missing-field", f"{where}: missing field {f.name!r}")
         values[f.name] = f.metadata["check"](data[f.name], f"{where}.{f.name}")
     return cls(**values)

@@ -160,6 +160,17 @@ class Node:
             pass
         return out
 
+    def live_tokens(self, key_expr: str, timeout_s: float) -> list[str]:
+        """Key expressions of the liveliness tokens matching ``key_expr`` that exist right now
+        anywhere this session reaches (a liveliness ``get``; waits at most ``timeout_s`` seconds,
+        usually milliseconds). How a process learns, before declaring its own token, that
+        another process already holds it (docs/fleet.md, "Split brain")."""
+        found = []
+        for reply in self.session.liveliness().get(key_expr, timeout=timeout_s):
+            if reply.ok is not None:
+                found.append(str(reply.ok.key_expr))
+        return sorted(set(found))
+
     def next(self, timeout_s: float) -> Inbound | None:
         """The next inbox item, or None after ``timeout_s`` seconds."""
         try:
