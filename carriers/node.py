@@ -251,6 +251,10 @@ class Carrier:
         self._refused: Refusal | None = None
         self.onboard = onboard if onboard is not None else Onboard(scenario, config.planner_options)
         self.book = PeerBook(scenario.carrier_ids, valid)  # what it heard of every carrier's stages
+        # Passenger types: the passenger each Decision named for this carrier (stage -> index), and
+        # the passenger released at each stage of this process (docs/protocol.md, Decision).
+        self._named: dict[int, int] = {}
+        self._released_at: dict[int, int] = {}
         self.peers_live: set[str] = set()
         self.listening: tuple[str, ...] | None = None  # the carriers it hears (:meth:`_listen`)
         self.store: CarrierLog | None = None  # the durable log, open while running
@@ -289,10 +293,11 @@ class Carrier:
         for effect in effects:
             if isinstance(effect, mc.Deploy):
                 self.sim.deploy(self.cid)
+                self._released_at[effect.stage] = self._passenger_for(effect.stage)
             elif isinstance(effect, mc.SendConfirm):
                 self.node.put(keys.carrier_key(self.mission, self.cid, "confirm"), Confirm(
                     self.mission, self.cid, effect.stage, effect.deployed, effect.status, effect.position,
-                    effect.passengers_left))
+                    effect.passengers_left, self._released_at.get(effect.stage) if effect.deployed else None))
             elif isinstance(effect, mc.LogObservation):
                 if self.store is not None:
                     self.store.observed(effect.stage, self.scenario.stage_time(effect.stage), effect.x, effect.position)
@@ -392,7 +397,20 @@ class Carrier:
             raise ProtocolError("wrong-mission", f"mission {msg.mission!r}")
         if msg.stage < self.n_stages and msg.epoch >= self.machine.epoch:
             self.book.decision(msg.stage, msg.deploy)
+        named = msg.passenger_of(self.cid)
+        if named is not None and msg.epoch >= self.machine.epoch:
+            self._named.setdefault(msg.stage, named)
         self.apply(mc.DecisionHeard(msg.stage, msg.t, msg.deploy, self._position(), msg.epoch))
+
+    def _passenger_for(self, j: int) -> int:
+        """The passenger released at stage j: the one the Decision named if still on board, else
+        the lowest index on board (a stage decided on board names none)."""
+        gone = set(self._released_at.values())
+        named = self._named.get(j)
+        count = self.scenario.carriers[self.scenario.carrier_index(self.cid)].passengers
+        if named is not None and named not in gone and named < count:
+            return named
+        return next((i for i in range(count) if i not in gone), 0)
 
     def _peer(self, cid: str, topic: str, payload: bytes) -> None:
         """Another carrier's Observation, Own or Confirm: what it saw and did, for the book."""

@@ -37,6 +37,7 @@ import numpy as np
 
 import world
 from planner.registry import make_planner, planner_settings, used_options
+from planner.passengers import release
 from planner.problem import enforce, make_view, stage_rng
 from coordinator.results import render_map, write_json as _write_json
 from coordinator.store import MissionStore, StoreBusy
@@ -111,7 +112,8 @@ def to_event(msg, at: float):
     if isinstance(msg, Observation):
         return ev.Observation(msg.carrier, msg.stage, msg.t, msg.x, msg.position, msg.passengers_left, msg.trail, at)
     if isinstance(msg, Confirm):
-        return ev.Confirmed(msg.carrier, msg.stage, msg.deployed, msg.status, msg.position, msg.passengers_left, at)
+        return ev.Confirmed(msg.carrier, msg.stage, msg.deployed, msg.status, msg.position, msg.passengers_left, at,
+                            msg.passenger)
     if isinstance(msg, Own):
         return ev.Accounted(msg.carrier, msg.stage, msg.t, msg.x, msg.deployed, msg.position, msg.passengers_left, at)
     if isinstance(msg, Bye):
@@ -194,7 +196,8 @@ class Coordinator:
 
     def _decision(self, j: int) -> Decision:
         d = self.state.decisions[j]
-        return Decision(self.mission, j, self.spec.stage_times[j], d.deploy, d.planning_ms, self.epoch)
+        return Decision(self.mission, j, self.spec.stage_times[j], d.deploy, d.planning_ms, self.epoch,
+                        passengers=d.passengers)
 
     def _refresh_state(self) -> None:
         """From now on State queries answer from the current state (it is stored). O(1): the
@@ -217,7 +220,7 @@ class Coordinator:
         if (st.next_stage - 1) in st.decisions:
             d = st.decisions[st.next_stage - 1]
             last = Decision(self.mission, st.next_stage - 1, self.spec.stage_times[st.next_stage - 1], d.deploy,
-                            d.planning_ms, self.epoch)
+                            d.planning_ms, self.epoch, passengers=d.passengers)
         return encode(State(
             mission=self.mission, next_stage=st.next_stage, stages=self.n_stages, fingerprint=self.fingerprint,
             ended=st.ended, carriers=carriers, last_decision=last, epoch=self.epoch))
@@ -452,12 +455,16 @@ class Coordinator:
     def state_all_joined(self) -> bool:
         return self.state.all_joined()
 
-    def _plan(self, j: int) -> tuple[tuple[str, ...], float]:
-        view = make_view(self.problem, j, self.state.planning_observations(j), self.state.deployed())
+    def _plan(self, j: int) -> tuple[tuple[str, ...], float, tuple[int, ...]]:
+        """(deploying carrier ids, sorted; planning time, ms; the passenger each releases, parallel)."""
+        view = make_view(self.problem, j, self.state.planning_observations(j), self.state.deployed(),
+                         self.state.releases() if self.problem.weights is not None else None)
         t0 = time.perf_counter()
         choice = enforce(view, self.planner.decide(view, stage_rng(self.seed, j)))
+        who = release(self.planner, view, choice)  # the passenger of each deployment (passenger types)
         planning_ms = (time.perf_counter() - t0) * 1e3
-        return tuple(sorted(self.ids[r] for r in np.flatnonzero(choice))), planning_ms
+        rs = sorted(np.flatnonzero(choice), key=lambda r: self.ids[r])
+        return tuple(self.ids[r] for r in rs), planning_ms, tuple(int(who[r]) for r in rs)
 
     def _publish_decision(self, decision: Decision) -> None:
         self.node.put(keys.decision_key(self.mission), decision)
@@ -498,12 +505,12 @@ class Coordinator:
             self._wait(self.config.stage_timeout_s, lambda: self.state.stage_complete(j))
             if self._stop.is_set():
                 return
-            deploy, planning_ms = self._plan(j)
+            deploy, planning_ms, passengers = self._plan(j)
             newer = self.store.newer_epoch()  # a standby took over on our disk while we were cut off
             if newer is not None:
                 self._deposed(newer, "mission.db records it")
                 return
-            self.apply(ev.Decided(j, deploy, planning_ms, time.time()))  # records, then publishes
+            self.apply(ev.Decided(j, deploy, planning_ms, time.time(), passengers))  # records, then publishes
             last_published = time.monotonic()
             self._progress(j, (last_published - opened) * 1e3 - planning_ms)
             self.pump(0.0)
@@ -630,7 +637,8 @@ class Coordinator:
             scenario=self.scenario.name, scenario_file=str(self.scenario_path), mission=self.mission,
             planner=self.planner_name, planner_options=self.planner_options, seed=self.seed,
             pid=os.getpid(), host=socket.gethostname(), wall_time_s=wall_s,
-            rejected=dict(self.node.rejected) if self.node else {}), bound=bound)
+            rejected=dict(self.node.rejected) if self.node else {},
+            passenger_types=tuple(c.passenger_types for c in self.scenario.carriers)), bound=bound)
         out["epoch"] = self.epoch  # of the coordinator that wrote this summary (docs/fleet.md)
         if self.deposed_by is not None:
             out["deposed_by"] = self.deposed_by

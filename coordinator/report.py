@@ -189,7 +189,8 @@ def run_report(scenario, out, mission: str | None = None, seed: int | None = Non
                                                             or scenario.source),
                   mission=mission, planner=str(planner), planner_options=dict(options or {}),
                   seed=int(scenario.seed), pid=coordinator.get("pid"), host=coordinator.get("host"),
-                  wall_time_s=float(previous.get("wall_time_s") or 0.0), rejected=dict(rejected))
+                  wall_time_s=float(previous.get("wall_time_s") or 0.0), rejected=dict(rejected),
+                  passenger_types=tuple(c.passenger_types for c in scenario.carriers))
     x_now = [[None if v != v else float(v) for v in row] for row in merged.state.observations()]
     reuse = previous.get("clairvoyant") if previous.get("observations") == x_now else None
     data = mission_summary(merged.state, problem, run, bound=reuse is None)

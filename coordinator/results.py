@@ -30,8 +30,8 @@ def jsonable(value):
 
 def render_map(scenario, state, path, title: str, trails: dict | None = None) -> None:
     """Draw map.png of a mission state: the deployments a carrier reported (its Confirm or its
-    account: ``MissionState.confirmed_deployments``, where it released them) and the carriers'
-    actual trajectories (``trails``: carrier -> points; the state's own, from the Observations'
+    account: ``MissionState.confirmed_deployments``, where it released them; with passenger types
+    labelled with the type released) and the carriers' actual trajectories (``trails``: carrier -> points; the state's own, from the Observations'
     trails, by default). Raises what ``world.render_map`` raises."""
     import world
 
@@ -39,6 +39,14 @@ def render_map(scenario, state, path, title: str, trails: dict | None = None) ->
     actual = state.confirmed_deployments()
     deployments = [world.Deployment(cid, spec.stage_times[j], state.deployment_position(cid, j))
                    for j in range(spec.n_stages) for r, cid in enumerate(spec.carriers) if actual[r, j]]
+    labels = None
+    if scenario.passenger_values() is not None:  # passenger types: which type went where
+        from planner.problem import fill_releases
+
+        released = fill_releases(spec.passengers, actual, state.releases())
+        labels = [scenario.passenger_type(r, int(released[r, j])) or f"#{int(released[r, j])}"
+                  for j in range(spec.n_stages) for r, cid in enumerate(spec.carriers) if actual[r, j]]
     trails = state.trails if trails is None else trails
     trajectories = {cid: np.asarray(pts, dtype=float).reshape(-1, 2) for cid, pts in trails.items() if pts}
-    world.render_map(scenario, str(path), deployments=deployments, trajectories=trajectories, title=title)
+    world.render_map(scenario, str(path), deployments=deployments, trajectories=trajectories, title=title,
+                     deployment_labels=labels)

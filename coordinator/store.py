@@ -309,13 +309,13 @@ class MissionStore:
                 value = state.observation(r, e.stage)
                 column[cid] = None if value != value else value  # NaN = ∅
             self.decision(e.stage, e.deploy, e.planning_ms, missing=record.missing, wall_time=e.at,
-                          observations=column)
+                          observations=column, passengers=list(e.passengers))
         elif isinstance(e, ev.Published):
             self.event("published", None, e.stage, wall_time=e.at)
         elif isinstance(e, ev.Confirmed):
             self.confirmation(e.carrier, e.stage, e.deployed, e.status, e.position,
                               state.confirms[(e.carrier, e.stage)].latency_ms, wall_time=e.at,
-                              passengers_left=e.passengers_left)
+                              passengers_left=e.passengers_left, passenger=e.passenger)
         elif isinstance(e, ev.Accounted):
             self.event("own", e.carrier, e.stage, wall_time=e.at, t=e.t, x=e.x, deployed=e.deployed,
                        position=list(e.position), passengers_left=e.passengers_left)
@@ -435,10 +435,12 @@ _EVENT_FROM_ROW = {
     "observation": lambda cid, stage, p, at: ev.Observation(
         cid, stage, p.get("t", 0.0), p["x"], _point(p["position"]), p.get("passengers_left", 0),
         tuple(_point(q) for q in p.get("trail", ())), at),
-    "decision": lambda cid, stage, p, at: ev.Decided(stage, tuple(p["deploy"]), p["planning_ms"], at),
+    "decision": lambda cid, stage, p, at: ev.Decided(stage, tuple(p["deploy"]), p["planning_ms"], at,
+                                                     tuple(p.get("passengers", ()))),
     "published": lambda cid, stage, p, at: ev.Published(stage, at),
     "confirm": lambda cid, stage, p, at: ev.Confirmed(
-        cid, stage, p["deployed"], p["status"], _point(p["position"]), p.get("passengers_left", 0), at),
+        cid, stage, p["deployed"], p["status"], _point(p["position"]), p.get("passengers_left", 0), at,
+        p.get("passenger")),
     "own": lambda cid, stage, p, at: ev.Accounted(
         cid, stage, p["t"], p["x"], p["deployed"], _point(p["position"]), p["passengers_left"], at),
     "bye": lambda cid, stage, p, at: ev.Bye(

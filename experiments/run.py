@@ -9,8 +9,9 @@ Usage::
     python -m experiments all --quick --out /tmp/results   # smoke test (seconds)
     python -m experiments comms --trials 50 --iterations 10000   # reward against message loss
     python -m experiments priors --trials 20 --iterations 2000   # stated / learned / oracle priors
+    python -m experiments types                                  # type-aware vs type-blind (30 trials, 2000 iterations)
 
-``comms`` and ``priors`` (experiments.priors) are not part of ``all``.
+``comms``, ``priors`` (experiments.priors) and ``types`` (experiments.types) are not part of ``all``.
 
 Each sweep writes to ``--out`` (default ``docs/results``; ``--quick`` runs default to a temporary
 directory so they never overwrite the committed results): ``<sweep>_trials.csv`` (one row per
@@ -81,7 +82,7 @@ def _int_list(text: str, what: str, minimum: int) -> tuple[int, ...]:
 def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m experiments", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("what", nargs="?", default="all", choices=("overlap", "scaling", "urban", "comms", "all", "priors"),
+    p.add_argument("what", nargs="?", default="all", choices=("overlap", "scaling", "urban", "comms", "all", "priors", "types"),
                    help="which experiment (default: all)")
     p.add_argument("--trials", type=int, default=None, help="trials per level (default 50; quick 3)")
     p.add_argument("--iterations", type=int, default=None,
@@ -115,8 +116,10 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 def _settings(args) -> dict:
     quick = args.quick
-    trials = args.trials if args.trials is not None else (QUICK["trials"] if quick else 50)
-    iterations = args.iterations if args.iterations is not None else (QUICK["iterations"] if quick else DEFAULT_ITERATIONS)
+    # The types sweep's defaults keep its default run to a few minutes on two cores.
+    full_trials, full_iterations = (30, 2000) if args.what == "types" else (50, DEFAULT_ITERATIONS)
+    trials = args.trials if args.trials is not None else (QUICK["trials"] if quick else full_trials)
+    iterations = args.iterations if args.iterations is not None else (QUICK["iterations"] if quick else full_iterations)
     urban_trials = args.urban_trials if args.urban_trials is not None else (QUICK["urban_trials"] if quick else 20)
     if trials < 1:
         raise UsageError(f"--trials: expected an integer >= 1, found {trials}")
@@ -141,6 +144,10 @@ def _settings(args) -> dict:
         from experiments.priors import DEFAULT_PLANNERS as PRIORS_PLANNERS
 
         planners = PRIORS_PLANNERS
+    if args.what == "types" and args.planners == ",".join(DEFAULT_PLANNERS):
+        from experiments.types import DEFAULT_PLANNERS as TYPES_PLANNERS
+
+        planners = TYPES_PLANNERS
     if args.losses:
         try:
             losses = tuple(float(v) for v in args.losses.split(",") if v.strip())
@@ -168,6 +175,10 @@ def build_tasks(sweep: str, s: dict, args) -> list[Task]:
         from experiments import priors
 
         return priors.build_tasks(s)
+    if sweep == "types":
+        from experiments import types
+
+        return types.build_tasks(s)
     names = (*s["planners"], CLAIRVOYANT)
     tasks = []
     if sweep == "overlap":
@@ -256,6 +267,10 @@ def _write_sweep(sweep: str, rows: list[dict], out: Path, seconds: float, jobs: 
         from experiments import priors
 
         return priors.write(rows, out, s, seconds, jobs)
+    if sweep == "types":
+        from experiments import types
+
+        return types.write(rows, out, s, seconds, jobs)
     report.write_trials(rows, out / f"{sweep}_trials.csv")
     summary = report.summarise(rows)
     report.write_summary(summary, out / f"{sweep}_summary.csv")
@@ -403,6 +418,10 @@ def main(argv=None) -> int:
                 from experiments import priors
 
                 rows = priors.read_trials(path)
+            elif sweep == "types":
+                from experiments import types
+
+                rows = types.read_trials(path)
             else:
                 rows = report.read_trials(path)
             s = {**s, "trials": prior["trials"], "urban_trials": prior["trials"], "iterations": prior["iterations"]}

@@ -83,6 +83,8 @@ def trial_instance(task: Task):
         return _urban_instance(task)
     if task.sweep == "priors":
         return _priors_instance(task)
+    if task.sweep == "types":
+        return _types_instance(task)
     # Comms sweeps: trial t is the same instance at every message-loss level (paired across P).
     from planner.instance import random_instance
 
@@ -106,13 +108,11 @@ def urban_world_seed(seed: int, trial: int) -> int:
 
 def _urban_instance(task: Task):
     import world
-    from planner.problem import Problem
 
     key = task.scenario
     if key not in _WORLD_CACHE:
         scenario = world.load_scenario(task.scenario)
-        geo = world.stage_geometry(scenario)
-        problem = Problem.build(scenario.passengers, geo.valid, geo.overlaps, scenario.prior_distribution())
+        problem = world.build_problem(scenario)
         _WORLD_CACHE[key] = (scenario, problem)
     scenario, problem = _WORLD_CACHE[key]
     world_seed = scenario.seed if task.trial == 0 else urban_world_seed(task.seed, task.trial)
@@ -139,6 +139,25 @@ def _priors_instance(task: Task):
     if task.variant == "oracle":
         problem = _replace_prior(problem, oracle_prior(*task.oracle), problem.scale)
     return problem, x, planner_seed, extra
+
+
+def _types_instance(task: Task):
+    """A trial of the passenger-types sweep (experiments.types): the random or urban instance with
+    every carrier's passenger values."""
+    from experiments.types import fleet_values
+    from planner.instance import random_instance
+    from planner.problem import Problem
+
+    if task.scenario:
+        problem, x, planner_seed, extra = _urban_instance(task)
+        if problem.weights is None:  # a scenario without passenger types: the sweep's two types
+            problem = Problem.build(problem.passengers, problem.valid, problem.overlaps, problem.prior,
+                                    weights=fleet_values(problem.passengers))
+        return problem, x, planner_seed, extra
+    rng = np.random.default_rng(np.random.SeedSequence(task.seed, spawn_key=(1000, task.trial)))
+    inst = random_instance(rng, task.carriers, task.passengers, task.stages, task.overlaps, task.mean,
+                           weights=fleet_values([task.passengers] * task.carriers))
+    return inst.problem, inst.observations, _seed_of(task.seed, (1000, task.trial, 1)), {}
 
 
 def _replace_prior(problem, prior, scale=None):
@@ -186,8 +205,14 @@ def run_task(task: Task) -> dict:
         row.update(reward=result.reward, features=result.features, exact=int(result.exact),
                    decision_ms_mean=elapsed * 1e3, decision_ms_max=elapsed * 1e3, wall_s=elapsed,
                    deployed=_encode(result.deployed))
+        if task.sweep == "types":
+            row.update(case=_types_case(task), variant=task.variant, released=_encode_released(result.released))
         return row
     planner = _planner(task.planner, task.iterations, task.variant == "learned")
+    if task.sweep == "types" and task.variant in ("blind", "choice"):
+        from planner.passengers import TypeBlind, UnweightedSearch
+
+        planner = (TypeBlind if task.variant == "blind" else UnweightedSearch)(planner)
     if task.sweep.startswith("comms"):
         from planner.comms import CommsSpec
         from planner.decentralised import run_comms
@@ -200,7 +225,20 @@ def run_task(task: Task) -> dict:
     row.update(reward=result.reward, features=result.features, exact="",
                decision_ms_mean=float(ms.mean()), decision_ms_max=float(ms.max()), wall_s=elapsed,
                deployed=_encode(result.deployed))
+    if task.sweep == "types":
+        row.update(case=_types_case(task), variant=task.variant, released=_encode_released(result.released))
     return row
+
+
+def _types_case(task: Task) -> str:
+    from experiments.types import CASES
+
+    return CASES[task.level][0]
+
+
+def _encode_released(released: np.ndarray) -> str:
+    """Passenger index of each deployment in stage order (carriers separated by ``|``)."""
+    return "|".join(" ".join(str(int(i)) for i in row if i >= 0) for row in np.asarray(released))
 
 
 def _encode(deployed: np.ndarray) -> str:

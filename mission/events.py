@@ -69,6 +69,7 @@ class Decided:
     deploy: tuple[str, ...]
     planning_ms: float
     at: float = 0.0
+    passengers: tuple[int, ...] = ()  # the passenger each carrier of deploy releases (parallel)
 
 
 @dataclass(frozen=True)
@@ -90,6 +91,7 @@ class Confirmed:
     position: Point
     passengers_left: int
     at: float = 0.0
+    passenger: int | None = None  # the passenger released (None: none, or not said)
 
 
 @dataclass(frozen=True)

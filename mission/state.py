@@ -95,6 +95,7 @@ class CarrierInfo:
 class DecisionRecord:
     deploy: tuple[str, ...]
     planning_ms: float
+    passengers: tuple[int, ...] = ()  # parallel to deploy (sorted ids); empty: none named
 
 
 @dataclass(frozen=True)
@@ -104,6 +105,7 @@ class ConfirmRecord:
     position: tuple[float, float]
     passengers_left: int
     latency_ms: float | None
+    passenger: int | None = None  # the passenger released, as the carrier said (None: not said)
 
 
 @dataclass(frozen=True)
@@ -248,6 +250,22 @@ class MissionState:
         for (cid, j), a in self.accounts.items():
             out[self.spec.index(cid), j] = a.deployed
         return out
+
+    def releases(self) -> np.ndarray:
+        """int64 ``[R, N]``: the passenger index of each deployment :meth:`deployed` sees (its
+        Confirm's ``passenger``, else the one its decision named; -1 where none or unknown, e.g.
+        a stage the carrier decided itself): the planner's passenger types history."""
+        deployed = self.deployed()
+        out = np.full(deployed.shape, -1, dtype=np.int64)
+        for j, d in self.decisions.items():
+            for cid, i in zip(d.deploy, d.passengers):
+                out[self.spec.index(cid), j] = i
+        for (cid, j), c in self.confirms.items():
+            if c.passenger is not None:
+                out[self.spec.index(cid), j] = c.passenger
+        for (cid, j) in self.accounts:
+            out[self.spec.index(cid), j] = -1
+        return np.where(deployed, out, -1)
 
     def deployments_of(self, cid: str) -> list[int]:
         """Stages of carrier ``cid``'s deployments as :meth:`deployed` sees them, O(N)."""
@@ -481,7 +499,10 @@ def _on_decided(state: MissionState, e: ev.Decided):
         raise ValueError(f"decision of stage {j} names carriers {e.deploy}")
     missing = tuple(cid for r, cid in enumerate(state.spec.carriers)
                     if state.spec.valid[r][j] and (cid, j) not in state.reported)
-    new = _replace(state, decisions={**state.decisions, j: DecisionRecord(tuple(sorted(e.deploy)), float(e.planning_ms))},
+    order = sorted(range(len(e.deploy)), key=lambda k: e.deploy[k])
+    named = tuple(int(e.passengers[k]) for k in order) if len(e.passengers) == len(e.deploy) else ()
+    new = _replace(state, decisions={**state.decisions, j: DecisionRecord(tuple(e.deploy[k] for k in order),
+                                                                          float(e.planning_ms), named)},
                    missing=state.missing | {(cid, j) for cid in missing}, next_stage=j + 1)
     return new, (Record(e, j, missing), Publish(j))
 
@@ -503,7 +524,8 @@ def _on_confirmed(state: MissionState, e: ev.Confirmed):
     if account is not None and (cid, j) not in state.confirms:
         if e.deployed == account.deployed:
             # Its answer to a decision of a stage it had decided itself (``already``): on record.
-            record = ConfirmRecord(bool(e.deployed), e.status, tuple(e.position), int(e.passengers_left), None)
+            record = ConfirmRecord(bool(e.deployed), e.status, tuple(e.position), int(e.passengers_left), None,
+                                   e.passenger)
             return _replace(state, confirms={**state.confirms, (cid, j): record}), (Record(e, j),)
         return state, (Reject("duplicate", f"confirmation of carrier {cid} at stage {j} contradicts its account"),)
     first = state.confirms.get((cid, j))
@@ -512,7 +534,8 @@ def _on_confirmed(state: MissionState, e: ev.Confirmed):
             return state, ()  # the answer to a re-published decision, or a repeat: nothing new
         return state, (Reject("duplicate", f"second confirmation of carrier {cid} at stage {j}"),)
     latency = (e.at - state.published_at[j]) * 1e3 if j in state.published_at else None
-    record = ConfirmRecord(bool(e.deployed), e.status, tuple(e.position), int(e.passengers_left), latency)
+    record = ConfirmRecord(bool(e.deployed), e.status, tuple(e.position), int(e.passengers_left), latency,
+                           e.passenger)
     effects = [Record(e, j)]
     selected = cid in state.decisions[j].deploy
     if selected and not e.deployed:

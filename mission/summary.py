@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planner.problem import evaluate, rewards
+from planner.problem import evaluate, fill_releases, point_weights, rewards
 
 from .state import MissionState
 
@@ -37,6 +37,7 @@ class RunInfo:
     host: str | None = None
     wall_time_s: float = 0.0
     rejected: dict = field(default_factory=dict)
+    passenger_types: tuple = ()  # per carrier, its passengers' type names (passenger types)
 
 
 def percentile(values, q) -> float | None:
@@ -65,8 +66,10 @@ def summary(state: MissionState, problem, run: RunInfo, bound: bool = True) -> d
     spec = state.spec
     x = state.observations()
     actual = state.confirmed_deployments()
-    raw = rewards(problem, actual, x)
-    total_reward, total_features = evaluate(problem, actual, x)
+    typed = problem.weights is not None
+    released = fill_releases(problem.passengers, actual, state.releases()) if typed else None
+    raw = rewards(problem, actual, np.nan_to_num(x) * point_weights(problem, released) if typed else x)
+    total_reward, total_features = evaluate(problem, actual, x, released)
     decided = state.decided()
     carriers = []
     for r, cid in enumerate(spec.carriers):
@@ -77,6 +80,11 @@ def summary(state: MissionState, problem, run: RunInfo, bound: bool = True) -> d
                          "position": list(state.deployment_position(cid, int(j))),
                          "by": "carrier" if (cid, int(j)) in state.accounts else "coordinator",
                          "reward": float(raw[r, j] / problem.scale), "features": float(raw[r, j])})
+            if typed:  # passenger types: which passenger (index, type name, value) went here
+                i = int(released[r, j])
+                names = run.passenger_types[r] if r < len(run.passenger_types) else ()
+                deps[-1].update(passenger=i, type=names[i] if 0 <= i < len(names) else "",
+                                value=float(problem.weights[r, i]) if i >= 0 else None)
         info = state.accepted.get(cid)
         carriers.append({
             "id": cid, "pid": info.pid if info else None, "host": info.host if info else None,

@@ -57,6 +57,8 @@ class ClairvoyantResult:
         features: raw total (sum of x / p), same meaning as ``reward``.
         exact: whether ``reward`` is the optimum (True) or only an upper bound (False).
         nodes: search nodes visited (0 when the search was not attempted).
+        released: int64 ``[R, N]``: the passenger of each deployment (-1 elsewhere), the best
+            assignment :func:`planner.passengers.best_assignment` (index order without values).
     """
 
     deployed: np.ndarray
@@ -64,6 +66,7 @@ class ClairvoyantResult:
     features: float
     exact: bool
     nodes: int = 0
+    released: np.ndarray | None = None
 
 
 def _valid_points(problem: Problem, x: np.ndarray) -> np.ndarray:
@@ -79,13 +82,31 @@ def conflict_free_bound(problem: Problem, x: np.ndarray) -> ClairvoyantResult:
     valid = _valid_points(problem, x)
     deployed = np.zeros(valid.shape, dtype=bool)
     total = 0.0
+    wts = _sorted_weights(problem)
     for r in range(problem.n_carriers):
         stages = np.flatnonzero(valid[r])
         k = min(int(problem.passengers[r]), len(stages))
         top = stages[np.argsort(-x[r, stages], kind="stable")[:k]]
         deployed[r, top] = True
-        total += float(np.maximum(x[r, top], 0.0).sum())
-    return ClairvoyantResult(deployed, total / problem.scale, total, exact=False)
+        if wts is None:
+            total += float(np.maximum(x[r, top], 0.0).sum())
+        else:  # top is by decreasing x: the heaviest passenger to the largest value
+            total += float(np.dot(wts[r, :k], np.maximum(x[r, top], 0.0)))
+    return ClairvoyantResult(deployed, total / problem.scale, total, exact=False,
+                             released=_assign(problem, deployed, x))
+
+
+def _sorted_weights(problem: Problem) -> np.ndarray | None:
+    """float64 ``[R, max D]``: each carrier's passenger weights, largest first (None without values)."""
+    if problem.weights is None:
+        return None
+    return np.ascontiguousarray(-np.sort(-problem.weights, axis=1))
+
+
+def _assign(problem: Problem, deployed: np.ndarray, x: np.ndarray) -> np.ndarray:
+    from planner.passengers import best_assignment
+
+    return best_assignment(problem, deployed, x)
 
 
 def _carrier_options(
@@ -128,6 +149,28 @@ def _topk_sum(values: np.ndarray, k: int) -> float:
 
 
 @numba.njit(cache=True)
+def _topk_wsum(values: np.ndarray, k: int, w: np.ndarray, dcount: int) -> float:
+    """The best assignment of a carrier's passengers to the k largest entries of a small 1-D
+    array: ``w[:dcount]`` are its passengers' weights, largest first (k <= dcount); positive
+    values go to the heaviest passengers in order, negative ones to the lightest (the most
+    negative to the lightest), as :func:`planner.passengers.best_assignment`."""
+    if k <= 0:
+        return 0.0
+    buf = np.full(k, -np.inf)
+    for v in values:
+        if v > buf[k - 1]:
+            i = k - 1
+            while i > 0 and buf[i - 1] < v:
+                buf[i] = buf[i - 1]
+                i -= 1
+            buf[i] = v
+    total = 0.0
+    for i in range(k):
+        total += (w[i] if buf[i] >= 0.0 else w[dcount - k + i]) * buf[i]
+    return total
+
+
+@numba.njit(cache=True)
 def _branch_and_bound(
     xs: np.ndarray,          # float [M] flat observations (0 at invalid points; never selected)
     valid: np.ndarray,       # bool [M]
@@ -141,6 +184,9 @@ def _branch_and_bound(
     n_stages: int,
     incumbent: float,        # value of a known feasible plan (prune bounds <= it)
     max_nodes: int,
+    wts: np.ndarray,         # float [R, max D] passenger weights, largest first (read when weighted)
+    dcount: np.ndarray,      # int [R] passengers per carrier (read when weighted)
+    weighted: bool,          # passenger values: a carrier's points earn sorted-matched weights
 ):
     """Returns (best value, best option per carrier (-1 = incumbent kept), nodes, finished)."""
     n_carriers = len(order)
@@ -197,11 +243,25 @@ def _branch_and_bound(
         # Value of the selected points among themselves (exact at a leaf, a bound otherwise).
         value = 0.0
         bound = 0.0
-        for a in range(n_points):
-            if selected[a]:
-                v = xs[a] / (1.0 + cnt[a])
-                value += v
-                bound += v if v > 0.0 else 0.0
+        if weighted:
+            # Per decided carrier, the heaviest passenger to its largest x / p (both sums only
+            # fall as penalties grow, so the bound stays an upper bound).
+            for lv in range(level + 1):
+                c = order[lv]
+                oc = idx[lv]
+                for q in range(ks[c]):
+                    b = opt_pts[oc, q]
+                    row[q] = xs[b] / (1.0 + cnt[b])
+                value += _topk_wsum(row[: ks[c]], ks[c], wts[c], dcount[c])
+                for q in range(ks[c]):
+                    row[q] = row[q] if row[q] > 0.0 else 0.0
+                bound += _topk_wsum(row[: ks[c]], ks[c], wts[c], dcount[c])
+        else:
+            for a in range(n_points):
+                if selected[a]:
+                    v = xs[a] / (1.0 + cnt[a])
+                    value += v
+                    bound += v if v > 0.0 else 0.0
         if level == n_carriers - 1:
             if value > best + tol:
                 best = value
@@ -218,7 +278,7 @@ def _branch_and_bound(
             for j in range(n_stages):
                 a = c * n_stages + j
                 row[j] = pos[a] / (1.0 + cnt[a]) if valid[a] else -1.0
-            s = _topk_sum(row, ks[c])
+            s = _topk_wsum(row, ks[c], wts[c], dcount[c]) if weighted else _topk_sum(row, ks[c])
             rest += s
             if lv > level + 1:
                 rest_next += s
@@ -248,6 +308,7 @@ def solve(problem: Problem, x: np.ndarray, max_nodes: int = MAX_NODES) -> Clairv
     n_carriers, n_stages = problem.valid.shape
     valid = _valid_points(problem, x)
     fallback = conflict_free_bound(problem, x)
+    wts = _sorted_weights(problem)
     flat_valid = valid.ravel()
     xs = np.where(flat_valid, np.nan_to_num(x.ravel(), nan=0.0), 0.0)
     # The conflict graph restricted to points that can be selected.
@@ -263,7 +324,10 @@ def solve(problem: Problem, x: np.ndarray, max_nodes: int = MAX_NODES) -> Clairv
         opts = _carrier_options(x[r], np.flatnonzero(valid[r]), overlapped[r], int(ks[r]), dominance)
         if opts is None:
             return fallback
-        values = [float(np.maximum(x[r, list(o)], 0.0).sum()) for o in opts]
+        if wts is None:
+            values = [float(np.maximum(x[r, list(o)], 0.0).sum()) for o in opts]
+        else:
+            values = [float(np.dot(wts[r, : len(o)], -np.sort(-np.maximum(x[r, list(o)], 0.0)))) for o in opts]
         per_carrier.append(sorted(zip(values, opts), key=lambda vo: (-vo[0], vo[1])))
     kmax = max(1, int(ks.max()))
     opt_ptr = np.zeros(n_carriers + 1, dtype=np.int64)
@@ -286,13 +350,18 @@ def solve(problem: Problem, x: np.ndarray, max_nodes: int = MAX_NODES) -> Clairv
     first = np.zeros(valid.shape, dtype=bool)
     for r, opts in enumerate(per_carrier):
         first[r, list(opts[0][1])] = True
-    incumbent = float((xs / (1.0 + conflict[:, first.ravel()].sum(axis=1)))[first.ravel()].sum())
+    if wts is None:
+        incumbent = float((xs / (1.0 + conflict[:, first.ravel()].sum(axis=1)))[first.ravel()].sum())
+    else:
+        incumbent = evaluate(problem, first, x, _assign(problem, first, x))[1]
     best, best_opts, nodes, finished = _branch_and_bound(
         xs, flat_valid, nbr_ptr, nbr_idx, order, opt_ptr, opt_pts, opt_ub, ks, n_stages,
-        incumbent, int(max_nodes),
+        incumbent, int(max_nodes), np.ones((1, 1)) if wts is None else wts,
+        problem.passengers.astype(np.int64), wts is not None,
     )
     if not finished:
-        return ClairvoyantResult(fallback.deployed, fallback.reward, fallback.features, False, int(nodes))
+        return ClairvoyantResult(fallback.deployed, fallback.reward, fallback.features, False, int(nodes),
+                                 fallback.released)
     if best_opts[0] < 0:
         deployed = first
     else:
@@ -301,8 +370,9 @@ def solve(problem: Problem, x: np.ndarray, max_nodes: int = MAX_NODES) -> Clairv
             r = order[level]
             o = best_opts[level]
             deployed.reshape(-1)[opt_pts[o, : ks[r]]] = True
-    reward, features = evaluate(problem, deployed, x)
-    return ClairvoyantResult(deployed, reward, features, True, int(nodes))
+    released = _assign(problem, deployed, x)
+    reward, features = evaluate(problem, deployed, x, released)
+    return ClairvoyantResult(deployed, reward, features, True, int(nodes), released)
 
 
 def warm_up() -> None:

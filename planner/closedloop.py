@@ -38,8 +38,8 @@ from numba import njit
 
 from planner import ssap
 from planner.compiled import compile_problem
-from planner.kernels import deploys
-from planner.problem import Problem, StageView, make_view
+from planner.kernels import deploys, rank
+from planner.problem import Problem, StageView, make_view, point_weights
 from planner.registry import DEFAULT_ITERATIONS
 
 #: Largest number of free carriers in one component whose 2^k joint actions are all evaluated.
@@ -155,6 +155,119 @@ def _evaluate(actions, members, stage, n_stages, xnow, left0, valid, nleft, tabl
                     d = lefti[i]
                     if d > 0 and deploys(table, xs, n, d):
                         plain += xs
+                        lefti[i] = d - 1
+            _undo(sel, p, log, nlog)
+            out[k, s] = total - plain if control_variate else total
+
+
+@njit(cache=True)
+def _conflicts(q, sel, p, xv, nbr_ptr, nbr_idx):
+    """(c, loss): the chosen points sharing an overlap with flat point ``q``, and what their rewards
+    lose if ``q`` joins (``_marginal`` is ``x / (1 + c) - loss``)."""
+    c = 0
+    loss = 0.0
+    for e in range(nbr_ptr[q], nbr_ptr[q + 1]):
+        k = nbr_idx[e]
+        if sel[k]:
+            c += 1
+            pk = p[k]
+            loss += xv[k] / (pk * (pk + 1.0))
+    return c, loss
+
+
+@njit(cache=True)
+def _drop(ws, i, pos, d):
+    """Remove the passenger at rank position ``pos`` from member i's sorted weights ``ws[i, :d]``."""
+    for k in range(pos, d - 1):
+        ws[i, k] = ws[i, k + 1]
+    ws[i, d - 1] = 0.0
+
+
+@njit(cache=True)
+def _weighted_choice(table, y, loss, n, d, ws, i):
+    """The conflict-aware SSAP rule with passenger values, for member i with ``d >= 1`` passengers
+    of sorted weights ``ws[i, :d]`` (``ws[i, d] == 0``), ``n`` valid stages left, conflict-adjusted
+    observation ``y = x / (1 + c)`` and conflict ``loss``. Returns the rank position (0-based) of
+    the passenger to release, or -1 to wait.
+
+    The best passenger to release at y is the rank of y's DLR interval, capped at d (the loss is
+    the same for every passenger); it goes iff forced or its gain ``w y - loss`` exceeds what the
+    release costs the future, ``V(S) - V(S without it) = sum_{k >= i} (w_k - w_{k+1}) a[n, n - k]``
+    over the ranks ``k <= min(d, n - 1)`` (DLR values of n - 1 stages). Equal weights give the
+    unweighted rule ``y - loss > a[n, n - d]``."""
+    i_rank = rank(table, y, n)
+    if i_rank > d:
+        i_rank = d
+    if n <= d:
+        return i_rank - 1
+    cost = 0.0
+    top = d if d < n - 1 else n - 1
+    for k in range(i_rank, top + 1):
+        cost += (ws[i, k - 1] - ws[i, k]) * table[n, n - k]
+    return i_rank - 1 if ws[i, i_rank - 1] * y - loss > cost else -1
+
+
+@njit(cache=True)
+def _evaluate_weighted(actions, members, stage, n_stages, xnow, left0, valid, nleft, table,
+                       sel, p, xv, nbr_ptr, nbr_idx, samples, out, control_variate, ws0, pos_now):
+    """:func:`_evaluate` for a problem with passenger values (``xv`` holds weighted values).
+
+    Args (besides :func:`_evaluate`'s):
+        ws0: float ``[m, max D + 1]`` weights of each member's passengers aboard, largest first,
+            0.0-padded.
+        pos_now: int64 ``[m]`` rank position of the passenger a deployment now releases
+            (:func:`planner.passengers.choose`).
+    """
+    n_cand = actions.shape[0]
+    m = members.shape[0]
+    n_samples = samples.shape[0]
+    left = np.empty(m, np.int64)
+    lefti = np.empty(m, np.int64)
+    ws = np.empty_like(ws0)
+    wp = np.empty_like(ws0)
+    log = np.empty(sel.shape[0] + nbr_idx.shape[0] + 1, np.int64)
+    for k in range(n_cand):
+        for s in range(n_samples):
+            nlog = 0
+            total = 0.0
+            plain = 0.0
+            ws[:, :] = ws0
+            for i in range(m):
+                left[i] = left0[i]
+                if actions[k, i]:
+                    q = members[i] * n_stages + stage
+                    v = ws[i, pos_now[i]] * xnow[i]
+                    total += _marginal(q, v, sel, p, xv, nbr_ptr, nbr_idx)
+                    nlog = _select(q, v, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
+                    _drop(ws, i, pos_now[i], left[i])
+                    left[i] -= 1
+                lefti[i] = left[i]
+            wp[:, :] = ws
+            for t in range(stage + 1, n_stages):
+                for i in range(m):
+                    r = members[i]
+                    if not valid[r, t]:
+                        continue
+                    n = nleft[r, t]
+                    xs = samples[s, t - stage - 1, i]
+                    d = left[i]
+                    if d > 0:
+                        q = r * n_stages + t
+                        c, loss = _conflicts(q, sel, p, xv, nbr_ptr, nbr_idx)
+                        y = xs / (1.0 + c)
+                        pos = _weighted_choice(table, y, loss, n, d, ws, i)
+                        if pos >= 0:
+                            w = ws[i, pos]
+                            total += w * y - loss
+                            nlog = _select(q, w * xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
+                            _drop(ws, i, pos, d)
+                            left[i] = d - 1
+                    d = lefti[i]
+                    if d > 0 and deploys(table, xs, n, d):
+                        pos = rank(table, xs, n)
+                        pos = (pos if pos < d else d) - 1
+                        plain += wp[i, pos] * xs
+                        _drop(wp, i, pos, d)
                         lefti[i] = d - 1
             _undo(sel, p, log, nlog)
             out[k, s] = total - plain if control_variate else total
@@ -337,18 +450,27 @@ class ClosedLoopPlanner:
         comp_left = left[comp]
         sums = np.zeros(len(actions))
         count = 0
+        typed = None if problem.weights is None else _typed_state(view, comp, prep.table)
         while True:
             batch = samples if deadline is None else BATCH
             draws = prep.sampler.sample(rng, (batch, horizon, len(comp)))
             out = np.empty((len(actions), batch))
-            _evaluate(actions, comp, j, n_stages, xnow[comp], comp_left, valid, nleft, prep.table,
-                      sel, p, xv, prep.indptr, prep.nbr, draws, out, control_variate)
+            if typed is None:
+                _evaluate(actions, comp, j, n_stages, xnow[comp], comp_left, valid, nleft, prep.table,
+                          sel, p, xv, prep.indptr, prep.nbr, draws, out, control_variate)
+            else:
+                _evaluate_weighted(actions, comp, j, n_stages, xnow[comp], comp_left, valid, nleft, prep.table,
+                                   sel, p, xv, prep.indptr, prep.nbr, draws, out, control_variate,
+                                   typed[0], typed[1])
             sums += out.sum(axis=1)
             count += batch
             if deadline is None or time.perf_counter() >= deadline:
                 break
         if not control_variate:
             return sums / count
+        if typed is not None:
+            _, _, stay, go = typed
+            return sums / count + np.where(actions, go[None, :], stay[None, :]).sum(axis=1)
         # Exact expected future of plain SSAP after each candidate's action.
         n_after = nleft[comp, j + 1]
         d_after = np.minimum(comp_left[None, :] - actions.astype(np.int64), n_stages)
@@ -366,22 +488,65 @@ class ClosedLoopPlanner:
         pp = p.copy()
         vv = xv.copy()
         log = np.empty(len(sel) + len(prep.nbr) + 1, dtype=np.int64)
+        # With passenger values a full StageView is needed (dec-closed-loop's partial-information
+        # path hands a stand-in and stays with the unweighted rule).
+        typed = (None if view.problem.weights is None or not isinstance(view, StageView)
+                 else _typed_state(view, comp, prep.table))
         for i, r in enumerate(comp):
             q = int(r) * n_stages + j
+            value = float(xnow[r])
+            if typed is not None:
+                ws, pos = typed[0], typed[1]
+                value *= ws[i, pos[i]]
             if free[r]:
                 n, d = int(nleft[r, j]), int(left[r])
-                gain = _marginal(q, float(xnow[r]), chosen, pp, vv, prep.indptr, prep.nbr)
-                action[i] = ssap.deploys(prep.table, gain, n, d)
+                if typed is None:
+                    gain = _marginal(q, value, chosen, pp, vv, prep.indptr, prep.nbr)
+                    action[i] = ssap.deploys(prep.table, gain, n, d)
+                else:
+                    c, loss = _conflicts(q, chosen, pp, vv, prep.indptr, prep.nbr)
+                    y = float(xnow[r]) / (1.0 + c)
+                    action[i] = _weighted_choice(prep.table, y, loss, n, d, ws, i) >= 0
             if action[i]:
-                _select(q, float(xnow[r]), chosen, pp, vv, prep.indptr, prep.nbr, log, 0)
+                _select(q, value, chosen, pp, vv, prep.indptr, prep.nbr, log, 0)
         return action
 
 
 def _past_values(view: StageView) -> np.ndarray:
-    """Observations at past stages (the values of past deployments), float ``[R, N]``."""
+    """Observations at past stages (the values of past deployments), float ``[R, N]``; times the
+    released passenger's weight for a problem with passenger values."""
     out = np.zeros(view.observations.shape)
     out[:, : view.stage] = np.nan_to_num(view.observations[:, : view.stage], nan=0.0)
+    if view.problem.weights is not None:
+        out *= point_weights(view.problem, view.past_releases)
     return out
+
+
+def _typed_state(view: StageView, comp: np.ndarray, table: np.ndarray):
+    """Per member of ``comp``: (sorted weights aboard ``[m, max D + 1]``, rank position of the
+    passenger a deployment now releases ``[m]``, the exact plain-SSAP future value after staying
+    and after deploying now ``[m]`` each)."""
+    from planner.passengers import choose
+
+    problem = view.problem
+    j = view.stage
+    aboard = view.aboard
+    released = choose(view, np.ones(problem.n_carriers, dtype=bool))
+    ws = np.zeros((len(comp), problem.weights.shape[1] + 1))
+    pos = np.zeros(len(comp), dtype=np.int64)
+    stay = np.zeros(len(comp))
+    go = np.zeros(len(comp))
+    n_after = view.stages_left_table[:, j + 1]
+    for i, r in enumerate(comp):
+        w = problem.weights[r, aboard[r]]
+        order = np.argsort(-w, kind="stable")
+        ws[i, : len(w)] = w[order]
+        stay[i] = ssap.weighted_value(table, int(n_after[r]), w)
+        if released[r] >= 0:
+            k = int(np.flatnonzero(np.flatnonzero(aboard[r]) == released[r])[0])  # its position in w
+            pos[i] = int(np.flatnonzero(order == k)[0])
+            go[i] = ssap.weighted_value(table, int(n_after[r]), np.delete(w, k))
+    return ws, pos, stay, go
 
 
 

@@ -77,6 +77,9 @@ class LocalView:
         record: int64 ``[R]``: b's deployments are known at stages ``t < record[b]`` (own: j).
         intents: tuple of the latest :class:`Intent` received from each carrier (None if none;
             own entry None).
+
+        released: int64 ``[R, N]`` or None: the passengers of the known deployments (-1 where
+            unknown; None: index order), for a problem with passenger values.
     """
 
     problem: Problem
@@ -88,6 +91,7 @@ class LocalView:
     seen: np.ndarray
     record: np.ndarray
     intents: tuple
+    released: np.ndarray | None = None
 
     @property
     def valid(self) -> np.ndarray:
@@ -105,7 +109,7 @@ class LocalView:
 
     def stage_view(self) -> StageView:
         """The central :class:`StageView` of this knowledge (exact when :attr:`complete`)."""
-        return make_view(self.problem, self.stage, self.observations, self.deployed)
+        return make_view(self.problem, self.stage, self.observations, self.deployed, self.released)
 
     def own(self) -> tuple[bool, bool, int, int]:
         """(can deploy, must deploy, valid stages left n, passengers left d) of this carrier."""
@@ -128,8 +132,8 @@ def local_views(view: StageView, seed: int = 0) -> list[LocalView]:
     R = problem.n_carriers
     seen = np.full(R, j + 1, dtype=np.int64)
     record = np.full(R, j, dtype=np.int64)
-    return [LocalView(problem, r, j, int(seed), view.observations, view.deployed, seen, record, (None,) * R)
-            for r in range(R)]
+    return [LocalView(problem, r, j, int(seed), view.observations, view.deployed, seen, record, (None,) * R,
+                      view.released) for r in range(R)]
 
 
 def decide_all(planner, view: StageView, rng: np.random.Generator) -> np.ndarray:
@@ -147,7 +151,7 @@ def decide_all(planner, view: StageView, rng: np.random.Generator) -> np.ndarray
 
 
 def coordinator_view(problem: Problem, stage: int, x: np.ndarray, heard: np.ndarray,
-                     belief: np.ndarray) -> StageView:
+                     belief: np.ndarray, released: np.ndarray | None = None) -> StageView:
     """The coordinator's view at ``stage``: observations it received (``heard[r]``: carrier r's
     observations are known at stages ``< heard[r]``); a carrier whose stage-j observation did not
     arrive is planned as unable to deploy now (its stage looks ∅, so it is not forced by the
@@ -155,7 +159,7 @@ def coordinator_view(problem: Problem, stage: int, x: np.ndarray, heard: np.ndar
     believes happened (the truth up to each carrier's last delivered observation, its own
     decisions after)."""
     known = np.where(np.arange(problem.n_stages)[None, :] < heard[:, None], x, np.nan)
-    return make_view(problem, stage, known, belief)
+    return make_view(problem, stage, known, belief, released)
 
 
 def _forced_truth(problem: Problem, x: np.ndarray, deployed: np.ndarray, j: int) -> tuple[np.ndarray, np.ndarray]:
@@ -188,15 +192,30 @@ def run_comms(problem: Problem, x: np.ndarray, planner, seed: int, comms: CommsS
     warm_up = getattr(planner, "warm_up", None)
     if callable(warm_up):
         warm_up(problem)
+    typed = problem.weights is not None or hasattr(planner, "release_passengers")
+    released = np.full(problem.valid.shape, -1, dtype=np.int64) if typed else None
     if callable(getattr(planner, "decide_local", None)):
-        deployed, times = _run_decentralised(problem, x, planner, seed, deliveries)
+        deployed, times = _run_decentralised(problem, x, planner, seed, deliveries, released)
     else:
-        deployed, times = _run_centralised(problem, x, planner, seed, deliveries)
-    reward, features = evaluate(problem, deployed, x)
-    return OnlineResult(deployed, reward, features, tuple(times))
+        deployed, times = _run_centralised(problem, x, planner, seed, deliveries, released)
+    reward, features = evaluate(problem, deployed, x, released)
+    return OnlineResult(deployed, reward, features, tuple(times), released)
 
 
-def _run_centralised(problem, x, planner, seed, dl: Deliveries):
+def _release(problem: Problem, x: np.ndarray, deployed: np.ndarray, released: np.ndarray | None,
+             planner, j: int) -> None:
+    """Fill ``released[:, j]``: the passenger each stage-j deployment released. A carrier picks it
+    on board from what it always knows itself (its observation, its valid stages left, who is
+    still aboard) by the planner's passenger rule (:func:`planner.passengers.release`), so the
+    choice needs no message. Nothing to do without passenger values (``released`` None)."""
+    if released is None:
+        return
+    from planner.passengers import release
+
+    released[:, j] = release(planner, make_view(problem, j, x, deployed, released), deployed[:, j])
+
+
+def _run_centralised(problem, x, planner, seed, dl: Deliveries, released=None):
     R, N = problem.valid.shape
     deployed = np.zeros((R, N), dtype=bool)   # the truth (carrier side)
     decided = np.zeros((R, N), dtype=bool)    # the coordinator's decisions
@@ -209,7 +228,8 @@ def _run_centralised(problem, x, planner, seed, dl: Deliveries):
         before = np.arange(N)[None, :] < np.maximum(heard - 1, 0)[:, None]
         belief = np.where(before, deployed, decided)
         belief[:, j:] = False
-        view = coordinator_view(problem, j, x, heard, belief)
+        view = coordinator_view(problem, j, x, heard, belief,
+                                None if released is None else np.where(belief & deployed, released, -1))
         t0 = time.perf_counter()
         decision = planner.decide(view, stage_rng(seed, j))
         times.append((time.perf_counter() - t0) * 1e3)
@@ -218,10 +238,11 @@ def _run_centralised(problem, x, planner, seed, dl: Deliveries):
         can, must = _forced_truth(problem, x, deployed, j)
         told = dl.decision[:, j] <= j
         deployed[:, j] = (told & decision & can) | must
+        _release(problem, x, deployed, released, planner, j)
     return deployed, times
 
 
-def _run_decentralised(problem, x, planner, seed, dl: Deliveries):
+def _run_decentralised(problem, x, planner, seed, dl: Deliveries, released=None):
     R, N = problem.valid.shape
     deployed = np.zeros((R, N), dtype=bool)
     sent: list[list] = [[None] * N for _ in range(R)]  # intents published, [carrier][stage]
@@ -246,7 +267,8 @@ def _run_decentralised(problem, x, planner, seed, dl: Deliveries):
             dep = deployed & (stages[None, :] < record[:, None])
             intents = tuple(sent[b][last_int[b]] if b != r and last_int[b] >= 0 else None for b in range(R))
             local = LocalView(problem, r, j, int(seed), obs, dep, seen.astype(np.int64),
-                              record.astype(np.int64), intents)
+                              record.astype(np.int64), intents,
+                              None if released is None else np.where(dep, released, -1))
             t0 = time.perf_counter()
             out = planner.decide_local(local, stage_rng(seed, j))
             slowest = max(slowest, (time.perf_counter() - t0) * 1e3)
@@ -259,6 +281,7 @@ def _run_decentralised(problem, x, planner, seed, dl: Deliveries):
             decision[r] = out.deploy
             sent[r][j] = out.intent
         deployed[:, j] = decision
+        _release(problem, x, deployed, released, planner, j)
         times.append(slowest)
     return deployed, times
 

@@ -42,8 +42,8 @@ from planner import ssap
 from planner.compiled import compile_problem
 from planner.decentralised import Intent, LocalDecision, LocalView
 from planner.kernels import deploys, forced
-from planner.mcts.kernel import _random, _sample
-from planner.problem import Problem, valid_stages_left
+from planner.mcts.kernel import _random, _sample, weigh
+from planner.problem import Problem, fill_releases, point_weights, valid_stages_left
 from planner.registry import DEFAULT_EXPLORATION, DEFAULT_ITERATIONS
 
 #: D-UCT discount per iteration.
@@ -65,7 +65,7 @@ CHUNK = 256
 
 @njit(cache=True)
 def _trajectory(state, r, j, own_mask, stop, valid, nleft, xobs, record, left_rec, known_pts, known_x,
-                plan, table, points, cdf, guide, indptr, nbr, scale, left, mark, xval, pts):
+                plan, table, points, cdf, guide, indptr, nbr, scale, left, mark, xval, pts, ws0, ws, weighted):
     """Build one full trajectory and return (normalised reward, own deployment mask).
 
     Own decisions at stages ``< stop`` come from ``own_mask``; later ones, and those of carriers
@@ -115,6 +115,9 @@ def _trajectory(state, r, j, own_mask, stop, valid, nleft, xobs, record, left_re
                 left[b] = d - 1
                 if b == r:
                     mine |= np.int64(1) << t
+    if weighted:
+        n_known = known_pts.shape[0]
+        weigh(npts - n_known, pts[n_known:], xval, n_stages, nleft, table, left_rec, ws0, ws, left)
     total = 0.0
     for e in range(npts):
         a = pts[e]
@@ -142,7 +145,7 @@ def _draw_plans(state, icode, icum, ik, plan):
 @njit(cache=True)
 def _search(it0, n_iter, created, c_uct, gamma, r, j, own_stages, valid, nleft, xobs, record, left_rec,
             known_pts, known_x, icode, icum, ik, table, points, cdf, guide, indptr, nbr, scale, state,
-            child, pos, dleft, n_eff, w, last, bestv, bestm, left, mark, xval, pts, plan, path):
+            child, pos, dleft, n_eff, w, last, bestv, bestm, left, mark, xval, pts, plan, path, ws0, ws, weighted):
     """Run iterations ``it0 .. it0 + n_iter - 1`` from the root (node 0) of a tree with
     ``created`` nodes (capacity >= created + n_iter); returns the nodes created."""
     n_own = own_stages.shape[0]
@@ -205,7 +208,7 @@ def _search(it0, n_iter, created, c_uct, gamma, r, j, own_stages, valid, nleft, 
             stop = own_stages[p + 1] if p + 1 < n_own else valid.shape[1]
         value, mine = _trajectory(state, r, j, own_mask, stop, valid, nleft, xobs, record, left_rec, known_pts,
                                   known_x, plan, table, points, cdf, guide, indptr, nbr, scale, left, mark, xval,
-                                  pts)
+                                  pts, ws0, ws, weighted)
         for k in range(depth + 1):
             v = path[k]
             decay = gamma ** (it - last[v])
@@ -220,7 +223,8 @@ def _search(it0, n_iter, created, c_uct, gamma, r, j, own_stages, valid, nleft, 
 
 @njit(cache=True)
 def _values_given(masks, n_samples, r, j, valid, nleft, xobs, record, left_rec, known_pts, known_x, icode, icum,
-                  ik, table, points, cdf, guide, indptr, nbr, scale, state, left, mark, xval, pts, plan, out):
+                  ik, table, points, cdf, guide, indptr, nbr, scale, state, left, mark, xval, pts, plan, out,
+                  ws0, ws, weighted):
     """``out[i]``: mean reward with this carrier following ``masks[i]`` (others from intents)."""
     n_stages = valid.shape[1]
     for i in range(masks.shape[0]):
@@ -228,7 +232,8 @@ def _values_given(masks, n_samples, r, j, valid, nleft, xobs, record, left_rec, 
         for s in range(n_samples):
             _draw_plans(state, icode, icum, ik, plan)
             v, _ = _trajectory(state, r, j, masks[i], n_stages, valid, nleft, xobs, record, left_rec, known_pts,
-                               known_x, plan, table, points, cdf, guide, indptr, nbr, scale, left, mark, xval, pts)
+                               known_x, plan, table, points, cdf, guide, indptr, nbr, scale, left, mark, xval, pts,
+                               ws0, ws, weighted)
             acc += v
         out[i] = acc / n_samples
 
@@ -338,6 +343,10 @@ class DecMCTSPlanner:
         state = gen.integers(2 ** 64, dtype=np.uint64, size=1)
         known = np.flatnonzero(local.deployed.ravel()).astype(np.int64)
         known_x = np.nan_to_num(local.observations.ravel()[known], nan=0.0)
+        ws0, weighted = self._values(local, known)
+        if weighted:
+            known_x = known_x * ws0[1]
+            ws0 = ws0[0]
         icode, icum, ik = self._intent_arrays(local, R)
         own_stages = np.flatnonzero(valid[r, j:]).astype(np.int64) + j
         xobs = np.ascontiguousarray(local.observations)
@@ -349,14 +358,14 @@ class DecMCTSPlanner:
                  prep.indptr, prep.nbr, float(problem.scale), state)
         if self.plan_ms is None:
             done = self.iterations
-            created = _search(0, done, 1, *fixed, *tree, *scratch)
+            created = _search(0, done, 1, *fixed, *tree, *scratch, ws0, np.zeros_like(ws0), weighted)
         else:
             deadline = time.perf_counter() + self.plan_ms / 1e3
             done, created = 0, 1
             while True:
                 if created + CHUNK >= len(tree[1]):
                     tree = _grown(tree, 2 * len(tree[1]))
-                created = _search(done, CHUNK, created, *fixed, *tree, *scratch)
+                created = _search(done, CHUNK, created, *fixed, *tree, *scratch, ws0, np.zeros_like(ws0), weighted)
                 done += CHUNK
                 if time.perf_counter() >= deadline:
                     break
@@ -384,13 +393,32 @@ class DecMCTSPlanner:
         values = np.zeros(len(masks))
         _values_given(np.array(masks, dtype=np.int64), INTENT_SAMPLES, r, j, valid, nleft, xobs, record, left_rec,
                       known, known_x, icode, icum, ik, prep.table, prep.sampler.points, prep.sampler.cdf,
-                      prep.sampler.guide, prep.indptr, prep.nbr, float(problem.scale), state, *scratch[:5], values)
+                      prep.sampler.guide, prep.indptr, prep.nbr, float(problem.scale), state, *scratch[:5], values,
+                      ws0, np.zeros_like(ws0), weighted)
         q = optimise_distribution(values)
         seqs = np.zeros((len(masks), N), dtype=bool)
         for i, mv in enumerate(masks):
             seqs[i] = ((mv >> stages) & 1).astype(bool)
         seqs[:, :j] = local.deployed[r, :j]
         return LocalDecision(go, Intent(j, seqs, q))
+
+    @staticmethod
+    def _values(local: LocalView, known: np.ndarray):
+        """Passenger values: ((sorted weights aboard ``[R, max D + 1]`` in mean-value units, the
+        known deployments' weights ``[P]``), True), or (a placeholder, False) without values."""
+        problem = local.problem
+        if problem.weights is None:
+            return np.zeros((1, 1)), False
+        released = fill_releases(problem.passengers, local.deployed, local.released)
+        unit = float(problem.weights[problem.weights > 0].mean())
+        R = problem.n_carriers
+        ws0 = np.zeros((R, problem.weights.shape[1] + 1))
+        for b in range(R):
+            aboard = np.ones(int(problem.passengers[b]), dtype=bool)
+            aboard[released[b][released[b] >= 0]] = False
+            w = np.sort(problem.weights[b, : len(aboard)][aboard])[::-1] / unit
+            ws0[b, : len(w)] = w
+        return (ws0, point_weights(problem, released).ravel()[known] / unit), True
 
     @staticmethod
     def _intent_arrays(local: LocalView, R: int):

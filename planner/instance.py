@@ -24,7 +24,7 @@ DEFAULT_PRIOR = {"kind": "poisson", "mean": 3.0}
 
 #: Top-level fields of an instance file.
 FIELDS = ("name", "comment", "carriers", "passengers", "stages", "prior", "normalize", "overlaps",
-          "valid", "observations")
+          "valid", "observations", "passenger_values")
 
 
 class Instance(NamedTuple):
@@ -94,6 +94,27 @@ def _in_support(prior, value: float) -> bool:
     return True
 
 
+def _passenger_values(data: dict, source: str, n_carriers: int, passengers) -> list | None:
+    """The optional ``passenger_values`` field: one list of weights > 0 per carrier, as long as its
+    passengers. None when absent (every passenger weighs 1: the unweighted problem)."""
+    if "passenger_values" not in data:
+        return None
+    values = data["passenger_values"]
+    counts = passengers if isinstance(passengers, list) else [passengers] * n_carriers
+    if not isinstance(values, list) or len(values) != n_carriers:
+        found = f"a list of {len(values)}" if isinstance(values, list) else _show(values)
+        raise InstanceError(source, "passenger_values", f"a list of {n_carriers} lists (one per carrier)", found)
+    for r, row in enumerate(values):
+        if not isinstance(row, list) or len(row) != counts[r]:
+            found = f"a list of {len(row)}" if isinstance(row, list) else _show(row)
+            raise InstanceError(source, f"passenger_values[{r}]",
+                                f"a list of {counts[r]} numbers > 0 (one per passenger of carrier {r})", found)
+        for i, w in enumerate(row):
+            if not _positive(w):
+                raise InstanceError(source, f"passenger_values[{r}][{i}]", "a number > 0", _show(w))
+    return [[float(w) for w in row] for row in values]
+
+
 def parse_instance(data: Any, source: str = "<instance>", seed: int = 0) -> tuple[Instance, bool]:
     """Validate a decoded JSON instance.
 
@@ -132,6 +153,8 @@ def parse_instance(data: Any, source: str = "<instance>", seed: int = 0) -> tupl
                 raise InstanceError(source, f"passengers[{r}]", "an integer >= 0", _show(d))
     elif not _int(passengers) or passengers < 0:
         raise InstanceError(source, "passengers", "an integer >= 0 or a list of them", _show(passengers))
+
+    weights = _passenger_values(data, source, n_carriers, passengers)
 
     normalize = data.get("normalize", "q90")
     if not (isinstance(normalize, str) or _positive(normalize)):
@@ -184,7 +207,7 @@ def parse_instance(data: Any, source: str = "<instance>", seed: int = 0) -> tupl
             valid = ~np.isnan(x)
     if valid is None:
         valid = np.ones(shape, dtype=bool)
-    problem = Problem.build(passengers, valid, overlaps, prior, normalize)
+    problem = Problem.build(passengers, valid, overlaps, prior, normalize, weights)
     if observations is None:
         rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=OBSERVATION_SPAWN_KEY))
         return Instance(problem, sample_observations(problem, rng)), True
@@ -224,7 +247,7 @@ def instance_dict(instance: Instance, prior: dict | None = None, normalize: str 
     """
     problem, x = instance
     d = problem.passengers.tolist()
-    return {
+    out = {
         "carriers": problem.n_carriers,
         "passengers": d[0] if len(set(d)) == 1 else d,
         "stages": problem.n_stages,
@@ -235,6 +258,9 @@ def instance_dict(instance: Instance, prior: dict | None = None, normalize: str 
         "observations": [[None if np.isnan(v) else (int(v) if float(v).is_integer() else float(v)) for v in row]
                          for row in x],
     }
+    if problem.weights is not None:
+        out["passenger_values"] = [problem.weights[r, :k].tolist() for r, k in enumerate(d)]
+    return out
 
 
 # ----------------------------------------------------------------------------- random instances
@@ -247,6 +273,7 @@ def random_instance(
     overlaps: int = 20,
     mean: float = 3.0,
     invalid_fraction: float = 0.0,
+    weights=None,
 ) -> Instance:
     """A paper-style random instance with Poisson(``mean``) observations.
 
@@ -256,6 +283,8 @@ def random_instance(
     * Each decision point is invalid (∅, known in advance) independently with probability
       ``invalid_fraction``.
     * Observations are drawn from the prior at valid stages (NaN elsewhere).
+    * ``weights``: None (no passenger values) or one list of passenger weights per carrier
+      (``Problem.weights``); it draws nothing, so the same seed gives the same instance either way.
 
     Draw order (fixed, so a seed gives one instance): validity, overlaps, observations.
     """
@@ -266,5 +295,6 @@ def random_instance(
         size = min(int(rng.integers(2, 4)), n_points)
         flat = rng.choice(n_points, size=size, replace=False)
         groups.append([[int(a) // stages, int(a) % stages] for a in flat])
-    problem = Problem.build(passengers, valid, groups, priors.build_prior({"kind": "poisson", "mean": mean}))
+    problem = Problem.build(passengers, valid, groups, priors.build_prior({"kind": "poisson", "mean": mean}),
+                            weights=weights)
     return Instance(problem, sample_observations(problem, rng))

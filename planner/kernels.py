@@ -38,3 +38,14 @@ def quantile(u, points, cdf, guide):
     while cdf[i] <= u:
         i += 1
     return points[i]
+
+
+@njit(cache=True, inline="always")
+def rank(table, x, n):
+    """The interval of ``x`` among ``table[n, 1..n-1]`` (twin of :func:`planner.ssap.rank`):
+    1 + the number of those thresholds that are ``>= x``."""
+    count = 0
+    for i in range(1, n):
+        if table[n, i] >= x:
+            count += 1
+    return 1 + count

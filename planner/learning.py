@@ -205,7 +205,7 @@ class LearnedPriorPlanner:
         problem, _ = learned_problem(view.problem, view.stage, view.observations, self.weight)
         if problem is view.problem:
             return view
-        return StageView(problem, view.stage, view.observations, view.valid, view.deployed)
+        return dataclasses.replace(view, problem=problem)  # released passengers kept (passenger types)
 
     def decide(self, view: StageView, rng: np.random.Generator) -> np.ndarray:
         return self.inner.decide(self.view_for(view), rng)

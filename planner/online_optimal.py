@@ -184,6 +184,9 @@ def estimate(problem: Problem, atoms: Atoms | None = None, max_states: int = MAX
     Stops as soon as a limit is passed and raises :class:`TooLarge`, so it is quick on big
     instances too.
     """
+    if problem.weights is not None:
+        raise TooLarge("online-optimal: expected an instance without passenger values (the exact recursion "
+                       "has none), found passenger_values")
     atoms = discretise(problem.prior) if atoms is None else atoms
     comp = _compile(problem)
     k = len(atoms.points)

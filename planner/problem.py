@@ -8,7 +8,9 @@ Conventions shared by every planner and by the fleet:
 
 * observations are a float array ``x[R, N]``; ``NaN`` marks an invalid (∅) stage or one not
   observed yet;
-* decisions are a bool array ``deployed[R, N]``;
+* decisions are a bool array ``deployed[R, N]``; with passenger values (types) the passenger each
+  deployment released is ``released[R, N]`` (int64, the passenger's index on its carrier, -1 where
+  nothing was released);
 * validity ``valid[R, N]`` is the schedule known in advance; online surprises (a carrier that did
   not report, or crashed) turn a stage ∅ in the realised observations.
 """
@@ -80,6 +82,10 @@ class Problem:
         prior: frozen ``scipy.stats`` distribution of the feature count ``x`` at a valid stage.
         scale: rewards are divided by this for planning (the prior's 90th percentile by default).
         conflict: bool ``[R*N, R*N]``, derived: flat points sharing an overlap (zero diagonal).
+        weights: float64 ``[R, max D]`` or None: ``weights[r, i] > 0`` is the value weight of
+            carrier r's passenger i (``i < D_r``; 0.0 pads the rows). Releasing passenger i at an
+            observation x earns ``w_i * x / p``. None (no passenger values) is exactly the
+            unweighted problem: every passenger weighs 1 and passengers are interchangeable.
     """
 
     passengers: np.ndarray
@@ -88,6 +94,7 @@ class Problem:
     prior: object
     scale: float
     conflict: np.ndarray = field(repr=False)
+    weights: np.ndarray | None = field(default=None, repr=False)
 
     @staticmethod
     def build(
@@ -96,6 +103,7 @@ class Problem:
         overlaps: Sequence[Sequence[Sequence[int]]] = (),
         prior: object | None = None,
         normalize: str | float = "q90",
+        weights: Sequence[Sequence[float]] | None = None,
     ) -> "Problem":
         """Validate and assemble a problem.
 
@@ -105,6 +113,8 @@ class Problem:
             overlaps: groups of ``(carrier, stage)`` pairs.
             prior: frozen scipy.stats distribution; Poisson(3) when omitted.
             normalize: see :func:`normalisation_scale`.
+            weights: None, or one list per carrier of its passengers' value weights (``D_r``
+                numbers > 0 each; ``passengers`` must then match the list lengths).
 
         Raises:
             ValueError: with a message naming what is wrong.
@@ -130,13 +140,14 @@ class Problem:
                     f"overlaps[{k}] has a (carrier, stage) pair outside 0..{n_carriers - 1} x 0..{n_stages - 1}"
                 )
             groups.append(arr)
+        w = None if weights is None else _weight_matrix(weights, d)
         prior = scipy.stats.poisson(3.0) if prior is None else prior
         scale = normalisation_scale(prior, normalize)
         conflict = _conflict_matrix(n_carriers, n_stages, groups)
         # Instances are shared between planners and caches: make their arrays immutable.
-        for arr in (d, valid, conflict, *groups):
+        for arr in (d, valid, conflict, *groups) + (() if w is None else (w,)):
             arr.setflags(write=False)
-        return Problem(d, valid, tuple(groups), prior, scale, conflict)
+        return Problem(d, valid, tuple(groups), prior, scale, conflict, w)
 
     @property
     def n_carriers(self) -> int:
@@ -145,6 +156,57 @@ class Problem:
     @property
     def n_stages(self) -> int:
         return self.valid.shape[1]
+
+
+def _weight_matrix(weights: Sequence[Sequence[float]], passengers: np.ndarray) -> np.ndarray:
+    """float64 ``[R, max D]`` of per-carrier passenger weights, 0.0-padded (see ``Problem.weights``)."""
+    if len(weights) != len(passengers):
+        raise ValueError(f"weights must hold one list per carrier ({len(passengers)}), got {len(weights)}")
+    out = np.zeros((len(passengers), max(1, int(passengers.max(initial=0)))))
+    for r, row in enumerate(weights):
+        row = np.asarray(row, dtype=float).reshape(-1)
+        if len(row) != passengers[r]:
+            raise ValueError(f"weights[{r}] must hold {passengers[r]} values (one per passenger), got {len(row)}")
+        if not (np.isfinite(row) & (row > 0)).all():
+            raise ValueError(f"weights[{r}] must be finite numbers > 0, got {row.tolist()}")
+        out[r, : len(row)] = row
+    return out
+
+
+def in_order(deployed: np.ndarray) -> np.ndarray:
+    """int64 ``[R, N]`` releases of passengers in index order (a carrier's k-th deployment releases
+    its passenger k), -1 where nothing is deployed: what type-blind carriers do, and the releases of
+    a problem without passenger values."""
+    deployed = np.asarray(deployed, dtype=bool)
+    return np.where(deployed, np.cumsum(deployed, axis=1) - 1, -1).astype(np.int64)
+
+
+def fill_releases(passengers, deployed: np.ndarray, released: np.ndarray | None) -> np.ndarray:
+    """int64 ``[R, N]``: ``released`` with every deployment whose passenger is unknown (-1) given
+    the lowest index still aboard at that stage (what a carrier that was told no passenger
+    releases); index order when ``released`` is None. ``passengers``: int ``[R]`` passengers
+    per carrier (``Problem.passengers``)."""
+    deployed = np.asarray(deployed, dtype=bool)
+    if released is None:
+        return in_order(deployed)
+    out = np.where(deployed, np.asarray(released, dtype=np.int64), -1)
+    for r in np.flatnonzero((deployed & (out < 0)).any(axis=1)):
+        gone = set(out[r][out[r] >= 0].tolist())
+        for j in np.flatnonzero(deployed[r] & (out[r] < 0)):
+            free = next((i for i in range(int(passengers[r])) if i not in gone), None)
+            if free is not None:
+                out[r, j] = free
+                gone.add(free)
+    return out
+
+
+def point_weights(problem: Problem, released: np.ndarray) -> np.ndarray:
+    """float ``[R, N]``: the weight of the passenger released at each point (0.0 where none)."""
+    released = np.asarray(released, dtype=np.int64)
+    if problem.weights is None:
+        return (released >= 0).astype(float)
+    rows = np.arange(problem.n_carriers)[:, None]
+    return np.where(released >= 0, problem.weights[rows, np.maximum(released, 0)], 0.0)
 
 
 def penalties(problem: Problem, deployed: np.ndarray) -> np.ndarray:
@@ -166,8 +228,19 @@ def rewards(problem: Problem, deployed: np.ndarray, x: np.ndarray) -> np.ndarray
     return out
 
 
-def evaluate(problem: Problem, deployed: np.ndarray, x: np.ndarray) -> tuple[float, float]:
-    """Total (normalised reward, raw features) of a full set of deployments under the penalty rule."""
+def evaluate(problem: Problem, deployed: np.ndarray, x: np.ndarray,
+             released: np.ndarray | None = None) -> tuple[float, float]:
+    """Total (normalised reward, raw features) of a full set of deployments under the penalty rule.
+
+    With passenger values (``problem.weights``) a deployment earns ``w * x / p`` for the weight w
+    of the passenger ``released[r, j]`` (index order, :func:`in_order`, when ``released`` is None;
+    an unknown -1 is filled by :func:`fill_releases`); without, ``released`` is ignored and this
+    is ``sum x / p``.
+    """
+    if problem.weights is not None:
+        deployed = np.asarray(deployed, dtype=bool)
+        released = fill_releases(problem.passengers, deployed, released)
+        x = np.nan_to_num(np.asarray(x, dtype=float), nan=0.0) * point_weights(problem, released)
     raw = float(rewards(problem, deployed, x).sum())
     return raw / problem.scale, raw
 
@@ -193,6 +266,9 @@ class StageView:
         valid: bool ``[R, N]``; realised validity at stages <= j (∅ observations are invalid),
             scheduled validity after j.
         deployed: bool ``[R, N]``; decisions taken at stages < j (False from j on).
+        released: int64 ``[R, N]`` or None: the passenger released at each past deployment (-1
+            elsewhere); None means index order (:func:`in_order` of ``deployed``), which is all a
+            problem without passenger values needs.
     """
 
     problem: Problem
@@ -200,6 +276,7 @@ class StageView:
     observations: np.ndarray
     valid: np.ndarray
     deployed: np.ndarray
+    released: np.ndarray | None = None
 
     @property
     def passengers_left(self) -> np.ndarray:
@@ -227,13 +304,32 @@ class StageView:
         """bool ``[R]``: carriers forced to deploy now (remaining valid stages == passengers left)."""
         return self.can_deploy & (self.stages_left <= self.passengers_left)
 
+    @cached_property
+    def past_releases(self) -> np.ndarray:
+        """int64 ``[R, N]``: ``released``, or index order when the view has none."""
+        return in_order(self.deployed) if self.released is None else self.released
+
+    @cached_property
+    def aboard(self) -> np.ndarray:
+        """bool ``[R, max D]``: passengers still aboard (not yet released); padding is False."""
+        out = np.arange(self.problem.weights.shape[1] if self.problem.weights is not None
+                        else max(1, int(self.problem.passengers.max(initial=0))))[None, :] \
+            < self.problem.passengers[:, None]
+        rel = fill_releases(self.problem.passengers, self.deployed, self.past_releases)
+        r, j = np.nonzero(rel >= 0)
+        out[r, rel[r, j]] = False
+        return out
+
 
 def make_view(
-    problem: Problem, stage: int, x: np.ndarray, deployed: np.ndarray
+    problem: Problem, stage: int, x: np.ndarray, deployed: np.ndarray,
+    released: np.ndarray | None = None,
 ) -> StageView:
     """The causal view of stage ``stage`` given the realised observations ``x`` (NaN = ∅).
 
     Only ``x[:, :stage + 1]`` is read; later columns are masked, so a planner cannot peek.
+    ``released`` (passengers released at past deployments) is kept only for a problem with
+    passenger values; None means index order.
     """
     if not 0 <= stage < problem.n_stages:
         raise ValueError(f"stage {stage} outside 0..{problem.n_stages - 1}")
@@ -243,6 +339,10 @@ def make_view(
     valid[:, : stage + 1] &= ~np.isnan(seen[:, : stage + 1])
     past = np.zeros(problem.valid.shape, dtype=bool)
     past[:, :stage] = np.asarray(deployed, dtype=bool)[:, :stage]
+    if released is not None and problem.weights is not None:
+        rel = np.full(problem.valid.shape, -1, dtype=np.int64)
+        rel[:, :stage] = np.where(past[:, :stage], np.asarray(released, dtype=np.int64)[:, :stage], -1)
+        return StageView(problem, stage, seen, valid, past, rel)
     return StageView(problem, stage, seen, valid, past)
 
 
@@ -298,12 +398,19 @@ class OnlineResult:
         reward: normalised total reward with the penalty rule.
         features: raw total (sum of x / p).
         decision_ms: wall time of each stage's decision, milliseconds.
+        released: int64 ``[R, N]``: the passenger each deployment released (-1 elsewhere); index
+            order (:func:`in_order`) for a problem without passenger values.
     """
 
     deployed: np.ndarray
     reward: float
     features: float
     decision_ms: tuple[float, ...]
+    released: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.released is None:
+            object.__setattr__(self, "released", in_order(self.deployed))
 
 
 def run_online(problem: Problem, x: np.ndarray, planner: Planner, seed: int) -> OnlineResult:
@@ -331,14 +438,20 @@ def run_online(problem: Problem, x: np.ndarray, planner: Planner, seed: int) -> 
     if callable(warm_up):
         warm_up(problem)
     times = []
+    typed = problem.weights is not None or hasattr(planner, "release_passengers")
+    released = np.full(problem.valid.shape, -1, dtype=np.int64) if typed else None
     for j in range(problem.n_stages):
-        view = make_view(problem, j, x, deployed)
+        view = make_view(problem, j, x, deployed, released)
         t0 = time.perf_counter()
         decision = planner.decide(view, stage_rng(seed, j))
         times.append((time.perf_counter() - t0) * 1e3)
         deployed[:, j] = enforce(view, decision)
-    reward, features = evaluate(problem, deployed, x)
-    return OnlineResult(deployed, reward, features, tuple(times))
+        if typed:
+            from planner.passengers import release  # the passenger rule needs the thresholds
+
+            released[:, j] = release(planner, view, deployed[:, j])
+    reward, features = evaluate(problem, deployed, x, released)
+    return OnlineResult(deployed, reward, features, tuple(times), released)
 
 
 def sample_observations(problem: Problem, rng: np.random.Generator) -> np.ndarray:

@@ -23,7 +23,8 @@ def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clai
         "clairvoyant" {"reward", "features", "exact"} (with ``clairvoyant``),
         "online_optimum" {"expected_reward", "exact", "atoms"[, "planner_expected_reward"]} (with
         ``online_optimum``, when the instance is within :data:`planner.online_optimal.AUTO_WORK`),
-        "comms" {"loss", "delay", "groups"} (only with ``comms``)}``.
+        "comms" {"loss", "delay", "groups"} (only with ``comms``), "released" [[passenger index per
+        deployment, in stage order] per carrier] (only for an instance with ``passenger_values``)}``.
 
     ``comms``: a :class:`planner.comms.CommsSpec`; None (the default) runs
     :func:`planner.problem.run_online` exactly as before, otherwise
@@ -56,6 +57,10 @@ def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clai
         "observations": [[None if np.isnan(v) else float(v) for v in row] for row in x],
         "observations_sampled": sampled,
     }
+    if problem.weights is not None:
+        # Passenger types: the passenger index of each deployment, in stage order.
+        out["released"] = [[int(result.released[r, j]) for j in np.flatnonzero(row)]
+                           for r, row in enumerate(result.deployed)]
     if comms is not None:
         out["comms"] = {"loss": comms.loss, "delay": comms.delay, "groups": [list(g) for g in comms.groups]}
     if clairvoyant:
@@ -63,7 +68,8 @@ def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clai
 
         bound = bound_mod.solve(problem, x)
         out["clairvoyant"] = {"reward": bound.reward, "features": bound.features, "exact": bound.exact}
-    if online_optimum:
+    # The exact online recursion knows no passenger values: no V* for a weighted instance.
+    if online_optimum and problem.weights is None:
         # A planner that learns its prior is no longer the policy the exact recursion weighs.
         optimum = _online_optimum(problem, "" if getattr(planner, "learn_prior", False) else planner_name)
         if optimum is not None:

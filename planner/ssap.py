@@ -114,6 +114,36 @@ def deploys(table: np.ndarray, x: float, n: int, d: int) -> bool:
     return n <= d or x > table[n, n - d]
 
 
+def rank(table: np.ndarray, x: float, n: int) -> int:
+    """The interval of ``x`` among the thresholds of ``n`` valid stages left (DLR's generalised
+    rule): 1 + the number of ``table[n, 1..n-1]`` that are ``>= x``, in ``1..n``. Rank 1 is above
+    every threshold. With ``d`` passengers the threshold rule deploys iff ``rank <= d`` (or forced);
+    :func:`planner.kernels.rank` is its numba twin."""
+    count = 0
+    for i in range(1, n):
+        if table[n, i] >= x:
+            count += 1
+    return 1 + count
+
+
+def release(table: np.ndarray, x: float, n: int, weights: np.ndarray) -> int:
+    """Which passenger a deployment at observation ``x`` with ``n`` valid stages left releases
+    (Derman, Lieberman & Ross 1972, the generalised assignment): the passenger of weight rank
+    ``min(rank(x), d)`` among the ``d`` still aboard (largest weight = rank 1; among equal weights
+    the lowest index, so equal weights release in index order). The rank is above ``d`` only when a planner deploys where plain SSAP would not
+    (a conflict-aware choice): then the lightest passenger goes.
+
+    Args:
+        weights: float ``[d]`` weights of the passengers aboard, in passenger order.
+
+    Returns:
+        The position in ``weights`` of the passenger to release.
+    """
+    weights = np.asarray(weights, dtype=float)
+    target = np.sort(weights)[::-1][min(rank(table, x, n), len(weights)) - 1]
+    return int(np.flatnonzero(weights == target)[0])
+
+
 def decide(table: np.ndarray, x: float, stages_left: int, passengers_left: int) -> bool:
     """Deploy now? Nothing to deploy or no stage left: no; otherwise :func:`deploys`."""
     if passengers_left <= 0 or stages_left <= 0:
@@ -128,6 +158,18 @@ def expected_value(table: np.ndarray, stages_left: int, passengers_left: int) ->
         return 0.0
     slots = table[stages_left + 1, 1 : stages_left + 1]
     return float(slots[stages_left - d :].sum())
+
+
+def weighted_value(table: np.ndarray, stages_left: int, weights: np.ndarray) -> float:
+    """Optimal expected total ``sum w x`` of one carrier with passengers of the given weights: the
+    k-th largest weight times the k-th largest slot value ``table[n + 1, n + 1 - k]``, for
+    ``k <= min(d, n)`` (DLR). Equal weights 1 give :func:`expected_value`."""
+    n = stages_left
+    w = np.sort(np.asarray(weights, dtype=float))[::-1][: max(n, 0)]
+    if len(w) == 0:
+        return 0.0
+    slots = table[n + 1, n + 1 - np.arange(1, len(w) + 1)]
+    return float(np.dot(w, slots))
 
 
 def prior_key(prior) -> object:

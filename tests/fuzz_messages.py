@@ -87,6 +87,17 @@ def _junk(rng: np.random.Generator, kind: int, target: str, key: str, other_miss
     return Fuzz(target, key, _corrupt(rng, other_mission), "mutated")
 
 
+def _optional_fields() -> set[str]:
+    """Names of message fields that are optional on the wire (they have a default)."""
+    from dataclasses import MISSING
+    from dataclasses import fields as dc_fields
+
+    from wire.messages import MESSAGE_TYPES
+
+    return {f.name for cls in MESSAGE_TYPES.values() for f in dc_fields(cls)
+            if f.default is not MISSING and f.name != "v"}
+
+
 def _message_variants(rng, base: dict, mission: str) -> list[tuple[str, bytes]]:
     """Broken versions of one well-formed message map of this mission (each rejected by decode,
     or by the mission check)."""
@@ -96,8 +107,9 @@ def _message_variants(rng, base: dict, mission: str) -> list[tuple[str, bytes]]:
     # wrong type in one field
     name = fields[int(rng.integers(len(fields)))]
     out.append(("wrong-type", _pack({**base, name: wrong.get(name, [[]])})))
-    # missing field
-    name = fields[int(rng.integers(len(fields)))]
+    # missing field (a required one: optional fields decode without it)
+    required = [k for k in fields if k not in _optional_fields()]
+    name = required[int(rng.integers(len(required)))]
     out.append(("missing-field", _pack({k: v for k, v in base.items() if k != name})))
     # unknown field
     out.append(("unknown-field", _pack({**base, "launch_codes": 1234})))

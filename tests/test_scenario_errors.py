@@ -72,6 +72,19 @@ CASES = [
      "carriers[1].id: expected a unique id (carriers[0] is already 'a'), found 'a'"),
     ("too-many-passengers", _set(["carriers", 0, "passengers"], 9),
      "carriers[0].passengers: expected at most 4 (the valid stages of carrier 'a' between start_time and stop_time), found 9"),
+    ("unknown-passenger-type", _set(["carriers", 0, "passengers"], ["scout", "drone"]),
+     "carriers[0].passengers[0]: expected a type of passenger_types (none defined in passenger_types) or a "
+     "mapping {type: NAME, value: W}, found 'scout'"),
+    ("passenger-value-not-positive", _set(["carriers", 0, "passengers"], [{"type": "scout", "value": 0}]),
+     "carriers[0].passengers[0].value: expected a number > 0, found 0"),
+    ("passenger-without-value", _set(["carriers", 0, "passengers"], [{"type": "scout"}]),
+     "carriers[0].passengers[0].value: expected a number > 0 (type 'scout' is not in passenger_types), found nothing (missing)"),
+    ("passenger-typo-key", _set(["carriers", 0, "passengers"], [{"type": "scout", "valeu": 1}]),
+     "carriers[0].passengers[0].valeu: expected a known key (did you mean 'value'?), found unknown key 'valeu'"),
+    ("passenger-types-bad-weight", _set(["passenger_types"], {"scout": -1}),
+     "passenger_types.scout: expected a number > 0, found -1"),
+    ("too-many-typed-passengers", _set(["carriers", 0, "passengers"], [{"value": 1}] * 9),
+     "carriers[0].passengers: expected at most 4 (the valid stages of carrier 'a' between start_time and stop_time), found 9"),
     ("bounds-inverted", _set(["map", "bounds"], [40, 0, 0, 40]),
      "map.bounds: expected xmin < xmax and ymin < ymax, found [40, 0, 0, 40]"),
     ("unknown-prior-kind", _set(["prior"], {"kind": "poison", "mean": 3}),
@@ -204,3 +217,15 @@ def test_cli_render(tmp_path):
 def test_cli_usage_error_exits_2():
     out = _cli("check")
     assert out.returncode == 2 and "Traceback" not in out.stderr
+
+
+def test_typed_passengers_load(tmp_path):
+    data = copy.deepcopy(BASE)
+    data["passenger_types"] = {"scout": 1.0, "rover": 0.6}
+    data["carriers"][0]["passengers"] = ["rover", {"type": "scout"}]
+    data["carriers"][1]["passengers"] = [{"value": 0.3}]
+    scenario = world.load_scenario(_write(tmp_path, data))
+    assert scenario.passenger_values() == [[0.6, 1.0], [0.3]]
+    assert scenario.passengers.tolist() == [2, 1]
+    assert scenario.passenger_type(0, 1) == "scout" and scenario.passenger_type(1, 0) == ""
+    assert world.load_scenario(TINY).passenger_values() is None

@@ -140,6 +140,13 @@ BROKEN = {
     "observation-at-invalid": ({**EXAMPLE, "valid": [[False] + [True] * 9] + [[True] * 10] * 3},
                                "observations[0][0]: expected null at a stage marked false in valid, found 2"),
     "bad-normalize": ({**EXAMPLE, "normalize": "p90"}, "normalize: expected"),
+    "values-not-a-list": ({**EXAMPLE, "passenger_values": 1.0},
+                          "passenger_values: expected a list of 4 lists (one per carrier), found 1.0"),
+    "values-row-length": ({**EXAMPLE, "passenger_values": [[1, 0.6, 0.6]] * 3 + [[1, 0.6]]},
+                          "passenger_values[3]: expected a list of 3 numbers > 0 (one per passenger of carrier 3), "
+                          "found a list of 2"),
+    "values-not-positive": ({**EXAMPLE, "passenger_values": [[1, 0.6, 0.6]] * 3 + [[1, 0, 0.6]]},
+                            "passenger_values[3][1]: expected a number > 0, found 0"),
 }
 
 
@@ -210,3 +217,23 @@ def test_every_prior_kind_builds_and_round_trips(tmp_path):
         assert not sampled and np.allclose(x, y)
         with pytest.raises(InstanceError, match=f"prior.{list(params)[0]}: expected"):
             make_prior({"kind": kind, **{k: v for k, v in list(params.items())[1:]}})
+
+
+def test_passenger_values_give_released_passengers(tmp_path, cli):
+    """With ``passenger_values`` the output lists each deployment's passenger; the reward is the
+    weighted one; without them the output has no ``released`` (today's format)."""
+    values = [[1.0, 0.6, 0.6], [0.6, 1.0, 0.6], [0.3, 0.3, 1.0], [1.0, 1.0, 1.0]]
+    plain = json.loads(cli(str(_write(tmp_path, EXAMPLE, "plain.json")), "--planner", "ssap", "--seed", "1").stdout)
+    typed = json.loads(cli(str(_write(tmp_path, {**EXAMPLE, "passenger_values": values}, "typed.json")),
+                           "--planner", "ssap", "--seed", "1").stdout)
+    assert "released" not in plain
+    # SSAP's deployments do not depend on the values; its passengers do.
+    assert typed["deployments"] == plain["deployments"]
+    assert [sorted(r) for r in typed["released"]] == [list(range(len(s))) for s in typed["deployments"]]
+    x = typed["observations"]
+    by_hand = sum(values[r][i] * x[r][j] for r, (stages, who) in enumerate(zip(typed["deployments"], typed["released"]))
+                  for j, i in zip(stages, who))
+    assert typed["features"] <= by_hand + 1e-9  # penalties only lower it
+    assert typed["clairvoyant"]["features"] >= typed["features"] - 1e-9
+    assert typed["released"][3] == [0, 1, 2]  # equal weights: index order
+    assert "online_optimum" not in typed

@@ -232,6 +232,9 @@ class Decision:
         planning_ms: wall time the planner took, milliseconds.
         epoch: the deciding coordinator's epoch (>= 1; omitted on the wire when 1): a carrier
             ignores a Decision of an epoch lower than the highest it has heard (``deposed``).
+        passengers: the passenger index each carrier of ``deploy`` releases, parallel to it
+            (passenger types, docs/planner.md); empty when the decision names none (omitted on
+            the wire when empty).
     """
 
     mission: str = _spec(_ident)
@@ -240,8 +243,21 @@ class Decision:
     deploy: tuple[str, ...] = _spec(_unique_ids)
     planning_ms: float = _spec(_MS)
     epoch: int = _spec(_EPOCH, absent=1)
+    passengers: tuple[int, ...] = _spec(_list(_int(0, MAX_PASSENGERS - 1), MAX_CARRIERS), absent=())
     v: int = PROTOCOL_VERSION
     TYPE = "decision"
+
+    def __post_init__(self):
+        if self.passengers and len(self.passengers) != len(self.deploy):
+            raise ProtocolError("out-of-range", f"passengers: expected one per deploying carrier "
+                                                f"({len(self.deploy)}) or none, found {len(self.passengers)}")
+
+    def passenger_of(self, cid: str) -> int | None:
+        """The passenger index the decision names for carrier ``cid`` (None: none named, or not
+        selected)."""
+        if not self.passengers or cid not in self.deploy:
+            return None
+        return self.passengers[self.deploy.index(cid)]
 
 
 #: Confirm.status values.
@@ -262,6 +278,8 @@ class Confirm:
             first handling stands and ``deployed`` repeats its outcome).
         position: where the passenger was released (or the carrier's position), metres.
         passengers_left: passengers on board after handling the decision.
+        passenger: the index of the passenger released (None when nothing was released or the
+            carrier does not say; omitted on the wire when None).
     """
 
     mission: str = _spec(_ident)
@@ -271,6 +289,7 @@ class Confirm:
     status: str = _spec(_text(16))
     position: tuple[float, float] = _spec(_point)
     passengers_left: int = _spec(_PASSENGERS)
+    passenger: int | None = _spec(_optional(_int(0, MAX_PASSENGERS - 1)), absent=None)
     v: int = PROTOCOL_VERSION
     TYPE = "confirm"
 

@@ -16,11 +16,13 @@ from world.stages import StageGeometry, stage_geometry
 
 def build_problem(scenario, geometry=None):
     """The planner core's instance of a scenario (:class:`planner.problem.Problem`): schedules,
-    overlaps and prior (the planner is imported here, lazily, for processes that plan)."""
+    overlaps, prior and passenger values (the planner is imported here, lazily, for processes that
+    plan)."""
     from planner.problem import Problem
 
     geometry = stage_geometry(scenario) if geometry is None else geometry
-    return Problem.build(scenario.passengers, geometry.valid, geometry.overlaps, scenario.prior_distribution())
+    return Problem.build(scenario.passengers, geometry.valid, geometry.overlaps, scenario.prior_distribution(),
+                         weights=scenario.passenger_values())
 
 
 def render_map(scenario, path, deployments=None, trajectories=None, title=None, **kwargs):

@@ -68,7 +68,8 @@ def _trajectory_list(scenario, trajectories: Any) -> list[tuple[int, np.ndarray]
 
 def render_map(scenario, path: str | Path, deployments: Any = None, trajectories: Any = None,
                title: str | None = None, positions: np.ndarray | None = None,
-               features: np.ndarray | None = None, stage_labels: bool = True, dpi: int = 130) -> Path:
+               features: np.ndarray | None = None, stage_labels: bool = True, dpi: int = 130,
+               deployment_labels: Any = None) -> Path:
     """Draw the scenario's map to a PNG.
 
     Args:
@@ -83,6 +84,8 @@ def render_map(scenario, path: str | Path, deployments: Any = None, trajectories
         features: float ``[F, 2]`` (sampled from the scenario's seed by default).
         stage_labels: write the stage number next to each decision point.
         dpi: resolution.
+        deployment_labels: text written next to each deployment of a sequence ``deployments``,
+            in the same order (passenger types: the released passenger's type); None: none.
 
     Returns:
         The path written.
@@ -169,10 +172,15 @@ def render_map(scenario, path: str | Path, deployments: Any = None, trajectories
     # deployments with the passenger's sensing disc
     spot_pos = geo.positions if positions is None else np.asarray(positions)
     spots = _deployment_spots(scenario, deployments, spot_pos)
-    for r, (x, y) in spots:
+    labels = list(deployment_labels) if deployment_labels is not None else []
+    for k, (r, (x, y)) in enumerate(spots):
         col = _colour(r)
         ax.add_patch(Circle((x, y), scenario.sensing_radius, fc=col, alpha=0.15, ec=col, lw=1.2, ls="--", zorder=5))
         ax.plot(x, y, marker="*", ms=14, color=col, mec="black", mew=0.7, zorder=9)
+        if k < len(labels) and labels[k]:
+            ax.text(x + 0.012 * w, y - 0.012 * h, str(labels[k]), fontsize=8, fontweight="bold", color="black",
+                    ha="left", va="top", zorder=10,
+                    bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": col, "lw": 0.8, "alpha": 0.85})
 
     # scale bar (bottom-left, inside the bounds)
     bar = _nice_length(w)

@@ -172,6 +172,10 @@ class CarrierSpec:
             file omits it. If later than that, it waits at the last waypoint until then.
         speed: nominal speed along the path (m/s).
         waypoints: the path ((x, y), ...) (m), at least two points.
+        passenger_values: the value weight of each passenger, in listed order (empty when the
+            file gives a count: every passenger weighs 1).
+        passenger_types: the type name of each passenger ("" for none), in listed order (empty
+            when the file gives a count).
     """
 
     id: str
@@ -180,6 +184,8 @@ class CarrierSpec:
     stop_time: float
     speed: float
     waypoints: tuple[tuple[float, float], ...]
+    passenger_values: tuple[float, ...] = ()
+    passenger_types: tuple[str, ...] = ()
 
     @cached_property
     def _cumulative(self) -> np.ndarray:
@@ -300,6 +306,18 @@ class Scenario:
     def passengers(self) -> np.ndarray:
         """int64 ``[R]``."""
         return np.array([c.passengers for c in self.carriers], dtype=np.int64)
+
+    def passenger_values(self) -> list[list[float]] | None:
+        """One list of passenger value weights per carrier (``Problem.build(weights=...)``), or
+        None when no carrier lists its passengers (the unweighted problem, exactly as before)."""
+        if not any(c.passenger_values for c in self.carriers):
+            return None
+        return [list(c.passenger_values) if c.passenger_values else [1.0] * c.passengers for c in self.carriers]
+
+    def passenger_type(self, r: int, i: int) -> str:
+        """Type name of carrier r's passenger i ("" when the file gives none)."""
+        types = self.carriers[r].passenger_types
+        return types[i] if 0 <= i < len(types) else ""
 
     def carrier_index(self, cid: str) -> int:
         """Index r of carrier ``cid`` (KeyError if unknown)."""
@@ -448,13 +466,14 @@ def _show(value: Any) -> str:
 
 
 _TOP_KEYS = ("name", "seed", "map", "features", "sensing_radius", "stage_interval", "stages",
-             "first_stage_time", "conflict_radius", "carriers", "planner", "prior")
+             "first_stage_time", "conflict_radius", "carriers", "planner", "prior", "passenger_types")
 _TOP_REQUIRED = ("name", "seed", "map", "features", "sensing_radius", "stage_interval", "stages", "carriers")
 _MAP_KEYS = ("bounds", "walls", "obstacles", "building")
 _BUILDING_KEYS = ("origin", "rooms", "room_size", "corridor_width", "door_width", "entrances")
 _FEATURE_KEYS = ("density", "clusters")
 _CLUSTER_KEYS = ("disc", "rect", "room", "density", "label")
 _CARRIER_KEYS = ("id", "passengers", "start_time", "stop_time", "speed", "waypoints")
+_PASSENGER_KEYS = ("type", "value")
 _PLANNER_KEYS = ("name", *planners.OPTIONS)
 _SIDES = ("west", "east", "south", "north")
 
@@ -525,7 +544,8 @@ def parse_scenario(data: Any, file: str = "<scenario>") -> Scenario:
 
     the_map = _parse_map(ck, top["map"]) if "map" in top else None
     feats = _parse_features(ck, top["features"], the_map) if "features" in top else None
-    carriers = _parse_carriers(ck, top["carriers"], the_map) if "carriers" in top else None
+    types = _parse_passenger_types(ck, top.get("passenger_types", {}))
+    carriers = _parse_carriers(ck, top["carriers"], the_map, types) if "carriers" in top else None
     planner = _parse_planner(ck, top.get("planner", {}))
     prior = _parse_prior(ck, top.get("prior", "derived"))
 
@@ -707,7 +727,68 @@ def _parse_features(ck: _Checker, node: Any, the_map: MapSpec | None) -> Feature
     return FeatureSpec(density=density, clusters=tuple(clusters))
 
 
-def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None) -> tuple[CarrierSpec, ...] | None:
+def _parse_passenger_types(ck: _Checker, node: Any) -> dict[str, float]:
+    """``passenger_types``: a mapping from type name to its value weight (> 0)."""
+    if not isinstance(node, dict):
+        ck.bad("passenger_types", "a mapping of type names to value weights > 0 (e.g. {scout: 1.0, rover: 0.6})", node)
+        return {}
+    out = {}
+    for name, value in node.items():
+        if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_\-]+", name):
+            ck.bad("passenger_types", "type names of letters, digits, '_' or '-'", name)
+            continue
+        w = ck.number(value, f"passenger_types.{name}", minimum=0, exclusive=True)
+        if w is not None:
+            out[name] = w
+    return out
+
+
+def _parse_passengers(ck: _Checker, node: Any, path: str, types: dict[str, float]):
+    """A carrier's ``passengers``: a count (every passenger weighs 1), or a list of passengers,
+    each a type name of ``passenger_types`` or a mapping ``{type: NAME, value: W}`` (``value``
+    required unless the type is in ``passenger_types``). Returns (count, values, type names)."""
+    if not isinstance(node, list):
+        count = ck.number(node, path, minimum=0, integer=True, maximum=MAX_PASSENGERS)
+        return count, (), ()
+    if len(node) > MAX_PASSENGERS:
+        ck.bad(path, f"at most {MAX_PASSENGERS} passengers", _Raw(f"{len(node)} passengers"))
+        return None, (), ()
+    values, names = [], []
+    known = ", ".join(types) or "none defined in passenger_types"
+    for i, item in enumerate(node):
+        where = f"{path}[{i}]"
+        if isinstance(item, str):
+            if item not in types:
+                ck.bad(where, f"a type of passenger_types ({known}) or a mapping {{type: NAME, value: W}}", item)
+                continue
+            values.append(types[item])
+            names.append(item)
+            continue
+        m = ck.mapping(item, where, _PASSENGER_KEYS)
+        if m is None:
+            continue
+        name = m.get("type", "")
+        if "type" in m and (not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_\-]+", name)):
+            ck.bad(f"{where}.type", "a type name of letters, digits, '_' or '-'", name)
+            continue
+        if "value" in m:
+            w = ck.number(m["value"], f"{where}.value", minimum=0, exclusive=True)
+        elif name in types:
+            w = types[name]
+        else:
+            ck.bad(f"{where}.value", f"a number > 0 (type '{name}' is not in passenger_types)" if name
+                   else "a number > 0", _Raw("nothing (missing)"))
+            continue
+        if w is not None:
+            values.append(w)
+            names.append(name)
+    if len(values) != len(node):
+        return None, (), ()
+    return len(values), tuple(values), tuple(names)
+
+
+def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None,
+                    types: dict[str, float] | None = None) -> tuple[CarrierSpec, ...] | None:
     if not isinstance(node, list) or not node:
         ck.bad("carriers", "a non-empty list of carriers", node)
         return None
@@ -732,7 +813,8 @@ def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None) -> tuple[C
                 if cid in seen:
                     ck.bad(f"{path}.id", f"a unique id (carriers[{seen[cid]}] is already '{cid}')", cid)
                 seen.setdefault(cid, r)
-        pas = ck.number(cm["passengers"], f"{path}.passengers", minimum=0, integer=True, maximum=MAX_PASSENGERS) if "passengers" in cm else None
+        pas, values, names = (_parse_passengers(ck, cm["passengers"], f"{path}.passengers", types or {})
+                               if "passengers" in cm else (None, (), ()))
         start = ck.number(cm["start_time"], f"{path}.start_time", minimum=0) if "start_time" in cm else None
         speed = ck.number(cm["speed"], f"{path}.speed", minimum=0, exclusive=True) if "speed" in cm else None
         wps = ck.points(cm["waypoints"], f"{path}.waypoints", 2) if "waypoints" in cm else None
@@ -766,7 +848,8 @@ def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None) -> tuple[C
         length = float(np.hypot(*np.diff(np.asarray(wps), axis=0).T).sum())
         if stop is None:
             stop = start + length / speed
-        out.append(CarrierSpec(id=cid, passengers=pas, start_time=start, stop_time=stop, speed=speed, waypoints=wps))
+        out.append(CarrierSpec(id=cid, passengers=pas, start_time=start, stop_time=stop, speed=speed, waypoints=wps,
+                               passenger_values=values, passenger_types=names))
     if len(ck.problems) > n0:
         return None
     return tuple(out)

@@ -53,7 +53,7 @@ import numpy as np
 from planner import ssap
 from planner.compiled import compile_problem
 from planner.mcts import kernel as _k
-from planner.problem import Problem, StageView, make_view
+from planner.problem import Problem, StageView, make_view, point_weights
 from planner.registry import DEFAULT_EXPLORATION, DEFAULT_ITERATIONS, LAYOUTS
 
 #: Rollout policies.
@@ -278,7 +278,18 @@ class MCTSPlanner:
         mark[past] = 1
         xval = np.zeros(n_carriers * n_stages, dtype=np.float64)
         xval[past] = known.reshape(-1)[past]
-        root = _k.Root(j0, d0, valid, vs_left, known, known.reshape(-1), past)
+        weighted = problem.weights is not None
+        if weighted:  # passenger values: past deployments with their passengers' weights
+            # In units of the mean passenger value, so the exploration constant keeps its meaning.
+            unit = float(problem.weights[problem.weights > 0].mean())
+            xval[past] *= point_weights(problem, view.past_releases).reshape(-1)[past] / unit
+            ws0 = np.zeros((n_carriers, problem.weights.shape[1] + 1))
+            for r in range(n_carriers):
+                w = np.sort(problem.weights[r, view.aboard[r]])[::-1] / unit
+                ws0[r, : len(w)] = w
+        else:
+            ws0 = np.zeros((1, 1))
+        root = _k.Root(j0, d0, valid, vs_left, known, known.reshape(-1), past, ws0, weighted)
         scratch = _k.Scratch(
             state,
             np.zeros(n_carriers, dtype=np.int64),  # left
@@ -288,6 +299,8 @@ class MCTSPlanner:
             np.zeros(n_carriers * n_stages, dtype=np.int64),  # pts
             np.zeros((n_stages - j0) * n_carriers + 2, dtype=np.int64),  # path
             np.zeros(n_carriers, dtype=np.int64),  # choice
+            np.zeros_like(ws0),  # ws
+            np.zeros(n_carriers, dtype=np.int64),  # dleft
         )
         fixed = (root, _model(problem), _k.Settings(ROLLOUTS[self.rollout], self.exploration, self.samples),
                  _uct_tables(), scratch)

@@ -47,7 +47,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from planner.kernels import deploys, deploys_u, forced
+from planner.kernels import deploys, deploys_u, forced, rank
 from planner.kernels import quantile as _quantile
 
 #: Index of the root node.
@@ -97,6 +97,9 @@ class Root(NamedTuple):
     known: np.ndarray       # float64 [R, N] observations up to j0, NaN after it
     known_flat: np.ndarray  # float64 [R*N] the same, flat
     past: np.ndarray        # int64 [P] flat points deployed before j0
+    ws0: np.ndarray         # float64 [R, max D + 1] weights of the passengers aboard, largest first
+                            # (passenger values; a [1, 1] placeholder without them)
+    weighted: bool          # passenger values: trajectories are scored with the released weights
 
 
 class Settings(NamedTuple):
@@ -126,6 +129,8 @@ class Scratch(NamedTuple):
     pts: np.ndarray        # int64 [R*N] selected points after the past, in order
     path: np.ndarray       # int64 [(N - j0) * R + 2] node ids of the current tree path
     choice: np.ndarray     # int64 [R] carriers with a choice at the current stage (joint layout)
+    ws: np.ndarray         # float64 like Root.ws0: weights aboard along the trajectory (passenger values)
+    dleft: np.ndarray      # int64 [R] passengers aboard along the trajectory (passenger values)
 
 
 class Stats(NamedTuple):
@@ -297,6 +302,32 @@ def evaluate(n, past, pts, mark, xval, indptr, nbr):
     return total
 
 
+@njit(cache=True)
+def weigh(n, pts, xval, n_stages, vs_left, table, d0, ws0, ws, dleft):
+    """Passenger values: turn the raw observations of the trajectory's deployments ``pts[:n]``
+    (in stage order) into weighted values ``w x``, each carrier releasing, at each of its
+    deployments, the passenger of rank ``min(rank(x), d)`` among those aboard (the DLR rule of
+    :func:`planner.passengers.choose`), starting from the root's passengers ``ws0``."""
+    for r in range(d0.shape[0]):
+        dleft[r] = d0[r]
+        for i in range(ws0.shape[1]):
+            ws[r, i] = ws0[r, i]
+    for i in range(n):
+        a = pts[i]
+        r = a // n_stages
+        k = a % n_stages
+        d = dleft[r]
+        if d <= 0:
+            continue
+        pos = rank(table, xval[a], vs_left[r, k])
+        pos = (pos if pos < d else d) - 1
+        xval[a] *= ws[r, pos]
+        for m in range(pos, d - 1):
+            ws[r, m] = ws[r, m + 1]
+        ws[r, d - 1] = 0.0
+        dleft[r] = d - 1
+
+
 @njit(cache=True, inline="always")
 def simulate(q, n_tree, root, model, settings, scratch):
     """Mean normalised reward of ``settings.samples`` rollouts below a tree path.
@@ -308,7 +339,7 @@ def simulate(q, n_tree, root, model, settings, scratch):
     """
     left, left_tree, mark, xval, pts = scratch.left, scratch.left_tree, scratch.mark, scratch.xval, scratch.pts
     state = scratch.state
-    j0, _, valid, vs_left, known, known_flat, past = root
+    j0, d0, valid, vs_left, known, known_flat, past, ws0, weighted = root
     table, ucut, points, cdf, guide, indptr, nbr, scale = model
     policy, _, samples = settings
     n_carriers = left.shape[0]
@@ -324,6 +355,8 @@ def simulate(q, n_tree, root, model, settings, scratch):
             left[r] = left_tree[r]
         n = rollout(state, q, n_tree, j0, valid, vs_left, known, table, ucut, points, cdf, guide, indptr, nbr,
                     policy, left, mark, xval, pts)
+        if weighted:
+            weigh(n, pts, xval, known.shape[1], vs_left, table, d0, ws0, scratch.ws, scratch.dleft)
         total += evaluate(n, past, pts, mark, xval, indptr, nbr)
         for i in range(n_tree, n):
             mark[pts[i]] = 0

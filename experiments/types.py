@@ -1,0 +1,217 @@
+"""The passenger-types sweep (issue 13 part A): type-aware planners against type-blind ones.
+
+Every carrier carries passengers of two types, listed in a fixed order: one aerial scout (value
+weight 1.0) and small rovers (0.4; two on a carrier of three). Even carriers list the scout first, odd carriers
+last, so that a fixed release order is not by chance the good one.
+
+* **aware** — the planner as registered: it decides with the passenger values (closed-loop's
+  rollouts and control variate, the clairvoyant bound) and releases, at each deployment, the
+  passenger of the observation's DLR rank (:mod:`planner.passengers`);
+* **choice** — :class:`planner.passengers.UnweightedSearch`: the planner decides *whether* to
+  deploy as if every passenger weighed 1, and the passenger is chosen by the rank rule (what the
+  values are worth inside a planner's search: aware − choice);
+* **blind** — :class:`planner.passengers.TypeBlind`: the same planner deciding as if every
+  passenger weighed 1, releasing passengers in the listed order.
+
+Both are scored with the passenger values on the same observations (paired), with the same planner
+seed; the clairvoyant bound (with values) is the reference. Cases (``level``):
+
+0. random paper-style instances, R = 4, D = 3, N = 10, no overlaps (SSAP is optimal here);
+1. the same with 20 overlap groups;
+2. ``scenarios/urban_types.yaml``: the ``urban_alpha`` world (R = 3, D = 3, 3, 2, N = 19) with the
+   passengers its file lists (a scout 1.0 and rovers 0.4 per carrier; the scout first on alpha
+   and charlie, last on bravo).
+
+Streams as the other sweeps (:mod:`experiments.trials`): trial t's instance ``(1000, t)`` (random
+cases) or world seed ``(1001, t)`` (urban), planner seed ``(1000|1001, t, 1)``.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+from experiments.report import STYLE, sem
+from experiments.trials import CLAIRVOYANT, Task
+
+ROOT = Path(__file__).resolve().parent.parent
+SCOUT, ROVER = 1.0, 0.4
+#: (label, overlaps or None for the urban world).
+CASES = (("random, 0 overlaps", 0), ("random, 20 overlaps", 20), ("urban_types", None))
+VARIANTS = ("aware", "choice", "blind")
+DEFAULT_PLANNERS = ("closed-loop", "ssap", "mcts-ssap", "random")
+URBAN = ROOT / "scenarios" / "urban_types.yaml"
+
+
+def fleet_values(passengers) -> tuple[tuple[float, ...], ...]:
+    """Per carrier (``passengers[r]`` passengers), its passengers' weights in listed order: one
+    scout and rovers, the scout first on even carriers and last on odd ones."""
+    out = []
+    for r, d in enumerate(passengers):
+        row = [ROVER] * int(d)
+        if d:
+            row[0 if r % 2 == 0 else -1] = SCOUT
+        out.append(tuple(row))
+    return tuple(out)
+
+
+def build_tasks(settings: dict) -> list[Task]:
+    tasks = []
+    for level, (_, overlaps) in enumerate(CASES):
+        for t in range(settings["trials"]):
+            common = dict(sweep="types", level=level, trial=t, seed=settings["seed"],
+                          iterations=settings["iterations"])
+            if overlaps is None:
+                common.update(scenario=str(URBAN), carriers=3, stages=19)
+            else:
+                common.update(carriers=4, overlaps=overlaps)
+            tasks.append(Task(planner=CLAIRVOYANT, variant="aware", **common))
+            for planner in settings["planners"]:
+                for variant in VARIANTS:
+                    tasks.append(Task(planner=planner, variant=variant, **common))
+    return tasks
+
+
+FIELDS = ("case", "level", "trial", "planner", "variant", "reward", "features", "iterations", "world_seed",
+          "planner_seed", "decision_ms_mean", "wall_s", "deployed", "released")
+
+
+def write_trials(rows: list[dict], path: Path) -> None:
+    rows = sorted(rows, key=lambda r: (r["level"], r["trial"], _order(r["planner"]), r["variant"]))
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=FIELDS, extrasaction="ignore")
+        writer.writeheader()
+        for r in rows:
+            writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items() if k in FIELDS})
+
+
+def read_trials(path: Path) -> list[dict]:
+    out = []
+    with open(path, newline="") as f:
+        for r in csv.DictReader(f):
+            for k in ("level", "trial", "iterations"):
+                r[k] = int(r[k])
+            for k in ("reward", "features", "decision_ms_mean", "wall_s"):
+                r[k] = float(r[k])
+            out.append(r)
+    return out
+
+
+def _order(planner: str) -> int:
+    names = list(STYLE)
+    return names.index(planner) if planner in names else len(names)
+
+
+def summarise(rows: list[dict]) -> list[dict]:
+    """One row per (case, planner): aware and blind mean ± SEM, both as % of the clairvoyant mean,
+    and the paired difference aware − blind (± SEM, wins/losses)."""
+    bound = defaultdict(dict)
+    for r in rows:
+        if r["planner"] == CLAIRVOYANT:
+            bound[r["level"]][r["trial"]] = r["reward"]
+    by = defaultdict(dict)
+    for r in rows:
+        if r["planner"] != CLAIRVOYANT:
+            by[(r["level"], r["planner"], r["trial"])][r["variant"]] = r["reward"]
+    groups = defaultdict(list)
+    for (level, planner, trial), d in by.items():
+        if all(v in d for v in VARIANTS):
+            groups[(level, planner)].append((trial, d))
+    out = []
+    for (level, planner), items in sorted(groups.items(), key=lambda kv: (kv[0][0], _order(kv[0][1]))):
+        aware = np.array([d["aware"] for _, d in items])
+        choice = np.array([d["choice"] for _, d in items])
+        blind = np.array([d["blind"] for _, d in items])
+        search = aware - choice
+        clair = np.array([bound[level].get(t, np.nan) for t, _ in items])
+        diff = aware - blind
+        out.append({"level": level, "case": CASES[level][0], "planner": planner, "n": len(items),
+                    "aware_mean": float(aware.mean()), "aware_sem": sem(aware),
+                    "blind_mean": float(blind.mean()), "blind_sem": sem(blind),
+                    "choice_mean": float(choice.mean()), "choice_sem": sem(choice),
+                    "search_mean": float(search.mean()), "search_sem": sem(search),
+                    "search_wins": f"{int((search > 1e-12).sum())}/{int((search < -1e-12).sum())}",
+                    "clairvoyant_mean": float(np.nanmean(clair)),
+                    "aware_pct": float(100 * aware.mean() / np.nanmean(clair)),
+                    "blind_pct": float(100 * blind.mean() / np.nanmean(clair)),
+                    "diff_mean": float(diff.mean()), "diff_sem": sem(diff),
+                    "gain_pct": float(100 * (aware.mean() / blind.mean() - 1)),
+                    "wins": f"{int((diff > 1e-12).sum())}/{int((diff < -1e-12).sum())}"})
+    return out
+
+
+SUMMARY_FIELDS = ("case", "planner", "n", "aware_mean", "aware_sem", "choice_mean", "choice_sem", "blind_mean",
+                  "blind_sem", "search_mean", "search_sem", "search_wins", "clairvoyant_mean",
+                  "aware_pct", "blind_pct", "diff_mean", "diff_sem", "gain_pct", "wins")
+
+
+def markdown(summary: list[dict]) -> str:
+    lines = ["| case | planner | type-aware | unweighted search | type-blind | aware − blind (wins/losses) "
+             "| aware / blind | aware − unweighted search (wins/losses) | aware, % of clairvoyant "
+             "| blind, % of clairvoyant |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in summary:
+        label = STYLE.get(r["planner"], (r["planner"],))[0]
+        lines.append(f"| {r['case']} | {label} | {r['aware_mean']:.3f} ± {r['aware_sem']:.3f} "
+                     f"| {r['choice_mean']:.3f} ± {r['choice_sem']:.3f} "
+                     f"| {r['blind_mean']:.3f} ± {r['blind_sem']:.3f} "
+                     f"| {r['diff_mean']:+.3f} ± {r['diff_sem']:.3f} ({r['wins']}) | {r['gain_pct']:+.1f}% "
+                     f"| {r['search_mean']:+.3f} ± {r['search_sem']:.3f} ({r['search_wins']}) "
+                     f"| {r['aware_pct']:.1f}% | {r['blind_pct']:.1f}% |")
+    return "\n".join(lines)
+
+
+def plot(summary: list[dict], path: Path, title: str) -> None:
+    """Grouped bars: each case × planner, aware and blind as % of the clairvoyant mean, ±1 SEM."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    colours = {"aware": "#1b9e77", "choice": "#7570b3", "blind": "#999999"}
+    names = {"aware": "type-aware", "choice": "unweighted search, rank-rule passenger", "blind": "type-blind"}
+    fig, ax = plt.subplots(figsize=(11, 4.6))
+    width = 0.27
+    labels = []
+    for i, r in enumerate(summary):
+        base = r["clairvoyant_mean"]
+        for k, v in enumerate(VARIANTS):
+            ax.bar(i + (k - 1) * width, 100 * r[f"{v}_mean"] / base, width, yerr=100 * r[f"{v}_sem"] / base,
+                   color=colours[v], capsize=2, label=names[v] if i == 0 else None)
+        labels.append(f"{r['case'].replace('random, ', '')}\n{STYLE.get(r['planner'], (r['planner'],))[0]}")
+    ax.axhline(100, color="black", lw=0.8)
+    ax.set_xticks(range(len(summary)))
+    ax.set_xticklabels(labels, fontsize=6.5, rotation=20)
+    ax.set_ylabel("mean reward, % of the clairvoyant bound (±1 SEM)")
+    lo = min(100 * r[f"{v}_mean"] / r["clairvoyant_mean"] for r in summary for v in VARIANTS)
+    ax.set_ylim(max(0.0, math.floor(lo / 10) * 10 - 10), None)
+    ax.legend(fontsize=8)
+    ax.grid(axis="y", alpha=0.3)
+    ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def write(rows: list[dict], out: Path, settings: dict, seconds: float, jobs: int) -> dict:
+    """CSVs, table, plot and ``types.md`` under ``out``; returns the run-info entry."""
+    write_trials(rows, out / "types_trials.csv")
+    summary = summarise(rows)
+    with open(out / "types_summary.csv", "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=SUMMARY_FIELDS, extrasaction="ignore")
+        writer.writeheader()
+        for r in summary:
+            writer.writerow({k: (f"{r[k]:.6g}" if isinstance(r[k], float) else r[k]) for k in SUMMARY_FIELDS})
+    title = (f"Passenger types: type-aware vs type-blind (scout {SCOUT}, two rovers {ROVER}), "
+             f"{settings['trials']} trials, {settings['iterations']} iterations")
+    plot(summary, out / "types.png", title)
+    text = ["## Passenger types sweep", "",
+            f"{settings['trials']} trials per case, {settings['iterations']} iterations per decision "
+            f"(MCTS-SSAP, closed-loop). Each carrier: a scout (weight {SCOUT}) and two rovers ({ROVER}). "
+            "Mean normalised reward with the passenger values ± SEM; paired difference on the same "
+            "observations and planner seeds.", "", markdown(summary), "",
+            f"Wall time: {seconds:.1f} s with {jobs} worker process(es) for {len(rows)} tasks."]
+    (out / "types.md").write_text("\n".join(text) + "\n")
+    return {"sweep": "types", "seconds": round(seconds, 1), "tasks": len(rows), "jobs": jobs}
