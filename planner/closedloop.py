@@ -330,7 +330,7 @@ class ClosedLoopPlanner:
 
     def decide(self, view: StageView, rng: np.random.Generator) -> np.ndarray:
         problem = view.problem
-        n_carriers, n_stages = problem.n_carriers, problem.n_stages
+        n_carriers = problem.n_carriers
         j = view.stage
         can = view.can_deploy
         must = view.must_deploy
@@ -351,13 +351,7 @@ class ClosedLoopPlanner:
         open_ = (valid & (left > 0)[:, None]).copy()
         open_[:, :j] = False
         open_ = open_.ravel()
-        conflict = prep.conflict
-        live = conflict & (open_[:, None] & (open_ | past)[None, :])
-        live |= live.T
-        point_owner = np.repeat(np.arange(n_carriers), n_stages)
-        adjacency = np.zeros((n_carriers, n_carriers), dtype=bool)
-        rows, cols = np.nonzero(live)
-        adjacency[point_owner[rows], point_owner[cols]] = True
+        adjacency = prep.links(open_, past)
         linked = adjacency.copy()
         np.fill_diagonal(linked, True)
 
@@ -377,7 +371,7 @@ class ClosedLoopPlanner:
 
         # Shared selection state: past deployments with their current penalties.
         sel = past.copy()
-        p = (1 + conflict[:, sel].sum(axis=1)).astype(np.int64)
+        p = prep.penalties(sel)
         xv = np.nan_to_num(np.where(view.deployed, _past_values(view), 0.0), nan=0.0).ravel()
         state = (sel, p, xv)
 
@@ -574,7 +568,7 @@ def estimate(view: StageView, actions: np.ndarray, samples: int, rng: np.random.
     nleft = view.stages_left_table
     xnow = np.nan_to_num(view.observations[:, view.stage], nan=0.0)
     sel = view.deployed.ravel().copy()
-    p = (1 + prep.conflict[:, sel].sum(axis=1)).astype(np.int64)
+    p = prep.penalties(sel)
     xv = np.where(view.deployed, _past_values(view), 0.0).ravel()
     return ClosedLoopPlanner()._score(np.asarray(actions, dtype=bool), np.arange(n_carriers, dtype=np.int64),
                                       int(samples), None, view, prep, (sel, p, xv), valid, nleft, left, xnow,

@@ -111,6 +111,31 @@ class CompiledProblem:
     prior: object = field(repr=False)
 
     @cached_property
+    def nbr_rows(self) -> np.ndarray:
+        """int64 ``[nnz]``: the flat point whose list each entry of :attr:`nbr` is in (the CSR's row
+        indices), read-only."""
+        out = np.repeat(np.arange(len(self.indptr) - 1, dtype=np.int64), np.diff(self.indptr))
+        out.setflags(write=False)
+        return out
+
+    def links(self, open_: np.ndarray, past: np.ndarray) -> np.ndarray:
+        """bool ``[R, R]``: carriers joined by a conflict between two relevant flat points of which
+        at least one is ``open_`` (the other open or ``past``); O(nnz), from the CSR lists (the
+        dense ``[R*N, R*N]`` masks were 151 MB each at R = 1,024)."""
+        rows, cols = self.nbr_rows, self.nbr
+        relevant = open_ | past
+        keep = (open_[rows] & relevant[cols]) | (relevant[rows] & open_[cols])
+        out = np.zeros((self.n_carriers, self.n_carriers), dtype=bool)
+        out[rows[keep] // self.n_stages, cols[keep] // self.n_stages] = True
+        return out
+
+    def penalties(self, selected: np.ndarray) -> np.ndarray:
+        """int64 ``[R*N]``: 1 + the number of ``selected`` flat points sharing an overlap with each
+        point (the penalty p a deployment there would have), from the CSR lists."""
+        counts = np.bincount(self.nbr_rows, weights=selected[self.nbr], minlength=len(self.indptr) - 1)
+        return (1 + counts).astype(np.int64)
+
+    @cached_property
     def table(self) -> np.ndarray:
         """float64 ``[N + 2, N + 2]`` DLR thresholds ``a[n, i]`` (raw units), read-only."""
         return np.ascontiguousarray(ssap.table_for_prior(self.prior, self.n_stages), dtype=np.float64)

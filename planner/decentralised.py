@@ -448,12 +448,7 @@ class DecClosedLoopPlanner:
         open_ = valid & (left > 0)[:, None] & (np.arange(N)[None, :] >= start[:, None])
         past = local.deployed.ravel()
         flat = open_.ravel()
-        live = prep.conflict & (flat[:, None] & (flat | past)[None, :])
-        live |= live.T
-        owner = np.repeat(np.arange(R), N)
-        adjacency = np.zeros((R, R), dtype=bool)
-        rows, cols = np.nonzero(live)
-        adjacency[owner[rows], owner[cols]] = True
+        adjacency = prep.links(flat, past)
         linked = adjacency | np.eye(R, dtype=bool)
         comp = next(c for c in _components(linked) if r in c)
         if not adjacency[np.ix_(comp, comp)].any():
@@ -464,7 +459,7 @@ class DecClosedLoopPlanner:
         must_all = can_all & (nleft[:, j] <= left)
         free = can_all & ~must_all
         sel = past.copy()
-        p = (1 + prep.conflict[:, sel].sum(axis=1)).astype(np.int64)
+        p = prep.penalties(sel)
         xpast = np.zeros((R, N))
         xpast[:, :j] = np.nan_to_num(local.observations[:, :j], nan=0.0)
         xv = np.where(local.deployed, xpast, 0.0).ravel()
