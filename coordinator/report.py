@@ -197,6 +197,10 @@ def run_report(scenario, out, mission: str | None = None, seed: int | None = Non
     if reuse is not None:
         data["clairvoyant"] = reuse  # a function of the observations alone, computed already
     data = annotate(data, merged)
+    if events is not None:  # the epoch of the last coordinator on record, as its own summary says
+        from coordinator.store import highest_epoch
+
+        data["epoch"] = highest_epoch(out / "mission.db")
     data["report"] = {
         "inputs": (["mission.db"] if merged.db_source else []) + [rec.source for rec in records],
         "skipped": list(skipped), "conflicts": [c.line() for c in merged.conflicts],

@@ -58,7 +58,7 @@ def test_one_host_fleet_through_launcher_started_routers(tiny, tmp_path):
     proc = subprocess.run([sys.executable, RUN_FLEET, str(TINY), "--out", str(out), "--no-map", "--routers", "1"],
                           capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
-    assert "1 router(s) at tcp/127.0.0.1:" in proc.stdout
+    assert "1 more router(s) at tcp/127.0.0.1:" in proc.stdout
     _same_as_offline(json.loads((out / "summary.json").read_text()), tiny)
 
 
