@@ -19,13 +19,12 @@ variant, so comparisons are paired.
 from __future__ import annotations
 
 import csv
-import math
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 
-from experiments.report import STYLE, sem
+from experiments.report import STYLE, sem, variant_bars
 from experiments.trials import Task
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -172,34 +171,10 @@ def markdown(summary: list[dict], rows: list[dict]) -> str:
 
 def plot(summary: list[dict], path: Path, title: str) -> None:
     """Grouped bars: each case × planner, the three variants as % of the oracle's mean, ±1 SEM."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    colours = {"stated": "#e7298a", "learned": "#1b9e77", "oracle": "#666666"}
-    fig, ax = plt.subplots(figsize=(12, 4.8))
-    width = 0.27
-    labels = []
-    for i, r in enumerate(summary):
-        base = r["oracle_mean"]
-        for k, v in enumerate(VARIANTS):
-            ax.bar(i + (k - 1) * width, 100 * r[f"{v}_mean"] / base, width, yerr=100 * r[f"{v}_sem"] / base,
-                   color=colours[v], capsize=2, label=v if i == 0 else None)
-        labels.append(f"{r['case']}\n{STYLE.get(r['planner'], (r['planner'],))[0]}")
-    ax.axhline(100, color="black", lw=0.8)
-    ax.axhline(95, color="black", lw=0.8, ls=":")
-    ax.set_xticks(range(len(summary)))
-    ax.set_xticklabels(labels, fontsize=7)
-    ax.set_ylabel("mean reward, % of the oracle prior's (±1 SEM)")
-    lo = min(100 * r[f"{v}_mean"] / r["oracle_mean"] for r in summary for v in VARIANTS)
-    ax.set_ylim(max(0.0, math.floor(lo / 10) * 10 - 10), None)
-    ax.legend(fontsize=8, title="prior")
-    ax.grid(axis="y", alpha=0.3)
-    ax.set_title(title, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    variant_bars(
+        summary, VARIANTS, "oracle_mean", {"stated": "#e7298a", "learned": "#1b9e77", "oracle": "#666666"},
+        {v: v for v in VARIANTS}, [f"{r['case']}\n{STYLE.get(r['planner'], (r['planner'],))[0]}" for r in summary],
+        path, title, "mean reward, % of the oracle prior's (±1 SEM)", lines=(100, 95), legend_title="prior")
 
 
 def write(rows: list[dict], out: Path, settings: dict, seconds: float, jobs: int) -> dict:

@@ -226,3 +226,36 @@ def plot(summary: list[dict], path: Path, xlabel: str, title: str, log_x: bool =
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+def variant_bars(summary: list[dict], variants, base: str, colours: dict, names: dict, labels: list[str],
+                 path: Path, title: str, ylabel: str, figsize=(12, 4.8), lines=(100,), legend_title=None,
+                 label_size: float = 7, rotation: float = 0) -> None:
+    """Grouped bars of a paired comparison: per row of ``summary`` (labelled ``labels``), each
+    variant's ``<v>_mean`` as a % of the row's ``base`` (±1 SEM from ``<v>_sem``), horizontal
+    reference ``lines`` in %."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=figsize)
+    width = 0.8 / len(variants)
+    for i, r in enumerate(summary):
+        for k, v in enumerate(variants):
+            ax.bar(i + (k - (len(variants) - 1) / 2) * width, 100 * r[f"{v}_mean"] / r[base], width,
+                   yerr=100 * r[f"{v}_sem"] / r[base], color=colours[v], capsize=2,
+                   label=names[v] if i == 0 else None)
+    for k, y in enumerate(lines):
+        ax.axhline(y, color="black", lw=0.8, ls="-" if k == 0 else ":")
+    ax.set_xticks(range(len(summary)))
+    ax.set_xticklabels(labels, fontsize=label_size, rotation=rotation)
+    ax.set_ylabel(ylabel)
+    lo = min(100 * r[f"{v}_mean"] / r[base] for r in summary for v in variants)
+    ax.set_ylim(max(0.0, math.floor(lo / 10) * 10 - 10), None)
+    ax.legend(fontsize=8, title=legend_title)
+    ax.grid(axis="y", alpha=0.3)
+    ax.set_title(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

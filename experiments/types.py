@@ -28,13 +28,12 @@ cases) or world seed ``(1001, t)`` (urban), planner seed ``(1000|1001, t, 1)``.
 from __future__ import annotations
 
 import csv
-import math
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 
-from experiments.report import STYLE, sem
+from experiments.report import STYLE, sem, variant_bars
 from experiments.trials import CLAIRVOYANT, Task
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -165,34 +164,12 @@ def markdown(summary: list[dict]) -> str:
 
 def plot(summary: list[dict], path: Path, title: str) -> None:
     """Grouped bars: each case × planner, aware and blind as % of the clairvoyant mean, ±1 SEM."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    colours = {"aware": "#1b9e77", "choice": "#7570b3", "blind": "#999999"}
-    names = {"aware": "type-aware", "choice": "unweighted search, rank-rule passenger", "blind": "type-blind"}
-    fig, ax = plt.subplots(figsize=(11, 4.6))
-    width = 0.27
-    labels = []
-    for i, r in enumerate(summary):
-        base = r["clairvoyant_mean"]
-        for k, v in enumerate(VARIANTS):
-            ax.bar(i + (k - 1) * width, 100 * r[f"{v}_mean"] / base, width, yerr=100 * r[f"{v}_sem"] / base,
-                   color=colours[v], capsize=2, label=names[v] if i == 0 else None)
-        labels.append(f"{r['case'].replace('random, ', '')}\n{STYLE.get(r['planner'], (r['planner'],))[0]}")
-    ax.axhline(100, color="black", lw=0.8)
-    ax.set_xticks(range(len(summary)))
-    ax.set_xticklabels(labels, fontsize=6.5, rotation=20)
-    ax.set_ylabel("mean reward, % of the clairvoyant bound (±1 SEM)")
-    lo = min(100 * r[f"{v}_mean"] / r["clairvoyant_mean"] for r in summary for v in VARIANTS)
-    ax.set_ylim(max(0.0, math.floor(lo / 10) * 10 - 10), None)
-    ax.legend(fontsize=8)
-    ax.grid(axis="y", alpha=0.3)
-    ax.set_title(title, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    variant_bars(
+        summary, VARIANTS, "clairvoyant_mean", {"aware": "#1b9e77", "choice": "#7570b3", "blind": "#999999"},
+        {"aware": "type-aware", "choice": "unweighted search, rank-rule passenger", "blind": "type-blind"},
+        [f"{r['case'].replace('random, ', '')}\n{STYLE.get(r['planner'], (r['planner'],))[0]}" for r in summary],
+        path, title, "mean reward, % of the clairvoyant bound (±1 SEM)", figsize=(11, 4.6), label_size=6.5,
+        rotation=20)
 
 
 def write(rows: list[dict], out: Path, settings: dict, seconds: float, jobs: int) -> dict:
