@@ -18,13 +18,12 @@ variant, so comparisons are paired.
 """
 from __future__ import annotations
 
-import csv
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 
-from experiments.report import STYLE, sem, variant_bars
+from experiments.report import STYLE, read_csv, sem, variant_bars, write_csv
 from experiments.trials import Task
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -79,25 +78,14 @@ def build_tasks(settings: dict) -> list[Task]:
 
 
 def write_trials(rows: list[dict], path: Path) -> None:
-    rows = sorted(rows, key=lambda r: (r["level"], r["trial"], r["planner"], VARIANTS.index(r["variant"])))
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=FIELDS, extrasaction="ignore")
-        writer.writeheader()
-        for r in rows:
-            writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items() if k in FIELDS})
+    write_csv(sorted(rows, key=lambda r: (r["level"], r["trial"], r["planner"], VARIANTS.index(r["variant"]))), path,
+              FIELDS)
 
 
 def read_trials(path: Path) -> list[dict]:
-    out = []
-    with open(path, newline="") as f:
-        for r in csv.DictReader(f):
-            for k in ("level", "trial", "iterations"):
-                r[k] = int(r[k])
-            for k in ("reward", "features", "scale", "stated_mean", "oracle_mean", "oracle_var", "decision_ms_mean",
-                      "wall_s"):
-                r[k] = float(r[k])
-            out.append(r)
-    return out
+    return read_csv(path, ("level", "trial", "iterations"),
+                    ("reward", "features", "scale", "stated_mean", "oracle_mean", "oracle_var", "decision_ms_mean",
+                     "wall_s"))
 
 
 def summarise(rows: list[dict]) -> list[dict]:
@@ -142,11 +130,7 @@ SUMMARY_FIELDS = ("case", "planner", "n", "stated_mean", "stated_sem", "learned_
 
 
 def write_summary(summary: list[dict], path: Path) -> None:
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=SUMMARY_FIELDS, extrasaction="ignore")
-        writer.writeheader()
-        for r in summary:
-            writer.writerow({k: (f"{r[k]:.6g}" if isinstance(r[k], float) else r[k]) for k in SUMMARY_FIELDS})
+    write_csv(summary, path, SUMMARY_FIELDS)
 
 
 def markdown(summary: list[dict], rows: list[dict]) -> str:

@@ -45,26 +45,37 @@ def sem(values) -> float:
     return float(v.std(ddof=1) / math.sqrt(len(v))) if len(v) > 1 else float("nan")
 
 
-def write_trials(rows: list[dict], path: Path) -> None:
-    rows = sorted(rows, key=lambda r: (r["sweep"], r["level"], r["trial"], _order(r["planner"])))
+def write_csv(rows: list[dict], path: Path, fields) -> None:
+    """``rows`` (in their order) as a CSV of ``fields``; floats to 6 significant digits."""
     with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=TRIAL_FIELDS, extrasaction="ignore")
+        writer = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
         writer.writeheader()
         for row in rows:
-            writer.writerow({k: _fmt(row.get(k, "")) for k in TRIAL_FIELDS})
+            writer.writerow({k: _fmt(row.get(k, "")) for k in fields})
+
+
+def read_csv(path: Path, ints=(), floats=()) -> list[dict]:
+    """Rows of a CSV with the ``ints`` and ``floats`` columns parsed back."""
+    out = []
+    with open(path, newline="") as f:
+        for row in csv.DictReader(f):
+            for k in ints:
+                row[k] = int(row[k])
+            for k in floats:
+                row[k] = float(row[k])
+            out.append(row)
+    return out
+
+
+def write_trials(rows: list[dict], path: Path) -> None:
+    write_csv(sorted(rows, key=lambda r: (r["sweep"], r["level"], r["trial"], _order(r["planner"]))), path,
+              TRIAL_FIELDS)
 
 
 def read_trials(path: Path) -> list[dict]:
     """Rows of a per-trial CSV with numbers parsed back."""
-    out = []
-    with open(path, newline="") as f:
-        for row in csv.DictReader(f):
-            for k in ("level", "trial", "carriers", "passengers", "stages", "overlaps", "iterations", "seed"):
-                row[k] = int(row[k])
-            for k in ("reward", "features", "decision_ms_mean", "decision_ms_max", "wall_s"):
-                row[k] = float(row[k])
-            out.append(row)
-    return out
+    return read_csv(path, ("level", "trial", "carriers", "passengers", "stages", "overlaps", "iterations", "seed"),
+                    ("reward", "features", "decision_ms_mean", "decision_ms_max", "wall_s"))
 
 
 def _fmt(v):
@@ -108,11 +119,7 @@ def summarise(rows: list[dict]) -> list[dict]:
 
 
 def write_summary(summary: list[dict], path: Path) -> None:
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=SUMMARY_FIELDS)
-        writer.writeheader()
-        for row in summary:
-            writer.writerow({k: _fmt(row[k]) for k in SUMMARY_FIELDS})
+    write_csv(summary, path, SUMMARY_FIELDS)
 
 
 def paired(rows: list[dict], a: str, b: str) -> dict:

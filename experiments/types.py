@@ -27,13 +27,12 @@ cases) or world seed ``(1001, t)`` (urban), planner seed ``(1000|1001, t, 1)``.
 """
 from __future__ import annotations
 
-import csv
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
 
-from experiments.report import STYLE, sem, variant_bars
+from experiments.report import STYLE, read_csv, sem, variant_bars, write_csv
 from experiments.trials import CLAIRVOYANT, Task
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -79,24 +78,11 @@ FIELDS = ("case", "level", "trial", "planner", "variant", "reward", "features", 
 
 
 def write_trials(rows: list[dict], path: Path) -> None:
-    rows = sorted(rows, key=lambda r: (r["level"], r["trial"], _order(r["planner"]), r["variant"]))
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=FIELDS, extrasaction="ignore")
-        writer.writeheader()
-        for r in rows:
-            writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items() if k in FIELDS})
+    write_csv(sorted(rows, key=lambda r: (r["level"], r["trial"], _order(r["planner"]), r["variant"])), path, FIELDS)
 
 
 def read_trials(path: Path) -> list[dict]:
-    out = []
-    with open(path, newline="") as f:
-        for r in csv.DictReader(f):
-            for k in ("level", "trial", "iterations"):
-                r[k] = int(r[k])
-            for k in ("reward", "features", "decision_ms_mean", "wall_s"):
-                r[k] = float(r[k])
-            out.append(r)
-    return out
+    return read_csv(path, ("level", "trial", "iterations"), ("reward", "features", "decision_ms_mean", "wall_s"))
 
 
 def _order(planner: str) -> int:
@@ -176,11 +162,7 @@ def write(rows: list[dict], out: Path, settings: dict, seconds: float, jobs: int
     """CSVs, table, plot and ``types.md`` under ``out``; returns the run-info entry."""
     write_trials(rows, out / "types_trials.csv")
     summary = summarise(rows)
-    with open(out / "types_summary.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=SUMMARY_FIELDS, extrasaction="ignore")
-        writer.writeheader()
-        for r in summary:
-            writer.writerow({k: (f"{r[k]:.6g}" if isinstance(r[k], float) else r[k]) for k in SUMMARY_FIELDS})
+    write_csv(summary, out / "types_summary.csv", SUMMARY_FIELDS)
     title = (f"Passenger types: type-aware vs type-blind (scout {SCOUT}, two rovers {ROVER}), "
              f"{settings['trials']} trials, {settings['iterations']} iterations")
     plot(summary, out / "types.png", title)
