@@ -10,22 +10,30 @@ future below it (a one-step rollout algorithm, i.e. policy improvement over its 
    overlap. Connected components of that graph cannot influence each other's reward, so each is
    decided on its own. A component without any conflict is decided by plain SSAP, which is
    exactly optimal for it (so with no overlaps this planner *is* SSAP).
-2. **Candidates.** For a component with ``k`` free carriers (may deploy, not forced) every one of
+2. **Blocks.** A component of more than ``BLOCK`` carriers (a street grid joins most of a large
+   fleet into one) is split into connected blocks of at most ``BLOCK`` carriers, grown
+   breadth-first, searched one after another from the conflict-aware SSAP action of the whole
+   component; a block's rollouts also simulate its halo (its direct neighbours) at their
+   current actions, including what earlier blocks chose. A flip mostly changes its own and its
+   neighbours' rewards, so scoring it over the whole component only adds noise and cost: with
+   blocks the cost per carrier stops growing with the component (quadratic to linear in R, and
+   better decisions on the grids, docs/performance.md).
+3. **Candidates.** For a block with ``k`` free carriers (may deploy, not forced) every one of
    the ``2^k`` joint actions is a candidate when ``k <= ENUMERATE_MAX``; otherwise a coordinate
    ascent from the base policy's action evaluates all single-carrier flips per round.
-3. **Evaluation with common random numbers.** Every candidate is scored on the *same* sampled
+4. **Evaluation with common random numbers.** Every candidate is scored on the *same* sampled
    futures. A rollout applies the candidate at stage j, then the conflict-aware SSAP policy: at
    each later stage, in carrier order, a carrier with ``d`` passengers and ``n`` valid stages
    left deploys iff it is forced or the *marginal* gain of deploying,
    ``x / (1 + c) - sum_k x_k (1/p_k - 1/(p_k + 1))`` over the ``c`` already chosen deployments
    ``k`` sharing an overlap, exceeds its DLR threshold ``a[n, n - d]``.
-4. **Control variate.** Alongside, the same sampled future is run through plain independent SSAP,
+5. **Control variate.** Alongside, the same sampled future is run through plain independent SSAP,
    whose expected raw total is known exactly (:func:`planner.ssap.expected_value`). The
    estimate of a candidate is ``mean(aware - plain) + exact(plain)``: unbiased, with far less
    variance, and exact when nothing conflicts.
 
 Budget: ``iterations`` full-fleet rollouts per decision (the MCTS meaning of an iteration), i.e.
-``iterations * R`` single-carrier trajectories split over the components that need a search; or
+``iterations * R`` single-carrier trajectories split over the blocks that need a search; or
 ``plan_ms`` milliseconds. Feasibility (at most one deployment per stage, at most D, none at ∅,
 forced deployments) holds in the executed action and in every rollout. Stateless across stages.
 """
@@ -44,6 +52,11 @@ from planner.registry import DEFAULT_ITERATIONS
 
 #: Largest number of free carriers in one component whose 2^k joint actions are all evaluated.
 ENUMERATE_MAX = 6
+#: Largest number of carriers searched together. A larger conflict component is split into
+#: connected blocks of at most this many carriers, searched one after another; each block's
+#: rollouts also simulate its neighbours (its halo) at their current actions. This keeps the
+#: search linear in the component's size (see :func:`_blocks`).
+BLOCK = 32
 #: Bounds on the number of sampled futures per candidate (common to all candidates).
 SAMPLES_MIN = 16
 SAMPLES_MAX = 4096
@@ -297,6 +310,52 @@ def _components(adjacency: np.ndarray) -> list[np.ndarray]:
     return comps
 
 
+def _grow(seed: int, adjacency: np.ndarray, allowed: np.ndarray, size: int) -> np.ndarray:
+    """Up to ``size`` carriers reached breadth-first from ``seed`` through ``allowed`` carriers
+    (bool ``[R]``), nearest first (ties in index order); sorted."""
+    taken = np.zeros(len(allowed), dtype=bool)
+    taken[seed] = True
+    order = [seed]
+    head = 0
+    while head < len(order) and len(order) < size:
+        nxt = np.flatnonzero(adjacency[order[head]] & allowed & ~taken)[: size - len(order)]
+        taken[nxt] = True
+        order.extend(int(s) for s in nxt)
+        head += 1
+    return np.array(sorted(order), dtype=np.int64)
+
+
+def _halo(block: np.ndarray, adjacency: np.ndarray, within: np.ndarray) -> np.ndarray:
+    """``block`` and its direct neighbours among ``within`` (bool ``[R]``), sorted."""
+    near = adjacency[block].any(axis=0) & within
+    near[block] = True
+    return np.flatnonzero(near).astype(np.int64)
+
+
+def _blocks(comp: np.ndarray, adjacency: np.ndarray, size: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Split a connected component into blocks of at most ``size`` carriers.
+
+    Blocks are grown breadth-first from the lowest carrier not yet in a block, so each is
+    connected where the graph allows it. Returns ``(block, members)`` pairs: ``members`` is the
+    block with its halo (its direct neighbours in ``comp``), in index order. A component of at
+    most ``size`` carriers (or ``size <= 0``) is one block without a halo.
+    """
+    if size <= 0 or len(comp) <= size:
+        return [(comp, comp)]
+    n = adjacency.shape[0]
+    within = np.zeros(n, dtype=bool)
+    within[comp] = True
+    left = within.copy()
+    out = []
+    for seed in comp:
+        if not left[seed]:
+            continue
+        block = _grow(int(seed), adjacency, left, size)
+        left[block] = False
+        out.append((block, _halo(block, adjacency, within)))
+    return out
+
+
 # ----------------------------------------------------------------------------- the planner
 
 
@@ -310,13 +369,15 @@ class ClosedLoopPlanner:
 
     name = "closed-loop"
 
-    def __init__(self, iterations: int | None = None, plan_ms: float | None = None, **_ignored):
+    def __init__(self, iterations: int | None = None, plan_ms: float | None = None, block: int = BLOCK,
+                 **_ignored):
         if iterations is not None and int(iterations) < 1:
             raise ValueError(f"iterations must be >= 1, got {iterations}")
         if plan_ms is not None and not float(plan_ms) > 0:
             raise ValueError(f"plan_ms must be > 0, got {plan_ms}")
         self.iterations = DEFAULT_ITERATIONS if iterations is None else int(iterations)
         self.plan_ms = None if plan_ms is None else float(plan_ms)
+        self.block = int(block)
 
     def warm_up(self, problem: Problem) -> None:
         """Compile the kernels (cached on disk) and prepare the problem's constants."""
@@ -377,51 +438,58 @@ class ClosedLoopPlanner:
 
         plans = []
         for comp in search:
-            k = int(free[comp].sum())
-            rounds = 1 if k <= ENUMERATE_MAX else 3
-            n_cand = (1 << k) if k <= ENUMERATE_MAX else k + 1
-            plans.append((comp, k, n_cand * rounds))
-        weight = sum(len(c) * w for c, _, w in plans)
+            decision[comp] = self._base_action(comp, view, prep, state, nleft, left, xnow, must, free)
+            for block, members in _blocks(comp, adjacency, self.block):
+                flip = np.flatnonzero(np.isin(members, block[free[block]]))
+                k = len(flip)
+                if k == 0:
+                    continue
+                rounds = 1 if k <= ENUMERATE_MAX else 3
+                n_cand = (1 << k) if k <= ENUMERATE_MAX else k + 1
+                plans.append((members, flip, n_cand * rounds))
+        weight = sum(len(members) * w for members, _, w in plans)
+        samples = int(np.clip(self.iterations * n_carriers // max(weight, 1), SAMPLES_MIN, SAMPLES_MAX))
         deadline = None if self.plan_ms is None else time.perf_counter() + self.plan_ms / 1e3
-        for comp, k, w in plans:
-            share = len(comp) * w / weight
-            samples = int(np.clip(self.iterations * n_carriers // max(weight, 1), SAMPLES_MIN, SAMPLES_MAX))
-            comp_deadline = None
+        for members, flip, w in plans:
+            share = len(members) * w / weight
+            block_deadline = None
             if deadline is not None:
-                comp_deadline = time.perf_counter() + share * max(deadline - time.perf_counter(), 0.0)
-            action = self._search(comp, k, samples, comp_deadline, view, prep, state, valid, nleft,
-                                  left, xnow, must, free, rng)
-            decision[comp] = action
+                block_deadline = time.perf_counter() + share * max(deadline - time.perf_counter(), 0.0)
+            action = self._search(members, decision[members], flip, samples, block_deadline, view, prep,
+                                  state, valid, nleft, left, xnow, rng)
+            decision[members[flip]] = action[flip]
         return decision
 
-    # Search of one component ------------------------------------------------------------------
+    # Search of one block ----------------------------------------------------------------------
 
-    def _search(self, comp, k, samples, deadline, view, prep, state, valid, nleft, left, xnow,
-                must, free, rng):
-        base = self._base_action(comp, view, prep, state, nleft, left, xnow, must, free)
-        free_idx = np.flatnonzero(free[comp])
+    def _search(self, members, base, flip, samples, deadline, view, prep, state, valid, nleft, left, xnow, rng):
+        """The best joint action of ``members`` found from ``base`` by changing only the carriers at
+        positions ``flip``: all ``2^k`` combinations when ``k <= ENUMERATE_MAX``, else coordinate
+        ascent over single flips (3 rounds, or until the deadline)."""
+        k = len(flip)
         if k <= ENUMERATE_MAX:
             codes = np.arange(1 << k)
             bits = ((codes[:, None] >> np.arange(k)[None, :]) & 1).astype(bool)
             actions = np.repeat(base[None, :], len(codes), axis=0)
-            actions[:, free_idx] = bits
+            actions[:, flip] = bits
             # The base policy's action first: it wins ties.
             first = int(np.flatnonzero((actions == base).all(axis=1))[0])
             order = np.r_[first, np.delete(np.arange(len(codes)), first)]
             actions = actions[order]
-            score = self._score(actions, comp, samples, deadline, view, prep, state, valid, nleft, left, xnow, rng)
+            score = self._score(actions, members, samples, deadline, view, prep, state, valid, nleft, left, xnow,
+                                rng)
             return actions[int(np.argmax(score))]
         current = base
         for _ in range(3 if deadline is None else 1 << 30):
             actions = np.repeat(current[None, :], k + 1, axis=0)
-            for a, i in enumerate(free_idx, start=1):
+            for a, i in enumerate(flip, start=1):
                 actions[a, i] = not actions[a, i]
             round_deadline = None
             if deadline is not None:
                 if time.perf_counter() >= deadline:
                     break
                 round_deadline = time.perf_counter() + (deadline - time.perf_counter()) / 2
-            score = self._score(actions, comp, samples, round_deadline, view, prep, state, valid, nleft,
+            score = self._score(actions, members, samples, round_deadline, view, prep, state, valid, nleft,
                                 left, xnow, rng)
             best = int(np.argmax(score))
             if best == 0:

@@ -24,8 +24,8 @@ import numpy as np
 from numba import njit
 
 from planner import ssap
-from planner.closedloop import (BATCH, ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, ClosedLoopPlanner,
-                                _components, _marginal, _select, _undo)
+from planner.closedloop import (BATCH, BLOCK, ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, ClosedLoopPlanner,
+                                _components, _grow, _halo, _marginal, _select, _undo)
 from planner.comms import CommsSpec, Deliveries, realise
 from planner.compiled import compile_problem
 from planner.kernels import deploys
@@ -386,7 +386,11 @@ class DecClosedLoopPlanner:
       The sampled futures then run the conflict-aware SSAP rollout for all, with the plain-SSAP
       control variate, as in closed-loop. So a carrier that hears nobody still expects the
       others to deploy where their thresholds make it likely, and avoids the overlaps those
-      deployments would crowd, instead of acting like plain SSAP.
+      deployments would crowd, instead of acting like plain SSAP. A component of more than
+      ``block`` carriers (default :data:`~planner.closedloop.BLOCK`) is cut down to the carrier's
+      own block — the ``block`` carriers nearest it, breadth-first — and that block's halo, with
+      the budget of the carriers searched (``iterations`` rollouts of them), so an on-board
+      decision costs the same in a fleet of 100 or of 10,000.
 
     A component without conflicts is decided by SSAP (optimal there). Budget as closed-loop's:
     ``iterations`` full-fleet rollouts per decision, per carrier, or ``plan_ms`` milliseconds
@@ -398,14 +402,16 @@ class DecClosedLoopPlanner:
     name = "dec-closed-loop"
     decentralised = True
 
-    def __init__(self, iterations: int | None = None, plan_ms: float | None = None, **_ignored):
+    def __init__(self, iterations: int | None = None, plan_ms: float | None = None, block: int = BLOCK,
+                 **_ignored):
         if iterations is not None and int(iterations) < 1:
             raise ValueError(f"iterations must be >= 1, got {iterations}")
         if plan_ms is not None and not float(plan_ms) > 0:
             raise ValueError(f"plan_ms must be > 0, got {plan_ms}")
         self.iterations = DEFAULT_ITERATIONS if iterations is None else int(iterations)
         self.plan_ms = None if plan_ms is None else float(plan_ms)
-        self._central = ClosedLoopPlanner(iterations=self.iterations, plan_ms=self.plan_ms)
+        self.block = int(block)
+        self._central = ClosedLoopPlanner(iterations=self.iterations, plan_ms=self.plan_ms, block=self.block)
         self._memo = None  # (key, joint decision): fully informed carriers compute the same thing
 
     def warm_up(self, problem: Problem) -> None:
@@ -432,9 +438,17 @@ class DecClosedLoopPlanner:
             if self._memo is None or self._memo[0] != key:
                 self._memo = (key, enforce(view, self._central.decide(view, rng)))
             return LocalDecision(bool(self._memo[1][r]))
-        return LocalDecision(self._decide_partial(local, rng, n, d))
+        scored = self.partial_scores(local, rng)
+        if scored is None:  # no conflict can touch this carrier: independent SSAP is optimal
+            return LocalDecision(ssap.decide(compile_problem(local.problem).table, float(local.observations[r, j]),
+                                             n, d))
+        actions, score, me = scored
+        return LocalDecision(bool(actions[int(np.argmax(score)), me]))
 
-    def _decide_partial(self, local: LocalView, rng, n_own: int, d_own: int) -> bool:
+    def partial_scores(self, local: LocalView, rng):
+        """The search behind a decision from partial information: ``(actions, score, me)`` —
+        candidate joint actions ``[K, m]`` of the carriers searched, their estimated values
+        (up to a common constant) and this carrier's column; None when no conflict can touch it."""
         problem = local.problem
         prep = compile_problem(problem)
         R, N = problem.valid.shape
@@ -452,7 +466,15 @@ class DecClosedLoopPlanner:
         linked = adjacency | np.eye(R, dtype=bool)
         comp = next(c for c in _components(linked) if r in c)
         if not adjacency[np.ix_(comp, comp)].any():
-            return ssap.decide(prep.table, float(local.observations[r, j]), n_own, d_own)
+            return None
+        budget = R  # single-carrier trajectories: iterations x budget
+        if self.block > 0 and len(comp) > self.block:
+            # A large component: this carrier's block (the carriers nearest it) and its halo, with
+            # the budget of the carriers it simulates, so the cost does not grow with the fleet.
+            within = np.zeros(R, dtype=bool)
+            within[comp] = True
+            comp = _halo(_grow(r, adjacency, within, self.block), adjacency, within)
+            budget = len(comp)
 
         xnow_all = np.nan_to_num(local.observations[:, j], nan=0.0)
         can_all = known & valid[:, j] & (left > 0)
@@ -479,7 +501,8 @@ class DecClosedLoopPlanner:
         else:
             actions = np.repeat(base[None, :], 2, axis=0)
             actions[1, me] = not actions[1, me]
-        samples = int(np.clip(self.iterations * R // max(len(comp) * len(actions), 1), SAMPLES_MIN, SAMPLES_MAX))
+        samples = int(np.clip(self.iterations * budget // max(len(comp) * len(actions), 1), SAMPLES_MIN,
+                              SAMPLES_MAX))
         m = len(comp)
         deadline = None if self.plan_ms is None else time.perf_counter() + self.plan_ms / 1e3
         sums = np.zeros(len(actions))
@@ -501,5 +524,4 @@ class DecClosedLoopPlanner:
         kn = known[comp]
         d_after = np.minimum(left[comp][None, :] - actions.astype(np.int64), N)
         exact = (prep.slot_value[nleft[comp, j + 1][None, :], np.maximum(d_after, 0)] * kn[None, :]).sum(axis=1)
-        score = sums / count + exact
-        return bool(actions[int(np.argmax(score)), me])
+        return actions, sums / count + exact, me
