@@ -205,6 +205,46 @@ class Onboard:
             return self._built
 
 
+class StageGate:
+    """The carriers of one process answer a stage's Decision before any of them moves on.
+
+    One Decision reaches every carrier of the process at once; without the gate, the first
+    carriers to wake run their next stage's physics while the others still wait for the CPU to
+    send their Confirms, which spreads one stage's Confirms over the whole process's physics
+    (about 1 s per stage at 32 carriers per process). A carrier that has its Decision holds its
+    physics until every carrier of the process waiting on that stage has answered, at most
+    :data:`GATE_HOLD_S`.
+    """
+
+    def __init__(self):
+        self._cond = threading.Condition()
+        self._waiting: dict[int, int] = {}
+
+    def waiting(self, stage: int) -> None:
+        """A carrier waits for the decision of ``stage``."""
+        with self._cond:
+            self._waiting[stage] = self._waiting.get(stage, 0) + 1
+
+    def answered(self, stage: int) -> None:
+        """A carrier stopped waiting for ``stage`` (answered, decided alone, or gave up)."""
+        with self._cond:
+            left = self._waiting.get(stage, 0) - 1
+            if left > 0:
+                self._waiting[stage] = left
+            else:
+                self._waiting.pop(stage, None)
+                self._cond.notify_all()
+
+    def hold(self, stage: int, timeout_s: float) -> bool:
+        """Until no carrier waits for ``stage`` any more, at most ``timeout_s``; True if none does."""
+        with self._cond:
+            return self._cond.wait_for(lambda: stage not in self._waiting, timeout_s)
+
+
+#: Longest a carrier holds its physics for the other carriers of its process (:class:`StageGate`).
+GATE_HOLD_S = 0.5
+
+
 class _Exit(Exception):
     """Leave the run loop with an exit reason (a key of :data:`EXIT_CODES`)."""
 
@@ -220,7 +260,7 @@ class Carrier:
     """
 
     def __init__(self, scenario, config: CarrierConfig, zconf, stop: threading.Event | None = None,
-                 shared: SharedWorld | None = None, onboard: Onboard | None = None):
+                 shared: SharedWorld | None = None, onboard: Onboard | None = None, gate: StageGate | None = None):
         if config.seed is not None and shared is None:
             scenario = scenario.with_seed(int(config.seed))
         self.scenario = scenario
@@ -250,6 +290,7 @@ class Carrier:
         self._heading = 0.0
         self._refused: Refusal | None = None
         self.onboard = onboard if onboard is not None else Onboard(scenario, config.planner_options)
+        self.gate = gate if gate is not None else StageGate()
         self.book = PeerBook(scenario.carrier_ids, valid)  # what it heard of every carrier's stages
         # Passenger types: the passenger each Decision named for this carrier (stage -> index), and
         # the passenger released at each stage of this process (docs/protocol.md, Decision).
@@ -616,12 +657,17 @@ class Carrier:
                 self._trail())
             self.apply(mc.Observed(j, x, self._position()))
             self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.pending)
-            self._wait_decision(j)
+            self.gate.waiting(j)
+            try:
+                self._wait_decision(j)
+            finally:
+                self.gate.answered(j)
             if (self.config.mode != "coordinated" and not self.machine.resolved(j) and not self.machine.ended
                     and not self._stop.is_set()):
                 self._decide_alone(j)
             elif self.machine.resolved(j):
                 self._alone = False
+                self.gate.hold(j, GATE_HOLD_S)  # the process's other carriers confirm first
             self.apply(mc.MovedOn(j))
             self.pending = None
             j += 1
@@ -740,8 +786,9 @@ def run_carriers(scenario, configs, zconf, stop: threading.Event | None = None) 
             scenario = scenario.with_seed(int(seed))
         shared = shared_world(scenario)
     onboard = Onboard(scenario, configs[0].planner_options) if configs else None
-    carriers = [Carrier(scenario, c, zconf() if callable(zconf) else zconf, stop=stop, shared=shared, onboard=onboard)
-                for c in configs]
+    gate = StageGate()
+    carriers = [Carrier(scenario, c, zconf() if callable(zconf) else zconf, stop=stop, shared=shared, onboard=onboard,
+                        gate=gate) for c in configs]
     reasons: dict = {}
 
     def body(carrier):

@@ -170,3 +170,30 @@ def test_a_carrier_process_loads_no_planner_kernels():
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=str(ROOT))
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == "none"
+
+
+def test_stage_gate_holds_until_every_waiting_carrier_of_the_process_answered():
+    import threading
+    import time
+
+    from carriers.node import StageGate
+
+    gate = StageGate()
+    assert gate.hold(0, 5.0)  # nobody waits: at once
+    gate.waiting(3)
+    gate.waiting(3)
+    gate.waiting(4)
+    released = threading.Event()
+    holder = threading.Thread(target=lambda: gate.hold(3, 30.0) and released.set())
+    holder.start()
+    gate.answered(3)
+    time.sleep(0.2)
+    assert not released.is_set()  # one carrier still waits for stage 3
+    gate.answered(3)
+    holder.join(10.0)
+    assert released.is_set()
+    t0 = time.monotonic()
+    assert not gate.hold(4, 0.3)  # a carrier that never answers holds the others at most the timeout
+    assert 0.25 <= time.monotonic() - t0 < 5.0
+    gate.answered(4)
+    assert gate.hold(4, 0.0)
