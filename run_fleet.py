@@ -50,6 +50,11 @@ CARRIERS_PER_ROUTER = 256
 #: Up to this many carriers the launcher starts one process per carrier; beyond, this many
 #: processes (``--carrier-processes`` overrides it).
 AUTO_CARRIER_PROCESSES = 16
+#: CPU priority (``nice`` increment) of the one-host launcher's carrier processes. On one
+#: machine the carriers' physics competes for the CPU with the fleet's network (routers) and the
+#: coordinator; robots would bring their own CPUs, so the simulated ones yield it: the routers
+#: forward a stage's Confirms and the coordinator stamps them while the carriers simulate.
+CARRIER_NICE = 5
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -122,6 +127,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     t.add_argument("--coordinator-timeout", type=float, default=DEFAULTS.coordinator_s,
                    help="carrier: at the start, wait this long for a coordinator (then go on without it); "
                         "with --no-autonomy, exit when it has been absent this long (default %(default)s)")
+    p.add_argument("--log-sync", choices=("full", "normal"),
+                   help="carrier: how its durable log commits: full survives a power loss of its host, normal "
+                        "only a crash of the process (default full with --role carrier, normal for the one-host "
+                        "launcher's carriers: a power loss takes the whole fleet there)")
     t.add_argument("--peer-timeout", type=float, default=DEFAULTS.stage_s,
                    help="carrier deciding on board: wait per stage for the other carriers' observations "
                         "(default %(default)s)")
@@ -276,6 +285,13 @@ def _ignore_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+def _carrier_child() -> None:
+    """In a carrier process of a one-host fleet: :func:`_ignore_sigint`, and a lower CPU priority
+    (:data:`CARRIER_NICE`) than the coordinator and the routers."""
+    _ignore_sigint()
+    os.nice(CARRIER_NICE)
+
+
 def run_coordinator(args, scenario, stop: threading.Event) -> int:
     from coordinator.node import Coordinator, CoordinatorConfig, DuplicateCoordinator
     from coordinator.store import StoreBusy, StoreMismatch
@@ -315,7 +331,8 @@ def run_carrier(args, scenario, stop: threading.Event) -> int:
         carrier=cid, mission=args.mission, seed=args.seed, realtime=args.realtime,
         decision_timeout_s=args.decision_timeout, coordinator_timeout_s=args.coordinator_timeout,
         log=log, pose_interval_s=args.pose_interval, mode=mode, out_dir=out, peer_timeout_s=args.peer_timeout,
-        join_timeout_s=args.join_timeout, planner_options=tuple(sorted(options.items())))
+        join_timeout_s=args.join_timeout, planner_options=tuple(sorted(options.items())),
+        log_sync=args.log_sync or "full")
         for cid in getattr(args, "carriers", [args.carrier])]
     try:
         reasons = run_carriers(scenario, configs, lambda: zenoh_config(args, "carrier"), stop=stop)
@@ -529,8 +546,8 @@ def run_all(args, scenario, stop: threading.Event) -> int:
         via = [router_endpoints[g % len(router_endpoints)]] if router_endpoints else connect
         carriers[",".join(group)] = subprocess.Popen(
             script + ["--role", "carrier", "--carrier", ",".join(group)] + common
-            + sum((["--connect", e] for e in via), []) + ([] if args.verbose else ["--quiet"]),
-            preexec_fn=_ignore_sigint)
+            + sum((["--connect", e] for e in via), []) + ["--log-sync", args.log_sync or "normal"]
+            + ([] if args.verbose else ["--quiet"]), preexec_fn=_carrier_child)
     procs = [p for p in (coordinator, *carriers.values(), *routers, viewer) if p is not None]
     shown = ", ".join(f"{_short(cids)} pid {p.pid}" for cids, p in carriers.items())
     print(f"run_fleet.py: network {', '.join(connect)}"

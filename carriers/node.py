@@ -65,6 +65,8 @@ POSE_INTERVAL_S = 1.0
 MODES = ("hybrid", "decentralised", "coordinated")
 #: The planner a carrier runs on board when it decides a stage itself.
 ONBOARD_PLANNER = "dec-closed-loop"
+#: How often a carrier deciding alone looks for the peers' observations it waits for (s).
+PEER_POLL_S = 0.02
 #: What peers publish that a carrier reads, and the message type of each.
 PEER_TOPICS = {"obs": Observation, "own": Own, "confirm": Confirm}
 
@@ -123,6 +125,7 @@ class CarrierConfig:
         join_timeout_s: decentralised: before the first stage, wait this long for every
             carrier's liveliness token.
         planner_options: options of the on-board planner (iterations, plan_ms).
+        log_sync: how the durable log commits (:data:`carriers.log.SYNC_MODES`).
     """
 
     carrier: str
@@ -139,6 +142,7 @@ class CarrierConfig:
     peer_timeout_s: float = DEFAULTS.stage_s
     join_timeout_s: float = DEFAULTS.join_s
     planner_options: tuple = ()
+    log_sync: str = "full"
 
 
 @dataclass(frozen=True)
@@ -378,20 +382,27 @@ class Carrier:
         ids = self.scenario.carrier_ids
         self.listening = tuple(ids[b] for b in listened(problem, self.r))
         for cid in self.listening:
-            for topic in PEER_TOPICS:
-                self.node.subscribe(keys.carrier_key(self.mission, cid, topic))
+            for topic in PEER_TOPICS:  # read when the carrier next looks: no wake-up per message
+                self.node.subscribe(keys.carrier_key(self.mission, cid, topic), wake=False)
             self.node.watch_liveliness(keys.carrier_alive(self.mission, cid))
 
     def _pump(self, timeout_s: float) -> None:
+        """Handle what arrived: the inbox (waiting up to ``timeout_s`` for its first item), then
+        the peers' messages waiting in their channels."""
         if self.listening is None:
             self._listen()
         item = self.node.next(timeout_s)
         while item is not None:
-            try:
-                self._handle(item)
-            except ProtocolError as exc:
-                self.node.reject(exc.reason, exc.detail, self.log)
+            self._handle_safely(item)
             item = self.node.next(0.0)
+        for item in self.node.drain():
+            self._handle_safely(item)
+
+    def _handle_safely(self, item) -> None:
+        try:
+            self._handle(item)
+        except ProtocolError as exc:
+            self.node.reject(exc.reason, exc.detail, self.log)
 
     def _handle(self, item) -> None:
         if item.kind == "wake":
@@ -689,7 +700,7 @@ class Carrier:
             left = deadline - time.monotonic()
             if left <= 0 or not self.book.waiting(j, self.peers_live - {self.cid}):
                 break
-            self._pump(left)
+            self._pump(min(left, PEER_POLL_S))  # peers' messages do not wake the carrier
         if self._stop.is_set() or self.machine.resolved(j) or self.machine.ended:
             return
         problem, planner = self.onboard.get()
@@ -714,7 +725,7 @@ class Carrier:
                 try:
                     self.store = CarrierLog(log_path(self.config.out_dir, self.cid), {
                         "mission": self.mission, "carrier": self.cid, "scenario": self.scenario.name,
-                        "fingerprint": self.fingerprint, "seed": int(self.scenario.seed)})
+                        "fingerprint": self.fingerprint, "seed": int(self.scenario.seed)}, sync=self.config.log_sync)
                 except LogMismatch as exc:
                     self.log(str(exc))
                     raise _Exit("log-mismatch")

@@ -158,13 +158,13 @@ def message_counts(db: Path, n_carriers: int) -> dict:
 
 
 def run_one(n_carriers: int, out: Path, seed: int, processes: int | None, planner: str,
-            timeout_s: float, quiet: bool = True) -> dict:
+            timeout_s: float, quiet: bool = True, carrier_flags=()) -> dict:
     scen = write_scenario(n_carriers, out / f"grid_{n_carriers}.yaml", seed, planner)
     run_dir = out / f"grid_{n_carriers}"
     k = processes or default_processes(n_carriers)
     argv = [sys.executable, str(ROOT / "run_fleet.py"), str(scen), "--out", str(run_dir), "--no-map",
             "--carrier-processes", str(k), "--join-timeout", "300", "--stage-timeout", "60",
-            "--decision-timeout", "120", "--coordinator-timeout", "120"]
+            "--decision-timeout", "120", "--coordinator-timeout", "120", *carrier_flags]
     started = time.monotonic()
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE if quiet else None, stderr=subprocess.STDOUT, text=True)
     sampler = TreeSampler(proc.pid)
@@ -176,7 +176,7 @@ def run_one(n_carriers: int, out: Path, seed: int, processes: int | None, planne
     finally:
         sampler.stop()
     wall = time.monotonic() - started
-    row = {"R": n_carriers, "processes": k, "returncode": proc.returncode, "wall_s": wall,
+    row = {"R": n_carriers, "processes": k, "carriers": " ".join(carrier_flags) or "hybrid", "returncode": proc.returncode, "wall_s": wall,
            "mem_total_mb": sampler.peak_total / 1e6, "mem_carriers_mb": sampler.peak_carriers / 1e6,
            "mem_per_carrier_mb": sampler.peak_carriers / 1e6 / n_carriers,
            "routers": sum(1 for _, role in sampler.peak.values() if role == "router"),
@@ -207,7 +207,7 @@ def run_one(n_carriers: int, out: Path, seed: int, processes: int | None, planne
     return row
 
 
-COLUMNS = (("R", "{:d}"), ("processes", "{:d}"), ("wall_s", "{:.1f}"), ("mem_total_mb", "{:.0f}"),
+COLUMNS = (("R", "{:d}"), ("processes", "{:d}"), ("carriers", "{}"), ("wall_s", "{:.1f}"), ("mem_total_mb", "{:.0f}"),
            ("mem_per_carrier_mb", "{:.1f}"), ("mem_coordinator_mb", "{:.0f}"), ("rtt_p50_ms", "{:.0f}"),
            ("rtt_p99_ms", "{:.0f}"), ("decision_mean_ms", "{:.0f}"), ("decision_max_ms", "{:.0f}"),
            ("messages_per_s", "{:.0f}"), ("carrier_cpu_ms", "{:.1f}"), ("fraction", "{:.2f}"), ("bound_exact", "{}"))
@@ -262,6 +262,9 @@ def main(argv=None) -> int:
     p.add_argument("--timeout", type=float, default=1200.0, help="per run (s)")
     p.add_argument("--plot", metavar="PNG", help="write a plot of cost against R")
     p.add_argument("--write-scenario", nargs=2, metavar=("R", "PATH"), help="only write one scenario file")
+    p.add_argument("--no-autonomy", action="store_true",
+                   help="carriers that never decide on board (run_fleet.py --no-autonomy): no planner "
+                        "core in the carrier processes, no listening to other carriers")
     p.add_argument("--verbose", action="store_true", help="show each run's output")
     args = p.parse_args(argv)
     if args.write_scenario:
@@ -271,7 +274,8 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     for n in (int(s) for s in args.sizes.split(",") if s):
-        row = run_one(n, out, args.seed, args.processes, args.planner, args.timeout, quiet=not args.verbose)
+        row = run_one(n, out, args.seed, args.processes, args.planner, args.timeout, quiet=not args.verbose,
+                      carrier_flags=("--no-autonomy",) if args.no_autonomy else ())
         rows.append(row)
         print(table([row]).splitlines()[-1] if len(rows) > 1 else table([row]), flush=True)
         (out / "scale.json").write_text(json.dumps(rows, indent=2))

@@ -39,6 +39,20 @@ class Inbound:
     wall: float = 0.0
 
 
+#: Samples one ``wake=False`` subscription holds until drained (then zenoh waits: no sample is
+#: dropped). A carrier drains at least every few seconds; a peer sends a few messages per stage.
+QUIET_CAPACITY = 4096
+
+
+def _sample_item(sample) -> Inbound:
+    """The inbox item of a zenoh sample. An oversized payload is not copied: a marker one byte
+    over the limit is enough for decode() to reject it as oversized."""
+    payload = sample.payload
+    limit = messages.MAX_PAYLOAD_BYTES
+    data = payload.to_bytes() if len(payload) <= limit else b"\0" * (limit + 1)
+    return Inbound("sample", str(sample.key_expr), data, time.monotonic(), time.time())
+
+
 class Node:
     """A zenoh session with declared entities, an inbox queue and rejection counters.
 
@@ -55,26 +69,44 @@ class Node:
         self._logged: set[str] = set()
         self._entities: list[Any] = []
         self._publishers: dict[str, Any] = {}
+        self._quiet: list[Any] = []  # subscribers with a FIFO channel (subscribe(wake=False))
         self._lock = threading.Lock()
 
     # ------------------------------------------------------------------ declarations
-    def subscribe(self, key_expr: str) -> None:
-        """Puts on ``key_expr`` land in the inbox as ``Inbound("sample", key, bytes)``."""
-        inbox = self.inbox
+    def subscribe(self, key_expr: str, wake: bool = True) -> None:
+        """Puts on ``key_expr`` land in the inbox as ``Inbound("sample", key, bytes)``.
 
-        limit = messages.MAX_PAYLOAD_BYTES
+        With ``wake`` False they wait instead in a zenoh FIFO channel, with no Python callback and
+        no wake-up of the thread waiting in :meth:`next`, until :meth:`drain` collects them: for
+        traffic a node only needs when it next looks (a carrier's peers). With dozens of
+        sessions in one process, a callback and a wake-up per message cost more than the
+        message (docs/performance.md, "Fleet scale")."""
+        if not wake:
+            sub = self.session.declare_subscriber(key_expr, zenoh.handlers.FifoChannel(QUIET_CAPACITY))
+            self._entities.append(sub)
+            self._quiet.append(sub)
+            return
+        inbox = self.inbox
 
         def on_sample(sample):
             try:
-                payload = sample.payload
-                # An oversized payload is not copied: a marker one byte over the limit is enough
-                # for decode() to reject it as oversized.
-                data = payload.to_bytes() if len(payload) <= limit else b"\0" * (limit + 1)
-                inbox.put(Inbound("sample", str(sample.key_expr), data, time.monotonic(), time.time()))
+                inbox.put(_sample_item(sample))
             except Exception:
                 pass  # never raise into zenoh
 
         self._entities.append(self.session.declare_subscriber(key_expr, on_sample))
+
+    def drain(self) -> list[Inbound]:
+        """Every sample waiting on the ``wake=False`` subscriptions, per subscription in arrival
+        order (``received`` and ``wall``: when drained)."""
+        out = []
+        for sub in self._quiet:
+            while True:
+                sample = sub.try_recv()
+                if sample is None:
+                    break
+                out.append(_sample_item(sample))
+        return out
 
     def watch_liveliness(self, key_expr: str) -> None:
         """Liveliness tokens matching ``key_expr`` (existing ones included) land in the inbox as
