@@ -127,6 +127,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     t.add_argument("--coordinator-timeout", type=float, default=DEFAULTS.coordinator_s,
                    help="carrier: at the start, wait this long for a coordinator (then go on without it); "
                         "with --no-autonomy, exit when it has been absent this long (default %(default)s)")
+    p.add_argument("--onboard-load", choices=("start", "need"),
+                   help="carrier: when the on-board planner is loaded: at the start, or when it may be needed "
+                        "(the coordinator gone, a decision late); default start for a process of one carrier, "
+                        "need for a process of several")
     p.add_argument("--log-sync", choices=("full", "normal"),
                    help="carrier: how its durable log commits: full survives a power loss of its host, normal "
                         "only a crash of the process (default full with --role carrier, normal for the one-host "
@@ -332,7 +336,7 @@ def run_carrier(args, scenario, stop: threading.Event) -> int:
         decision_timeout_s=args.decision_timeout, coordinator_timeout_s=args.coordinator_timeout,
         log=log, pose_interval_s=args.pose_interval, mode=mode, out_dir=out, peer_timeout_s=args.peer_timeout,
         join_timeout_s=args.join_timeout, planner_options=tuple(sorted(options.items())),
-        log_sync=args.log_sync or "full")
+        log_sync=args.log_sync or "full", onboard_load=args.onboard_load)
         for cid in getattr(args, "carriers", [args.carrier])]
     try:
         reasons = run_carriers(scenario, configs, lambda: zenoh_config(args, "carrier"), stop=stop)
@@ -408,7 +412,7 @@ def _forward(args) -> list[str]:
     out = []
     for flag, value in (("--planner", args.planner), ("--iterations", args.iterations),
                         ("--plan-ms", args.plan_ms), ("--seed", args.seed), ("--mission", args.mission),
-                        ("--zenoh-config", args.zenoh_config)):
+                        ("--zenoh-config", args.zenoh_config), ("--onboard-load", args.onboard_load)):
         if value is not None:
             out += [flag, str(value)]
     for text in args.planner_option:

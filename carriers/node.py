@@ -33,7 +33,7 @@ import os
 import socket
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -65,6 +65,9 @@ POSE_INTERVAL_S = 1.0
 MODES = ("hybrid", "decentralised", "coordinated")
 #: The planner a carrier runs on board when it decides a stage itself.
 ONBOARD_PLANNER = "dec-closed-loop"
+#: When the on-board planner is loaded (:class:`Onboard`); None in a config: ``start`` for a
+#: process that simulates one carrier, ``need`` for several.
+ONBOARD_LOADS = ("start", "need")
 #: How often a carrier deciding alone looks for the peers' observations it waits for (s).
 PEER_POLL_S = 0.02
 #: What peers publish that a carrier reads, and the message type of each.
@@ -126,6 +129,7 @@ class CarrierConfig:
             carrier's liveliness token.
         planner_options: options of the on-board planner (iterations, plan_ms).
         log_sync: how the durable log commits (:data:`carriers.log.SYNC_MODES`).
+        onboard_load: when the on-board planner is loaded (:data:`ONBOARD_LOADS`; None: see there).
     """
 
     carrier: str
@@ -143,6 +147,7 @@ class CarrierConfig:
     join_timeout_s: float = DEFAULTS.join_s
     planner_options: tuple = ()
     log_sync: str = "full"
+    onboard_load: str | None = None
 
 
 @dataclass(frozen=True)
@@ -174,9 +179,19 @@ class Onboard:
     shared by the process's carriers (fully informed carriers compute the same joint action: it is
     computed once). Loading the planner core (numba, scipy, the compiled kernels) and the stage
     geometry takes seconds — 3 s on an idle machine, three times that with six carriers starting
-    at once on two cores — so a carrier that may decide alone starts it in the background when it
-    starts (:meth:`prepare`), not when the coordinator is already gone; a carrier that never
-    decides alone (``coordinated``) never loads it."""
+    at once on two cores, 5 s for a 1,024-carrier scenario — so when it is loaded is a setting
+    (:data:`ONBOARD_LOADS`, ``CarrierConfig.onboard_load``):
+
+    * ``start``: in the background when the carrier starts (:meth:`prepare`), not when the
+      coordinator is already gone; the default of a process that simulates one carrier (a robot);
+    * ``need``: in the background when the coordinator's token vanishes or a decision is half its
+      timeout late, and at the latest when the carrier decides alone; until then the carrier
+      neither loads the planner nor listens to its peers. The default of a process that simulates
+      several carriers (large simulations: 16 processes loading it at once, and subscribing to
+      their peers, cost a 1,024-carrier fleet minutes; docs/performance.md, "Fleet scale").
+
+    A carrier that never decides alone (``coordinated``) never loads it; a decentralised one
+    always does at the start."""
 
     def __init__(self, scenario, options=()):
         self.scenario = scenario
@@ -294,6 +309,9 @@ class Carrier:
         self._heading = 0.0
         self._refused: Refusal | None = None
         self.onboard = onboard if onboard is not None else Onboard(scenario, config.planner_options)
+        self.onboard_load = config.onboard_load or "start"
+        if self.onboard_load not in ONBOARD_LOADS:
+            raise ValueError(f"onboard_load must be one of {ONBOARD_LOADS}, found {config.onboard_load!r}")
         self.gate = gate if gate is not None else StageGate()
         self.book = PeerBook(scenario.carrier_ids, valid)  # what it heard of every carrier's stages
         # Passenger types: the passenger each Decision named for this carrier (stage -> index), and
@@ -422,6 +440,8 @@ class Carrier:
             else:
                 self.coordinator_present = False
                 self.absent_since = time.monotonic()
+                if self.config.mode == "hybrid":
+                    self.onboard.prepare()  # it may have to decide alone soon
                 self.log("coordinator's liveliness token vanished; "
                          + ("holding" if self.config.mode == "coordinated" else "deciding on board"))
             return
@@ -629,6 +649,8 @@ class Carrier:
                 return
             if self.coordinator_present:
                 waited += now - last
+                if self.config.mode == "hybrid" and waited >= self.config.decision_timeout_s / 2:
+                    self.onboard.prepare()  # half the timeout late: it may have to decide alone
                 if waited >= self.config.decision_timeout_s:
                     self.log(f"no decision for stage {j} within {self.config.decision_timeout_s:.0f} s; "
                              + ("going on" if self.config.mode == "coordinated" else "deciding on board"))
@@ -733,7 +755,7 @@ class Carrier:
             self.node.subscribe(keys.end_key(self.mission))
             self.node.subscribe(keys.refusal_key(self.mission, self.cid))
             self.node.watch_liveliness(keys.coordinator_alive(self.mission))
-            if self.config.mode != "coordinated":
+            if self.config.mode == "decentralised" or (self.config.mode == "hybrid" and self.onboard_load == "start"):
                 self.onboard.prepare()
             if self.config.mode == "decentralised":
                 # Subscribed before its token appears: a carrier that sees the token can reach it.
@@ -760,6 +782,14 @@ class Carrier:
             if self.store is not None:
                 self.store.close()
         return reason
+
+
+def with_onboard_load(configs) -> list:
+    """The configs with ``onboard_load`` filled in where left open: ``start`` for a process that
+    simulates one carrier, ``need`` for several (:class:`Onboard`)."""
+    configs = list(configs)
+    load = "start" if len(configs) == 1 else "need"
+    return [c if c.onboard_load is not None else replace(c, onboard_load=load) for c in configs]
 
 
 def run_carriers(scenario, configs, zconf, stop: threading.Event | None = None) -> dict:
@@ -798,6 +828,7 @@ def run_carriers(scenario, configs, zconf, stop: threading.Event | None = None) 
         shared = shared_world(scenario)
     onboard = Onboard(scenario, configs[0].planner_options) if configs else None
     gate = StageGate()
+    configs = with_onboard_load(configs)
     carriers = [Carrier(scenario, c, zconf() if callable(zconf) else zconf, stop=stop, shared=shared, onboard=onboard,
                         gate=gate) for c in configs]
     reasons: dict = {}

@@ -197,3 +197,14 @@ def test_stage_gate_holds_until_every_waiting_carrier_of_the_process_answered():
     assert 0.25 <= time.monotonic() - t0 < 5.0
     gate.answered(4)
     assert gate.hold(4, 0.0)
+
+
+def test_the_on_board_planner_loads_at_the_start_alone_and_when_needed_with_several(tiny):
+    from carriers.node import Carrier, CarrierConfig, with_onboard_load
+
+    assert [c.onboard_load for c in with_onboard_load([CarrierConfig("a")])] == ["start"]
+    assert [c.onboard_load for c in with_onboard_load([CarrierConfig("a"), CarrierConfig("b")])] == ["need", "need"]
+    assert [c.onboard_load for c in with_onboard_load([CarrierConfig("a", onboard_load="start"),
+                                                       CarrierConfig("b")])] == ["start", "need"]
+    with pytest.raises(ValueError, match="onboard_load must be one of"):
+        Carrier(tiny, CarrierConfig("a", onboard_load="later"), None)

@@ -57,6 +57,22 @@ def test_coordinator_killed_at_stage_4_the_carriers_finish_the_mission(base, tmp
     assert np.mean(kept) >= 0.90
 
 
+def test_coordinator_killed_carriers_that_load_their_planner_only_when_needed_finish_the_mission(base, tmp_path):
+    """--onboard-load need (the default of a process that simulates several carriers): no planner
+    and no peers until the coordinator's token vanishes; then the planner loads in the background
+    and the carriers still decide every stage left, each passenger released at most once."""
+    out = tmp_path / "need"
+    result, details = faults.fault_run("coordinator-killed", faults.SCENARIO, SCENARIO, 1, out,
+                                       carrier_flags=("--onboard-load", "need"))
+    assert details["killed_after_stage"] >= 3
+    assert result.unresolved == 0
+    assert result.own > 0
+    _at_most_once(result)
+    kept = result.reward / base(1).reward
+    print(f"coordinator killed, planner loaded when needed: reward kept {kept:.3f}")
+    assert kept >= 0.80
+
+
 def test_decentralised_mission_is_within_3_percent_of_centralised_closed_loop(base, tmp_path):
     kept = []
     for seed in range(1, 6):

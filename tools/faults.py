@@ -77,6 +77,7 @@ class Mission:
     carriers: tuple[str, ...]
     planner: str | None = None
     decentralised: bool = False
+    carrier_flags: tuple = ()  # more flags for every carrier process (e.g. --onboard-load need)
     procs: dict = field(default_factory=dict)
 
     def start(self, name: str, argv: list[str], host=None) -> subprocess.Popen:
@@ -113,7 +114,7 @@ class Mission:
                        + (["--planner", self.planner] if self.planner else []), hosts.get("coordinator"))
         for cid in self.carriers:
             self.start(cid, self.common(zconf) + ["--role", "carrier", "--carrier", cid, "--connect", endpoint,
-                                                  "--quiet", *DECISION_TIMEOUT]
+                                                  "--quiet", *DECISION_TIMEOUT, *self.carrier_flags]
                        + (["--decentralised"] if self.decentralised else []),
                        hosts.get(cid, hosts.get("carriers")))
 
@@ -244,8 +245,8 @@ def ssap_substitute(scenario, result: Outcome, cid: str, out: Path) -> float:
 # ----------------------------------------------------------------------------- the faults
 
 def _run(scenario_path: Path, scenario, seed: int, out: Path, *, planner=None, decentralised=False, hosts=None,
-         during=None, killed=()) -> tuple[Outcome, dict]:
-    m = Mission(scenario_path, seed, out, tuple(scenario.carrier_ids), planner, decentralised)
+         during=None, killed=(), carrier_flags=()) -> tuple[Outcome, dict]:
+    m = Mission(scenario_path, seed, out, tuple(scenario.carrier_ids), planner, decentralised, tuple(carrier_flags))
     try:
         m.launch(hosts)
         if during is not None:
@@ -264,8 +265,10 @@ def baseline(scenario_path, scenario, seed, out, planner=None) -> Outcome:
     return _run(scenario_path, scenario, seed, out, planner=planner)[0]
 
 
-def fault_run(name: str, scenario_path: Path, scenario, seed: int, out: Path) -> tuple[Outcome, dict]:
-    """Run the mission under fault ``name``; (outcome, details)."""
+def fault_run(name: str, scenario_path: Path, scenario, seed: int, out: Path,
+              carrier_flags=()) -> tuple[Outcome, dict]:
+    """Run the mission under fault ``name``; (outcome, details). ``carrier_flags``: more flags for
+    every carrier (coordinator-killed only)."""
     from tools import netns
 
     details: dict = {}
@@ -274,7 +277,8 @@ def fault_run(name: str, scenario_path: Path, scenario, seed: int, out: Path) ->
             m.wait_until("stage 4 decided", lambda: m.decided() >= 3)
             m.procs["coordinator"].send_signal(signal.SIGKILL)
             details["killed_after_stage"] = m.decided()
-        return _run(scenario_path, scenario, seed, out, during=kill, killed=("coordinator",))[0], details
+        return _run(scenario_path, scenario, seed, out, during=kill, killed=("coordinator",),
+                    carrier_flags=carrier_flags)[0], details
     if name == "decentralised":
         return _run(scenario_path, scenario, seed, out, decentralised=True)[0], details
     if name == "coordinator-cut-off":
