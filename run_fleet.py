@@ -129,7 +129,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "with --no-autonomy, exit when it has been absent this long (default %(default)s)")
     p.add_argument("--onboard-load", choices=("start", "need"),
                    help="carrier: when the on-board planner is loaded: at the start, or when it may be needed "
-                        "(the coordinator gone, a decision late); default start for a process of one carrier, "
+                        "(the coordinator's token gone, no decision by --decision-timeout); default start for a process of one carrier, "
                         "need for a process of several")
     p.add_argument("--log-sync", choices=("full", "normal"),
                    help="carrier: how its durable log commits: full survives a power loss of its host, normal "

@@ -184,11 +184,13 @@ class Onboard:
 
     * ``start``: in the background when the carrier starts (:meth:`prepare`), not when the
       coordinator is already gone; the default of a process that simulates one carrier (a robot);
-    * ``need``: in the background when the coordinator's token vanishes or a decision is half its
-      timeout late, and at the latest when the carrier decides alone; until then the carrier
+    * ``need``: in the background when the coordinator's token vanishes, and at the latest when
+      the carrier decides alone (a decision later than its timeout); until then the carrier
       neither loads the planner nor listens to its peers. The default of a process that simulates
       several carriers (large simulations: 16 processes loading it at once, and subscribing to
-      their peers, cost a 1,024-carrier fleet minutes; docs/performance.md, "Fleet scale").
+      their peers, cost a 1,024-carrier fleet minutes; docs/performance.md, "Fleet scale"). A
+      decision that is merely late does not load it: in an overloaded simulation that would add
+      150 MB and seconds of CPU per process just when the CPU is short.
 
     A carrier that never decides alone (``coordinated``) never loads it; a decentralised one
     always does at the start."""
@@ -649,8 +651,6 @@ class Carrier:
                 return
             if self.coordinator_present:
                 waited += now - last
-                if self.config.mode == "hybrid" and waited >= self.config.decision_timeout_s / 2:
-                    self.onboard.prepare()  # half the timeout late: it may have to decide alone
                 if waited >= self.config.decision_timeout_s:
                     self.log(f"no decision for stage {j} within {self.config.decision_timeout_s:.0f} s; "
                              + ("going on" if self.config.mode == "coordinated" else "deciding on board"))
