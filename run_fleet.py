@@ -121,7 +121,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     t.add_argument("--join-timeout", type=float, default=DEFAULTS.join_s,
                    help="coordinator: wait for carriers before stage 0 (default %(default)s)")
     t.add_argument("--stage-timeout", type=float, default=DEFAULTS.stage_s,
-                   help="coordinator: wait per stage for observations (default %(default)s)")
+                   help="coordinator: wait per stage for observations, and after the last decision (at least "
+                        "3 s) for its Confirms (default %(default)s)")
     t.add_argument("--decision-timeout", type=float, default=DEFAULTS.decision_s,
                    help="carrier: wait per stage for the decision (default %(default)s)")
     t.add_argument("--coordinator-timeout", type=float, default=DEFAULTS.coordinator_s,
@@ -298,6 +299,7 @@ def _carrier_child() -> None:
 
 def run_coordinator(args, scenario, stop: threading.Event) -> int:
     from coordinator.node import Coordinator, CoordinatorConfig, DuplicateCoordinator
+    from mission.timeouts import DEFAULTS
     from coordinator.store import StoreBusy, StoreMismatch
 
     out = args.out or default_out(scenario)
@@ -305,6 +307,9 @@ def run_coordinator(args, scenario, stop: threading.Event) -> int:
         out_dir=out, mission=args.mission, planner=args.planner, iterations=args.iterations,
         plan_ms=args.plan_ms, planner_options=getattr(args, "planner_options", ()), seed=args.seed, realtime=args.realtime, join_timeout_s=args.join_timeout,
         stage_timeout_s=args.stage_timeout, render=not args.no_map, record=not getattr(args, "no_record", False),
+        # The last stage's Confirms take a round trip, which grows with the fleet's load like the
+        # observations' arrival the stage timeout bounds (R = 1,024 on 2 cores: up to 26 s).
+        confirm_timeout_s=max(DEFAULTS.confirm_s, args.stage_timeout),
         standby=getattr(args, "standby", False)),
         zenoh_config(args, "coordinator"),
         scenario_path=args.scenario, stop=stop)
