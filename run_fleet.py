@@ -130,8 +130,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "with --no-autonomy, exit when it has been absent this long (default %(default)s)")
     p.add_argument("--onboard-load", choices=("start", "need"),
                    help="carrier: when the on-board planner is loaded: at the start, or when it may be needed "
-                        "(the coordinator's token gone, no decision by --decision-timeout); default start for a process of one carrier, "
-                        "need for a process of several")
+                        "(the coordinator's token gone, no decision by --decision-timeout); default start for a "
+                        "process of one carrier, need for a process of several")
     p.add_argument("--log-sync", choices=("full", "normal"),
                    help="carrier: how its durable log commits: full survives a power loss of its host, normal "
                         "only a crash of the process (default full with --role carrier, normal for the one-host "
@@ -299,8 +299,8 @@ def _carrier_child() -> None:
 
 def run_coordinator(args, scenario, stop: threading.Event) -> int:
     from coordinator.node import Coordinator, CoordinatorConfig, DuplicateCoordinator
-    from mission.timeouts import DEFAULTS
     from coordinator.store import StoreBusy, StoreMismatch
+    from mission.timeouts import DEFAULTS
 
     out = args.out or default_out(scenario)
     coord = Coordinator(scenario, CoordinatorConfig(
