@@ -3,6 +3,7 @@ generated grid scenarios fixed by seed, for growing numbers of carriers R.
 
     python -m tools.scale                                   # R = 6, 32, 128, 256, 1024
     python -m tools.scale --sizes 6,32 --out runs/scale     # a quick look
+    python -m tools.scale --sizes 256 --no-autonomy       # carriers that never decide on board
     python -m tools.scale --write-scenario 256 /tmp/g256.yaml
 
 Per R it prints wall time, peak memory of the whole process tree (total and per carrier),
