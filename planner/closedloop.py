@@ -310,6 +310,17 @@ def _components(adjacency: np.ndarray) -> list[np.ndarray]:
     return comps
 
 
+def _every_combination(base: np.ndarray, flip: np.ndarray) -> np.ndarray:
+    """bool ``[2^k, m]``: ``base`` with every combination of actions of the ``k`` carriers at
+    positions ``flip``, ``base`` itself first (so it wins ties under ``argmax``)."""
+    k = len(flip)
+    codes = np.arange(1 << k)
+    actions = np.repeat(base[None, :], len(codes), axis=0)
+    actions[:, flip] = ((codes[:, None] >> np.arange(k)[None, :]) & 1).astype(bool)
+    first = int(np.flatnonzero((actions == base).all(axis=1))[0])
+    return actions[np.r_[first, np.delete(codes, first)]]
+
+
 def _grow(seed: int, adjacency: np.ndarray, allowed: np.ndarray, size: int) -> np.ndarray:
     """Up to ``size`` carriers reached breadth-first from ``seed`` through ``allowed`` carriers
     (bool ``[R]``), nearest first (ties in index order); sorted."""
@@ -468,14 +479,7 @@ class ClosedLoopPlanner:
         ascent over single flips (3 rounds, or until the deadline)."""
         k = len(flip)
         if k <= ENUMERATE_MAX:
-            codes = np.arange(1 << k)
-            bits = ((codes[:, None] >> np.arange(k)[None, :]) & 1).astype(bool)
-            actions = np.repeat(base[None, :], len(codes), axis=0)
-            actions[:, flip] = bits
-            # The base policy's action first: it wins ties.
-            first = int(np.flatnonzero((actions == base).all(axis=1))[0])
-            order = np.r_[first, np.delete(np.arange(len(codes)), first)]
-            actions = actions[order]
+            actions = _every_combination(base, flip)
             score = self._score(actions, members, samples, deadline, view, prep, state, valid, nleft, left, xnow,
                                 rng)
             return actions[int(np.argmax(score))]

@@ -25,7 +25,8 @@ from numba import njit
 
 from planner import ssap
 from planner.closedloop import (BATCH, BLOCK, ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, ClosedLoopPlanner,
-                                _components, _grow, _halo, _marginal, _select, _undo)
+                                _components, _every_combination, _grow, _halo, _marginal, _select,
+                                _undo)
 from planner.comms import CommsSpec, Deliveries, realise
 from planner.compiled import compile_problem
 from planner.kernels import deploys
@@ -492,12 +493,7 @@ class DecClosedLoopPlanner:
         me = int(np.flatnonzero(comp == r)[0])
         k = len(free_idx)
         if k <= ENUMERATE_MAX:
-            codes = np.arange(1 << k)
-            bits = ((codes[:, None] >> np.arange(k)[None, :]) & 1).astype(bool)
-            actions = np.repeat(base[None, :], len(codes), axis=0)
-            actions[:, free_idx] = bits
-            first = int(np.flatnonzero((actions == base).all(axis=1))[0])
-            actions = actions[np.r_[first, np.delete(np.arange(len(codes)), first)]]
+            actions = _every_combination(base, free_idx)
         else:
             actions = np.repeat(base[None, :], 2, axis=0)
             actions[1, me] = not actions[1, me]

@@ -6,7 +6,7 @@ import pytest
 from mission.peers import PeerBook
 from planner.closedloop import BLOCK, ClosedLoopPlanner, _blocks
 from planner.decentralised import DecClosedLoopPlanner, local_views
-from planner.problem import Problem, enforce, evaluate, make_view, stage_rng
+from planner.problem import Problem, enforce, make_view, run_online, stage_rng
 
 
 def chain(n_carriers: int, n_stages: int = 6, passengers: int = 2) -> Problem:
@@ -45,21 +45,16 @@ def test_a_component_that_fits_is_one_block_without_halo():
     assert len(_blocks(comp, adj, 0)) == 1  # 0: whole components
 
 
-def _mission(problem, x, planner, seed=3):
-    n = problem.n_stages
-    dep = np.zeros_like(problem.valid)
-    for j in range(n):
-        view = make_view(problem, j, np.where(np.arange(n)[None, :] <= j, x, np.nan), dep)
-        dep[:, j] = enforce(view, planner.decide(view, stage_rng(seed, j)))
-    return dep
-
-
 def test_blocks_change_nothing_when_the_component_fits():
     problem = chain(10)
     x = np.random.default_rng(5).poisson(3.0, problem.valid.shape).astype(float)
-    whole = _mission(problem, x, ClosedLoopPlanner(iterations=400, block=0))
-    np.testing.assert_array_equal(_mission(problem, x, ClosedLoopPlanner(iterations=400, block=10)), whole)
-    np.testing.assert_array_equal(_mission(problem, x, ClosedLoopPlanner(iterations=400)), whole)  # BLOCK > 10
+
+    def mission(planner):
+        return run_online(problem, x, planner, 3).deployed
+
+    whole = mission(ClosedLoopPlanner(iterations=400, block=0))
+    np.testing.assert_array_equal(mission(ClosedLoopPlanner(iterations=400, block=10)), whole)
+    np.testing.assert_array_equal(mission(ClosedLoopPlanner(iterations=400)), whole)  # BLOCK > 10
 
 
 def test_blocked_search_is_feasible_deterministic_and_beats_ignoring_conflicts():
@@ -80,10 +75,9 @@ def test_blocked_search_is_feasible_deterministic_and_beats_ignoring_conflicts()
             d = planner.decide(view, stage_rng(3, j))
             np.testing.assert_array_equal(enforce(view, d), d)
             dep[:, j] = d
-        np.testing.assert_array_equal(_mission(problem, x, ClosedLoopPlanner(iterations=300, block=4)), dep)
-        truth = np.where(problem.valid, x, np.nan)
-        ssap = _mission(problem, x, make_planner("ssap"))
-        gains.append(evaluate(problem, dep, truth)[0] - evaluate(problem, ssap, truth)[0])
+        again = run_online(problem, x, ClosedLoopPlanner(iterations=300, block=4), 3)
+        np.testing.assert_array_equal(again.deployed, dep)
+        gains.append(again.reward - run_online(problem, x, make_planner("ssap"), 3).reward)
     assert np.mean(gains) > 0, gains
 
 

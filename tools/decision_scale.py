@@ -33,23 +33,6 @@ import numpy as np
 DEFAULT_SIZES = (32, 64, 128, 256, 1024)
 
 
-def _mission(problem, x, planner, seed: int, on_stage=None):
-    """Run ``planner`` online; returns (deployments ``[R, N]``, decision seconds per stage)."""
-    from planner.problem import enforce, make_view, stage_rng
-
-    n = problem.n_stages
-    dep = np.zeros_like(problem.valid)
-    times = []
-    for j in range(n):
-        view = make_view(problem, j, np.where(np.arange(n)[None, :] <= j, x, np.nan), dep)
-        if on_stage is not None:
-            on_stage(j, dep)
-        t = time.perf_counter()
-        dep[:, j] = enforce(view, planner.decide(view, stage_rng(seed, j)))
-        times.append(time.perf_counter() - t)
-    return dep, np.array(times)
-
-
 def _onboard_times(problem, x, dep, j, probes, planners, seed, rng):
     """Seconds per on-board decision of each planner in ``planners`` for ``probes`` carriers with
     a choice at stage ``j``, each seeing only what it hears (``listened``)."""
@@ -86,45 +69,44 @@ def measure(n_carriers: int, seed: int, probes: int, baseline: bool, iterations:
     import world
     from planner.closedloop import ClosedLoopPlanner
     from planner.decentralised import DecClosedLoopPlanner
-    from planner.problem import evaluate
+    from planner.problem import run_online
     from tools.scale import write_scenario
 
     with tempfile.TemporaryDirectory() as tmp:
         scenario = world.load_scenario(write_scenario(n_carriers, Path(tmp) / "grid.yaml", seed=seed))
     problem = world.build_problem(scenario)
     x = world.observe_all(scenario)
-    truth = np.where(problem.valid, x, np.nan)
     row = {"R": n_carriers, "seed": seed, "iterations": iterations}
 
     variants = {"blocks": {}}
     if baseline:
         variants["whole"] = {"block": 0}
-    onboard = {name: DecClosedLoopPlanner(iterations=iterations, **opts) for name, opts in variants.items()}
-    onboard_s = {name: [] for name in variants}
-    for planner in onboard.values():
-        planner.warm_up(problem)
-    probe_rng = np.random.default_rng(np.random.SeedSequence([seed, n_carriers, 7]))
+    deployed = None
     for name, opts in variants.items():
-        planner = ClosedLoopPlanner(iterations=iterations, **opts)
-        planner.warm_up(problem)
-
-        def probe(j, dep):
-            if name == "blocks" and probes > 0:  # the states of the mission the coordinator runs
-                times = _onboard_times(problem, x, dep, j, probes, onboard, seed, probe_rng)
-                for key, values in times.items():
-                    onboard_s[key].extend(values)
-            log(f"  R={n_carriers} closed-loop ({name}): stage {j + 1}/{problem.n_stages}")
-
-        dep, times = _mission(problem, x, planner, seed, probe)
-        row[f"closed_loop_{name}_mean_ms"] = float(times.mean() * 1e3)
-        row[f"closed_loop_{name}_max_ms"] = float(times.max() * 1e3)
-        row[f"closed_loop_{name}_per_carrier_ms"] = float(times.mean() * 1e3 / n_carriers)
-        row[f"closed_loop_{name}_reward"] = float(evaluate(problem, dep, truth)[0])
-    for name, values in onboard_s.items():
-        if values:
-            row[f"onboard_{name}_mean_ms"] = float(np.mean(values) * 1e3)
-            row[f"onboard_{name}_max_ms"] = float(np.max(values) * 1e3)
-            row[f"onboard_{name}_decisions"] = len(values)
+        log(f"  R={n_carriers} closed-loop ({name}) ...")
+        result = run_online(problem, x, ClosedLoopPlanner(iterations=iterations, **opts), seed)  # warms up first
+        times = np.asarray(result.decision_ms)
+        row[f"closed_loop_{name}_mean_ms"] = float(times.mean())
+        row[f"closed_loop_{name}_max_ms"] = float(times.max())
+        row[f"closed_loop_{name}_per_carrier_ms"] = float(times.mean() / n_carriers)
+        row[f"closed_loop_{name}_reward"] = float(result.reward)
+        if name == "blocks":
+            deployed = result.deployed  # the states of the mission the coordinator runs
+    if probes > 0:
+        onboard = {name: DecClosedLoopPlanner(iterations=iterations, **opts) for name, opts in variants.items()}
+        for planner in onboard.values():
+            planner.warm_up(problem)
+        probe_rng = np.random.default_rng(np.random.SeedSequence([seed, n_carriers, 7]))
+        onboard_s = {name: [] for name in variants}
+        for j in range(problem.n_stages):
+            log(f"  R={n_carriers} dec-closed-loop on board: stage {j + 1}/{problem.n_stages}")
+            for key, values in _onboard_times(problem, x, deployed, j, probes, onboard, seed, probe_rng).items():
+                onboard_s[key].extend(values)
+        for name, values in onboard_s.items():
+            if values:
+                row[f"onboard_{name}_mean_ms"] = float(np.mean(values) * 1e3)
+                row[f"onboard_{name}_max_ms"] = float(np.max(values) * 1e3)
+                row[f"onboard_{name}_decisions"] = len(values)
     if baseline:
         row["closed_loop_speedup"] = row["closed_loop_whole_mean_ms"] / row["closed_loop_blocks_mean_ms"]
         row["reward_ratio"] = row["closed_loop_blocks_reward"] / row["closed_loop_whole_reward"]
