@@ -187,7 +187,7 @@ def ablate_weight(planner: str, trials: int, weights: tuple[float, ...], seed: i
     uses 0: use another to choose n0 on seeds the sweep does not score). One line per case."""
     from experiments.trials import trial_instance
     from planner.learning import LearnedPriorPlanner
-    from planner.problem import run_online
+    from planner.online import run_online
     from planner.registry import make_planner
 
     moments, lines = {}, []

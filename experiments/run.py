@@ -40,7 +40,7 @@ from pathlib import Path
 
 from experiments import report
 from experiments.trials import CLAIRVOYANT, Task, decode, run_task, warm_up_worker
-from planner.registry import DEFAULT_ITERATIONS
+from planner.settings import DEFAULT_ITERATIONS
 
 ROOT = Path(__file__).resolve().parent.parent
 #: Default output directory (docs/results.md links the files there).

@@ -184,7 +184,7 @@ def _planner(name: str, iterations: int, learn_prior: bool = False):
 def run_task(task: Task) -> dict:
     """Run one task; returns one result row (a flat dict, see :data:`experiments.report.TRIAL_FIELDS`)."""
     from planner import clairvoyant
-    from planner.problem import run_online
+    from planner.online import run_online
 
     problem, x, planner_seed, extra = trial_instance(task)
     row = {

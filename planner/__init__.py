@@ -8,8 +8,9 @@ modules with numba kernels are imported on first use by :mod:`planner.registry`.
 Modules, bottom up:
 
 * :mod:`planner.limits`    size limits shared by scenario validation and the wire;
+* :mod:`planner.settings`  planner defaults and choice lists (below every planner and the registry);
 * :mod:`planner.priors`    prior kinds (spec checking, scipy distributions, support points);
-* :mod:`planner.problem`   the problem model, the penalty rule, stage views, the online loop;
+* :mod:`planner.problem`   the problem model, the penalty rule, stage views;
 * :mod:`planner.ssap`      DLR thresholds and the threshold rule;
 * :mod:`planner.compiled`  the compiled problem every planner reads (sampler, thresholds, CSR
   conflicts, valid stages left);
@@ -17,7 +18,8 @@ Modules, bottom up:
 * :mod:`planner.mcts`      MCTS-SSAP / MCTS-Random (fast numba kernels and the plain reference);
 * :mod:`planner.closedloop`  the ``closed-loop`` planner;
 * :mod:`planner.clairvoyant`  the offline optimum (upper bound);
-* :mod:`planner.registry`  planner names, options, defaults and their validation;
+* :mod:`planner.registry`  planner names, options and their validation;
+* :mod:`planner.online`    the online loop: ``stage_step`` and ``run_online``;
 * :mod:`planner.instance`  the JSON instance format;
-* :mod:`planner.solve`, :mod:`planner.bench`  what the command-line tools run.
+* :mod:`planner.solve`, :mod:`planner.bench`, :mod:`planner.measure`  what the command-line tools run.
 """

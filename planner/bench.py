@@ -36,8 +36,9 @@ from planner.instance import random_instance
 from planner.mcts.fast import MCTSPlanner
 from planner.mcts.reference import ReferenceMCTSPlanner
 from planner.policies import RandomPlanner, SSAPPlanner
-from planner.problem import make_view, run_online
-from planner.registry import DEFAULT_ITERATIONS
+from planner.problem import make_view
+from planner.online import run_online
+from planner.settings import DEFAULT_ITERATIONS
 from planner.ssap import table_for
 
 #: Root seed of the benchmark's instances (instance i uses SeedSequence(SEED, spawn_key=(i,))).

@@ -381,36 +381,7 @@ def warm_up() -> None:
     solve(tiny, np.array([[1.0, 2.0, 0.0], [3.0, 0.0, 1.0]]))
 
 
-def _benchmark(argv=None) -> None:
-    """``python -m planner.clairvoyant``: time the exact search on random paper-style instances."""
-    import argparse
-    import time
-
-    from planner.instance import random_instance
-
-    parser = argparse.ArgumentParser(prog="python -m planner.clairvoyant",
-                                     description="Time the clairvoyant search on random instances.")
-    parser.add_argument("--instances", type=int, default=200)
-    parser.add_argument("--carriers", type=int, default=4)
-    parser.add_argument("--passengers", type=int, default=3)
-    parser.add_argument("--stages", type=int, default=10)
-    parser.add_argument("--overlaps", type=int, default=20)
-    parser.add_argument("--seed", type=int, default=0)
-    args = parser.parse_args(argv)
-    warm_up()
-    rng = np.random.default_rng(args.seed)
-    times, nodes, exact = [], [], 0
-    for _ in range(args.instances):
-        problem, x = random_instance(rng, args.carriers, args.passengers, args.stages, args.overlaps)
-        start = time.perf_counter()
-        result = solve(problem, x)
-        times.append((time.perf_counter() - start) * 1e3)
-        nodes.append(result.nodes)
-        exact += result.exact
-    print(f"R={args.carriers} D={args.passengers} N={args.stages} overlaps={args.overlaps}: "
-          f"{args.instances} instances, exact {exact}, ms mean {np.mean(times):.2f} median "
-          f"{np.median(times):.2f} max {np.max(times):.2f}, nodes mean {np.mean(nodes):.0f} max {np.max(nodes)}")
-
-
 if __name__ == "__main__":
-    _benchmark()
+    from planner.measure import clairvoyant_times  # the command line lives above the core
+
+    clairvoyant_times()

@@ -48,7 +48,7 @@ from planner import ssap
 from planner.compiled import compile_problem
 from planner.kernels import deploys, rank
 from planner.problem import Problem, StageView, make_view, point_weights
-from planner.registry import DEFAULT_ITERATIONS
+from planner.settings import DEFAULT_ITERATIONS
 
 #: Largest number of free carriers in one component whose 2^k joint actions are all evaluated.
 ENUMERATE_MAX = 6

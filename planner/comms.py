@@ -21,7 +21,7 @@ after its stage is useless (the carrier falls back). With ``groups``, messages b
 different groups are always dropped, and the coordinator hears (and is heard by) the first group
 only. A carrier always "hears" itself. ``CommsSpec()`` (no loss, no delay, one group) delivers
 everything at once: every planner then behaves exactly as with the central loop
-:func:`planner.problem.run_online`.
+:func:`planner.online.run_online`.
 """
 from __future__ import annotations
 

@@ -31,8 +31,8 @@ from planner.comms import CommsSpec, Deliveries, realise
 from planner.compiled import compile_problem
 from planner.kernels import deploys
 from planner.problem import (OnlineResult, Problem, StageView, enforce, evaluate, make_view,
-                             stage_rng, valid_stages_left)
-from planner.registry import DEFAULT_ITERATIONS
+                             stage_rng, start_online, valid_stages_left)
+from planner.settings import DEFAULT_ITERATIONS
 
 
 # ----------------------------------------------------------------------------- messages and views
@@ -178,23 +178,15 @@ def run_comms(problem: Problem, x: np.ndarray, planner, seed: int, comms: CommsS
 
     Stage j's planning stream is :func:`planner.problem.stage_rng` ``(seed, j)`` (each carrier of a
     decentralised planner gets its own copy of it). With ``comms`` None or perfect, a centralised
-    planner gives exactly :func:`planner.problem.run_online`'s result.
+    planner gives exactly :func:`planner.online.run_online`'s result.
 
     ``decision_ms``: per stage, the coordinator's decision time (centralised) or the slowest
     carrier's (decentralised: they plan in parallel).
     """
-    x = np.asarray(x, dtype=float)
-    if x.shape != problem.valid.shape:
-        raise ValueError(f"observations shape {x.shape} != problem shape {problem.valid.shape}")
-    x = np.where(problem.valid, x, np.nan)
     comms = CommsSpec() if comms is None else comms
     comms.check(problem.n_carriers)
+    x, released = start_online(problem, x, planner)
     deliveries = realise(comms, problem.n_carriers, problem.n_stages, seed)
-    warm_up = getattr(planner, "warm_up", None)
-    if callable(warm_up):
-        warm_up(problem)
-    typed = problem.weights is not None or hasattr(planner, "release_passengers")
-    released = np.full(problem.valid.shape, -1, dtype=np.int64) if typed else None
     if callable(getattr(planner, "decide_local", None)):
         deployed, times = _run_decentralised(problem, x, planner, seed, deliveries, released)
     else:

@@ -44,7 +44,7 @@ from planner.decentralised import Intent, LocalDecision, LocalView
 from planner.kernels import deploys, forced
 from planner.mcts.kernel import _random, _sample, weigh
 from planner.problem import Problem, fill_releases, point_weights, valid_stages_left
-from planner.registry import DEFAULT_EXPLORATION, DEFAULT_ITERATIONS
+from planner.settings import DEFAULT_EXPLORATION, DEFAULT_ITERATIONS
 
 #: D-UCT discount per iteration.
 GAMMA = 0.999

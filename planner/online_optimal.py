@@ -456,59 +456,7 @@ class OnlineOptimalPlanner:
         return out
 
 
-# ----------------------------------------------------------------------------- measurement
-
-def _measure(argv=None) -> None:
-    """Print the docs table: V*, exact SSAP and random values, Monte Carlo means of closed-loop,
-    MCTS-SSAP and the clairvoyant bound, all as % of V*, on seeded tiny random instances."""
-    import argparse
-
-    from planner import clairvoyant
-    from planner.instance import random_instance
-    from planner.registry import make_planner
-    from planner.problem import run_online, sample_observations
-
-    parser = argparse.ArgumentParser(prog="python -m planner.online_optimal", description=_measure.__doc__)
-    parser.add_argument("--instances", type=int, default=6, help="instances (R alternates 2, 3)")
-    parser.add_argument("--samples", type=int, default=400, help="sampled observation matrices per instance")
-    parser.add_argument("--iterations", type=int, default=10_000, help="closed-loop and MCTS-SSAP iterations per stage")
-    parser.add_argument("--seed", type=int, default=16)
-    args = parser.parse_args(argv)
-
-    root = np.random.SeedSequence(args.seed)
-    print(f"R = 2 and 3, N = 6, D = 2, Poisson(3), 2 to 4 overlap groups; {args.samples} sampled observation "
-          f"matrices per instance (common to all planners), {args.iterations:,} iterations per stage; "
-          f"Monte Carlo means ± one standard error, all as % of V*.\n")
-    print("| instance | V* | SSAP (exact) | random (exact) | closed-loop | MCTS-SSAP | clairvoyant |")
-    print("| --- | --- | --- | --- | --- | --- | --- |")
-    columns = ("ssap", "random", "closed-loop", "mcts-ssap", "clairvoyant")
-    shares = {name: [] for name in columns}
-    for k, seq in enumerate(root.spawn(args.instances)):
-        rng = np.random.default_rng(seq)
-        carriers = 2 + k % 2
-        groups = int(rng.integers(2, 5))
-        problem = random_instance(rng, carriers=carriers, passengers=2, stages=6, overlaps=groups).problem
-        best = online_value(problem).expected_reward
-        exact = {name: online_value(problem, name).expected_reward for name in ("ssap", "random")}
-        planners = {name: make_planner(name, iterations=args.iterations) for name in ("closed-loop", "mcts-ssap")}
-        runs = {name: [] for name in (*planners, "clairvoyant")}
-        for s in range(args.samples):
-            x = sample_observations(problem, rng)
-            for name, planner in planners.items():
-                runs[name].append(run_online(problem, x, planner, s).reward)
-            runs["clairvoyant"].append(clairvoyant.solve(problem, x).reward)
-
-        def pct(values) -> str:
-            values = 100.0 * np.asarray(values) / best
-            return f"{values.mean():.1f} ± {values.std(ddof=1) / np.sqrt(len(values)):.1f}"
-
-        print(f"| R={carriers}, {groups} groups (#{k}) | {best:.4f} | {100 * exact['ssap'] / best:.1f} | "
-              f"{100 * exact['random'] / best:.1f} | {pct(runs['closed-loop'])} | {pct(runs['mcts-ssap'])} | "
-              f"{pct(runs['clairvoyant'])} |", flush=True)
-        for name in columns:
-            shares[name].append(100.0 * (exact[name] if name in exact else np.mean(runs[name])) / best)
-    print("| mean over instances | 100 | " + " | ".join(f"{np.mean(shares[name]):.1f}" for name in columns) + " |")
-
-
 if __name__ == "__main__":
-    _measure()
+    from planner.measure import optimal_table  # the command line lives above the core
+
+    optimal_table()

@@ -416,45 +416,22 @@ class OnlineResult:
             object.__setattr__(self, "released", in_order(self.deployed))
 
 
-def run_online(problem: Problem, x: np.ndarray, planner: Planner, seed: int) -> OnlineResult:
-    """Run ``planner`` stage by stage over realised observations ``x`` (NaN = ∅).
-
-    Stage j's random stream is :func:`stage_rng` ``(seed, j)``. A NaN at a scheduled stage is an
-    online surprise: the planner learns it only at that stage. If the planner has a
-    ``warm_up(problem)`` method (e.g. to compile numba code) it is called once before the first
-    timed decision, so ``decision_ms`` never includes compilation. A decentralised planner
-    (``decentralised = True``, ``decide_local``) runs under perfect communication
-    (:func:`planner.decentralised.run_comms`).
-    """
-    import time
-
-    if callable(getattr(planner, "decide_local", None)) and getattr(planner, "decentralised", False):
-        from planner.decentralised import run_comms  # every carrier decides; links are perfect here
-
-        return run_comms(problem, x, planner, seed)
+def start_online(problem: Problem, x: np.ndarray, planner) -> tuple[np.ndarray, np.ndarray | None]:
+    """What every online loop does before its first stage: check ``x`` against the problem's
+    shape, blank unscheduled stages (NaN), call the planner's ``warm_up(problem)`` when it has one
+    (so no timed decision pays for compilation), and allocate ``released`` (int64 ``[R, N]`` of -1)
+    when passengers are told apart (passenger values, or a planner with its own
+    ``release_passengers``), else None. Returns ``(x, released)``."""
     x = np.asarray(x, dtype=float)
     if x.shape != problem.valid.shape:
         raise ValueError(f"observations shape {x.shape} != problem shape {problem.valid.shape}")
     x = np.where(problem.valid, x, np.nan)
-    deployed = np.zeros(problem.valid.shape, dtype=bool)
     warm_up = getattr(planner, "warm_up", None)
     if callable(warm_up):
         warm_up(problem)
-    times = []
     typed = problem.weights is not None or hasattr(planner, "release_passengers")
     released = np.full(problem.valid.shape, -1, dtype=np.int64) if typed else None
-    for j in range(problem.n_stages):
-        view = make_view(problem, j, x, deployed, released)
-        t0 = time.perf_counter()
-        decision = planner.decide(view, stage_rng(seed, j))
-        times.append((time.perf_counter() - t0) * 1e3)
-        deployed[:, j] = enforce(view, decision)
-        if typed:
-            from planner.passengers import release  # the passenger rule needs the thresholds
-
-            released[:, j] = release(planner, view, deployed[:, j])
-    reward, features = evaluate(problem, deployed, x, released)
-    return OnlineResult(deployed, reward, features, tuple(times), released)
+    return x, released
 
 
 def sample_observations(problem: Problem, rng: np.random.Generator) -> np.ndarray:

@@ -5,7 +5,7 @@ take names and options from here:
 
 * :func:`planner_names` — every registered planner; :func:`register` adds one;
 * :data:`OPTIONS` — every option with its type, range, default and help text
-  (:data:`DEFAULT_ITERATIONS` and :data:`DEFAULT_EXPLORATION` live here and nowhere else);
+  (their defaults and choice lists are defined once in :mod:`planner.settings`);
 * :func:`check_settings` — validates a name and an options mapping, returning
   :class:`SettingProblem` entries with field paths (``layout``, ``iterations``, ...) that callers
   turn into their own one-line errors; :func:`parse_option` reads ``KEY=VALUE`` text;
@@ -23,15 +23,9 @@ import math
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
 
-#: Default MCTS / closed-loop budget: iterations (full-fleet rollouts) per decision.
-DEFAULT_ITERATIONS = 10_000
-#: Default UCT exploration constant on normalised rewards (the paper's 0.05·√2).
-DEFAULT_EXPLORATION = 0.05 * math.sqrt(2.0)
-#: Default planner of a scenario.
-DEFAULT_PLANNER = "mcts-ssap"
-#: MCTS tree layouts (see planner.mcts.fast).
-LAYOUTS = ("auto", "joint", "binary")
-
+# The defaults are defined in planner.settings (below the planners); DEFAULT_PLANNER and the others
+# stay importable from here for the registry's callers.
+from planner.settings import DEFAULT_EXPLORATION, DEFAULT_ITERATIONS, DEFAULT_PLANNER, DEFAULT_SAMPLES, LAYOUTS  # noqa: F401
 
 #: Command-line spellings of a ``bool`` option's values.
 _BOOL_TEXT = {"true": True, "false": False, "1": True, "0": False, "yes": True, "no": False}
@@ -115,8 +109,8 @@ OPTIONS: dict[str, Option] = {o.name: o for o in (
            minimum=0, exclusive=True),
     Option("exploration", float, DEFAULT_EXPLORATION, "UCT constant c on normalised rewards (default 0.05*sqrt(2))",
            minimum=0),
-    Option("samples", int, 1, "Monte Carlo rollouts per iteration", minimum=1, maximum=1e6),
-    Option("layout", str, "auto", "MCTS tree: auto (joint up to 8 carriers), joint or binary", choices=LAYOUTS),
+    Option("samples", int, DEFAULT_SAMPLES, "Monte Carlo rollouts per iteration", minimum=1, maximum=1e6),
+    Option("layout", str, LAYOUTS[0], "MCTS tree: auto (joint up to 8 carriers), joint or binary", choices=LAYOUTS),
     Option("learn_prior", bool, False, "learn the prior online from the observations so far (planner.learning); "
            "applies to every planner"),
 )}

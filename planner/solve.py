@@ -1,6 +1,6 @@
 """Run one planner online over one instance file: what ``python -m coordinator.solve`` prints.
 
-Pure: reads the instance file, runs :func:`planner.problem.run_online` and the clairvoyant bound,
+Pure: reads the instance file, runs :func:`planner.online.run_online` and the clairvoyant bound,
 returns a JSON-ready dict. The command line (argparse, exit codes) is in :mod:`coordinator.solve`.
 """
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from planner.instance import InstanceError, load_instance
-from planner.problem import run_online
+from planner.online import run_online
 
 
 def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clairvoyant: bool = True,
@@ -27,7 +27,7 @@ def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clai
         deployment, in stage order] per carrier] (only for an instance with ``passenger_values``)}``.
 
     ``comms``: a :class:`planner.comms.CommsSpec`; None (the default) runs
-    :func:`planner.problem.run_online` exactly as before, otherwise
+    :func:`planner.online.run_online` exactly as before, otherwise
     :func:`planner.decentralised.run_comms` under that communication model.
 
     Raises:

@@ -14,7 +14,7 @@ from coordinator.node import Coordinator, CoordinatorConfig
 from planner.registry import planner_settings
 from world import build_problem
 from planner.registry import make_planner
-from planner.problem import run_online
+from planner.online import run_online
 from wire.zconfig import free_port, make_config
 
 ROOT = Path(__file__).resolve().parents[1]

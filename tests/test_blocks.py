@@ -6,7 +6,8 @@ import pytest
 from mission.peers import PeerBook
 from planner.closedloop import BLOCK, ClosedLoopPlanner, _blocks
 from planner.decentralised import DecClosedLoopPlanner, local_views
-from planner.problem import Problem, enforce, make_view, run_online, stage_rng
+from planner.problem import Problem, enforce, make_view, stage_rng
+from planner.online import run_online
 
 
 def chain(n_carriers: int, n_stages: int = 6, passengers: int = 2) -> Problem:

@@ -11,7 +11,8 @@ from scipy import stats
 from planner import clairvoyant
 from planner.instance import random_instance
 from planner.registry import make_planner
-from planner.problem import Problem, evaluate, run_online
+from planner.problem import Problem, evaluate
+from planner.online import run_online
 
 
 def brute_force(problem: Problem, x: np.ndarray) -> float:

@@ -18,7 +18,7 @@ from planner.comms import NEVER, CommsSpec, parse_groups, realise
 from planner.decentralised import LocalDecision, run_comms
 from planner.decmcts import optimise_distribution
 from planner.instance import random_instance
-from planner.problem import run_online
+from planner.online import run_online
 from planner.registry import make_planner
 
 HERE = Path(__file__).resolve().parent

@@ -21,7 +21,8 @@ from planner import closedloop
 from planner.compiled import compile_problem
 from planner.instance import random_instance
 from planner.registry import make_planner
-from planner.problem import Problem, evaluate, make_view, run_online, sample_observations
+from planner.problem import Problem, evaluate, make_view, sample_observations
+from planner.online import run_online
 
 ROOT = Path(__file__).resolve().parent.parent
 

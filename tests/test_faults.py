@@ -22,7 +22,7 @@ import world
 from world import build_problem
 from planner.registry import planner_settings
 from planner.registry import make_planner
-from planner.problem import run_online
+from planner.online import run_online
 from wire.zconfig import free_port
 
 from tools import netns

@@ -19,7 +19,8 @@ from planner import learning
 from planner.compiled import compile_problem
 from planner.instance import random_instance
 from planner.learning import LearnedPriorPlanner, UnsupportedPrior, fit_prior, learned_problem
-from planner.problem import Problem, run_online
+from planner.problem import Problem
+from planner.online import run_online
 from planner.registry import OPTIONS, make_planner, parse_option, used_options
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -15,7 +15,8 @@ from planner.compiled import compile_problem
 from planner.mcts.fast import MCTSPlanner
 from planner.mcts.reference import ReferenceMCTSPlanner, feasible_joint_actions
 from planner.policies import RandomPlanner, SSAPPlanner
-from planner.problem import Problem, evaluate, make_view, run_online
+from planner.problem import Problem, evaluate, make_view
+from planner.online import run_online
 from planner.ssap import table_for
 
 PLANNERS = {

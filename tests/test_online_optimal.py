@@ -24,7 +24,8 @@ from planner import clairvoyant, online_optimal, priors, ssap
 from planner.instance import load_instance, random_instance
 from planner.online_optimal import OnlineOptimalPlanner, TooLarge, discretise, online_value
 from planner.registry import make_planner
-from planner.problem import Problem, evaluate, run_online, sample_observations
+from planner.problem import Problem, evaluate, sample_observations
+from planner.online import run_online
 
 #: A three-point prior that keeps enumerations small (q90 = 3, so rewards are in thirds).
 THREE = stats.rv_discrete(values=([0.0, 1.0, 3.0], [0.3, 0.4, 0.3]))()

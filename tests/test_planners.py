@@ -12,7 +12,8 @@ from planner import registry as planners, ssap
 from planner.instance import random_instance
 from planner.policies import RandomPlanner, SSAPPlanner
 from planner.registry import make_planner, planner_names, register
-from planner.problem import Problem, run_online, sample_observations
+from planner.problem import Problem, sample_observations
+from planner.online import run_online
 
 
 def _instances(seed: int, count: int):

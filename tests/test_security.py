@@ -372,7 +372,7 @@ def offline_decisions(x_override=None) -> tuple[list[list[str]], list]:
     import world
     from world import build_problem
     from planner.registry import make_planner, planner_settings
-    from planner.problem import run_online
+    from planner.online import run_online
 
     scenario = world.load_scenario(str(TINY))
     problem = build_problem(scenario)

@@ -235,7 +235,8 @@ def _typed_instance(seed, carriers=3, stages=8, overlaps=8):
 
 @pytest.mark.parametrize("name", TYPED_PLANNERS)
 def test_every_planner_releases_each_passenger_once_and_deterministically(name):
-    from planner.problem import evaluate, run_online
+    from planner.problem import evaluate
+    from planner.online import run_online
     from planner.registry import make_planner
 
     for seed in range(3):
@@ -255,7 +256,7 @@ def test_ssap_releases_by_the_rank_rule_and_keeps_its_deployments():
     """SSAP's deployments do not depend on the values (DLR's thresholds do not); which passenger
     goes does: each release is the rank of the observation's interval among those aboard."""
     from planner.passengers import unweighted
-    from planner.problem import run_online
+    from planner.online import run_online
     from planner.registry import make_planner
 
     differs = 0
@@ -280,7 +281,8 @@ def test_ssap_releases_by_the_rank_rule_and_keeps_its_deployments():
 def test_without_values_everything_is_unweighted():
     """A problem without passenger values releases in index order and no planner reads weights."""
     from planner.instance import random_instance
-    from planner.problem import in_order, run_online
+    from planner.problem import in_order
+    from planner.online import run_online
     from planner.registry import make_planner
 
     problem, x = random_instance(np.random.default_rng(1), carriers=3, passengers=3, stages=8, overlaps=8)
@@ -291,7 +293,7 @@ def test_without_values_everything_is_unweighted():
 def test_type_aware_beats_type_blind_on_average():
     """Releasing the heavy passenger at the good observations must pay on average (SSAP)."""
     from planner.passengers import TypeBlind
-    from planner.problem import run_online
+    from planner.online import run_online
     from planner.registry import make_planner
 
     aware, blind = [], []
@@ -303,7 +305,7 @@ def test_type_aware_beats_type_blind_on_average():
 
 
 def test_weighted_closed_loop_is_ssap_without_conflicts():
-    from planner.problem import run_online
+    from planner.online import run_online
     from planner.registry import make_planner
 
     for seed in range(4):
@@ -330,7 +332,7 @@ def test_weighted_choice_rule_reduces_to_the_threshold_rule():
 
 
 def test_dec_closed_loop_is_closed_loop_with_perfect_links_and_values():
-    from planner.problem import run_online
+    from planner.online import run_online
     from planner.registry import make_planner
 
     for seed in range(3):
@@ -361,7 +363,8 @@ def test_weighted_closed_loop_control_variate_is_unbiased():
     """With passenger values, closed-loop's estimate with the exact weighted SSAP control variate
     ranks joint actions as the plain Monte Carlo mean of its rollouts does (same expectation)."""
     from planner.closedloop import estimate
-    from planner.problem import make_view, run_online
+    from planner.problem import make_view
+    from planner.online import run_online
     from planner.registry import make_planner
 
     problem, x = _typed_instance(11, overlaps=12)
@@ -417,7 +420,7 @@ def test_unit_values_decide_as_without_values(name):
     """Passenger values all 1 are the unweighted problem: the same decisions (the weighted
     search paths reduce exactly), and values that differ change some decision (they are read)."""
     from planner.instance import random_instance
-    from planner.problem import run_online
+    from planner.online import run_online
     from planner.registry import make_planner
 
     changed = 0

@@ -69,7 +69,7 @@ def measure(n_carriers: int, seed: int, probes: int, baseline: bool, iterations:
     import world
     from planner.closedloop import ClosedLoopPlanner
     from planner.decentralised import DecClosedLoopPlanner
-    from planner.problem import run_online
+    from planner.online import run_online
     from tools.scale import write_scenario
 
     with tempfile.TemporaryDirectory() as tmp:

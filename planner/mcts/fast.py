@@ -54,7 +54,7 @@ from planner import ssap
 from planner.compiled import compile_problem
 from planner.mcts import kernel as _k
 from planner.problem import Problem, StageView, make_view, point_weights
-from planner.registry import DEFAULT_EXPLORATION, DEFAULT_ITERATIONS, LAYOUTS
+from planner.settings import DEFAULT_EXPLORATION, DEFAULT_ITERATIONS, DEFAULT_SAMPLES, LAYOUTS
 
 #: Rollout policies.
 ROLLOUTS = {"ssap": _k.ROLLOUT_SSAP, "random": _k.ROLLOUT_RANDOM}
@@ -194,7 +194,7 @@ class MCTSPlanner:
     """
 
     def __init__(self, rollout: str = "ssap", iterations: int = DEFAULT_ITERATIONS, plan_ms: float | None = None,
-                 exploration: float = DEFAULT_EXPLORATION, samples: int = 1, layout: str = "auto"):
+                 exploration: float = DEFAULT_EXPLORATION, samples: int = DEFAULT_SAMPLES, layout: str = LAYOUTS[0]):
         if layout not in LAYOUTS:
             raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
         if rollout not in ROLLOUTS:

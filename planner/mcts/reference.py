@@ -45,7 +45,7 @@ import numpy as np
 from planner import ssap
 from planner.compiled import compile_problem
 from planner.problem import StageView, evaluate
-from planner.registry import DEFAULT_EXPLORATION, DEFAULT_ITERATIONS
+from planner.settings import DEFAULT_EXPLORATION, DEFAULT_ITERATIONS, DEFAULT_SAMPLES
 #: Rollout policies.
 ROLLOUTS = ("ssap", "random")
 
@@ -217,7 +217,7 @@ class ReferenceMCTSPlanner:
     """
 
     def __init__(self, rollout: str = "ssap", iterations: int = DEFAULT_ITERATIONS, plan_ms: float | None = None,
-                 exploration: float = DEFAULT_EXPLORATION, samples: int = 1):
+                 exploration: float = DEFAULT_EXPLORATION, samples: int = DEFAULT_SAMPLES):
         if rollout not in ROLLOUTS:
             raise ValueError(f"rollout must be one of {ROLLOUTS}, got {rollout!r}")
         if iterations < 1 or samples < 1:

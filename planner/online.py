@@ -1,0 +1,92 @@
+"""The online loop: one stage step, and ``run_online`` running it stage by stage.
+
+:func:`stage_step` is the one definition of "decide stage j": the causal view of the stage
+(:func:`planner.problem.make_view`), the planner's decision on the stage's random stream
+(:func:`planner.problem.stage_rng`), the feasibility check (:func:`planner.problem.enforce`) and
+the passenger each deploying carrier releases (:func:`planner.passengers.release`). The offline
+loop (:func:`run_online`) and the fleet's coordinator both call it, so the fleet decides exactly
+like the offline planner.
+
+This module sits above the planners' modules: it routes a decentralised planner to
+:func:`planner.decentralised.run_comms` (perfect links), and nothing of ``planner/`` imports it.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from planner.passengers import release
+from planner.problem import OnlineResult, Planner, Problem, enforce, evaluate, make_view, stage_rng, start_online
+
+
+@dataclass(frozen=True, eq=False)
+class StageStep:
+    """One stage's decision.
+
+    Attributes:
+        deploy: bool ``[R]``: carriers deploying at the stage (checked by ``enforce``).
+        passengers: int64 ``[R]``: the passenger index each deploying carrier releases, -1 for
+            the others (index order without passenger values).
+        decision_ms: wall time of the planner's ``decide`` call, milliseconds.
+    """
+
+    deploy: np.ndarray
+    passengers: np.ndarray
+    decision_ms: float
+
+
+def stage_step(problem: Problem, x: np.ndarray, deployed: np.ndarray, planner: Planner, seed: int,
+               stage: int, released: np.ndarray | None = None) -> StageStep:
+    """Decide stage ``stage`` of a mission with root seed ``seed``.
+
+    Args:
+        problem: the instance.
+        x: float ``[R, N]``: the observations so far (NaN = ∅); only stages ``<= stage`` are read.
+        deployed: bool ``[R, N]``: the deployments so far; only stages ``< stage`` are read.
+        planner: any :class:`planner.problem.Planner` (already warmed up by the caller if it
+            times decisions).
+        seed: the mission's root seed (the planner draws from ``stage_rng(seed, stage)``).
+        stage: the stage j being decided.
+        released: int64 ``[R, N]`` or None: the passenger each past deployment released (read
+            only for a problem with passenger values; None means index order).
+
+    Raises:
+        ValueError: ``stage`` outside the problem's stages.
+        AssertionError: the planner broke a feasibility rule (see ``enforce``).
+    """
+    view = make_view(problem, stage, x, deployed, released)
+    t0 = time.perf_counter()
+    decision = planner.decide(view, stage_rng(seed, stage))
+    decision_ms = (time.perf_counter() - t0) * 1e3
+    deploy = enforce(view, decision)
+    return StageStep(deploy, release(planner, view, deploy), decision_ms)
+
+
+def run_online(problem: Problem, x: np.ndarray, planner: Planner, seed: int) -> OnlineResult:
+    """Run ``planner`` stage by stage over realised observations ``x`` (NaN = ∅).
+
+    Stage j is :func:`stage_step` (random stream ``stage_rng(seed, j)``). A NaN at a scheduled
+    stage is an online surprise: the planner learns it only at that stage. If the planner has a
+    ``warm_up(problem)`` method (e.g. to compile numba code) it is called once before the first
+    timed decision, so ``decision_ms`` never includes compilation. A decentralised planner
+    (``decentralised = True``, ``decide_local``) runs under perfect communication
+    (:func:`planner.decentralised.run_comms`).
+    """
+    if callable(getattr(planner, "decide_local", None)) and getattr(planner, "decentralised", False):
+        # Imported here: the decentralised module loads numba kernels that a centralised run never needs.
+        from planner.decentralised import run_comms  # every carrier decides; links are perfect here
+
+        return run_comms(problem, x, planner, seed)
+    x, released = start_online(problem, x, planner)
+    deployed = np.zeros(problem.valid.shape, dtype=bool)
+    times = []
+    for j in range(problem.n_stages):
+        step = stage_step(problem, x, deployed, planner, seed, j, released)
+        times.append(step.decision_ms)
+        deployed[:, j] = step.deploy
+        if released is not None:
+            released[:, j] = step.passengers
+    reward, features = evaluate(problem, deployed, x, released)
+    return OnlineResult(deployed, reward, features, tuple(times), released)

@@ -1,0 +1,21 @@
+"""Planner defaults and choice lists: the one home of every value the planners, the registry and
+the command lines share.
+
+This module sits below every planner and below :mod:`planner.registry` (which builds the option
+table from these values and imports the planners to build them), and imports nothing of the
+package, so a planner reading its default never reaches back up to the registry.
+"""
+from __future__ import annotations
+
+import math
+
+#: Default MCTS / closed-loop / Dec-MCTS budget: iterations (full-fleet rollouts) per decision.
+DEFAULT_ITERATIONS = 10_000
+#: Default UCT exploration constant on normalised rewards (the paper's 0.05·√2).
+DEFAULT_EXPLORATION = 0.05 * math.sqrt(2.0)
+#: Default planner of a scenario (and of ``python -m coordinator.solve``).
+DEFAULT_PLANNER = "mcts-ssap"
+#: MCTS tree layouts (see planner.mcts.fast); the first is the default.
+LAYOUTS = ("auto", "joint", "binary")
+#: Default Monte Carlo rollouts per MCTS iteration.
+DEFAULT_SAMPLES = 1
