@@ -44,7 +44,7 @@ from mission.peers import PeerBook, listened
 from mission.timeouts import DEFAULTS
 from wire import keys
 from wire.messages import (
-    Bye, Confirm, Decision, End, Hello, Observation, Own, Pose, ProtocolError, Refusal, State, decode,
+    REVISION, Bye, Confirm, Decision, End, Hello, Observation, Own, Pose, ProtocolError, Refusal, State, decode,
     scenario_fingerprint,
 )
 
@@ -389,7 +389,7 @@ class Carrier:
     def _hello(self, next_stage: int) -> None:
         self.node.put(keys.carrier_key(self.mission, self.cid, "hello"), Hello(
             self.mission, self.cid, os.getpid(), socket.gethostname()[:255], self.machine.passengers_left,
-            next_stage, self.fingerprint, max(1, self.machine.epoch)))
+            next_stage, self.fingerprint, max(1, self.machine.epoch), REVISION))
 
     # ------------------------------------------------------------------ inbound
     def _listen(self, wait: bool = False) -> None:
@@ -507,7 +507,8 @@ class Carrier:
     def _query_once(self) -> State | None:
         """The State reply of the highest epoch (two coordinators may answer across a split)."""
         best = None
-        for payload in self.node.query(keys.state_selector(self.mission, self.cid), timeout_s=DEFAULTS.state_query_s):
+        selector = keys.state_selector(self.mission, self.cid, REVISION)
+        for payload in self.node.query(selector, timeout_s=DEFAULTS.state_query_s):
             try:
                 state = decode(payload, State)
             except ProtocolError as exc:
@@ -515,6 +516,8 @@ class Carrier:
                 continue
             if state.mission == self.mission and (best is None or state.epoch > best.epoch):
                 best = state
+        if best is not None:  # speak the coordinator's revision from now on (docs/protocol.md, "Compatibility")
+            self.node.revision = min(REVISION, best.revision)
         return best
 
     def _query_state(self) -> State | None:

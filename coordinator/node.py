@@ -47,7 +47,7 @@ from mission.summary import RunInfo, summary as mission_summary
 from mission.timeouts import DEFAULTS
 from wire import keys
 from wire.messages import (
-    MAX_STATE_CARRIERS, Bye, CarrierState, Confirm, Decision, End, Hello, Observation, Own, Pose, ProtocolError, Refusal,
+    MAX_STATE_CARRIERS, REVISION, UNANNOUNCED_REVISION, Bye, CarrierState, Confirm, Decision, End, Hello, Observation, Own, Pose, ProtocolError, Refusal,
     State, decode, encode, scenario_fingerprint,
 )
 from wire.transport import Node
@@ -108,7 +108,8 @@ class CoordinatorConfig:
 def to_event(msg, at: float):
     """The mission event of a decoded carrier message received at ``at`` (s, epoch)."""
     if isinstance(msg, Hello):
-        return ev.Hello(msg.carrier, msg.pid, msg.host, msg.passengers_left, msg.next_stage, msg.fingerprint, at)
+        return ev.Hello(msg.carrier, msg.pid, msg.host, msg.passengers_left, msg.next_stage, msg.fingerprint, at,
+                        msg.revision)
     if isinstance(msg, Observation):
         return ev.Observation(msg.carrier, msg.stage, msg.t, msg.x, msg.position, msg.passengers_left, msg.trail, at)
     if isinstance(msg, Confirm):
@@ -210,6 +211,7 @@ class Coordinator:
         MAX_STATE_CARRIERS carriers, none of a larger one. Runs in the queryable's thread on an
         immutable snapshot."""
         st = self._served
+        asked = keys.asked_revision(parameters, REVISION, UNANNOUNCED_REVISION)
         wanted = (parameters or {}).get("carrier")
         if wanted is not None:
             ids = [wanted] if wanted in self.spec.carriers else []
@@ -223,7 +225,7 @@ class Coordinator:
                             d.planning_ms, self.epoch, passengers=d.passengers)
         return encode(State(
             mission=self.mission, next_stage=st.next_stage, stages=self.n_stages, fingerprint=self.fingerprint,
-            ended=st.ended, carriers=carriers, last_decision=last, epoch=self.epoch))
+            ended=st.ended, carriers=carriers, last_decision=last, epoch=self.epoch, revision=REVISION), asked)
 
     def _carrier_state(self, st, cid: str) -> CarrierState:
         """One carrier's entry: its deployments as the planner sees them (its accounts, its
@@ -467,7 +469,8 @@ class Coordinator:
         return tuple(self.ids[r] for r in rs), planning_ms, tuple(int(who[r]) for r in rs)
 
     def _publish_decision(self, decision: Decision) -> None:
-        self.node.put(keys.decision_key(self.mission), decision)
+        # In the revision every carrier that said Hello reads (docs/protocol.md, "Compatibility").
+        self.node.put(keys.decision_key(self.mission), decision, self.state.common_revision(REVISION))
         self.apply(ev.Published(decision.stage, time.time()))
 
     def _progress(self, j: int, waited_ms: float) -> None:

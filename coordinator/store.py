@@ -297,6 +297,7 @@ class MissionStore:
         if isinstance(e, ev.Hello):
             self.event("hello", e.carrier, record.stage, wall_time=e.at, pid=e.pid, host=e.host,
                        passengers_left=e.passengers_left, next_stage=e.next_stage, fingerprint=e.fingerprint,
+                       revision=e.revision,
                        compatible=e.fingerprint == state.spec.fingerprint)
         elif isinstance(e, ev.Observation):
             self.observation(e.carrier, e.stage, e.x, e.position, wall_time=e.at, t=e.t,
@@ -423,7 +424,7 @@ def _hello(cid, stage, p, at):
     if "fingerprint" not in p:
         return None  # written by an older version: pid and host only
     return ev.Hello(cid, p.get("pid"), p.get("host"), p.get("passengers_left", 0), p.get("next_stage", stage or 0),
-                    p["fingerprint"], at)
+                    p["fingerprint"], at, p.get("revision", 1))
 
 
 #: How each kind of ``events`` row becomes a mission event: (carrier, stage, payload, wall_time).

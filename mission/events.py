@@ -34,6 +34,7 @@ class Hello:
     next_stage: int
     fingerprint: str
     at: float = 0.0
+    revision: int = 1  # the protocol revision it announced (docs/protocol.md, "Revisions"; absent: 1)
 
 
 @dataclass(frozen=True)

@@ -84,11 +84,13 @@ class MissionSpec:
 
 @dataclass(frozen=True)
 class CarrierInfo:
-    """An accepted Hello: process id, host, and where the carrier said it goes on from."""
+    """An accepted Hello: process id, host, where the carrier said it goes on from, and the
+    protocol revision it announced (docs/protocol.md, "Revisions")."""
 
     pid: int
     host: str
     next_stage: int
+    revision: int = 1
 
 
 @dataclass(frozen=True)
@@ -203,6 +205,19 @@ class MissionState:
 
     def all_said_bye(self) -> bool:
         return self.live <= self.byes
+
+    def revision_of(self, cid: str, highest: int) -> int:
+        """The protocol revision to speak to carrier ``cid``: the lower of ``highest`` (the
+        coordinator's) and the one its accepted Hello announced (1 before any accepted Hello:
+        docs/protocol.md, "Compatibility")."""
+        info = self.accepted.get(cid)
+        return min(highest, info.revision if info is not None else 1)
+
+    def common_revision(self, highest: int) -> int:
+        """The revision of what the coordinator broadcasts (Decisions): the lowest any carrier
+        with an accepted Hello speaks, ``highest`` when none has one yet, so every carrier that
+        hears it reads all of it."""
+        return min([highest, *(info.revision for info in self.accepted.values())])
 
     # ------------------------------------------------------------------ the planner's inputs
     def observation(self, r: int, j: int) -> float:
@@ -432,7 +447,7 @@ def _on_hello(state: MissionState, e: ev.Hello):
         effects += [Refuse(cid, e.fingerprint, "world-mismatch", detail), Reject("world-mismatch", detail)]
         return new, tuple(effects)
     refused = {k: v for k, v in state.refused.items() if k != cid}
-    new = _replace(state, accepted={**state.accepted, cid: CarrierInfo(e.pid, e.host, e.next_stage)},
+    new = _replace(state, accepted={**state.accepted, cid: CarrierInfo(e.pid, e.host, e.next_stage, e.revision)},
                    refused=refused, byes=state.byes - {cid})  # a restarted carrier: its Bye is history
     return new, (Record(e, e.next_stage),)
 

@@ -90,10 +90,22 @@ def state_key(mission: str) -> str:
     return f"{prefix(mission)}/coordinator/state"
 
 
-def state_selector(mission: str, carrier: str) -> str:
+def state_selector(mission: str, carrier: str, revision: int | None = None) -> str:
     """The State query of one carrier: the state key with the parameter ``carrier=<id>``, so the
-    reply lists that carrier only (its size does not grow with the fleet)."""
-    return f"{state_key(mission)}?carrier={check_id(carrier, 'carrier')}"
+    reply lists that carrier only (its size does not grow with the fleet), and ``revision=<r>``
+    (when given), the protocol revision the asking carrier speaks (docs/protocol.md,
+    "Compatibility"): the reply holds only what that revision defines."""
+    selector = f"{state_key(mission)}?carrier={check_id(carrier, 'carrier')}"
+    return selector if revision is None else f"{selector};revision={int(revision)}"
+
+
+def asked_revision(parameters: dict | None, highest: int, unannounced: int) -> int:
+    """The revision to answer a State query in: the one its ``revision`` parameter announces (a
+    decimal integer >= 1), at most ``highest``; ``unannounced`` for a query without a valid one."""
+    text = str((parameters or {}).get("revision", ""))
+    if not re.fullmatch(r"[0-9]{1,5}", text) or int(text) < 1:
+        return unannounced
+    return min(int(text), highest)
 
 
 def coordinator_alive(mission: str) -> str:

@@ -9,6 +9,7 @@ Field types, units and meaning are documented on each dataclass and in docs/prot
 """
 from __future__ import annotations
 
+import contextvars
 import math
 from dataclasses import dataclass, field, fields
 from typing import Any, Callable
@@ -17,8 +18,24 @@ import msgpack
 
 from .keys import ID_PATTERN
 
-#: The protocol version this code speaks; messages with any other ``v`` are rejected.
+#: The protocol version this code speaks; messages with any other ``v`` are rejected. ``v``
+#: changes only for a change an older peer cannot be spared by negotiation (docs/protocol.md,
+#: "Compatibility"): a required field added, removed or changed in meaning or type, the envelope
+#: or an existing message's key changed.
 PROTOCOL_VERSION = 1
+
+#: The newest revision of version 1 this code speaks (docs/protocol.md, "Revisions"). A revision
+#: only adds optional fields and message types; each side learns the other's revision (Hello
+#: ``revision``, State ``revision``, the State query's ``revision`` parameter) and sends a peer
+#: only what the lower of the two revisions defines (:func:`encode`'s ``revision``).
+#: 1: the first published page (epochs, Own, Refusal, scoped State); 2: passenger types
+#: (Decision ``passengers``, Confirm ``passenger``); 3: revisions announced, every Hello answered
+#: (Accepted, Refusal reasons beyond the fingerprint), rejections visible in State.
+REVISION = 3
+
+#: What a peer that does not announce its revision speaks: revisions 1 and 2 did not announce
+#: theirs, and a revision-2 peer reads every message of revision 1.
+UNANNOUNCED_REVISION = 1
 
 #: Size limits (payload, stages, carriers, trail, coordinates, text): one home, shared with the
 #: scenario validation so that a valid scenario's messages always encode.
@@ -149,19 +166,27 @@ _MS = _float(0.0, 1e9)
 _NO_DEFAULT = object()
 
 
-def _spec(validator: Validator, as_map: bool = False, absent=_NO_DEFAULT):
+def _spec(validator: Validator, as_map: bool = False, absent=_NO_DEFAULT, since: int = 1):
     """A dataclass field carrying its wire validator in metadata; ``as_map``: a tuple of sorted
     (key, value) pairs in Python, a map on the wire. ``absent``: the field is optional on the wire
     and a missing one means this value; the encoder leaves it out when it has this value (so a
-    peer written before the field existed still reads every message that does not use it)."""
+    peer written before the field existed still reads every message that does not use it).
+    ``since``: the revision that added the field (docs/protocol.md, "Revisions"); only optional
+    fields are added by a revision, and the encoder leaves the field out for a peer of an
+    earlier revision."""
+    if since > 1 and absent is _NO_DEFAULT:
+        raise TypeError("a field added by a revision must be optional")
     if absent is _NO_DEFAULT:
-        return field(metadata={"check": validator, "as_map": as_map})
-    return field(default=absent, metadata={"check": validator, "as_map": as_map, "absent": absent})
+        return field(metadata={"check": validator, "as_map": as_map, "since": since})
+    return field(default=absent, metadata={"check": validator, "as_map": as_map, "absent": absent, "since": since})
 
 
 #: A coordinator's epoch (docs/protocol.md, "Epochs"): 1 for a fresh mission, higher after
 #: every restart or takeover; absent on the wire = 1.
 _EPOCH = _int(1, 2**31 - 1)
+
+#: A protocol revision a peer announces (docs/protocol.md, "Revisions"); absent on the wire = 1.
+_REVISION = _int(1, 2**16 - 1)
 
 
 # --------------------------------------------------------------------------- messages
@@ -180,6 +205,8 @@ class Hello:
             coordinator's, else the carrier built another world and is refused.
         epoch: the highest coordinator epoch the carrier has heard (1 when none; omitted on the
             wire when 1): a coordinator that has not decided yet takes a higher one.
+        revision: the newest protocol revision the carrier speaks (absent: 1; sent only to a
+            coordinator that announced revision 3 or later in its State).
     """
 
     mission: str = _spec(_ident)
@@ -190,6 +217,7 @@ class Hello:
     next_stage: int = _spec(_STAGE_COUNT)
     fingerprint: str = _spec(_text(64))
     epoch: int = _spec(_EPOCH, absent=1)
+    revision: int = _spec(_REVISION, absent=UNANNOUNCED_REVISION, since=3)
     v: int = PROTOCOL_VERSION
     TYPE = "hello"
 
@@ -243,7 +271,7 @@ class Decision:
     deploy: tuple[str, ...] = _spec(_unique_ids)
     planning_ms: float = _spec(_MS)
     epoch: int = _spec(_EPOCH, absent=1)
-    passengers: tuple[int, ...] = _spec(_list(_int(0, MAX_PASSENGERS - 1), MAX_CARRIERS), absent=())
+    passengers: tuple[int, ...] = _spec(_list(_int(0, MAX_PASSENGERS - 1), MAX_CARRIERS), absent=(), since=2)
     v: int = PROTOCOL_VERSION
     TYPE = "decision"
 
@@ -289,7 +317,7 @@ class Confirm:
     status: str = _spec(_text(16))
     position: tuple[float, float] = _spec(_point)
     passengers_left: int = _spec(_PASSENGERS)
-    passenger: int | None = _spec(_optional(_int(0, MAX_PASSENGERS - 1)), absent=None)
+    passenger: int | None = _spec(_optional(_int(0, MAX_PASSENGERS - 1)), absent=None, since=2)
     v: int = PROTOCOL_VERSION
     TYPE = "confirm"
 
@@ -420,6 +448,8 @@ class State:
         last_decision: the most recent Decision (None before stage 0 is decided).
         fingerprint: hex digest of the coordinator's scenario (see Hello).
         epoch: the answering coordinator's epoch (>= 1; omitted on the wire when 1).
+        revision: the newest protocol revision the coordinator speaks (absent: 1; left out of
+            the reply to a query that announced no revision 3 or later).
     """
 
     mission: str = _spec(_ident)
@@ -430,6 +460,7 @@ class State:
     carriers: tuple[tuple[str, CarrierState], ...] = _spec(lambda v, n: _carrier_states(v, n), as_map=True)
     last_decision: Decision | None = _spec(lambda v, n: None if v is None else _nested(Decision, v, n))
     epoch: int = _spec(_EPOCH, absent=1)
+    revision: int = _spec(_REVISION, absent=UNANNOUNCED_REVISION, since=3)
     v: int = PROTOCOL_VERSION
     TYPE = "state"
 
@@ -510,43 +541,61 @@ def scenario_fingerprint(scenario) -> str:
 
 # --------------------------------------------------------------------------- codec
 
-def _to_wire(value, as_map: bool = False):
-    """Dataclasses become maps (with ``type`` for messages); (key, value) pair tuples of fields
-    marked ``as_map`` become maps; other tuples become arrays."""
+def _on_wire(f, value, revision: int) -> bool:
+    """Whether field ``f`` with ``value`` is sent to a peer of ``revision``: not when the peer's
+    revision predates the field, nor when it has its ``absent`` value."""
+    if f.metadata.get("since", 1) > revision:
+        return False
+    return "absent" not in f.metadata or value != f.metadata["absent"]
+
+
+def _to_wire(value, as_map: bool = False, revision: int = REVISION):
+    """Dataclasses become maps (with ``type`` for messages) of the fields ``revision`` defines;
+    (key, value) pair tuples of fields marked ``as_map`` become maps; other tuples become arrays."""
     if hasattr(value, "__dataclass_fields__"):
-        out = {f.name: _to_wire(getattr(value, f.name), f.metadata.get("as_map", False)) for f in fields(value)
-               if "absent" not in f.metadata or getattr(value, f.name) != f.metadata["absent"]}
+        out = {f.name: _to_wire(getattr(value, f.name), f.metadata.get("as_map", False), revision)
+               for f in fields(value) if _on_wire(f, getattr(value, f.name), revision)}
         if hasattr(type(value), "TYPE"):
             out["type"] = type(value).TYPE
         return out
     if as_map:
-        return {k: _to_wire(v) for k, v in value}
+        return {k: _to_wire(v, revision=revision) for k, v in value}
     if isinstance(value, (tuple, list)):
-        return [_to_wire(v) for v in value]
+        return [_to_wire(v, revision=revision) for v in value]
     return value
 
 
-def encode(message) -> bytes:
+def encode(message, revision: int = REVISION) -> bytes:
     """Serialise one message dataclass to msgpack bytes (validated on the way out).
+
+    Args:
+        message: a message dataclass.
+        revision: the revision of the peer it is for (docs/protocol.md, "Revisions"): fields a
+            later revision added are left out (an optional field's absence has a documented
+            meaning in every revision), so that peer reads every byte of it.
 
     Raises:
         ProtocolError: if the message would not pass :func:`decode` (a bug in the sender).
+        ValueError: the message type does not exist in ``revision`` (a bug in the sender: it
+            must not send it to that peer).
     """
-    data = msgpack.packb(_to_wire(message), use_bin_type=True)
+    if getattr(type(message), "SINCE", 1) > revision:
+        raise ValueError(f"a {type(message).TYPE} message does not exist in revision {revision}")
+    data = msgpack.packb(_to_wire(message, revision=revision), use_bin_type=True)
     if len(data) > MAX_PAYLOAD_BYTES:
         raise ProtocolError("oversized", f"{len(data)} bytes > {MAX_PAYLOAD_BYTES}")
-    decode(data)  # what we send must pass our own receiver's checks
+    decode(data, revision=revision)  # what we send must pass the receiver's checks of its revision
     return data
 
 
-def _build(cls, data: dict, where: str):
-    names = {f.name for f in fields(cls)} - {"v"}
+def _build(cls, data: dict, where: str, revision: int = REVISION):
+    names = {f.name for f in fields(cls) if f.metadata.get("since", 1) <= revision} - {"v"}
     unknown = set(data) - names
     if unknown:
         raise ProtocolError("unknown-field", f"{where}: unexpected field {sorted(map(str, unknown))[0]!r}")
     values = {}
     for f in fields(cls):
-        if f.name == "v":
+        if f.name == "v" or f.name not in names:
             continue
         if f.name not in data:
             if "absent" in f.metadata:
@@ -563,7 +612,7 @@ def _nested(cls, value, name):
     if cls is not CarrierState:
         if data.pop("v", PROTOCOL_VERSION) != PROTOCOL_VERSION or data.pop("type", cls.TYPE) != cls.TYPE:
             raise ProtocolError("wrong-type", f"{name}: not a {cls.TYPE} message")
-    return _build(cls, data, name)
+    return _build(cls, data, name, _DECODING.get())
 
 
 def _carrier_states(value, name):
@@ -576,13 +625,20 @@ def _carrier_states(value, name):
     ))
 
 
-def decode(data: bytes, expected: type | tuple[type, ...] | None = None):
+#: The revision a :func:`decode` in progress reads (for the maps nested in a State).
+_DECODING: contextvars.ContextVar[int] = contextvars.ContextVar("decoding_revision", default=REVISION)
+
+
+def decode(data: bytes, expected: type | tuple[type, ...] | None = None, revision: int = REVISION):
     """Parse and validate one message.
 
     Args:
         data: the payload bytes.
         expected: message class(es) acceptable here; another valid type is rejected as
             ``unknown-type``.
+        revision: read as a receiver of this revision does (docs/protocol.md, "Revisions"): a
+            field or message type a later revision added is ``unknown-field`` /
+            ``unknown-type``. This code itself receives at :data:`REVISION`.
 
     Returns:
         A frozen message dataclass.
@@ -605,19 +661,24 @@ def decode(data: bytes, expected: type | tuple[type, ...] | None = None):
     version = raw.pop("v", None)
     if version is None:
         raise ProtocolError("missing-field", "missing field 'v'")
-    if version != PROTOCOL_VERSION or isinstance(version, bool):
+    if type(version) is not int or version != PROTOCOL_VERSION:  # 1.0 and true are not 1
         raise ProtocolError("version", f"unsupported protocol version {str(version)[:20]!r}, this is {PROTOCOL_VERSION}")
-    kind = raw.pop("type", None)
+    if "type" not in raw:
+        raise ProtocolError("missing-field", "missing field 'type'")
+    kind = raw.pop("type")
     cls = MESSAGE_TYPES.get(kind) if isinstance(kind, str) else None
-    if cls is None:
+    if cls is None or getattr(cls, "SINCE", 1) > revision:
         raise ProtocolError("unknown-type", f"unknown message type {str(kind)[:40]!r}")
     if expected is not None:
         allowed = expected if isinstance(expected, tuple) else (expected,)
         if cls not in allowed:
             raise ProtocolError("unknown-type", f"a {kind} message is not accepted here")
+    token = _DECODING.set(revision)
     try:
-        return _build(cls, raw, kind)
+        return _build(cls, raw, kind, revision)
     except ProtocolError:
         raise
     except Exception as exc:  # defensive: a validator bug must still not crash a node
         raise ProtocolError("malformed", f"{kind}: {type(exc).__name__}") from None
+    finally:
+        _DECODING.reset(token)

@@ -71,6 +71,9 @@ class Node:
         self._publishers: dict[str, Any] = {}
         self._quiet: list[Any] = []  # subscribers with a FIFO channel (subscribe(wake=False))
         self._lock = threading.Lock()
+        #: The protocol revision :meth:`put` encodes for (docs/protocol.md, "Revisions"): this
+        #: code's own until the node's owner learns its peer's.
+        self.revision = messages.REVISION
 
     # ------------------------------------------------------------------ declarations
     def subscribe(self, key_expr: str, wake: bool = True) -> None:
@@ -162,11 +165,13 @@ class Node:
         self._server.start()
 
     # ------------------------------------------------------------------ traffic
-    def put(self, key_expr: str, message) -> None:
+    def put(self, key_expr: str, message, revision: int | None = None) -> None:
         """Encode and publish one message: reliable, blocking congestion control. In zenoh-python
         1.x reliability is a property of a declared publisher (``Session.put`` has no
-        ``reliability`` option), so every key gets one publisher, declared on first use."""
-        data = messages.encode(message)
+        ``reliability`` option), so every key gets one publisher, declared on first use.
+        ``revision``: the protocol revision of its receivers (docs/protocol.md, "Revisions");
+        :attr:`revision` (the peer's, once learnt; this code's own by default) when None."""
+        data = messages.encode(message, self.revision if revision is None else revision)
         pub = self._publishers.get(key_expr)
         if pub is None:
             pub = self.session.declare_publisher(
