@@ -299,7 +299,7 @@ def _carrier_child() -> None:
 
 def run_coordinator(args, scenario, stop: threading.Event) -> int:
     from coordinator.node import Coordinator, CoordinatorConfig, DuplicateCoordinator
-    from coordinator.store import StoreBusy, StoreMismatch
+    from storage.missiondb import StoreBusy, StoreMismatch
     from mission.timeouts import DEFAULTS
 
     out = args.out or default_out(scenario)

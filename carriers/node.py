@@ -20,7 +20,7 @@ moves bytes. Per stage j (docs/protocol.md, "Stage handshake"):
    coordinator is absent and exits after ``coordinator_timeout_s``.
 
 Every observation and every outcome is written to the carrier's durable log
-(carriers/log.py, ``<out>/carriers/<id>.db``) before the carrier acts on it. Started with no
+(storage/carrierlog.py, ``<out>/carriers/<id>.db``) before the carrier acts on it. Started with no
 coordinator answering (decentralised, or a hybrid carrier whose coordinator is gone), a carrier
 resumes from its own log.
 
@@ -38,7 +38,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 import world
-from carriers.log import CarrierLog, LogMismatch, log_path
+from storage.carrierlog import CarrierLog, LogMismatch, log_path
 from mission import carrier as mc
 from mission.peers import PeerBook, listened
 from mission.timeouts import DEFAULTS
@@ -128,7 +128,7 @@ class CarrierConfig:
         join_timeout_s: decentralised: before the first stage, wait this long for every
             carrier's liveliness token.
         planner_options: options of the on-board planner (iterations, plan_ms).
-        log_sync: how the durable log commits (:data:`carriers.log.SYNC_MODES`).
+        log_sync: how the durable log commits (:data:`storage.carrierlog.SYNC_MODES`).
         onboard_load: when the on-board planner is loaded (:data:`ONBOARD_LOADS`; None: see there).
     """
 

@@ -40,7 +40,7 @@ from planner.registry import make_planner, planner_settings, used_options
 from planner.passengers import release
 from planner.problem import enforce, make_view, stage_rng
 from coordinator.results import render_map, write_json as _write_json
-from coordinator.store import MissionStore, StoreBusy
+from storage.missiondb import MissionStore, StoreBusy
 from mission import events as ev
 from mission import state as ms
 from mission.summary import RunInfo, summary as mission_summary

@@ -2,7 +2,7 @@
 in DIR, so a mission whose coordinator died still gets them (docs/fleet.md, "Report").
 
 Reads DIR/mission.db (the coordinator's events, if present) and every carrier log
-DIR/carriers/*.db (carriers/log.py), merges them with the live coordinator's fold
+DIR/carriers/*.db (storage/carrierlog.py), merges them with the live coordinator's fold
 (:func:`mission.report.merge`) and writes DIR/summary.json (``mission.summary.summary``, the
 coordinator's function, annotated with where each deployment came from), DIR/merged_log.jsonl
 and DIR/map.png (coordinator/results.py, the coordinator's drawing). A summary.json the
@@ -102,8 +102,8 @@ def read_inputs(out: Path, scenario, mission: str, fingerprint: str, spec_carrie
         ReportError: no results directory, nothing to read, an unreadable file, or a mission.db
             of another mission.
     """
-    from carriers.log import read_log
-    from coordinator.store import load_events, load_meta
+    from storage.carrierlog import read_log
+    from storage.missiondb import load_events, load_meta
 
     if not out.is_dir():
         raise ReportError(f"{out}: no such results directory")
@@ -198,7 +198,7 @@ def run_report(scenario, out, mission: str | None = None, seed: int | None = Non
         data["clairvoyant"] = reuse  # a function of the observations alone, computed already
     data = annotate(data, merged)
     if events is not None:  # the epoch of the last coordinator on record, as its own summary says
-        from coordinator.store import highest_epoch
+        from storage.missiondb import highest_epoch
 
         data["epoch"] = highest_epoch(out / "mission.db")
     data["report"] = {

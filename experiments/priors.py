@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.report import STYLE, read_csv, sem, variant_bars, write_csv
-from experiments.trials import Task
+from experiments.report import STYLE, planner_order, read_csv, sem, variant_bars, write_csv
+from experiments.trials import Sweep, Task, replace_prior, urban_trial
 
 ROOT = Path(__file__).resolve().parent.parent
 #: (label, scenario file, factor on the stated prior's mean).
@@ -59,6 +59,35 @@ def oracle_prior(mean: float, var: float):
     if var <= mean:
         return scipy.stats.poisson(mean)
     return scipy.stats.nbinom(mean * mean / (var - mean), mean / var)
+
+
+def trial(task: Task):
+    """The urban-style world trial with the task's prior variant: the stated prior (the scenario's,
+    its Poisson mean scaled by ``prior_factor``) for ``stated`` and ``learned``, the oracle for
+    ``oracle``; every variant keeps the stated prior's normalisation scale."""
+    import scipy.stats
+
+    problem, x, planner_seed, extra = urban_trial(task)
+    if task.prior_factor != 1.0:
+        stated = problem.prior
+        if getattr(stated.dist, "name", None) != "poisson":
+            raise ValueError(f"prior_factor needs a Poisson stated prior, found {stated.dist.name}")
+        problem = replace_prior(problem, scipy.stats.poisson(float(stated.mean()) * task.prior_factor))
+    extra = {**extra, "scale": problem.scale, "stated_mean": float(problem.prior.mean()),
+             "oracle_mean": task.oracle[0], "oracle_var": task.oracle[1]}
+    if task.variant == "oracle":
+        problem = replace_prior(problem, oracle_prior(*task.oracle), problem.scale)
+    return problem, x, planner_seed, extra
+
+
+def columns(task: Task, extra: dict, result) -> dict:
+    """The priors sweep's own columns of a result row."""
+    return dict(case=CASES[task.level][0], variant=task.variant,
+                **{k: extra[k] for k in ("scale", "stated_mean", "oracle_mean", "oracle_var")})
+
+
+#: How experiments.trials.run_trial runs this sweep's tasks.
+SWEEP = Sweep(trial, columns)
 
 
 def build_tasks(settings: dict) -> list[Task]:
@@ -99,7 +128,7 @@ def summarise(rows: list[dict]) -> list[dict]:
         if all(v in d for v in VARIANTS):
             groups[(level, planner)].append(d)
     out = []
-    for (level, planner), ds in sorted(groups.items(), key=lambda kv: (kv[0][0], _order(kv[0][1]))):
+    for (level, planner), ds in sorted(groups.items(), key=lambda kv: (kv[0][0], planner_order(kv[0][1]))):
         row = {"level": level, "case": CASES[level][0], "planner": planner, "n": len(ds)}
         vals = {v: np.array([d[v]["reward"] for d in ds]) for v in VARIANTS}
         for v in VARIANTS:
@@ -115,11 +144,6 @@ def summarise(rows: list[dict]) -> list[dict]:
         row["decision_ms_stated"] = float(np.mean([d["stated"]["decision_ms_mean"] for d in ds]))
         out.append(row)
     return out
-
-
-def _order(planner: str) -> int:
-    names = list(STYLE)
-    return names.index(planner) if planner in names else len(names)
 
 
 SUMMARY_FIELDS = ("case", "planner", "n", "stated_mean", "stated_sem", "learned_mean", "learned_sem", "oracle_mean",
@@ -185,7 +209,6 @@ def ablate_weight(planner: str, trials: int, weights: tuple[float, ...], seed: i
     """Learned/oracle and learned/stated reward ratios of ``planner`` for each prior weight n0
     (planner.learning.PRIOR_WEIGHT candidates), on world seeds of root seed ``seed`` (the sweep
     uses 0: use another to choose n0 on seeds the sweep does not score). One line per case."""
-    from experiments.trials import trial_instance
     from planner.learning import LearnedPriorPlanner
     from planner.online import run_online
     from planner.registry import make_planner
@@ -202,8 +225,8 @@ def ablate_weight(planner: str, trials: int, weights: tuple[float, ...], seed: i
                 return Task("priors", level, t, planner, seed, iterations, scenario=str(ROOT / path),
                             variant=variant, prior_factor=factor, oracle=moments[path])
 
-            problem, x, planner_seed, _ = trial_instance(task("stated"))
-            oracle_problem = trial_instance(task("oracle"))[0]
+            problem, x, planner_seed, _ = trial(task("stated"))
+            oracle_problem = trial(task("oracle"))[0]
             stated.append(run_online(problem, x, inner, planner_seed).reward)
             oracle.append(run_online(oracle_problem, x, inner, planner_seed).reward)
             for w in weights:

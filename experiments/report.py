@@ -68,7 +68,7 @@ def read_csv(path: Path, ints=(), floats=()) -> list[dict]:
 
 
 def write_trials(rows: list[dict], path: Path) -> None:
-    write_csv(sorted(rows, key=lambda r: (r["sweep"], r["level"], r["trial"], _order(r["planner"]))), path,
+    write_csv(sorted(rows, key=lambda r: (r["sweep"], r["level"], r["trial"], planner_order(r["planner"]))), path,
               TRIAL_FIELDS)
 
 
@@ -82,7 +82,9 @@ def _fmt(v):
     return f"{v:.6g}" if isinstance(v, float) else v
 
 
-def _order(name: str) -> int:
+def planner_order(name: str) -> int:
+    """Sort key of a planner name: the order of :data:`STYLE` (unknown names last); every table
+    and plot of the experiments lists planners in it."""
     names = list(STYLE)
     return names.index(name) if name in names else len(names)
 
@@ -94,7 +96,7 @@ def summarise(rows: list[dict]) -> list[dict]:
     for r in rows:
         groups[(r["sweep"], r["level"], r["planner"])].append(r)
     out = []
-    for (sweep, level, planner), rs in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1], _order(kv[0][2]))):
+    for (sweep, level, planner), rs in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1], planner_order(kv[0][2]))):
         rewards = [r["reward"] for r in rs]
         features = [r["features"] for r in rs]
         fractions = []
@@ -141,7 +143,7 @@ def paired(rows: list[dict], a: str, b: str) -> dict:
 
 def markdown_table(summary: list[dict], level_name: str, features: bool = False) -> str:
     """A Markdown table: one row per level, one column per planner (mean ± SEM, fraction of bound)."""
-    planners = sorted({r["planner"] for r in summary}, key=_order)
+    planners = sorted({r["planner"] for r in summary}, key=planner_order)
     levels = sorted({r["level"] for r in summary})
     cell = {(r["level"], r["planner"]): r for r in summary}
     head = f"| {level_name} | " + " | ".join(STYLE.get(p, (p,))[0] for p in planners) + " |"
@@ -167,7 +169,7 @@ def markdown_table(summary: list[dict], level_name: str, features: bool = False)
 
 def timing_table(summary: list[dict], level_name: str) -> str:
     """Markdown: mean decision time per stage (ms) of each planner per level (noisy: shared cores)."""
-    planners = [p for p in sorted({r["planner"] for r in summary}, key=_order) if p != CLAIRVOYANT]
+    planners = [p for p in sorted({r["planner"] for r in summary}, key=planner_order) if p != CLAIRVOYANT]
     cell = {(r["level"], r["planner"]): r for r in summary}
     lines = [f"| {level_name} | " + " | ".join(STYLE.get(p, (p,))[0] for p in planners) + " |",
              "|" + "---|" * (len(planners) + 1)]
@@ -207,7 +209,7 @@ def plot(summary: list[dict], path: Path, xlabel: str, title: str, log_x: bool =
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    planners = sorted({r["planner"] for r in summary}, key=_order)
+    planners = sorted({r["planner"] for r in summary}, key=planner_order)
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.6))
     for p in planners:
         rs = sorted((r for r in summary if r["planner"] == p), key=lambda r: r["level"])

@@ -38,8 +38,8 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
 from pathlib import Path
 
-from experiments import report
-from experiments.trials import CLAIRVOYANT, Task, decode, run_task, warm_up_worker
+from experiments import priors, report, types
+from experiments.trials import CLAIRVOYANT, Sweep, Task, decode, run_trial, urban_trial, warm_up_worker
 from planner.settings import DEFAULT_ITERATIONS
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -59,6 +59,20 @@ COMMS_CONFIGS = (("comms-r4", 4, 20), ("comms-r6", 6, 10))
 COMMS_PLANNERS = ("dec-closed-loop", "dec-mcts", "closed-loop", "mcts-ssap", "ssap")
 #: The paper's Urban Circuit result (features captured): MCTS-SSAP, SSAP, MCTS-Random, Random.
 PAPER_URBAN = {"mcts-ssap": 157, "ssap": 122, "mcts-random": 114, "random": 68}
+
+
+#: How each sweep's tasks run (experiments.trials.run_trial): its trial builder and hooks.
+SWEEPS: dict[str, Sweep] = {
+    "overlap": Sweep(), "scaling": Sweep(), "urban": Sweep(urban_trial),
+    **{name: Sweep(comms=True) for name, _, _ in COMMS_CONFIGS},
+    "priors": priors.SWEEP, "types": types.SWEEP,
+}
+
+
+def run_task(task: Task) -> dict:
+    """Run one task (in this process or a worker): :func:`experiments.trials.run_trial` with the
+    task's sweep from :data:`SWEEPS`."""
+    return run_trial(task, SWEEPS[task.sweep])
 
 
 #: Default output of --quick runs (never the committed results).
@@ -141,13 +155,9 @@ def _settings(args) -> dict:
         args.planners = ",".join(COMMS_PLANNERS if args.what == "comms" else DEFAULT_PLANNERS)
     planners = tuple(p.strip() for p in args.planners.split(",") if p.strip())
     if args.what == "priors" and args.planners == ",".join(DEFAULT_PLANNERS):
-        from experiments.priors import DEFAULT_PLANNERS as PRIORS_PLANNERS
-
-        planners = PRIORS_PLANNERS
+        planners = priors.DEFAULT_PLANNERS
     if args.what == "types" and args.planners == ",".join(DEFAULT_PLANNERS):
-        from experiments.types import DEFAULT_PLANNERS as TYPES_PLANNERS
-
-        planners = TYPES_PLANNERS
+        planners = types.DEFAULT_PLANNERS
     if args.losses:
         try:
             losses = tuple(float(v) for v in args.losses.split(",") if v.strip())
@@ -172,12 +182,8 @@ def _settings(args) -> dict:
 def build_tasks(sweep: str, s: dict, args) -> list[Task]:
     """Every (level, trial, planner) task of a sweep; the clairvoyant bound is one more 'planner'."""
     if sweep == "priors":
-        from experiments import priors
-
         return priors.build_tasks(s)
     if sweep == "types":
-        from experiments import types
-
         return types.build_tasks(s)
     names = (*s["planners"], CLAIRVOYANT)
     tasks = []
@@ -264,12 +270,8 @@ def cluster_executor(address: str, timeout_s: float, planners: tuple[str, ...] |
 
 def _write_sweep(sweep: str, rows: list[dict], out: Path, seconds: float, jobs: int, s: dict, args) -> dict:
     if sweep == "priors":
-        from experiments import priors
-
         return priors.write(rows, out, s, seconds, jobs)
     if sweep == "types":
-        from experiments import types
-
         return types.write(rows, out, s, seconds, jobs)
     report.write_trials(rows, out / f"{sweep}_trials.csv")
     summary = report.summarise(rows)
@@ -303,7 +305,7 @@ def _write_sweep(sweep: str, rows: list[dict], out: Path, seconds: float, jobs: 
     for r in rows:
         cpu[r["planner"]] = cpu.get(r["planner"], 0.0) + float(r["wall_s"])
     timing = {"sweep": sweep, "seconds": round(seconds, 1), "tasks": len(rows), "jobs": jobs,
-              "worker_seconds": {k: round(v, 1) for k, v in sorted(cpu.items(), key=lambda kv: report._order(kv[0]))}}
+              "worker_seconds": {k: round(v, 1) for k, v in sorted(cpu.items(), key=lambda kv: report.planner_order(kv[0]))}}
     text += ["", f"Wall time: {seconds:.1f} s with {jobs} worker process(es) for {len(rows)} tasks. "
              "Worker seconds per planner (sum of task run times): "
              + ", ".join(f"{report.STYLE.get(k, (k,))[0]} {v:.0f} s" for k, v in timing["worker_seconds"].items()) + "."]
@@ -319,7 +321,7 @@ def _urban_report(rows, summary, out: Path, s: dict, args) -> list[str]:
     trace = world.simulate_mission(scenario)
     n_carriers, n_stages = scenario.n_carriers, scenario.stages
     maps = []
-    for r in sorted((r for r in rows if r["trial"] == 0), key=lambda r: report._order(r["planner"])):
+    for r in sorted((r for r in rows if r["trial"] == 0), key=lambda r: report.planner_order(r["planner"])):
         deployed = decode(r["deployed"], n_carriers, n_stages)
         name = f"urban_map_{r['planner']}.png"
         label = report.STYLE.get(r["planner"], (r["planner"],))[0]
@@ -339,7 +341,7 @@ def _urban_report(rows, summary, out: Path, s: dict, args) -> list[str]:
     seeds_label = lambda _level: f"all {s['urban_trials']}"  # noqa: E731
     base_ssap = np.mean(feats.get("ssap", [np.nan]))
     base_rand = np.mean(feats.get("random", [np.nan]))
-    for p in sorted(feats, key=report._order):
+    for p in sorted(feats, key=report.planner_order):
         v = np.asarray(feats[p])
         paper = PAPER_URBAN.get(p)
         r_ssap = (f"{v.mean() / base_ssap:.2f}" if np.isfinite(base_ssap) else "–") + (
@@ -415,12 +417,8 @@ def main(argv=None) -> int:
                       f"{info_path}, found none", file=sys.stderr)
                 return 2
             if sweep == "priors":
-                from experiments import priors
-
                 rows = priors.read_trials(path)
             elif sweep == "types":
-                from experiments import types
-
                 rows = types.read_trials(path)
             else:
                 rows = report.read_trials(path)

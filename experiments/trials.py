@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -77,24 +78,20 @@ class Task:
 # ----------------------------------------------------------------------------- instances
 
 
-def trial_instance(task: Task):
-    """``(problem, observations, planner_seed, extra)`` of the task's trial (same for every planner)."""
-    if task.sweep == "urban":
-        return _urban_instance(task)
-    if task.sweep == "priors":
-        return _priors_instance(task)
-    if task.sweep == "types":
-        return _types_instance(task)
-    # Comms sweeps: trial t is the same instance at every message-loss level (paired across P).
+def random_trial(task: Task):
+    """``(problem, observations, planner_seed, extra)`` of a random-instance trial (the overlap,
+    scaling and comms sweeps; the same for every planner). Comms sweeps: trial t is the same
+    instance at every message-loss level (paired across P)."""
     from planner.instance import random_instance
 
     rng = np.random.default_rng(np.random.SeedSequence(task.seed, spawn_key=(1000, task.trial)))
     inst = random_instance(rng, task.carriers, task.passengers, task.stages, task.overlaps, task.mean)
-    planner_seed = _seed_of(task.seed, (1000, task.trial, 1))
+    planner_seed = seed_of(task.seed, (1000, task.trial, 1))
     return inst.problem, inst.observations, planner_seed, {}
 
 
-def _seed_of(seed: int, key: tuple[int, ...]) -> int:
+def seed_of(seed: int, key: tuple[int, ...]) -> int:
+    """The 32-bit seed of stream ``SeedSequence(seed, spawn_key=key)``."""
     return int(np.random.SeedSequence(seed, spawn_key=key).generate_state(1, np.uint32)[0])
 
 
@@ -103,10 +100,11 @@ _WORLD_CACHE: dict = {}
 
 def urban_world_seed(seed: int, trial: int) -> int:
     """World (feature) seed of urban trial ``trial``."""
-    return _seed_of(seed, (1001, trial))
+    return seed_of(seed, (1001, trial))
 
 
-def _urban_instance(task: Task):
+def urban_trial(task: Task):
+    """``(problem, observations, planner_seed, extra)`` of an urban (world scenario) trial."""
     import world
 
     key = task.scenario
@@ -117,50 +115,11 @@ def _urban_instance(task: Task):
     scenario, problem = _WORLD_CACHE[key]
     world_seed = scenario.seed if task.trial == 0 else urban_world_seed(task.seed, task.trial)
     x = world.observe_all(scenario, seed=world_seed)
-    return problem, x, _seed_of(task.seed, (1001, task.trial, 1)), {"world_seed": world_seed}
+    return problem, x, seed_of(task.seed, (1001, task.trial, 1)), {"world_seed": world_seed}
 
 
-def _priors_instance(task: Task):
-    """The urban-style world trial with the task's prior variant: the stated prior (the scenario's,
-    its Poisson mean scaled by ``prior_factor``) for ``stated`` and ``learned``, the oracle for
-    ``oracle``; every variant keeps the stated prior's normalisation scale."""
-    import scipy.stats
-
-    from experiments.priors import oracle_prior
-
-    problem, x, planner_seed, extra = _urban_instance(task)
-    if task.prior_factor != 1.0:
-        stated = problem.prior
-        if getattr(stated.dist, "name", None) != "poisson":
-            raise ValueError(f"prior_factor needs a Poisson stated prior, found {stated.dist.name}")
-        problem = _replace_prior(problem, scipy.stats.poisson(float(stated.mean()) * task.prior_factor))
-    extra = {**extra, "scale": problem.scale, "stated_mean": float(problem.prior.mean()),
-             "oracle_mean": task.oracle[0], "oracle_var": task.oracle[1]}
-    if task.variant == "oracle":
-        problem = _replace_prior(problem, oracle_prior(*task.oracle), problem.scale)
-    return problem, x, planner_seed, extra
-
-
-def _types_instance(task: Task):
-    """A trial of the passenger-types sweep (experiments.types): the random or urban instance with
-    every carrier's passenger values."""
-    from experiments.types import fleet_values
-    from planner.instance import random_instance
-    from planner.problem import Problem
-
-    if task.scenario:
-        problem, x, planner_seed, extra = _urban_instance(task)
-        if problem.weights is None:  # a scenario without passenger types: the sweep's two types
-            problem = Problem.build(problem.passengers, problem.valid, problem.overlaps, problem.prior,
-                                    weights=fleet_values(problem.passengers))
-        return problem, x, planner_seed, extra
-    rng = np.random.default_rng(np.random.SeedSequence(task.seed, spawn_key=(1000, task.trial)))
-    inst = random_instance(rng, task.carriers, task.passengers, task.stages, task.overlaps, task.mean,
-                           weights=fleet_values([task.passengers] * task.carriers))
-    return inst.problem, inst.observations, _seed_of(task.seed, (1000, task.trial, 1)), {}
-
-
-def _replace_prior(problem, prior, scale=None):
+def replace_prior(problem, prior, scale=None):
+    """The problem with another prior (normalised by its q90, or by ``scale``)."""
     from planner.problem import Problem
 
     return Problem.build(problem.passengers, problem.valid, problem.overlaps, prior,
@@ -181,73 +140,77 @@ def _planner(name: str, iterations: int, learn_prior: bool = False):
     return _PLANNERS[key]
 
 
-def run_task(task: Task) -> dict:
-    """Run one task; returns one result row (a flat dict, see :data:`experiments.report.TRIAL_FIELDS`)."""
+@dataclass(frozen=True)
+class Sweep:
+    """How :func:`run_trial` runs the tasks of one sweep. The hooks are module-level functions, so
+    a sweep pickles (by reference) to ``spawn`` and cluster workers with its task.
+
+    Attributes:
+        instance: the trial builder, ``task -> (problem, observations, planner_seed, extra)``.
+        columns: the sweep's own columns of a result row, ``(task, extra, result) -> dict``.
+        wrap: ``(task, planner) -> planner``: the planner variant a task runs.
+        comms: run under the task's communication model (``loss``, ``delay``) with ``run_comms``.
+    """
+
+    instance: Callable = random_trial
+    columns: Callable | None = None
+    wrap: Callable | None = None
+    comms: bool = False
+
+
+def run_trial(task: Task, sweep: Sweep = Sweep()) -> dict:
+    """Run one task of ``sweep``; returns one result row (a flat dict, see
+    :data:`experiments.report.TRIAL_FIELDS`). ``experiments.run.run_task`` picks the sweep."""
     from planner import clairvoyant
     from planner.online import run_online
 
-    problem, x, planner_seed, extra = trial_instance(task)
+    problem, x, planner_seed, extra = sweep.instance(task)
     row = {
         "sweep": task.sweep, "level": task.level, "trial": task.trial, "planner": task.planner,
         "carriers": problem.n_carriers, "passengers": int(problem.passengers.max()),
         "stages": problem.n_stages, "overlaps": len(problem.overlaps), "iterations": task.iterations,
         "seed": task.seed, "planner_seed": planner_seed, "world_seed": extra.get("world_seed", ""),
     }
-    if task.sweep == "priors":
-        from experiments.priors import CASES
-
-        row.update(case=CASES[task.level][0], variant=task.variant, **{k: extra[k] for k in (
-            "scale", "stated_mean", "oracle_mean", "oracle_var")})
     t0 = time.perf_counter()
     if task.planner == CLAIRVOYANT:
         result = clairvoyant.solve(problem, x)
         elapsed = time.perf_counter() - t0
         row.update(reward=result.reward, features=result.features, exact=int(result.exact),
                    decision_ms_mean=elapsed * 1e3, decision_ms_max=elapsed * 1e3, wall_s=elapsed,
-                   deployed=_encode(result.deployed))
-        if task.sweep == "types":
-            row.update(case=_types_case(task), variant=task.variant, released=_encode_released(result.released))
-        return row
-    planner = _planner(task.planner, task.iterations, task.variant == "learned")
-    if task.sweep == "types" and task.variant in ("blind", "choice"):
-        from planner.passengers import TypeBlind, UnweightedSearch
-
-        planner = (TypeBlind if task.variant == "blind" else UnweightedSearch)(planner)
-    if task.sweep.startswith("comms"):
-        from planner.comms import CommsSpec
-        from planner.decentralised import run_comms
-
-        result = run_comms(problem, x, planner, planner_seed, CommsSpec(task.loss, task.delay))
+                   deployed=encode(result.deployed))
     else:
-        result = run_online(problem, x, planner, planner_seed)
-    elapsed = time.perf_counter() - t0
-    ms = np.asarray(result.decision_ms)
-    row.update(reward=result.reward, features=result.features, exact="",
-               decision_ms_mean=float(ms.mean()), decision_ms_max=float(ms.max()), wall_s=elapsed,
-               deployed=_encode(result.deployed))
-    if task.sweep == "types":
-        row.update(case=_types_case(task), variant=task.variant, released=_encode_released(result.released))
+        planner = _planner(task.planner, task.iterations, task.variant == "learned")
+        if sweep.wrap is not None:
+            planner = sweep.wrap(task, planner)
+        if sweep.comms:
+            from planner.comms import CommsSpec
+            from planner.decentralised import run_comms
+
+            result = run_comms(problem, x, planner, planner_seed, CommsSpec(task.loss, task.delay))
+        else:
+            result = run_online(problem, x, planner, planner_seed)
+        elapsed = time.perf_counter() - t0
+        ms = np.asarray(result.decision_ms)
+        row.update(reward=result.reward, features=result.features, exact="",
+                   decision_ms_mean=float(ms.mean()), decision_ms_max=float(ms.max()), wall_s=elapsed,
+                   deployed=encode(result.deployed))
+    if sweep.columns is not None:
+        row.update(sweep.columns(task, extra, result))
     return row
 
 
-def _types_case(task: Task) -> str:
-    from experiments.types import CASES
-
-    return CASES[task.level][0]
-
-
-def _encode_released(released: np.ndarray) -> str:
+def encode_released(released: np.ndarray) -> str:
     """Passenger index of each deployment in stage order (carriers separated by ``|``)."""
     return "|".join(" ".join(str(int(i)) for i in row if i >= 0) for row in np.asarray(released))
 
 
-def _encode(deployed: np.ndarray) -> str:
+def encode(deployed: np.ndarray) -> str:
     """Deployments as ``stage stage|stage ...`` (carriers separated by ``|``), for the CSV."""
     return "|".join(" ".join(str(j) for j in np.flatnonzero(row)) for row in np.asarray(deployed))
 
 
 def decode(text: str, n_carriers: int, n_stages: int) -> np.ndarray:
-    """Inverse of :func:`_encode`: bool ``[R, N]``."""
+    """Inverse of :func:`encode`: bool ``[R, N]``."""
     out = np.zeros((n_carriers, n_stages), dtype=bool)
     for r, part in enumerate(str(text).split("|")):
         for j in part.split():

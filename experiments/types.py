@@ -32,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.report import STYLE, read_csv, sem, variant_bars, write_csv
-from experiments.trials import CLAIRVOYANT, Task
+from experiments.report import STYLE, planner_order, read_csv, sem, variant_bars, write_csv
+from experiments.trials import CLAIRVOYANT, Sweep, Task, encode_released, seed_of, urban_trial
 
 ROOT = Path(__file__).resolve().parent.parent
 SCOUT, ROVER = 1.0, 0.4
@@ -54,6 +54,42 @@ def fleet_values(passengers) -> tuple[tuple[float, ...], ...]:
             row[0 if r % 2 == 0 else -1] = SCOUT
         out.append(tuple(row))
     return tuple(out)
+
+
+def trial(task: Task):
+    """A trial of the passenger-types sweep: the random or urban instance with every carrier's
+    passenger values."""
+    from planner.instance import random_instance
+    from planner.problem import Problem
+
+    if task.scenario:
+        problem, x, planner_seed, extra = urban_trial(task)
+        if problem.weights is None:  # a scenario without passenger types: the sweep's two types
+            problem = Problem.build(problem.passengers, problem.valid, problem.overlaps, problem.prior,
+                                    weights=fleet_values(problem.passengers))
+        return problem, x, planner_seed, extra
+    rng = np.random.default_rng(np.random.SeedSequence(task.seed, spawn_key=(1000, task.trial)))
+    inst = random_instance(rng, task.carriers, task.passengers, task.stages, task.overlaps, task.mean,
+                           weights=fleet_values([task.passengers] * task.carriers))
+    return inst.problem, inst.observations, seed_of(task.seed, (1000, task.trial, 1)), {}
+
+
+def columns(task: Task, extra: dict, result) -> dict:
+    """The types sweep's own columns of a result row."""
+    return dict(case=CASES[task.level][0], variant=task.variant, released=encode_released(result.released))
+
+
+def wrap(task: Task, planner):
+    """The task's variant of ``planner``: type-blind, or searching as if unweighted (``choice``)."""
+    if task.variant not in ("blind", "choice"):
+        return planner
+    from planner.passengers import TypeBlind, UnweightedSearch
+
+    return (TypeBlind if task.variant == "blind" else UnweightedSearch)(planner)
+
+
+#: How experiments.trials.run_trial runs this sweep's tasks.
+SWEEP = Sweep(trial, columns, wrap)
 
 
 def build_tasks(settings: dict) -> list[Task]:
@@ -78,16 +114,11 @@ FIELDS = ("case", "level", "trial", "planner", "variant", "reward", "features", 
 
 
 def write_trials(rows: list[dict], path: Path) -> None:
-    write_csv(sorted(rows, key=lambda r: (r["level"], r["trial"], _order(r["planner"]), r["variant"])), path, FIELDS)
+    write_csv(sorted(rows, key=lambda r: (r["level"], r["trial"], planner_order(r["planner"]), r["variant"])), path, FIELDS)
 
 
 def read_trials(path: Path) -> list[dict]:
     return read_csv(path, ("level", "trial", "iterations"), ("reward", "features", "decision_ms_mean", "wall_s"))
-
-
-def _order(planner: str) -> int:
-    names = list(STYLE)
-    return names.index(planner) if planner in names else len(names)
 
 
 def summarise(rows: list[dict]) -> list[dict]:
@@ -106,7 +137,7 @@ def summarise(rows: list[dict]) -> list[dict]:
         if all(v in d for v in VARIANTS):
             groups[(level, planner)].append((trial, d))
     out = []
-    for (level, planner), items in sorted(groups.items(), key=lambda kv: (kv[0][0], _order(kv[0][1]))):
+    for (level, planner), items in sorted(groups.items(), key=lambda kv: (kv[0][0], planner_order(kv[0][1]))):
         aware = np.array([d["aware"] for _, d in items])
         choice = np.array([d["choice"] for _, d in items])
         blind = np.array([d["blind"] for _, d in items])

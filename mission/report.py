@@ -1,7 +1,7 @@
 """PURE: a mission's results from whatever logs exist (``run_fleet.py --role report``).
 
 The coordinator's events (mission.db, when there is one) and the carriers' own stage logs
-(carriers/log.py, one per carrier) are merged with the fold the live coordinator uses
+(storage/carrierlog.py, one per carrier) are merged with the fold the live coordinator uses
 (:func:`mission.state.step`), so the merged :class:`~mission.state.MissionState` is the one a
 coordinator would have reached had it received every carrier's account itself:
 
@@ -26,7 +26,7 @@ No passenger is counted twice: the state keeps at most one record per (carrier, 
 Confirm and an account of the same stage must agree (else the second is a conflict), and a
 carrier's counted deployments never exceed its passengers.
 
-Log entries are ``carriers.log.LogEntry`` values (or anything with their fields: ``stage``,
+Log entries are ``storage.carrierlog.LogEntry`` values (or anything with their fields: ``stage``,
 ``t``, ``x``, ``observed``, ``position``, ``status``, ``deployed``, ``passengers_left``); this
 module reads no file.
 """
@@ -40,7 +40,7 @@ from functools import cached_property
 from . import events as ev
 from .state import MissionSpec, MissionState, Reject, fold, step
 
-#: The log status of a stage a carrier decided itself (carriers/log.py).
+#: The log status of a stage a carrier decided itself (storage/carrierlog.py).
 OWN = "own"
 #: Who decided a stage, as the merged log and summary.json say it.
 BY_COORDINATOR, BY_CARRIER = "coordinator", "carrier"
@@ -200,7 +200,7 @@ class Merged:
 
 
 def merge(spec: MissionSpec, events=(), logs=(), db_source: str | None = "mission.db") -> Merged:
-    """Merge mission.db's ``events`` (``coordinator.store.load_events``; empty when there is no
+    """Merge mission.db's ``events`` (``storage.missiondb.load_events``; empty when there is no
     mission.db, then pass ``db_source=None``) with the carriers' ``logs``
     (:class:`CarrierRecord`, any order) into one mission state (module docstring).
 

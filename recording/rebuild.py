@@ -1,6 +1,6 @@
 """Rebuild mission.mcap from a results directory (for missions recorded without it, or to redo it).
 
-Sources: the mission events of mission.db (coordinator/store.py ``load_events``: observations,
+Sources: the mission events of mission.db (storage/missiondb.py ``load_events``: observations,
 decisions, confirmations, liveliness, Hellos, Byes, the end — exactly what the live recorder
 was fed), and the carriers' poses from the scenario's deterministic trajectories
 (``world.simulate_mission``: a carrier's path depends only on the scenario and its id), one per
@@ -37,16 +37,6 @@ def _scenario_path(run_dir: Path, summary: dict, given: str | None) -> Path:
                             "pass --scenario FILE")
 
 
-def _meta(db: Path) -> dict:
-    import sqlite3
-
-    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
-    try:
-        return {k: json.loads(v) for k, v in con.execute("SELECT key, value FROM meta")}
-    finally:
-        con.close()
-
-
 def _event_time(event, stage_times) -> float | None:
     if isinstance(event, ev.Observation):
         return float(event.t)
@@ -63,7 +53,7 @@ def rebuild(run_dir, scenario_path: str | None = None, out: str | None = None, p
     """
     import world
     from world import build_problem
-    from coordinator.store import load_events
+    from storage.missiondb import load_events, load_meta
     from recording.mcap import McapRecorder
     from wire.messages import Pose
     from world.scene import build_scene
@@ -74,7 +64,7 @@ def rebuild(run_dir, scenario_path: str | None = None, out: str | None = None, p
         raise FileNotFoundError(f"{db}: no mission log")
     summary_file = run_dir / "summary.json"
     summary = json.loads(summary_file.read_text()) if summary_file.is_file() else {}
-    meta = _meta(db)
+    meta = load_meta(db)
     summary.setdefault("scenario", meta.get("scenario"))
     scenario = world.load_scenario(_scenario_path(run_dir, summary, scenario_path))
     seed = meta.get("seed", summary.get("seed"))

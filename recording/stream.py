@@ -8,7 +8,7 @@ mission.db show the same thing:
 * :func:`feed_message` — a decoded wire message (wire.messages: Hello, Observation, Decision,
   Confirm, Pose, End, Bye), as a viewer receives it;
 * :func:`feed_event` — a mission event (mission.events), as the coordinator records it and
-  coordinator/store.py loads it back.
+  storage/missiondb.py loads it back.
 
 Messages without a time of their own (Hello, Confirm, Bye, End, liveliness) are stamped with the
 time of their stage or, failing that, the latest simulated time seen (:class:`Clock`).

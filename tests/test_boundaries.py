@@ -1,11 +1,16 @@
 """Import boundaries: planner/ uses numpy/scipy/numba only (every module of it, no exclusions);
 world/ never imports coordinator/ or carriers/. Checked twice: by importing in a fresh interpreter, and statically over every import
-statement (so a lazy import inside a function cannot slip through)."""
+statement (so a lazy import inside a function cannot slip through).
+
+The project's module graph, built by ``ast`` from every import statement (function bodies
+included), has no cycle (every strongly connected component is one module) and follows the layers
+of docs/architecture.md, read from that file."""
 from __future__ import annotations
 
 import ast
 import json
 import pkgutil
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -122,4 +127,159 @@ def test_priors_table_is_pure():
     path = REPO / "planner" / "priors.py"
     bad = [f"{line}: {module}" for line, module in _imports(path)
            if module.split(".")[0] not in sys.stdlib_module_names | {"__future__", "numpy", "scipy"}]
+    assert bad == []
+
+
+# ----------------------------------------------------------------------------- the module graph
+
+#: Folders above every layer (they may import anything of the project; nothing imports them).
+UNLAYERED = {"tools", "tests"}
+
+
+def _project_modules() -> dict[str, Path]:
+    """Module name -> file, for every package of the project (a folder with ``__init__.py`` at the
+    repository root) and the launcher ``run_fleet``."""
+    out = {"run_fleet": REPO / "run_fleet.py"}
+    for init in sorted(REPO.glob("*/__init__.py")):
+        package = init.parent.name
+        if package.startswith(".") or package in UNLAYERED:
+            continue
+        for path in sorted(init.parent.rglob("*.py")):
+            parts = path.relative_to(REPO).with_suffix("").parts
+            out[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    return out
+
+
+def _is_main_guard(node: ast.AST) -> bool:
+    """``if __name__ == "__main__":`` — its body runs in the script's own ``__main__`` module,
+    which nothing imports, so its imports cannot close a cycle."""
+    test = getattr(node, "test", None)
+    return (isinstance(node, ast.If) and isinstance(test, ast.Compare) and isinstance(test.left, ast.Name)
+            and test.left.id == "__name__" and len(test.comparators) == 1
+            and isinstance(test.comparators[0], ast.Constant) and test.comparators[0].value == "__main__")
+
+
+def _import_nodes(tree: ast.AST):
+    """Every import statement of a module, function bodies included, ``__main__`` blocks excluded."""
+    stack = [tree]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, (ast.Import, ast.ImportFrom)):
+            yield node
+        stack.extend(child for child in ast.iter_child_nodes(node) if not _is_main_guard(child))
+
+
+def _targets(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
+    """Project modules that module ``name`` imports. ``from P import n`` counts as ``P.n`` when
+    that is a module (else as ``P``); a relative import is resolved against the module's package."""
+    package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
+    wanted = set()
+    for node in _import_nodes(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            wanted.update(alias.name for alias in node.names)
+            continue
+        base = node.module or ""
+        if node.level:
+            base = ".".join(package[: len(package) - node.level + 1] + ([node.module] if node.module else []))
+        subs = [f"{base}.{alias.name}" for alias in node.names if f"{base}.{alias.name}" in modules]
+        wanted.update(subs)
+        if len(subs) < len(node.names):
+            wanted.add(base)
+    out = set()
+    for target in wanted:
+        while target and target not in modules:
+            target = target.rpartition(".")[0]
+        if target and target != name:
+            out.add(target)
+    return out
+
+
+def _graph() -> dict[str, set[str]]:
+    modules = _project_modules()
+    return {name: _targets(name, path, modules) for name, path in modules.items()}
+
+
+def _components(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components (Tarjan, iterative)."""
+    index, low, on_stack, stack, out = {}, {}, set(), [], []
+    for root in sorted(graph):
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = len(index)
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            node, edges = work[-1]
+            for nxt in edges:
+                if nxt not in index:
+                    index[nxt] = low[nxt] = len(index)
+                    stack.append(nxt)
+                    on_stack.add(nxt)
+                    work.append((nxt, iter(sorted(graph[nxt]))))
+                    break
+                if nxt in on_stack:
+                    low[node] = min(low[node], index[nxt])
+            else:
+                work.pop()
+                if work:
+                    low[work[-1][0]] = min(low[work[-1][0]], low[node])
+                if low[node] == index[node]:
+                    component = []
+                    while True:
+                        member = stack.pop()
+                        on_stack.discard(member)
+                        component.append(member)
+                        if member == node:
+                            break
+                    out.append(sorted(component))
+    return out
+
+
+def test_components_finds_a_cycle_and_only_it():
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}, "e": set()}
+    assert sorted(_components(graph)) == [["a", "b", "c"], ["d"], ["e"]]
+
+
+def test_no_import_cycle_in_the_project():
+    graph = _graph()
+    assert "planner.registry" in graph and "experiments.run" in graph  # the graph covers the packages
+    assert "planner.decentralised" in graph["planner.online"]  # function-level imports count
+    cycles = [c for c in _components(graph) if len(c) > 1]
+    assert cycles == [], "import cycles: " + "; ".join(
+        " ".join(f"{m} -> {sorted(graph[m] & set(c))}" for m in c) for c in cycles)
+
+
+def _documented_layers() -> list[set[str]]:
+    """The layer list of docs/architecture.md (its first indented block), top first: per line
+    the packages it names (``name/``, and ``run_fleet.py`` as ``run_fleet``)."""
+    text = (REPO / "docs" / "architecture.md").read_text()
+    block = re.search(r"\n\n((?:    \S.*\n)+)", text).group(1)
+    layers = []
+    for line in block.splitlines():
+        head = line.split("(")[0] + "".join(re.findall(r"\),\s*([a-z0-9_]+/)", line))
+        names = set(re.findall(r"(?<![\w.-])([a-z0-9_]+)/", head))
+        if "run_fleet.py" in head:
+            names.add("run_fleet")
+        layers.append(names)
+    return layers
+
+
+def test_every_package_is_in_the_documented_layers_once():
+    layers = _documented_layers()
+    named = [p for layer in layers for p in layer]
+    packages = {name.split(".")[0] for name in _project_modules()}
+    assert sorted(named) == sorted(packages), "docs/architecture.md's layer list must name every package once"
+
+
+def test_imports_follow_the_documented_layers():
+    """A module imports project modules of its own package or of packages on lower lines only."""
+    rank = {p: i for i, layer in enumerate(_documented_layers()) for p in layer}
+    bad = []
+    for name, targets in sorted(_graph().items()):
+        top = name.split(".")[0]
+        for target in sorted(targets):
+            other = target.split(".")[0]
+            if other != top and rank[other] <= rank[top]:
+                bad.append(f"{name} -> {target}")
     assert bad == []

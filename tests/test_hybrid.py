@@ -155,7 +155,7 @@ def test_decentralised_fleet_makes_the_centralised_closed_loop_decisions(tmp_pat
     router, every stage decided on board; the deployments equal the centralised closed-loop's
     (the planner core over the world's observations), and each carrier's log has them."""
     import world
-    from carriers.log import log_path, read_log
+    from storage.carrierlog import log_path, read_log
     from carriers.node import run_carriers, CarrierConfig
     from fleet_helpers import TINY, offline
     from wire.zconfig import free_port, make_config, open_session, close_session

@@ -241,7 +241,8 @@ def test_used_options_keep_copy_semantics():
 
 def test_priors_sweep_tasks_share_units_seeds_and_observations():
     from experiments.priors import CASES, summarise
-    from experiments.trials import Task, run_task
+    from experiments.run import run_task
+    from experiments.trials import Task
 
     level = [c[0] for c in CASES].index("open_field ×2")
     rows = [run_task(Task("priors", level, 1, "ssap", 0, 50, scenario=str(ROOT / CASES[level][1]), variant=v,

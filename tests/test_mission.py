@@ -216,7 +216,7 @@ def _mission_events():
 
 def test_recovery_is_the_same_fold(tmp_path):
     from planner.problem import Problem
-    from coordinator.store import MissionStore, load_events
+    from storage.missiondb import MissionStore, load_events
     from mission.summary import RunInfo, summary
     import numpy as np
     from scipy import stats
@@ -354,7 +354,7 @@ def test_carrier_ignores_a_deposed_coordinators_decisions():
 
 # --------------------------------------------------------------------------- purity
 FORBIDDEN = ("zenoh", "pymunk", "msgpack", "sqlite3", "world", "wire", "carriers", "coordinator.node",
-             "coordinator.store", "matplotlib")
+             "storage.missiondb", "matplotlib")
 
 
 def test_mission_imports_no_process_library():

@@ -2,7 +2,7 @@
 
 Pure merge tests use the mission of tests/test_mission.py: carriers a (2 passengers, stages
 0..2) and b (1 passenger, stages 1..2), 3 stages 5 s apart, fingerprint "fp". Process tests
-write real files (coordinator/store.py's MissionStore, carriers/log.py's CarrierLog) and run
+write real files (storage/missiondb.py's MissionStore, storage/carrierlog.py's CarrierLog) and run
 run_fleet.py as a real process; the slow one runs tiny.yaml on one host.
 """
 from __future__ import annotations
@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from carriers.log import CarrierLog, LogEntry, log_path
+from storage.carrierlog import CarrierLog, LogEntry, log_path
 from mission import events as ev
 from mission import state as ms
 from mission.report import CarrierRecord, merge
@@ -181,7 +181,7 @@ def _tiny_identity(seed=None):
 
 
 def _write_log(out, cid, meta, rows):
-    """A carrier log as carriers/log.py writes it: (stage, t, x, position, status, deployed, left)."""
+    """A carrier log as storage/carrierlog.py writes it: (stage, t, x, position, status, deployed, left)."""
     clog = CarrierLog(log_path(out, cid), dict(meta, carrier=cid))
     for stage, t, x, position, status, deployed, left in rows:
         clog.observed(stage, t, x, position)
@@ -227,7 +227,7 @@ def test_cli_errors_are_one_line_and_exit_2(tmp_path):
 
 
 def test_a_mission_db_of_another_mission_is_refused(tmp_path):
-    from coordinator.store import MissionStore
+    from storage.missiondb import MissionStore
 
     out = tmp_path / "run"
     MissionStore(out / "mission.db", dict(_tiny_identity(seed=3), planner="ssap")).close()
@@ -258,7 +258,7 @@ def _truncate_mission_db(src, dst, stages):
     """A mission.db as a coordinator killed after deciding ``stages`` stages leaves it."""
     import world
     from world import build_problem
-    from coordinator.store import MissionStore, load_events, load_meta
+    from storage.missiondb import MissionStore, load_events, load_meta
 
     scenario = world.load_scenario(TINY)
     problem = build_problem(scenario)

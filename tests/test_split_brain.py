@@ -265,7 +265,7 @@ def test_a_coordinator_on_a_fresh_out_takes_a_higher_epoch_than_its_carriers_hea
         epochs.add(heard.get().get("epoch", 1))
     assert epochs == {5}
     assert all("deposed" not in counts for counts in summary["rejected"]["carriers"].values()), summary["rejected"]
-    from coordinator.store import highest_epoch
+    from storage.missiondb import highest_epoch
     assert highest_epoch(tmp_path / "mission.db") == 5
 
 

@@ -18,7 +18,7 @@ import pytest
 
 import world
 from world import build_problem
-from coordinator.store import load_events
+from storage.missiondb import load_events
 from mission import events as ev
 from mission import state as ms
 from wire.messages import scenario_fingerprint

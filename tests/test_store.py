@@ -5,7 +5,7 @@ import sqlite3
 
 import pytest
 
-from coordinator.store import MissionStore, StoreMismatch
+from storage.missiondb import MissionStore, StoreMismatch
 
 META = {"mission": "tiny", "seed": 7, "planner": "ssap"}
 
@@ -72,7 +72,7 @@ def test_survives_a_killed_writer(tmp_path):
     code = textwrap.dedent(f"""
         import os, sys
         sys.path.insert(0, {str(__import__('pathlib').Path(__file__).resolve().parents[1])!r})
-        from coordinator.store import MissionStore
+        from storage.missiondb import MissionStore
         s = MissionStore({str(tmp_path / 'k.db')!r}, {META!r})
         s.observation("a", 0, 4, (0.0, 0.0))
         s.decision(0, ["a"], 1.0)
@@ -88,7 +88,7 @@ def test_epochs_grow_with_every_open_and_a_newer_one_on_the_same_file_is_seen(tm
     """docs/protocol.md, "Epochs": 1 for a fresh mission, one more at every reopening, at least
     the floor a standby learnt; a store sees a newer epoch opened on its file by another process
     (a standby on the same disk), once, and never its own."""
-    from coordinator.store import highest_epoch
+    from storage.missiondb import highest_epoch
 
     path = tmp_path / "mission.db"
     assert highest_epoch(path) == 0

@@ -192,7 +192,7 @@ class Outcome:
 def outcome(scenario, out: Path) -> Outcome:
     """The mission's reward from the carriers' logs (the planner core's evaluation)."""
     import world
-    from carriers.log import log_path, read_log
+    from storage.carrierlog import log_path, read_log
     from planner.problem import evaluate
 
     problem = world.build_problem(scenario)
@@ -221,7 +221,7 @@ def ssap_substitute(scenario, result: Outcome, cid: str, out: Path) -> float:
     first stage it decided alone to the end (its earlier deployments and the others' unchanged):
     what a carrier cut off with SSAP would have earned."""
     import world
-    from carriers.log import log_path, read_log
+    from storage.carrierlog import log_path, read_log
     from planner import ssap
     from planner.compiled import compile_problem
     from planner.problem import evaluate, valid_stages_left

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from mission import events as ev
+from storage.sqlite import LOCK_TIMEOUT_S, encoded_meta, first_mismatch, open_read_only, open_wal, read_meta
 
 SCHEMA_VERSION = 1
 
@@ -139,25 +140,20 @@ class MissionStore:
 
         Raises:
             StoreMismatch: when the file holds another mission.
-            StoreBusy: when another process holds the write lock for more than 10 s.
+            StoreBusy: when another process holds the write lock for more than ``LOCK_TIMEOUT_S``.
         """
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
         self.existed = self.path.exists() and self.path.stat().st_size > 0
-        self.db = sqlite3.connect(str(self.path), isolation_level=None, timeout=10.0)
-        self.db.execute("PRAGMA journal_mode=WAL")
-        self.db.execute(f"PRAGMA synchronous={synchronous}")
+        self.db = open_wal(self.path, synchronous)
         self.db.executescript(_SCHEMA)
-        wanted = {k: json.dumps(v, sort_keys=True) for k, v in dict(meta, schema=SCHEMA_VERSION).items()}
-        stored = dict(self.db.execute("SELECT key, value FROM meta").fetchall())
-        if stored:
-            for key, value in wanted.items():
-                if key in stored and stored[key] != value:
-                    self.db.close()
-                    raise StoreMismatch(
-                        f"{self.path}: holds another mission ({key} is {stored[key]}, this run has {value}); "
-                        "use another --out directory"
-                    )
+        wanted = encoded_meta(meta, SCHEMA_VERSION)
+        stored = self.db.execute("SELECT 1 FROM meta LIMIT 1").fetchone() is not None
+        bad = first_mismatch(self.db, wanted)
+        if bad:
+            self.db.close()
+            key, had, value = bad
+            raise StoreMismatch(f"{self.path}: holds another mission ({key} is {had}, this run has {value}); "
+                                "use another --out directory")
         try:
             with self._tx():
                 self.db.executemany("INSERT OR IGNORE INTO meta (key, value) VALUES (?, ?)", wanted.items())
@@ -368,7 +364,7 @@ class MissionStore:
 
 def load_events(path: str | Path) -> list:
     """The mission events of the mission.db at ``path``, read-only (for tools and tests)."""
-    db = sqlite3.connect(f"file:{Path(path)}?mode=ro", uri=True)
+    db = open_read_only(path)
     try:
         return _mission_events(db)
     finally:
@@ -378,9 +374,9 @@ def load_events(path: str | Path) -> list:
 def load_meta(path: str | Path) -> dict:
     """The mission identity in the ``meta`` table of the mission.db at ``path`` (JSON values
     decoded), read-only."""
-    db = sqlite3.connect(f"file:{Path(path)}?mode=ro", uri=True)
+    db = open_read_only(path)
     try:
-        return {k: json.loads(v) for k, v in db.execute("SELECT key, value FROM meta")}
+        return read_meta(db)
     finally:
         db.close()
 
@@ -393,7 +389,7 @@ def highest_epoch(path: str | Path) -> int:
     path = Path(path)
     if not path.is_file() or path.stat().st_size == 0:
         return 0
-    db = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)
+    db = open_read_only(path, timeout=LOCK_TIMEOUT_S)
     try:
         return _highest_epoch(db)
     finally:

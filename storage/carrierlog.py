@@ -18,10 +18,10 @@ Tables:
 """
 from __future__ import annotations
 
-import json
-import sqlite3
 from dataclasses import dataclass
 from pathlib import Path
+
+from storage.sqlite import encoded_meta, first_mismatch, open_read_only, open_wal, read_meta
 
 SCHEMA_VERSION = 1
 
@@ -83,18 +83,15 @@ class CarrierLog:
         if sync not in SYNC_MODES:
             raise ValueError(f"sync must be one of {SYNC_MODES}, found {sync!r}")
         self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.db = sqlite3.connect(str(self.path), isolation_level=None, timeout=10.0, check_same_thread=False)
-        self.db.execute("PRAGMA journal_mode=WAL")
-        self.db.execute(f"PRAGMA synchronous={sync.upper()}")
+        self.db = open_wal(self.path, sync, check_same_thread=False)
         self.db.executescript(_SCHEMA)
-        wanted = {k: json.dumps(v, sort_keys=True) for k, v in dict(meta, schema=SCHEMA_VERSION).items()}
-        stored = dict(self.db.execute("SELECT key, value FROM meta").fetchall())
-        for key, value in wanted.items():
-            if key in stored and stored[key] != value:
-                self.db.close()
-                raise LogMismatch(f"{self.path}: holds another mission ({key} is {stored[key]}, this carrier has "
-                                  f"{value}); use another --out directory")
+        wanted = encoded_meta(meta, SCHEMA_VERSION)
+        bad = first_mismatch(self.db, wanted)
+        if bad:
+            self.db.close()
+            key, had, value = bad
+            raise LogMismatch(f"{self.path}: holds another mission ({key} is {had}, this carrier has "
+                              f"{value}); use another --out directory")
         self.db.execute("INSERT OR IGNORE INTO meta (key, value) VALUES " + ", ".join("(?, ?)" for _ in wanted),
                         [v for kv in wanted.items() for v in kv])
 
@@ -131,9 +128,9 @@ class CarrierLog:
 
 def read_log(path: str | Path) -> tuple[dict, list[LogEntry]]:
     """(meta, entries) of the log at ``path``, read-only."""
-    db = sqlite3.connect(f"file:{Path(path)}?mode=ro", uri=True)
+    db = open_read_only(path)
     try:
-        meta = {k: json.loads(v) for k, v in db.execute("SELECT key, value FROM meta")}
+        meta = read_meta(db)
         return meta, _entries(db)
     finally:
         db.close()
