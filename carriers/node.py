@@ -44,7 +44,7 @@ from mission.peers import PeerBook, listened
 from mission.timeouts import DEFAULTS
 from wire import keys
 from wire.messages import (
-    REVISION, Bye, Confirm, Decision, End, Hello, Observation, Own, Pose, ProtocolError, Refusal, State, decode,
+    REVISION, Accepted, Bye, Confirm, Decision, End, Hello, Observation, Own, Pose, ProtocolError, Refusal, State, decode,
     scenario_fingerprint,
 )
 
@@ -74,7 +74,7 @@ PEER_POLL_S = 0.02
 PEER_TOPICS = {"obs": Observation, "own": Own, "confirm": Confirm}
 
 #: Exit reasons and the process exit code each maps to.
-EXIT_CODES = {"end": 0, "finished": 0, "stopped": 130, "coordinator-lost": 1, "world-mismatch": 2,
+EXIT_CODES = {"end": 0, "finished": 0, "stopped": 130, "coordinator-lost": 1, "world-mismatch": 2, "refused": 2,
               "log-mismatch": 2}
 
 
@@ -310,6 +310,7 @@ class Carrier:
         self._pose_from = 0  # first trajectory sample not considered for a Pose yet
         self._heading = 0.0
         self._refused: Refusal | None = None
+        self._unanswered: bool | None = None  # None: no Hello sent; True: the latest not answered yet
         self.onboard = onboard if onboard is not None else Onboard(scenario, config.planner_options)
         self.onboard_load = config.onboard_load or "start"
         if self.onboard_load not in ONBOARD_LOADS:
@@ -387,6 +388,7 @@ class Carrier:
                 self.log(effect.line)
 
     def _hello(self, next_stage: int) -> None:
+        self._unanswered = True
         self.node.put(keys.carrier_key(self.mission, self.cid, "hello"), Hello(
             self.mission, self.cid, os.getpid(), socket.gethostname()[:255], self.machine.passengers_left,
             next_stage, self.fingerprint, max(1, self.machine.epoch), REVISION))
@@ -457,12 +459,15 @@ class Carrier:
                 raise ProtocolError("wrong-mission", f"mission {msg.mission!r}")
             self.apply(mc.EndHeard())
             return
-        if item.key == keys.refusal_key(self.mission, self.cid):
-            msg = decode(item.payload, Refusal)
+        if item.key in (keys.refusal_key(self.mission, self.cid), keys.accepted_key(self.mission, self.cid)):
+            msg = decode(item.payload, (Refusal, Accepted))
             if msg.mission != self.mission or msg.carrier != self.cid:
-                raise ProtocolError("wrong-mission", f"refusal for {msg.mission!r}/{msg.carrier!r}")
-            if msg.fingerprint == self.fingerprint:  # else someone else spoke with our id
-                self._refused = msg
+                raise ProtocolError("wrong-mission", f"answer for {msg.mission!r}/{msg.carrier!r}")
+            # Only the answer to our latest Hello counts (docs/protocol.md, "Refusal"); one naming
+            # another fingerprint, or coming after our Hello was accepted, is about someone else's.
+            if msg.fingerprint == self.fingerprint and self._unanswered:
+                self._unanswered = False
+                self._refused = msg if isinstance(msg, Refusal) else None
             return
         if item.key != keys.decision_key(self.mission):
             raise ProtocolError("bad-key", f"message on {item.key[:80]}")
@@ -584,6 +589,9 @@ class Carrier:
 
     def _check_refused(self) -> None:
         if self._refused is not None:
+            if self._refused.reason != "world-mismatch":
+                self.log(f"the coordinator refused our Hello ({self._refused.reason}: {self._refused.detail})")
+                raise _Exit("refused")
             self.log(f"the coordinator refused our Hello ({self._refused.reason}: fingerprint {self.fingerprint}, "
                      f"the coordinator's {self._refused.expected}): use the same scenario file and --seed")
             raise _Exit("world-mismatch")
@@ -757,6 +765,7 @@ class Carrier:
             self.node.subscribe(keys.decision_key(self.mission))
             self.node.subscribe(keys.end_key(self.mission))
             self.node.subscribe(keys.refusal_key(self.mission, self.cid))
+            self.node.subscribe(keys.accepted_key(self.mission, self.cid))
             self.node.watch_liveliness(keys.coordinator_alive(self.mission))
             if self.config.mode == "decentralised" or (self.config.mode == "hybrid" and self.onboard_load == "start"):
                 self.onboard.prepare()
@@ -776,9 +785,10 @@ class Carrier:
             reason = exc.reason
         finally:
             try:
-                self.node.put(keys.carrier_key(self.mission, self.cid, "bye"), Bye(
-                    self.mission, self.cid, self.machine.deployments(),
-                    tuple(sorted(self.node.rejected.items())), reason))
+                if self._unanswered is not None or self.config.mode == "decentralised":  # a Bye needs a Hello
+                    self.node.put(keys.carrier_key(self.mission, self.cid, "bye"), Bye(
+                        self.mission, self.cid, self.machine.deployments(),
+                        tuple(sorted(self.node.rejected.items())), reason))
             except Exception:
                 pass
             self.node.close(DEFAULTS.close_s)

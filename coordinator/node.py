@@ -30,6 +30,7 @@ import os
 import socket
 import threading
 import time
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -47,8 +48,8 @@ from mission.summary import RunInfo, summary as mission_summary
 from mission.timeouts import DEFAULTS
 from wire import keys
 from wire.messages import (
-    MAX_STATE_CARRIERS, REVISION, UNANNOUNCED_REVISION, Bye, CarrierState, Confirm, Decision, End, Hello, Observation, Own, Pose, ProtocolError, Refusal,
-    State, decode, encode, scenario_fingerprint,
+    MAX_STATE_CARRIERS, REVISION, UNANNOUNCED_REVISION, Accepted, Bye, CarrierState, Confirm, Decision, End, Hello,
+    Observation, Own, Pose, ProtocolError, State, announced, decode, defined_in, encode, refusal, scenario_fingerprint,
 )
 from wire.transport import Node
 
@@ -170,6 +171,10 @@ class Coordinator:
         self.known_epoch = 0
         self._first_stage = 0  # the first stage this process decides (a newer epoch is taken before it)
         self.deposed_by: int | None = None
+        # What State tells each carrier of what this process refused or rejected of it
+        # (docs/protocol.md, "Rejections"): counts per reason, and its last Hello's refusal.
+        self.told: dict[str, Counter] = {cid: Counter() for cid in self.ids}
+        self.refusals: dict[str, str] = {}
 
     # ------------------------------------------------------------------ views of the state
     def log(self, line: str) -> None:
@@ -232,7 +237,9 @@ class Coordinator:
         Confirms, the decisions nobody answered)."""
         deployments = st.deployments_of(cid)
         left = self.spec.passengers[self.spec.index(cid)] - len(deployments)
-        return CarrierState(int(left), tuple(deployments), cid in st.live)
+        refused = None if cid in st.accepted else self.refusals.get(cid, "world-mismatch" if cid in st.refused else None)
+        return CarrierState(int(left), tuple(deployments), cid in st.live, refused,
+                            tuple(sorted(self.told[cid].items())))
 
     # ------------------------------------------------------------------ the one way state changes
     def apply(self, event) -> None:
@@ -246,10 +253,11 @@ class Coordinator:
                 if self.recorder is not None:
                     self.recorder.event(effect.event)  # after mission.db has it
             elif isinstance(effect, ms.Reject):
-                self._reject(effect.reason, effect.detail)
+                self._reject(effect.reason, effect.detail, getattr(event, "carrier", None))
             elif isinstance(effect, ms.Refuse):
-                self.node.put(keys.refusal_key(self.mission, effect.carrier), Refusal(
-                    self.mission, effect.carrier, effect.reason, effect.fingerprint, self.fingerprint))
+                self._answer_hello(effect.carrier, effect.revision, effect)
+            elif isinstance(effect, ms.Accept):
+                self._answer_hello(effect.carrier, effect.revision)
             elif isinstance(effect, ms.Publish):
                 self._refresh_state()
                 self._publish_decision(self._decision(effect.stage))
@@ -258,11 +266,31 @@ class Coordinator:
         if self.state is not before:
             self._refresh_state()
 
-    def _reject(self, reason: str, detail: str) -> None:
+    def _reject(self, reason: str, detail: str, cid: str | None = None) -> None:
         first = reason not in self.node.rejected
         self.node.reject(reason, detail, lambda line: self.log(f"coordinator: {line}"))
         if first:
             self.store.event("rejected", reason=reason, detail=detail[:200])
+        if cid in self.told:  # what State tells that carrier (docs/protocol.md, "Rejections")
+            self.told[cid] = self.told[cid] + Counter({reason: 1})  # a new value: State reads it from another thread
+
+    def _answer_hello(self, cid: str, revision: int, refused: ms.Refuse | None = None) -> None:
+        """Every Hello is answered (docs/protocol.md, "Refusal", "Accepted"), in the revision it
+        announced: a Refusal (to an earlier revision's carrier as ``world-mismatch``, the only
+        reason it has), or Accepted (revision 3 and later; earlier ones learn it from Decisions)."""
+        revision = min(revision, REVISION)
+        if refused is not None:
+            if cid in self.told and cid not in self.state.accepted:
+                self.refusals[cid] = refused.reason
+            self.node.put(keys.refusal_key(self.mission, cid), refusal(
+                self.mission, cid, refused.reason, refused.fingerprint, self.fingerprint, refused.detail, revision),
+                revision)
+            return
+        self.refusals.pop(cid, None)
+        answer = Accepted(self.mission, cid, self.fingerprint, self.state.accepted[cid].next_stage,
+                          self.state.next_stage, REVISION, self.epoch)
+        if defined_in(answer, revision):
+            self.node.put(keys.accepted_key(self.mission, cid), answer, revision)
 
     # ------------------------------------------------------------------ inbound
     def pump(self, timeout_s: float) -> None:
@@ -272,7 +300,11 @@ class Coordinator:
             try:
                 self._handle(item)
             except ProtocolError as exc:
-                self._reject(exc.reason, exc.detail)
+                parsed = keys.parse_carrier_key(self.mission, item.key) if item.kind == "sample" else None
+                self._reject(exc.reason, exc.detail, parsed[0] if parsed else None)
+                if parsed is not None and parsed[1] == "hello":  # a Hello it could not read: answered too
+                    revision, fp = announced(item.payload)
+                    self._answer_hello(parsed[0], revision, ms.Refuse(parsed[0], fp, exc.reason, exc.detail))
             item = self.node.next(0.0)
 
     def _handle(self, item) -> None:

@@ -10,7 +10,9 @@ position at that moment) and carries out the effects in order (:class:`Deploy` b
 * a Decision for a stage the carrier has passed (it gave up waiting, or it joined after that
   stage) is answered ``late`` if it selects the carrier, ``idle`` otherwise, never deployed;
 * a Decision for a stage the carrier has not reached yet is held until it gets there (the
-  carrier is then *behind*: it reaches the stage at once and publishes no Observation);
+  carrier is then *behind*: it reaches the stage at once and publishes no Observation); a
+  repeat of it is answered ``already`` after it (a rejected Decision changes nothing, not even
+  the epoch);
 * a selected carrier deploys if it is scheduled at the stage and has a passenger left, else it
   answers ``refused``;
 * when no decision comes in time (or the coordinator is gone) the carrier decides the stage
@@ -230,6 +232,7 @@ class CarrierState:
         joined: the first stage this process handles itself (State's next_stage at join).
         handled: stage -> the first :class:`Answer`.
         buffered: stage -> deploy ids of a decision for a stage not reached yet.
+        repeats: stages in ``buffered`` whose decision came again (answered ``already`` too).
         latest_decided: the highest stage a Decision was heard for (-1: none).
         state_next: the coordinator's next_stage, as last learnt from State.
         pending: the stage of the Observation waiting for its decision, or None.
@@ -252,6 +255,7 @@ class CarrierState:
     sensed: int | None = None
     ended: bool = False
     epoch: int = 0
+    repeats: frozenset = frozenset()
 
     @property
     def n_stages(self) -> int:
@@ -315,8 +319,11 @@ def _answer(state: CarrierState, j: int, deploy, position: Point, allow: bool):
         effects.append(Deploy(j))
         effects.append(Log(f"deployed a passenger at stage {j} at ({position[0]:.1f}, {position[1]:.1f}) m"))
     effects.append(SendConfirm(j, deployed, status, answer.position, left))
+    if j in state.repeats:  # the repeat of a decision held until the stage (see _on_decision)
+        effects.append(SendConfirm(j, deployed, "already", answer.position, left))
     new = dataclasses.replace(state, passengers_left=left, handled={**state.handled, j: answer},
-                              buffered={k: v for k, v in state.buffered.items() if k != j})
+                              buffered={k: v for k, v in state.buffered.items() if k != j},
+                              repeats=state.repeats - {j})
     return new, effects
 
 
@@ -347,12 +354,13 @@ def _on_decision(state: CarrierState, e: DecisionHeard):
     if e.epoch < state.epoch:
         return state, (Reject("deposed", f"decision for stage {e.stage} of epoch {e.epoch}; "
                                          f"epoch {state.epoch} decides now"),)
-    state = dataclasses.replace(state, epoch=e.epoch) if e.epoch > state.epoch else state
     j = e.stage
-    if j >= state.n_stages:
+    if j >= state.n_stages:  # rejected: it raises nothing, not even the epoch
         return state, (Reject("out-of-range", f"decision for stage {j} >= {state.n_stages}"),)
     if abs(e.t - state.stage_times[j]) > T_TOLERANCE_S:
         return state, (Reject("out-of-range", f"t: stage {j} is at {state.stage_times[j]} s, found {e.t}"),)
+    newer = e.epoch > state.epoch
+    state = dataclasses.replace(state, epoch=e.epoch) if newer else state
     if j in state.handled:
         return state, (_already(state, j),)
     if j < state.stage or j < state.joined:
@@ -364,7 +372,10 @@ def _on_decision(state: CarrierState, e: DecisionHeard):
             effects.append(ResendObservation(state.pending))
         return new, tuple(effects)
     if j in state.buffered:
-        return state, (Reject("duplicate", f"second decision for stage {j}"),)
+        # A repeat (a re-publication) of a stage not reached yet: answered ``already`` once the
+        # first is handled; a newer epoch's decision replaces the one held.
+        buffered = {**state.buffered, j: tuple(e.deploy)} if newer else state.buffered
+        return dataclasses.replace(state, buffered=buffered, repeats=state.repeats | {j}), ()
     latest = max(state.latest_decided, j)
     if j == state.stage and state.pending == j:
         new, effects = _answer(state, j, e.deploy, e.position, allow=True)

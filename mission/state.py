@@ -11,8 +11,9 @@ Mission rules applied here (docs/protocol.md, "Stage handshake" and "Rejections"
 
 * a Hello is **required**: Observations and Confirms of a carrier without an accepted Hello are
   rejected (``no-hello``, or ``world-mismatch`` when its Hello was refused);
-* a Hello with another fingerprint is refused (a :class:`Refuse` answer) and never undoes an
-  accepted Hello of the same carrier;
+* every Hello is answered: accepted (:class:`Accept`), or refused (:class:`Refuse`: another
+  fingerprint, an unknown carrier, a ``next_stage`` past the mission); a refusal never undoes
+  an accepted Hello of the same carrier; a Bye needs an accepted Hello too;
 * an Observation counts only for the stage being collected (``next_stage``): earlier ones are
   ``stale-stage``, later ones ``future-stage`` (rejected, never held), repeats ``duplicate``;
   its ``t`` must be the stage time within :data:`T_TOLERANCE_S`;
@@ -352,12 +353,24 @@ class Reject:
 
 @dataclass(frozen=True)
 class Refuse:
-    """Answer the carrier's Hello with a Refusal (docs/protocol.md, "Refusal")."""
+    """Answer the carrier's Hello with a Refusal (docs/protocol.md, "Refusal"), in the revision
+    the Hello announced."""
 
     carrier: str
     fingerprint: str
     reason: str
     detail: str
+    revision: int = 1
+
+
+@dataclass(frozen=True)
+class Accept:
+    """Answer the carrier's Hello: accepted (docs/protocol.md, "Accepted"; a carrier of revision
+    3 or later is told, an earlier one learns it from its Decisions)."""
+
+    carrier: str
+    next_stage: int
+    revision: int = 1
 
 
 @dataclass(frozen=True)
@@ -426,10 +439,13 @@ def _on_opened(state: MissionState, e: ev.Opened):
 
 
 def _on_hello(state: MissionState, e: ev.Hello):
-    bad = _unknown(state, e.carrier)
-    if bad:
-        return state, bad
     cid = e.carrier
+    bad = _unknown(state, cid)
+    if bad:
+        return state, bad + (Refuse(cid, e.fingerprint, bad[0].reason, bad[0].detail, e.revision),)
+    if e.next_stage > state.spec.n_stages:
+        detail = f"next_stage {e.next_stage} > {state.spec.n_stages} (the mission's stages)"
+        return state, (Reject("out-of-range", detail), Refuse(cid, e.fingerprint, "out-of-range", detail, e.revision))
     if e.fingerprint != state.spec.fingerprint:
         detail = f"carrier {cid} fingerprint {e.fingerprint} != {state.spec.fingerprint}"
         effects = []
@@ -444,12 +460,12 @@ def _on_hello(state: MissionState, e: ev.Hello):
                                f"{e.fingerprint} != {state.spec.fingerprint}); its observations are ignored"))
         else:
             new = state
-        effects += [Refuse(cid, e.fingerprint, "world-mismatch", detail), Reject("world-mismatch", detail)]
+        effects += [Refuse(cid, e.fingerprint, "world-mismatch", detail, e.revision), Reject("world-mismatch", detail)]
         return new, tuple(effects)
     refused = {k: v for k, v in state.refused.items() if k != cid}
     new = _replace(state, accepted={**state.accepted, cid: CarrierInfo(e.pid, e.host, e.next_stage, e.revision)},
                    refused=refused, byes=state.byes - {cid})  # a restarted carrier: its Bye is history
-    return new, (Record(e, e.next_stage),)
+    return new, (Record(e, e.next_stage), Accept(cid, e.next_stage, e.revision))
 
 
 def _check_time(state, e):
@@ -535,6 +551,9 @@ def _on_confirmed(state: MissionState, e: ev.Confirmed):
         return state, bad
     if j >= state.next_stage:
         return state, (Reject("stale-stage", f"confirmation of carrier {cid} for undecided stage {j}"),)
+    if e.deployed and not state.spec.scheduled(cid, j):  # checked as for an Own making the same claim
+        return state, (Reject("out-of-range", f"carrier {cid} confirms a deployment at stage {j}, where it is not "
+                                              f"scheduled"),)
     account = state.accounts.get((cid, j))
     if account is not None and (cid, j) not in state.confirms:
         if e.deployed == account.deployed:
@@ -588,7 +607,7 @@ def _on_accounted(state: MissionState, e: ev.Accounted):
 
 
 def _on_bye(state: MissionState, e: ev.Bye):
-    bad = _unknown(state, e.carrier)
+    bad = _unknown(state, e.carrier) or _no_hello(state, e.carrier, "bye")
     if bad:
         return state, bad
     new = _replace(state, byes=state.byes | {e.carrier},

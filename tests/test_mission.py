@@ -272,7 +272,9 @@ CARRIER_CASES = [
     ("before-join-selected", [mc.Joined(2)], heard(0), [(0, "late", False)], None),
     ("before-join-not-selected", [mc.Joined(2)], heard(1, ()), [(1, "idle", False)], None),
     ("future-held", JOINED + [mc.Observed(0)], heard(1), [], None),
-    ("future-duplicate", JOINED + [mc.Observed(0), heard(1)], heard(1), [], "duplicate"),
+    ("future-repeat-held", JOINED + [mc.Observed(0), heard(1)], heard(1), [], None),
+    ("future-repeat-answered", JOINED + [mc.Observed(0), heard(1), heard(1), heard(0), mc.MovedOn(0)],
+     mc.Passed(1, P0), [(1, "deployed", True), (1, "already", True)], None),
     ("out-of-range", JOINED, mc.DecisionHeard(3, 15.0, ("a",), P0), [], "out-of-range"),
     ("wrong-time", JOINED + [mc.Observed(0)], heard(0, t=1.0), [], "out-of-range"),
 ]
@@ -284,6 +286,15 @@ def test_carrier_decision_rules(before, event, sent, reason):
     new, effects = mc.step(state, event)
     assert confirms(effects) == sent
     assert [e.reason for e in effects if isinstance(e, mc.Reject)] == ([reason] if reason else [])
+
+
+def test_a_rejected_decision_does_not_raise_the_epoch():
+    state, _ = carrier(*JOINED)
+    for bad in (mc.DecisionHeard(3, 15.0, ("a",), P0, epoch=5), mc.DecisionHeard(0, 1.0, ("a",), P0, epoch=5)):
+        new, effects = mc.step(state, bad)
+        assert new.epoch == state.epoch and [e.reason for e in effects if isinstance(e, mc.Reject)] == ["out-of-range"]
+    new, _ = mc.step(state, mc.DecisionHeard(0, 0.0, ("a",), P0, epoch=5))
+    assert new.epoch == 5
 
 
 def test_carrier_deploys_once_and_never_beyond_its_passengers():

@@ -12,6 +12,7 @@ Layout (``<m>`` = mission id, ``<id>`` = carrier id)::
     marsupial/<m>/coordinator/decision    coordinator -> carriers  Decision (put)
     marsupial/<m>/coordinator/end         coordinator -> carriers  End (put)
     marsupial/<m>/coordinator/refusal/<id> coordinator -> carrier  Refusal (put)
+    marsupial/<m>/coordinator/accepted/<id> coordinator -> carrier Accepted (put; revision 3)
     marsupial/<m>/coordinator/state       queryable, replies State (``?carrier=<id>``: scoped)
     marsupial/<m>/coordinator/alive       liveliness token of the coordinator
 
@@ -26,7 +27,7 @@ import re
 ROOT = "marsupial"
 
 #: Mission and carrier ids are single key-expression chunks: no '/', wildcards or '$'.
-ID_PATTERN = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}$")
+ID_PATTERN = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}\Z")  # \Z: no trailing newline either
 
 #: The message kinds a carrier publishes under its own subtree.
 CARRIER_TOPICS = ("hello", "obs", "confirm", "own", "bye", "pose")
@@ -79,6 +80,11 @@ def decision_key(mission: str) -> str:
 
 def end_key(mission: str) -> str:
     return f"{prefix(mission)}/coordinator/end"
+
+
+def accepted_key(mission: str, carrier: str) -> str:
+    """Where the coordinator answers an accepted Hello of ``carrier`` (revision 3)."""
+    return f"{prefix(mission)}/coordinator/accepted/{check_id(carrier, 'carrier')}"
 
 
 def refusal_key(mission: str, carrier: str) -> str:

@@ -166,19 +166,23 @@ _MS = _float(0.0, 1e9)
 _NO_DEFAULT = object()
 
 
-def _spec(validator: Validator, as_map: bool = False, absent=_NO_DEFAULT, since: int = 1):
+def _spec(validator: Validator, as_map: bool = False, absent=_NO_DEFAULT, since: int = 1, values=None):
     """A dataclass field carrying its wire validator in metadata; ``as_map``: a tuple of sorted
     (key, value) pairs in Python, a map on the wire. ``absent``: the field is optional on the wire
     and a missing one means this value; the encoder leaves it out when it has this value (so a
     peer written before the field existed still reads every message that does not use it).
     ``since``: the revision that added the field (docs/protocol.md, "Revisions"); only optional
     fields are added by a revision, and the encoder leaves the field out for a peer of an
-    earlier revision."""
+    earlier revision. ``values``: an enumerated field's values, each with the revision that
+    added it (a value is checked on decoding, and never sent to a peer of an earlier revision)."""
     if since > 1 and absent is _NO_DEFAULT:
         raise TypeError("a field added by a revision must be optional")
+    meta = {"check": validator, "as_map": as_map, "since": since}
+    if values is not None:
+        meta["values"] = values
     if absent is _NO_DEFAULT:
-        return field(metadata={"check": validator, "as_map": as_map, "since": since})
-    return field(default=absent, metadata={"check": validator, "as_map": as_map, "absent": absent, "since": since})
+        return field(metadata=meta)
+    return field(default=absent, metadata={**meta, "absent": absent})
 
 
 #: A coordinator's epoch (docs/protocol.md, "Epochs"): 1 for a fresh mission, higher after
@@ -290,6 +294,9 @@ class Decision:
 
 #: Confirm.status values.
 CONFIRM_STATUSES = ("deployed", "idle", "late", "refused", "already")
+#: The statuses that say a passenger was released (``deployed`` true); ``already`` repeats the
+#: first outcome, either way.
+RELEASING_STATUSES = ("deployed", "already")
 
 
 @dataclass(frozen=True)
@@ -324,6 +331,12 @@ class Confirm:
     def __post_init__(self):
         if self.status not in CONFIRM_STATUSES:
             raise ProtocolError("out-of-range", f"status: expected one of {CONFIRM_STATUSES}, found {self.status!r}")
+        if self.deployed and self.status not in RELEASING_STATUSES:
+            raise ProtocolError("out-of-range", f"deployed: true with status {self.status!r}")
+        if not self.deployed and self.status == "deployed":
+            raise ProtocolError("out-of-range", "deployed: false with status 'deployed'")
+        if self.passenger is not None and not self.deployed:
+            raise ProtocolError("out-of-range", "passenger: named, but nothing was released")
 
 
 @dataclass(frozen=True)
@@ -390,8 +403,14 @@ class Bye:
     TYPE = "bye"
 
 
-#: Refusal.reason values.
-REFUSAL_REASONS = ("world-mismatch",)
+#: Refusal.reason values and the revision that added each (docs/protocol.md, "Refusal"): a
+#: Refusal with a reason a peer's revision does not define is not sent to it. Since revision 3
+#: every reason a Hello can be rejected for refuses it.
+REFUSAL_REASONS = {
+    "world-mismatch": 1,
+    "unknown-carrier": 3, "key-mismatch": 3, "wrong-mission": 3, "out-of-range": 3, "wrong-type": 3,
+    "missing-field": 3, "unknown-field": 3, "malformed": 3, "not-a-map": 3, "version": 3, "oversized": 3,
+}
 
 
 @dataclass(frozen=True)
@@ -400,23 +419,50 @@ class Refusal:
 
     Attributes:
         carrier: the carrier whose Hello is refused (the id in the key).
-        reason: ``world-mismatch`` (the Hello's fingerprint is not the coordinator's).
-        fingerprint: the refused Hello's fingerprint (a carrier ignores a Refusal naming a
-            fingerprint it did not send: someone else spoke with its id).
+        reason: why, one of :data:`REFUSAL_REASONS` (``world-mismatch``: the Hello's fingerprint
+            is not the coordinator's; the others: the rejection reason of the Hello).
+        fingerprint: the refused Hello's fingerprint ("" when the Hello had none that could be
+            read; a carrier ignores a Refusal naming a fingerprint it did not send: someone else
+            spoke with its id).
         expected: the coordinator's fingerprint.
+        detail: one line saying what was wrong (revision 3; omitted when empty).
     """
 
     mission: str = _spec(_ident)
     carrier: str = _spec(_ident)
-    reason: str = _spec(_text(40))
+    reason: str = _spec(_text(40), values=REFUSAL_REASONS)
     fingerprint: str = _spec(_text(64))
     expected: str = _spec(_text(64))
+    detail: str = _spec(_text(200), absent="", since=3)
     v: int = PROTOCOL_VERSION
     TYPE = "refusal"
 
-    def __post_init__(self):
-        if self.reason not in REFUSAL_REASONS:
-            raise ProtocolError("out-of-range", f"reason: expected one of {REFUSAL_REASONS}, found {self.reason!r}")
+
+@dataclass(frozen=True)
+class Accepted:
+    """The coordinator accepted a carrier's Hello (revision 3: sent only to a carrier whose
+    Hello announced revision 3 or later). coordinator -> ``coordinator/accepted/<id>``.
+
+    Attributes:
+        carrier: the carrier whose Hello is accepted (the id in the key).
+        fingerprint: the accepted Hello's fingerprint (the coordinator's).
+        next_stage: the Hello's ``next_stage`` as the coordinator recorded it.
+        collecting: the stage the coordinator collects now (its first undecided stage, N when
+            all are decided).
+        revision: the newest revision the coordinator speaks.
+        epoch: the coordinator's epoch (omitted when 1).
+    """
+
+    mission: str = _spec(_ident)
+    carrier: str = _spec(_ident)
+    fingerprint: str = _spec(_text(64))
+    next_stage: int = _spec(_STAGE_COUNT)
+    collecting: int = _spec(_STAGE_COUNT)
+    revision: int = _spec(_REVISION)
+    epoch: int = _spec(_EPOCH, absent=1)
+    v: int = PROTOCOL_VERSION
+    TYPE = "accepted"
+    SINCE = 3
 
 
 @dataclass(frozen=True)
@@ -427,11 +473,17 @@ class CarrierState:
         passengers_left: passengers not yet deployed according to the mission log.
         deployments: stages with a deployment decided for this carrier and not refuted by a Confirm.
         live: whether its liveliness token is currently present.
+        refused: why the coordinator refused the carrier's last Hello (a :data:`REFUSAL_REASONS`
+            value) when it has no accepted Hello; None otherwise (revision 3).
+        rejected: per reason, how many of this carrier's messages the coordinator process
+            rejected (revision 3; sorted pairs; a map on the wire).
     """
 
     passengers_left: int = _spec(_PASSENGERS)
     deployments: tuple[int, ...] = _spec(_list(_STAGE, MAX_STAGES))
     live: bool = _spec(_bool)
+    refused: str | None = _spec(_optional(_text(40)), absent=None, since=3)
+    rejected: tuple[tuple[str, int], ...] = _spec(_counts, as_map=True, absent=(), since=3)
 
 
 @dataclass(frozen=True)
@@ -493,8 +545,34 @@ class Pose:
     TYPE = "pose"
 
 
+def refusal(mission: str, carrier: str, reason: str, fingerprint: str, expected: str, detail: str,
+            revision: int) -> Refusal:
+    """The Refusal answering a refused Hello, as the carrier's ``revision`` can read it: with
+    the reason and its detail from revision 3; to a carrier of an earlier revision, whose only
+    reason is ``world-mismatch``, as that (it stops, as it must: docs/protocol.md, "Refusal")."""
+    answer = Refusal(mission, carrier, reason, str(fingerprint)[:64], expected, str(detail)[:200])
+    if not defined_in(answer, revision):
+        answer = Refusal(mission, carrier, "world-mismatch", str(fingerprint)[:64], expected)
+    return answer
+
+
+def announced(payload) -> tuple[int, str]:
+    """(revision, fingerprint) a Hello that failed to decode announced, as far as they can be
+    read (:data:`UNANNOUNCED_REVISION` and "" when not): what its Refusal is written for."""
+    try:
+        raw = msgpack.unpackb(bytes(payload), raw=False) if len(payload) <= MAX_PAYLOAD_BYTES else None
+    except Exception:
+        raw = None
+    if not isinstance(raw, dict):
+        return UNANNOUNCED_REVISION, ""
+    revision = raw.get("revision")
+    fp = raw.get("fingerprint")
+    revision = min(revision, REVISION) if type(revision) is int and revision >= 1 else UNANNOUNCED_REVISION
+    return revision, fp[:64] if isinstance(fp, str) else ""
+
+
 MESSAGE_TYPES = {cls.TYPE: cls for cls in (Hello, Observation, Decision, Confirm, Own, End, Bye, State, Refusal,
-                                            Pose)}
+                                            Pose, Accepted)}
 
 
 def fingerprint(value) -> str:
@@ -565,6 +643,15 @@ def _to_wire(value, as_map: bool = False, revision: int = REVISION):
     return value
 
 
+def defined_in(message, revision: int) -> bool:
+    """Whether a peer of ``revision`` can be sent ``message``: its type and its enumerated
+    values exist in that revision (later optional fields are left out by :func:`encode`)."""
+    if getattr(type(message), "SINCE", 1) > revision:
+        return False
+    return all(f.metadata["values"].get(getattr(message, f.name), REVISION + 1) <= revision
+               for f in fields(message) if "values" in f.metadata)
+
+
 def encode(message, revision: int = REVISION) -> bytes:
     """Serialise one message dataclass to msgpack bytes (validated on the way out).
 
@@ -579,8 +666,8 @@ def encode(message, revision: int = REVISION) -> bytes:
         ValueError: the message type does not exist in ``revision`` (a bug in the sender: it
             must not send it to that peer).
     """
-    if getattr(type(message), "SINCE", 1) > revision:
-        raise ValueError(f"a {type(message).TYPE} message does not exist in revision {revision}")
+    if not defined_in(message, revision):
+        raise ValueError(f"a {type(message).TYPE} message as {message!r:.120} does not exist in revision {revision}")
     data = msgpack.packb(_to_wire(message, revision=revision), use_bin_type=True)
     if len(data) > MAX_PAYLOAD_BYTES:
         raise ProtocolError("oversized", f"{len(data)} bytes > {MAX_PAYLOAD_BYTES}")
@@ -602,6 +689,11 @@ def _build(cls, data: dict, where: str, revision: int = REVISION):
                 continue  # optional: the dataclass default is the documented meaning of absent
             raise ProtocolError("missing-field", f"{where}: missing field {f.name!r}")
         values[f.name] = f.metadata["check"](data[f.name], f"{where}.{f.name}")
+        allowed = f.metadata.get("values")
+        if allowed is not None and allowed.get(values[f.name], REVISION + 1) > revision:
+            choices = sorted(k for k, since in allowed.items() if since <= revision)
+            raise ProtocolError("out-of-range", f"{where}.{f.name}: expected one of {choices}, "
+                                                f"found {str(values[f.name])[:40]!r}")
     return cls(**values)
 
 
