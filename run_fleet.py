@@ -141,6 +141,19 @@ def parse_args(argv=None) -> argparse.Namespace:
                         "(default %(default)s)")
     p.add_argument("--no-map", action="store_true", help="do not draw map.png")
     p.add_argument("--no-record", action="store_true", help="coordinator: do not write mission.mcap")
+    p.add_argument("--mcap-profile", choices=("foxglove", "ros2"), default="foxglove",
+                   help="coordinator: the recording's profile: foxglove (default: mission.mcap with Foxglove's "
+                        "schemas) or ros2 (the rosbag2 bag ros2bag/ that ros2 bag play replays; needs .[ros2])")
+    r = p.add_argument_group("ROS 2 over Zenoh, rmw_zenoh's format, Jazzy and later (docs/fleet.md, \"ROS 2\")")
+    r.add_argument("--ros2", action="store_true",
+                   help="publish the mission as ROS 2 topics in rmw_zenoh's key space (every role; nothing "
+                        "changes in the mission protocol)")
+    r.add_argument("--ros2-domain", type=int, metavar="N",
+                   help="ROS domain id of those topics (default: ROS_DOMAIN_ID, else 0)")
+    r.add_argument("--ros2-robot", action="store_true",
+                   help="carrier (one id, with --role carrier): the body is a real ROS 2 robot: pose from its "
+                        "NS/odom, observations from NS/features, deployments commanded on NS/deploy")
+    r.add_argument("--ros2-namespace", metavar="NS", help="with --ros2-robot: the robot's ROS 2 namespace (default /)")
     p.add_argument("--pose-interval", type=float, default=1.0, metavar="SECONDS",
                    help="carrier: publish a Pose every this many simulated seconds (whole seconds; 0 = never; "
                         "default %(default)s)")
@@ -234,6 +247,9 @@ def check_flags(args, scenario) -> str | None:
                 return f"--carrier: expected one of {listed} (carriers of {args.scenario}), found {cid!r}"
         if len(set(args.carriers)) != len(args.carriers):
             return f"--carrier: a carrier id is repeated in {args.carrier!r}"
+    problem = _check_ros2(args)
+    if problem:
+        return problem
     if args.role == "report" and not args.out:
         return "--role report needs --out DIR (the results directory to read)"
     if args.role not in ("carrier", "viewer", "router", "report") and not args.decentralised:
@@ -245,6 +261,47 @@ def check_flags(args, scenario) -> str | None:
         except ValueError as exc:
             return f"--planner: {exc}"
     return None
+
+
+def _check_ros2(args) -> str | None:
+    """The ROS 2 flags: one line about the first bad one, or None; fills in ``args.ros2_domain``."""
+    ros2 = args.ros2 or args.ros2_robot
+    if not ros2 and args.ros2_domain is None and args.ros2_namespace is None and args.mcap_profile == "foxglove":
+        return None
+    from ros2.publisher import check_domain, check_namespace, default_domain
+
+    if args.ros2_domain is None:
+        text = os.environ.get("ROS_DOMAIN_ID", "").strip()
+        if text and not text.isdigit():
+            return f"ROS_DOMAIN_ID: expected an integer 0..232, found {text!r}"
+        args.ros2_domain = default_domain()
+    problem = check_domain(args.ros2_domain)
+    if problem:
+        return problem
+    if args.ros2_robot and (args.role != "carrier" or len(getattr(args, "carriers", [])) != 1):
+        return "--ros2-robot: only with --role carrier and one --carrier ID (the robot's carrier)"
+    if args.ros2_namespace is not None:
+        if not args.ros2_robot:
+            return "--ros2-namespace: only with --ros2-robot (the robot's namespace)"
+        problem = check_namespace(args.ros2_namespace)
+        if problem:
+            return problem
+    if args.mcap_profile == "ros2" and args.role in ("all", "coordinator"):
+        try:
+            import rosbags  # noqa: F401
+        except ImportError:
+            return "--mcap-profile ros2 needs rosbags: pip install -e '.[ros2]'"
+    return None
+
+
+def _ros2_settings(args):
+    """The processes' ROS 2 settings (ros2/publisher.py), or None: with neither --ros2 nor
+    --ros2-robot nothing of ros2/ is imported."""
+    if not (args.ros2 or args.ros2_robot):
+        return None
+    from ros2.publisher import Ros2Settings
+
+    return Ros2Settings(domain=args.ros2_domain, robot=args.ros2_robot, namespace=args.ros2_namespace or "/")
 
 
 def zenoh_config(args, role: str):
@@ -307,6 +364,7 @@ def run_coordinator(args, scenario, stop: threading.Event) -> int:
         out_dir=out, mission=args.mission, planner=args.planner, iterations=args.iterations,
         plan_ms=args.plan_ms, planner_options=getattr(args, "planner_options", ()), seed=args.seed, realtime=args.realtime, join_timeout_s=args.join_timeout,
         stage_timeout_s=args.stage_timeout, render=not args.no_map, record=not getattr(args, "no_record", False),
+        record_profile=args.mcap_profile, ros2=_ros2_settings(args),
         # The last stage's Confirms take a round trip, which grows with the fleet's load like the
         # observations' arrival the stage timeout bounds (R = 1,024 on 2 cores: up to 26 s).
         confirm_timeout_s=max(DEFAULTS.confirm_s, args.stage_timeout),
@@ -341,7 +399,7 @@ def run_carrier(args, scenario, stop: threading.Event) -> int:
         decision_timeout_s=args.decision_timeout, coordinator_timeout_s=args.coordinator_timeout,
         log=log, pose_interval_s=args.pose_interval, mode=mode, out_dir=out, peer_timeout_s=args.peer_timeout,
         join_timeout_s=args.join_timeout, planner_options=tuple(sorted(options.items())),
-        log_sync=args.log_sync or "full", onboard_load=args.onboard_load)
+        log_sync=args.log_sync or "full", onboard_load=args.onboard_load, ros2=_ros2_settings(args))
         for cid in getattr(args, "carriers", [args.carrier])]
     try:
         reasons = run_carriers(scenario, configs, lambda: zenoh_config(args, "carrier"), stop=stop)
@@ -426,9 +484,13 @@ def _forward(args) -> list[str]:
             "--stage-timeout", str(args.stage_timeout), "--decision-timeout", str(args.decision_timeout),
             "--coordinator-timeout", str(args.coordinator_timeout), "--pose-interval", str(args.pose_interval),
             "--peer-timeout", str(args.peer_timeout)]
-    for flag in ("no_record", "decentralised", "no_autonomy"):
+    for flag in ("no_record", "decentralised", "no_autonomy", "ros2"):
         if getattr(args, flag):
             out.append("--" + flag.replace("_", "-"))
+    if args.ros2:
+        out += ["--ros2-domain", str(args.ros2_domain)]
+    if args.mcap_profile != "foxglove":
+        out += ["--mcap-profile", args.mcap_profile]
     return out
 
 
@@ -628,7 +690,8 @@ def run_all(args, scenario, stop: threading.Event) -> int:
           f"clairvoyant {'optimum' if bound.get('exact') else 'bound'} {bound.get('reward', float('nan')):.3f} "
           f"({(bound.get('fraction') or 0) * 100:.0f}%); decision round trip p50 "
           f"{_ms(lat.get('p50'))} p99 {_ms(lat.get('p99'))}; wall {time.monotonic() - started:.1f} s")
-    print(f"results: {out}/summary.json, mission.db, merged_log.jsonl" + ("" if args.no_record else ", mission.mcap")
+    print(f"results: {out}/summary.json, mission.db, merged_log.jsonl"
+          + ("" if args.no_record else ", ros2bag/" if args.mcap_profile == "ros2" else ", mission.mcap")
           + ("" if args.no_map else ", map.png"))
     if viewer is not None:
         _wait_for_viewer(args, viewer, stop)

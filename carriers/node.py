@@ -130,6 +130,8 @@ class CarrierConfig:
         planner_options: options of the on-board planner (iterations, plan_ms).
         log_sync: how the durable log commits (:data:`storage.carrierlog.SYNC_MODES`).
         onboard_load: when the on-board planner is loaded (:data:`ONBOARD_LOADS`; None: see there).
+        ros2: ROS 2 settings (``ros2.publisher.Ros2Settings``: ``--ros2``, ``--ros2-robot``); None:
+            off, and nothing of ros2/ is imported.
     """
 
     carrier: str
@@ -148,6 +150,7 @@ class CarrierConfig:
     planner_options: tuple = ()
     log_sync: str = "full"
     onboard_load: str | None = None
+    ros2: object = None
 
 
 @dataclass(frozen=True)
@@ -325,6 +328,7 @@ class Carrier:
         self.listening: tuple[str, ...] | None = None  # the carriers it hears (:meth:`_listen`)
         self.store: CarrierLog | None = None  # the durable log, open while running
         self._alone = False  # deciding stages itself (logged once per spell)
+        self.ros2 = None  # its ROS 2 node (ros2/publisher.py) while running with config.ros2
 
     # ------------------------------------------------------------------ views for tests and logs
     def log(self, line: str) -> None:
@@ -360,6 +364,8 @@ class Carrier:
             if isinstance(effect, mc.Deploy):
                 self.sim.deploy(self.cid)
                 self._released_at[effect.stage] = self._passenger_for(effect.stage)
+                if self.ros2 is not None:  # a robot's launcher gets the command
+                    self.ros2.release(effect.stage, self._released_at[effect.stage])
             elif isinstance(effect, mc.SendConfirm):
                 self.node.put(keys.carrier_key(self.mission, self.cid, "confirm"), Confirm(
                     self.mission, self.cid, effect.stage, effect.deployed, effect.status, effect.position,
@@ -585,6 +591,8 @@ class Carrier:
                 self.node.put(keys.carrier_key(self.mission, self.cid, "pose"), Pose(
                     self.mission, self.cid, float(samples[k, 0]), (float(samples[k, 1]), float(samples[k, 2])),
                     self._heading, self.machine.passengers_left))
+                if self.ros2 is not None:
+                    self.ros2.pose(float(samples[k, 0]), float(samples[k, 1]), float(samples[k, 2]), self._heading)
         self._pose_from = len(samples)
 
     def _check_refused(self) -> None:
@@ -754,6 +762,8 @@ class Carrier:
         except OpenStopped:
             return "stopped"
         try:
+            if self.config.ros2 is not None:  # its ROS 2 node; a robot's body replaces the simulated one
+                self.ros2 = self.config.ros2.attach(self)
             if self.config.out_dir is not None:
                 try:
                     self.store = CarrierLog(log_path(self.config.out_dir, self.cid), {
@@ -791,6 +801,8 @@ class Carrier:
                         tuple(sorted(self.node.rejected.items())), reason))
             except Exception:
                 pass
+            if self.ros2 is not None:
+                self.ros2.close()
             self.node.close(DEFAULTS.close_s)
             if self.store is not None:
                 self.store.close()

@@ -84,6 +84,10 @@ class CoordinatorConfig:
         render: draw map.png at the end.
         log: where progress lines go (a callable taking one string).
         record: write mission.mcap as the mission runs (recording/live.py).
+        record_profile: the recording's MCAP profile, ``foxglove`` (mission.mcap) or ``ros2`` (the
+            rosbag2 bag ros2bag/: recording/live.py).
+        ros2: publish the mission as ROS 2 topics (``ros2.publisher.Ros2Settings``; None: off,
+            nothing of ros2/ is imported).
         standby: when another coordinator of this mission is live, wait until its liveliness
             token vanishes and take over (else refuse to start: :class:`DuplicateCoordinator`).
     """
@@ -103,6 +107,8 @@ class CoordinatorConfig:
     render: bool = True
     log: object = None
     record: bool = True  # write mission.mcap (recording/live.py)
+    record_profile: str = "foxglove"
+    ros2: object = None
     standby: bool = False
 
 
@@ -442,14 +448,17 @@ class Coordinator:
     def _open_recorder(self, out: Path) -> None:
         """Start mission.mcap (recording/live.py), replaying the events already in mission.db
         (a resumed mission's past; a fresh mission's ``open``)."""
-        if not self.config.record:
+        ros2 = self.config.ros2 if self.node is not None else None
+        if not self.config.record and ros2 is None:
             return
         try:
             from recording.live import LiveRecorder
 
             self.recorder = LiveRecorder(out, self.scenario, self.problem, metadata={
                 "mission": self.mission, "scenario": self.scenario.name, "seed": self.seed,
-                "planner": self.planner_name, "fingerprint": self.fingerprint}, log=self.log)
+                "planner": self.planner_name, "fingerprint": self.fingerprint}, log=self.log,
+                profile=self.config.record_profile if self.config.record else None,
+                sinks=() if ros2 is None else (ros2.coordinator_sink(self.node.session, self.problem, self.log),))
             for event in self.store.mission_events():
                 self.recorder.event(event)
         except Exception as exc:

@@ -2,6 +2,7 @@
 
     python -m recording rebuild runs/six_carriers-20260101-120000
     python -m recording rebuild RUN_DIR --scenario scenarios/six_carriers.yaml -o /tmp/m.mcap
+    python -m recording rebuild RUN_DIR --profile ros2      # RUN_DIR/ros2bag, for ros2 bag play
 
 Exit codes: 0 written, 2 bad input (no mission.db, no scenario file).
 """
@@ -22,14 +23,19 @@ def main(argv=None) -> int:
     r = sub.add_parser("rebuild", help="rebuild mission.mcap from mission.db (and the scenario's trajectories)")
     r.add_argument("run_dir", help="a results directory holding mission.db")
     r.add_argument("--scenario", help="the scenario file (default: summary.json's scenario_file)")
-    r.add_argument("-o", "--out", help="output file (default RUN_DIR/mission.mcap)")
+    r.add_argument("-o", "--out", help="output file (default RUN_DIR/mission.mcap; ros2: the bag directory RUN_DIR/ros2bag)")
+    r.add_argument("--profile", choices=("foxglove", "ros2"), default="foxglove",
+                   help="foxglove (default): Foxglove's schemas; ros2: a rosbag2 bag of ROS 2 messages (needs .[ros2])")
     r.add_argument("--pose-interval", type=float, default=1.0, metavar="SECONDS",
                    help="poses every this many simulated seconds (default %(default)s; 0 = none)")
     args = p.parse_args(argv)
     from recording.rebuild import rebuild
 
     try:
-        path = rebuild(args.run_dir, args.scenario, args.out, args.pose_interval)
+        path = rebuild(args.run_dir, args.scenario, args.out, args.pose_interval, args.profile)
+    except ImportError as exc:
+        print(f"python -m recording: the ros2 profile needs rosbags: pip install -e '.[ros2]' ({exc})", file=sys.stderr)
+        return 2
     except (FileNotFoundError, ValueError) as exc:
         print(f"python -m recording: {exc}", file=sys.stderr)
         return 2

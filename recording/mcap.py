@@ -42,7 +42,8 @@ from foxglove.messages import (
     Quaternion, SceneEntity, SceneUpdate, SpherePrimitive, TextPrimitive, Timestamp, Vector3,
 )
 
-from recording.stream import Sink, Tally
+from mission.records import Tally, confirm_record, decision_record, observation_record
+from recording.stream import Sink
 from world.scene import FEATURE_COLOUR, OBSTACLE_COLOUR, OVERLAP_COLOUR, WALL_COLOUR, Scene, rgb
 
 #: Target uncompressed size of one MCAP chunk (bytes): small, so a killed writer loses little.
@@ -183,21 +184,17 @@ class McapRecorder(Sink):
 
     def observation(self, t, stage, carrier, x, position, passengers_left):
         self.tally.observe(carrier, stage, x)
-        self._json("/observations", t, {"stage": int(stage), "carrier": carrier, "x": x,
-                                        "position": [float(v) for v in position],
-                                        "passengers_left": int(passengers_left)})
+        self._json("/observations", t, observation_record(stage, carrier, x, position, passengers_left))
 
     def decision(self, t, stage, deploy, planning_ms):
         self.decided = max(self.decided, int(stage) + 1)
-        self._json("/decisions", t, {"stage": int(stage), "deploy": list(deploy), "planning_ms": float(planning_ms)})
+        self._json("/decisions", t, decision_record(stage, deploy, planning_ms))
         self.log(t, "info", f"stage {stage}: deploy {' '.join(deploy) or '-'} (planned in {planning_ms:.1f} ms)")
         self._reward(t)
         self.writer.flush()
 
     def confirm(self, t, stage, carrier, deployed, status, position, passengers_left):
-        self._json("/confirmations", t, {"stage": int(stage), "carrier": carrier, "deployed": bool(deployed),
-                                         "status": status, "position": [float(v) for v in position],
-                                         "passengers_left": int(passengers_left)})
+        self._json("/confirmations", t, confirm_record(stage, carrier, deployed, status, position, passengers_left))
         if not deployed:
             return
         self.tally.confirm(carrier, stage, True)

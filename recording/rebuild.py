@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from mission import events as ev
-from recording.live import MCAP_NAME
+from recording.live import PROFILES, open_sink, recording_path
 from recording.stream import Clock, feed_event, feed_message
 
 
@@ -45,8 +45,10 @@ def _event_time(event, stage_times) -> float | None:
     return None
 
 
-def rebuild(run_dir, scenario_path: str | None = None, out: str | None = None, pose_interval_s: float = 1.0) -> Path:
-    """Write ``out`` (``RUN_DIR/mission.mcap`` by default) from ``RUN_DIR/mission.db``.
+def rebuild(run_dir, scenario_path: str | None = None, out: str | None = None, pose_interval_s: float = 1.0,
+            profile: str = "foxglove") -> Path:
+    """Write ``out`` (``RUN_DIR/mission.mcap`` by default; with ``profile="ros2"`` the bag
+    ``RUN_DIR/ros2bag``) from ``RUN_DIR/mission.db``.
 
     Returns:
         The path written.
@@ -54,10 +56,11 @@ def rebuild(run_dir, scenario_path: str | None = None, out: str | None = None, p
     import world
     from world import build_problem
     from storage.missiondb import load_events, load_meta
-    from recording.mcap import McapRecorder
     from wire.messages import Pose
     from world.scene import build_scene
 
+    if profile not in PROFILES:
+        raise ValueError(f"--profile: expected one of {', '.join(PROFILES)}, found {profile!r}")
     run_dir = Path(run_dir)
     db = run_dir / "mission.db"
     if not db.is_file():
@@ -100,9 +103,9 @@ def rebuild(run_dir, scenario_path: str | None = None, out: str | None = None, p
                     left = c.passengers - sum(1 for td in deployed_at.get(c.id, ()) if td < t - 1e-9)
                     poses.append(Pose(mission, c.id, t, (x, y), heading, max(0, left)))
         poses.sort(key=lambda p: (p.t, p.carrier))
-    target = Path(out) if out else run_dir / MCAP_NAME
+    target = Path(out) if out else recording_path(run_dir, profile)
     problem = build_problem(scenario)
-    sink = McapRecorder(target, scene, problem, metadata={
+    sink = open_sink(target, profile, scene, problem, metadata={
         "mission": mission, "scenario": scenario.name, "seed": scenario.seed,
         "planner": meta.get("planner", summary.get("planner", "")), "fingerprint": meta.get("fingerprint", ""),
         "rebuilt_from": "mission.db"})

@@ -13,14 +13,16 @@ mission.db show the same thing:
 Messages without a time of their own (Hello, Confirm, Bye, End, liveliness) are stamped with the
 time of their stage or, failing that, the latest simulated time seen (:class:`Clock`).
 
-:class:`Tally` keeps the running score: observations, confirmed deployments and the reward so
-far under the penalty rule (planner.problem.evaluate), as summary.json counts it.
+:class:`Tally` (mission/records.py, with the records the JSON channels carry) keeps the running
+score: observations, confirmed deployments and the reward so far under the penalty rule
+(planner.problem.evaluate), as summary.json counts it.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from mission import events as ev
+from mission.records import Tally, confirm_record, decision_record, observation_record  # noqa: F401 (re-exported)
 
 
 class Sink:
@@ -55,36 +57,6 @@ class Clock:
         j = int(j)
         t = float(self.stage_times[j]) if 0 <= j < len(self.stage_times) else self.now
         return self.at(t)
-
-
-class Tally:
-    """Observations ``x [R, N]`` (NaN = ∅), confirmed deployments ``[R, N]`` and the reward so
-    far (normalised, raw features) of a mission, given its planner problem (or None: no reward)."""
-
-    def __init__(self, carrier_ids, n_stages: int, problem=None):
-        self.ids = tuple(carrier_ids)
-        self.index = {cid: r for r, cid in enumerate(self.ids)}
-        self.x = np.full((len(self.ids), n_stages), np.nan)
-        self.deployed = np.zeros((len(self.ids), n_stages), dtype=bool)
-        self.problem = problem
-
-    def observe(self, carrier, stage, x) -> None:
-        r = self.index.get(carrier)
-        if r is not None and x is not None and 0 <= stage < self.x.shape[1]:
-            self.x[r, stage] = float(x)
-
-    def confirm(self, carrier, stage, deployed: bool) -> None:
-        r = self.index.get(carrier)
-        if r is not None and 0 <= stage < self.x.shape[1]:
-            self.deployed[r, stage] = bool(deployed)
-
-    def reward(self) -> tuple[float, float]:
-        """(normalised reward, raw features) of the confirmed deployments so far."""
-        if self.problem is None or not self.deployed.any():
-            return 0.0, 0.0
-        from planner.problem import evaluate
-
-        return evaluate(self.problem, self.deployed, np.nan_to_num(self.x, nan=0.0))
 
 
 def feed_message(sink: Sink, msg, clock: Clock) -> None:

@@ -1,0 +1,134 @@
+"""The processes' ROS 2 side (``--ros2``): the coordinator's node and each carrier's node.
+
+* The coordinator runs node ``/mission/coordinator``: a sink of the mission stream it records
+  (:class:`CoordinatorTopics`, fed by recording/live.py) that publishes the mission-wide topics
+  of ros2/topics.py.
+* Every carrier runs node ``/<id>/carrier`` on its own session (:class:`CarrierRos2`):
+  ``/<id>/pose`` and ``/tf`` at each Pose it sends; with ``--ros2-robot`` its body is the robot
+  (ros2/robot.py).
+
+Both use the process's own zenoh session: the ROS 2 keys (``<domain>/...``, ``@ros2_lv/...``) are
+outside the mission's ``marsupial/`` prefix, so the mission protocol is unchanged. A ROS 2 error
+is logged once and turns that node off, never the mission.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+from ros2 import topics
+from ros2.graph import Node
+from ros2.topics import CARRIER_TOPICS, TOPICS, MissionTopics
+
+
+def default_domain() -> int:
+    """``ROS_DOMAIN_ID`` when set (an integer 0..232), else 0."""
+    text = os.environ.get("ROS_DOMAIN_ID", "").strip()
+    return int(text) if text.isdigit() else 0
+
+
+def check_domain(domain: int) -> str | None:
+    """One line about a bad domain id, or None (ROS 2 domains are 0..232)."""
+    if not 0 <= int(domain) <= 232:
+        return f"--ros2-domain: expected an integer 0..232 (a ROS domain id), found {domain}"
+    return None
+
+
+def check_namespace(ns: str) -> str | None:
+    """One line about a namespace that is not a ROS 2 name, or None."""
+    import re
+
+    if not re.fullmatch(r"(/[A-Za-z][A-Za-z0-9_]*)+/?|/", ns or ""):
+        return (f"--ros2-namespace: expected a ROS 2 namespace such as /robot1 (tokens of letters, digits "
+                f"and _ starting with a letter), found {ns!r}")
+    return None
+
+
+@dataclass(frozen=True)
+class Ros2Settings:
+    """What ``--ros2`` / ``--ros2-robot`` asked for.
+
+    Attributes:
+        domain: the ROS domain id.
+        robot: this carrier's body is a real ROS 2 robot (ros2/robot.py).
+        namespace: the robot's namespace (its odometry, feature and deploy topics).
+        ack_timeout_s: how long a robot carrier waits for the robot to acknowledge a deployment.
+        robot_timeout_s: how long a robot carrier waits for the robot's odometry or features.
+    """
+
+    domain: int = 0
+    robot: bool = False
+    namespace: str = "/"
+    ack_timeout_s: float = 10.0
+    robot_timeout_s: float = 30.0
+
+    def coordinator_sink(self, session, problem=None, log=print):
+        """A factory ``scene -> CoordinatorTopics`` for recording/live.py's extra sinks."""
+        return lambda scene: CoordinatorTopics(session, scene, self.domain, problem, log)
+
+    def attach(self, carrier) -> "CarrierRos2":
+        """The carrier's ROS 2 node (on its session), and with ``robot`` its robot body."""
+        return CarrierRos2(self, carrier)
+
+
+class CoordinatorTopics(MissionTopics):
+    """The mission-wide topics, published live by the coordinator (ROS 2 node
+    ``/mission/coordinator``)."""
+
+    name = "ROS 2 topics"
+
+    def __init__(self, session, scene, domain: int, problem=None, log=print):
+        self.node = Node(session, domain, topics.MISSION_NS, "coordinator", log=log)
+        self.pubs = {topic: self.node.publisher(topic, typename, qos) for topic, (typename, qos) in TOPICS.items()}
+        super().__init__(scene, self._emit, problem, carriers=False)
+
+    def _emit(self, topic, typename, msg, t) -> None:
+        self.pubs[topic].publish(msg)
+
+    def close(self) -> None:
+        self.node.close()
+
+
+class CarrierRos2:
+    """A carrier's ROS 2 node ``/<id>/carrier``: its pose topics, and with a robot its body.
+
+    The carrier calls :meth:`pose` for every Pose it publishes, :meth:`release` when it deploys
+    (the robot's launcher gets the command), and :meth:`close` when it stops.
+    """
+
+    def __init__(self, settings: Ros2Settings, carrier):
+        self.carrier = carrier
+        self.node = Node(carrier.node.session, settings.domain, topics.carrier_namespace(carrier.cid), "carrier",
+                         log=carrier.log)
+        self.pose_pub = self.node.publisher("pose", *CARRIER_TOPICS["{ns}/pose"])
+        self.tf_pub = self.node.publisher("/tf", *CARRIER_TOPICS["/tf"])
+        self.robot = None
+        self._failed = False
+        if settings.robot:
+            from ros2.robot import RobotBody
+
+            self.robot = RobotBody(carrier.scenario, carrier.cid, self.node, settings.namespace,
+                                   sync=carrier.config.realtime <= 0, log=carrier.log, stop=carrier._stop,
+                                   ack_timeout_s=settings.ack_timeout_s, timeout_s=settings.robot_timeout_s)
+            carrier.sim = self.robot
+
+    def pose(self, t: float, x: float, y: float, heading: float) -> None:
+        if self._failed:
+            return
+        try:
+            self.pose_pub.publish(topics.pose_stamped(t, x, y, heading))
+            self.tf_pub.publish(topics.transform(t, self.carrier.cid, x, y, heading))
+        except Exception as exc:  # never the mission
+            self._failed = True
+            self.carrier.log(f"ROS 2 pose topics stopped: {type(exc).__name__}: {exc}")
+
+    def release(self, stage: int, passenger: int) -> None:
+        """Deploy command to the robot (no-op for a simulated carrier)."""
+        if self.robot is not None:
+            self.robot.release(stage, passenger)
+
+    def close(self) -> None:
+        try:
+            self.node.close()
+        except Exception:
+            pass

@@ -1,0 +1,202 @@
+"""A real ROS 2 robot as a carrier's body (``--role carrier --carrier ID --ros2-robot``).
+
+:class:`RobotBody` offers what the carrier loop asks of its ``world.Simulation`` — ``time``,
+``advance_to(t)``, ``position(id)``, ``sense(id)``, ``deploy(id)``, ``passengers_left(id)``,
+``trajectory(id)`` — from the robot's own topics, so Hello, State, resynchronisation, the
+durable log and on-board decisions are the carrier's as for a simulated one (carriers/node.py).
+
+The robot's topics, in its namespace ``NS`` (docs/fleet.md, "A ROS 2 robot in a mission"):
+
+=================  ==============================  =====================================================
+topic              type                            what
+=================  ==============================  =====================================================
+``NS/odom``        nav_msgs/msg/Odometry           the robot's pose; ``pose.pose.position`` x, y in the
+                                                   scenario's map frame (m), heading from the orientation
+``NS/features``    geometry_msgs/msg/PoseArray     the features its detector sees now (within its sensing
+                                                   radius): x = ``len(poses)``
+``NS/deploy``      std_msgs/msg/UInt32             published by the carrier: release passenger ``data``
+                                                   (its index, 0-based, as in the protocol's Decision)
+``NS/deployed``    std_msgs/msg/UInt32             published by the robot's launcher: passenger ``data``
+                                                   has left
+=================  ==============================  =====================================================
+
+Time. Unpaced missions (``--realtime 0``: a simulated robot on ``/clock``) read the stamps as
+mission time: reaching t waits for an odometry (and, to sense, a features) message stamped at or
+after t and uses the last one stamped at or before t, so the robot's clock drives the carrier's
+(conservative synchronisation). Paced missions (``--realtime F > 0``, a robot in the field) use
+the latest message at each stage (sample and hold). A robot silent for ``timeout_s`` is taken
+where it last was (one line in the log).
+
+Deployments. The carrier publishes the command once and waits at most ``ack_timeout_s`` for
+``NS/deployed`` with the same index. Without it, it logs one line and goes on: the deployment
+was decided and is already in its durable log, and a repeated command could release a second
+passenger, so the Confirm says deployed either way.
+"""
+from __future__ import annotations
+
+import bisect
+import math
+import threading
+import time
+
+import numpy as np
+
+from ros2.rmw import QoS
+
+#: How often a waiting body looks for the robot's messages (s).
+POLL_S = 0.005
+
+
+def _stamp(msg: dict) -> float:
+    s = msg["header"]["stamp"]
+    return s["sec"] + s["nanosec"] * 1e-9
+
+
+def _yaw(q: dict) -> float:
+    return math.atan2(2.0 * (q["w"] * q["z"] + q["x"] * q["y"]), 1.0 - 2.0 * (q["y"] ** 2 + q["z"] ** 2))
+
+
+class _History:
+    """Stamped values from one subscription, in stamp order (bounded)."""
+
+    def __init__(self, sub, value, keep: int = 4096):
+        self.sub, self.value, self.keep = sub, value, keep
+        self.stamps: list[float] = []
+        self.values: list = []
+
+    def pull(self) -> None:
+        while True:
+            try:
+                msg, _ = self.sub.inbox.get_nowait()
+            except Exception:
+                return
+            t = _stamp(msg)
+            k = bisect.bisect_right(self.stamps, t)
+            self.stamps.insert(k, t)
+            self.values.insert(k, self.value(msg))
+            if len(self.stamps) > self.keep:
+                del self.stamps[:-self.keep], self.values[:-self.keep]
+
+    def reached(self, t: float) -> bool:
+        return bool(self.stamps) and self.stamps[-1] >= t - 1e-6
+
+    def at(self, t: float):
+        """The value stamped last at or before t (the first one if all are later), or None."""
+        if not self.values:
+            return None
+        k = bisect.bisect_right(self.stamps, t + 1e-6) - 1
+        return self.values[max(k, 0)]
+
+    def latest(self):
+        return self.values[-1] if self.values else None
+
+
+class RobotBody:
+    """One carrier's body backed by a ROS 2 robot (see the module docstring).
+
+    Args:
+        scenario: the mission's scenario.
+        cid: the carrier id.
+        node: the carrier's ROS 2 node (ros2/graph.py).
+        namespace: the robot's namespace.
+        sync: read stamps as mission time and wait for the robot's clock (unpaced missions).
+        log: callable taking one line.
+        stop: the carrier's stop request (ends every wait).
+        ack_timeout_s, timeout_s: see the module docstring.
+    """
+
+    def __init__(self, scenario, cid: str, node, namespace: str, sync: bool, log, stop: threading.Event,
+                 ack_timeout_s: float = 10.0, timeout_s: float = 30.0):
+        self.cid = cid
+        self.ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
+        self.sync, self._log, self._stop = sync, log, stop
+        self.ack_timeout_s, self.timeout_s = ack_timeout_s, timeout_s
+        keep = QoS(depth=1000)
+        self.odom = _History(node.subscription(f"{self.ns}/odom", "nav_msgs/msg/Odometry", keep), lambda m: (
+            float(m["pose"]["pose"]["position"]["x"]), float(m["pose"]["pose"]["position"]["y"]),
+            _yaw(m["pose"]["pose"]["orientation"])))
+        self.features = _History(node.subscription(f"{self.ns}/features", "geometry_msgs/msg/PoseArray", keep),
+                                 lambda m: len(m["poses"]))
+        self.acks = node.subscription(f"{self.ns}/deployed", "std_msgs/msg/UInt32", QoS(depth=10))
+        self.command = node.publisher(f"{self.ns}/deploy", "std_msgs/msg/UInt32", QoS(depth=10))
+        self.time = 0.0
+        self._left = int(scenario.carriers[scenario.carrier_index(cid)].passengers)
+        self._pos = (float("nan"), float("nan"))
+        self._trace: list[tuple[float, float, float]] = []
+        self._silent: set[str] = set()
+
+    # ------------------------------------------------------------------ waiting for the robot
+    def _wait(self, history: _History, t: float, what: str) -> None:
+        deadline = time.monotonic() + self.timeout_s
+        history.pull()
+        while self.sync and not history.reached(t) and not self._stop.is_set():
+            if time.monotonic() >= deadline:
+                if what not in self._silent:
+                    self._silent.add(what)
+                    self._log(f"robot {self.ns or '/'}: no {what} stamped {t:.1f} s or later within "
+                              f"{self.timeout_s:.0f} s; using the last one")
+                return
+            time.sleep(POLL_S)
+            history.pull()
+        while not self.sync and history.latest() is None and not self._stop.is_set():
+            if time.monotonic() >= deadline:
+                if what not in self._silent:
+                    self._silent.add(what)
+                    self._log(f"robot {self.ns or '/'}: no {what} within {self.timeout_s:.0f} s")
+                return
+            time.sleep(POLL_S)
+            history.pull()
+
+    def _pose_at(self, t: float):
+        return self.odom.at(t) if self.sync else self.odom.latest()
+
+    # ------------------------------------------------------------------ what the carrier asks
+    def advance_to(self, t: float) -> None:
+        """Mission time ``t`` (s): the robot's pose then, and one trajectory sample per whole
+        second passed."""
+        self._wait(self.odom, t, "odometry")
+        first = len(self._trace)
+        for s in range(first, int(math.floor(t + 1e-9)) + 1):
+            p = self._pose_at(float(s))
+            if p is not None:
+                self._trace.append((float(s), p[0], p[1]))
+        p = self._pose_at(t)
+        if p is not None:
+            self._pos = (p[0], p[1])
+        self.time = max(self.time, float(t))
+
+    def position(self, cid: str) -> tuple[float, float]:
+        return self._pos
+
+    def sense(self, cid: str) -> int:
+        """x: the number of features the robot's detector saw at the current time."""
+        self._wait(self.features, self.time, "feature detections")
+        x = self.features.at(self.time) if self.sync else self.features.latest()
+        return int(x) if x is not None else 0
+
+    def passengers_left(self, cid: str) -> int:
+        return self._left
+
+    def deploy(self, cid: str):
+        """The carrier's count of passengers (a deployment done or replayed); the command to the
+        robot is :meth:`release`."""
+        if self._left <= 0:
+            raise ValueError(f"carrier {cid!r} has no passenger left to deploy")
+        self._left -= 1
+
+    def trajectory(self, cid: str) -> np.ndarray:
+        return np.asarray(self._trace, dtype=float).reshape(-1, 3)
+
+    def release(self, stage: int, passenger: int) -> bool:
+        """Command the robot to release ``passenger`` and wait for its acknowledgement; True if
+        it came within ``ack_timeout_s``."""
+        self.command.publish({"data": int(passenger)})
+        deadline = time.monotonic() + self.ack_timeout_s
+        while time.monotonic() < deadline and not self._stop.is_set():
+            item = self.acks.latest()
+            if item is not None and int(item[0]["data"]) == int(passenger):
+                return True
+            time.sleep(POLL_S)
+        self._log(f"robot {self.ns or '/'}: no acknowledgement of passenger {passenger} (stage {stage}) on "
+                  f"{self.ns}/deployed within {self.ack_timeout_s:.0f} s; counted as deployed (never re-sent)")
+        return False
