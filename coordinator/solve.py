@@ -3,7 +3,7 @@
     python -m coordinator.solve INSTANCE.json --planner NAME [--iterations K] [--plan-ms MS]
                                 [--seed S] [--exploration C] [--samples M] [--layout L]
                                 [--learn-prior [true|false]] [--no-clairvoyant] [--no-online-optimum]
-                                [--message-loss P] [--message-delay K] [--groups 0,1/2,3]
+                                [--no-upper-bound] [--message-loss P] [--message-delay K] [--groups 0,1/2,3]
 
 A thin command line: planner names, options, their ranges and defaults come from
 :mod:`planner.registry` (one flag per option), the work from :func:`planner.solve.solve_instance`.
@@ -16,7 +16,12 @@ Output (stdout, one JSON object)::
      "observations_sampled": bool,
      "clairvoyant": {"reward": ..., "features": ..., "exact": bool},
      "online_optimum": {"expected_reward": V*, "exact": bool, "atoms": K,
-                        "planner_expected_reward": ...}}
+                        "planner_expected_reward": ...},
+     "upper_bound": {"expected_reward": ..., "stderr": ..., "method": ..., "samples": M}}
+
+``upper_bound`` (planner/duality.py) bounds the expected reward of every online policy from above
+(an expectation over the prior, like V*, with its standard error), present only when it fits its
+time budget (``planner.duality.DEFAULT_BUDGET_S``, judged from the instance's sizes).
 
 ``online_optimum`` (planner/online_optimal.py) is the expected reward of the Bayes-optimal online
 policy, present only when the instance is small enough (``AUTO_WORK``); ``planner_expected_reward``
@@ -125,6 +130,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-clairvoyant", action="store_true", help="skip the clairvoyant bound")
     parser.add_argument("--no-online-optimum", action="store_true",
                         help="skip the exact online optimum (computed only for small instances anyway)")
+    parser.add_argument("--no-upper-bound", action="store_true",
+                        help="skip the information-relaxation upper bound (computed only within its time budget)")
     parser.add_argument("--message-loss", type=_loss, default=0.0, metavar="P",
                         help="probability in [0, 1] that a message is dropped (default 0)")
     parser.add_argument("--message-delay", type=_nonnegative_int("stages"), default=0, metavar="K",
@@ -155,7 +162,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     comms = CommsSpec(args.message_loss, args.message_delay, args.groups)
     try:
         out = solve_instance(args.instance, planner, args.planner, args.seed, clairvoyant=not args.no_clairvoyant,
-                             online_optimum=not args.no_online_optimum, comms=None if comms.perfect else comms)
+                             online_optimum=not args.no_online_optimum, comms=None if comms.perfect else comms,
+                             upper_bound=not args.no_upper_bound)
     except (InstanceError, TooLarge, UnsupportedPrior) as err:
         print(str(err), file=sys.stderr)
         return EXIT_INPUT

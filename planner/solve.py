@@ -14,7 +14,7 @@ from planner.online import run_online
 
 
 def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clairvoyant: bool = True,
-                   online_optimum: bool = True, comms=None) -> dict:
+                   online_optimum: bool = True, comms=None, upper_bound: bool = True) -> dict:
     """Load the instance at ``path``, run ``planner`` online with root seed ``seed``, evaluate.
 
     Returns:
@@ -23,6 +23,8 @@ def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clai
         "clairvoyant" {"reward", "features", "exact"} (with ``clairvoyant``),
         "online_optimum" {"expected_reward", "exact", "atoms"[, "planner_expected_reward"]} (with
         ``online_optimum``, when the instance is within :data:`planner.online_optimal.AUTO_WORK`),
+        "upper_bound" {"expected_reward", "stderr", "method", "samples"} (with ``upper_bound``, when
+        it fits :data:`planner.duality.DEFAULT_BUDGET_S`; :func:`planner.duality.seeded_bound`),
         "comms" {"loss", "delay", "groups"} (only with ``comms``), "released" [[passenger index per
         deployment, in stage order] per carrier] (only for an instance with ``passenger_values``)}``.
 
@@ -74,7 +76,24 @@ def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clai
         optimum = _online_optimum(problem, "" if getattr(planner, "learn_prior", False) else planner_name)
         if optimum is not None:
             out["online_optimum"] = optimum
+    if upper_bound and problem.weights is None:
+        bound = _upper_bound(problem, seed)
+        if bound is not None:
+            out["upper_bound"] = bound
     return out
+
+
+def _upper_bound(problem, seed: int) -> dict | None:
+    """The information-relaxation bound (:func:`planner.duality.seeded_bound`), or None when it
+    would not fit :data:`planner.duality.DEFAULT_BUDGET_S` (decided from the sizes, quickly)."""
+    from planner import duality
+
+    try:
+        bound = duality.seeded_bound(problem, seed)
+    except duality.BoundTooLarge:
+        return None
+    return {"expected_reward": bound.expected_reward, "stderr": bound.stderr, "method": bound.method,
+            "samples": bound.samples}
 
 
 def _online_optimum(problem, planner_name: str) -> dict | None:

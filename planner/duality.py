@@ -1,0 +1,606 @@
+"""An upper bound on the expected reward of every online policy, much tighter than clairvoyance:
+the information-relaxation (duality) bound of Brown, Smith and Sun (Operations Research, 2010).
+
+The clairvoyant bound ``E[max_y R(y, x)]`` lets the deployments ``y`` see the whole observation
+matrix ``x``. Information relaxation keeps that, but charges for what looking ahead is worth:
+
+    U = E_x[ max_y ( R(y, x) - z(y, x) ) ],
+
+where the *penalty* ``z`` is built from an approximate value function ``W`` of the online state,
+
+    z(y, x) = sum over stages j of ( W_j(h_j) - E[ W_j(h_j) | h_{j-1}, y_{j-1} ] ),
+
+``h_j`` being the history up to stage j (observations of stages <= j, deployments before j).
+Each term has conditional mean zero given what an online policy knows when it decides, so
+``E[z(y, x)] = 0`` for every non-anticipative policy ``y``: such a policy earns
+``E[R] = E[R - z] <= U``. Any ``W`` gives a valid bound; ``W = V*`` gives ``U = V*``; zero gives
+the clairvoyant bound.
+
+Our ``W`` is the sum over carriers of their exact single-carrier DLR values-to-go, conflicts
+ignored: with ``n`` valid stages left (the current one included), ``d`` passengers left and the
+current observation ``x``, ``v(n, d, x) = max(x + S(n-1, d-1), S(n-1, d))`` (deployment forced
+when ``n <= d``, impossible when ``d = 0``), where ``S(n, d) = E[v(n, d, X)]`` is the optimal
+single-carrier value (:attr:`planner.compiled.CompiledProblem.slot_value`). The penalty is then
+``sum_r sum_{valid j} (v(n_rj, d_rj, x_rj) - S(n_rj, d_rj))``: it depends on a deployment set only
+through each carrier's passengers left at each of its stages. Without overlaps the inner maximum
+equals ``sum_r S_r`` on every sample (the bound is exact with zero variance); with overlaps it is
+what knowing the future is still worth for coordinating conflicted carriers.
+
+The inner maximisation (over deployment sets with exactly ``min(D_r, valid stages)`` per carrier
+— the deployment sets the forced rule allows) splits into the connected components of the
+carriers' conflict graph (the penalty is per carrier, rewards couple only conflicting points).
+Each component is solved
+
+* ``exact``: by enumerating every combination of its carriers' stage sets (small components);
+* ``mip``: by HiGHS branch and bound on a mixed-integer model of it (below); the value used is
+  HiGHS's *dual bound*, an upper bound on the component's maximum whether or not the search
+  finished within its time limit;
+* ``lp``: the same model's linear relaxation (integrality dropped), an upper bound.
+
+Relaxing the inner problem only raises ``max_y``, so the result stays a valid bound at any size.
+
+The model (one component): per carrier a flow of one unit through the layered graph of its
+(valid stage, passengers left) nodes with a *stay* and a *deploy* arc out of each node (the
+forced rule and the end count fixed by which nodes exist); an arc out of node ``(t, d)`` costs the
+penalty term ``phi[r, t, d]``; the deploy arcs at a point sum to ``y_a``. A point with no valid
+conflicting point earns ``x_a y_a``. A conflicted point ``a`` with ``M_a`` valid conflicting points
+earns ``sum_m x_a / (1 + m) w_am`` with ``sum_m w_am = y_a`` and, for ``x_a >= 0``,
+``sum_m m w_am >= sum_b q_ab`` (``<=`` for ``x_a < 0``), where ``q_ab >= y_a + y_b - 1``,
+``0 <= q_ab <= min(y_a, y_b)`` per conflicting pair. At integer ``y`` and ``w`` this is the penalty
+rule exactly (the maximisation takes the count it is allowed); in the LP every constraint holds
+for the true integer solutions, so the LP value is at least the integer maximum.
+
+Pure: numpy only at import; ``highspy`` is imported inside :func:`_highs_value` (the only place
+that needs it).
+"""
+from __future__ import annotations
+
+import math
+import time
+import weakref
+from dataclasses import dataclass
+from itertools import combinations
+
+import numpy as np
+
+from planner.compiled import compile_problem
+from planner.problem import Problem, sample_observations, valid_stages_left
+
+#: Methods of the inner maximisation (see the module docstring).
+METHODS = ("exact", "mip", "lp", "separable")
+#: Largest number of stage-set combinations of one component that ``exact`` enumerates.
+MAX_COMBINATIONS = 200_000
+#: Default samples (observation matrices) of the Monte Carlo mean.
+DEFAULT_SAMPLES = 200
+#: Default wall-time budget of :func:`upper_bound`, seconds.
+DEFAULT_BUDGET_S = 3.0
+#: Time limit of one HiGHS branch and bound (``mip``), seconds: beyond it its dual bound is used.
+MIP_TIME_LIMIT_S = 1.0
+#: Time limit of one HiGHS LP, seconds: beyond it the part falls back to the separable bound.
+LP_TIME_LIMIT_S = 60.0
+#: Largest HiGHS model (columns) the ``auto`` method solves as a MIP rather than an LP.
+MIP_COLUMNS = 2_000
+
+
+class BoundTooLarge(ValueError):
+    """The bound would not fit its time budget. ``str(err)`` is one line."""
+
+
+# ----------------------------------------------------------------------------- the penalty
+
+
+def penalty_terms(problem: Problem, x: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    """float ``[R, N, Dmax + 1]``: ``phi[r, j, d]``, the penalty term of carrier r at stage j with
+    d passengers left before j, ``scale * (v(n, d, x[r, j]) - S(n, d))`` at valid stages (0 at
+    invalid ones and for ``d = 0``); raw units. ``scale = 0`` is the zero penalty (clairvoyance).
+
+    ``x``: float ``[R, N]`` observations (NaN = ∅; every scheduled stage must be observed).
+    """
+    slot = compile_problem(problem).slot_value  # [N + 1, N + 1], S(n, d), d clipped to n
+    n_carriers, n_stages = problem.valid.shape
+    dmax = int(problem.passengers.max(initial=0))
+    out = np.zeros((n_carriers, n_stages, dmax + 1))
+    if scale == 0.0 or dmax == 0:
+        return out
+    left = valid_stages_left(problem.valid)[:, :n_stages]  # n at each (r, j)
+    r_idx, j_idx = np.nonzero(problem.valid)
+    n = left[r_idx, j_idx]
+    xv = np.asarray(x, dtype=float)[r_idx, j_idx]
+    for d in range(1, dmax + 1):
+
+        def s(nn, dd):
+            return slot[nn, np.minimum(dd, nn)]
+
+        deploy = xv + s(n - 1, np.full_like(n, d - 1))
+        stay = s(n - 1, np.full_like(n, d))
+        value = np.where(n <= d, deploy, np.maximum(deploy, stay))
+        out[r_idx, j_idx, d] = scale * (value - s(n, np.full_like(n, d)))
+    return out
+
+
+# ----------------------------------------------------------------------------- inner maximum
+
+
+@dataclass(frozen=True)
+class _Component:
+    """Carriers joined by conflicts among valid points, with their valid stages and counts."""
+
+    carriers: tuple[int, ...]
+    stages: tuple[np.ndarray, ...]  # valid stages of each carrier, ascending
+    ks: tuple[int, ...]             # deployments of each carrier: min(D_r, valid stages)
+
+    def combinations(self) -> float:
+        return math.prod(float(math.comb(len(s), k)) for s, k in zip(self.stages, self.ks))
+
+
+_COMPONENTS: "weakref.WeakKeyDictionary[Problem, list]" = weakref.WeakKeyDictionary()
+
+
+def _components(problem: Problem) -> list[_Component]:
+    """Connected components of the carriers linked by a conflict between two scheduled-valid
+    points (a carrier with no such conflict is a component of its own); cached per problem."""
+    found = _COMPONENTS.get(problem)
+    if found is None:
+        found = _COMPONENTS[problem] = _find_components(problem, problem.valid)
+    return found
+
+
+def _find_components(problem: Problem, valid: np.ndarray) -> list[_Component]:
+    n_carriers, n_stages = valid.shape
+    flat_valid = valid.ravel()
+    comp = compile_problem(problem)
+    rows, cols = comp.nbr_rows, comp.nbr
+    keep = flat_valid[rows] & flat_valid[cols]
+    parent = list(range(n_carriers))
+
+    def find(a):
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for a, b in zip((rows[keep] // n_stages).tolist(), (cols[keep] // n_stages).tolist()):
+        ra, rb = find(a), find(b)
+        if ra != rb:
+            parent[max(ra, rb)] = min(ra, rb)
+    groups: dict[int, list[int]] = {}
+    for r in range(n_carriers):
+        groups.setdefault(find(r), []).append(r)
+    out = []
+    for members in groups.values():
+        stages = tuple(np.flatnonzero(valid[r]) for r in members)
+        ks = tuple(min(int(problem.passengers[r]), len(s)) for r, s in zip(members, stages))
+        out.append(_Component(tuple(members), stages, ks))
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class _Enumeration:
+    """Every combination of one component's stage sets, as arrays (built once per problem).
+
+    Attributes:
+        flat: int64 ``[P]`` the component's valid flat points.
+        conflict: float ``[P, P]`` their conflict matrix.
+        sel: float ``[C, P]`` 1 where combination c deploys at point p.
+        options: per carrier ``(stages [n], left [O, n] passengers left before each stage,
+            choice [C] the carrier's option in each combination)``.
+    """
+
+    flat: np.ndarray
+    conflict: np.ndarray
+    sel: np.ndarray
+    options: tuple
+
+
+_ENUMERATIONS: "weakref.WeakKeyDictionary[Problem, dict]" = weakref.WeakKeyDictionary()
+
+
+def _enumeration(problem: Problem, part: _Component) -> _Enumeration:
+    cache = _ENUMERATIONS.setdefault(problem, {})
+    found = cache.get(part.carriers)
+    if found is not None:
+        return found
+    n_stages = problem.n_stages
+    flat = np.concatenate([r * n_stages + s for r, s in zip(part.carriers, part.stages)])
+    offsets = np.concatenate(([0], np.cumsum([len(s) for s in part.stages])))
+    masks = []
+    for stages, k in zip(part.stages, part.ks):
+        opts = list(combinations(range(len(stages)), k))
+        mask = np.zeros((len(opts), len(stages)), dtype=bool)
+        for o_idx, o in enumerate(opts):
+            mask[o_idx, list(o)] = True
+        masks.append(mask)
+    grids = np.meshgrid(*[np.arange(len(m)) for m in masks], indexing="ij")
+    choices = [g.ravel() for g in grids]
+    sel = np.zeros((len(choices[0]), len(flat)))
+    options = []
+    for i, (r, stages, mask, choice) in enumerate(zip(part.carriers, part.stages, masks, choices)):
+        sel[:, offsets[i]:offsets[i + 1]] = mask[choice]
+        before = np.concatenate((np.zeros((len(mask), 1), dtype=np.int64), np.cumsum(mask, axis=1)[:, :-1]), axis=1)
+        options.append((stages, int(problem.passengers[r]) - before, choice))
+    out = _Enumeration(flat, problem.conflict[np.ix_(flat, flat)].astype(float), sel, tuple(options))
+    cache[part.carriers] = out
+    return out
+
+
+def _exact_component(problem: Problem, x: np.ndarray, phi: np.ndarray, part: _Component) -> float:
+    """Maximum of (reward - penalty) over every combination of the component's stage sets, raw."""
+    en = _enumeration(problem, part)
+    xs = np.asarray(x, dtype=float).ravel()[en.flat]
+    value = (en.sel * xs[None, :] / (1.0 + en.sel @ en.conflict)).sum(axis=1)
+    for r, (stages, left, choice) in zip(part.carriers, en.options):
+        value -= phi[r, stages[None, :], left].sum(axis=1)[choice]
+    return float(value.max())
+
+
+def _alone_value(problem: Problem, x: np.ndarray, phi: np.ndarray, r: int, stages: np.ndarray, k: int) -> float:
+    """Maximum of (reward - penalty) of a carrier without valid conflicts: a DP over its stages."""
+    d0 = int(problem.passengers[r])
+    if k == 0 or len(stages) == 0:
+        return 0.0
+    end = d0 - k
+    best = {d0: 0.0}  # passengers left -> best value so far
+    n = len(stages)
+    for t, j in enumerate(stages):
+        nxt: dict[int, float] = {}
+        for d, val in best.items():
+            base = val - phi[r, j, d]
+            if d - end <= n - t - 1:  # may stay
+                nxt[d] = max(nxt.get(d, -np.inf), base)
+            if d - 1 >= end:
+                nxt[d - 1] = max(nxt.get(d - 1, -np.inf), base + float(x[r, j]))
+        best = nxt
+    return best[end]
+
+
+def _separable_value(problem: Problem, x: np.ndarray, phi: np.ndarray, parts: list[_Component]) -> float:
+    """An upper bound on the inner maximum that ignores how carriers' deployments interact: each
+    point earns at most ``x`` (``x >= 0``) or ``x / (1 + M)`` (``x < 0``, ``M`` its valid conflicting
+    points), then every carrier's best stage set by :func:`_alone_value`; raw units."""
+    n_stages = problem.n_stages
+    flat_valid = problem.valid.ravel()
+    comp = compile_problem(problem)
+    rows, cols = comp.nbr_rows, comp.nbr
+    keep = flat_valid[rows] & flat_valid[cols]
+    many = np.bincount(rows[keep], minlength=len(flat_valid)).reshape(problem.valid.shape)
+    best = np.where(x >= 0, x, x / (1.0 + many))
+    return sum(_alone_value(problem, best, phi, r, s, k)
+               for part in parts for r, s, k in zip(part.carriers, part.stages, part.ks))
+
+
+def inner_maximum(problem: Problem, x: np.ndarray, method: str = "exact", penalty_scale: float = 1.0,
+                  mip_time_limit_s: float = MIP_TIME_LIMIT_S) -> float:
+    """``max_y (R(y, x) - z(y, x))`` for one observation matrix, or an upper bound on it; raw units.
+
+    Args:
+        x: float ``[R, N]``, an observation at every scheduled stage.
+        method: ``exact`` (enumeration; :class:`BoundTooLarge` for a component beyond
+            :data:`MAX_COMBINATIONS`), ``mip`` (the smaller of the HiGHS dual bound, exact when the
+            search finishes within ``mip_time_limit_s``, and the LP), ``lp`` (the linear
+            relaxation) or ``separable`` (interactions ignored; the fallback of an LP HiGHS cannot
+            finish within :data:`LP_TIME_LIMIT_S`).
+        penalty_scale: 1.0 for the DLR penalty, 0.0 for none (the clairvoyant optimum).
+    """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    x = np.asarray(x, dtype=float)
+    if np.isnan(x[problem.valid]).any():
+        raise ValueError("the bound needs an observation at every scheduled stage (found NaN at a valid stage)")
+    x = np.where(problem.valid, x, 0.0)
+    phi = penalty_terms(problem, x, penalty_scale)
+    parts = _components(problem)
+    if method == "separable":
+        return _separable_value(problem, x, phi, parts)
+    total = 0.0
+    for part in parts:
+        if len(part.carriers) == 1:
+            total += _alone_value(problem, x, phi, part.carriers[0], part.stages[0], part.ks[0])
+        elif method == "exact":
+            if part.combinations() > MAX_COMBINATIONS:
+                raise BoundTooLarge(f"upper bound: a component of {len(part.carriers)} carriers has "
+                                    f"{part.combinations():.3g} stage-set combinations (exact limit {MAX_COMBINATIONS:,})")
+            total += _exact_component(problem, x, phi, part)
+        else:
+            value = _highs_value(problem, x, phi, part, integer=False, time_limit_s=LP_TIME_LIMIT_S)
+            if method == "mip":
+                value = min(value, _highs_value(problem, x, phi, part, integer=True, time_limit_s=mip_time_limit_s))
+            if not np.isfinite(value):  # HiGHS did not finish: the interaction-free bound of this part
+                value = _separable_value(problem, x, phi, [part])
+            total += value
+    return total
+
+
+# ----------------------------------------------------------------------------- the HiGHS model
+
+
+_BANNER_SHOWN = []  # non-empty once a Highs object exists in this process
+
+
+def _new_highs(highspy):
+    """A silent ``highspy.Highs``. HiGHS prints a banner on stdout when the first one of a process
+    is built, before any option can be set (stdout is a JSON document for ``solve``); that first
+    construction runs with file descriptor 1 pointed at /dev/null."""
+    import os
+    import sys
+
+    if not _BANNER_SHOWN:
+        sys.stdout.flush()
+        saved = os.dup(1)
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(devnull, 1)
+            h = highspy.Highs()
+        finally:
+            os.dup2(saved, 1)
+            os.close(saved)
+            os.close(devnull)
+        _BANNER_SHOWN.append(True)
+    else:
+        h = highspy.Highs()
+    h.setOptionValue("output_flag", False)
+    return h
+
+
+def _highs_value(problem: Problem, x: np.ndarray, phi: np.ndarray, part: _Component, integer: bool,
+                 time_limit_s: float) -> float:
+    """The component's model (module docstring) solved by HiGHS: the MIP's dual bound
+    (``integer``) or the LP optimum; raw units. Both are >= the component's inner maximum."""
+    import highspy  # the only HiGHS import of the planner core
+
+    n_stages = problem.n_stages
+    cols_lo, cols_hi, cols_cost, cols_int = [], [], [], []
+
+    def var(cost: float, lo: float = 0.0, hi: float = 1.0, is_int: bool = False) -> int:
+        cols_lo.append(lo)
+        cols_hi.append(hi)
+        cols_cost.append(cost)
+        cols_int.append(is_int)
+        return len(cols_cost) - 1
+
+    rows: list[tuple[float, float, list[int], list[float]]] = []
+    flat_points = np.concatenate([r * n_stages + s for r, s in zip(part.carriers, part.stages)])
+    in_part = np.zeros(problem.n_carriers * n_stages, dtype=bool)
+    in_part[flat_points] = True
+    comp = compile_problem(problem)
+    xs = np.asarray(x, dtype=float).ravel()
+    deploy_arcs: dict[int, list[int]] = {}
+    for r, stages, k in zip(part.carriers, part.stages, part.ks):
+        d0 = int(problem.passengers[r])
+        end, n = d0 - k, len(stages)
+        inflow: dict[tuple[int, int], list[int]] = {}
+        for t, j in enumerate(stages):
+            a = r * n_stages + int(j)
+            for d in range(end, d0 + 1):
+                if d0 - d > t or d - end > n - t:
+                    continue  # node (t, d) unreachable
+                out = []
+                cost = -float(phi[r, j, d])
+                if d - end <= n - t - 1:
+                    out.append(var(cost, is_int=integer))
+                    inflow.setdefault((t + 1, d), []).append(out[-1])
+                if d - 1 >= end:
+                    out.append(var(cost, is_int=integer))
+                    inflow.setdefault((t + 1, d - 1), []).append(out[-1])
+                    deploy_arcs.setdefault(a, []).append(out[-1])
+                if t == 0:
+                    rows.append((1.0, 1.0, out, [1.0] * len(out)))
+                else:
+                    ins = inflow.get((t, d), [])
+                    rows.append((0.0, 0.0, out + ins, [1.0] * len(out) + [-1.0] * len(ins)))
+    y = {}
+    for a, arcs in deploy_arcs.items():
+        nbrs = comp.nbr[comp.indptr[a]:comp.indptr[a + 1]]
+        nbrs = nbrs[in_part[nbrs]]
+        if len(nbrs) == 0:
+            for arc in arcs:
+                cols_cost[arc] += float(xs[a])
+            continue
+        y[a] = var(0.0)
+        rows.append((0.0, 0.0, [y[a]] + arcs, [1.0] + [-1.0] * len(arcs)))
+    q = {}
+    for a in y:
+        for b in comp.nbr[comp.indptr[a]:comp.indptr[a + 1]].tolist():
+            if b in y and a < b:
+                q[(a, b)] = v = var(0.0)
+                rows.append((-1.0, np.inf, [v, y[a], y[b]], [1.0, -1.0, -1.0]))
+                rows.append((-np.inf, 0.0, [v, y[a]], [1.0, -1.0]))
+                rows.append((-np.inf, 0.0, [v, y[b]], [1.0, -1.0]))
+    for a, ya in y.items():
+        pairs = [q[(min(a, b), max(a, b))] for b in comp.nbr[comp.indptr[a]:comp.indptr[a + 1]].tolist() if b in y]
+        xa = float(xs[a])
+        if xa == 0.0:
+            continue
+        ws = [var(xa / (1.0 + m), is_int=integer) for m in range(len(pairs) + 1)]
+        rows.append((0.0, 0.0, ws + [ya], [1.0] * len(ws) + [-1.0]))
+        lo, hi = (0.0, np.inf) if xa > 0 else (-np.inf, 0.0)
+        rows.append((lo, hi, ws + pairs, list(range(len(ws))) + [-1.0] * len(pairs)))
+
+    h = _new_highs(highspy)
+    h.setOptionValue("threads", 1)
+    h.setOptionValue("time_limit", float(time_limit_s))
+    if integer:
+        h.setOptionValue("mip_rel_gap", 0.0)
+    lp = highspy.HighsLp()
+    ncol = len(cols_cost)
+    lp.num_col_ = ncol
+    lp.num_row_ = len(rows)
+    lp.col_cost_ = np.asarray(cols_cost)
+    lp.col_lower_ = np.asarray(cols_lo)
+    lp.col_upper_ = np.asarray(cols_hi)
+    lp.row_lower_ = np.array([r[0] for r in rows])
+    lp.row_upper_ = np.array([r[1] for r in rows])
+    lp.sense_ = highspy.ObjSense.kMaximize
+    starts, index, value = [0], [], []
+    for _, _, idx, val in rows:
+        index += idx
+        value += val
+        starts.append(len(index))
+    lp.a_matrix_.format_ = highspy.MatrixFormat.kRowwise
+    lp.a_matrix_.start_ = np.asarray(starts, dtype=np.int32)
+    lp.a_matrix_.index_ = np.asarray(index, dtype=np.int32)
+    lp.a_matrix_.value_ = np.asarray(value, dtype=float)
+    if integer:
+        lp.integrality_ = [highspy.HighsVarType.kInteger if c else highspy.HighsVarType.kContinuous
+                           for c in cols_int]
+    h.passModel(lp)
+    h.run()
+    info = h.getInfo()
+    if integer:
+        bound = float(info.mip_dual_bound)  # +inf when the search stopped before the root LP
+    else:
+        if h.getModelStatus() != highspy.HighsModelStatus.kOptimal:
+            return np.inf  # not solved in time: the caller falls back to the separable bound
+        bound = float(info.objective_function_value)
+    return bound
+
+
+# ----------------------------------------------------------------------------- the bound
+
+
+@dataclass(frozen=True)
+class UpperBound:
+    """A Monte Carlo estimate of the information-relaxation bound.
+
+    Attributes:
+        expected_reward: the mean of the inner maxima over ``samples`` observation matrices drawn
+            from the prior, normalised (raw / ``problem.scale``) like ``online_optimum``.
+        stderr: its standard error (sample standard deviation / sqrt(samples)), same units.
+        method: how the inner maxima were bounded: ``exact``, ``mip``, ``lp`` or ``separable``
+            (components of one carrier are always solved exactly).
+        samples: observation matrices drawn.
+        penalty_scale: 1.0 (the DLR penalty) or 0.0 (none: the clairvoyant bound's mean).
+    """
+
+    expected_reward: float
+    stderr: float
+    method: str
+    samples: int
+    penalty_scale: float = 1.0
+
+
+def auto_method(problem: Problem) -> str:
+    """``exact`` when every component has at most :data:`MAX_COMBINATIONS` stage-set combinations,
+    else ``mip`` when the HiGHS models have at most :data:`MIP_COLUMNS` columns, else ``lp``.
+    O(R*N + conflicts)."""
+    parts = _components(problem)
+    if all(p.combinations() <= MAX_COMBINATIONS for p in parts):
+        return "exact"
+    return "mip" if _lp_columns(problem, parts) <= MIP_COLUMNS else "lp"
+
+
+#: Cost model of one sample (seconds on one core of the development machine under the usual
+#: load): per enumerated combination and point (``exact``); per LP column (``lp``; HiGHS is
+#: superlinear, hence the quadratic term) plus ``model`` per HiGHS model; ``mip`` times the LP
+#: (typical; one branch and bound is capped at :data:`MIP_TIME_LIMIT_S`); per decision point
+#: (``separable``).
+_COST = {"exact": 2e-7, "lp": 4e-5, "lp2": 1.5e-9, "model": 0.01, "mip": 6.0, "separable": 2e-6}
+
+
+def _lp_columns(problem: Problem, parts: list[_Component]) -> int:
+    """Columns of the HiGHS models of the multi-carrier components (arcs, y, q and w variables)."""
+    comp = compile_problem(problem)
+    flat_valid = problem.valid.ravel()
+    rows, cols = comp.nbr_rows, comp.nbr
+    keep = flat_valid[rows] & flat_valid[cols]
+    pairs = int(keep.sum())  # ordered pairs: q columns once per pair, w columns once per entry
+    columns = 0
+    for part in parts:
+        if len(part.carriers) > 1:
+            columns += sum(2 * len(s) * (k + 1) for s, k in zip(part.stages, part.ks))
+    return columns + int(1.5 * pairs) + 3 * int(flat_valid.sum())
+
+
+def estimate_seconds(problem: Problem, method: str, samples: int) -> float:
+    """Predicted wall time of :func:`upper_bound` (``samples`` samples, ``method``), from the
+    instance's sizes alone (O(R*N + conflicts), no solve), by the cost model :data:`_COST`."""
+    parts = _components(problem)
+    points = int(problem.valid.sum())
+    per = _COST["separable"] * max(points, 1)
+    if method == "exact":
+        per += sum(_COST["exact"] * p.combinations() * sum(len(s) for s in p.stages)
+                   for p in parts if len(p.carriers) > 1)
+    elif method in ("lp", "mip"):
+        columns = _lp_columns(problem, parts)
+        models = sum(len(p.carriers) > 1 for p in parts)
+        lp = _COST["lp"] * columns + _COST["lp2"] * columns ** 2 + _COST["model"] * models
+        per += lp * (_COST["mip"] if method == "mip" else 1.0)
+    return per * samples
+
+
+def check_budget(problem: Problem, method: str, samples: int, budget_s: float) -> None:
+    """Raise :class:`BoundTooLarge` (one line) when :func:`estimate_seconds` exceeds ``budget_s``."""
+    need = estimate_seconds(problem, method, samples)
+    if need > budget_s:
+        raise BoundTooLarge(f"upper bound: {samples} samples by {method} would take about {need:.3g} s, beyond the "
+                            f"{budget_s:g} s budget (R={problem.n_carriers}, N={problem.n_stages})")
+
+
+def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAULT_SAMPLES,
+                method: str = "auto", penalty_scale: float = 1.0, deadline_s: float | None = None) -> UpperBound:
+    """The information-relaxation bound of ``problem``: the mean of :func:`inner_maximum` over
+    ``samples`` observation matrices drawn from the prior with ``rng`` (scheduled stages only).
+
+    Args:
+        method: ``auto`` (:func:`auto_method`) or one of :data:`METHODS`.
+        deadline_s: stop with :class:`BoundTooLarge` once this much wall time has passed (checked
+            after each sample; None: no limit). The result never depends on timing: it is the
+            bound of all ``samples`` or nothing.
+
+    Raises:
+        ValueError: a problem with passenger values (the penalty knows no passenger types), fewer
+            than 2 samples, or an unknown method.
+    """
+    if problem.weights is not None:
+        raise ValueError("upper bound: expected an instance without passenger values, found passenger_values")
+    if samples < 2:
+        raise ValueError(f"upper bound: expected at least 2 samples (for a standard error), found {samples}")
+    method = auto_method(problem) if method == "auto" else method
+    values = np.empty(samples)
+    start = time.perf_counter()
+    for s in range(samples):
+        x = sample_observations(problem, rng)
+        values[s] = inner_maximum(problem, x, method, penalty_scale) / problem.scale
+        if deadline_s is not None and time.perf_counter() - start > deadline_s:
+            raise BoundTooLarge(f"upper bound: stopped after {s + 1} of {samples} samples at the {deadline_s:g} s deadline")
+    return UpperBound(float(values.mean()), float(values.std(ddof=1) / math.sqrt(samples)), method, samples,
+                      penalty_scale)
+
+
+#: Fewest samples :func:`plan` accepts (fewer would make the standard error meaningless).
+MIN_SAMPLES = 20
+#: The bound's observation stream of a root seed: ``SeedSequence(seed, spawn_key=BOUND_SPAWN_KEY)``.
+BOUND_SPAWN_KEY = (3000,)
+#: :func:`seeded_bound` gives up (no bound) past this multiple of its budget (a host far slower
+#: than the cost model).
+DEADLINE_FACTOR = 3.0
+
+
+def plan(problem: Problem, budget_s: float = DEFAULT_BUDGET_S, samples: int = DEFAULT_SAMPLES) -> tuple[str, int]:
+    """``(method, samples)`` for a bound within ``budget_s`` by :func:`estimate_seconds` (sizes
+    alone, so the choice is the same on a fast and a loaded machine): :func:`auto_method` or, if
+    that does not fit, ``lp``; as many samples as fit, at most ``samples``.
+
+    Raises:
+        BoundTooLarge: not even :data:`MIN_SAMPLES` samples fit (one line; quick: no solve).
+        ValueError: a problem with passenger values.
+    """
+    if problem.weights is not None:
+        raise ValueError("upper bound: expected an instance without passenger values, found passenger_values")
+    first = auto_method(problem)
+    for method in dict.fromkeys((first, "mip" if first == "exact" else first, "lp")):
+        per = estimate_seconds(problem, method, 1)
+        fit = min(samples, int(budget_s // per) if per > 0 else samples)
+        if fit >= MIN_SAMPLES:
+            return method, fit
+    raise BoundTooLarge(f"upper bound: {MIN_SAMPLES} samples by lp would take about "
+                        f"{estimate_seconds(problem, 'lp', MIN_SAMPLES):.3g} s, beyond the {budget_s:g} s budget "
+                        f"(R={problem.n_carriers}, N={problem.n_stages})")
+
+
+def seeded_bound(problem: Problem, seed: int, budget_s: float = DEFAULT_BUDGET_S,
+                 samples: int = DEFAULT_SAMPLES) -> UpperBound:
+    """The bound as ``python -m coordinator.solve`` reports it: :func:`plan` within ``budget_s``,
+    observations from ``SeedSequence(seed, spawn_key=BOUND_SPAWN_KEY)``. Raises as :func:`plan`."""
+    method, count = plan(problem, budget_s, samples)
+    rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=BOUND_SPAWN_KEY))
+    return upper_bound(problem, rng, count, method, deadline_s=DEADLINE_FACTOR * budget_s)

@@ -1,0 +1,161 @@
+"""The information-relaxation bound (planner/duality.py) against independent oracles.
+
+* validity: on tiny conflicted instances the bound is never below the exact online optimum V*
+  (by more than 3 standard errors), for every prior kind the exact solver takes (continuous
+  priors through the same 12-atom stand-in V* uses); on a three-point prior the bound's
+  expectation is computed exactly, by enumerating every observation matrix, and is >= V*;
+* zero penalty: the inner maximum is the clairvoyant optimum on every sample;
+* relaxations: LP, MIP and the separable bound are never below the exact inner maximum;
+* no overlaps: the bound is exact (the sum of the carriers' DLR optima) with zero variance;
+* determinism for a seed; cheap refusal beyond a budget; ``solve`` reports it.
+"""
+from __future__ import annotations
+
+import itertools
+import json
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from coordinator import solve
+from planner import clairvoyant, duality, online_optimal, priors, ssap
+from planner.instance import load_instance, random_instance
+from planner.problem import Problem, sample_observations
+
+#: A two-point prior that keeps the enumeration of observation matrices small (2^8).
+TWO = stats.rv_discrete(values=([1.0, 4.0], [0.6, 0.4]))()
+#: R = 2, N = 4, D = 2, two overlap groups (one with a self-conflict).
+TINY_VALID = np.ones((2, 4), bool)
+TINY_OVERLAPS = [[[0, 1], [1, 1], [1, 2]], [[0, 3], [1, 0], [0, 2]]]
+
+#: One spec per prior kind of planner.priors (parameters kept small so V* is quick).
+KIND_SPECS = {
+    "poisson": {"kind": "poisson", "mean": 2.0},
+    "binomial": {"kind": "binomial", "n": 4, "p": 0.5},
+    "geometric": {"kind": "geometric", "p": 0.7},
+    "negative_binomial": {"kind": "negative_binomial", "n": 1, "p": 0.7},
+    "discrete_uniform": {"kind": "discrete_uniform", "low": 0, "high": 4},
+    "table": {"kind": "table", "values": [0, 1, 3], "probabilities": [0.3, 0.4, 0.3]},
+    "gamma": {"kind": "gamma", "shape": 2.0, "scale": 1.0},
+    "exponential": {"kind": "exponential", "mean": 2.0},
+    "lognormal": {"kind": "lognormal", "mu": 0.5, "sigma": 0.5},
+    "normal": {"kind": "normal", "mean": 1.0, "std": 1.5},  # negative observations too
+    "uniform": {"kind": "uniform", "low": 0.0, "high": 4.0},
+}
+
+
+def test_every_prior_kind_is_covered():
+    assert set(KIND_SPECS) == set(priors.PRIOR_KINDS)
+
+
+def _stand_in(prior):
+    """The prior V* is the exact value for: the prior itself (discrete) or its atoms (continuous)."""
+    if priors.is_discrete(prior):
+        return prior
+    atoms = online_optimal.discretise(prior)
+    return stats.rv_discrete(values=(atoms.points, atoms.probs))()
+
+
+@pytest.mark.parametrize("kind", list(KIND_SPECS))
+def test_bound_is_valid_against_the_online_optimum(kind):
+    prior = _stand_in(priors.build_prior(KIND_SPECS[kind]))
+    problem = Problem.build(2, TINY_VALID, TINY_OVERLAPS, prior, normalize=1.0)
+    best = online_optimal.online_value(problem).expected_reward
+    bound = duality.upper_bound(problem, np.random.default_rng(7), samples=150, method="exact")
+    assert bound.method == "exact" and bound.samples == 150
+    assert bound.expected_reward >= best - 3 * bound.stderr, (bound, best)
+    # It is an upper bound on SSAP's exact value too, and far below the conflict-free online value
+    # only when conflicts matter: never above the separable bound's mean on the same samples.
+    separable = duality.upper_bound(problem, np.random.default_rng(7), samples=150, method="separable")
+    assert bound.expected_reward <= separable.expected_reward + 1e-9
+
+
+def test_exact_expectation_of_the_bound_is_at_least_the_online_optimum():
+    """Every observation matrix of a two-point prior (2^8 of them), weighted by its probability."""
+    problem = Problem.build(2, TINY_VALID, TINY_OVERLAPS, TWO, normalize=1.0)
+    points, probs = priors.support(TWO)
+    expectation = clairvoyant_mean = 0.0
+    for outcome in itertools.product(range(len(points)), repeat=TINY_VALID.size):
+        x = points[list(outcome)].reshape(TINY_VALID.shape)
+        weight = float(np.prod(probs[list(outcome)]))
+        expectation += weight * duality.inner_maximum(problem, x, "exact")
+        clairvoyant_mean += weight * duality.inner_maximum(problem, x, "exact", penalty_scale=0.0)
+    best = online_optimal.online_value(problem).expected_reward
+    assert expectation >= best - 1e-9
+    assert expectation < clairvoyant_mean  # tighter than clairvoyance on this instance
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_zero_penalty_is_the_clairvoyant_optimum(seed):
+    rng = np.random.default_rng(seed)
+    inst = random_instance(rng, carriers=3, passengers=2, stages=5, overlaps=4, invalid_fraction=0.1)
+    problem = inst.problem
+    for _ in range(5):
+        x = sample_observations(problem, rng)
+        offline = clairvoyant.solve(problem, x)
+        assert offline.exact
+        for method in ("exact", "mip"):
+            assert duality.inner_maximum(problem, x, method, penalty_scale=0.0) == pytest.approx(offline.features, abs=1e-7)
+    zero = duality.upper_bound(problem, np.random.default_rng(1), samples=20, penalty_scale=0.0)
+    again = np.random.default_rng(1)
+    mean = np.mean([clairvoyant.solve(problem, sample_observations(problem, again)).reward for _ in range(20)])
+    assert zero.expected_reward == pytest.approx(mean, abs=1e-9)
+
+
+@pytest.mark.parametrize("prior", [stats.poisson(3.0), stats.norm(0.5, 2.0)], ids=["poisson", "normal"])
+def test_relaxations_are_never_below_the_exact_inner_maximum(prior):
+    rng = np.random.default_rng(11)
+    for _ in range(3):
+        inst = random_instance(rng, carriers=3, passengers=2, stages=5, overlaps=5)
+        problem = Problem.build(inst.problem.passengers, inst.problem.valid, inst.problem.overlaps, prior,
+                                normalize=1.0)
+        for _ in range(4):
+            x = sample_observations(problem, rng)
+            exact = duality.inner_maximum(problem, x, "exact")
+            assert duality.inner_maximum(problem, x, "lp") >= exact - 1e-7
+            assert duality.inner_maximum(problem, x, "separable") >= exact - 1e-9
+            assert duality.inner_maximum(problem, x, "mip") == pytest.approx(exact, abs=1e-6)
+
+
+def test_without_overlaps_the_bound_is_the_dlr_optimum_with_zero_variance():
+    valid = np.array([[1, 1, 0, 1, 1], [0, 1, 1, 1, 1], [1, 1, 1, 1, 1]], bool)
+    problem = Problem.build([2, 1, 3], valid)
+    table = ssap.table_for(problem)
+    expected = sum(ssap.expected_value(table, int(valid[r].sum()), d) for r, d in enumerate([2, 1, 3]))
+    bound = duality.upper_bound(problem, np.random.default_rng(0), samples=10)
+    assert bound.expected_reward * problem.scale == pytest.approx(expected, rel=1e-9)
+    assert bound.stderr < 1e-9
+
+
+def test_same_seed_same_bound():
+    problem = random_instance(np.random.default_rng(2), carriers=3, passengers=2, stages=5, overlaps=5).problem
+    a = duality.upper_bound(problem, np.random.default_rng(42), samples=12)
+    b = duality.upper_bound(problem, np.random.default_rng(42), samples=12)
+    c = duality.upper_bound(problem, np.random.default_rng(43), samples=12)
+    assert a == b and a.expected_reward != c.expected_reward
+
+
+def test_refuses_beyond_its_budget_from_sizes_alone():
+    big = random_instance(np.random.default_rng(0), carriers=256, passengers=3, stages=12, overlaps=1200).problem
+    with pytest.raises(duality.BoundTooLarge) as err:
+        duality.check_budget(big, duality.auto_method(big), duality.DEFAULT_SAMPLES, duality.DEFAULT_BUDGET_S)
+    assert isinstance(err.value, ValueError) and "\n" not in str(err.value) and "budget" in str(err.value)
+    with pytest.raises(duality.BoundTooLarge):
+        duality.inner_maximum(big, sample_observations(big, np.random.default_rng(1)), "exact")
+    with pytest.raises(ValueError, match="passenger values"):
+        duality.upper_bound(Problem.build(1, np.ones((1, 2), bool), weights=[[1.0]]), np.random.default_rng(0))
+
+
+def test_solve_reports_the_bound_next_to_the_online_optimum(tmp_path, capsys):
+    small = {"carriers": 2, "passengers": 2, "stages": 5, "overlaps": [[[0, 1], [1, 2]], [[1, 3], [0, 4]]]}
+    path = tmp_path / "instance.json"
+    path.write_text(json.dumps(small))
+    assert solve.main([str(path), "--planner", "ssap", "--no-clairvoyant"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    (problem, _), _ = load_instance(str(path))
+    bound = out["upper_bound"]
+    assert set(bound) >= {"expected_reward", "stderr", "method"} and bound["method"] == "exact"
+    assert bound["expected_reward"] >= out["online_optimum"]["expected_reward"] - 3 * bound["stderr"]
+    assert solve.main([str(path), "--planner", "ssap", "--no-clairvoyant", "--no-upper-bound"]) == 0
+    assert "upper_bound" not in json.loads(capsys.readouterr().out)
