@@ -34,6 +34,8 @@ HERE = Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
     sys.path.insert(0, str(HERE))
 
+from mission.exits import STOPPED  # noqa: E402  (after the path set-up: run as a script)
+
 #: Exit code for bad user input (scenario, flags, config files), and for a process that refuses
 #: to start because its role and id are taken (a live coordinator of the mission without
 #: --standby, a live carrier of the same id): docs/fleet.md, "Split brain".
@@ -377,10 +379,10 @@ def run_coordinator(args, scenario, stop: threading.Event) -> int:
         return fail(str(exc))
     except StoreBusy as exc:  # stopped while waiting for another process's lock
         print(f"run_fleet.py: {exc}; stopped while waiting for it", file=sys.stderr, flush=True)
-        return 130
+        return STOPPED
     if summary.get("deposed_by") is not None:
         return EXIT_DEPOSED
-    return 0 if summary.get("ended") and summary["stages_decided"] == summary["stages"] else 130
+    return 0 if summary.get("ended") and summary["stages_decided"] == summary["stages"] else STOPPED
 
 
 def run_carrier(args, scenario, stop: threading.Event) -> int:
@@ -561,7 +563,7 @@ def run_all(args, scenario, stop: threading.Event) -> int:
     from wire.zconfig import free_port
 
     if stop.is_set():
-        return 130
+        return STOPPED
     if args.connect and not args.listen:
         problem = taken(args, scenario, list(args.connect))  # else our carriers would join the live mission
         if problem:
@@ -653,7 +655,7 @@ def run_all(args, scenario, stop: threading.Event) -> int:
     if stop.is_set():
         print("run_fleet.py: interrupted; stopping the fleet", file=sys.stderr, flush=True)
         _stop_children(procs)
-        return 130
+        return STOPPED
     code = 0 if coordinator is None else coordinator.returncode
     if code == EXIT_USAGE:  # refused to start (a live coordinator of the mission): nobody decides
         _stop_children([*carriers.values(), *routers] + ([viewer] if viewer is not None else []), grace_s=5.0)

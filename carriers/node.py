@@ -40,6 +40,7 @@ import numpy as np
 import world
 from storage.carrierlog import CarrierLog, LogMismatch, log_path
 from mission import carrier as mc
+from mission.exits import STOPPED
 from mission.peers import PeerBook, listened
 from mission.timeouts import DEFAULTS
 from wire import keys
@@ -74,7 +75,7 @@ PEER_POLL_S = 0.02
 PEER_TOPICS = {"obs": Observation, "own": Own, "confirm": Confirm}
 
 #: Exit reasons and the process exit code each maps to.
-EXIT_CODES = {"end": 0, "finished": 0, "stopped": 130, "coordinator-lost": 1, "world-mismatch": 2, "refused": 2,
+EXIT_CODES = {"end": 0, "finished": 0, "stopped": STOPPED, "coordinator-lost": 1, "world-mismatch": 2, "refused": 2,
               "log-mismatch": 2}
 
 

@@ -29,7 +29,9 @@ conditional means of the prior on its K quantile bins (the mean is kept); the va
 exact value of that discretised problem, reported with ``exact=False``.
 
 Limits. Work grows like (states) x (joint outcomes K^m) x (joint actions 2^m) for m carriers that
-can deploy at a stage. Before solving, :func:`estimate` enumerates the reachable state structures
+can deploy at a stage. Before solving, :func:`estimate` first bounds the work from below in
+O(R·N) (carriers that must still hold a passenger at a stage decide there in every state), so a
+large fleet is refused before any joint action is enumerated; then it enumerates the reachable state structures
 (passengers left and open points with their counts, without their x values) and counts states and
 work; an instance beyond :data:`MAX_STATES` states or :data:`MAX_WORK` operations is refused with
 :class:`TooLarge` (a ValueError, one line) before anything large is allocated.
@@ -39,6 +41,7 @@ Pure: numpy and scipy only.
 from __future__ import annotations
 
 import itertools
+import math
 import weakref
 from dataclasses import dataclass
 
@@ -188,18 +191,30 @@ def estimate(problem: Problem, atoms: Atoms | None = None, max_states: int = MAX
         raise TooLarge("online-optimal: expected an instance without passenger values (the exact recursion "
                        "has none), found passenger_values")
     atoms = discretise(problem.prior) if atoms is None else atoms
-    comp = _compile(problem)
     k = len(atoms.points)
-    n_carriers, n_stages = comp.n_carriers, comp.n_stages
-    layer = {(comp.passengers, ()): 1}  # structure -> 1; a structure stands for K^open states
-    states = 0
-    work = 0.0
+    n_carriers, n_stages = problem.valid.shape
 
     def refuse(what: str) -> TooLarge:
         return TooLarge(
             f"online-optimal: instance too large for the exact solver ({what}; limits {max_states:,} states, "
             f"{max_work:.0e} operations; R={n_carriers}, N={n_stages}, {k} points per observation)")
 
+    # O(R·N) first, before anything of size (R·N)^2: a carrier that cannot have deployed all its
+    # passengers before stage j (at most one per valid stage) decides at j in every reachable
+    # state, so stage j costs at least K^(such carriers) operations. A large fleet is refused
+    # here, before any joint action is enumerated.
+    valid = np.asarray(problem.valid, dtype=bool)
+    before = np.cumsum(valid, axis=1) - valid  # valid stages before j
+    deciders = (valid & (np.asarray(problem.passengers)[:, None] > before)).sum(axis=0)
+    floor = 0.0
+    for j, m in enumerate(deciders.tolist()):
+        floor += math.inf if m * math.log(max(k, 1)) > math.log(max_work) else float(k) ** m
+        if floor > max_work:
+            raise refuse(f"more than {max_work:.0e} operations: {m} carriers decide at stage {j}")
+    comp = _compile(problem)
+    layer = {(comp.passengers, ()): 1}  # structure -> 1; a structure stands for K^open states
+    states = 0
+    work = 0.0
     for j in range(n_stages):
         nxt = {}
         for left, opened in layer:
@@ -207,14 +222,14 @@ def estimate(problem: Problem, atoms: Atoms | None = None, max_states: int = MAX
             count = k ** n_open
             can = [r for r in range(n_carriers) if comp.valid[r][j] and left[r] > 0]
             must = [comp.stages_left[r][j] <= left[r] for r in can]
-            actions = _actions(len(can), must)
             states += count
-            work += float(count) * float(k) ** len(can) * len(actions)
+            # 2^(free deciders) joint actions: counted before they are enumerated.
+            work += float(count) * float(k) ** len(can) * 2.0 ** (len(can) - sum(must))
             if states > max_states:
                 raise refuse(f"more than {max_states:,} states")
             if work > max_work:
                 raise refuse(f"more than {max_work:.0e} operations")
-            for action in actions:
+            for action in _actions(len(can), must):
                 left2, opened2, _ = _transition(comp, j, left, opened, [can[i] for i in action])
                 nxt[(left2, tuple(sorted((e[0], e[1]) for e in opened2)))] = 1
         layer = nxt

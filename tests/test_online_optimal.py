@@ -13,7 +13,10 @@ from __future__ import annotations
 
 import itertools
 import json
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,10 +25,12 @@ from scipy import stats
 from coordinator import solve
 from planner import clairvoyant, online_optimal, priors, ssap
 from planner.instance import load_instance, random_instance
-from planner.online_optimal import OnlineOptimalPlanner, TooLarge, discretise, online_value
+from planner.online_optimal import OnlineOptimalPlanner, TooLarge, discretise, estimate, online_value
 from planner.registry import make_planner
 from planner.problem import Problem, evaluate, sample_observations
 from planner.online import run_online
+
+REPO = Path(__file__).resolve().parents[1]
 
 #: A three-point prior that keeps enumerations small (q90 = 3, so rewards are in thirds).
 THREE = stats.rv_discrete(values=([0.0, 1.0, 3.0], [0.3, 0.4, 0.3]))()
@@ -241,3 +246,34 @@ def test_solve_omits_it_on_large_instances_and_refuses_the_planner_with_exit_2(t
     assert solve.main([path, "--planner", "online-optimal", "--no-clairvoyant"]) == 2
     captured = capsys.readouterr()
     assert captured.out == "" and len(captured.err.splitlines()) == 1 and "too large" in captured.err
+
+
+def test_a_large_fleet_is_refused_before_its_joint_actions_are_enumerated():
+    """32 carriers decide at stage 0 (2^32 joint actions): the O(R·N) floor refuses it at once."""
+    problem = random_instance(np.random.default_rng(0), carriers=32, passengers=3, stages=10, overlaps=10).problem
+    with pytest.raises(TooLarge, match="32 carriers decide at stage 0"):
+        estimate(problem)
+    with pytest.raises(TooLarge, match="carriers decide at stage 0"):
+        estimate(random_instance(np.random.default_rng(0), carriers=1024, passengers=3, stages=10).problem)
+
+
+@pytest.mark.slow
+def test_solve_with_default_flags_is_bounded_for_32_carriers(tmp_path):
+    """python -m coordinator.solve INSTANCE --planner mcts-ssap with default flags (clairvoyant bound
+    and the automatic online optimum) on 32 carriers: finishes within 120 s and 1.5 GB."""
+    from planner.instance import instance_dict
+
+    inst = random_instance(np.random.default_rng(0), carriers=32, passengers=3, stages=10, overlaps=10)
+    path = _write(tmp_path, instance_dict(inst))
+    # The command in a child that reports its own peak resident memory (kB) on its last stderr line.
+    code = ("import resource, runpy, sys\n"
+            f"sys.argv = ['coordinator.solve', {str(path)!r}, '--planner', 'mcts-ssap']\n"
+            "try:\n    runpy.run_module('coordinator.solve', run_name='__main__')\n"
+            "except SystemExit as exc:\n    status = exc.code\n"
+            "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr)\n"
+            "sys.exit(status)\n")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    out = json.loads(proc.stdout)
+    assert "clairvoyant" in out and "online_optimum" not in out
+    assert int(proc.stderr.strip().splitlines()[-1]) < 1_500_000

@@ -29,6 +29,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from mission.exits import STOPPED
 from recording.stream import Clock, feed_message
 from wire import keys
 from wire.messages import ProtocolError, decode
@@ -210,7 +211,7 @@ class Viewer:
                 try:
                     node = Node(self.zconf, open_timeout_s=self.config.open_timeout_s, stop=self._stop)
                 except OpenStopped:
-                    return 130
+                    return STOPPED
                 node.subscribe(f"{keys.prefix(self.mission)}/**")
                 if self.config.ready_file:
                     time.sleep(0.3)  # let the declaration reach the coordinator before anyone speaks
@@ -238,7 +239,7 @@ class Viewer:
                     pass
                 if self.server is not None:
                     _stop_group(self.server)
-        return 0 if self.ended else 130
+        return 0 if self.ended else STOPPED
 
     def _handle(self, item, view, clock) -> None:
         if item.kind != "sample":
