@@ -37,6 +37,7 @@ import numba
 import numpy as np
 
 from planner.compiled import compile_problem
+from planner.kernels import cache_follows_sources
 from planner.problem import Problem, evaluate
 
 #: Largest number of options one carrier may have for the exact search.
@@ -379,6 +380,9 @@ def warm_up() -> None:
     """Compile (or load from the numba cache) the search on a tiny instance."""
     tiny = Problem.build(1, np.ones((2, 3), dtype=bool), [[[0, 0], [1, 0]]])
     solve(tiny, np.array([[1.0, 2.0, 0.0], [3.0, 0.0, 1.0]]))
+
+
+cache_follows_sources(globals())  # the on-disk cache follows every planner source
 
 
 if __name__ == "__main__":

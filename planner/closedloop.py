@@ -46,7 +46,7 @@ from numba import njit
 
 from planner import ssap
 from planner.compiled import compile_problem
-from planner.kernels import deploys, rank
+from planner.kernels import cache_follows_sources, deploys, rank
 from planner.problem import Problem, StageView, make_view, point_weights
 from planner.settings import DEFAULT_ITERATIONS
 
@@ -645,3 +645,6 @@ def estimate(view: StageView, actions: np.ndarray, samples: int, rng: np.random.
     return ClosedLoopPlanner()._score(np.asarray(actions, dtype=bool), np.arange(n_carriers, dtype=np.int64),
                                       int(samples), None, view, prep, (sel, p, xv), valid, nleft, left, xnow,
                                       rng, control_variate)
+
+
+cache_follows_sources(globals())  # the on-disk cache follows every planner source

@@ -21,6 +21,7 @@ only the conflict graph (the clairvoyant bound) does not pay for them.
 """
 from __future__ import annotations
 
+import math
 import weakref
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -60,7 +61,7 @@ class Sampler:
     def build(prior) -> "Sampler":
         if priors.is_discrete(prior):
             points, mass = priors.support(prior)
-            cdf = np.cumsum(mass) / np.sum(mass)
+            cdf = np.cumsum(mass) / math.fsum(mass.tolist())  # correctly rounded: no CPU-dependent bits
         else:
             u = (np.arange(CONTINUOUS_ATOMS) + 0.5) / CONTINUOUS_ATOMS
             points = prior.ppf(u)
@@ -142,11 +143,13 @@ class CompiledProblem:
 
     @cached_property
     def ucut(self) -> np.ndarray:
-        """float64 ``[N + 2, N + 2]``: P(X <= table[n, i]) under the sampler's distribution, so a
-        draw with uniform u exceeds the threshold iff ``u >= ucut[n, i]`` (1.0 where no support
-        point exceeds it; NaN-threshold entries included, never read)."""
+        """float64 ``[N + 2, N + 2]``: P(X <= cut(table[n, i])) under the sampler's distribution
+        (:func:`planner.ssap.cut`: the threshold with its tie margin), so a draw with uniform u
+        exceeds the threshold iff ``u >= ucut[n, i]`` (1.0 where no support point exceeds it;
+        NaN-threshold entries included, never read)."""
         points, cdf = self.sampler.points, self.sampler.cdf
-        idx = np.searchsorted(points, np.nan_to_num(self.table, nan=np.inf), side="right") - 1
+        cuts = np.array([[ssap.cut(t) for t in row] for row in np.nan_to_num(self.table, nan=np.inf).tolist()])
+        idx = np.searchsorted(points, cuts, side="right") - 1
         out = np.ascontiguousarray(np.where(idx >= 0, cdf[np.clip(idx, 0, None)], 0.0), dtype=np.float64)
         out.setflags(write=False)
         return out

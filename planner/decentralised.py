@@ -29,7 +29,7 @@ from planner.closedloop import (BATCH, BLOCK, ENUMERATE_MAX, SAMPLES_MAX, SAMPLE
                                 _undo)
 from planner.comms import CommsSpec, Deliveries, realise
 from planner.compiled import compile_problem
-from planner.kernels import deploys
+from planner.kernels import cache_follows_sources, deploys
 from planner.problem import (OnlineResult, Problem, StageView, enforce, evaluate, make_view,
                              stage_rng, start_online, valid_stages_left)
 from planner.settings import DEFAULT_ITERATIONS
@@ -513,3 +513,6 @@ class DecClosedLoopPlanner:
         d_after = np.minimum(left[comp][None, :] - actions.astype(np.int64), N)
         exact = (prep.slot_value[nleft[comp, j + 1][None, :], np.maximum(d_after, 0)] * kn[None, :]).sum(axis=1)
         return actions, sums / count + exact, me
+
+
+cache_follows_sources(globals())  # the on-disk cache follows every planner source

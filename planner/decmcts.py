@@ -41,7 +41,7 @@ from numba import njit
 from planner import ssap
 from planner.compiled import compile_problem
 from planner.decentralised import Intent, LocalDecision, LocalView
-from planner.kernels import deploys, forced
+from planner.kernels import cache_follows_sources, deploys, forced
 from planner.mcts.kernel import _random, _sample, weigh
 from planner.problem import Problem, fill_releases, point_weights, valid_stages_left
 from planner.settings import DEFAULT_EXPLORATION, DEFAULT_ITERATIONS
@@ -437,3 +437,6 @@ class DecMCTSPlanner:
             icum[b, :k] = np.cumsum(intent.probs[:k]) / np.sum(intent.probs[:k])
             ik[b] = k
         return icode, icum, ik
+
+
+cache_follows_sources(globals())  # the on-disk cache follows every planner source

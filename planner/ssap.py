@@ -11,13 +11,35 @@ carrier with ``n`` stages and ``d`` passengers is the sum of the ``d`` largest o
 Exact for discrete priors: Poisson by a closed form in its CDF, others by a finite sum over the
 support (truncated where the tail mass is below 1e-15); continuous priors use adaptive quadrature
 of tail integrals.
+
+Same table, same decisions, on every machine: sums are correctly rounded (:func:`math.fsum`, not
+a BLAS dot product, whose kernel and use of fused multiply-add depend on the CPU), and a value
+within :data:`TIE` of a threshold counts as equal to it (:func:`cut`), so an observation that
+equals a threshold in exact arithmetic (3 against the mean of the uniform prior on 0..6) stays,
+whatever the last bits of either.
 """
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import scipy  # scipy.integrate is loaded on first use
 
 from planner.priors import is_discrete, support
+
+#: Relative tie margin of the threshold rule: ``x`` exceeds a threshold ``t`` iff
+#: ``x > t + TIE * max(1, |t|)`` (:func:`cut`). Far above the rounding error of a threshold (a few
+#: units in the last place, ~1e-15 relative) and of a discounted observation ``x / (1 + c)``, far
+#: below any real gap between a discrete prior's values and its thresholds.
+TIE = 1e-9
+
+
+def cut(t: float) -> float:
+    """The value an observation must exceed to be above the threshold ``t``: ``t`` raised by the
+    tie margin (``t + TIE * max(1, |t|)``; infinite ``t`` unchanged), so that values equal to
+    ``t`` up to rounding stay below it. :func:`planner.kernels.cut` is its numba twin."""
+    return t + TIE * max(1.0, abs(t)) if math.isfinite(t) else t
+
 
 def _is_plain_poisson(prior) -> bool:
     kwds = prior.kwds
@@ -55,7 +77,8 @@ def _clipped_mean_factory(prior):
         points, mass = support(prior)
 
         def clipped_mean(a: float, b: float) -> float:
-            return float(np.dot(mass, np.clip(points, a, b)))
+            # Correctly rounded: the same bits whatever the CPU (np.dot's BLAS kernel is not).
+            return math.fsum((mass * np.clip(points, a, b)).tolist())
 
         return clipped_mean
 
@@ -109,19 +132,20 @@ def thresholds(prior, n_max: int) -> np.ndarray:
 
 def deploys(table: np.ndarray, x: float, n: int, d: int) -> bool:
     """The threshold rule: with ``n`` valid stages left (current included) and ``d >= 1``
-    passengers left, deploy iff forced (``n <= d``) or ``x > table[n, n - d]``. The one
-    definition in Python; :func:`planner.kernels.deploys` is its numba twin."""
-    return n <= d or x > table[n, n - d]
+    passengers left, deploy iff forced (``n <= d``) or ``x`` exceeds ``table[n, n - d]`` (``x >
+    cut(table[n, n - d])``: ties, up to the margin :data:`TIE`, stay). The one definition in
+    Python; :func:`planner.kernels.deploys` is its numba twin."""
+    return n <= d or x > cut(table[n, n - d])
 
 
 def rank(table: np.ndarray, x: float, n: int) -> int:
     """The interval of ``x`` among the thresholds of ``n`` valid stages left (DLR's generalised
-    rule): 1 + the number of ``table[n, 1..n-1]`` that are ``>= x``, in ``1..n``. Rank 1 is above
-    every threshold. With ``d`` passengers the threshold rule deploys iff ``rank <= d`` (or forced);
+    rule): 1 + the number of ``table[n, 1..n-1]`` that ``x`` does not exceed (``x <= cut(t)``, the
+    complement of :func:`deploys`' test), in ``1..n``. Rank 1 is above every threshold. With ``d`` passengers the threshold rule deploys iff ``rank <= d`` (or forced);
     :func:`planner.kernels.rank` is its numba twin."""
     count = 0
     for i in range(1, n):
-        if table[n, i] >= x:
+        if x <= cut(table[n, i]):
             count += 1
     return 1 + count
 
@@ -157,7 +181,7 @@ def expected_value(table: np.ndarray, stages_left: int, passengers_left: int) ->
     if d <= 0:
         return 0.0
     slots = table[stages_left + 1, 1 : stages_left + 1]
-    return float(slots[stages_left - d :].sum())
+    return math.fsum(slots[stages_left - d :].tolist())
 
 
 def weighted_value(table: np.ndarray, stages_left: int, weights: np.ndarray) -> float:
@@ -169,7 +193,7 @@ def weighted_value(table: np.ndarray, stages_left: int, weights: np.ndarray) -> 
     if len(w) == 0:
         return 0.0
     slots = table[n + 1, n + 1 - np.arange(1, len(w) + 1)]
-    return float(np.dot(w, slots))
+    return math.fsum((w * slots).tolist())
 
 
 def prior_key(prior) -> object:

@@ -47,7 +47,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from planner.kernels import deploys, deploys_u, forced, rank
+from planner.kernels import cache_follows_sources, deploys, deploys_u, forced, rank
 from planner.kernels import quantile as _quantile
 
 #: Index of the root node.
@@ -621,3 +621,6 @@ def search_joint(n_iter, tree, root, model, settings, uct, scratch, max_block):
         done += 1
     tree.counter[0] = n_nodes
     return done
+
+
+cache_follows_sources(globals())  # the on-disk cache follows every planner source
