@@ -22,7 +22,7 @@ from planner.compiled import compile_problem
 from planner.instance import load_instance
 from planner.kernels import deploys as kernel_deploys
 from planner.kernels import rank as kernel_rank
-from planner.problem import run_online
+from planner.online import run_online
 from planner.registry import make_planner
 
 INSTANCE = Path(__file__).resolve().parent / "golden" / "instances" / "prior-discrete_uniform.json"
