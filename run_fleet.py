@@ -60,7 +60,7 @@ CARRIER_NICE = 5
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    from mission.timeouts import DEFAULTS
+    from mission.timeouts import CLOCKS, DEFAULTS
 
     p = argparse.ArgumentParser(
         prog="run_fleet.py", description="Run a marsupial fleet mission over Zenoh.",
@@ -95,6 +95,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--seed", type=int, help="root seed (overrides the scenario; every process needs the same)")
     p.add_argument("--realtime", type=float, default=0.0, metavar="FACTOR",
                    help="simulated seconds per wall second; 0 = as fast as possible (default)")
+    p.add_argument("--clock", choices=CLOCKS, default="sim",
+                   help="sim (default): a simulated mission, whatever its --realtime pace: a live carrier or "
+                        "coordinator that is slow is waited for, only a failure (its token gone, or nothing from "
+                        "it for --silence-timeout) ends a wait, so the mission's decisions do not depend on the "
+                        "host's load; wall: a real-time mission (robots): --stage-timeout, --decision-timeout and "
+                        "--peer-timeout are deadlines and a late observation is ∅")
     p.add_argument("--mission", help="mission id, the key-expression prefix (default: the scenario name)")
     p.add_argument("--out", metavar="DIR", help="results directory (default runs/<scenario>-<timestamp>)")
     p.add_argument("--standby", action="store_true",
@@ -123,10 +129,14 @@ def parse_args(argv=None) -> argparse.Namespace:
     t.add_argument("--join-timeout", type=float, default=DEFAULTS.join_s,
                    help="coordinator: wait for carriers before stage 0 (default %(default)s)")
     t.add_argument("--stage-timeout", type=float, default=DEFAULTS.stage_s,
-                   help="coordinator: wait per stage for observations, and after the last decision (at least "
-                        "3 s) for its Confirms (default %(default)s)")
+                   help="coordinator, --clock wall: wait per stage for observations, and after the last decision "
+                        "(at least 3 s) for its Confirms (default %(default)s)")
     t.add_argument("--decision-timeout", type=float, default=DEFAULTS.decision_s,
-                   help="carrier: wait per stage for the decision (default %(default)s)")
+                   help="carrier: --clock wall: wait per stage for the decision, then decide it on board; "
+                        "--clock sim: ask the coordinator's State again after this long (default %(default)s)")
+    t.add_argument("--silence-timeout", type=float, default=DEFAULTS.silence_s,
+                   help="--clock sim: a carrier waited for that sent nothing, not even Progress, for this long "
+                        "is taken as stalled (default %(default)s)")
     t.add_argument("--coordinator-timeout", type=float, default=DEFAULTS.coordinator_s,
                    help="carrier: at the start, wait this long for a coordinator (then go on without it); "
                         "with --no-autonomy, exit when it has been absent this long (default %(default)s)")
@@ -138,9 +148,9 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="carrier: how its durable log commits: full survives a power loss of its host, normal "
                         "only a crash of the process (default full with --role carrier, normal for the one-host "
                         "launcher's carriers: a power loss takes the whole fleet there)")
-    t.add_argument("--peer-timeout", type=float, default=DEFAULTS.stage_s,
-                   help="carrier deciding on board: wait per stage for the other carriers' observations "
-                        "(default %(default)s)")
+    t.add_argument("--peer-timeout", type=float, default=DEFAULTS.peer_s,
+                   help="carrier deciding on board, --clock wall: wait per stage for the other carriers' "
+                        "observations (default %(default)s)")
     p.add_argument("--no-map", action="store_true", help="do not draw map.png")
     p.add_argument("--no-record", action="store_true", help="coordinator: do not write mission.mcap")
     p.add_argument("--mcap-profile", choices=("foxglove", "ros2"), default="foxglove",
@@ -211,7 +221,8 @@ def check_flags(args, scenario) -> str | None:
         return "--decentralised and --no-autonomy exclude each other"
     if args.decentralised and args.role == "coordinator":
         return "--decentralised runs no coordinator"
-    for name in ("join_timeout", "stage_timeout", "decision_timeout", "coordinator_timeout", "peer_timeout"):
+    for name in ("join_timeout", "stage_timeout", "decision_timeout", "coordinator_timeout", "peer_timeout",
+                 "silence_timeout"):
         if getattr(args, name) <= 0:
             return f"--{name.replace('_', '-')}: expected seconds > 0, found {getattr(args, name)}"
     for k, cid in enumerate(scenario.carrier_ids):
@@ -365,10 +376,12 @@ def run_coordinator(args, scenario, stop: threading.Event) -> int:
     coord = Coordinator(scenario, CoordinatorConfig(
         out_dir=out, mission=args.mission, planner=args.planner, iterations=args.iterations,
         plan_ms=args.plan_ms, planner_options=getattr(args, "planner_options", ()), seed=args.seed, realtime=args.realtime, join_timeout_s=args.join_timeout,
-        stage_timeout_s=args.stage_timeout, render=not args.no_map, record=not getattr(args, "no_record", False),
+        clock=args.clock, stage_timeout_s=args.stage_timeout, silence_timeout_s=args.silence_timeout,
+        render=not args.no_map, record=not getattr(args, "no_record", False),
         record_profile=args.mcap_profile, ros2=_ros2_settings(args),
-        # The last stage's Confirms take a round trip, which grows with the fleet's load like the
-        # observations' arrival the stage timeout bounds (R = 1,024 on 2 cores: up to 26 s).
+        # Wall clock: the last stage's Confirms take a round trip, which grows with the fleet's
+        # load like the observations' arrival the stage timeout bounds (R = 1,024 on 2 cores: up
+        # to 26 s). The sim clock waits for them as for observations.
         confirm_timeout_s=max(DEFAULTS.confirm_s, args.stage_timeout),
         standby=getattr(args, "standby", False)),
         zenoh_config(args, "coordinator"),
@@ -397,8 +410,8 @@ def run_carrier(args, scenario, stop: threading.Event) -> int:
     _, options = planner_settings(scenario, None, args.iterations, args.plan_ms, args.planner_options)
     out = args.out or default_out(scenario)  # its log: pass the same --out again to resume from it
     configs = [CarrierConfig(
-        carrier=cid, mission=args.mission, seed=args.seed, realtime=args.realtime,
-        decision_timeout_s=args.decision_timeout, coordinator_timeout_s=args.coordinator_timeout,
+        carrier=cid, mission=args.mission, seed=args.seed, realtime=args.realtime, clock=args.clock,
+        silence_timeout_s=args.silence_timeout, decision_timeout_s=args.decision_timeout, coordinator_timeout_s=args.coordinator_timeout,
         log=log, pose_interval_s=args.pose_interval, mode=mode, out_dir=out, peer_timeout_s=args.peer_timeout,
         join_timeout_s=args.join_timeout, planner_options=tuple(sorted(options.items())),
         log_sync=args.log_sync or "full", onboard_load=args.onboard_load, ros2=_ros2_settings(args))
@@ -482,7 +495,8 @@ def _forward(args) -> list[str]:
             out += [flag, str(value)]
     for text in args.planner_option:
         out += ["--planner-option", text]
-    out += ["--realtime", str(args.realtime), "--join-timeout", str(args.join_timeout),
+    out += ["--realtime", str(args.realtime), "--clock", args.clock, "--silence-timeout", str(args.silence_timeout),
+            "--join-timeout", str(args.join_timeout),
             "--stage-timeout", str(args.stage_timeout), "--decision-timeout", str(args.decision_timeout),
             "--coordinator-timeout", str(args.coordinator_timeout), "--pose-interval", str(args.pose_interval),
             "--peer-timeout", str(args.peer_timeout)]

@@ -42,10 +42,11 @@ from storage.carrierlog import CarrierLog, LogMismatch, log_path
 from mission import carrier as mc
 from mission.exits import STOPPED
 from mission.peers import PeerBook, listened
-from mission.timeouts import DEFAULTS
+from mission.timeouts import CLOCKS, DEFAULTS
 from wire import keys
 from wire.messages import (
-    REVISION, Accepted, Bye, Confirm, Decision, End, Hello, Observation, Own, Pose, ProtocolError, Refusal, State, decode,
+    REVISION, Accepted, Bye, Confirm, Decision, End, Hello, Observation, Own, Pose, Progress, ProtocolError, Refusal,
+    State, decode,
     scenario_fingerprint,
 )
 
@@ -57,8 +58,12 @@ MAX_TRAIL = 512
 #: carriers per process and stages of seconds, 50 ms polls were a third of the carriers' CPU time,
 #: and 0.25 s polls most of it when stages took a minute (R = 1,024).
 IDLE_POLL_S = 2.0
-#: Sim-time chunk (s) between pacing sleeps when ``realtime > 0``.
+#: Sim-time chunk (s) between pacing sleeps when ``realtime > 0``, and between two looks at the
+#: wall clock (is a Progress message due?) when the physics runs as fast as it can.
 PACE_CHUNK_S = 0.5
+#: Sim-time chunk (s) of unpaced physics between two looks at the wall clock (is a Progress
+#: message due?): 100 physics steps, about a millisecond of CPU.
+PROGRESS_CHUNK_S = 5.0
 #: Default interval between two Pose messages, seconds of simulated time (docs/protocol.md, "Pose").
 POSE_INTERVAL_S = 1.0
 
@@ -72,7 +77,7 @@ ONBOARD_LOADS = ("start", "need")
 #: How often a carrier deciding alone looks for the peers' observations it waits for (s).
 PEER_POLL_S = 0.02
 #: What peers publish that a carrier reads, and the message type of each.
-PEER_TOPICS = {"obs": Observation, "own": Own, "confirm": Confirm}
+PEER_TOPICS = {"obs": Observation, "own": Own, "confirm": Confirm, "progress": Progress}
 
 #: Exit reasons and the process exit code each maps to.
 EXIT_CODES = {"end": 0, "finished": 0, "stopped": STOPPED, "coordinator-lost": 1, "world-mismatch": 2, "refused": 2,
@@ -117,7 +122,12 @@ class CarrierConfig:
         mission: mission id; the scenario name by default.
         seed: overrides the scenario's root seed (must match the coordinator's).
         realtime: 0 = as fast as possible; F > 0 = simulated time runs at F × wall time.
-        decision_timeout_s: longest wait (s, coordinator present) for one stage's decision.
+        clock: ``sim`` (a simulated mission: never decide alone because someone is slow) or
+            ``wall`` (a real-time mission: the decision and peer timeouts are deadlines);
+            :data:`mission.timeouts.CLOCKS`.
+        decision_timeout_s: wall clock: longest wait (s, coordinator present) for one stage's
+            decision, then the carrier decides it itself. Sim clock: how often (s) it asks the
+            coordinator's State again while it waits (a lost decision is recovered).
         coordinator_timeout_s: exit when the coordinator has been absent this long (s).
         end_timeout_s: after the last stage, wait this long (s) for End.
         log: callable taking one line.
@@ -125,7 +135,10 @@ class CarrierConfig:
             whole seconds, the physics trace's spacing); 0 = no poses.
         mode: one of :data:`MODES`.
         out_dir: where the durable log goes (``<out_dir>/carriers/<id>.db``); None: no log.
-        peer_timeout_s: deciding alone, wait this long for the other carriers' observations.
+        peer_timeout_s: deciding alone, wall clock: wait this long for the other carriers'
+            observations.
+        silence_timeout_s: deciding alone, sim clock: wait for a live peer's observation until
+            nothing (not even Progress) came from it for this long (s).
         join_timeout_s: decentralised: before the first stage, wait this long for every
             carrier's liveliness token.
         planner_options: options of the on-board planner (iterations, plan_ms).
@@ -139,6 +152,7 @@ class CarrierConfig:
     mission: str | None = None
     seed: int | None = None
     realtime: float = 0.0
+    clock: str = "sim"
     decision_timeout_s: float = DEFAULTS.decision_s
     coordinator_timeout_s: float = DEFAULTS.coordinator_s
     end_timeout_s: float = DEFAULTS.end_s
@@ -146,7 +160,8 @@ class CarrierConfig:
     pose_interval_s: float = POSE_INTERVAL_S
     mode: str = "hybrid"
     out_dir: str | None = None
-    peer_timeout_s: float = DEFAULTS.stage_s
+    peer_timeout_s: float = DEFAULTS.peer_s
+    silence_timeout_s: float = DEFAULTS.silence_s
     join_timeout_s: float = DEFAULTS.join_s
     planner_options: tuple = ()
     log_sync: str = "full"
@@ -297,6 +312,8 @@ class Carrier:
         self.mission = keys.check_id(config.mission or keys.mission_id_from_name(scenario.name), "mission")
         if config.mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, found {config.mode!r}")
+        if config.clock not in CLOCKS:
+            raise ValueError(f"clock must be one of {CLOCKS}, found {config.clock!r}")
         valid = scenario.valid() if shared is None else shared.valid
         self.valid = valid[self.r]
         self.n_stages = scenario.stages
@@ -330,6 +347,8 @@ class Carrier:
         self.store: CarrierLog | None = None  # the durable log, open while running
         self._alone = False  # deciding stages itself (logged once per spell)
         self.ros2 = None  # its ROS 2 node (ros2/publisher.py) while running with config.ros2
+        self._progress_at = time.monotonic()  # when this carrier last published (sim clock: Progress)
+        self.heard: dict[str, float] = {}  # peer -> when something last came from it (monotonic s)
 
     # ------------------------------------------------------------------ views for tests and logs
     def log(self, line: str) -> None:
@@ -509,6 +528,9 @@ class Carrier:
             raise ProtocolError("wrong-mission", f"mission {msg.mission!r}")
         if msg.carrier != cid:
             raise ProtocolError("key-mismatch", f"carrier {msg.carrier!r} on the key of {cid!r}")
+        self.heard[cid] = time.monotonic()
+        if topic == "progress":
+            return
         if msg.stage >= self.n_stages:
             raise ProtocolError("out-of-range", f"stage {msg.stage} >= {self.n_stages}")
         if topic in ("obs", "own"):
@@ -552,20 +574,37 @@ class Carrier:
                             state.epoch)
 
     # ------------------------------------------------------------------ physics
-    def _advance(self, t: float) -> None:
-        """Physics to mission time ``t`` (s) at fixed steps, paced when realtime > 0."""
-        if self.config.realtime <= 0:
-            self.sim.advance_to(t)
+    def _advance(self, t: float, paced: bool = True) -> None:
+        """Physics to mission time ``t`` (s) at fixed steps, paced when realtime > 0 (and
+        ``paced``); on the sim clock a Progress message at least every ``progress_s`` of wall
+        time on the way."""
+        if self.config.realtime <= 0 or not paced:
+            while self.sim.time < t - 1e-9 and not self._stop.is_set():
+                self.sim.advance_to(min(t, self.sim.time + PROGRESS_CHUNK_S))
+                self._progress()
             return
         wall0, t0 = time.monotonic(), self.sim.time
         while self.sim.time < t - 1e-9 and not self._stop.is_set():
             target = min(t, self.sim.time + PACE_CHUNK_S)
             self.sim.advance_to(target)
             self._publish_poses()
+            self._progress()
             due = wall0 + (self.sim.time - t0) / self.config.realtime
             while time.monotonic() < due and not self._stop.is_set():
                 self._pump(min(0.05, due - time.monotonic()))
                 self._check_refused()
+
+    def _progress(self) -> None:
+        """Sim clock: tell the coordinator and the peers that this carrier is working (a
+        Progress message) when ``progress_s`` passed since it last published one."""
+        now = time.monotonic()
+        if self.config.clock != "sim" or now - self._progress_at < DEFAULTS.progress_s:
+            return
+        self._progress_at = now
+        if self.node.revision < Progress.SINCE:
+            return  # a coordinator of an earlier revision has no Progress (it would reject it)
+        self.node.put(keys.carrier_key(self.mission, self.cid, "progress"),
+                      Progress(self.mission, self.cid, self.machine.stage, float(self.sim.time)))
 
     def _trail(self) -> tuple:
         samples = self.sim.trajectory(self.cid)
@@ -626,7 +665,7 @@ class Carrier:
         if not state.ended:
             mine = state.carrier(self.cid)
             for j in mc.replay_plan(self.machine, state.next_stage, mine.deployments if mine else ()):
-                self.sim.advance_to(self.scenario.stage_time(j))
+                self._advance(self.scenario.stage_time(j), paced=False)
                 self.apply(mc.Replayed(j, self._position()))
                 self.sim.deploy(self.cid)
                 self.book.outcome(self.cid, j, True)
@@ -642,7 +681,7 @@ class Carrier:
             if e.observed:
                 self.book.observation(self.cid, e.stage, e.x)
             if e.deployed and self.machine.passengers_left > 0:
-                self.sim.advance_to(self.scenario.stage_time(e.stage))
+                self._advance(self.scenario.stage_time(e.stage), paced=False)
                 self.apply(mc.Replayed(e.stage, self._position()))
                 self.sim.deploy(self.cid)
             self.book.outcome(self.cid, e.stage, e.deployed)
@@ -659,9 +698,12 @@ class Carrier:
         self.apply(mc.Joined(next_stage))
 
     def _wait_decision(self, j: int) -> None:
-        """Until stage j is resolved (answered, or the coordinator moved on), the decision
-        timeout (coordinator present), End, or a stop request; deciding alone (hybrid without
-        the coordinator, decentralised) it does not wait."""
+        """Until stage j is resolved (answered, or the coordinator moved on), End, or a stop
+        request; deciding alone (hybrid without the coordinator, decentralised) it does not wait.
+        While the coordinator's token is present: on the wall clock at most the decision timeout
+        (then it decides the stage itself); on the sim clock as long as it takes (the
+        coordinator may be planning a large fleet, or waiting for slow carriers), asking its
+        State every decision timeout so that a Decision lost in a reconnection is recovered."""
         waited = 0.0
         last = time.monotonic()
         while not self._stop.is_set() and not self.machine.ended and not self.machine.resolved(j):
@@ -671,7 +713,10 @@ class Carrier:
                 return
             if self.coordinator_present:
                 waited += now - last
-                if waited >= self.config.decision_timeout_s:
+                if waited >= self.config.decision_timeout_s and self.config.clock == "sim":
+                    waited = 0.0
+                    self._recover_decision(j)
+                elif waited >= self.config.decision_timeout_s:
                     self.log(f"no decision for stage {j} within {self.config.decision_timeout_s:.0f} s; "
                              + ("going on" if self.config.mode == "coordinated" else "deciding on board"))
                     return
@@ -683,15 +728,22 @@ class Carrier:
             last = now
             self._pump(IDLE_POLL_S)
 
+    def _recover_decision(self, j: int) -> None:
+        """Sim clock, a long wait for the Decision of j: if the coordinator's State says it has
+        decided j already, the Decision was lost on the way: resynchronise (it is taken from
+        State). Otherwise the coordinator is still at work: go on waiting."""
+        state = self._query_once()
+        if state is not None and state.next_stage > j and state.epoch >= self.machine.epoch:
+            self.log(f"stage {j} was decided but its Decision did not arrive; taking it from State")
+            self.apply(mc.Resync(self._state_seen(state), self._position()))
+
     def _fly(self) -> None:
         at_once = True  # the first stage after joining is reached at once, not paced
         j = self.machine.stage
         while j < self.n_stages and not self.machine.ended and not self._stop.is_set():
             t_j = self.scenario.stage_time(j)
-            if at_once or self.machine.behind(j):
-                self.sim.advance_to(t_j)  # joining, or catching up with stages decided without us
-            else:
-                self._advance(t_j)
+            # Joining, or catching up with stages decided without us: not paced.
+            self._advance(t_j, paced=not (at_once or self.machine.behind(j)))
             self._publish_poses()
             if self._stop.is_set():
                 break
@@ -726,9 +778,11 @@ class Carrier:
             j += 1
 
     def _decide_alone(self, j: int) -> None:
-        """Decide stage j on board: wait (at most ``peer_timeout_s``) for the other live
-        carriers' observations of j — a decision arriving meanwhile still wins — then run the
-        on-board planner on what the carrier heard."""
+        """Decide stage j on board: wait for the other live carriers' observations of j — a
+        decision arriving meanwhile still wins — then run the on-board planner on what the
+        carrier heard. Wall clock: at most ``peer_timeout_s``. Sim clock: while some peer it
+        waits for is heard from (its Progress while it simulates): until nothing came from any
+        of them for ``silence_timeout_s``."""
         from planner.decentralised import LocalDecision
         from planner.problem import stage_rng
 
@@ -737,10 +791,16 @@ class Carrier:
             self._alone = True
             self.log(f"deciding on board from stage {j} (dec-closed-loop, {len(self.peers_live - {self.cid})} "
                      f"other carrier(s) reachable)")
-        deadline = time.monotonic() + self.config.peer_timeout_s
+        opened = time.monotonic()
+        deadline = opened + self.config.peer_timeout_s
         while not self._stop.is_set() and not self.machine.resolved(j) and not self.machine.ended:
-            left = deadline - time.monotonic()
-            if left <= 0 or not self.book.waiting(j, self.peers_live - {self.cid}):
+            waiting = self.book.waiting(j, self.peers_live - {self.cid})
+            now = time.monotonic()
+            if self.config.clock == "sim":
+                heard = max((self.heard.get(cid, opened) for cid in waiting), default=opened)
+                deadline = max(heard, opened) + self.config.silence_timeout_s
+            left = deadline - now
+            if left <= 0 or not waiting:
                 break
             self._pump(min(left, PEER_POLL_S))  # peers' messages do not wake the carrier
         if self._stop.is_set() or self.machine.resolved(j) or self.machine.ended:

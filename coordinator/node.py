@@ -9,7 +9,11 @@ Stage j (docs/protocol.md, "Stage handshake"):
 1. (``realtime > 0`` only) wait until ``Δt / realtime`` after decision j-1 was published (the
    carriers pace their physics from the same moment);
 2. wait until every *expected* carrier (``MissionState.expected``: live, Hello accepted,
-   scheduled at j) has sent its Observation of j, or ``stage_timeout_s``;
+   scheduled at j) has sent its Observation of j. On the ``sim`` clock (every simulated
+   mission) a carrier stops being waited for only when it fails: its liveliness token vanishes
+   (it died, or its link's lease expired) or nothing at all, not even Progress, came from it for
+   ``silence_timeout_s`` (it is stuck); on the ``wall`` clock (real robots) also after
+   ``stage_timeout_s``;
 3. plan on ``make_view(problem, j, x, deployed)`` with ``stage_rng(seed, j)``; the ``Decided``
    event records the decision (and the scheduled carriers without an observation as ∅) before
    it is published; Confirms are collected while the next stage waits.
@@ -45,11 +49,11 @@ from storage.missiondb import MissionStore, StoreBusy
 from mission import events as ev
 from mission import state as ms
 from mission.summary import RunInfo, summary as mission_summary
-from mission.timeouts import DEFAULTS
+from mission.timeouts import CLOCKS, DEFAULTS
 from wire import keys
 from wire.messages import (
     MAX_STATE_CARRIERS, REVISION, UNANNOUNCED_REVISION, Accepted, Bye, CarrierState, Confirm, Decision, End, Hello,
-    Observation, Own, Pose, ProtocolError, State, announced, decode, defined_in, encode, refusal, scenario_fingerprint,
+    Observation, Own, Pose, Progress, ProtocolError, State, announced, decode, defined_in, encode, refusal, scenario_fingerprint,
 )
 from wire.transport import Node
 
@@ -64,7 +68,8 @@ class DuplicateCoordinator(RuntimeError):
 
 
 #: Which message type each carrier topic carries.
-TOPIC_TYPES = {"hello": Hello, "obs": Observation, "confirm": Confirm, "own": Own, "bye": Bye}
+TOPIC_TYPES = {"hello": Hello, "obs": Observation, "confirm": Confirm, "own": Own, "bye": Bye,
+               "progress": Progress}
 
 
 @dataclass(frozen=True)
@@ -77,8 +82,14 @@ class CoordinatorConfig:
         planner, iterations, plan_ms: override the scenario's planner settings when not None.
         seed: overrides the scenario's root seed when not None (carriers must use the same).
         realtime: 0 = as fast as possible; F > 0 = stage j opens at wall time t_j / F.
-        join_timeout_s: wait this long (s) for every carrier's token and Hello before stage 0.
-        stage_timeout_s: wait this long (s) per stage for the expected observations.
+        clock: ``sim`` (a simulated mission: live carriers that make progress are waited for)
+            or ``wall`` (a real-time mission: ``stage_timeout_s`` is a deadline);
+            :data:`mission.timeouts.CLOCKS`.
+        join_timeout_s: wait this long (s) for every carrier's token and Hello before stage 0
+            (on the sim clock: this long after the last carrier joined).
+        stage_timeout_s: wall clock: wait this long (s) per stage for the expected observations.
+        silence_timeout_s: sim clock: a waited-for carrier from which nothing has arrived for
+            this long (s) is taken as stalled (∅ at this stage).
         confirm_timeout_s: after the last decision, wait this long (s) for its confirmations.
         bye_timeout_s: after End, wait this long (s) for carriers' Bye messages.
         render: draw map.png at the end.
@@ -100,8 +111,10 @@ class CoordinatorConfig:
     planner_options: tuple = ()  # (key, value) pairs of planner.registry.OPTIONS, override the scenario
     seed: int | None = None
     realtime: float = 0.0
+    clock: str = "sim"
     join_timeout_s: float = DEFAULTS.join_s
     stage_timeout_s: float = DEFAULTS.stage_s
+    silence_timeout_s: float = DEFAULTS.silence_s
     confirm_timeout_s: float = DEFAULTS.confirm_s
     bye_timeout_s: float = DEFAULTS.bye_s
     render: bool = True
@@ -181,6 +194,11 @@ class Coordinator:
         # (docs/protocol.md, "Rejections"): counts per reason, and its last Hello's refusal.
         self.told: dict[str, Counter] = {cid: Counter() for cid in self.ids}
         self.refusals: dict[str, str] = {}
+        if config.clock not in CLOCKS:
+            raise ValueError(f"clock must be one of {CLOCKS}, found {config.clock!r}")
+        # When something last arrived from each carrier (monotonic s): what tells a slow carrier
+        # (it sends Progress) from a stuck one on the sim clock. Not a mission event: not stored.
+        self.heard: dict[str, float] = {}
 
     # ------------------------------------------------------------------ views of the state
     def log(self, line: str) -> None:
@@ -341,6 +359,9 @@ class Coordinator:
             raise ProtocolError("wrong-mission", f"mission {msg.mission!r} on {self.mission!r}")
         if msg.carrier != cid:
             raise ProtocolError("key-mismatch", f"carrier {msg.carrier!r} on the key of {cid!r}")
+        self.heard[cid] = time.monotonic()
+        if isinstance(msg, Progress):
+            return
         if isinstance(msg, Hello) and msg.epoch > self.epoch and msg.fingerprint == self.fingerprint:
             self._carrier_epoch(cid, msg.epoch)
         self.apply(to_event(msg, item.wall))
@@ -483,13 +504,63 @@ class Coordinator:
                 return
             self.pump(min(0.05, left))
 
+    def _wait_stage(self, j: int, opened: float) -> None:
+        """Until every expected carrier's Observation of j is in, or a stop request. Wall clock:
+        at most ``stage_timeout_s``. Sim clock: as long as some carrier still waited for is
+        making progress: one that nothing came from for ``silence_timeout_s`` (since the stage
+        opened) is stalled and not waited for any more; a dead or cut-off one leaves
+        ``expected`` by itself when its token vanishes."""
+        if self.config.clock == "wall":
+            self._wait(self.config.stage_timeout_s, lambda: self.state.stage_complete(j))
+            return
+        silence = self.config.silence_timeout_s
+
+        def done() -> bool:
+            waiting = self.state.waiting(j)
+            if not waiting:
+                return True
+            now = time.monotonic()
+            return all(now - max(self.heard.get(cid, opened), opened) >= silence for cid in waiting)
+
+        while not self._stop.is_set() and not done():
+            self.pump(0.05)
+        stalled = sorted(self.state.waiting(j))
+        if stalled and not self._stop.is_set():
+            self.log(f"coordinator: stage {j}: nothing from {', '.join(stalled[:8])}"
+                     f"{' ...' if len(stalled) > 8 else ''} for {silence:.0f} s (stalled); ∅ for them")
+
+    def _wait_confirms(self, j: int) -> None:
+        """After the last decision: wait for its Confirms from the live carriers. Wall clock: at
+        most ``confirm_timeout_s``; sim clock: until nothing came from any carrier still
+        unconfirmed for ``silence_timeout_s``."""
+        if self.config.clock == "wall":
+            self._wait(self.config.confirm_timeout_s, lambda: not self.state.unconfirmed(j))
+            return
+        opened = time.monotonic()
+        while not self._stop.is_set():
+            waiting = self.state.unconfirmed(j)
+            heard = max((self.heard.get(cid, opened) for cid in waiting), default=opened)
+            if not waiting or time.monotonic() - max(heard, opened) >= self.config.silence_timeout_s:
+                return
+            self.pump(0.05)
+
     def _wait_for_carriers(self) -> None:
         """Before the first stage: wait until every carrier is live with an accepted Hello (or the
-        join timeout; on resume at most the stage timeout, since some carriers may be gone)."""
+        join timeout; on resume at most the stage timeout, since some carriers may be gone). On
+        the sim clock the join timeout runs from the last carrier that joined: a fleet whose
+        processes start slowly on a busy host is waited for while it keeps arriving."""
         wait_s = self.config.join_timeout_s
         if self.state.resumed:
             wait_s = min(wait_s, self.config.stage_timeout_s)
-        self._wait(wait_s, self.state_all_joined)
+        def count() -> int:
+            return sum(1 for cid in self.state.live if cid in self.state.accepted)
+
+        joined = -1
+        while not self._stop.is_set() and not self.state_all_joined() and count() > joined:
+            joined = count()
+            self._wait(wait_s, lambda: self.state_all_joined() or (self.config.clock == "sim" and count() > joined))
+            if self.config.clock == "wall":
+                break
         missing = sorted(cid for cid in self.ids if not (cid in self.state.live and cid in self.state.accepted))
         if missing and not self._stop.is_set():
             self.log(f"coordinator: starting without carrier(s) {', '.join(missing)} (not live with a Hello "
@@ -546,7 +617,7 @@ class Coordinator:
                 self.log(f"coordinator: no carrier is live; holding stage {j} (at most {self.config.join_timeout_s:.0f} s)")
                 self._wait(self.config.join_timeout_s, lambda: bool(self.state.live))
             opened = time.monotonic()
-            self._wait(self.config.stage_timeout_s, lambda: self.state.stage_complete(j))
+            self._wait_stage(j, opened)
             if self._stop.is_set():
                 return
             deploy, planning_ms, passengers = self._plan(j)
@@ -643,8 +714,7 @@ class Coordinator:
                     self._wait_for_carriers()
                     self._stages()
                     if not self._stop.is_set():
-                        self._wait(self.config.confirm_timeout_s,
-                                   lambda: not self.state.unconfirmed(self.n_stages - 1))
+                        self._wait_confirms(self.n_stages - 1)
                     if self.deposed_by is None:  # deposed: the newer coordinator ends the mission
                         self._end("stopped" if self._stop.is_set() else "complete")
             else:  # stopped before the session opened: nothing to tell anyone, but on record

@@ -1,11 +1,20 @@
 """Every timeout of the fleet, in one place: the coordinator's and carriers' configs and
 run_fleet.py's flags take their defaults from :data:`DEFAULTS`.
 
-All values are seconds of wall time.
+All values are seconds of wall time. Which of them end a wait depends on the mission's clock
+(:data:`CLOCKS`, docs/fleet.md, "Simulated time and wall time"): on the ``sim`` clock (every
+simulated mission, whatever its ``--realtime`` pace) only failure detection ends a wait for a
+participant that is live and making progress (its liveliness token, the Zenoh lease,
+``silence_s``); on the ``wall`` clock (real robots) ``stage_s``, ``decision_s`` and ``peer_s``
+are deadlines, and a late observation is legitimately ∅.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+
+#: The mission clocks: ``sim`` (a simulated mission: slow work is waited for) and ``wall`` (a
+#: real-time mission: wall-clock deadlines).
+CLOCKS = ("sim", "wall")
 
 
 @dataclass(frozen=True)
@@ -14,11 +23,13 @@ class Timeouts:
 
     Attributes:
         join_s: coordinator: before stage 0, wait this long for every carrier's token and Hello.
-        stage_s: coordinator: per stage, wait this long for the expected observations.
+        stage_s: coordinator, wall clock: per stage, wait this long for the expected observations.
         confirm_s: coordinator: after the last decision, wait this long for its Confirms.
         bye_s: coordinator: after End, repeat it and wait this long for the carriers' Byes.
         end_repeat_s: coordinator: interval between two publications of End.
-        decision_s: carrier: longest wait for one stage's decision while the coordinator is present.
+        decision_s: carrier: wall clock: longest wait for one stage's decision while the coordinator
+            is present (then it decides the stage itself); sim clock: after this long it asks the
+            coordinator's State again (a lost decision is recovered) and goes on waiting.
         coordinator_s: carrier: exit when the coordinator has been absent this long (also the
             time it keeps trying to open its session and to get an answer from State).
         end_s: carrier: after its last stage, wait this long for End before saying Bye
@@ -32,6 +43,15 @@ class Timeouts:
             noticed the primary's loss).
         standby_state_s: a standby coordinator: how often it queries the primary's State to
             learn its epoch.
+        peer_s: a carrier deciding alone, wall clock: per stage, wait this long for the
+            observations of the carriers it hears.
+        progress_s: sim clock: a carrier working towards its next observation (simulating a long
+            stage) sends a Progress message at least this often.
+        silence_s: sim clock: a live participant from whom nothing (not even Progress) has arrived
+            for this long while it is waited for is taken as stalled: the coordinator goes on
+            without its observation, a carrier deciding alone without its peer's. Only a
+            process that is alive but stuck gets there: a slow one sends Progress, a dead one
+            loses its token, a cut-off one its lease.
     """
 
     join_s: float = 20.0
@@ -47,6 +67,9 @@ class Timeouts:
     liveliness_check_s: float = 1.5
     standby_poll_s: float = 0.25
     standby_state_s: float = 2.0
+    peer_s: float = 5.0
+    progress_s: float = 1.0
+    silence_s: float = 30.0
 
 
 #: The defaults.

@@ -8,6 +8,7 @@ Layout (``<m>`` = mission id, ``<id>`` = carrier id)::
     marsupial/<m>/carrier/<id>/bye        carrier -> coordinator   Bye (put)
     marsupial/<m>/carrier/<id>/own        carrier -> coordinator, carriers   Own (put: a stage it decided itself)
     marsupial/<m>/carrier/<id>/pose       carrier -> viewers       Pose (put, steady rate; the coordinator ignores it)
+    marsupial/<m>/carrier/<id>/progress   carrier -> coordinator, carriers   Progress (put, sim clock: working, not stalled)
     marsupial/<m>/carrier/<id>/alive      liveliness token of a carrier
     marsupial/<m>/coordinator/decision    coordinator -> carriers  Decision (put)
     marsupial/<m>/coordinator/end         coordinator -> carriers  End (put)
@@ -30,7 +31,7 @@ ROOT = "marsupial"
 ID_PATTERN = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]{0,63}\Z")  # \Z: no trailing newline either
 
 #: The message kinds a carrier publishes under its own subtree.
-CARRIER_TOPICS = ("hello", "obs", "confirm", "own", "bye", "pose")
+CARRIER_TOPICS = ("hello", "obs", "confirm", "own", "bye", "pose", "progress")
 
 
 def check_id(value: str, what: str = "id") -> str:

@@ -545,6 +545,31 @@ class Pose:
     TYPE = "pose"
 
 
+@dataclass(frozen=True)
+class Progress:
+    """A carrier is alive and working towards its next observation: sent on the sim clock at least
+    every ``progress_s`` of wall time (1 s by default) while it simulates towards ``stage``.
+    carrier -> ``carrier/<id>/progress``. It carries no mission fact: the coordinator (and a peer
+    deciding alone) only notes when it last heard from the carrier, so that a carrier that is
+    slow (a long stage, a saturated host) is waited for and only one that is silent is taken as
+    stalled (docs/protocol.md, "Simulated time"). Never stored, never a rejection once decoded.
+
+    Attributes:
+        carrier: carrier id (must equal the id in the key).
+        stage: the stage whose Observation the carrier is working towards (0..N: N once it has
+            handled its last stage).
+        t: the simulated mission time its physics has reached, seconds.
+    """
+
+    mission: str = _spec(_ident)
+    carrier: str = _spec(_ident)
+    stage: int = _spec(_STAGE_COUNT)
+    t: float = _spec(_SECONDS)
+    v: int = PROTOCOL_VERSION
+    TYPE = "progress"
+    SINCE = 3
+
+
 def refusal(mission: str, carrier: str, reason: str, fingerprint: str, expected: str, detail: str,
             revision: int) -> Refusal:
     """The Refusal answering a refused Hello, as the carrier's ``revision`` can read it: with
@@ -572,7 +597,7 @@ def announced(payload) -> tuple[int, str]:
 
 
 MESSAGE_TYPES = {cls.TYPE: cls for cls in (Hello, Observation, Decision, Confirm, Own, End, Bye, State, Refusal,
-                                            Pose, Accepted)}
+                                            Pose, Accepted, Progress)}
 
 
 def fingerprint(value) -> str:
