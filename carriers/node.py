@@ -579,10 +579,11 @@ class Carrier:
         ``paced``); on the sim clock a Progress message at least every ``progress_s`` of wall
         time on the way."""
         if self.config.realtime <= 0 or not paced:
-            while self.sim.time < t - 1e-9 and not self._stop.is_set():
+            while True:  # at least once: a body may have to look at the time (a robot's odometry)
                 self.sim.advance_to(min(t, self.sim.time + PROGRESS_CHUNK_S))
                 self._progress()
-            return
+                if self.sim.time >= t - 1e-9 or self._stop.is_set():
+                    return
         wall0, t0 = time.monotonic(), self.sim.time
         while self.sim.time < t - 1e-9 and not self._stop.is_set():
             target = min(t, self.sim.time + PACE_CHUNK_S)
