@@ -81,7 +81,7 @@ PEER_TOPICS = {"obs": Observation, "own": Own, "confirm": Confirm, "progress": P
 
 #: Exit reasons and the process exit code each maps to.
 EXIT_CODES = {"end": 0, "finished": 0, "stopped": STOPPED, "coordinator-lost": 1, "world-mismatch": 2, "refused": 2,
-              "log-mismatch": 2}
+              "log-mismatch": 2, "ros2-mismatch": 2}
 
 
 class DuplicateCarriers(RuntimeError):
@@ -855,6 +855,11 @@ class Carrier:
             reason = "stopped" if self._stop.is_set() else ("end" if self.machine.ended else "finished")
         except _Exit as exc:
             reason = exc.reason
+        except Exception as exc:  # a body that names its exit reason (a robot of another ROS 2 format)
+            reason = getattr(exc, "exit_reason", None)
+            if reason not in EXIT_CODES:
+                raise
+            self.log(str(exc))
         finally:
             try:
                 if self._unanswered is not None or self.config.mode == "decentralised":  # a Bye needs a Hello

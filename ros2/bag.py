@@ -58,7 +58,8 @@ class BagRecorder(MissionTopics):
         if self.path.exists():
             shutil.rmtree(self.path)
         self.store = get_typestore(Stores.ROS2_JAZZY)
-        self.writer = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
+        # Version 8: the bag metadata of Jazzy's rosbag2 (later releases read it too).
+        self.writer = Writer(self.path, version=8, storage_plugin=StoragePlugin.MCAP)
         self.writer.open()
         self.connections: dict[str, object] = {}
         self.counts: dict[str, int] = {}

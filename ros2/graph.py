@@ -140,26 +140,36 @@ class Node:
         self._log = log or (lambda line: None)
         self._reported: set[str] = set()
         self._report_lock = threading.Lock()
-        self.foreign: list[str] = []  # one line per foreign format seen
+        self.foreign: list[tuple[str, str]] = []  # (token, line) of every peer of a foreign format
         self._next_eid = nid + 1
         self.entities: list = []
         self.token_key = rmw.node_token(self.domain, self.zid, nid, namespace, name)
         self._token = session.liveliness().declare_token(self.token_key)
         self._watch = None
+        #: Tokens someone else answers for (a robot body: its own topics): not reported here.
+        self.claimed = lambda key: False
         if watch:
-            def on_token(sample):
-                if sample.kind != zenoh.SampleKind.PUT:
-                    return
-                try:
-                    rmw.parse_token(str(sample.key_expr))
-                except rmw.ForeignFormat as exc:
-                    self.foreign.append(str(exc))
-                    self.report(f"ros2: {exc}; ignored")
-                except ValueError:
-                    pass
+            self.watch_graph()
 
-            self._watch = session.liveliness().declare_subscriber(f"{rmw.ADMIN_SPACE}/{self.domain}/**", on_token,
-                                                                  history=True)
+    def watch_graph(self) -> None:
+        """Watch the domain's graph tokens; a peer of another rmw_zenoh format is recorded in
+        :attr:`foreign` and reported once (unless :attr:`claimed`)."""
+        def on_token(sample):
+            if sample.kind != zenoh.SampleKind.PUT:
+                return
+            key = str(sample.key_expr)
+            try:
+                rmw.parse_token(key)
+            except rmw.ForeignFormat as exc:
+                self.foreign.append((key, str(exc)))
+                if not self.claimed(key):
+                    self.report(f"ros2: {exc}; ignored")
+            except ValueError:
+                pass
+
+        if self._watch is None:
+            self._watch = self.session.liveliness().declare_subscriber(f"{rmw.ADMIN_SPACE}/{self.domain}/**",
+                                                                       on_token, history=True)
 
     def report(self, line: str) -> None:
         """Log ``line`` once (its first 60 characters identify it)."""

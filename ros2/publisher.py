@@ -99,7 +99,7 @@ class CarrierRos2:
     def __init__(self, settings: Ros2Settings, carrier):
         self.carrier = carrier
         self.node = Node(carrier.node.session, settings.domain, topics.carrier_namespace(carrier.cid), "carrier",
-                         log=carrier.log)
+                         log=carrier.log, watch=False)
         self.pose_pub = self.node.publisher("pose", *CARRIER_TOPICS["{ns}/pose"])
         self.tf_pub = self.node.publisher("/tf", *CARRIER_TOPICS["/tf"])
         self.robot = None
@@ -111,6 +111,8 @@ class CarrierRos2:
                                    sync=carrier.config.realtime <= 0, log=carrier.log, stop=carrier._stop,
                                    ack_timeout_s=settings.ack_timeout_s, timeout_s=settings.robot_timeout_s)
             carrier.sim = self.robot
+            self.node.claimed = self.robot.ours  # the robot's own topics: it refuses them itself
+        self.node.watch_graph()
 
     def pose(self, t: float, x: float, y: float, heading: float) -> None:
         if self._failed:

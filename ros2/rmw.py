@@ -47,7 +47,10 @@ INFINITE = (9223372036, 854775807)  # RMW_DURATION_INFINITE as (sec, nsec)
 
 
 class ForeignFormat(ValueError):
-    """A ROS 2 peer speaks another rmw_zenoh format (another distribution): one line says which."""
+    """A ROS 2 peer speaks another rmw_zenoh format (another distribution): one line says which.
+    A carrier whose robot speaks it stops with this exit reason (carriers/node.py)."""
+
+    exit_reason = "ros2-mismatch"
 
 
 @dataclass(frozen=True)

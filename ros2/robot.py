@@ -41,7 +41,7 @@ import time
 
 import numpy as np
 
-from ros2.rmw import QoS
+from ros2.rmw import ForeignFormat, QoS, mangle
 
 #: How often a waiting body looks for the robot's messages (s).
 POLL_S = 0.005
@@ -109,6 +109,7 @@ class RobotBody:
                  ack_timeout_s: float = 10.0, timeout_s: float = 30.0):
         self.cid = cid
         self.ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
+        self.node = node
         self.sync, self._log, self._stop = sync, log, stop
         self.ack_timeout_s, self.timeout_s = ack_timeout_s, timeout_s
         keep = QoS(depth=1000)
@@ -126,9 +127,21 @@ class RobotBody:
         self._silent: set[str] = set()
 
     # ------------------------------------------------------------------ waiting for the robot
+    def ours(self, key: str) -> bool:
+        """Whether a graph token is about one of the robot's topics."""
+        return any(f"/{mangle(f'{self.ns}/{topic}')}/" in key for topic in ("odom", "features", "deploy", "deployed"))
+
+    def _check_format(self) -> None:
+        """Raise :class:`ForeignFormat` (the carrier stops, one line) when the robot's own topics
+        are in the graph in another distribution's format: its data could never reach us."""
+        for key, line in self.node.foreign:
+            if self.ours(key):
+                raise ForeignFormat(f"robot {self.ns or '/'}: {line}")
+
     def _wait(self, history: _History, t: float, what: str) -> None:
         deadline = time.monotonic() + self.timeout_s
         history.pull()
+        self._check_format()
         while self.sync and not history.reached(t) and not self._stop.is_set():
             if time.monotonic() >= deadline:
                 if what not in self._silent:
@@ -138,6 +151,7 @@ class RobotBody:
                 return
             time.sleep(POLL_S)
             history.pull()
+            self._check_format()
         while not self.sync and history.latest() is None and not self._stop.is_set():
             if time.monotonic() >= deadline:
                 if what not in self._silent:
@@ -146,6 +160,7 @@ class RobotBody:
                 return
             time.sleep(POLL_S)
             history.pull()
+            self._check_format()
 
     def _pose_at(self, t: float):
         return self.odom.at(t) if self.sync else self.odom.latest()

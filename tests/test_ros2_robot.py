@@ -83,3 +83,30 @@ def test_a_ros2_robot_flies_as_a_carrier_of_six_carriers(tmp_path):
     six = world.load_scenario(ROOT / "scenarios" / "six_carriers.yaml")
     fleet, robot, summary = _fly(six, "c3", tmp_path)
     _check(six, "c3", fleet, robot, summary)
+
+
+def test_a_robot_of_another_ros2_format_is_refused_in_one_line(tmp_path):
+    """Humble's rmw_zenoh writes no RIHS01 hash (``TypeHashNotSupported``): its odometry key can
+    never match ours, so the robot's carrier stops at once with one line (exit reason
+    ros2-mismatch, code 2) and the mission goes on without it."""
+    from carriers.node import EXIT_CODES
+    from wire.zconfig import make_config, open_session
+
+    tiny = world.load_scenario(TINY)
+    fleet = InProcessFleet(tiny, tmp_path)
+    fleet.start_coordinator()
+    humble = open_session(make_config("client", [], [fleet.endpoint]), 20.0)
+    token = humble.liveliness().declare_token(
+        f"@ros2_lv/{DOMAIN}/{humble.zid()}/0/10/MP/%/%robot1/robot/%robot1%odom/nav_msgs::msg::dds_::Odometry_/"
+        "TypeHashNotSupported/::,10:,:,:,,")
+    try:
+        fleet.start_carrier("a", ros2=Ros2Settings(domain=DOMAIN, robot=True, namespace="/robot1"))
+        fleet.start_carrier("b")
+        summary = fleet.join(120.0)
+    finally:
+        token.undeclare()
+        humble.close()
+    assert fleet.results["a"] == "ros2-mismatch" and EXIT_CODES["ros2-mismatch"] == 2
+    lines = [ln for ln in fleet.log.lines if "carrier a:" in ln and "RIHS01" in ln]
+    assert len(lines) == 1 and "Humble" in lines[0], fleet.log.lines
+    assert fleet.results["b"] == "end" and summary["ended"]
