@@ -9,7 +9,9 @@ What it senses comes from outside, as a robot's sensors would: ``--world FILE`` 
 ``{"scenario": path, "seed": int, "stage_times": [t_j], "x": [x_j or null], "positions":
 [[x, y]], "passengers": D}`` (null x: not scheduled at j). It computes the world's fingerprint
 itself from the scenario file and the seed (the page's section "Fingerprint"). It never decides
-alone: without a Decision within ``--decision-timeout`` it goes on without deploying.
+alone: without a Decision within ``--decision-timeout`` it goes on without deploying; when the
+coordinator's token reappears it resynchronises (State, Hello, its pending Observation, its
+answers again as ``already``), as the page says.
 
     python tests/revision1_carrier.py --endpoint tcp/127.0.0.1:7447 --mission six_carriers \\
         --carrier c1 --world c1.json --result c1-result.json
@@ -125,9 +127,14 @@ def fingerprint(scenario_path: str, seed: int) -> str:
     return hashlib.sha256(f"marsupial-fleet/1 seed={int(seed)}\n".encode() + data).hexdigest()[:16]
 
 
-def fly(endpoint: str, mission: str, cid: str, world: dict, decision_timeout_s: float = 30.0) -> dict:
+FAULTS = ("fingerprint", "future-obs", "no-confirm", "unknown-field", "stale-epoch")
+
+
+def fly(endpoint: str, mission: str, cid: str, world: dict, decision_timeout_s: float = 30.0,
+        fault: str | None = None) -> dict:
     """Fly one mission as a revision 1 carrier; returns what happened (deployments, rejections,
-    the decisions it accepted, the Bye it sent)."""
+    the decisions it accepted, why it stopped). ``fault``: break one rule on purpose (for the
+    conformance kit's tests): one of :data:`FAULTS`."""
     conf = zenoh.Config()
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
@@ -149,10 +156,18 @@ def fly(endpoint: str, mission: str, cid: str, world: dict, decision_timeout_s: 
                 for topic in ("decision", "end")]
     entities.append(session.declare_subscriber(f"{prefix}/coordinator/refusal/{cid}",
                                                lambda s: inbox.put(("refusal", s.payload.to_bytes()))))
+    entities.append(session.liveliness().declare_subscriber(
+        f"{prefix}/coordinator/alive", history=True,
+        handler=lambda s: inbox.put(("alive" if s.kind == zenoh.SampleKind.PUT else "gone", b""))))
     entities.append(session.liveliness().declare_token(f"{mine}/alive"))
     publishers: dict = {}
     rejected: Counter = Counter()
     outcome = {"deployments": [], "decisions": {}, "rejected": rejected, "reason": None}
+    mine_fp = fingerprint(world["scenario"], world["seed"] + (1 if fault == "fingerprint" else 0))
+    me = {"left": int(world["passengers"]), "epoch": 1, "stage": 0, "pending": None, "seen": False,
+          "gone": False, "said_hello": False}
+    handled: dict = {}  # stage -> (deployed, status, passengers_left after, position)
+    replay: list = []  # decisions learnt from State at a resynchronisation, handled as received
 
     def put(topic: str, body: dict) -> None:
         if topic not in publishers:
@@ -162,29 +177,11 @@ def fly(endpoint: str, mission: str, cid: str, world: dict, decision_timeout_s: 
             entities.append(publishers[topic])
         publishers[topic].put(msgpack.packb({"v": 1, "type": topic, "mission": mission, **body}))
 
-    def receive(timeout_s: float):
-        """The next valid (kind, message) from the coordinator, or None at the timeout."""
+    def query_state(timeout_s: float):
+        """State of the highest epoch ("State"), retrying until ``timeout_s``."""
+        best = None
         end = time.monotonic() + timeout_s
-        while True:
-            left = end - time.monotonic()
-            if left <= 0:
-                return None
-            try:
-                kind, payload = inbox.get(timeout=left)
-            except queue.Empty:
-                return None
-            try:
-                return kind, read(payload, kind, mission)
-            except Rejected as exc:
-                rejected[exc.reason] += 1
-
-    mine_fp = fingerprint(world["scenario"], world["seed"])
-    left = int(world["passengers"])
-    handled: dict = {}  # stage -> (deployed, status, passengers_left after)
-    try:
-        state = None
-        deadline = time.monotonic() + 30
-        while state is None and time.monotonic() < deadline:  # "Join": query State, retrying
+        while best is None and time.monotonic() < end:
             for reply in session.get(f"{prefix}/coordinator/state?carrier={cid}", timeout=2.0):
                 if reply.ok is None:
                     continue
@@ -193,34 +190,99 @@ def fly(endpoint: str, mission: str, cid: str, world: dict, decision_timeout_s: 
                 except Rejected as exc:
                     rejected[exc.reason] += 1
                     continue
-                if state is None or candidate.get("epoch", 1) > state.get("epoch", 1):
-                    state = candidate
-            if state is None:
+                if best is None or candidate.get("epoch", 1) > best.get("epoch", 1):
+                    best = candidate
+            if best is None:
                 time.sleep(0.2)
+        return best
+
+    def hello(next_stage: int) -> None:
+        me["said_hello"] = True
+        put("hello", {"carrier": cid, "pid": os.getpid(), "host": socket.gethostname()[:255],
+                      "passengers_left": me["left"], "next_stage": next_stage, "fingerprint": mine_fp,
+                      **({"epoch": me["epoch"]} if me["epoch"] > 1 else {})})
+
+    def confirm(stage: int, deployed: bool, status: str, position, after: int) -> None:
+        put("confirm", {"carrier": cid, "stage": stage, "deployed": deployed, "status": status,
+                        "position": position, "passengers_left": after})
+
+    def resync() -> None:
+        """The coordinator's token reappeared ("Joining late, restarting, resynchronising")."""
+        state = query_state(10.0)
+        if state is None or state.get("epoch", 1) < me["epoch"]:
+            return
+        me["epoch"] = max(me["epoch"], state.get("epoch", 1))
+        hello(max(me["stage"], state["next_stage"]))
+        last = state["last_decision"]
+        if last is not None and last["stage"] not in handled:
+            replay.append(last)
+        pending = me["pending"]
+        if pending is not None and pending["stage"] >= state["next_stage"] and pending["stage"] not in handled:
+            put("obs", pending)
+        for j, (deployed, _, after, position) in sorted(handled.items()):
+            confirm(j, deployed, "already", position, after)
+
+    def receive(timeout_s: float):
+        """The next valid (kind, message) from the coordinator, or None at the timeout."""
+        end = time.monotonic() + timeout_s
+        while True:
+            if replay:
+                return "decision", replay.pop(0)
+            left = end - time.monotonic()
+            if left <= 0:
+                return None
+            try:
+                kind, payload = inbox.get(timeout=left)
+            except queue.Empty:
+                return None
+            if kind == "gone":
+                me["gone"] = True
+                continue
+            if kind == "alive":
+                if me["seen"] and me["gone"]:
+                    me["gone"] = False
+                    resync()
+                me["seen"] = True
+                continue
+            try:
+                return kind, read(payload, kind, mission)
+            except Rejected as exc:
+                rejected[exc.reason] += 1
+
+    def observation(j: int) -> dict:
+        return {"carrier": cid, "stage": j, "t": float(world["stage_times"][j]), "x": world["x"][j],
+                "position": [float(v) for v in world["positions"][j]], "passengers_left": me["left"], "trail": []}
+
+    try:
+        state = query_state(30.0)  # "Join": query State, retrying
         if state is None:
             outcome["reason"] = "coordinator-lost"
             return outcome
-        if state["fingerprint"] != mine_fp:
+        if state["fingerprint"] != mine_fp and fault != "fingerprint":
             outcome["reason"] = "world-mismatch"
             return outcome
         if state["ended"]:
             outcome["reason"] = "end"
             return outcome
-        epoch = state.get("epoch", 1)
-        put("hello", {"carrier": cid, "pid": os.getpid(), "host": socket.gethostname()[:255],
-                      "passengers_left": left, "next_stage": state["next_stage"], "fingerprint": mine_fp,
-                      **({"epoch": epoch} if epoch > 1 else {})})
+        me["epoch"] = state.get("epoch", 1)
+        me["stage"] = state["next_stage"]
+        hello(state["next_stage"])
         ended = False
         stages = state["stages"]
         early: dict = {}  # stage -> decision that arrived before the carrier got there
         for j in range(state["next_stage"], stages):
             if ended:
                 break
-            x = world["x"][j]
+            me["stage"] = j
             position = [float(v) for v in world["positions"][j]]
             if j not in early:
-                put("obs", {"carrier": cid, "stage": j, "t": float(world["stage_times"][j]), "x": x,
-                            "position": position, "passengers_left": left, "trail": []})
+                body = observation(j)
+                if fault == "unknown-field" and j == 1:
+                    body["colour"] = "red"
+                me["pending"] = body
+                put("obs", body)
+                if fault == "future-obs" and j == 1 and j + 1 < stages:
+                    put("obs", observation(j + 1))
             decision = early.pop(j, None)
             wait_until = time.monotonic() + decision_timeout_s
             while decision is None and not ended:
@@ -234,32 +296,33 @@ def fly(endpoint: str, mission: str, cid: str, world: dict, decision_timeout_s: 
                     if message["fingerprint"] == mine_fp:
                         outcome["reason"] = "world-mismatch"
                         return outcome
-                elif message.get("epoch", 1) < epoch:
+                elif message.get("epoch", 1) < me["epoch"] and fault != "stale-epoch":
                     rejected["deposed"] += 1
-                elif message["stage"] == j:
-                    epoch = max(epoch, message.get("epoch", 1))
+                elif message["stage"] == j and j not in handled:
+                    me["epoch"] = max(me["epoch"], message.get("epoch", 1))
                     decision = message
                 elif message["stage"] > j:
-                    epoch = max(epoch, message.get("epoch", 1))
+                    me["epoch"] = max(me["epoch"], message.get("epoch", 1))
                     early[message["stage"]] = message
                     break  # j's decision was lost: go on at once
                 elif message["stage"] in handled:  # a repeat: "already" with the first outcome
-                    deployed, _, after = handled[message["stage"]]
-                    put("confirm", {"carrier": cid, "stage": message["stage"], "deployed": deployed,
-                                    "status": "already", "position": position, "passengers_left": after})
+                    me["epoch"] = max(me["epoch"], message.get("epoch", 1))
+                    deployed, _, after, where = handled[message["stage"]]
+                    confirm(message["stage"], deployed, "already", where, after)
+            me["pending"] = None
             if decision is None:
                 continue
             outcome["decisions"][j] = list(decision["deploy"])
             selected = cid in decision["deploy"]
-            if selected and x is not None and left > 0:
-                left -= 1
+            if selected and world["x"][j] is not None and me["left"] > 0:
+                me["left"] -= 1
                 outcome["deployments"].append(j)
                 status = "deployed"
             else:
                 status = "refused" if selected else "idle"
-            handled[j] = (status == "deployed", status, left)
-            put("confirm", {"carrier": cid, "stage": j, "deployed": status == "deployed", "status": status,
-                            "position": position, "passengers_left": left})
+            handled[j] = (status == "deployed", status, me["left"], position)
+            if not (fault == "no-confirm" and j == 1):
+                confirm(j, status == "deployed", status, position, me["left"])
         end_wait = time.monotonic() + 10
         while not ended and time.monotonic() < end_wait:
             got = receive(end_wait - time.monotonic())
@@ -269,9 +332,10 @@ def fly(endpoint: str, mission: str, cid: str, world: dict, decision_timeout_s: 
         return outcome
     finally:
         try:
-            put("bye", {"carrier": cid, "deployments": outcome["deployments"], "rejected": dict(rejected),
-                        "reason": outcome["reason"] or "stopped"})
-            time.sleep(0.3)  # let the Bye leave before the session closes
+            if me["said_hello"]:  # a Bye needs a Hello
+                put("bye", {"carrier": cid, "deployments": outcome["deployments"], "rejected": dict(rejected),
+                            "reason": outcome["reason"] or "stopped"})
+                time.sleep(0.3)  # let the Bye leave before the session closes
         finally:
             for entity in entities:
                 try:
@@ -289,10 +353,11 @@ def main(argv=None) -> int:
     parser.add_argument("--world", required=True, help="JSON file: what the carrier senses (see above)")
     parser.add_argument("--result", help="write what happened here (JSON)")
     parser.add_argument("--decision-timeout", type=float, default=30.0)
+    parser.add_argument("--fault", choices=FAULTS, help="break one rule on purpose (conformance kit tests)")
     args = parser.parse_args(argv)
     with open(args.world) as f:
         world = json.load(f)
-    outcome = fly(args.endpoint, args.mission, args.carrier, world, args.decision_timeout)
+    outcome = fly(args.endpoint, args.mission, args.carrier, world, args.decision_timeout, args.fault)
     if args.result:
         with open(args.result, "w") as f:
             json.dump({**outcome, "rejected": dict(outcome["rejected"])}, f)

@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 
 import world
-from fleet_helpers import ROOT, InProcessFleet, deployed_matrix, offline
+from fleet_helpers import ROOT, InProcessFleet, deployed_matrix, offline, sensed_world_file
 from wire import messages as wm
 
 FIXTURES = ROOT / "tests" / "fixtures" / "wire"
@@ -153,18 +153,6 @@ def test_the_revision1_client_is_as_strict_as_its_page():
         client.read(msgpack.packb(body), "state", "six_carriers")
 
 
-def _world_file(scenario, trace, r: int, path: Path) -> Path:
-    """What carrier r senses and where it is at each stage (what a robot's own sensors give)."""
-    traj = trace.trajectories[r]
-    times = scenario.stage_times()
-    positions = [[float(v) for v in traj[min(np.searchsorted(traj[:, 0], t), len(traj) - 1), 1:3]] for t in times]
-    x = [None if np.isnan(v) else int(v) for v in trace.x[r]]
-    path.write_text(json.dumps({"scenario": str(scenario.source), "seed": int(scenario.seed),
-                                "stage_times": [float(t) for t in times], "x": x, "positions": positions,
-                                "passengers": int(scenario.carriers[r].passengers)}))
-    return path
-
-
 def test_a_revision1_carrier_flies_six_carriers_next_to_todays(tmp_path):
     """Three carriers of revision 1 (separate processes, the standalone client) and three of
     today's: the mission's decisions and deployments are the offline planner's, the revision 1
@@ -180,7 +168,7 @@ def test_a_revision1_carrier_flies_six_carriers_next_to_todays(tmp_path):
         r = six.carrier_index(cid)
         procs[cid] = subprocess.Popen(
             [sys.executable, str(CLIENT), "--endpoint", fleet.endpoint, "--mission", fleet.coordinator.mission,
-             "--carrier", cid, "--world", str(_world_file(six, trace, r, tmp_path / f"{cid}.json")),
+             "--carrier", cid, "--world", str(sensed_world_file(six, trace, r, tmp_path / f"{cid}.json")),
              "--result", str(tmp_path / f"{cid}-result.json"), "--decision-timeout", "20"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     for cid in six.carrier_ids:

@@ -1,0 +1,129 @@
+"""The conformance kit (python -m wire.conformance): the project's own carrier and a carrier of
+revision 1 written from its page pass every rule, through the kit's faults (a late Decision, a
+duplicate, a coordinator restart, a deposed Decision); carriers broken on purpose fail on the
+rule they break. The flights start real processes (a coordinator twice, the other carriers, the
+carrier under test) and are slow; the rule evaluation itself is checked fast on recorded flights."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import msgpack
+import pytest
+
+import world
+from fleet_helpers import ROOT, TINY, sensed_world_file
+from wire import conformance as wc
+from wire import messages as wm
+
+CLIENT = ROOT / "tests" / "revision1_carrier.py"
+PROJECT_CARRIER = [sys.executable, str(ROOT / "run_fleet.py"), "{scenario}", "--role", "carrier", "--carrier",
+                   "{carrier}", "--connect", "{endpoint}", "--seed", "{seed}", "--mission", "{mission}",
+                   "--no-autonomy", "--out", "{workdir}"]
+
+
+def _client(tmp_path, fault=None) -> list[str]:
+    tiny = world.load_scenario(TINY)
+    path = sensed_world_file(tiny, world.simulate_mission(tiny), tiny.carrier_index("a"), tmp_path / "a.json")
+    return [sys.executable, str(CLIENT), "--endpoint", "{endpoint}", "--mission", "{mission}", "--carrier",
+            "{carrier}", "--world", str(path), *(["--fault", fault] if fault else [])]
+
+
+def _statuses(results) -> dict:
+    return {r.rule: r.status for r in results}
+
+
+# --------------------------------------------------------------------------- fast: the rules on recorded flights
+
+def _kit(tmp_path) -> wc.Kit:
+    return wc.Kit(str(TINY), "a", ["true"], workdir=str(tmp_path), log=lambda line: None)
+
+
+def _seen(at, message, fake=False) -> wc.Seen:
+    return wc.Seen(at, type(message).TYPE, wm.encode(message), message, fake=fake)
+
+
+def test_the_rules_on_a_recorded_flight(tmp_path):
+    """A hand-made flight of tiny's carrier a: clean, then with a future Observation, a missing
+    Confirm and an unknown field; each fault fails its own rule and only it."""
+    kit = _kit(tmp_path)
+    m, fp, x = kit.mission, kit.fingerprint, kit.x
+
+    def obs(j, at):
+        value = None if not kit.valid[j] else int(x[j])
+        return _seen(at, wm.Observation(m, "a", j, kit.times[j], value, (0.0, 0.0), 2, ()))
+
+    def clean():
+        f = wc.Flight()
+        f.carrier.append(_seen(0.0, wm.Hello(m, "a", 1, "h", 2, 0, fp)))
+        for j in range(kit.n):
+            f.carrier.append(obs(j, 1.0 + j))
+            f.decisions.append(_seen(1.5 + j, wm.Decision(m, j, kit.times[j], (), 1.0)))
+            f.carrier.append(_seen(1.6 + j, wm.Confirm(m, "a", j, False, "idle", (0.0, 0.0), 2)))
+        f.ends.append(wc.Seen(9.0, "end", b""))
+        f.carrier.append(_seen(9.1, wm.Bye(m, "a", (), (), "end")))
+        f.exit_code = 0
+        return f
+
+    kit.flight = clean()
+    results = _statuses(kit.evaluate())
+    assert {r for r, s in results.items() if s == "FAIL"} == set()
+    assert results["confirm"] == results["observation-world"] == results["bye"] == "pass"
+
+    kit.flight = clean()
+    kit.flight.carrier.insert(2, obs(2, 1.05))  # stage 2 while stage 0 is collected
+    assert {r for r, s in _statuses(kit.evaluate()).items() if s == "FAIL"} == {"observation-stage"}
+
+    kit.flight = clean()
+    del kit.flight.carrier[4]  # the Confirm of stage 1
+    assert {r for r, s in _statuses(kit.evaluate()).items() if s == "FAIL"} == {"confirm"}
+
+    kit.flight = clean()
+    body = msgpack.unpackb(kit.flight.carrier[1].payload)
+    kit.flight.carrier[1] = wc.Seen(1.0, "obs", msgpack.packb({**body, "colour": "red"}), None, "unknown-field: x")
+    failed = {r for r, s in _statuses(kit.evaluate()).items() if s == "FAIL"}
+    assert "decode" in failed and failed <= {"decode", "observation-stage"}
+
+
+def test_the_command_line_refuses_bad_usage(tmp_path):
+    for args, text in [([str(TINY), "--carrier", "a"], "usage"),
+                       ([str(TINY), "--carrier", "zz", "--", "true"], "not a carrier"),
+                       ([str(TINY), "--carrier", "a", "--faults", "meteor", "--", "true"], "unknown fault"),
+                       ([str(tmp_path / "none.yaml"), "--carrier", "a", "--", "true"], "no such file")]:
+        proc = subprocess.run([sys.executable, "-m", "wire.conformance", *args], capture_output=True, text=True,
+                              cwd=ROOT, timeout=60)
+        assert proc.returncode == 2 and text in proc.stderr, (args, proc.stderr)
+        assert "Traceback" not in proc.stderr
+
+
+# --------------------------------------------------------------------------- slow: real flights
+
+@pytest.mark.slow
+def test_the_project_carrier_passes(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "wire.conformance", str(TINY), "--carrier", "a", "--workdir",
+                           str(tmp_path / "kit"), "--", *PROJECT_CARRIER], capture_output=True, text=True,
+                          cwd=tmp_path, timeout=400)
+    assert proc.returncode == 0, proc.stdout + proc.stderr[-3000:]
+    rows = {line.split()[0]: line.split()[2] for line in proc.stdout.splitlines()[2:] if line.split()[0] in
+            {r for r, _, _ in wc.RULES}}
+    assert set(rows) == {r for r, _, _ in wc.RULES} and set(rows.values()) == {"pass"}, proc.stdout
+
+
+@pytest.mark.slow
+def test_a_revision1_carrier_from_its_page_passes(tmp_path):
+    kit = wc.Kit(str(TINY), "a", _client(tmp_path), workdir=str(tmp_path / "kit"), log=lambda line: None)
+    results = kit.run()
+    assert wc.passed(results), wc.table(results) + kit.flight.output
+    assert all(r.exercised for r in results), wc.table(results)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("fault, rule", [
+    ("fingerprint", "fingerprint"), ("future-obs", "observation-stage"), ("no-confirm", "confirm"),
+    ("unknown-field", "decode"), ("stale-epoch", "epochs"),
+])
+def test_a_broken_carrier_fails_the_rule_it_breaks(tmp_path, fault, rule):
+    kit = wc.Kit(str(TINY), "a", _client(tmp_path, fault), workdir=str(tmp_path / "kit"), log=lambda line: None)
+    results = kit.run()
+    assert not wc.passed(results)
+    assert _statuses(results)[rule] == "FAIL", wc.table(results) + kit.flight.output
