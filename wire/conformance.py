@@ -68,7 +68,7 @@ RULES = (
     ("coordinator-rejections", "Rejections", "the coordinator rejected none of its messages (State, CarrierState.rejected)"),
 )
 FAULTS = ("late", "duplicate", "restart", "deposed")
-CARRIER_TOPICS = ("hello", "obs", "confirm", "own", "bye", "pose")
+CARRIER_TOPICS = ("hello", "obs", "confirm", "own", "bye", "pose", "progress")
 
 
 @dataclass
