@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 import time
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -63,15 +64,88 @@ NO_CHILD = -1
 CHUNK = 256
 
 
+# ----------------------------------------------------------------------------- named structures
+# The kernels' arguments (NamedTuples of arrays, read by numba as tuples), as in planner.mcts.kernel.
+
+
+class Model(NamedTuple):
+    """The compiled problem as the kernels read it (:class:`planner.compiled.CompiledProblem`)."""
+
+    table: np.ndarray   # float64 [N + 2, N + 2] DLR thresholds (raw units)
+    points: np.ndarray  # float64 [K] sampler support points
+    cdf: np.ndarray     # float64 [K] cumulative probabilities
+    guide: np.ndarray   # int64 [G] guide table of the inverse CDF
+    indptr: np.ndarray  # int64 [R*N + 1] CSR of "shares an overlap"
+    nbr: np.ndarray     # int64 [nnz]
+    scale: float        # rewards are divided by it
+
+
+class Root(NamedTuple):
+    """What carrier ``r`` knows when it decides stage ``j``."""
+
+    r: int                   # the deciding carrier
+    j: int                   # the stage
+    own_stages: np.ndarray   # int64 [S] its valid stages from j on
+    valid: np.ndarray        # bool [R, N] validity as it knows it
+    nleft: np.ndarray        # int64 [R, N + 1] valid stages left
+    xobs: np.ndarray         # float64 [R, N] observations it has (NaN: unknown)
+    record: np.ndarray       # int64 [R] per carrier, the first stage whose deployment it does not know
+    left_rec: np.ndarray     # int64 [R] passengers left at ``record``
+    known_pts: np.ndarray    # int64 [P] flat points known deployed
+    known_x: np.ndarray      # float64 [P] their (weighted) observations
+    ws0: np.ndarray          # float64 [R, max D + 1] weights aboard, largest first (a placeholder without values)
+    weighted: bool           # passenger values
+
+
+class Intents(NamedTuple):
+    """The others' latest intents: codes int64 ``[R, K]`` (stage masks), cumulative
+    probabilities float64 ``[R, K]``, count per carrier int64 ``[R]`` (0: none heard)."""
+
+    code: np.ndarray
+    cum: np.ndarray
+    count: np.ndarray
+
+
+class Scratch(NamedTuple):
+    """Work arrays of one decision and its random stream."""
+
+    state: np.ndarray   # uint64 [1] splitmix64 counter
+    left: np.ndarray    # int64 [R] passengers left along the trajectory
+    mark: np.ndarray    # int8 [R*N] selected points
+    xval: np.ndarray    # float64 [R*N] their observations
+    pts: np.ndarray     # int64 [R*N] selected points, in order
+    plan: np.ndarray    # int64 [R] the sequence drawn for each other carrier (-1: none)
+    path: np.ndarray    # int64 [N + 2] node ids of the tree path
+    ws: np.ndarray      # float64 like Root.ws0, along the trajectory
+
+
+class Tree(NamedTuple):
+    """The carrier's tree, ``[C]`` arrays (children ``[C, 2]``): children, position in the own
+    stages, passengers left, discounted visits, discounted value sums, last update, best rollout
+    value and its own sequence."""
+
+    child: np.ndarray
+    pos: np.ndarray
+    dleft: np.ndarray
+    n_eff: np.ndarray
+    w: np.ndarray
+    last: np.ndarray
+    bestv: np.ndarray
+    bestm: np.ndarray
+
+
 @njit(cache=True)
-def _trajectory(state, r, j, own_mask, stop, valid, nleft, xobs, record, left_rec, known_pts, known_x,
-                plan, table, points, cdf, guide, indptr, nbr, scale, left, mark, xval, pts, ws0, ws, weighted):
+def _trajectory(own_mask, stop, root, model, scratch):
     """Build one full trajectory and return (normalised reward, own deployment mask).
 
     Own decisions at stages ``< stop`` come from ``own_mask``; later ones, and those of carriers
     without a plan (``plan[b] < 0``), from the conflict-discounted SSAP rollout; carriers with a
     plan deploy at its stages (and when forced). Unknown observations are drawn from the prior.
     """
+    r, valid, nleft, xobs, record, left_rec = root.r, root.valid, root.nleft, root.xobs, root.record, root.left_rec
+    known_pts, known_x = root.known_pts, root.known_x
+    table, points, cdf, guide, indptr, nbr = model.table, model.points, model.cdf, model.guide, model.indptr, model.nbr
+    state, left, mark, xval, pts, plan = scratch.state, scratch.left, scratch.mark, scratch.xval, scratch.pts, scratch.plan
     n_carriers, n_stages = valid.shape
     npts = 0
     for e in range(known_pts.shape[0]):
@@ -115,9 +189,9 @@ def _trajectory(state, r, j, own_mask, stop, valid, nleft, xobs, record, left_re
                 left[b] = d - 1
                 if b == r:
                     mine |= np.int64(1) << t
-    if weighted:
+    if root.weighted:
         n_known = known_pts.shape[0]
-        weigh(npts - n_known, pts[n_known:], xval, n_stages, nleft, table, left_rec, ws0, ws, left)
+        weigh(npts - n_known, pts[n_known:], xval, n_stages, nleft, table, left_rec, root.ws0, scratch.ws, left)
     total = 0.0
     for e in range(npts):
         a = pts[e]
@@ -127,11 +201,13 @@ def _trajectory(state, r, j, own_mask, stop, valid, nleft, xobs, record, left_re
         total += xval[a] / (1.0 + c)
     for e in range(npts):
         mark[pts[e]] = 0
-    return total / scale, mine
+    return total / model.scale, mine
 
 
 @njit(cache=True)
-def _draw_plans(state, icode, icum, ik, plan):
+def _draw_plans(state, intents, plan):
+    """``plan[b]``: a sequence drawn from carrier b's intent (-1 without one)."""
+    icode, icum, ik = intents
     for b in range(ik.shape[0]):
         plan[b] = -1
         if ik[b] > 0:
@@ -143,14 +219,16 @@ def _draw_plans(state, icode, icum, ik, plan):
 
 
 @njit(cache=True)
-def _search(it0, n_iter, created, c_uct, gamma, r, j, own_stages, valid, nleft, xobs, record, left_rec,
-            known_pts, known_x, icode, icum, ik, table, points, cdf, guide, indptr, nbr, scale, state,
-            child, pos, dleft, n_eff, w, last, bestv, bestm, left, mark, xval, pts, plan, path, ws0, ws, weighted):
-    """Run iterations ``it0 .. it0 + n_iter - 1`` from the root (node 0) of a tree with
-    ``created`` nodes (capacity >= created + n_iter); returns the nodes created."""
+def _search(it0, n_iter, created, c_uct, gamma, root, intents, model, tree, scratch):
+    """Run iterations ``it0 .. it0 + n_iter - 1`` from the root (node 0) of ``tree`` with
+    ``created`` nodes (capacity >= created + n_iter); returns the nodes created. ``c_uct``: the
+    D-UCT constant; ``gamma``: the discount per iteration."""
+    r, own_stages, valid, nleft = root.r, root.own_stages, root.valid, root.nleft
+    child, pos, dleft, n_eff, w, last, bestv, bestm = tree
+    state, path = scratch.state, scratch.path
     n_own = own_stages.shape[0]
     for it in range(it0, it0 + n_iter):
-        _draw_plans(state, icode, icum, ik, plan)
+        _draw_plans(state, intents, scratch.plan)
         node = 0
         depth = 0
         path[0] = 0
@@ -206,9 +284,7 @@ def _search(it0, n_iter, created, c_uct, gamma, r, j, own_stages, valid, nleft, 
             depth += 1
             path[depth] = node
             stop = own_stages[p + 1] if p + 1 < n_own else valid.shape[1]
-        value, mine = _trajectory(state, r, j, own_mask, stop, valid, nleft, xobs, record, left_rec, known_pts,
-                                  known_x, plan, table, points, cdf, guide, indptr, nbr, scale, left, mark, xval,
-                                  pts, ws0, ws, weighted)
+        value, mine = _trajectory(own_mask, stop, root, model, scratch)
         for k in range(depth + 1):
             v = path[k]
             decay = gamma ** (it - last[v])
@@ -222,41 +298,37 @@ def _search(it0, n_iter, created, c_uct, gamma, r, j, own_stages, valid, nleft, 
 
 
 @njit(cache=True)
-def _values_given(masks, n_samples, r, j, valid, nleft, xobs, record, left_rec, known_pts, known_x, icode, icum,
-                  ik, table, points, cdf, guide, indptr, nbr, scale, state, left, mark, xval, pts, plan, out,
-                  ws0, ws, weighted):
+def _values_given(masks, n_samples, root, intents, model, scratch, out):
     """``out[i]``: mean reward with this carrier following ``masks[i]`` (others from intents)."""
-    n_stages = valid.shape[1]
+    n_stages = root.valid.shape[1]
     for i in range(masks.shape[0]):
         acc = 0.0
         for s in range(n_samples):
-            _draw_plans(state, icode, icum, ik, plan)
-            v, _ = _trajectory(state, r, j, masks[i], n_stages, valid, nleft, xobs, record, left_rec, known_pts,
-                               known_x, plan, table, points, cdf, guide, indptr, nbr, scale, left, mark, xval, pts,
-                               ws0, ws, weighted)
+            _draw_plans(scratch.state, intents, scratch.plan)
+            v, _ = _trajectory(masks[i], n_stages, root, model, scratch)
             acc += v
         out[i] = acc / n_samples
 
 
-def _tree(capacity: int, d_root: int) -> tuple:
+def _tree(capacity: int, d_root: int) -> Tree:
     """Preallocated tree arrays for ``capacity`` nodes: children ``[C, 2]``, position, passengers
     left, discounted visits, discounted value sums, last update, best rollout value and its own
     sequence (root: position 0, ``d_root`` passengers)."""
     child = np.full((capacity, 2), NO_CHILD, dtype=np.int64)
     dleft = np.zeros(capacity, np.int64)
     dleft[0] = d_root
-    return (child, np.zeros(capacity, np.int64), dleft, np.zeros(capacity), np.zeros(capacity),
-            np.zeros(capacity, np.int64), np.full(capacity, -np.inf), np.zeros(capacity, np.int64))
+    return Tree(child, np.zeros(capacity, np.int64), dleft, np.zeros(capacity), np.zeros(capacity),
+                np.zeros(capacity, np.int64), np.full(capacity, -np.inf), np.zeros(capacity, np.int64))
 
 
-def _grown(tree: tuple, capacity: int) -> tuple:
+def _grown(tree: Tree, capacity: int) -> Tree:
     """The tree's arrays with room for ``capacity`` nodes (new entries as :func:`_tree`'s)."""
     fresh = _tree(capacity, 0)
     out = []
     for old, new in zip(tree, fresh):
         new[: len(old)] = old
         out.append(new)
-    return tuple(out)
+    return Tree(*out)
 
 
 def optimise_distribution(values: np.ndarray, steps: int = GRADIENT_STEPS, alpha: float = GRADIENT_ALPHA,
@@ -350,22 +422,24 @@ class DecMCTSPlanner:
         icode, icum, ik = self._intent_arrays(local, R)
         own_stages = np.flatnonzero(valid[r, j:]).astype(np.int64) + j
         xobs = np.ascontiguousarray(local.observations)
-        scratch = (np.zeros(R, np.int64), np.zeros(R * N, np.int8), np.zeros(R * N), np.zeros(R * N, np.int64),
-                   np.zeros(R, np.int64), np.zeros(N + 2, np.int64))
+        scratch = Scratch(state, np.zeros(R, np.int64), np.zeros(R * N, np.int8), np.zeros(R * N),
+                          np.zeros(R * N, np.int64), np.zeros(R, np.int64), np.zeros(N + 2, np.int64),
+                          np.zeros_like(ws0))
+        root = Root(r, j, own_stages, valid, nleft, xobs, record, left_rec, known, known_x, ws0, weighted)
+        model = Model(prep.table, prep.sampler.points, prep.sampler.cdf, prep.sampler.guide, prep.indptr, prep.nbr,
+                      float(problem.scale))
+        intents = Intents(icode, icum, ik)
         tree = _tree(self.iterations + 1 if self.plan_ms is None else CHUNK + 1, d_own)
-        fixed = (self.exploration, GAMMA, r, j, own_stages, valid, nleft, xobs, record, left_rec, known, known_x,
-                 icode, icum, ik, prep.table, prep.sampler.points, prep.sampler.cdf, prep.sampler.guide,
-                 prep.indptr, prep.nbr, float(problem.scale), state)
         if self.plan_ms is None:
             done = self.iterations
-            created = _search(0, done, 1, *fixed, *tree, *scratch, ws0, np.zeros_like(ws0), weighted)
+            created = _search(0, done, 1, self.exploration, GAMMA, root, intents, model, tree, scratch)
         else:
             deadline = time.perf_counter() + self.plan_ms / 1e3
             done, created = 0, 1
             while True:
-                if created + CHUNK >= len(tree[1]):
-                    tree = _grown(tree, 2 * len(tree[1]))
-                created = _search(done, CHUNK, created, *fixed, *tree, *scratch, ws0, np.zeros_like(ws0), weighted)
+                if created + CHUNK >= len(tree.pos):
+                    tree = _grown(tree, 2 * len(tree.pos))
+                created = _search(done, CHUNK, created, self.exploration, GAMMA, root, intents, model, tree, scratch)
                 done += CHUNK
                 if time.perf_counter() >= deadline:
                     break
@@ -391,10 +465,7 @@ class DecMCTSPlanner:
         if not masks:
             masks = [(1 << j) if go else 0]
         values = np.zeros(len(masks))
-        _values_given(np.array(masks, dtype=np.int64), INTENT_SAMPLES, r, j, valid, nleft, xobs, record, left_rec,
-                      known, known_x, icode, icum, ik, prep.table, prep.sampler.points, prep.sampler.cdf,
-                      prep.sampler.guide, prep.indptr, prep.nbr, float(problem.scale), state, *scratch[:5], values,
-                      ws0, np.zeros_like(ws0), weighted)
+        _values_given(np.array(masks, dtype=np.int64), INTENT_SAMPLES, root, intents, model, scratch, values)
         q = optimise_distribution(values)
         seqs = np.zeros((len(masks), N), dtype=bool)
         for i, mv in enumerate(masks):
