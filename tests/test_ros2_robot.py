@@ -93,7 +93,7 @@ def test_a_robot_of_another_ros2_format_is_refused_in_one_line(tmp_path):
     from wire.zconfig import make_config, open_session
 
     tiny = world.load_scenario(TINY)
-    fleet = InProcessFleet(tiny, tmp_path)
+    fleet = InProcessFleet(tiny, tmp_path, join_timeout_s=3.0)  # not the default 10 s for the carrier that left
     fleet.start_coordinator()
     humble = open_session(make_config("client", [], [fleet.endpoint]), 20.0)
     token = humble.liveliness().declare_token(
