@@ -51,7 +51,7 @@ class BagRecorder(MissionTopics):
     """
 
     def __init__(self, path, scene, problem=None, metadata: dict | None = None):
-        from rosbags.rosbag2 import StoragePlugin, Writer
+        from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
         from rosbags.typesys import Stores, get_typestore
 
         self.path = Path(path)
@@ -60,6 +60,9 @@ class BagRecorder(MissionTopics):
         self.store = get_typestore(Stores.ROS2_JAZZY)
         # Version 8: the bag metadata of Jazzy's rosbag2 (later releases read it too).
         self.writer = Writer(self.path, version=8, storage_plugin=StoragePlugin.MCAP)
+        # zstd inside the MCAP chunks (1 MiB each): the storage plugin's own compression, which
+        # rosbag2's MCAP reader decodes without any bag-level compression setting.
+        self.writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
         self.writer.open()
         self.connections: dict[str, object] = {}
         self.counts: dict[str, int] = {}

@@ -127,18 +127,38 @@ def zero(ftype: str):
     return {name: zero(t) for name, t in TYPES[base]}
 
 
+_STRUCTS = {base: struct.Struct("<" + fmt) for base, fmt in _PRIMITIVES.items()}
+#: Encodings of left-out fields: (field type, offset mod 8) -> bytes (a zero value's encoding
+#: depends only on where it starts, modulo the largest alignment).
+_ZERO_BYTES: dict[tuple[str, int], bytes] = {}
+
+
 class _Writer:
     def __init__(self):
         self.buf = bytearray()
 
     def align(self, n: int) -> None:
-        self.buf += b"\0" * (-len(self.buf) % n)
+        pad = -len(self.buf) % n
+        if pad:
+            self.buf += b"\0" * pad
 
     def prim(self, base: str, value) -> None:
-        fmt = _PRIMITIVES[base]
-        size = struct.calcsize(fmt)
-        self.align(size)
-        self.buf += struct.pack("<" + fmt, value)
+        s = _STRUCTS[base]
+        pad = -len(self.buf) % s.size
+        if pad:
+            self.buf += b"\0" * pad
+        self.buf += s.pack(value)
+
+    def zero(self, ftype: str) -> None:
+        """A left-out field: its zero value's encoding, cached."""
+        key = (ftype, len(self.buf) % 8)
+        data = _ZERO_BYTES.get(key)
+        if data is None:
+            w = _Writer()
+            w.buf = bytearray(key[1])
+            w.value(ftype, zero(ftype))
+            data = _ZERO_BYTES[key] = bytes(w.buf[key[1]:])
+        self.buf += data
 
     def string(self, value: str) -> None:
         data = value.encode()
@@ -171,7 +191,10 @@ class _Writer:
 
     def message(self, typename: str, msg: dict) -> None:
         for name, ftype in TYPES[typename]:
-            self.value(ftype, msg[name] if name in msg else zero(ftype))
+            if name in msg:
+                self.value(ftype, msg[name])
+            else:
+                self.zero(ftype)
 
 
 def encode(typename: str, msg: dict) -> bytes:

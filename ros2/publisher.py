@@ -14,11 +14,16 @@ is logged once and turns that node off, never the mission.
 from __future__ import annotations
 
 import os
+import queue
+import threading
 from dataclasses import dataclass
 
 from ros2 import topics
 from ros2.graph import Node
 from ros2.topics import CARRIER_TOPICS, TOPICS, MissionTopics
+
+#: Stream calls the coordinator's ROS 2 publisher holds at most (about a stage of a large fleet).
+QUEUE = 100_000
 
 
 def default_domain() -> int:
@@ -71,21 +76,59 @@ class Ros2Settings:
         return CarrierRos2(self, carrier)
 
 
-class CoordinatorTopics(MissionTopics):
+class CoordinatorTopics:
     """The mission-wide topics, published live by the coordinator (ROS 2 node
-    ``/mission/coordinator``)."""
+    ``/mission/coordinator``). A sink of the stream the coordinator records: each call is queued
+    and turned into messages, encoded and put by a thread of its own, so the coordinator's loop
+    never waits for the ROS 2 side (at most :data:`QUEUE` calls wait; more are dropped and
+    counted in :attr:`dropped`)."""
 
     name = "ROS 2 topics"
+    STREAM = ("observation", "decision", "confirm", "pose", "log", "end")
 
     def __init__(self, session, scene, domain: int, problem=None, log=print):
         self.node = Node(session, domain, topics.MISSION_NS, "coordinator", log=log)
         self.pubs = {topic: self.node.publisher(topic, typename, qos) for topic, (typename, qos) in TOPICS.items()}
-        super().__init__(scene, self._emit, problem, carriers=False)
+        self._log = log
+        self.dropped = 0
+        self._queue: "queue.Queue" = queue.Queue(QUEUE)
+        self.topics = MissionTopics(scene, self._emit, problem, carriers=False)  # /mission/world, now
+        self._worker = threading.Thread(target=self._work, name="ros2-topics", daemon=True)
+        self._worker.start()
+
+    def __getattr__(self, name):
+        if name not in CoordinatorTopics.STREAM:
+            raise AttributeError(name)
+
+        def call(*args):
+            try:
+                self._queue.put_nowait((name, args))
+            except queue.Full:
+                self.dropped += 1
+        return call
+
+    def _work(self) -> None:
+        while True:
+            item = self._queue.get()
+            if item is None:
+                return
+            name, args = item
+            try:
+                getattr(self.topics, name)(*args)
+            except Exception as exc:  # never the mission: log once, stop publishing
+                self._log(f"coordinator: ROS 2 topics stopped: {type(exc).__name__}: {exc}")
+                return
 
     def _emit(self, topic, typename, msg, t) -> None:
         self.pubs[topic].publish(msg)
 
-    def close(self) -> None:
+    def close(self, timeout_s: float = 5.0) -> None:
+        """Publish what is queued (at most ``timeout_s``), then undeclare the node."""
+        try:
+            self._queue.put(None, timeout=timeout_s)
+        except queue.Full:
+            pass
+        self._worker.join(timeout_s)
         self.node.close()
 
 

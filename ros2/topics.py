@@ -13,7 +13,8 @@ Topics (docs/fleet.md, "ROS 2 topics"; frame ``map``: metres, x east, y north, z
 topic                      type                              QoS        what
 =========================  ================================  =========  ==========================
 /mission/world             visualization_msgs/MarkerArray    latched 1  the map, paths, decision points, overlaps
-/mission/markers           visualization_msgs/MarkerArray    latched 1  carriers and deployed passengers (full state)
+/mission/carriers          visualization_msgs/MarkerArray    latched 1  every carrier at its last pose (full state)
+/mission/deployments       visualization_msgs/MarkerArray    latched 1  deployed passengers, sensing discs (full state)
 /mission/decisions         std_msgs/String (JSON)            depth 100  one per stage decided
 /mission/observations      std_msgs/String (JSON)            depth 100  one per observation
 /mission/confirmations     std_msgs/String (JSON)            depth 100  one per Confirm
@@ -45,7 +46,8 @@ STREAM = QoS(depth=10)
 #: Mission-wide topics: name -> (type, QoS).
 TOPICS = {
     "/mission/world": ("visualization_msgs/msg/MarkerArray", LATCHED),
-    "/mission/markers": ("visualization_msgs/msg/MarkerArray", LATCHED),
+    "/mission/carriers": ("visualization_msgs/msg/MarkerArray", LATCHED),
+    "/mission/deployments": ("visualization_msgs/msg/MarkerArray", LATCHED),
     "/mission/decisions": ("std_msgs/msg/String", EVENTS),
     "/mission/observations": ("std_msgs/msg/String", EVENTS),
     "/mission/confirmations": ("std_msgs/msg/String", EVENTS),
@@ -156,7 +158,7 @@ class MissionTopics:
         self.poses: dict[str, tuple] = {}  # carrier -> (x, y, heading, passengers_left)
         self.deployed: list[tuple] = []  # (carrier, stage, x, y)
         self.decided = 0
-        self._second = None  # the last whole second of /clock and /mission/markers
+        self._second = None  # the last whole second of /clock and /mission/carriers
         t0 = min(0.0, float(scene.stage_times[0])) if len(scene.stage_times) else 0.0
         self.emit("/mission/world", "visualization_msgs/msg/MarkerArray", world_markers(scene, t0), t0)
 
@@ -165,24 +167,30 @@ class MissionTopics:
         self.emit(topic, "std_msgs/msg/String", {"data": json.dumps(dict(body, t=float(t)))}, t)
 
     def _clock(self, t: float, force: bool = False) -> None:
-        """``/clock`` and the full ``/mission/markers`` once per whole simulated second (and on
-        every decision and deployment)."""
+        """``/clock`` and ``/mission/carriers`` once per whole simulated second (and at every
+        decision and deployment)."""
         second = math.floor(float(t))
         if force or second != self._second:
             self._second = second
             self.emit("/clock", "rosgraph_msgs/msg/Clock", {"clock": stamp(t)}, t)
-            self.emit("/mission/markers", "visualization_msgs/msg/MarkerArray", self.fleet_markers(t), t)
+            if self.poses:
+                self.emit("/mission/carriers", "visualization_msgs/msg/MarkerArray", self.carrier_markers(t), t)
 
-    def fleet_markers(self, t: float) -> dict:
-        """Every carrier at its last pose (a cylinder turned to its heading and a label) and
-        every deployed passenger (a sphere, its translucent sensing disc and a label)."""
-        out = [{"header": header(t), "ns": "", "id": 0, "action": msgs.DELETEALL}]
+    def carrier_markers(self, t: float) -> dict:
+        """Every carrier at its last pose: a cylinder turned to its heading and a label
+        ``id (passengers left)``."""
+        out = []
         for cid, (x, y, heading, left) in sorted(self.poses.items()):
             c = self.scene.carrier(cid)
             out.append(_marker(t, "carriers", c.index, msgs.CYLINDER, c.colour, scale=(2.0, 2.0, 1.0),
                                at=(x, y, 0.5), yaw=heading))
             out.append(_marker(t, "carrier_labels", c.index, msgs.TEXT_VIEW_FACING, c.colour, scale=(0, 0, 1.2),
                                at=(x, y, 2.5), text=f"{cid} ({left})"))
+        return {"markers": out}
+
+    def deployment_markers(self, t: float) -> dict:
+        """Every deployed passenger: a sphere, its translucent sensing disc and a label."""
+        out = []
         n = len(self.scene.stage_times)
         r = self.scene.sensing_radius
         for cid, j, x, y in self.deployed:
@@ -221,7 +229,7 @@ class MissionTopics:
         self.log(t, "info", f"carrier {carrier} deployed a passenger at stage {stage} at "
                             f"({float(position[0]):.1f}, {float(position[1]):.1f}) m")
         self._reward(t)
-        self._clock(t, force=True)
+        self.emit("/mission/deployments", "visualization_msgs/msg/MarkerArray", self.deployment_markers(t), t)
 
     def pose(self, t, carrier, position, heading, passengers_left):
         x, y = float(position[0]), float(position[1])

@@ -92,7 +92,7 @@ def test_a_mission_as_ros2_topics_and_bag(tiny, tmp_path):
     nodes = {(t.namespace, t.node) for t in tokens if t.kind == rmw.NODE}
     assert nodes == {("/mission", "coordinator"), ("/a", "carrier"), ("/b", "carrier")}
     pubs = {t.topic: t for t in tokens if t.kind == rmw.PUBLISHER}
-    assert {"/mission/world", "/mission/markers", "/mission/decisions", "/mission/observations",
+    assert {"/mission/world", "/mission/carriers", "/mission/deployments", "/mission/decisions", "/mission/observations",
             "/mission/confirmations", "/mission/reward", "/mission/log", "/clock", "/a/pose", "/b/pose",
             "/tf"} <= set(pubs)
     for t in pubs.values():
@@ -122,10 +122,12 @@ def test_a_mission_as_ros2_topics_and_bag(tiny, tmp_path):
     assert len(by_topic["/a/pose"]) > 0 and by_topic["/a/pose"][0].header.frame_id == "map"
     children = {tr.child_frame_id for m in by_topic["/tf"] for tr in m.transforms}
     assert children == {"a", "b"}
-    last = by_topic["/mission/markers"][-1]
-    assert {m.ns for m in last.markers} >= {"carriers", "passengers", "sensing_discs"}
+    carriers = by_topic["/mission/carriers"][-1].markers
+    assert {m.text.split()[0] for m in carriers if m.ns == "carrier_labels"} == {"a", "b"}
     deployed = sum(len(c["deployments"]) for c in summary["carriers"])
-    assert sum(m.ns == "passengers" for m in last.markers) == deployed
+    last = by_topic["/mission/deployments"][-1].markers
+    assert len(by_topic["/mission/deployments"]) == deployed
+    assert sum(m.ns == "passengers" for m in last) == sum(m.ns == "sensing_discs" for m in last) == deployed
 
     # The bag, read back with rosbags' reader.
     from rosbags.rosbag2 import Reader
