@@ -10,8 +10,10 @@ Usage::
     python -m experiments comms --trials 50 --iterations 10000   # reward against message loss
     python -m experiments priors --trials 20 --iterations 2000   # stated / learned / oracle priors
     python -m experiments types                                  # type-aware vs type-blind (30 trials, 2000 iterations)
+    python -m experiments bound                                  # the upper bound against V* and the planners
 
-``comms``, ``priors`` (experiments.priors) and ``types`` (experiments.types) are not part of ``all``.
+``comms``, ``priors`` (experiments.priors), ``types`` (experiments.types) and ``bound``
+(experiments.bound) are not part of ``all``.
 
 Each sweep writes to ``--out`` (default ``docs/results``; ``--quick`` runs default to a temporary
 directory so they never overwrite the committed results): ``<sweep>_trials.csv`` (one row per
@@ -38,7 +40,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
 from pathlib import Path
 
-from experiments import priors, report, types
+from experiments import bound, priors, report, types
 from experiments.trials import CLAIRVOYANT, Sweep, Task, decode, run_trial, urban_trial, warm_up_worker
 from planner.settings import DEFAULT_ITERATIONS
 
@@ -72,6 +74,8 @@ SWEEPS: dict[str, Sweep] = {
 def run_task(task: Task) -> dict:
     """Run one task (in this process or a worker): :func:`experiments.trials.run_trial` with the
     task's sweep from :data:`SWEEPS`."""
+    if task.sweep in ("bound", "bound-tiny"):
+        return bound.run_task(task)
     return run_trial(task, SWEEPS[task.sweep])
 
 
@@ -96,7 +100,7 @@ def _int_list(text: str, what: str, minimum: int) -> tuple[int, ...]:
 def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m experiments", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("what", nargs="?", default="all", choices=("overlap", "scaling", "urban", "comms", "all", "priors", "types"),
+    p.add_argument("what", nargs="?", default="all", choices=("overlap", "scaling", "urban", "comms", "all", "priors", "types", "bound"),
                    help="which experiment (default: all)")
     p.add_argument("--trials", type=int, default=None, help="trials per level (default 50; quick 3)")
     p.add_argument("--iterations", type=int, default=None,
@@ -132,6 +136,8 @@ def _settings(args) -> dict:
     quick = args.quick
     # The types sweep's defaults keep its default run to a few minutes on two cores.
     full_trials, full_iterations = (30, 2000) if args.what == "types" else (50, DEFAULT_ITERATIONS)
+    if args.what == "bound":  # trials per configuration: experiments.bound.CONFIGS unless given
+        full_iterations = bound.DEFAULT_ITERATIONS
     trials = args.trials if args.trials is not None else (QUICK["trials"] if quick else full_trials)
     iterations = args.iterations if args.iterations is not None else (QUICK["iterations"] if quick else full_iterations)
     urban_trials = args.urban_trials if args.urban_trials is not None else (QUICK["urban_trials"] if quick else 20)
@@ -158,6 +164,8 @@ def _settings(args) -> dict:
         planners = priors.DEFAULT_PLANNERS
     if args.what == "types" and args.planners == ",".join(DEFAULT_PLANNERS):
         planners = types.DEFAULT_PLANNERS
+    if args.what == "bound" and args.planners == ",".join(DEFAULT_PLANNERS):
+        planners = bound.DEFAULT_PLANNERS
     if args.losses:
         try:
             losses = tuple(float(v) for v in args.losses.split(",") if v.strip())
@@ -176,7 +184,7 @@ def _settings(args) -> dict:
         raise UsageError(f"--scenario: expected an existing scenario file, found {str(args.scenario)!r}")
     return {"trials": trials, "iterations": iterations, "urban_trials": urban_trials, "overlaps": overlaps,
             "carriers": carriers, "planners": planners, "seed": args.seed, "losses": losses,
-            "delay": args.message_delay}
+            "delay": args.message_delay, "quick": quick, "bound_trials": args.trials}
 
 
 def build_tasks(sweep: str, s: dict, args) -> list[Task]:
@@ -185,6 +193,8 @@ def build_tasks(sweep: str, s: dict, args) -> list[Task]:
         return priors.build_tasks(s)
     if sweep == "types":
         return types.build_tasks(s)
+    if sweep == "bound":
+        return bound.build_tasks(s)
     names = (*s["planners"], CLAIRVOYANT)
     tasks = []
     if sweep == "overlap":
@@ -273,6 +283,8 @@ def _write_sweep(sweep: str, rows: list[dict], out: Path, seconds: float, jobs: 
         return priors.write(rows, out, s, seconds, jobs)
     if sweep == "types":
         return types.write(rows, out, s, seconds, jobs)
+    if sweep == "bound":
+        return bound.write(rows, out, s, seconds, jobs)
     report.write_trials(rows, out / f"{sweep}_trials.csv")
     summary = report.summarise(rows)
     report.write_summary(summary, out / f"{sweep}_summary.csv")
@@ -420,6 +432,8 @@ def main(argv=None) -> int:
                 rows = priors.read_trials(path)
             elif sweep == "types":
                 rows = types.read_trials(path)
+            elif sweep == "bound":
+                rows = bound.read_trials(path)
             else:
                 rows = report.read_trials(path)
             s = {**s, "trials": prior["trials"], "urban_trials": prior["trials"], "iterations": prior["iterations"]}

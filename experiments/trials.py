@@ -42,6 +42,7 @@ class Task:
         variant, prior_factor, oracle: priors sweep only (experiments.priors): ``stated``,
             ``learned`` or ``oracle``; factor on the stated (derived Poisson) prior's mean; the
             world's observed (mean, variance) the oracle prior is fitted to.
+        samples: sampled observation matrices of a bound task (experiments.bound).
     """
 
     sweep: str
@@ -61,6 +62,7 @@ class Task:
     oracle: tuple = ()
     loss: float = 0.0
     delay: int = 0
+    samples: int = 0
 
     @property
     def cost(self) -> float:

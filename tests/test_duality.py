@@ -159,3 +159,35 @@ def test_solve_reports_the_bound_next_to_the_online_optimum(tmp_path, capsys):
     assert bound["expected_reward"] >= out["online_optimum"]["expected_reward"] - 3 * bound["stderr"]
     assert solve.main([str(path), "--planner", "ssap", "--no-clairvoyant", "--no-upper-bound"]) == 0
     assert "upper_bound" not in json.loads(capsys.readouterr().out)
+
+
+@pytest.mark.slow
+def test_experiment_tasks_report_the_bound_against_v_star_and_the_planners(tmp_path):
+    """One tiny-instance task and one R = 4 trial of ``python -m experiments bound``, written out."""
+    from experiments import bound as experiment
+    from experiments.trials import CLAIRVOYANT, Task
+
+    tiny = experiment.run_task(Task("bound-tiny", 0, 0, experiment.TINY, 0, 0, samples=30))
+    assert tiny["reward"] >= tiny["v_star"] - 3 * tiny["stderr"] and tiny["samples"] == 30
+    level = 5  # R = 4, 20 overlaps
+    _, carriers, overlaps, _, _ = experiment.CONFIGS[level]
+    rows = [tiny] + [experiment.run_task(Task("bound", level, 0, name, 0, 100, carriers=carriers, overlaps=overlaps,
+                                              samples=3))
+                     for name in ("ssap", CLAIRVOYANT, experiment.UPPER_BOUND)]
+    assert rows[-1]["method"] == "lp" and rows[-1]["samples"] == 3
+    experiment.write(rows, tmp_path, {"iterations": 100}, 1.0, 1)
+    text = (tmp_path / "bound.md").read_text()
+    assert "V*" in text and "R = 4, 20 overlaps" in text and (tmp_path / "bound.png").is_file()
+    again = experiment.read_trials(tmp_path / "bound_trials.csv")
+    assert len(again) == 4 and {r["planner"] for r in again} >= {"ssap", experiment.UPPER_BOUND}
+
+
+@pytest.mark.slow
+def test_bound_experiment_quick_run(tmp_path):
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-m", "experiments", "bound", "--quick", "--jobs", "1", "--no-progress",
+                           "--out", str(tmp_path)], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert {"bound.md", "bound.png", "bound_trials.csv", "bound_summary.csv"} <= {p.name for p in tmp_path.iterdir()}
