@@ -14,7 +14,8 @@ Stage j (docs/protocol.md, "Stage handshake"):
    (it died, or its link's lease expired) or nothing at all, not even Progress, came from it for
    ``silence_timeout_s`` (it is stuck); on the ``wall`` clock (real robots) also after
    ``stage_timeout_s``;
-3. plan on ``make_view(problem, j, x, deployed)`` with ``stage_rng(seed, j)``; the ``Decided``
+3. plan with the offline loop's own stage step (``planner.online.stage_step``: the view
+   ``make_view(problem, j, x, deployed)``, the stream ``stage_rng(seed, j)``); the ``Decided``
    event records the decision (and the scheduled carriers without an observation as ∅) before
    it is published; Confirms are collected while the next stage waits.
 
@@ -42,8 +43,7 @@ import numpy as np
 
 import world
 from planner.registry import make_planner, planner_settings, used_options
-from planner.passengers import release
-from planner.problem import enforce, make_view, stage_rng
+from planner.online import stage_step
 from coordinator.results import render_map, write_json as _write_json
 from storage.missiondb import MissionStore, StoreBusy
 from mission import events as ev
@@ -570,15 +570,12 @@ class Coordinator:
         return self.state.all_joined()
 
     def _plan(self, j: int) -> tuple[tuple[str, ...], float, tuple[int, ...]]:
-        """(deploying carrier ids, sorted; planning time, ms; the passenger each releases, parallel)."""
-        view = make_view(self.problem, j, self.state.planning_observations(j), self.state.deployed(),
-                         self.state.releases() if self.problem.weights is not None else None)
-        t0 = time.perf_counter()
-        choice = enforce(view, self.planner.decide(view, stage_rng(self.seed, j)))
-        who = release(self.planner, view, choice)  # the passenger of each deployment (passenger types)
-        planning_ms = (time.perf_counter() - t0) * 1e3
-        rs = sorted(np.flatnonzero(choice), key=lambda r: self.ids[r])
-        return tuple(self.ids[r] for r in rs), planning_ms, tuple(int(who[r]) for r in rs)
+        """(deploying carrier ids, sorted; planning time, ms; the passenger each releases, parallel):
+        the offline loop's own stage step (:func:`planner.online.stage_step`) on the mission's view."""
+        step = stage_step(self.problem, self.state.planning_observations(j), self.state.deployed(), self.planner,
+                          self.seed, j, self.state.releases() if self.problem.weights is not None else None)
+        rs = sorted(np.flatnonzero(step.deploy), key=lambda r: self.ids[r])
+        return tuple(self.ids[r] for r in rs), step.decision_ms, tuple(int(step.passengers[r]) for r in rs)
 
     def _publish_decision(self, decision: Decision) -> None:
         # In the revision every carrier that said Hello reads (docs/protocol.md, "Compatibility").

@@ -1,23 +1,31 @@
 """Scale benchmark: the real fleet (coordinator + K carrier processes over Zenoh on loopback) on
-generated grid scenarios fixed by seed, for growing numbers of carriers R.
+generated scenarios fixed by seed, for growing numbers of carriers R, on an idle or a saturated
+host, each run checked against the offline planner (fidelity).
 
-    python -m tools.scale                                   # R = 6, 32, 128, 256, 1024
+    python -m tools.scale                                   # R = 6, 32, 128, 256, 1024, street grid
     python -m tools.scale --sizes 6,32 --out runs/scale     # a quick look
+    python -m tools.scale --family grid --family long-streets --busy 0,4   # both families, idle and saturated
     python -m tools.scale --sizes 256 --no-autonomy       # carriers that never decide on board
-    python -m tools.scale --write-scenario 256 /tmp/g256.yaml
+    python -m tools.scale --write-scenario 256 /tmp/g256.yaml [--family long-streets]
 
 Per R it prints wall time, peak memory of the whole process tree (total and per carrier),
 the stage round trip p50/p99 (coordinator's decision publication to each carrier's Confirm),
 decision time (mean and max planner wall time per stage), messages per second, carrier CPU
-time per carrier and stage (``carrier_cpu_ms``) and the reward
-against the clairvoyant bound (an exact optimum, or a labelled conflict-free upper bound when
-the exact search is too large). Results: ``<out>/scale.csv``, ``<out>/scale.json`` and, with
+time per carrier and stage (``carrier_cpu_ms``), a stage's wall time against the work in it
+(``idle_ratio``: wall time per stage / (carrier CPU per stage / cores + planning time)), the
+fidelity (``fidelity``: observations and decisions identical to ``planner.online.run_online``
+over ``world.observe_all``, and ``fidelity_reward_ratio``, the reward against the offline one)
+and the reward against the clairvoyant bound (an exact optimum, or a labelled conflict-free
+upper bound when the exact search is too large). Results: ``<out>/scale.csv``, ``<out>/scale.json`` and, with
 ``--plot``, a PNG of cost against R. See docs/performance.md, "Fleet scale".
 
 The scenario (:func:`grid_scenario`): a square grid of streets ``STREET_SPACING_M`` apart,
 about sqrt(R) in each direction; carriers alternate between east-west and north-south
 streets, each on a street, start point, direction and start time drawn from the seed, so that
 several carriers share a street (overlapping decision points) and crossings bring a few more.
+The physics-heavy family (:func:`long_streets_scenario`): few long streets, slow carriers and
+480 s stages, so that the carriers' physics (about 10,000 steps per carrier and stage) is most
+of the work. ``--busy N`` starts N busy processes for the run (a saturated host).
 """
 from __future__ import annotations
 
@@ -25,6 +33,7 @@ import argparse
 import csv
 import json
 import math
+import os
 import sqlite3
 import subprocess
 import sys
@@ -207,26 +216,97 @@ def message_counts(db: Path, n_carriers: int) -> dict:
             "span_s": (last - first) if first is not None else 0.0}
 
 
+#: Start-up waits of the benchmark's fleets (the sim clock's other waits need no setting): up to
+#: 16 carrier processes and the coordinator loading at once on two cores take longer than the
+#: defaults to be there.
+START_FLAGS = ("--join-timeout", "300", "--coordinator-timeout", "120")
+
+
+def _observe_rows(path: str, rows: list[int]) -> np.ndarray:
+    """``world.observe_all``'s rows ``rows`` of the scenario at ``path`` (a worker process)."""
+    import world
+
+    return world.simulate_mission(world.load_scenario(path), rows=rows).x[rows]
+
+
+def offline_reference(path: Path, workers: int = 0):
+    """What the fleet must reproduce: ``(x, result)``, the fault-free observations
+    (``world.observe_all``; the carriers' physics spread over ``workers`` processes, default one
+    per core) and ``planner.online.run_online`` with the scenario's planner over them."""
+    import os
+    from concurrent.futures import ProcessPoolExecutor
+    import multiprocessing
+
+    import world
+    from planner.online import run_online
+    from planner.registry import make_planner, planner_settings
+
+    scenario = world.load_scenario(path)
+    workers = workers or os.cpu_count() or 1
+    chunks = [list(range(k, scenario.n_carriers, workers)) for k in range(workers)]
+    x = np.full((scenario.n_carriers, scenario.stages), np.nan)
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        for rows, part in zip(chunks, pool.map(_observe_rows, [str(path)] * workers, chunks)):
+            x[rows] = part
+    name, options = planner_settings(scenario, None, None)
+    return x, run_online(world.build_problem(scenario), x, make_planner(name, **options), scenario.seed)
+
+
+def fidelity(summary: dict, x: np.ndarray, reference) -> dict:
+    """Whether the fleet made exactly the offline decisions (and saw the offline observations),
+    and its reward as a fraction of the offline reward."""
+    seen = np.array([[np.nan if v is None else v for v in row] for row in summary["observations"]], dtype=float)
+    deployed = np.zeros(reference.deployed.shape, dtype=bool)
+    for r, carrier in enumerate(summary["carriers"]):
+        for dep in carrier["deployments"]:
+            deployed[r, dep["stage"]] = True
+    same = bool(np.array_equal(seen, x, equal_nan=True) and np.array_equal(deployed, reference.deployed))
+    return {"identical": same, "offline_reward": reference.reward,
+            "reward_ratio": summary.get("total_reward", 0.0) / reference.reward if reference.reward else None,
+            "empty_observations": int(np.sum(np.isnan(seen) & ~np.isnan(x)))}
+
+
+class BusyHost:
+    """``n`` busy processes (pure CPU, normal priority) while the block runs: a saturated host."""
+
+    def __init__(self, n: int):
+        self.n = n
+        self.procs: list[subprocess.Popen] = []
+
+    def __enter__(self):
+        self.procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(self.n)]
+        return self
+
+    def __exit__(self, *exc):
+        for proc in self.procs:
+            proc.kill()
+        for proc in self.procs:
+            proc.wait()
+
+
 def run_one(n_carriers: int, out: Path, seed: int, processes: int | None, planner: str,
-            timeout_s: float, quiet: bool = True, carrier_flags=()) -> dict:
-    scen = write_scenario(n_carriers, out / f"grid_{n_carriers}.yaml", seed, planner)
-    run_dir = out / f"grid_{n_carriers}"
+            timeout_s: float, quiet: bool = True, carrier_flags=(), family: str = "grid", busy: int = 0,
+            check: bool = True) -> dict:
+    name = f"{family}_{n_carriers}" + (f"_busy{busy}" if busy else "")
+    scen = write_scenario(n_carriers, out / f"{name}.yaml", seed, planner, family)
+    run_dir = out / name
     k = processes or default_processes(n_carriers)
     argv = [sys.executable, str(ROOT / "run_fleet.py"), str(scen), "--out", str(run_dir), "--no-map",
-            "--carrier-processes", str(k), "--join-timeout", "300", "--stage-timeout", "60",
-            "--decision-timeout", "120", "--coordinator-timeout", "120", *carrier_flags]
+            "--carrier-processes", str(k), *START_FLAGS, *carrier_flags]
     started = time.monotonic()
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE if quiet else None, stderr=subprocess.STDOUT, text=True)
-    sampler = TreeSampler(proc.pid)
-    try:
-        output, _ = proc.communicate(timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        proc.terminate()
-        output, _ = proc.communicate(timeout=60)
-    finally:
-        sampler.stop()
+    with BusyHost(busy):
+        proc = subprocess.Popen(argv, stdout=subprocess.PIPE if quiet else None, stderr=subprocess.STDOUT, text=True)
+        sampler = TreeSampler(proc.pid)
+        try:
+            output, _ = proc.communicate(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            proc.terminate()
+            output, _ = proc.communicate(timeout=60)
+        finally:
+            sampler.stop()
     wall = time.monotonic() - started
-    row = {"R": n_carriers, "processes": k, "carriers": " ".join(carrier_flags) or "hybrid", "returncode": proc.returncode, "wall_s": wall,
+    row = {"R": n_carriers, "family": family, "busy": busy, "processes": k,
+           "carriers": " ".join(carrier_flags) or "hybrid", "returncode": proc.returncode, "wall_s": wall,
            "mem_total_mb": sampler.peak_total / 1e6, "mem_carriers_mb": sampler.peak_carriers / 1e6,
            "mem_per_carrier_mb": sampler.peak_carriers / 1e6 / n_carriers,
            "routers": sum(1 for _, role in sampler.peak.values() if role == "router"),
@@ -241,6 +321,7 @@ def run_one(n_carriers: int, out: Path, seed: int, processes: int | None, planne
         s = json.loads(summary_path.read_text())
         lat, plan, bound = s.get("latency_ms", {}), s.get("planning_ms", {}), s.get("clairvoyant", {})
         counts = message_counts(run_dir / "mission.db", n_carriers)
+        stages = s.get("stages_decided") or 1
         row.update({
             "mission_s": s.get("wall_time_s"), "stages_decided": s.get("stages_decided"),
             "rtt_p50_ms": lat.get("p50"), "rtt_p99_ms": lat.get("p99"), "rtt_count": lat.get("count"),
@@ -250,17 +331,27 @@ def run_one(n_carriers: int, out: Path, seed: int, processes: int | None, planne
             "reward": s.get("total_reward"), "bound": bound.get("reward"), "bound_exact": bound.get("exact"),
             "fraction": bound.get("fraction"),
             "rejected": sum(s.get("rejected", {}).get("coordinator", {}).values()),
-            "carrier_cpu_ms": row["cpu_carriers_s"] * 1e3 / max(1, n_carriers * (s.get("stages_decided") or 1)),
+            "carrier_cpu_ms": row["cpu_carriers_s"] * 1e3 / max(1, n_carriers * stages),
+            # No idle waiting: a stage's wall time against the work in it (the carriers' CPU
+            # spread over the cores, plus the planner's time).
+            "stage_wall_s": (s.get("wall_time_s") or wall) / stages,
+            "stage_work_s": row["cpu_carriers_s"] / stages / (os.cpu_count() or 1) + (plan.get("mean") or 0) / 1e3,
         })
+        row["idle_ratio"] = row["stage_wall_s"] / max(1e-9, row["stage_work_s"])
+        if check:
+            x, reference = offline_reference(scen)
+            row.update({f"fidelity_{k}" if k != "identical" else "fidelity": v
+                        for k, v in fidelity(s, x, reference).items()})
     if not quiet or proc.returncode != 0:
         print((output or "")[-3000:], file=sys.stderr)
     return row
 
 
-COLUMNS = (("R", "{:d}"), ("processes", "{:d}"), ("carriers", "{}"), ("wall_s", "{:.1f}"), ("mem_total_mb", "{:.0f}"),
+COLUMNS = (("family", "{}"), ("busy", "{:d}"), ("R", "{:d}"), ("processes", "{:d}"), ("carriers", "{}"), ("wall_s", "{:.1f}"), ("mem_total_mb", "{:.0f}"),
            ("mem_per_carrier_mb", "{:.1f}"), ("mem_coordinator_mb", "{:.0f}"), ("rtt_p50_ms", "{:.0f}"),
            ("rtt_p99_ms", "{:.0f}"), ("decision_mean_ms", "{:.0f}"), ("decision_max_ms", "{:.0f}"),
-           ("messages_per_s", "{:.0f}"), ("carrier_cpu_ms", "{:.1f}"), ("fraction", "{:.2f}"), ("bound_exact", "{}"))
+           ("messages_per_s", "{:.0f}"), ("carrier_cpu_ms", "{:.1f}"), ("idle_ratio", "{:.2f}"),
+           ("fidelity", "{}"), ("fidelity_reward_ratio", "{:.3f}"), ("fraction", "{:.2f}"), ("bound_exact", "{}"))
 
 
 def table(rows) -> str:
@@ -305,6 +396,15 @@ def plot(rows, path: Path) -> None:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m tools.scale", description=__doc__.split("\n\n")[0])
     p.add_argument("--sizes", default=",".join(map(str, SIZES)), help="carrier counts, comma-separated")
+    p.add_argument("--family", action="append", choices=sorted(FAMILIES),
+                   help="scenario family (repeatable; default grid): grid (tools.scale's street grid, 10 s "
+                        "stages) or long-streets (physics-heavy: 480 s of driving per carrier and stage)")
+    p.add_argument("--busy", default="0", metavar="N[,N...]",
+                   help="also run each size with N busy processes on the host (comma-separated; 0 = an idle "
+                        "host; e.g. 0,4 = idle and saturated on two cores; default 0)")
+    p.add_argument("--no-fidelity", action="store_true",
+                   help="skip the offline reference (world.observe_all + run_online, the physics spread over "
+                        "the cores) that the fidelity columns compare with")
     p.add_argument("--seed", type=int, default=1, help="scenario seed (default 1)")
     p.add_argument("--processes", type=int, help="carrier processes per run (default: see default_processes)")
     p.add_argument("--planner", default="closed-loop", help="planner of the generated scenarios")
@@ -317,18 +417,22 @@ def main(argv=None) -> int:
                         "core in the carrier processes, no listening to other carriers")
     p.add_argument("--verbose", action="store_true", help="show each run's output")
     args = p.parse_args(argv)
+    families = args.family or ["grid"]
     if args.write_scenario:
-        write_scenario(int(args.write_scenario[0]), Path(args.write_scenario[1]), args.seed, args.planner)
+        write_scenario(int(args.write_scenario[0]), Path(args.write_scenario[1]), args.seed, args.planner, families[0])
         return 0
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
-    for n in (int(s) for s in args.sizes.split(",") if s):
-        row = run_one(n, out, args.seed, args.processes, args.planner, args.timeout, quiet=not args.verbose,
-                      carrier_flags=("--no-autonomy",) if args.no_autonomy else ())
-        rows.append(row)
-        print(table([row]).splitlines()[-1] if len(rows) > 1 else table([row]), flush=True)
-        (out / "scale.json").write_text(json.dumps(rows, indent=2))
+    for family in families:
+        for n in (int(s) for s in args.sizes.split(",") if s):
+            for busy in (int(b) for b in args.busy.split(",") if b):
+                row = run_one(n, out, args.seed, args.processes, args.planner, args.timeout, quiet=not args.verbose,
+                              carrier_flags=("--no-autonomy",) if args.no_autonomy else (), family=family,
+                              busy=busy, check=not args.no_fidelity)
+                rows.append(row)
+                print(table([row]).splitlines()[-1] if len(rows) > 1 else table([row]), flush=True)
+                (out / "scale.json").write_text(json.dumps(rows, indent=2))
     with open(out / "scale.csv", "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=sorted({k for row in rows for k in row}))
         writer.writeheader()

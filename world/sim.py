@@ -280,11 +280,13 @@ def _carrier_run(scenario: Scenario, r: int) -> tuple[np.ndarray, np.ndarray]:
     return out, trace
 
 
-def simulate_mission(scenario: Scenario, seed: int | None = None) -> MissionTrace:
+def simulate_mission(scenario: Scenario, seed: int | None = None, rows: Iterable[int] | None = None) -> MissionTrace:
     """Run every carrier (no network, no faults) and observe every valid stage.
 
     ``seed`` overrides the scenario's root seed for the features; the physics is the same for
-    every seed and is computed once per scenario (cached).
+    every seed and is computed once per scenario (cached). ``rows``: only these carriers (the
+    others' rows are NaN and their trajectories empty), so that a caller can spread a large
+    fleet's physics over processes and put the rows together.
     """
     seed = scenario.seed if seed is None else int(seed)
     physics_key = scenario.with_seed(0)
@@ -294,7 +296,11 @@ def simulate_mission(scenario: Scenario, seed: int | None = None) -> MissionTrac
     pos = np.full(valid.shape + (2,), np.nan)
     trajectories = []
     segs = scenario.map.segments
+    wanted = range(scenario.n_carriers) if rows is None else set(int(r) for r in rows)
     for r in range(scenario.n_carriers):
+        if r not in wanted:
+            trajectories.append(np.empty((0, 3)))
+            continue
         stage_pos, trace = _carrier_run(physics_key, r)
         trajectories.append(trace)
         for j in np.flatnonzero(valid[r]):
