@@ -401,7 +401,8 @@ def run_coordinator(args, scenario, stop: threading.Event) -> int:
 def run_carrier(args, scenario, stop: threading.Event) -> int:
     """One or several carriers (``--carrier a,b,c``) in this process: one thread and one Zenoh
     session per carrier, the scenario loaded once. Exit code: the first non-zero carrier code."""
-    from carriers.node import EXIT_CODES, CarrierConfig, DuplicateCarriers, run_carriers
+    from carriers.node import EXIT_CODES, CarrierConfig
+    from carriers.process import DuplicateCarriers, run_carriers
     from planner.registry import planner_settings
     from wire.zconfig import ConfigError
 
@@ -554,7 +555,7 @@ def taken(args, scenario, connect) -> str | None:
     """Through a router another mission with this id may be live: the one line a process of ours
     would refuse with (a live coordinator, live carriers of our ids), or None. One liveliness
     query over a short-lived session, before the launcher starts anything."""
-    from carriers.node import DuplicateCarriers, live_duplicates
+    from carriers.process import DuplicateCarriers, live_duplicates
     from coordinator.node import DuplicateCoordinator
     from mission.timeouts import DEFAULTS
     from wire import keys

@@ -33,11 +33,13 @@ import os
 import socket
 import threading
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 import world
+from carriers.onboard import ONBOARD_LOADS, Onboard
+from carriers.shared import GATE_HOLD_S, SharedWorld, StageGate
 from storage.carrierlog import CarrierLog, LogMismatch, log_path
 from mission import carrier as mc
 from mission.exits import STOPPED
@@ -69,11 +71,6 @@ POSE_INTERVAL_S = 1.0
 
 #: How a carrier gets its decisions (docs/fleet.md, "Without the coordinator").
 MODES = ("hybrid", "decentralised", "coordinated")
-#: The planner a carrier runs on board when it decides a stage itself.
-ONBOARD_PLANNER = "dec-closed-loop"
-#: When the on-board planner is loaded (:class:`Onboard`); None in a config: ``start`` for a
-#: process that simulates one carrier, ``need`` for several.
-ONBOARD_LOADS = ("start", "need")
 #: How often a carrier deciding alone looks for the peers' observations it waits for (s).
 PEER_POLL_S = 0.02
 #: What peers publish that a carrier reads, and the message type of each.
@@ -82,35 +79,6 @@ PEER_TOPICS = {"obs": Observation, "own": Own, "confirm": Confirm, "progress": P
 #: Exit reasons and the process exit code each maps to.
 EXIT_CODES = {"end": 0, "finished": 0, "stopped": STOPPED, "coordinator-lost": 1, "world-mismatch": 2, "refused": 2,
               "log-mismatch": 2, "ros2-mismatch": 2}
-
-
-class DuplicateCarriers(RuntimeError):
-    """Carriers of this process already have live liveliness tokens elsewhere (another process
-    runs them): the process refuses to start, before any of its carriers flies."""
-
-    def __init__(self, mission: str, ids):
-        self.mission, self.ids = mission, tuple(ids)
-        super().__init__(f"mission {mission} already has live carrier(s) {', '.join(self.ids)}; stop that "
-                         f"process first, or use another --mission")
-
-
-def live_duplicates(mission: str, ids, zconf, stop: threading.Event | None = None,
-                    open_timeout_s: float = DEFAULTS.coordinator_s) -> list[str]:
-    """Which of ``ids`` already have a live token on ``mission`` (one liveliness query over a
-    short-lived session of its own; docs/fleet.md, "Split brain")."""
-    from wire.transport import Node
-    from wire.zconfig import OpenStopped
-
-    try:
-        probe = Node(zconf() if callable(zconf) else zconf, open_timeout_s=open_timeout_s, stop=stop)
-    except OpenStopped:
-        return []
-    try:
-        live = probe.live_tokens(keys.carrier_alive_pattern(mission), DEFAULTS.liveliness_check_s)
-    finally:
-        probe.close(DEFAULTS.close_s)
-    wanted = {keys.carrier_alive(mission, cid): cid for cid in ids}
-    return sorted(wanted[k] for k in live if k in wanted)
 
 
 @dataclass(frozen=True)
@@ -143,7 +111,8 @@ class CarrierConfig:
             carrier's liveliness token.
         planner_options: options of the on-board planner (iterations, plan_ms).
         log_sync: how the durable log commits (:data:`storage.carrierlog.SYNC_MODES`).
-        onboard_load: when the on-board planner is loaded (:data:`ONBOARD_LOADS`; None: see there).
+        onboard_load: when the on-board planner is loaded (:data:`carriers.onboard.ONBOARD_LOADS`;
+            None: see there).
         ros2: ROS 2 settings (``ros2.publisher.Ros2Settings``: ``--ros2``, ``--ros2-robot``); None:
             off, and nothing of ros2/ is imported.
     """
@@ -167,122 +136,6 @@ class CarrierConfig:
     log_sync: str = "full"
     onboard_load: str | None = None
     ros2: object = None
-
-
-@dataclass(frozen=True)
-class SharedWorld:
-    """What every carrier of one process derives identically from the scenario, computed once
-    per process (:func:`shared_world`) when it simulates several carriers.
-
-    Attributes:
-        valid: bool ``[R, N]``, carrier r scheduled at stage j.
-        fingerprint: the scenario fingerprint.
-        features: float ``[F, 2]`` feature positions (m), sorted by x.
-    """
-
-    valid: np.ndarray
-    fingerprint: str
-    features: np.ndarray
-
-
-def shared_world(scenario) -> SharedWorld:
-    from world import sample_features
-
-    features = sample_features(scenario)
-    features = features[np.argsort(features[:, 0], kind="stable")]  # sorted by x: see Simulation.sense
-    return SharedWorld(scenario.valid(), scenario_fingerprint(scenario), features)
-
-
-class Onboard:
-    """The on-board planner (:data:`ONBOARD_PLANNER`) and the planner's instance of the scenario,
-    shared by the process's carriers (fully informed carriers compute the same joint action: it is
-    computed once). Loading the planner core (numba, scipy, the compiled kernels) and the stage
-    geometry takes seconds — 3 s on an idle machine, three times that with six carriers starting
-    at once on two cores, 5 s for a 1,024-carrier scenario — so when it is loaded is a setting
-    (:data:`ONBOARD_LOADS`, ``CarrierConfig.onboard_load``):
-
-    * ``start``: in the background when the carrier starts (:meth:`prepare`), not when the
-      coordinator is already gone; the default of a process that simulates one carrier (a robot);
-    * ``need``: in the background when the coordinator's token vanishes, and at the latest when
-      the carrier decides alone (a decision later than its timeout); until then the carrier
-      neither loads the planner nor listens to its peers. The default of a process that simulates
-      several carriers (large simulations: 16 processes loading it at once, and subscribing to
-      their peers, cost a 1,024-carrier fleet minutes; docs/performance.md, "Fleet scale"). A
-      decision that is merely late does not load it: in an overloaded simulation that would add
-      150 MB and seconds of CPU per process just when the CPU is short.
-
-    A carrier that never decides alone (``coordinated``) never loads it; a decentralised one
-    always does at the start."""
-
-    def __init__(self, scenario, options=()):
-        self.scenario = scenario
-        self.options = dict(options)
-        self._lock = threading.Lock()
-        self._built = None
-        self._preparing = None
-
-    def prepare(self) -> None:
-        """Build in a background thread (once)."""
-        with self._lock:
-            if self._built is not None or self._preparing is not None:
-                return
-            self._preparing = threading.Thread(target=self.get, name="onboard-planner", daemon=True)
-        self._preparing.start()
-
-    def ready(self) -> bool:
-        return self._built is not None
-
-    def get(self):
-        """(problem, planner), built on first use."""
-        with self._lock:
-            if self._built is None:
-                from planner.registry import make_planner, used_options
-
-                problem = world.build_problem(self.scenario)
-                planner = make_planner(ONBOARD_PLANNER, **used_options(ONBOARD_PLANNER, self.options))
-                planner.warm_up(problem)
-                self._built = (problem, planner)
-            return self._built
-
-
-class StageGate:
-    """The carriers of one process answer a stage's Decision before any of them moves on.
-
-    One Decision reaches every carrier of the process at once; without the gate, the first
-    carriers to wake run their next stage's physics while the others still wait for the CPU to
-    send their Confirms, which spreads one stage's Confirms over the whole process's physics
-    (about 1 s per stage at 32 carriers per process). A carrier that has its Decision holds its
-    physics until every carrier of the process waiting on that stage has answered, at most
-    :data:`GATE_HOLD_S`.
-    """
-
-    def __init__(self):
-        self._cond = threading.Condition()
-        self._waiting: dict[int, int] = {}
-
-    def waiting(self, stage: int) -> None:
-        """A carrier waits for the decision of ``stage``."""
-        with self._cond:
-            self._waiting[stage] = self._waiting.get(stage, 0) + 1
-
-    def answered(self, stage: int) -> None:
-        """A carrier stopped waiting for ``stage`` (answered, decided alone, or gave up)."""
-        with self._cond:
-            left = self._waiting.get(stage, 0) - 1
-            if left > 0:
-                self._waiting[stage] = left
-            else:
-                self._waiting.pop(stage, None)
-                self._cond.notify_all()
-
-    def hold(self, stage: int, timeout_s: float) -> bool:
-        """Until no carrier waits for ``stage`` any more, at most ``timeout_s``; True if none does."""
-        with self._cond:
-            return self._cond.wait_for(lambda: stage not in self._waiting, timeout_s)
-
-
-#: Longest a carrier holds its physics for the other carriers of its process (:class:`StageGate`).
-GATE_HOLD_S = 0.5
 
 
 class _Exit(Exception):
@@ -874,76 +727,3 @@ class Carrier:
             if self.store is not None:
                 self.store.close()
         return reason
-
-
-def with_onboard_load(configs) -> list:
-    """The configs with ``onboard_load`` filled in where left open: ``start`` for a process that
-    simulates one carrier, ``need`` for several (:class:`Onboard`)."""
-    configs = list(configs)
-    load = "start" if len(configs) == 1 else "need"
-    return [c if c.onboard_load is not None else replace(c, onboard_load=load) for c in configs]
-
-
-def run_carriers(scenario, configs, zconf, stop: threading.Event | None = None) -> dict:
-    """Run several carriers in this process, one thread and one Zenoh session each (the protocol
-    and the coordinator cannot tell them from carriers in processes of their own); the world
-    (schedules, fingerprint, features) is derived once and shared.
-
-    Args:
-        scenario: the loaded scenario (every config must name the same ``seed``).
-        configs: one :class:`CarrierConfig` per carrier.
-        zconf: a zenoh config, or a callable returning a fresh one (one per session).
-        stop: the process's stop request, shared by all carriers.
-
-    Returns:
-        carrier id -> its exit reason (a key of :data:`EXIT_CODES`).
-
-    Raises:
-        DuplicateCarriers: some of these carriers are live elsewhere (checked before any flies).
-    """
-    stop = stop if stop is not None else threading.Event()
-    configs = list(configs)
-    if configs:
-        mission = configs[0].mission or keys.mission_id_from_name(scenario.name)
-        taken = live_duplicates(mission, [c.carrier for c in configs], zconf, stop,
-                                configs[0].coordinator_timeout_s)
-        if taken:
-            raise DuplicateCarriers(mission, taken)
-    shared = None
-    if len(configs) > 1:
-        seeds = {c.seed for c in configs}
-        if len(seeds) != 1:
-            raise ValueError("carriers of one process must share the seed")
-        seed = seeds.pop()
-        if seed is not None:
-            scenario = scenario.with_seed(int(seed))
-        shared = shared_world(scenario)
-    onboard = Onboard(scenario, configs[0].planner_options) if configs else None
-    gate = StageGate()
-    configs = with_onboard_load(configs)
-    carriers = [Carrier(scenario, c, zconf() if callable(zconf) else zconf, stop=stop, shared=shared, onboard=onboard,
-                        gate=gate) for c in configs]
-    reasons: dict = {}
-
-    def body(carrier):
-        try:
-            reasons[carrier.cid] = carrier.run()
-        except Exception:  # one carrier's bug must not take its neighbours down
-            import sys
-            import traceback
-
-            print(f"carrier {carrier.cid}: crashed\n{traceback.format_exc()}", file=sys.stderr, flush=True)
-            reasons[carrier.cid] = "crashed"
-
-    threads = [threading.Thread(target=body, args=(c,), name=f"carrier-{c.cid}", daemon=True) for c in carriers]
-    for thread in threads:
-        thread.start()
-    woken = False
-    for thread in threads:
-        while thread.is_alive():
-            thread.join(0.2)
-            if stop.is_set() and not woken:  # a signal: wake every carrier from its wait
-                woken = True
-                for c in carriers:
-                    c.stop()
-    return {c.cid: reasons.get(c.cid, "crashed") for c in carriers}

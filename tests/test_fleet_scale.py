@@ -158,7 +158,7 @@ def test_a_carrier_process_loads_no_planner_kernels():
         "import sys, runpy\n"
         "sys.argv = ['run_fleet.py', %r, '--role', 'carrier', '--carrier', 'a']\n"
         "import run_fleet, world\n"
-        "from carriers.node import Carrier, CarrierConfig, shared_world\n"
+        "from carriers.node import Carrier, CarrierConfig\nfrom carriers.shared import shared_world\n"
         "s = world.load_scenario(%r)\n"
         "args = run_fleet.parse_args(sys.argv[1:])\n"
         "assert run_fleet.check_flags(args, s) is None\n"
@@ -176,7 +176,7 @@ def test_stage_gate_holds_until_every_waiting_carrier_of_the_process_answered():
     import threading
     import time
 
-    from carriers.node import StageGate
+    from carriers.shared import StageGate
 
     gate = StageGate()
     assert gate.hold(0, 5.0)  # nobody waits: at once
@@ -200,7 +200,8 @@ def test_stage_gate_holds_until_every_waiting_carrier_of_the_process_answered():
 
 
 def test_the_on_board_planner_loads_at_the_start_alone_and_when_needed_with_several(tiny):
-    from carriers.node import Carrier, CarrierConfig, with_onboard_load
+    from carriers.node import Carrier, CarrierConfig
+    from carriers.onboard import with_onboard_load
 
     assert [c.onboard_load for c in with_onboard_load([CarrierConfig("a")])] == ["start"]
     assert [c.onboard_load for c in with_onboard_load([CarrierConfig("a"), CarrierConfig("b")])] == ["need", "need"]

@@ -156,7 +156,8 @@ def test_decentralised_fleet_makes_the_centralised_closed_loop_decisions(tmp_pat
     (the planner core over the world's observations), and each carrier's log has them."""
     import world
     from storage.carrierlog import log_path, read_log
-    from carriers.node import run_carriers, CarrierConfig
+    from carriers.node import CarrierConfig
+    from carriers.process import run_carriers
     from fleet_helpers import TINY, offline
     from wire.zconfig import free_port, make_config, open_session, close_session
 
