@@ -50,7 +50,7 @@ class InProcessFleet:
         self.scenario = scenario
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         self.log = Quiet()
-        options = dict(render=False, join_timeout_s=10.0, stage_timeout_s=5.0)
+        options = dict(render=False, join_timeout_s=30.0, stage_timeout_s=5.0)
         options.update(coordinator_options)
         self.coordinator = Coordinator(scenario, CoordinatorConfig(out_dir=str(out_dir), log=self.log, **options),
                                        make_config("peer", [self.endpoint]))
