@@ -68,6 +68,7 @@ def _write(tmp_path, mapping):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(900)
 def test_six_carriers_on_a_saturated_host(tmp_path):
     with saturated_host() as busy:
         summary, _ = _fly(SIX, tmp_path / "run")
@@ -76,10 +77,11 @@ def test_six_carriers_on_a_saturated_host(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1500)
 def test_a_physics_heavy_family_on_a_saturated_host(tmp_path):
-    """16 carriers, 960 s of driving per carrier and stage (about 300,000 physics steps of the
+    """16 carriers, 600 s of driving per carrier and stage (about 200,000 physics steps of the
     fleet per stage): on the wall clock's 5 s stage timeout such stages come out ∅."""
-    path = _write(tmp_path, long_streets_scenario(16, seed=5, stages=6, stage_interval=960.0))
+    path = _write(tmp_path, long_streets_scenario(16, seed=5, stages=6, stage_interval=600.0))
     scenario = world.load_scenario(path)
     with saturated_host():
         summary, stdout = _fly(path, tmp_path / "run", "--carrier-processes", "4")
@@ -90,6 +92,7 @@ def test_a_physics_heavy_family_on_a_saturated_host(tmp_path):
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1500)
 def test_a_256_carrier_street_grid_in_8_processes(tmp_path):
     path = _write(tmp_path, grid_scenario(256, seed=3))
     summary, _ = _fly(path, tmp_path / "run", "--carrier-processes", "8", "--no-record")
