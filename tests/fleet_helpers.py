@@ -84,17 +84,14 @@ class InProcessFleet:
 
 
 def sensed_world_file(scenario, trace, r: int, path: Path) -> Path:
-    """What carrier r senses and where it is at each stage (what a robot's own sensors would give),
-    as the JSON file tests/revision1_carrier.py reads: ``trace`` is ``world.simulate_mission``'s."""
+    """What carrier r senses and where it is at each stage (tools.sensed: what a robot's own
+    sensors would give), as the JSON file tests/revision1_carrier.py reads; ``trace`` is
+    ``world.simulate_mission``'s."""
     import json
 
-    traj = trace.trajectories[r]
-    times = scenario.stage_times()
-    positions = [[float(v) for v in traj[min(np.searchsorted(traj[:, 0], t), len(traj) - 1), 1:3]] for t in times]
-    x = [None if np.isnan(v) else int(v) for v in trace.x[r]]
-    path.write_text(json.dumps({"scenario": str(scenario.source), "seed": int(scenario.seed),
-                                "stage_times": [float(t) for t in times], "x": x, "positions": positions,
-                                "passengers": int(scenario.carriers[r].passengers)}))
+    from tools.sensed import sensed
+
+    path.write_text(json.dumps(sensed(scenario, scenario.carrier_ids[r], trace)))
     return path
 
 

@@ -217,3 +217,56 @@ def test_every_hello_is_answered_over_the_wire(tmp_path):
         fleet.coordinator.stop()
         client.close()
     fleet.join()
+
+
+def test_a_state_query_hears_every_coordinator():
+    """Two queryables on the State key (a split brain): the query gets both replies (target ALL,
+    consolidation NONE: docs/protocol.md, "State")."""
+    from wire.transport import Node
+    from wire.zconfig import free_port, make_config
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    nodes = [Node(make_config("router", [endpoint]))]
+    try:
+        for epoch in (1, 2):
+            node = Node(make_config("client", [], [endpoint]))
+            nodes.append(node)
+            node.serve(keys.state_key("m"), lambda params, e=epoch: msgpack.packb({"epoch": e}))
+        asker = Node(make_config("client", [], [endpoint]))
+        nodes.append(asker)
+        deadline = time.monotonic() + 20
+        replies = []
+        while len(replies) < 2 and time.monotonic() < deadline:
+            replies = asker.query(keys.state_selector("m", "a", wm.REVISION), timeout_s=2.0)
+        assert sorted(msgpack.unpackb(r)["epoch"] for r in replies) == [1, 2]
+    finally:
+        for node in reversed(nodes):
+            node.close(3.0)
+
+
+@pytest.mark.parametrize("name", ["tiny", "six_carriers", "urban_alpha"])
+def test_the_schedule_as_the_page_states_it(name):
+    """docs/protocol.md, "Where observations come from": t_j, N and who is scheduled, computed from
+    the scenario file as the page says, are the project's; tools.sensed gives the world's x."""
+    import math
+
+    import numpy as np
+    import yaml
+
+    from tools.sensed import sensed
+
+    path = ROOT / "scenarios" / f"{name}.yaml"
+    raw = yaml.safe_load(path.read_text())
+    times = [raw.get("first_stage_time", 0.0) + j * raw["stage_interval"] for j in range(raw["stages"])]
+    scheduled = []
+    for c in raw["carriers"]:
+        length = sum(math.dist(a, b) for a, b in zip(c["waypoints"], c["waypoints"][1:]))
+        stop = c.get("stop_time", c["start_time"] + length / c["speed"])
+        scheduled.append([c["start_time"] <= t <= stop for t in times])
+    scenario = world.load_scenario(path)
+    assert np.allclose(times, scenario.stage_times())
+    assert (np.array(scheduled) == scenario.valid()).all()
+    if name == "tiny":
+        doc = sensed(scenario, "a")
+        assert doc["x"] == [None if np.isnan(v) else int(v) for v in world.observe_all(scenario)[0]]
+        assert doc["scheduled"] == scheduled[0] and doc["fingerprint"] == wm.scenario_fingerprint(scenario)

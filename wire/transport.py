@@ -187,10 +187,14 @@ class Node:
         self.session.put(key_expr, data, congestion_control=zenoh.CongestionControl.BLOCK)
 
     def query(self, key_expr: str, timeout_s: float = 2.0) -> list[bytes]:
-        """Payloads of the replies to a query on ``key_expr`` (empty list when nobody answers)."""
+        """Payloads of the replies to a query on ``key_expr`` (empty list when nobody answers):
+        every matching queryable's (target ``ALL``), each reply kept (consolidation ``NONE``), so
+        that two coordinators answering across a split brain are both heard (docs/protocol.md,
+        "State")."""
         out = []
         try:
-            for reply in self.session.get(key_expr, timeout=timeout_s):
+            for reply in self.session.get(key_expr, target=zenoh.QueryTarget.ALL,
+                                          consolidation=zenoh.ConsolidationMode.NONE, timeout=timeout_s):
                 if reply.ok is not None:
                     out.append(reply.ok.payload.to_bytes())
         except Exception:
