@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from planner.online import run_online
 from planner.problem import (
-    Problem, enforce, evaluate, make_view, normalisation_scale, penalties, rewards, run_online, stage_rng,
+    Problem, enforce, evaluate, make_view, normalisation_scale, penalties, rewards, stage_rng,
 )
 
 NAN = np.nan
