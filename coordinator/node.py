@@ -691,9 +691,6 @@ class Coordinator:
             if self.state.resumed:
                 self.log(f"coordinator: resumed from {self.store.path}: {len(self.state.decisions)} stage(s) "
                          f"decided, continuing at stage {self.state.next_stage}")
-            warm = getattr(self.planner, "warm_up", None)
-            if callable(warm) and not self._stop.is_set():
-                warm(self.problem)
             self._refresh_state()
             if self.node is not None and not self._stop.is_set():
                 self.node.subscribe(f"{keys.prefix(self.mission)}/carrier/**")
@@ -703,6 +700,11 @@ class Coordinator:
                 self.node.token(keys.coordinator_alive(self.mission))
                 self.log(f"coordinator: mission {self.mission}, {len(self.ids)} carriers, {self.n_stages} stages, "
                          f"planner {self.planner_name} {self.planner_options}, seed {self.seed}, epoch {self.epoch}")
+                # Warmed up once State answers and the token is out: carriers that start meanwhile
+                # find a coordinator (compiling the planner takes seconds, more on a busy host).
+                warm = getattr(self.planner, "warm_up", None)
+                if callable(warm) and not self._stop.is_set():
+                    warm(self.problem)
                 if self.state.next_stage > 0:
                     self._publish_decision(self._decision(self.state.next_stage - 1))  # idempotent re-publication
                 if self.state.ended:  # resumed a complete mission: only tell late carriers it is over

@@ -367,28 +367,38 @@ def table(rows) -> str:
 
 
 def plot(rows, path: Path) -> None:
+    """Cost and fidelity against R, one line per (family, busy processes)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     rows = [r for r in rows if r.get("rtt_p99_ms") is not None]
-    r = [row["R"] for row in rows]
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
-    axes[0].loglog(r, [row["wall_s"] for row in rows], "o-", label="wall time (s)")
-    axes[0].loglog(r, [row["mem_total_mb"] / 1e3 for row in rows], "s-", label="memory, total (GB)")
+    series: dict[tuple, list] = {}
+    for row in rows:
+        series.setdefault((row.get("family", "grid"), row.get("busy", 0)), []).append(row)
+    fig, axes = plt.subplots(1, 4, figsize=(17, 3.9))
+    for (family, busy), group in sorted(series.items()):
+        group = sorted(group, key=lambda row: row["R"])
+        r = [row["R"] for row in group]
+        label = f"{family}{', %d busy' % busy if busy else ''}"
+        axes[0].loglog(r, [row["wall_s"] for row in group], "o-", label=f"{label}: wall (s)")
+        axes[0].loglog(r, [row["mem_total_mb"] / 1e3 for row in group], "s--", label=f"{label}: memory (GB)")
+        axes[1].loglog(r, [row["rtt_p99_ms"] for row in group], "o-", label=f"{label}: round trip p99 (ms)")
+        axes[1].loglog(r, [max(1e-3, row["decision_mean_ms"]) for row in group], "^--", label=f"{label}: decision (ms)")
+        axes[2].semilogx(r, [row.get("idle_ratio") or float("nan") for row in group], "o-", label=label)
+        axes[3].semilogx(r, [row.get("fidelity_reward_ratio") or float("nan") for row in group], "o-",
+                         label=label + " (decisions identical)" * all(row.get("fidelity") for row in group))
     axes[0].set_title("whole run")
-    axes[1].loglog(r, [row["rtt_p50_ms"] for row in rows], "o-", label="round trip p50 (ms)")
-    axes[1].loglog(r, [row["rtt_p99_ms"] for row in rows], "s-", label="round trip p99 (ms)")
-    axes[1].loglog(r, [max(1e-3, row["decision_mean_ms"]) for row in rows], "^-", label="decision mean (ms)")
     axes[1].set_title("per stage")
-    axes[2].loglog(r, [row["mem_per_carrier_mb"] for row in rows], "o-", label="memory per carrier (MB)")
-    axes[2].loglog(r, [row["messages_per_s"] for row in rows], "s-", label="messages / s")
-    axes[2].set_title("per carrier / network")
+    axes[2].set_title("stage wall / (carrier CPU / cores + planning)")
+    axes[2].axhline(1.3, color="grey", ls=":", lw=1)
+    axes[3].set_title("fleet reward / offline reward")
+    axes[3].set_ylim(0.0, 1.1)
     for ax in axes:
         ax.set_xlabel("carriers R")
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=8)
+        ax.legend(fontsize=6)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
 
