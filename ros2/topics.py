@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 
 from mission.records import Tally, confirm_record, decision_record, observation_record
 from ros2 import msgs
@@ -62,9 +63,16 @@ CARRIER_TOPICS = {
 }
 
 
+def ros_token(cid: str) -> str:
+    """A carrier id as a ROS 2 name token (letters, digits, ``_``; not starting with a digit):
+    ``c1`` stays ``c1``, ``robot-1.a`` becomes ``robot_1_a``, ``0007`` becomes ``c_0007``."""
+    token = re.sub(r"[^A-Za-z0-9_]", "_", cid)
+    return token if token[:1].isalpha() else f"c_{token}"
+
+
 def carrier_namespace(cid: str) -> str:
-    """The ROS 2 namespace of a carrier's mission topics."""
-    return f"/{cid}"
+    """The ROS 2 namespace of a carrier's mission topics: ``/<id>`` (as a ROS name token)."""
+    return f"/{ros_token(cid)}"
 
 
 def stamp(t: float) -> dict:

@@ -119,6 +119,10 @@ def test_a_mission_as_ros2_topics_and_bag(tiny, tmp_path):
     stored = {stage: json.loads(deploy) for stage, deploy in db_rows(db, "SELECT stage, deploy FROM decisions")}
     assert {d["stage"]: d["deploy"] for d in decisions} == stored
     assert by_topic["/mission/reward"][-1].data == pytest.approx(summary["total_reward"])
+    observed = {(o["carrier"], o["stage"]): o["x"] for o in (json.loads(m.data) for m in by_topic["/mission/observations"])}
+    held = {(cid, j): x for r, cid in enumerate(tiny.carrier_ids)
+            for j, x in enumerate(summary["observations"][r]) if x is not None}
+    assert {k: v for k, v in observed.items() if v is not None} == held
     assert len(by_topic["/a/pose"]) > 0 and by_topic["/a/pose"][0].header.frame_id == "map"
     children = {tr.child_frame_id for m in by_topic["/tf"] for tr in m.transforms}
     assert children == {"a", "b"}
@@ -187,6 +191,12 @@ def test_a_late_ros2_viewer_gets_the_latched_world(tiny):
     assert got, "no latched /mission/world"
     markers = STORE.deserialize_cdr(got[0], "visualization_msgs/msg/MarkerArray").markers
     assert any(m.ns == "paths" for m in markers)
+
+
+def test_carrier_namespaces_are_ros_names():
+    from ros2.topics import carrier_namespace
+
+    assert [carrier_namespace(c) for c in ("c1", "robot-1.a", "0007")] == ["/c1", "/robot_1_a", "/c_0007"]
 
 
 def test_off_imports_nothing_of_ros2():
