@@ -23,9 +23,12 @@ from fleet_helpers import ROOT, TINY, InProcessFleet, deployed_matrix, offline
 PROTOCOL = (ROOT / "docs" / "protocol.md").read_text()
 
 
-def foreign_carrier(endpoint: str, mission: str, cid: str, x_row, positions, passengers: int, result: dict):
+def foreign_carrier(endpoint: str, mission: str, cid: str, x_row, positions, passengers: int, result: dict,
+                    scenario_path=TINY, seed: int = 7):
     """A carrier from the protocol document alone. ``x_row[j]`` is what it senses at stage j
-    (NaN = not scheduled); ``positions[j]`` where it is."""
+    (NaN = not scheduled); ``positions[j]`` where it is. Its fingerprint it computes itself, as
+    the page's section "Fingerprint" says, from the scenario file and the seed."""
+    mine_fp = hashlib.sha256(f"marsupial-fleet/1 seed={seed}\n".encode() + scenario_path.read_bytes()).hexdigest()[:16]
     conf = zenoh.Config()
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
@@ -63,10 +66,10 @@ def foreign_carrier(endpoint: str, mission: str, cid: str, x_row, positions, pas
                 if reply.ok is not None:
                     state = msgpack.unpackb(reply.ok.payload.to_bytes())
             time.sleep(0.05)
-        assert state is not None and state["type"] == "state"
+        assert state is not None and state["type"] == "state" and state["fingerprint"] == mine_fp
         left, deployments = passengers, []
         put("hello", {"carrier": cid, "pid": os.getpid(), "host": socket.gethostname(), "passengers_left": left,
-                      "next_stage": state["next_stage"], "fingerprint": state["fingerprint"]})
+                      "next_stage": state["next_stage"], "fingerprint": mine_fp})
         ended = False
         for j in range(state["next_stage"], state["stages"]):
             x = None if np.isnan(x_row[j]) else int(x_row[j])
