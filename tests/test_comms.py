@@ -109,7 +109,7 @@ def test_perfect_links_reproduce_the_golden_outputs(case):
     for name in record.PLANNERS:
         budget = record.ITERATIONS if name.startswith(("mcts", "closed")) else None
         out = solve_instance(HERE / "golden" / "instances" / f"{case}.json", make_planner(name, iterations=budget),
-                             name, record.SEED, online_optimum=False, comms=CommsSpec())
+                             name, record.SEED, online_optimum=False, comms=CommsSpec(), upper_bound=False)
         out.pop("decision_ms")
         assert out.pop("comms") == {"loss": 0.0, "delay": 0, "groups": []}
         assert out == golden[case][name], name
