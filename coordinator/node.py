@@ -699,7 +699,8 @@ class Coordinator:
                 self.node.serve(keys.state_key(self.mission), self.state_reply)
                 self.node.token(keys.coordinator_alive(self.mission))
                 self.log(f"coordinator: mission {self.mission}, {len(self.ids)} carriers, {self.n_stages} stages, "
-                         f"planner {self.planner_name} {self.planner_options}, seed {self.seed}, epoch {self.epoch}")
+                         f"planner {self.planner_name} {self.planner_options}, seed {self.seed}, epoch {self.epoch}, "
+                         f"{self.config.clock} clock")
                 # Warmed up once State answers and the token is out: carriers that start meanwhile
                 # find a coordinator (compiling the planner takes seconds, more on a busy host).
                 warm = getattr(self.planner, "warm_up", None)
