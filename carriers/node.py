@@ -506,6 +506,9 @@ class Carrier:
         state = self._query_state()
         if state is None and self.config.mode == "hybrid" and not self._stop.is_set():
             self.log(f"no coordinator answered within {self.config.coordinator_timeout_s:.0f} s; going on without it")
+            # A coordinator that appears later (one slow to start) is one to resynchronise with:
+            # its token's arrival makes this carrier say Hello and hand over what it decided.
+            self.coordinator_seen = True
             self._join_alone()
             return
         if state is None:
