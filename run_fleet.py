@@ -28,6 +28,7 @@ import subprocess
 import sys
 import threading
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -60,11 +61,23 @@ CARRIER_NICE = 5
 
 
 def parse_args(argv=None) -> argparse.Namespace:
-    from mission.timeouts import CLOCKS, DEFAULTS
-
     p = argparse.ArgumentParser(
         prog="run_fleet.py", description="Run a marsupial fleet mission over Zenoh.",
         formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__.split("\n\n", 2)[1])
+    # The order of the calls is the order of --help (the main group's flags, then the groups).
+    _role_flags(p)
+    _mission_flags(p)
+    _zenoh_flags(p)
+    _view_flags(p)
+    _onboard_flags(p, _timeout_flags(p))
+    _output_flags(p)
+    _ros2_flags(p)
+    _carrier_output_flags(p)
+    return p.parse_args(argv)
+
+
+def _role_flags(p: argparse.ArgumentParser) -> None:
+    """What this process runs: the role, its carriers, how the one-host fleet is laid out."""
     p.add_argument("scenario", nargs="?", help="scenario YAML file (not needed with --role router)")
     p.add_argument("--role", choices=("all", "coordinator", "carrier", "viewer", "router", "report"), default="all",
                    help="all (default): the whole fleet on this host; or one process's role "
@@ -87,6 +100,12 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help=f"one-host mode: start N zenoh routers connected to the coordinator and spread the "
                         f"carrier processes over them (default: none up to {CARRIERS_PER_ROUTER} carriers, else "
                         f"one per {CARRIERS_PER_ROUTER} carriers)")
+
+
+def _mission_flags(p: argparse.ArgumentParser) -> None:
+    """The planner, the seed, the clock, the mission id and where its results go."""
+    from mission.timeouts import CLOCKS
+
     p.add_argument("--planner", help="planner name (overrides the scenario)")
     p.add_argument("--iterations", type=int, help="MCTS iterations per stage (overrides the scenario)")
     p.add_argument("--plan-ms", type=float, help="MCTS time budget per stage, ms (overrides the scenario)")
@@ -106,6 +125,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--standby", action="store_true",
                    help="coordinator: if the mission already has a live coordinator, wait and take over when "
                         "its liveliness token vanishes (without it: refuse to start, exit 2)")
+
+
+def _zenoh_flags(p: argparse.ArgumentParser) -> None:
     z = p.add_argument_group("zenoh (flags override keys of --zenoh-config)")
     z.add_argument("-l", "--listen", action="append", default=[], metavar="ENDPOINT",
                    help="endpoint to listen on, e.g. tcp/0.0.0.0:7447 (repeatable)")
@@ -114,6 +136,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     z.add_argument("-c", "--zenoh-config", metavar="FILE", help="zenoh JSON5 config file")
     z.add_argument("-m", "--mode", choices=("peer", "client", "router"),
                    help="zenoh mode (default: peer for the coordinator, client for carriers)")
+
+
+def _view_flags(p: argparse.ArgumentParser) -> None:
     v = p.add_argument_group("live view (pip install -e '.[view]'; docs/fleet.md, \"Seeing a mission\")")
     v.add_argument("--view", action="store_true",
                    help="one-host mode: also start a viewer and print the address of its web view")
@@ -125,6 +150,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     v.add_argument("--linger", type=float, default=-1.0, metavar="SECONDS",
                    help="viewer: keep serving this long after the mission ends; < 0 = until Ctrl-C (default)")
     v.add_argument("--ready-file", help=argparse.SUPPRESS)  # one-host mode: the viewer is subscribed
+
+
+def _timeout_flags(p: argparse.ArgumentParser):
+    from mission.timeouts import DEFAULTS
+
     t = p.add_argument_group("timeouts (seconds)")
     t.add_argument("--join-timeout", type=float, default=DEFAULTS.join_s,
                    help="coordinator: wait for carriers before stage 0 (default %(default)s)")
@@ -140,6 +170,14 @@ def parse_args(argv=None) -> argparse.Namespace:
     t.add_argument("--coordinator-timeout", type=float, default=DEFAULTS.coordinator_s,
                    help="carrier: at the start, wait this long for a coordinator (then go on without it); "
                         "with --no-autonomy, exit when it has been absent this long (default %(default)s)")
+    return t
+
+
+def _onboard_flags(p: argparse.ArgumentParser, t) -> None:
+    """A carrier's on-board planner, its durable log, and its wait for peers deciding on board
+    (``t``: the timeouts group)."""
+    from mission.timeouts import DEFAULTS
+
     p.add_argument("--onboard-load", choices=("start", "need"),
                    help="carrier: when the on-board planner is loaded: at the start, or when it may be needed "
                         "(the coordinator's token gone, no decision by --decision-timeout); default start for a "
@@ -151,11 +189,18 @@ def parse_args(argv=None) -> argparse.Namespace:
     t.add_argument("--peer-timeout", type=float, default=DEFAULTS.peer_s,
                    help="carrier deciding on board, --clock wall: wait per stage for the other carriers' "
                         "observations (default %(default)s)")
+
+
+def _output_flags(p: argparse.ArgumentParser) -> None:
+    """The coordinator's map and recording."""
     p.add_argument("--no-map", action="store_true", help="do not draw map.png")
     p.add_argument("--no-record", action="store_true", help="coordinator: do not write mission.mcap")
     p.add_argument("--mcap-profile", choices=("foxglove", "ros2"), default="foxglove",
                    help="coordinator: the recording's profile: foxglove (default: mission.mcap with Foxglove's "
                         "schemas) or ros2 (the rosbag2 bag ros2bag/ that ros2 bag play replays; needs .[ros2])")
+
+
+def _ros2_flags(p: argparse.ArgumentParser) -> None:
     r = p.add_argument_group("ROS 2 over Zenoh, rmw_zenoh's format, Jazzy and later (docs/fleet.md, \"ROS 2\")")
     r.add_argument("--ros2", action="store_true",
                    help="publish the mission as ROS 2 topics in rmw_zenoh's key space (every role; nothing "
@@ -166,13 +211,16 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="carrier (one id, with --role carrier): the body is a real ROS 2 robot: pose from its "
                         "NS/odom, observations from NS/features, deployments commanded on NS/deploy")
     r.add_argument("--ros2-namespace", metavar="NS", help="with --ros2-robot: the robot's ROS 2 namespace (default /)")
+
+
+def _carrier_output_flags(p: argparse.ArgumentParser) -> None:
+    """What the carriers publish and print."""
     p.add_argument("--pose-interval", type=float, default=1.0, metavar="SECONDS",
                    help="carrier: publish a Pose every this many simulated seconds (whole seconds; 0 = never; "
                         "default %(default)s)")
     p.add_argument("--quiet", action="store_true", help="carriers print nothing but errors")
     p.add_argument("--verbose", action="store_true",
                    help="one-host mode: let carriers print their own events (quiet by default)")
-    return p.parse_args(argv)
 
 
 def fail(message: str) -> int:
@@ -574,83 +622,142 @@ def taken(args, scenario, connect) -> str | None:
     return str(DuplicateCarriers(mission, ids)) if ids else None
 
 
-def run_all(args, scenario, stop: threading.Event) -> int:
-    from wire.zconfig import free_port
+@dataclass
+class _Fleet:
+    """The one-host fleet's child processes and the network they share."""
 
+    out: Path
+    script: list[str]
+    common: list[str]  # the flags every child gets
+    listen: list[str]
+    connect: list[str]
+    routers: list = field(default_factory=list)
+    router_endpoints: list[str] = field(default_factory=list)  # the routers beyond the first
+    coordinator: subprocess.Popen | None = None
+    viewer: subprocess.Popen | None = None
+    carriers: dict = field(default_factory=dict)  # "id,id,..." -> its process
+
+    def procs(self) -> list:
+        return [p for p in (self.coordinator, *self.carriers.values(), *self.routers, self.viewer) if p is not None]
+
+    def connect_flags(self, endpoints=None) -> list[str]:
+        return sum((["--connect", e] for e in (self.connect if endpoints is None else endpoints)), [])
+
+    def others(self) -> list:
+        """The carriers, the routers and the viewer: what is left once the coordinator is gone."""
+        return [*self.carriers.values(), *self.routers] + ([self.viewer] if self.viewer is not None else [])
+
+
+def run_all(args, scenario, stop: threading.Event) -> int:
     if stop.is_set():
         return STOPPED
     if args.connect and not args.listen:
         problem = taken(args, scenario, list(args.connect))  # else our carriers would join the live mission
         if problem:
             return fail(problem)
-    out = Path(args.out or default_out(scenario))
-    out.mkdir(parents=True, exist_ok=True)
-    script = [sys.executable, str(Path(__file__).resolve()), args.scenario]
-    routers = []
-    if args.connect and not args.listen:
-        listen, connect = [], list(args.connect)  # through a router of the user's: everyone connects to it
-    else:
-        # The fleet's network is a router of its own, not the coordinator: carriers keep talking
-        # to each other when the coordinator is gone.
-        listen = args.listen or [f"tcp/127.0.0.1:{free_port()}"]
-        connect = [e.replace("0.0.0.0", "127.0.0.1") for e in listen]
-        routers.append(_start_router(args, listen, []))
-    common = _forward(args) + ["--out", str(out)]
+    fleet = _start_network(args, scenario)
     started = time.monotonic()
-    viewer = None
-    coordinator = None
     if not args.decentralised:
-        coordinator = subprocess.Popen(
-            script + ["--role", "coordinator"] + common + sum((["--connect", e] for e in connect), [])
+        fleet.coordinator = subprocess.Popen(
+            fleet.script + ["--role", "coordinator"] + fleet.common + fleet.connect_flags()
             + (["--no-map"] if args.no_map else []),
             preexec_fn=_ignore_sigint)
     if args.view:  # subscribed before the carriers start, so the view misses nothing
-        ready = out / ".viewer-ready"
-        ready.unlink(missing_ok=True)
-        viewer = subprocess.Popen(
-            script + ["--role", "viewer", "--web-port", str(args.web_port), "--grpc-port", str(args.grpc_port),
-                      "--linger", str(args.linger), "--ready-file", str(ready)] + common
-            + sum((["--connect", e] for e in connect), [])
-            + (["--save", args.save] if args.save else []) + (["--no-web"] if args.no_web else []),
-            preexec_fn=_ignore_sigint)
-        deadline = time.monotonic() + 60
-        while not ready.exists() and viewer.poll() is None and not stop.is_set() and time.monotonic() < deadline:
-            stop.wait(0.05)
-        ready.unlink(missing_ok=True)
-        if viewer.poll() is not None:
-            print(f"run_fleet.py: the viewer exited with code {viewer.returncode}; going on without it",
-                  file=sys.stderr, flush=True)
+        _start_viewer(args, fleet, stop)
+    _start_carriers(args, scenario, fleet)
+    _announce(args, fleet)
+    _supervise(fleet, stop)
+    if stop.is_set():
+        print("run_fleet.py: interrupted; stopping the fleet", file=sys.stderr, flush=True)
+        _stop_children(fleet.procs())
+        return STOPPED
+    code = 0 if fleet.coordinator is None else fleet.coordinator.returncode
+    if code in (EXIT_USAGE, EXIT_DEPOSED):
+        return _without_coordinator(fleet, code, stop)
+    return _finish(args, fleet, code, started, stop)
+
+
+def _start_network(args, scenario) -> _Fleet:
+    """The results directory and the fleet's network: a router of the user's (``--connect``
+    without ``--listen``: everyone connects to it), else a router of the fleet's own, not the
+    coordinator, so that carriers keep talking to each other when the coordinator is gone."""
+    from wire.zconfig import free_port
+
+    out = Path(args.out or default_out(scenario))
+    out.mkdir(parents=True, exist_ok=True)
+    script = [sys.executable, str(Path(__file__).resolve()), args.scenario]
+    common = _forward(args) + ["--out", str(out)]
+    if args.connect and not args.listen:
+        return _Fleet(out, script, common, [], list(args.connect))
+    listen = args.listen or [f"tcp/127.0.0.1:{free_port()}"]
+    fleet = _Fleet(out, script, common, listen, [e.replace("0.0.0.0", "127.0.0.1") for e in listen])
+    fleet.routers.append(_start_router(args, listen, []))
+    return fleet
+
+
+def _start_viewer(args, fleet: _Fleet, stop: threading.Event) -> None:
+    """``--view``: the viewer, waited for (at most 60 s) until it is subscribed."""
+    ready = fleet.out / ".viewer-ready"
+    ready.unlink(missing_ok=True)
+    viewer = fleet.viewer = subprocess.Popen(
+        fleet.script + ["--role", "viewer", "--web-port", str(args.web_port), "--grpc-port", str(args.grpc_port),
+                        "--linger", str(args.linger), "--ready-file", str(ready)] + fleet.common
+        + fleet.connect_flags()
+        + (["--save", args.save] if args.save else []) + (["--no-web"] if args.no_web else []),
+        preexec_fn=_ignore_sigint)
+    deadline = time.monotonic() + 60
+    while not ready.exists() and viewer.poll() is None and not stop.is_set() and time.monotonic() < deadline:
+        stop.wait(0.05)
+    ready.unlink(missing_ok=True)
+    if viewer.poll() is not None:
+        print(f"run_fleet.py: the viewer exited with code {viewer.returncode}; going on without it",
+              file=sys.stderr, flush=True)
+
+
+def _start_carriers(args, scenario, fleet: _Fleet) -> None:
+    """More routers when the fleet is large (joined to the first, each serving a share of the
+    carriers), then the carrier processes."""
+    from wire.zconfig import free_port
+
     n_routers = args.routers
     if n_routers is None:
         n = scenario.n_carriers
-        n_routers = 0 if n <= CARRIERS_PER_ROUTER or not listen else -(-n // CARRIERS_PER_ROUTER)
-    router_endpoints = []
-    for _ in range(n_routers):  # more routers, joined to the first, each serving a share of the carriers
+        n_routers = 0 if n <= CARRIERS_PER_ROUTER or not fleet.listen else -(-n // CARRIERS_PER_ROUTER)
+    for _ in range(n_routers):
         endpoint = f"tcp/127.0.0.1:{free_port()}"
-        routers.append(_start_router(args, [endpoint], connect))
-        router_endpoints.append(endpoint)
-    carriers = {}
+        fleet.routers.append(_start_router(args, [endpoint], fleet.connect))
+        fleet.router_endpoints.append(endpoint)
+    endpoints = fleet.router_endpoints
     for g, group in enumerate(carrier_groups(scenario.carrier_ids, args.carrier_processes)):
-        via = [router_endpoints[g % len(router_endpoints)]] if router_endpoints else connect
-        carriers[",".join(group)] = subprocess.Popen(
-            script + ["--role", "carrier", "--carrier", ",".join(group)] + common
-            + sum((["--connect", e] for e in via), []) + ["--log-sync", args.log_sync or "normal"]
+        via = [endpoints[g % len(endpoints)]] if endpoints else fleet.connect
+        fleet.carriers[",".join(group)] = subprocess.Popen(
+            fleet.script + ["--role", "carrier", "--carrier", ",".join(group)] + fleet.common
+            + fleet.connect_flags(via) + ["--log-sync", args.log_sync or "normal"]
             + ([] if args.verbose else ["--quiet"]), preexec_fn=_carrier_child)
-    procs = [p for p in (coordinator, *carriers.values(), *routers, viewer) if p is not None]
-    shown = ", ".join(f"{_short(cids)} pid {p.pid}" for cids, p in carriers.items())
-    print(f"run_fleet.py: network {', '.join(connect)}"
-          + (f" (router pid {routers[0].pid})" if listen else "")
+
+
+def _announce(args, fleet: _Fleet) -> None:
+    shown = ", ".join(f"{_short(cids)} pid {p.pid}" for cids, p in fleet.carriers.items())
+    coordinator, viewer = fleet.coordinator, fleet.viewer
+    print(f"run_fleet.py: network {', '.join(fleet.connect)}"
+          + (f" (router pid {fleet.routers[0].pid})" if fleet.listen else "")
           + ("; no coordinator (decentralised)" if coordinator is None else f"; coordinator pid {coordinator.pid}")
           + f"; carriers {shown}"
-          + (f"; {len(router_endpoints)} more router(s) at {', '.join(router_endpoints)}" if router_endpoints else ""),
+          + (f"; {len(fleet.router_endpoints)} more router(s) at {', '.join(fleet.router_endpoints)}"
+             if fleet.router_endpoints else ""),
           flush=True)
     if viewer is not None and viewer.poll() is None and not args.no_web:
         from viewer.node import viewer_url
 
         print(f"run_fleet.py: viewer pid {viewer.pid}; live view at {viewer_url(args.web_port, args.grpc_port)}",
               flush=True)
-    # The mission lasts as long as its coordinator; decentralised, or when the coordinator died,
-    # as long as its carriers (they go on without it).
+
+
+def _supervise(fleet: _Fleet, stop: threading.Event) -> None:
+    """Until the mission is over or a stop request. The mission lasts as long as its
+    coordinator; decentralised, or when the coordinator died, as long as its carriers (they go
+    on without it)."""
+    coordinator, carriers = fleet.coordinator, fleet.carriers
     refused = set()
     while not stop.is_set():
         if coordinator is not None and coordinator.poll() is not None and coordinator.returncode == 0:
@@ -667,40 +774,51 @@ def run_all(args, scenario, stop: threading.Event) -> int:
                       f"duplicate or another world, reason above); the mission goes on without it",
                       file=sys.stderr, flush=True)
         stop.wait(0.05)
-    if stop.is_set():
-        print("run_fleet.py: interrupted; stopping the fleet", file=sys.stderr, flush=True)
-        _stop_children(procs)
-        return STOPPED
-    code = 0 if coordinator is None else coordinator.returncode
-    if code == EXIT_USAGE:  # refused to start (a live coordinator of the mission): nobody decides
-        _stop_children([*carriers.values(), *routers] + ([viewer] if viewer is not None else []), grace_s=5.0)
+
+
+def _without_coordinator(fleet: _Fleet, code: int, stop: threading.Event) -> int:
+    """The coordinator refused to start (``EXIT_USAGE``: a live coordinator of the mission, so
+    nobody decides: carriers stopped) or was deposed (``EXIT_DEPOSED``: a newer coordinator
+    decides now, our carriers fly on under it)."""
+    if code == EXIT_USAGE:
+        _stop_children(fleet.others(), grace_s=5.0)
         print(f"run_fleet.py: the coordinator refused to start (exit {code}, reason above); carriers stopped",
               file=sys.stderr, flush=True)
         return code
-    if code == EXIT_DEPOSED:  # a newer coordinator decides now: our carriers fly on under it
-        print(f"run_fleet.py: the coordinator was deposed by a coordinator of a newer epoch (exit {code}); the "
-              f"carriers go on under that one, whose --out holds the results", file=sys.stderr, flush=True)
-        while any(p.poll() is None for p in carriers.values()) and not stop.is_set():
-            stop.wait(0.1)
-        _stop_children([*carriers.values(), *routers] + ([viewer] if viewer is not None else []), grace_s=5.0)
-        return code
+    print(f"run_fleet.py: the coordinator was deposed by a coordinator of a newer epoch (exit {code}); the "
+          f"carriers go on under that one, whose --out holds the results", file=sys.stderr, flush=True)
+    while any(p.poll() is None for p in fleet.carriers.values()) and not stop.is_set():
+        stop.wait(0.1)
+    _stop_children(fleet.others(), grace_s=5.0)
+    return code
+
+
+def _finish(args, fleet: _Fleet, code: int, started: float, stop: threading.Event) -> int:
+    """After the mission: the carriers' grace, the report, the result lines, the viewer's linger."""
+    carriers, out = fleet.carriers, fleet.out
     deadline = time.monotonic() + CARRIER_EXIT_GRACE_S
     while time.monotonic() < deadline and any(p.poll() is None for p in carriers.values()):
         time.sleep(0.05)
     _stop_children(list(carriers.values()), grace_s=5.0)
-    _stop_children(routers, grace_s=5.0)
+    _stop_children(fleet.routers, grace_s=5.0)
     bad = {cid: p.returncode for cid, p in carriers.items() if p.returncode not in (0,)}
     if bad:
         print(f"run_fleet.py: carrier exit codes {bad}", file=sys.stderr, flush=True)
-    _report(script, out, args)  # summary.json from whatever logs exist, also when the coordinator died
+    _report(fleet.script, out, args)  # summary.json from whatever logs exist, also when the coordinator died
     summary_path = out / "summary.json"
     if code != 0 or not summary_path.exists():
-        print(f"run_fleet.py: the coordinator exited with code {code}" if coordinator is not None
+        print(f"run_fleet.py: the coordinator exited with code {code}" if fleet.coordinator is not None
               else "run_fleet.py: no summary.json (the report failed)", file=sys.stderr)
-        if viewer is not None:
-            _stop_children([viewer], grace_s=5.0)
+        if fleet.viewer is not None:
+            _stop_children([fleet.viewer], grace_s=5.0)
         return code or 1
-    summary = json.loads(summary_path.read_text())
+    _print_results(args, json.loads(summary_path.read_text()), out, started)
+    if fleet.viewer is not None:
+        _wait_for_viewer(args, fleet.viewer, stop)
+    return 0
+
+
+def _print_results(args, summary: dict, out: Path, started: float) -> None:
     bound = summary.get("clairvoyant") or {}  # None: the coordinator was stopped before the bound
     lat = summary.get("latency_ms", {})
     print(f"total reward {summary['total_reward']:.3f} (features {summary['total_features']:.1f}); "
@@ -710,9 +828,6 @@ def run_all(args, scenario, stop: threading.Event) -> int:
     print(f"results: {out}/summary.json, mission.db, merged_log.jsonl"
           + ("" if args.no_record else ", ros2bag/" if args.mcap_profile == "ros2" else ", mission.mcap")
           + ("" if args.no_map else ", map.png"))
-    if viewer is not None:
-        _wait_for_viewer(args, viewer, stop)
-    return 0
 
 
 def _start_router(args, listen, connect) -> subprocess.Popen:
