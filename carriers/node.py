@@ -43,7 +43,7 @@ from carriers.shared import GATE_HOLD_S, SharedWorld, StageGate
 from storage.carrierlog import CarrierLog, LogMismatch, log_path
 from mission import carrier as mc
 from mission.exits import STOPPED
-from mission.peers import PeerBook, listened
+from mission.peers import PeerBook, Presence, listened
 from mission.timeouts import CLOCKS, DEFAULTS
 from wire import keys
 from wire.messages import (
@@ -176,9 +176,7 @@ class Carrier:
         self._stop = stop if stop is not None else threading.Event()
         self.sim: world.Simulation | None = None
         self.node = None
-        self.coordinator_present = False
-        self.coordinator_seen = False
-        self.absent_since = time.monotonic()
+        self.presence = Presence(time.monotonic())  # the coordinator's and the peers' tokens, what came when
         self.pending: Observation | None = None
         self._trail_from = 0
         self._pose_from = 0  # first trajectory sample not considered for a Pose yet
@@ -191,17 +189,14 @@ class Carrier:
             raise ValueError(f"onboard_load must be one of {ONBOARD_LOADS}, found {config.onboard_load!r}")
         self.gate = gate if gate is not None else StageGate()
         self.book = PeerBook(scenario.carrier_ids, valid)  # what it heard of every carrier's stages
-        # Passenger types: the passenger each Decision named for this carrier (stage -> index), and
-        # the passenger released at each stage of this process (docs/protocol.md, Decision).
-        self._named: dict[int, int] = {}
-        self._released_at: dict[int, int] = {}
-        self.peers_live: set[str] = set()
+        # Passenger types: the passenger each Decision named for this carrier, and the passenger
+        # released at each stage of this process (docs/protocol.md, Decision).
+        self.releases = mc.Releases(scenario.carriers[self.r].passengers)
         self.listening: tuple[str, ...] | None = None  # the carriers it hears (:meth:`_listen`)
         self.store: CarrierLog | None = None  # the durable log, open while running
         self._alone = False  # deciding stages itself (logged once per spell)
         self.ros2 = None  # its ROS 2 node (ros2/publisher.py) while running with config.ros2
         self._progress_at = time.monotonic()  # when this carrier last published (sim clock: Progress)
-        self.heard: dict[str, float] = {}  # peer -> when something last came from it (monotonic s)
 
     # ------------------------------------------------------------------ views for tests and logs
     def log(self, line: str) -> None:
@@ -236,13 +231,13 @@ class Carrier:
         for effect in effects:
             if isinstance(effect, mc.Deploy):
                 self.sim.deploy(self.cid)
-                self._released_at[effect.stage] = self._passenger_for(effect.stage)
+                released = self.releases.release(effect.stage)
                 if self.ros2 is not None:  # a robot's launcher gets the command
-                    self.ros2.release(effect.stage, self._released_at[effect.stage])
+                    self.ros2.release(effect.stage, released)
             elif isinstance(effect, mc.SendConfirm):
                 self.node.put(keys.carrier_key(self.mission, self.cid, "confirm"), Confirm(
                     self.mission, self.cid, effect.stage, effect.deployed, effect.status, effect.position,
-                    effect.passengers_left, self._released_at.get(effect.stage) if effect.deployed else None))
+                    effect.passengers_left, self.releases.at(effect.stage) if effect.deployed else None))
             elif isinstance(effect, mc.LogObservation):
                 if self.store is not None:
                     self.store.observed(effect.stage, self.scenario.stage_time(effect.stage), effect.x, effect.position)
@@ -311,18 +306,15 @@ class Carrier:
         if item.kind in ("alive", "gone"):
             parsed = keys.parse_carrier_key(self.mission, item.key)
             if parsed is not None and parsed[1] == "alive" and parsed[0] in self.book.index:
-                (self.peers_live.add if item.kind == "alive" else self.peers_live.discard)(parsed[0])
+                self.presence.peer(parsed[0], item.kind == "alive")
                 return
             if item.key != keys.coordinator_alive(self.mission):
                 raise ProtocolError("bad-key", f"liveliness token on {item.key[:80]}")
             if item.kind == "alive":
-                returned = self.coordinator_seen and not self.coordinator_present
-                self.coordinator_present = self.coordinator_seen = True
-                if returned:
+                if self.presence.coordinator_alive():  # it came back
                     self.apply(mc.Resync(self._state_seen(self._query_once()), self._position()))
             else:
-                self.coordinator_present = False
-                self.absent_since = time.monotonic()
+                self.presence.coordinator_gone(time.monotonic())
                 if self.config.mode == "hybrid":
                     self.onboard.prepare()  # it may have to decide alone soon
                 self.log("coordinator's liveliness token vanished; "
@@ -353,22 +345,10 @@ class Carrier:
         msg = decode(item.payload, Decision)
         if msg.mission != self.mission:
             raise ProtocolError("wrong-mission", f"mission {msg.mission!r}")
-        if msg.stage < self.n_stages and msg.epoch >= self.machine.epoch:
+        if msg.stage < self.n_stages and mc.current(self.machine, msg.epoch):  # not a deposed coordinator's
             self.book.decision(msg.stage, msg.deploy)
-        named = msg.passenger_of(self.cid)
-        if named is not None and msg.epoch >= self.machine.epoch:
-            self._named.setdefault(msg.stage, named)
+        self.releases.name(self.machine, msg.stage, msg.epoch, msg.passenger_of(self.cid))
         self.apply(mc.DecisionHeard(msg.stage, msg.t, msg.deploy, self._position(), msg.epoch))
-
-    def _passenger_for(self, j: int) -> int:
-        """The passenger released at stage j: the one the Decision named if still on board, else
-        the lowest index on board (a stage decided on board names none)."""
-        gone = set(self._released_at.values())
-        named = self._named.get(j)
-        count = self.scenario.carriers[self.scenario.carrier_index(self.cid)].passengers
-        if named is not None and named not in gone and named < count:
-            return named
-        return next((i for i in range(count) if i not in gone), 0)
 
     def _peer(self, cid: str, topic: str, payload: bytes) -> None:
         """Another carrier's Observation, Own or Confirm: what it saw and did, for the book."""
@@ -381,7 +361,7 @@ class Carrier:
             raise ProtocolError("wrong-mission", f"mission {msg.mission!r}")
         if msg.carrier != cid:
             raise ProtocolError("key-mismatch", f"carrier {msg.carrier!r} on the key of {cid!r}")
-        self.heard[cid] = time.monotonic()
+        self.presence.heard_from(cid, time.monotonic())
         if topic == "progress":
             return
         if msg.stage >= self.n_stages:
@@ -513,8 +493,7 @@ class Carrier:
             return
         if state is None:
             raise _Exit("stopped" if self._stop.is_set() else "coordinator-lost")
-        if not self.coordinator_seen:  # it answered: present, even if its token is not pumped yet
-            self.coordinator_present = self.coordinator_seen = True
+        self.presence.coordinator_answered()  # present, even if its token is not pumped yet
         if state.fingerprint != self.fingerprint:
             self.log(f"the coordinator runs another world (fingerprint {state.fingerprint}, ours "
                      f"{self.fingerprint}): use the same scenario file and --seed")
@@ -546,9 +525,9 @@ class Carrier:
         self._listen(wait=True)
         others = set(self.listening)
         deadline = time.monotonic() + self.config.join_timeout_s
-        while not self._stop.is_set() and not others <= self.peers_live and time.monotonic() < deadline:
+        while not self._stop.is_set() and not others <= self.presence.peers_live and time.monotonic() < deadline:
             self._pump(min(0.2, max(0.0, deadline - time.monotonic())))
-        missing = sorted(others - self.peers_live)
+        missing = sorted(others - self.presence.peers_live)
         if missing and next_stage == 0:
             self.log(f"starting without carrier(s) {', '.join(missing)} (no token after "
                      f"{self.config.join_timeout_s:.0f} s)")
@@ -568,7 +547,7 @@ class Carrier:
             now = time.monotonic()
             if self.config.mode == "decentralised":
                 return
-            if self.coordinator_present:
+            if self.presence.coordinator_present:
                 waited += now - last
                 if waited >= self.config.decision_timeout_s and self.config.clock == "sim":
                     waited = 0.0
@@ -579,7 +558,7 @@ class Carrier:
                     return
             elif self.config.mode == "hybrid":
                 return
-            elif now - self.absent_since >= self.config.coordinator_timeout_s:
+            elif self.presence.absent_for(now) >= self.config.coordinator_timeout_s:
                 self.log(f"coordinator absent for {self.config.coordinator_timeout_s:.0f} s; exiting")
                 raise _Exit("coordinator-lost")
             last = now
@@ -590,7 +569,7 @@ class Carrier:
         decided j already, the Decision was lost on the way: resynchronise (it is taken from
         State). Otherwise the coordinator is still at work: go on waiting."""
         state = self._query_once()
-        if state is not None and state.next_stage > j and state.epoch >= self.machine.epoch:
+        if state is not None and state.next_stage > j and mc.current(self.machine, state.epoch):
             self.log(f"stage {j} was decided but its Decision did not arrive; taking it from State")
             self.apply(mc.Resync(self._state_seen(state), self._position()))
 
@@ -646,16 +625,15 @@ class Carrier:
         self._listen(wait=True)
         if not self._alone:
             self._alone = True
-            self.log(f"deciding on board from stage {j} (dec-closed-loop, {len(self.peers_live - {self.cid})} "
+            self.log(f"deciding on board from stage {j} (dec-closed-loop, {len(self.presence.peers_live - {self.cid})} "
                      f"other carrier(s) reachable)")
         opened = time.monotonic()
         deadline = opened + self.config.peer_timeout_s
         while not self._stop.is_set() and not self.machine.resolved(j) and not self.machine.ended:
-            waiting = self.book.waiting(j, self.peers_live - {self.cid})
+            waiting = self.book.waiting(j, self.presence.peers_live - {self.cid})
             now = time.monotonic()
             if self.config.clock == "sim":
-                heard = max((self.heard.get(cid, opened) for cid in waiting), default=opened)
-                deadline = max(heard, opened) + self.config.silence_timeout_s
+                deadline = self.presence.last_heard(waiting, opened) + self.config.silence_timeout_s
             left = deadline - now
             if left <= 0 or not waiting:
                 break
@@ -704,7 +682,7 @@ class Carrier:
             self._join()
             self._fly()
             # End comes from a coordinator: wait for it only while one is there.
-            deadline = time.monotonic() + (self.config.end_timeout_s if self.coordinator_present else 0.0)
+            deadline = time.monotonic() + (self.config.end_timeout_s if self.presence.coordinator_present else 0.0)
             while not self.machine.ended and not self._stop.is_set() and time.monotonic() < deadline:
                 self._check_refused()
                 self._pump(IDLE_POLL_S)

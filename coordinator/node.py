@@ -48,6 +48,7 @@ from coordinator.results import render_map, write_json as _write_json
 from storage.missiondb import MissionStore, StoreBusy
 from mission import events as ev
 from mission import state as ms
+from mission.peers import last_heard
 from mission.summary import RunInfo, summary as mission_summary
 from mission.timeouts import CLOCKS, DEFAULTS
 from wire import keys
@@ -519,8 +520,7 @@ class Coordinator:
             waiting = self.state.waiting(j)
             if not waiting:
                 return True
-            now = time.monotonic()
-            return all(now - max(self.heard.get(cid, opened), opened) >= silence for cid in waiting)
+            return time.monotonic() - last_heard(self.heard, waiting, opened) >= silence
 
         while not self._stop.is_set() and not done():
             self.pump(0.05)
@@ -539,8 +539,7 @@ class Coordinator:
         opened = time.monotonic()
         while not self._stop.is_set():
             waiting = self.state.unconfirmed(j)
-            heard = max((self.heard.get(cid, opened) for cid in waiting), default=opened)
-            if not waiting or time.monotonic() - max(heard, opened) >= self.config.silence_timeout_s:
+            if not waiting or time.monotonic() - last_heard(self.heard, waiting, opened) >= self.config.silence_timeout_s:
                 return
             self.pump(0.05)
 

@@ -280,6 +280,52 @@ class CarrierState:
         return tuple(sorted(j for j, a in self.handled.items() if a.deployed))
 
 
+def current(state: CarrierState, epoch: int) -> bool:
+    """A Decision or State of ``epoch`` comes from the coordinator that decides now: its epoch is
+    at least the highest the carrier has heard (a lower one is a deposed coordinator's)."""
+    return epoch >= state.epoch
+
+
+def passenger_for(named: int | None, released, count: int) -> int:
+    """The passenger (index ``0..count-1``) a deployment releases: the one the Decision named
+    (``named``) if it is still on board, else the lowest index on board (a stage decided on
+    board names none). ``released``: the indices released already."""
+    gone = set(released)
+    if named is not None and named not in gone and named < count:
+        return named
+    return next((i for i in range(count) if i not in gone), 0)
+
+
+class Releases:
+    """Which passenger each stage releases (docs/protocol.md, Decision): the one a current
+    Decision named for this carrier (the first naming per stage counts), else the lowest index
+    on board. Fed by the carrier process; no clock, no I/O.
+
+    Args:
+        count: the carrier's passengers.
+    """
+
+    def __init__(self, count: int):
+        self.count = int(count)
+        self.named: dict[int, int] = {}     # stage -> the passenger a Decision named
+        self.released: dict[int, int] = {}  # stage -> the passenger released there
+
+    def name(self, state: CarrierState, stage: int, epoch: int, passenger: int | None) -> None:
+        """A Decision of ``epoch`` named ``passenger`` (None: none) for this carrier at ``stage``;
+        a deposed coordinator's naming is ignored."""
+        if passenger is not None and current(state, epoch):
+            self.named.setdefault(stage, passenger)
+
+    def release(self, stage: int) -> int:
+        """The carrier deploys at ``stage``: the passenger released (recorded)."""
+        self.released[stage] = passenger_for(self.named.get(stage), self.released.values(), self.count)
+        return self.released[stage]
+
+    def at(self, stage: int) -> int | None:
+        """The passenger released at ``stage``, None when none was."""
+        return self.released.get(stage)
+
+
 def initial(cid: str, valid, stage_times, passengers: int) -> CarrierState:
     return CarrierState(cid, tuple(bool(v) for v in valid), tuple(float(t) for t in stage_times), int(passengers))
 
@@ -351,7 +397,7 @@ def _on_joined(state: CarrierState, e: Joined):
 
 
 def _on_decision(state: CarrierState, e: DecisionHeard):
-    if e.epoch < state.epoch:
+    if not current(state, e.epoch):
         return state, (Reject("deposed", f"decision for stage {e.stage} of epoch {e.epoch}; "
                                          f"epoch {state.epoch} decides now"),)
     j = e.stage

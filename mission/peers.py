@@ -14,6 +14,11 @@ stage does not blind a carrier to b for the rest of the mission.
 
 The book has no clock and does no I/O; the carrier process feeds it (its own observations and
 outcomes too) and asks it for a :class:`LocalView`.
+
+:class:`Presence` is who a carrier knows to be there (the coordinator's token, its peers'
+tokens, when something last came from each peer); :func:`last_heard` is the silence rule both
+processes wait by on the sim clock (docs/fleet.md, "Simulated time and wall time"). Times are
+the process's monotonic seconds, handed in by the process.
 """
 from __future__ import annotations
 
@@ -46,6 +51,62 @@ def listened(problem, r: int, component_max: int = COMPONENT_MAX) -> list[int]:
             frontier.append(c)
     chosen = component if len(component) <= component_max else adjacency[r]
     return sorted(chosen - {r})
+
+
+def last_heard(heard: dict, among, since: float) -> float:
+    """When something last came from any of ``among`` (monotonic s; ``heard``: id -> time), not
+    before ``since`` (a wait that opened then): a wait for them ends once nothing came from any
+    of them for the silence timeout after this."""
+    return max(since, max((heard.get(cid, since) for cid in among), default=since))
+
+
+class Presence:
+    """Who a carrier knows to be there: the coordinator (its liveliness token, or an answer to a
+    State query) and its peers (their tokens, and when something last came from each).
+
+    Attributes:
+        coordinator_present: the coordinator's token is present (or it answered since it vanished).
+        coordinator_seen: the coordinator was ever present.
+        absent_since: since when the coordinator is absent (monotonic s).
+        peers_live: ids of the peers whose token is present.
+        heard: peer id -> when something (not only Progress) last came from it (monotonic s).
+    """
+
+    def __init__(self, now: float):
+        self.coordinator_present = False
+        self.coordinator_seen = False
+        self.absent_since = now
+        self.peers_live: set[str] = set()
+        self.heard: dict[str, float] = {}
+
+    def coordinator_alive(self) -> bool:
+        """The coordinator's token appeared; True when it came back (present before, then gone):
+        the carrier then resynchronises from its State."""
+        returned = self.coordinator_seen and not self.coordinator_present
+        self.coordinator_present = self.coordinator_seen = True
+        return returned
+
+    def coordinator_gone(self, now: float) -> None:
+        self.coordinator_present = False
+        self.absent_since = now
+
+    def coordinator_answered(self) -> None:
+        """A State answer at join: present, even before its token is seen (if never seen yet)."""
+        if not self.coordinator_seen:
+            self.coordinator_present = self.coordinator_seen = True
+
+    def absent_for(self, now: float) -> float:
+        """How long the coordinator has been absent (s); 0 while present."""
+        return 0.0 if self.coordinator_present else now - self.absent_since
+
+    def peer(self, cid: str, alive: bool) -> None:
+        (self.peers_live.add if alive else self.peers_live.discard)(cid)
+
+    def heard_from(self, cid: str, now: float) -> None:
+        self.heard[cid] = now
+
+    def last_heard(self, among, since: float) -> float:
+        return last_heard(self.heard, among, since)
 
 
 class PeerBook:

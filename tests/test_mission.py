@@ -6,9 +6,12 @@ persist what they say to record, reload mission.db, fold again: equal state, equ
 """
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 
 from mission import carrier as mc
+from mission import peers as mission_peers
 from mission import events as ev
 from mission import state as ms
 
@@ -361,6 +364,88 @@ def test_carrier_ignores_a_deposed_coordinators_decisions():
     fresh, _ = carrier(*JOINED, mc.Observed(0))
     _, effects = mc.step(fresh, heard(0))
     assert confirms(effects) == [(0, "deployed", True)]
+
+
+# --------------------------------------------------------------------------- passengers, epochs, presence
+@pytest.mark.parametrize("named, released, count, expected", [
+    (None, (), 3, 0),          # a stage decided on board names none: the lowest index on board
+    (2, (), 3, 2),             # the named passenger, still on board
+    (2, (2,), 3, 0),           # named, but released already: the lowest on board
+    (1, (0, 1), 3, 2),
+    (5, (), 3, 0),             # an index the carrier does not have
+    (None, (0, 1, 2), 3, 0),   # none left (the machine refuses it before): 0
+], ids=["none", "named", "named-gone", "lowest-left", "out-of-range", "none-left"])
+def test_passenger_for(named, released, count, expected):
+    assert mc.passenger_for(named, released, count) == expected
+
+
+@pytest.mark.parametrize("heard, epoch, current", [(0, 1, True), (2, 2, True), (2, 3, True), (2, 1, False)],
+                         ids=["nothing-heard", "equal", "newer", "deposed"])
+def test_current_epoch(heard, epoch, current):
+    state = dataclasses.replace(mc.initial("a", [True], [0.0], 1), epoch=heard)
+    assert mc.current(state, epoch) is current
+
+
+def test_releases_follow_the_current_decisions_naming():
+    """The first naming of a current Decision counts; a deposed coordinator's is ignored; a
+    released passenger is not released again."""
+    releases = mc.Releases(3)
+    state = dataclasses.replace(mc.initial("a", [True] * 4, [0.0, 1.0, 2.0, 3.0], 3), epoch=2)
+    releases.name(state, 0, 1, 2)      # epoch 1 < 2: deposed, ignored
+    releases.name(state, 0, 2, 1)
+    releases.name(state, 0, 3, 2)      # a repeat for stage 0: the first naming stays
+    releases.name(state, 1, 2, None)   # names none
+    releases.name(state, 2, 2, 1)      # names one released already
+    assert [releases.release(j) for j in (0, 1, 2)] == [1, 0, 2]
+    assert releases.at(0) == 1 and releases.at(3) is None
+
+
+@pytest.mark.parametrize("events, present, seen, absent_since, returned", [
+    ([], False, False, 10.0, []),
+    ([("alive",)], True, True, 10.0, [False]),
+    ([("alive",), ("gone", 12.0)], False, True, 12.0, [False]),
+    ([("alive",), ("gone", 12.0), ("alive",)], True, True, 12.0, [False, True]),
+    ([("answered",)], True, True, 10.0, []),
+    ([("alive",), ("gone", 12.0), ("answered",)], False, True, 12.0, [False]),
+], ids=["start", "token", "token-gone", "came-back", "answered-at-join", "answered-after-seen"])
+def test_presence_of_the_coordinator(events, present, seen, absent_since, returned):
+    presence = mission_peers.Presence(10.0)
+    came_back = []
+    for e in events:
+        if e[0] == "alive":
+            came_back.append(presence.coordinator_alive())
+        elif e[0] == "gone":
+            presence.coordinator_gone(e[1])
+        else:
+            presence.coordinator_answered()
+    assert (presence.coordinator_present, presence.coordinator_seen, presence.absent_since) == (
+        present, seen, absent_since)
+    assert came_back == returned
+    assert presence.absent_for(20.0) == (0.0 if present else 20.0 - absent_since)
+
+
+@pytest.mark.parametrize("heard, among, since, expected", [
+    ({}, ["b"], 5.0, 5.0),                      # nothing heard: the wait's opening
+    ({"b": 3.0}, ["b"], 5.0, 5.0),              # heard before the wait opened
+    ({"b": 7.0, "c": 9.0}, ["b", "c"], 5.0, 9.0),
+    ({"b": 7.0, "c": 9.0}, ["b"], 5.0, 7.0),    # only those waited for count
+    ({"b": 7.0}, [], 5.0, 5.0),
+], ids=["none", "before", "latest", "among-only", "nobody"])
+def test_last_heard(heard, among, since, expected):
+    assert mission_peers.last_heard(heard, among, since) == expected
+    presence = mission_peers.Presence(0.0)
+    for cid, at in heard.items():
+        presence.heard_from(cid, at)
+    assert presence.last_heard(among, since) == expected
+
+
+def test_presence_of_peers():
+    presence = mission_peers.Presence(0.0)
+    presence.peer("b", True)
+    presence.peer("c", True)
+    presence.peer("b", False)
+    presence.peer("d", False)
+    assert presence.peers_live == {"c"}
 
 
 # --------------------------------------------------------------------------- purity
