@@ -35,50 +35,30 @@ import threading
 import time
 from dataclasses import dataclass
 
-import numpy as np
-
 import world
+from carriers.alone import Alone
+from carriers.exits import EXIT_CODES, Exit
+from carriers.inbound import Inbound
+from carriers.joining import Joining
+from carriers.motion import POSE_INTERVAL_S, Motion
 from carriers.onboard import ONBOARD_LOADS, Onboard
 from carriers.shared import GATE_HOLD_S, SharedWorld, StageGate
 from storage.carrierlog import CarrierLog, LogMismatch, log_path
 from mission import carrier as mc
-from mission.exits import STOPPED
-from mission.peers import PeerBook, Presence, listened
+from mission.peers import PeerBook, Presence
 from mission.timeouts import CLOCKS, DEFAULTS
 from wire import keys
-from wire.messages import (
-    REVISION, Accepted, Bye, Confirm, Decision, End, Hello, Observation, Own, Pose, Progress, ProtocolError, Refusal,
-    State, decode,
-    scenario_fingerprint,
-)
+from wire.messages import REVISION, Bye, Confirm, Hello, Observation, Own, Refusal, scenario_fingerprint
 
-#: Trail points per Observation at most (the protocol's limit).
-MAX_TRAIL = 512
 #: Longest sleep (s) of a carrier waiting for a message (a decision, End): any message, and a
 #: stop request (:meth:`Carrier.stop`, :func:`run_carriers`), wakes it at once, so this only sets
 #: how often it looks at its timers. Polls cost CPU in proportion to the wait: with hundreds of
 #: carriers per process and stages of seconds, 50 ms polls were a third of the carriers' CPU time,
 #: and 0.25 s polls most of it when stages took a minute (R = 1,024).
 IDLE_POLL_S = 2.0
-#: Sim-time chunk (s) between pacing sleeps when ``realtime > 0``, and between two looks at the
-#: wall clock (is a Progress message due?) when the physics runs as fast as it can.
-PACE_CHUNK_S = 0.5
-#: Sim-time chunk (s) of unpaced physics between two looks at the wall clock (is a Progress
-#: message due?): 100 physics steps, about a millisecond of CPU.
-PROGRESS_CHUNK_S = 5.0
-#: Default interval between two Pose messages, seconds of simulated time (docs/protocol.md, "Pose").
-POSE_INTERVAL_S = 1.0
 
 #: How a carrier gets its decisions (docs/fleet.md, "Without the coordinator").
 MODES = ("hybrid", "decentralised", "coordinated")
-#: How often a carrier deciding alone looks for the peers' observations it waits for (s).
-PEER_POLL_S = 0.02
-#: What peers publish that a carrier reads, and the message type of each.
-PEER_TOPICS = {"obs": Observation, "own": Own, "confirm": Confirm, "progress": Progress}
-
-#: Exit reasons and the process exit code each maps to.
-EXIT_CODES = {"end": 0, "finished": 0, "stopped": STOPPED, "coordinator-lost": 1, "world-mismatch": 2, "refused": 2,
-              "log-mismatch": 2, "ros2-mismatch": 2}
 
 
 @dataclass(frozen=True)
@@ -138,18 +118,14 @@ class CarrierConfig:
     ros2: object = None
 
 
-class _Exit(Exception):
-    """Leave the run loop with an exit reason (a key of :data:`EXIT_CODES`)."""
-
-    def __init__(self, reason: str):
-        super().__init__(reason)
-        self.reason = reason
-
-
-class Carrier:
+class Carrier(Motion, Inbound, Joining, Alone):
     """One carrier. ``run()`` returns its exit reason (a key of :data:`EXIT_CODES`).
 
     ``self.machine`` is the :class:`mission.carrier.CarrierState`, changed only by :meth:`apply`.
+    Its jobs live in modules of their own: the body in motion (:class:`carriers.motion.Motion`),
+    what it receives (:class:`carriers.inbound.Inbound`), its join paths and State queries
+    (:class:`carriers.joining.Joining`), deciding a stage on board (:class:`carriers.alone.Alone`);
+    this class keeps the stage loop and the effects of ``mission.carrier``.
     """
 
     def __init__(self, scenario, config: CarrierConfig, zconf, stop: threading.Event | None = None,
@@ -221,9 +197,6 @@ class Carrier:
     def ended(self) -> bool:
         return self.machine.ended
 
-    def _position(self) -> tuple[float, float]:
-        return tuple(map(float, self.sim.position(self.cid)))
-
     # ------------------------------------------------------------------ the one way state changes
     def apply(self, event) -> None:
         """Step the carrier machine, then carry out its effects in order."""
@@ -267,272 +240,17 @@ class Carrier:
             self.mission, self.cid, os.getpid(), socket.gethostname()[:255], self.machine.passengers_left,
             next_stage, self.fingerprint, max(1, self.machine.epoch), REVISION))
 
-    # ------------------------------------------------------------------ inbound
-    def _listen(self, wait: bool = False) -> None:
-        """Subscribe to the carriers this one listens to (:func:`mission.peers.listened`: its
-        conflict component, or its neighbours in a large one) once the on-board planner's
-        instance is built (``wait``: build it now)."""
-        if self.listening is not None or self.config.mode == "coordinated" or not (wait or self.onboard.ready()):
-            return
-        problem, _ = self.onboard.get()
-        ids = self.scenario.carrier_ids
-        self.listening = tuple(ids[b] for b in listened(problem, self.r))
-        for cid in self.listening:
-            for topic in PEER_TOPICS:  # read when the carrier next looks: no wake-up per message
-                self.node.subscribe(keys.carrier_key(self.mission, cid, topic), wake=False)
-            self.node.watch_liveliness(keys.carrier_alive(self.mission, cid))
-
-    def _pump(self, timeout_s: float) -> None:
-        """Handle what arrived: the inbox (waiting up to ``timeout_s`` for its first item), then
-        the peers' messages waiting in their channels."""
-        if self.listening is None:
-            self._listen()
-        item = self.node.next(timeout_s)
-        while item is not None:
-            self._handle_safely(item)
-            item = self.node.next(0.0)
-        for item in self.node.drain():
-            self._handle_safely(item)
-
-    def _handle_safely(self, item) -> None:
-        try:
-            self._handle(item)
-        except ProtocolError as exc:
-            self.node.reject(exc.reason, exc.detail, self.log)
-
-    def _handle(self, item) -> None:
-        if item.kind == "wake":
-            return
-        if item.kind in ("alive", "gone"):
-            parsed = keys.parse_carrier_key(self.mission, item.key)
-            if parsed is not None and parsed[1] == "alive" and parsed[0] in self.book.index:
-                self.presence.peer(parsed[0], item.kind == "alive")
-                return
-            if item.key != keys.coordinator_alive(self.mission):
-                raise ProtocolError("bad-key", f"liveliness token on {item.key[:80]}")
-            if item.kind == "alive":
-                if self.presence.coordinator_alive():  # it came back
-                    self.apply(mc.Resync(self._state_seen(self._query_once()), self._position()))
-            else:
-                self.presence.coordinator_gone(time.monotonic())
-                if self.config.mode == "hybrid":
-                    self.onboard.prepare()  # it may have to decide alone soon
-                self.log("coordinator's liveliness token vanished; "
-                         + ("holding" if self.config.mode == "coordinated" else "deciding on board"))
-            return
-        parsed = keys.parse_carrier_key(self.mission, item.key)
-        if parsed is not None and parsed[1] in PEER_TOPICS:
-            self._peer(parsed[0], parsed[1], item.payload)
-            return
-        if item.key == keys.end_key(self.mission):
-            msg = decode(item.payload, End)
-            if msg.mission != self.mission:
-                raise ProtocolError("wrong-mission", f"mission {msg.mission!r}")
-            self.apply(mc.EndHeard())
-            return
-        if item.key in (keys.refusal_key(self.mission, self.cid), keys.accepted_key(self.mission, self.cid)):
-            msg = decode(item.payload, (Refusal, Accepted))
-            if msg.mission != self.mission or msg.carrier != self.cid:
-                raise ProtocolError("wrong-mission", f"answer for {msg.mission!r}/{msg.carrier!r}")
-            # Only the answer to our latest Hello counts (docs/protocol.md, "Refusal"); one naming
-            # another fingerprint, or coming after our Hello was accepted, is about someone else's.
-            if msg.fingerprint == self.fingerprint and self._unanswered:
-                self._unanswered = False
-                self._refused = msg if isinstance(msg, Refusal) else None
-            return
-        if item.key != keys.decision_key(self.mission):
-            raise ProtocolError("bad-key", f"message on {item.key[:80]}")
-        msg = decode(item.payload, Decision)
-        if msg.mission != self.mission:
-            raise ProtocolError("wrong-mission", f"mission {msg.mission!r}")
-        if msg.stage < self.n_stages and mc.current(self.machine, msg.epoch):  # not a deposed coordinator's
-            self.book.decision(msg.stage, msg.deploy)
-        self.releases.name(self.machine, msg.stage, msg.epoch, msg.passenger_of(self.cid))
-        self.apply(mc.DecisionHeard(msg.stage, msg.t, msg.deploy, self._position(), msg.epoch))
-
-    def _peer(self, cid: str, topic: str, payload: bytes) -> None:
-        """Another carrier's Observation, Own or Confirm: what it saw and did, for the book."""
-        if cid == self.cid:
-            return  # our own puts, delivered to our own subscription
-        if cid not in self.book.index:
-            raise ProtocolError("unknown-carrier", f"message from carrier {cid!r}")
-        msg = decode(payload, PEER_TOPICS[topic])
-        if msg.mission != self.mission:
-            raise ProtocolError("wrong-mission", f"mission {msg.mission!r}")
-        if msg.carrier != cid:
-            raise ProtocolError("key-mismatch", f"carrier {msg.carrier!r} on the key of {cid!r}")
-        self.presence.heard_from(cid, time.monotonic())
-        if topic == "progress":
-            return
-        if msg.stage >= self.n_stages:
-            raise ProtocolError("out-of-range", f"stage {msg.stage} >= {self.n_stages}")
-        if topic in ("obs", "own"):
-            self.book.observation(cid, msg.stage, msg.x)
-        if topic in ("own", "confirm"):
-            self.book.outcome(cid, msg.stage, msg.deployed)
-
-    def _query_once(self) -> State | None:
-        """The State reply of the highest epoch (two coordinators may answer across a split)."""
-        best = None
-        selector = keys.state_selector(self.mission, self.cid, REVISION)
-        for payload in self.node.query(selector, timeout_s=DEFAULTS.state_query_s):
-            try:
-                state = decode(payload, State)
-            except ProtocolError as exc:
-                self.node.reject(exc.reason, exc.detail, self.log)
-                continue
-            if state.mission == self.mission and (best is None or state.epoch > best.epoch):
-                best = state
-        if best is not None:  # speak the coordinator's revision from now on (docs/protocol.md, "Compatibility")
-            self.node.revision = min(REVISION, best.revision)
-        return best
-
-    def _query_state(self) -> State | None:
-        """Ask the coordinator for the mission state, retrying until coordinator_timeout_s."""
-        deadline = time.monotonic() + self.config.coordinator_timeout_s
-        while not self._stop.is_set() and time.monotonic() < deadline:
-            state = self._query_once()
-            if state is not None:
-                return state
-            self._pump(0.2)
-        return None
-
-    def _state_seen(self, state: State | None) -> mc.StateSeen | None:
-        if state is None:
-            return None
-        mine = state.carrier(self.cid)
-        last = state.last_decision
-        return mc.StateSeen(state.next_stage, tuple(mine.deployments) if mine else (),
-                            None if last is None else (last.stage, last.t, tuple(last.deploy)), state.ended,
-                            state.epoch)
-
-    # ------------------------------------------------------------------ physics
-    def _advance(self, t: float, paced: bool = True) -> None:
-        """Physics to mission time ``t`` (s) at fixed steps, paced when realtime > 0 (and
-        ``paced``); on the sim clock a Progress message at least every ``progress_s`` of wall
-        time on the way."""
-        if self.config.realtime <= 0 or not paced:
-            while True:  # at least once: a body may have to look at the time (a robot's odometry)
-                self.sim.advance_to(min(t, self.sim.time + PROGRESS_CHUNK_S))
-                self._progress()
-                if self.sim.time >= t - 1e-9 or self._stop.is_set():
-                    return
-        wall0, t0 = time.monotonic(), self.sim.time
-        while self.sim.time < t - 1e-9 and not self._stop.is_set():
-            target = min(t, self.sim.time + PACE_CHUNK_S)
-            self.sim.advance_to(target)
-            self._publish_poses()
-            self._progress()
-            due = wall0 + (self.sim.time - t0) / self.config.realtime
-            while time.monotonic() < due and not self._stop.is_set():
-                self._pump(min(0.05, due - time.monotonic()))
-                self._check_refused()
-
-    def _progress(self) -> None:
-        """Sim clock: tell the coordinator and the peers that this carrier is working (a
-        Progress message) when ``progress_s`` passed since it last published one."""
-        now = time.monotonic()
-        if self.config.clock != "sim" or now - self._progress_at < DEFAULTS.progress_s:
-            return
-        self._progress_at = now
-        if self.node.revision < Progress.SINCE:
-            return  # a coordinator of an earlier revision has no Progress (it would reject it)
-        self.node.put(keys.carrier_key(self.mission, self.cid, "progress"),
-                      Progress(self.mission, self.cid, self.machine.stage, float(self.sim.time)))
-
-    def _trail(self) -> tuple:
-        samples = self.sim.trajectory(self.cid)
-        new = samples[self._trail_from:, 1:3]
-        self._trail_from = len(samples)
-        if len(new) > MAX_TRAIL:
-            new = new[np.linspace(0, len(new) - 1, MAX_TRAIL).astype(int)]
-        return tuple((float(a), float(b)) for a, b in new)
-
-    def _publish_poses(self) -> None:
-        """A Pose for every pose tick the physics passed since the last call: the trajectory
-        samples (one per second of simulated time) whose time is a multiple of the interval."""
-        every = self.config.pose_interval_s
-        if every <= 0 or self.node is None:
-            return
-        samples = self.sim.trajectory(self.cid)
-        step = max(1, int(round(every)))
-        for k in range(self._pose_from, len(samples)):
-            if k > 0:
-                dx, dy = samples[k, 1] - samples[k - 1, 1], samples[k, 2] - samples[k - 1, 2]
-                if dx * dx + dy * dy > 1e-12:
-                    self._heading = float(np.arctan2(dy, dx))
-            if k % step == 0:
-                self.node.put(keys.carrier_key(self.mission, self.cid, "pose"), Pose(
-                    self.mission, self.cid, float(samples[k, 0]), (float(samples[k, 1]), float(samples[k, 2])),
-                    self._heading, self.machine.passengers_left))
-                if self.ros2 is not None:
-                    self.ros2.pose(float(samples[k, 0]), float(samples[k, 1]), float(samples[k, 2]), self._heading)
-        self._pose_from = len(samples)
-
+    # ------------------------------------------------------------------ the Hello's answer
     def _check_refused(self) -> None:
         if self._refused is not None:
             if self._refused.reason != "world-mismatch":
                 self.log(f"the coordinator refused our Hello ({self._refused.reason}: {self._refused.detail})")
-                raise _Exit("refused")
+                raise Exit("refused")
             self.log(f"the coordinator refused our Hello ({self._refused.reason}: fingerprint {self.fingerprint}, "
                      f"the coordinator's {self._refused.expected}): use the same scenario file and --seed")
-            raise _Exit("world-mismatch")
+            raise Exit("world-mismatch")
 
     # ------------------------------------------------------------------ the stages
-    def _join(self) -> None:
-        if self.config.mode == "decentralised":
-            self._join_alone()
-            return
-        state = self._query_state()
-        if state is None and self.config.mode == "hybrid" and not self._stop.is_set():
-            self.log(f"no coordinator answered within {self.config.coordinator_timeout_s:.0f} s; going on without it")
-            # A coordinator that appears later (one slow to start) is one to resynchronise with:
-            # its token's arrival makes this carrier say Hello and hand over what it decided.
-            self.coordinator_seen = True
-            self._join_alone()
-            return
-        if state is None:
-            raise _Exit("stopped" if self._stop.is_set() else "coordinator-lost")
-        self.presence.coordinator_answered()  # present, even if its token is not pumped yet
-        if state.fingerprint != self.fingerprint:
-            self.log(f"the coordinator runs another world (fingerprint {state.fingerprint}, ours "
-                     f"{self.fingerprint}): use the same scenario file and --seed")
-            raise _Exit("world-mismatch")
-        if not state.ended:
-            mine = state.carrier(self.cid)
-            for j in mc.replay_plan(self.machine, state.next_stage, mine.deployments if mine else ()):
-                self._advance(self.scenario.stage_time(j), paced=False)
-                self.apply(mc.Replayed(j, self._position()))
-                self.sim.deploy(self.cid)
-                self.book.outcome(self.cid, j, True)
-        self.apply(mc.Joined(state.next_stage, state.ended, state.epoch))
-        self._hello(self.machine.hello_stage())
-
-    def _join_alone(self) -> None:
-        """Join with no coordinator: go on from the carrier's own log (the deployments on record
-        are replayed in its world), after waiting (at most ``join_timeout_s``) for every other
-        carrier's token, so that nobody starts the mission alone."""
-        entries = [e for e in self.store.entries() if e.status is not None] if self.store is not None else []
-        for e in entries:
-            if e.observed:
-                self.book.observation(self.cid, e.stage, e.x)
-            if e.deployed and self.machine.passengers_left > 0:
-                self._advance(self.scenario.stage_time(e.stage), paced=False)
-                self.apply(mc.Replayed(e.stage, self._position()))
-                self.sim.deploy(self.cid)
-            self.book.outcome(self.cid, e.stage, e.deployed)
-        next_stage = max((e.stage + 1 for e in entries), default=0)
-        self._listen(wait=True)
-        others = set(self.listening)
-        deadline = time.monotonic() + self.config.join_timeout_s
-        while not self._stop.is_set() and not others <= self.presence.peers_live and time.monotonic() < deadline:
-            self._pump(min(0.2, max(0.0, deadline - time.monotonic())))
-        missing = sorted(others - self.presence.peers_live)
-        if missing and next_stage == 0:
-            self.log(f"starting without carrier(s) {', '.join(missing)} (no token after "
-                     f"{self.config.join_timeout_s:.0f} s)")
-        self.apply(mc.Joined(next_stage))
-
     def _wait_decision(self, j: int) -> None:
         """Until stage j is resolved (answered, or the coordinator moved on), End, or a stop
         request; deciding alone (hybrid without the coordinator, decentralised) it does not wait.
@@ -560,18 +278,9 @@ class Carrier:
                 return
             elif self.presence.absent_for(now) >= self.config.coordinator_timeout_s:
                 self.log(f"coordinator absent for {self.config.coordinator_timeout_s:.0f} s; exiting")
-                raise _Exit("coordinator-lost")
+                raise Exit("coordinator-lost")
             last = now
             self._pump(IDLE_POLL_S)
-
-    def _recover_decision(self, j: int) -> None:
-        """Sim clock, a long wait for the Decision of j: if the coordinator's State says it has
-        decided j already, the Decision was lost on the way: resynchronise (it is taken from
-        State). Otherwise the coordinator is still at work: go on waiting."""
-        state = self._query_once()
-        if state is not None and state.next_stage > j and mc.current(self.machine, state.epoch):
-            self.log(f"stage {j} was decided but its Decision did not arrive; taking it from State")
-            self.apply(mc.Resync(self._state_seen(state), self._position()))
 
     def _fly(self) -> None:
         at_once = True  # the first stage after joining is reached at once, not paced
@@ -613,39 +322,6 @@ class Carrier:
             self.pending = None
             j += 1
 
-    def _decide_alone(self, j: int) -> None:
-        """Decide stage j on board: wait for the other live carriers' observations of j — a
-        decision arriving meanwhile still wins — then run the on-board planner on what the
-        carrier heard. Wall clock: at most ``peer_timeout_s``. Sim clock: while some peer it
-        waits for is heard from (its Progress while it simulates): until nothing came from any
-        of them for ``silence_timeout_s``."""
-        from planner.decentralised import LocalDecision
-        from planner.problem import stage_rng
-
-        self._listen(wait=True)
-        if not self._alone:
-            self._alone = True
-            self.log(f"deciding on board from stage {j} (dec-closed-loop, {len(self.presence.peers_live - {self.cid})} "
-                     f"other carrier(s) reachable)")
-        opened = time.monotonic()
-        deadline = opened + self.config.peer_timeout_s
-        while not self._stop.is_set() and not self.machine.resolved(j) and not self.machine.ended:
-            waiting = self.book.waiting(j, self.presence.peers_live - {self.cid})
-            now = time.monotonic()
-            if self.config.clock == "sim":
-                deadline = self.presence.last_heard(waiting, opened) + self.config.silence_timeout_s
-            left = deadline - now
-            if left <= 0 or not waiting:
-                break
-            self._pump(min(left, PEER_POLL_S))  # peers' messages do not wake the carrier
-        if self._stop.is_set() or self.machine.resolved(j) or self.machine.ended:
-            return
-        problem, planner = self.onboard.get()
-        local = self.book.local_view(problem, self.cid, j, self.scenario.seed)
-        out = planner.decide_local(local, stage_rng(self.scenario.seed, j))
-        deploy = out.deploy if isinstance(out, LocalDecision) else bool(out)
-        self.apply(mc.DecidedOwn(j, bool(deploy), self._position()))
-
     def run(self) -> str:
         from wire.transport import Node
         from wire.zconfig import OpenStopped
@@ -667,7 +343,7 @@ class Carrier:
                         "fingerprint": self.fingerprint, "seed": int(self.scenario.seed)}, sync=self.config.log_sync)
                 except LogMismatch as exc:
                     self.log(str(exc))
-                    raise _Exit("log-mismatch")
+                    raise Exit("log-mismatch")
             self.node.subscribe(keys.decision_key(self.mission))
             self.node.subscribe(keys.end_key(self.mission))
             self.node.subscribe(keys.refusal_key(self.mission, self.cid))
@@ -687,7 +363,7 @@ class Carrier:
                 self._check_refused()
                 self._pump(IDLE_POLL_S)
             reason = "stopped" if self._stop.is_set() else ("end" if self.machine.ended else "finished")
-        except _Exit as exc:
+        except Exit as exc:
             reason = exc.reason
         except Exception as exc:  # a body that names its exit reason (a robot of another ROS 2 format)
             reason = getattr(exc, "exit_reason", None)

@@ -1,0 +1,50 @@
+"""A carrier deciding a stage on board (no Decision in time, or no coordinator): the wait for
+its peers' observations of the stage, then the on-board planner on what it heard.
+
+:class:`Alone` is a part of :class:`carriers.node.Carrier`.
+"""
+from __future__ import annotations
+
+import time
+
+from mission import carrier as mc
+
+#: How often a carrier deciding alone looks for the peers' observations it waits for (s).
+PEER_POLL_S = 0.02
+
+
+class Alone:
+    """The carrier's on-board decision of a stage."""
+
+    def _decide_alone(self, j: int) -> None:
+        """Decide stage j on board: wait for the other live carriers' observations of j — a
+        decision arriving meanwhile still wins — then run the on-board planner on what the
+        carrier heard. Wall clock: at most ``peer_timeout_s``. Sim clock: while some peer it
+        waits for is heard from (its Progress while it simulates): until nothing came from any
+        of them for ``silence_timeout_s``."""
+        from planner.decentralised import LocalDecision
+        from planner.problem import stage_rng
+
+        self._listen(wait=True)
+        if not self._alone:
+            self._alone = True
+            self.log(f"deciding on board from stage {j} (dec-closed-loop, {len(self.presence.peers_live - {self.cid})} "
+                     f"other carrier(s) reachable)")
+        opened = time.monotonic()
+        deadline = opened + self.config.peer_timeout_s
+        while not self._stop.is_set() and not self.machine.resolved(j) and not self.machine.ended:
+            waiting = self.book.waiting(j, self.presence.peers_live - {self.cid})
+            now = time.monotonic()
+            if self.config.clock == "sim":
+                deadline = self.presence.last_heard(waiting, opened) + self.config.silence_timeout_s
+            left = deadline - now
+            if left <= 0 or not waiting:
+                break
+            self._pump(min(left, PEER_POLL_S))  # peers' messages do not wake the carrier
+        if self._stop.is_set() or self.machine.resolved(j) or self.machine.ended:
+            return
+        problem, planner = self.onboard.get()
+        local = self.book.local_view(problem, self.cid, j, self.scenario.seed)
+        out = planner.decide_local(local, stage_rng(self.scenario.seed, j))
+        deploy = out.deploy if isinstance(out, LocalDecision) else bool(out)
+        self.apply(mc.DecidedOwn(j, bool(deploy), self._position()))

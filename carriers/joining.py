@@ -1,0 +1,120 @@
+"""How a carrier joins a mission and catches up: from the coordinator's State (or, with no
+coordinator answering, from its own durable log), replaying the deployments on record in its
+world (one replay for both paths), and later resynchronising from State when a Decision was lost.
+
+:class:`Joining` is a part of :class:`carriers.node.Carrier`.
+"""
+from __future__ import annotations
+
+import time
+
+from carriers.exits import Exit
+from mission import carrier as mc
+from mission.timeouts import DEFAULTS
+from wire import keys
+from wire.messages import REVISION, ProtocolError, State, decode
+
+
+class Joining:
+    """The carrier's join paths and its State queries."""
+
+    def _join(self) -> None:
+        if self.config.mode == "decentralised":
+            self._join_alone()
+            return
+        state = self._query_state()
+        if state is None and self.config.mode == "hybrid" and not self._stop.is_set():
+            self.log(f"no coordinator answered within {self.config.coordinator_timeout_s:.0f} s; going on without it")
+            # A coordinator that appears later (one slow to start) is one to resynchronise with:
+            # its token's arrival makes this carrier say Hello and hand over what it decided.
+            self.presence.coordinator_seen = True
+            self._join_alone()
+            return
+        if state is None:
+            raise Exit("stopped" if self._stop.is_set() else "coordinator-lost")
+        self.presence.coordinator_answered()  # present, even if its token is not pumped yet
+        if state.fingerprint != self.fingerprint:
+            self.log(f"the coordinator runs another world (fingerprint {state.fingerprint}, ours "
+                     f"{self.fingerprint}): use the same scenario file and --seed")
+            raise Exit("world-mismatch")
+        if not state.ended:
+            mine = state.carrier(self.cid)
+            self._replay(mc.replay_plan(self.machine, state.next_stage, mine.deployments if mine else ()))
+        self.apply(mc.Joined(state.next_stage, state.ended, state.epoch))
+        self._hello(self.machine.hello_stage())
+
+    def _replay(self, stages) -> None:
+        """The deployments on record at ``stages`` (ascending, at most the passengers on board:
+        :func:`mission.carrier.replay_plan`) replayed in the carrier's world: the body driven to
+        each stage time unpaced and a passenger released there."""
+        for j in stages:
+            self._advance(self.scenario.stage_time(j), paced=False)
+            self.apply(mc.Replayed(j, self._position()))
+            self.sim.deploy(self.cid)
+            self.book.outcome(self.cid, j, True)
+
+    def _join_alone(self) -> None:
+        """Join with no coordinator: go on from the carrier's own log (the deployments on record
+        are replayed in its world), after waiting (at most ``join_timeout_s``) for every other
+        carrier's token, so that nobody starts the mission alone."""
+        entries = [e for e in self.store.entries() if e.status is not None] if self.store is not None else []
+        for e in entries:
+            if e.observed:
+                self.book.observation(self.cid, e.stage, e.x)
+            self.book.outcome(self.cid, e.stage, e.deployed)
+        next_stage = max((e.stage + 1 for e in entries), default=0)
+        self._replay(mc.replay_plan(self.machine, next_stage, [e.stage for e in entries if e.deployed]))
+        self._listen(wait=True)
+        others = set(self.listening)
+        deadline = time.monotonic() + self.config.join_timeout_s
+        while not self._stop.is_set() and not others <= self.presence.peers_live and time.monotonic() < deadline:
+            self._pump(min(0.2, max(0.0, deadline - time.monotonic())))
+        missing = sorted(others - self.presence.peers_live)
+        if missing and next_stage == 0:
+            self.log(f"starting without carrier(s) {', '.join(missing)} (no token after "
+                     f"{self.config.join_timeout_s:.0f} s)")
+        self.apply(mc.Joined(next_stage))
+
+    def _recover_decision(self, j: int) -> None:
+        """Sim clock, a long wait for the Decision of j: if the coordinator's State says it has
+        decided j already, the Decision was lost on the way: resynchronise (it is taken from
+        State). Otherwise the coordinator is still at work: go on waiting."""
+        state = self._query_once()
+        if state is not None and state.next_stage > j and mc.current(self.machine, state.epoch):
+            self.log(f"stage {j} was decided but its Decision did not arrive; taking it from State")
+            self.apply(mc.Resync(self._state_seen(state), self._position()))
+
+    def _query_once(self) -> State | None:
+        """The State reply of the highest epoch (two coordinators may answer across a split)."""
+        best = None
+        selector = keys.state_selector(self.mission, self.cid, REVISION)
+        for payload in self.node.query(selector, timeout_s=DEFAULTS.state_query_s):
+            try:
+                state = decode(payload, State)
+            except ProtocolError as exc:
+                self.node.reject(exc.reason, exc.detail, self.log)
+                continue
+            if state.mission == self.mission and (best is None or state.epoch > best.epoch):
+                best = state
+        if best is not None:  # speak the coordinator's revision from now on (docs/protocol.md, "Compatibility")
+            self.node.revision = min(REVISION, best.revision)
+        return best
+
+    def _query_state(self) -> State | None:
+        """Ask the coordinator for the mission state, retrying until coordinator_timeout_s."""
+        deadline = time.monotonic() + self.config.coordinator_timeout_s
+        while not self._stop.is_set() and time.monotonic() < deadline:
+            state = self._query_once()
+            if state is not None:
+                return state
+            self._pump(0.2)
+        return None
+
+    def _state_seen(self, state: State | None) -> mc.StateSeen | None:
+        if state is None:
+            return None
+        mine = state.carrier(self.cid)
+        last = state.last_decision
+        return mc.StateSeen(state.next_stage, tuple(mine.deployments) if mine else (),
+                            None if last is None else (last.stage, last.t, tuple(last.deploy)), state.ended,
+                            state.epoch)

@@ -1,0 +1,95 @@
+"""A carrier's body in motion: physics to a stage time at fixed steps (paced or not), and
+what the motion publishes: Poses, Progress (sim clock), the trail of an Observation.
+
+:class:`Motion` is a part of :class:`carriers.node.Carrier` (it uses the carrier's ``sim``,
+``node``, ``config`` and its inbox pump while it paces).
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from mission.timeouts import DEFAULTS
+from wire import keys
+from wire.messages import Pose, Progress
+
+#: Trail points per Observation at most (the protocol's limit).
+MAX_TRAIL = 512
+#: Sim-time chunk (s) between pacing sleeps when ``realtime > 0``, and between two looks at the
+#: wall clock (is a Progress message due?) when the physics runs as fast as it can.
+PACE_CHUNK_S = 0.5
+#: Sim-time chunk (s) of unpaced physics between two looks at the wall clock (is a Progress
+#: message due?): 100 physics steps, about a millisecond of CPU.
+PROGRESS_CHUNK_S = 5.0
+#: Default interval between two Pose messages, seconds of simulated time (docs/protocol.md, "Pose").
+POSE_INTERVAL_S = 1.0
+
+
+class Motion:
+    """The carrier's physics and what its motion publishes."""
+
+    def _position(self) -> tuple[float, float]:
+        return tuple(map(float, self.sim.position(self.cid)))
+
+    def _advance(self, t: float, paced: bool = True) -> None:
+        """Physics to mission time ``t`` (s) at fixed steps, paced when realtime > 0 (and
+        ``paced``); on the sim clock a Progress message at least every ``progress_s`` of wall
+        time on the way."""
+        if self.config.realtime <= 0 or not paced:
+            while True:  # at least once: a body may have to look at the time (a robot's odometry)
+                self.sim.advance_to(min(t, self.sim.time + PROGRESS_CHUNK_S))
+                self._progress()
+                if self.sim.time >= t - 1e-9 or self._stop.is_set():
+                    return
+        wall0, t0 = time.monotonic(), self.sim.time
+        while self.sim.time < t - 1e-9 and not self._stop.is_set():
+            target = min(t, self.sim.time + PACE_CHUNK_S)
+            self.sim.advance_to(target)
+            self._publish_poses()
+            self._progress()
+            due = wall0 + (self.sim.time - t0) / self.config.realtime
+            while time.monotonic() < due and not self._stop.is_set():
+                self._pump(min(0.05, due - time.monotonic()))
+                self._check_refused()
+
+    def _progress(self) -> None:
+        """Sim clock: tell the coordinator and the peers that this carrier is working (a
+        Progress message) when ``progress_s`` passed since it last published one."""
+        now = time.monotonic()
+        if self.config.clock != "sim" or now - self._progress_at < DEFAULTS.progress_s:
+            return
+        self._progress_at = now
+        if self.node.revision < Progress.SINCE:
+            return  # a coordinator of an earlier revision has no Progress (it would reject it)
+        self.node.put(keys.carrier_key(self.mission, self.cid, "progress"),
+                      Progress(self.mission, self.cid, self.machine.stage, float(self.sim.time)))
+
+    def _trail(self) -> tuple:
+        samples = self.sim.trajectory(self.cid)
+        new = samples[self._trail_from:, 1:3]
+        self._trail_from = len(samples)
+        if len(new) > MAX_TRAIL:
+            new = new[np.linspace(0, len(new) - 1, MAX_TRAIL).astype(int)]
+        return tuple((float(a), float(b)) for a, b in new)
+
+    def _publish_poses(self) -> None:
+        """A Pose for every pose tick the physics passed since the last call: the trajectory
+        samples (one per second of simulated time) whose time is a multiple of the interval."""
+        every = self.config.pose_interval_s
+        if every <= 0 or self.node is None:
+            return
+        samples = self.sim.trajectory(self.cid)
+        step = max(1, int(round(every)))
+        for k in range(self._pose_from, len(samples)):
+            if k > 0:
+                dx, dy = samples[k, 1] - samples[k - 1, 1], samples[k, 2] - samples[k - 1, 2]
+                if dx * dx + dy * dy > 1e-12:
+                    self._heading = float(np.arctan2(dy, dx))
+            if k % step == 0:
+                self.node.put(keys.carrier_key(self.mission, self.cid, "pose"), Pose(
+                    self.mission, self.cid, float(samples[k, 0]), (float(samples[k, 1]), float(samples[k, 2])),
+                    self._heading, self.machine.passengers_left))
+                if self.ros2 is not None:
+                    self.ros2.pose(float(samples[k, 0]), float(samples[k, 1]), float(samples[k, 2]), self._heading)
+        self._pose_from = len(samples)
