@@ -7,14 +7,17 @@ handled at most once, late / idle / already, resynchronisation) live in mission/
 module drives the physics, keeps the clocks (pacing, decision and coordinator timeouts) and
 moves bytes. Per stage j (docs/protocol.md, "Stage handshake"):
 
-1. advance the physics at fixed steps to t_j (paced at ``realtime`` × wall time when > 0);
+1. advance the physics at fixed steps to t_j (paced at ``realtime`` × wall time when > 0),
+   sending Progress at least every ``progress_s`` of wall time on the sim clock;
 2. publish the Observation of j (x = features sensed, or None when not scheduled at j);
-3. wait for the Decision of j while the coordinator's liveliness token is present, at most
-   ``decision_timeout_s``;
+3. wait for the Decision of j while the coordinator's liveliness token is present: on the
+   ``sim`` clock as long as it takes (asking State every ``decision_timeout_s`` for a Decision
+   lost on the way), on the ``wall`` clock at most ``decision_timeout_s``;
 4. deploy if selected (the passenger appears in the world) and publish a Confirm; or, when no
    decision came in time or the coordinator is gone (mode ``hybrid``, the default), or always
-   (mode ``decentralised``: no coordinator at all), decide the stage itself: wait (at most
-   ``peer_timeout_s``) for the Observations of j of the other live carriers, run the on-board
+   (mode ``decentralised``: no coordinator at all), decide the stage itself: wait (sim clock:
+   while they send Progress; wall clock: at most ``peer_timeout_s``) for the Observations of j
+   of the other live carriers, run the on-board
    planner (``dec-closed-loop``) on what it heard (:class:`mission.peers.PeerBook`), deploy or
    not and publish an Own message. Mode ``coordinated`` never decides alone: it holds while the
    coordinator is absent and exits after ``coordinator_timeout_s``.
