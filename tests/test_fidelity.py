@@ -12,7 +12,6 @@ the sim clock was developed on (long-streets seed 1, 32 carriers).
 """
 from __future__ import annotations
 
-import contextlib
 import json
 import os
 import subprocess
@@ -23,7 +22,7 @@ import pytest
 import yaml
 
 import world
-from tools.scale import grid_scenario, long_streets_scenario
+from tools.scale import BusyHost, grid_scenario, long_streets_scenario
 
 from fleet_helpers import ROOT, deployed_matrix, offline
 
@@ -31,17 +30,9 @@ RUN_FLEET = str(ROOT / "run_fleet.py")
 SIX = ROOT / "scenarios" / "six_carriers.yaml"
 
 
-@contextlib.contextmanager
 def saturated_host(per_core: int = 2):
     """``per_core`` busy processes per core (pure CPU, normal priority) while the block runs."""
-    busy = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(per_core * (os.cpu_count() or 1))]
-    try:
-        yield len(busy)
-    finally:
-        for proc in busy:
-            proc.kill()
-        for proc in busy:
-            proc.wait()
+    return BusyHost(per_core * (os.cpu_count() or 1))
 
 
 def _fly(scenario_path, out, *flags, timeout_s=1500):
@@ -73,7 +64,7 @@ def test_six_carriers_on_a_saturated_host(tmp_path):
     with saturated_host() as busy:
         summary, _ = _fly(SIX, tmp_path / "run")
     _assert_offline_decisions(summary, world.load_scenario(SIX))
-    assert busy >= 2 * (os.cpu_count() or 1)
+    assert len(busy.procs) >= 2 * (os.cpu_count() or 1)
 
 
 @pytest.mark.slow
