@@ -16,8 +16,7 @@ from wire.messages import Pose, Progress
 
 #: Trail points per Observation at most (the protocol's limit).
 MAX_TRAIL = 512
-#: Sim-time chunk (s) between pacing sleeps when ``realtime > 0``, and between two looks at the
-#: wall clock (is a Progress message due?) when the physics runs as fast as it can.
+#: Sim-time chunk (s) between pacing sleeps when ``realtime > 0``.
 PACE_CHUNK_S = 0.5
 #: Sim-time chunk (s) of unpaced physics between two looks at the wall clock (is a Progress
 #: message due?): 100 physics steps, about a millisecond of CPU.
