@@ -416,7 +416,8 @@ def _carrier_child() -> None:
 
 
 def run_coordinator(args, scenario, stop: threading.Event) -> int:
-    from coordinator.node import Coordinator, CoordinatorConfig, DuplicateCoordinator
+    from coordinator.epochs import DuplicateCoordinator
+    from coordinator.node import Coordinator, CoordinatorConfig
     from storage.missiondb import StoreBusy, StoreMismatch
     from mission.timeouts import DEFAULTS
 
@@ -604,7 +605,7 @@ def taken(args, scenario, connect) -> str | None:
     would refuse with (a live coordinator, live carriers of our ids), or None. One liveliness
     query over a short-lived session, before the launcher starts anything."""
     from carriers.process import DuplicateCarriers, live_duplicates
-    from coordinator.node import DuplicateCoordinator
+    from coordinator.epochs import DuplicateCoordinator
     from mission.timeouts import DEFAULTS
     from wire import keys
     from wire.transport import Node

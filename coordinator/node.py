@@ -31,8 +31,6 @@ in half.
 """
 from __future__ import annotations
 
-import os
-import socket
 import threading
 import time
 from collections import Counter
@@ -44,34 +42,21 @@ import numpy as np
 import world
 from planner.registry import make_planner, planner_settings, used_options
 from planner.online import stage_step
-from coordinator.results import render_map, write_json as _write_json
-from storage.missiondb import MissionStore, StoreBusy
+from coordinator.clock import StageClock
+from coordinator.epochs import Epochs
+from coordinator.inbound import Inbound
+from coordinator.recorder import RecorderHooks
+from coordinator.results import CoordinatorResults
+from storage.missiondb import MissionStore
 from mission import events as ev
 from mission import state as ms
-from mission.peers import last_heard
-from mission.summary import RunInfo, summary as mission_summary
 from mission.timeouts import CLOCKS, DEFAULTS
 from wire import keys
 from wire.messages import (
-    MAX_STATE_CARRIERS, REVISION, UNANNOUNCED_REVISION, Accepted, Bye, CarrierState, Confirm, Decision, End, Hello,
-    Observation, Own, Pose, Progress, ProtocolError, State, announced, decode, defined_in, encode, refusal, scenario_fingerprint,
+    MAX_STATE_CARRIERS, REVISION, UNANNOUNCED_REVISION, Accepted, CarrierState, Decision, State, defined_in, encode,
+    refusal, scenario_fingerprint,
 )
 from wire.transport import Node
-
-class DuplicateCoordinator(RuntimeError):
-    """Another coordinator's liveliness token for this mission is live (and this one is no
-    standby): refuse to start, before mission.db is touched."""
-
-    def __init__(self, mission: str):
-        super().__init__(f"mission {mission} already has a live coordinator; use --standby to wait for it, "
-                         f"or another --mission")
-        self.mission = mission
-
-
-#: Which message type each carrier topic carries.
-TOPIC_TYPES = {"hello": Hello, "obs": Observation, "confirm": Confirm, "own": Own, "bye": Bye,
-               "progress": Progress}
-
 
 @dataclass(frozen=True)
 class CoordinatorConfig:
@@ -101,7 +86,7 @@ class CoordinatorConfig:
         ros2: publish the mission as ROS 2 topics (``ros2.publisher.Ros2Settings``; None: off,
             nothing of ros2/ is imported).
         standby: when another coordinator of this mission is live, wait until its liveliness
-            token vanishes and take over (else refuse to start: :class:`DuplicateCoordinator`).
+            token vanishes and take over (else refuse to start: :class:`coordinator.epochs.DuplicateCoordinator`).
     """
 
     out_dir: str
@@ -126,26 +111,15 @@ class CoordinatorConfig:
     standby: bool = False
 
 
-def to_event(msg, at: float):
-    """The mission event of a decoded carrier message received at ``at`` (s, epoch)."""
-    if isinstance(msg, Hello):
-        return ev.Hello(msg.carrier, msg.pid, msg.host, msg.passengers_left, msg.next_stage, msg.fingerprint, at,
-                        msg.revision)
-    if isinstance(msg, Observation):
-        return ev.Observation(msg.carrier, msg.stage, msg.t, msg.x, msg.position, msg.passengers_left, msg.trail, at)
-    if isinstance(msg, Confirm):
-        return ev.Confirmed(msg.carrier, msg.stage, msg.deployed, msg.status, msg.position, msg.passengers_left, at,
-                            msg.passenger)
-    if isinstance(msg, Own):
-        return ev.Accounted(msg.carrier, msg.stage, msg.t, msg.x, msg.deployed, msg.position, msg.passengers_left, at)
-    if isinstance(msg, Bye):
-        return ev.Bye(msg.carrier, msg.deployments, msg.rejected, msg.reason, at)
-    raise TypeError(type(msg).__name__)
-
-
-class Coordinator:
+class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults):
     """One coordinator process: the Zenoh node, the store, the stage clock, and the mission state
     (``self.state``, a :class:`mission.state.MissionState` changed only by :meth:`apply`).
+
+    Its jobs live in modules of their own: what it receives (:class:`coordinator.inbound.Inbound`),
+    its waits and stage loop (:class:`coordinator.clock.StageClock`), split brain
+    (:class:`coordinator.epochs.Epochs`), the recorder (:class:`coordinator.recorder.RecorderHooks`)
+    and its results (:class:`coordinator.results.CoordinatorResults`); this class keeps the state,
+    the answers (State, Accepted, Refusal), the planner call and the run's phases.
 
     Args:
         scenario: the loaded scenario (its seed is replaced by ``config.seed`` when given).
@@ -225,8 +199,9 @@ class Coordinator:
         """bool ``[R, N]``: the planner's view of the past (:meth:`mission.state.MissionState.deployed`)."""
         return self.state.deployed()
 
-    def _decision(self, j: int) -> Decision:
-        d = self.state.decisions[j]
+    def _decision(self, j: int, st: ms.MissionState | None = None) -> Decision:
+        """The Decision of stage j as published: from ``st`` (the current state by default)."""
+        d = (self.state if st is None else st).decisions[j]
         return Decision(self.mission, j, self.spec.stage_times[j], d.deploy, d.planning_ms, self.epoch,
                         passengers=d.passengers)
 
@@ -248,11 +223,7 @@ class Coordinator:
         else:
             ids = list(self.ids) if len(self.ids) <= MAX_STATE_CARRIERS else []
         carriers = tuple(sorted((cid, self._carrier_state(st, cid)) for cid in ids))
-        last = None
-        if (st.next_stage - 1) in st.decisions:
-            d = st.decisions[st.next_stage - 1]
-            last = Decision(self.mission, st.next_stage - 1, self.spec.stage_times[st.next_stage - 1], d.deploy,
-                            d.planning_ms, self.epoch, passengers=d.passengers)
+        last = self._decision(st.next_stage - 1, st) if (st.next_stage - 1) in st.decisions else None
         return encode(State(
             mission=self.mission, next_stage=st.next_stage, stages=self.n_stages, fingerprint=self.fingerprint,
             ended=st.ended, carriers=carriers, last_decision=last, epoch=self.epoch, revision=REVISION), asked)
@@ -317,257 +288,7 @@ class Coordinator:
         if defined_in(answer, revision):
             self.node.put(keys.accepted_key(self.mission, cid), answer, revision)
 
-    # ------------------------------------------------------------------ inbound
-    def pump(self, timeout_s: float) -> None:
-        """Wait up to ``timeout_s`` seconds for inbox items, then handle every queued one."""
-        item = self.node.next(max(0.0, timeout_s))
-        while item is not None:
-            try:
-                self._handle(item)
-            except ProtocolError as exc:
-                parsed = keys.parse_carrier_key(self.mission, item.key) if item.kind == "sample" else None
-                self._reject(exc.reason, exc.detail, parsed[0] if parsed else None)
-                if parsed is not None and parsed[1] == "hello":  # a Hello it could not read: answered too
-                    revision, fp = announced(item.payload)
-                    self._answer_hello(parsed[0], revision, ms.Refuse(parsed[0], fp, exc.reason, exc.detail))
-            item = self.node.next(0.0)
-
-    def _handle(self, item) -> None:
-        """Decode one inbox item into a mission event and apply it (wire-level checks only here:
-        key layout, decoding, mission id, the carrier id in the key)."""
-        if item.kind in ("alive", "gone"):
-            if item.key == keys.coordinator_alive(self.mission):
-                return
-            parsed = keys.parse_carrier_key(self.mission, item.key)
-            if parsed is None or parsed[1] != "alive":
-                raise ProtocolError("bad-key", f"liveliness token on {item.key[:80]}")
-            self.apply(ev.LivelinessChanged(parsed[0], item.kind == "alive", item.wall))
-            return
-        if item.key == keys.decision_key(self.mission):
-            self._heard_decision(item)
-            return
-        parsed = keys.parse_carrier_key(self.mission, item.key)
-        if parsed is not None and parsed[1] == "pose":
-            self._pose(parsed[0], item)
-            return
-        if parsed is None or parsed[1] not in TOPIC_TYPES:
-            raise ProtocolError("bad-key", f"message on {item.key[:80]}")
-        cid, topic = parsed
-        if cid not in self.spec.carriers:
-            raise ProtocolError("unknown-carrier", f"message from carrier {cid!r}")
-        msg = decode(item.payload, TOPIC_TYPES[topic])
-        if msg.mission != self.mission:
-            raise ProtocolError("wrong-mission", f"mission {msg.mission!r} on {self.mission!r}")
-        if msg.carrier != cid:
-            raise ProtocolError("key-mismatch", f"carrier {msg.carrier!r} on the key of {cid!r}")
-        self.heard[cid] = time.monotonic()
-        if isinstance(msg, Progress):
-            return
-        if isinstance(msg, Hello) and msg.epoch > self.epoch and msg.fingerprint == self.fingerprint:
-            self._carrier_epoch(cid, msg.epoch)
-        self.apply(to_event(msg, item.wall))
-
-    def _carrier_epoch(self, cid: str, epoch: int) -> None:
-        """A carrier has heard a higher epoch than ours. Before this process decided a stage (it
-        may have re-published the last decision) a coordinator that had that epoch is gone or out
-        of our reach: take the next epoch (recorded, so a restart goes higher still) and
-        re-publish. After it, a newer coordinator decides this mission: we are deposed."""
-        if self.deposed_by is not None:
-            return
-        if self.state.next_stage > self._first_stage:
-            self._deposed(epoch, f"carrier {cid} has heard it")
-            return
-        self.log(f"coordinator: carrier {cid} has heard epoch {epoch}; this coordinator takes epoch {epoch + 1}")
-        self.epoch = epoch + 1
-        self.store.raise_epoch(self.epoch)
-        self._refresh_state()
-        if self.state.next_stage > 0:
-            self._publish_decision(self._decision(self.state.next_stage - 1))
-
-    def _heard_decision(self, item) -> None:
-        """A Decision on this mission's decision key (ours come back to us): one of a higher
-        epoch means another coordinator took over (e.g. a partition healed after a standby
-        took over): stop deciding, publish no End, exit (docs/fleet.md, "Split brain"). Anything
-        else there is not addressed to this coordinator: ignored, not counted (carriers count it)."""
-        try:
-            msg = decode(item.payload, Decision)
-        except ProtocolError:
-            return
-        if msg.mission == self.mission and msg.epoch > self.epoch:
-            self._deposed(msg.epoch, "it decides")
-
-    def _deposed(self, epoch: int, how: str) -> None:
-        """Stop deciding: a coordinator of a higher epoch took over (no End, no summary.json)."""
-        if self.deposed_by is not None:
-            return
-        self.deposed_by = epoch
-        self.log(f"coordinator: deposed: a coordinator of epoch {epoch} took over mission {self.mission} ({how}; "
-                 f"this one has epoch {self.epoch}); stopping without End")
-        self._stop.set()
-
-    def _claim(self) -> bool:
-        """Before this coordinator declares its token: is another coordinator of the mission
-        live? Not a standby: raise :class:`DuplicateCoordinator`. A standby waits while the
-        primary's token is present, querying its State now and then for its epoch; returns
-        False when stopped before the primary vanished, True when this process may go on."""
-        alive = keys.coordinator_alive(self.mission)
-        if not self.node.live_tokens(alive, DEFAULTS.liveliness_check_s):
-            return True
-        if not self.config.standby:
-            raise DuplicateCoordinator(self.mission)
-        self.known_epoch = max(self.known_epoch, 1)  # a primary lives: its epoch is 1 at least
-        self.log(f"coordinator: standby: mission {self.mission} has a live coordinator; waiting for its "
-                 f"liveliness token to vanish")
-        asked = None
-        while not self._stop.is_set():
-            if asked is None or time.monotonic() - asked >= DEFAULTS.standby_state_s:
-                self._learn_epoch()
-                asked = time.monotonic()
-            if not self.node.live_tokens(alive, DEFAULTS.liveliness_check_s):
-                self.log(f"coordinator: the primary's liveliness token vanished; taking over mission "
-                         f"{self.mission} (it had epoch {self.known_epoch or 'unknown'})")
-                return True
-            self._stop.wait(DEFAULTS.standby_poll_s)
-        return False
-
-    def _open_store(self, path: Path, meta: dict) -> MissionStore:
-        """mission.db, waiting while another process holds its write lock (a standby taking over
-        from a primary that hangs in the middle of a write on the same disk)."""
-        logged = False
-        while True:
-            try:
-                return MissionStore(path, meta, min_epoch=self.known_epoch + 1)
-            except StoreBusy as exc:
-                if not logged:
-                    self.log(f"coordinator: {exc}; waiting for it")
-                    logged = True
-                if self._stop.wait(0.5):
-                    raise
-
-    def _learn_epoch(self) -> None:
-        """The primary's epoch, from its State (and the last Decision in it)."""
-        for payload in self.node.query(keys.state_key(self.mission), timeout_s=DEFAULTS.state_query_s):
-            try:
-                state = decode(payload, State)
-            except ProtocolError:
-                continue
-            if state.mission == self.mission:
-                last = state.last_decision.epoch if state.last_decision is not None else 0
-                self.known_epoch = max(self.known_epoch, state.epoch, last)
-
-    def _pose(self, cid: str, item) -> None:
-        """A carrier's Pose: not a mission event and never a rejection (docs/protocol.md, "Pose");
-        only the recorder looks at it, and quietly drops one it cannot use."""
-        if self.recorder is None or cid not in self.spec.carriers:
-            return
-        try:
-            msg = decode(item.payload, Pose)
-        except ProtocolError:
-            return
-        if msg.mission == self.mission and msg.carrier == cid:
-            self.recorder.message(msg)
-
-    def _open_recorder(self, out: Path) -> None:
-        """Start mission.mcap (recording/live.py), replaying the events already in mission.db
-        (a resumed mission's past; a fresh mission's ``open``)."""
-        ros2 = self.config.ros2 if self.node is not None else None
-        if not self.config.record and ros2 is None:
-            return
-        try:
-            from recording.live import LiveRecorder
-
-            self.recorder = LiveRecorder(out, self.scenario, self.problem, metadata={
-                "mission": self.mission, "scenario": self.scenario.name, "seed": self.seed,
-                "planner": self.planner_name, "fingerprint": self.fingerprint}, log=self.log,
-                profile=self.config.record_profile if self.config.record else None,
-                sinks=() if ros2 is None else (ros2.coordinator_sink(self.node.session, self.problem, self.log),))
-            for event in self.store.mission_events():
-                self.recorder.event(event)
-        except Exception as exc:
-            self.log(f"coordinator: mission.mcap not recorded: {type(exc).__name__}: {exc}")
-            self.recorder = None
-
-    def _close_recorder(self) -> None:
-        if self.recorder is not None:
-            try:
-                self.recorder.close()
-            except Exception as exc:
-                self.log(f"coordinator: mission.mcap not finalised: {type(exc).__name__}: {exc}")
-            self.recorder = None
-
     # ------------------------------------------------------------------ the stage clock
-    def _wait(self, seconds: float, done=lambda: False) -> None:
-        """Handle inbound items for up to ``seconds`` or until ``done()`` or a stop request."""
-        deadline = time.monotonic() + seconds
-        while not self._stop.is_set() and not done():
-            left = deadline - time.monotonic()
-            if left <= 0:
-                return
-            self.pump(min(0.05, left))
-
-    def _wait_stage(self, j: int, opened: float) -> None:
-        """Until every expected carrier's Observation of j is in, or a stop request. Wall clock:
-        at most ``stage_timeout_s``. Sim clock: as long as some carrier still waited for is
-        making progress: one that nothing came from for ``silence_timeout_s`` (since the stage
-        opened) is stalled and not waited for any more; a dead or cut-off one leaves
-        ``expected`` by itself when its token vanishes."""
-        if self.config.clock == "wall":
-            self._wait(self.config.stage_timeout_s, lambda: self.state.stage_complete(j))
-            return
-        silence = self.config.silence_timeout_s
-
-        def done() -> bool:
-            waiting = self.state.waiting(j)
-            if not waiting:
-                return True
-            return time.monotonic() - last_heard(self.heard, waiting, opened) >= silence
-
-        while not self._stop.is_set() and not done():
-            self.pump(0.05)
-        stalled = sorted(self.state.waiting(j))
-        if stalled and not self._stop.is_set():
-            self.log(f"coordinator: stage {j}: nothing from {', '.join(stalled[:8])}"
-                     f"{' ...' if len(stalled) > 8 else ''} for {silence:.0f} s (stalled); ∅ for them")
-
-    def _wait_confirms(self, j: int) -> None:
-        """After the last decision: wait for its Confirms from the live carriers. Wall clock: at
-        most ``confirm_timeout_s``; sim clock: until nothing came from any carrier still
-        unconfirmed for ``silence_timeout_s``."""
-        if self.config.clock == "wall":
-            self._wait(self.config.confirm_timeout_s, lambda: not self.state.unconfirmed(j))
-            return
-        opened = time.monotonic()
-        while not self._stop.is_set():
-            waiting = self.state.unconfirmed(j)
-            if not waiting or time.monotonic() - last_heard(self.heard, waiting, opened) >= self.config.silence_timeout_s:
-                return
-            self.pump(0.05)
-
-    def _wait_for_carriers(self) -> None:
-        """Before the first stage: wait until every carrier is live with an accepted Hello (or the
-        join timeout; on resume at most the stage timeout, since some carriers may be gone). On
-        the sim clock the join timeout runs from the last carrier that joined: a fleet whose
-        processes start slowly on a busy host is waited for while it keeps arriving."""
-        wait_s = self.config.join_timeout_s
-        if self.state.resumed:
-            wait_s = min(wait_s, self.config.stage_timeout_s)
-        def count() -> int:
-            return sum(1 for cid in self.state.live if cid in self.state.accepted)
-
-        joined = -1
-        while not self._stop.is_set() and not self.state_all_joined() and count() > joined:
-            joined = count()
-            self._wait(wait_s, lambda: self.state_all_joined() or (self.config.clock == "sim" and count() > joined))
-            if self.config.clock == "wall":
-                break
-        missing = sorted(cid for cid in self.ids if not (cid in self.state.live and cid in self.state.accepted))
-        if missing and not self._stop.is_set():
-            self.log(f"coordinator: starting without carrier(s) {', '.join(missing)} (not live with a Hello "
-                     f"after {wait_s:.0f} s); they can join late")
-
-    def state_all_joined(self) -> bool:
-        return self.state.all_joined()
-
     def _plan(self, j: int) -> tuple[tuple[str, ...], float, tuple[int, ...]]:
         """(deploying carrier ids, sorted; planning time, ms; the passenger each releases, parallel):
         the offline loop's own stage step (:func:`planner.online.stage_step`) on the mission's view."""
@@ -581,67 +302,6 @@ class Coordinator:
         self.node.put(keys.decision_key(self.mission), decision, self.state.common_revision(REVISION))
         self.apply(ev.Published(decision.stage, time.time()))
 
-    def _progress(self, j: int, waited_ms: float) -> None:
-        st, d = self.state, self.state.decisions[j]
-        obs = []
-        for r, cid in enumerate(self.ids):
-            if self.spec.valid[r][j]:
-                value = st.reported.get((cid, j))
-                obs.append(f"{cid}={'∅' if value is None else value}")
-        # Confirmations of the previous stage's deployments (stage numbers 1-based, as printed).
-        confirmed = sorted(cid for (cid, jj), c in st.confirms.items() if jj == j - 1 and c.deployed)
-        self.log(
-            f"stage {j + 1:>3}/{self.n_stages} t={self.spec.stage_times[j]:7.1f} s | obs {' '.join(obs) or '-'} | "
-            f"deploy {' '.join(d.deploy) or '-'} | plan {d.planning_ms:7.1f} ms | "
-            f"wait {waited_ms:6.0f} ms"
-            + (f" | deployed@{j}: {' '.join(confirmed) or '-'}" if j > 0 else "")
-        )
-
-    def _stages(self) -> None:
-        last_published = None
-        for j in range(self.state.next_stage, self.n_stages):
-            if self._stop.is_set():
-                return
-            if self.config.realtime > 0 and last_published is not None and not self.state.behind(j):
-                # Paced like the carriers: Δt / realtime after the previous decision went out
-                # (not when the carriers are past j already: then it catches up at once).
-                self._wait(last_published + self.scenario.stage_interval / self.config.realtime - time.monotonic())
-            if j > 0 and not self.state.live:
-                # Nobody to decide for (cut off, or every carrier gone): deciding now would only
-                # record empty stages the carriers decide themselves. Hold until one is back (its
-                # Hello says where it is), at most the join timeout.
-                self.log(f"coordinator: no carrier is live; holding stage {j} (at most {self.config.join_timeout_s:.0f} s)")
-                self._wait(self.config.join_timeout_s, lambda: bool(self.state.live))
-            opened = time.monotonic()
-            self._wait_stage(j, opened)
-            if self._stop.is_set():
-                return
-            deploy, planning_ms, passengers = self._plan(j)
-            newer = self.store.newer_epoch()  # a standby took over on our disk while we were cut off
-            if newer is not None:
-                self._deposed(newer, "mission.db records it")
-                return
-            self.apply(ev.Decided(j, deploy, planning_ms, time.time(), passengers))  # records, then publishes
-            last_published = time.monotonic()
-            self._progress(j, (last_published - opened) * 1e3 - planning_ms)
-            self.pump(0.0)
-
-    def _end(self, reason: str) -> None:
-        """Record End (once), publish it every ``end_repeat_s`` and wait for the live carriers'
-        Byes, at most ``bye_timeout_s``. Runs to its end even when a stop was requested."""
-        self.apply(ev.Ended(reason, time.time()))
-        end = End(self.mission, self.state.next_stage, self.state.end_reason or reason)
-        deadline = time.monotonic() + self.config.bye_timeout_s
-        last_put = None
-        while time.monotonic() < deadline:
-            if last_put is None or time.monotonic() - last_put >= DEFAULTS.end_repeat_s:
-                self.node.put(keys.end_key(self.mission), end)  # repeated for carriers that missed it
-                last_put = time.monotonic()
-            if self.state.all_said_bye():
-                break
-            self.pump(0.05)
-        self.log(f"coordinator: mission {self.state.end_reason} after {self.state.next_stage} stage(s)")
-
     def run(self) -> dict:
         """Run (or resume) the mission to its end; write summary.json and map.png.
 
@@ -652,25 +312,47 @@ class Coordinator:
 
         out = Path(self.config.out_dir)
         # The session first: a duplicate is refused (or waited for) before mission.db is touched.
+        if not self._open_session():  # a standby stopped while the primary lived: nothing of ours to record
+            self.log(f"coordinator: standby for mission {self.mission} stopped; it never took over")
+            return {"ended": False, "standby": True}
+        started = time.monotonic()  # the mission's wall time: a standby's wait is not part of it
+        out.mkdir(parents=True, exist_ok=True)
+        self._open_mission(out)
+        try:
+            self._mission()
+        except Exception as exc:
+            if not isinstance(exc, OpenStopped):
+                raise
+            self.apply(ev.Ended("stopped", time.time()))
+        finally:
+            summary = self._results(out, time.monotonic() - started)
+        return summary
+
+    def _open_session(self) -> bool:
+        """The Zenoh session (None when stopped before it opened) and the claim on the mission
+        (:meth:`coordinator.epochs.Epochs._claim`); False: a standby stopped, session closed."""
+        from wire.zconfig import OpenStopped
+
         if not self._stop.is_set():
             try:
                 self.node = Node(self.zconf, stop=self._stop)
             except OpenStopped:
                 self.node = None
-        if self.node is not None:
-            try:
-                claimed = self._claim()
-            except BaseException:
-                self.node.close(DEFAULTS.close_s)
-                self.node = None
-                raise
-            if not claimed:  # a standby stopped while the primary lived: nothing of ours to record
-                self.node.close(DEFAULTS.close_s)
-                self.node = None
-                self.log(f"coordinator: standby for mission {self.mission} stopped; it never took over")
-                return {"ended": False, "standby": True}
-        started = time.monotonic()  # the mission's wall time: a standby's wait is not part of it
-        out.mkdir(parents=True, exist_ok=True)
+        if self.node is None:
+            return True
+        try:
+            claimed = self._claim()
+        except BaseException:
+            self.node.close(DEFAULTS.close_s)
+            self.node = None
+            raise
+        if not claimed:
+            self.node.close(DEFAULTS.close_s)
+            self.node = None
+        return claimed
+
+    def _open_mission(self, out: Path) -> None:
+        """mission.db (this process's epoch with it) and the recorder."""
         meta = {"mission": self.mission, "scenario": self.scenario.name, "fingerprint": self.fingerprint,
                 "seed": self.seed, "planner": self.planner_name, "planner_options": self.planner_options}
         # Higher than every epoch used before for this mission: the ones in mission.db and the
@@ -683,82 +365,46 @@ class Coordinator:
             raise
         self.epoch = self.store.epoch
         self._open_recorder(out)
-        try:
-            # Recovery is the live fold over the stored events (the last one is this process's open).
-            self.state = ms.fold(self.spec, self.store.mission_events())
-            self._first_stage = self.state.next_stage
-            if self.state.resumed:
-                self.log(f"coordinator: resumed from {self.store.path}: {len(self.state.decisions)} stage(s) "
-                         f"decided, continuing at stage {self.state.next_stage}")
-            self._refresh_state()
-            if self.node is not None and not self._stop.is_set():
-                self.node.subscribe(f"{keys.prefix(self.mission)}/carrier/**")
-                self.node.subscribe(keys.decision_key(self.mission))  # a newer epoch deposes us
-                self.node.watch_liveliness(keys.carrier_alive_pattern(self.mission))
-                self.node.serve(keys.state_key(self.mission), self.state_reply)
-                self.node.token(keys.coordinator_alive(self.mission))
-                self.log(f"coordinator: mission {self.mission}, {len(self.ids)} carriers, {self.n_stages} stages, "
-                         f"planner {self.planner_name} {self.planner_options}, seed {self.seed}, epoch {self.epoch}, "
-                         f"{self.config.clock} clock")
-                # Warmed up once State answers and the token is out: carriers that start meanwhile
-                # find a coordinator (compiling the planner takes seconds, more on a busy host).
-                warm = getattr(self.planner, "warm_up", None)
-                if callable(warm) and not self._stop.is_set():
-                    warm(self.problem)
-                if self.state.next_stage > 0:
-                    self._publish_decision(self._decision(self.state.next_stage - 1))  # idempotent re-publication
-                if self.state.ended:  # resumed a complete mission: only tell late carriers it is over
-                    self._end(self.state.end_reason)
-                else:
-                    self._wait_for_carriers()
-                    self._stages()
-                    if not self._stop.is_set():
-                        self._wait_confirms(self.n_stages - 1)
-                    if self.deposed_by is None:  # deposed: the newer coordinator ends the mission
-                        self._end("stopped" if self._stop.is_set() else "complete")
-            else:  # stopped before the session opened: nothing to tell anyone, but on record
-                self.apply(ev.Ended("stopped", time.time()))
-        except Exception as exc:
-            if not isinstance(exc, OpenStopped):
-                raise
+
+    def _mission(self) -> None:
+        """Recover the state, then serve the mission to its end (or record that it was stopped
+        before the session opened: nothing to tell anyone, but on record)."""
+        # Recovery is the live fold over the stored events (the last one is this process's open).
+        self.state = ms.fold(self.spec, self.store.mission_events())
+        self._first_stage = self.state.next_stage
+        if self.state.resumed:
+            self.log(f"coordinator: resumed from {self.store.path}: {len(self.state.decisions)} stage(s) "
+                     f"decided, continuing at stage {self.state.next_stage}")
+        self._refresh_state()
+        if self.node is None or self._stop.is_set():
             self.apply(ev.Ended("stopped", time.time()))
-        finally:
-            # Twice: at once without the clairvoyant bound, then with it, each write atomic, so a
-            # coordinator killed while the bound is computed (its launcher's grace after Ctrl-C is
-            # a few seconds) still leaves a complete summary.json, and mission.mcap is finalised
-            # in between.
-            # A deposed coordinator writes no summary.json or map.png: the results are the newer
-            # coordinator's (which may share this --out directory).
-            wall_s = time.monotonic() - started
-            deposed = self.deposed_by is not None
-            if not deposed:
-                _write_json(out / "summary.json", self.summary(wall_s, bound=False))
-            self._close_recorder()
-            summary = self.summary(wall_s, bound=not deposed)
-            if not deposed:
-                _write_json(out / "summary.json", summary)
-            if self.node is not None:
-                self.node.close(DEFAULTS.close_s)
-            if self.config.render and not deposed:
-                self._render(out / "map.png")
-            self.store.close()
-        return summary
+            return
+        self._serve()
+        # Warmed up once State answers and the token is out: carriers that start meanwhile
+        # find a coordinator (compiling the planner takes seconds, more on a busy host).
+        warm = getattr(self.planner, "warm_up", None)
+        if callable(warm) and not self._stop.is_set():
+            warm(self.problem)
+        if self.state.next_stage > 0:
+            self._publish_decision(self._decision(self.state.next_stage - 1))  # idempotent re-publication
+        if self.state.ended:  # resumed a complete mission: only tell late carriers it is over
+            self._end(self.state.end_reason)
+            return
+        self._wait_for_carriers()
+        self._stages()
+        if not self._stop.is_set():
+            self._wait_confirms(self.n_stages - 1)
+        if self.deposed_by is None:  # deposed: the newer coordinator ends the mission
+            self._end("stopped" if self._stop.is_set() else "complete")
 
-    # ------------------------------------------------------------------ results
-    def summary(self, wall_s: float, bound: bool = True) -> dict:
-        out = mission_summary(self.state, self.problem, RunInfo(
-            scenario=self.scenario.name, scenario_file=str(self.scenario_path), mission=self.mission,
-            planner=self.planner_name, planner_options=self.planner_options, seed=self.seed,
-            pid=os.getpid(), host=socket.gethostname(), wall_time_s=wall_s,
-            rejected=dict(self.node.rejected) if self.node else {},
-            passenger_types=tuple(c.passenger_types for c in self.scenario.carriers)), bound=bound)
-        out["epoch"] = self.epoch  # of the coordinator that wrote this summary (docs/fleet.md)
-        if self.deposed_by is not None:
-            out["deposed_by"] = self.deposed_by
-        return out
+    def _serve(self) -> None:
+        """Subscribe, watch the carriers' tokens, answer State, declare this coordinator's token."""
+        self.node.subscribe(f"{keys.prefix(self.mission)}/carrier/**")
+        self.node.subscribe(keys.decision_key(self.mission))  # a newer epoch deposes us
+        self.node.watch_liveliness(keys.carrier_alive_pattern(self.mission))
+        self.node.serve(keys.state_key(self.mission), self.state_reply)
+        self.node.token(keys.coordinator_alive(self.mission))
+        self.log(f"coordinator: mission {self.mission}, {len(self.ids)} carriers, {self.n_stages} stages, "
+                 f"planner {self.planner_name} {self.planner_options}, seed {self.seed}, epoch {self.epoch}, "
+                 f"{self.config.clock} clock")
 
-    def _render(self, path: Path) -> None:
-        try:
-            render_map(self.scenario, self.state, path, title=f"{self.scenario.name}: {self.planner_name}, seed {self.seed}")
-        except Exception as exc:
-            self.log(f"coordinator: map.png not drawn: {type(exc).__name__}: {exc}")

@@ -5,9 +5,13 @@ from __future__ import annotations
 
 import json
 import os
+import socket
 from pathlib import Path
 
 import numpy as np
+
+from mission.summary import RunInfo, summary as mission_summary
+from mission.timeouts import DEFAULTS
 
 
 def write_json(path: Path, data: dict) -> None:
@@ -50,3 +54,47 @@ def render_map(scenario, state, path, title: str, trails: dict | None = None) ->
     trajectories = {cid: np.asarray(pts, dtype=float).reshape(-1, 2) for cid, pts in trails.items() if pts}
     world.render_map(scenario, str(path), deployments=deployments, trajectories=trajectories, title=title,
                      deployment_labels=labels)
+
+
+class CoordinatorResults:
+    """The coordinator's results at the end of its run (summary.json, map.png). A part of
+    :class:`coordinator.node.Coordinator`."""
+
+    def _results(self, out: Path, wall_s: float) -> dict:
+        """summary.json twice: at once without the clairvoyant bound, then with it, each write
+        atomic, so a coordinator killed while the bound is computed (its launcher's grace after
+        Ctrl-C is a few seconds) still leaves a complete summary.json, and mission.mcap is
+        finalised in between; map.png; then the session and the store are closed. A deposed
+        coordinator writes no summary.json or map.png: the results are the newer coordinator's
+        (which may share this --out directory)."""
+        deposed = self.deposed_by is not None
+        if not deposed:
+            write_json(out / "summary.json", self.summary(wall_s, bound=False))
+        self._close_recorder()
+        summary = self.summary(wall_s, bound=not deposed)
+        if not deposed:
+            write_json(out / "summary.json", summary)
+        if self.node is not None:
+            self.node.close(DEFAULTS.close_s)
+        if self.config.render and not deposed:
+            self._render(out / "map.png")
+        self.store.close()
+        return summary
+
+    def summary(self, wall_s: float, bound: bool = True) -> dict:
+        out = mission_summary(self.state, self.problem, RunInfo(
+            scenario=self.scenario.name, scenario_file=str(self.scenario_path), mission=self.mission,
+            planner=self.planner_name, planner_options=self.planner_options, seed=self.seed,
+            pid=os.getpid(), host=socket.gethostname(), wall_time_s=wall_s,
+            rejected=dict(self.node.rejected) if self.node else {},
+            passenger_types=tuple(c.passenger_types for c in self.scenario.carriers)), bound=bound)
+        out["epoch"] = self.epoch  # of the coordinator that wrote this summary (docs/fleet.md)
+        if self.deposed_by is not None:
+            out["deposed_by"] = self.deposed_by
+        return out
+
+    def _render(self, path: Path) -> None:
+        try:
+            render_map(self.scenario, self.state, path, title=f"{self.scenario.name}: {self.planner_name}, seed {self.seed}")
+        except Exception as exc:
+            self.log(f"coordinator: map.png not drawn: {type(exc).__name__}: {exc}")
