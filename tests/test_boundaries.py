@@ -306,3 +306,47 @@ def test_imports_follow_the_documented_layers():
             if other != top and rank[other] <= rank[top]:
                 bad.append(f"{name} -> {target}")
     assert bad == []
+
+
+# --------------------------------------------------------------------------- thin processes
+#: The processes stay thin (docs/architecture.md, "Thin processes"): no function longer than
+#: this many lines and no class longer than that many in carriers/, coordinator/ and run_fleet.py.
+PROCESS_FUNCTION_MAX = 80
+PROCESS_CLASS_MAX = 300
+
+
+def _process_files() -> list[Path]:
+    return sorted([*(REPO / "carriers").glob("*.py"), *(REPO / "coordinator").glob("*.py"), REPO / "run_fleet.py"])
+
+
+def _too_long(tree: ast.AST, function_max: int, class_max: int) -> list[tuple[str, int, int]]:
+    """(kind and name, first line, length in lines) of every function (methods and nested
+    functions included) longer than ``function_max`` lines and every class longer than
+    ``class_max``; a length counts from the ``def``/``class`` line to the last line of its body."""
+    out = []
+    for node in ast.walk(tree):
+        length = getattr(node, "end_lineno", 0) - getattr(node, "lineno", 0) + 1
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)) and length > function_max:
+            out.append((f"def {node.name}", node.lineno, length))
+        elif isinstance(node, ast.ClassDef) and length > class_max:
+            out.append((f"class {node.name}", node.lineno, length))
+    return out
+
+
+def test_too_long_finds_long_functions_and_classes():
+    body = "\n".join(f"    x{i} = {i}" for i in range(5))
+    src = f"def short():\n    pass\n\ndef long():\n{body}\n\nclass C:\n    def m(self):\n{body.replace('    ', '        ')}\n"
+    tree = ast.parse(src)
+    assert sorted(_too_long(tree, 5, 6)) == [("class C", 11, 7), ("def long", 4, 6), ("def m", 12, 6)]
+    assert _too_long(tree, 6, 7) == []  # at the limit is fine
+
+
+def test_processes_are_thin():
+    """carriers/, coordinator/ and run_fleet.py: every function at most 80 lines, every class at
+    most 300 (the jobs of a process live in modules of their own)."""
+    files = _process_files()
+    assert len(files) > 10  # the folders are where this test thinks they are
+    problems = [f"{path.relative_to(REPO)}:{line}: {what} is {length} lines"
+                for path in files for what, line, length in _too_long(
+                    ast.parse(path.read_text()), PROCESS_FUNCTION_MAX, PROCESS_CLASS_MAX)]
+    assert problems == []
