@@ -89,9 +89,7 @@ class Inbound:
                 raise ProtocolError("wrong-mission", f"answer for {msg.mission!r}/{msg.carrier!r}")
             # Only the answer to our latest Hello counts (docs/protocol.md, "Refusal"); one naming
             # another fingerprint, or coming after our Hello was accepted, is about someone else's.
-            if msg.fingerprint == self.fingerprint and self._unanswered:
-                self._unanswered = False
-                self._refused = msg if isinstance(msg, Refusal) else None
+            self.answer.answered(msg.fingerprint, msg if isinstance(msg, Refusal) else None)
             return
         if item.key != keys.decision_key(self.mission):
             raise ProtocolError("bad-key", f"message on {item.key[:80]}")

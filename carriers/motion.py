@@ -25,6 +25,23 @@ PROGRESS_CHUNK_S = 5.0
 POSE_INTERVAL_S = 1.0
 
 
+class Track:
+    """What a carrier's motion has published so far.
+
+    Attributes:
+        trail_from: the first trajectory sample not sent in an Observation's trail yet.
+        pose_from: the first trajectory sample not considered for a Pose yet.
+        heading: the heading of the last Pose (rad).
+        progress_at: when the carrier last sent Progress (monotonic s).
+    """
+
+    def __init__(self, now: float):
+        self.trail_from = 0
+        self.pose_from = 0
+        self.heading = 0.0
+        self.progress_at = now
+
+
 class Motion:
     """The carrier's physics and what its motion publishes."""
 
@@ -56,9 +73,9 @@ class Motion:
         """Sim clock: tell the coordinator and the peers that this carrier is working (a
         Progress message) when ``progress_s`` passed since it last published one."""
         now = time.monotonic()
-        if self.config.clock != "sim" or now - self._progress_at < DEFAULTS.progress_s:
+        if self.config.clock != "sim" or now - self.track.progress_at < DEFAULTS.progress_s:
             return
-        self._progress_at = now
+        self.track.progress_at = now
         if self.node.revision < Progress.SINCE:
             return  # a coordinator of an earlier revision has no Progress (it would reject it)
         self.node.put(keys.carrier_key(self.mission, self.cid, "progress"),
@@ -66,8 +83,8 @@ class Motion:
 
     def _trail(self) -> tuple:
         samples = self.sim.trajectory(self.cid)
-        new = samples[self._trail_from:, 1:3]
-        self._trail_from = len(samples)
+        new = samples[self.track.trail_from:, 1:3]
+        self.track.trail_from = len(samples)
         if len(new) > MAX_TRAIL:
             new = new[np.linspace(0, len(new) - 1, MAX_TRAIL).astype(int)]
         return tuple((float(a), float(b)) for a, b in new)
@@ -80,15 +97,16 @@ class Motion:
             return
         samples = self.sim.trajectory(self.cid)
         step = max(1, int(round(every)))
-        for k in range(self._pose_from, len(samples)):
+        track = self.track
+        for k in range(track.pose_from, len(samples)):
             if k > 0:
                 dx, dy = samples[k, 1] - samples[k - 1, 1], samples[k, 2] - samples[k - 1, 2]
                 if dx * dx + dy * dy > 1e-12:
-                    self._heading = float(np.arctan2(dy, dx))
+                    track.heading = float(np.arctan2(dy, dx))
             if k % step == 0:
                 self.node.put(keys.carrier_key(self.mission, self.cid, "pose"), Pose(
                     self.mission, self.cid, float(samples[k, 0]), (float(samples[k, 1]), float(samples[k, 2])),
-                    self._heading, self.machine.passengers_left))
+                    track.heading, self.machine.passengers_left))
                 if self.ros2 is not None:
-                    self.ros2.pose(float(samples[k, 0]), float(samples[k, 1]), float(samples[k, 2]), self._heading)
-        self._pose_from = len(samples)
+                    self.ros2.pose(float(samples[k, 0]), float(samples[k, 1]), float(samples[k, 2]), track.heading)
+        track.pose_from = len(samples)

@@ -43,7 +43,7 @@ from carriers.alone import Alone
 from carriers.exits import EXIT_CODES, Exit
 from carriers.inbound import Inbound
 from carriers.joining import Joining
-from carriers.motion import POSE_INTERVAL_S, Motion
+from carriers.motion import POSE_INTERVAL_S, Motion, Track
 from carriers.onboard import ONBOARD_LOADS, Onboard
 from carriers.shared import GATE_HOLD_S, SharedWorld, StageGate
 from storage.carrierlog import CarrierLog, LogMismatch, log_path
@@ -51,7 +51,7 @@ from mission import carrier as mc
 from mission.peers import PeerBook, Presence
 from mission.timeouts import CLOCKS, DEFAULTS
 from wire import keys
-from wire.messages import REVISION, Bye, Confirm, Hello, Observation, Own, Refusal, scenario_fingerprint
+from wire.messages import REVISION, Bye, Confirm, Hello, Observation, Own, scenario_fingerprint
 
 #: Longest sleep (s) of a carrier waiting for a message (a decision, End): any message, and a
 #: stop request (:meth:`Carrier.stop`, :func:`run_carriers`), wakes it at once, so this only sets
@@ -157,11 +157,8 @@ class Carrier(Motion, Inbound, Joining, Alone):
         self.node = None
         self.presence = Presence(time.monotonic())  # the coordinator's and the peers' tokens, what came when
         self.pending: Observation | None = None
-        self._trail_from = 0
-        self._pose_from = 0  # first trajectory sample not considered for a Pose yet
-        self._heading = 0.0
-        self._refused: Refusal | None = None
-        self._unanswered: bool | None = None  # None: no Hello sent; True: the latest not answered yet
+        self.track = Track(time.monotonic())  # what its motion has published so far
+        self.answer = mc.HelloAnswer(self.fingerprint)  # the coordinator's answer to its latest Hello
         self.onboard = onboard if onboard is not None else Onboard(scenario, config.planner_options)
         self.onboard_load = config.onboard_load or "start"
         if self.onboard_load not in ONBOARD_LOADS:
@@ -175,7 +172,6 @@ class Carrier(Motion, Inbound, Joining, Alone):
         self.store: CarrierLog | None = None  # the durable log, open while running
         self._alone = False  # deciding stages itself (logged once per spell)
         self.ros2 = None  # its ROS 2 node (ros2/publisher.py) while running with config.ros2
-        self._progress_at = time.monotonic()  # when this carrier last published (sim clock: Progress)
 
     # ------------------------------------------------------------------ views for tests and logs
     def log(self, line: str) -> None:
@@ -238,19 +234,20 @@ class Carrier(Motion, Inbound, Joining, Alone):
                 self.log(effect.line)
 
     def _hello(self, next_stage: int) -> None:
-        self._unanswered = True
+        self.answer.sent()
         self.node.put(keys.carrier_key(self.mission, self.cid, "hello"), Hello(
             self.mission, self.cid, os.getpid(), socket.gethostname()[:255], self.machine.passengers_left,
             next_stage, self.fingerprint, max(1, self.machine.epoch), REVISION))
 
     # ------------------------------------------------------------------ the Hello's answer
     def _check_refused(self) -> None:
-        if self._refused is not None:
-            if self._refused.reason != "world-mismatch":
-                self.log(f"the coordinator refused our Hello ({self._refused.reason}: {self._refused.detail})")
+        refused = self.answer.refused
+        if refused is not None:
+            if refused.reason != "world-mismatch":
+                self.log(f"the coordinator refused our Hello ({refused.reason}: {refused.detail})")
                 raise Exit("refused")
-            self.log(f"the coordinator refused our Hello ({self._refused.reason}: fingerprint {self.fingerprint}, "
-                     f"the coordinator's {self._refused.expected}): use the same scenario file and --seed")
+            self.log(f"the coordinator refused our Hello ({refused.reason}: fingerprint {self.fingerprint}, "
+                     f"the coordinator's {refused.expected}): use the same scenario file and --seed")
             raise Exit("world-mismatch")
 
     # ------------------------------------------------------------------ the stages
@@ -375,7 +372,7 @@ class Carrier(Motion, Inbound, Joining, Alone):
             self.log(str(exc))
         finally:
             try:
-                if self._unanswered is not None or self.config.mode == "decentralised":  # a Bye needs a Hello
+                if self.answer.said_hello or self.config.mode == "decentralised":  # a Bye needs a Hello
                     self.node.put(keys.carrier_key(self.mission, self.cid, "bye"), Bye(
                         self.mission, self.cid, self.machine.deployments(),
                         tuple(sorted(self.node.rejected.items())), reason))

@@ -296,6 +296,40 @@ def passenger_for(named: int | None, released, count: int) -> int:
     return next((i for i in range(count) if i not in gone), 0)
 
 
+class HelloAnswer:
+    """The coordinator's answer to the carrier's latest Hello (docs/protocol.md, "Refusal",
+    "Accepted"): only the answer to the latest Hello counts; one naming another fingerprint, or
+    coming after that Hello was answered, is about someone else's.
+
+    Attributes:
+        fingerprint: the carrier's world fingerprint.
+        unanswered: None before any Hello; True while the latest one is not answered yet.
+        refused: the Refusal of the latest Hello (any object the process hands in), else None.
+    """
+
+    def __init__(self, fingerprint: str):
+        self.fingerprint = fingerprint
+        self.unanswered: bool | None = None
+        self.refused = None
+
+    @property
+    def said_hello(self) -> bool:
+        return self.unanswered is not None
+
+    def sent(self) -> None:
+        """A Hello went out."""
+        self.unanswered = True
+
+    def answered(self, fingerprint: str, refusal=None) -> bool:
+        """An answer naming ``fingerprint`` arrived (``refusal``: the Refusal, None for Accepted);
+        True when it is the answer to the latest Hello (and taken)."""
+        if fingerprint != self.fingerprint or not self.unanswered:
+            return False
+        self.unanswered = False
+        self.refused = refusal
+        return True
+
+
 class Releases:
     """Which passenger each stage releases (docs/protocol.md, Decision): the one a current
     Decision named for this carrier (the first naming per stage counts), else the lowest index

@@ -386,6 +386,28 @@ def test_current_epoch(heard, epoch, current):
     assert mc.current(state, epoch) is current
 
 
+@pytest.mark.parametrize("events, taken, unanswered, refused", [
+    ([], [], None, None),
+    ([("sent",)], [], True, None),
+    ([("sent",), ("accepted", "fp")], [True], False, None),
+    ([("sent",), ("refused", "fp")], [True], False, "R"),
+    ([("sent",), ("refused", "other")], [False], True, None),             # about someone else's Hello
+    ([("sent",), ("accepted", "fp"), ("refused", "fp")], [True, False], False, None),  # after the answer
+    ([("sent",), ("refused", "fp"), ("sent",), ("accepted", "fp")], [True, True], False, None),
+    ([("refused", "fp")], [False], None, None),                            # no Hello sent
+], ids=["none", "sent", "accepted", "refused", "other-fingerprint", "after-answer", "new-hello", "no-hello"])
+def test_hello_answer(events, taken, unanswered, refused):
+    answer = mc.HelloAnswer("fp")
+    got = []
+    for e in events:
+        if e[0] == "sent":
+            answer.sent()
+        else:
+            got.append(answer.answered(e[1], "R" if e[0] == "refused" else None))
+    assert got == taken and answer.unanswered == unanswered and answer.refused == refused
+    assert answer.said_hello == (unanswered is not None)
+
+
 def test_releases_follow_the_current_decisions_naming():
     """The first naming of a current Decision counts; a deposed coordinator's is ignored; a
     released passenger is not released again."""
