@@ -121,7 +121,8 @@ class RobotBody:
         self.acks = node.subscription(f"{self.ns}/deployed", "std_msgs/msg/UInt32", QoS(depth=10))
         self.command = node.publisher(f"{self.ns}/deploy", "std_msgs/msg/UInt32", QoS(depth=10))
         self.time = 0.0
-        self._left = int(scenario.carriers[scenario.carrier_index(cid)].passengers)
+        self._spec = scenario.carriers[scenario.carrier_index(cid)]
+        self._left = int(self._spec.passengers)
         self._pos = (float("nan"), float("nan"))
         self._trace: list[tuple[float, float, float]] = []
         self._silent: set[str] = set()
@@ -163,7 +164,13 @@ class RobotBody:
             self._check_format()
 
     def _pose_at(self, t: float):
-        return self.odom.at(t) if self.sync else self.odom.latest()
+        """(x, y, heading) of the robot at ``t``; its planned position while it has sent no
+        odometry at all (a silent robot, logged by :meth:`_wait`)."""
+        p = self.odom.at(t) if self.sync else self.odom.latest()
+        if p is None:
+            x, y = (float(v) for v in self._spec.position_at(t))
+            return x, y, 0.0
+        return p
 
     # ------------------------------------------------------------------ what the carrier asks
     def advance_to(self, t: float) -> None:
@@ -173,11 +180,9 @@ class RobotBody:
         first = len(self._trace)
         for s in range(first, int(math.floor(t + 1e-9)) + 1):
             p = self._pose_at(float(s))
-            if p is not None:
-                self._trace.append((float(s), p[0], p[1]))
+            self._trace.append((float(s), p[0], p[1]))
         p = self._pose_at(t)
-        if p is not None:
-            self._pos = (p[0], p[1])
+        self._pos = (p[0], p[1])
         self.time = max(self.time, float(t))
 
     def position(self, cid: str) -> tuple[float, float]:

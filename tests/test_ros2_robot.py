@@ -110,3 +110,30 @@ def test_a_robot_of_another_ros2_format_is_refused_in_one_line(tmp_path):
     lines = [ln for ln in fleet.log.lines if "carrier a:" in ln and "RIHS01" in ln]
     assert len(lines) == 1 and "Humble" in lines[0], fleet.log.lines
     assert fleet.results["b"] == "end" and summary["ended"]
+
+
+def test_a_silent_robot_is_taken_where_it_was_planned_and_logged_once():
+    """No odometry, no detections: the body gives up after its timeout (one line each), takes
+    the planned position and x = 0, and never blocks the carrier longer than that."""
+    import zenoh
+
+    from ros2.graph import Node
+    from ros2.robot import RobotBody
+    from wire.zconfig import free_port, make_config
+
+    tiny = world.load_scenario(TINY)
+    session = zenoh.open(make_config("peer", [f"tcp/127.0.0.1:{free_port()}"]))
+    lines: list[str] = []
+    try:
+        node = Node(session, DOMAIN, "/a", "carrier", watch=False)
+        body = RobotBody(tiny, "a", node, "/robot9", sync=True, log=lines.append, stop=threading.Event(),
+                         timeout_s=0.2)
+        body.advance_to(5.0)
+        assert body.position("a") == tuple(float(v) for v in tiny.carriers[0].position_at(5.0))
+        assert body.sense("a") == 0
+        body.advance_to(10.0)
+        assert body.trajectory("a").shape == (11, 3)
+        node.close()
+    finally:
+        session.close()
+    assert [ln.split(":")[1].split(" stamped")[0].strip() for ln in lines] == ["no odometry", "no feature detections"]
