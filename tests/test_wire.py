@@ -217,6 +217,15 @@ def test_zenoh_config_flags_override_the_file(tmp_path):
     assert json.loads(conf.get_json("listen/endpoints")) == ["tcp/127.0.0.1:2222"]
 
 
+def test_zenoh_shared_memory_is_off_unless_the_file_says(tmp_path):
+    """zenoh 1.x's shared-memory pool (16 MB per session, kept resident) is off for fleet
+    processes; a config file that mentions shared_memory decides for itself."""
+    assert json.loads(zconfig.make_config("peer").get_json("transport/shared_memory/enabled")) is False
+    path = tmp_path / "shm.json5"
+    path.write_text("{ transport: { shared_memory: { enabled: true } } }")
+    assert json.loads(zconfig.make_config(None, [], [], str(path)).get_json("transport/shared_memory/enabled")) is True
+
+
 @pytest.mark.parametrize("kwargs, fragment", [
     ({"listen": ["127.0.0.1:7447"]}, "--listen"),
     ({"connect": ["tcp 1"]}, "--connect"),

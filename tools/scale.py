@@ -112,8 +112,10 @@ def long_streets_scenario(n_carriers: int, seed: int = 1, planner: str = "closed
             a, b = b, a
         path = [[a, along], [b, along]] if k % 2 == 0 else [[along, a], [along, b]]
         start = float(rng.choice([0.0, 0.0, 0.0, 0.0, stage_interval, 2 * stage_interval]))
-        carriers.append({"id": f"c{k:04d}", "passengers": PASSENGERS, "start_time": start, "speed": LONG_SPEED,
-                         "waypoints": path})
+        stop = start + abs(b - a) / LONG_SPEED
+        valid = sum(1 for j in range(stages) if start <= j * stage_interval <= stop)
+        carriers.append({"id": f"c{k:04d}", "passengers": min(PASSENGERS, valid), "start_time": start,
+                         "speed": LONG_SPEED, "waypoints": path})
     return {
         "name": f"long_{n_carriers}",
         "seed": int(seed),

@@ -3,7 +3,8 @@
 Order of precedence (later wins): zenoh's defaults, then the fleet's defaults (multicast
 scouting off, unless the config file mentions ``multicast``; room for :data:`MAX_SESSIONS`
 sessions and :data:`ACCEPT_PENDING` handshakes in progress, unless the file mentions
-``max_sessions`` / ``accept_pending``), then ``--zenoh-config FILE.json5``,
+``max_sessions`` / ``accept_pending``; shared memory off, unless it mentions
+``shared_memory``: see :data:`SHARED_MEMORY`), then ``--zenoh-config FILE.json5``,
 then the ``--mode``, ``--listen`` and ``--connect`` flags, which override the file's keys.
 """
 from __future__ import annotations
@@ -27,6 +28,15 @@ MAX_SESSIONS = 10_000
 #: Incoming sessions a node handshakes at once (zenoh's default 100; a large fleet's carriers
 #: connect within seconds of each other).
 ACCEPT_PENDING = 2_000
+
+
+#: Zenoh's shared-memory transport, off by default for fleet processes. zenoh 1.x turns it on
+#: with a 16 MB pool per session that every message above 3 KB goes through (an Observation
+#: with a long trail, a large fleet's Decision): the pool's pages stay resident, so a process
+#: of 32 carriers (32 sessions) of a physics-heavy mission held about 520 MB of /dev/shm/*.zenoh
+#: on top of its 60 MB, and 256 carriers 4 GB or more. The fleet's messages are small and
+#: cross TCP anyway (loopback or hosts); a config file that mentions ``shared_memory`` decides.
+SHARED_MEMORY = False
 
 
 class ConfigError(ValueError):
@@ -85,6 +95,8 @@ def make_config(
         conf.insert_json5("transport/unicast/max_sessions", str(MAX_SESSIONS))
     if "accept_pending" not in text:
         conf.insert_json5("transport/unicast/accept_pending", str(ACCEPT_PENDING))
+    if "shared_memory" not in text:
+        conf.insert_json5("transport/shared_memory/enabled", json.dumps(SHARED_MEMORY))
     if mode is not None:
         if mode not in ("peer", "client", "router"):
             raise ConfigError(f"--mode: expected peer, client or router, found {mode!r}")
