@@ -69,11 +69,11 @@ class Motion:
                 self._pump(min(0.05, due - time.monotonic()))
                 self._check_refused()
 
-    def _progress(self) -> None:
+    def _progress(self, every_s: float = DEFAULTS.progress_s) -> None:
         """Sim clock: tell the coordinator and the peers that this carrier is working (a
-        Progress message) when ``progress_s`` passed since it last published one."""
+        Progress message) when ``every_s`` passed since it last published one."""
         now = time.monotonic()
-        if self.config.clock != "sim" or now - self.track.progress_at < DEFAULTS.progress_s:
+        if self.config.clock != "sim" or now - self.track.progress_at < every_s:
             return
         self.track.progress_at = now
         if self.node.revision < Progress.SINCE:

@@ -257,7 +257,8 @@ class Carrier(Motion, Inbound, Joining, Alone):
         While the coordinator's token is present: on the wall clock at most the decision timeout
         (then it decides the stage itself); on the sim clock as long as it takes (the
         coordinator may be planning a large fleet, or waiting for slow carriers), asking its
-        State every decision timeout so that a Decision lost in a reconnection is recovered."""
+        State every decision timeout so that a Decision lost in a reconnection is recovered, and
+        sending Progress every third of the silence timeout."""
         waited = 0.0
         last = time.monotonic()
         while not self._stop.is_set() and not self.machine.ended and not self.machine.resolved(j):
@@ -267,6 +268,10 @@ class Carrier(Motion, Inbound, Joining, Alone):
                 return
             if self.presence.coordinator_present:
                 waited += now - last
+                # Alive while the Decision is on its way (slow on a saturated host): a Progress a
+                # third of the silence timeout apart, so the next stage's wait does not take
+                # this carrier for a stalled one before the Decision reaches it.
+                self._progress(self.config.silence_timeout_s / 3)
                 if waited >= self.config.decision_timeout_s and self.config.clock == "sim":
                     waited = 0.0
                     self._recover_decision(j)
