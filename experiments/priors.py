@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.report import STYLE, planner_order, read_csv, sem, variant_bars, write_csv
+from experiments.report import STYLE, Variants, planner_order, read_csv, sem, variant_bars, write_csv
 from experiments.trials import Sweep, Task, replace_prior, urban_trial
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -180,8 +180,8 @@ def markdown(summary: list[dict], rows: list[dict]) -> str:
 def plot(summary: list[dict], path: Path, title: str) -> None:
     """Grouped bars: each case × planner, the three variants as % of the oracle's mean, ±1 SEM."""
     variant_bars(
-        summary, VARIANTS, "oracle_mean", {"stated": "#e7298a", "learned": "#1b9e77", "oracle": "#666666"},
-        {v: v for v in VARIANTS}, [f"{r['case']}\n{STYLE.get(r['planner'], (r['planner'],))[0]}" for r in summary],
+        summary, Variants(VARIANTS, "oracle_mean", {"stated": "#e7298a", "learned": "#1b9e77", "oracle": "#666666"},
+                          {v: v for v in VARIANTS}), [f"{r['case']}\n{STYLE.get(r['planner'], (r['planner'],))[0]}" for r in summary],
         path, title, "mean reward, % of the oracle prior's (±1 SEM)", lines=(100, 95), legend_title="prior")
 
 

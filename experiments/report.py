@@ -10,6 +10,7 @@ import csv
 import math
 from collections import defaultdict
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -237,12 +238,24 @@ def plot(summary: list[dict], path: Path, xlabel: str, title: str, log_x: bool =
     plt.close(fig)
 
 
-def variant_bars(summary: list[dict], variants, base: str, colours: dict, names: dict, labels: list[str],
-                 path: Path, title: str, ylabel: str, figsize=(12, 4.8), lines=(100,), legend_title=None,
-                 label_size: float = 7, rotation: float = 0) -> None:
+class Variants(NamedTuple):
+    """The variants of a paired comparison: their keys (in bar order), the summary column every
+    bar is a % of, and per key its colour and its legend name."""
+
+    keys: tuple
+    base: str
+    colours: dict
+    names: dict
+
+
+def variant_bars(summary: list[dict], variants: Variants, labels: list[str], path: Path, title: str, ylabel: str,
+                 figsize=(12, 4.8), lines=(100,), legend_title=None, label_size: float = 7,
+                 rotation: float = 0) -> None:
     """Grouped bars of a paired comparison: per row of ``summary`` (labelled ``labels``), each
-    variant's ``<v>_mean`` as a % of the row's ``base`` (±1 SEM from ``<v>_sem``), horizontal
-    reference ``lines`` in %."""
+    variant's ``<v>_mean`` as a % of the row's ``variants.base`` (±1 SEM from ``<v>_sem``),
+    horizontal reference ``lines`` in %."""
+    base, colours, names = variants.base, variants.colours, variants.names
+    variants = variants.keys
     import matplotlib
 
     matplotlib.use("Agg")

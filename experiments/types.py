@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments.report import STYLE, planner_order, read_csv, sem, variant_bars, write_csv
+from experiments.report import STYLE, Variants, planner_order, read_csv, sem, variant_bars, write_csv
 from experiments.trials import CLAIRVOYANT, Sweep, Task, encode_released, seed_of, urban_trial
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -182,8 +182,9 @@ def markdown(summary: list[dict]) -> str:
 def plot(summary: list[dict], path: Path, title: str) -> None:
     """Grouped bars: each case × planner, aware and blind as % of the clairvoyant mean, ±1 SEM."""
     variant_bars(
-        summary, VARIANTS, "clairvoyant_mean", {"aware": "#1b9e77", "choice": "#7570b3", "blind": "#999999"},
-        {"aware": "type-aware", "choice": "unweighted search, rank-rule passenger", "blind": "type-blind"},
+        summary, Variants(VARIANTS, "clairvoyant_mean", {"aware": "#1b9e77", "choice": "#7570b3", "blind": "#999999"},
+                          {"aware": "type-aware", "choice": "unweighted search, rank-rule passenger",
+                           "blind": "type-blind"}),
         [f"{r['case'].replace('random, ', '')}\n{STYLE.get(r['planner'], (r['planner'],))[0]}" for r in summary],
         path, title, "mean reward, % of the clairvoyant bound (±1 SEM)", figsize=(11, 4.6), label_size=6.5,
         rotation=20)

@@ -32,6 +32,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from itertools import combinations
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -171,25 +172,49 @@ def _topk_wsum(values: np.ndarray, k: int, w: np.ndarray, dcount: int) -> float:
     return total
 
 
+class Points(NamedTuple):
+    """The flat decision points ``[M]``: observations (0 at invalid points; never selected),
+    validity, and the CSR rows of the valid-conflict graph (``nbr_ptr`` int ``[M + 1]``,
+    ``nbr_idx`` int ``[E]``)."""
+
+    xs: np.ndarray
+    valid: np.ndarray
+    nbr_ptr: np.ndarray
+    nbr_idx: np.ndarray
+
+
+class Options(NamedTuple):
+    """Each carrier's deployment options: ``order`` int ``[R]`` (carrier searched at each level);
+    options of carrier r are ``opt_ptr[r]:opt_ptr[r + 1]`` (int ``[R + 1]``), each with its flat
+    points ``opt_pts`` int ``[O, kmax]`` (first ``ks[r]`` used) and its conflict-free value
+    ``opt_ub`` float ``[O]`` (negatives as 0); ``ks`` int ``[R]`` deployments per carrier."""
+
+    order: np.ndarray
+    opt_ptr: np.ndarray
+    opt_pts: np.ndarray
+    opt_ub: np.ndarray
+    ks: np.ndarray
+
+
+class Values(NamedTuple):
+    """Passenger values: weights float ``[R, max D]`` largest first and passengers per carrier
+    int ``[R]`` (read when ``weighted``: a carrier's points earn sorted-matched weights)."""
+
+    wts: np.ndarray
+    dcount: np.ndarray
+    weighted: bool
+
+
 @numba.njit(cache=True)
-def _branch_and_bound(
-    xs: np.ndarray,          # float [M] flat observations (0 at invalid points; never selected)
-    valid: np.ndarray,       # bool [M]
-    nbr_ptr: np.ndarray,     # int [M + 1] CSR rows of the valid-conflict graph
-    nbr_idx: np.ndarray,     # int [E]
-    order: np.ndarray,       # int [R] carrier searched at each level
-    opt_ptr: np.ndarray,     # int [R + 1] options of carrier r are opt_ptr[r]:opt_ptr[r+1]
-    opt_pts: np.ndarray,     # int [O, kmax] flat points of each option (first k_r used)
-    opt_ub: np.ndarray,      # float [O] conflict-free value of each option (negatives as 0)
-    ks: np.ndarray,          # int [R] deployments per carrier
-    n_stages: int,
-    incumbent: float,        # value of a known feasible plan (prune bounds <= it)
-    max_nodes: int,
-    wts: np.ndarray,         # float [R, max D] passenger weights, largest first (read when weighted)
-    dcount: np.ndarray,      # int [R] passengers per carrier (read when weighted)
-    weighted: bool,          # passenger values: a carrier's points earn sorted-matched weights
-):
-    """Returns (best value, best option per carrier (-1 = incumbent kept), nodes, finished)."""
+def _branch_and_bound(points, options, values, n_stages, incumbent, max_nodes):
+    """Best plan by branch and bound over the carriers' options (:class:`Points`,
+    :class:`Options`, :class:`Values`), pruning bounds ``<= incumbent`` (the value of a known
+    feasible plan), at most ``max_nodes`` nodes.
+
+    Returns (best value, best option per carrier (-1 = incumbent kept), nodes, finished)."""
+    xs, valid, nbr_ptr, nbr_idx = points
+    order, opt_ptr, opt_pts, opt_ub, ks = options
+    wts, dcount, weighted = values
     n_carriers = len(order)
     n_points = len(xs)
     pos = np.maximum(xs, 0.0)
@@ -356,9 +381,9 @@ def solve(problem: Problem, x: np.ndarray, max_nodes: int = MAX_NODES) -> Clairv
     else:
         incumbent = evaluate(problem, first, x, _assign(problem, first, x))[1]
     best, best_opts, nodes, finished = _branch_and_bound(
-        xs, flat_valid, nbr_ptr, nbr_idx, order, opt_ptr, opt_pts, opt_ub, ks, n_stages,
-        incumbent, int(max_nodes), np.ones((1, 1)) if wts is None else wts,
-        problem.passengers.astype(np.int64), wts is not None,
+        Points(xs, flat_valid, nbr_ptr, nbr_idx), Options(order, opt_ptr, opt_pts, opt_ub, ks),
+        Values(np.ones((1, 1)) if wts is None else wts, problem.passengers.astype(np.int64), wts is not None),
+        n_stages, incumbent, int(max_nodes),
     )
     if not finished:
         return ClairvoyantResult(fallback.deployed, fallback.reward, fallback.features, False, int(nodes),

@@ -40,6 +40,7 @@ forced deployments) holds in the executed action and in every rollout. Stateless
 from __future__ import annotations
 
 import time
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -110,27 +111,71 @@ def _undo(sel, p, log, nlog):
             sel[v] = False
 
 
+class Selection(NamedTuple):
+    """Selection state over flat points ``[R*N]``: chosen, penalty ``p`` (1 + chosen points sharing
+    an overlap), value (the observation, weighted with passenger values). The kernels restore it."""
+
+    sel: np.ndarray
+    p: np.ndarray
+    xv: np.ndarray
+
+
+class Net(NamedTuple):
+    """What the kernels read of the problem: validity bool ``[R, N]``, valid stages left int64
+    ``[R, N + 1]``, DLR thresholds ``[N + 2, N + 2]`` (raw units), CSR of "shares an overlap"."""
+
+    valid: np.ndarray
+    nleft: np.ndarray
+    table: np.ndarray
+    nbr_ptr: np.ndarray
+    nbr_idx: np.ndarray
+
+
+class Candidates(NamedTuple):
+    """Candidate joint actions bool ``[K, m]`` of a component's ``m`` carriers ``members`` (int64,
+    in decision order), their observations now float ``[m]`` and passengers left before the
+    current stage int64 ``[m]``."""
+
+    actions: np.ndarray
+    members: np.ndarray
+    xnow: np.ndarray
+    left0: np.ndarray
+
+
+class _Stage(NamedTuple):
+    """One decision of the planner: the view, the compiled problem, the shared :class:`Selection`,
+    validity ``[R, N]``, valid stages left ``[R, N + 1]``, passengers left ``[R]`` and the
+    observations now ``[R]``."""
+
+    view: object
+    prep: object
+    selection: Selection
+    valid: np.ndarray
+    nleft: np.ndarray
+    left: np.ndarray
+    xnow: np.ndarray
+
+
 # The rollout after the current stage (the loop over t below) is written out here and in
 # planner.decentralised._evaluate_imputed rather than shared: as a separate numba function, even
 # inlined, it cost closed-loop 6-10% of its decision time.
 @njit(cache=True)
-def _evaluate(actions, members, stage, n_stages, xnow, left0, valid, nleft, table,
-              sel, p, xv, nbr_ptr, nbr_idx, samples, out, control_variate):
+def _evaluate(cand, stage, n_stages, net, selection, samples, out, control_variate):
     """Per-sample control-variate values of every candidate.
 
     Args:
-        actions: bool ``[K, m]`` candidate joint actions of the component's ``m`` carriers.
-        members: int64 ``[m]`` carrier indices, in decision order.
-        xnow: float ``[m]`` observations at the current stage.
-        left0: int64 ``[m]`` passengers left before the current stage.
-        valid: bool ``[R, N]``; nleft: int64 ``[R, N + 1]`` valid stages from t to the end.
-        table: DLR thresholds ``[N + 2, N + 2]`` (raw units).
-        sel, p, xv: selection state over flat points (past deployments), restored on return.
+        cand: :class:`Candidates` of one component.
+        stage, n_stages: the current stage and N.
+        net: :class:`Net`.
+        selection: :class:`Selection` of the past deployments, restored on return.
         samples: float ``[S, N - stage - 1, m]`` sampled future observations.
         out: float ``[K, S]`` receives ``aware_total - plain_future`` per candidate and sample
             (raw units; constant offsets common to all candidates left out), or ``aware_total``
             alone when ``control_variate`` is False.
     """
+    actions, members, xnow, left0 = cand
+    valid, nleft, table, nbr_ptr, nbr_idx = net
+    sel, p, xv = selection
     n_cand = actions.shape[0]
     m = members.shape[0]
     n_samples = samples.shape[0]
@@ -221,9 +266,8 @@ def _weighted_choice(table, y, loss, n, d, ws, i):
 
 
 @njit(cache=True)
-def _evaluate_weighted(actions, members, stage, n_stages, xnow, left0, valid, nleft, table,
-                       sel, p, xv, nbr_ptr, nbr_idx, samples, out, control_variate, ws0, pos_now):
-    """:func:`_evaluate` for a problem with passenger values (``xv`` holds weighted values).
+def _evaluate_weighted(cand, stage, n_stages, net, selection, samples, out, control_variate, ws0, pos_now):
+    """:func:`_evaluate` for a problem with passenger values (``selection.xv`` holds weighted values).
 
     Args (besides :func:`_evaluate`'s):
         ws0: float ``[m, max D + 1]`` weights of each member's passengers aboard, largest first,
@@ -231,6 +275,9 @@ def _evaluate_weighted(actions, members, stage, n_stages, xnow, left0, valid, nl
         pos_now: int64 ``[m]`` rank position of the passenger a deployment now releases
             (:func:`planner.passengers.choose`).
     """
+    actions, members, xnow, left0 = cand
+    valid, nleft, table, nbr_ptr, nbr_idx = net
+    sel, p, xv = selection
     n_cand = actions.shape[0]
     m = members.shape[0]
     n_samples = samples.shape[0]
@@ -445,7 +492,8 @@ class ClosedLoopPlanner:
         sel = past.copy()
         p = prep.penalties(sel)
         xv = np.nan_to_num(np.where(view.deployed, _past_values(view), 0.0), nan=0.0).ravel()
-        state = (sel, p, xv)
+        state = Selection(sel, p, xv)
+        ctx = _Stage(view, prep, state, valid, nleft, left, xnow)
 
         plans = []
         for comp in search:
@@ -466,22 +514,20 @@ class ClosedLoopPlanner:
             block_deadline = None
             if deadline is not None:
                 block_deadline = time.perf_counter() + share * max(deadline - time.perf_counter(), 0.0)
-            action = self._search(members, decision[members], flip, samples, block_deadline, view, prep,
-                                  state, valid, nleft, left, xnow, rng)
+            action = self._search(members, decision[members], flip, samples, block_deadline, ctx, rng)
             decision[members[flip]] = action[flip]
         return decision
 
     # Search of one block ----------------------------------------------------------------------
 
-    def _search(self, members, base, flip, samples, deadline, view, prep, state, valid, nleft, left, xnow, rng):
+    def _search(self, members, base, flip, samples, deadline, ctx, rng):
         """The best joint action of ``members`` found from ``base`` by changing only the carriers at
         positions ``flip``: all ``2^k`` combinations when ``k <= ENUMERATE_MAX``, else coordinate
-        ascent over single flips (3 rounds, or until the deadline)."""
+        ascent over single flips (3 rounds, or until the deadline). ``ctx``: the :class:`_Stage`."""
         k = len(flip)
         if k <= ENUMERATE_MAX:
             actions = _every_combination(base, flip)
-            score = self._score(actions, members, samples, deadline, view, prep, state, valid, nleft, left, xnow,
-                                rng)
+            score = self._score(actions, members, samples, deadline, ctx, rng)
             return actions[int(np.argmax(score))]
         current = base
         for _ in range(3 if deadline is None else 1 << 30):
@@ -493,22 +539,21 @@ class ClosedLoopPlanner:
                 if time.perf_counter() >= deadline:
                     break
                 round_deadline = time.perf_counter() + (deadline - time.perf_counter()) / 2
-            score = self._score(actions, members, samples, round_deadline, view, prep, state, valid, nleft,
-                                left, xnow, rng)
+            score = self._score(actions, members, samples, round_deadline, ctx, rng)
             best = int(np.argmax(score))
             if best == 0:
                 break
             current = actions[best]
         return current
 
-    def _score(self, actions, comp, samples, deadline, view, prep, state, valid, nleft, left, xnow, rng,
-               control_variate=True):
-        """Estimated value (raw units, up to a constant common to all candidates) of each candidate.
+    def _score(self, actions, comp, samples, deadline, ctx, rng, control_variate=True):
+        """Estimated value (raw units, up to a constant common to all candidates) of each candidate
+        joint action of the carriers ``comp`` (``ctx``: the :class:`_Stage`).
 
         With ``control_variate`` (the default) the estimate is ``mean(aware - plain) + exact(plain)``;
         without, the plain Monte Carlo mean of the aware rollouts (for tests: same expectation).
         """
-        sel, p, xv = state
+        view, prep, selection, valid, nleft, left, xnow = ctx
         problem = view.problem
         j = view.stage
         n_stages = problem.n_stages
@@ -517,17 +562,16 @@ class ClosedLoopPlanner:
         sums = np.zeros(len(actions))
         count = 0
         typed = None if problem.weights is None else _typed_state(view, comp, prep.table)
+        cand = Candidates(actions, comp, xnow[comp], comp_left)
+        net = Net(valid, nleft, prep.table, prep.indptr, prep.nbr)
         while True:
             batch = samples if deadline is None else BATCH
             draws = prep.sampler.sample(rng, (batch, horizon, len(comp)))
             out = np.empty((len(actions), batch))
             if typed is None:
-                _evaluate(actions, comp, j, n_stages, xnow[comp], comp_left, valid, nleft, prep.table,
-                          sel, p, xv, prep.indptr, prep.nbr, draws, out, control_variate)
+                _evaluate(cand, j, n_stages, net, selection, draws, out, control_variate)
             else:
-                _evaluate_weighted(actions, comp, j, n_stages, xnow[comp], comp_left, valid, nleft, prep.table,
-                                   sel, p, xv, prep.indptr, prep.nbr, draws, out, control_variate,
-                                   typed[0], typed[1])
+                _evaluate_weighted(cand, j, n_stages, net, selection, draws, out, control_variate, typed[0], typed[1])
             sums += out.sum(axis=1)
             count += batch
             if deadline is None or time.perf_counter() >= deadline:
@@ -642,9 +686,9 @@ def estimate(view: StageView, actions: np.ndarray, samples: int, rng: np.random.
     sel = view.deployed.ravel().copy()
     p = prep.penalties(sel)
     xv = np.where(view.deployed, _past_values(view), 0.0).ravel()
+    ctx = _Stage(view, prep, Selection(sel, p, xv), valid, nleft, left, xnow)
     return ClosedLoopPlanner()._score(np.asarray(actions, dtype=bool), np.arange(n_carriers, dtype=np.int64),
-                                      int(samples), None, view, prep, (sel, p, xv), valid, nleft, left, xnow,
-                                      rng, control_variate)
+                                      int(samples), None, ctx, rng, control_variate)
 
 
 cache_follows_sources(globals())  # the on-disk cache follows every planner source

@@ -19,14 +19,15 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from types import SimpleNamespace
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
 
 from planner import ssap
-from planner.closedloop import (BATCH, BLOCK, ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, ClosedLoopPlanner,
-                                _components, _every_combination, _grow, _halo, _marginal, _select,
-                                _undo)
+from planner.closedloop import (BATCH, BLOCK, ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, Candidates, ClosedLoopPlanner,
+                                Net, Selection, _components, _every_combination, _grow, _halo, _marginal,
+                                _select, _undo)
 from planner.comms import CommsSpec, Deliveries, realise
 from planner.compiled import compile_problem
 from planner.kernels import cache_follows_sources, deploys
@@ -282,20 +283,28 @@ def _run_decentralised(problem, x, planner, seed, dl: Deliveries, released=None)
 # ----------------------------------------------------------------------------- dec-closed-loop
 
 
+class Unknown(NamedTuple):
+    """What a carrier does not know of the members of its component: ``known`` bool ``[m]`` (the
+    member's stage-j state is known), ``start`` int64 ``[m]`` (first stage of an unknown member
+    whose deployment is unknown), ``left_start`` int64 ``[m]`` (its passengers left there), and
+    ``xobs`` float ``[R, N]`` the known observations (NaN unknown)."""
+
+    known: np.ndarray
+    start: np.ndarray
+    left_start: np.ndarray
+    xobs: np.ndarray
+
+
 @njit(cache=True)
-def _evaluate_imputed(actions, members, known, start, left_start, stage, n_stages, xobs, xnow, left0,
-                      valid, nleft, table, sel, p, xv, nbr_ptr, nbr_idx, past, samples, out):
+def _evaluate_imputed(cand, unknown, stage, n_stages, net, selection, past, samples, out):
     """Per-sample values of every candidate when some members' recent past is unknown.
 
     Args:
-        actions: bool ``[K, m]`` candidate actions at ``stage`` (read for known members only).
-        members: int64 ``[m]``; known: bool ``[m]``: the member's stage-j state is known.
-        start: int64 ``[m]``: first stage of an unknown member whose deployment is unknown;
-            left_start: its passengers left there.
-        xobs: float ``[R, N]`` known observations (NaN unknown); xnow: float ``[m]`` stage-j
-            observations of known members; left0: int64 ``[m]`` their passengers left.
-        valid: bool ``[R, N]`` scheduled validity (with known ∅); nleft: its valid stages left.
-        sel, p, xv: selection state of the known past deployments, restored on return.
+        cand: :class:`planner.closedloop.Candidates` (actions at ``stage`` read for known members
+            only; ``xnow`` and ``left0`` are the known members' stage-j observations and passengers).
+        unknown: :class:`Unknown`.
+        net: :class:`planner.closedloop.Net` (scheduled validity with the known ∅).
+        selection: :class:`planner.closedloop.Selection` of the known past deployments, restored on return.
         past: float ``[S, N, m]`` draws for the unknown stages of unknown members (stages
             ``start..stage``, where the observation is not known); samples: float ``[S, N - stage
             - 1, m]`` draws of the future.
@@ -304,6 +313,10 @@ def _evaluate_imputed(actions, members, known, start, left_start, stage, n_stage
     Unknown members follow their known default policy (SSAP thresholds) on sampled observations
     through ``stage``; then every member follows the conflict-aware SSAP rollout.
     """
+    actions, members, xnow, left0 = cand
+    known, start, left_start, xobs = unknown
+    valid, nleft, table, nbr_ptr, nbr_idx = net
+    sel, p, xv = selection
     n_cand = actions.shape[0]
     m = members.shape[0]
     n_samples = samples.shape[0]
@@ -495,14 +508,16 @@ class DecClosedLoopPlanner:
         deadline = None if self.plan_ms is None else time.perf_counter() + self.plan_ms / 1e3
         sums = np.zeros(len(actions))
         count = 0
+        cand = Candidates(actions, comp, xnow_all[comp], left[comp])
+        unknown = Unknown(known[comp], start[comp], left[comp], np.ascontiguousarray(local.observations))
+        net = Net(valid, nleft, prep.table, prep.indptr, prep.nbr)
+        selection = Selection(sel, p, xv)
         while True:
             batch = samples if deadline is None else BATCH
             past_draws = prep.sampler.sample(rng, (batch, N, m))
             future = prep.sampler.sample(rng, (batch, N - j - 1, m))
             out = np.empty((len(actions), batch))
-            _evaluate_imputed(actions, comp, known[comp], start[comp], left[comp], j, N,
-                              np.ascontiguousarray(local.observations), xnow_all[comp], left[comp], valid, nleft,
-                              prep.table, sel, p, xv, prep.indptr, prep.nbr, past_draws, future, out)
+            _evaluate_imputed(cand, unknown, j, N, net, selection, past_draws, future, out)
             sums += out.sum(axis=1)
             count += batch
             if deadline is None or time.perf_counter() >= deadline:

@@ -9,6 +9,7 @@ of docs/architecture.md, read from that file."""
 from __future__ import annotations
 
 import ast
+import functools
 import json
 import pkgutil
 import re
@@ -173,6 +174,12 @@ def _project_modules() -> dict[str, Path]:
     return out
 
 
+@functools.lru_cache(maxsize=None)
+def _parsed(path: Path) -> ast.Module:
+    """The syntax tree of a file (parsed once per test session)."""
+    return ast.parse(path.read_text(), str(path))
+
+
 def _is_main_guard(node: ast.AST) -> bool:
     """``if __name__ == "__main__":`` — its body runs in the script's own ``__main__`` module,
     which nothing imports, so its imports cannot close a cycle."""
@@ -197,7 +204,7 @@ def _targets(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
     that is a module (else as ``P``); a relative import is resolved against the module's package."""
     package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
     wanted = set()
-    for node in _import_nodes(ast.parse(path.read_text(), str(path))):
+    for node in _import_nodes(_parsed(path)):
         if isinstance(node, ast.Import):
             wanted.update(alias.name for alias in node.names)
             continue
@@ -350,3 +357,22 @@ def test_processes_are_thin():
                 for path in files for what, line, length in _too_long(
                     ast.parse(path.read_text()), PROCESS_FUNCTION_MAX, PROCESS_CLASS_MAX)]
     assert problems == []
+
+
+#: Most parameters a function of the project may take (numba kernels included): beyond, pass named
+#: structures (NamedTuples of arrays, as planner/mcts/kernel.py does).
+MAX_PARAMETERS = 12
+
+
+def test_no_function_takes_more_than_twelve_parameters():
+    bad = []
+    paths = [*_project_modules().values(), *(p for d in sorted(UNLAYERED) for p in sorted((REPO / d).rglob("*.py")))]
+    for path in paths:
+        for node in ast.walk(_parsed(path)):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+                a = node.args
+                count = (len(a.posonlyargs) + len(a.args) + len(a.kwonlyargs) + (a.vararg is not None)
+                         + (a.kwarg is not None))
+                if count > MAX_PARAMETERS:
+                    bad.append(f"{path.relative_to(REPO)}:{node.lineno} {getattr(node, 'name', 'lambda')}: {count}")
+    assert bad == []

@@ -226,8 +226,7 @@ def _advance(q, n, j0, left, valid, vs_left, mark, pts):
 
 
 @njit(cache=True)
-def rollout(state, q, n, j0, valid, vs_left, known, table, ucut, points, cdf, guide, indptr, nbr, policy,
-            left, mark, xval, pts):
+def rollout(q, n, root, model, policy, scratch):
     """Complete the trajectory from position q with the rollout policy; returns len(pts).
 
     SSAP: a carrier deploys by the threshold rule on its observation discounted for conflicts
@@ -235,7 +234,12 @@ def rollout(state, q, n, j0, valid, vs_left, known, table, ucut, points, cdf, gu
     A sampled observation x = quantile(u) exceeds the threshold t iff u >= P(X <= t) =
     ``ucut[ns, ns - d]``, so a conflict-free SSAP decision reads u alone and the quantile is
     looked up only for deployments (the same draws and decisions as sampling x first).
+    ``policy``: ROLLOUT_SSAP or ROLLOUT_RANDOM; ``n`` points are in ``scratch.pts`` on entry.
     """
+    j0, valid, vs_left, known = root.j0, root.valid, root.vs_left, root.known
+    table, ucut, points, cdf, guide = model.table, model.ucut, model.points, model.cdf, model.guide
+    indptr, nbr = model.indptr, model.nbr
+    state, left, mark, xval, pts = scratch.state, scratch.left, scratch.mark, scratch.xval, scratch.pts
     n_carriers, n_stages = valid.shape
     z = state[0]  # the stream's counter, kept in a register and stored back at the end
     k = j0 + q // n_carriers
@@ -353,8 +357,7 @@ def simulate(q, n_tree, root, model, settings, scratch):
             xval[a] = _sample(state, points, cdf, guide) if np.isnan(x) else x
         for r in range(n_carriers):
             left[r] = left_tree[r]
-        n = rollout(state, q, n_tree, j0, valid, vs_left, known, table, ucut, points, cdf, guide, indptr, nbr,
-                    policy, left, mark, xval, pts)
+        n = rollout(q, n_tree, root, model, policy, scratch)
         if weighted:
             weigh(n, pts, xval, known.shape[1], vs_left, table, d0, ws0, scratch.ws, scratch.dleft)
         total += evaluate(n, past, pts, mark, xval, indptr, nbr)
