@@ -139,11 +139,13 @@ def _zenoh_flags(p: argparse.ArgumentParser) -> None:
 
 
 def _view_flags(p: argparse.ArgumentParser) -> None:
+    from viewer import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
+
     v = p.add_argument_group("live view (pip install -e '.[view]'; docs/fleet.md, \"Seeing a mission\")")
     v.add_argument("--view", action="store_true",
                    help="one-host mode: also start a viewer and print the address of its web view")
-    v.add_argument("--web-port", type=int, default=9090, help="viewer: web viewer port on 127.0.0.1 (default %(default)s)")
-    v.add_argument("--grpc-port", type=int, default=9876,
+    v.add_argument("--web-port", type=int, default=DEFAULT_WEB_PORT, help="viewer: web viewer port on 127.0.0.1 (default %(default)s)")
+    v.add_argument("--grpc-port", type=int, default=DEFAULT_GRPC_PORT,
                    help="viewer: rerun gRPC server port on 127.0.0.1 (default %(default)s)")
     v.add_argument("--save", metavar="FILE.rrd", help="viewer: also write the stream to this rerun file")
     v.add_argument("--no-web", action="store_true", help="viewer: no web viewer (with --save: only the file)")
@@ -176,13 +178,15 @@ def _timeout_flags(p: argparse.ArgumentParser):
 def _onboard_flags(p: argparse.ArgumentParser, t) -> None:
     """A carrier's on-board planner, its durable log, and its wait for peers deciding on board
     (``t``: the timeouts group)."""
+    from carriers import ONBOARD_LOADS
     from mission.timeouts import DEFAULTS
+    from storage.carrierlog import SYNC_MODES
 
-    p.add_argument("--onboard-load", choices=("start", "need"),
+    p.add_argument("--onboard-load", choices=ONBOARD_LOADS,
                    help="carrier: when the on-board planner is loaded: at the start, or when it may be needed "
                         "(the coordinator's token gone, no decision by --decision-timeout); default start for a "
                         "process of one carrier, need for a process of several")
-    p.add_argument("--log-sync", choices=("full", "normal"),
+    p.add_argument("--log-sync", choices=SYNC_MODES,
                    help="carrier: how its durable log commits: full survives a power loss of its host, normal "
                         "only a crash of the process (default full with --role carrier, normal for the one-host "
                         "launcher's carriers: a power loss takes the whole fleet there)")
@@ -193,9 +197,11 @@ def _onboard_flags(p: argparse.ArgumentParser, t) -> None:
 
 def _output_flags(p: argparse.ArgumentParser) -> None:
     """The coordinator's map and recording."""
+    from recording import PROFILES
+
     p.add_argument("--no-map", action="store_true", help="do not draw map.png")
     p.add_argument("--no-record", action="store_true", help="coordinator: do not write mission.mcap")
-    p.add_argument("--mcap-profile", choices=("foxglove", "ros2"), default="foxglove",
+    p.add_argument("--mcap-profile", choices=PROFILES, default=PROFILES[0],
                    help="coordinator: the recording's profile: foxglove (default: mission.mcap with Foxglove's "
                         "schemas) or ros2 (the rosbag2 bag ros2bag/ that ros2 bag play replays; needs .[ros2])")
 
@@ -215,7 +221,9 @@ def _ros2_flags(p: argparse.ArgumentParser) -> None:
 
 def _carrier_output_flags(p: argparse.ArgumentParser) -> None:
     """What the carriers publish and print."""
-    p.add_argument("--pose-interval", type=float, default=1.0, metavar="SECONDS",
+    from mission.timeouts import POSE_INTERVAL_S
+
+    p.add_argument("--pose-interval", type=float, default=POSE_INTERVAL_S, metavar="SECONDS",
                    help="carrier: publish a Pose every this many simulated seconds (whole seconds; 0 = never; "
                         "default %(default)s)")
     p.add_argument("--quiet", action="store_true", help="carriers print nothing but errors")

@@ -21,8 +21,6 @@ PACE_CHUNK_S = 0.5
 #: Sim-time chunk (s) of unpaced physics between two looks at the wall clock (is a Progress
 #: message due?): 100 physics steps, about a millisecond of CPU.
 PROGRESS_CHUNK_S = 5.0
-#: Default interval between two Pose messages, seconds of simulated time (docs/protocol.md, "Pose").
-POSE_INTERVAL_S = 1.0
 
 
 class Track:

@@ -43,13 +43,14 @@ from carriers.alone import Alone
 from carriers.exits import EXIT_CODES, Exit
 from carriers.inbound import Inbound
 from carriers.joining import Joining
-from carriers.motion import POSE_INTERVAL_S, Motion, Track
-from carriers.onboard import ONBOARD_LOADS, Onboard
+from carriers import ONBOARD_LOADS
+from carriers.motion import Motion, Track
+from carriers.onboard import Onboard
 from carriers.shared import GATE_HOLD_S, SharedWorld, StageGate
 from storage.carrierlog import CarrierLog, LogMismatch, log_path
 from mission import carrier as mc
 from mission.peers import PeerBook, Presence
-from mission.timeouts import CLOCKS, DEFAULTS
+from mission.timeouts import CLOCKS, DEFAULTS, POSE_INTERVAL_S
 from wire import keys
 from wire.messages import REVISION, Bye, Confirm, Hello, Observation, Own, scenario_fingerprint
 
@@ -94,7 +95,7 @@ class CarrierConfig:
             carrier's liveliness token.
         planner_options: options of the on-board planner (iterations, plan_ms).
         log_sync: how the durable log commits (:data:`storage.carrierlog.SYNC_MODES`).
-        onboard_load: when the on-board planner is loaded (:data:`carriers.onboard.ONBOARD_LOADS`;
+        onboard_load: when the on-board planner is loaded (:data:`carriers.ONBOARD_LOADS`;
             None: see there).
         ros2: ROS 2 settings (``ros2.publisher.Ros2Settings``: ``--ros2``, ``--ros2-robot``); None:
             off, and nothing of ros2/ is imported.

@@ -7,21 +7,17 @@ import threading
 from dataclasses import replace
 
 import world
+from planner.settings import ONBOARD_PLANNER
 
-#: The planner a carrier runs on board when it decides a stage itself.
-ONBOARD_PLANNER = "dec-closed-loop"
-#: When the on-board planner is loaded (:class:`Onboard`); None in a config: ``start`` for a
-#: process that simulates one carrier, ``need`` for several.
-ONBOARD_LOADS = ("start", "need")
 
 
 class Onboard:
-    """The on-board planner (:data:`ONBOARD_PLANNER`) and the planner's instance of the scenario,
+    """The on-board planner (:data:`planner.settings.ONBOARD_PLANNER`) and the planner's instance of the scenario,
     shared by the process's carriers (fully informed carriers compute the same joint action: it is
     computed once). Loading the planner core (numba, scipy, the compiled kernels) and the stage
     geometry takes seconds — 3 s on an idle machine, three times that with six carriers starting
     at once on two cores, 5 s for a 1,024-carrier scenario — so when it is loaded is a setting
-    (:data:`ONBOARD_LOADS`, ``CarrierConfig.onboard_load``):
+    (:data:`carriers.ONBOARD_LOADS`, ``CarrierConfig.onboard_load``):
 
     * ``start``: in the background when the carrier starts (:meth:`prepare`), not when the
       coordinator is already gone; the default of a process that simulates one carrier (a robot);

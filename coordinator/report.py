@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from mission.report import CarrierRecord, Merged, annotate, merge
+from planner.settings import ONBOARD_PLANNER
 
 #: Where the merged mission log goes in the results directory.
 MERGED_LOG = "merged_log.jsonl"
@@ -31,7 +32,6 @@ MERGED_LOG = "merged_log.jsonl"
 COORDINATOR_SUMMARY = "summary.coordinator.json"
 #: The on-board planner named in summary.json when there is no mission.db and the logs do not
 #: name theirs (carriers decide with it when no coordinator is reachable).
-ON_BOARD_PLANNER = "dec-closed-loop"
 #: mission.db meta keys (coordinator/node.py writes them) a report checks, and carrier log keys.
 DB_IDENTITY = ("mission", "scenario", "seed", "fingerprint")  # the actionable differences first
 LOG_IDENTITY = ("mission", "seed", "fingerprint")
@@ -182,7 +182,7 @@ def run_report(scenario, out, mission: str | None = None, seed: int | None = Non
         planner, options = db_meta.get("planner"), db_meta.get("planner_options", {})
     else:
         named = {rec.meta.get("planner") for rec in records} - {None}
-        planner, options = (named.pop() if len(named) == 1 else ON_BOARD_PLANNER), {}
+        planner, options = (named.pop() if len(named) == 1 else ONBOARD_PLANNER), {}
     coordinator = previous.get("coordinator") or {}
     rejected = (previous.get("rejected") or {}).get("coordinator") or {}
     run = RunInfo(scenario=scenario.name, scenario_file=str(scenario_path or previous.get("scenario_file")

@@ -25,8 +25,8 @@ import numpy as np
 
 from experiments.report import STYLE, Variants, planner_order, read_csv, sem, variant_bars, write_csv
 from experiments.trials import Sweep, Task, replace_prior, urban_trial
+from world.paths import REPO_ROOT as ROOT
 
-ROOT = Path(__file__).resolve().parent.parent
 #: (label, scenario file, factor on the stated prior's mean).
 CASES = (
     ("urban_alpha", "scenarios/urban_alpha.yaml", 1.0),

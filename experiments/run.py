@@ -43,8 +43,8 @@ from pathlib import Path
 from experiments import bound, priors, report, types
 from experiments.trials import CLAIRVOYANT, Sweep, Task, decode, run_trial, urban_trial, warm_up_worker
 from planner.settings import DEFAULT_ITERATIONS
+from world.paths import REPO_ROOT as ROOT
 
-ROOT = Path(__file__).resolve().parent.parent
 #: Default output directory (docs/results.md links the files there).
 DEFAULT_OUT = ROOT / "docs" / "results"
 DEFAULT_SCENARIO = ROOT / "scenarios" / "urban_alpha.yaml"

@@ -19,6 +19,8 @@ from typing import Callable
 
 import numpy as np
 
+from planner.settings import DEFAULT_ITERATIONS
+
 #: Name of the offline bound in result rows.
 CLAIRVOYANT = "clairvoyant"
 
@@ -74,7 +76,7 @@ class Task:
         scale = self.carriers * self.stages / 40.0
         if self.planner.startswith("dec-"):
             scale *= self.carriers
-        return scale * self.iterations / 10_000
+        return scale * self.iterations / DEFAULT_ITERATIONS
 
 
 # ----------------------------------------------------------------------------- instances

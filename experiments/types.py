@@ -34,8 +34,8 @@ import numpy as np
 
 from experiments.report import STYLE, Variants, planner_order, read_csv, sem, variant_bars, write_csv
 from experiments.trials import CLAIRVOYANT, Sweep, Task, encode_released, seed_of, urban_trial
+from world.paths import REPO_ROOT as ROOT
 
-ROOT = Path(__file__).resolve().parent.parent
 SCOUT, ROVER = 1.0, 0.4
 #: (label, overlaps or None for the urban world).
 CASES = (("random, 0 overlaps", 0), ("random, 20 overlaps", 20), ("urban_types", None))

@@ -12,6 +12,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+#: Default simulated seconds between two Pose messages of a carrier (0: none), and between two
+#: poses of a recording rebuilt from mission.db.
+POSE_INTERVAL_S = 1.0
+
 #: The mission clocks: ``sim`` (a simulated mission: slow work is waited for) and ``wall`` (a
 #: real-time mission: wall-clock deadlines).
 CLOCKS = ("sim", "wall")

@@ -161,7 +161,7 @@ def main(argv=None) -> int:
                         help="2,000 iterations, fewer instances and decisions (a minute or two)")
     parser.add_argument("--sizes", default=",".join(map(str, SIZES)), help="fleet sizes R, comma-separated")
     parser.add_argument("--iterations", type=int, default=None,
-                        help="MCTS iterations per decision (10,000; 2,000 with --quick)")
+                        help=f"MCTS iterations per decision ({DEFAULT_ITERATIONS:,}; 2,000 with --quick)")
     parser.add_argument("--instances", type=int, default=None, help="instances for the quality table")
     parser.add_argument("--reference-instances", type=int, default=None,
                         help="instances (of the same set) on which the reference runs, R <= 6")
@@ -222,7 +222,7 @@ def warm_section() -> None:
         cold = warm_start(empty)
     ws = warm_start()
     ws2 = warm_start()
-    print("\n## start-up (fresh interpreter: import + warm_up + first 10,000-iteration decision, R = 6)")
+    print(f"\n## start-up (fresh interpreter: import + warm_up + first {DEFAULT_ITERATIONS:,}-iteration decision, R = 6)")
     for label, w in (("cold (empty numba cache)", cold), ("warm, run 1", ws), ("warm, run 2", ws2)):
         print(f"{label:>24}: process {w['process_s']:.2f} s  (import {w['import_s']:.2f} s, warm_up {w['warm_up_s']:.2f} s,"
               f" first decision {w['first_decision_s'] * 1e3:.1f} ms)")

@@ -132,9 +132,6 @@ class Deliveries:
     intent: np.ndarray
     decision: np.ndarray
 
-    def decision_in_time(self, r: int, j: int) -> bool:
-        return bool(self.decision[r, j] <= j)
-
 
 def realise(spec: CommsSpec, n_carriers: int, n_stages: int, seed: int) -> Deliveries:
     """Draw the fate of every message of a mission with root seed ``seed``.

@@ -19,3 +19,6 @@ DEFAULT_PLANNER = "mcts-ssap"
 LAYOUTS = ("auto", "joint", "binary")
 #: Default Monte Carlo rollouts per MCTS iteration.
 DEFAULT_SAMPLES = 1
+#: The planner a carrier runs on board when it decides a stage itself (and the one the report names
+#: for stages the carriers decided alone).
+ONBOARD_PLANNER = "dec-closed-loop"

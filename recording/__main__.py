@@ -18,15 +18,18 @@ if str(HERE) not in sys.path:
 
 
 def main(argv=None) -> int:
+    from mission.timeouts import POSE_INTERVAL_S
+    from recording import PROFILES
+
     p = argparse.ArgumentParser(prog="python -m recording", description="Mission recordings (MCAP).")
     sub = p.add_subparsers(dest="command", required=True)
     r = sub.add_parser("rebuild", help="rebuild mission.mcap from mission.db (and the scenario's trajectories)")
     r.add_argument("run_dir", help="a results directory holding mission.db")
     r.add_argument("--scenario", help="the scenario file (default: summary.json's scenario_file)")
     r.add_argument("-o", "--out", help="output file (default RUN_DIR/mission.mcap; ros2: the bag directory RUN_DIR/ros2bag)")
-    r.add_argument("--profile", choices=("foxglove", "ros2"), default="foxglove",
+    r.add_argument("--profile", choices=PROFILES, default=PROFILES[0],
                    help="foxglove (default): Foxglove's schemas; ros2: a rosbag2 bag of ROS 2 messages (needs .[ros2])")
-    r.add_argument("--pose-interval", type=float, default=1.0, metavar="SECONDS",
+    r.add_argument("--pose-interval", type=float, default=POSE_INTERVAL_S, metavar="SECONDS",
                    help="poses every this many simulated seconds (default %(default)s; 0 = none)")
     args = p.parse_args(argv)
     from recording.rebuild import rebuild

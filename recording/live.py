@@ -16,12 +16,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from recording import PROFILES
 from recording.stream import Clock, feed_event, feed_message
 
 #: File name of the recording in a results directory.
 MCAP_NAME = "mission.mcap"
-#: The MCAP profiles, the default first.
-PROFILES = ("foxglove", "ros2")
 
 
 def recording_path(out_dir, profile: str = "foxglove") -> Path:

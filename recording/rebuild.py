@@ -17,8 +17,11 @@ from pathlib import Path
 import numpy as np
 
 from mission import events as ev
-from recording.live import PROFILES, open_sink, recording_path
+from mission.timeouts import POSE_INTERVAL_S
+from recording import PROFILES
+from recording.live import open_sink, recording_path
 from recording.stream import Clock, feed_event, feed_message
+from world.paths import REPO_ROOT, SCENARIOS
 
 
 def _scenario_path(run_dir: Path, summary: dict, given: str | None) -> Path:
@@ -27,9 +30,9 @@ def _scenario_path(run_dir: Path, summary: dict, given: str | None) -> Path:
     candidates = []
     if summary.get("scenario_file"):
         f = Path(summary["scenario_file"])
-        candidates += [f, run_dir / f, Path(__file__).resolve().parents[1] / f]
+        candidates += [f, run_dir / f, REPO_ROOT / f]
     if summary.get("scenario"):
-        candidates.append(Path(__file__).resolve().parents[1] / "scenarios" / f"{summary['scenario']}.yaml")
+        candidates.append(SCENARIOS / f"{summary['scenario']}.yaml")
     for c in candidates:
         if c.is_file():
             return c
@@ -45,7 +48,7 @@ def _event_time(event, stage_times) -> float | None:
     return None
 
 
-def rebuild(run_dir, scenario_path: str | None = None, out: str | None = None, pose_interval_s: float = 1.0,
+def rebuild(run_dir, scenario_path: str | None = None, out: str | None = None, pose_interval_s: float = POSE_INTERVAL_S,
             profile: str = "foxglove") -> Path:
     """Write ``out`` (``RUN_DIR/mission.mcap`` by default; with ``profile="ros2"`` the bag
     ``RUN_DIR/ros2bag``) from ``RUN_DIR/mission.db``.

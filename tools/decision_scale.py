@@ -171,10 +171,12 @@ def plot(rows, path: Path) -> None:
 
 
 def main(argv=None) -> int:
+    from planner.settings import DEFAULT_ITERATIONS
+
     ap = argparse.ArgumentParser(prog="python -m tools.decision_scale", description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", default=",".join(map(str, DEFAULT_SIZES)), help="fleet sizes, comma-separated")
     ap.add_argument("--seed", type=int, default=1, help="scenario seed (default 1, as tools.scale)")
-    ap.add_argument("--iterations", type=int, default=10_000, help="planner budget (default 10,000)")
+    ap.add_argument("--iterations", type=int, default=DEFAULT_ITERATIONS, help="planner budget (default %(default)s)")
     ap.add_argument("--probes", type=int, default=8, help="on-board decisions timed per stage (default 8)")
     ap.add_argument("--baseline-max", type=int, default=256,
                     help="largest R also run with whole components (default 256)")

@@ -42,8 +42,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from world.paths import REPO_ROOT as ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
 RUN_FLEET = str(ROOT / "run_fleet.py")
 SCENARIO = ROOT / "scenarios" / "six_carriers.yaml"
 #: Simulated seconds per wall second: one six_carriers stage (20 s) per wall second.

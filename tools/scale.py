@@ -42,8 +42,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+from world.paths import REPO_ROOT as ROOT
 
-ROOT = Path(__file__).resolve().parents[1]
 #: Distance between parallel streets (m).
 STREET_SPACING_M = 40.0
 #: Default sizes of the benchmark (carriers).

@@ -36,7 +36,8 @@ from typing import Sequence
 
 import psutil
 
-ROOT = Path(__file__).resolve().parents[1]
+from world.paths import REPO_ROOT as ROOT
+
 PR_SET_CHILD_SUBREAPER = 36  # linux/prctl.h
 MB = 1024 * 1024
 LEAK_GRACE_S = 2.0  # how long a mission's processes get to exit after the launcher has, seconds

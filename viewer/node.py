@@ -30,13 +30,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from mission.exits import STOPPED
+from viewer import DEFAULT_GRPC_PORT, DEFAULT_WEB_PORT
 from recording.stream import Clock, feed_message
 from wire import keys
 from wire.messages import ProtocolError, decode
 
 #: Web viewer and gRPC ports when none are given.
-DEFAULT_WEB_PORT = 9090
-DEFAULT_GRPC_PORT = 9876
 
 
 @dataclass(frozen=True)

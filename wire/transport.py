@@ -11,7 +11,7 @@ import threading
 import time
 from collections import Counter
 from dataclasses import dataclass
-from typing import Any, Iterable
+from typing import Any
 
 import zenoh
 
@@ -237,8 +237,3 @@ class Node:
         if serving:
             serving[1].set()
         return close_session(self.session, list(reversed(self._entities)), timeout_s)
-
-
-def decode_from(item: Inbound, expected: Iterable[type] | type | None = None):
-    """Decode an inbox sample (raises :class:`wire.ProtocolError`)."""
-    return messages.decode(item.payload, tuple(expected) if isinstance(expected, (list, set)) else expected)

@@ -7,8 +7,8 @@ from __future__ import annotations
 
 import sys
 import time
-from pathlib import Path
 
+from world.paths import SCENARIOS
 from world.scenario import ScenarioError, load_scenario
 from world.sim import observe_all
 from world.stages import stage_geometry
@@ -17,8 +17,7 @@ DEFAULT = ["tiny", "six_carriers", "open_field", "urban_alpha"]
 
 
 def main(argv: list[str]) -> int:
-    root = Path(__file__).resolve().parents[1] / "scenarios"
-    files = argv or [str(root / f"{n}.yaml") for n in DEFAULT]
+    files = argv or [str(SCENARIOS / f"{n}.yaml") for n in DEFAULT]
     for f in files:
         try:
             s = load_scenario(f)

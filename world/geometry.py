@@ -5,7 +5,6 @@ Points are ``(x, y)`` in metres; segments are rows ``(x1, y1, x2, y2)`` of a flo
 from __future__ import annotations
 
 import bisect
-import math
 from typing import Sequence
 
 import numpy as np
@@ -24,15 +23,6 @@ def point_along(waypoints: Sequence[tuple[float, float]], cumulative: np.ndarray
     u = 0.0 if leg <= 0 else (s - cumulative[k]) / leg
     (ax, ay), (bx, by) = waypoints[k], waypoints[k + 1]
     return (ax + u * (bx - ax), ay + u * (by - ay))
-
-
-def direction_along(waypoints: Sequence[tuple[float, float]], cumulative: np.ndarray, s: float) -> tuple[float, float]:
-    """Unit direction of the leg containing arc length ``s`` ((0, 0) on a zero-length leg)."""
-    k = bisect.bisect_right(cumulative, s) - 1
-    k = min(max(k, 0), len(waypoints) - 2)
-    (ax, ay), (bx, by) = waypoints[k], waypoints[k + 1]
-    d = math.hypot(bx - ax, by - ay)
-    return (0.0, 0.0) if d == 0 else ((bx - ax) / d, (by - ay) / d)
 
 
 def _cross(ax, ay, bx, by):

@@ -197,11 +197,6 @@ class CarrierSpec:
         """Total path length (m)."""
         return float(self._cumulative[-1])
 
-    @property
-    def path_end_time(self) -> float:
-        """When it reaches its last waypoint at nominal speed (s)."""
-        return self.start_time + self.path_length / self.speed
-
     def distance_at(self, t: float) -> float:
         """Planned arc length travelled by time ``t`` (m)."""
         moving = min(max(t, self.start_time), self.stop_time) - self.start_time
@@ -211,12 +206,6 @@ class CarrierSpec:
         """Planned position at mission time ``t`` (s): on the path at nominal speed from
         ``start_time``, frozen before the start and after ``stop_time`` (m)."""
         return geometry.point_along(self.waypoints, self._cumulative, self.distance_at(t))
-
-    def direction_at(self, t: float) -> tuple[float, float]:
-        """Unit direction of the path at mission time ``t`` ((0, 0) when not moving)."""
-        if not (self.start_time <= t < self.stop_time) or self.distance_at(t) >= self.path_length:
-            return (0.0, 0.0)
-        return geometry.direction_along(self.waypoints, self._cumulative, self.distance_at(t))
 
 
 _OPT = planners.OPTIONS
@@ -342,11 +331,6 @@ class Scenario:
     def with_seed(self, seed: int) -> "Scenario":
         """The same scenario with another root seed (other features, same schedules)."""
         return dataclasses.replace(self, seed=int(seed))
-
-    @property
-    def mission_end(self) -> float:
-        """Time of the last stage (s)."""
-        return self.stage_time(self.stages - 1)
 
     def prior_distribution(self):
         """The frozen ``scipy.stats`` prior of a valid stage's feature count."""
