@@ -93,7 +93,7 @@ class Inbound:
             return
         if item.key != keys.decision_key(self.mission):
             raise ProtocolError("bad-key", f"message on {item.key[:80]}")
-        msg = decode(item.payload, Decision)
+        msg = self.broadcasts.decode(item.payload, Decision)  # once per process (wire.messages.SharedDecoder)
         if msg.mission != self.mission:
             raise ProtocolError("wrong-mission", f"mission {msg.mission!r}")
         if msg.stage < self.n_stages and mc.current(self.machine, msg.epoch):  # not a deposed coordinator's

@@ -52,7 +52,7 @@ from mission import carrier as mc
 from mission.peers import PeerBook, Presence
 from mission.timeouts import CLOCKS, DEFAULTS, POSE_INTERVAL_S
 from wire import keys
-from wire.messages import REVISION, Bye, Confirm, Hello, Observation, Own, scenario_fingerprint
+from wire.messages import REVISION, Bye, Confirm, Hello, Observation, Own, SharedDecoder, scenario_fingerprint
 
 #: Longest sleep (s) of a carrier waiting for a message (a decision, End): any message, and a
 #: stop request (:meth:`Carrier.stop`, :func:`run_carriers`), wakes it at once, so this only sets
@@ -133,7 +133,8 @@ class Carrier(Motion, Inbound, Joining, Alone):
     """
 
     def __init__(self, scenario, config: CarrierConfig, zconf, stop: threading.Event | None = None,
-                 shared: SharedWorld | None = None, onboard: Onboard | None = None, gate: StageGate | None = None):
+                 shared: SharedWorld | None = None, onboard: Onboard | None = None, gate: StageGate | None = None,
+                 broadcasts: SharedDecoder | None = None):
         if config.seed is not None and shared is None:
             scenario = scenario.with_seed(int(config.seed))
         self.scenario = scenario
@@ -165,6 +166,7 @@ class Carrier(Motion, Inbound, Joining, Alone):
         if self.onboard_load not in ONBOARD_LOADS:
             raise ValueError(f"onboard_load must be one of {ONBOARD_LOADS}, found {config.onboard_load!r}")
         self.gate = gate if gate is not None else StageGate()
+        self.broadcasts = broadcasts if broadcasts is not None else SharedDecoder()  # the process's Decisions
         self.book = PeerBook(scenario.carrier_ids, valid)  # what it heard of every carrier's stages
         # Passenger types: the passenger each Decision named for this carrier, and the passenger
         # released at each stage of this process (docs/protocol.md, Decision).

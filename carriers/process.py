@@ -10,6 +10,7 @@ from carriers.onboard import Onboard, with_onboard_load
 from carriers.shared import StageGate, shared_world
 from mission.timeouts import DEFAULTS
 from wire import keys
+from wire.messages import SharedDecoder
 
 
 class DuplicateCarriers(RuntimeError):
@@ -77,9 +78,10 @@ def run_carriers(scenario, configs, zconf, stop: threading.Event | None = None) 
         shared = shared_world(scenario)
     onboard = Onboard(scenario, configs[0].planner_options) if configs else None
     gate = StageGate()
+    broadcasts = SharedDecoder()  # a Decision reaches every carrier of the process: decoded once
     configs = with_onboard_load(configs)
     carriers = [Carrier(scenario, c, zconf() if callable(zconf) else zconf, stop=stop, shared=shared, onboard=onboard,
-                        gate=gate) for c in configs]
+                        gate=gate, broadcasts=broadcasts) for c in configs]
     reasons: dict = {}
 
     def body(carrier):

@@ -253,3 +253,30 @@ def test_a_config_file_mode_beats_the_role_default(tmp_path):
     nested.write_text('{ routing: { peer: { mode: "peer_to_peer" } } }')
     assert zconfig.file_sets_mode(str(with_mode))
     assert not zconfig.file_sets_mode(str(nested)) and not zconfig.file_sets_mode(None)
+
+
+def test_shared_decoder_gives_what_decode_gives_once_per_payload():
+    """A broadcast decoded once per process: every receiver gets decode()'s message (the same
+    object), a bad payload the same rejection each time, and the cache stays bounded."""
+    import threading
+
+    from wire.messages import Decision, End, ProtocolError, SharedDecoder, decode, encode
+
+    ids = tuple(f"c{k:04d}" for k in range(0, 300, 3))
+    data = encode(Decision("m1", 2, 20.0, ids, 5.0, 1, tuple(k % 3 for k in range(len(ids)))))
+    shared = SharedDecoder(capacity=2)
+    got = []
+    threads = [threading.Thread(target=lambda: got.append(shared.decode(bytes(data), Decision))) for _ in range(16)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(got) == 16 and all(m is got[0] for m in got) and got[0] == decode(data, Decision)
+    for bad, expected in ((data[:-3], Decision), (data, End)):
+        with pytest.raises(ProtocolError) as own:
+            decode(bad, expected)
+        for _ in range(2):
+            with pytest.raises(ProtocolError) as seen:
+                shared.decode(bad, expected)
+            assert (seen.value.reason, seen.value.detail) == (own.value.reason, own.value.detail)
+    assert len(shared._seen) == 2
