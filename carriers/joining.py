@@ -78,11 +78,16 @@ class Joining:
     def _recover_decision(self, j: int) -> None:
         """Sim clock, a long wait for the Decision of j: if the coordinator's State says it has
         decided j already, the Decision was lost on the way: resynchronise (it is taken from
-        State). Otherwise the coordinator is still at work: go on waiting."""
+        State). If it still collects j, it may not have our Observation (mission.carrier,
+        Collecting). Otherwise the coordinator is still at work: go on waiting."""
         state = self._query_once()
-        if state is not None and state.next_stage > j and mc.current(self.machine, state.epoch):
+        if state is None or not mc.current(self.machine, state.epoch):
+            return
+        if state.next_stage > j:
             self.log(f"stage {j} was decided but its Decision did not arrive; taking it from State")
             self.apply(mc.Resync(self._state_seen(state), self._position()))
+        elif state.next_stage == j:
+            self.apply(mc.Collecting(j, state.epoch))
 
     def _query_once(self) -> State | None:
         """The State reply of the highest epoch (two coordinators may answer across a split)."""

@@ -119,6 +119,15 @@ class Resync:
 
 
 @dataclass(frozen=True)
+class Collecting:
+    """Sim clock, a long wait for a Decision: the coordinator's State says it is still collecting
+    ``stage`` (its ``next_stage``), in ``epoch``."""
+
+    stage: int
+    epoch: int = 1
+
+
+@dataclass(frozen=True)
 class EndHeard:
     pass
 
@@ -420,6 +429,25 @@ def _on_replayed(state: CarrierState, e: Replayed):
     return dataclasses.replace(state, passengers_left=left, handled={**state.handled, e.stage: answer}), ()
 
 
+def _early_observation(state: CarrierState, j: int) -> tuple:
+    """A Decision of j came while this carrier is at a later stage (it gave up waiting for j, or
+    decided j and more on its own while cut off): the coordinator was behind it, so its
+    Observation of the stage it is at arrived too early and was rejected as future-stage; it is
+    sent again, or the coordinator would wait for it as long as the carrier sends Progress."""
+    if state.pending is not None and state.pending > j and state.pending >= state.decided_upto():
+        return (ResendObservation(state.pending),)
+    return ()
+
+
+def _on_collecting(state: CarrierState, e: Collecting):
+    """State says the coordinator collects the stage this carrier waits at: it may never have
+    had this carrier's Observation (rejected as future-stage, or lost in a reconnection); a
+    repeat is rejected as ``duplicate`` and changes nothing."""
+    if current(state, e.epoch) and state.pending == e.stage and e.stage not in state.handled:
+        return state, (ResendObservation(e.stage),)
+    return state, ()
+
+
 def _on_joined(state: CarrierState, e: Joined):
     if e.ended:
         return dataclasses.replace(state, ended=True), ()
@@ -442,15 +470,11 @@ def _on_decision(state: CarrierState, e: DecisionHeard):
     newer = e.epoch > state.epoch
     state = dataclasses.replace(state, epoch=e.epoch) if newer else state
     if j in state.handled:
-        return state, (_already(state, j),)
+        return state, (_already(state, j), *_early_observation(state, j))
     if j < state.stage or j < state.joined:
         # Passed (gave up waiting, or decided before this process joined): too late to deploy.
         new, effects = _answer(state, j, e.deploy, e.position, allow=False)
-        if state.pending is not None and state.pending > j and state.pending >= state.decided_upto():
-            # The coordinator was behind us (we gave up waiting for j): our Observation of the
-            # stage we are at arrived too early and was rejected as future-stage; send it again.
-            effects.append(ResendObservation(state.pending))
-        return new, tuple(effects)
+        return new, (*effects, *_early_observation(state, j))
     if j in state.buffered:
         # A repeat (a re-publication) of a stage not reached yet: answered ``already`` once the
         # first is handled; a newer epoch's decision replaces the one held.
@@ -554,4 +578,5 @@ def _on_end(state: CarrierState, e: EndHeard):
 _HANDLERS = {
     Replayed: _on_replayed, Joined: _on_joined, DecisionHeard: _on_decision, Observed: _on_observed,
     Passed: _on_passed, MovedOn: _on_moved_on, Resync: _on_resync, EndHeard: _on_end, DecidedOwn: _on_decided_own,
+    Collecting: _on_collecting,
 }

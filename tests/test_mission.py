@@ -330,6 +330,34 @@ def test_carrier_resends_its_observation_when_the_coordinator_catches_up():
     assert confirms(effects) == [(0, "idle", False)] and mc.ResendObservation(1) in effects
 
 
+def test_carrier_that_decided_alone_resends_its_observation_when_the_coordinator_catches_up():
+    """Cut off, it decided stage 0 on its own and went on to stage 1; the coordinator, back, was
+    still at stage 0 (the Observation of 1 was rejected as future-stage). Its Decision of 0
+    (answered ``already`` with the own outcome) tells the carrier that 1 is being collected now:
+    the Observation goes out again, or the coordinator would wait for it while the carrier waits
+    for the Decision (found by tests/test_no_spof.py on the sim clock)."""
+    state, effects = carrier(*JOINED, mc.Observed(0), mc.DecidedOwn(0, True, P0), mc.MovedOn(0), mc.Observed(1),
+                             heard(0, ()))
+    assert confirms(effects) == [(0, "already", True)] and mc.ResendObservation(1) in effects
+    # Nothing is resent for a stage it is not waiting at, nor once the coordinator is past it.
+    _, effects = carrier(*JOINED, mc.Observed(0), mc.DecidedOwn(0, True, P0), heard(0, ()))
+    assert not any(isinstance(e, mc.ResendObservation) for e in effects)
+    _, effects = mc.step(state, heard(1, ()))
+    assert not any(isinstance(e, mc.ResendObservation) for e in effects)
+
+
+def test_carrier_resends_its_observation_while_state_says_its_stage_is_collected():
+    """Sim clock: every --decision-timeout a waiting carrier asks State; if the coordinator still
+    collects the carrier's stage it may never have had its Observation: sent again. Not for a
+    deposed coordinator's State, another stage, or a stage already answered."""
+    state, _ = carrier(*JOINED, mc.Observed(0), heard(0, ()), mc.MovedOn(0), mc.Observed(1))
+    assert mc.step(state, mc.Collecting(1))[1] == (mc.ResendObservation(1),)
+    assert mc.step(state, mc.Collecting(0))[1] == ()
+    assert mc.step(dataclasses.replace(state, epoch=3), mc.Collecting(1, epoch=2))[1] == ()
+    answered, _ = mc.step(state, heard(1))
+    assert mc.step(answered, mc.Collecting(1))[1] == ()
+
+
 def test_carrier_resync_after_the_coordinator_returns():
     state, _ = carrier(*JOINED, mc.Observed(0), heard(0, ()), mc.MovedOn(0), mc.Observed(1))
     seen = mc.StateSeen(next_stage=1, deployments=(), last_decision=(0, 0.0, ()), ended=False)
