@@ -1,6 +1,6 @@
 """No single point of failure: six_carriers under faults, over real processes, real Zenoh and, for
 the network faults, hosts as network namespaces with links cut or made lossy (iptables). The
-measurements are tools/faults.py's (the README's faults table comes from the same code); here
+measurements are tools/faults.py's (docs/fleet.md's faults table comes from the same code); here
 each one is held to its target. Slow: about 20 minutes in all.
 """
 from __future__ import annotations

@@ -24,7 +24,7 @@ with a zenoh lease of 3 s so that a cut link is noticed within a stage or three.
 The reward of a mission is computed from the carriers' own logs (``<out>/carriers/<id>.db``: what
 each observed and did at every stage, whoever decided it), the same for every run; it is compared
 with the uninterrupted mission on the same seed (the scenario's planner; ``closed-loop`` for the
-decentralised row). Prints a table (README.md, "Faults") and writes ``<out>/faults.json`` and
+decentralised row). Prints a table (docs/fleet.md, "Faults") and writes ``<out>/faults.json`` and
 ``<out>/faults.png``. Needs root for the namespaces.
 """
 from __future__ import annotations
