@@ -374,7 +374,7 @@ def _ros2_settings(args):
 
 
 def zenoh_config(args, role: str):
-    from wire.zconfig import DEFAULT_PORT, file_sets_mode, make_config
+    from wire.zconfig import DEFAULT_PORT, file_listens, file_sets_mode, make_config
 
     listen, connect = list(args.listen), list(args.connect)
     if not args.zenoh_config:
@@ -386,7 +386,7 @@ def zenoh_config(args, role: str):
     if mode is None and not file_sets_mode(args.zenoh_config):
         if role == "router":
             mode = "router"
-        elif role == "coordinator" and listen:
+        elif role == "coordinator" and (listen or file_listens(args.zenoh_config)):
             mode = "peer"  # it is the carriers' rendezvous
         else:
             mode = "client"  # a carrier, or a coordinator that only connects (to a router)

@@ -255,6 +255,27 @@ def test_a_config_file_mode_beats_the_role_default(tmp_path):
     assert not zconfig.file_sets_mode(str(nested)) and not zconfig.file_sets_mode(None)
 
 
+def test_a_config_file_that_listens_makes_a_coordinator_the_rendezvous(tmp_path):
+    """docs/security.md's quick start: a coordinator given only a config file with listen
+    endpoints listens there as a peer (it used to run as a client with nobody to connect to)."""
+    import run_fleet
+
+    listens = tmp_path / "coordinator.json5"
+    listens.write_text('{ listen: { endpoints: ["tcp/127.0.0.1:7447"] } }')
+    silent = tmp_path / "carrier.json5"
+    silent.write_text('{ listen: { endpoints: [] }, connect: { endpoints: ["tcp/127.0.0.1:7447"] } }')
+    assert zconfig.file_listens(str(listens))
+    assert not zconfig.file_listens(str(silent)) and not zconfig.file_listens(None)
+    for path, mode in ((listens, "peer"), (silent, "client")):
+        args = run_fleet.parse_args(["scenarios/tiny.yaml", "--role", "coordinator", "--zenoh-config", str(path)])
+        assert zconfig_mode(run_fleet.zenoh_config(args, "coordinator")) == mode
+
+
+def zconfig_mode(conf) -> str:
+    import json
+    return json.loads(conf.get_json("mode"))
+
+
 def test_shared_decoder_gives_what_decode_gives_once_per_payload():
     """A broadcast decoded once per process: every receiver gets decode()'s message (the same
     object), a bad payload the same rejection each time, and the cache stays bounded."""

@@ -54,6 +54,18 @@ def file_sets_mode(config_file: str | None) -> bool:
         return False  # make_config reports a bad file
 
 
+def file_listens(config_file: str | None) -> bool:
+    """Whether a zenoh config file sets listen endpoints of its own (zenoh's defaults do not
+    count): a coordinator given such a file and no --listen is the rendezvous, as with --listen."""
+    if not config_file or not os.path.isfile(config_file):
+        return False
+    try:
+        endpoints = json.loads(zenoh.Config.from_file(config_file).get_json("listen/endpoints"))
+        return bool(endpoints) and endpoints != json.loads(zenoh.Config().get_json("listen/endpoints"))
+    except Exception:
+        return False  # make_config reports a bad file
+
+
 def check_endpoint(endpoint: str, flag: str) -> str:
     if not isinstance(endpoint, str) or not ENDPOINT_PATTERN.match(endpoint):
         raise ConfigError(f"{flag}: expected an endpoint like tcp/127.0.0.1:7447, found {endpoint!r}")
