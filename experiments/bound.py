@@ -6,7 +6,10 @@ Two parts:
 * **tiny** (sweep ``bound-tiny``): random instances small enough for the exact online optimum V*
   (R = 2 or 3, N = 6, D = 2, Poisson(3), 2 to 4 overlap groups). Per instance: V*, the new bound
   (``exact`` inner maxima) and the clairvoyant mean on the *same* sampled observation matrices,
-  each with its standard error; their excess over V*.
+  each with its standard error; their excess over V*. Then one tiny instance per prior kind the
+  exact solver takes (``TINY_PRIORS``: every kind of planner.priors; a continuous prior through
+  V*'s 12-atom stand-in, the prior whose value V* is exactly, and both bounds under the same
+  stand-in) — level 1 of the sweep.
 * **scale** (sweep ``bound``): random paper-style instances (D = 3, N = 10, Poisson(3)) at the
   configurations of :data:`CONFIGS` (R = 4 with 0 to 20 overlaps, R = 6, and R = 32, 128, 256 at
   the paper's density of five overlap groups per carrier). Per trial: every planner's reward on
@@ -16,7 +19,13 @@ Two parts:
   per trial, averaged over trials (± SEM).
 
 Streams: trial t's instance and observations ``(1000, t)`` and planner seed ``(1000, t, 1)`` as the
-other random sweeps; the bound's samples ``(1000, t, 2)``; tiny instance k ``(1002, k, a)`` (the first a within V*'s limits).
+other random sweeps; the bound's samples ``(1000, t, 2)``; tiny instance k ``(1002, k, a)`` (the first a within V*'s limits);
+the tiny instance of prior kind number i ``(1003, i, a)``.
+
+Profiles: the defaults (:data:`CONFIGS`' trial and sample counts, 10 Poisson tiny instances of 400
+samples, 11 prior kinds of 200) are the full experiment, about 30 minutes with one worker on a
+shared 2-core host (docs/results.md); ``--quick`` is a smoke test; ``--trials N`` sets every
+configuration's trials to N.
 """
 from __future__ import annotations
 
@@ -35,11 +44,11 @@ UPPER_BOUND = "upper-bound"
 TINY = "tiny"
 #: (label, carriers, overlaps, trials, bound samples) per configuration (the ``level`` indexes it).
 CONFIGS = (
-    ("R = 4, 0 overlaps", 4, 0, 16, 30), ("R = 4, 4 overlaps", 4, 4, 16, 30), ("R = 4, 8 overlaps", 4, 8, 16, 30),
-    ("R = 4, 12 overlaps", 4, 12, 16, 30), ("R = 4, 16 overlaps", 4, 16, 16, 30),
-    ("R = 4, 20 overlaps", 4, 20, 16, 30), ("R = 6, 10 overlaps", 6, 10, 16, 30),
-    ("R = 32, 160 overlaps", 32, 160, 6, 12), ("R = 128, 640 overlaps", 128, 640, 3, 6),
-    ("R = 256, 1280 overlaps", 256, 1280, 3, 4),
+    ("R = 4, 0 overlaps", 4, 0, 40, 30), ("R = 4, 4 overlaps", 4, 4, 40, 30), ("R = 4, 8 overlaps", 4, 8, 40, 30),
+    ("R = 4, 12 overlaps", 4, 12, 40, 30), ("R = 4, 16 overlaps", 4, 16, 40, 30),
+    ("R = 4, 20 overlaps", 4, 20, 40, 30), ("R = 6, 10 overlaps", 6, 10, 40, 30),
+    ("R = 32, 160 overlaps", 32, 160, 12, 12), ("R = 128, 640 overlaps", 128, 640, 16, 6),
+    ("R = 256, 1280 overlaps", 256, 1280, 16, 4),
 )
 #: Planners of the comparison; dec-closed-loop (every carrier runs closed-loop) only up to this R.
 DEFAULT_PLANNERS = ("closed-loop", "mcts-ssap", "ssap", "dec-closed-loop")
@@ -49,11 +58,32 @@ DEC_MAX_CARRIERS = 32
 CLAIRVOYANT_MAX_CARRIERS = 32
 #: Tiny instances and samples per tiny instance.
 TINY_INSTANCES, TINY_SAMPLES = 10, 400
+#: One prior per kind of planner.priors.PRIOR_KINDS (small supports so V* stays quick), and the
+#: samples of each prior kind's tiny instance.
+TINY_PRIORS = {
+    "poisson": {"kind": "poisson", "mean": 2.0},
+    "binomial": {"kind": "binomial", "n": 6, "p": 0.5},
+    "geometric": {"kind": "geometric", "p": 0.4},
+    "negative_binomial": {"kind": "negative_binomial", "n": 2, "p": 0.5},
+    "discrete_uniform": {"kind": "discrete_uniform", "low": 0, "high": 6},
+    "table": {"kind": "table", "values": [0, 2.5, 5], "probabilities": [0.3, 0.4, 0.3]},
+    "gamma": {"kind": "gamma", "shape": 2.0, "scale": 1.5},
+    "exponential": {"kind": "exponential", "mean": 3.0},
+    "lognormal": {"kind": "lognormal", "mu": 1.0, "sigma": 0.5},
+    "normal": {"kind": "normal", "mean": 1.0, "std": 2.0},  # negative observations too
+    "uniform": {"kind": "uniform", "low": 0.0, "high": 6.0},
+}
+TINY_PRIOR_SAMPLES = 200
 #: Planning budget of the comparison (iterations per decision).
 DEFAULT_ITERATIONS = 2000
-QUICK = {"configs": (0, 5, 7), "trials": 2, "samples": 4, "tiny": 2, "tiny_samples": 40}
+QUICK = {"configs": (0, 5, 7), "trials": 2, "samples": 4, "tiny": 2, "tiny_samples": 40,
+         "priors": ("binomial", "gamma")}
+#: The targets of the comparison (docs/results.md): the bound never below V* by more than
+#: ``VALID_SE`` standard errors; its mean excess over V* at most ``EXCESS_RATIO`` of clairvoyance's;
+#: closed-loop at least ``FRACTION_TARGET`` of the bound from R = 32 on.
+VALID_SE, EXCESS_RATIO, FRACTION_TARGET, FRACTION_MIN_CARRIERS = 3.0, 1 / 3, 0.9, 32
 
-FIELDS = ("sweep", "level", "config", "trial", "planner", "reward", "stderr", "samples", "method", "exact",
+FIELDS = ("sweep", "level", "config", "trial", "planner", "prior", "reward", "stderr", "samples", "method", "exact",
           "v_star", "clairvoyant_mean", "clairvoyant_stderr", "carriers", "overlaps", "iterations", "seed",
           "planner_seed", "decision_ms_mean", "wall_s")
 
@@ -63,6 +93,9 @@ def build_tasks(settings: dict) -> list[Task]:
     tasks = [Task("bound-tiny", 0, k, TINY, settings["seed"], 0,
                   samples=QUICK["tiny_samples"] if quick else TINY_SAMPLES)
              for k in range(QUICK["tiny"] if quick else TINY_INSTANCES)]
+    tasks += [Task("bound-tiny", 1, i, TINY, settings["seed"], 0, variant=kind,
+                   samples=QUICK["tiny_samples"] if quick else TINY_PRIOR_SAMPLES)
+              for i, kind in enumerate(TINY_PRIORS) if not quick or kind in QUICK["priors"]]
     levels = QUICK["configs"] if quick else range(len(CONFIGS))
     for level in levels:
         _, carriers, overlaps, trials, samples = CONFIGS[level]
@@ -105,23 +138,41 @@ def run_task(task: Task) -> dict:
             "iterations": 0, "seed": task.seed, "planner_seed": planner_seed, "wall_s": time.perf_counter() - t0}
 
 
-def tiny_instance(seed: int, k: int):
-    """Tiny instance k: R = 2 + k % 2, N = 6, D = 2, Poisson(3), 2 to 4 overlap groups, and the
-    generator its samples continue from: the first draw of streams ``(1002, k, a)``, a = 0, 1, ...,
-    within the exact solver's automatic limit (``AUTO_WORK``, its quick size estimate)."""
-    from planner import online_optimal
-    from planner.instance import random_instance
+def stand_in(prior):
+    """The prior whose value V* is exactly: the prior itself (discrete) or its
+    :data:`planner.online_optimal.CONTINUOUS_ATOMS`-point stand-in (continuous)."""
+    from scipy import stats
 
+    from planner import online_optimal, priors
+
+    if priors.is_discrete(prior):
+        return prior
+    atoms = online_optimal.discretise(prior)
+    return stats.rv_discrete(values=(atoms.points, atoms.probs))()
+
+
+def tiny_instance(seed: int, k: int, kind: str = ""):
+    """Tiny instance k: R = 2 + k % 2, N = 6, D = 2, 2 to 4 overlap groups, Poisson(3) (``kind``
+    empty) or the stand-in of ``TINY_PRIORS[kind]``, and the generator its samples continue from:
+    the first draw of streams ``(1002, k, a)`` (``(1003, k, a)`` with a kind), a = 0, 1, ...,
+    within the exact solver's automatic limit (``AUTO_WORK``, its quick size estimate)."""
+    from planner import online_optimal, priors
+    from planner.instance import random_instance
+    from planner.problem import Problem
+
+    prior = stand_in(priors.build_prior(TINY_PRIORS[kind])) if kind else None
     for attempt in range(100):
-        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1002, k, attempt)))
+        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1003 if kind else 1002, k, attempt)))
         groups = int(rng.integers(2, 5))
         problem = random_instance(rng, carriers=2 + k % 2, passengers=2, stages=6, overlaps=groups).problem
+        if prior is not None:
+            problem = Problem.build(problem.passengers, problem.valid, problem.overlaps, prior)
         try:
             online_optimal.estimate(problem, max_work=online_optimal.AUTO_WORK)
         except online_optimal.TooLarge:
             continue
         return problem, rng
-    raise ValueError(f"no tiny instance within the exact solver's limits for seed {seed}, k = {k}")
+    raise ValueError(f"no tiny instance within the exact solver's limits for seed {seed}, k = {k} {kind}")
 
 
 def _tiny(task: Task) -> dict:
@@ -129,15 +180,16 @@ def _tiny(task: Task) -> dict:
     from planner.problem import sample_observations
 
     t0 = time.perf_counter()
-    problem, rng = tiny_instance(task.seed, task.trial)
+    problem, rng = tiny_instance(task.seed, task.trial, task.variant)
     best = online_optimal.online_value(problem).expected_reward
     bound, offline = [], []
     for _ in range(task.samples):
         x = sample_observations(problem, rng)
         bound.append(duality.inner_maximum(problem, x, "exact") / problem.scale)
         offline.append(clairvoyant.solve(problem, x).reward)
-    return {"sweep": task.sweep, "level": 0, "config": f"R = {problem.n_carriers}, {len(problem.overlaps)} groups",
-            "trial": task.trial, "planner": UPPER_BOUND, "reward": float(np.mean(bound)), "stderr": sem(bound),
+    return {"sweep": task.sweep, "level": task.level, "config": f"R = {problem.n_carriers}, {len(problem.overlaps)} groups",
+            "trial": task.trial, "planner": UPPER_BOUND, "prior": task.variant or "poisson(3)",
+            "reward": float(np.mean(bound)), "stderr": sem(bound),
             "samples": len(bound), "method": "exact", "v_star": best, "clairvoyant_mean": float(np.mean(offline)),
             "clairvoyant_stderr": sem(offline), "carriers": problem.n_carriers, "overlaps": len(problem.overlaps),
             "iterations": 0, "seed": task.seed, "wall_s": time.perf_counter() - t0}
@@ -154,30 +206,69 @@ def read_trials(path: Path) -> list[dict]:
     return rows
 
 
-def tiny_table(rows: list[dict]) -> tuple[str, dict]:
-    """The tiny part as markdown, and its aggregate figures."""
-    tiny = sorted((r for r in rows if r["sweep"] == "bound-tiny"), key=lambda r: r["trial"])
-    lines = ["| instance | V* | new bound (± SE) | excess over V* | clairvoyant mean (± SE) | excess over V* | "
-             "excess ratio | valid (bound ≥ V* − 3 SE) |", "|---|---|---|---|---|---|---|---|"]
-    bound_ex, clair_ex, valid = [], [], []
+def _tiny_lines(tiny: list[dict]) -> tuple[list[str], dict]:
+    """Table rows of tiny-instance results and their aggregate (mean excesses, their ratio, validity)."""
+    lines, bound_ex, clair_ex, valid = [], [], [], []
     for r in tiny:
         v = r["v_star"]
         be, ce = 100 * (r["reward"] / v - 1), 100 * (r["clairvoyant_mean"] / v - 1)
-        ok = r["reward"] >= v - 3 * r["stderr"]
+        ok = r["reward"] >= v - VALID_SE * r["stderr"]
         bound_ex.append(be)
         clair_ex.append(ce)
         valid.append(ok)
-        lines.append(f"| #{r['trial']} {r['config']} | {v:.4f} | {r['reward']:.4f} ± {r['stderr']:.4f} | {be:+.2f} % | "
+        lines.append(f"| #{r['trial']} {r['config']} | {r.get('prior') or 'poisson(3)'} | {v:.4f} | "
+                     f"{r['reward']:.4f} ± {r['stderr']:.4f} | {be:+.2f} % | "
                      f"{r['clairvoyant_mean']:.4f} ± {r['clairvoyant_stderr']:.4f} | {ce:+.2f} % | "
                      f"{be / ce:.2f} | {'yes' if ok else 'NO'} |")
     agg = {"bound_excess_pct": float(np.mean(bound_ex)) if tiny else float("nan"),
            "clairvoyant_excess_pct": float(np.mean(clair_ex)) if tiny else float("nan"),
-           "valid": f"{sum(valid)}/{len(valid)}"}
+           "valid": f"{sum(valid)}/{len(valid)}", "all_valid": all(valid)}
     if tiny:
         agg["ratio"] = agg["bound_excess_pct"] / agg["clairvoyant_excess_pct"]
-        lines.append(f"| mean over instances | | | {agg['bound_excess_pct']:+.2f} % | | {agg['clairvoyant_excess_pct']:+.2f} % "
-                     f"| {agg['ratio']:.2f} | {agg['valid']} |")
-    return "\n".join(lines), agg
+        lines.append(f"| mean over instances | | | | {agg['bound_excess_pct']:+.2f} % | | "
+                     f"{agg['clairvoyant_excess_pct']:+.2f} % | {agg['ratio']:.2f} | {agg['valid']} |")
+    return lines, agg
+
+
+def tiny_table(rows: list[dict]) -> tuple[str, dict]:
+    """The tiny part as markdown (the Poisson(3) instances, then one per prior kind), and the
+    aggregate figures of each (``poisson``, ``priors``) and of both (``all``)."""
+    head = ["| instance | prior | V* | new bound (± SE) | excess over V* | clairvoyant mean (± SE) | excess over V* | "
+            f"excess ratio | valid (bound ≥ V* − {VALID_SE:g} SE) |", "|---|---|---|---|---|---|---|---|---|"]
+    tiny = sorted((r for r in rows if r["sweep"] == "bound-tiny"), key=lambda r: (r["level"], r["trial"]))
+    parts = {"poisson": [r for r in tiny if r["level"] == 0], "priors": [r for r in tiny if r["level"] == 1]}
+    text, agg = [], {}
+    for name, part in parts.items():
+        if not part:
+            continue
+        lines, agg[name] = _tiny_lines(part)
+        text += (["", "One tiny instance per prior kind (continuous kinds: V*'s 12-atom stand-in):", ""]
+                 if name == "priors" else []) + head + lines
+    if tiny:
+        agg["all"] = _tiny_lines(tiny)[1]
+    return "\n".join(text), agg
+
+
+def targets(summary: list[dict], tiny: dict) -> list[str]:
+    """The comparison's targets, each marked met or not, with the figures that decide it."""
+    out = []
+    if "all" in tiny:
+        a = tiny["all"]
+        out.append(f"* valid (never below V* by more than {VALID_SE:g} SE): {a['valid']} tiny instances — "
+                   f"{'met' if a['all_valid'] else 'NOT MET'}")
+        for name, label in (("poisson", "Poisson(3) instances"), ("priors", "prior-kind instances"), ("all", "all")):
+            if name in tiny:
+                t = tiny[name]
+                ok = t["ratio"] <= EXCESS_RATIO
+                out.append(f"* mean excess over V*, {label}: {t['bound_excess_pct']:+.2f} % against clairvoyance's "
+                           f"{t['clairvoyant_excess_pct']:+.2f} %, ratio {t['ratio']:.2f} (target ≤ {EXCESS_RATIO:.2f}) — "
+                           f"{'met' if ok else 'NOT MET'}")
+    for r in summary:
+        if r["planner"] == "closed-loop" and r["carriers"] >= FRACTION_MIN_CARRIERS:
+            ok = r["fraction_mean"] >= FRACTION_TARGET
+            out.append(f"* closed-loop at {r['config']}: {r['fraction_mean']:.3f} ± {r['fraction_sem']:.3f} of the bound "
+                       f"({r['n']} trials; target ≥ {FRACTION_TARGET}) — {'met' if ok else 'NOT MET'}")
+    return out
 
 
 def summarise(rows: list[dict]) -> list[dict]:
@@ -263,13 +354,14 @@ def write(rows: list[dict], out: Path, settings: dict, seconds: float, jobs: int
     tiny, agg = tiny_table(rows)
     text = ["## Upper bound", "",
             "### Tiny instances: the new bound and the clairvoyant bound against V*", "",
-            "R = 2 or 3, N = 6, D = 2, Poisson(3), 2 to 4 overlap groups; both bounds on the same sampled "
-            "observation matrices (exact inner maxima); excess = mean / V* − 1.", "", tiny, "",
+            "R = 2 or 3, N = 6, D = 2, 2 to 4 overlap groups, Poisson(3) or one prior per kind; both bounds on "
+            "the same sampled observation matrices (exact inner maxima); excess = mean / V* − 1.", "", tiny, "",
             "### Planners as fractions of the new bound", "",
             f"Random instances, D = 3, N = 10, Poisson(3), {iterations} iterations per decision; the bound by "
             "the LP relaxation from its own samples; fraction = reward / bound per trial, mean ± SEM "
             "(the clairvoyant column: the clairvoyant bound over the new one, the conflict-free bound where "
-            f"its exact search stops). dec-closed-loop and the clairvoyant bound run up to R = {DEC_MAX_CARRIERS}.", "", scale_table(summary), "", "![fractions of the bound](bound.png)"]
+            f"its exact search stops). dec-closed-loop and the clairvoyant bound run up to R = {DEC_MAX_CARRIERS}.", "", scale_table(summary), "", "![fractions of the bound](bound.png)", "", "### Targets", "",
+            *targets(summary, agg)]
     worker = defaultdict(float)
     for r in rows:
         worker[r["planner"]] += float(r["wall_s"])

@@ -161,6 +161,35 @@ def test_solve_reports_the_bound_next_to_the_online_optimum(tmp_path, capsys):
     assert "upper_bound" not in json.loads(capsys.readouterr().out)
 
 
+def test_bound_experiment_takes_every_prior_kind_within_the_exact_solvers_limits():
+    """The experiment's tiny part has one instance per prior kind, each within V*'s automatic limit
+    and under the prior V* is exact for (continuous kinds: its 12-atom stand-in)."""
+    from experiments import bound as experiment
+
+    assert set(experiment.TINY_PRIORS) == set(priors.PRIOR_KINDS)
+    for i, kind in enumerate(experiment.TINY_PRIORS):
+        problem, _ = experiment.tiny_instance(0, i, kind)
+        assert priors.is_discrete(problem.prior), kind
+        online_optimal.estimate(problem, max_work=online_optimal.AUTO_WORK)  # raises TooLarge beyond
+
+
+def test_bound_experiment_targets_are_marked_met_or_not():
+    from experiments import bound as experiment
+
+    tiny = {"all": {"valid": "2/2", "all_valid": True, "bound_excess_pct": 1.0, "clairvoyant_excess_pct": 2.0,
+                    "ratio": 0.5}}
+    summary = [{"planner": "closed-loop", "carriers": 128, "config": "R = 128", "fraction_mean": 0.95,
+                "fraction_sem": 0.01, "n": 5},
+               {"planner": "closed-loop", "carriers": 256, "config": "R = 256", "fraction_mean": 0.85,
+                "fraction_sem": 0.01, "n": 5},
+               {"planner": "closed-loop", "carriers": 4, "config": "R = 4", "fraction_mean": 0.5,
+                "fraction_sem": 0.01, "n": 5}]
+    lines = experiment.targets(summary, tiny)
+    assert lines[0].endswith("— met") and lines[1].endswith("— NOT MET")  # validity; ratio 0.5 > 1/3
+    assert lines[2].endswith("— met") and "R = 128" in lines[2] and lines[3].endswith("— NOT MET")
+    assert len(lines) == 4  # R = 4 is below the fraction target's range
+
+
 @pytest.mark.slow
 def test_experiment_tasks_report_the_bound_against_v_star_and_the_planners(tmp_path):
     """One tiny-instance task and one R = 4 trial of ``python -m experiments bound``, written out."""
@@ -169,17 +198,20 @@ def test_experiment_tasks_report_the_bound_against_v_star_and_the_planners(tmp_p
 
     tiny = experiment.run_task(Task("bound-tiny", 0, 0, experiment.TINY, 0, 0, samples=30))
     assert tiny["reward"] >= tiny["v_star"] - 3 * tiny["stderr"] and tiny["samples"] == 30
+    kind = experiment.run_task(Task("bound-tiny", 1, 6, experiment.TINY, 0, 0, samples=30, variant="gamma"))
+    assert kind["prior"] == "gamma" and kind["reward"] >= kind["v_star"] - 3 * kind["stderr"]
     level = 5  # R = 4, 20 overlaps
     _, carriers, overlaps, _, _ = experiment.CONFIGS[level]
-    rows = [tiny] + [experiment.run_task(Task("bound", level, 0, name, 0, 100, carriers=carriers, overlaps=overlaps,
+    rows = [tiny, kind] + [experiment.run_task(Task("bound", level, 0, name, 0, 100, carriers=carriers, overlaps=overlaps,
                                               samples=3))
                      for name in ("ssap", CLAIRVOYANT, experiment.UPPER_BOUND)]
     assert rows[-1]["method"] == "lp" and rows[-1]["samples"] == 3
     experiment.write(rows, tmp_path, {"iterations": 100}, 1.0, 1)
     text = (tmp_path / "bound.md").read_text()
     assert "V*" in text and "R = 4, 20 overlaps" in text and (tmp_path / "bound.png").is_file()
+    assert "One tiny instance per prior kind" in text and "| gamma |" in text and "### Targets" in text
     again = experiment.read_trials(tmp_path / "bound_trials.csv")
-    assert len(again) == 4 and {r["planner"] for r in again} >= {"ssap", experiment.UPPER_BOUND}
+    assert len(again) == 5 and {r["planner"] for r in again} >= {"ssap", experiment.UPPER_BOUND}
 
 
 @pytest.mark.slow
