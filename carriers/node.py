@@ -134,13 +134,14 @@ class Carrier(Motion, Inbound, Joining, Alone):
 
     def __init__(self, scenario, config: CarrierConfig, zconf, stop: threading.Event | None = None,
                  shared: SharedWorld | None = None, onboard: Onboard | None = None, gate: StageGate | None = None,
-                 broadcasts: SharedDecoder | None = None):
+                 broadcasts: SharedDecoder | None = None, session=None):
         if config.seed is not None and shared is None:
             scenario = scenario.with_seed(int(config.seed))
         self.scenario = scenario
         self.shared = shared
         self.config = config
         self.zconf = zconf
+        self.session = session  # the process's wire.transport.SharedSession, or None: a session of its own
         self.cid = keys.check_id(config.carrier, "carrier")
         self.r = scenario.carrier_index(self.cid)  # KeyError for an unknown id (checked by the CLI)
         self.mission = keys.check_id(config.mission or keys.mission_id_from_name(scenario.name), "mission")
@@ -338,7 +339,8 @@ class Carrier(Motion, Inbound, Joining, Alone):
         self.sim = world.Simulation(self.scenario, carriers=[self.cid],
                                     features=None if self.shared is None else self.shared.features)
         try:
-            self.node = Node(self.zconf, open_timeout_s=self.config.coordinator_timeout_s, stop=self._stop)
+            self.node = Node(self.zconf, open_timeout_s=self.config.coordinator_timeout_s, stop=self._stop,
+                             shared=self.session)
         except OpenStopped:
             return "stopped"
         try:

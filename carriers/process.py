@@ -1,6 +1,6 @@
-"""A carrier process: the carriers it simulates, one thread and one Zenoh session each, after a
-check that none of them is live elsewhere (docs/fleet.md, "Many carriers per process", "Split
-brain")."""
+"""A carrier process: the carriers it simulates, one thread each and one Zenoh session for all,
+after a check that none of them is live elsewhere (docs/fleet.md, "Many carriers per process",
+"Split brain")."""
 from __future__ import annotations
 
 import threading
@@ -43,9 +43,12 @@ def live_duplicates(mission: str, ids, zconf, stop: threading.Event | None = Non
 
 
 def run_carriers(scenario, configs, zconf, stop: threading.Event | None = None) -> dict:
-    """Run several carriers in this process, one thread and one Zenoh session each (the protocol
-    and the coordinator cannot tell them from carriers in processes of their own); the world
-    (schedules, fingerprint, features) is derived once and shared.
+    """Run several carriers in this process, one thread each; the world (schedules, fingerprint,
+    features) is derived once and shared, and so is one Zenoh session
+    (:class:`wire.transport.SharedSession`: every carrier declares its own subscriptions,
+    publishers and liveliness token on it, so the protocol and the coordinator cannot tell them
+    from carriers in processes of their own). Carriers with a ROS 2 node keep a session each
+    (rmw_zenoh numbers a session's nodes and entities: ros2/graph.py numbers one node per session).
 
     Args:
         scenario: the loaded scenario (every config must name the same ``seed``).
@@ -80,8 +83,13 @@ def run_carriers(scenario, configs, zconf, stop: threading.Event | None = None) 
     gate = StageGate()
     broadcasts = SharedDecoder()  # a Decision reaches every carrier of the process: decoded once
     configs = with_onboard_load(configs)
+    session = None
+    if len(configs) > 1 and all(c.ros2 is None for c in configs):
+        from wire.transport import SharedSession
+
+        session = SharedSession(zconf() if callable(zconf) else zconf)
     carriers = [Carrier(scenario, c, zconf() if callable(zconf) else zconf, stop=stop, shared=shared, onboard=onboard,
-                        gate=gate, broadcasts=broadcasts) for c in configs]
+                        gate=gate, broadcasts=broadcasts, session=session) for c in configs]
     reasons: dict = {}
 
     def body(carrier):

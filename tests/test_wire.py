@@ -301,3 +301,49 @@ def test_shared_decoder_gives_what_decode_gives_once_per_payload():
                 shared.decode(bad, expected)
             assert (seen.value.reason, seen.value.detail) == (own.value.reason, own.value.detail)
     assert len(shared._seen) == 2
+
+
+def test_nodes_on_a_shared_session_keep_their_own_entities_and_tokens():
+    """The carriers of one process share one session (wire.transport.SharedSession): each keeps
+    its own subscriptions and liveliness token; one that closes takes only its token away; the
+    session closes with the last node. Real zenoh: a router and a watcher on loopback."""
+    import time
+
+    from tests.localports import distinct_free_ports
+    from wire.transport import Node, SharedSession
+
+    endpoint = f"tcp/127.0.0.1:{distinct_free_ports(1)[0]}"
+    router = zconfig.open_session(zconfig.make_config("router", [endpoint]), 10.0)
+    watcher = Node(zconfig.make_config("client", [], [endpoint]), open_timeout_s=10)
+    shared = SharedSession(zconfig.make_config("client", [], [endpoint]))
+    try:
+        a, b = (Node(None, open_timeout_s=10, shared=shared) for _ in range(2))
+        assert a.session is b.session
+        for node, cid in ((a, "a"), (b, "b")):
+            node.subscribe("t/decision")
+            node.token(f"t/carrier/{cid}/alive")
+
+        def live(expected):
+            deadline = time.monotonic() + 10
+            while time.monotonic() < deadline:
+                found = watcher.live_tokens("t/carrier/*/alive", 1.0)
+                if found == expected:
+                    return found
+                time.sleep(0.1)
+            return found
+
+        assert live(["t/carrier/a/alive", "t/carrier/b/alive"]) == ["t/carrier/a/alive", "t/carrier/b/alive"]
+        watcher.put_raw("t/decision", b"one")
+        for node in (a, b):  # one put reaches every node's own inbox once
+            item = node.next(10)
+            assert item is not None and item.payload == b"one" and node.next(0.3) is None
+        assert a.close(5)
+        assert live(["t/carrier/b/alive"]) == ["t/carrier/b/alive"]
+        watcher.put_raw("t/decision", b"two")
+        assert b.next(10).payload == b"two" and a.next(0.3) is None
+        assert not b.session.is_closed()
+        assert b.close(5)
+        assert b.session.is_closed() and live([]) == []
+    finally:
+        watcher.close(3)
+        router.close()

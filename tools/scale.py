@@ -296,6 +296,7 @@ def run_one(n_carriers: int, out: Path, seed: int, processes: int | None, planne
     argv = [sys.executable, str(ROOT / "run_fleet.py"), str(scen), "--out", str(run_dir), "--no-map",
             "--carrier-processes", str(k), *START_FLAGS, *carrier_flags]
     started = time.monotonic()
+    load_before = os.getloadavg()[0]
     with BusyHost(busy):
         proc = subprocess.Popen(argv, stdout=subprocess.PIPE if quiet else None, stderr=subprocess.STDOUT, text=True)
         sampler = TreeSampler(proc.pid)
@@ -307,7 +308,10 @@ def run_one(n_carriers: int, out: Path, seed: int, processes: int | None, planne
         finally:
             sampler.stop()
     wall = time.monotonic() - started
+    # The host's 1-minute load average before and at the end of the run: the timing columns
+    # depend on it (a shared host), the fidelity columns must not.
     row = {"R": n_carriers, "family": family, "busy": busy, "processes": k,
+           "load": max(load_before, os.getloadavg()[0]),
            "carriers": " ".join(carrier_flags) or "hybrid", "returncode": proc.returncode, "wall_s": wall,
            "mem_total_mb": sampler.peak_total / 1e6, "mem_carriers_mb": sampler.peak_carriers / 1e6,
            "mem_per_carrier_mb": sampler.peak_carriers / 1e6 / n_carriers,
@@ -350,7 +354,7 @@ def run_one(n_carriers: int, out: Path, seed: int, processes: int | None, planne
     return row
 
 
-COLUMNS = (("family", "{}"), ("busy", "{:d}"), ("R", "{:d}"), ("processes", "{:d}"), ("carriers", "{}"), ("wall_s", "{:.1f}"), ("mem_total_mb", "{:.0f}"),
+COLUMNS = (("family", "{}"), ("busy", "{:d}"), ("load", "{:.0f}"), ("R", "{:d}"), ("processes", "{:d}"), ("carriers", "{}"), ("wall_s", "{:.1f}"), ("mem_total_mb", "{:.0f}"),
            ("mem_per_carrier_mb", "{:.1f}"), ("mem_coordinator_mb", "{:.0f}"), ("rtt_p50_ms", "{:.0f}"),
            ("rtt_p99_ms", "{:.0f}"), ("decision_mean_ms", "{:.0f}"), ("decision_max_ms", "{:.0f}"),
            ("messages_per_s", "{:.0f}"), ("carrier_cpu_ms", "{:.1f}"), ("idle_ratio", "{:.2f}"),

@@ -180,7 +180,8 @@ def open_session(conf: zenoh.Config, timeout_s: float = 10.0, retry_s: float = 0
 
 
 def close_session(session, entities: Sequence = (), timeout_s: float = 3.0) -> bool:
-    """Undeclare ``entities`` (subscribers, tokens, queryables) and close ``session``, bounded.
+    """Undeclare ``entities`` (subscribers, tokens, queryables) and close ``session`` (None: leave
+    it open, another node of the process still uses it), bounded.
 
     Returns:
         True if everything closed within ``timeout_s`` seconds (else it is left to process exit).
@@ -191,6 +192,8 @@ def close_session(session, entities: Sequence = (), timeout_s: float = 3.0) -> b
                 entity.undeclare()
             except Exception:
                 pass
+        if session is None:
+            return
         try:
             session.close()
         except Exception:
