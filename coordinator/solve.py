@@ -24,7 +24,7 @@ Output (stdout, one JSON object)::
 time budget (``planner.duality.DEFAULT_BUDGET_S``, judged from the instance's sizes).
 
 ``online_optimum`` (planner/online_optimal.py) is the expected reward of the Bayes-optimal online
-policy, present only when the instance is small enough (``AUTO_WORK``); ``planner_expected_reward``
+policy, present only when the instance is small enough (``AUTO_SECONDS``); ``planner_expected_reward``
 is the exact expected reward of the planner run, for ``ssap``, ``random`` and ``online-optimal``.
 Communication (planner/comms.py, docs/planner.md): ``--message-loss P`` drops every message
 (observation, intent, decision) with probability P in [0, 1]; ``--message-delay K`` delivers the

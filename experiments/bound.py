@@ -155,7 +155,7 @@ def tiny_instance(seed: int, k: int, kind: str = ""):
     """Tiny instance k: R = 2 + k % 2, N = 6, D = 2, 2 to 4 overlap groups, Poisson(3) (``kind``
     empty) or the stand-in of ``TINY_PRIORS[kind]``, and the generator its samples continue from:
     the first draw of streams ``(1002, k, a)`` (``(1003, k, a)`` with a kind), a = 0, 1, ...,
-    within the exact solver's automatic limit (``AUTO_WORK``, its quick size estimate)."""
+    within the exact solver's automatic limit (``AUTO_SECONDS``, its O(R·N) time estimate)."""
     from planner import online_optimal, priors
     from planner.instance import random_instance
     from planner.problem import Problem
@@ -168,7 +168,7 @@ def tiny_instance(seed: int, k: int, kind: str = ""):
         if prior is not None:
             problem = Problem.build(problem.passengers, problem.valid, problem.overlaps, prior)
         try:
-            online_optimal.estimate(problem, max_work=online_optimal.AUTO_WORK)
+            online_optimal.estimate(problem, max_seconds=online_optimal.AUTO_SECONDS)
         except online_optimal.TooLarge:
             continue
         return problem, rng

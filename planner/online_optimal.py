@@ -28,19 +28,22 @@ their own points. Continuous priors are replaced by :data:`CONTINUOUS_ATOMS` equ
 conditional means of the prior on its K quantile bins (the mean is kept); the value is then the
 exact value of that discretised problem, reported with ``exact=False``.
 
-Limits. Work grows like (states) x (joint outcomes K^m) x (joint actions 2^m) for m carriers that
-can deploy at a stage. Before solving, :func:`estimate` first bounds the work from below in
-O(R·N) (carriers that must still hold a passenger at a stage decide there in every state), so a
-large fleet is refused before any joint action is enumerated; then it enumerates the reachable state structures
-(passengers left and open points with their counts, without their x values) and counts states and
-work; an instance beyond :data:`MAX_STATES` states or :data:`MAX_WORK` operations is refused with
-:class:`TooLarge` (a ValueError, one line) before anything large is allocated.
+Speed. Conflict components (carriers linked by chains of overlaps) are solved separately and
+their values added. A memo entry is a state *structure* (the state without the open points' x
+values) holding a numpy tensor over those x values, so the expectation over the deciders' atoms
+and the maximum over joint actions are array operations, not a Python call per state.
+
+Limits: a time budget. :func:`estimate` computes, in O(R·N·D²) and without enumerating any state,
+an upper bound on the tensor elements and state transitions of the solve, converts them to
+seconds with two measured rates (:data:`SECONDS_PER_ELEMENT`, :data:`SECONDS_PER_TRANSITION`)
+and refuses (:class:`TooLarge`, a ValueError, one line) an instance whose estimate is above the
+budget (:data:`MAX_SECONDS` by default, :data:`AUTO_SECONDS` for ``solve``'s automatic field)
+or whose memo would exceed :data:`MAX_STATES` values, before anything large is allocated.
 
 Pure: numpy and scipy only.
 """
 from __future__ import annotations
 
-import itertools
 import math
 import weakref
 from dataclasses import dataclass
@@ -54,14 +57,24 @@ from planner.problem import Problem, StageView
 TAIL_MASS = 1e-9
 #: Equiprobable atoms standing in for a continuous prior.
 CONTINUOUS_ATOMS = 12
-#: Most memoised states an exact solve may create (about 0.4 kB each: ~200 MB at the limit).
-MAX_STATES = 500_000
-#: Most elementary operations (states x joint outcomes x joint actions) an exact solve may do
-#: (20 to 50 s at the limit on one core: 2e7 to 5e7 a second).
-MAX_WORK = 1e9
-#: Work limit under which ``python -m coordinator.solve`` adds the online optimum by itself
-#: (up to several seconds).
-AUTO_WORK = 1.5e8
+#: Most memoised values (one float each, tensors over open points' x) an exact solve may store, as
+#: estimated: an upper bound (2 GB at the limit); real solves store far fewer (the bench prints both).
+MAX_STATES = 2.5e8
+#: Time budget of an exact solve (``online-optimal``, ``online_value``), seconds on one core of the
+#: development machine: what a plain memoised expectimax solves within this time, the solver takes.
+MAX_SECONDS = 60.0
+#: Time budget under which ``python -m coordinator.solve`` adds the online optimum by itself.
+AUTO_SECONDS = 10.0
+#: Measured cost of one tensor element of one joint action (add, add, maximum, expectation) and of
+#: one state transition (Python bookkeeping and numpy call overhead), seconds: see
+#: ``python -m tools.online_optimal_bench`` (estimated against measured times).
+SECONDS_PER_ELEMENT = 4e-8
+SECONDS_PER_TRANSITION = 1e-4
+#: Fixed cost of a solve (the prior's atoms, the compiled component, the first tables), seconds.
+SECONDS_FIXED = 5e-3
+#: Largest tensor (elements) a state's solve builds at once; beyond, it is solved one atom of its
+#: first open point at a time.
+CHUNK = 1 << 21
 
 POLICIES = ("optimal", "ssap", "random")
 
@@ -104,22 +117,25 @@ def discretise(prior, atoms: int = CONTINUOUS_ATOMS, tail: float = TAIL_MASS) ->
     return Atoms(points, np.full(atoms, 1.0 / atoms), False)
 
 
-# ----------------------------------------------------------------------------- compiled problem
+# ----------------------------------------------------------------------------- components
 
 @dataclass(frozen=True, eq=False)
 class _Compiled:
-    """What the recursion needs of a problem, as plain Python structures.
+    """What the recursion needs of one conflict component, as plain Python structures (carriers
+    renumbered ``0..R_c-1``, flat points ``r * N + j``).
 
     Attributes:
-        n_carriers, n_stages: R and N.
-        valid: tuple of R tuples of N bools (the schedule).
-        stages_left: ``stages_left[r][j]`` valid stages of r at stages >= j (``[R][N + 1]``).
+        carriers: int ``[R_c]`` the component's carriers in the problem (ascending).
+        n_carriers, n_stages: R_c and N.
+        valid: tuple of R_c tuples of N bools (the schedule).
+        stages_left: ``stages_left[r][j]`` valid stages of r at stages >= j (``[R_c][N + 1]``).
         neighbours: ``neighbours[p]`` frozenset of flat points conflicting with flat point p.
         future: ``future[p][j]`` bitmask of carriers with a valid point at a stage >= j
-            conflicting with p (``[R*N][N + 1]``).
+            conflicting with p (``[R_c*N][N + 1]``).
         passengers: tuple of D_r.
     """
 
+    carriers: np.ndarray
     n_carriers: int
     n_stages: int
     valid: tuple
@@ -129,11 +145,60 @@ class _Compiled:
     passengers: tuple
 
 
-def _compile(problem: Problem) -> _Compiled:
-    n_carriers, n_stages = problem.valid.shape
-    valid = problem.valid
+def _components(problem: Problem) -> list[np.ndarray]:
+    """The carriers that can ever deploy (a passenger and a valid stage), split into conflict
+    components: two carriers are in one component when a chain of overlaps links deployable
+    points of theirs. Carriers of different components never change each other's rewards, so
+    ``V*`` (and any per-carrier policy's value) is the sum over components. O(R·N + overlap
+    members)."""
+    valid = np.asarray(problem.valid, dtype=bool)
+    deployable = valid & (np.asarray(problem.passengers)[:, None] > 0)
+    parent = list(range(valid.shape[0]))
+
+    def root(r: int) -> int:
+        while parent[r] != r:
+            parent[r] = parent[parent[r]]
+            r = parent[r]
+        return r
+
+    for group in problem.overlaps:
+        members = {(int(r), int(j)) for r, j in group if deployable[r, j]}
+        if len(members) > 1:
+            first = root(next(iter(members))[0])
+            for r, _ in members:
+                parent[root(r)] = first
+    out: dict[int, list[int]] = {}
+    for r in np.flatnonzero(deployable.any(axis=1)).tolist():
+        out.setdefault(root(r), []).append(r)
+    return [np.array(rs) for rs in sorted(out.values())]
+
+
+def _horizon(problem: Problem) -> np.ndarray:
+    """int ``[R, N]``: the last stage of a deployable point conflicting with ``(r, j)`` (another
+    point: a point listed twice does not conflict with itself), -1 for none. O(overlap members)."""
+    valid = np.asarray(problem.valid, dtype=bool)
+    deployable = valid & (np.asarray(problem.passengers)[:, None] > 0)
+    out = np.full(valid.shape, -1, dtype=np.int64)
+    for group in problem.overlaps:
+        points = sorted({(int(r), int(j)) for r, j in group}, key=lambda q: q[1])
+        live = [j for r, j in points if deployable[r, j]]
+        if not live:
+            continue
+        top, second = live[-1], (live[-2] if len(live) > 1 else -1)
+        for r, j in points:
+            other = second if (deployable[r, j] and j == top and live.count(top) == 1) else top
+            out[r, j] = max(out[r, j], other)
+    return out
+
+
+def _compile(problem: Problem, carriers: np.ndarray) -> _Compiled:
+    n_stages = problem.valid.shape[1]
+    valid = problem.valid[carriers]
+    n_carriers = len(carriers)
+    points = (carriers[:, None] * n_stages + np.arange(n_stages)[None, :]).ravel()
+    conflict = problem.conflict[np.ix_(points, points)]
     stages_left = tuple(tuple(int(valid[r, j:].sum()) for j in range(n_stages + 1)) for r in range(n_carriers))
-    neighbours = tuple(frozenset(np.flatnonzero(row).tolist()) for row in problem.conflict)
+    neighbours = tuple(frozenset(np.flatnonzero(row).tolist()) for row in conflict)
     future = []
     for p in range(n_carriers * n_stages):
         masks = [0] * (n_stages + 1)
@@ -143,8 +208,8 @@ def _compile(problem: Problem) -> _Compiled:
                 for k in range(j + 1):
                     masks[k] |= 1 << r
         future.append(tuple(masks))
-    return _Compiled(n_carriers, n_stages, tuple(tuple(bool(v) for v in row) for row in valid), stages_left,
-                     neighbours, tuple(future), tuple(int(d) for d in problem.passengers))
+    return _Compiled(carriers, n_carriers, n_stages, tuple(tuple(bool(v) for v in row) for row in valid),
+                     stages_left, neighbours, tuple(future), tuple(int(d) for d in problem.passengers[carriers]))
 
 
 def _alive(left: tuple) -> int:
@@ -167,25 +232,64 @@ def _actions(m: int, must: list[bool]) -> list[tuple[int, ...]]:
 
 @dataclass(frozen=True)
 class SizeEstimate:
-    """Reachable state space of the exact recursion.
+    """What an exact solve costs, estimated in O(R·N·D²) (never by enumerating states).
 
     Attributes:
         atoms: K, points per observation.
-        states: memoised states a full solve creates (an upper bound).
-        work: sum over states of joint outcomes x joint actions.
+        states: memoised values a full solve stores (one float each; an upper bound).
+        work: tensor elements the solve computes (sum over state structures and joint actions of
+            ``K^(open points + deciders)``).
+        seconds: estimated wall time of the solve on one core of the development machine
+            (``SECONDS_FIXED + work * SECONDS_PER_ELEMENT + transitions *
+            SECONDS_PER_TRANSITION``).
+        components: conflict components solved separately.
     """
 
     atoms: int
-    states: int
+    states: float
     work: float
+    seconds: float
+    components: int
 
 
-def estimate(problem: Problem, atoms: Atoms | None = None, max_states: int = MAX_STATES,
-             max_work: float = MAX_WORK) -> SizeEstimate:
-    """Count the reachable states and work by enumerating state structures (no x values).
+def _carrier_stage_sums(d: int, a: int, b: int, k: int, decides: bool, forced_at: int, skips: int):
+    """For one carrier before one stage: sums over its possible (deployed so far t, open points
+    s among ``a`` openable earlier valid points and ``b`` others) of (structures, states, work,
+    transitions). ``decides``: the stage is valid; it is forced with ``left <= forced_at``;
+    ``skips``: how many valid stages it can pass without deploying (the forced rule), so
+    ``t >= a + b - skips``."""
+    structures = states = work = transitions = 0.0
+    for t in range(max(0, a + b - skips), min(d, a + b) + 1):
+        left = d - t
+        deciding = decides and left > 0
+        actions = 1 if (not deciding or forced_at <= left) else 2
+        for s in range(max(0, t - b), min(t, a) + 1):
+            try:
+                ways = float(math.comb(a, s))
+                size = ways * float(k) ** s
+            except OverflowError:
+                ways = size = math.inf
+            structures += ways
+            states += size
+            work += size * (k if deciding else 1) * actions
+            transitions += ways * actions
+    return structures, states, work, transitions
 
-    Stops as soon as a limit is passed and raises :class:`TooLarge`, so it is quick on big
-    instances too.
+
+def estimate(problem: Problem, atoms: Atoms | None = None, max_seconds: float = MAX_SECONDS,
+             max_states: float = MAX_STATES) -> SizeEstimate:
+    """Estimate the exact solve's states, work and time, and refuse it when too large.
+
+    O(R·N·D²) after the conflict components (O(R·N + overlap members)): per component and stage
+    the reachable state structures are bounded by the product over its carriers of their
+    (passengers left, open earlier points) combinations; a carrier's earlier point is counted
+    open only if a deployable point conflicts with it at this stage or later. First, a lower
+    bound: a carrier that cannot have released all its passengers before stage j decides there in
+    every reachable state, so a component with m such carriers costs at least ``K^m`` there; a
+    large fleet is refused by that bound alone.
+
+    Raises:
+        TooLarge: the estimated time is above ``max_seconds`` or the states above ``max_states``.
     """
     if problem.weights is not None:
         raise TooLarge("online-optimal: expected an instance without passenger values (the exact recursion "
@@ -193,56 +297,53 @@ def estimate(problem: Problem, atoms: Atoms | None = None, max_states: int = MAX
     atoms = discretise(problem.prior) if atoms is None else atoms
     k = len(atoms.points)
     n_carriers, n_stages = problem.valid.shape
+    max_work = max_seconds / SECONDS_PER_ELEMENT
 
     def refuse(what: str) -> TooLarge:
         return TooLarge(
-            f"online-optimal: instance too large for the exact solver ({what}; limits {max_states:,} states, "
-            f"{max_work:.0e} operations; R={n_carriers}, N={n_stages}, {k} points per observation)")
+            f"online-optimal: instance too large for the exact solver ({what}; limits {max_seconds:g} s, "
+            f"{max_states:.2g} states; R={n_carriers}, N={n_stages}, {k} points per observation)")
 
-    # O(R·N) first, before anything of size (R·N)^2: a carrier that cannot have deployed all its
-    # passengers before stage j (at most one per valid stage) decides at j in every reachable
-    # state, so stage j costs at least K^(such carriers) operations. A large fleet is refused
-    # here, before any joint action is enumerated.
     valid = np.asarray(problem.valid, dtype=bool)
+    passengers = np.asarray(problem.passengers, dtype=np.int64)
+    components = _components(problem)
     before = np.cumsum(valid, axis=1) - valid  # valid stages before j
-    deciders = (valid & (np.asarray(problem.passengers)[:, None] > before)).sum(axis=0)
-    floor = 0.0
-    for j, m in enumerate(deciders.tolist()):
-        floor += math.inf if m * math.log(max(k, 1)) > math.log(max_work) else float(k) ** m
-        if floor > max_work:
-            raise refuse(f"more than {max_work:.0e} operations: {m} carriers decide at stage {j}")
-    comp = _compile(problem)
-    layer = {(comp.passengers, ()): 1}  # structure -> 1; a structure stands for K^open states
-    states = 0
-    work = 0.0
-    for j in range(n_stages):
-        nxt = {}
-        for left, opened in layer:
-            n_open = len(opened)
-            count = k ** n_open
-            can = [r for r in range(n_carriers) if comp.valid[r][j] and left[r] > 0]
-            must = [comp.stages_left[r][j] <= left[r] for r in can]
-            states += count
-            # 2^(free deciders) joint actions: counted before they are enumerated.
-            work += float(count) * float(k) ** len(can) * 2.0 ** (len(can) - sum(must))
-            if states > max_states:
-                raise refuse(f"more than {max_states:,} states")
-            if work > max_work:
-                raise refuse(f"more than {max_work:.0e} operations")
-            for action in _actions(len(can), must):
-                left2, opened2, _ = _transition(comp, j, left, opened, [can[i] for i in action])
-                nxt[(left2, tuple(sorted((e[0], e[1]) for e in opened2)))] = 1
-        layer = nxt
-    states += sum(k ** len(o) for _, o in layer)
-    return SizeEstimate(k, states, work)
+    holding = valid & (passengers[:, None] > before)  # decides at j in every reachable state
+    for carriers in components:
+        for j, m in enumerate(holding[carriers].sum(axis=0).tolist()):
+            if m * math.log(max(k, 2)) > math.log(max_work):
+                raise refuse(f"more than {max_seconds:g} s: {m} carriers decide at stage {j}")
+    horizon = _horizon(problem)
+    stages_left = valid[:, ::-1].cumsum(axis=1)[:, ::-1]
+    states = work = transitions = 0.0
+    for carriers in components:
+        for j in range(n_stages + 1):
+            stage = np.ones(4)
+            for r in carriers.tolist():
+                earlier = valid[r, :j]
+                a = int((earlier & (horizon[r, :j] >= j)).sum())
+                decides = j < n_stages and bool(valid[r, j])
+                forced_at = int(stages_left[r, j]) if j < n_stages else 0
+                stage *= _carrier_stage_sums(int(passengers[r]), a, int(earlier.sum()) - a, k, decides, forced_at,
+                                             max(0, int(stages_left[r, 0]) - int(passengers[r])))
+            states += stage[1]
+            work += stage[2]
+            transitions += stage[3]
+        seconds = SECONDS_FIXED + work * SECONDS_PER_ELEMENT + transitions * SECONDS_PER_TRANSITION
+        if seconds > max_seconds:
+            raise refuse(f"about {seconds:.3g} s")
+        if states > max_states:
+            raise refuse(f"about {states:.3g} states")
+    seconds = SECONDS_FIXED + work * SECONDS_PER_ELEMENT + transitions * SECONDS_PER_TRANSITION
+    return SizeEstimate(k, states, work, seconds, len(components))
 
 
 def _transition(comp: _Compiled, j: int, left: tuple, opened, deploying: list[int]):
     """Apply the deployments of carriers ``deploying`` at stage j.
 
-    ``opened`` holds ``(p, c, *rest)`` tuples (rest: the x value, if any). Returns ``(left', still
-    open, closing)``: still-open and closing entries as ``(p, c, *rest)`` with updated counts; new
-    points come with ``rest`` = ``("new", carrier)``.
+    ``opened`` holds ``(p, c, *rest)`` tuples. Returns ``(left', still open, closing)``: still-open
+    and closing entries as ``(p, c, *rest)`` with updated counts; new points come with ``rest`` =
+    ``("new", carrier)``.
     """
     n_stages = comp.n_stages
     new = [r * n_stages + j for r in deploying]
@@ -263,57 +364,83 @@ def _transition(comp: _Compiled, j: int, left: tuple, opened, deploying: list[in
 # ----------------------------------------------------------------------------- the recursion
 
 class _Solver:
-    """Memoised expectimax (``policy="optimal"``) or policy evaluation (``"ssap"``, ``"random"``).
+    """Memoised expectimax (``policy="optimal"``) or policy evaluation (``"ssap"``, ``"random"``)
+    over one conflict component, vectorised over observations.
 
-    Values are raw (sum of x / p); callers divide by ``problem.scale``.
+    A memo entry is keyed by a state *structure* ``(j, passengers left, open points)``, an open
+    point being ``(p, count, given)``; its value is a tensor with one axis per open point (in the
+    order of p) over that point's possible x: the prior's atoms (``given`` None) or one observed
+    value (``given`` = x, what a planner's decision sees). Values are raw (sum of x / p); callers
+    divide by ``problem.scale``.
     """
 
-    def __init__(self, problem: Problem, policy: str, atoms: Atoms):
-        if policy not in POLICIES:
-            raise ValueError(f"policy must be one of {', '.join(POLICIES)}, got {policy!r}")
-        self.problem = problem
+    def __init__(self, problem: Problem, comp: _Compiled, policy: str, atoms: Atoms):
         self.policy = policy
         self.atoms = atoms
-        self.comp = _compile(problem)
+        self.comp = comp
         self.table = ssap.table_for(problem) if policy == "ssap" else None
         self.memo: dict = {}
-        self._prob_tensors: dict[int, np.ndarray] = {}
-        self._ssap_deploy: dict[tuple[int, int], np.ndarray] = {}
+        self._atom_index = {float(x): i for i, x in enumerate(atoms.points)}
+        self._ssap_deploy: dict[tuple, np.ndarray] = {}
 
-    def _prob_tensor(self, m: int) -> np.ndarray:
-        tensor = self._prob_tensors.get(m)
-        if tensor is None:
-            tensor = np.ones(())
-            for _ in range(m):
-                tensor = np.multiply.outer(tensor, self.atoms.probs)
-            self._prob_tensors[m] = tensor
-        return tensor
+    def grid(self, given) -> np.ndarray:
+        """The x values of an axis: the atoms, or the one given value."""
+        return self.atoms.points if given is None else np.array([float(given)])
 
-    def value(self, j: int, left: tuple, opened: tuple) -> float:
+    def value(self, j: int, left: tuple, opened: tuple) -> np.ndarray:
         """Expected raw reward still to come (open points' final rewards included) from the state
-        before stage ``j``; ``opened`` is a sorted tuple of ``(p, x, count)``."""
+        structure before stage ``j``, as a tensor over the open points' x (see the class)."""
         key = (j, left, opened)
         cached = self.memo.get(key)
         if cached is not None:
             return cached
-        comp = self.comp
-        if j == comp.n_stages:
-            result = sum(x / (1 + c) for _, x, c in opened)
+        # A given x that is an atom reads the atoms' tensor at that atom.
+        pick = [self._atom_index.get(g) if g is not None else None for _, _, g in opened]
+        if any(i is not None for i in pick):
+            full = self.value(j, left, tuple((p, c, None if i is not None else g)
+                                             for (p, c, g), i in zip(opened, pick)))
+            return full[tuple(slice(None) if i is None else slice(i, i + 1) for i in pick)]
+        shape = tuple(len(self.grid(g)) for *_, g in opened)
+        if opened and math.prod(shape) * len(self.atoms.points) > CHUNK:
+            # One slice of the first open point's atoms at a time: transient tensors stay small.
+            p, c, _ = opened[0]
+            result = np.concatenate([self._compute(j, left, ((p, c, float(x)),) + opened[1:])
+                                     for x in self.atoms.points], axis=0)
         else:
-            can = [r for r in range(comp.n_carriers) if comp.valid[r][j] and left[r] > 0]
-            must = [comp.stages_left[r][j] <= left[r] for r in can]
-            xs = [self.atoms.points] * len(can)
-            values = self.action_values(j, left, opened, can, must, xs)
-            if self.policy == "optimal":
-                best = np.max(np.stack([v for _, v in values]), axis=0)
-            else:
-                best = sum(self._weights(j, left, can, must, action) * v for action, v in values)
-            result = float(np.sum(best * self._prob_tensor(len(can))))
+            result = self._compute(j, left, opened)
         self.memo[key] = result
         return result
 
-    def _weights(self, j: int, left: tuple, can: list[int], must: list[bool], action: tuple[int, ...]):
-        """Probability of ``action`` under the policy, as a tensor over the deciders' atoms."""
+    def _compute(self, j: int, left: tuple, opened: tuple) -> np.ndarray:
+        """:meth:`value` without the memo."""
+        comp = self.comp
+        if j == comp.n_stages:
+            result = np.zeros((1,) * len(opened))
+            for axis, (_, c, g) in enumerate(opened):
+                result = result + _along(self.grid(g) / (1 + c), axis, len(opened))
+        else:
+            can = [r for r in range(comp.n_carriers) if comp.valid[r][j] and left[r] > 0]
+            must = [comp.stages_left[r][j] <= left[r] for r in can]
+            shape = tuple(len(self.grid(g)) for *_, g in opened) + (len(self.atoms.points),) * len(can)
+            best = None
+            for action, v in self.action_values(j, left, opened, can, must, [None] * len(can)):
+                if self.policy != "optimal":
+                    v = self._weights(j, left, can, must, action, len(opened)) * v
+                if best is None:
+                    # ``v`` is a fresh array (action_values adds): written in place below.
+                    best = v if v.shape == shape else np.array(np.broadcast_to(v, shape))
+                elif self.policy == "optimal":
+                    np.maximum(best, v, out=best)
+                else:
+                    best += v
+            for _ in can:  # the expectation over the deciders' observations (the last axes)
+                best = best @ self.atoms.probs
+            result = best
+        return result
+
+    def _weights(self, j: int, left: tuple, can: list[int], must: list[bool], action: tuple[int, ...], n_open: int):
+        """Probability of ``action`` under the policy, as a tensor over the deciders' atoms (axes
+        after the ``n_open`` open points' axes)."""
         m = len(can)
         weight = np.ones(())
         for i, r in enumerate(can):
@@ -328,47 +455,44 @@ class _Solver:
                 deploy = np.full(len(self.atoms.points), 1.0 if must[i] else min(1.0, left[r] / n))
             factor = deploy if i in action else 1.0 - deploy
             weight = np.multiply.outer(weight, factor)
-        return weight.reshape((len(self.atoms.points),) * m)
+        return weight.reshape((1,) * n_open + (len(self.atoms.points),) * m)
 
     def action_values(self, j: int, left: tuple, opened: tuple, can: list[int], must: list[bool],
-                      xs: list[np.ndarray]) -> list[tuple[tuple[int, ...], np.ndarray]]:
+                      given: list) -> list[tuple[tuple[int, ...], np.ndarray]]:
         """For every feasible joint action (local indices into ``can``), the banked reward plus the
-        continuation value, as a tensor over the deciders' observations ``xs`` (one 1-D array per
-        carrier of ``can``; shape ``[len(xs[0]), ..., len(xs[m-1])]``)."""
-        m = len(can)
-        shape = tuple(len(v) for v in xs)
+        continuation value, as a tensor over the open points' x (first axes) and the deciders' x
+        (``given[i]`` None: the atoms; else that value), broadcastable to the full shape."""
+        n_open, m = len(opened), len(can)
+        dims = n_open + m
+        grids = [self.grid(g) for *_, g in opened] + [self.grid(g) for g in given]
+        givens = [g for *_, g in opened] + list(given)
+        local = {r: i for i, r in enumerate(can)}
         out = []
         for action in _actions(m, must):
             deploying = [can[i] for i in action]
-            left2, still, closing = _transition(self.comp, j, left, [(p, c, x) for p, x, c in opened], deploying)
-            local = {r: i for i, r in enumerate(can)}
-            total = np.zeros(shape)
+            entries = [(p, c, axis) for axis, (p, c, _) in enumerate(opened)]
+            left2, still, closing = _transition(self.comp, j, left, entries, deploying)
+            total = np.zeros((1,) * dims)
             for e in closing:
-                if e[2] == "new":
-                    i = local[e[3]]
-                    axis_shape = [1] * m
-                    axis_shape[i] = shape[i]
-                    total = total + (xs[i] / (1 + e[1])).reshape(axis_shape)
-                else:
-                    total = total + e[2] / (1 + e[1])
-            kept = [(e[0], e[2], e[1]) for e in still if e[2] != "new"]
-            fresh = [(e[0], local[e[3]], e[1]) for e in still if e[2] == "new"]
-            if not fresh:
-                total = total + self.value(j + 1, left2, tuple(sorted(kept)))
-            else:
-                axes = [i for _, i, _ in fresh]
-                cont = np.empty(tuple(shape[i] for i in axes))
-                for idx in itertools.product(*(range(shape[i]) for i in axes)):
-                    points = kept + [(q, float(xs[i][k]), c) for (q, i, c), k in zip(fresh, idx)]
-                    cont[idx] = self.value(j + 1, left2, tuple(sorted(points)))
-                axis_shape = [1] * m
-                for i in axes:
-                    axis_shape[i] = shape[i]
-                # ``axes`` are increasing (deployments are listed in carrier order), so a reshape
-                # puts every continuation value on its carriers' axes.
-                total = total + cont.reshape(axis_shape)
-            out.append((action, np.broadcast_to(total, shape)))
+                axis = n_open + local[e[3]] if e[2] == "new" else e[2]
+                total = total + _along(grids[axis] / (1 + e[1]), axis, dims)
+            kept = sorted((e[0], e[1], n_open + local[e[3]] if e[2] == "new" else e[2]) for e in still)
+            cont = self.value(j + 1, left2, tuple((p, c, givens[axis]) for p, c, axis in kept))
+            axes = [axis for *_, axis in kept]
+            # Each continuation axis onto its source axis (open point or decider), in axis order.
+            cont = np.transpose(cont, np.argsort(axes)) if axes else cont
+            shape = [1] * dims
+            for axis, size in zip(sorted(axes), cont.shape):
+                shape[axis] = size
+            out.append((action, total + cont.reshape(shape)))
         return out
+
+
+def _along(values: np.ndarray, axis: int, dims: int) -> np.ndarray:
+    """``values`` [n] as a tensor of ``dims`` axes varying along ``axis``."""
+    shape = [1] * dims
+    shape[axis] = len(values)
+    return values.reshape(shape)
 
 
 # ----------------------------------------------------------------------------- public API
@@ -382,7 +506,7 @@ class OnlineValue:
         exact: True for a discrete prior (tail below :data:`TAIL_MASS` cut); False when the prior
             is continuous and the value is that of its :data:`CONTINUOUS_ATOMS`-point stand-in.
         atoms: K, points per observation.
-        states: memoised states the solve created.
+        states: memoised values the solve stored (tensor elements over every component).
     """
 
     expected_reward: float
@@ -391,32 +515,37 @@ class OnlineValue:
     states: int
 
 
-#: Solvers per problem (identity) and policy; entries go with their problem.
+#: Solvers per problem (identity) and policy: one per conflict component; entries go with their
+#: problem.
 _SOLVERS: "weakref.WeakKeyDictionary[Problem, dict]" = weakref.WeakKeyDictionary()
 
 
-def _solver(problem: Problem, policy: str, max_states: int, max_work: float) -> _Solver:
+def _solvers(problem: Problem, policy: str, max_seconds: float, max_states: float) -> list[_Solver]:
+    if policy not in POLICIES:
+        raise ValueError(f"policy must be one of {', '.join(POLICIES)}, got {policy!r}")
     per_problem = _SOLVERS.setdefault(problem, {})
-    solver = per_problem.get(policy)
-    if solver is None:
+    solvers = per_problem.get(policy)
+    if solvers is None:
         atoms = discretise(problem.prior)
-        estimate(problem, atoms, max_states, max_work)  # raises TooLarge
-        solver = _Solver(problem, policy, atoms)
-        per_problem[policy] = solver
-    return solver
+        estimate(problem, atoms, max_seconds, max_states)  # raises TooLarge
+        solvers = [_Solver(problem, _compile(problem, carriers), policy, atoms) for carriers in _components(problem)]
+        per_problem[policy] = solvers
+    return solvers
 
 
-def online_value(problem: Problem, policy: str = "optimal", max_states: int = MAX_STATES,
-                 max_work: float = MAX_WORK) -> OnlineValue:
+def online_value(problem: Problem, policy: str = "optimal", max_seconds: float = MAX_SECONDS,
+                 max_states: float = MAX_STATES) -> OnlineValue:
     """Exact expected reward of ``policy`` ("optimal" = ``V*``, "ssap" or "random") on ``problem``
-    under its schedule (no online surprises).
+    under its schedule (no online surprises): the sum over conflict components.
 
     Raises:
         TooLarge: beyond the limits (checked before solving).
     """
-    solver = _solver(problem, policy, max_states, max_work)
-    raw = solver.value(0, tuple(int(d) for d in problem.passengers), ())
-    return OnlineValue(raw / problem.scale, solver.atoms.exact, len(solver.atoms.points), len(solver.memo))
+    solvers = _solvers(problem, policy, max_seconds, max_states)
+    raw = math.fsum(float(s.value(0, s.comp.passengers, ())) for s in solvers)
+    atoms = discretise(problem.prior) if not solvers else solvers[0].atoms
+    states = sum(v.size for s in solvers for v in s.memo.values())
+    return OnlineValue(raw / problem.scale, atoms.exact, len(atoms.points), states)
 
 
 class OnlineOptimalPlanner:
@@ -424,9 +553,11 @@ class OnlineOptimalPlanner:
 
     At stage j it rebuilds the state from the view (passengers left, open past deployments with
     their x and conflict counts), scores every feasible joint action by its banked reward plus the
-    exact continuation value, and takes the best (ties: fewest deployments, then lowest carriers).
-    Deterministic; the random stream is unused. Online surprises are handled: the current stage's
-    realised validity decides who can deploy, later stages follow the schedule.
+    exact continuation value, and takes the best, conflict component by component (ties within
+    1e-12 relative: the first in bitmask order of the component's carriers, which for exact ties
+    is the first in bitmask order of the whole fleet). Deterministic; the random stream is unused.
+    Online surprises are handled: the current stage's realised validity decides who can deploy,
+    later stages follow the schedule.
 
     Raises (from ``warm_up`` or ``decide``):
         TooLarge: the instance is beyond the limits.
@@ -434,41 +565,46 @@ class OnlineOptimalPlanner:
 
     name = "online-optimal"
 
-    def __init__(self, max_states: int = MAX_STATES, max_work: float = MAX_WORK):
+    def __init__(self, max_seconds: float = MAX_SECONDS, max_states: float = MAX_STATES):
+        self.max_seconds = max_seconds
         self.max_states = max_states
-        self.max_work = max_work
 
     def warm_up(self, problem: Problem) -> None:
         """Check the size and solve the whole recursion before the first timed decision."""
-        online_value(problem, "optimal", self.max_states, self.max_work)
+        online_value(problem, "optimal", self.max_seconds, self.max_states)
 
     def decide(self, view: StageView, rng: np.random.Generator) -> np.ndarray:
         problem = view.problem
-        solver = _solver(problem, "optimal", self.max_states, self.max_work)
-        comp = solver.comp
-        j = view.stage
-        left = tuple(int(d) for d in view.passengers_left)
-        alive = _alive(left)
-        deployed = np.flatnonzero(view.deployed.ravel())
-        chosen = set(deployed.tolist())
-        x_flat = view.observations.ravel()
-        opened = tuple(sorted(
-            (int(p), float(x_flat[p]), len(comp.neighbours[p] & chosen))
-            for p in deployed if comp.future[p][j] & alive))
-        can = np.flatnonzero(view.can_deploy).tolist()
-        must_now = view.must_deploy
-        must = [bool(must_now[r]) for r in can]
-        xs = [np.array([float(view.observations[r, j])]) for r in can]
-        values = solver.action_values(j, left, opened, can, must, xs)
-        best_action, best = None, -np.inf
-        for action, v in values:
-            score = float(v.reshape(-1)[0])
-            if score > best + 1e-12 * max(1.0, abs(best)) or best_action is None:
-                best_action, best = action, score
         out = np.zeros(problem.n_carriers, dtype=bool)
-        for i in best_action:
-            out[can[i]] = True
+        for solver in _solvers(problem, "optimal", self.max_seconds, self.max_states):
+            for r in _component_decision(solver, view):
+                out[r] = True
         return out
+
+
+def _component_decision(solver: _Solver, view: StageView) -> list[int]:
+    """The carriers (problem indices) of one component that deploy at the view's stage."""
+    comp = solver.comp
+    carriers = comp.carriers
+    n_stages = comp.n_stages
+    j = view.stage
+    left = tuple(int(d) for d in view.passengers_left[carriers])
+    alive = _alive(left)
+    deployed = np.flatnonzero(view.deployed[carriers].ravel())
+    chosen = set(deployed.tolist())
+    x = view.observations[carriers]
+    opened = tuple(sorted(
+        (int(p), len(comp.neighbours[p] & chosen), float(x[p // n_stages, p % n_stages]))
+        for p in deployed if comp.future[p][j] & alive))
+    can = np.flatnonzero(view.can_deploy[carriers]).tolist()
+    must = [bool(view.must_deploy[carriers[r]]) for r in can]
+    values = solver.action_values(j, left, opened, can, must, [float(x[r, j]) for r in can])
+    best_action, best = None, -np.inf
+    for action, v in values:
+        score = float(v.reshape(-1)[0])
+        if score > best + 1e-12 * max(1.0, abs(best)) or best_action is None:
+            best_action, best = action, score
+    return [int(carriers[can[i]]) for i in best_action]
 
 
 if __name__ == "__main__":

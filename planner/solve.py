@@ -22,7 +22,7 @@ def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clai
         "decision_ms" [ms per stage], "observations" [[x or None]], "observations_sampled",
         "clairvoyant" {"reward", "features", "exact"} (with ``clairvoyant``),
         "online_optimum" {"expected_reward", "exact", "atoms"[, "planner_expected_reward"]} (with
-        ``online_optimum``, when the instance is within :data:`planner.online_optimal.AUTO_WORK`),
+        ``online_optimum``, when the instance is within :data:`planner.online_optimal.AUTO_SECONDS`),
         "upper_bound" {"expected_reward", "stderr", "method", "samples"} (with ``upper_bound``, when
         it fits :data:`planner.duality.DEFAULT_BUDGET_S`; :func:`planner.duality.seeded_bound`),
         "comms" {"loss", "delay", "groups"} (only with ``comms``), "released" [[passenger index per
@@ -98,17 +98,17 @@ def _upper_bound(problem, seed: int) -> dict | None:
 
 def _online_optimum(problem, planner_name: str) -> dict | None:
     """V* (and the planner's own exact value when the recursion can weigh its actions), or None
-    when the instance is beyond :data:`planner.online_optimal.AUTO_WORK`."""
+    when the instance is beyond :data:`planner.online_optimal.AUTO_SECONDS`."""
     from planner import online_optimal
 
     try:
-        best = online_optimal.online_value(problem, "optimal", max_work=online_optimal.AUTO_WORK)
+        best = online_optimal.online_value(problem, "optimal", max_seconds=online_optimal.AUTO_SECONDS)
     except online_optimal.TooLarge:
         return None
     out = {"expected_reward": best.expected_reward, "exact": best.exact, "atoms": best.atoms}
     if planner_name == "online-optimal":
         out["planner_expected_reward"] = best.expected_reward
     elif planner_name in ("ssap", "random"):
-        own = online_optimal.online_value(problem, planner_name, max_work=online_optimal.AUTO_WORK)
+        own = online_optimal.online_value(problem, planner_name, max_seconds=online_optimal.AUTO_SECONDS)
         out["planner_expected_reward"] = own.expected_reward
     return out

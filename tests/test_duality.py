@@ -170,7 +170,7 @@ def test_bound_experiment_takes_every_prior_kind_within_the_exact_solvers_limits
     for i, kind in enumerate(experiment.TINY_PRIORS):
         problem, _ = experiment.tiny_instance(0, i, kind)
         assert priors.is_discrete(problem.prior), kind
-        online_optimal.estimate(problem, max_work=online_optimal.AUTO_WORK)  # raises TooLarge beyond
+        online_optimal.estimate(problem, max_seconds=online_optimal.AUTO_SECONDS)  # raises TooLarge beyond
 
 
 def test_bound_experiment_targets_are_marked_met_or_not():
