@@ -21,5 +21,9 @@ Modules, bottom up:
 * :mod:`planner.registry`  planner names, options and their validation;
 * :mod:`planner.online`    the online loop: ``stage_step`` and ``run_online``;
 * :mod:`planner.instance`  the JSON instance format;
-* :mod:`planner.solve`, :mod:`planner.bench`, :mod:`planner.measure`  what the command-line tools run.
+* :mod:`planner.solve`    the solve command's work (the command line is :mod:`coordinator.solve`).
+
+The core has no command line: ``python -m coordinator.bench`` and ``coordinator.measure`` (behind
+``python -m planner.online_optimal`` and ``python -m planner.clairvoyant``, whose ``__main__``
+blocks only forward) sit above it.
 """

@@ -410,7 +410,7 @@ def warm_up() -> None:
 cache_follows_sources(globals())  # the on-disk cache follows every planner source
 
 
-if __name__ == "__main__":
-    from planner.measure import clairvoyant_times  # the command line lives above the core
+if __name__ == "__main__":  # a forward only: the command line is coordinator.measure's
+    from coordinator.measure import clairvoyant_times
 
     clairvoyant_times()

@@ -607,7 +607,7 @@ def _component_decision(solver: _Solver, view: StageView) -> list[int]:
     return [int(carriers[can[i]]) for i in best_action]
 
 
-if __name__ == "__main__":
-    from planner.measure import optimal_table  # the command line lives above the core
+if __name__ == "__main__":  # a forward only: the command line is coordinator.measure's
+    from coordinator.measure import optimal_table
 
     optimal_table()

@@ -3,8 +3,8 @@ highspy only inside a function body, so importing the core never loads it);
 world/ never imports coordinator/ or carriers/. Checked twice: by importing in a fresh interpreter, and statically over every import
 statement (so a lazy import inside a function cannot slip through).
 
-The project's module graph, built by ``ast`` from every import statement (function bodies
-included), has no cycle (every strongly connected component is one module) and follows the layers
+The project's module graph, built by ``ast`` from every import statement (function bodies and
+``__main__`` blocks included; planner/ has no command line but two one-line forwards), has no cycle (every strongly connected component is one module) and follows the layers
 of docs/architecture.md, read from that file."""
 from __future__ import annotations
 
@@ -102,7 +102,7 @@ def _planner_modules() -> list[str]:
 def test_planner_modules_exist():
     core = _planner_modules()
     for name in ("limits", "priors", "problem", "compiled", "ssap", "policies", "registry", "closedloop",
-                 "clairvoyant", "instance", "solve", "bench", "kernels", "mcts.fast", "mcts.kernel",
+                 "clairvoyant", "instance", "solve", "kernels", "mcts.fast", "mcts.kernel",
                  "mcts.reference"):
         assert f"planner.{name}" in core
 
@@ -120,11 +120,56 @@ def test_planner_package_and_limits_are_light():
     assert _offending(loaded, ("numpy", "scipy", "numba")) == []
 
 
+#: The core has no command line. ``python -m`` runs the file it names, so the two planner modules
+#: whose commands the docs show keep a ``__main__`` block that only forwards to the command line
+#: above the core: exactly ``from coordinator.measure import F`` and ``F()``.
+FORWARDS = {"planner/online_optimal.py": "optimal_table", "planner/clairvoyant.py": "clairvoyant_times"}
+FORWARD_MODULE = "coordinator.measure"
+
+
+def _main_blocks(tree: ast.Module) -> list[ast.If]:
+    return [node for node in tree.body if _is_main_guard(node)]
+
+
+def _forward_lines(path: Path) -> set[int]:
+    """Lines of the allowed forward's import (empty for every other file)."""
+    rel = path.relative_to(REPO).as_posix()
+    if rel not in FORWARDS:
+        return set()
+    return {node.lineno for block in _main_blocks(_parsed(path)) for node in block.body
+            if isinstance(node, ast.ImportFrom) and node.module == FORWARD_MODULE}
+
+
+@pytest.mark.parametrize("path", sorted((REPO / "planner").rglob("*.py")), ids=lambda p: str(p.relative_to(REPO)))
+def test_the_core_has_no_command_line(path):
+    """No argparse in planner/, and no ``__main__`` block but the two forwards, each exactly one
+    import of its function from coordinator.measure and one call of it."""
+    tree = _parsed(path)
+    assert "argparse" not in {module.split(".")[0] for _, module in _imports(path)}
+    blocks = _main_blocks(tree)
+    rel = path.relative_to(REPO).as_posix()
+    if rel not in FORWARDS:
+        assert blocks == [] and not any(_is_main_guard(node) for node in ast.walk(tree))
+        return
+    assert len(blocks) == 1
+    body = blocks[0].body
+    assert len(body) == 2 and not blocks[0].orelse
+    imp, call = body
+    assert isinstance(imp, ast.ImportFrom) and imp.module == FORWARD_MODULE and imp.level == 0
+    assert [a.name for a in imp.names] == [FORWARDS[rel]] and imp.names[0].asname is None
+    assert (isinstance(call, ast.Expr) and isinstance(call.value, ast.Call) and not call.value.args
+            and not call.value.keywords and isinstance(call.value.func, ast.Name)
+            and call.value.func.id == FORWARDS[rel])
+
+
 @pytest.mark.parametrize("path", sorted((REPO / "planner").rglob("*.py")), ids=lambda p: str(p.relative_to(REPO)))
 def test_planner_import_statements(path):
     bad = []
     module_level = _module_level_import_lines(path)
+    forward = _forward_lines(path)
     for line, module in _imports(path):
+        if line in forward:
+            continue
         top = module.split(".")[0]
         if top == "__future__" or (top in sys.stdlib_module_names and top not in CORE_FORBIDDEN_STDLIB):
             continue
@@ -181,22 +226,22 @@ def _parsed(path: Path) -> ast.Module:
 
 
 def _is_main_guard(node: ast.AST) -> bool:
-    """``if __name__ == "__main__":`` — its body runs in the script's own ``__main__`` module,
-    which nothing imports, so its imports cannot close a cycle."""
+    """``if __name__ == "__main__":`` (its imports count in the module graph like any other)."""
     test = getattr(node, "test", None)
     return (isinstance(node, ast.If) and isinstance(test, ast.Compare) and isinstance(test.left, ast.Name)
             and test.left.id == "__name__" and len(test.comparators) == 1
             and isinstance(test.comparators[0], ast.Constant) and test.comparators[0].value == "__main__")
 
 
-def _import_nodes(tree: ast.AST):
-    """Every import statement of a module, function bodies included, ``__main__`` blocks excluded."""
+def _import_nodes(tree: ast.AST, skip: set[int] = frozenset()):
+    """Every import statement of a module, function bodies and ``__main__`` blocks included, but
+    the lines ``skip`` (the planner's two command-line forwards, :data:`FORWARDS`)."""
     stack = [tree]
     while stack:
         node = stack.pop()
-        if isinstance(node, (ast.Import, ast.ImportFrom)):
+        if isinstance(node, (ast.Import, ast.ImportFrom)) and node.lineno not in skip:
             yield node
-        stack.extend(child for child in ast.iter_child_nodes(node) if not _is_main_guard(child))
+        stack.extend(ast.iter_child_nodes(node))
 
 
 def _targets(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
@@ -204,7 +249,7 @@ def _targets(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
     that is a module (else as ``P``); a relative import is resolved against the module's package."""
     package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
     wanted = set()
-    for node in _import_nodes(_parsed(path)):
+    for node in _import_nodes(_parsed(path), _forward_lines(path)):
         if isinstance(node, ast.Import):
             wanted.update(alias.name for alias in node.names)
             continue

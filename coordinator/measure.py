@@ -1,11 +1,13 @@
-"""Measurement command lines of the exact solvers (above the core: nothing of planner/ imports it).
+"""Measurement command lines of the exact solvers, above the planner core (which has no command line).
 
     python -m planner.online_optimal [--instances K] [--samples S] [--iterations I] [--seed SEED]
     python -m planner.clairvoyant [--instances K] [--carriers R] [--passengers D] [--stages N]
                                   [--overlaps G] [--seed SEED]
 
-Both commands are kept where the docs call them; their modules' ``__main__`` blocks call
-:func:`optimal_table` and :func:`clairvoyant_times` here.
+Both commands are kept where the docs call them: ``python -m`` runs the named file, so each of
+those two modules keeps a ``__main__`` block that only forwards here (one import, one call;
+tests/test_boundaries.py holds them to that), and all the argument parsing and printing is in
+:func:`optimal_table` and :func:`clairvoyant_times`.
 """
 from __future__ import annotations
 
