@@ -45,6 +45,5 @@ class Alone:
             return
         problem, planner = self.onboard.get()
         local = self.book.local_view(problem, self.cid, j, self.scenario.seed)
-        out = planner.decide_local(local, stage_rng(self.scenario.seed, j))
-        deploy = out.deploy if isinstance(out, LocalDecision) else bool(out)
+        deploy = LocalDecision.of(planner.decide_local(local, stage_rng(self.scenario.seed, j))).deploy
         self.apply(mc.DecidedOwn(j, bool(deploy), self._position()))

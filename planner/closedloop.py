@@ -49,7 +49,7 @@ from planner import ssap
 from planner.compiled import compile_problem
 from planner.kernels import cache_follows_sources, deploys, rank
 from planner.problem import Problem, StageView, make_view, point_weights
-from planner.settings import DEFAULT_ITERATIONS
+from planner.settings import check_budget
 
 #: Largest number of free carriers in one component whose 2^k joint actions are all evaluated.
 ENUMERATE_MAX = 6
@@ -69,7 +69,7 @@ BATCH = 32
 
 
 @njit(cache=True)
-def _marginal(q, xq, sel, p, xv, nbr_ptr, nbr_idx):
+def marginal_gain(q, xq, sel, p, xv, nbr_ptr, nbr_idx):
     """Change of the total reward if flat point ``q`` with value ``xq`` joins the selection."""
     c = 0
     loss = 0.0
@@ -83,7 +83,7 @@ def _marginal(q, xq, sel, p, xv, nbr_ptr, nbr_idx):
 
 
 @njit(cache=True)
-def _select(q, xq, sel, p, xv, nbr_ptr, nbr_idx, log, nlog):
+def select_point(q, xq, sel, p, xv, nbr_ptr, nbr_idx, log, nlog):
     """Add ``q`` to the selection, logging every change (``-(k+1)``: p[k] incremented; ``q``: selected)."""
     c = 0
     for e in range(nbr_ptr[q], nbr_ptr[q + 1]):
@@ -102,7 +102,7 @@ def _select(q, xq, sel, p, xv, nbr_ptr, nbr_idx, log, nlog):
 
 
 @njit(cache=True)
-def _undo(sel, p, log, nlog):
+def undo_selection(sel, p, log, nlog):
     for i in range(nlog - 1, -1, -1):
         v = log[i]
         if v < 0:
@@ -191,8 +191,8 @@ def _evaluate(cand, stage, n_stages, net, selection, samples, out, control_varia
                 left[i] = left0[i]
                 if actions[k, i]:
                     q = members[i] * n_stages + stage
-                    total += _marginal(q, xnow[i], sel, p, xv, nbr_ptr, nbr_idx)
-                    nlog = _select(q, xnow[i], sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
+                    total += marginal_gain(q, xnow[i], sel, p, xv, nbr_ptr, nbr_idx)
+                    nlog = select_point(q, xnow[i], sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
                     left[i] -= 1
                 lefti[i] = left[i]
             for t in range(stage + 1, n_stages):
@@ -205,23 +205,23 @@ def _evaluate(cand, stage, n_stages, net, selection, samples, out, control_varia
                     d = left[i]
                     if d > 0:
                         q = r * n_stages + t
-                        g = _marginal(q, xs, sel, p, xv, nbr_ptr, nbr_idx)
+                        g = marginal_gain(q, xs, sel, p, xv, nbr_ptr, nbr_idx)
                         if deploys(table, g, n, d):
                             total += g
-                            nlog = _select(q, xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
+                            nlog = select_point(q, xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
                             left[i] = d - 1
                     d = lefti[i]
                     if d > 0 and deploys(table, xs, n, d):
                         plain += xs
                         lefti[i] = d - 1
-            _undo(sel, p, log, nlog)
+            undo_selection(sel, p, log, nlog)
             out[k, s] = total - plain if control_variate else total
 
 
 @njit(cache=True)
 def _conflicts(q, sel, p, xv, nbr_ptr, nbr_idx):
     """(c, loss): the chosen points sharing an overlap with flat point ``q``, and what their rewards
-    lose if ``q`` joins (``_marginal`` is ``x / (1 + c) - loss``)."""
+    lose if ``q`` joins (``marginal_gain`` is ``x / (1 + c) - loss``)."""
     c = 0
     loss = 0.0
     for e in range(nbr_ptr[q], nbr_ptr[q + 1]):
@@ -297,8 +297,8 @@ def _evaluate_weighted(cand, stage, n_stages, net, selection, samples, out, cont
                 if actions[k, i]:
                     q = members[i] * n_stages + stage
                     v = ws[i, pos_now[i]] * xnow[i]
-                    total += _marginal(q, v, sel, p, xv, nbr_ptr, nbr_idx)
-                    nlog = _select(q, v, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
+                    total += marginal_gain(q, v, sel, p, xv, nbr_ptr, nbr_idx)
+                    nlog = select_point(q, v, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
                     _drop(ws, i, pos_now[i], left[i])
                     left[i] -= 1
                 lefti[i] = left[i]
@@ -319,7 +319,7 @@ def _evaluate_weighted(cand, stage, n_stages, net, selection, samples, out, cont
                         if pos >= 0:
                             w = ws[i, pos]
                             total += w * y - loss
-                            nlog = _select(q, w * xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
+                            nlog = select_point(q, w * xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
                             _drop(ws, i, pos, d)
                             left[i] = d - 1
                     d = lefti[i]
@@ -329,14 +329,14 @@ def _evaluate_weighted(cand, stage, n_stages, net, selection, samples, out, cont
                         plain += wp[i, pos] * xs
                         _drop(wp, i, pos, d)
                         lefti[i] = d - 1
-            _undo(sel, p, log, nlog)
+            undo_selection(sel, p, log, nlog)
             out[k, s] = total - plain if control_variate else total
 
 
 # ----------------------------------------------------------------------------- helpers
 
 
-def _components(adjacency: np.ndarray) -> list[np.ndarray]:
+def conflict_components(adjacency: np.ndarray) -> list[np.ndarray]:
     """Connected components (sorted carrier indices) of a symmetric bool ``[R, R]`` graph."""
     n = adjacency.shape[0]
     label = np.full(n, -1)
@@ -357,7 +357,7 @@ def _components(adjacency: np.ndarray) -> list[np.ndarray]:
     return comps
 
 
-def _every_combination(base: np.ndarray, flip: np.ndarray) -> np.ndarray:
+def every_combination(base: np.ndarray, flip: np.ndarray) -> np.ndarray:
     """bool ``[2^k, m]``: ``base`` with every combination of actions of the ``k`` carriers at
     positions ``flip``, ``base`` itself first (so it wins ties under ``argmax``)."""
     k = len(flip)
@@ -368,7 +368,7 @@ def _every_combination(base: np.ndarray, flip: np.ndarray) -> np.ndarray:
     return actions[np.r_[first, np.delete(codes, first)]]
 
 
-def _grow(seed: int, adjacency: np.ndarray, allowed: np.ndarray, size: int) -> np.ndarray:
+def grow_block(seed: int, adjacency: np.ndarray, allowed: np.ndarray, size: int) -> np.ndarray:
     """Up to ``size`` carriers reached breadth-first from ``seed`` through ``allowed`` carriers
     (bool ``[R]``), nearest first (ties in index order); sorted."""
     taken = np.zeros(len(allowed), dtype=bool)
@@ -383,7 +383,7 @@ def _grow(seed: int, adjacency: np.ndarray, allowed: np.ndarray, size: int) -> n
     return np.array(sorted(order), dtype=np.int64)
 
 
-def _halo(block: np.ndarray, adjacency: np.ndarray, within: np.ndarray) -> np.ndarray:
+def block_halo(block: np.ndarray, adjacency: np.ndarray, within: np.ndarray) -> np.ndarray:
     """``block`` and its direct neighbours among ``within`` (bool ``[R]``), sorted."""
     near = adjacency[block].any(axis=0) & within
     near[block] = True
@@ -408,9 +408,9 @@ def _blocks(comp: np.ndarray, adjacency: np.ndarray, size: int) -> list[tuple[np
     for seed in comp:
         if not left[seed]:
             continue
-        block = _grow(int(seed), adjacency, left, size)
+        block = grow_block(int(seed), adjacency, left, size)
         left[block] = False
-        out.append((block, _halo(block, adjacency, within)))
+        out.append((block, block_halo(block, adjacency, within)))
     return out
 
 
@@ -429,12 +429,7 @@ class ClosedLoopPlanner:
 
     def __init__(self, iterations: int | None = None, plan_ms: float | None = None, block: int = BLOCK,
                  **_ignored):
-        if iterations is not None and int(iterations) < 1:
-            raise ValueError(f"iterations must be >= 1, got {iterations}")
-        if plan_ms is not None and not float(plan_ms) > 0:
-            raise ValueError(f"plan_ms must be > 0, got {plan_ms}")
-        self.iterations = DEFAULT_ITERATIONS if iterations is None else int(iterations)
-        self.plan_ms = None if plan_ms is None else float(plan_ms)
+        self.iterations, self.plan_ms = check_budget(iterations, plan_ms)
         self.block = int(block)
 
     def warm_up(self, problem: Problem) -> None:
@@ -474,7 +469,7 @@ class ClosedLoopPlanner:
         linked = adjacency.copy()
         np.fill_diagonal(linked, True)
 
-        comps = _components(linked)
+        comps = conflict_components(linked)
         search = []
         for comp in comps:
             if not free[comp].any():
@@ -497,7 +492,8 @@ class ClosedLoopPlanner:
 
         plans = []
         for comp in search:
-            decision[comp] = self._base_action(comp, view, prep, state, nleft, left, xnow, must, free)
+            typed = None if problem.weights is None else _typed_state(view, comp, prep.table)
+            decision[comp] = base_action(comp, view.stage, prep, state, nleft, left, xnow, must, free, typed)
             for block, members in _blocks(comp, adjacency, self.block):
                 flip = np.flatnonzero(np.isin(members, block[free[block]]))
                 k = len(flip)
@@ -526,7 +522,7 @@ class ClosedLoopPlanner:
         ascent over single flips (3 rounds, or until the deadline). ``ctx``: the :class:`_Stage`."""
         k = len(flip)
         if k <= ENUMERATE_MAX:
-            actions = _every_combination(base, flip)
+            actions = every_combination(base, flip)
             score = self._score(actions, members, samples, deadline, ctx, rng)
             return actions[int(np.argmax(score))]
         current = base
@@ -587,40 +583,6 @@ class ClosedLoopPlanner:
         exact = prep.slot_value[n_after[None, :], d_after].sum(axis=1)
         return sums / count + exact
 
-    @staticmethod
-    def _base_action(comp, view, prep, state, nleft, left, xnow, must, free):
-        """The conflict-aware SSAP action at the current stage (carriers in index order)."""
-        sel, p, xv = state
-        n_stages = view.problem.n_stages
-        j = view.stage
-        action = must[comp].copy()
-        chosen = sel.copy()
-        pp = p.copy()
-        vv = xv.copy()
-        log = np.empty(len(sel) + len(prep.nbr) + 1, dtype=np.int64)
-        # With passenger values a full StageView is needed (dec-closed-loop's partial-information
-        # path hands a stand-in and stays with the unweighted rule).
-        typed = (None if view.problem.weights is None or not isinstance(view, StageView)
-                 else _typed_state(view, comp, prep.table))
-        for i, r in enumerate(comp):
-            q = int(r) * n_stages + j
-            value = float(xnow[r])
-            if typed is not None:
-                ws, pos = typed[0], typed[1]
-                value *= ws[i, pos[i]]
-            if free[r]:
-                n, d = int(nleft[r, j]), int(left[r])
-                if typed is None:
-                    gain = _marginal(q, value, chosen, pp, vv, prep.indptr, prep.nbr)
-                    action[i] = ssap.deploys(prep.table, gain, n, d)
-                else:
-                    c, loss = _conflicts(q, chosen, pp, vv, prep.indptr, prep.nbr)
-                    y = float(xnow[r]) / (1.0 + c)
-                    action[i] = _weighted_choice(prep.table, y, loss, n, d, ws, i) >= 0
-            if action[i]:
-                _select(q, value, chosen, pp, vv, prep.indptr, prep.nbr, log, 0)
-        return action
-
 
 def _past_values(view: StageView) -> np.ndarray:
     """Observations at past stages (the values of past deployments), float ``[R, N]``; times the
@@ -630,6 +592,40 @@ def _past_values(view: StageView) -> np.ndarray:
     if view.problem.weights is not None:
         out *= point_weights(view.problem, view.past_releases)
     return out
+
+
+def base_action(comp: np.ndarray, stage: int, prep, state, nleft: np.ndarray, left: np.ndarray, xnow: np.ndarray,
+                must: np.ndarray, free: np.ndarray, typed=None) -> np.ndarray:
+    """The conflict-aware SSAP action of the carriers ``comp`` at ``stage`` (in index order),
+    given the chosen points ``state = (sel, p, xv)``: bool ``[len(comp)]``. ``typed`` is
+    :func:`_typed_state` of the view for a problem with passenger values (None: the unweighted
+    rule, which dec-closed-loop's partial-information path uses)."""
+    sel, p, xv = state
+    n_stages = prep.n_stages
+    j = stage
+    action = must[comp].copy()
+    chosen = sel.copy()
+    pp = p.copy()
+    vv = xv.copy()
+    log = np.empty(len(sel) + len(prep.nbr) + 1, dtype=np.int64)
+    for i, r in enumerate(comp):
+        q = int(r) * n_stages + j
+        value = float(xnow[r])
+        if typed is not None:
+            ws, pos = typed[0], typed[1]
+            value *= ws[i, pos[i]]
+        if free[r]:
+            n, d = int(nleft[r, j]), int(left[r])
+            if typed is None:
+                gain = marginal_gain(q, value, chosen, pp, vv, prep.indptr, prep.nbr)
+                action[i] = ssap.deploys(prep.table, gain, n, d)
+            else:
+                c, loss = _conflicts(q, chosen, pp, vv, prep.indptr, prep.nbr)
+                y = float(xnow[r]) / (1.0 + c)
+                action[i] = _weighted_choice(prep.table, y, loss, n, d, ws, i) >= 0
+        if action[i]:
+            select_point(q, value, chosen, pp, vv, prep.indptr, prep.nbr, log, 0)
+    return action
 
 
 def _typed_state(view: StageView, comp: np.ndarray, table: np.ndarray):

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from types import SimpleNamespace
 from typing import NamedTuple
 
 import numpy as np
@@ -26,14 +25,14 @@ from numba import njit
 
 from planner import ssap
 from planner.closedloop import (BATCH, BLOCK, ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, Candidates, ClosedLoopPlanner,
-                                Net, Selection, _components, _every_combination, _grow, _halo, _marginal,
-                                _select, _undo)
+                                Net, Selection, base_action, block_halo, conflict_components, every_combination,
+                                grow_block, marginal_gain, select_point, undo_selection)
 from planner.comms import CommsSpec, Deliveries, realise
 from planner.compiled import compile_problem
 from planner.kernels import cache_follows_sources, deploys
 from planner.problem import (OnlineResult, Problem, StageView, enforce, evaluate, make_view,
                              stage_rng, start_online, valid_stages_left)
-from planner.settings import DEFAULT_ITERATIONS
+from planner.settings import check_budget
 
 
 # ----------------------------------------------------------------------------- messages and views
@@ -61,6 +60,12 @@ class LocalDecision:
 
     deploy: bool
     intent: Intent | None = None
+
+    @staticmethod
+    def of(out) -> "LocalDecision":
+        """A planner's ``decide_local`` result as a LocalDecision (a plain bool is accepted: no
+        intent)."""
+        return out if isinstance(out, LocalDecision) else LocalDecision(bool(out))
 
 
 @dataclass(frozen=True, eq=False)
@@ -264,10 +269,8 @@ def _run_decentralised(problem, x, planner, seed, dl: Deliveries, released=None)
                               record.astype(np.int64), intents,
                               None if released is None else np.where(dep, released, -1))
             t0 = time.perf_counter()
-            out = planner.decide_local(local, stage_rng(seed, j))
+            out = LocalDecision.of(planner.decide_local(local, stage_rng(seed, j)))
             slowest = max(slowest, (time.perf_counter() - t0) * 1e3)
-            if not isinstance(out, LocalDecision):
-                out = LocalDecision(bool(out))
             if out.deploy and not can[r]:
                 raise AssertionError(f"stage {j}: carrier {r} cannot deploy")
             if must[r] and not out.deploy:
@@ -334,8 +337,8 @@ def _evaluate_imputed(cand, unknown, stage, n_stages, net, selection, past, samp
                     left[i] = left0[i]
                     if actions[k, i]:
                         q = r * n_stages + stage
-                        total += _marginal(q, xnow[i], sel, p, xv, nbr_ptr, nbr_idx)
-                        nlog = _select(q, xnow[i], sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
+                        total += marginal_gain(q, xnow[i], sel, p, xv, nbr_ptr, nbr_idx)
+                        nlog = select_point(q, xnow[i], sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
                         left[i] -= 1
                 else:
                     d = left_start[i]
@@ -347,8 +350,8 @@ def _evaluate_imputed(cand, unknown, stage, n_stages, net, selection, past, samp
                             xs = past[s, t, i]
                         if deploys(table, xs, nleft[r, t], d):
                             q = r * n_stages + t
-                            total += _marginal(q, xs, sel, p, xv, nbr_ptr, nbr_idx)
-                            nlog = _select(q, xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
+                            total += marginal_gain(q, xs, sel, p, xv, nbr_ptr, nbr_idx)
+                            nlog = select_point(q, xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
                             d -= 1
                     left[i] = d
                 lefti[i] = left[i]
@@ -362,16 +365,16 @@ def _evaluate_imputed(cand, unknown, stage, n_stages, net, selection, past, samp
                     d = left[i]
                     if d > 0:
                         q = r * n_stages + t
-                        g = _marginal(q, xs, sel, p, xv, nbr_ptr, nbr_idx)
+                        g = marginal_gain(q, xs, sel, p, xv, nbr_ptr, nbr_idx)
                         if deploys(table, g, n, d):
                             total += g
-                            nlog = _select(q, xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
+                            nlog = select_point(q, xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
                             left[i] = d - 1
                     d = lefti[i]
                     if d > 0 and deploys(table, xs, n, d):
                         plain += xs
                         lefti[i] = d - 1
-            _undo(sel, p, log, nlog)
+            undo_selection(sel, p, log, nlog)
             out[k, s] = total - plain
 
 
@@ -410,12 +413,7 @@ class DecClosedLoopPlanner:
 
     def __init__(self, iterations: int | None = None, plan_ms: float | None = None, block: int = BLOCK,
                  **_ignored):
-        if iterations is not None and int(iterations) < 1:
-            raise ValueError(f"iterations must be >= 1, got {iterations}")
-        if plan_ms is not None and not float(plan_ms) > 0:
-            raise ValueError(f"plan_ms must be > 0, got {plan_ms}")
-        self.iterations = DEFAULT_ITERATIONS if iterations is None else int(iterations)
-        self.plan_ms = None if plan_ms is None else float(plan_ms)
+        self.iterations, self.plan_ms = check_budget(iterations, plan_ms)
         self.block = int(block)
         self._central = ClosedLoopPlanner(iterations=self.iterations, plan_ms=self.plan_ms, block=self.block)
         self._memo = None  # (key, joint decision): fully informed carriers compute the same thing
@@ -470,7 +468,7 @@ class DecClosedLoopPlanner:
         flat = open_.ravel()
         adjacency = prep.links(flat, past)
         linked = adjacency | np.eye(R, dtype=bool)
-        comp = next(c for c in _components(linked) if r in c)
+        comp = next(c for c in conflict_components(linked) if r in c)
         if not adjacency[np.ix_(comp, comp)].any():
             return None
         budget = R  # single-carrier trajectories: iterations x budget
@@ -479,7 +477,7 @@ class DecClosedLoopPlanner:
             # the budget of the carriers it simulates, so the cost does not grow with the fleet.
             within = np.zeros(R, dtype=bool)
             within[comp] = True
-            comp = _halo(_grow(r, adjacency, within, self.block), adjacency, within)
+            comp = block_halo(grow_block(r, adjacency, within, self.block), adjacency, within)
             budget = len(comp)
 
         xnow_all = np.nan_to_num(local.observations[:, j], nan=0.0)
@@ -491,14 +489,12 @@ class DecClosedLoopPlanner:
         xpast = np.zeros((R, N))
         xpast[:, :j] = np.nan_to_num(local.observations[:, :j], nan=0.0)
         xv = np.where(local.deployed, xpast, 0.0).ravel()
-        fake_view = SimpleNamespace(problem=problem, stage=j)
-        base = ClosedLoopPlanner._base_action(comp, fake_view, prep, (sel, p, xv), nleft, left, xnow_all,
-                                              must_all, free)
+        base = base_action(comp, j, prep, (sel, p, xv), nleft, left, xnow_all, must_all, free)
         free_idx = np.flatnonzero(free[comp])
         me = int(np.flatnonzero(comp == r)[0])
         k = len(free_idx)
         if k <= ENUMERATE_MAX:
-            actions = _every_combination(base, free_idx)
+            actions = every_combination(base, free_idx)
         else:
             actions = np.repeat(base[None, :], 2, axis=0)
             actions[1, me] = not actions[1, me]

@@ -45,7 +45,7 @@ from planner.decentralised import Intent, LocalDecision, LocalView
 from planner.kernels import cache_follows_sources, deploys, forced
 from planner.mcts.kernel import _random, _sample, weigh
 from planner.problem import Problem, fill_releases, point_weights, valid_stages_left
-from planner.settings import DEFAULT_EXPLORATION, DEFAULT_ITERATIONS
+from planner.settings import DEFAULT_EXPLORATION, check_budget
 
 #: D-UCT discount per iteration.
 GAMMA = 0.999
@@ -364,13 +364,8 @@ class DecMCTSPlanner:
 
     def __init__(self, iterations: int | None = None, exploration: float | None = None,
                  plan_ms: float | None = None, **_ignored):
-        if iterations is not None and int(iterations) < 1:
-            raise ValueError(f"iterations must be >= 1, got {iterations}")
-        if plan_ms is not None and not float(plan_ms) > 0:
-            raise ValueError(f"plan_ms must be > 0, got {plan_ms}")
-        self.iterations = DEFAULT_ITERATIONS if iterations is None else int(iterations)
+        self.iterations, self.plan_ms = check_budget(iterations, plan_ms)
         self.exploration = DEFAULT_EXPLORATION if exploration is None else float(exploration)
-        self.plan_ms = None if plan_ms is None else float(plan_ms)
 
     def warm_up(self, problem: Problem) -> None:
         tiny = Problem.build(1, np.ones((2, 3), dtype=bool), [[[0, 1], [1, 2]]])

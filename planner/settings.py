@@ -22,3 +22,17 @@ DEFAULT_SAMPLES = 1
 #: The planner a carrier runs on board when it decides a stage itself (and the one the report names
 #: for stages the carriers decided alone).
 ONBOARD_PLANNER = "dec-closed-loop"
+
+
+def check_budget(iterations: int | None, plan_ms: float | None) -> tuple[int, float | None]:
+    """A search planner's budget, checked: ``(iterations, plan_ms)`` with ``iterations`` None read
+    as :data:`DEFAULT_ITERATIONS` and ``plan_ms`` (milliseconds per decision) None for "not set".
+
+    Raises:
+        ValueError: iterations below 1 or plan_ms not > 0, naming the option.
+    """
+    if iterations is not None and int(iterations) < 1:
+        raise ValueError(f"iterations must be >= 1, got {iterations}")
+    if plan_ms is not None and not float(plan_ms) > 0:
+        raise ValueError(f"plan_ms must be > 0, got {plan_ms}")
+    return (DEFAULT_ITERATIONS if iterations is None else int(iterations)), (None if plan_ms is None else float(plan_ms))

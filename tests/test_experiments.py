@@ -123,13 +123,13 @@ def test_selection_bookkeeping_matches_the_penalty_rule():
         total = evaluate(problem, sel.reshape(x.shape), x)[1]
         nlog = 0
         for q in order[n_past:]:
-            total += closedloop._marginal(q, x.ravel()[q], sel, p, xv, prep.indptr, prep.nbr)
-            nlog = closedloop._select(q, x.ravel()[q], sel, p, xv, prep.indptr, prep.nbr, log, nlog)
+            total += closedloop.marginal_gain(q, x.ravel()[q], sel, p, xv, prep.indptr, prep.nbr)
+            nlog = closedloop.select_point(q, x.ravel()[q], sel, p, xv, prep.indptr, prep.nbr, log, nlog)
         deployed = np.zeros(size, dtype=bool)
         deployed[order] = True
         assert total == pytest.approx(evaluate(problem, deployed.reshape(x.shape), x)[1], abs=1e-9)
         assert (p[deployed] == 1 + problem.conflict[np.ix_(deployed, deployed)].sum(axis=1)).all()
-        closedloop._undo(sel, p, log, nlog)
+        closedloop.undo_selection(sel, p, log, nlog)
         assert (sel == start[0]).all() and (p[start[0]] == start[1][start[0]]).all()
 
 

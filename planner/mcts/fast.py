@@ -54,7 +54,7 @@ from planner import ssap
 from planner.compiled import compile_problem
 from planner.mcts import kernel as _k
 from planner.problem import Problem, StageView, make_view, point_weights
-from planner.settings import DEFAULT_EXPLORATION, DEFAULT_ITERATIONS, DEFAULT_SAMPLES, LAYOUTS
+from planner.settings import DEFAULT_EXPLORATION, DEFAULT_ITERATIONS, DEFAULT_SAMPLES, LAYOUTS, check_budget
 
 #: Rollout policies.
 ROLLOUTS = {"ssap": _k.ROLLOUT_SSAP, "random": _k.ROLLOUT_RANDOM}
@@ -199,17 +199,14 @@ class MCTSPlanner:
             raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
         if rollout not in ROLLOUTS:
             raise ValueError(f"rollout must be one of {tuple(ROLLOUTS)}, got {rollout!r}")
-        if int(iterations) < 1:
-            raise ValueError(f"iterations must be >= 1, got {iterations}")
+        iterations, plan_ms = check_budget(iterations, plan_ms)
         if int(samples) < 1:
             raise ValueError(f"samples must be >= 1, got {samples}")
-        if plan_ms is not None and not plan_ms > 0:
-            raise ValueError(f"plan_ms must be > 0, got {plan_ms}")
         if not exploration >= 0:
             raise ValueError(f"exploration must be >= 0, got {exploration}")
         self.rollout = rollout
-        self.iterations = int(iterations)
-        self.plan_ms = None if plan_ms is None else float(plan_ms)
+        self.iterations = iterations
+        self.plan_ms = plan_ms
         self.exploration = float(exploration)
         self.samples = int(samples)
         self.layout = layout
