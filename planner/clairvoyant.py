@@ -39,7 +39,7 @@ import numpy as np
 
 from planner.compiled import compile_problem
 from planner.kernels import cache_follows_sources
-from planner.problem import Problem, evaluate
+from planner.problem import Problem, evaluate, warm_up_problem
 
 #: Largest number of options one carrier may have for the exact search.
 MAX_OPTIONS = 200_000
@@ -403,7 +403,7 @@ def solve(problem: Problem, x: np.ndarray, max_nodes: int = MAX_NODES) -> Clairv
 
 def warm_up() -> None:
     """Compile (or load from the numba cache) the search on a tiny instance."""
-    tiny = Problem.build(1, np.ones((2, 3), dtype=bool), [[[0, 0], [1, 0]]])
+    tiny = warm_up_problem()
     solve(tiny, np.array([[1.0, 2.0, 0.0], [3.0, 0.0, 1.0]]))
 
 

@@ -31,7 +31,7 @@ from planner.comms import CommsSpec, Deliveries, realise
 from planner.compiled import compile_problem
 from planner.kernels import cache_follows_sources, deploys
 from planner.problem import (OnlineResult, Problem, StageView, enforce, evaluate, make_view,
-                             stage_rng, start_online, valid_stages_left)
+                             stage_rng, start_online, valid_stages_left, warm_up_problem)
 from planner.settings import check_budget
 
 
@@ -420,7 +420,7 @@ class DecClosedLoopPlanner:
 
     def warm_up(self, problem: Problem) -> None:
         self._central.warm_up(problem)
-        tiny = Problem.build(1, np.ones((2, 3), dtype=bool), [[[0, 1], [1, 2]]])
+        tiny = warm_up_problem()
         xs = np.full((2, 3), 3.0)
         local = LocalView(tiny, 0, 1, 0, np.where([[1, 1, 0], [0, 0, 0]], xs, np.nan), np.zeros((2, 3), bool),
                           np.array([2, 0]), np.array([1, 0]), (None, None))

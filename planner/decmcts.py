@@ -44,7 +44,7 @@ from planner.compiled import compile_problem
 from planner.decentralised import Intent, LocalDecision, LocalView
 from planner.kernels import cache_follows_sources, deploys, forced
 from planner.mcts.kernel import _random, _sample, weigh
-from planner.problem import Problem, fill_releases, point_weights, valid_stages_left
+from planner.problem import Problem, fill_releases, point_weights, valid_stages_left, warm_up_problem
 from planner.settings import DEFAULT_EXPLORATION, check_budget
 
 #: D-UCT discount per iteration.
@@ -368,7 +368,7 @@ class DecMCTSPlanner:
         self.exploration = DEFAULT_EXPLORATION if exploration is None else float(exploration)
 
     def warm_up(self, problem: Problem) -> None:
-        tiny = Problem.build(1, np.ones((2, 3), dtype=bool), [[[0, 1], [1, 2]]])
+        tiny = warm_up_problem()
         xs = np.full((2, 3), 3.0)
         local = LocalView(tiny, 0, 0, 0, np.where([[1, 0, 0], [1, 0, 0]], xs, np.nan), np.zeros((2, 3), bool),
                           np.array([1, 1]), np.array([0, 0]), (None, None))

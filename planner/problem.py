@@ -364,6 +364,13 @@ class Planner(Protocol):
         ...
 
 
+def warm_up_problem() -> Problem:
+    """The tiny instance a planner's ``warm_up`` (and the clairvoyant search's) decides once to load
+    its compiled kernels: 2 carriers, 3 stages, 1 passenger each, carrier 0's stage 1 overlapping
+    carrier 1's stage 2, so that at stage 0 both carriers have a choice and a conflict lies ahead."""
+    return Problem.build(1, np.ones((2, 3), dtype=bool), [[[0, 1], [1, 2]]])
+
+
 def stage_rng(seed: int, stage: int) -> np.random.Generator:
     """The planner's random stream for one stage of a mission with root seed ``seed``.
 

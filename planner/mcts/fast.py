@@ -53,7 +53,7 @@ import numpy as np
 from planner import ssap
 from planner.compiled import compile_problem
 from planner.mcts import kernel as _k
-from planner.problem import Problem, StageView, make_view, point_weights
+from planner.problem import Problem, StageView, make_view, point_weights, warm_up_problem
 from planner.settings import DEFAULT_EXPLORATION, DEFAULT_ITERATIONS, DEFAULT_SAMPLES, LAYOUTS, check_budget
 
 #: Rollout policies.
@@ -233,7 +233,7 @@ class MCTSPlanner:
         Call before timing decisions; compiled code is cached on disk across runs.
         """
         if problem is None:
-            problem = Problem.build(1, np.ones((2, 3), dtype=bool), [[(0, 0), (1, 0)]])
+            problem = warm_up_problem()
         x = np.where(problem.valid, 1.0, np.nan)
         view = make_view(problem, 0, x, np.zeros(problem.valid.shape, dtype=bool))
         saved = (self.iterations, self.plan_ms)
@@ -423,6 +423,6 @@ class MCTSPlanner:
 
 
 def _tiny_view_args():
-    problem = Problem.build(1, np.ones((2, 3), dtype=bool), [[(0, 0), (1, 0)]])
+    problem = warm_up_problem()
     x = np.ones((2, 3))
     return problem, 0, x, np.zeros((2, 3), dtype=bool)
