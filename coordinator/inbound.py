@@ -37,13 +37,31 @@ def to_event(msg, at: float):
 
 
 
+#: At most this many inbox items share one mission.db commit (:meth:`Inbound.pump`).
+BATCH_MAX = 1024
+
+
 class Inbound:
     """The coordinator's receiving side."""
 
     def pump(self, timeout_s: float) -> None:
-        """Wait up to ``timeout_s`` seconds for inbox items, then handle every queued one."""
+        """Wait up to ``timeout_s`` seconds for inbox items, then handle every queued one, their
+        writes to mission.db committed together (storage.missiondb, :meth:`MissionStore.batch`)."""
         item = self.node.next(max(0.0, timeout_s))
+        if item is None:
+            return
+        if self.store is None:
+            self._drain(item)
+            return
+        with self.store.batch():
+            self._drain(item)
+
+    def _drain(self, item) -> None:
+        handled = 0
         while item is not None:
+            handled += 1
+            if handled % BATCH_MAX == 0 and self.store is not None:
+                self.store.flush()  # a long burst is committed in parts
             try:
                 self._handle(item)
             except ProtocolError as exc:

@@ -244,10 +244,8 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         before = self.state
         self.state, effects = ms.step(self.state, event)
         for effect in effects:
-            if isinstance(effect, ms.Record):
-                self.store.record(effect, self.state)
-                if self.recorder is not None:
-                    self.recorder.event(effect.event)  # after mission.db has it
+            if isinstance(effect, ms.Record):  # the recorder gets it once mission.db has it
+                self.store.record(effect, self.state, None if self.recorder is None else self.recorder.event)
             elif isinstance(effect, ms.Reject):
                 self._reject(effect.reason, effect.detail, getattr(event, "carrier", None))
             elif isinstance(effect, ms.Refuse):
@@ -275,6 +273,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         announced: a Refusal (to an earlier revision's carrier as ``world-mismatch``, the only
         reason it has), or Accepted (revision 3 and later; earlier ones learn it from Decisions)."""
         revision = min(revision, REVISION)
+        self.store.flush()  # the Hello is on record before its answer goes out
         if refused is not None:
             if cid in self.told and cid not in self.state.accepted:
                 self.refusals[cid] = refused.reason
@@ -299,6 +298,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
 
     def _publish_decision(self, decision: Decision) -> None:
         # In the revision every carrier that said Hello reads (docs/protocol.md, "Compatibility").
+        self.store.flush()
         self.node.put(keys.decision_key(self.mission), decision, self.state.common_revision(REVISION))
         self.apply(ev.Published(decision.stage, time.time()))
 

@@ -47,6 +47,45 @@ def test_a_stage_is_decided_once(tmp_path):
     assert store.replay().decisions == {0: ((), 1.0)}
 
 
+def test_a_batch_commits_once_and_keeps_each_write_atomic(tmp_path):
+    """What the coordinator holds while it drains its inbox: the writes of a batch are invisible
+    to a reader until the batch ends (or flush), a failing write inside it leaves no trace and
+    spoils nothing else, ``then`` callbacks run only once their write is committed, and the file
+    holds exactly what the same writes one by one would have written."""
+    from mission import events as ev
+    from mission import state as ms
+
+    def rows(path):
+        with sqlite3.connect(path) as db:
+            return db.execute("SELECT kind, carrier, stage, payload FROM events WHERE kind != 'open'").fetchall()
+
+    def writes(store):
+        assert store.observation("a", 0, 5, (1.0, 2.0), t=0.0, wall_time=1.0)
+        assert not store.observation("a", 0, 9, (9.0, 9.0), t=0.0, wall_time=1.5)
+        store.decision(0, ["a"], 3.5, wall_time=2.0)
+        with pytest.raises(sqlite3.IntegrityError):
+            store.decision(0, [], 1.0, wall_time=2.5)
+        store.event("hello", "b", 0, wall_time=3.0, pid=1, host="h")
+
+    one_by_one = MissionStore(tmp_path / "plain.db", META)
+    writes(one_by_one)
+    one_by_one.close()
+
+    store = MissionStore(tmp_path / "batched.db", META)
+    committed = []
+    with store.batch():
+        writes(store)
+        store.record(ms.Record(ev.Bye("b", (), (), "end", 4.0), None), None, then=committed.append)
+        assert committed == [] and [k for k, *_ in rows(tmp_path / "batched.db")] == []  # nothing visible yet
+        store.flush()
+        assert len(committed) == 1 and len(rows(tmp_path / "batched.db")) == 4
+        store.event("end", None, 1, wall_time=5.0, reason="complete")
+    assert rows(tmp_path / "batched.db")[:3] == rows(tmp_path / "plain.db")
+    assert [k for k, *_ in rows(tmp_path / "batched.db")] == ["observation", "decision", "hello", "bye", "end"]
+    assert store.replay().decisions == {0: (("a",), 3.5)}
+    store.close()
+
+
 def test_events_are_append_only(tmp_path):
     store = MissionStore(tmp_path / "m.db", META)
     store.event("end", None, 3, reason="complete")
