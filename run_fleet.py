@@ -915,7 +915,17 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    code = main()
+    try:
+        code = main()
+    except Exception:
+        if getattr(main, "role", None) not in HARD_EXIT_ROLES:
+            raise
+        # A bug: say where, and exit. Returning into the interpreter's shutdown would wait for
+        # zenoh's callback threads, which are not daemons, for ever.
+        import traceback
+
+        traceback.print_exc()
+        code = 1
     if getattr(main, "role", None) in HARD_EXIT_ROLES:
         # Everything is closed and written by now (sessions, mission.db, logs, mission.mcap). Skip
         # the interpreter's finalisation: a foreign thread re-entering Python during it (zenoh's
