@@ -292,6 +292,8 @@ RUNS = [
         S(SOLVE, ("INSTANCE.json", "{tmp}/example.json"), ("NAME", "ssap"), ("[--iterations K] ", ""),
           ("[--plan-ms MS]", "--plan-ms 20 --seed 1")),
     ), "slow", wall_s=240, mem_mb=1500, check=_solve_check),
+    Run("overhead-bench", (S("python -m tools.overhead_bench", extra="--carriers 16 --seconds 2 --events 100"),),
+        "default", wall_s=90, mem_mb=800),
     Run("write-scenario", (S("python -m tools.scale --write-scenario 256 /tmp/grid_256.yaml",
                              ("/tmp/grid_256.yaml", "{tmp}/grid_256.yaml")),), "default", wall_s=60, mem_mb=800),
     # ---- benchmarks and experiments
