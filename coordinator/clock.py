@@ -143,12 +143,15 @@ class StageClock:
         self.apply(ev.Ended(reason, time.time()))
         end = End(self.mission, self.state.next_stage, self.state.end_reason or reason)
         deadline = time.monotonic() + self.config.bye_timeout_s
-        last_put = None
+        last_put = grace = None
         while time.monotonic() < deadline:
             if last_put is None or time.monotonic() - last_put >= DEFAULTS.end_repeat_s:
                 self.node.put(keys.end_key(self.mission), end)  # repeated for carriers that missed it
                 last_put = time.monotonic()
             if self.state.all_said_bye():
-                break
+                # Every live carrier said Bye; one whose token vanished first may have its Bye on the way.
+                grace = grace or time.monotonic() + DEFAULTS.bye_grace_s
+                if not self.state.bye_missing() or time.monotonic() >= grace:
+                    break
             self.pump(0.05)
         self.log(f"coordinator: mission {self.state.end_reason} after {self.state.next_stage} stage(s)")

@@ -207,6 +207,10 @@ class MissionState:
     def all_said_bye(self) -> bool:
         return self.live <= self.byes
 
+    def bye_missing(self) -> bool:
+        """Some carrier with an accepted Hello has not said Bye (live or not)."""
+        return not set(self.accepted) <= self.byes
+
     def revision_of(self, cid: str, highest: int) -> int:
         """The protocol revision to speak to carrier ``cid``: the lower of ``highest`` (the
         coordinator's) and the one its accepted Hello announced (1 before any accepted Hello:

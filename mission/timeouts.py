@@ -30,6 +30,9 @@ class Timeouts:
         stage_s: coordinator, wall clock: per stage, wait this long for the expected observations.
         confirm_s: coordinator: after the last decision, wait this long for its Confirms.
         bye_s: coordinator: after End, repeat it and wait this long for the carriers' Byes.
+        bye_grace_s: coordinator: after End, a carrier whose token vanished without a Bye gets
+            this long more (within ``bye_s``): its Bye and its token's end travel on different
+            subscriptions, in either order.
         end_repeat_s: coordinator: interval between two publications of End.
         decision_s: carrier: wall clock: longest wait for one stage's decision while the coordinator
             is present (then it decides the stage itself); sim clock: after this long it asks the
@@ -62,6 +65,7 @@ class Timeouts:
     stage_s: float = 5.0
     confirm_s: float = 3.0
     bye_s: float = 2.0
+    bye_grace_s: float = 0.5
     end_repeat_s: float = 0.5
     decision_s: float = 30.0
     coordinator_s: float = 30.0

@@ -526,3 +526,13 @@ def test_mission_imports_no_process_library():
     assert proc.returncode == 0, proc.stderr
     loaded = json.loads(proc.stdout.splitlines()[-1])
     assert [m for m in loaded if any(m == f or m.startswith(f + ".") for f in FORBIDDEN)] == []
+
+
+def test_after_end_a_carrier_gone_without_its_bye_is_still_owed_one():
+    """A carrier's Bye and the end of its token arrive on different subscriptions, in either
+    order: once its token is gone it no longer counts as live (all_said_bye), but its Bye is
+    still missing (bye_missing), which the coordinator waits a grace for."""
+    state, _ = run(READY + [ev.Bye("a", (), (), "end", 3.0), live("b", False, 3.1)])
+    assert state.all_said_bye() and state.bye_missing()
+    state, _ = ms.step(state, ev.Bye("b", (), (), "end", 3.2))
+    assert state.all_said_bye() and not state.bye_missing()
