@@ -441,8 +441,8 @@ def _early_observation(state: CarrierState, j: int) -> tuple:
 
 def _on_collecting(state: CarrierState, e: Collecting):
     """State says the coordinator collects the stage this carrier waits at: it may never have
-    had this carrier's Observation (rejected as future-stage, or lost in a reconnection); a
-    repeat is rejected as ``duplicate`` and changes nothing."""
+    had this carrier's Observation (rejected as future-stage, or lost in a reconnection); an
+    identical repeat is absorbed by the coordinator."""
     if current(state, e.epoch) and state.pending == e.stage and e.stage not in state.handled:
         return state, (ResendObservation(e.stage),)
     return state, ()

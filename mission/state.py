@@ -16,7 +16,7 @@ Mission rules applied here (docs/protocol.md, "Stage handshake" and "Rejections"
   an accepted Hello of the same carrier; a Bye needs an accepted Hello too;
 * an Observation counts only for the stage being collected (``next_stage``): earlier ones are
   ``stale-stage``, later ones ``future-stage`` (rejected, never held), repeats ``duplicate``;
-  its ``t`` must be the stage time within :data:`T_TOLERANCE_S`;
+  an identical repeat is absorbed; its ``t`` must be the stage time within :data:`T_TOLERANCE_S`;
 * a Confirm of a stage not decided yet is ``stale-stage``; a repeat with the same outcome (or
   ``already``) is absorbed, a contradicting repeat is ``duplicate`` (the first one stands);
 * an Own message (a carrier's account of a stage it decided without the coordinator) is the
@@ -504,6 +504,8 @@ def _on_observation(state: MissionState, e: ev.Observation):
         return state, (Reject("future-stage", f"observation of carrier {cid} for stage {j}, "
                                               f"stage {state.next_stage} is being collected"),)
     if (cid, j) in state.reported:
+        if state.reported[(cid, j)] == e.x and state.positions.get((cid, j)) == tuple(e.position):
+            return state, ()  # the same Observation again (a carrier that was not sure it arrived)
         return state, (Reject("duplicate", f"second observation of carrier {cid} at stage {j}"),)
     new = _replace(state, reported={**state.reported, (cid, j): e.x},
                    positions={**state.positions, (cid, j): tuple(e.position)},

@@ -62,6 +62,7 @@ OBSERVATION_CASES = [
     # id, events before, the event, rejection reason (None = accepted), (carrier, stage) -> x after
     ("accepted", READY, obs("a", 0, 3), None, {("a", 0): 3}),
     ("duplicate", READY + [obs("a", 0, 3)], obs("a", 0, 9), "duplicate", {("a", 0): 3}),
+    ("identical-repeat", READY + [obs("a", 0, 3)], obs("a", 0, 3, at=2.5), "", {("a", 0): 3}),
     ("stale", READY + [decide(0)], obs("a", 0, 3), "stale-stage", {}),
     ("future", READY, obs("a", 1, 99), "future-stage", {}),
     ("future-then-real", READY + [obs("a", 1, 99), obs("a", 0, 3), decide(0)], obs("a", 1, 4), None,

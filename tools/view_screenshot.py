@@ -84,7 +84,9 @@ def capture(url: str, out: str | Path, ready=None, wait_s: float = 60.0, size=(1
     if chromium is None:
         raise FileNotFoundError("no chromium found")
     port = _free_port()
-    with tempfile.TemporaryDirectory(prefix="marsupial-chromium-") as profile:
+    # ignore_cleanup_errors: a browser that is still writing its profile as it exits made the
+    # removal fail ("Directory not empty"), after the screenshot was taken.
+    with tempfile.TemporaryDirectory(prefix="marsupial-chromium-", ignore_cleanup_errors=True) as profile:
         proc = subprocess.Popen(
             [chromium, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", f"--remote-debugging-port={port}",
              f"--window-size={size[0]},{size[1]}", "about:blank"],
