@@ -33,6 +33,7 @@ from __future__ import annotations
 import json
 import sqlite3
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -204,23 +205,18 @@ class MissionStore:
 
         return _Tx()
 
+    @contextmanager
     def batch(self):
         """A context in which writes share one transaction, committed at its end (or at
         :meth:`flush`); each write stays atomic on its own (a savepoint). Not reentrant."""
-        store = self
-
-        class _Batch:
-            def __enter__(self):
-                store._batching = True
-
-            def __exit__(self, kind, value, tb):
-                try:
-                    store.flush()
-                finally:
-                    store._batching = False
-                return False
-
-        return _Batch()
+        self._batching = True
+        try:
+            yield
+        finally:
+            try:
+                self.flush()
+            finally:
+                self._batching = False
 
     def flush(self) -> None:
         """Commit the open batch's writes (nothing to do outside a batch: every write committed),

@@ -504,6 +504,16 @@ class _Proc:
         return rc
 
 
+def _finish_within(run: Run, step: Step, proc: _Proc, deadline: float) -> None:
+    """Wait for ``proc`` until the run's wall-time cap; its exit code must be one ``step`` allows."""
+    try:
+        rc = proc.finish(deadline - time.monotonic())
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"{run.name}: over the wall-time cap of {run.wall_s} s in {proc.command!r}\n"
+                    f"{proc.output[-3000:]}")
+    assert rc in step.rc, f"{proc.command!r} exited {rc}:\n{proc.output[-3000:]}"
+
+
 def _copy_repository(dest: Path) -> None:
     files = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, check=True).stdout
     for rel in filter(None, files.decode().split("\0")):
@@ -553,20 +563,10 @@ def execute(run: Run, tmp: Path) -> list[str]:
                         assert time.monotonic() < deadline, f"{run.name}: over {run.wall_s} s waiting for {step.ready!r}"
                         time.sleep(0.1)
                     continue
-                try:
-                    rc = proc.finish(deadline - time.monotonic())
-                except subprocess.TimeoutExpired:
-                    pytest.fail(f"{run.name}: over the wall-time cap of {run.wall_s} s in {command!r}\n"
-                                f"{proc.output[-3000:]}")
-                assert rc in step.rc, f"{command!r} exited {rc}:\n{proc.output[-3000:]}"
+                _finish_within(run, step, proc, deadline)
         for step, proc in started:
             if step.background and not step.stop:
-                try:
-                    rc = proc.finish(deadline - time.monotonic())
-                except subprocess.TimeoutExpired:
-                    pytest.fail(f"{run.name}: over the wall-time cap of {run.wall_s} s in {proc.command!r}\n"
-                                f"{proc.output[-3000:]}")
-                assert rc in step.rc, f"{proc.command!r} exited {rc}:\n{proc.output[-3000:]}"
+                _finish_within(run, step, proc, deadline)
         for step, proc in started:
             if step.stop:
                 proc.signal(signal.SIGINT)
