@@ -22,11 +22,17 @@ future below it (a one-step rollout algorithm, i.e. policy improvement over its 
    the ``2^k`` joint actions is a candidate when ``k <= ENUMERATE_MAX``; otherwise a coordinate
    ascent from the base policy's action evaluates all single-carrier flips per round.
 4. **Evaluation with common random numbers.** Every candidate is scored on the *same* sampled
-   futures. A rollout applies the candidate at stage j, then the conflict-aware SSAP policy: at
-   each later stage, in carrier order, a carrier with ``d`` passengers and ``n`` valid stages
-   left deploys iff it is forced or the *marginal* gain of deploying,
+   futures. A rollout applies the candidate at stage j, then the base policy: at each later
+   stage, in carrier order, a carrier with ``d`` passengers and ``n`` valid stages left deploys
+   at point ``q`` iff it is forced or the *marginal* gain of deploying,
    ``x / (1 + c) - sum_k x_k (1/p_k - 1/(p_k + 1))`` over the ``c`` already chosen deployments
-   ``k`` sharing an overlap, exceeds its DLR threshold ``a[n, n - d]``.
+   ``k`` sharing an overlap, minus the externality ``ext[q]`` exceeds the threshold
+   ``thr[q, d]`` (:func:`conflict_values`, computed once per decision: the carrier's value of
+   waiting with the conflicts its later points will meet, and what deploying at ``q`` takes from
+   the neighbours' later points). Without conflicts ahead ``thr[q, d]`` is DLR's ``a[n, n - d]``
+   and ``ext[q] = 0``; with ``rule_rounds = 0`` it is so everywhere, the conflict-aware SSAP rule
+   closed-loop used before (docs/results.md). With passenger values the same thresholds decide
+   which passenger goes (:func:`_weighted_choice`).
 5. **Control variate.** Alongside, the same sampled future is run through plain independent SSAP,
    whose expected raw total is known exactly (:func:`planner.ssap.expected_value`). The
    estimate of a candidate is ``mean(aware - plain) + exact(plain)``: unbiased, with far less
@@ -47,7 +53,7 @@ from numba import njit
 
 from planner import ssap
 from planner.compiled import compile_problem
-from planner.kernels import cache_follows_sources, deploys, rank
+from planner.kernels import cache_follows_sources, cut, deploys, rank
 from planner.problem import Problem, StageView, make_view, point_weights
 from planner.settings import check_budget
 
@@ -58,6 +64,9 @@ ENUMERATE_MAX = 6
 #: rollouts also simulate its neighbours (its halo) at their current actions. This keeps the
 #: search linear in the component's size (see :func:`_blocks`).
 BLOCK = 32
+#: Alternations of :func:`conflict_values` behind the rollouts' base policy (0: DLR's thresholds
+#: without externalities, the conflict-aware SSAP rule).
+RULE_ROUNDS = 6
 #: Bounds on the number of sampled futures per candidate (common to all candidates).
 SAMPLES_MIN = 16
 SAMPLES_MAX = 4096
@@ -131,6 +140,15 @@ class Net(NamedTuple):
     nbr_idx: np.ndarray
 
 
+class Rule(NamedTuple):
+    """The rollout base policy's rule (:func:`conflict_values`): float ``[R*N, D + 1]`` threshold of
+    each flat point for each number of passengers left and float ``[R*N]`` externality; a carrier
+    deploys iff forced or ``gain - ext[q] > cut(thr[q, d])``."""
+
+    thr: np.ndarray
+    ext: np.ndarray
+
+
 class Candidates(NamedTuple):
     """Candidate joint actions bool ``[K, m]`` of a component's ``m`` carriers ``members`` (int64,
     in decision order), their observations now float ``[m]`` and passengers left before the
@@ -144,8 +162,8 @@ class Candidates(NamedTuple):
 
 class _Stage(NamedTuple):
     """One decision of the planner: the view, the compiled problem, the shared :class:`Selection`,
-    validity ``[R, N]``, valid stages left ``[R, N + 1]``, passengers left ``[R]`` and the
-    observations now ``[R]``."""
+    validity ``[R, N]``, valid stages left ``[R, N + 1]``, passengers left ``[R]``, the
+    observations now ``[R]`` and the base policy's :class:`Rule`."""
 
     view: object
     prep: object
@@ -154,13 +172,14 @@ class _Stage(NamedTuple):
     nleft: np.ndarray
     left: np.ndarray
     xnow: np.ndarray
+    rule: Rule
 
 
 # The rollout after the current stage (the loop over t below) is written out here and in
 # planner.decentralised._evaluate_imputed rather than shared: as a separate numba function, even
 # inlined, it cost closed-loop 6-10% of its decision time.
 @njit(cache=True)
-def _evaluate(cand, stage, n_stages, net, selection, samples, out, control_variate):
+def _evaluate(cand, stage, n_stages, net, selection, samples, out, control_variate, rule):
     """Per-sample control-variate values of every candidate.
 
     Args:
@@ -172,10 +191,12 @@ def _evaluate(cand, stage, n_stages, net, selection, samples, out, control_varia
         out: float ``[K, S]`` receives ``aware_total - plain_future`` per candidate and sample
             (raw units; constant offsets common to all candidates left out), or ``aware_total``
             alone when ``control_variate`` is False.
+        rule: :class:`Rule` of the base policy.
     """
     actions, members, xnow, left0 = cand
     valid, nleft, table, nbr_ptr, nbr_idx = net
     sel, p, xv = selection
+    thr, ext = rule
     n_cand = actions.shape[0]
     m = members.shape[0]
     n_samples = samples.shape[0]
@@ -206,7 +227,7 @@ def _evaluate(cand, stage, n_stages, net, selection, samples, out, control_varia
                     if d > 0:
                         q = r * n_stages + t
                         g = marginal_gain(q, xs, sel, p, xv, nbr_ptr, nbr_idx)
-                        if deploys(table, g, n, d):
+                        if n <= d or g - ext[q] > cut(thr[q, d]):
                             total += g
                             nlog = select_point(q, xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
                             left[i] = d - 1
@@ -242,31 +263,34 @@ def _drop(ws, i, pos, d):
 
 
 @njit(cache=True)
-def _weighted_choice(table, y, loss, n, d, ws, i):
-    """The conflict-aware SSAP rule with passenger values, for member i with ``d >= 1`` passengers
-    of sorted weights ``ws[i, :d]`` (``ws[i, d] == 0``), ``n`` valid stages left, conflict-adjusted
-    observation ``y = x / (1 + c)`` and conflict ``loss``. Returns the rank position (0-based) of
-    the passenger to release, or -1 to wait.
+def _weighted_choice(thr, q, y, loss, n, d, ws, i):
+    """The base policy's rule with passenger values, for member i at flat point ``q`` with
+    ``d >= 1`` passengers of sorted weights ``ws[i, :d]`` (``ws[i, d] == 0``), ``n`` valid stages
+    left, conflict-adjusted observation ``y = x / (1 + c)`` and ``loss`` (the conflict loss plus
+    the externality ``ext[q]``). Returns the rank position (0-based) of the passenger to release,
+    or -1 to wait.
 
-    The best passenger to release at y is the rank of y's DLR interval, capped at d (the loss is
-    the same for every passenger); it goes iff forced or its gain ``w y - loss`` exceeds what the
-    release costs the future, ``V(S) - V(S without it) = sum_{k >= i} (w_k - w_{k+1}) a[n, n - k]``
-    over the ranks ``k <= min(d, n - 1)`` (DLR values of n - 1 stages). Equal weights give the
-    unweighted rule ``y - loss > a[n, n - d]``."""
-    i_rank = rank(table, y, n)
-    if i_rank > d:
-        i_rank = d
+    With ``thr[q, k]`` the marginal value of the k-th passenger later (:func:`conflict_values`;
+    DLR's ``a[n, n - k]`` where no conflict lies ahead), the best passenger to release at y is the
+    rank of y's interval among them, capped at d (the loss is the same for every passenger); it
+    goes iff forced or its gain ``w y - loss`` exceeds what the release costs the future,
+    ``V(S) - V(S without it) = sum_{k >= i} (w_k - w_{k+1}) thr[q, k]`` over the ranks
+    ``k <= min(d, n - 1)``. Equal weights give the unweighted rule ``y - loss > thr[q, d]``."""
+    top = d if d < n - 1 else n - 1
+    i_rank = 1
+    for k in range(1, top + 1):
+        if k < d and y <= cut(thr[q, k]):
+            i_rank += 1
     if n <= d:
         return i_rank - 1
     cost = 0.0
-    top = d if d < n - 1 else n - 1
     for k in range(i_rank, top + 1):
-        cost += (ws[i, k - 1] - ws[i, k]) * table[n, n - k]
+        cost += (ws[i, k - 1] - ws[i, k]) * thr[q, k]
     return i_rank - 1 if ws[i, i_rank - 1] * y - loss > cost else -1
 
 
 @njit(cache=True)
-def _evaluate_weighted(cand, stage, n_stages, net, selection, samples, out, control_variate, ws0, pos_now):
+def _evaluate_weighted(cand, stage, n_stages, net, selection, samples, out, control_variate, ws0, pos_now, rule):
     """:func:`_evaluate` for a problem with passenger values (``selection.xv`` holds weighted values).
 
     Args (besides :func:`_evaluate`'s):
@@ -274,6 +298,7 @@ def _evaluate_weighted(cand, stage, n_stages, net, selection, samples, out, cont
             0.0-padded.
         pos_now: int64 ``[m]`` rank position of the passenger a deployment now releases
             (:func:`planner.passengers.choose`).
+        rule: :class:`Rule` of the base policy.
     """
     actions, members, xnow, left0 = cand
     valid, nleft, table, nbr_ptr, nbr_idx = net
@@ -283,6 +308,7 @@ def _evaluate_weighted(cand, stage, n_stages, net, selection, samples, out, cont
     n_samples = samples.shape[0]
     left = np.empty(m, np.int64)
     lefti = np.empty(m, np.int64)
+    thr, ext = rule
     ws = np.empty_like(ws0)
     wp = np.empty_like(ws0)
     log = np.empty(sel.shape[0] + nbr_idx.shape[0] + 1, np.int64)
@@ -315,7 +341,7 @@ def _evaluate_weighted(cand, stage, n_stages, net, selection, samples, out, cont
                         q = r * n_stages + t
                         c, loss = _conflicts(q, sel, p, xv, nbr_ptr, nbr_idx)
                         y = xs / (1.0 + c)
-                        pos = _weighted_choice(table, y, loss, n, d, ws, i)
+                        pos = _weighted_choice(thr, q, y, loss + ext[q], n, d, ws, i)
                         if pos >= 0:
                             w = ws[i, pos]
                             total += w * y - loss
@@ -331,6 +357,182 @@ def _evaluate_weighted(cand, stage, n_stages, net, selection, samples, out, cont
                         lefti[i] = d - 1
             undo_selection(sel, p, log, nlog)
             out[k, s] = total - plain if control_variate else total
+
+
+@njit(cache=True, inline="always")
+def _tail(points, tail_mass, tail_first, c):
+    """(P(X > c), E[(X - c)^+]) under the sampler's atoms ``points`` (ascending), with suffix sums
+    ``tail_mass[i] = sum_{l >= i} mass[l]`` and ``tail_first[i] = sum_{l >= i} mass[l] points[l]``."""
+    lo = 0
+    hi = points.shape[0]
+    while lo < hi:  # first atom above c
+        mid = (lo + hi) // 2
+        if points[mid] > c:
+            hi = mid
+        else:
+            lo = mid + 1
+    return tail_mass[lo], tail_first[lo] - c * tail_mass[lo]
+
+
+@njit(cache=True)
+def conflict_values(stage, n_stages, net, left, past, prior, rounds, rule):
+    """The rollout base policy's thresholds and externalities with the conflicts to come.
+
+    Plain DLR thresholds value a carrier's later points as if nobody else could take them. Here a
+    later point ``q`` is *available* with probability ``alpha[q]`` (none of the open points
+    sharing an overlap with it and deciding before it — earlier stage, or same stage and a lower
+    carrier index — deploys; they deploy independently with their probabilities ``pi``; a past
+    deployment sharing an overlap makes it unavailable), and worth 0 when unavailable (half of
+    its value, minus half of the blocker's). A deployment at ``q`` also takes from each open point
+    ``k`` deciding after it and sharing an overlap what that point's availability is worth to its
+    carrier: ``ext[q] = sum_k alpha[k] / (1 - pi[q]) * (W_k(available) - W_k(unavailable))``.
+    Per carrier, ``W[t, d]`` (the value of ``d`` passengers from stage ``t`` on, externalities
+    charged) follows the backward recursion of a single carrier with stage-dependent
+    observations; ``pi`` and the passengers-left distribution follow forward in stage order.
+    ``rounds`` alternations of the two passes, from the plain DLR policy (``alpha = 1``, ``ext =
+    0``). Where a carrier's later points are all free of both (``alpha = 1``, ``ext = 0``) its
+    threshold is exactly DLR's, ``table[n, n - d]``, so without conflicts the rule is SSAP's.
+
+    Args:
+        stage, n_stages: the current stage j and N.
+        net: :class:`Net`.
+        left: int64 ``[R]`` passengers left at stage j; past: bool ``[R*N]`` past deployments.
+        prior: ``(slot_value, points, tail_mass, tail_first)``: DLR values float ``[N + 1, N + 1]``,
+            the prior's atoms and their suffix sums (``CompiledProblem.tails``, :func:`_tail`).
+        rounds: alternations of the backward and forward passes.
+        rule: :class:`Rule` receiving ``thr`` (float ``[R*N, D + 1]``, the threshold of each point
+            for ``d`` passengers left, read where not forced, ``d < n``) and ``ext`` (float
+            ``[R*N]``).
+    The rollout rule: deploy iff forced or ``gain - ext[q] > cut(thr[q, d])``.
+    """
+    valid, nleft, table, nbr_ptr, nbr_idx = net
+    slot_value, points, tail_mass, tail_first = prior
+    thr, ext = rule
+    n_carriers = valid.shape[0]
+    n_points = n_carriers * n_stages
+    d_max = thr.shape[1] - 1
+    mu = tail_first[0]
+    alpha = np.ones(n_points)
+    pi = np.zeros(n_points)
+    ext[:] = 0.0
+    value = np.zeros((n_carriers, n_stages + 1, d_max + 1))
+    dist = np.zeros((n_carriers, n_stages + 1, d_max + 1))
+    new_ext = np.zeros(n_points)
+    for rnd in range(rounds + 1):
+        # Backward: values and thresholds from alpha and ext.
+        for r in range(n_carriers):
+            if left[r] <= 0:
+                continue
+            clean = True
+            value[r, n_stages, :] = 0.0
+            for t in range(n_stages - 1, stage - 1, -1):
+                if not valid[r, t]:
+                    value[r, t, :] = value[r, t + 1, :]
+                    continue
+                n = nleft[r, t]
+                q = r * n_stages + t
+                top = d_max if d_max < n else n
+                for d in range(1, top + 1):
+                    if d < n:
+                        thr[q, d] = table[n, n - d] if clean else value[r, t + 1, d] - value[r, t + 1, d - 1]
+                clean = clean and alpha[q] == 1.0 and ext[q] == 0.0
+                value[r, t, 0] = 0.0
+                for d in range(1, top + 1):
+                    if clean:
+                        value[r, t, d] = slot_value[n, d]
+                        continue
+                    a = alpha[q]
+                    w1 = value[r, t + 1, d - 1]
+                    if d >= n:
+                        value[r, t, d] = a * mu - ext[q] + w1
+                    else:
+                        w0 = value[r, t + 1, d]
+                        c = w0 - w1 + ext[q]
+                        _, h = _tail(points, tail_mass, tail_first, c)
+                        value[r, t, d] = w0 + a * h + (1.0 - a) * max(-c, 0.0)
+        if rnd == rounds:
+            break
+        # Forward in decision order: availability, deployment probabilities, passengers left.
+        for r in range(n_carriers):
+            dist[r, stage, :] = 0.0
+            dist[r, stage, min(max(left[r], 0), d_max)] = 1.0
+        for t in range(stage, n_stages):
+            for r in range(n_carriers):
+                q = r * n_stages + t
+                dist[r, t + 1, :] = dist[r, t, :]
+                pi[q] = 0.0
+                if not valid[r, t] or left[r] <= 0:
+                    continue
+                a = 1.0
+                for e in range(nbr_ptr[q], nbr_ptr[q + 1]):
+                    k = nbr_idx[e]
+                    if past[k]:
+                        a = 0.0
+                        break
+                    tk = k % n_stages
+                    if tk < t or (tk == t and k // n_stages < r):
+                        a *= 1.0 - pi[k]
+                alpha[q] = a
+                n = nleft[r, t]
+                dist[r, t + 1, :] = 0.0
+                total = 0.0
+                for d in range(d_max + 1):
+                    mass = dist[r, t, d]
+                    if mass == 0.0:
+                        continue
+                    if d == 0:
+                        dist[r, t + 1, 0] += mass
+                        continue
+                    if n <= d:
+                        go = 1.0
+                    else:
+                        bar = cut(thr[q, d])
+                        above, _ = _tail(points, tail_mass, tail_first, bar + ext[q])
+                        go = a * above + ((1.0 - a) if -ext[q] > bar else 0.0)
+                    total += mass * go
+                    dist[r, t + 1, d - 1] += mass * go
+                    dist[r, t + 1, d] += mass * (1.0 - go)
+                pi[q] = total
+        # Externalities: what a deployment at q takes from the open points deciding after it.
+        for r in range(n_carriers):
+            if left[r] <= 0:
+                continue
+            for t in range(stage, n_stages):
+                q = r * n_stages + t
+                new_ext[q] = 0.0
+                if not valid[r, t]:
+                    continue
+                s = 0.0
+                for e in range(nbr_ptr[q], nbr_ptr[q + 1]):
+                    k = nbr_idx[e]
+                    rk = k // n_stages
+                    tk = k % n_stages
+                    if left[rk] <= 0 or not valid[rk, tk] or tk < stage or past[k]:
+                        continue
+                    if not (tk > t or (tk == t and rk > r)):
+                        continue
+                    ak = alpha[k] / max(1.0 - pi[q], 1e-3)
+                    if ak > 1.0:
+                        ak = 1.0
+                    nk = nleft[rk, tk]
+                    worth = 0.0
+                    for d in range(1, d_max + 1):
+                        mass = dist[rk, tk, d]
+                        if mass == 0.0:
+                            continue
+                        if nk <= d:
+                            worth += mass * mu
+                        else:
+                            c = value[rk, tk + 1, d] - value[rk, tk + 1, d - 1] + ext[k]
+                            _, h = _tail(points, tail_mass, tail_first, c)
+                            worth += mass * (h - max(-c, 0.0))
+                    s += ak * worth
+                new_ext[q] = s
+        if rnd == 0:
+            ext[:] = new_ext
+        else:  # damped: two points that share an overlap would otherwise swap roles each round
+            ext[:] = 0.5 * (ext + new_ext)
+    return alpha, pi
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -423,14 +625,17 @@ class ClosedLoopPlanner:
     Args:
         iterations: full-fleet rollouts per decision (default 10,000; ignored with ``plan_ms``).
         plan_ms: time budget per decision, milliseconds (anytime; not bit-reproducible).
+        block: :data:`BLOCK`.
+        rule_rounds: :data:`RULE_ROUNDS` (0: the previous base policy, DLR's thresholds).
     """
 
     name = "closed-loop"
 
     def __init__(self, iterations: int | None = None, plan_ms: float | None = None, block: int = BLOCK,
-                 **_ignored):
+                 rule_rounds: int = RULE_ROUNDS, **_ignored):
         self.iterations, self.plan_ms = check_budget(iterations, plan_ms)
         self.block = int(block)
+        self.rule_rounds = int(rule_rounds)
 
     def warm_up(self, problem: Problem) -> None:
         """Compile the kernels (cached on disk) and prepare the problem's constants."""
@@ -490,12 +695,13 @@ class ClosedLoopPlanner:
         p = prep.penalties(sel)
         xv = np.nan_to_num(np.where(view.deployed, _past_values(view), 0.0), nan=0.0).ravel()
         state = Selection(sel, p, xv)
-        ctx = _Stage(view, prep, state, valid, nleft, left, xnow)
+        rule = base_rule(view, prep, valid, nleft, left, past, self.rule_rounds)
+        ctx = _Stage(view, prep, state, valid, nleft, left, xnow, rule)
 
         plans = []
         for comp in search:
             typed = None if problem.weights is None else _typed_state(view, comp, prep.table)
-            decision[comp] = base_action(comp, view.stage, prep, state, nleft, left, xnow, must, free, typed)
+            decision[comp] = base_action(comp, view.stage, prep, state, nleft, left, xnow, must, free, typed, rule)
             for block, members in _blocks(comp, adjacency, self.block):
                 flip = np.flatnonzero(np.isin(members, block[free[block]]))
                 k = len(flip)
@@ -551,7 +757,7 @@ class ClosedLoopPlanner:
         With ``control_variate`` (the default) the estimate is ``mean(aware - plain) + exact(plain)``;
         without, the plain Monte Carlo mean of the aware rollouts (for tests: same expectation).
         """
-        view, prep, selection, valid, nleft, left, xnow = ctx
+        view, prep, selection, valid, nleft, left, xnow, rule = ctx
         problem = view.problem
         j = view.stage
         n_stages = problem.n_stages
@@ -567,9 +773,10 @@ class ClosedLoopPlanner:
             draws = prep.sampler.sample(rng, (batch, horizon, len(comp)))
             out = np.empty((len(actions), batch))
             if typed is None:
-                _evaluate(cand, j, n_stages, net, selection, draws, out, control_variate)
+                _evaluate(cand, j, n_stages, net, selection, draws, out, control_variate, rule)
             else:
-                _evaluate_weighted(cand, j, n_stages, net, selection, draws, out, control_variate, typed[0], typed[1])
+                _evaluate_weighted(cand, j, n_stages, net, selection, draws, out, control_variate, typed[0], typed[1],
+                                   rule)
             sums += out.sum(axis=1)
             count += batch
             if deadline is None or time.perf_counter() >= deadline:
@@ -586,6 +793,29 @@ class ClosedLoopPlanner:
         return sums / count + exact
 
 
+def _dlr_rule(prep, q: int, n: int) -> Rule:
+    """A :class:`Rule` whose row ``q`` holds DLR's thresholds of ``n`` valid stages left (the
+    previous rule, for :func:`base_action` without a rule)."""
+    thr = np.zeros((q + 1, prep.n_stages + 2))
+    for k in range(1, n):
+        thr[q, k] = prep.table[n, n - k]
+    return Rule(thr, np.zeros(q + 1))
+
+
+def base_rule(view: StageView, prep, valid: np.ndarray, nleft: np.ndarray, left: np.ndarray, past: np.ndarray,
+              rounds: int) -> Rule:
+    """The base policy's :class:`Rule` at ``view.stage`` (:func:`conflict_values` with ``rounds``
+    alternations; 0 gives DLR's thresholds and no externality, the conflict-aware SSAP rule)."""
+    n_stages = view.problem.n_stages
+    d_max = max(int(view.problem.passengers.max()), 1)
+    thr = np.zeros((view.problem.n_carriers * n_stages, d_max + 1))
+    ext = np.zeros(view.problem.n_carriers * n_stages)
+    rule = Rule(thr, ext)
+    conflict_values(view.stage, n_stages, Net(valid, nleft, prep.table, prep.indptr, prep.nbr), left,
+                    np.ascontiguousarray(past, dtype=np.bool_), (prep.slot_value, *prep.tails), int(rounds), rule)
+    return rule
+
+
 def _past_values(view: StageView) -> np.ndarray:
     """Observations at past stages (the values of past deployments), float ``[R, N]``; times the
     released passenger's weight for a problem with passenger values."""
@@ -597,11 +827,12 @@ def _past_values(view: StageView) -> np.ndarray:
 
 
 def base_action(comp: np.ndarray, stage: int, prep, state, nleft: np.ndarray, left: np.ndarray, xnow: np.ndarray,
-                must: np.ndarray, free: np.ndarray, typed=None) -> np.ndarray:
-    """The conflict-aware SSAP action of the carriers ``comp`` at ``stage`` (in index order),
-    given the chosen points ``state = (sel, p, xv)``: bool ``[len(comp)]``. ``typed`` is
-    :func:`_typed_state` of the view for a problem with passenger values (None: the unweighted
-    rule, which dec-closed-loop's partial-information path uses)."""
+                must: np.ndarray, free: np.ndarray, typed=None, rule: Rule | None = None) -> np.ndarray:
+    """The base policy's action of the carriers ``comp`` at ``stage`` (in index order), given the
+    chosen points ``state = (sel, p, xv)``: bool ``[len(comp)]``. ``typed`` is :func:`_typed_state`
+    of the view for a problem with passenger values (None: the unweighted rule). ``rule``: the
+    base policy's :class:`Rule` (None: DLR's thresholds without externalities, the previous
+    conflict-aware SSAP rule, which dec-closed-loop's partial-information path uses)."""
     sel, p, xv = state
     n_stages = prep.n_stages
     j = stage
@@ -620,11 +851,15 @@ def base_action(comp: np.ndarray, stage: int, prep, state, nleft: np.ndarray, le
             n, d = int(nleft[r, j]), int(left[r])
             if typed is None:
                 gain = marginal_gain(q, value, chosen, pp, vv, prep.indptr, prep.nbr)
-                action[i] = ssap.deploys(prep.table, gain, n, d)
+                if rule is None:
+                    action[i] = ssap.deploys(prep.table, gain, n, d)
+                else:
+                    action[i] = n <= d or gain - rule.ext[q] > ssap.cut(rule.thr[q, d])
             else:
                 c, loss = _conflicts(q, chosen, pp, vv, prep.indptr, prep.nbr)
                 y = float(xnow[r]) / (1.0 + c)
-                action[i] = _weighted_choice(prep.table, y, loss, n, d, ws, i) >= 0
+                thr, ext = rule if rule is not None else _dlr_rule(prep, q, n)
+                action[i] = _weighted_choice(thr, q, y, loss + ext[q], n, d, ws, i) >= 0
         if action[i]:
             select_point(q, value, chosen, pp, vv, prep.indptr, prep.nbr, log, 0)
     return action
@@ -684,8 +919,10 @@ def estimate(view: StageView, actions: np.ndarray, samples: int, rng: np.random.
     sel = view.deployed.ravel().copy()
     p = prep.penalties(sel)
     xv = np.where(view.deployed, _past_values(view), 0.0).ravel()
-    ctx = _Stage(view, prep, Selection(sel, p, xv), valid, nleft, left, xnow)
-    return ClosedLoopPlanner()._score(np.asarray(actions, dtype=bool), np.arange(n_carriers, dtype=np.int64),
+    planner = ClosedLoopPlanner()
+    rule = base_rule(view, prep, valid, nleft, left, sel, planner.rule_rounds)
+    ctx = _Stage(view, prep, Selection(sel, p, xv), valid, nleft, left, xnow, rule)
+    return planner._score(np.asarray(actions, dtype=bool), np.arange(n_carriers, dtype=np.int64),
                                       int(samples), None, ctx, rng, control_variate)
 
 

@@ -155,6 +155,19 @@ class CompiledProblem:
         return out
 
     @cached_property
+    def tails(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The sampler's atoms float64 ``[K]`` with their suffix sums ``[K + 1]``: ``tail_mass[i]``
+        = P(X >= points[i]) and ``tail_first[i]`` = E[X; X >= points[i]] (0 at ``i = K``), so
+        P(X > c) and E[(X - c)^+] take one binary search (closed-loop's base policy)."""
+        points = self.sampler.points
+        mass = np.diff(self.sampler.cdf, prepend=0.0)
+        tail_mass = np.append(np.cumsum(mass[::-1])[::-1], 0.0)
+        tail_first = np.append(np.cumsum((mass * points)[::-1])[::-1], 0.0)
+        for arr in (tail_mass, tail_first):
+            arr.setflags(write=False)
+        return points, tail_mass, tail_first
+
+    @cached_property
     def slot_value(self) -> np.ndarray:
         """float64 ``[N + 1, N + 1]``: ``slot_value[n, d]`` the optimal expected raw total of one
         carrier with ``n`` valid stages and ``d`` passengers left (:func:`ssap.expected_value`)."""

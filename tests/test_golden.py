@@ -27,6 +27,10 @@ _TABLE_FIX = ("the table prior has values [0, 2.5, 5]: MCTS rollouts used to sam
 _TIES = ("an observation equal to a threshold in exact arithmetic now stays (the rule's documented 'ties "
          "stay', docs/planner.md): the recorded decision went by the last bits of a threshold computed "
          "a few units in the last place below its exact value")
+_BASE_POLICY = ("closed-loop's rollouts follow a base policy whose thresholds and externalities account for "
+                "the conflicts later points will meet (planner.closedloop.conflict_values, docs/planner.md); "
+                "the recording used DLR's thresholds against the marginal gain (rule_rounds = 0), and "
+                "different rollouts choose differently where candidates are close")
 CHANGED: dict[tuple[str, str], str] = {
     ("prior-table", "mcts-random"): _TABLE_FIX,
     ("prior-table", "mcts-ssap"): _TABLE_FIX,
@@ -39,6 +43,8 @@ CHANGED: dict[tuple[str, str], str] = {
     # the 1e-15 tail gave 2.999999999999946, and carriers with x = 3 at two stages left deployed.
     ("prior-negative_binomial", "ssap"): _TIES + " (3 against 2.999999999999946, the mean of the "
                                           "support truncated at the 1e-15 tail)",
+    **{(case, "closed-loop"): _BASE_POLICY
+       for case in ("paper-1", "paper-2", "prior-binomial", "prior-exponential", "prior-geometric")},
 }
 CHANGED_PATH = HERE / "solve_changed.json"
 GOLDEN_CHANGED = json.loads(CHANGED_PATH.read_text()) if CHANGED_PATH.exists() else {}

@@ -327,7 +327,10 @@ def test_weighted_choice_rule_reduces_to_the_threshold_rule():
         ws = np.zeros((1, 5))
         ws[0, :d] = 1.0
         y, loss = float(rng.uniform(0, 8)), float(rng.uniform(0, 2)) * (rng.random() < 0.5)
-        got = _weighted_choice(table, y, loss, n, d, ws, 0) >= 0
+        thr = np.zeros((1, 5))  # DLR's thresholds, the rule where no conflict lies ahead
+        for k in range(1, min(n, 5)):
+            thr[0, k] = table[n, n - k]
+        got = _weighted_choice(thr, 0, y, loss, n, d, ws, 0) >= 0
         assert got == bool(ssap.deploys(table, y - loss, n, d))
 
 
