@@ -33,12 +33,21 @@ their values added. A memo entry is a state *structure* (the state without the o
 values) holding a numpy tensor over those x values, so the expectation over the deciders' atoms
 and the maximum over joint actions are array operations, not a Python call per state.
 
-Limits: a time budget. :func:`estimate` computes, in O(R·N·D²) and without enumerating any state,
-an upper bound on the tensor elements and state transitions of the solve, converts them to
-seconds with two measured rates (:data:`SECONDS_PER_ELEMENT`, :data:`SECONDS_PER_TRANSITION`)
-and refuses (:class:`TooLarge`, a ValueError, one line) an instance whose estimate is above the
-budget (:data:`MAX_SECONDS` by default, :data:`AUTO_SECONDS` for ``solve``'s automatic field)
-or whose memo would exceed :data:`MAX_STATES` values, before anything large is allocated.
+Limits: a work budget, counted. The solvers count their real work as they go (:class:`_Work`:
+tensor elements and transitions charged before each memo entry is computed, memoised values after
+it is stored) and stop with :class:`TooLarge` (a ValueError, one line) when the work passes the
+limit (:data:`MAX_SECONDS` of modelled CPU time at the counted rates
+:data:`COUNTED_SECONDS_PER_ELEMENT`, :data:`COUNTED_SECONDS_PER_TRANSITION`, fitted to measured
+solves on the development machine) or the memo :data:`MAX_STATES` values. The count is a function
+of the instance and the calls made, never of a clock: the same instance is solved or refused the
+same way on every machine and at every load. Before any work, :func:`admit` refuses in O(R·N·D²)
+what is beyond the limits for certain or as good as certain: :func:`estimate`'s floor (carriers
+that decide at a stage in every reachable state: a lower bound) above the limit, or its upper
+bound on the elements and transitions, at its own pessimistic rates (:data:`SECONDS_PER_ELEMENT`,
+:data:`SECONDS_PER_TRANSITION`), above :data:`ESTIMATE_SLACK` times the limits, more than the
+largest estimate / counted ratio measured. ``python -m coordinator.solve``'s automatic field
+takes only what the estimate puts within :data:`AUTO_SECONDS` (cheap: it never starts a solve it
+may have to abandon).
 
 Pure: numpy and scipy only.
 """
@@ -57,21 +66,35 @@ from planner.problem import Problem, StageView
 TAIL_MASS = 1e-9
 #: Equiprobable atoms standing in for a continuous prior.
 CONTINUOUS_ATOMS = 12
-#: Most memoised values (one float each, tensors over open points' x) an exact solve may store, as
-#: estimated: an upper bound (2 GB at the limit); real solves store far fewer (the bench prints both).
+#: Most memoised values (one float each, tensors over open points' x) an exact solve may store
+#: (2 GB at the limit), counted as they are stored.
 MAX_STATES = 2.5e8
-#: Time budget of an exact solve (``online-optimal``, ``online_value``), seconds on one core of the
-#: development machine: what a plain memoised expectimax solves within this time, the solver takes.
+#: Work budget of an exact solve (``online-optimal``, ``online_value``): modelled CPU seconds of the
+#: work it counts (:class:`_Work`), fitted to one core of the development machine; what a plain
+#: memoised expectimax solves within a minute, the solver takes (``python -m
+#: tools.online_optimal_bench --admission K`` checks it).
 MAX_SECONDS = 60.0
-#: Time budget under which ``python -m coordinator.solve`` adds the online optimum by itself.
+#: Estimated seconds (:func:`estimate`) under which ``python -m coordinator.solve`` adds the online
+#: optimum by itself.
 AUTO_SECONDS = 10.0
-#: Measured cost of one tensor element of one joint action (add, add, maximum, expectation) and of
-#: one state transition (Python bookkeeping and numpy call overhead), seconds: see
-#: ``python -m tools.online_optimal_bench`` (estimated against measured times).
+#: The estimate's cost of one tensor element of one joint action (add, add, maximum, expectation)
+#: and of one state transition (Python bookkeeping and numpy call overhead), seconds: pessimistic
+#: (``python -m tools.online_optimal_bench --estimates 40``: measured 0.04 to 0.6 of the estimate).
 SECONDS_PER_ELEMENT = 4e-8
 SECONDS_PER_TRANSITION = 1e-4
 #: Fixed cost of a solve (the prior's atoms, the compiled component, the first tables), seconds.
 SECONDS_FIXED = 5e-3
+#: The same two costs for the work a solve counts as it goes (:class:`_Work`): fitted to the
+#: measured CPU time of real solves (``python -m tools.online_optimal_bench --estimates 40``
+#: prints measured / counted: 0.42 to 1.81, median 0.84, on 33 instances), so that the counted
+#: limit is the time limit on this machine. The estimate's rates above are pessimistic (measured
+#: 0.04 to 0.58 of its seconds).
+COUNTED_SECONDS_PER_ELEMENT = 4e-9
+COUNTED_SECONDS_PER_TRANSITION = 3e-5
+#: The early refusal (:func:`admit`) refuses an instance whose estimate is above this many times
+#: the limits without solving it: more than the largest estimate / counted seconds measured (17.3
+#: on the same 33 instances; the floor's refusal at this slack is a proof, see :func:`admit`).
+ESTIMATE_SLACK = 50.0
 #: Largest tensor (elements) a state's solve builds at once; beyond, it is solved one atom of its
 #: first open point at a time.
 CHUNK = 1 << 21
@@ -277,7 +300,7 @@ def _carrier_stage_sums(d: int, a: int, b: int, k: int, decides: bool, forced_at
 
 
 def estimate(problem: Problem, atoms: Atoms | None = None, max_seconds: float = MAX_SECONDS,
-             max_states: float = MAX_STATES) -> SizeEstimate:
+             max_states: float = MAX_STATES, slack: float = 1.0) -> SizeEstimate:
     """Estimate the exact solve's states, work and time, and refuse it when too large.
 
     O(R·N·D²) after the conflict components (O(R·N + overlap members)): per component and stage
@@ -289,7 +312,8 @@ def estimate(problem: Problem, atoms: Atoms | None = None, max_seconds: float = 
     large fleet is refused by that bound alone.
 
     Raises:
-        TooLarge: the estimated time is above ``max_seconds`` or the states above ``max_states``.
+        TooLarge: the floor or the estimated time is above ``slack * max_seconds``, or the states
+            above ``slack * max_states``.
     """
     if problem.weights is not None:
         raise TooLarge("online-optimal: expected an instance without passenger values (the exact recursion "
@@ -311,7 +335,7 @@ def estimate(problem: Problem, atoms: Atoms | None = None, max_seconds: float = 
     holding = valid & (passengers[:, None] > before)  # decides at j in every reachable state
     for carriers in components:
         for j, m in enumerate(holding[carriers].sum(axis=0).tolist()):
-            if m * math.log(max(k, 2)) > math.log(max_work):
+            if m * math.log(max(k, 2)) > math.log(slack * max_work):
                 raise refuse(f"more than {max_seconds:g} s: {m} carriers decide at stage {j}")
     horizon = _horizon(problem)
     stages_left = valid[:, ::-1].cumsum(axis=1)[:, ::-1]
@@ -329,13 +353,81 @@ def estimate(problem: Problem, atoms: Atoms | None = None, max_seconds: float = 
             states += stage[1]
             work += stage[2]
             transitions += stage[3]
-        seconds = SECONDS_FIXED + work * SECONDS_PER_ELEMENT + transitions * SECONDS_PER_TRANSITION
-        if seconds > max_seconds:
-            raise refuse(f"about {seconds:.3g} s")
-        if states > max_states:
-            raise refuse(f"about {states:.3g} states")
-    seconds = SECONDS_FIXED + work * SECONDS_PER_ELEMENT + transitions * SECONDS_PER_TRANSITION
-    return SizeEstimate(k, states, work, seconds, len(components))
+        seconds = _seconds(work, transitions)
+        beyond = f", beyond {slack:g} x the limit" if slack != 1.0 else ""
+        if seconds > slack * max_seconds:
+            raise refuse(f"about {seconds:.3g} s estimated{beyond}")
+        if states > slack * max_states:
+            raise refuse(f"about {states:.3g} states estimated{beyond}")
+    return SizeEstimate(k, states, work, _seconds(work, transitions), len(components))
+
+
+def admit(problem: Problem, atoms: Atoms | None = None, max_seconds: float = MAX_SECONDS,
+          max_states: float = MAX_STATES) -> SizeEstimate:
+    """The early refusal of an exact solve, O(R·N·D²): :class:`TooLarge` when the instance is
+    beyond the limits for certain or as good as certain: :func:`estimate`'s floor (a lower bound
+    on the elements) or its estimate (an upper bound) above :data:`ESTIMATE_SLACK` times the
+    limits. At the counted rate the floor is then above ``ESTIMATE_SLACK * COUNTED_SECONDS_PER_ELEMENT
+    / SECONDS_PER_ELEMENT`` (5) times ``max_seconds``: a proof; the estimate's slack is more than
+    the largest estimate / counted ratio measured. Every other instance is solved, and refused
+    only if its counted work passes the limits."""
+    return estimate(problem, atoms, max_seconds, max_states, ESTIMATE_SLACK)
+
+
+# ----------------------------------------------------------------------------- counted work
+
+def _seconds(elements: float, transitions: float, per_element: float = SECONDS_PER_ELEMENT,
+             per_transition: float = SECONDS_PER_TRANSITION) -> float:
+    """Modelled seconds of a solve that computes ``elements`` tensor elements over ``transitions``
+    state transitions (structure x joint action): the estimate's rates by default, the counted
+    work's (:data:`COUNTED_SECONDS_PER_ELEMENT`, :data:`COUNTED_SECONDS_PER_TRANSITION`) for
+    :class:`_Work`."""
+    return SECONDS_FIXED + elements * per_element + transitions * per_transition
+
+
+class _Work:
+    """The work of one problem's solvers, counted as they compute (one shared counter for its
+    conflict components): tensor elements and transitions charged before each memo entry is
+    computed, memoised values after. A function of the instance and the calls made, never of the
+    clock, so a refusal is the same on every machine and at every load.
+
+    ``allow(seconds, states)`` opens a call's allowance: at most ``seconds`` more modelled seconds
+    of work (:attr:`seconds`) and at most ``states`` memoised values in all; :meth:`charge`
+    and :meth:`store` raise :class:`TooLarge` beyond them.
+    """
+
+    def __init__(self, what: str):
+        self.what = what  # the instance, for the refusal's line
+        self.elements = 0
+        self.transitions = 0
+        self.states = 0
+        self._limit = math.inf
+        self._budget = math.inf
+        self._max_states = math.inf
+
+    @property
+    def seconds(self) -> float:
+        """Modelled CPU seconds of the work so far: the counted rates, fitted to the measured time."""
+        return _seconds(self.elements, self.transitions, COUNTED_SECONDS_PER_ELEMENT, COUNTED_SECONDS_PER_TRANSITION)
+
+    def allow(self, seconds: float, states: float) -> None:
+        self._budget = seconds
+        # The first call's allowance includes the fixed cost (counted from zero work).
+        self._limit = (self.seconds if self.elements or self.transitions else 0.0) + seconds
+        self._max_states = states
+
+    def charge(self, elements: int, transitions: int) -> None:
+        self.elements += elements
+        self.transitions += transitions
+        if self.seconds > self._limit:
+            raise TooLarge(f"online-optimal: instance too large for the exact solver (stopped after "
+                           f"{self._budget:g} s of counted work, the limit; {self.what})")
+
+    def store(self, size: int) -> None:
+        self.states += size
+        if self.states > self._max_states:
+            raise TooLarge(f"online-optimal: instance too large for the exact solver (stopped at "
+                           f"{self._max_states:.2g} memoised values, the limit; {self.what})")
 
 
 def _transition(comp: _Compiled, j: int, left: tuple, opened, deploying: list[int]):
@@ -374,10 +466,11 @@ class _Solver:
     divide by ``problem.scale``.
     """
 
-    def __init__(self, problem: Problem, comp: _Compiled, policy: str, atoms: Atoms):
+    def __init__(self, problem: Problem, comp: _Compiled, policy: str, atoms: Atoms, work: "_Work"):
         self.policy = policy
         self.atoms = atoms
         self.comp = comp
+        self.work = work
         self.table = ssap.table_for(problem) if policy == "ssap" else None
         self.memo: dict = {}
         self._atom_index = {float(x): i for i, x in enumerate(atoms.points)}
@@ -408,6 +501,7 @@ class _Solver:
                                      for x in self.atoms.points], axis=0)
         else:
             result = self._compute(j, left, opened)
+        self.work.store(result.size)
         self.memo[key] = result
         return result
 
@@ -415,6 +509,7 @@ class _Solver:
         """:meth:`value` without the memo."""
         comp = self.comp
         if j == comp.n_stages:
+            self.work.charge(math.prod(len(self.grid(g)) for *_, g in opened), 1)
             result = np.zeros((1,) * len(opened))
             for axis, (_, c, g) in enumerate(opened):
                 result = result + _along(self.grid(g) / (1 + c), axis, len(opened))
@@ -422,6 +517,8 @@ class _Solver:
             can = [r for r in range(comp.n_carriers) if comp.valid[r][j] and left[r] > 0]
             must = [comp.stages_left[r][j] <= left[r] for r in can]
             shape = tuple(len(self.grid(g)) for *_, g in opened) + (len(self.atoms.points),) * len(can)
+            actions = 1 << sum(not f for f in must)
+            self.work.charge(math.prod(shape) * actions, actions)
             best = None
             for action, v in self.action_values(j, left, opened, can, must, [None] * len(can)):
                 if self.policy != "optimal":
@@ -507,30 +604,53 @@ class OnlineValue:
             is continuous and the value is that of its :data:`CONTINUOUS_ATOMS`-point stand-in.
         atoms: K, points per observation.
         states: memoised values the solve stored (tensor elements over every component).
+        counted_seconds: the work its solvers counted so far (:class:`_Work`), in modelled CPU
+            seconds of the development machine.
     """
 
     expected_reward: float
     exact: bool
     atoms: int
     states: int
+    counted_seconds: float = 0.0
 
 
-#: Solvers per problem (identity) and policy: one per conflict component; entries go with their
-#: problem.
+#: Solvers per problem (identity) and policy: one per conflict component, and their shared
+#: :class:`_Work`; entries go with their problem.
 _SOLVERS: "weakref.WeakKeyDictionary[Problem, dict]" = weakref.WeakKeyDictionary()
 
 
-def _solvers(problem: Problem, policy: str, max_seconds: float, max_states: float) -> list[_Solver]:
+def _solvers(problem: Problem, policy: str) -> tuple[list[_Solver], _Work]:
+    """The solvers of ``(problem, policy)`` and their shared work counter, built on first use."""
+    per_problem = _SOLVERS.setdefault(problem, {})
+    entry = per_problem.get(policy)
+    if entry is None:
+        atoms = discretise(problem.prior)
+        n_carriers, n_stages = problem.valid.shape
+        work = _Work(f"R={n_carriers}, N={n_stages}, {len(atoms.points)} points per observation")
+        entry = ([_Solver(problem, _compile(problem, carriers), policy, atoms, work)
+                  for carriers in _components(problem)], work)
+        per_problem[policy] = entry
+    return entry
+
+
+def _solving(problem: Problem, policy: str, max_seconds: float, max_states: float, fn):
+    """``fn(solvers)`` under a fresh allowance of ``max_seconds`` counted seconds and at most
+    ``max_states`` memoised values; a refusal drops the partial memo (the next call starts over
+    and is refused the same way)."""
     if policy not in POLICIES:
         raise ValueError(f"policy must be one of {', '.join(POLICIES)}, got {policy!r}")
-    per_problem = _SOLVERS.setdefault(problem, {})
-    solvers = per_problem.get(policy)
-    if solvers is None:
-        atoms = discretise(problem.prior)
-        estimate(problem, atoms, max_seconds, max_states)  # raises TooLarge
-        solvers = [_Solver(problem, _compile(problem, carriers), policy, atoms) for carriers in _components(problem)]
-        per_problem[policy] = solvers
-    return solvers
+    if policy not in _SOLVERS.get(problem, {}):
+        admit(problem, None, max_seconds, max_states)  # raises TooLarge far beyond the limits
+    solvers, work = _solvers(problem, policy)
+    work.allow(max_seconds, max_states)
+    try:
+        return fn(solvers)
+    except TooLarge:
+        _SOLVERS[problem].pop(policy, None)
+        raise
+    finally:
+        work.allow(math.inf, math.inf)
 
 
 def online_value(problem: Problem, policy: str = "optimal", max_seconds: float = MAX_SECONDS,
@@ -539,13 +659,16 @@ def online_value(problem: Problem, policy: str = "optimal", max_seconds: float =
     under its schedule (no online surprises): the sum over conflict components.
 
     Raises:
-        TooLarge: beyond the limits (checked before solving).
+        TooLarge: beyond the limits: at once by :func:`admit`, or when the counted work passes
+            ``max_seconds`` or the memo ``max_states`` values (see :class:`_Work`).
     """
-    solvers = _solvers(problem, policy, max_seconds, max_states)
-    raw = math.fsum(float(s.value(0, s.comp.passengers, ())) for s in solvers)
+    def solve(solvers):
+        return math.fsum(float(s.value(0, s.comp.passengers, ())) for s in solvers)
+
+    raw = _solving(problem, policy, max_seconds, max_states, solve)
+    solvers, work = _solvers(problem, policy)
     atoms = discretise(problem.prior) if not solvers else solvers[0].atoms
-    states = sum(v.size for s in solvers for v in s.memo.values())
-    return OnlineValue(raw / problem.scale, atoms.exact, len(atoms.points), states)
+    return OnlineValue(raw / problem.scale, atoms.exact, len(atoms.points), work.states, work.seconds)
 
 
 class OnlineOptimalPlanner:
@@ -575,10 +698,12 @@ class OnlineOptimalPlanner:
 
     def decide(self, view: StageView, rng: np.random.Generator) -> np.ndarray:
         problem = view.problem
+
+        def decide(solvers):
+            return [r for solver in solvers for r in _component_decision(solver, view)]
+
         out = np.zeros(problem.n_carriers, dtype=bool)
-        for solver in _solvers(problem, "optimal", self.max_seconds, self.max_states):
-            for r in _component_decision(solver, view):
-                out[r] = True
+        out[np.array(_solving(problem, "optimal", self.max_seconds, self.max_states, decide), dtype=np.int64)] = True
         return out
 
 

@@ -98,10 +98,13 @@ def _upper_bound(problem, seed: int) -> dict | None:
 
 def _online_optimum(problem, planner_name: str) -> dict | None:
     """V* (and the planner's own exact value when the recursion can weigh its actions), or None
-    when the instance is beyond :data:`planner.online_optimal.AUTO_SECONDS`."""
+    when the instance is beyond :data:`planner.online_optimal.AUTO_SECONDS` by its O(R·N·D²)
+    estimate (cheap: a solve the estimate admits is never abandoned, its counted work being far
+    below the estimate's seconds)."""
     from planner import online_optimal
 
     try:
+        online_optimal.estimate(problem, max_seconds=online_optimal.AUTO_SECONDS)
         best = online_optimal.online_value(problem, "optimal", max_seconds=online_optimal.AUTO_SECONDS)
     except online_optimal.TooLarge:
         return None

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import math
 import subprocess
 import sys
 import time
@@ -266,6 +267,80 @@ def test_a_large_fleet_is_refused_before_its_joint_actions_are_enumerated():
     with pytest.raises(TooLarge) as err:
         estimate(sparse)
     assert time.perf_counter() - start < 2.0 and "\n" not in str(err.value)
+
+
+# ----------------------------------------------------------------------------- admission
+
+def _three_carriers() -> Problem:
+    """R = 3, N = 5, D = 2, three groups, Poisson(3): estimate 0.54 s, counted work 0.066 s."""
+    return random_instance(np.random.default_rng(2), carriers=3, passengers=2, stages=5, overlaps=3).problem
+
+
+#: (case, instance, max_seconds, max_states, outcome: "solved" or the refusal's words). The
+#: admission: refused at once when the estimate's floor or the estimate is beyond ESTIMATE_SLACK
+#: times the limit, else solved while the counted work and the memo stay within the limits.
+ADMISSION = [
+    ("within the estimate", _three_carriers, 1.0, online_optimal.MAX_STATES, "solved"),
+    ("estimate above the limit, counted work within", _three_carriers, 0.1, online_optimal.MAX_STATES, "solved"),
+    ("counted work above the limit", _three_carriers, 0.03, online_optimal.MAX_STATES,
+     "stopped after 0.03 s of counted work"),
+    ("estimate beyond the slack", _three_carriers, 0.005, online_optimal.MAX_STATES, "beyond 50 x the limit"),
+    ("memo above the limit", _three_carriers, 1.0, 1000, "stopped at 1e+03 memoised values"),
+    ("memo estimate beyond the slack", _three_carriers, 1.0, 50, "states estimated, beyond 50 x the limit"),
+    ("32 linked carriers: the floor", lambda: _chained(32), online_optimal.MAX_SECONDS, online_optimal.MAX_STATES,
+     "32 carriers decide at stage 0"),
+    ("the paper's size", lambda: random_instance(np.random.default_rng(0)).problem, online_optimal.MAX_SECONDS,
+     online_optimal.MAX_STATES, "estimated, beyond 50 x the limit"),
+]
+
+
+@pytest.mark.parametrize("case, build, max_seconds, max_states, outcome", ADMISSION, ids=[row[0] for row in ADMISSION])
+def test_admission(case, build, max_seconds, max_states, outcome):
+    problem = build()
+    if outcome == "solved":
+        value = online_value(problem, max_seconds=max_seconds, max_states=max_states)
+        assert value.counted_seconds <= max_seconds and value.states <= max_states
+        assert value.expected_reward == pytest.approx(online_value(_three_carriers()).expected_reward, rel=1e-12)
+        return
+    with pytest.raises(TooLarge) as err:
+        online_value(problem, max_seconds=max_seconds, max_states=max_states)
+    message = str(err.value)
+    assert outcome in message and "\n" not in message and "too large" in message
+    early = "stopped" not in outcome
+    # An early refusal builds nothing; a stopped solve drops its partial memo.
+    assert "optimal" not in online_optimal._SOLVERS.get(problem, {})
+    if early:
+        with pytest.raises(TooLarge):
+            online_optimal.admit(problem, None, max_seconds, max_states)
+    else:
+        online_optimal.admit(problem, None, max_seconds, max_states)  # admitted: the count refused it
+
+
+def test_the_counted_limit_is_exact_and_the_count_deterministic():
+    """The work is counted, not timed: two copies of an instance count the same work, a limit equal
+    to it solves, one a hair below refuses, the same way each time."""
+    counted = online_value(_three_carriers(), max_seconds=math.inf).counted_seconds
+    assert online_value(_three_carriers(), max_seconds=math.inf).counted_seconds == counted
+    assert online_value(_three_carriers(), max_seconds=counted).counted_seconds == counted
+    problem = _three_carriers()
+    messages = set()
+    for _ in range(2):
+        with pytest.raises(TooLarge) as err:
+            online_value(problem, max_seconds=counted * (1 - 1e-9))
+        messages.add(str(err.value))
+    assert len(messages) == 1 and "counted work" in messages.pop()
+
+
+def test_the_early_refusal_is_a_proof_for_the_floor_and_looser_than_measured_for_the_estimate():
+    """The floor (a lower bound on elements) refuses at ESTIMATE_SLACK x the limit at the estimate's
+    rate, which is above the limit at the counted rate; the estimate of small instances stays within
+    ESTIMATE_SLACK of their counted work (the bench measures it on larger ones)."""
+    assert online_optimal.ESTIMATE_SLACK * online_optimal.COUNTED_SECONDS_PER_ELEMENT >= online_optimal.SECONDS_PER_ELEMENT
+    for carriers, seed in [(2, 0), (2, 1), (3, 0), (3, 2), (3, 3)]:
+        problem = random_instance(np.random.default_rng(seed), carriers=carriers, passengers=2, stages=5,
+                                  overlaps=3).problem
+        counted = online_value(problem, max_seconds=math.inf).counted_seconds
+        assert estimate(problem, max_seconds=math.inf).seconds <= online_optimal.ESTIMATE_SLACK * counted
 
 
 def test_conflict_components_add_up():
