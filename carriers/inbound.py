@@ -10,7 +10,6 @@ from __future__ import annotations
 import time
 
 from mission import carrier as mc
-from mission.peers import listened
 from wire import keys
 from wire.messages import Accepted, Confirm, Decision, End, Observation, Own, Progress, ProtocolError, Refusal, decode
 
@@ -27,9 +26,8 @@ class Inbound:
         instance is built (``wait``: build it now)."""
         if self.listening is not None or self.config.mode == "coordinated" or not (wait or self.onboard.ready()):
             return
-        problem, _ = self.onboard.get()
         ids = self.scenario.carrier_ids
-        self.listening = tuple(ids[b] for b in listened(problem, self.r))
+        self.listening = tuple(ids[b] for b in self.onboard.listened(self.r))
         for cid in self.listening:
             for topic in PEER_TOPICS:  # read when the carrier next looks: no wake-up per message
                 self.node.subscribe(keys.carrier_key(self.mission, cid, topic), wake=False)

@@ -7,6 +7,7 @@ import threading
 from dataclasses import replace
 
 import world
+from mission.peers import conflict_adjacency, listened
 from planner.settings import ONBOARD_PLANNER
 
 
@@ -38,6 +39,7 @@ class Onboard:
         self._lock = threading.Lock()
         self._built = None
         self._preparing = None
+        self._adjacency = None
 
     def prepare(self) -> None:
         """Build in a background thread (once)."""
@@ -61,6 +63,15 @@ class Onboard:
                 planner.warm_up(problem)
                 self._built = (problem, planner)
             return self._built
+
+    def listened(self, r: int) -> list[int]:
+        """The carriers carrier ``r`` listens to (:func:`mission.peers.listened`), over the
+        conflict graph of the instance, built once for the process's carriers."""
+        problem, _ = self.get()
+        with self._lock:
+            if self._adjacency is None:
+                self._adjacency = conflict_adjacency(problem)
+        return listened(problem, r, adjacency=self._adjacency)
 
 
 def with_onboard_load(configs) -> list:

@@ -32,17 +32,28 @@ UNKNOWN, FROM_DECISION, FROM_CARRIER = 0, 1, 2
 COMPONENT_MAX = 64
 
 
-def listened(problem, r: int, component_max: int = COMPONENT_MAX) -> list[int]:
-    """The carriers (indices, r excluded) carrier r listens to: those its deployments can conflict
-    with, directly or through others (its component of the conflict graph) when there are at most
-    ``component_max``, else its direct neighbours. With its whole component heard, a carrier
-    deciding alone knows everything its decision depends on."""
-    R = problem.n_carriers
-    adjacency = [set() for _ in range(R)]
+def conflict_adjacency(problem) -> list[frozenset]:
+    """Per carrier index, the carriers it shares an overlap group with (itself included): the
+    conflict graph that :func:`listened` walks. O(sum of the groups' sizes squared); a process
+    that runs many carriers computes it once for all of them (:class:`carriers.onboard.Onboard`):
+    at 1,024 carriers, each computing it for itself cost the fleet O(R²) at every join."""
+    adjacency = [set() for _ in range(problem.n_carriers)]
     for group in problem.overlaps:
         members = set(int(c) for c in np.asarray(group)[:, 0])
         for c in members:
             adjacency[c] |= members
+    return [frozenset(a) for a in adjacency]
+
+
+def listened(problem, r: int, component_max: int = COMPONENT_MAX, adjacency=None) -> list[int]:
+    """The carriers (indices, r excluded) carrier r listens to: those its deployments can conflict
+    with, directly or through others (its component of the conflict graph) when there are at most
+    ``component_max``, else its direct neighbours. With its whole component heard, a carrier
+    deciding alone knows everything its decision depends on. ``adjacency``: the problem's
+    :func:`conflict_adjacency` when the caller has it (computed here otherwise); the walk itself
+    stops after ``component_max`` carriers, so it costs O(component_max) given the adjacency."""
+    if adjacency is None:
+        adjacency = conflict_adjacency(problem)
     component, frontier = {r}, [r]
     while frontier and len(component) <= component_max:
         b = frontier.pop()

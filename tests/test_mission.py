@@ -537,3 +537,26 @@ def test_after_end_a_carrier_gone_without_its_bye_is_still_owed_one():
     assert state.all_said_bye() and state.bye_missing()
     state, _ = ms.step(state, ev.Bye("b", (), (), "end", 3.2))
     assert state.all_said_bye() and not state.bye_missing()
+
+
+# ----------------------------------------------------------------------------- whom a carrier listens to
+# A chain 0-1-2-3 of overlap groups and a separate pair 4-5; (component_max, carrier) -> listened.
+LISTENED_CASES = [
+    (64, 0, [1, 2, 3]),       # its whole component
+    (64, 4, [5]),
+    (2, 0, [1]),              # the component (4) is larger than 2: its direct neighbours only
+    (2, 1, [0, 2]),
+    (2, 4, [5]),              # a component of 2 is heard whole
+]
+
+
+@pytest.mark.parametrize("component_max,r,expected", LISTENED_CASES)
+def test_listened_is_the_component_or_the_neighbours(component_max, r, expected):
+    from mission.peers import conflict_adjacency, listened
+    from planner.problem import Problem
+
+    problem = Problem.build(2, [[True] * 3] * 6,
+                            [[[0, 0], [1, 0]], [[1, 1], [2, 1]], [[2, 2], [3, 2]], [[4, 0], [5, 1]]])
+    assert listened(problem, r, component_max) == expected
+    # the process's shared conflict graph gives the same answer as the carrier's own
+    assert listened(problem, r, component_max, adjacency=conflict_adjacency(problem)) == expected
