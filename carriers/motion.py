@@ -46,16 +46,31 @@ class Motion:
     def _position(self) -> tuple[float, float]:
         return tuple(map(float, self.sim.position(self.cid)))
 
+    def _physics_until(self, t: float, each_chunk=None) -> None:
+        """Physics to mission time ``t`` (s) at fixed steps, unpaced, a chunk at a time so that a
+        stop request is seen soon (``each_chunk()`` after each)."""
+        while True:  # at least once: a body may have to look at the time (a robot's odometry)
+            self.sim.advance_to(min(t, self.sim.time + PROGRESS_CHUNK_S))
+            if each_chunk is not None:
+                each_chunk()
+            if self.sim.time >= t - 1e-9 or self._stop.is_set():
+                return
+
     def _advance(self, t: float, paced: bool = True) -> None:
         """Physics to mission time ``t`` (s) at fixed steps, paced when realtime > 0 (and
         ``paced``); on the sim clock a Progress message at least every ``progress_s`` of wall
-        time on the way."""
+        time on the way. Unpaced, in the process's physics thread when it has one
+        (:class:`carriers.shared.PhysicsThread`) while this thread sends the Progress."""
         if self.config.realtime <= 0 or not paced:
-            while True:  # at least once: a body may have to look at the time (a robot's odometry)
-                self.sim.advance_to(min(t, self.sim.time + PROGRESS_CHUNK_S))
+            if self.physics is None:
+                self._physics_until(t, self._progress)
+                return
+            job = self.physics.submit(self._physics_until, t)
+            while not job.wait(DEFAULTS.progress_s):
                 self._progress()
-                if self.sim.time >= t - 1e-9 or self._stop.is_set():
-                    return
+            self._progress()
+            job.result()
+            return
         wall0, t0 = time.monotonic(), self.sim.time
         while self.sim.time < t - 1e-9 and not self._stop.is_set():
             target = min(t, self.sim.time + PACE_CHUNK_S)

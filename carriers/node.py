@@ -46,7 +46,7 @@ from carriers.joining import Joining
 from carriers import ONBOARD_LOADS
 from carriers.motion import Motion, Track
 from carriers.onboard import Onboard
-from carriers.shared import GATE_HOLD_S, SharedWorld, StageGate
+from carriers.shared import GATE_HOLD_S, PhysicsThread, SharedWorld, StageGate
 from storage.carrierlog import CarrierLog, LogMismatch, log_path
 from mission import carrier as mc
 from mission.peers import PeerBook, Presence
@@ -134,7 +134,7 @@ class Carrier(Motion, Inbound, Joining, Alone):
 
     def __init__(self, scenario, config: CarrierConfig, zconf, stop: threading.Event | None = None,
                  shared: SharedWorld | None = None, onboard: Onboard | None = None, gate: StageGate | None = None,
-                 broadcasts: SharedDecoder | None = None, session=None):
+                 broadcasts: SharedDecoder | None = None, session=None, physics: PhysicsThread | None = None):
         if config.seed is not None and shared is None:
             scenario = scenario.with_seed(int(config.seed))
         self.scenario = scenario
@@ -142,6 +142,7 @@ class Carrier(Motion, Inbound, Joining, Alone):
         self.config = config
         self.zconf = zconf
         self.session = session  # the process's wire.transport.SharedSession, or None: a session of its own
+        self.physics = physics  # the process's PhysicsThread, or None: physics in the carrier's thread
         self.cid = keys.check_id(config.carrier, "carrier")
         self.r = scenario.carrier_index(self.cid)  # KeyError for an unknown id (checked by the CLI)
         self.mission = keys.check_id(config.mission or keys.mission_id_from_name(scenario.name), "mission")

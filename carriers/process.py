@@ -3,11 +3,12 @@ after a check that none of them is live elsewhere (docs/fleet.md, "Many carriers
 "Split brain")."""
 from __future__ import annotations
 
+import sys
 import threading
 
 from carriers.node import Carrier
 from carriers.onboard import Onboard, with_onboard_load
-from carriers.shared import StageGate, shared_world
+from carriers.shared import SWITCH_INTERVAL_S, PhysicsThread, StageGate, shared_world
 from mission.timeouts import DEFAULTS
 from wire import keys
 from wire.messages import SharedDecoder
@@ -88,8 +89,13 @@ def run_carriers(scenario, configs, zconf, stop: threading.Event | None = None) 
         from wire.transport import SharedSession
 
         session = SharedSession(zconf() if callable(zconf) else zconf)
+    if len(configs) > 1:
+        sys.setswitchinterval(SWITCH_INTERVAL_S)
+    # The simulated bodies' physics (a robot's body waits for its odometry: it keeps its own thread).
+    physics = PhysicsThread() if any(c.ros2 is None for c in configs) else None
     carriers = [Carrier(scenario, c, zconf() if callable(zconf) else zconf, stop=stop, shared=shared, onboard=onboard,
-                        gate=gate, broadcasts=broadcasts, session=session) for c in configs]
+                        gate=gate, broadcasts=broadcasts, session=session,
+                        physics=physics if c.ros2 is None else None) for c in configs]
     reasons: dict = {}
 
     def body(carrier):

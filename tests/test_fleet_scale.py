@@ -199,6 +199,36 @@ def test_stage_gate_holds_until_every_waiting_carrier_of_the_process_answered():
     assert gate.hold(4, 0.0)
 
 
+def test_the_physics_thread_runs_calls_in_order_at_a_lower_priority_and_hands_back_errors():
+    import os
+    import sys
+    import threading
+
+    from carriers.shared import PHYSICS_NICE, PhysicsThread
+
+    physics = PhysicsThread()
+    seen = []
+
+    def call(k):
+        seen.append((k, threading.current_thread().name))
+        return k * k
+
+    jobs = [physics.submit(call, k) for k in range(5)]
+    assert all(job.wait(10.0) for job in jobs)
+    assert [job.result() for job in jobs] == [0, 1, 4, 9, 16]
+    assert seen == [(k, "physics") for k in range(5)]  # one thread, in the order submitted
+    failing = physics.submit(lambda: 1 / 0)
+    assert failing.wait(10.0)
+    with pytest.raises(ZeroDivisionError):
+        failing.result()
+    assert physics.submit(call, 7).wait(10.0)  # the thread survives a call that raised
+    if sys.platform.startswith("linux"):
+        tid = physics.submit(threading.get_native_id)
+        tid.wait(10.0)
+        base = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
+        assert os.getpriority(os.PRIO_PROCESS, tid.result()) == min(19, base + PHYSICS_NICE)
+
+
 def test_the_on_board_planner_loads_at_the_start_alone_and_when_needed_with_several(tiny):
     from carriers.node import Carrier, CarrierConfig
     from carriers.onboard import with_onboard_load
