@@ -102,7 +102,6 @@ def run_carriers(scenario, configs, zconf, stop: threading.Event | None = None) 
         try:
             reasons[carrier.cid] = carrier.run()
         except Exception:  # one carrier's bug must not take its neighbours down
-            import sys
             import traceback
 
             print(f"carrier {carrier.cid}: crashed\n{traceback.format_exc()}", file=sys.stderr, flush=True)
@@ -119,4 +118,6 @@ def run_carriers(scenario, configs, zconf, stop: threading.Event | None = None) 
                 woken = True
                 for c in carriers:
                     c.stop()
+    if physics is not None:
+        physics.close()
     return {c.cid: reasons.get(c.cid, "crashed") for c in carriers}

@@ -134,6 +134,10 @@ class PhysicsThread:
         self._jobs.put(job)
         return job
 
+    def close(self) -> None:
+        """End the thread once the calls submitted so far have run."""
+        self._jobs.put(None)
+
     def _loop(self) -> None:
         try:
             tid = threading.get_native_id()
@@ -142,6 +146,8 @@ class PhysicsThread:
             pass
         while True:
             job = self._jobs.get()
+            if job is None:
+                return
             try:
                 job.value = job.fn(*job.args)
             except BaseException as exc:  # handed to the caller

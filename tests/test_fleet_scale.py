@@ -227,6 +227,9 @@ def test_the_physics_thread_runs_calls_in_order_at_a_lower_priority_and_hands_ba
         tid.wait(10.0)
         base = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
         assert os.getpriority(os.PRIO_PROCESS, tid.result()) == min(19, base + PHYSICS_NICE)
+    physics.close()
+    physics._thread.join(10.0)
+    assert not physics._thread.is_alive()
 
 
 def test_the_on_board_planner_loads_at_the_start_alone_and_when_needed_with_several(tiny):
