@@ -175,9 +175,58 @@ class _Stage(NamedTuple):
     rule: Rule
 
 
-# The rollout after the current stage (the loop over t below) is written out here and in
-# planner.decentralised._evaluate_imputed rather than shared: as a separate numba function, even
-# inlined, it cost closed-loop 6-10% of its decision time.
+class Walk(NamedTuple):
+    """Scratch of one sampled rollout over a component's ``m`` members: passengers left int64
+    ``[m]`` under the conflict-aware rule and under plain SSAP (the control variate), and the
+    selection's undo log int64 (:func:`select_point`)."""
+
+    left: np.ndarray
+    lefti: np.ndarray
+    log: np.ndarray
+
+
+# The one rollout loop of _evaluate (closed-loop) and planner.decentralised._evaluate_imputed
+# (dec-closed-loop, with the rule of 0 rounds: DLR's thresholds, no externality);
+# _evaluate_weighted's loop is another rule (passenger ranks). Sharing it costs nothing
+# measurable: `python -m tools.rollout_bench --reps 7` (20,000 iterations, R = 12 and 32, both
+# versions compiled in one run) gives shared / fused decision time, median per round: see
+# docs/planner.md, *closed-loop*.
+@njit(cache=True, inline="always")
+def rollout_future(s, stage, n_stages, members, net, selection, rule, samples, walk, nlog, total):
+    """The rollout of sample ``s`` after ``stage``: every member follows the base policy's
+    :class:`Rule` on its sampled observations ``samples[s, t - stage - 1, i]`` (``walk.left``
+    updated; deployments selected in ``selection`` and logged in ``walk.log`` from ``nlog``),
+    and, for the control variate, plain independent SSAP on the same draws (``walk.lefti``).
+    Returns ``(total + the rule's gains, plain SSAP total, nlog)``: ``total`` is carried in so
+    the sum is the same sequence of additions as one loop written out."""
+    valid, nleft, table, nbr_ptr, nbr_idx = net
+    sel, p, xv = selection
+    thr, ext = rule
+    left, lefti, log = walk
+    m = members.shape[0]
+    plain = 0.0
+    for t in range(stage + 1, n_stages):
+        for i in range(m):
+            r = members[i]
+            if not valid[r, t]:
+                continue
+            n = nleft[r, t]
+            xs = samples[s, t - stage - 1, i]
+            d = left[i]
+            if d > 0:
+                q = r * n_stages + t
+                g = marginal_gain(q, xs, sel, p, xv, nbr_ptr, nbr_idx)
+                if n <= d or g - ext[q] > cut(thr[q, d]):
+                    total += g
+                    nlog = select_point(q, xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
+                    left[i] = d - 1
+            d = lefti[i]
+            if d > 0 and deploys(table, xs, n, d):
+                plain += xs
+                lefti[i] = d - 1
+    return total, plain, nlog
+
+
 @njit(cache=True)
 def _evaluate(cand, stage, n_stages, net, selection, samples, out, control_variate, rule):
     """Per-sample control-variate values of every candidate.
@@ -194,20 +243,17 @@ def _evaluate(cand, stage, n_stages, net, selection, samples, out, control_varia
         rule: :class:`Rule` of the base policy.
     """
     actions, members, xnow, left0 = cand
-    valid, nleft, table, nbr_ptr, nbr_idx = net
+    nbr_ptr, nbr_idx = net.nbr_ptr, net.nbr_idx
     sel, p, xv = selection
-    thr, ext = rule
     n_cand = actions.shape[0]
     m = members.shape[0]
     n_samples = samples.shape[0]
-    left = np.empty(m, np.int64)
-    lefti = np.empty(m, np.int64)
-    log = np.empty(sel.shape[0] + nbr_idx.shape[0] + 1, np.int64)
+    walk = Walk(np.empty(m, np.int64), np.empty(m, np.int64), np.empty(sel.shape[0] + nbr_idx.shape[0] + 1, np.int64))
+    left, lefti, log = walk
     for k in range(n_cand):
         for s in range(n_samples):
             nlog = 0
             total = 0.0
-            plain = 0.0
             for i in range(m):
                 left[i] = left0[i]
                 if actions[k, i]:
@@ -216,25 +262,8 @@ def _evaluate(cand, stage, n_stages, net, selection, samples, out, control_varia
                     nlog = select_point(q, xnow[i], sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
                     left[i] -= 1
                 lefti[i] = left[i]
-            for t in range(stage + 1, n_stages):
-                for i in range(m):
-                    r = members[i]
-                    if not valid[r, t]:
-                        continue
-                    n = nleft[r, t]
-                    xs = samples[s, t - stage - 1, i]
-                    d = left[i]
-                    if d > 0:
-                        q = r * n_stages + t
-                        g = marginal_gain(q, xs, sel, p, xv, nbr_ptr, nbr_idx)
-                        if n <= d or g - ext[q] > cut(thr[q, d]):
-                            total += g
-                            nlog = select_point(q, xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
-                            left[i] = d - 1
-                    d = lefti[i]
-                    if d > 0 and deploys(table, xs, n, d):
-                        plain += xs
-                        lefti[i] = d - 1
+            total, plain, nlog = rollout_future(s, stage, n_stages, members, net, selection, rule, samples, walk, nlog,
+                                                total)
             undo_selection(sel, p, log, nlog)
             out[k, s] = total - plain if control_variate else total
 
@@ -763,13 +792,11 @@ class ClosedLoopPlanner:
         n_stages = problem.n_stages
         horizon = n_stages - j - 1
         comp_left = left[comp]
-        sums = np.zeros(len(actions))
-        count = 0
         typed = None if problem.weights is None else _typed_state(view, comp, prep.table)
         cand = Candidates(actions, comp, xnow[comp], comp_left)
         net = Net(valid, nleft, prep.table, prep.indptr, prep.nbr)
-        while True:
-            batch = samples if deadline is None else BATCH
+
+        def evaluate(batch):
             draws = prep.sampler.sample(rng, (batch, horizon, len(comp)))
             out = np.empty((len(actions), batch))
             if typed is None:
@@ -777,20 +804,35 @@ class ClosedLoopPlanner:
             else:
                 _evaluate_weighted(cand, j, n_stages, net, selection, draws, out, control_variate, typed[0], typed[1],
                                    rule)
-            sums += out.sum(axis=1)
-            count += batch
-            if deadline is None or time.perf_counter() >= deadline:
-                break
+            return out
+
+        mean = sampled_mean(len(actions), samples, deadline, evaluate)
         if not control_variate:
-            return sums / count
+            return mean
         if typed is not None:
             _, _, stay, go = typed
-            return sums / count + np.where(actions, go[None, :], stay[None, :]).sum(axis=1)
+            return mean + np.where(actions, go[None, :], stay[None, :]).sum(axis=1)
         # Exact expected future of plain SSAP after each candidate's action.
         n_after = nleft[comp, j + 1]
         d_after = np.minimum(comp_left[None, :] - actions.astype(np.int64), n_stages)
         exact = prep.slot_value[n_after[None, :], d_after].sum(axis=1)
-        return sums / count + exact
+        return mean + exact
+
+
+def sampled_mean(n_candidates: int, samples: int, deadline: float | None, evaluate) -> np.ndarray:
+    """The closed-loop planners' anytime sampling loop: the mean over sampled futures of
+    ``evaluate(batch)``, float ``[n_candidates, batch]`` values of ``batch`` fresh futures (it
+    draws them). Without a ``deadline`` one batch of ``samples``; with one (``time.perf_counter``
+    seconds), batches of :data:`BATCH` until it passes (at least one)."""
+    sums = np.zeros(n_candidates)
+    count = 0
+    while True:
+        batch = samples if deadline is None else BATCH
+        sums += evaluate(batch).sum(axis=1)
+        count += batch
+        if deadline is None or time.perf_counter() >= deadline:
+            break
+    return sums / count
 
 
 def _dlr_rule(prep, q: int, n: int) -> Rule:
@@ -805,7 +847,9 @@ def _dlr_rule(prep, q: int, n: int) -> Rule:
 def base_rule(view: StageView, prep, valid: np.ndarray, nleft: np.ndarray, left: np.ndarray, past: np.ndarray,
               rounds: int) -> Rule:
     """The base policy's :class:`Rule` at ``view.stage`` (:func:`conflict_values` with ``rounds``
-    alternations; 0 gives DLR's thresholds and no externality, the conflict-aware SSAP rule)."""
+    alternations; 0 gives DLR's thresholds and no externality, the conflict-aware SSAP rule).
+    ``view``: a :class:`StageView`, or anything with its ``problem`` and ``stage`` (a carrier's
+    ``LocalView``)."""
     n_stages = view.problem.n_stages
     d_max = max(int(view.problem.passengers.max()), 1)
     thr = np.zeros((view.problem.n_carriers * n_stages, d_max + 1))

@@ -24,9 +24,10 @@ import numpy as np
 from numba import njit
 
 from planner import ssap
-from planner.closedloop import (BATCH, BLOCK, ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, Candidates, ClosedLoopPlanner,
-                                Net, Selection, base_action, block_halo, conflict_components, every_combination,
-                                grow_block, marginal_gain, select_point, undo_selection)
+from planner.closedloop import (BLOCK, ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, Candidates, ClosedLoopPlanner, Net,
+                                Selection, Walk, base_action, base_rule, block_halo, conflict_components,
+                                every_combination, grow_block, marginal_gain, rollout_future, sampled_mean,
+                                select_point, undo_selection)
 from planner.comms import CommsSpec, Deliveries, realise
 from planner.compiled import compile_problem
 from planner.kernels import cache_follows_sources, deploys
@@ -299,7 +300,7 @@ class Unknown(NamedTuple):
 
 
 @njit(cache=True)
-def _evaluate_imputed(cand, unknown, stage, n_stages, net, selection, past, samples, out):
+def _evaluate_imputed(cand, unknown, stage, n_stages, net, selection, past, samples, out, rule):
     """Per-sample values of every candidate when some members' recent past is unknown.
 
     Args:
@@ -312,9 +313,12 @@ def _evaluate_imputed(cand, unknown, stage, n_stages, net, selection, past, samp
             ``start..stage``, where the observation is not known); samples: float ``[S, N - stage
             - 1, m]`` draws of the future.
         out: float ``[K, S]``: conflict-aware total minus plain independent SSAP future (raw units).
+        rule: :class:`planner.closedloop.Rule` of the rollout after ``stage``
+            (:func:`planner.closedloop.base_rule` with 0 rounds: DLR's thresholds, no externality).
 
     Unknown members follow their known default policy (SSAP thresholds) on sampled observations
-    through ``stage``; then every member follows the conflict-aware SSAP rollout.
+    through ``stage``; then every member follows the conflict-aware SSAP rollout
+    (:func:`planner.closedloop.rollout_future`).
     """
     actions, members, xnow, left0 = cand
     known, start, left_start, xobs = unknown
@@ -323,14 +327,12 @@ def _evaluate_imputed(cand, unknown, stage, n_stages, net, selection, past, samp
     n_cand = actions.shape[0]
     m = members.shape[0]
     n_samples = samples.shape[0]
-    left = np.empty(m, np.int64)
-    lefti = np.empty(m, np.int64)
-    log = np.empty(sel.shape[0] + nbr_idx.shape[0] + 1, np.int64)
+    walk = Walk(np.empty(m, np.int64), np.empty(m, np.int64), np.empty(sel.shape[0] + nbr_idx.shape[0] + 1, np.int64))
+    left, lefti, log = walk
     for k in range(n_cand):
         for s in range(n_samples):
             nlog = 0
             total = 0.0
-            plain = 0.0
             for i in range(m):
                 r = members[i]
                 if known[i]:
@@ -355,25 +357,8 @@ def _evaluate_imputed(cand, unknown, stage, n_stages, net, selection, past, samp
                             d -= 1
                     left[i] = d
                 lefti[i] = left[i]
-            for t in range(stage + 1, n_stages):
-                for i in range(m):
-                    r = members[i]
-                    if not valid[r, t]:
-                        continue
-                    n = nleft[r, t]
-                    xs = samples[s, t - stage - 1, i]
-                    d = left[i]
-                    if d > 0:
-                        q = r * n_stages + t
-                        g = marginal_gain(q, xs, sel, p, xv, nbr_ptr, nbr_idx)
-                        if deploys(table, g, n, d):
-                            total += g
-                            nlog = select_point(q, xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
-                            left[i] = d - 1
-                    d = lefti[i]
-                    if d > 0 and deploys(table, xs, n, d):
-                        plain += xs
-                        lefti[i] = d - 1
+            total, plain, nlog = rollout_future(s, stage, n_stages, members, net, selection, rule, samples, walk, nlog,
+                                                total)
             undo_selection(sel, p, log, nlog)
             out[k, s] = total - plain
 
@@ -502,28 +487,26 @@ class DecClosedLoopPlanner:
                               SAMPLES_MAX))
         m = len(comp)
         deadline = None if self.plan_ms is None else time.perf_counter() + self.plan_ms / 1e3
-        sums = np.zeros(len(actions))
-        count = 0
         cand = Candidates(actions, comp, xnow_all[comp], left[comp])
         unknown = Unknown(known[comp], start[comp], left[comp], np.ascontiguousarray(local.observations))
         net = Net(valid, nleft, prep.table, prep.indptr, prep.nbr)
         selection = Selection(sel, p, xv)
-        while True:
-            batch = samples if deadline is None else BATCH
+        rule = base_rule(local, prep, valid, nleft, left, past, 0)
+
+        def evaluate(batch):
             past_draws = prep.sampler.sample(rng, (batch, N, m))
             future = prep.sampler.sample(rng, (batch, N - j - 1, m))
             out = np.empty((len(actions), batch))
-            _evaluate_imputed(cand, unknown, j, N, net, selection, past_draws, future, out)
-            sums += out.sum(axis=1)
-            count += batch
-            if deadline is None or time.perf_counter() >= deadline:
-                break
+            _evaluate_imputed(cand, unknown, j, N, net, selection, past_draws, future, out, rule)
+            return out
+
+        mean = sampled_mean(len(actions), samples, deadline, evaluate)
         # Exact plain-SSAP future of the known members after each candidate (the control
         # variate's expectation; the unknown members' is common to all candidates).
         kn = known[comp]
         d_after = np.minimum(left[comp][None, :] - actions.astype(np.int64), N)
         exact = (prep.slot_value[nleft[comp, j + 1][None, :], np.maximum(d_after, 0)] * kn[None, :]).sum(axis=1)
-        return actions, sums / count + exact, me
+        return actions, mean + exact, me
 
 
 cache_follows_sources(globals())  # the on-disk cache follows every planner source
