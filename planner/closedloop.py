@@ -175,58 +175,15 @@ class _Stage(NamedTuple):
     rule: Rule
 
 
-class Walk(NamedTuple):
-    """Scratch of one sampled rollout over a component's ``m`` members: passengers left int64
-    ``[m]`` under the conflict-aware rule and under plain SSAP (the control variate), and the
-    selection's undo log int64 (:func:`select_point`)."""
-
-    left: np.ndarray
-    lefti: np.ndarray
-    log: np.ndarray
-
-
-# The one rollout loop of _evaluate (closed-loop) and planner.decentralised._evaluate_imputed
-# (dec-closed-loop, with the rule of 0 rounds: DLR's thresholds, no externality);
-# _evaluate_weighted's loop is another rule (passenger ranks). Sharing it costs nothing
-# measurable: `python -m tools.rollout_bench --reps 7` (20,000 iterations, R = 12 and 32, both
-# versions compiled in one run) gives shared / fused decision time, median per round: see
-# docs/planner.md, *closed-loop*.
-@njit(cache=True, inline="always")
-def rollout_future(s, stage, n_stages, members, net, selection, rule, samples, walk, nlog, total):
-    """The rollout of sample ``s`` after ``stage``: every member follows the base policy's
-    :class:`Rule` on its sampled observations ``samples[s, t - stage - 1, i]`` (``walk.left``
-    updated; deployments selected in ``selection`` and logged in ``walk.log`` from ``nlog``),
-    and, for the control variate, plain independent SSAP on the same draws (``walk.lefti``).
-    Returns ``(total + the rule's gains, plain SSAP total, nlog)``: ``total`` is carried in so
-    the sum is the same sequence of additions as one loop written out."""
-    valid, nleft, table, nbr_ptr, nbr_idx = net
-    sel, p, xv = selection
-    thr, ext = rule
-    left, lefti, log = walk
-    m = members.shape[0]
-    plain = 0.0
-    for t in range(stage + 1, n_stages):
-        for i in range(m):
-            r = members[i]
-            if not valid[r, t]:
-                continue
-            n = nleft[r, t]
-            xs = samples[s, t - stage - 1, i]
-            d = left[i]
-            if d > 0:
-                q = r * n_stages + t
-                g = marginal_gain(q, xs, sel, p, xv, nbr_ptr, nbr_idx)
-                if n <= d or g - ext[q] > cut(thr[q, d]):
-                    total += g
-                    nlog = select_point(q, xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
-                    left[i] = d - 1
-            d = lefti[i]
-            if d > 0 and deploys(table, xs, n, d):
-                plain += xs
-                lefti[i] = d - 1
-    return total, plain, nlog
-
-
+# The rollout after the current stage (the loop over t below) is written out here and in
+# planner.decentralised._evaluate_imputed rather than shared, because sharing it costs more than
+# 1 %: one inlined numba function for both (dec-closed-loop passing the base rule of 0 rounds,
+# DLR's thresholds, as its Rule), commit f95fab9 ("closed-loop and dec-closed-loop: one rollout loop"), made
+# dec-closed-loop's decisions 6.8 % slower (shared / fused CPU time, median of 14 rounds at R = 12
+# and 32, 20,000 iterations; closed-loop 1.1 %): `python -m tools.rollout_bench --reps 7
+# --candidate f95fab9 --reference 6275f1f`. The two loops now differ in their rule
+# anyway (closed-loop's reads the base policy's thresholds and externalities). The anytime
+# sampling loop around the kernels is shared (sampled_mean).
 @njit(cache=True)
 def _evaluate(cand, stage, n_stages, net, selection, samples, out, control_variate, rule):
     """Per-sample control-variate values of every candidate.
@@ -243,17 +200,20 @@ def _evaluate(cand, stage, n_stages, net, selection, samples, out, control_varia
         rule: :class:`Rule` of the base policy.
     """
     actions, members, xnow, left0 = cand
-    nbr_ptr, nbr_idx = net.nbr_ptr, net.nbr_idx
+    valid, nleft, table, nbr_ptr, nbr_idx = net
     sel, p, xv = selection
+    thr, ext = rule
     n_cand = actions.shape[0]
     m = members.shape[0]
     n_samples = samples.shape[0]
-    walk = Walk(np.empty(m, np.int64), np.empty(m, np.int64), np.empty(sel.shape[0] + nbr_idx.shape[0] + 1, np.int64))
-    left, lefti, log = walk
+    left = np.empty(m, np.int64)
+    lefti = np.empty(m, np.int64)
+    log = np.empty(sel.shape[0] + nbr_idx.shape[0] + 1, np.int64)
     for k in range(n_cand):
         for s in range(n_samples):
             nlog = 0
             total = 0.0
+            plain = 0.0
             for i in range(m):
                 left[i] = left0[i]
                 if actions[k, i]:
@@ -262,8 +222,25 @@ def _evaluate(cand, stage, n_stages, net, selection, samples, out, control_varia
                     nlog = select_point(q, xnow[i], sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
                     left[i] -= 1
                 lefti[i] = left[i]
-            total, plain, nlog = rollout_future(s, stage, n_stages, members, net, selection, rule, samples, walk, nlog,
-                                                total)
+            for t in range(stage + 1, n_stages):
+                for i in range(m):
+                    r = members[i]
+                    if not valid[r, t]:
+                        continue
+                    n = nleft[r, t]
+                    xs = samples[s, t - stage - 1, i]
+                    d = left[i]
+                    if d > 0:
+                        q = r * n_stages + t
+                        g = marginal_gain(q, xs, sel, p, xv, nbr_ptr, nbr_idx)
+                        if n <= d or g - ext[q] > cut(thr[q, d]):
+                            total += g
+                            nlog = select_point(q, xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
+                            left[i] = d - 1
+                    d = lefti[i]
+                    if d > 0 and deploys(table, xs, n, d):
+                        plain += xs
+                        lefti[i] = d - 1
             undo_selection(sel, p, log, nlog)
             out[k, s] = total - plain if control_variate else total
 
@@ -847,9 +824,7 @@ def _dlr_rule(prep, q: int, n: int) -> Rule:
 def base_rule(view: StageView, prep, valid: np.ndarray, nleft: np.ndarray, left: np.ndarray, past: np.ndarray,
               rounds: int) -> Rule:
     """The base policy's :class:`Rule` at ``view.stage`` (:func:`conflict_values` with ``rounds``
-    alternations; 0 gives DLR's thresholds and no externality, the conflict-aware SSAP rule).
-    ``view``: a :class:`StageView`, or anything with its ``problem`` and ``stage`` (a carrier's
-    ``LocalView``)."""
+    alternations; 0 gives DLR's thresholds and no externality, the conflict-aware SSAP rule)."""
     n_stages = view.problem.n_stages
     d_max = max(int(view.problem.passengers.max()), 1)
     thr = np.zeros((view.problem.n_carriers * n_stages, d_max + 1))
