@@ -7,6 +7,7 @@ what the motion publishes: Poses, Progress (sim clock), the trail of an Observat
 from __future__ import annotations
 
 import time
+from concurrent import futures
 
 import numpy as np
 
@@ -66,7 +67,7 @@ class Motion:
                 self._physics_until(t, self._progress)
                 return
             job = self.physics.submit(self._physics_until, t)
-            while not job.wait(DEFAULTS.progress_s):
+            while not futures.wait((job,), DEFAULTS.progress_s).done:
                 self._progress()
             self._progress()
             job.result()

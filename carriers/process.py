@@ -119,5 +119,5 @@ def run_carriers(scenario, configs, zconf, stop: threading.Event | None = None) 
                 for c in carriers:
                     c.stop()
     if physics is not None:
-        physics.close()
+        physics.shutdown(wait=False)
     return {c.cid: reasons.get(c.cid, "crashed") for c in carriers}

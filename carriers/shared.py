@@ -6,8 +6,8 @@ per process")."""
 from __future__ import annotations
 
 import os
-import queue
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,30 +87,10 @@ PHYSICS_NICE = 5
 SWITCH_INTERVAL_S = 0.02
 
 
-class PhysicsJob:
-    """One call handed to the :class:`PhysicsThread`: ``wait`` for it, then take its ``result``."""
-
-    __slots__ = ("fn", "args", "done", "value", "error")
-
-    def __init__(self, fn, args):
-        self.fn, self.args = fn, args
-        self.done = threading.Event()
-        self.value = self.error = None
-
-    def wait(self, timeout_s: float | None = None) -> bool:
-        """True once the call has returned (or raised)."""
-        return self.done.wait(timeout_s)
-
-    def result(self):
-        """The call's value, or its exception raised here (after :meth:`wait`)."""
-        if self.error is not None:
-            raise self.error
-        return self.value
-
-
-class PhysicsThread:
+class PhysicsThread(ThreadPoolExecutor):
     """Runs the physics of a process's simulated carriers, one call at a time, in one thread
-    whose CPU priority is :data:`PHYSICS_NICE` below the process's.
+    whose CPU priority is :data:`PHYSICS_NICE` below the process's (an executor of one worker:
+    ``submit`` gives a :class:`concurrent.futures.Future`).
 
     On one host every carrier process competes for the cores. When a Decision arrives, the
     processes that have answered it run their next stage's physics while the others are still
@@ -123,34 +103,14 @@ class PhysicsThread:
     """
 
     def __init__(self, nice: int = PHYSICS_NICE):
-        self._nice = nice
-        self._jobs: queue.SimpleQueue = queue.SimpleQueue()
-        self._thread = threading.Thread(target=self._loop, name="physics", daemon=True)
-        self._thread.start()
+        super().__init__(max_workers=1, initializer=_physics_worker, initargs=(nice,))
 
-    def submit(self, fn, *args) -> PhysicsJob:
-        """``fn(*args)``, to be run in the physics thread."""
-        job = PhysicsJob(fn, args)
-        self._jobs.put(job)
-        return job
 
-    def close(self) -> None:
-        """End the thread once the calls submitted so far have run."""
-        self._jobs.put(None)
-
-    def _loop(self) -> None:
-        try:
-            tid = threading.get_native_id()
-            os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + self._nice)
-        except (AttributeError, OSError):
-            pass
-        while True:
-            job = self._jobs.get()
-            if job is None:
-                return
-            try:
-                job.value = job.fn(*job.args)
-            except BaseException as exc:  # handed to the caller
-                job.error = exc
-            finally:
-                job.done.set()
+def _physics_worker(nice: int) -> None:
+    """The physics thread's start: named, and its priority lowered where the system allows."""
+    threading.current_thread().name = "physics"
+    try:
+        tid = threading.get_native_id()
+        os.setpriority(os.PRIO_PROCESS, tid, os.getpriority(os.PRIO_PROCESS, tid) + nice)
+    except (AttributeError, OSError):
+        pass

@@ -203,6 +203,7 @@ def test_the_physics_thread_runs_calls_in_order_at_a_lower_priority_and_hands_ba
     import os
     import sys
     import threading
+    from concurrent import futures
 
     from carriers.shared import PHYSICS_NICE, PhysicsThread
 
@@ -214,22 +215,20 @@ def test_the_physics_thread_runs_calls_in_order_at_a_lower_priority_and_hands_ba
         return k * k
 
     jobs = [physics.submit(call, k) for k in range(5)]
-    assert all(job.wait(10.0) for job in jobs)
+    assert not futures.wait(jobs, 10.0).not_done
     assert [job.result() for job in jobs] == [0, 1, 4, 9, 16]
     assert seen == [(k, "physics") for k in range(5)]  # one thread, in the order submitted
     failing = physics.submit(lambda: 1 / 0)
-    assert failing.wait(10.0)
+    assert futures.wait((failing,), 10.0).done
     with pytest.raises(ZeroDivisionError):
         failing.result()
-    assert physics.submit(call, 7).wait(10.0)  # the thread survives a call that raised
+    assert futures.wait((physics.submit(call, 7),), 10.0).done  # the thread survives a call that raised
+    worker = physics.submit(threading.current_thread).result(10.0)
     if sys.platform.startswith("linux"):
-        tid = physics.submit(threading.get_native_id)
-        tid.wait(10.0)
         base = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
-        assert os.getpriority(os.PRIO_PROCESS, tid.result()) == min(19, base + PHYSICS_NICE)
-    physics.close()
-    physics._thread.join(10.0)
-    assert not physics._thread.is_alive()
+        assert os.getpriority(os.PRIO_PROCESS, worker.native_id) == min(19, base + PHYSICS_NICE)
+    physics.shutdown(wait=True)
+    assert not worker.is_alive()
 
 
 def test_the_on_board_planner_loads_at_the_start_alone_and_when_needed_with_several(tiny):
