@@ -221,11 +221,12 @@ def _ros2_flags(p: argparse.ArgumentParser) -> None:
 
 def _carrier_output_flags(p: argparse.ArgumentParser) -> None:
     """What the carriers publish and print."""
-    from mission.timeouts import POSE_INTERVAL_S
+    from mission.timeouts import POSE_INTERVAL_S, POSES_PER_STAGE
 
-    p.add_argument("--pose-interval", type=float, default=POSE_INTERVAL_S, metavar="SECONDS",
-                   help="carrier: publish a Pose every this many simulated seconds (whole seconds; 0 = never; "
-                        "default %(default)s)")
+    p.add_argument("--pose-interval", type=float, default=None, metavar="SECONDS",
+                   help=f"carrier: publish a Pose every this many simulated seconds (whole seconds; 0 = never; "
+                        f"default {POSE_INTERVAL_S:g}, or with --realtime 0 the whole seconds that keep a carrier "
+                        f"within {POSES_PER_STAGE} Poses a stage)")
     p.add_argument("--quiet", action="store_true", help="carriers print nothing but errors")
     p.add_argument("--verbose", action="store_true",
                    help="one-host mode: let carriers print their own events (quiet by default)")
@@ -269,7 +270,7 @@ def check_flags(args, scenario) -> str | None:
         args.planner_options = tuple(parse_option(text) for text in args.planner_option)
     except ValueError as exc:
         return f"--planner-option: {exc}"
-    if args.pose_interval < 0:
+    if args.pose_interval is not None and args.pose_interval < 0:
         return f"--pose-interval: expected seconds >= 0, found {args.pose_interval}"
     if args.seed is not None and args.seed < 0:
         return f"--seed: expected an integer >= 0, found {args.seed}"
@@ -460,6 +461,7 @@ def run_carrier(args, scenario, stop: threading.Event) -> int:
     session per carrier, the scenario loaded once. Exit code: the first non-zero carrier code."""
     from carriers.node import EXIT_CODES, CarrierConfig
     from carriers.process import DuplicateCarriers, run_carriers
+    from mission.timeouts import pose_interval
     from planner.registry import planner_settings
     from wire.zconfig import ConfigError
 
@@ -470,7 +472,8 @@ def run_carrier(args, scenario, stop: threading.Event) -> int:
     configs = [CarrierConfig(
         carrier=cid, mission=args.mission, seed=args.seed, realtime=args.realtime, clock=args.clock,
         silence_timeout_s=args.silence_timeout, decision_timeout_s=args.decision_timeout, coordinator_timeout_s=args.coordinator_timeout,
-        log=log, pose_interval_s=args.pose_interval, mode=mode, out_dir=out, peer_timeout_s=args.peer_timeout,
+        log=log, pose_interval_s=pose_interval(scenario.stage_interval, args.realtime)
+        if args.pose_interval is None else args.pose_interval, mode=mode, out_dir=out, peer_timeout_s=args.peer_timeout,
         join_timeout_s=args.join_timeout, planner_options=tuple(sorted(options.items())),
         log_sync=args.log_sync or "full", onboard_load=args.onboard_load, ros2=_ros2_settings(args))
         for cid in getattr(args, "carriers", [args.carrier])]
@@ -548,7 +551,8 @@ def _forward(args) -> list[str]:
     out = []
     for flag, value in (("--planner", args.planner), ("--iterations", args.iterations),
                         ("--plan-ms", args.plan_ms), ("--seed", args.seed), ("--mission", args.mission),
-                        ("--zenoh-config", args.zenoh_config), ("--onboard-load", args.onboard_load)):
+                        ("--zenoh-config", args.zenoh_config), ("--onboard-load", args.onboard_load),
+                        ("--pose-interval", args.pose_interval)):
         if value is not None:
             out += [flag, str(value)]
     for text in args.planner_option:
@@ -556,8 +560,7 @@ def _forward(args) -> list[str]:
     out += ["--realtime", str(args.realtime), "--clock", args.clock, "--silence-timeout", str(args.silence_timeout),
             "--join-timeout", str(args.join_timeout),
             "--stage-timeout", str(args.stage_timeout), "--decision-timeout", str(args.decision_timeout),
-            "--coordinator-timeout", str(args.coordinator_timeout), "--pose-interval", str(args.pose_interval),
-            "--peer-timeout", str(args.peer_timeout)]
+            "--coordinator-timeout", str(args.coordinator_timeout), "--peer-timeout", str(args.peer_timeout)]
     for flag in ("no_record", "decentralised", "no_autonomy", "ros2"):
         if getattr(args, flag):
             out.append("--" + flag.replace("_", "-"))

@@ -10,11 +10,26 @@ are deadlines, and a late observation is legitimately ∅.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 #: Default simulated seconds between two Pose messages of a carrier (0: none), and between two
 #: poses of a recording rebuilt from mission.db.
 POSE_INTERVAL_S = 1.0
+#: Unpaced, a carrier sends a stage's Poses in one burst when it drives to the stage; without
+#: ``--pose-interval`` it sends at most this many a stage (:func:`pose_interval`).
+POSES_PER_STAGE = 20
+
+
+def pose_interval(stage_interval_s: float, realtime: float) -> float:
+    """run_fleet.py's ``--pose-interval`` when it is not given: :data:`POSE_INTERVAL_S`, or in an
+    unpaced mission (``realtime`` 0) the whole seconds that keep a carrier within
+    :data:`POSES_PER_STAGE` Poses a stage. A burst of Δt / 1 s Poses per carrier and stage is
+    nothing a viewer can follow at ``--realtime 0``, and with long stages it was most of the
+    fleet's work (480-s stages: 480 Poses per carrier and stage, the mission twice as long)."""
+    if realtime > 0 or stage_interval_s <= POSES_PER_STAGE * POSE_INTERVAL_S:
+        return POSE_INTERVAL_S
+    return float(math.ceil(stage_interval_s / POSES_PER_STAGE))
 
 #: The mission clocks: ``sim`` (a simulated mission: slow work is waited for) and ``wall`` (a
 #: real-time mission: wall-clock deadlines).

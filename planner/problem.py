@@ -222,29 +222,32 @@ def penalties(problem: Problem, deployed: np.ndarray) -> np.ndarray:
     return p.reshape(problem.valid.shape)
 
 
-def rewards(problem: Problem, deployed: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Raw reward ``x / p`` of each selected deployment, 0 elsewhere. float ``[R, N]``."""
+def rewards(problem: Problem, deployed: np.ndarray, x: np.ndarray, p: np.ndarray | None = None) -> np.ndarray:
+    """Raw reward ``x / p`` of each selected deployment, 0 elsewhere. float ``[R, N]``.
+
+    ``p``: :func:`penalties` of ``deployed`` when the caller keeps them (:class:`mission.records.Tally`
+    adds a deployment's conflict row as it is confirmed); computed here otherwise."""
     deployed = np.asarray(deployed, dtype=bool)
     out = np.zeros(deployed.shape)
     xs = np.where(deployed, np.nan_to_num(x, nan=0.0), 0.0)
-    np.divide(xs, penalties(problem, deployed), out=out, where=deployed)
+    np.divide(xs, penalties(problem, deployed) if p is None else p, out=out, where=deployed)
     return out
 
 
 def evaluate(problem: Problem, deployed: np.ndarray, x: np.ndarray,
-             released: np.ndarray | None = None) -> tuple[float, float]:
+             released: np.ndarray | None = None, p: np.ndarray | None = None) -> tuple[float, float]:
     """Total (normalised reward, raw features) of a full set of deployments under the penalty rule.
 
     With passenger values (``problem.weights``) a deployment earns ``w * x / p`` for the weight w
     of the passenger ``released[r, j]`` (index order, :func:`in_order`, when ``released`` is None;
     an unknown -1 is filled by :func:`fill_releases`); without, ``released`` is ignored and this
-    is ``sum x / p``.
+    is ``sum x / p``. ``p``: as in :func:`rewards`.
     """
     if problem.weights is not None:
         deployed = np.asarray(deployed, dtype=bool)
         released = fill_releases(problem.passengers, deployed, released)
         x = np.nan_to_num(np.asarray(x, dtype=float), nan=0.0) * point_weights(problem, released)
-    raw = float(rewards(problem, deployed, x).sum())
+    raw = float(rewards(problem, deployed, x, p).sum())
     return raw / problem.scale, raw
 
 

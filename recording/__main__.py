@@ -18,7 +18,6 @@ if str(HERE) not in sys.path:
 
 
 def main(argv=None) -> int:
-    from mission.timeouts import POSE_INTERVAL_S
     from recording import PROFILES
 
     p = argparse.ArgumentParser(prog="python -m recording", description="Mission recordings (MCAP).")
@@ -29,8 +28,9 @@ def main(argv=None) -> int:
     r.add_argument("-o", "--out", help="output file (default RUN_DIR/mission.mcap; ros2: the bag directory RUN_DIR/ros2bag)")
     r.add_argument("--profile", choices=PROFILES, default=PROFILES[0],
                    help="foxglove (default): Foxglove's schemas; ros2: a rosbag2 bag of ROS 2 messages (needs .[ros2])")
-    r.add_argument("--pose-interval", type=float, default=POSE_INTERVAL_S, metavar="SECONDS",
-                   help="poses every this many simulated seconds (default %(default)s; 0 = none)")
+    r.add_argument("--pose-interval", type=float, default=None, metavar="SECONDS",
+                   help="poses every this many simulated seconds (0 = none; default: what an unpaced mission's "
+                        "carriers send, run_fleet.py's --pose-interval)")
     args = p.parse_args(argv)
     from recording.rebuild import rebuild
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from mission import events as ev
-from mission.timeouts import POSE_INTERVAL_S
+from mission.timeouts import pose_interval
 from recording import PROFILES
 from recording.live import open_sink, recording_path
 from recording.stream import Clock, feed_event, feed_message
@@ -48,10 +48,11 @@ def _event_time(event, stage_times) -> float | None:
     return None
 
 
-def rebuild(run_dir, scenario_path: str | None = None, out: str | None = None, pose_interval_s: float = POSE_INTERVAL_S,
+def rebuild(run_dir, scenario_path: str | None = None, out: str | None = None, pose_interval_s: float | None = None,
             profile: str = "foxglove") -> Path:
     """Write ``out`` (``RUN_DIR/mission.mcap`` by default; with ``profile="ros2"`` the bag
-    ``RUN_DIR/ros2bag``) from ``RUN_DIR/mission.db``.
+    ``RUN_DIR/ros2bag``) from ``RUN_DIR/mission.db``. ``pose_interval_s``: None = what an unpaced
+    mission's carriers use by default (:func:`mission.timeouts.pose_interval`).
 
     Returns:
         The path written.
@@ -88,6 +89,8 @@ def rebuild(run_dir, scenario_path: str | None = None, out: str | None = None, p
         if isinstance(e, ev.Confirmed) and e.deployed:
             deployed_at.setdefault(e.carrier, set()).add(float(times[e.stage]))
     poses = []
+    if pose_interval_s is None:
+        pose_interval_s = pose_interval(scenario.stage_interval, 0.0)
     if pose_interval_s > 0:
         step = max(1, int(round(pose_interval_s)))
         trace = world.simulate_mission(scenario)

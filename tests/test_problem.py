@@ -165,3 +165,29 @@ def test_stage_rng_depends_on_seed_and_stage_only():
     assert np.array_equal(a, stage_rng(7, 3).random(4))
     assert not np.array_equal(a, stage_rng(7, 4).random(4))
     assert not np.array_equal(a, stage_rng(8, 3).random(4))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_tally_keeps_the_penalties_of_every_confirmation_so_far(seed):
+    # The running score (mission.records.Tally) adds or removes a point's conflict row as it is
+    # confirmed; after every step its reward must be evaluate()'s over all deployments so far,
+    # bit for bit, through confirmations that are repeated and taken back.
+    from mission.records import Tally
+
+    rng = np.random.default_rng(seed)
+    R, N = 7, 5
+    overlaps = [[[int(rng.integers(R)), int(rng.integers(N))] for _ in range(int(rng.integers(2, 5)))]
+                for _ in range(6)]
+    problem = Problem.build(2, np.ones((R, N), bool), overlaps)
+    ids = [f"c{r}" for r in range(R)]
+    tally = Tally(ids, N, problem)
+    x = rng.integers(0, 9, size=(R, N)).astype(float)
+    for r in range(R):
+        for j in range(N):
+            tally.observe(ids[r], j, x[r, j])
+    assert tally.reward() == (0.0, 0.0)
+    for _ in range(60):
+        r, j, value = int(rng.integers(R)), int(rng.integers(N)), bool(rng.random() < 0.7)
+        tally.confirm(ids[r], j, value)
+        assert tally.reward() == (evaluate(problem, tally.deployed, x) if tally.deployed.any() else (0.0, 0.0))
+    assert np.array_equal(tally._p.reshape(R, N), penalties(problem, tally.deployed))

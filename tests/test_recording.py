@@ -246,3 +246,33 @@ def test_the_scene_is_the_map_of_the_mission():
                    for p in group.points)  # every member lies inside its group's outline
     np.testing.assert_array_equal(scene.features, world.sample_features(scenario))
     assert scene.walls.shape == scenario.map.segments.shape
+
+
+@pytest.mark.parametrize("stage_interval, realtime, expected", [
+    (5.0, 0.0, 1.0), (20.0, 0.0, 1.0), (21.0, 0.0, 2.0), (100.0, 0.0, 5.0), (480.0, 0.0, 24.0),
+    (480.0, 1.0, 1.0), (480.0, 0.5, 1.0),
+])
+def test_an_unpaced_carrier_sends_at_most_twenty_poses_a_stage_by_default(stage_interval, realtime, expected):
+    from mission.timeouts import POSES_PER_STAGE, pose_interval
+
+    got = pose_interval(stage_interval, realtime)
+    assert got == expected and got == int(got)
+    if realtime == 0:
+        assert stage_interval / got <= POSES_PER_STAGE
+
+
+def test_the_default_pose_interval_reaches_the_carrier_processes(tmp_path):
+    # run_fleet.py without --pose-interval: its carrier processes resolve the default from the
+    # scenario (60-s stages, unpaced: a Pose every 3 s), and the recording has what they sent.
+    text = TINY.read_text().replace("stage_interval: 5.0", "stage_interval: 60.0").replace("stages: 4", "stages: 2")
+    text = text.replace("speed: 2.0", "speed: 0.25")
+    scenario = tmp_path / "long.yaml"
+    scenario.write_text(text)
+    out = tmp_path / "run"
+    proc = subprocess.run([sys.executable, RUN_FLEET, str(scenario), "--out", str(out), "--no-map"],
+                          capture_output=True, text=True, timeout=240, cwd=ROOT)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    _schemas, counts, messages = read_mcap(out / "mission.mcap")
+    times = sorted({t for t, _data in messages["/tf"]})
+    assert times and all(abs(t / 1e9 / 3.0 - round(t / 1e9 / 3.0)) < 1e-9 for t in times), times[:5]
+    assert counts["/tf"] <= 2 * (60 // 3 + 1)

@@ -11,6 +11,8 @@ Imports numpy and world/ only (no matplotlib, no zenoh).
 """
 from __future__ import annotations
 
+import functools
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -105,10 +107,13 @@ class Scene:
     planned: np.ndarray
 
     def carrier(self, cid: str) -> SceneCarrier:
-        for c in self.carriers:
-            if c.id == cid:
-                return c
-        raise KeyError(cid)
+        """The carrier ``cid`` (KeyError for an unknown id); a lookup, not a scan: the recorders
+        ask once per Pose and per confirmation."""
+        return self._by_id[cid]
+
+    @functools.cached_property
+    def _by_id(self) -> dict[str, SceneCarrier]:
+        return {c.id: c for c in self.carriers}
 
     def stage_time(self, j: int) -> float:
         return float(self.stage_times[j])
