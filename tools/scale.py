@@ -12,7 +12,9 @@ Per R it prints wall time, peak memory of the whole process tree (total and per 
 the stage round trip p50/p99 (coordinator's decision publication to each carrier's Confirm),
 decision time (mean and max planner wall time per stage), messages per second, carrier CPU
 time per carrier and stage (``carrier_cpu_ms``), a stage's wall time against the work in it
-(``idle_ratio``: wall time per stage / (carrier CPU per stage / cores + planning time)), the
+(``idle_ratio``: wall time per stage / (carrier CPU per stage / cores + planning time), over the
+whole run; ``loop_idle_ratio``: the same over the stage loop alone, first Observation to last
+Confirm, with the carriers' CPU in that window), the
 fidelity (``fidelity``: observations and decisions identical to ``planner.online.run_online``
 over ``world.observe_all``, and ``fidelity_reward_ratio``, the reward against the offline one)
 and the reward against the clairvoyant bound (an exact optimum, or a labelled conflict-free
@@ -158,6 +160,8 @@ class TreeSampler:
         peak_total: largest sum of RSS over the tree (bytes).
         peak: pid -> (largest RSS in bytes, role): coordinator, carrier, router or launcher.
         cpu: pid -> (user + system CPU seconds at the last sample, role).
+        series: (time.time(), carriers' CPU seconds so far) at every sample, so that the CPU of
+            a window of the run (its stage loop) can be read off.
     """
 
     def __init__(self, pid: int, period_s: float = 0.5):
@@ -169,6 +173,7 @@ class TreeSampler:
         self.peak_carriers = 0
         self.peak: dict[int, tuple[int, str]] = {}
         self.cpu: dict[int, tuple[float, str]] = {}
+        self.series: list[tuple[float, float]] = []
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -198,7 +203,15 @@ class TreeSampler:
                 self.cpu[proc.pid] = (times.user + times.system, role)
             self.peak_total = max(self.peak_total, total)
             self.peak_carriers = max(self.peak_carriers, carriers)
+            self.series.append((time.time(), sum(v for v, role in self.cpu.values() if role == "carrier")))
             self._stop.wait(self.period_s)
+
+    def carrier_cpu_between(self, start: float, end: float) -> float:
+        """The carriers' CPU seconds between two ``time.time()`` instants (linear between samples)."""
+        if len(self.series) < 2:
+            return 0.0
+        times, cpu = zip(*self.series)
+        return float(np.interp(end, times, cpu) - np.interp(start, times, cpu))
 
     def stop(self):
         self._stop.set()
@@ -215,7 +228,7 @@ def message_counts(db: Path, n_carriers: int) -> dict:
     received = sum(kinds.get(k, 0) for k in ("hello", "observation", "confirm", "bye"))
     decisions = kinds.get("published", 0)
     return {"received": received, "decisions": decisions, "delivered": decisions * n_carriers,
-            "span_s": (last - first) if first is not None else 0.0}
+            "first": first, "last": last, "span_s": (last - first) if first is not None else 0.0}
 
 
 #: Start-up waits of the benchmark's fleets (the sim clock's other waits need no setting): up to
@@ -345,6 +358,14 @@ def run_one(n_carriers: int, out: Path, seed: int, processes: int | None, planne
             "stage_work_s": row["cpu_carriers_s"] / stages / (os.cpu_count() or 1) + (plan.get("mean") or 0) / 1e3,
         })
         row["idle_ratio"] = row["stage_wall_s"] / max(1e-9, row["stage_work_s"])
+        # The same ratio over the stage loop only (first Observation to last Confirm, from
+        # mission.db, and the carriers' CPU in that window): the whole run's figure above also
+        # holds the processes' start, the join and the summary's bound, which are not stages.
+        if counts["first"] is not None:
+            loop_cpu = sampler.carrier_cpu_between(counts["first"], counts["last"])
+            row["loop_stage_s"] = counts["span_s"] / stages
+            row["loop_work_s"] = loop_cpu / stages / (os.cpu_count() or 1) + (plan.get("mean") or 0) / 1e3
+            row["loop_idle_ratio"] = row["loop_stage_s"] / max(1e-9, row["loop_work_s"])
         if check:
             x, reference = offline_reference(scen)
             row.update({f"fidelity_{k}" if k != "identical" else "fidelity": v
@@ -358,6 +379,7 @@ COLUMNS = (("family", "{}"), ("busy", "{:d}"), ("load", "{:.0f}"), ("R", "{:d}")
            ("mem_per_carrier_mb", "{:.1f}"), ("mem_coordinator_mb", "{:.0f}"), ("rtt_p50_ms", "{:.0f}"),
            ("rtt_p99_ms", "{:.0f}"), ("decision_mean_ms", "{:.0f}"), ("decision_max_ms", "{:.0f}"),
            ("messages_per_s", "{:.0f}"), ("carrier_cpu_ms", "{:.1f}"), ("idle_ratio", "{:.2f}"),
+           ("loop_idle_ratio", "{:.2f}"),
            ("fidelity", "{}"), ("fidelity_reward_ratio", "{:.3f}"), ("fraction", "{:.2f}"), ("bound_exact", "{}"))
 
 
@@ -393,7 +415,9 @@ def plot(rows, path: Path) -> None:
         axes[0].loglog(r, [row["mem_total_mb"] / 1e3 for row in group], "s--", label=f"{label}: memory (GB)")
         axes[1].loglog(r, [row["rtt_p99_ms"] for row in group], "o-", label=f"{label}: round trip p99 (ms)")
         axes[1].loglog(r, [max(1e-3, row["decision_mean_ms"]) for row in group], "^--", label=f"{label}: decision (ms)")
-        axes[2].semilogx(r, [row.get("idle_ratio") or float("nan") for row in group], "o-", label=label)
+        axes[2].semilogx(r, [row.get("idle_ratio") or float("nan") for row in group], "o-", label=f"{label}: run")
+        axes[2].semilogx(r, [row.get("loop_idle_ratio") or float("nan") for row in group], "s--",
+                         label=f"{label}: stage loop")
         axes[3].semilogx(r, [row.get("fidelity_reward_ratio") or float("nan") for row in group], "o-",
                          label=label + " (decisions identical)" * all(row.get("fidelity") for row in group))
     axes[0].set_title("whole run")
