@@ -46,9 +46,12 @@ class Inbound:
 
     def pump(self, timeout_s: float) -> None:
         """Wait up to ``timeout_s`` seconds for inbox items, then handle every queued one, their
-        writes to mission.db committed together (storage.missiondb, :meth:`MissionStore.batch`)."""
-        item = self.node.next(max(0.0, timeout_s))
+        writes to mission.db committed together (storage.missiondb, :meth:`MissionStore.batch`).
+        With Poses set aside and an empty inbox, record them instead of waiting, until an item
+        arrives (:meth:`coordinator.recorder.RecorderHooks._record_poses`)."""
+        item = self.node.next(0.0 if self.poses else max(0.0, timeout_s))
         if item is None:
+            self._record_poses(busy=self.node.pending)
             return
         if self.store is None:
             self._drain(item)

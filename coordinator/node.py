@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -158,6 +158,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         self.node: Node | None = None
         self.store: MissionStore | None = None
         self.recorder = None  # recording.live.LiveRecorder while mission.mcap is written
+        self.poses: deque = deque()  # Poses waiting for an idle moment (coordinator.recorder)
         # Split brain (docs/fleet.md): this process's epoch (set when it opens mission.db), the
         # highest epoch a live primary reported while this one stood by, and the epoch of a
         # newer coordinator that deposed this one (None while not deposed).

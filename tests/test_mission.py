@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import numpy as np
 import pytest
 
 from mission import carrier as mc
@@ -560,3 +561,28 @@ def test_listened_is_the_component_or_the_neighbours(component_max, r, expected)
     assert listened(problem, r, component_max) == expected
     # the process's shared conflict graph gives the same answer as the carrier's own
     assert listened(problem, r, component_max, adjacency=conflict_adjacency(problem)) == expected
+
+
+def test_pair_map_is_a_mapping_that_set_never_changes():
+    # mission.state.PairMap: the (carrier, stage) maps of the state; set() shares the other
+    # stages' entries and leaves the map it was called on as it was.
+    from mission.state import PairMap
+
+    rng = np.random.default_rng(3)
+    plain: dict = {}
+    pm = PairMap()
+    history = []
+    for _ in range(200):
+        key = (f"c{int(rng.integers(6))}", int(rng.integers(4)))
+        value = int(rng.integers(100))
+        history.append((pm, dict(plain)))
+        pm = pm.set(key, value)
+        plain[key] = value
+        assert pm == plain and plain == pm and len(pm) == len(plain)
+        assert pm[key] == value and key in pm and pm.get(("zz", 0)) is None and ("zz", 0) not in pm
+    for old, snapshot in history:
+        assert old == snapshot  # nothing changed the earlier maps
+    assert PairMap(plain) == pm and set(pm) == set(plain) and dict(pm.items()) == plain
+    with pytest.raises(KeyError):
+        pm[("zz", 9)]
+    assert "c1" not in pm and 5 not in pm

@@ -258,6 +258,10 @@ class Node:
                 found.append(str(reply.ok.key_expr))
         return sorted(set(found))
 
+    def pending(self) -> bool:
+        """Whether an inbox item is waiting."""
+        return not self.inbox.empty()
+
     def next(self, timeout_s: float) -> Inbound | None:
         """The next inbox item, or None after ``timeout_s`` seconds."""
         try:
