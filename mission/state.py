@@ -16,7 +16,8 @@ Mission rules applied here (docs/protocol.md, "Stage handshake" and "Rejections"
   an accepted Hello of the same carrier; a Bye needs an accepted Hello too;
 * an Observation counts only for the stage being collected (``next_stage``): earlier ones are
   ``stale-stage``, later ones ``future-stage`` (rejected, never held), repeats ``duplicate``;
-  an identical repeat is absorbed; its ``t`` must be the stage time within :data:`T_TOLERANCE_S`;
+  an identical repeat is absorbed, also once its stage is decided; its ``t`` must be the stage
+  time within :data:`T_TOLERANCE_S`;
 * a Confirm of a stage not decided yet is ``stale-stage``; a repeat with the same outcome (or
   ``already``) is absorbed, a contradicting repeat is ``duplicate`` (the first one stands);
 * an Own message (a carrier's account of a stage it decided without the coordinator) is the
@@ -547,6 +548,12 @@ def _check_carrier_stage(state, e, what: str, timed: bool):
             or _no_hello(state, e.carrier, what))
 
 
+def _same_observation(state: MissionState, e: ev.Observation) -> bool:
+    """``e`` repeats the accepted Observation of its carrier and stage (same x and position)."""
+    key = (e.carrier, e.stage)
+    return key in state.reported and state.reported[key] == e.x and state.positions.get(key) == tuple(e.position)
+
+
 def _on_observation(state: MissionState, e: ev.Observation):
     cid, j = e.carrier, e.stage
     bad = _check_carrier_stage(state, e, "observation", timed=True)
@@ -557,12 +564,16 @@ def _on_observation(state: MissionState, e: ev.Observation):
             # The per-stage ∅ of a stage the carrier is not scheduled at: nobody waited for it
             # (a carrier joining at its staggered start sends one for the stage in progress).
             return state, ()
+        if _same_observation(state, e):
+            # The Observation the stage was decided with, again: a carrier that asked State while
+            # the stage was still collected and re-sent it, the Decision crossing it on the way.
+            return state, ()
         return state, (Reject("stale-stage", f"observation of carrier {cid} for decided stage {j}"),)
     if j > state.next_stage:
         return state, (Reject("future-stage", f"observation of carrier {cid} for stage {j}, "
                                               f"stage {state.next_stage} is being collected"),)
     if (cid, j) in state.reported:
-        if state.reported[(cid, j)] == e.x and state.positions.get((cid, j)) == tuple(e.position):
+        if _same_observation(state, e):
             return state, ()  # the same Observation again (a carrier that was not sure it arrived)
         return state, (Reject("duplicate", f"second observation of carrier {cid} at stage {j}"),)
     new = _replace(state, reported=state.reported.set((cid, j), e.x),
