@@ -241,3 +241,25 @@ def test_the_on_board_planner_loads_at_the_start_alone_and_when_needed_with_seve
                                                        CarrierConfig("b")])] == ["start", "need"]
     with pytest.raises(ValueError, match="onboard_load must be one of"):
         Carrier(tiny, CarrierConfig("a", onboard_load="later"), None)
+
+
+def test_merged_rows_replace_their_family_size_and_load(tmp_path):
+    # tools.scale --merge: a new row replaces the documented one of the same family, R, busy
+    # count and carrier flags; the others stay with their own 'measured' dates.
+    import json
+
+    from tools.scale import merge_rows
+
+    path = tmp_path / "fidelity_scale.json"
+    old = [{"family": "grid", "R": 256, "busy": 0, "carriers": "hybrid", "measured": "2026-12-01", "wall_s": 85.0},
+           {"family": "grid", "R": 256, "busy": 4, "carriers": "hybrid", "measured": "2026-12-01", "wall_s": 510.0},
+           {"family": "long-streets", "R": 6, "busy": 0, "carriers": "hybrid", "measured": "2026-12-01", "wall_s": 99.0}]
+    path.write_text(json.dumps(old))
+    new = [{"family": "grid", "R": 256, "busy": 0, "carriers": "hybrid", "measured": "2026-12-02", "wall_s": 42.0},
+           {"family": "grid", "R": 1024, "busy": 0, "carriers": "hybrid", "measured": "2026-12-02", "wall_s": 190.0}]
+    rows = merge_rows(path, new)
+    assert json.loads(path.read_text()) == rows
+    got = {(r["family"], r["R"], r["busy"]): (r["measured"], r["wall_s"]) for r in rows}
+    assert got == {("grid", 256, 0): ("2026-12-02", 42.0), ("grid", 256, 4): ("2026-12-01", 510.0),
+                   ("grid", 1024, 0): ("2026-12-02", 190.0), ("long-streets", 6, 0): ("2026-12-01", 99.0)}
+    assert path.with_suffix(".csv").read_text().count("\n") == 5

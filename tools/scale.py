@@ -456,6 +456,10 @@ def main(argv=None) -> int:
     p.add_argument("--no-autonomy", action="store_true",
                    help="carriers that never decide on board (run_fleet.py --no-autonomy): no planner "
                         "core in the carrier processes, no listening to other carriers")
+    p.add_argument("--merge", metavar="JSON",
+                   help="also merge this run's rows into JSON (docs/results/fidelity_scale.json): a row "
+                        "replaces the one of the same family, R, busy count and carrier flags; each row keeps "
+                        "its 'measured' date; the .csv beside it and --plot are written from the merged rows")
     p.add_argument("--verbose", action="store_true", help="show each run's output")
     args = p.parse_args(argv)
     families = args.family or ["grid"]
@@ -471,18 +475,42 @@ def main(argv=None) -> int:
                 row = run_one(n, out, args.seed, args.processes, args.planner, args.timeout, quiet=not args.verbose,
                               carrier_flags=("--no-autonomy",) if args.no_autonomy else (), family=family,
                               busy=busy, check=not args.no_fidelity)
+                row["measured"] = time.strftime("%Y-%m-%d")
                 rows.append(row)
                 print(table([row]).splitlines()[-1] if len(rows) > 1 else table([row]), flush=True)
                 (out / "scale.json").write_text(json.dumps(rows, indent=2))
-    with open(out / "scale.csv", "w", newline="") as handle:
+    write_csv(rows, out / "scale.csv")
+    print()
+    print(table(rows))
+    shown = rows
+    if args.merge:
+        shown = merge_rows(Path(args.merge), rows)
+        print(f"merged into {args.merge} ({len(shown)} rows)")
+    if args.plot:
+        plot(shown, Path(args.plot))
+    return 0 if all(row.get("returncode") == 0 for row in rows) else 1
+
+
+def write_csv(rows, path: Path) -> None:
+    with open(path, "w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=sorted({k for row in rows for k in row}))
         writer.writeheader()
         writer.writerows(rows)
-    print()
-    print(table(rows))
-    if args.plot:
-        plot(rows, Path(args.plot))
-    return 0 if all(row.get("returncode") == 0 for row in rows) else 1
+
+
+def merge_rows(path: Path, new_rows) -> list:
+    """The rows of ``path`` (a scale.json) with ``new_rows`` in place of those of the same family,
+    R, busy count and carrier flags (new ones appended), sorted; written back to ``path`` and to
+    the .csv beside it."""
+    def key(row):
+        return (row.get("family", "grid"), row["R"], row.get("busy", 0), row.get("carriers", "hybrid"))
+
+    merged = {key(row): row for row in (json.loads(path.read_text()) if path.exists() else [])}
+    merged.update((key(row), row) for row in new_rows)
+    rows = [merged[k] for k in sorted(merged)]
+    path.write_text(json.dumps(rows, indent=2))
+    write_csv(rows, path.with_suffix(".csv"))
+    return rows
 
 
 if __name__ == "__main__":
