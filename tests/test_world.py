@@ -131,6 +131,10 @@ def test_stepping_chipmunk_directly_gives_the_wrappers_bits(name):
     assert all(body.direct for body in world.Simulation(scenario)._bodies.values())  # the pinned pymunk has it
     for a, b in zip(*runs):
         assert np.array_equal(a, b)
+    body = world.Simulation(scenario)._bodies[ids[0]]
+    body.direct = False  # as with a pymunk whose wrapper keeps its state elsewhere: the wrapper only
+    body.advance(step_of(float(scenario.stage_times()[-1])))
+    assert np.array_equal(np.asarray(body.trace, dtype=float), runs[0][0][: len(body.trace)])
 
 
 def test_seed_changes_features_not_physics(tiny):

@@ -62,6 +62,7 @@ class Deployment:
     time: float
     position: tuple[float, float]
 
+
 #: What pymunk's Space.step does around chipmunk's step (:meth:`_CarrierBody._drive`).
 _WRAPPER_STATE = ("_space", "_bodies_to_check", "_add_later", "_remove_later", "_post_step_callbacks")
 
@@ -143,7 +144,7 @@ class _CarrierBody:
         dt = PHYSICS_DT
         sub = dt / SUBSTEPS
         body = self.body
-        c_body = body._body
+        c_body = body._body if self.direct else None
         while self.step < target_step:
             # idle stretches (halted, before the start, frozen after stop_time) are skipped in one
             # go: an idle step only zeroes the velocity, so this equals stepping one by one
@@ -162,7 +163,7 @@ class _CarrierBody:
                 continue
             t = self.step * dt
             rx, ry, fx, fy = self._reference(t)
-            p = cp.cpBodyGetPosition(c_body)
+            p = cp.cpBodyGetPosition(c_body) if c_body is not None else body.position
             vx = fx + CONTROL_GAIN * (rx - p.x)
             vy = fy + CONTROL_GAIN * (ry - p.y)
             v = math.hypot(vx, vy)
@@ -171,7 +172,7 @@ class _CarrierBody:
             self._drive(vx, vy, sub)
             self.step += 1
             if self.step % TRACE_STEPS == 0:
-                p = cp.cpBodyGetPosition(c_body)
+                p = cp.cpBodyGetPosition(c_body) if c_body is not None else body.position
                 self.trace.append((self.step * dt, p.x, p.y))
 
     @property
