@@ -310,6 +310,10 @@ RUNS = [
     Run("scale-fidelity", (S("python -m tools.scale --family grid --family long-streets --sizes 6,32,128,256,1024 "
                              "--busy 0,4 --plot scale.png", ("scale.png", "{tmp}/scale.png"), extra="--out {tmp}/fidelity"),),
         "heavy", wall_s=7200, mem_mb=12000),
+    Run("scale-fidelity-merge", (S("python -m tools.scale --family grid --sizes 256,1024 --merge "
+                                   "docs/results/fidelity_scale.json --plot docs/results/fidelity_scale.png",
+                                   ("docs/results/", "{tmp}/"), extra="--out {tmp}/merge"),),
+        "heavy", wall_s=1800, mem_mb=8000),
     Run("decision-scale", (S("python -m tools.decision_scale --sizes 32,64,128,256,1024 --probes 8 --out "
                              "docs/results/decision_scale.json --plot docs/results/decision_scale.png",
                              ("docs/results/", "{tmp}/")),),
