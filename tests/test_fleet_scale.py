@@ -263,3 +263,15 @@ def test_merged_rows_replace_their_family_size_and_load(tmp_path):
     assert got == {("grid", 256, 0): ("2026-12-02", 42.0), ("grid", 256, 4): ("2026-12-01", 510.0),
                    ("grid", 1024, 0): ("2026-12-02", 190.0), ("long-streets", 6, 0): ("2026-12-01", 99.0)}
     assert path.with_suffix(".csv").read_text().count("\n") == 5
+
+
+@pytest.mark.parametrize("family", ["grid", "long-streets"])
+@pytest.mark.parametrize("n, stages", [(6, 3), (256, 3), (1024, 3), (1024, 12)])
+def test_generated_scenarios_are_valid_at_every_size_and_length(family, n, stages):
+    # A family's scenario must load whatever R and stage count it is asked for (long streets with
+    # few stages and many carriers once drew streets outside its map).
+    from tools.scale import FAMILIES
+    from world.scenario import parse_scenario
+
+    scenario = parse_scenario(FAMILIES[family](n, seed=4, stages=stages))
+    assert scenario.n_carriers == n and scenario.stages == stages

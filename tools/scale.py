@@ -103,7 +103,8 @@ def long_streets_scenario(n_carriers: int, seed: int = 1, planner: str = "closed
     step = LONG_SPEED * stage_interval  # m between a carrier's decision points
     length = step * (stages + 1)
     spacing = 60.0
-    size = length + 2 * spacing
+    # the map holds the paths and every street (few stages and many carriers: more streets than length)
+    size = max(length + 2 * spacing, spacing * (streets + 1) + spacing / 2)
     carriers = []
     for k in range(n_carriers):
         street = int(rng.integers(0, streets))
