@@ -70,8 +70,9 @@ def grid_scenario(n_carriers: int, seed: int = 1, planner: str = "closed-loop", 
             a, b = b, a
         path = [[a, along], [b, along]] if k % 2 == 0 else [[along, a], [along, b]]
         start = float(rng.choice([0.0, 0.0, 0.0, STAGE_INTERVAL_S, 2 * STAGE_INTERVAL_S]))
-        carriers.append({"id": f"c{k:04d}", "passengers": PASSENGERS, "start_time": start, "speed": SPEED,
-                         "waypoints": path})
+        valid = sum(1 for j in range(stages) if start <= j * STAGE_INTERVAL_S <= start + travel / SPEED)
+        carriers.append({"id": f"c{k:04d}", "passengers": min(PASSENGERS, valid), "start_time": start,
+                         "speed": SPEED, "waypoints": path})
     return {
         "name": f"grid_{n_carriers}",
         "seed": int(seed),
