@@ -17,6 +17,25 @@ from wire import keys
 from wire.messages import End
 
 
+class _OfState:
+    """``fn(state)`` of the coordinator's current state, computed again only when the state is a
+    new object. A wait tests its condition after every inbox drain; the conditions are O(R)
+    (who is still waited for: 1.5 ms at R = 1,024), and most drains apply no event (Progress,
+    Poses, at a thousand a second at R = 1,024 in drains of one or two), so testing them anew
+    at every drain took most of the coordinator's CPU while a stage was collected. The state
+    is immutable (mission.state), so the value is the one ``fn`` would give."""
+
+    def __init__(self, owner, fn):
+        self._owner, self._fn = owner, fn
+        self._state = self._value = None
+
+    def __call__(self):
+        state = self._owner.state
+        if state is not self._state:
+            self._state, self._value = state, self._fn(state)
+        return self._value
+
+
 class StageClock:
     """The coordinator's waits and its stage loop."""
 
@@ -35,16 +54,18 @@ class StageClock:
         making progress: one that nothing came from for ``silence_timeout_s`` (since the stage
         opened) is stalled and not waited for any more; a dead or cut-off one leaves
         ``expected`` by itself when its token vanishes."""
+        waiting_for = _OfState(self, lambda state: state.waiting(j))
         if self.config.clock == "wall":
-            self._wait(self.config.stage_timeout_s, lambda: self.state.stage_complete(j))
+            self._wait(self.config.stage_timeout_s, lambda: not waiting_for())
             return
         silence = self.config.silence_timeout_s
 
         def done() -> bool:
-            waiting = self.state.waiting(j)
+            waiting = waiting_for()
             if not waiting:
                 return True
-            return time.monotonic() - last_heard(self.heard, waiting, opened) >= silence
+            now = time.monotonic()  # last_heard is never before ``opened``: no silence before then
+            return now - opened >= silence and now - last_heard(self.heard, waiting, opened) >= silence
 
         while not self._stop.is_set() and not done():
             self.pump(0.05)
@@ -57,12 +78,13 @@ class StageClock:
         """After the last decision: wait for its Confirms from the live carriers. Wall clock: at
         most ``confirm_timeout_s``; sim clock: until nothing came from any carrier still
         unconfirmed for ``silence_timeout_s``."""
+        unconfirmed = _OfState(self, lambda state: state.unconfirmed(j))
         if self.config.clock == "wall":
-            self._wait(self.config.confirm_timeout_s, lambda: not self.state.unconfirmed(j))
+            self._wait(self.config.confirm_timeout_s, lambda: not unconfirmed())
             return
         opened = time.monotonic()
         while not self._stop.is_set():
-            waiting = self.state.unconfirmed(j)
+            waiting = unconfirmed()
             if not waiting or time.monotonic() - last_heard(self.heard, waiting, opened) >= self.config.silence_timeout_s:
                 return
             self.pump(0.05)
