@@ -62,14 +62,11 @@ class StageClock:
 
         def done() -> bool:
             waiting = waiting_for()
-            if not waiting:
-                return True
-            now = time.monotonic()  # last_heard is never before ``opened``: no silence before then
-            return now - opened >= silence and now - last_heard(self.heard, waiting, opened) >= silence
+            return not waiting or self._silent(waiting, opened)
 
         while not self._stop.is_set() and not done():
             self.pump(0.05)
-        stalled = sorted(self.state.waiting(j))
+        stalled = sorted(waiting_for())
         if stalled and not self._stop.is_set():
             self.log(f"coordinator: stage {j}: nothing from {', '.join(stalled[:8])}"
                      f"{' ...' if len(stalled) > 8 else ''} for {silence:.0f} s (stalled); ∅ for them")
@@ -85,9 +82,16 @@ class StageClock:
         opened = time.monotonic()
         while not self._stop.is_set():
             waiting = unconfirmed()
-            if not waiting or time.monotonic() - last_heard(self.heard, waiting, opened) >= self.config.silence_timeout_s:
+            if not waiting or self._silent(waiting, opened):
                 return
             self.pump(0.05)
+
+    def _silent(self, waiting, opened: float) -> bool:
+        """Sim clock: nothing came from any of ``waiting`` for ``silence_timeout_s``, counted from
+        ``opened`` at the earliest (:func:`mission.peers.last_heard` is never before it, so the
+        O(|waiting|) look is skipped until that much time has passed since the wait opened)."""
+        silence, now = self.config.silence_timeout_s, time.monotonic()
+        return now - opened >= silence and now - last_heard(self.heard, waiting, opened) >= silence
 
     def _wait_for_carriers(self) -> None:
         """Before the first stage: wait until every carrier is live with an accepted Hello (or the

@@ -54,6 +54,12 @@ SIZES = (6, 32, 128, 256, 1024)
 SPEED, STAGE_INTERVAL_S, STAGES, PASSENGERS = 1.0, 10.0, 12, 3
 
 
+def _valid_stages(start: float, stop: float, stage_interval: float, stages: int) -> int:
+    """How many stage times fall within a carrier's [start, stop] (s): the most passengers the
+    scenario schema lets it carry."""
+    return sum(1 for j in range(stages) if start <= j * stage_interval <= stop)
+
+
 def grid_scenario(n_carriers: int, seed: int = 1, planner: str = "closed-loop", stages: int = STAGES) -> dict:
     """A scenario (the YAML mapping) of ``n_carriers`` carriers on a street grid, fixed by ``seed``."""
     rng = np.random.default_rng(np.random.SeedSequence([seed, n_carriers]))
@@ -70,7 +76,7 @@ def grid_scenario(n_carriers: int, seed: int = 1, planner: str = "closed-loop", 
             a, b = b, a
         path = [[a, along], [b, along]] if k % 2 == 0 else [[along, a], [along, b]]
         start = float(rng.choice([0.0, 0.0, 0.0, STAGE_INTERVAL_S, 2 * STAGE_INTERVAL_S]))
-        valid = sum(1 for j in range(stages) if start <= j * STAGE_INTERVAL_S <= start + travel / SPEED)
+        valid = _valid_stages(start, start + travel / SPEED, STAGE_INTERVAL_S, stages)
         carriers.append({"id": f"c{k:04d}", "passengers": min(PASSENGERS, valid), "start_time": start,
                          "speed": SPEED, "waypoints": path})
     return {
@@ -117,7 +123,7 @@ def long_streets_scenario(n_carriers: int, seed: int = 1, planner: str = "closed
         path = [[a, along], [b, along]] if k % 2 == 0 else [[along, a], [along, b]]
         start = float(rng.choice([0.0, 0.0, 0.0, 0.0, stage_interval, 2 * stage_interval]))
         stop = start + abs(b - a) / LONG_SPEED
-        valid = sum(1 for j in range(stages) if start <= j * stage_interval <= stop)
+        valid = _valid_stages(start, stop, stage_interval, stages)
         carriers.append({"id": f"c{k:04d}", "passengers": min(PASSENGERS, valid), "start_time": start,
                          "speed": LONG_SPEED, "waypoints": path})
     return {

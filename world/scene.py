@@ -12,7 +12,6 @@ Imports numpy and world/ only (no matplotlib, no zenoh).
 from __future__ import annotations
 
 import functools
-
 from dataclasses import dataclass
 
 import numpy as np
