@@ -45,6 +45,9 @@ from planner.problem import Problem, evaluate, warm_up_problem
 MAX_OPTIONS = 200_000
 #: Default search-node limit (one node = one carrier's option tried on top of a partial plan).
 MAX_NODES = 2_000_000
+#: Flat points a node visits per second here (a node visits every one of the R * N points; 300,000
+#: nodes of a 256-carrier, 12-stage street grid took 1.6 s). Only :func:`node_limit` reads it.
+POINT_VISITS_PER_S = 5e8
 
 
 @dataclass(frozen=True, eq=False)
@@ -315,6 +318,13 @@ def _branch_and_bound(points, options, values, n_stages, incumbent, max_nodes):
         rest_ub[level] = rest_next
         idx[level] = -1
     return best, best_opts, nodes, True
+
+
+def node_limit(problem: Problem, seconds: float) -> int:
+    """The node limit that keeps the search within about ``seconds`` on this project's reference
+    host (:data:`POINT_VISITS_PER_S`), at most :data:`MAX_NODES`. A limit of nodes, not of time:
+    the result depends on the instance only, never on the host's speed or load."""
+    return max(1, min(MAX_NODES, int(seconds * POINT_VISITS_PER_S / max(1, problem.valid.size))))
 
 
 def solve(problem: Problem, x: np.ndarray, max_nodes: int = MAX_NODES) -> ClairvoyantResult:
