@@ -129,6 +129,39 @@ class MissionRecord:
         return j
 
 
+class _Tx:
+    """The context of one write of a :class:`MissionStore`: its own transaction, or a savepoint
+    of the open batch's (:meth:`MissionStore.batch`)."""
+
+    __slots__ = ("store",)
+
+    def __init__(self, store: "MissionStore"):
+        self.store = store
+
+    def __enter__(self):
+        db = self.store.db
+        if self.store._batching:
+            if not db.in_transaction:
+                db.execute("BEGIN IMMEDIATE")
+            db.execute("SAVEPOINT write")
+            return
+        if db.in_transaction:  # a write that failed half-way: never build on it
+            db.execute("ROLLBACK")
+        db.execute("BEGIN IMMEDIATE")
+
+    def __exit__(self, kind, value, tb):
+        db = self.store.db
+        if self.store._batching:
+            if kind is not None:
+                db.execute("ROLLBACK TO write")
+            db.execute("RELEASE write")
+        elif kind is None:
+            db.execute("COMMIT")
+        elif db.in_transaction:
+            db.execute("ROLLBACK")
+        return False
+
+
 class MissionStore:
     """Append-only mission log. Not thread-safe: use it from the coordinator's main thread only."""
 
@@ -177,33 +210,9 @@ class MissionStore:
             raise
 
     # ------------------------------------------------------------------ writing
-    def _tx(self):
+    def _tx(self) -> "_Tx":
         """One write: its own transaction, or a savepoint of the open batch's."""
-        db, store = self.db, self
-
-        class _Tx:
-            def __enter__(self):
-                if store._batching:
-                    if not db.in_transaction:
-                        db.execute("BEGIN IMMEDIATE")
-                    db.execute("SAVEPOINT write")
-                    return
-                if db.in_transaction:  # a write that failed half-way: never build on it
-                    db.execute("ROLLBACK")
-                db.execute("BEGIN IMMEDIATE")
-
-            def __exit__(self, kind, value, tb):
-                if store._batching:
-                    if kind is not None:
-                        db.execute("ROLLBACK TO write")
-                    db.execute("RELEASE write")
-                elif kind is None:
-                    db.execute("COMMIT")
-                elif db.in_transaction:
-                    db.execute("ROLLBACK")
-                return False
-
-        return _Tx()
+        return _Tx(self)
 
     @contextmanager
     def batch(self):

@@ -10,6 +10,7 @@ Field types, units and meaning are documented on each dataclass and in docs/prot
 from __future__ import annotations
 
 import contextvars
+import functools
 import math
 import threading
 from collections import OrderedDict
@@ -111,8 +112,11 @@ def _text(max_len: int = MAX_TEXT) -> Validator:
     return check
 
 
+_ID_TEXT = _text(64)
+
+
 def _ident(value, name):
-    _text(64)(value, name)
+    _ID_TEXT(value, name)
     if not ID_PATTERN.match(value):
         raise ProtocolError("out-of-range", f"{name}: not a valid id: {value[:40]!r}")
     return value
@@ -130,15 +134,36 @@ def _list(inner: Validator, max_len: int) -> Validator:
             raise ProtocolError("wrong-type", f"{name}: expected array, found {type(value).__name__}")
         if len(value) > max_len:
             raise ProtocolError("out-of-range", f"{name}: more than {max_len} items")
+        if inner is _point:  # a trail: its items checked at once, each named only on a defect
+            fast = _plain_points(value)
+            if fast is not None:
+                return fast
         return tuple(inner(item, f"{name}[{k}]") for k, item in enumerate(value))
     return check
+
+
+_COORD = _float(-MAX_COORD, MAX_COORD)
+
+
+def _plain_points(value) -> tuple | None:
+    """``value``'s [x, y] items as :func:`_point` returns them when every one is a pair of plain
+    numbers in range; None when one is not (then :func:`_point` names the defect)."""
+    out = []
+    for item in value:
+        if type(item) not in (list, tuple) or len(item) != 2:
+            return None
+        x, y = item
+        if (type(x) not in (int, float) or type(y) not in (int, float)
+                or not (-MAX_COORD <= x <= MAX_COORD and -MAX_COORD <= y <= MAX_COORD)):
+            return None  # NaN fails the comparison too
+        out.append((float(x), float(y)))
+    return tuple(out)
 
 
 def _point(value, name):
     if not isinstance(value, (list, tuple)) or len(value) != 2:
         raise ProtocolError("wrong-type", f"{name}: expected [x, y]")
-    coord = _float(-MAX_COORD, MAX_COORD)
-    return (coord(value[0], f"{name}[0]"), coord(value[1], f"{name}[1]"))
+    return (_COORD(value[0], f"{name}[0]"), _COORD(value[1], f"{name}[1]"))
 
 
 def _unique_ids(value, name):
@@ -702,25 +727,31 @@ def encode(message, revision: int = REVISION) -> bytes:
     return data
 
 
+@functools.cache
+def _fields_of(cls, revision: int) -> tuple[frozenset, tuple]:
+    """The wire fields of ``cls`` a receiver of ``revision`` reads: their names, and per field in
+    order (name, validator, optional, enumerated values or None)."""
+    specs = tuple((f.name, f.metadata["check"], "absent" in f.metadata, f.metadata.get("values"))
+                  for f in fields(cls) if f.name != "v" and f.metadata.get("since", 1) <= revision)
+    return frozenset(name for name, *_ in specs), specs
+
+
 def _build(cls, data: dict, where: str, revision: int = REVISION):
-    names = {f.name for f in fields(cls) if f.metadata.get("since", 1) <= revision} - {"v"}
-    unknown = set(data) - names
-    if unknown:
+    names, specs = _fields_of(cls, revision)
+    if not names.issuperset(data):
+        unknown = set(data) - names
         raise ProtocolError("unknown-field", f"{where}: unexpected field {sorted(map(str, unknown))[0]!r}")
     values = {}
-    for f in fields(cls):
-        if f.name == "v" or f.name not in names:
-            continue
-        if f.name not in data:
-            if "absent" in f.metadata:
+    for name, check, optional, allowed in specs:
+        if name not in data:
+            if optional:
                 continue  # optional: the dataclass default is the documented meaning of absent
-            raise ProtocolError("missing-field", f"{where}: missing field {f.name!r}")
-        values[f.name] = f.metadata["check"](data[f.name], f"{where}.{f.name}")
-        allowed = f.metadata.get("values")
-        if allowed is not None and allowed.get(values[f.name], REVISION + 1) > revision:
+            raise ProtocolError("missing-field", f"{where}: missing field {name!r}")
+        values[name] = check(data[name], f"{where}.{name}")
+        if allowed is not None and allowed.get(values[name], REVISION + 1) > revision:
             choices = sorted(k for k, since in allowed.items() if since <= revision)
-            raise ProtocolError("out-of-range", f"{where}.{f.name}: expected one of {choices}, "
-                                                f"found {str(values[f.name])[:40]!r}")
+            raise ProtocolError("out-of-range", f"{where}.{name}: expected one of {choices}, "
+                                                f"found {str(values[name])[:40]!r}")
     return cls(**values)
 
 
