@@ -19,11 +19,10 @@ from wire.messages import End
 
 class _OfState:
     """``fn(state)`` of the coordinator's current state, computed again only when the state is a
-    new object. A wait tests its condition after every inbox drain; the conditions are O(R)
-    (who is still waited for: 1.5 ms at R = 1,024), and most drains apply no event (Progress,
-    Poses, at a thousand a second at R = 1,024 in drains of one or two), so testing them anew
-    at every drain took most of the coordinator's CPU while a stage was collected. The state
-    is immutable (mission.state), so the value is the one ``fn`` would give."""
+    new object. A wait tests its condition after every inbox drain, and most drains apply no
+    event (Progress, Poses, at a thousand a second at R = 1,024 in drains of one or two); the
+    conditions are set differences over R carriers (``MissionState.waiting``). The state is
+    immutable (mission.state), so the value is the one ``fn`` would give."""
 
     def __init__(self, owner, fn):
         self._owner, self._fn = owner, fn

@@ -96,7 +96,7 @@ class Inbound:
         if parsed is None or parsed[1] not in TOPIC_TYPES:
             raise ProtocolError("bad-key", f"message on {item.key[:80]}")
         cid, topic = parsed
-        if cid not in self.spec.carriers:
+        if not self.spec.has(cid):
             raise ProtocolError("unknown-carrier", f"message from carrier {cid!r}")
         msg = decode(item.payload, TOPIC_TYPES[topic])
         if msg.mission != self.mission:

@@ -220,7 +220,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         asked = keys.asked_revision(parameters, REVISION, UNANNOUNCED_REVISION)
         wanted = (parameters or {}).get("carrier")
         if wanted is not None:
-            ids = [wanted] if wanted in self.spec.carriers else []
+            ids = [wanted] if self.spec.has(wanted) else []
         else:
             ids = list(self.ids) if len(self.ids) <= MAX_STATE_CARRIERS else []
         carriers = tuple(sorted((cid, self._carrier_state(st, cid)) for cid in ids))

@@ -27,7 +27,7 @@ class RecorderHooks:
         """A carrier's Pose: not a mission event and never a rejection (docs/protocol.md, "Pose");
         set aside for the recorder (:meth:`_record_poses`); past :data:`POSES_HELD` waiting, the
         oldest is recorded now (a coordinator that is never idle holds a bounded backlog)."""
-        if self.recorder is not None and cid in self.spec.carriers:
+        if self.recorder is not None and self.spec.has(cid):
             if len(self.poses) >= POSES_HELD:
                 self._record_pose(*self.poses.popleft())
             self.poses.append((cid, item))

@@ -121,6 +121,29 @@ def test_stage_clock_predicates(events, j, expected, waiting):
     assert state.stage_complete(j) == (not waiting)
 
 
+def test_the_clock_predicates_follow_every_event():
+    """expected(j) is remembered for its inputs (mission.state._expected): after each event of a
+    mission with a crash, a rejoin, a Hello from a later stage and an account, every stage's
+    expected, waiting and unconfirmed equal a count from scratch, asked of the new state and the
+    one before it in turns."""
+    def scratch(st, j):
+        exp = frozenset(cid for r, cid in enumerate(SPEC.carriers) if SPEC.valid[r][j] and cid in st.live
+                        and cid in st.accepted and not st.passed(cid, j))
+        return (exp, frozenset(c for c in exp if (c, j) not in st.reported),
+                frozenset(c for c in st.live if (c, j) not in st.confirms))
+
+    own = ev.Accounted("b", 1, 5.0, 2, False, (1.0, 2.0), 1, 6.0)
+    events = READY + [obs("a", 0, 3), decide(0, ("a",)), confirm("a", 0, True, "deployed"), live("b", False),
+                      obs("a", 1, 1), live("b"), hello("b", at=5.0, next_stage=1), own, decide(1),
+                      confirm("a", 1, False, "idle"), obs("a", 2, 0), obs("b", 2, 4), decide(2)]
+    for j in range(SPEC.n_stages):  # one stage asked through a whole mission, as a wait does
+        state = ms.initial(SPEC)
+        for e in events:
+            previous, (state, _) = state, ms.step(state, e)
+            for st in (state, previous, state):
+                assert (st.expected(j), st.waiting(j), st.unconfirmed(j)) == scratch(st, j), (e, j)
+
+
 def test_missing_carrier_is_empty_and_recorded_with_the_decision():
     state, effects = run(READY + [decide(0, ())])
     assert (("a", 0) in state.missing) and state.missing_stages("a") == [0]
