@@ -106,45 +106,7 @@ class _CarrierBody:
         p = self.body.position
         self.trace: list[tuple[float, float, float]] = [(0.0, p.x, p.y)]
 
-    def _reference(self, t: float) -> tuple[float, float, float, float]:
-        """(x, y) of the planned position at time t and the feed-forward velocity (m, m/s)."""
-        spec = self.spec
-        moving = min(max(t, spec.start_time), spec.stop_time) - spec.start_time
-        s = min(spec.speed * moving, self.length)
-        cum = self.cum
-        k = min(max(bisect.bisect_right(cum, s) - 1, 0), len(cum) - 2)
-        ux, uy = self.units[k]
-        ax, ay = self.points[k]
-        d = s - cum[k]
-        if spec.start_time <= t < spec.stop_time and s < self.length:
-            return ax + d * ux, ay + d * uy, ux * spec.speed, uy * spec.speed
-        return ax + d * ux, ay + d * uy, 0.0, 0.0
-
-    def _drive(self, vx: float, vy: float, sub: float) -> None:
-        """Set the body's velocity and step the space SUBSTEPS times by ``sub`` seconds.
-
-        Through chipmunk's functions directly when pymunk's wrapper has nothing to do around
-        them (no body to check, nothing to add or remove after the step, no post-step callback:
-        always so between two deployments), through the wrapper otherwise: the same C calls
-        with the same arguments either way, so the same bits (tests/test_world.py), at half the
-        cost per step (the wrapper's Python was half of a carrier's physics)."""
-        space = self.space
-        if not self.direct or space._bodies_to_check or space._add_later or space._remove_later \
-                or space._post_step_callbacks:
-            self.body.velocity = (vx, vy)
-            for _ in range(SUBSTEPS):
-                space.step(sub)
-            return
-        cp.cpBodySetVelocity(self.body._body, (vx, vy))
-        c_space = space._space
-        for _ in range(SUBSTEPS):
-            cp.cpSpaceStep(c_space, sub)
-
     def advance(self, target_step: int) -> None:
-        dt = PHYSICS_DT
-        sub = dt / SUBSTEPS
-        body = self.body
-        c_body = body._body if self.direct else None
         while self.step < target_step:
             # idle stretches (halted, before the start, frozen after stop_time) are skipped in one
             # go: an idle step only zeroes the velocity, so this equals stepping one by one
@@ -153,27 +115,68 @@ class _CarrierBody:
             elif self.step < self.start_step:
                 idle_end = min(target_step, self.start_step)
             else:
-                idle_end = self.step
-            if idle_end > self.step:
-                body.velocity = (0.0, 0.0)
-                p = body.position
-                first = (self.step // TRACE_STEPS + 1) * TRACE_STEPS
-                self.trace.extend((k * dt, p.x, p.y) for k in range(first, idle_end + 1, TRACE_STEPS))
-                self.step = idle_end
+                self._drive(min(target_step, self.frozen_after))
                 continue
-            t = self.step * dt
-            rx, ry, fx, fy = self._reference(t)
-            p = cp.cpBodyGetPosition(c_body) if c_body is not None else body.position
-            vx = fx + CONTROL_GAIN * (rx - p.x)
-            vy = fy + CONTROL_GAIN * (ry - p.y)
+            self.body.velocity = (0.0, 0.0)
+            p = self.body.position
+            first = (self.step // TRACE_STEPS + 1) * TRACE_STEPS
+            self.trace.extend((k * PHYSICS_DT, p.x, p.y) for k in range(first, idle_end + 1, TRACE_STEPS))
+            self.step = idle_end
+
+    def _drive(self, end: int) -> None:
+        """The steps up to ``end`` of a carrier driving its path: at each, the planned position
+        and feed-forward velocity at t, the velocity command (capped), then SUBSTEPS steps of
+        the space.
+
+        Written as one loop over local names (a carrier's physics is most of its CPU: 9,600
+        steps a stage on long streets), and through chipmunk's functions directly when pymunk's
+        wrapper has nothing to do around them (no body to check, nothing to add or remove after
+        the step, no post-step callback: always so between two deployments), through the
+        wrapper otherwise: the same C calls with the same arguments and the same float
+        operations in the same order either way, so the same bits (tests/test_world.py)."""
+        dt, sub, gain, substeps = PHYSICS_DT, PHYSICS_DT / SUBSTEPS, CONTROL_GAIN, range(SUBSTEPS)
+        spec = self.spec
+        t_start, t_stop, speed, length = spec.start_time, spec.stop_time, spec.speed, self.length
+        cum, units, points, last_leg = self.cum, self.units, self.points, len(self.cum) - 2
+        max_speed, trace = self.max_speed, self.trace
+        space, body = self.space, self.body
+        c_body = body._body if self.direct else None
+        c_space = space._space if self.direct else None
+        get_position, set_velocity, space_step = cp.cpBodyGetPosition, cp.cpBodySetVelocity, cp.cpSpaceStep
+        step = self.step
+        while step < end:
+            t = step * dt
+            # the reference: where the path puts the carrier at t, and its velocity there
+            s = min(speed * (min(max(t, t_start), t_stop) - t_start), length)
+            k = min(max(bisect.bisect_right(cum, s) - 1, 0), last_leg)
+            ux, uy = units[k]
+            ax, ay = points[k]
+            d = s - cum[k]
+            rx, ry = ax + d * ux, ay + d * uy
+            if t_start <= t < t_stop and s < length:
+                fx, fy = ux * speed, uy * speed
+            else:
+                fx, fy = 0.0, 0.0
+            p = get_position(c_body) if c_body is not None else body.position
+            vx = fx + gain * (rx - p.x)
+            vy = fy + gain * (ry - p.y)
             v = math.hypot(vx, vy)
-            if v > self.max_speed:
-                vx, vy = vx * self.max_speed / v, vy * self.max_speed / v
-            self._drive(vx, vy, sub)
-            self.step += 1
-            if self.step % TRACE_STEPS == 0:
-                p = cp.cpBodyGetPosition(c_body) if c_body is not None else body.position
-                self.trace.append((self.step * dt, p.x, p.y))
+            if v > max_speed:
+                vx, vy = vx * max_speed / v, vy * max_speed / v
+            if c_body is None or space._bodies_to_check or space._add_later or space._remove_later \
+                    or space._post_step_callbacks:
+                body.velocity = (vx, vy)
+                for _ in substeps:
+                    space.step(sub)
+            else:
+                set_velocity(c_body, (vx, vy))
+                for _ in substeps:
+                    space_step(c_space, sub)
+            step += 1
+            self.step = step
+            if step % TRACE_STEPS == 0:
+                p = get_position(c_body) if c_body is not None else body.position
+                trace.append((step * dt, p.x, p.y))
 
     @property
     def position(self) -> tuple[float, float]:
