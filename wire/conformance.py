@@ -23,7 +23,8 @@ stage 1: that Decision comes late), ``duplicate`` (the Decision of stage 0 is pu
 the carrier has answered it), ``restart`` (the coordinator is killed, SIGKILL, once the carrier
 has answered stage 1, and restarted on its mission.db: epoch 2), ``deposed`` (after the restart,
 a Decision of epoch 1 for the stage the carrier waits at, selecting it, while the coordinator is
-frozen). Then it prints one line per rule: how many times the carrier was exercised on it, pass
+frozen; published only when no real Decision of that stage arrives within ``SETTLE_S`` of the
+freeze, else tried at a later stage, so the fake one always comes first). Then it prints one line per rule: how many times the carrier was exercised on it, pass
 or fail, and the first message that broke it. Exit status 0 only when every exercised rule
 passes (1 otherwise, 2 for a usage error).
 
