@@ -14,7 +14,8 @@ decision time (mean and max planner wall time per stage), messages per second, c
 time per carrier and stage (``carrier_cpu_ms``), a stage's wall time against the work in it
 (``idle_ratio``: wall time per stage / (carrier CPU per stage / cores + planning time), over the
 whole run; ``loop_idle_ratio``: the same over the stage loop alone, first Observation to last
-Confirm, with the carriers' CPU in that window), the
+Confirm, with the carriers' CPU in that window; ``loop_cpu_ratio``: the stage loop's wall
+time against all the fleet's CPU in it, the coordinator's outside planning included), the
 fidelity (``fidelity``: observations and decisions identical to ``planner.online.run_online``
 over ``world.observe_all``, and ``fidelity_reward_ratio``, the reward against the offline one)
 and the reward against the clairvoyant bound (an exact optimum, or a labelled conflict-free
@@ -168,8 +169,8 @@ class TreeSampler:
         peak_total: largest sum of RSS over the tree (bytes).
         peak: pid -> (largest RSS in bytes, role): coordinator, carrier, router or launcher.
         cpu: pid -> (user + system CPU seconds at the last sample, role).
-        series: (time.time(), carriers' CPU seconds so far) at every sample, so that the CPU of
-            a window of the run (its stage loop) can be read off.
+        series: (time.time(), carriers' CPU seconds so far, the coordinator's) at every sample,
+            so that the CPU of a window of the run (its stage loop) can be read off.
     """
 
     def __init__(self, pid: int, period_s: float = 0.5):
@@ -181,7 +182,7 @@ class TreeSampler:
         self.peak_carriers = 0
         self.peak: dict[int, tuple[int, str]] = {}
         self.cpu: dict[int, tuple[float, str]] = {}
-        self.series: list[tuple[float, float]] = []
+        self.series: list[tuple[float, float, float]] = []
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -211,14 +212,17 @@ class TreeSampler:
                 self.cpu[proc.pid] = (times.user + times.system, role)
             self.peak_total = max(self.peak_total, total)
             self.peak_carriers = max(self.peak_carriers, carriers)
-            self.series.append((time.time(), sum(v for v, role in self.cpu.values() if role == "carrier")))
+            self.series.append((time.time(), *(sum(v for v, role in self.cpu.values() if role == which)
+                                               for which in ("carrier", "coordinator"))))
             self._stop.wait(self.period_s)
 
-    def carrier_cpu_between(self, start: float, end: float) -> float:
-        """The carriers' CPU seconds between two ``time.time()`` instants (linear between samples)."""
+    def cpu_between(self, start: float, end: float, role: str = "carrier") -> float:
+        """The CPU seconds of the carriers (``role`` carrier) or the coordinator between two
+        ``time.time()`` instants (linear between samples)."""
         if len(self.series) < 2:
             return 0.0
-        times, cpu = zip(*self.series)
+        times, carriers, coordinator = zip(*self.series)
+        cpu = carriers if role == "carrier" else coordinator
         return float(np.interp(end, times, cpu) - np.interp(start, times, cpu))
 
     def stop(self):
@@ -369,11 +373,19 @@ def run_one(n_carriers: int, out: Path, seed: int, processes: int | None, planne
         # The same ratio over the stage loop only (first Observation to last Confirm, from
         # mission.db, and the carriers' CPU in that window): the whole run's figure above also
         # holds the processes' start, the join and the summary's bound, which are not stages.
+        # loop_cpu_ratio also counts the coordinator's CPU outside planning (decoding, the state,
+        # mission.db, mission.mcap), which the carriers' CPU and planning leave out: near 1, no
+        # core waited while there was fleet work to do.
         if counts["first"] is not None:
-            loop_cpu = sampler.carrier_cpu_between(counts["first"], counts["last"])
+            cores, plan_s = os.cpu_count() or 1, (plan.get("mean") or 0) / 1e3
+            loop_cpu = sampler.cpu_between(counts["first"], counts["last"])
+            coordinator_cpu = sampler.cpu_between(counts["first"], counts["last"], "coordinator")
             row["loop_stage_s"] = counts["span_s"] / stages
-            row["loop_work_s"] = loop_cpu / stages / (os.cpu_count() or 1) + (plan.get("mean") or 0) / 1e3
+            row["loop_work_s"] = loop_cpu / stages / cores + plan_s
             row["loop_idle_ratio"] = row["loop_stage_s"] / max(1e-9, row["loop_work_s"])
+            row["loop_coordinator_cpu_s"] = coordinator_cpu / stages
+            row["loop_busy_s"] = (loop_cpu / stages + max(0.0, coordinator_cpu / stages - plan_s)) / cores + plan_s
+            row["loop_cpu_ratio"] = row["loop_stage_s"] / max(1e-9, row["loop_busy_s"])
         if check:
             x, reference = offline_reference(scen)
             row.update({f"fidelity_{k}" if k != "identical" else "fidelity": v
@@ -387,7 +399,7 @@ COLUMNS = (("family", "{}"), ("busy", "{:d}"), ("load", "{:.0f}"), ("R", "{:d}")
            ("mem_per_carrier_mb", "{:.1f}"), ("mem_coordinator_mb", "{:.0f}"), ("rtt_p50_ms", "{:.0f}"),
            ("rtt_p99_ms", "{:.0f}"), ("decision_mean_ms", "{:.0f}"), ("decision_max_ms", "{:.0f}"),
            ("messages_per_s", "{:.0f}"), ("carrier_cpu_ms", "{:.1f}"), ("idle_ratio", "{:.2f}"),
-           ("loop_idle_ratio", "{:.2f}"),
+           ("loop_idle_ratio", "{:.2f}"), ("loop_cpu_ratio", "{:.2f}"),
            ("fidelity", "{}"), ("fidelity_reward_ratio", "{:.3f}"), ("fraction", "{:.2f}"), ("bound_exact", "{}"))
 
 
