@@ -15,7 +15,8 @@ time per carrier and stage (``carrier_cpu_ms``), a stage's wall time against the
 (``idle_ratio``: wall time per stage / (carrier CPU per stage / cores + planning time), over the
 whole run; ``loop_idle_ratio``: the same over the stage loop alone, first Observation to last
 Confirm, with the carriers' CPU in that window; ``loop_cpu_ratio``: the stage loop's wall
-time against all the fleet's CPU in it, the coordinator's outside planning included), the
+time against all the fleet's CPU in it, the coordinator's outside planning and the routers'
+included), the
 fidelity (``fidelity``: observations and decisions identical to ``planner.online.run_online``
 over ``world.observe_all``, and ``fidelity_reward_ratio``, the reward against the offline one)
 and the reward against the clairvoyant bound (an exact optimum, or a labelled conflict-free
@@ -162,6 +163,10 @@ def default_processes(n_carriers: int) -> int:
     return n_carriers if n_carriers <= 8 else min(16, max(2, math.ceil(n_carriers / 32)))
 
 
+#: The roles of a fleet's processes whose CPU :class:`TreeSampler` follows over time.
+ROLES = ("carrier", "coordinator", "router")
+
+
 class TreeSampler:
     """Samples the RSS of a process tree every ``period_s`` seconds in a thread.
 
@@ -169,8 +174,9 @@ class TreeSampler:
         peak_total: largest sum of RSS over the tree (bytes).
         peak: pid -> (largest RSS in bytes, role): coordinator, carrier, router or launcher.
         cpu: pid -> (user + system CPU seconds at the last sample, role).
-        series: (time.time(), carriers' CPU seconds so far, the coordinator's) at every sample,
-            so that the CPU of a window of the run (its stage loop) can be read off.
+        series: (time.time(), CPU seconds so far of the carriers, the coordinator and the
+            routers) at every sample, so that the CPU of a window of the run (its stage loop)
+            can be read off.
     """
 
     def __init__(self, pid: int, period_s: float = 0.5):
@@ -182,7 +188,7 @@ class TreeSampler:
         self.peak_carriers = 0
         self.peak: dict[int, tuple[int, str]] = {}
         self.cpu: dict[int, tuple[float, str]] = {}
-        self.series: list[tuple[float, float, float]] = []
+        self.series: list[tuple[float, float, float, float]] = []
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
         self._thread.start()
@@ -213,16 +219,16 @@ class TreeSampler:
             self.peak_total = max(self.peak_total, total)
             self.peak_carriers = max(self.peak_carriers, carriers)
             self.series.append((time.time(), *(sum(v for v, role in self.cpu.values() if role == which)
-                                               for which in ("carrier", "coordinator"))))
+                                               for which in ROLES)))
             self._stop.wait(self.period_s)
 
     def cpu_between(self, start: float, end: float, role: str = "carrier") -> float:
-        """The CPU seconds of the carriers (``role`` carrier) or the coordinator between two
+        """The CPU seconds of the processes of ``role`` (one of :data:`ROLES`) between two
         ``time.time()`` instants (linear between samples)."""
         if len(self.series) < 2:
             return 0.0
-        times, carriers, coordinator = zip(*self.series)
-        cpu = carriers if role == "carrier" else coordinator
+        times, *by_role = zip(*self.series)
+        cpu = by_role[ROLES.index(role)]
         return float(np.interp(end, times, cpu) - np.interp(start, times, cpu))
 
     def stop(self):
@@ -346,7 +352,8 @@ def run_one(n_carriers: int, out: Path, seed: int, processes: int | None, planne
            "mem_carrier_process_mb": max((v for v, role in sampler.peak.values() if role == "carrier"),
                                          default=0) / 1e6,
            "cpu_carriers_s": sum(v for v, role in sampler.cpu.values() if role == "carrier"),
-           "cpu_coordinator_s": sum(v for v, role in sampler.cpu.values() if role == "coordinator")}
+           "cpu_coordinator_s": sum(v for v, role in sampler.cpu.values() if role == "coordinator"),
+           "cpu_routers_s": sum(v for v, role in sampler.cpu.values() if role == "router")}
     summary_path = run_dir / "summary.json"
     if summary_path.exists():
         s = json.loads(summary_path.read_text())
@@ -374,17 +381,20 @@ def run_one(n_carriers: int, out: Path, seed: int, processes: int | None, planne
         # mission.db, and the carriers' CPU in that window): the whole run's figure above also
         # holds the processes' start, the join and the summary's bound, which are not stages.
         # loop_cpu_ratio also counts the coordinator's CPU outside planning (decoding, the state,
-        # mission.db, mission.mcap), which the carriers' CPU and planning leave out: near 1, no
-        # core waited while there was fleet work to do.
+        # mission.db, mission.mcap) and the routers', which the carriers' CPU and planning leave
+        # out: near 1, no core waited while there was fleet work to do.
         if counts["first"] is not None:
             cores, plan_s = os.cpu_count() or 1, (plan.get("mean") or 0) / 1e3
             loop_cpu = sampler.cpu_between(counts["first"], counts["last"])
             coordinator_cpu = sampler.cpu_between(counts["first"], counts["last"], "coordinator")
+            routers_cpu = sampler.cpu_between(counts["first"], counts["last"], "router")
             row["loop_stage_s"] = counts["span_s"] / stages
             row["loop_work_s"] = loop_cpu / stages / cores + plan_s
             row["loop_idle_ratio"] = row["loop_stage_s"] / max(1e-9, row["loop_work_s"])
             row["loop_coordinator_cpu_s"] = coordinator_cpu / stages
-            row["loop_busy_s"] = (loop_cpu / stages + max(0.0, coordinator_cpu / stages - plan_s)) / cores + plan_s
+            row["loop_routers_cpu_s"] = routers_cpu / stages
+            row["loop_busy_s"] = ((loop_cpu + routers_cpu) / stages + max(0.0, coordinator_cpu / stages - plan_s)) \
+                / cores + plan_s
             row["loop_cpu_ratio"] = row["loop_stage_s"] / max(1e-9, row["loop_busy_s"])
         if check:
             x, reference = offline_reference(scen)
