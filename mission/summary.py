@@ -20,6 +20,7 @@ from .state import MissionState
 #: finishes there anyway).
 BOUND_SEARCH_S = 1.0
 
+
 @dataclass(frozen=True)
 class RunInfo:
     """The coordinator process's own facts for summary.json.

@@ -6,8 +6,9 @@ Real processes over real Zenoh on loopback, the host saturated by busy processes
 themselves (twice as many as cores, at normal priority, while the launcher runs its carriers
 niced): six_carriers; a physics-heavy family generated from a seed (long stages: seconds of
 carrier CPU per stage, so that under load a stage takes longer than a wall-clock stage
-timeout, cut to 1 s there so that this holds on a fast host too); a 256-carrier street grid in 8 carrier processes. Every test asserts identical
-observations, decisions and reward, not a fraction. The families and seeds here are not the ones
+timeout, cut to 1 s there so that this holds on a fast host too); a 256-carrier street grid in
+8 carrier processes. Every test asserts identical observations, decisions and reward, not a
+fraction. The families and seeds here are not the ones
 the sim clock was developed on (long-streets seed 1, 32 carriers).
 """
 from __future__ import annotations

@@ -24,9 +24,10 @@ the carrier has answered it), ``restart`` (the coordinator is killed, SIGKILL, o
 has answered stage 1, and restarted on its mission.db: epoch 2), ``deposed`` (after the restart,
 a Decision of epoch 1 for the stage the carrier waits at, selecting it, while the coordinator is
 frozen; published only when no real Decision of that stage arrives within ``SETTLE_S`` of the
-freeze, else tried at a later stage, so the fake one always comes first). Then it prints one line per rule: how many times the carrier was exercised on it, pass
-or fail, and the first message that broke it. Exit status 0 only when every exercised rule
-passes (1 otherwise, 2 for a usage error).
+freeze, else tried at a later stage, so the fake one always comes first). Then it prints one
+line per rule: how many times the carrier was exercised on it, pass or fail, and the first
+message that broke it. Exit status 0 only when every exercised rule passes (1 otherwise, 2 for a
+usage error).
 
 The rules are :data:`RULES`; each names the section of docs/protocol.md it comes from.
 """
@@ -295,15 +296,15 @@ class Kit:
                         if not self._decided(stage):
                             os.kill(coordinator.pid, signal.SIGSTOP)
                             self._settle(node, SETTLE_S)
-                        if self._decided(stage):  # sent before the stop: try again at a later stage
-                            os.kill(coordinator.pid, signal.SIGCONT)
-                        else:
-                            fake = wm.Decision(self.mission, stage, self.times[stage], (self.cid,), 0.0, epoch=1)
-                            payload = wm.encode(fake, 1)
-                            f.decisions.append(Seen(time.monotonic(), "decision", payload, fake, fake=True))
-                            node.put_raw(keys.decision_key(self.mission), payload)
-                            frozen_until = time.monotonic() + 1.5
-                            f.faults["deposed"] = (stage, (time.monotonic(), frozen_until))
+                            if self._decided(stage):  # sent before the stop: try again at a later stage
+                                os.kill(coordinator.pid, signal.SIGCONT)
+                            else:
+                                fake = wm.Decision(self.mission, stage, self.times[stage], (self.cid,), 0.0, epoch=1)
+                                payload = wm.encode(fake, 1)
+                                f.decisions.append(Seen(time.monotonic(), "decision", payload, fake, fake=True))
+                                node.put_raw(keys.decision_key(self.mission), payload)
+                                frozen_until = time.monotonic() + 1.5
+                                f.faults["deposed"] = (stage, (time.monotonic(), frozen_until))
                 item = node.next(0.0)
         f.rejected += rejected_now
         if frozen_until is not None:

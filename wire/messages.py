@@ -134,10 +134,6 @@ def _list(inner: Validator, max_len: int) -> Validator:
             raise ProtocolError("wrong-type", f"{name}: expected array, found {type(value).__name__}")
         if len(value) > max_len:
             raise ProtocolError("out-of-range", f"{name}: more than {max_len} items")
-        if inner is _point:  # a trail: its items checked at once, each named only on a defect
-            fast = _plain_points(value)
-            if fast is not None:
-                return fast
         return tuple(inner(item, f"{name}[{k}]") for k, item in enumerate(value))
     return check
 
@@ -164,6 +160,20 @@ def _point(value, name):
     if not isinstance(value, (list, tuple)) or len(value) != 2:
         raise ProtocolError("wrong-type", f"{name}: expected [x, y]")
     return (_COORD(value[0], f"{name}[0]"), _COORD(value[1], f"{name}[1]"))
+
+
+def _points(max_len: int) -> Validator:
+    """An array of at most ``max_len`` [x, y] points (a trail): checked at once, each point named
+    only when one is defective (then by :func:`_list` of :func:`_point`)."""
+    one_by_one = _list(_point, max_len)
+
+    def check(value, name):
+        if isinstance(value, (list, tuple)) and len(value) <= max_len:
+            fast = _plain_points(value)
+            if fast is not None:
+                return fast
+        return one_by_one(value, name)
+    return check
 
 
 def _unique_ids(value, name):
@@ -275,7 +285,7 @@ class Observation:
     x: int | None = _spec(_optional(_int(0, 10**9)))
     position: tuple[float, float] = _spec(_point)
     passengers_left: int = _spec(_PASSENGERS)
-    trail: tuple[tuple[float, float], ...] = _spec(_list(_point, MAX_TRAIL))
+    trail: tuple[tuple[float, float], ...] = _spec(_points(MAX_TRAIL))
     v: int = PROTOCOL_VERSION
     TYPE = "obs"
 
