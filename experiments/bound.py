@@ -343,9 +343,13 @@ def plot(summary: list[dict], path: Path, title: str) -> None:
     plt.close(fig)
 
 
+def write_trials(rows: list[dict], path: Path) -> None:
+    write_csv(sorted(rows, key=lambda r: (r["sweep"], r["level"], r["trial"], planner_order(r["planner"]))), path,
+              FIELDS)
+
+
 def write(rows: list[dict], out: Path, settings: dict, seconds: float, jobs: int) -> dict:
-    write_csv(sorted(rows, key=lambda r: (r["sweep"], r["level"], r["trial"], planner_order(r["planner"]))),
-              out / "bound_trials.csv", FIELDS)
+    write_trials(rows, out / "bound_trials.csv")
     summary = summarise(rows)
     write_csv(summary, out / "bound_summary.csv", SUMMARY_FIELDS)
     iterations = settings["iterations"]

@@ -22,6 +22,8 @@ TRIAL_FIELDS = (
     "stages", "overlaps", "iterations", "seed", "planner_seed", "world_seed", "decision_ms_mean",
     "decision_ms_max", "wall_s", "deployed",
 )
+#: Columns of the per-trial CSVs that measure time, not decisions: they differ from run to run.
+TIMING_FIELDS = ("decision_ms_mean", "decision_ms_max", "wall_s")
 #: Columns of the summary CSV (one row per sweep level and planner).
 SUMMARY_FIELDS = (
     "sweep", "level", "planner", "n", "reward_mean", "reward_sem", "features_mean", "features_sem",

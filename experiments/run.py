@@ -11,6 +11,7 @@ Usage::
     python -m experiments priors --trials 20 --iterations 2000   # stated / learned / oracle priors
     python -m experiments types                                  # type-aware vs type-blind (30 trials, 2000 iterations)
     python -m experiments bound                                  # the upper bound against V* and the planners
+    python -m experiments check                                  # do the committed results come from this code?
 
 ``comms``, ``priors`` (experiments.priors), ``types`` (experiments.types) and ``bound``
 (experiments.bound) are not part of ``all``.
@@ -99,7 +100,9 @@ def _int_list(text: str, what: str, minimum: int) -> tuple[int, ...]:
 
 def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m experiments", description=__doc__.split("\n\n")[0],
-                                formatter_class=argparse.RawDescriptionHelpFormatter)
+                                formatter_class=argparse.RawDescriptionHelpFormatter,
+                                epilog="python -m experiments check [--help]: re-run a seeded sample of a results "
+                                       "directory's tasks and compare them with its rows (experiments.check)")
     p.add_argument("what", nargs="?", default="all", choices=("overlap", "scaling", "urban", "comms", "all", "priors", "types", "bound"),
                    help="which experiment (default: all)")
     p.add_argument("--trials", type=int, default=None, help="trials per level (default 50; quick 3)")
@@ -132,7 +135,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def _settings(args) -> dict:
+def settings_of(args) -> dict:
+    """The settings of a command line (trials, iterations, levels, planners...), checked; raises
+    UsageError with one line naming the flag."""
     quick = args.quick
     # The types sweep's defaults keep its default run to a few minutes on two cores.
     full_trials, full_iterations = (30, 2000) if args.what == "types" else (50, DEFAULT_ITERATIONS)
@@ -222,6 +227,23 @@ def build_tasks(sweep: str, s: dict, args) -> list[Task]:
     return tasks
 
 
+def rebuild_settings(sweep: str, s: dict, args) -> dict:
+    """What a sweep's run_info.json entry records besides trials, iterations, seed, planners and
+    levels so that its task list can be rebuilt (``python -m experiments check``)."""
+    if s["quick"]:
+        return {"quick": True, **rebuild_settings(sweep, {**s, "quick": False}, args)}
+    if sweep == "scaling":
+        return {"scaling_overlaps": args.scaling_overlaps}
+    if sweep == "comms":
+        return {"message_delay": s["delay"]}
+    if sweep == "urban":
+        scenario = args.scenario.resolve()
+        return {"scenario": str(scenario.relative_to(ROOT) if scenario.is_relative_to(ROOT) else scenario)}
+    if sweep == "bound":
+        return {"bound_trials": s["bound_trials"]}
+    return {}
+
+
 def run_tasks(tasks: list[Task], pool, desc: str, progress: bool) -> list[dict]:
     """Run tasks (longest first) on the pool, or in this process when ``pool`` is None."""
     from tqdm import tqdm
@@ -241,6 +263,20 @@ def run_tasks(tasks: list[Task], pool, desc: str, progress: bool) -> list[dict]:
             bar.update()
     bar.close()
     return rows
+
+
+def local_pool(jobs: int, planners: tuple[str, ...]):
+    """A ``spawn`` process pool of ``jobs`` workers, every one started with the kernels of
+    ``planners`` loaded, so no task is timed while a kernel loads; for one job None (tasks run in
+    this process, which is warmed up here)."""
+    if jobs <= 1:
+        warm_up_worker(planners)
+        return None
+    pool = ProcessPoolExecutor(max_workers=jobs, mp_context=get_context("spawn"), initializer=warm_up_worker,
+                               initargs=(planners,))
+    for fut in [pool.submit(time.sleep, 0.5) for _ in range(jobs)]:
+        fut.result()
+    return pool
 
 
 def cluster_executor(address: str, timeout_s: float, planners: tuple[str, ...] | None = None):
@@ -408,7 +444,7 @@ def _write_index(out: Path, timings: dict) -> None:
 def main(argv=None) -> int:
     args = parse_args(argv)
     try:
-        s = _settings(args)
+        s = settings_of(args)
     except UsageError as err:
         print(f"python -m experiments: error: {err}", file=sys.stderr)
         return 2
@@ -448,14 +484,8 @@ def main(argv=None) -> int:
             print(f"python -m experiments: error: {err}", file=sys.stderr)
             return 2
         info["cluster"] = {"address": args.cluster, "worker_threads": args.jobs}
-    elif args.jobs > 1:
-        pool = ProcessPoolExecutor(max_workers=args.jobs, mp_context=get_context("spawn"),
-                                   initializer=warm_up_worker, initargs=(s["planners"],))
-        # Start every worker (and load its compiled kernels) before any sweep is timed.
-        for fut in [pool.submit(time.sleep, 0.5) for _ in range(args.jobs)]:
-            fut.result()
     else:
-        warm_up_worker(s["planners"])
+        pool = local_pool(args.jobs, s["planners"])
     info["warm_up_seconds"] = round(time.perf_counter() - started, 1)
     try:
         for sweep in sweeps:
@@ -469,7 +499,8 @@ def main(argv=None) -> int:
                                      "planners": list(s["planners"]),
                                      "levels": list(s["overlaps"] if sweep == "overlap" else
                                                     s["carriers"] if sweep == "scaling" else
-                                                    s["losses"] if sweep == "comms" else [0])}
+                                                    s["losses"] if sweep == "comms" else [0]),
+                                     **rebuild_settings(sweep, s, args)}
             info_path.write_text(json.dumps(info, indent=2) + "\n")
             print(f"{sweep}: {len(tasks)} tasks in {seconds:.1f} s -> {out / (sweep + '.md')}", file=sys.stderr)
     finally:
