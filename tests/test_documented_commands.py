@@ -27,7 +27,11 @@ here. An entry says how the command runs:
 Tiers: `default` (a few seconds: the default suite), `slow` (`-m slow`: missions, the quick
 benchmark and the quick experiments) and `heavy` (`-m heavy`: the paper-size experiments, the
 full benchmarks, the 1,024-carrier scale runs and the soak runs, minutes to an hour each at the
-size the docs name; neither CI tier runs them).
+size the docs name, hours together: more than CI's limit, so neither CI tier runs them). What
+the slow tier does run of them: `python -m experiments check` re-runs a seeded sample of the
+tasks of every published sweep (docs/results) at the sweep's own settings and requires rows
+identical to those the heavy experiment commands wrote, so their code paths and their published
+output are checked on every landing.
 """
 from __future__ import annotations
 
@@ -201,6 +205,21 @@ def _summary(path_glob, coordinator=True):
     return check
 
 
+def _reproduces(*files):
+    """The run's per-trial CSVs equal the committed ones of docs/results row for row, every column
+    but the timings (experiments.check.compare): ``files`` are (committed, written) pairs, the
+    written one relative to the run's directory."""
+    def check(outputs, tmp):
+        from experiments.check import compare
+
+        for committed, written in files:
+            with open(ROOT / committed) as f:
+                rows = sum(1 for _ in f) - 1
+            n, differences = compare(ROOT / committed, tmp / written)
+            assert n == rows and not differences, (committed, n, rows, differences[:10])
+    return check
+
+
 def _solve_check(outputs, tmp):
     """The figures docs/planner.md's "Worked example" quotes for these two runs."""
     import json
@@ -303,6 +322,7 @@ RUNS = [
         Step(None, raw="cp -r docs/results {tmp}/results"),
         S("python -m experiments all --report-only", extra="--out {tmp}/results"),
     ), "slow", wall_s=240, mem_mb=1500),
+    Run("experiments-check", (S("python -m experiments check"),), "slow", wall_s=900, mem_mb=3000),
     Run("bench-full", (S("python -m coordinator.bench"),), "heavy", wall_s=3600, mem_mb=4000),
     Run("scale-default", (S("python -m tools.scale", extra="--out {tmp}/scale"),), "heavy", wall_s=7200, mem_mb=12000),
     Run("scale-256-plot", (S("python -m tools.scale --sizes 6,32,128,256 --out runs/scale --plot docs/results/scale.png",
@@ -318,23 +338,27 @@ RUNS = [
                              "docs/results/decision_scale.json --plot docs/results/decision_scale.png",
                              ("docs/results/", "{tmp}/")),),
         "heavy", wall_s=3600, mem_mb=8000),
-    Run("experiments-all", (S("python -m experiments all", extra="--out {tmp}/all"),), "heavy", wall_s=1800,
-        mem_mb=4000),
-    Run("experiments-overlap", (S("python -m experiments overlap", extra="--out {tmp}/overlap"),), "heavy",
-        wall_s=1800, mem_mb=4000),
+    Run("experiments-all", (S("python -m experiments all", extra="--out {tmp}/all"),), "slow", wall_s=1800,
+        mem_mb=4000, check=_reproduces(*((f"docs/results/{s}_trials.csv", f"all/{s}_trials.csv")
+                                         for s in ("overlap", "scaling", "urban")))),
+    Run("experiments-overlap", (S("python -m experiments overlap", extra="--out {tmp}/overlap"),), "slow",
+        wall_s=1800, mem_mb=4000, check=_reproduces(("docs/results/overlap_trials.csv", "overlap/overlap_trials.csv"))),
     Run("experiments-comms", (S("python -m experiments comms", extra="--out {tmp}/comms"),), "heavy",
-        wall_s=3600, mem_mb=4000),
+        wall_s=3600, mem_mb=4000, check=_reproduces(("docs/results/comms_trials.csv", "comms/comms_trials.csv"))),
     Run("experiments-comms-50", (S("python -m experiments comms --trials 50 --iterations 10000 --jobs 2",
-                                   extra="--out {tmp}/comms50"),), "heavy", wall_s=3600, mem_mb=4000),
+                                   extra="--out {tmp}/comms50"),), "heavy", wall_s=3600, mem_mb=4000,
+        check=_reproduces(("docs/results/comms_trials.csv", "comms50/comms_trials.csv"))),
     Run("experiments-priors", (S("python -m experiments priors --trials 20 --iterations 2000 --out docs/results/priors",
-                                 ("docs/results/priors", "{tmp}/priors")),), "heavy", wall_s=3600, mem_mb=4000),
+                                 ("docs/results/priors", "{tmp}/priors")),), "slow", wall_s=3600, mem_mb=4000,
+        check=_reproduces(("docs/results/priors/priors_trials.csv", "priors/priors_trials.csv"))),
     Run("experiments-priors-jobs", (S("python -m experiments priors --trials 20 --iterations 2000 --jobs 2 --out "
                                       "docs/results/priors", ("docs/results/priors", "{tmp}/priors2")),),
-        "heavy", wall_s=3600, mem_mb=4000),
-    Run("experiments-types", (S("python -m experiments types", extra="--out {tmp}/types"),), "heavy",
-        wall_s=1800, mem_mb=4000),
+        "heavy", wall_s=3600, mem_mb=4000,
+        check=_reproduces(("docs/results/priors/priors_trials.csv", "priors2/priors_trials.csv"))),
+    Run("experiments-types", (S("python -m experiments types", extra="--out {tmp}/types"),), "slow",
+        wall_s=1800, mem_mb=4000, check=_reproduces(("docs/results/types_trials.csv", "types/types_trials.csv"))),
     Run("experiments-bound", (S("python -m experiments bound", extra="--out {tmp}/bound"),), "heavy",
-        wall_s=3600, mem_mb=4000),
+        wall_s=3600, mem_mb=4000, check=_reproduces(("docs/results/bound_trials.csv", "bound/bound_trials.csv"))),
     Run("base-policy-4", (S("python -m tools.base_policy --carriers 4 --trials 60-99"),), "slow", wall_s=600,
         mem_mb=2000),
     Run("base-policy-6", (S("python -m tools.base_policy --carriers 6 --trials 60-99"),), "slow", wall_s=900,
@@ -360,7 +384,8 @@ RUNS = [
           stop=True, rc=(0, 130, -2, 1)),
         S("python -m experiments all --cluster tcp://SCHEDULER:8786", ("SCHEDULER:8786", "127.0.0.1:{port}"),
           extra="--out {tmp}/cluster"),
-    ), "heavy", wall_s=3600, mem_mb=6000),
+    ), "heavy", wall_s=3600, mem_mb=6000, check=_reproduces(*((f"docs/results/{s}_trials.csv", f"cluster/{s}_trials.csv")
+                                                              for s in ("overlap", "scaling", "urban")))),
     Run("soak-200", (S("python tools/soak.py", extra="--out {tmp}/soak"),), "heavy", wall_s=7200, mem_mb=3000),
     Run("soak-20", (S("python tools/soak.py --missions 20 --out runs/soak", OUT),), "heavy", wall_s=1800,
         mem_mb=3000),
