@@ -640,7 +640,11 @@ def execute(run: Run, tmp: Path) -> list[str]:
 _MARKS = {"default": (), "slow": (pytest.mark.slow,), "heavy": (pytest.mark.heavy,)}
 
 
-@pytest.mark.parametrize("run", [pytest.param(r, id=r.name, marks=_MARKS[r.tier]) for r in RUNS])
+# A run's own wall-time cap is its limit (plus a minute to stop and report), not the suite's
+# per-test timeout.
+@pytest.mark.parametrize("run", [pytest.param(r, id=r.name,
+                                              marks=(*_MARKS[r.tier], pytest.mark.timeout(r.wall_s + 60)))
+                                 for r in RUNS])
 def test_documented_command(run, tmp_path):
     outputs = execute(run, tmp_path)
     for out in outputs:
