@@ -265,10 +265,10 @@ def run_tasks(tasks: list[Task], pool, desc: str, progress: bool) -> list[dict]:
     return rows
 
 
-def local_pool(jobs: int, planners: tuple[str, ...]):
+def local_pool(jobs: int, planners: tuple[str, ...] | None):
     """A ``spawn`` process pool of ``jobs`` workers, every one started with the kernels of
-    ``planners`` loaded, so no task is timed while a kernel loads; for one job None (tasks run in
-    this process, which is warmed up here)."""
+    ``planners`` (None: every registered planner) loaded, so no task is timed while a kernel
+    loads; for one job None (tasks run in this process, which is warmed up here)."""
     if jobs <= 1:
         warm_up_worker(planners)
         return None
