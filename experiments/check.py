@@ -178,7 +178,12 @@ def main(argv=None) -> int:
     differences = []
     try:
         for out in results_dirs(args.out):
-            info = json.loads((out / "run_info.json").read_text())
+            try:
+                info = json.loads((out / "run_info.json").read_text())
+            except (json.JSONDecodeError, UnicodeDecodeError) as err:
+                differences.append(f"{out / 'run_info.json'}: expected JSON, found a file that does not parse ({err})")
+                print(differences[-1])
+                continue
             if "archive" in info:
                 print(f"{out}: not checked, archived: {info['archive']}")
                 continue

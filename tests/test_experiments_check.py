@@ -121,6 +121,12 @@ def test_a_missing_field_or_file_is_a_difference_that_names_it(results, tmp_path
     assert "types_trials.csv: missing, but run_info.json records the sweep 'types'" in text
 
 
+def test_a_run_info_that_does_not_parse_is_named(tmp_path, capsys):
+    (tmp_path / "run_info.json").write_text("{not json")
+    code, text = _check(tmp_path, capsys)
+    assert code == 1 and f"{tmp_path / 'run_info.json'}: expected JSON, found a file that does not parse" in text
+
+
 @pytest.mark.parametrize("args, text", [
     (["--out", "/nonexistent/results"], "--out: expected a results directory with a run_info.json"),
     (["--sample", "0"], "--sample: expected an integer >= 1, found 0"),
