@@ -311,7 +311,7 @@ class Carrier(Motion, Inbound, Joining, Alone):
                 j += 1
                 continue
             at_once = False
-            x = self.sim.sense(self.cid) if self.valid[j] else None
+            x = self.sim.sense(self.cid, j) if self.valid[j] else None
             self.pending = Observation(
                 self.mission, self.cid, j, float(t_j), x, self._position(), self.machine.passengers_left,
                 self._trail())

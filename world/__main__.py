@@ -1,4 +1,6 @@
-"""Command line: ``python -m world check SCENARIO.yaml`` and ``python -m world render SCENARIO.yaml -o map.png``.
+"""Command line: ``python -m world check SCENARIO.yaml``, ``python -m world render SCENARIO.yaml -o map.png``
+and ``python -m world import SOURCE --out SCENARIO.yaml ...`` (a team's own map and run:
+world/importer.py).
 
 Exit codes: 0 success, 2 bad input (each problem on one line on stderr, no traceback).
 """
@@ -90,7 +92,10 @@ def main(argv: list[str] | None = None) -> int:
     p_render.add_argument("--trajectories", action="store_true", help="simulate and draw the actual trajectories")
     p_render.add_argument("--seed", type=int, default=None, help="feature seed (the scenario's by default)")
     p_render.add_argument("--no-stage-labels", action="store_true", help="omit stage numbers")
+    _import_parser(sub)
     args = parser.parse_args(argv)
+    if args.command == "import":
+        return _run_import(args)
     try:
         s = load_scenario(args.scenario)
     except ScenarioError as err:
@@ -116,6 +121,117 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{args.output}: expected a writable PNG path, found {exc.strerror or exc}", file=sys.stderr)
         return EXIT_BAD_INPUT
     print(f"wrote {out}")
+    return 0
+
+
+def _pair(kind):
+    """argparse type of ``ID=VALUE`` flags (``--odom ID=TOPIC``, ``--passengers ID=K``)."""
+    def parse(text: str):
+        cid, sep, value = text.partition("=")
+        if not sep or not cid or not value:
+            raise argparse.ArgumentTypeError(f"expected ID=VALUE, found {text!r}")
+        try:
+            return cid, kind(value)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected ID={kind.__name__.upper()}, found {text!r}") from None
+    return parse
+
+
+def _positive(kind):
+    def parse(text: str):
+        try:
+            v = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a {'number' if kind is float else 'integer'}, "
+                                             f"found {text!r}") from None
+        if not math.isfinite(v) or v <= 0:
+            raise argparse.ArgumentTypeError(f"expected a value > 0, found {text!r}")
+        return v
+    return parse
+
+
+def _import_parser(sub) -> None:
+    from world import importer as imp
+
+    p = sub.add_parser("import", help="a scenario from your own map (map_server YAML) or recorded run (ROS 2 bag)",
+                       description="Import a map_server map or a ROS 2 bag as a scenario (docs/scenario.md, "
+                                   "\"Your own map and runs\").")
+    p.add_argument("source", metavar="SOURCE", help="a map_server map YAML, or a ROS 2 bag directory (MCAP or sqlite3)")
+    p.add_argument("--out", required=True, metavar="SCENARIO.yaml", help="the scenario to write (its map is written "
+                   "beside it as NAME.map.yaml and NAME.map.pgm)")
+    p.add_argument("--routes", metavar="ROUTES.yaml", help="the carriers' routes: carriers: [{id, passengers, start, "
+                   "speed, path}] in the map frame")
+    p.add_argument("--map-topic", default="/map", metavar="TOPIC", help="the bag's nav_msgs/msg/OccupancyGrid topic "
+                   "(default /map)")
+    p.add_argument("--odom", action="append", type=_pair(str), default=[], metavar="ID=TOPIC",
+                   help="a carrier's nav_msgs/msg/Odometry or geometry_msgs/msg/PoseStamped topic in the bag "
+                        "(repeat per carrier)")
+    p.add_argument("--passengers", action="append", type=_pair(int), default=[], metavar="ID=K",
+                   help="passengers of a carrier (default: the routes file's, else 1)")
+    spacing = p.add_mutually_exclusive_group(required=True)
+    spacing.add_argument("--stage-spacing", type=_positive(float), metavar="METRES",
+                         help="a candidate point every METRES of travelled distance")
+    spacing.add_argument("--stages", type=_positive(int), metavar="N", help="N candidate points evenly along each "
+                         "route, first to last (the paper's)")
+    p.add_argument("--radius", type=_positive(float), default=imp.DEFAULT_RADIUS, metavar="METRES",
+                   help="the value of a point counts the frontier cells within this radius (default 10 m, the "
+                        "paper's); also the scenario's sensing radius")
+    p.add_argument("--replay", action="store_true", help="the mission observes the recorded values: each point's "
+                   "value in the latest map stamped at or before its time")
+    p.add_argument("--report", metavar="REPORT.json", help="write the candidate points and their values")
+    p.add_argument("--stage-interval", type=_positive(float), metavar="SECONDS",
+                   help="the mission's stage interval (default: the median recorded time between candidates)")
+    p.add_argument("--align", choices=("time", "index"), default="time",
+                   help="stage of a carrier's first candidate: by its recorded time (default; staggered starts) or 0")
+    p.add_argument("--name", help="scenario name (default: the file name)")
+    p.add_argument("--seed", type=int, default=0, help="the scenario's root seed (default 0)")
+    p.add_argument("--conflict-radius", type=_positive(float), metavar="METRES",
+                   help="the scenario's conflict radius (default 3 x radius)")
+    p.add_argument("--carrier-radius", type=_positive(float), metavar="METRES",
+                   help="the carriers' body radius (default 0.4 m, less where a route passes closer to a wall)")
+    p.add_argument("--path-tolerance", type=_positive(float), metavar="METRES",
+                   help="Douglas-Peucker tolerance for the routes (default half a map cell)")
+    p.add_argument("--wall-tolerance", type=_positive(float), metavar="METRES",
+                   help="Douglas-Peucker tolerance for the walls traced round the occupied cells (default half a cell)")
+    p.add_argument("--prior", choices=imp.PRIOR_CHOICES, default="auto",
+                   help="the prior's family, fitted to the values by moments (default auto: negative binomial when "
+                        "the variance exceeds the mean, else Poisson)")
+    p.add_argument("--free-level", type=int, default=None, metavar="0..100",
+                   help="a bag map's cell value at or below which it is free (default 25, map_saver's)")
+    p.add_argument("--occupied-level", type=int, default=None, metavar="0..100",
+                   help="a bag map's cell value at or above which it is occupied (default 65, map_saver's)")
+
+
+def _run_import(args) -> int:
+    from world import grid as G
+    from world import importer as imp
+
+    free = G.DEFAULT_FREE_LEVEL if args.free_level is None else args.free_level
+    occupied = G.DEFAULT_OCCUPIED_LEVEL if args.occupied_level is None else args.occupied_level
+    if not 0 <= free < occupied <= 100:
+        print(f"--free-level, --occupied-level: expected 0 <= free < occupied <= 100, found {free}, {occupied}",
+              file=sys.stderr)
+        return EXIT_BAD_INPUT
+    settings = imp.ImportSettings(
+        source=args.source, out=args.out, routes=args.routes, map_topic=args.map_topic, odom=tuple(args.odom),
+        passengers=tuple(args.passengers), stage_spacing=args.stage_spacing, stages=args.stages,
+        radius=args.radius, replay=args.replay, report=args.report, stage_interval=args.stage_interval,
+        align=args.align, name=args.name, seed=args.seed, conflict_radius=args.conflict_radius,
+        carrier_radius=args.carrier_radius, path_tolerance=args.path_tolerance,
+        wall_tolerance=args.wall_tolerance, prior=args.prior, free_level=free, occupied_level=occupied)
+    if args.stages is not None and args.stages < 2:
+        print(f"--stages: expected an integer >= 2 (the first and last point of each route), found {args.stages}",
+              file=sys.stderr)
+        return EXIT_BAD_INPUT
+    try:
+        result = imp.import_run(settings, progress=lambda line: print(line, file=sys.stderr))
+        written = imp.write_outputs(settings, result)
+    except G.GridError as err:
+        print(str(err), file=sys.stderr)
+        return EXIT_BAD_INPUT
+    for line in result.summary:
+        print(line)
+    print("wrote " + ", ".join(written))
     return 0
 
 

@@ -53,10 +53,19 @@ def free_mask(points: np.ndarray, the_map) -> np.ndarray:
 def sample_features(scenario, seed: int | None = None) -> np.ndarray:
     """Every feature of the scenario's world for root seed ``seed`` (scenario.seed by default).
 
-    Returns float ``[F, 2]`` positions (m): background process first, then each cluster's.
+    Returns float ``[F, 2]`` positions (m): background process first, then each cluster's; for
+    ``features.from_map`` (and a replayed mission) the frontier cells of ``map.occupancy``.
     """
     seed = scenario.seed if seed is None else int(seed)
     the_map = scenario.map
+    if scenario.features.from_map or scenario.features.replay:
+        # the map fixes the features (the same for every seed): its frontier cells, which a
+        # replayed mission draws but does not sense
+        if the_map.occupancy is None:
+            return np.zeros((0, 2))
+        from world.grid import frontier_points
+
+        return frontier_points(the_map.occupancy)
     parts = [poisson_points(the_map.bounds, scenario.features.density, feature_rng(seed, 0))]
     for i, cl in enumerate(scenario.features.clusters):
         rng = feature_rng(seed, 1 + i)

@@ -27,6 +27,7 @@ from planner import registry as planners
 from planner.limits import MAX_CARRIERS, MAX_PASSENGERS, MAX_STAGES
 from world import building as _building
 from world import geometry
+from world import grid as _grid
 
 #: Default conflict radius as a multiple of the sensing radius (the paper's choice).
 CONFLICT_RADIUS_FACTOR = 3.0
@@ -102,12 +103,16 @@ class MapSpec:
         walls: polylines ((x, y), ...) (m) given in the file.
         obstacles: closed polygons ((x, y), ...) (m): solid, no features inside.
         building: optional generated building; its walls are added to ``segments``.
+        occupancy: optional occupancy grid (``map.occupancy``, a map_server map): drawn under
+            the map and the source of ``features.from_map``; its walls are the file's ``walls``
+            (``python -m world import`` writes them from the occupied cells).
     """
 
     bounds: tuple[float, float, float, float]
     walls: tuple[tuple[tuple[float, float], ...], ...] = ()
     obstacles: tuple[tuple[tuple[float, float], ...], ...] = ()
     building: Building | None = None
+    occupancy: _grid.OccupancyGrid | None = None
 
     @cached_property
     def segments(self) -> np.ndarray:
@@ -154,10 +159,25 @@ class Cluster:
 @dataclass(frozen=True)
 class FeatureSpec:
     """Features of interest: a Poisson point process of ``density`` features per m² over the free
-    area, plus the ``clusters``' extra processes."""
+    area, plus the ``clusters``' extra processes; or fixed by the map and a recorded run.
+
+    Attributes:
+        density, clusters: the Poisson processes (density 0 and no clusters otherwise).
+        from_map: "frontier": the features are the centres of the frontier cells of
+            ``map.occupancy`` (the same for every seed); "" otherwise.
+        replay: recorded observations, one ``(carrier id, values)`` pair per carrier in carrier
+            order, a value per stage (NaN where the stage is not valid): what each carrier
+            observes, instead of sensing features. Empty otherwise.
+    """
 
     density: float
     clusters: tuple[Cluster, ...] = ()
+    from_map: str = ""
+    replay: tuple[tuple[str, tuple[float, ...]], ...] = ()
+
+    def replayed(self, r: int, j: int) -> float:
+        """Carrier r's recorded observation at stage j (NaN where it has none)."""
+        return self.replay[r][1][j]
 
 
 @dataclass(frozen=True)
@@ -266,6 +286,7 @@ class Scenario:
         planner: planner settings.
         prior: prior spec; see :meth:`prior_distribution`.
         first_stage_time: t_0 (s); stage j is at t_0 + j·Δt.
+        carrier_radius: the carriers' body radius (m); every leg keeps this clearance from walls.
         source: the file it was loaded from ("" if built in code).
     """
 
@@ -281,6 +302,7 @@ class Scenario:
     planner: PlannerSpec = PlannerSpec()
     prior: PriorSpec = PriorSpec()
     first_stage_time: float = 0.0
+    carrier_radius: float = CARRIER_RADIUS
     source: str = field(default="", compare=False)
 
     @property
@@ -340,8 +362,23 @@ class Scenario:
                                                                for k, v in self.prior.params}})
 
     def derived_prior_mean(self) -> float:
-        """Background density × π r²: the open-field expected count (walls and clusters ignored)."""
-        return self.features.density * math.pi * self.sensing_radius**2
+        """Background density × π r²: the open-field expected count (walls and clusters ignored).
+        With ``features.from_map`` the density is the frontier cells per m² of free map area."""
+        return self.feature_density() * math.pi * self.sensing_radius**2
+
+    def feature_density(self) -> float:
+        """The background density (1/m²); for ``features.from_map`` the frontier cells over the
+        free area of ``map.occupancy``."""
+        grid = self.map.occupancy
+        if self.features.from_map and grid is not None:
+            free = int((grid.classes == _grid.FREE).sum())
+            return float(_grid.frontier_mask(grid).sum()) / max(free * grid.resolution**2, 1e-12)
+        return self.features.density
+
+    @property
+    def replays(self) -> bool:
+        """Whether the carriers observe recorded values (``features.replay``) instead of sensing."""
+        return bool(self.features.replay)
 
 
 # --------------------------------------------------------------------------- validation
@@ -450,11 +487,15 @@ def _show(value: Any) -> str:
 
 
 _TOP_KEYS = ("name", "seed", "map", "features", "sensing_radius", "stage_interval", "stages",
-             "first_stage_time", "conflict_radius", "carriers", "planner", "prior", "passenger_types")
+             "first_stage_time", "conflict_radius", "carriers", "planner", "prior", "passenger_types",
+             "carrier_radius")
 _TOP_REQUIRED = ("name", "seed", "map", "features", "sensing_radius", "stage_interval", "stages", "carriers")
-_MAP_KEYS = ("bounds", "walls", "obstacles", "building")
+_MAP_KEYS = ("bounds", "walls", "obstacles", "building", "occupancy")
+_OCCUPANCY_KEYS = ("file", "sha256", "free_level", "occupied_level")
 _BUILDING_KEYS = ("origin", "rooms", "room_size", "corridor_width", "door_width", "entrances")
-_FEATURE_KEYS = ("density", "clusters")
+_FEATURE_KEYS = ("density", "clusters", "from_map", "replay")
+#: What ``features.from_map`` may name.
+FROM_MAP_KINDS = ("frontier",)
 _CLUSTER_KEYS = ("disc", "rect", "room", "density", "label")
 _CARRIER_KEYS = ("id", "passengers", "start_time", "stop_time", "speed", "waypoints")
 _PASSENGER_KEYS = ("type", "value")
@@ -546,10 +587,13 @@ def parse_scenario(data: Any, file: str = "<scenario>") -> Scenario:
     elif radius is not None:
         conflict = CONFLICT_RADIUS_FACTOR * radius
 
+    body = ck.number(top.get("carrier_radius", CARRIER_RADIUS), "carrier_radius", minimum=0, exclusive=True,
+                     maximum=100.0)
     the_map = _parse_map(ck, top["map"]) if "map" in top else None
     feats = _parse_features(ck, top["features"], the_map) if "features" in top else None
     types = _parse_passenger_types(ck, top.get("passenger_types", {}))
-    carriers = _parse_carriers(ck, top["carriers"], the_map, types) if "carriers" in top else None
+    carriers = (_parse_carriers(ck, top["carriers"], the_map, types, body or CARRIER_RADIUS)
+                if "carriers" in top else None)
     planner = _parse_planner(ck, top.get("planner", {}))
     prior = _parse_prior(ck, top.get("prior", "derived"))
 
@@ -571,19 +615,27 @@ def parse_scenario(data: Any, file: str = "<scenario>") -> Scenario:
                 ck.bad(f"carriers[{r}].passengers",
                        f"at most {n_valid} (the valid stages of carrier '{c.id}' between start_time and stop_time)",
                        c.passengers)
+    if feats is not None and isinstance(top["features"], dict) and "replay" in top["features"]:
+        feats = _parse_replay(ck, top["features"]["replay"], feats, carriers, interval, n_stages, t0)
     if ck.problems:
         raise ScenarioError(ck.problems)
     return Scenario(name=name, seed=seed, map=the_map, features=feats, sensing_radius=radius,
                     stage_interval=interval, stages=n_stages, conflict_radius=conflict,
-                    carriers=carriers, planner=planner, prior=prior, first_stage_time=t0, source=file)
+                    carriers=carriers, planner=planner, prior=prior, first_stage_time=t0,
+                    carrier_radius=body, source=file)
 
 
 def _parse_map(ck: _Checker, node: Any) -> MapSpec | None:
-    m = ck.mapping(node, "map", _MAP_KEYS, ("bounds",))
+    m = ck.mapping(node, "map", _MAP_KEYS, () if isinstance(node, dict) and "occupancy" in node else ("bounds",))
     if m is None:
         return None
     ok = True
     bounds = None
+    occupancy = _parse_occupancy(ck, m["occupancy"]) if "occupancy" in m else None
+    if "occupancy" in m and occupancy is None:
+        ok = False
+    if "bounds" not in m and occupancy is not None:
+        bounds = occupancy.extent
     if "bounds" in m:
         b = m["bounds"]
         if (not isinstance(b, (list, tuple)) or len(b) != 4
@@ -634,7 +686,39 @@ def _parse_map(ck: _Checker, node: Any) -> MapSpec | None:
             ok = False
     if not ok or bounds is None:
         return None
-    return MapSpec(bounds=bounds, walls=tuple(walls), obstacles=tuple(obstacles), building=building)
+    return MapSpec(bounds=bounds, walls=tuple(walls), obstacles=tuple(obstacles), building=building,
+                   occupancy=occupancy)
+
+
+def _parse_occupancy(ck: _Checker, node: Any) -> _grid.OccupancyGrid | None:
+    """``map.occupancy``: a map_server map (its YAML, relative to the scenario file), as a file
+    name or ``{file, sha256, free_level, occupied_level}``; ``sha256`` (the grid's
+    :attr:`~world.grid.OccupancyGrid.digest`) ties the scenario's fingerprint to the cells."""
+    spec = {"file": node} if isinstance(node, str) else ck.mapping(node, "map.occupancy", _OCCUPANCY_KEYS, ("file",))
+    if spec is None or "file" not in spec:
+        return None
+    name = ck.string(spec["file"], "map.occupancy.file")
+    levels = [ck.number(spec.get(key, default), f"map.occupancy.{key}", minimum=0, integer=True, maximum=100)
+              for key, default in (("free_level", _grid.DEFAULT_FREE_LEVEL),
+                                   ("occupied_level", _grid.DEFAULT_OCCUPIED_LEVEL))]
+    if name is None or None in levels:
+        return None
+    if levels[0] >= levels[1]:
+        ck.bad("map.occupancy.free_level", f"less than occupied_level ({levels[1]})", levels[0])
+        return None
+    base = Path(ck.file).parent if ck.file and not ck.file.startswith("<") else Path(".")
+    path = Path(name) if Path(name).is_absolute() else base / name
+    try:
+        grid = _grid.read_map_yaml(path, free_level=levels[0], occupied_level=levels[1])
+    except _grid.GridError as err:
+        ck.raw("map.occupancy.file", f"expected a map_server map, found {err}")
+        return None
+    digest = spec.get("sha256")
+    if digest is not None and digest != grid.digest:
+        ck.bad("map.occupancy.sha256", f"the digest of the map in {path} ({grid.digest[:16]}...)",
+               _Raw(f"{str(digest)[:16]}... (the map changed since the scenario was written)"))
+        return None
+    return grid
 
 
 def _parse_building(ck: _Checker, node: Any) -> Building | None:
@@ -671,10 +755,20 @@ def _parse_building(ck: _Checker, node: Any) -> Building | None:
 
 def _parse_features(ck: _Checker, node: Any, the_map: MapSpec | None) -> FeatureSpec | None:
     n0 = len(ck.problems)
-    f = ck.mapping(node, "features", _FEATURE_KEYS, ("density",))
+    fixed = isinstance(node, dict) and ("from_map" in node or "replay" in node)
+    f = ck.mapping(node, "features", _FEATURE_KEYS, () if fixed else ("density",))
     if f is None:
         return None
-    density = ck.number(f["density"], "features.density", minimum=0) if "density" in f else None
+    density = ck.number(f["density"], "features.density", minimum=0) if "density" in f else 0.0
+    from_map = f.get("from_map", "")
+    if "from_map" in f:
+        if from_map not in FROM_MAP_KINDS:
+            ck.bad("features.from_map", f"one of {', '.join(FROM_MAP_KINDS)}", from_map)
+        elif the_map is not None and the_map.occupancy is None:
+            ck.bad("features.from_map", "a map.occupancy to take the frontier cells from", _Raw("no map.occupancy"))
+        if "density" in f or "clusters" in f:
+            ck.bad("features.from_map", "no density or clusters beside it (the map fixes the features)",
+                   _Raw(", ".join(k for k in ("density", "clusters") if k in f)))
     clusters = []
     raw = f.get("clusters", [])
     if not isinstance(raw, list):
@@ -728,7 +822,46 @@ def _parse_features(ck: _Checker, node: Any, the_map: MapSpec | None) -> Feature
             clusters.append(Cluster(shape=shape, params=params, density=cdens, label=label))
     if len(ck.problems) > n0:
         return None
-    return FeatureSpec(density=density, clusters=tuple(clusters))
+    return FeatureSpec(density=density, clusters=tuple(clusters), from_map=from_map)
+
+
+def _parse_replay(ck: _Checker, node: Any, feats: FeatureSpec, carriers, interval, n_stages, t0) -> FeatureSpec | None:
+    """``features.replay``: carrier id -> one recorded count per stage (``null`` where the stage
+    is not valid for it); every carrier listed, a number >= 0 at every valid stage."""
+    if not isinstance(node, dict) or not node:
+        ck.bad("features.replay", "a mapping of carrier ids to lists of recorded counts, one per stage", node)
+        return None
+    if carriers is None or None in (interval, n_stages, t0):
+        return None  # their own problems are reported
+    n0 = len(ck.problems)
+    ids = [c.id for c in carriers]
+    for key in node:
+        if str(key) not in ids:
+            ck.bad(f"features.replay.{key}", f"a carrier id ({', '.join(ids)})", _Raw(f"unknown carrier '{key}'"))
+    times = t0 + interval * np.arange(n_stages)
+    rows = []
+    for c in carriers:
+        values = node.get(c.id)
+        where = f"features.replay.{c.id}"
+        if not isinstance(values, list) or len(values) != n_stages:
+            ck.bad(where, f"a list of {n_stages} recorded counts (one per stage, null where not valid)",
+                   _Raw("nothing (missing)") if values is None else values)
+            continue
+        valid = (c.start_time <= times) & (times <= c.stop_time)
+        row = []
+        for j, v in enumerate(values):
+            if v is None and not valid[j]:
+                row.append(math.nan)
+            elif (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v < 0
+                  or not float(v).is_integer()):
+                ck.bad(f"{where}[{j}]", f"an integer count >= 0 (stage {j} is {'' if valid[j] else 'not '}valid for "
+                       f"carrier '{c.id}')" + ("" if valid[j] else " or null"), v)
+            else:
+                row.append(float(v) if valid[j] else math.nan)
+        rows.append((c.id, tuple(row)))
+    if len(ck.problems) > n0:
+        return None
+    return dataclasses.replace(feats, replay=tuple(rows))
 
 
 def _parse_passenger_types(ck: _Checker, node: Any) -> dict[str, float]:
@@ -791,8 +924,8 @@ def _parse_passengers(ck: _Checker, node: Any, path: str, types: dict[str, float
     return len(values), tuple(values), tuple(names)
 
 
-def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None,
-                    types: dict[str, float] | None = None) -> tuple[CarrierSpec, ...] | None:
+def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None, types: dict[str, float] | None = None,
+                    body: float = CARRIER_RADIUS) -> tuple[CarrierSpec, ...] | None:
     if not isinstance(node, list) or not node:
         ck.bad("carriers", "a non-empty list of carriers", node)
         return None
@@ -838,11 +971,11 @@ def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None,
                                _Raw(f"{list(p)} inside map.obstacles[{i}]"))
             segs = the_map.segments
             for k, (a, b) in enumerate(zip(wps[:-1], wps[1:])):
-                hit = geometry.first_blocking_segment(a, b, segs, clearance=CARRIER_RADIUS)
+                hit = geometry.first_blocking_segment(a, b, segs, clearance=body)
                 if hit is not None:
                     w = segs[hit]
                     ck.bad(f"{path}.waypoints[{k}]->[{k + 1}]",
-                           f"a leg clear of walls by {CARRIER_RADIUS:g} m",
+                           f"a leg clear of walls by {body:g} m",
                            _Raw(f"it meets the wall ({w[0]:g}, {w[1]:g})-({w[2]:g}, {w[3]:g})"))
                     break
             if all(a == b for a, b in zip(wps[:-1], wps[1:])):

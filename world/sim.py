@@ -26,7 +26,7 @@ from pymunk._chipmunk import lib as cp
 
 from world import geometry
 from world.features import sample_features
-from world.scenario import CARRIER_RADIUS, Scenario
+from world.scenario import Scenario
 
 #: Physics time step (s); the controller runs once per step.
 PHYSICS_DT = 0.05
@@ -81,7 +81,7 @@ class _CarrierBody:
             self.space.add(seg)
         self.body = pymunk.Body(CARRIER_MASS, math.inf)
         self.body.position = self.spec.waypoints[0]
-        shape = pymunk.Circle(self.body, CARRIER_RADIUS)
+        shape = pymunk.Circle(self.body, scenario.carrier_radius)
         shape.friction = 0.0
         shape.elasticity = 0.0
         self.space.add(self.body, shape)
@@ -235,8 +235,15 @@ class Simulation:
         """Actual position of carrier ``cid`` (m)."""
         return self._bodies[cid].position
 
-    def sense(self, cid: str) -> int:
-        """Features within the sensing radius of ``cid``'s actual position with line of sight."""
+    def sense(self, cid: str, stage: int | None = None) -> int:
+        """Features within the sensing radius of ``cid``'s actual position with line of sight; in
+        a replayed mission (``features.replay``) the recorded value of ``stage`` (the stage whose
+        time the simulation is at when None)."""
+        if self.scenario.replays:
+            s = self.scenario
+            j = round((self.time - s.first_stage_time) / s.stage_interval) if stage is None else int(stage)
+            value = s.features.replayed(s.carrier_index(cid), j)
+            return 0 if math.isnan(value) else int(value)
         origin = self.position(cid)
         radius = self.scenario.sensing_radius
         # Every feature within the radius has |dx| <= radius: the window loses none (the margin
@@ -335,7 +342,8 @@ def simulate_mission(scenario: Scenario, seed: int | None = None, rows: Iterable
         trajectories.append(trace)
         for j in np.flatnonzero(valid[r]):
             pos[r, j] = stage_pos[j]
-            x[r, j] = geometry.count_visible(stage_pos[j], features, scenario.sensing_radius, segs)
+            x[r, j] = (scenario.features.replayed(r, j) if scenario.replays
+                       else geometry.count_visible(stage_pos[j], features, scenario.sensing_radius, segs))
     return MissionTrace(x=x, positions=pos, trajectories=tuple(trajectories), features=features)
 
 
