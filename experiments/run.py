@@ -383,7 +383,11 @@ def _urban_report(rows, summary, out: Path, s: dict, args) -> list[str]:
              f"Scenario `{args.scenario.name}` through the world (`world.observe_all`): "
              f"{n_carriers} carriers with staggered starts, N = {n_stages}, {scenario.conflict_radius:g} m "
              f"conflicts, {s['urban_trials']} world seeds (trial 0 is the scenario's own seed), "
-             f"{s['iterations']} iterations. Features captured (sum of x / p), mean ± SEM over seeds.", "",
+             f"{s['iterations']} iterations. Features captured (sum of x / p), mean ± SEM over seeds."
+             + (" The observations are the run's recorded values (`features.replay`, from `python -m world "
+                "import --replay`): every world seed observes the same values, and the seeds vary only the "
+                "planners' random streams; the maps draw the occupancy grid under the routes."
+                if scenario.replays else ""), "",
              "| planner | features (mean ± SEM) | seed 0 | paper | ratio to SSAP (ours / paper) | ratio to Random (ours / paper) |",
              "|---|---|---|---|---|---|"]
     seeds_label = lambda _level: f"all {s['urban_trials']}"  # noqa: E731

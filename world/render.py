@@ -66,6 +66,28 @@ def _trajectory_list(scenario, trajectories: Any) -> list[tuple[int, np.ndarray]
     return out
 
 
+#: Free, occupied, unknown cells (world.grid's classes) under the map.
+_OCCUPANCY_COLOURS = ("#ffffff", "#4a4a4a", "#d9d6cf")
+#: Largest side of the occupancy image drawn (cells): a larger grid is drawn every k-th cell.
+_MAX_IMAGE_SIDE = 2000
+
+
+def _draw_occupancy(ax, grid) -> None:
+    """The occupancy grid under everything: each cell's class in its colour, placed by the grid's
+    origin and yaw."""
+    from matplotlib.colors import ListedColormap
+    from matplotlib.transforms import Affine2D
+
+    k = max(1, int(np.ceil(max(grid.shape) / _MAX_IMAGE_SIDE)))
+    cls = grid.classes[::k, ::k]
+    h, w = cls.shape
+    x0, y0, yaw = grid.origin
+    size = grid.resolution * k
+    im = ax.imshow(cls, origin="lower", cmap=ListedColormap(_OCCUPANCY_COLOURS), vmin=0, vmax=2,
+                   extent=(0.0, w * size, 0.0, h * size), interpolation="nearest", zorder=0.5)
+    im.set_transform(Affine2D().rotate(yaw).translate(x0, y0) + ax.transData)
+
+
 def render_map(scenario, path: str | Path, deployments: Any = None, trajectories: Any = None,
                title: str | None = None, positions: np.ndarray | None = None,
                features: np.ndarray | None = None, stage_labels: bool = True, dpi: int = 130,
@@ -102,6 +124,8 @@ def render_map(scenario, path: str | Path, deployments: Any = None, trajectories
     ax.set_ylim(ymin - 0.02 * h, ymax + 0.02 * h)
     ax.set_facecolor("#fbfbf8")
     ax.add_patch(Rectangle((xmin, ymin), w, h, fill=False, ec="#999999", lw=0.8, ls=":"))
+    if scenario.map.occupancy is not None:
+        _draw_occupancy(ax, scenario.map.occupancy)
 
     # clusters (denser feature regions)
     for cl in scenario.features.clusters:
@@ -199,7 +223,9 @@ def render_map(scenario, path: str | Path, deployments: Any = None, trajectories
     handles += [
         Line2D([], [], color="none", marker="s", mfc="white", mec="black", ms=7, label="start"),
         Line2D([], [], color="none", marker="o", mfc="#888888", mec="white", ms=6, label="decision point (stage no.)"),
-        Line2D([], [], color="none", marker="o", mfc="#6b6b6b", mec="none", ms=3, label=f"feature ({len(feats)})"),
+        Line2D([], [], color="none", marker="o", mfc="#6b6b6b", mec="none", ms=3,
+               label=(f"frontier cell ({len(feats)})" if scenario.features.from_map or scenario.replays
+                      else f"feature ({len(feats)})")),
         Patch(fc=OVERLAP_COLOUR, alpha=0.25, ec=OVERLAP_COLOUR, label=f"overlap group ({len(geo.overlaps)})"),
     ]
     if len(segs):
@@ -208,6 +234,9 @@ def render_map(scenario, path: str | Path, deployments: Any = None, trajectories
         handles.append(Patch(fc="#c9c9c9", ec="#333333", label="obstacle"))
     if scenario.features.clusters:
         handles.append(Patch(fc="#f4c542", alpha=0.4, label="feature cluster"))
+    if scenario.map.occupancy is not None:
+        handles += [Patch(fc=_OCCUPANCY_COLOURS[k], ec="#999999", lw=0.4, label=f"{name} cell")
+                    for k, name in ((0, "free"), (2, "unknown"), (1, "occupied"))]
     if trajectories is not None:
         handles.append(Line2D([], [], color="#444444", lw=1, ls="--", label="actual trajectory"))
     if spots:
