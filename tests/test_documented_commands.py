@@ -394,6 +394,59 @@ RUNS = [
         mem_mb=3000),
 ]
 
+# ---- docs/scenario.md, "Your own map and runs": the worked example and the synopsis
+MYRUN = ("/tmp/myrun", "{tmp}/myrun")
+SYNTHETIC = "python -m tools.synthetic_run /tmp/myrun --cells 600x400 --snapshots 16"
+IMPORT_REPLAY = ("python -m world import /tmp/myrun/bag --odom c0=/c0/odom --odom c1=/c1/pose --odom c2=/c2/odom "
+                 "--passengers c0=3 --passengers c1=3 --passengers c2=2 --stages 19 --replay --out /tmp/myrun/run.yaml "
+                 "--report /tmp/myrun/report.json")
+IMPORT_STATIC = ("python -m world import /tmp/myrun/map.yaml --routes /tmp/myrun/routes.yaml --stage-spacing 2 "
+                 "--out /tmp/myrun/static.yaml")
+IMPORT_SYNOPSIS = ("python -m world import SOURCE --out SCENARIO.yaml [--routes ROUTES.yaml] [--map-topic TOPIC] "
+                   "[--odom ID=TOPIC]... [--passengers ID=K]... [--stage-spacing METRES | --stages N] "
+                   "[--radius METRES] [--replay] [--report REPORT.json]")
+URBAN_IMPORTED = "python -m experiments urban --scenario /tmp/myrun/run.yaml --quick --out /tmp/myrun/urban"
+
+
+def _replayed_as_reported(outputs, tmp):
+    """The imported replay scenario observes exactly the report's values, in order."""
+    import json
+
+    import numpy as np
+
+    import world
+
+    report = json.loads((tmp / "myrun" / "report.json").read_text())
+    scenario = world.load_scenario(tmp / "myrun" / "run.yaml")
+    x = world.observe_all(scenario)
+    for r, c in enumerate(scenario.carriers):
+        values = [p["value"] for p in report["carriers"][c.id]]
+        assert x[r][np.isfinite(x[r])].tolist() == values, c.id
+    assert len(report["carriers"]) == 3 and report["maps"] == 16, report["maps"]
+
+
+RUNS += [
+    Run("world-import", (
+        S(SYNTHETIC, MYRUN),
+        S(IMPORT_REPLAY, MYRUN),
+        S(IMPORT_STATIC, MYRUN),
+        S(IMPORT_SYNOPSIS, ("SOURCE", "{tmp}/myrun/bag"), ("SCENARIO.yaml", "{tmp}/myrun/syn.yaml"),
+          ("[--routes ROUTES.yaml] ", ""), ("[--map-topic TOPIC]", "--map-topic /map"),
+          ("[--odom ID=TOPIC]...", "--odom c0=/c0/odom --odom c1=/c1/pose --odom c2=/c2/odom"),
+          ("[--passengers ID=K]...", "--passengers c0=2"), ("[--stage-spacing METRES | --stages N]", "--stage-spacing 2"),
+          ("[--radius METRES]", "--radius 8"), ("[--replay]", "--replay"), ("[--report REPORT.json]",
+                                                                         "--report {tmp}/myrun/syn.json")),
+        S("python -m world import SOURCE --out SCENARIO.yaml ...", ("SOURCE", "{tmp}/myrun/map.yaml"),
+          ("SCENARIO.yaml ...", "{tmp}/myrun/short.yaml --routes {tmp}/myrun/routes.yaml --stages 5")),
+    ), "default", wall_s=120, mem_mb=1500, check=_replayed_as_reported),
+    Run("world-import-urban", (
+        S(SYNTHETIC, MYRUN),
+        S(IMPORT_REPLAY, MYRUN),
+        S(URBAN_IMPORTED, MYRUN),
+    ), "slow", wall_s=600, mem_mb=3000,
+        check=lambda outputs, tmp: (tmp / "myrun" / "urban" / "urban_map_mcts-ssap.png").is_file() or 1 / 0),
+]
+
 #: Documented commands executed elsewhere with the same arguments.
 COVERED = {
     FRESH_TEST: Covered(".ci/run", "the test command itself: .ci/run runs it on a clean machine (this module "

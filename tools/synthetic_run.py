@@ -6,7 +6,7 @@ sqlite3, by rosbags), every part from one seed.
     python -m tools.synthetic_run OUT_DIR [--cells 600x400] [--resolution 0.05] [--snapshots 16]
         [--carriers 3] [--seed 0] [--storage mcap|sqlite3]
 
-writes ``OUT_DIR/map.yaml`` (the fully explored map), ``OUT_DIR/bag/`` (maps on ``/map``,
+writes ``OUT_DIR/map.yaml`` (the map at the end of the run), ``OUT_DIR/bag/`` (maps on ``/map``,
 carrier i's poses on ``/c<i>/odom`` as nav_msgs/msg/Odometry, or as
 geometry_msgs/msg/PoseStamped on ``/c<i>/pose`` for odd i) and ``OUT_DIR/routes.yaml``.
 """
@@ -140,8 +140,8 @@ def write_routes(run: SyntheticRun, path: Path) -> None:
     lines = ["carriers:"]
     for cid, tr in run.tracks.items():
         speed = float(np.hypot(*np.diff(tr[:2, 1:], axis=0).T)[0] / (tr[1, 0] - tr[0, 0]))
-        pts = ", ".join(f"[{x!r}, {y!r}]" for x, y in tr[:, 1:])
-        lines.append(f"  - {{id: {cid}, passengers: 2, start: {tr[0, 0]!r}, speed: {speed!r}, path: [{pts}]}}")
+        pts = ", ".join(f"[{float(x)!r}, {float(y)!r}]" for x, y in tr[:, 1:])
+        lines.append(f"  - {{id: {cid}, passengers: 2, start: {float(tr[0, 0])!r}, speed: {speed!r}, path: [{pts}]}}")
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
 
 
@@ -216,7 +216,9 @@ def main(argv=None) -> int:
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     run = generate(w, h, a.resolution, a.carriers, a.snapshots, a.seed)
-    write_map(run, out / "map.yaml")
+    from world.grid import OccupancyGrid
+
+    write_map(run, out / "map.yaml", OccupancyGrid(run.snapshots[-1][1], run.resolution))  # the map at the end
     write_routes(run, out / "routes.yaml")
     topics = write_bag(run, out / "bag", a.storage)
     print("odom: " + " ".join(f"--odom {cid}={t}" for cid, t in topics.items()))
