@@ -45,8 +45,19 @@ def check(s: Scenario, seeds: int) -> str:
     lines.append(f"map: {xmax - xmin:g} x {ymax - ymin:g} m, {len(m.segments)} wall segments, "
                  f"{len(m.obstacles)} obstacles, building: {bld}")
     cl = ", ".join(f"{c.label or c.shape} ({c.density:g}/m² over {c.area:.0f} m²)" for c in s.features.clusters)
-    lines.append(f"features: {len(feats)} at seed {s.seed}; background {s.features.density:g}/m²"
-                 + (f"; clusters: {cl}" if cl else ""))
+    if s.replays:
+        lines.append(f"features: recorded observations (features.replay) at {int(s.valid().sum())} valid stages; "
+                     f"{len(feats)} frontier cells drawn")
+    elif s.features.from_map:
+        lines.append(f"features: the {len(feats)} frontier cells of map.occupancy "
+                     f"({s.feature_density():.3g}/m² of free cells)")
+    else:
+        lines.append(f"features: {len(feats)} at seed {s.seed}; background {s.features.density:g}/m²"
+                     + (f"; clusters: {cl}" if cl else ""))
+    if m.occupancy is not None:
+        g = m.occupancy
+        lines.append(f"occupancy: {g.shape[1]} x {g.shape[0]} cells of {g.resolution:g} m from {g.source}; "
+                     f"carrier radius {s.carrier_radius:g} m")
     lines.append(f"stages: N = {s.stages} every {s.stage_interval:g} s from t0 = {s.first_stage_time:g} s; "
                  f"sensing radius {s.sensing_radius:g} m; conflict radius {s.conflict_radius:g} m")
     lines.append(f"carriers: {s.n_carriers}, passengers {int(s.passengers.sum())}")
