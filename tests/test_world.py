@@ -379,3 +379,16 @@ def test_prior_report_pools_valid_stages(tiny):
     assert rep.samples == len(xs) == 4 * int(tiny.valid().sum())
     assert rep.mean == pytest.approx(xs.mean()) and rep.var == pytest.approx(xs.var(ddof=1))
     assert rep.prior_mean == pytest.approx(tiny.derived_prior_mean())
+
+
+def test_collinear_segments_meet_only_where_their_extents_overlap():
+    """The sign test alone calls every pair of collinear segments crossing; walls traced on a
+    grid are often collinear with a route 7 m away (world.grid.wall_lines)."""
+    from world import geometry
+
+    walls = np.array([[12.4, 10.925, 12.45, 10.925], [19.7, 10.925, 19.9, 10.925], [19.825, 10.925, 20.0, 10.925],
+                      [19.7, 10.0, 19.7, 12.0]])
+    d = geometry.segment_segment_distance((19.625, 10.925), (19.825, 10.925), walls)
+    assert d.tolist() == [pytest.approx(7.175), 0.0, 0.0, 0.0]
+    assert geometry.visible((0.0, 0.0), np.array([[1.0, 0.0], [3.0, 0.0]]),
+                            np.array([[2.0, 0.0, 2.5, 0.0]])).tolist() == [True, False]

@@ -44,7 +44,15 @@ def crossings(origin: Sequence[float], targets: np.ndarray, segments: np.ndarray
     d2 = _cross(bx - ax, by - ay, qx - ax, qy - ay)     # [K, W]: target vs wall line
     d3 = _cross(qx - px, qy - py, ax - px, ay - py)     # [K, W]: wall end a vs sight line
     d4 = _cross(qx - px, qy - py, bx - px, by - py)     # [K, W]: wall end b vs sight line
-    return (d1 * d2 <= 0) & (d3 * d4 <= 0)
+    hit = (d1 * d2 <= 0) & (d3 * d4 <= 0)
+    # collinear segments pass the sign test wherever they lie on the line: they meet only where
+    # their extents overlap (walls traced on a grid are often collinear with a route)
+    collinear = hit & (d1 == 0) & (d2 == 0)
+    if collinear.any():
+        apart = ((np.maximum(px, qx) < np.minimum(ax, bx)) | (np.minimum(px, qx) > np.maximum(ax, bx))
+                 | (np.maximum(py, qy) < np.minimum(ay, by)) | (np.minimum(py, qy) > np.maximum(ay, by)))
+        hit &= ~(collinear & apart)
+    return hit
 
 
 def visible(origin: Sequence[float], targets: np.ndarray, segments: np.ndarray) -> np.ndarray:
