@@ -1,7 +1,8 @@
 """Reading a team's recorded run from a ROS 2 bag (MCAP or sqlite3 storage, by rosbags).
 
 Two passes, so that memory holds at most two maps whatever the bag's length: :func:`read_tracks`
-reads the trajectories (``nav_msgs/msg/Odometry`` or ``geometry_msgs/msg/PoseStamped``) and the
+reads the trajectories (``nav_msgs/msg/Odometry``, ``geometry_msgs/msg/PoseStamped`` or
+``geometry_msgs/msg/PoseWithCovarianceStamped``, taken as map-frame positions) and the
 maps' stamps; :func:`iter_maps` then yields the ``nav_msgs/msg/OccupancyGrid`` messages one at a
 time in stamp order of the bag. Times are the messages' header stamps (s).
 """
@@ -15,7 +16,8 @@ import numpy as np
 from world.grid import GridError, OccupancyGrid, grid_from_message
 
 MAP_TYPE = "nav_msgs/msg/OccupancyGrid"
-POSE_TYPES = ("nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped")
+#: Pose messages a carrier's trajectory may come in (a localiser's /amcl_pose is the third).
+POSE_TYPES = ("nav_msgs/msg/Odometry", "geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped")
 
 
 def is_bag(path: str | Path) -> bool:
@@ -90,7 +92,7 @@ def read_tracks(path: str | Path, odom: dict[str, str], map_topic: str | None) -
             if conn.id in map_ids:
                 stamps.append(_stamp(msg.header))
                 continue
-            pose = msg.pose.pose if conn.msgtype == POSE_TYPES[0] else msg.pose
+            pose = msg.pose if conn.msgtype == "geometry_msgs/msg/PoseStamped" else msg.pose.pose
             rows[by_conn[conn.id]].append((_stamp(msg.header), float(pose.position.x), float(pose.position.y)))
     finally:
         reader.close()
