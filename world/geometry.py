@@ -109,9 +109,19 @@ def first_blocking_segment(a: Sequence[float], b: Sequence[float], segments: np.
     """Index of the first segment closer than ``clearance`` (m) to the leg a-b, or None."""
     if len(segments) == 0:
         return None
-    d = segment_segment_distance(a, b, segments)
+    # only segments whose box comes within the clearance of the leg's box can be that close
+    # (cheap, and it keeps the index order, so the first hit is the same)
+    lo_x, hi_x = min(a[0], b[0]) - clearance, max(a[0], b[0]) + clearance
+    lo_y, hi_y = min(a[1], b[1]) - clearance, max(a[1], b[1]) + clearance
+    near = np.flatnonzero((np.maximum(segments[:, 0], segments[:, 2]) >= lo_x)
+                          & (np.minimum(segments[:, 0], segments[:, 2]) <= hi_x)
+                          & (np.maximum(segments[:, 1], segments[:, 3]) >= lo_y)
+                          & (np.minimum(segments[:, 1], segments[:, 3]) <= hi_y))
+    if not len(near):
+        return None
+    d = segment_segment_distance(a, b, segments[near])
     hits = np.flatnonzero(d < clearance) if clearance > 0 else np.flatnonzero(d <= 0)
-    return int(hits[0]) if len(hits) else None
+    return int(near[hits[0]]) if len(hits) else None
 
 
 def inside_polygon(points: np.ndarray, polygon: Sequence[tuple[float, float]]) -> np.ndarray:

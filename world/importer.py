@@ -400,18 +400,23 @@ def _carrier_radius(cands: list[Candidates], segs: np.ndarray) -> float:
     smallest clearance, so that every leg passes the scenario's clearance check."""
     if not len(segs):
         return MAX_CARRIER_RADIUS
-    clearance = math.inf
+    clearance, reach = math.inf, MAX_CARRIER_RADIUS / 0.9
+    lo_x, hi_x = np.minimum(segs[:, 0], segs[:, 2]), np.maximum(segs[:, 0], segs[:, 2])
+    lo_y, hi_y = np.minimum(segs[:, 1], segs[:, 3]), np.maximum(segs[:, 1], segs[:, 3])
     for c in cands:
-        lo, hi = c.path.min(axis=0) - MAX_CARRIER_RADIUS, c.path.max(axis=0) + MAX_CARRIER_RADIUS
-        near = segs[(np.maximum(segs[:, 0], segs[:, 2]) >= lo[0]) & (np.minimum(segs[:, 0], segs[:, 2]) <= hi[0])
-                    & (np.maximum(segs[:, 1], segs[:, 3]) >= lo[1]) & (np.minimum(segs[:, 1], segs[:, 3]) <= hi[1])]
         for a, b in zip(c.path[:-1], c.path[1:]):
-            if len(near):
-                clearance = min(clearance, float(geometry.segment_segment_distance(a, b, near).min()))
+            # walls farther than the largest radius's reach do not lower it
+            near = ((hi_x >= min(a[0], b[0]) - reach) & (lo_x <= max(a[0], b[0]) + reach)
+                    & (hi_y >= min(a[1], b[1]) - reach) & (lo_y <= max(a[1], b[1]) + reach))
+            d = float(geometry.segment_segment_distance(a, b, segs[near]).min()) if near.any() else math.inf
+            if d < clearance:
+                clearance, closest = d, (c.route, a, b)
     radius = min(MAX_CARRIER_RADIUS, 0.9 * clearance)
     if radius < 1e-3:
-        raise GridError("routes", "routes at least 1 mm from the walls traced round the occupied cells",
-                        f"a route {clearance:.4f} m from a wall")
+        route, a, b = closest
+        raise GridError(f"{route.where}: carrier '{route.id}'",
+                        "a route at least 1 mm from the walls traced round the occupied cells",
+                        f"its leg ({a[0]:.2f}, {a[1]:.2f})-({b[0]:.2f}, {b[1]:.2f}) {clearance:.4f} m from a wall")
     return float(radius)
 
 
