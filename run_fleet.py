@@ -44,6 +44,9 @@ EXIT_USAGE = 2
 #: Exit code of a coordinator deposed by a coordinator of a higher epoch (it stopped deciding and
 #: published no End).
 EXIT_DEPOSED = 3
+#: What a ROS 2 robot's carrier observes (``--robot-sensing``; ``ros2.robot.SENSING``, written
+#: out here so that parsing the flags imports nothing of ros2/; tests/test_ros2_fleet.py).
+ROBOT_SENSING = ("features", "frontier")
 #: How long the launcher waits for carriers after the coordinator exits (s).
 CARRIER_EXIT_GRACE_S = 15.0
 #: Zenoh sessions one node accepts reliably here: a peer or router of zenoh 1.10 refused every
@@ -217,6 +220,10 @@ def _ros2_flags(p: argparse.ArgumentParser) -> None:
                    help="carrier (one id, with --role carrier): the body is a real ROS 2 robot: pose from its "
                         "NS/odom, observations from NS/features, deployments commanded on NS/deploy")
     r.add_argument("--ros2-namespace", metavar="NS", help="with --ros2-robot: the robot's ROS 2 namespace (default /)")
+    r.add_argument("--robot-sensing", choices=ROBOT_SENSING,
+                   help="with --ros2-robot: what a stage's observation is: features (default: the number of "
+                        "poses in NS/features) or frontier (the frontier cells of the robot's NS/map within the "
+                        "scenario's sensing radius, the importer's --replay value)")
 
 
 def _carrier_output_flags(p: argparse.ArgumentParser) -> None:
@@ -336,7 +343,8 @@ def check_flags(args, scenario) -> str | None:
 def _check_ros2(args) -> str | None:
     """The ROS 2 flags: one line about the first bad one, or None; fills in ``args.ros2_domain``."""
     ros2 = args.ros2 or args.ros2_robot
-    if not ros2 and args.ros2_domain is None and args.ros2_namespace is None and args.mcap_profile == "foxglove":
+    if (not ros2 and args.ros2_domain is None and args.ros2_namespace is None and args.robot_sensing is None
+            and args.mcap_profile == "foxglove"):
         return None
     from ros2.publisher import check_domain, check_namespace, default_domain
 
@@ -356,6 +364,8 @@ def _check_ros2(args) -> str | None:
         problem = check_namespace(args.ros2_namespace)
         if problem:
             return problem
+    if args.robot_sensing is not None and not args.ros2_robot:
+        return "--robot-sensing: only with --ros2-robot (what the robot's carrier observes)"
     if args.mcap_profile == "ros2" and args.role in ("all", "coordinator"):
         try:
             import rosbags  # noqa: F401
@@ -371,7 +381,8 @@ def _ros2_settings(args):
         return None
     from ros2.publisher import Ros2Settings
 
-    return Ros2Settings(domain=args.ros2_domain, robot=args.ros2_robot, namespace=args.ros2_namespace or "/")
+    return Ros2Settings(domain=args.ros2_domain, robot=args.ros2_robot, namespace=args.ros2_namespace or "/",
+                        sensing=args.robot_sensing or ROBOT_SENSING[0])
 
 
 def zenoh_config(args, role: str):

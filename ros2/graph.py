@@ -5,7 +5,9 @@ connected to the same Zenoh network) see the node and its topics from the liveli
 ``ros2 topic echo`` and RViz read the samples (CDR payload, attachment). A transient-local
 publisher is a zenoh AdvancedPublisher with a cache of ``depth`` samples and publisher
 detection, as rmw_zenoh declares it (rmw_publisher_data.cpp), so late transient-local
-subscribers (RViz) get the last messages.
+subscribers (RViz) get the last messages; a transient-local subscription is an
+AdvancedSubscriber with history (rmw_subscription_data.cpp), so it gets the last messages of a
+publisher such as map_server's that published before it subscribed.
 
 Callbacks only decode and enqueue (the project's rule for zenoh callbacks); a sample of another
 format, or a payload that does not decode, is counted and reported once, never raised.
@@ -69,9 +71,18 @@ class Publisher:
 
 
 class Subscription:
-    """One ROS 2 subscription: decoded messages wait in :attr:`inbox` as ``(msg, attachment)``."""
+    """One ROS 2 subscription: decoded messages wait in :attr:`inbox` as ``(msg, attachment)``.
 
-    def __init__(self, node: "Node", topic: str, typename: str, qos: rmw.QoS, eid: int, capacity: int = 1000):
+    At most ``capacity`` wait; when full, a new message is dropped (``keep_newest`` False) or
+    the oldest waiting one makes room for it (``keep_newest``: ROS's keep-last, for large
+    messages of which only the latest matter, such as maps). Either way :attr:`dropped` counts
+    them. A transient-local subscription is a zenoh AdvancedSubscriber with history and late
+    publisher detection, as rmw_zenoh declares it (rmw_subscription_data.cpp), so it gets the
+    last ``depth`` messages a transient-local publisher sent before it subscribed.
+    """
+
+    def __init__(self, node: "Node", topic: str, typename: str, qos: rmw.QoS, eid: int, capacity: int = 1000,
+                 keep_newest: bool = False):
         self.topic, self.typename = topic, typename
         dds, h = msgs.dds_name(typename), msgs.type_hash(typename)
         self.key = rmw.topic_key(node.domain, topic, dds, h)
@@ -95,12 +106,28 @@ class Subscription:
             except ValueError as exc:
                 report(f"ros2: {topic}: undecodable {typename} payload dropped ({exc})")
                 return
-            try:
-                self.inbox.put_nowait((msg, meta))
-            except queue.Full:
-                self.dropped += 1
+            while True:  # this callback is the inbox's only producer: one pass, or two with keep_newest
+                try:
+                    self.inbox.put_nowait((msg, meta))
+                    return
+                except queue.Full:
+                    self.dropped += 1
+                    if not keep_newest:
+                        return
+                try:
+                    self.inbox.get_nowait()
+                except queue.Empty:
+                    pass
 
-        self._sub = node.session.declare_subscriber(self.key, on_sample)
+        if qos.durability == rmw.TRANSIENT_LOCAL:
+            from zenoh import ext
+
+            recovery = ext.RecoveryConfig(heartbeat=True) if qos.reliability == rmw.RELIABLE else None
+            self._sub = ext.declare_advanced_subscriber(
+                node.session, self.key, on_sample, subscriber_detection=True, recovery=recovery,
+                history=ext.HistoryConfig(detect_late_publishers=True, max_samples=qos.depth))
+        else:
+            self._sub = node.session.declare_subscriber(self.key, on_sample)
         self._token = node.session.liveliness().declare_token(self.token_key)
 
     def latest(self):
@@ -190,8 +217,11 @@ class Node:
         self.entities.append(pub)
         return pub
 
-    def subscription(self, topic: str, typename: str, qos: rmw.QoS = rmw.QoS(depth=10)) -> Subscription:
-        sub = Subscription(self, rmw.fully_qualified(self.namespace, topic), typename, qos, self._eid())
+    def subscription(self, topic: str, typename: str, qos: rmw.QoS = rmw.QoS(depth=10), capacity: int = 1000,
+                     keep_newest: bool = False) -> Subscription:
+        """A subscription to ``topic`` (resolved in the node's namespace); see :class:`Subscription`."""
+        sub = Subscription(self, rmw.fully_qualified(self.namespace, topic), typename, qos, self._eid(), capacity,
+                           keep_newest)
         self.entities.append(sub)
         return sub
 

@@ -2,8 +2,8 @@
 
 Every type is a table of ``(field, type)`` in declaration order, as in its ``.msg`` file of ROS 2
 Jazzy (``common_interfaces``, ``rcl_interfaces``, ``geometry2``). A field type is a primitive
-(``bool``, ``uint8``, ``int32``, ``uint32``, ``float32``, ``float64``, ``string``), a message
-type name (``geometry_msgs/msg/Point``), a sequence ``T[]`` or a fixed array ``T[n]``.
+(``bool``, ``int8``, ``uint8``, ``int32``, ``uint32``, ``float32``, ``float64``, ``string``), a
+message type name (``geometry_msgs/msg/Point``), a sequence ``T[]`` or a fixed array ``T[n]``.
 tests/test_ros2_msgs.py checks every table against rosbags' Jazzy typestore and every
 :data:`RIHS01` hash against its ``hash_rihs01``.
 
@@ -13,11 +13,16 @@ uint32 length (NUL included), its bytes and a NUL; a sequence a uint32 count the
 fixed array only its elements.
 
 Messages are plain dicts (field -> value, nested messages as dicts, sequences as lists); a field
-left out is encoded as its zero value, and :func:`decode` returns every field.
+left out is encoded as its zero value, and :func:`decode` returns every field. An ``int8[]`` (an
+OccupancyGrid's cells) decodes as a read-only numpy int8 array over the payload, and an
+``int8[]`` or ``uint8[]`` may be given as bytes or a numpy array: a large map is one copy, never
+a loop over its cells.
 """
 from __future__ import annotations
 
 import struct
+
+import numpy as np
 
 #: Field tables (ROS 2 Jazzy).
 TYPES: dict[str, tuple[tuple[str, str], ...]] = {
@@ -60,6 +65,10 @@ TYPES: dict[str, tuple[tuple[str, str], ...]] = {
         ("mesh_file", "visualization_msgs/msg/MeshFile"), ("mesh_use_embedded_materials", "bool")),
     "visualization_msgs/msg/MarkerArray": (("markers", "visualization_msgs/msg/Marker[]"),),
     "rosgraph_msgs/msg/Clock": (("clock", "builtin_interfaces/msg/Time"),),
+    "nav_msgs/msg/MapMetaData": (("map_load_time", "builtin_interfaces/msg/Time"), ("resolution", "float32"),
+                                 ("width", "uint32"), ("height", "uint32"), ("origin", "geometry_msgs/msg/Pose")),
+    "nav_msgs/msg/OccupancyGrid": (("header", "std_msgs/msg/Header"), ("info", "nav_msgs/msg/MapMetaData"),
+                                   ("data", "int8[]")),
 }
 
 #: RIHS01 type hashes (REP 2011) of the types published or read, as rosidl generates them for
@@ -74,6 +83,7 @@ RIHS01: dict[str, str] = {
     "visualization_msgs/msg/MarkerArray": "RIHS01_86cb8800b6fb05b5eff1abd7a56f62a5641d3ae9a1c29e78e67e704f1d067dcf",
     "nav_msgs/msg/Odometry": "RIHS01_3cc97dc7fb7502f8714462c526d369e35b603cfc34d946e3f2eda2766dfec6e0",
     "rosgraph_msgs/msg/Clock": "RIHS01_692f7a66e93a3c83e71765d033b60349ba68023a8c689a79e48078bcb5c58564",
+    "nav_msgs/msg/OccupancyGrid": "RIHS01_8d348150c12913a31ee0ec170fbf25089e4745d17035792a1ba94d6f0bc0cfc7",
 }
 
 #: The encapsulation header of little-endian plain CDR.
@@ -127,6 +137,8 @@ def zero(ftype: str):
     return {name: zero(t) for name, t in TYPES[base]}
 
 
+#: Element types written in one piece from bytes or a numpy array (no alignment inside).
+_BYTE_ARRAYS = {"int8": np.int8, "uint8": np.uint8}
 _STRUCTS = {base: struct.Struct("<" + fmt) for base, fmt in _PRIMITIVES.items()}
 #: Encodings of left-out fields: (field type, offset mod 8) -> bytes (a zero value's encoding
 #: depends only on where it starts, modulo the largest alignment).
@@ -170,16 +182,24 @@ class _Writer:
         if count is None:
             self.one(base, value)
             return
-        items = list(value)
-        if count == -1:
-            self.prim("uint32", len(items))
-        elif len(items) != count:
-            raise ValueError(f"{ftype}: expected {count} values, found {len(items)}")
-        if base == "uint8" and isinstance(value, (bytes, bytearray)):
-            self.buf += bytes(value)
+        if base in _BYTE_ARRAYS and isinstance(value, (bytes, bytearray, np.ndarray)):
+            # one-byte elements need no alignment: the cells of a map go in one copy
+            data = value if isinstance(value, (bytes, bytearray)) else \
+                np.ascontiguousarray(value, dtype=_BYTE_ARRAYS[base]).tobytes()
+            self._count(ftype, count, len(data))
+            self.buf += data
             return
+        items = list(value)
+        self._count(ftype, count, len(items))
         for item in items:
             self.one(base, item)
+
+    def _count(self, ftype: str, count: int, n: int) -> None:
+        """A sequence's length prefix; a fixed array's length checked."""
+        if count == -1:
+            self.prim("uint32", n)
+        elif n != count:
+            raise ValueError(f"{ftype}: expected {count} values, found {n}")
 
     def one(self, base: str, value) -> None:
         if base == "string":
@@ -205,8 +225,8 @@ def encode(typename: str, msg: dict) -> bytes:
 
 
 class _Reader:
-    def __init__(self, data: bytes):
-        self.data = memoryview(data)
+    def __init__(self, data: memoryview):
+        self.data = data
         self.pos = 0
 
     def prim(self, base: str):
@@ -236,6 +256,13 @@ class _Reader:
         n = self.prim("uint32") if count == -1 else count
         if n > len(self.data):
             raise ValueError("CDR sequence longer than the payload")
+        if base == "int8":
+            if self.pos + n > len(self.data):
+                raise ValueError("CDR int8 sequence longer than the payload")
+            # a read-only view of the payload: a map's cells are never copied or looped over
+            cells = np.frombuffer(self.data, dtype=np.int8, count=n, offset=self.pos)
+            self.pos += n
+            return cells
         return [self.one(base) for _ in range(n)]
 
 
@@ -245,7 +272,7 @@ def decode(typename: str, payload: bytes) -> dict:
     payload = bytes(payload)
     if payload[:2] != CDR_LE[:2]:
         raise ValueError(f"{typename}: expected little-endian CDR (header 00 01), found {payload[:4].hex()}")
-    r = _Reader(payload[4:])
+    r = _Reader(memoryview(payload)[4:])
     try:
         return r.one(typename)
     except (struct.error, UnicodeDecodeError) as exc:

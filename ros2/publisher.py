@@ -56,9 +56,12 @@ class Ros2Settings:
     Attributes:
         domain: the ROS domain id.
         robot: this carrier's body is a real ROS 2 robot (ros2/robot.py).
-        namespace: the robot's namespace (its odometry, feature and deploy topics).
+        namespace: the robot's namespace (its odometry, feature, map and deploy topics).
         ack_timeout_s: how long a robot carrier waits for the robot to acknowledge a deployment.
-        robot_timeout_s: how long a robot carrier waits for the robot's odometry or features.
+        robot_timeout_s: how long a robot carrier waits for the robot's odometry, features or map.
+        sensing: what a robot carrier observes (``--robot-sensing``, ros2/robot.py
+            :data:`~ros2.robot.SENSING`): ``features`` (the poses in ``NS/features``) or
+            ``frontier`` (the frontier cells of ``NS/map`` within the sensing radius).
     """
 
     domain: int = 0
@@ -66,6 +69,7 @@ class Ros2Settings:
     namespace: str = "/"
     ack_timeout_s: float = 10.0
     robot_timeout_s: float = 30.0
+    sensing: str = "features"
 
     def coordinator_sink(self, session, problem=None, log=print):
         """A factory ``scene -> CoordinatorTopics`` for recording/live.py's extra sinks."""
@@ -152,7 +156,8 @@ class CarrierRos2:
 
             self.robot = RobotBody(carrier.scenario, carrier.cid, self.node, settings.namespace,
                                    sync=carrier.config.realtime <= 0, log=carrier.log, stop=carrier._stop,
-                                   ack_timeout_s=settings.ack_timeout_s, timeout_s=settings.robot_timeout_s)
+                                   ack_timeout_s=settings.ack_timeout_s, timeout_s=settings.robot_timeout_s,
+                                   sensing=settings.sensing)
             carrier.sim = self.robot
             self.node.claimed = self.robot.ours  # the robot's own topics: it refuses them itself
         self.node.watch_graph()

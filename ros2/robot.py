@@ -12,8 +12,13 @@ topic              type                            what
 =================  ==============================  =====================================================
 ``NS/odom``        nav_msgs/msg/Odometry           the robot's pose; ``pose.pose.position`` x, y in the
                                                    scenario's map frame (m), heading from the orientation
-``NS/features``    geometry_msgs/msg/PoseArray     the features its detector sees now (within its sensing
-                                                   radius): x = ``len(poses)``
+``NS/features``    geometry_msgs/msg/PoseArray     ``--robot-sensing features`` (the default): the features
+                                                   its detector sees now (within its sensing radius):
+                                                   x = ``len(poses)``
+``NS/map``         nav_msgs/msg/OccupancyGrid      ``--robot-sensing frontier``: its map (SLAM's or
+                                                   map_server's; reliable, transient local, so a map sent
+                                                   before the carrier subscribed arrives too): x = the
+                                                   frontier cells within the scenario's sensing radius
 ``NS/deploy``      std_msgs/msg/UInt32             published by the carrier: release passenger ``data``
                                                    (its index, 0-based, as in the protocol's Decision)
 ``NS/deployed``    std_msgs/msg/UInt32             published by the robot's launcher: passenger ``data``
@@ -26,6 +31,16 @@ after t and uses the last one stamped at or before t, so the robot's clock drive
 (conservative synchronisation). Paced missions (``--realtime F > 0``, a robot in the field) use
 the latest message at each stage (sample and hold). A robot silent for ``timeout_s`` is taken
 where it last was (one line in the log).
+
+Frontier. With ``sensing="frontier"`` x at a stage is the paper's value of the robot's position
+(from odometry, as above) in its own map: the frontier cells (a free cell with an unknown
+8-neighbour) whose centre lies within ``sensing_radius``, counted by world/grid.py's
+:class:`~world.grid.FrontierCounter` in the map :func:`~world.grid.latest_at` picks — the latest
+stamped at or before the stage time, 0 before the first — which is what ``python -m world
+import --replay`` computes from a bag of the same maps. Unpaced, sensing waits for a map stamped
+at or after the stage time or an odometry stamped after it (maps come now and then, odometry
+always); paced, it counts in the latest map. A map that does not convert is logged (one line per
+kind of fault) and ignored. At most :data:`MAX_MAPS` maps wait and as many are kept.
 
 Deployments. The carrier publishes the command once and waits at most ``ack_timeout_s`` for
 ``NS/deployed`` with the same index. Without it, it logs one line and goes on: the deployment
@@ -41,10 +56,18 @@ import time
 
 import numpy as np
 
-from ros2.rmw import ForeignFormat, QoS, mangle
+from ros2.rmw import TRANSIENT_LOCAL, ForeignFormat, QoS, mangle
 
 #: How often a waiting body looks for the robot's messages (s).
 POLL_S = 0.005
+#: What a robot's carrier observes (``--robot-sensing``): its detector's features, or its map's
+#: frontier cells.
+SENSING = ("features", "frontier")
+#: Maps a frontier body lets wait in its inbox (the newest) and keeps as grids: a map may have
+#: up to 10^8 cells (world.grid.MAX_CELLS), so both are bounded.
+MAX_MAPS = 8
+#: The map's QoS as map_server and slam_toolbox publish it (reliable, transient local, depth 1).
+MAP_QOS = QoS(durability=TRANSIENT_LOCAL, depth=1)
 
 
 def _stamp(msg: dict) -> float:
@@ -91,6 +114,112 @@ class _History:
         return self.values[-1] if self.values else None
 
 
+def needed_maps(stamps, stage_times, now: float, sync: bool) -> list[int]:
+    """Indices (ascending) of the maps a stage at or after ``now`` (s) can count in: the newest
+    (paced missions count in nothing else), and with ``sync`` the latest stamped at or before
+    each such stage time. ``stamps`` and ``stage_times`` sorted (s)."""
+    from world.grid import latest_at
+
+    if not len(stamps):
+        return []
+    keep = {len(stamps) - 1}
+    if sync:
+        for t in stage_times[bisect.bisect_left(stage_times, now - 1e-6):]:
+            k = latest_at(stamps, float(t))
+            if k >= 0:
+                keep.add(k)
+            if k == len(stamps) - 1:
+                break  # every later stage counts in the newest too
+    return sorted(keep)
+
+
+class _Maps:
+    """The robot's maps as world.grid.OccupancyGrid, in stamp order (a later arrival with the
+    same stamp after the earlier, as :class:`world.grid.MapHistory` orders them).
+
+    Invariant: after :meth:`pull` only the maps :func:`needed_maps` names at the body's time are
+    held, and at most ``keep`` of them (when more are named, the ``keep - 1`` oldest and the
+    newest stay, logged once)."""
+
+    def __init__(self, sub, scenario, now, sync: bool, log, robot: str, where: str, keep: int = MAX_MAPS):
+        from world import grid as G
+
+        occupancy = scenario.map.occupancy  # an imported scenario's thresholds: the importer's classes
+        self.levels = ((occupancy.free_level, occupancy.occupied_level) if occupancy is not None
+                       else (G.DEFAULT_FREE_LEVEL, G.DEFAULT_OCCUPIED_LEVEL))
+        self.sub, self.now, self.sync, self._log, self.keep = sub, now, sync, log, keep
+        self.robot, self.where = robot, where  # for the log: the robot's namespace, the map's topic
+        self.stage_times = [float(t) for t in scenario.stage_times()]
+        self.stamps: list[float] = []
+        self.grids: list = []
+        self.newest = -math.inf  # the latest stamp that arrived, kept or not (s)
+        self._counters: dict[int, object] = {}  # id(grid) -> its FrontierCounter, for grids held
+        self._faults: set[str] = set()
+        self._overflow = False
+
+    def pull(self) -> None:
+        from world.grid import GridError, grid_from_message
+
+        while True:
+            try:
+                msg, _ = self.sub.inbox.get_nowait()
+            except Exception:
+                break
+            try:
+                grid = grid_from_message(msg, source=self.where, free_level=self.levels[0],
+                                         occupied_level=self.levels[1])
+                if not all(math.isfinite(v) for v in grid.origin):
+                    raise GridError(f"{self.where} (stamp {grid.stamp:.3f} s): info.origin", "a finite pose",
+                                    repr(grid.origin))
+            except (GridError, ValueError, TypeError) as exc:
+                kind = exc.expected if isinstance(exc, GridError) else type(exc).__name__
+                if kind not in self._faults:
+                    self._faults.add(kind)
+                    self._log(f"robot {self.robot}: map ignored (and any later one wrong the same way): {exc}")
+                continue
+            k = bisect.bisect_right(self.stamps, grid.stamp)
+            self.stamps.insert(k, grid.stamp)
+            self.grids.insert(k, grid)
+            self.newest = max(self.newest, grid.stamp)
+        self._prune()
+
+    def _prune(self) -> None:
+        keep = needed_maps(self.stamps, self.stage_times, self.now(), self.sync)
+        if len(keep) > self.keep:
+            if not self._overflow:
+                self._overflow = True
+                self._log(f"robot {self.robot}: more than {self.keep} maps on {self.where} ahead of the carrier's "
+                          f"stages; the ones before the newest are dropped (their stages count in an earlier map)")
+            keep = keep[:self.keep - 1] + keep[-1:]  # the nearest stages' maps, and the newest
+        if len(keep) != len(self.grids):
+            self.stamps = [self.stamps[k] for k in keep]
+            self.grids = [self.grids[k] for k in keep]
+            held = {id(g) for g in self.grids}
+            self._counters = {i: c for i, c in self._counters.items() if i in held}
+
+    def reached(self, t: float) -> bool:
+        return self.newest >= t - 1e-6
+
+    def latest(self):
+        return self.grids[-1] if self.grids else None
+
+    def at(self, t: float):
+        """The map stamped last at or before ``t`` (s), or None (world.grid.latest_at)."""
+        from world.grid import latest_at
+
+        k = latest_at(self.stamps, t)
+        return self.grids[k] if k >= 0 else None
+
+    def value(self, grid, point, radius: float) -> int:
+        """Frontier cells of ``grid`` within ``radius`` (m) of ``point`` (m)."""
+        from world.grid import FrontierCounter
+
+        counter = self._counters.get(id(grid))
+        if counter is None:
+            counter = self._counters[id(grid)] = FrontierCounter(grid)
+        return int(counter.count([point], radius)[0])
+
+
 class RobotBody:
     """One carrier's body backed by a ROS 2 robot (see the module docstring).
 
@@ -103,24 +232,36 @@ class RobotBody:
         log: callable taking one line.
         stop: the carrier's stop request (ends every wait).
         ack_timeout_s, timeout_s: see the module docstring.
+        sensing: one of :data:`SENSING` (see the module docstring).
     """
 
     def __init__(self, scenario, cid: str, node, namespace: str, sync: bool, log, stop: threading.Event,
-                 ack_timeout_s: float = 10.0, timeout_s: float = 30.0):
+                 ack_timeout_s: float = 10.0, timeout_s: float = 30.0, sensing: str = "features"):
+        if sensing not in SENSING:
+            raise ValueError(f"sensing: expected one of {', '.join(SENSING)}, found {sensing!r}")
         self.cid = cid
         self.ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
         self.node = node
         self.sync, self._log, self._stop = sync, log, stop
         self.ack_timeout_s, self.timeout_s = ack_timeout_s, timeout_s
+        self.sensing = sensing
+        self.radius = float(scenario.sensing_radius)
+        self.time = 0.0
         keep = QoS(depth=1000)
+        # The map first: by the time the robot sees the odometry subscription, the map's exists.
+        self.features = self.maps = None
+        if sensing == "frontier":
+            sub = node.subscription(f"{self.ns}/map", "nav_msgs/msg/OccupancyGrid", MAP_QOS, capacity=MAX_MAPS,
+                                    keep_newest=True)
+            self.maps = _Maps(sub, scenario, lambda: self.time, sync, log, self.ns or "/", f"{self.ns}/map")
         self.odom = _History(node.subscription(f"{self.ns}/odom", "nav_msgs/msg/Odometry", keep), lambda m: (
             float(m["pose"]["pose"]["position"]["x"]), float(m["pose"]["pose"]["position"]["y"]),
             _yaw(m["pose"]["pose"]["orientation"])))
-        self.features = _History(node.subscription(f"{self.ns}/features", "geometry_msgs/msg/PoseArray", keep),
-                                 lambda m: len(m["poses"]))
+        if sensing == "features":
+            self.features = _History(node.subscription(f"{self.ns}/features", "geometry_msgs/msg/PoseArray", keep),
+                                     lambda m: len(m["poses"]))
         self.acks = node.subscription(f"{self.ns}/deployed", "std_msgs/msg/UInt32", QoS(depth=10))
         self.command = node.publisher(f"{self.ns}/deploy", "std_msgs/msg/UInt32", QoS(depth=10))
-        self.time = 0.0
         self._spec = scenario.carriers[scenario.carrier_index(cid)]
         self._left = int(self._spec.passengers)
         self._pos = (float("nan"), float("nan"))
@@ -130,7 +271,8 @@ class RobotBody:
     # ------------------------------------------------------------------ waiting for the robot
     def ours(self, key: str) -> bool:
         """Whether a graph token is about one of the robot's topics."""
-        return any(f"/{mangle(f'{self.ns}/{topic}')}/" in key for topic in ("odom", "features", "deploy", "deployed"))
+        return any(f"/{mangle(f'{self.ns}/{topic}')}/" in key
+                   for topic in ("odom", "features", "map", "deploy", "deployed"))
 
     def _check_format(self) -> None:
         """Raise :class:`ForeignFormat` (the carrier stops, one line) when the robot's own topics
@@ -139,11 +281,19 @@ class RobotBody:
             if self.ours(key):
                 raise ForeignFormat(f"robot {self.ns or '/'}: {line}")
 
-    def _wait(self, history: _History, t: float, what: str) -> None:
+    def _passed(self, t: float) -> bool:
+        """Whether odometry stamped after ``t`` (s) has arrived."""
+        self.odom.pull()
+        return bool(self.odom.stamps) and self.odom.stamps[-1] > t + 1e-6
+
+    def _wait(self, history, t: float, what: str, or_odometry: bool = False) -> None:
+        """Until ``history`` (a :class:`_History` or :class:`_Maps`) holds what time ``t`` (s)
+        needs (see the module docstring); ``or_odometry``: odometry stamped after t will do."""
         deadline = time.monotonic() + self.timeout_s
         history.pull()
         self._check_format()
-        while self.sync and not history.reached(t) and not self._stop.is_set():
+        while (self.sync and not history.reached(t) and not (or_odometry and self._passed(t))
+               and not self._stop.is_set()):
             if time.monotonic() >= deadline:
                 if what not in self._silent:
                     self._silent.add(what)
@@ -188,8 +338,14 @@ class RobotBody:
     def position(self, cid: str) -> tuple[float, float]:
         return self._pos
 
-    def sense(self, cid: str) -> int:
-        """x: the number of features the robot's detector saw at the current time."""
+    def sense(self, cid: str, stage: int | None = None) -> int:
+        """x at the current time: the number of features the robot's detector saw, or of
+        frontier cells within the sensing radius in its map (``stage``, the stage being sensed,
+        is the carrier loop's and not needed here)."""
+        if self.maps is not None:
+            self._wait(self.maps, self.time, "map", or_odometry=True)
+            grid = self.maps.at(self.time) if self.sync else self.maps.latest()
+            return 0 if grid is None else self.maps.value(grid, self._pos, self.radius)
         self._wait(self.features, self.time, "feature detections")
         x = self.features.at(self.time) if self.sync else self.features.latest()
         return int(x) if x is not None else 0

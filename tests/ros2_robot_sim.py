@@ -7,6 +7,12 @@ The robot is one carrier of a scenario driven by the project's physics (``world.
 it publishes ``NS/odom`` (nav_msgs/Odometry) and ``NS/features`` (geometry_msgs/PoseArray, one
 pose per feature its sensor sees) at every whole second and every stage time, stamped with
 mission time, and answers every ``NS/deploy`` (std_msgs/UInt32) with ``NS/deployed``.
+
+With ``sensing="frontier"`` it publishes ``NS/map`` (nav_msgs/OccupancyGrid: :func:`growing_map`)
+instead of the features, every ``MAP_PERIOD_S`` from ``MAP_FIRST_S``, as map_server and SLAM do:
+reliable, transient local, depth 1 — a zenoh-ext AdvancedPublisher with a cache of one sample,
+publisher detection and sporadic heartbeats (rmw_zenoh's rmw_publisher_data.cpp). Each map goes
+out before the odometry of the same second. :attr:`SimulatedRobot.maps` holds what it sent.
 """
 from __future__ import annotations
 
@@ -25,6 +31,70 @@ from wire.zconfig import make_config, open_session
 STORE = get_typestore(Stores.ROS2_JAZZY)
 T = STORE.types
 
+#: The growing map: cells of 0.5 m, 88 x 78 of them from the corner (-2, 1) m, the known part
+#: x in [0, 8 + 2.5 t], y in [17 - 0.1 t, 22 + 0.25 t] (m, t = the map's stamp in s), free but
+#: for tiny.yaml's wall at y = 23.5 (x 12..30) once it is known; the rest unknown.
+MAP_RESOLUTION, MAP_ORIGIN, MAP_SIZE = 0.5, (-2.0, 1.0), (88, 78)
+#: When the robot publishes its map (s of mission time): MAP_FIRST_S, then every MAP_PERIOD_S.
+MAP_FIRST_S, MAP_PERIOD_S = 2.0, 3.0
+#: QoS field of a reliable, transient-local, depth-1 publisher's token (rmw_zenoh's qos_to_keyexpr).
+TRANSIENT_LOCAL_DEPTH_1 = ":1:,1:,:,:,,"
+
+
+def growing_map(t: float) -> np.ndarray:
+    """int8 ``[78, 88]``: the cells of the map stamped ``t`` (s), row-major from the origin."""
+    width, height = MAP_SIZE
+    xs = MAP_ORIGIN[0] + (np.arange(width) + 0.5) * MAP_RESOLUTION
+    ys = MAP_ORIGIN[1] + (np.arange(height) + 0.5) * MAP_RESOLUTION
+    x, y = np.meshgrid(xs, ys)
+    cells = np.full((height, width), -1, dtype=np.int8)
+    known = (x >= 0) & (x <= 8 + 2.5 * t) & (y >= 17 - 0.1 * t) & (y <= 22 + 0.25 * t)
+    cells[known] = 0
+    cells[known & (np.abs(y - 23.5) < 0.5 * MAP_RESOLUTION + 1e-9) & (x >= 12) & (x <= 30)] = 100
+    return cells
+
+
+def map_message(t: float, cells: np.ndarray | None = None, frame: str = "map"):
+    """The nav_msgs/OccupancyGrid (a rosbags object) of :func:`growing_map` at ``t`` (s), or of
+    ``cells`` (int8, row-major, any length: a wrong one makes a malformed map)."""
+    width, height = MAP_SIZE
+    cells = growing_map(t) if cells is None else cells
+    sec = int(math.floor(t))
+    stamp = T["builtin_interfaces/msg/Time"](sec=sec, nanosec=int(round((t - sec) * 1e9)))
+    origin = T["geometry_msgs/msg/Pose"](
+        position=T["geometry_msgs/msg/Point"](x=MAP_ORIGIN[0], y=MAP_ORIGIN[1], z=0.0),
+        orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
+    return T["nav_msgs/msg/OccupancyGrid"](
+        header=T["std_msgs/msg/Header"](stamp=stamp, frame_id=frame),
+        info=T["nav_msgs/msg/MapMetaData"](map_load_time=stamp, resolution=MAP_RESOLUTION, width=width,
+                                           height=height, origin=origin),
+        data=np.ascontiguousarray(cells, dtype=np.int8).reshape(-1))
+
+
+def map_publisher(session, domain: int, namespace: str, eid: int = 9, node: str = "map_server"):
+    """``(put, entities)``: ``put(payload: bytes)`` sends a map on ``NS/map`` as a reliable,
+    transient-local, depth-1 ROS 2 publisher in rmw_zenoh's format; ``entities`` to undeclare."""
+    from zenoh import ext
+
+    ns = namespace.strip("/")
+    typename = "nav_msgs/msg/OccupancyGrid"
+    h = STORE.hash_rihs01(typename)
+    key = f"{domain}/{ns}/map/{_dds(typename)}/{h}"
+    zid = str(session.zid())
+    pub = ext.declare_advanced_publisher(
+        session, key, cache=ext.CacheConfig(max_samples=1), publisher_detection=True,
+        sample_miss_detection=ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=0.5))
+    token = session.liveliness().declare_token(
+        f"@ros2_lv/{domain}/{zid}/0/{eid}/MP/%/%{ns}/{node}/%{ns}%map/{_dds(typename)}/{h}/{TRANSIENT_LOCAL_DEPTH_1}")
+    seq = [0]
+    gid = (b"map" + bytes(16))[:16]
+
+    def put(payload: bytes) -> None:
+        seq[0] += 1
+        pub.put(payload, attachment=z_serialize((Int64(seq[0]), Int64(time.time_ns()), gid)))
+
+    return put, [token, pub]
+
 
 def _dds(typename: str) -> str:
     pkg, kind, name = typename.split("/")
@@ -33,9 +103,11 @@ def _dds(typename: str) -> str:
 
 class SimulatedRobot:
     def __init__(self, scenario, cid: str, endpoint: str, namespace: str = "/robot1", domain: int = 0,
-                 acknowledge: bool = True):
+                 acknowledge: bool = True, sensing: str = "features"):
         self.scenario, self.cid, self.ns, self.domain = scenario, cid, namespace.strip("/"), domain
-        self.acknowledge = acknowledge
+        self.acknowledge, self.sensing = acknowledge, sensing
+        #: (stamp s, CDR payload) of every map sent, in order.
+        self.maps: list[tuple[float, bytes]] = []
         self.session = open_session(make_config("client", [], [endpoint]), 20.0)
         self.zid = str(self.session.zid())
         self.commands: list[int] = []
@@ -45,9 +117,14 @@ class SimulatedRobot:
         self._entities = [self.session.liveliness().declare_token(
             f"@ros2_lv/{domain}/{self.zid}/0/0/NN/%/%{self.ns}/robot")]
         self.keys = {}
-        for eid, (topic, typename, kind) in enumerate((
-                ("odom", "nav_msgs/msg/Odometry", "MP"), ("features", "geometry_msgs/msg/PoseArray", "MP"),
-                ("deployed", "std_msgs/msg/UInt32", "MP"), ("deploy", "std_msgs/msg/UInt32", "MS")), start=1):
+        topics = [("odom", "nav_msgs/msg/Odometry", "MP"), ("features", "geometry_msgs/msg/PoseArray", "MP"),
+                  ("deployed", "std_msgs/msg/UInt32", "MP"), ("deploy", "std_msgs/msg/UInt32", "MS")]
+        if sensing == "frontier":
+            del topics[1]
+            self._put_map, entities = map_publisher(self.session, domain, self.ns, eid=len(topics) + 1,
+                                                    node="robot")
+            self._entities += entities
+        for eid, (topic, typename, kind) in enumerate(topics, start=1):
             h = STORE.hash_rihs01(typename)
             self.keys[topic] = f"{domain}/{self.ns}/{topic}/{_dds(typename)}/{h}"
             self._entities.append(self.session.liveliness().declare_token(
@@ -75,9 +152,29 @@ class SimulatedRobot:
         return T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
                                            orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
 
-    def _wait_for_subscriber(self, stop: threading.Event, timeout_s: float = 60.0) -> None:
-        """Until the carrier's subscription to NS/odom is in the graph (ROS discovery)."""
-        want = f"%{self.ns}%odom/"
+    def publish_odometry(self, t: float, x: float, y: float) -> None:
+        """``NS/odom`` stamped ``t`` (s): at (x, y) (m), heading east, at rest."""
+        zeros = np.zeros(36)
+        self._put("odom", T["nav_msgs/msg/Odometry"](
+            header=self._header(t, "map"), child_frame_id="base_link",
+            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=self._pose(x, y), covariance=zeros),
+            twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=T["geometry_msgs/msg/Twist"](
+                linear=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
+                angular=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)), covariance=zeros)),
+            "nav_msgs/msg/Odometry")
+
+    def publish_map(self, t: float, payload: bytes | None = None) -> bytes:
+        """``NS/map``: :func:`map_message` at ``t`` (s), or any ``payload`` (a malformed one);
+        recorded in :attr:`maps`. Returns the payload."""
+        if payload is None:
+            payload = bytes(STORE.serialize_cdr(map_message(t), "nav_msgs/msg/OccupancyGrid"))
+        self.maps.append((t, payload))
+        self._put_map(payload)
+        return payload
+
+    def wait_for_subscriber(self, stop: threading.Event, topic: str = "odom", timeout_s: float = 60.0) -> None:
+        """Until the carrier's subscription to NS/``topic`` is in the graph (ROS discovery)."""
+        want = f"%{self.ns}%{topic}/"
         deadline = time.monotonic() + timeout_s
         while not stop.is_set() and time.monotonic() < deadline:
             for reply in self.session.liveliness().get(f"@ros2_lv/{self.domain}/**", timeout=1.0):
@@ -89,23 +186,21 @@ class SimulatedRobot:
         sim = world.Simulation(self.scenario, carriers=[self.cid])
         end = float(self.scenario.stage_times()[-1])
         times = sorted(set(float(s) for s in range(int(end) + 2)) | set(map(float, self.scenario.stage_times())))
-        self._wait_for_subscriber(stop)
-        zeros = np.zeros(36)
+        next_map = MAP_FIRST_S
+        self.wait_for_subscriber(stop)
         for t in times:
             if stop.is_set():
                 return
             sim.advance_to(t)
             x, y = (float(v) for v in sim.position(self.cid))
-            self._put("odom", T["nav_msgs/msg/Odometry"](
-                header=self._header(t, "map"), child_frame_id="base_link",
-                pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=self._pose(x, y), covariance=zeros),
-                twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=T["geometry_msgs/msg/Twist"](
-                    linear=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
-                    angular=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)), covariance=zeros)),
-                "nav_msgs/msg/Odometry")
-            self._put("features", T["geometry_msgs/msg/PoseArray"](
-                header=self._header(t, "map"), poses=[self._pose(x, y) for _ in range(sim.sense(self.cid))]),
-                "geometry_msgs/msg/PoseArray")
+            if self.sensing == "frontier" and t >= next_map - 1e-9:
+                self.publish_map(next_map)
+                next_map += MAP_PERIOD_S
+            self.publish_odometry(t, x, y)
+            if self.sensing == "features":
+                self._put("features", T["geometry_msgs/msg/PoseArray"](
+                    header=self._header(t, "map"), poses=[self._pose(x, y) for _ in range(sim.sense(self.cid))]),
+                    "geometry_msgs/msg/PoseArray")
             self._answer()
             time.sleep(0.002)
         while not stop.wait(0.01):

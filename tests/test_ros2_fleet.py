@@ -222,13 +222,30 @@ def test_off_imports_nothing_of_ros2():
      "--ros2-namespace: expected a ROS 2 namespace"),
     (["--role", "carrier", "--carrier", "a", "--ros2", "--ros2-namespace", "/r1"],
      "--ros2-namespace: only with --ros2-robot"),
-], ids=["domain", "robot-role", "robot-two-ids", "namespace", "namespace-without-robot"])
+    (["--role", "carrier", "--carrier", "a", "--robot-sensing", "frontier"], "--robot-sensing: only with --ros2-robot"),
+    (["--role", "carrier", "--carrier", "a", "--ros2", "--robot-sensing", "features"],
+     "--robot-sensing: only with --ros2-robot"),
+], ids=["domain", "robot-role", "robot-two-ids", "namespace", "namespace-without-robot", "sensing-without-robot",
+        "sensing-with-ros2-only"])
 def test_bad_ros2_flags_get_one_line(tiny, flags, line):
     import run_fleet
 
     args = run_fleet.parse_args(["scenarios/tiny.yaml", *flags])
     problem = run_fleet.check_flags(args, tiny)
     assert problem is not None and line in problem and "\n" not in problem
+
+
+def test_robot_sensing_reaches_the_robot_settings(tiny):
+    """--robot-sensing is carried in Ros2Settings.sensing (features by default); its choices
+    are ros2.robot.SENSING, written out in run_fleet.py so that parsing imports nothing of ros2/."""
+    import run_fleet
+    from ros2.robot import SENSING
+
+    assert run_fleet.ROBOT_SENSING == SENSING
+    robot = ["scenarios/tiny.yaml", "--role", "carrier", "--carrier", "a", "--ros2-robot"]
+    for flags, sensing in (([], "features"), (["--robot-sensing", "frontier"], "frontier")):
+        args = run_fleet.parse_args(robot + flags)
+        assert run_fleet.check_flags(args, tiny) is None and run_fleet._ros2_settings(args).sensing == sensing
 
 
 def test_ros2_domain_defaults_to_ros_domain_id(tiny, monkeypatch):

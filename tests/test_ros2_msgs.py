@@ -57,6 +57,7 @@ def _to_dict(obj):
 
 
 def _close(a, b) -> bool:
+    a, b = (v.tolist() if isinstance(v, np.ndarray) else v for v in (a, b))  # an int8[] decodes as an array
     if isinstance(a, dict):
         return a.keys() == b.keys() and all(_close(a[k], b[k]) for k in a)
     if isinstance(a, list):
@@ -68,6 +69,7 @@ def _close(a, b) -> bool:
 
 def _given(given, full) -> bool:
     """Every value in ``given`` (a partial message) is in ``full`` (a decoded one)."""
+    given, full = (v.tolist() if isinstance(v, np.ndarray) else v for v in (given, full))
     if isinstance(given, dict):
         return all(_given(v, full[k]) for k, v in given.items())
     if isinstance(given, list):
@@ -101,6 +103,11 @@ SAMPLES = {
          "frame_locked": True, "points": [{"x": 0.0, "y": 0.0}, {"x": 10.0, "y": 5.0}],
          "colors": [{"r": 1.0, "a": 1.0}], "text": "c1 (2)"},
         {"header": {"frame_id": "map"}, "ns": "", "action": msgs.DELETEALL}]},
+    "nav_msgs/msg/OccupancyGrid": {
+        "header": {"stamp": {"sec": 14, "nanosec": 250_000_000}, "frame_id": "map"},
+        "info": {"map_load_time": {"sec": 14, "nanosec": 0}, "resolution": 0.05, "width": 3, "height": 2,
+                 "origin": {"position": {"x": -10.0, "y": 2.5}, "orientation": {"z": 0.6, "w": 0.8}}},
+        "data": [-1, 0, 100, 50, -1, 0]},
 }
 
 
@@ -141,3 +148,47 @@ def test_rosbags_payloads_decode_with_ours():
 def test_bad_payloads_are_value_errors(bad):
     with pytest.raises(ValueError):
         msgs.decode("nav_msgs/msg/Odometry", bad)
+
+
+def test_a_large_map_decodes_at_once_as_an_int8_array():
+    """A 10^7-cell OccupancyGrid that rosbags serialised: its cells come back as one numpy int8
+    array over the payload (a per-cell loop would take seconds), equal to rosbags' own."""
+    import time
+
+    m = STORE.types
+    cells = np.random.default_rng(5).integers(-1, 101, size=10_000_000).astype(np.int8)
+    grid = m["nav_msgs/msg/OccupancyGrid"](
+        header=m["std_msgs/msg/Header"](stamp=m["builtin_interfaces/msg/Time"](sec=3, nanosec=7), frame_id="map"),
+        info=m["nav_msgs/msg/MapMetaData"](
+            map_load_time=m["builtin_interfaces/msg/Time"](sec=0, nanosec=0), resolution=0.05, width=4000,
+            height=2500, origin=m["geometry_msgs/msg/Pose"](
+                position=m["geometry_msgs/msg/Point"](x=-50.0, y=-20.0, z=0.0),
+                orientation=m["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))),
+        data=cells)
+    payload = bytes(STORE.serialize_cdr(grid, "nav_msgs/msg/OccupancyGrid"))
+    start = time.perf_counter()
+    got = msgs.decode("nav_msgs/msg/OccupancyGrid", payload)
+    assert time.perf_counter() - start < 0.5
+    assert isinstance(got["data"], np.ndarray) and got["data"].dtype == np.int8
+    np.testing.assert_array_equal(got["data"], cells)
+    assert (got["info"]["width"], got["info"]["height"]) == (4000, 2500)
+    assert got["header"]["stamp"] == {"sec": 3, "nanosec": 7}
+    start = time.perf_counter()
+    assert msgs.encode("nav_msgs/msg/OccupancyGrid", got) == payload  # and back, in one copy
+    assert time.perf_counter() - start < 0.5
+
+
+def _map_payload(cells: int = 6) -> bytes:
+    return msgs.encode("nav_msgs/msg/OccupancyGrid", {"info": {"width": cells, "height": 1},
+                                                      "data": np.zeros(cells, dtype=np.int8)})
+
+
+@pytest.mark.parametrize("bad", [
+    _map_payload()[:-10] + (7).to_bytes(4, "little") + bytes(6),  # 7 cells announced, 6 there
+    _map_payload()[:-2],                                          # cut in the cells
+    _map_payload()[:30],                                          # cut in the header
+], ids=["more-cells-announced", "cut-in-cells", "cut-in-header"])
+def test_bad_maps_are_value_errors(bad):
+    assert msgs.decode("nav_msgs/msg/OccupancyGrid", _map_payload())["data"].tolist() == [0] * 6
+    with pytest.raises(ValueError, match="longer than the payload|malformed"):
+        msgs.decode("nav_msgs/msg/OccupancyGrid", bad)

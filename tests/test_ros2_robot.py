@@ -20,10 +20,11 @@ from ros2_robot_sim import SimulatedRobot  # noqa: E402
 DOMAIN = 3
 
 
-def _fly(scenario, robot_id, out, acknowledge=True, ack_timeout_s=10.0):
+def _fly(scenario, robot_id, out, acknowledge=True, ack_timeout_s=10.0, sensing="features"):
     fleet = InProcessFleet(scenario, out)
     fleet.start_coordinator()
-    robot = SimulatedRobot(scenario, robot_id, fleet.endpoint, "/robot1", DOMAIN, acknowledge=acknowledge)
+    robot = SimulatedRobot(scenario, robot_id, fleet.endpoint, "/robot1", DOMAIN, acknowledge=acknowledge,
+                           sensing=sensing)
     stop = threading.Event()
     thread = threading.Thread(target=robot.run, args=(stop,), daemon=True)
     thread.start()
@@ -31,7 +32,7 @@ def _fly(scenario, robot_id, out, acknowledge=True, ack_timeout_s=10.0):
         for cid in scenario.carrier_ids:
             if cid == robot_id:
                 fleet.start_carrier(cid, ros2=Ros2Settings(domain=DOMAIN, robot=True, namespace="/robot1",
-                                                           ack_timeout_s=ack_timeout_s))
+                                                           ack_timeout_s=ack_timeout_s, sensing=sensing))
             else:
                 fleet.start_carrier(cid)
         summary = fleet.join(180.0)
@@ -137,3 +138,159 @@ def test_a_silent_robot_is_taken_where_it_was_planned_and_logged_once():
     finally:
         session.close()
     assert [ln.split(":")[1].split(" stamped")[0].strip() for ln in lines] == ["no odometry", "no feature detections"]
+
+
+# --------------------------------------------------------------------------- --robot-sensing frontier
+
+
+def _their_maps(payloads) -> "MapHistory":
+    """Maps the simulated robot sent (CDR payloads), decoded by rosbags (not ros2/) and made
+    grids by the importer's own code."""
+    from ros2_robot_sim import STORE
+    from world.grid import MapHistory, grid_from_message
+
+    return MapHistory(grid_from_message(STORE.deserialize_cdr(payload, "nav_msgs/msg/OccupancyGrid"), source="sim")
+                      for payload in payloads)
+
+
+def test_a_ros2_robot_observes_the_frontier_of_its_growing_map(tmp_path):
+    """--robot-sensing frontier: every stage's observation of the robot's carrier is
+    world.grid.MapHistory's value (the importer's --replay rule) of the robot's odometry
+    position in the maps it sent (none yet at stage 0: x = 0; the map stamped at the stage time;
+    the latest before it), and the growing map changes it."""
+    tiny = world.load_scenario(TINY)
+    fleet, robot, summary = _fly(tiny, "a", tmp_path, sensing="frontier")
+    assert summary["ended"] and summary["stages_decided"] == tiny.stages
+    assert all(fleet.results[cid] == "end" for cid in tiny.carrier_ids)
+    r = tiny.carrier_index("a")
+    trace = world.simulate_mission(tiny)
+    maps = _their_maps(p for _, p in robot.maps)
+    assert [g.stamp for g in maps.grids] == [2.0, 5.0, 8.0, 11.0, 14.0]
+    expected = [maps.value(float(t), trace.positions[r, j], tiny.sensing_radius)
+                for j, t in enumerate(tiny.stage_times())]
+    observed = np.array(summary["observations"], dtype=float)
+    assert observed[r].tolist() == expected
+    assert expected[0] == 0 and len({v for v in expected if v}) >= 2, expected
+    # The other carrier senses its simulated features, as ever.
+    b = tiny.carrier_index("b")
+    np.testing.assert_array_equal(observed[b], world.observe_all(tiny)[b])
+    mine = summary["carriers"][r]
+    assert len(robot.released) == len(mine["deployments"]) == tiny.carriers[r].passengers
+    assert not [ln for ln in fleet.log.lines if "map ignored" in ln or "undecodable" in ln]
+
+
+def _peer_and_robot(tiny):
+    """A zenoh peer on loopback (the carrier's session) and a simulated frontier robot
+    (namespace /robot7) connected to it as a client."""
+    import zenoh
+
+    from wire.zconfig import free_port, make_config
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    session = zenoh.open(make_config("peer", [endpoint]))
+    robot = SimulatedRobot(tiny, "a", endpoint, "/robot7", DOMAIN, sensing="frontier")
+    return session, robot
+
+
+def _body(tiny, session, lines, sync=False, timeout_s=10.0):
+    """The carrier's node on ``session`` and its frontier body of robot /robot7 (paced unless ``sync``)."""
+    from ros2.graph import Node
+    from ros2.robot import RobotBody
+
+    node = Node(session, DOMAIN, "/a", "carrier", log=lines.append, watch=False)
+    return node, RobotBody(tiny, "a", node, "/robot7", sync=sync, log=lines.append, stop=threading.Event(),
+                           timeout_s=timeout_s, sensing="frontier")
+
+
+def _odometry_until(robot, stop, t, x, y):
+    """The robot's odometry at (x, y) stamped ``t``, 20 times a second until ``stop``."""
+    def run():
+        while not stop.wait(0.05):
+            robot.publish_odometry(t, x, y)
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    return thread
+
+
+def test_a_map_sent_before_the_carrier_subscribed_arrives():
+    """NS/map is transient local: the map a robot (map_server, SLAM) sent before the carrier's
+    body existed still reaches it (its AdvancedSubscriber asks the publisher's cache)."""
+    tiny = world.load_scenario(TINY)
+    session, robot = _peer_and_robot(tiny)
+    lines: list[str] = []
+    stop = threading.Event()
+    try:
+        robot.publish_map(14.0)  # nobody subscribes yet
+        node, body = _body(tiny, session, lines)
+        thread = _odometry_until(robot, stop, 15.0, 34.0, 20.0)
+        body.advance_to(15.0)
+        assert body.position("a") == (34.0, 20.0)
+        x = body.sense("a", 3)
+        stop.set()
+        thread.join(2)
+        node.close()
+    finally:
+        stop.set()
+        robot.close()
+        session.close()
+    assert x == _their_maps(p for _, p in robot.maps).value(15.0, (34.0, 20.0), tiny.sensing_radius) > 0
+    assert lines == []
+
+
+def test_a_malformed_map_is_logged_in_one_line_and_ignored():
+    """A map whose cells are not width x height, and a payload that is no OccupancyGrid at all:
+    one line each, the process goes on, and the next good map counts."""
+    from ros2_robot_sim import STORE, map_message
+
+    tiny = world.load_scenario(TINY)
+    session, robot = _peer_and_robot(tiny)
+    lines: list[str] = []
+    stop = threading.Event()
+    try:
+        node, body = _body(tiny, session, lines)
+        robot.wait_for_subscriber(stop, "map", timeout_s=10.0)
+        short = map_message(8.0, cells=np.zeros(10, dtype=np.int8))
+        robot.publish_map(8.0, bytes(STORE.serialize_cdr(short, "nav_msgs/msg/OccupancyGrid")))
+        robot.publish_map(8.0, b"\x00\x01\x00\x00\xff\xff")
+        robot.publish_map(8.0, bytes(STORE.serialize_cdr(short, "nav_msgs/msg/OccupancyGrid")))  # the same fault
+        good = robot.publish_map(11.0)
+        thread = _odometry_until(robot, stop, 11.0, 26.0, 20.0)
+        body.advance_to(11.0)
+        x = body.sense("a")
+        stop.set()
+        thread.join(2)
+        node.close()
+    finally:
+        stop.set()
+        robot.close()
+        session.close()
+    assert x == _their_maps([good]).value(11.0, (26.0, 20.0), tiny.sensing_radius) > 0
+    assert len(body.maps.grids) == 1 and body.maps.grids[0].stamp == 11.0
+    ignored = [ln for ln in lines if "map ignored" in ln]
+    assert len(ignored) == 1 and "expected width x height = 88 x 78 = 6864 cells" in ignored[0], lines
+    undecodable = [ln for ln in lines if "undecodable nav_msgs/msg/OccupancyGrid" in ln]
+    assert len(undecodable) == 1 and len(lines) == 2, lines
+
+
+def test_the_maps_a_frontier_body_keeps_are_the_ones_its_stages_need():
+    """needed_maps: the latest map at or before each coming stage time and the newest (paced:
+    the newest only) — what bounds the body's memory without changing any stage's map."""
+    from ros2.robot import needed_maps
+    from world.grid import latest_at
+
+    stamps = [2.0, 5.0, 8.0, 11.0, 14.0, 17.0]
+    stages = [0.0, 5.0, 10.0, 15.0]
+    assert needed_maps([], stages, 0.0, True) == []
+    assert needed_maps(stamps, stages, 0.0, True) == [1, 2, 4, 5]
+    assert needed_maps(stamps, stages, 10.0, True) == [2, 4, 5]
+    assert needed_maps(stamps, stages, 10.5, True) == [4, 5]
+    assert needed_maps(stamps, stages, 0.0, False) == [5]
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        stamps = sorted(rng.uniform(0, 30, rng.integers(1, 12)).round(1).tolist())
+        now = float(rng.choice(stages))
+        kept = needed_maps(stamps, stages, now, True)
+        for t in (s for s in stages if s >= now):  # every coming stage finds the same map among the kept
+            k = latest_at(stamps, t)
+            kk = latest_at([stamps[i] for i in kept], t)
+            assert (k < 0 and kk < 0) or stamps[k] == stamps[kept[kk]]
