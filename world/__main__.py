@@ -235,7 +235,8 @@ def _run_import(args) -> int:
               file=sys.stderr)
         return EXIT_BAD_INPUT
     try:
-        result = imp.import_run(settings, progress=lambda line: print(line, file=sys.stderr))
+        # progress on stdout: on bad input stderr holds exactly the one line naming it
+        result = imp.import_run(settings, progress=lambda line: print(line, flush=True))
         written = imp.write_outputs(settings, result)
     except G.GridError as err:
         print(str(err), file=sys.stderr)
