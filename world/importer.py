@@ -301,20 +301,12 @@ def import_run(st: ImportSettings, progress=print) -> ImportResult:
     if is_bag:
         order = sorted(range(len(history_stamps)), key=lambda k: (history_stamps[k], k))
         stamps = [history_stamps[k] for k in order]
-        final_index = order[-1]
+        (_, grid), = B.iter_maps(source, st.map_topic, st.free_level, st.occupied_level, {order[-1]})
     else:
-        final = G.read_map_yaml(source, st.free_level, st.occupied_level)
-        stamps, order, final_index = [0.0], [0], 0
-    tol = st.path_tolerance
-    cands: list[Candidates] = []
-    final_grid = None if is_bag else final
-    if is_bag:
-        for _, final_grid in B.iter_maps(source, st.map_topic, st.free_level, st.occupied_level, {final_index}):
-            pass
-    grid = final_grid
-    tol = 0.5 * grid.resolution if tol is None else tol
-    for r in routes:
-        cands.append(checked_candidates(grid, r, st.stage_spacing, st.stages, tol))
+        grid = G.read_map_yaml(source, st.free_level, st.occupied_level)
+        stamps, order = [0.0], [0]
+    tol = 0.5 * grid.resolution if st.path_tolerance is None else st.path_tolerance
+    cands = [checked_candidates(grid, r, st.stage_spacing, st.stages, tol) for r in routes]
 
     # values: the frontier cells within the radius, in the map given or the latest at each time
     frontier_total = int(G.frontier_mask(grid).sum())
