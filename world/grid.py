@@ -75,6 +75,7 @@ class OccupancyGrid:
     free_level: int = DEFAULT_FREE_LEVEL
     occupied_level: int = DEFAULT_OCCUPIED_LEVEL
     source: str = field(default="", compare=False)
+    warnings: tuple[str, ...] = field(default=(), compare=False)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -426,9 +427,17 @@ def read_map_yaml(path: str | Path, free_level: int = DEFAULT_FREE_LEVEL,
             data[between] = np.rint((occ[between] - free_th) / (occ_th - free_th) * 100.0)
             if alpha is not None:
                 data[alpha < 255] = -1
+    warnings = ()
+    grey = pixels == PGM_UNKNOWN
+    if mode != "raw" and not negate and grey.any() and (data[grey] == 0).all():
+        # nav2's map_saver writes unknown cells as 205 beside free_thresh 0.25, which reads them
+        # back as free (occupancy 0.196): honoured, and said
+        warnings = (f"{file}: free_thresh {free_th:g} reads the image's {int(grey.sum())} pixels of 205 "
+                    f"(map_saver's unknown) as free; with free_thresh below 0.196 they are unknown",)
     # image row 0 is the top of the map; the grid's row 0 is at the origin (the bottom)
     return OccupancyGrid(data=np.ascontiguousarray(data[::-1].astype(np.int8)), resolution=float(resolution),
-                         origin=origin, free_level=free_level, occupied_level=occupied_level, source=file)
+                         origin=origin, free_level=free_level, occupied_level=occupied_level, source=file,
+                         warnings=warnings)
 
 
 def _read_image(path: Path, where: str) -> tuple[np.ndarray, np.ndarray | None]:

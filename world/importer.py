@@ -305,6 +305,8 @@ def import_run(st: ImportSettings, progress=print) -> ImportResult:
     else:
         grid = G.read_map_yaml(source, st.free_level, st.occupied_level)
         stamps, order = [0.0], [0]
+    for line in grid.warnings:
+        progress(f"warning: {line}")
     tol = 0.5 * grid.resolution if st.path_tolerance is None else st.path_tolerance
     cands = [checked_candidates(grid, r, st.stage_spacing, st.stages, tol) for r in routes]
 
@@ -312,7 +314,8 @@ def import_run(st: ImportSettings, progress=print) -> ImportResult:
     frontier_total = int(G.frontier_mask(grid).sum())
     if frontier_total == 0:
         raise GridError(grid.source or str(source), "a map with at least one frontier cell (a free cell next to an "
-                        "unknown one)", "none" + (" (no free cell)" if not (grid.classes == G.FREE).any() else ""))
+                        "unknown one)", "none" + (" (no free cell)" if not (grid.classes == G.FREE).any() else "")
+                        + "".join(f" ({w.partition(': ')[2]})" for w in grid.warnings))
     for c in cands:
         c.values = np.zeros(len(c.points), dtype=np.int64)
     if st.replay:
