@@ -1,14 +1,17 @@
 """A generated recorded run for tests and benchmarks of ``python -m world import``: a floor plan
-of rooms and corridors as an occupancy grid, carriers driving routes through it, and the map
-their sensors reveal growing over time, written as a map_server map and as ROS 2 bags (MCAP or
-sqlite3, by rosbags), every part from one seed.
+(rooms and corridors, or caves) as an occupancy grid, carriers driving routes through it, and the
+map their sensors reveal growing over time, written as a map_server map and as ROS 2 bags (MCAP
+or sqlite3, by rosbags), every part from one seed.
 
     python -m tools.synthetic_run OUT_DIR [--cells 600x400] [--resolution 0.05] [--snapshots 16]
-        [--carriers 3] [--seed 0] [--storage mcap|sqlite3]
+        [--carriers 3] [--seed 0] [--storage mcap|sqlite3] [--family rooms|caves]
 
 writes ``OUT_DIR/map.yaml`` (the map at the end of the run), ``OUT_DIR/bag/`` (maps on ``/map``,
 carrier i's poses on ``/c<i>/odom`` as nav_msgs/msg/Odometry, or as
 geometry_msgs/msg/PoseStamped on ``/c<i>/pose`` for odd i) and ``OUT_DIR/routes.yaml``.
+``--family rooms`` (the default) is a grid of rooms with a door in every wall stretch;
+``--family caves`` a cellular automaton's caves (:func:`caves`). Only the floor plan depends on
+the family: the routes and maps are drawn the same way on either, from the same stream.
 """
 from __future__ import annotations
 
@@ -23,6 +26,10 @@ import numpy as np
 FREE, OCCUPIED = 0, 100
 #: How far a carrier's sensor reveals the map (m).
 REVEAL_RADIUS = 6.0
+#: Floor plans ``--family`` may name: rooms and corridors (the default), or caves.
+FAMILIES = ("rooms", "caves")
+#: Caves: side of a cellular-automaton cell (m), its initial chance of rock, smoothing steps.
+CAVE_CELL, CAVE_FILL, CAVE_STEPS = 0.5, 0.45, 5
 
 
 @dataclass
@@ -67,45 +74,83 @@ def floor_plan(width: int, height: int, rng: np.random.Generator) -> tuple[np.nd
     return g, bx, by
 
 
-def _route(truth: np.ndarray, res: float, rng: np.random.Generator, length_cells: int) -> np.ndarray:
-    """A random walk through free cells (4-connected moves, kept clear of walls by 3 cells),
-    as cell centres (m)."""
+def drivable(truth: np.ndarray) -> np.ndarray:
+    """bool ``[H, W]``: the largest 4-connected region of free cells kept 3 cells clear of walls
+    (where the carriers' routes run)."""
     from scipy import ndimage
 
-    free = truth == FREE
-    clear = ndimage.binary_erosion(free, iterations=3)
-    # connected component with most cells
+    clear = ndimage.binary_erosion(truth == FREE, iterations=3)
     lab, n = ndimage.label(clear)
-    big = 1 + int(np.argmax(ndimage.sum(clear, lab, range(1, n + 1))))
-    cells = np.argwhere(lab == big)
+    sizes = np.bincount(lab.ravel(), minlength=n + 1)[1:]
+    return lab == 1 + int(np.argmax(sizes))
+
+
+def caves(width: int, height: int, resolution: float, rng: np.random.Generator) -> np.ndarray:
+    """Caves: a cellular automaton on cells of CAVE_CELL m (rock with chance CAVE_FILL, then
+    CAVE_STEPS steps of the 4-5 rule: rock stays rock with at least 4 rock neighbours of 8 and
+    floor turns to rock with at least 5, beyond the edge is rock), interpolated bilinearly to the
+    grid and cut at one half, so that walls are smooth curves rather than staircases. Returns
+    int8 ``[height, width]`` (0 free, 100 occupied) with an outer wall."""
+    from scipy import ndimage
+
+    k = max(1, int(round(CAVE_CELL / resolution)))
+    rock = rng.random((-(-height // k), -(-width // k))) < CAVE_FILL
+    ring = np.ones((3, 3), dtype=np.uint8)
+    ring[1, 1] = 0
+    for _ in range(CAVE_STEPS):
+        n = ndimage.convolve(rock.astype(np.uint8), ring, mode="constant", cval=1)
+        rock = np.where(rock, n >= 4, n >= 5)
+    fine = ndimage.zoom(rock.astype(np.float32), k, order=1, mode="nearest", grid_mode=True)[:height, :width]
+    g = np.where(fine > 0.5, OCCUPIED, FREE).astype(np.int8)
+    g[[0, -1], :] = OCCUPIED
+    g[:, [0, -1]] = OCCUPIED
+    return g
+
+
+def _route(region: np.ndarray, cells: np.ndarray, res: float, rng: np.random.Generator,
+           length_cells: int) -> np.ndarray:
+    """A random walk of ``length_cells`` cells through ``region`` (4-connected moves) from a
+    random one of ``cells`` (``np.argwhere(region)``), as cell centres (m)."""
+    h, w = region.shape
     here = cells[rng.integers(len(cells))]
-    out = [here.copy()]
-    step = np.array([[0, 1], [1, 0], [0, -1], [-1, 0]])
+    r, c = int(here[0]), int(here[1])
+    out = np.empty((length_cells, 2), dtype=np.int64)
+    out[0] = r, c
+    k = 1
+    step = ((0, 1), (1, 0), (0, -1), (-1, 0))
     d = int(rng.integers(4))
-    while len(out) < length_cells:
+    # one draw per move (plus one per turn), in the original order: the walk is data dependent
+    while k < length_cells:
         if rng.random() < 0.05:
             d = int(rng.integers(4))
-        nxt = here + step[d]
-        if not (0 <= nxt[0] < truth.shape[0] and 0 <= nxt[1] < truth.shape[1]) or lab[nxt[0], nxt[1]] != big:
+        nr, nc = r + step[d][0], c + step[d][1]
+        if not (0 <= nr < h and 0 <= nc < w) or not region[nr, nc]:
             d = int(rng.integers(4))
             continue
-        here = nxt
-        out.append(here.copy())
-    rc = np.asarray(out, dtype=float)
+        r, c = nr, nc
+        out[k] = r, c
+        k += 1
+    rc = out.astype(float)
     return np.column_stack([(rc[:, 1] + 0.5) * res, (rc[:, 0] + 0.5) * res])
 
 
 def generate(width: int = 600, height: int = 400, resolution: float = 0.05, carriers: int = 3,
-             snapshots: int = 16, seed: int = 0, speed: float = 0.5, pose_rate: float = 10.0) -> SyntheticRun:
-    """A recorded run: carrier i starts 20 i s after the first, drives its route at ``speed``
-    (poses at ``pose_rate`` Hz), and the map at each of ``snapshots`` stamps knows every cell
-    within REVEAL_RADIUS of a pose so far (no line of sight: enough for a test)."""
+             snapshots: int = 16, seed: int = 0, speed: float = 0.5, pose_rate: float = 10.0,
+             family: str = "rooms") -> SyntheticRun:
+    """A recorded run on a floor plan of ``family`` (FAMILIES): carrier i starts 20 i s after the
+    first, drives its route at ``speed`` (poses at ``pose_rate`` Hz), and the map at each of
+    ``snapshots`` stamps knows every cell within REVEAL_RADIUS of a pose so far (no line of
+    sight: enough for a test)."""
+    if family not in FAMILIES:
+        raise ValueError(f"family: expected one of {', '.join(FAMILIES)}, found {family!r}")
     rng = np.random.default_rng(seed)
-    truth, _, _ = floor_plan(width, height, rng)
+    truth = floor_plan(width, height, rng)[0] if family == "rooms" else caves(width, height, resolution, rng)
     length = int(0.8 * (width + height))
+    region = drivable(truth)
+    cells = np.argwhere(region)
     tracks = {}
     for i in range(carriers):
-        xy = _route(truth, resolution, rng, length)[:: max(1, int(round(speed / pose_rate / resolution)))]
+        xy = _route(region, cells, resolution, rng, length)[:: max(1, int(round(speed / pose_rate / resolution)))]
         t = 20.0 * i + np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))]) / speed
         tracks[f"c{i}"] = np.column_stack([t, xy])
     end = max(float(tr[-1, 0]) for tr in tracks.values())
@@ -211,11 +256,13 @@ def main(argv=None) -> int:
     p.add_argument("--carriers", type=int, default=3)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap")
+    p.add_argument("--family", choices=FAMILIES, default="rooms",
+                   help="floor plan: rooms and corridors (default) or cellular-automaton caves")
     a = p.parse_args(argv)
     w, h = (int(v) for v in a.cells.lower().split("x"))
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    run = generate(w, h, a.resolution, a.carriers, a.snapshots, a.seed)
+    run = generate(w, h, a.resolution, a.carriers, a.snapshots, a.seed, family=a.family)
     from world.grid import OccupancyGrid
 
     write_map(run, out / "map.yaml", OccupancyGrid(run.snapshots[-1][1], run.resolution))  # the map at the end
