@@ -128,10 +128,10 @@ def read_routes(path: str) -> list[Route]:
     """
     import yaml
 
-    from world.scenario import _Checker
+    from world.scenario import _Checker, _parse_yaml
 
     try:
-        doc = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+        doc = _parse_yaml(Path(path).read_text(encoding="utf-8"))  # libyaml, duplicate keys refused
     except FileNotFoundError:
         raise GridError(path, "an existing routes YAML file", "no such file") from None
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
