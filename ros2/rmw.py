@@ -15,16 +15,18 @@ Written from rmw_zenoh's source (ros2/rmw_zenoh; commits cited in tests/test_ros
 * the attachment of every sample (``AttachmentData::serialize_to_zbytes`` in
   attachment_helpers.cpp, zenoh-ext serialisation): int64 sequence number (LE), int64 source
   timestamp (ns since the Unix epoch, LE), then the 16-byte GID as a sequence (LEB128 length 16,
-  then the bytes): 33 bytes. Subscribers drop samples without one (rmw_subscription_data.cpp).
-
-What differs on purpose: rmw_zenoh derives an entity's GID from XXH3-128 of its token; here it is
-the first 16 bytes of SHA-256 of the token (unique and stable as well; readers only compare GIDs).
+  then the bytes): 33 bytes. Subscribers drop samples without one (rmw_subscription_data.cpp);
+* the GID of an entity (``Entity::Entity``): XXH3-128 (seed 0) of its whole liveliness token,
+  the low 64 bits then the high 64 bits, each little-endian (``memcpy`` of ``low64``, ``high64``
+  on a little-endian host); a publisher's samples carry it in their attachment, so a ROS 2 node
+  matches a sample to the publisher its graph cache holds.
 """
 from __future__ import annotations
 
-import hashlib
 import struct
 from dataclasses import dataclass
+
+import xxhash
 
 #: Prefix of every graph token (a zenoh hermetic namespace: ``*``/``**`` never match it).
 ADMIN_SPACE = "@ros2_lv"
@@ -205,8 +207,10 @@ def parse_token(key: str) -> Token:
 
 
 def gid(token: str) -> bytes:
-    """The 16-byte GID of the entity with this token (see the module docstring)."""
-    return hashlib.sha256(token.encode()).digest()[:GID_BYTES]
+    """The 16-byte GID of the entity with this liveliness token, as rmw_zenoh makes it (see the
+    module docstring): ``low64`` then ``high64`` of XXH3-128, little-endian."""
+    value = xxhash.xxh3_128_intdigest(token.encode())  # (high64 << 64) | low64
+    return struct.pack("<QQ", value & 0xFFFF_FFFF_FFFF_FFFF, value >> 64)
 
 
 def attachment(sequence_number: int, source_timestamp_ns: int, source_gid: bytes) -> bytes:

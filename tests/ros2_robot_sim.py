@@ -1,7 +1,7 @@
 """A simulated ROS 2 robot for the tests: a plain zenoh session speaking rmw_zenoh's format,
 written independently of ros2/ (keys and tokens from rmw_zenoh's design document, payloads by
-rosbags, attachments by zenoh-ext), so that a carrier flying it checks ros2/ against another
-implementation.
+rosbags, attachments by zenoh-ext, GIDs by xxhash), so that a carrier flying it checks ros2/
+against another implementation.
 
 The robot is one carrier of a scenario driven by the project's physics (``world.Simulation``):
 it publishes ``NS/odom`` (nav_msgs/Odometry) and ``NS/features`` (geometry_msgs/PoseArray, one
@@ -21,6 +21,7 @@ import threading
 import time
 
 import numpy as np
+import xxhash
 import zenoh
 from rosbags.typesys import Stores, get_typestore
 from zenoh.ext import Int64, z_serialize
@@ -84,16 +85,23 @@ def map_publisher(session, domain: int, namespace: str, eid: int = 9, node: str 
     pub = ext.declare_advanced_publisher(
         session, key, cache=ext.CacheConfig(max_samples=1), publisher_detection=True,
         sample_miss_detection=ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=0.5))
-    token = session.liveliness().declare_token(
-        f"@ros2_lv/{domain}/{zid}/0/{eid}/MP/%/%{ns}/{node}/%{ns}%map/{_dds(typename)}/{h}/{TRANSIENT_LOCAL_DEPTH_1}")
+    token_key = f"@ros2_lv/{domain}/{zid}/0/{eid}/MP/%/%{ns}/{node}/%{ns}%map/{_dds(typename)}/{h}/{TRANSIENT_LOCAL_DEPTH_1}"
+    token = session.liveliness().declare_token(token_key)
     seq = [0]
-    gid = (b"map" + bytes(16))[:16]
+    gid = _gid(token_key)
 
     def put(payload: bytes) -> None:
         seq[0] += 1
         pub.put(payload, attachment=z_serialize((Int64(seq[0]), Int64(time.time_ns()), gid)))
 
     return put, [token, pub]
+
+
+def _gid(token_key: str) -> bytes:
+    """rmw_zenoh's GID of the entity with this token (liveliness_utils.cpp, ``Entity::Entity``):
+    XXH3-128 of the token, low 64 bits then high 64 bits, each little-endian."""
+    value = xxhash.xxh3_128_intdigest(token_key.encode())
+    return (value & (2**64 - 1)).to_bytes(8, "little") + (value >> 64).to_bytes(8, "little")
 
 
 def _dds(typename: str) -> str:
@@ -117,6 +125,7 @@ class SimulatedRobot:
         self._entities = [self.session.liveliness().declare_token(
             f"@ros2_lv/{domain}/{self.zid}/0/0/NN/%/%{self.ns}/robot")]
         self.keys = {}
+        self._gids: dict[str, bytes] = {}
         topics = [("odom", "nav_msgs/msg/Odometry", "MP"), ("features", "geometry_msgs/msg/PoseArray", "MP"),
                   ("deployed", "std_msgs/msg/UInt32", "MP"), ("deploy", "std_msgs/msg/UInt32", "MS")]
         if sensing == "frontier":
@@ -127,9 +136,10 @@ class SimulatedRobot:
         for eid, (topic, typename, kind) in enumerate(topics, start=1):
             h = STORE.hash_rihs01(typename)
             self.keys[topic] = f"{domain}/{self.ns}/{topic}/{_dds(typename)}/{h}"
-            self._entities.append(self.session.liveliness().declare_token(
-                f"@ros2_lv/{domain}/{self.zid}/0/{eid}/{kind}/%/%{self.ns}/robot/%{self.ns}%{topic}/"
-                f"{_dds(typename)}/{h}/::,10:,:,:,,"))
+            token_key = (f"@ros2_lv/{domain}/{self.zid}/0/{eid}/{kind}/%/%{self.ns}/robot/%{self.ns}%{topic}/"
+                         f"{_dds(typename)}/{h}/::,10:,:,:,,")
+            self._gids[topic] = _gid(token_key)
+            self._entities.append(self.session.liveliness().declare_token(token_key))
         self._entities.append(self.session.declare_subscriber(self.keys["deploy"], self._on_deploy))
 
     def _on_deploy(self, sample):
@@ -139,8 +149,7 @@ class SimulatedRobot:
 
     def _put(self, topic: str, msg, typename: str) -> None:
         seq = self._seq[topic] = self._seq.get(topic, 0) + 1
-        gid = (topic.encode() + bytes(16))[:16]
-        att = z_serialize((Int64(seq), Int64(time.time_ns()), gid))
+        att = z_serialize((Int64(seq), Int64(time.time_ns()), self._gids[topic]))
         self.session.put(self.keys[topic], bytes(STORE.serialize_cdr(msg, typename)), attachment=att)
 
     def _header(self, t: float, frame: str):

@@ -100,8 +100,18 @@ def test_a_mission_as_ros2_topics_and_bag(tiny, tmp_path):
         assert t.domain == DOMAIN
     assert pubs["/mission/world"].qos == rmw.QoS(durability=rmw.TRANSIENT_LOCAL, depth=1)
 
-    # The samples: keys of those publishers, each with an attachment whose sequence numbers
-    # count up by one per publisher (from 1), and a payload rosbags decodes.
+    # The GIDs a ROS 2 graph cache gives the publishers: XXH3-128 of each token (rmw_zenoh's
+    # Entity::Entity, computed here with xxhash directly), per topic.
+    import xxhash
+
+    graph_gids: dict[str, set[bytes]] = {}
+    for key, t in zip(host.tokens, tokens):
+        if t.kind == rmw.PUBLISHER:
+            graph_gids.setdefault(t.topic, set()).add(xxhash.xxh3_128(key.encode()).digest()[::-1])
+
+    # The samples: keys of those publishers, each with an attachment that names its publisher's
+    # graph GID and whose sequence numbers count up by one per publisher (from 1), and a payload
+    # rosbags decodes.
     by_topic: dict[str, list] = {}
     seqs: dict[bytes, list[int]] = {}
     for key, payload, att in host.samples:
@@ -110,6 +120,7 @@ def test_a_mission_as_ros2_topics_and_bag(tiny, tmp_path):
         assert pubs[topic].dds_type == dds and pubs[topic].type_hash == h
         assert att is not None
         meta = rmw.parse_attachment(att)
+        assert meta.gid in graph_gids[topic], topic
         seqs.setdefault(meta.gid, []).append(meta.sequence_number)
         by_topic.setdefault(topic, []).append(STORE.deserialize_cdr(payload, ros_name(dds)))
     for numbers in seqs.values():  # the coordinator may publish before the host subscribes

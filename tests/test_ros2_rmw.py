@@ -15,7 +15,15 @@ Sources (GitHub ros2/rmw_zenoh, the Jazzy-and-later formats, Zenoh 1.x):
   ``serializer.serialize(sequence_number_); serialize(source_timestamp_); serialize(source_gid_)``
   (zenoh-ext serialisation; checked here against zenoh-python's own ``zenoh.ext.z_serialize``);
 * rmw_zenoh_cpp/src/detail/rmw_subscription_data.cpp @ a72659a6a65404a4ed43b7f41a6fc514d737e602 —
-  samples without an attachment are dropped ("Unable to obtain attachment").
+  samples without an attachment are dropped ("Unable to obtain attachment");
+* liveliness_utils.cpp (as above), ``Entity::Entity``: the GID is
+  ``simplified_XXH3_128bits(liveliness_keyexpr_)``, ``memcpy`` of ``low64`` into bytes 0-7 and of
+  ``high64`` into bytes 8-15; simplified_xxhash3.hpp @ 63133f54863361a2c579f871e90d27bd33b0c7c5
+  (``low64`` is ``value & 0xFFFFFFFFFFFFFFFF``, ``high64`` is ``value >> 64``); rmw_publisher_data.cpp
+  @ 3e19ec730c529035a648aec80c0ae0a056943b8c puts ``entity_->copy_gid()`` in every attachment.
+  Golden values from PyPI's xxhash; the halves' order checked against xxHash's own sanity vector
+  for the empty input (Cyan4973/xxHash, tests: ``{ 0x6001C324468D497FULL, 0x99AA06D3014798D8ULL }``
+  as ``{low64, high64}``).
 """
 from __future__ import annotations
 
@@ -109,6 +117,27 @@ def test_other_formats_get_one_line():
         rmw.parse_token("marsupial/m/coordinator/alive")
     for line in (str(e) for e in (rmw.ForeignFormat("x"),)):
         assert "\n" not in line
+
+
+TALKER_NODE = "@ros2_lv/2/8b20917502ee955ac4476e0266340d5c/0/0/NN/%/%/talker"
+TALKER_PUB = ("@ros2_lv/2/8b20917502ee955ac4476e0266340d5c/0/10/MP/%/%/talker/%chatter/std_msgs::msg::dds_::String_/"
+              "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18/::,7:,:,:,,")
+
+
+@pytest.mark.parametrize("token, gid_hex", [
+    # xxHash's sanity vector: low64 0x6001C324468D497F, high64 0x99AA06D3014798D8, each little-endian
+    ("", "7f498d4624c30160" "d8984701d306aa99"),
+    (TALKER_NODE, "8514508efc2c8f4e" "e260a1cb837a77f8"),  # 61 bytes: XXH3's 17-128 byte path
+    (TALKER_PUB, "ac170f31eadcd9ff" "0cd86d7a17907d1c"),  # 184 bytes: the 129-240 byte path
+], ids=["empty", "talker-node", "talker-publisher"])
+def test_gid_is_rmw_zenohs_xxh3_128_of_the_token(token, gid_hex):
+    import xxhash
+
+    gid = rmw.gid(token)
+    assert gid.hex() == gid_hex
+    # The same bytes by another route: xxhash's canonical digest is big-endian (high64 first), so
+    # rmw_zenoh's layout (low64 then high64, each little-endian) is that digest reversed.
+    assert gid == xxhash.xxh3_128(token.encode()).digest()[::-1]
 
 
 def test_gid_is_stable_and_distinct():
