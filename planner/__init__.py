@@ -21,9 +21,10 @@ Modules, bottom up:
 * :mod:`planner.registry`  planner names, options and their validation;
 * :mod:`planner.online`    the online loop: ``stage_step`` and ``run_online``;
 * :mod:`planner.instance`  the JSON instance format;
-* :mod:`planner.solve`    the solve command's work (the command line is :mod:`coordinator.solve`).
+* :mod:`planner.solve`    the solve command's work (the command line is :mod:`planner.cli.solve`).
 
-The core has no command line: ``python -m coordinator.bench`` and ``coordinator.measure`` (behind
-``python -m planner.online_optimal`` and ``python -m planner.clairvoyant``, whose ``__main__``
-blocks only forward) sit above it.
+The core has no command line: the planner's command lines (solve, bench, the exact solvers'
+measurements) are in :mod:`planner.cli`, the one place in planner/ with argparse;
+``python -m planner.online_optimal`` and ``planner.clairvoyant`` run ``__main__`` blocks that
+only forward there. planner/ imports nothing above it.
 """

@@ -420,7 +420,7 @@ def warm_up() -> None:
 cache_follows_sources(globals())  # the on-disk cache follows every planner source
 
 
-if __name__ == "__main__":  # a forward only: the command line is coordinator.measure's
-    from coordinator.measure import clairvoyant_times
+if __name__ == "__main__":  # a forward only: the command line is planner.cli.measure's
+    from planner.cli.measure import clairvoyant_times
 
-    clairvoyant_times()
+    raise SystemExit(clairvoyant_times())

@@ -732,7 +732,7 @@ def _component_decision(solver: _Solver, view: StageView) -> list[int]:
     return [int(carriers[can[i]]) for i in best_action]
 
 
-if __name__ == "__main__":  # a forward only: the command line is coordinator.measure's
-    from coordinator.measure import optimal_table
+if __name__ == "__main__":  # a forward only: the command line is planner.cli.measure's
+    from planner.cli.measure import optimal_table
 
-    optimal_table()
+    raise SystemExit(optimal_table())

@@ -1,7 +1,7 @@
-"""Run one planner online over one instance file: what ``python -m coordinator.solve`` prints.
+"""Run one planner online over one instance file: what ``python -m planner.cli.solve`` prints.
 
 Pure: reads the instance file, runs :func:`planner.online.run_online` and the clairvoyant bound,
-returns a JSON-ready dict. The command line (argparse, exit codes) is in :mod:`coordinator.solve`.
+returns a JSON-ready dict. The command line (argparse, exit codes) is in :mod:`planner.cli.solve`.
 """
 from __future__ import annotations
 

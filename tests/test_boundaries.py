@@ -4,7 +4,8 @@ world/ never imports coordinator/ or carriers/. Checked twice: by importing in a
 statement (so a lazy import inside a function cannot slip through).
 
 The project's module graph, built by ``ast`` from every import statement (function bodies and
-``__main__`` blocks included; planner/ has no command line but two one-line forwards), has no cycle (every strongly connected component is one module) and follows the layers
+``__main__`` blocks included; planner/'s command lines are in planner/cli/, reached from the rest
+of planner/ only by one-line forwards), has no cycle (every strongly connected component is one module) and follows the layers
 of docs/architecture.md, read from that file."""
 from __future__ import annotations
 
@@ -103,7 +104,7 @@ def test_planner_modules_exist():
     core = _planner_modules()
     for name in ("limits", "priors", "problem", "compiled", "ssap", "policies", "registry", "closedloop",
                  "clairvoyant", "instance", "solve", "kernels", "mcts.fast", "mcts.kernel",
-                 "mcts.reference"):
+                 "mcts.reference", "cli", "cli.solve", "cli.measure", "cli.bench"):
         assert f"planner.{name}" in core
 
 
@@ -120,11 +121,13 @@ def test_planner_package_and_limits_are_light():
     assert _offending(loaded, ("numpy", "scipy", "numba")) == []
 
 
-#: The core has no command line. ``python -m`` runs the file it names, so the two planner modules
-#: whose commands the docs show keep a ``__main__`` block that only forwards to the command line
-#: above the core: exactly ``from coordinator.measure import F`` and ``F()``.
-FORWARDS = {"planner/online_optimal.py": "optimal_table", "planner/clairvoyant.py": "clairvoyant_times"}
-FORWARD_MODULE = "coordinator.measure"
+#: The core has no command line: the planner's command lines live in planner/cli/ (the one place in
+#: planner/ with argparse and ``__main__`` blocks of any shape). ``python -m`` runs the file it
+#: names, so the planner modules whose commands the docs show keep a ``__main__`` block that only
+#: forwards there: exactly ``from planner.cli.M import F`` and ``raise SystemExit(F())``.
+FORWARDS = {"planner/online_optimal.py": ("planner.cli.measure", "optimal_table"),
+            "planner/clairvoyant.py": ("planner.cli.measure", "clairvoyant_times")}
+CLI = "planner/cli/"
 
 
 def _main_blocks(tree: ast.Module) -> list[ast.If]:
@@ -137,29 +140,51 @@ def _forward_lines(path: Path) -> set[int]:
     if rel not in FORWARDS:
         return set()
     return {node.lineno for block in _main_blocks(_parsed(path)) for node in block.body
-            if isinstance(node, ast.ImportFrom) and node.module == FORWARD_MODULE}
+            if isinstance(node, ast.ImportFrom) and node.module == FORWARDS[rel][0]}
 
 
 @pytest.mark.parametrize("path", sorted((REPO / "planner").rglob("*.py")), ids=lambda p: str(p.relative_to(REPO)))
 def test_the_core_has_no_command_line(path):
-    """No argparse in planner/, and no ``__main__`` block but the two forwards, each exactly one
-    import of its function from coordinator.measure and one call of it."""
+    """No argparse in planner/ outside planner/cli/, and no ``__main__`` block but the forwards,
+    each exactly one import of its function from planner/cli/ and ``raise SystemExit`` of its call."""
     tree = _parsed(path)
+    rel = path.relative_to(REPO).as_posix()
+    if rel.startswith(CLI):
+        return
     assert "argparse" not in {module.split(".")[0] for _, module in _imports(path)}
     blocks = _main_blocks(tree)
-    rel = path.relative_to(REPO).as_posix()
     if rel not in FORWARDS:
         assert blocks == [] and not any(_is_main_guard(node) for node in ast.walk(tree))
         return
+    module, function = FORWARDS[rel]
     assert len(blocks) == 1
     body = blocks[0].body
     assert len(body) == 2 and not blocks[0].orelse
-    imp, call = body
-    assert isinstance(imp, ast.ImportFrom) and imp.module == FORWARD_MODULE and imp.level == 0
-    assert [a.name for a in imp.names] == [FORWARDS[rel]] and imp.names[0].asname is None
-    assert (isinstance(call, ast.Expr) and isinstance(call.value, ast.Call) and not call.value.args
-            and not call.value.keywords and isinstance(call.value.func, ast.Name)
-            and call.value.func.id == FORWARDS[rel])
+    imp, stop = body
+    assert isinstance(imp, ast.ImportFrom) and imp.module == module and imp.level == 0
+    assert [a.name for a in imp.names] == [function] and imp.names[0].asname is None
+    assert isinstance(stop, ast.Raise) and stop.cause is None
+    exc = stop.exc
+    assert (isinstance(exc, ast.Call) and isinstance(exc.func, ast.Name) and exc.func.id == "SystemExit"
+            and len(exc.args) == 1 and not exc.keywords)
+    call = exc.args[0]
+    assert (isinstance(call, ast.Call) and not call.args and not call.keywords
+            and isinstance(call.func, ast.Name) and call.func.id == function)
+
+
+def test_nothing_of_the_planner_imports_its_command_lines():
+    """planner/cli/ sits above the rest of planner/: only the forwards' ``__main__`` lines and the
+    command lines themselves import it."""
+    bad = []
+    for path in sorted((REPO / "planner").rglob("*.py")):
+        rel = path.relative_to(REPO).as_posix()
+        if rel.startswith(CLI):
+            continue
+        forward = _forward_lines(path)
+        bad += [f"{rel}:{line}: {module}" for line, module in _imports(path)
+                if line not in forward and (module == "planner.cli" or module.startswith("planner.cli."))]
+    assert bad == []
+    assert (REPO / CLI / "solve.py").exists() and (REPO / CLI / "measure.py").exists()
 
 
 @pytest.mark.parametrize("path", sorted((REPO / "planner").rglob("*.py")), ids=lambda p: str(p.relative_to(REPO)))
@@ -235,7 +260,7 @@ def _is_main_guard(node: ast.AST) -> bool:
 
 def _import_nodes(tree: ast.AST, skip: set[int] = frozenset()):
     """Every import statement of a module, function bodies and ``__main__`` blocks included, but
-    the lines ``skip`` (the planner's two command-line forwards, :data:`FORWARDS`)."""
+    the lines ``skip`` (the planner's command-line forwards, :data:`FORWARDS`)."""
     stack = [tree]
     while stack:
         node = stack.pop()

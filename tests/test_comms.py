@@ -260,7 +260,7 @@ def test_decentralised_planners_run_centrally_with_full_information():
 
 
 def _solve(*args):
-    from coordinator import solve as cli
+    from planner.cli import solve as cli
 
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from coordinator import solve
+from planner.cli import solve
 from planner import clairvoyant, duality, online_optimal, priors, ssap
 from planner.instance import load_instance, random_instance
 from planner.problem import Problem, sample_observations

@@ -14,7 +14,7 @@ import scipy.stats
 import yaml
 
 import world
-from coordinator import solve
+from planner.cli import solve
 from planner import learning
 from planner.compiled import compile_problem
 from planner.instance import random_instance

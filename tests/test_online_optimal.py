@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from coordinator import solve
+from planner.cli import solve
 from planner import clairvoyant, online_optimal, priors, ssap
 from planner.instance import load_instance, random_instance
 from planner.online_optimal import OnlineOptimalPlanner, TooLarge, discretise, estimate, online_value

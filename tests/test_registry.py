@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 import world
-from coordinator import solve
+from planner.cli import solve
 from planner import registry
 from planner.registry import OPTIONS, check_settings, make_planner, parse_option
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coordinator import solve
+from planner.cli import solve
 from planner.instance import PRIOR_KINDS, InstanceError, instance_dict, load_instance, make_prior, random_instance
 from planner.problem import evaluate
 
@@ -28,15 +28,20 @@ EXAMPLE = {
 }
 
 
+#: The command and its earlier spelling (a forward in coordinator/): both must keep working.
+SPELLINGS = ("planner.cli.solve", "coordinator.solve")
+
+
 def _run(*args: str) -> subprocess.CompletedProcess:
     """The CLI in a fresh interpreter (about 1.5 s of imports each: used sparingly)."""
-    return subprocess.run([sys.executable, "-m", "coordinator.solve", *args], cwd=REPO,
+    return subprocess.run([sys.executable, "-m", SPELLINGS[0], *args], cwd=REPO,
                           capture_output=True, text=True, timeout=120)
 
 
-def _run_many(arg_lists: list[list[str]]) -> list[tuple[int, str, str]]:
-    """Several CLI subprocesses at once: (exit code, stdout, stderr) each."""
-    procs = [subprocess.Popen([sys.executable, "-m", "coordinator.solve", *args], cwd=REPO,
+def _run_many(arg_lists: list[list[str]], module: str = SPELLINGS[1]) -> list[tuple[int, str, str]]:
+    """Several CLI subprocesses at once (the earlier spelling unless told): (exit code, stdout,
+    stderr) each."""
+    procs = [subprocess.Popen([sys.executable, "-m", module, *args], cwd=REPO,
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for args in arg_lists]
     results = []
     for proc in procs:
@@ -194,6 +199,20 @@ def test_missing_file_and_bad_arguments(tmp_path, cli):
     assert all(name in cli(str(path), "--planner", "greedy").stderr for name in ("mcts-ssap", "random", "ssap"))
     code, out, err = _run_many([[str(path), "--planner", "ssap", "--iterations", "0"]])[0]
     assert code == 2 and out == "" and len(err.splitlines()) == 1 and "--iterations" in err
+
+
+def test_both_spellings_run_the_same_command(tmp_path):
+    """``python -m planner.cli.solve`` and the forward ``python -m coordinator.solve``: the same
+    output, and each names itself in its errors."""
+    path = _write(tmp_path, EXAMPLE)
+    args = [str(path), "--planner", "ssap", "--no-clairvoyant", "--no-online-optimum", "--no-upper-bound"]
+    outputs = []
+    for module in SPELLINGS:
+        (code, out, err), (bad, _, line) = _run_many([args, [str(path), "--planner", "nope"]], module)
+        assert code == 0 and err == "", err
+        outputs.append({k: v for k, v in json.loads(out).items() if k != "decision_ms"})
+        assert bad == 2 and line.startswith(f"python -m {module}: error: --planner:"), line
+    assert outputs[0] == outputs[1]
 
 
 def test_every_prior_kind_builds_and_round_trips(tmp_path):

@@ -73,7 +73,7 @@ def instances() -> dict[str, dict]:
 
 def solve(path: Path, planner: str) -> dict:
     """The solve command's output for one case (decision times dropped)."""
-    from coordinator import solve as solve_cli
+    from planner.cli import solve as solve_cli
 
     buf = io.StringIO()
     with contextlib.redirect_stdout(buf):
