@@ -7,11 +7,12 @@ found ...``.
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import Any, Callable, NamedTuple
 
 import numpy as np
+
+import validation
 from planner import priors
 from planner.priors import is_integer as _int, is_number as _num, is_positive as _positive
 from planner.problem import Problem, normalisation_scale, sample_observations
@@ -38,8 +39,15 @@ class InstanceError(ValueError):
     """A bad instance. ``str(err)`` is one line: ``source: field: expected ..., found ...``."""
 
     def __init__(self, source: str, field: str, expected: str, found: str):
+        """``found``: the offending value already shown (:func:`_show`) or a description."""
         self.source, self.field, self.expected, self.found = source, field, expected, found
-        super().__init__(f"{source}: {field}: expected {expected}, found {found}")
+        self.problem = validation.Problem(field, expected, validation.Found(found))
+        super().__init__(self.problem.line(source))
+
+    @classmethod
+    def of(cls, source: str, problem: validation.Problem) -> InstanceError:
+        """The error of a :class:`validation.Problem` (its found value shown as JSON)."""
+        return cls(source, problem.field, problem.expected, validation.show(problem.found, "json"))
 
 
 # ----------------------------------------------------------------------------- priors
@@ -57,16 +65,14 @@ def make_prior(spec: Any, source: str = "<prior>", field: str = "prior") -> obje
     if not isinstance(spec, dict):
         raise InstanceError(source, field, 'an object like {"kind": "poisson", "mean": 3.0}', _show(spec))
     for problem in priors.prior_problems(spec):
-        found = str(problem.found) if isinstance(problem.found, priors.Text) else _show(problem.found)
-        raise InstanceError(source, f"{field}.{problem.field}", problem.expected, found)
+        raise InstanceError.of(source, problem.within(field))
     return priors.build_prior(spec)
 
 
 # ----------------------------------------------------------------------------- loading
 
 def _show(v: Any) -> str:
-    text = json.dumps(v) if not isinstance(v, float) or math.isfinite(v) else str(v)
-    return text if len(text) <= 60 else text[:57] + "..."
+    return validation.show(v, "json")
 
 
 def _matrix(data: Any, source: str, field: str, shape: tuple[int, int], cell_ok: Callable[[Any], bool],
@@ -134,7 +140,8 @@ def parse_instance(data: Any, source: str = "<instance>", seed: int = 0) -> tupl
         raise InstanceError(source, "(top level)", "a JSON object", type(data).__name__ if data is not None else "null")
     for key in data:
         if key not in FIELDS:
-            raise InstanceError(source, key, f"only the fields {', '.join(FIELDS)}", "an unknown field")
+            raise InstanceError(source, key, f"only the fields {', '.join(FIELDS)}{validation.did_you_mean(key, FIELDS)}",
+                                "an unknown field")
     for key in ("carriers", "passengers", "stages"):
         if key not in data:
             raise InstanceError(source, key, "a required field", "nothing (missing)")

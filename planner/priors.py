@@ -13,9 +13,11 @@ wrong with one (empty when it is fine); :func:`build_prior` turns a checked spec
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, NamedTuple
+from typing import Any, Callable
 
 import numpy as np
+
+from validation import MISSING, Found, Problem
 
 
 def _stats():
@@ -77,23 +79,9 @@ PRIOR_KINDS: dict[str, tuple[dict[str, tuple[Callable[[Any], bool], str]], Calla
 }
 
 
-class Text(str):
-    """A "found" description to show verbatim (not a value from the file)."""
 
 
-class PriorProblem(NamedTuple):
-    """One thing wrong with a prior spec: ``field`` is ``"kind"`` or a parameter name; ``found``
-    is the offending value from the file, or a :class:`Text` description."""
-
-    field: str
-    expected: str
-    found: Any
-
-
-MISSING = Text("nothing (missing)")
-
-
-def prior_problems(spec: dict, unknown: bool = True) -> list[PriorProblem]:
+def prior_problems(spec: dict, unknown: bool = True) -> list[Problem]:
     """Everything wrong with the prior spec ``spec`` (a mapping with a ``kind``); empty if fine.
 
     An unknown kind is reported alone; otherwise missing, malformed and (with ``unknown``) unknown
@@ -101,32 +89,32 @@ def prior_problems(spec: dict, unknown: bool = True) -> list[PriorProblem]:
     """
     kind = spec.get("kind", MISSING)
     if not isinstance(kind, str) or kind not in PRIOR_KINDS:
-        return [PriorProblem("kind", f"one of {', '.join(PRIOR_KINDS)}", kind)]
+        return [Problem("kind", f"one of {', '.join(PRIOR_KINDS)}", kind)]
     params, _ = PRIOR_KINDS[kind]
     problems = []
     for name, (check, expected) in params.items():
         if name not in spec:
-            problems.append(PriorProblem(name, f"{expected} ({kind} prior)", MISSING))
+            problems.append(Problem(name, f"{expected} ({kind} prior)", MISSING))
         elif not check(spec[name]):
-            problems.append(PriorProblem(name, expected, spec[name]))
+            problems.append(Problem(name, expected, spec[name]))
     for name in spec if unknown else ():
         if name != "kind" and name not in params:
-            problems.append(PriorProblem(name, f"only {', '.join(['kind', *params])} for a {kind} prior",
-                                         Text("an unknown parameter")))
+            problems.append(Problem(name, f"only {', '.join(['kind', *params])} for a {kind} prior",
+                                    Found("an unknown parameter")))
     if problems:
         return problems
     if kind == "discrete_uniform" and spec["high"] < spec["low"]:
-        problems.append(PriorProblem("high", f"an integer >= low ({spec['low']})", spec["high"]))
+        problems.append(Problem("high", f"an integer >= low ({spec['low']})", spec["high"]))
     if kind == "uniform" and spec["high"] <= spec["low"]:
-        problems.append(PriorProblem("high", f"a number > low ({spec['low']})", spec["high"]))
+        problems.append(Problem("high", f"a number > low ({spec['low']})", spec["high"]))
     if kind == "table":
         values, probs = spec["values"], spec["probabilities"]
         if len(probs) != len(values):
-            problems.append(PriorProblem("probabilities", f"{len(values)} entries (one per value)", Text(str(len(probs)))))
+            problems.append(Problem("probabilities", f"{len(values)} entries (one per value)", Found(str(len(probs)))))
         elif abs(sum(probs) - 1.0) > 1e-9:
-            problems.append(PriorProblem("probabilities", "probabilities summing to 1", Text(f"sum {sum(probs):g}")))
+            problems.append(Problem("probabilities", "probabilities summing to 1", Found(f"sum {sum(probs):g}")))
         if len(set(values)) != len(values):
-            problems.append(PriorProblem("values", "distinct values", values))
+            problems.append(Problem("values", "distinct values", values))
     return problems
 
 

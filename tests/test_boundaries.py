@@ -23,7 +23,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 
 #: Top-level packages the planner may import besides the standard library and itself.
-CORE_ALLOWED = {"numpy", "scipy", "numba", "planner"}
+CORE_ALLOWED = {"numpy", "scipy", "numba", "planner", "validation"}
 #: Packages the planner may import only inside a function (never at module level): the LP solver
 #: of planner/duality.py.
 CORE_LAZY = {"highspy"}
@@ -216,11 +216,19 @@ def test_world_never_imports_coordinator_or_carriers():
     assert bad == []
 
 
+def test_validation_toolkit_is_the_standard_library_only():
+    """validation/ sits below every package: it imports nothing but the standard library."""
+    bad = [f"{path.name}:{line}: {module}" for path in sorted((REPO / "validation").rglob("*.py"))
+           for line, module in _imports(path) if module.split(".")[0] not in sys.stdlib_module_names | {"__future__"}]
+    assert bad == []
+
+
 def test_priors_table_is_pure():
-    """planner/priors.py is shared by the planner and world/, so it may use only numpy and scipy."""
+    """planner/priors.py is shared by the planner and world/, so it may use only numpy, scipy and
+    the validation toolkit (itself the standard library only)."""
     path = REPO / "planner" / "priors.py"
     bad = [f"{line}: {module}" for line, module in _imports(path)
-           if module.split(".")[0] not in sys.stdlib_module_names | {"__future__", "numpy", "scipy"}]
+           if module.split(".")[0] not in sys.stdlib_module_names | {"__future__", "numpy", "scipy", "validation"}]
     assert bad == []
 
 

@@ -11,7 +11,6 @@ Units: metres (m), seconds (s), metres per second (m/s), features per square met
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import math
 import re
 from dataclasses import dataclass, field
@@ -25,6 +24,7 @@ import yaml
 from planner import priors
 from planner import registry as planners
 from planner.limits import MAX_CARRIERS, MAX_PASSENGERS, MAX_STAGES
+from validation import MISSING, Found, Number, Problems, Text, did_you_mean
 from world import building as _building
 from world import geometry
 from world import grid as _grid
@@ -384,58 +384,43 @@ class Scenario:
 # --------------------------------------------------------------------------- validation
 
 
-class _Checker:
-    """Collects problems as ``FILE: path: expected ..., found ...`` lines."""
+class _Checker(Problems):
+    """Collects a scenario file's problems (:class:`validation.Problems`); ``problems`` are the
+    ``FILE: path: expected ..., found ...`` lines."""
 
     def __init__(self, file: str):
+        super().__init__()
         self.file = file
-        self.problems: list[str] = []
+
+    @property
+    def problems(self) -> list[str]:
+        return self.lines(self.file)
 
     def bad(self, path: str, expected: str, found: Any) -> None:
-        """Record a problem; ``found`` is shown as YAML-ish text (a :class:`_Raw` verbatim)."""
-        self.problems.append(f"{self.file}: {path or '(top level)'}: expected {expected}, found {_show(found)}")
+        """Record a problem; ``found`` is shown as YAML-ish text (a :class:`Found` verbatim)."""
+        self.add(path, expected, found)
 
     def raw(self, path: str, text: str) -> None:
-        self.problems.append(f"{self.file}: {path}: {text}")
+        self.note(path, text)
 
     def mapping(self, node: Any, path: str, allowed: tuple[str, ...], required: tuple[str, ...] = ()) -> dict | None:
         if not isinstance(node, dict):
             self.bad(path, "a mapping", node)
             return None
-        for key in node:
-            if key not in allowed:
-                close = difflib.get_close_matches(str(key), allowed, n=1, cutoff=0.6)
-                hint = f" (did you mean '{close[0]}'?)" if close else f" (one of: {', '.join(allowed)})"
-                self.problems.append(
-                    f"{self.file}: {_join(path, key)}: expected a known key{hint}, found unknown key '{key}'"
-                )
-        for key in required:
-            if key not in node:
-                self.problems.append(f"{self.file}: {_join(path, key)}: expected a value, found nothing (missing)")
+        self.unknown_keys(node, path, allowed)
+        self.missing(node, path, required)
         return node
 
     def number(self, node: Any, path: str, *, minimum: float | None = None, exclusive: bool = False,
                integer: bool = False, maximum: float | None = None) -> float | None:
-        kind = ("an integer" if integer else "a number") + _bound_text(minimum, exclusive)
-        if isinstance(node, bool) or not isinstance(node, (int, float)) or not math.isfinite(node):
-            self.bad(path, kind, node)
-            return None
-        if integer and not float(node).is_integer():
-            self.bad(path, kind, node)
-            return None
-        if minimum is not None and (node <= minimum if exclusive else node < minimum):
-            self.bad(path, kind, node)
-            return None
-        if maximum is not None and node > maximum:
-            self.bad(path, f"{kind} and <= {maximum:g}", node)
-            return None
-        return int(node) if integer else float(node)
+        """The number, or None with the problem recorded (the maximum is named only when exceeded)."""
+        value = self.check(Number(integer, minimum, None, exclusive), node, path)
+        if value is None or maximum is None:
+            return value
+        return self.check(Number(integer, minimum, maximum, exclusive), node, path)
 
     def string(self, node: Any, path: str) -> str | None:
-        if not isinstance(node, str) or not node.strip():
-            self.bad(path, "a non-empty string", node)
-            return None
-        return node
+        return self.check(Text(), node, path)
 
     def point(self, node: Any, path: str) -> tuple[float, float] | None:
         if (not isinstance(node, (list, tuple)) or len(node) != 2
@@ -455,35 +440,6 @@ class _Checker:
         if any(p is None for p in pts):
             return None
         return tuple(pts)  # type: ignore[arg-type]
-
-
-def _bound_text(minimum: float | None, exclusive: bool) -> str:
-    if minimum is None:
-        return ""
-    return f" {'>' if exclusive else '>='} {minimum:g}"
-
-
-def _join(path: str, key: Any) -> str:
-    return f"{path}.{key}" if path else str(key)
-
-
-class _Raw(str):
-    """Text shown verbatim (not quoted) after "found"."""
-
-
-def _show(value: Any) -> str:
-    if isinstance(value, _Raw):
-        return str(value)
-    if isinstance(value, dict):
-        return "a mapping"
-    if isinstance(value, (list, tuple)):
-        text = repr(list(value))
-        return text if len(text) <= 60 else f"a list of {len(value)} items"
-    if value is None:
-        return "nothing (null)"
-    if isinstance(value, str):
-        return repr(value)
-    return repr(value)
 
 
 _TOP_KEYS = ("name", "seed", "map", "features", "sensing_radius", "stage_interval", "stages",
@@ -599,14 +555,14 @@ def parse_scenario(data: Any, file: str = "<scenario>") -> Scenario:
 
     if None not in (interval, n_stages, t0) and t0 + interval * (n_stages - 1) > MAX_MISSION_TIME:
         ck.bad("stages", f"a last stage (first_stage_time + (stages - 1) x stage_interval) at most {MAX_MISSION_TIME:g} s",
-               _Raw(f"{t0 + interval * (n_stages - 1):g} s"))
+               Found(f"{t0 + interval * (n_stages - 1):g} s"))
         n_stages = None
     if the_map is not None and feats is not None:
         xmin, ymin, xmax, ymax = the_map.bounds
         expected = feats.density * (xmax - xmin) * (ymax - ymin) + sum(c.density * c.area for c in feats.clusters)
         if expected > MAX_EXPECTED_FEATURES:
             ck.bad("features.density", f"densities giving at most {MAX_EXPECTED_FEATURES:g} expected features on the map",
-                   _Raw(f"{expected:.3g} expected features"))
+                   Found(f"{expected:.3g} expected features"))
     if carriers is not None and None not in (interval, n_stages, t0):
         times = t0 + interval * np.arange(n_stages)
         for r, c in enumerate(carriers):
@@ -682,7 +638,7 @@ def _parse_map(ck: _Checker, node: Any) -> MapSpec | None:
                         ok = False
         if building is not None and not _rect_inside(building.extent, bounds):
             ck.bad("map.building", f"a building inside map.bounds {list(bounds)}",
-                   _Raw(f"its outer wall spans {[round(v, 3) for v in building.extent]}"))
+                   Found(f"its outer wall spans {[round(v, 3) for v in building.extent]}"))
             ok = False
     if not ok or bounds is None:
         return None
@@ -716,13 +672,13 @@ def _parse_occupancy(ck: _Checker, node: Any) -> _grid.OccupancyGrid | None:
     digest = spec.get("sha256")
     if digest is not None and digest != grid.digest:
         ck.bad("map.occupancy.sha256", f"the digest of the map in {path} ({grid.digest[:16]}...)",
-               _Raw(f"{str(digest)[:16]}... (the map changed since the scenario was written)"))
+               Found(f"{str(digest)[:16]}... (the map changed since the scenario was written)"))
         return None
     return grid
 
 
 def _parse_building(ck: _Checker, node: Any) -> Building | None:
-    n0 = len(ck.problems)
+    n0 = len(ck)
     b = ck.mapping(node, "map.building", _BUILDING_KEYS, ("origin", "rooms", "room_size", "corridor_width", "door_width"))
     if b is None:
         return None
@@ -747,14 +703,14 @@ def _parse_building(ck: _Checker, node: Any) -> Building | None:
     entrances = b.get("entrances", [])
     if not isinstance(entrances, list) or any(e not in _SIDES for e in entrances):
         ck.bad("map.building.entrances", f"a list of sides among {list(_SIDES)}", entrances)
-    if len(ck.problems) > n0:
+    if len(ck) > n0:
         return None
     return Building(origin=origin, cols=cols, rows=rows, room_size=size, corridor_width=corridor,
                     door_width=door, entrances=tuple(entrances))
 
 
 def _parse_features(ck: _Checker, node: Any, the_map: MapSpec | None) -> FeatureSpec | None:
-    n0 = len(ck.problems)
+    n0 = len(ck)
     fixed = isinstance(node, dict) and ("from_map" in node or "replay" in node)
     f = ck.mapping(node, "features", _FEATURE_KEYS, () if fixed else ("density",))
     if f is None:
@@ -765,10 +721,10 @@ def _parse_features(ck: _Checker, node: Any, the_map: MapSpec | None) -> Feature
         if from_map not in FROM_MAP_KINDS:
             ck.bad("features.from_map", f"one of {', '.join(FROM_MAP_KINDS)}", from_map)
         elif the_map is not None and the_map.occupancy is None:
-            ck.bad("features.from_map", "a map.occupancy to take the frontier cells from", _Raw("no map.occupancy"))
+            ck.bad("features.from_map", "a map.occupancy to take the frontier cells from", Found("no map.occupancy"))
         if "density" in f or "clusters" in f:
             ck.bad("features.from_map", "no density or clusters beside it (the map fixes the features)",
-                   _Raw(", ".join(k for k in ("density", "clusters") if k in f)))
+                   Found(", ".join(k for k in ("density", "clusters") if k in f)))
     clusters = []
     raw = f.get("clusters", [])
     if not isinstance(raw, list):
@@ -781,7 +737,7 @@ def _parse_features(ck: _Checker, node: Any, the_map: MapSpec | None) -> Feature
             continue
         shapes = [k for k in ("disc", "rect", "room") if k in cm]
         if len(shapes) != 1:
-            ck.bad(path, "exactly one region among disc, rect, room", _Raw(", ".join(shapes) or "none"))
+            ck.bad(path, "exactly one region among disc, rect, room", Found(", ".join(shapes) or "none"))
             continue
         cdens = ck.number(cm["density"], f"{path}.density", minimum=0) if "density" in cm else None
         label = cm.get("label", "")
@@ -810,7 +766,7 @@ def _parse_features(ck: _Checker, node: Any, the_map: MapSpec | None) -> Feature
             if the_map is None:
                 pass  # the map's own problems are already reported
             elif bld is None:
-                ck.bad(f"{path}.room", "a map.building to take the room from", _Raw("no building in map"))
+                ck.bad(f"{path}.room", "a map.building to take the room from", Found("no building in map"))
             elif (not isinstance(val, list) or len(val) != 2
                   or any(isinstance(v, bool) or not isinstance(v, int) for v in val)
                   or not (0 <= val[0] < bld.cols and 0 <= val[1] < bld.rows)):
@@ -820,7 +776,7 @@ def _parse_features(ck: _Checker, node: Any, the_map: MapSpec | None) -> Feature
                 shape = "rect"
         if params is not None and cdens is not None and isinstance(label, str):
             clusters.append(Cluster(shape=shape, params=params, density=cdens, label=label))
-    if len(ck.problems) > n0:
+    if len(ck) > n0:
         return None
     return FeatureSpec(density=density, clusters=tuple(clusters), from_map=from_map)
 
@@ -833,11 +789,11 @@ def _parse_replay(ck: _Checker, node: Any, feats: FeatureSpec, carriers, interva
         return None
     if carriers is None or None in (interval, n_stages, t0):
         return None  # their own problems are reported
-    n0 = len(ck.problems)
+    n0 = len(ck)
     ids = [c.id for c in carriers]
     for key in node:
         if str(key) not in ids:
-            ck.bad(f"features.replay.{key}", f"a carrier id ({', '.join(ids)})", _Raw(f"unknown carrier '{key}'"))
+            ck.bad(f"features.replay.{key}", f"a carrier id ({', '.join(ids)})", Found(f"unknown carrier '{key}'"))
     times = t0 + interval * np.arange(n_stages)
     rows = []
     for c in carriers:
@@ -845,7 +801,7 @@ def _parse_replay(ck: _Checker, node: Any, feats: FeatureSpec, carriers, interva
         where = f"features.replay.{c.id}"
         if not isinstance(values, list) or len(values) != n_stages:
             ck.bad(where, f"a list of {n_stages} recorded counts (one per stage, null where not valid)",
-                   _Raw("nothing (missing)") if values is None else values)
+                   MISSING if values is None else values)
             continue
         valid = (c.start_time <= times) & (times <= c.stop_time)
         row = []
@@ -859,7 +815,7 @@ def _parse_replay(ck: _Checker, node: Any, feats: FeatureSpec, carriers, interva
             else:
                 row.append(float(v) if valid[j] else math.nan)
         rows.append((c.id, tuple(row)))
-    if len(ck.problems) > n0:
+    if len(ck) > n0:
         return None
     return dataclasses.replace(feats, replay=tuple(rows))
 
@@ -888,7 +844,7 @@ def _parse_passengers(ck: _Checker, node: Any, path: str, types: dict[str, float
         count = ck.number(node, path, minimum=0, integer=True, maximum=MAX_PASSENGERS)
         return count, (), ()
     if len(node) > MAX_PASSENGERS:
-        ck.bad(path, f"at most {MAX_PASSENGERS} passengers", _Raw(f"{len(node)} passengers"))
+        ck.bad(path, f"at most {MAX_PASSENGERS} passengers", Found(f"{len(node)} passengers"))
         return None, (), ()
     values, names = [], []
     known = ", ".join(types) or "none defined in passenger_types"
@@ -914,7 +870,7 @@ def _parse_passengers(ck: _Checker, node: Any, path: str, types: dict[str, float
             w = types[name]
         else:
             ck.bad(f"{where}.value", f"a number > 0 (type '{name}' is not in passenger_types)" if name
-                   else "a number > 0", _Raw("nothing (missing)"))
+                   else "a number > 0", MISSING)
             continue
         if w is not None:
             values.append(w)
@@ -930,14 +886,14 @@ def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None, types: dic
         ck.bad("carriers", "a non-empty list of carriers", node)
         return None
     if len(node) > MAX_CARRIERS:
-        ck.bad("carriers", f"a list of at most {MAX_CARRIERS} carriers", _Raw(f"{len(node)} carriers"))
+        ck.bad("carriers", f"a list of at most {MAX_CARRIERS} carriers", Found(f"{len(node)} carriers"))
         return None
-    n0 = len(ck.problems)
+    n0 = len(ck)
     out = []
     seen: dict[str, int] = {}
     for r, c in enumerate(node):
         path = f"carriers[{r}]"
-        k0 = len(ck.problems)
+        k0 = len(ck)
         cm = ck.mapping(c, path, _CARRIER_KEYS, ("id", "passengers", "start_time", "speed", "waypoints"))
         if cm is None:
             continue
@@ -968,7 +924,7 @@ def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None, types: dic
                 for i, poly in enumerate(the_map.obstacles):
                     if geometry.inside_polygon(np.asarray([p]), poly)[0]:
                         ck.bad(f"{path}.waypoints[{k}]", "a point outside every obstacle",
-                               _Raw(f"{list(p)} inside map.obstacles[{i}]"))
+                               Found(f"{list(p)} inside map.obstacles[{i}]"))
             segs = the_map.segments
             for k, (a, b) in enumerate(zip(wps[:-1], wps[1:])):
                 hit = geometry.first_blocking_segment(a, b, segs, clearance=body)
@@ -976,18 +932,18 @@ def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None, types: dic
                     w = segs[hit]
                     ck.bad(f"{path}.waypoints[{k}]->[{k + 1}]",
                            f"a leg clear of walls by {body:g} m",
-                           _Raw(f"it meets the wall ({w[0]:g}, {w[1]:g})-({w[2]:g}, {w[3]:g})"))
+                           Found(f"it meets the wall ({w[0]:g}, {w[1]:g})-({w[2]:g}, {w[3]:g})"))
                     break
             if all(a == b for a, b in zip(wps[:-1], wps[1:])):
-                ck.bad(f"{path}.waypoints", "a path of non-zero length", _Raw("all points equal"))
-        if len(ck.problems) > k0:
+                ck.bad(f"{path}.waypoints", "a path of non-zero length", Found("all points equal"))
+        if len(ck) > k0:
             continue
         length = float(np.hypot(*np.diff(np.asarray(wps), axis=0).T).sum())
         if stop is None:
             stop = start + length / speed
         out.append(CarrierSpec(id=cid, passengers=pas, start_time=start, stop_time=stop, speed=speed, waypoints=wps,
                                passenger_values=values, passenger_types=names))
-    if len(ck.problems) > n0:
+    if len(ck) > n0:
         return None
     return tuple(out)
 
@@ -1015,7 +971,7 @@ def _parse_prior(ck: _Checker, node: Any) -> PriorSpec | None:
         ck.bad("prior", "'derived' or a mapping like {kind: poisson, mean: 3.0}", node)
         return None
     if "kind" not in node:
-        ck.problems.append(f"{ck.file}: prior.kind: expected a value (derived or one of {', '.join(PRIOR_KINDS)}), found nothing (missing)")
+        ck.bad("prior.kind", f"a value (derived or one of {', '.join(PRIOR_KINDS)})", MISSING)
         return None
     kind = node["kind"]
     if kind == "derived":
@@ -1025,17 +981,15 @@ def _parse_prior(ck: _Checker, node: Any) -> PriorSpec | None:
             return None
         return PriorSpec()
     if not isinstance(kind, str) or kind not in priors.PRIOR_KINDS:
-        close = difflib.get_close_matches(str(kind), PRIOR_KINDS + ("derived",), n=1, cutoff=0.5)
-        hint = f" (did you mean '{close[0]}'?)" if close else ""
+        hint = did_you_mean(kind, PRIOR_KINDS + ("derived",), cutoff=0.5)
         ck.bad("prior.kind", f"derived or one of {', '.join(PRIOR_KINDS)}{hint}", kind)
         return None
     params, _ = priors.PRIOR_KINDS[kind]
-    n0 = len(ck.problems)
+    n0 = len(ck)
     ck.mapping(node, "prior", ("kind",) + tuple(params), ())
     for problem in priors.prior_problems(node, unknown=False):
-        found = _Raw(problem.found) if isinstance(problem.found, priors.Text) else problem.found
-        ck.bad(f"prior.{problem.field}", problem.expected, found)
-    if len(ck.problems) > n0:
+        ck.bad(f"prior.{problem.field}", problem.expected, problem.found)
+    if len(ck) > n0:
         return None
     vals = tuple((name, tuple(node[name]) if isinstance(node[name], list) else node[name]) for name in params)
     return PriorSpec(kind=kind, params=vals)
