@@ -19,6 +19,8 @@ from typing import Any, Callable
 
 import msgpack
 
+from validation import Found, Problem
+
 from .keys import ID_PATTERN
 
 #: The protocol version this code speaks; messages with any other ``v`` are rejected. ``v``
@@ -62,10 +64,18 @@ class ProtocolError(ValueError):
         detail: one human-readable line.
     """
 
-    def __init__(self, reason: str, detail: str = ""):
+    def __init__(self, reason: str, detail: str = "", problem: Problem | None = None):
         super().__init__(f"{reason}: {detail}" if detail else reason)
         self.reason = reason
         self.detail = detail
+        self.problem = problem
+
+
+def _refused(reason: str, name: str, expected: str, found: str) -> ProtocolError:
+    """The error of a field that is not what its type says (``name: expected E, found F``, the
+    toolkit's problem line; ``found`` is a description such as a type name)."""
+    problem = Problem(name, expected, Found(found))
+    return ProtocolError(reason, problem.line(), problem)
 
 
 # --------------------------------------------------------------------------- field validators
@@ -78,9 +88,9 @@ Validator = Callable[[Any, str], Any]
 def _int(lo: int, hi: int) -> Validator:
     def check(value, name):
         if isinstance(value, bool) or not isinstance(value, int):
-            raise ProtocolError("wrong-type", f"{name}: expected integer, found {type(value).__name__}")
+            raise _refused("wrong-type", name, "integer", type(value).__name__)
         if not lo <= value <= hi:
-            raise ProtocolError("out-of-range", f"{name}: expected {lo}..{hi}, found {value}")
+            raise _refused("out-of-range", name, f"{lo}..{hi}", str(value))
         return value
     return check
 
@@ -88,24 +98,24 @@ def _int(lo: int, hi: int) -> Validator:
 def _float(lo: float, hi: float) -> Validator:
     def check(value, name):
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ProtocolError("wrong-type", f"{name}: expected number, found {type(value).__name__}")
+            raise _refused("wrong-type", name, "number", type(value).__name__)
         value = float(value)
         if not math.isfinite(value) or not lo <= value <= hi:
-            raise ProtocolError("out-of-range", f"{name}: expected finite {lo}..{hi}, found {value}")
+            raise _refused("out-of-range", name, f"finite {lo}..{hi}", str(value))
         return value
     return check
 
 
 def _bool(value, name):
     if not isinstance(value, bool):
-        raise ProtocolError("wrong-type", f"{name}: expected boolean, found {type(value).__name__}")
+        raise _refused("wrong-type", name, "boolean", type(value).__name__)
     return value
 
 
 def _text(max_len: int = MAX_TEXT) -> Validator:
     def check(value, name):
         if not isinstance(value, str):
-            raise ProtocolError("wrong-type", f"{name}: expected string, found {type(value).__name__}")
+            raise _refused("wrong-type", name, "string", type(value).__name__)
         if len(value) > max_len:
             raise ProtocolError("out-of-range", f"{name}: longer than {max_len} characters")
         return value
@@ -131,7 +141,7 @@ def _optional(inner: Validator) -> Validator:
 def _list(inner: Validator, max_len: int) -> Validator:
     def check(value, name):
         if not isinstance(value, (list, tuple)):
-            raise ProtocolError("wrong-type", f"{name}: expected array, found {type(value).__name__}")
+            raise _refused("wrong-type", name, "array", type(value).__name__)
         if len(value) > max_len:
             raise ProtocolError("out-of-range", f"{name}: more than {max_len} items")
         return tuple(inner(item, f"{name}[{k}]") for k, item in enumerate(value))
@@ -185,7 +195,7 @@ def _unique_ids(value, name):
 
 def _counts(value, name):
     if not isinstance(value, dict):
-        raise ProtocolError("wrong-type", f"{name}: expected map, found {type(value).__name__}")
+        raise _refused("wrong-type", name, "map", type(value).__name__)
     if len(value) > 64:
         raise ProtocolError("out-of-range", f"{name}: more than 64 entries")
     return tuple(sorted(
@@ -767,7 +777,7 @@ def _build(cls, data: dict, where: str, revision: int = REVISION):
 
 def _nested(cls, value, name):
     if not isinstance(value, dict):
-        raise ProtocolError("wrong-type", f"{name}: expected map, found {type(value).__name__}")
+        raise _refused("wrong-type", name, "map", type(value).__name__)
     data = dict(value)
     if cls is not CarrierState:
         if data.pop("v", PROTOCOL_VERSION) != PROTOCOL_VERSION or data.pop("type", cls.TYPE) != cls.TYPE:
@@ -777,7 +787,7 @@ def _nested(cls, value, name):
 
 def _carrier_states(value, name):
     if not isinstance(value, dict):
-        raise ProtocolError("wrong-type", f"{name}: expected map, found {type(value).__name__}")
+        raise _refused("wrong-type", name, "map", type(value).__name__)
     if len(value) > MAX_STATE_CARRIERS:
         raise ProtocolError("out-of-range", f"{name}: more than {MAX_STATE_CARRIERS} carriers")
     return tuple(sorted(
