@@ -213,12 +213,12 @@ def test_carrier_namespaces_are_ros_names():
 def test_off_imports_nothing_of_ros2():
     """Without --ros2 the processes import nothing of ros2/ (nor rosbags)."""
     code = (
-        "import sys, run_fleet\n"
+        "import sys\nfrom launcher.flags import parse_args\nfrom launcher.settings import check\n"
         "import carriers.node, coordinator.node, recording.live, recording.rebuild\n"
-        "args = run_fleet.parse_args(['scenarios/tiny.yaml', '--role', 'carrier', '--carrier', 'a'])\n"
+        "args = parse_args(['scenarios/tiny.yaml', '--role', 'carrier', '--carrier', 'a'])\n"
         "import world\n"
-        "assert run_fleet.check_flags(args, world.load_scenario('scenarios/tiny.yaml')) is None\n"
-        "assert run_fleet._ros2_settings(args) is None\n"
+        "settings, problems = check(args, world.load_scenario('scenarios/tiny.yaml'))\n"
+        "assert problems == [] and settings.ros2() is None\n"
         "print([m for m in sys.modules if m == 'ros2' or m.startswith(('ros2.', 'rosbags'))])\n")
     proc = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
@@ -239,32 +239,43 @@ def test_off_imports_nothing_of_ros2():
 ], ids=["domain", "robot-role", "robot-two-ids", "namespace", "namespace-without-robot", "sensing-without-robot",
         "sensing-with-ros2-only"])
 def test_bad_ros2_flags_get_one_line(tiny, flags, line):
-    import run_fleet
+    from launcher.flags import parse_args
+    from launcher.settings import check
 
-    args = run_fleet.parse_args(["scenarios/tiny.yaml", *flags])
-    problem = run_fleet.check_flags(args, tiny)
-    assert problem is not None and line in problem and "\n" not in problem
+    settings, problems = check(parse_args(["scenarios/tiny.yaml", *flags]), tiny)
+    assert settings is None and len(problems) == 1
+    assert line in str(problems[0]) and "\n" not in str(problems[0])
 
 
 def test_robot_sensing_reaches_the_robot_settings(tiny):
     """--robot-sensing is carried in Ros2Settings.sensing (features by default); its choices
-    are ros2.robot.SENSING, written out in run_fleet.py so that parsing imports nothing of ros2/."""
-    import run_fleet
+    are ros2.robot.SENSING, written out in launcher/__init__.py so that parsing imports nothing of ros2/."""
+    import launcher
+    from launcher.flags import parse_args
+    from launcher.settings import check
     from ros2.robot import SENSING
 
-    assert run_fleet.ROBOT_SENSING == SENSING
+    assert launcher.ROBOT_SENSING == SENSING
     robot = ["scenarios/tiny.yaml", "--role", "carrier", "--carrier", "a", "--ros2-robot"]
     for flags, sensing in (([], "features"), (["--robot-sensing", "frontier"], "frontier")):
-        args = run_fleet.parse_args(robot + flags)
-        assert run_fleet.check_flags(args, tiny) is None and run_fleet._ros2_settings(args).sensing == sensing
+        settings, problems = check(parse_args(robot + flags), tiny)
+        assert problems == [] and settings.ros2().sensing == sensing
 
 
 def test_ros2_domain_defaults_to_ros_domain_id(tiny, monkeypatch):
-    import run_fleet
+    """The domain in force is a field of the settings (the parsed flags stay as given), and it is
+    what the one-host launcher's children are given."""
+    from launcher.flags import parse_args
+    from launcher.settings import check
+    from launcher.supervisor import child_argv
 
     monkeypatch.setenv("ROS_DOMAIN_ID", "12")
-    args = run_fleet.parse_args(["scenarios/tiny.yaml", "--ros2"])
-    assert run_fleet.check_flags(args, tiny) is None and run_fleet._ros2_settings(args).domain == 12
+    args = parse_args(["scenarios/tiny.yaml", "--ros2"])
+    settings, problems = check(args, tiny)
+    assert problems == [] and settings.ros2().domain == 12 and args.ros2_domain is None
+    argv = child_argv(settings.flags, "carrier", carrier="a")
+    assert argv[argv.index("--ros2-domain") + 1] == "12"
     monkeypatch.setenv("ROS_DOMAIN_ID", "x")
-    args = run_fleet.parse_args(["scenarios/tiny.yaml", "--ros2"])
-    assert run_fleet.check_flags(args, tiny) == "ROS_DOMAIN_ID: expected an integer 0..232, found 'x'"
+    args = parse_args(["scenarios/tiny.yaml", "--ros2"])
+    settings, problems = check(args, tiny)
+    assert settings is None and [str(p) for p in problems] == ["ROS_DOMAIN_ID: expected an integer 0..232, found 'x'"]

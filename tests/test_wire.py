@@ -258,7 +258,8 @@ def test_a_config_file_mode_beats_the_role_default(tmp_path):
 def test_a_config_file_that_listens_makes_a_coordinator_the_rendezvous(tmp_path):
     """docs/security.md's quick start: a coordinator given only a config file with listen
     endpoints listens there as a peer (it used to run as a client with nobody to connect to)."""
-    import run_fleet
+    from launcher.flags import flags_of, parse_args
+    from launcher.settings import zenoh_config
 
     listens = tmp_path / "coordinator.json5"
     listens.write_text('{ listen: { endpoints: ["tcp/127.0.0.1:7447"] } }')
@@ -267,8 +268,8 @@ def test_a_config_file_that_listens_makes_a_coordinator_the_rendezvous(tmp_path)
     assert zconfig.file_listens(str(listens))
     assert not zconfig.file_listens(str(silent)) and not zconfig.file_listens(None)
     for path, mode in ((listens, "peer"), (silent, "client")):
-        args = run_fleet.parse_args(["scenarios/tiny.yaml", "--role", "coordinator", "--zenoh-config", str(path)])
-        assert zconfig_mode(run_fleet.zenoh_config(args, "coordinator")) == mode
+        args = parse_args(["scenarios/tiny.yaml", "--role", "coordinator", "--zenoh-config", str(path)])
+        assert zconfig_mode(zenoh_config(flags_of(args), "coordinator")) == mode
 
 
 def zconfig_mode(conf) -> str:

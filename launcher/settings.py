@@ -1,0 +1,319 @@
+"""From a parsed command line to the launcher's settings: every problem with the flags as one line
+each (the flag, what it takes, what it was given), or a frozen :class:`Settings`. Nothing here
+changes the parsed ``argparse.Namespace``; what validation derives (the carrier ids, the planner
+options, the ROS domain) is a field of the settings.
+
+Checking loads only what the flags given need (rerun-sdk with the live view, ros2/ with ROS 2,
+the planner registry for the coordinator's planner), so a carrier process that parses its flags
+loads no planner kernels (tests/test_fleet_scale.py)."""
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NamedTuple
+
+from launcher import ROBOT_SENSING
+from launcher.flags import flags_of
+
+
+class Problem(NamedTuple):
+    """One thing wrong with the command line."""
+
+    flag: str  # the flag at fault (or the variable, or the scenario's field)
+    expected: str  # what it takes
+    found: str  # what it was given
+    text: str = ""  # the line shown when "FLAG: expected ..., found ..." does not say it
+
+    def __str__(self) -> str:
+        return self.text or f"{self.flag}: expected {self.expected}, found {self.found}"
+
+
+@dataclass(frozen=True)
+class Settings:
+    """What a launcher process runs with.
+
+    Attributes:
+        flags: every flag's value (``launcher.flags.flags_type()``): as given, but ``scenario``
+            is the file loaded (a bundled scenario's name resolved) and ``ros2_domain`` the
+            domain in force (``ROS_DOMAIN_ID`` when the flag is absent) whenever ROS 2 is on.
+        scenario: the loaded ``world.Scenario``; None for the router.
+        carriers: ``--carrier``'s ids, in order (empty unless ``--role carrier``).
+        planner_options: ``--planner-option``'s (key, checked value) pairs, in order.
+    """
+
+    flags: Any
+    scenario: Any = None
+    carriers: tuple[str, ...] = ()
+    planner_options: tuple[tuple[str, Any], ...] = ()
+
+    @property
+    def name(self) -> str:
+        """The first word of the launcher's messages."""
+        return self.flags.name
+
+    def ros2(self):
+        """The processes' ROS 2 settings (ros2/publisher.py), or None: with neither --ros2 nor
+        --ros2-robot nothing of ros2/ is imported."""
+        f = self.flags
+        if not (f.ros2 or f.ros2_robot):
+            return None
+        from ros2.publisher import Ros2Settings
+
+        return Ros2Settings(domain=f.ros2_domain, robot=f.ros2_robot, namespace=f.ros2_namespace or "/",
+                            sensing=f.robot_sensing or ROBOT_SENSING[0])
+
+    def out(self) -> str:
+        """``--out``, else a fresh ``runs/<mission id>-<timestamp>`` under the current directory."""
+        from wire import keys
+
+        if self.flags.out:
+            return self.flags.out
+        return str(Path("runs") / f"{keys.mission_id_from_name(self.scenario.name)}-{time.strftime('%Y%m%d-%H%M%S')}")
+
+
+def check(args: argparse.Namespace, scenario=None) -> tuple[Settings | None, list[Problem]]:
+    """The settings of a parsed command line and its loaded scenario (None: the router), or None
+    and every problem found (at least one). ``args`` is left as it was."""
+    flags = flags_of(args)
+    if scenario is not None and scenario.source:
+        flags = flags._replace(scenario=scenario.source)
+    problems: list[Problem] = []
+    problems += _values(flags)
+    options, option_problems = _planner_options(flags)
+    problems += option_problems
+    problems += _roles(flags)
+    carriers, carrier_problems = _carriers(flags, scenario)
+    problems += carrier_problems
+    domain, ros2_problems = _ros2(flags, carriers)
+    problems += ros2_problems
+    if domain is not None:
+        flags = flags._replace(ros2_domain=domain)
+    if scenario is not None:
+        problems += _mission(flags, scenario)
+        if not option_problems:
+            problems += _planner(flags, scenario, options)
+    if problems:
+        return None, problems
+    return Settings(flags, scenario, carriers, options), []
+
+
+def _values(f) -> list[Problem]:
+    """Each number in its range."""
+    from planner.registry import OPTIONS
+
+    out = []
+    if f.realtime < 0:
+        out.append(Problem("--realtime", "a factor >= 0", str(f.realtime)))
+    for flag, key in (("--iterations", "iterations"), ("--plan-ms", "plan_ms")):
+        value = getattr(f, key)
+        try:
+            value is None or OPTIONS[key].check(value)
+        except ValueError as exc:
+            out.append(Problem(flag, str(exc), str(value)))
+    if f.pose_interval is not None and f.pose_interval < 0:
+        out.append(Problem("--pose-interval", "seconds >= 0", str(f.pose_interval)))
+    if f.seed is not None and f.seed < 0:
+        out.append(Problem("--seed", "an integer >= 0", str(f.seed)))
+    for name in ("join_timeout", "stage_timeout", "decision_timeout", "coordinator_timeout", "peer_timeout",
+                 "silence_timeout"):
+        if getattr(f, name) <= 0:
+            out.append(Problem(f"--{name.replace('_', '-')}", "seconds > 0", str(getattr(f, name))))
+    if f.routers is not None and f.routers < 0:
+        out.append(Problem("--routers", "an integer >= 0", str(f.routers)))
+    if f.carrier_processes is not None and f.carrier_processes < 1:
+        out.append(Problem("--carrier-processes", "an integer >= 1", str(f.carrier_processes)))
+    return out
+
+
+def _planner_options(f) -> tuple[tuple, list[Problem]]:
+    from planner.registry import parse_option
+
+    options, out = [], []
+    for text in f.planner_option:
+        try:
+            options.append(parse_option(text))
+        except ValueError as exc:
+            out.append(Problem("--planner-option", "KEY=VALUE of planner.registry", repr(text),
+                               f"--planner-option: {exc}"))
+    return tuple(options), out
+
+
+def _roles(f) -> list[Problem]:
+    """Flags that go together, and what the live view needs."""
+    out = []
+    if f.decentralised and f.no_autonomy:
+        out.append(Problem("--decentralised", "no --no-autonomy", "--no-autonomy",
+                           "--decentralised and --no-autonomy exclude each other"))
+    if f.decentralised and f.role == "coordinator":
+        out.append(Problem("--decentralised", "a role other than coordinator", "--role coordinator",
+                           "--decentralised runs no coordinator"))
+    viewer = f.role == "viewer" or f.view
+    if viewer and f.no_web and not f.save:
+        out.append(Problem("--no-web", "--save FILE.rrd beside it", "no --save",
+                           "--no-web needs --save FILE.rrd (else the viewer shows nothing)"))
+    if viewer:
+        try:
+            import rerun  # noqa: F401
+        except ImportError:
+            out.append(Problem("--view", "rerun-sdk installed", "no rerun module",
+                               "the live view needs rerun-sdk: pip install -e '.[view]'"))
+    if f.standby and f.role != "coordinator":
+        out.append(Problem("--standby", "--role coordinator", f"--role {f.role}",
+                           "--standby: only with --role coordinator"))
+    if f.role == "report" and not f.out:
+        out.append(Problem("--out", "the results directory to read", "nothing",
+                           "--role report needs --out DIR (the results directory to read)"))
+    return out
+
+
+def _carriers(f, scenario) -> tuple[tuple[str, ...], list[Problem]]:
+    """``--role carrier``'s ids: given, known to the scenario, each once."""
+    if f.role != "carrier":
+        return (), []
+    if not f.carrier:
+        return (), [Problem("--carrier", "ID (or ID,ID,...)", "nothing", "--role carrier needs --carrier ID (or ID,ID,...)")]
+    ids = tuple(c.strip() for c in f.carrier.split(","))
+    known = list(scenario.carrier_ids) if scenario is not None else []
+    for cid in ids:
+        if cid not in known:
+            listed = ", ".join(known[:20]) + (", ..." if len(known) > 20 else "")
+            return (), [Problem("--carrier", f"one of {listed} (carriers of {f.scenario})", repr(cid))]
+    if len(set(ids)) != len(ids):
+        return (), [Problem("--carrier", "each carrier id once", repr(f.carrier),
+                            f"--carrier: a carrier id is repeated in {f.carrier!r}")]
+    return ids, []
+
+
+def _ros2(f, carriers: tuple[str, ...]) -> tuple[int | None, list[Problem]]:
+    """The ROS 2 flags: (the domain in force, or None when ROS 2 is off) and their problems."""
+    ros2 = f.ros2 or f.ros2_robot
+    if (not ros2 and f.ros2_domain is None and f.ros2_namespace is None and f.robot_sensing is None
+            and f.mcap_profile == "foxglove"):
+        return None, []
+    from ros2.publisher import check_domain, check_namespace, default_domain
+
+    out = []
+    domain = f.ros2_domain
+    if domain is None:
+        text = os.environ.get("ROS_DOMAIN_ID", "").strip()
+        if text and not text.isdigit():
+            return None, [Problem("ROS_DOMAIN_ID", "an integer 0..232", repr(text))]
+        domain = default_domain()
+    line = check_domain(domain)
+    if line:
+        out.append(Problem("--ros2-domain", "an integer 0..232 (a ROS domain id)", str(domain), line))
+    if f.ros2_robot and (f.role != "carrier" or len(carriers) != 1):
+        out.append(Problem("--ros2-robot", "--role carrier and one --carrier ID", f"--role {f.role}",
+                           "--ros2-robot: only with --role carrier and one --carrier ID (the robot's carrier)"))
+    if f.ros2_namespace is not None:
+        if not f.ros2_robot:
+            out.append(Problem("--ros2-namespace", "--ros2-robot beside it", "no --ros2-robot",
+                               "--ros2-namespace: only with --ros2-robot (the robot's namespace)"))
+        else:
+            line = check_namespace(f.ros2_namespace)
+            if line:
+                out.append(Problem("--ros2-namespace", "a ROS 2 namespace", repr(f.ros2_namespace), line))
+    if f.robot_sensing is not None and not f.ros2_robot:
+        out.append(Problem("--robot-sensing", "--ros2-robot beside it", "no --ros2-robot",
+                           "--robot-sensing: only with --ros2-robot (what the robot's carrier observes)"))
+    if f.mcap_profile == "ros2" and f.role in ("all", "coordinator"):
+        try:
+            import rosbags  # noqa: F401
+        except ImportError:
+            out.append(Problem("--mcap-profile", "rosbags installed for ros2", "no rosbags module",
+                               "--mcap-profile ros2 needs rosbags: pip install -e '.[ros2]'"))
+    return (domain if ros2 else None), out
+
+
+def _mission(f, scenario) -> list[Problem]:
+    """Ids usable in key expressions: the scenario's carriers and the mission's."""
+    from wire import keys
+
+    out = []
+    for k, cid in enumerate(scenario.carrier_ids):
+        if not keys.ID_PATTERN.match(cid):
+            out.append(Problem(f"{f.scenario}: carriers[{k}].id",
+                               f"an id usable in key expressions ({keys.ID_PATTERN.pattern})", repr(cid)))
+    if f.mission is None and not keys.ID_PATTERN.match(keys.mission_id_from_name(scenario.name)):
+        out.append(Problem(f"{f.scenario}: name", "a name a mission id derives from", repr(scenario.name),
+                           f"{f.scenario}: name: cannot derive a mission id from {scenario.name!r}; pass --mission"))
+    if f.mission is not None:
+        try:
+            keys.check_id(f.mission, "--mission")
+        except ValueError as exc:
+            out.append(Problem("--mission", f"an id matching {keys.ID_PATTERN.pattern}", repr(f.mission), str(exc)))
+    return out
+
+
+def _planner(f, scenario, options: tuple) -> list[Problem]:
+    """The coordinator's planner, built once to check it (the one-host launcher's too)."""
+    if f.role in ("carrier", "viewer", "router", "report") or f.decentralised:
+        return []
+    from planner.registry import make_planner, planner_settings
+
+    name, kwargs = planner_settings(scenario, f.planner, f.iterations, f.plan_ms, options)
+    try:
+        make_planner(name, **kwargs)
+    except ValueError as exc:
+        return [Problem("--planner", "a planner of planner.registry with valid options", repr(name),
+                        f"--planner: {exc}")]
+    return []
+
+
+def resolve_scenario(text: str) -> tuple[str | None, str | None]:
+    """(the scenario file ``text`` names, None), or (None, one line) when ``text`` is neither a
+    file nor a bundled scenario's name. A path that names no file is returned as it is, for the
+    scenario loader's own line about it."""
+    import scenarios
+
+    if Path(text).is_file():
+        return text, None
+    bundled = scenarios.bundled_path(text)
+    if bundled is not None:
+        return str(bundled), None
+    if "/" in text or os.sep in text:
+        return text, None
+    return None, (f"{text}: expected a scenario file or the name of a bundled scenario "
+                  f"({', '.join(scenarios.bundled_names())}), found neither")
+
+
+def load_scenario(text: str):
+    """(the scenario that ``text`` names, []), or (None, the lines that say why not): the world's
+    one line per problem of the file."""
+    import world
+
+    path, line = resolve_scenario(text)
+    if path is None:
+        return None, [line]
+    try:
+        return world.load_scenario(path), []
+    except world.ScenarioError as exc:
+        return None, list(exc.problems)
+    except OSError as exc:
+        return None, [f"{path}: cannot read the scenario: {exc.strerror or exc}"]
+
+
+def zenoh_config(f, role: str):
+    """The Zenoh config of a process of ``role`` from the flags ``f``: the endpoints given, else a
+    coordinator or router listens on the default port and a carrier or viewer connects to it;
+    the mode given, else the one the role plays."""
+    from wire.zconfig import DEFAULT_PORT, file_listens, file_sets_mode, make_config
+
+    listen, connect = list(f.listen), list(f.connect)
+    if not f.zenoh_config:
+        if role in ("coordinator", "router") and not listen and not connect:
+            listen = [f"tcp/127.0.0.1:{DEFAULT_PORT}"]
+        if role in ("carrier", "viewer") and not connect:
+            connect = [f"tcp/127.0.0.1:{DEFAULT_PORT}"]
+    mode = f.mode
+    if mode is None and not file_sets_mode(f.zenoh_config):
+        if role == "router":
+            mode = "router"
+        elif role == "coordinator" and (listen or file_listens(f.zenoh_config)):
+            mode = "peer"  # it is the carriers' rendezvous
+        else:
+            mode = "client"  # a carrier, or a coordinator that only connects (to a router)
+    return make_config(mode, listen, connect, f.zenoh_config)
