@@ -2,10 +2,18 @@
 :mod:`experiments.check`."""
 import sys
 
-if sys.argv[1:2] == ["check"]:
-    from experiments.check import main
 
-    raise SystemExit(main(sys.argv[2:]))
-from experiments.run import main
+def main(argv=None) -> int:
+    """The experiments' command line on ``argv`` (``sys.argv[1:]`` when None)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["check"]:
+        from experiments.check import main as check
 
-raise SystemExit(main())
+        return check(argv[1:])
+    from experiments.run import main as run
+
+    return run(argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
