@@ -50,7 +50,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--out", type=Path, default=run.DEFAULT_OUT,
                    help=f"results directory to check, with the ones below it (default "
-                        f"{run.DEFAULT_OUT.relative_to(run.ROOT)})")
+                        f"{run.DEFAULT_OUT_SHOWN})")
     p.add_argument("--sample", type=int, default=2, help="tasks re-run per planner and sweep (default 2)")
     p.add_argument("--sample-seed", type=int, default=0, help="seed of the sample (default 0)")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)")

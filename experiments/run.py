@@ -44,10 +44,13 @@ from pathlib import Path
 from experiments import bound, priors, report, types
 from experiments.trials import CLAIRVOYANT, Sweep, Task, decode, run_trial, urban_trial, warm_up_worker
 from planner.settings import DEFAULT_ITERATIONS
-from world.paths import REPO_ROOT as ROOT
+from world.paths import IN_CLONE, REPO_ROOT as ROOT
 
-#: Default output directory (docs/results.md links the files there).
-DEFAULT_OUT = ROOT / "docs" / "results"
+#: Default output directory: a clone's docs/results (docs/results.md links the files there); from
+#: an installed wheel, results/ under the current directory (never inside site-packages).
+DEFAULT_OUT = ROOT / "docs" / "results" if IN_CLONE else Path("results")
+#: How ``--help`` names it.
+DEFAULT_OUT_SHOWN = "docs/results" if IN_CLONE else "results"
 DEFAULT_SCENARIO = ROOT / "scenarios" / "urban_alpha.yaml"
 #: The paper's four planners, plus ours.
 DEFAULT_PLANNERS = ("mcts-ssap", "mcts-random", "ssap", "random", "closed-loop")
@@ -117,7 +120,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                    help="seconds to wait for the --cluster scheduler and its first worker (default 20)")
     p.add_argument("--quick", action="store_true", help="tiny settings for a smoke test")
     p.add_argument("--out", type=Path, default=None,
-                   help=f"output directory (default {DEFAULT_OUT.relative_to(ROOT)}; with --quick {QUICK_OUT})")
+                   help=f"output directory (default {DEFAULT_OUT_SHOWN}; with --quick {QUICK_OUT})")
     p.add_argument("--planners", default=None,
                    help="comma-separated planner names (the clairvoyant bound is always added; default: the "
                         "paper's four and closed-loop, or for comms: " + ",".join(COMMS_PLANNERS) + ")")
