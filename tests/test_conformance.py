@@ -47,18 +47,19 @@ def test_the_rules_on_a_recorded_flight(tmp_path):
     """A hand-made flight of tiny's carrier a: clean, then with a future Observation, a missing
     Confirm and an unknown field; each fault fails its own rule and only it."""
     kit = _kit(tmp_path)
-    m, fp, x = kit.mission, kit.fingerprint, kit.x
+    t = kit.target
+    m, fp, x = t.mission, t.fingerprint, t.x
 
     def obs(j, at):
-        value = None if not kit.valid[j] else int(x[j])
-        return _seen(at, wm.Observation(m, "a", j, kit.times[j], value, (0.0, 0.0), 2, ()))
+        value = None if not t.valid[j] else int(x[j])
+        return _seen(at, wm.Observation(m, "a", j, t.times[j], value, (0.0, 0.0), 2, ()))
 
     def clean():
         f = wc.Flight()
         f.carrier.append(_seen(0.0, wm.Hello(m, "a", 1, "h", 2, 0, fp)))
-        for j in range(kit.n):
+        for j in range(t.n):
             f.carrier.append(obs(j, 1.0 + j))
-            f.decisions.append(_seen(1.5 + j, wm.Decision(m, j, kit.times[j], (), 1.0)))
+            f.decisions.append(_seen(1.5 + j, wm.Decision(m, j, t.times[j], (), 1.0)))
             f.carrier.append(_seen(1.6 + j, wm.Confirm(m, "a", j, False, "idle", (0.0, 0.0), 2)))
         f.ends.append(wc.Seen(9.0, "end", b""))
         f.carrier.append(_seen(9.1, wm.Bye(m, "a", (), (), "end")))
@@ -94,6 +95,26 @@ def test_the_command_line_refuses_bad_usage(tmp_path):
                               cwd=ROOT, timeout=60)
         assert proc.returncode == 2 and text in proc.stderr, (args, proc.stderr)
         assert "Traceback" not in proc.stderr
+
+
+def test_the_help_documents_every_flag_and_what_the_carrier_is_told(capsys):
+    assert wc.main(["--help"]) == 0
+    text = capsys.readouterr().out
+    for flag in ("--carrier", "--seed", "--faults", "--late", "--timeout", "--workdir"):
+        assert flag in text, flag
+    assert "COMMAND one more second" in text and "DIR/carrier" in text  # --timeout, --workdir
+    for variable, placeholder, _ in wc.harness.PLACEHOLDERS:
+        assert variable in text and "{" + placeholder + "}" in text
+    assert all(fault in text for fault in wc.FAULTS) and all(rule in text for rule, _, _ in wc.RULES)
+    assert "exit status: 0" in text
+
+
+def test_main_returns_the_usage_status_in_process(capsys):
+    """What a dispatcher calling ``main(argv)`` gets: a status, one error line, no exception."""
+    assert wc.main([str(TINY), "--carrier", "a"], prog="marsupial-fleet conformance carrier") == 2
+    err = capsys.readouterr().err
+    assert err.startswith("usage: marsupial-fleet conformance carrier SCENARIO")
+    assert err.splitlines()[-1] == "marsupial-fleet conformance carrier: error: no COMMAND after -- (the carrier under test)"
 
 
 # --------------------------------------------------------------------------- slow: real flights

@@ -1,0 +1,105 @@
+"""One conformance run: the target, the harness, the observer, the faults and the rules put
+together, and the loop that flies the mission."""
+from __future__ import annotations
+
+import shlex
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Callable
+
+from .. import messages as wm
+from .faults import FAULTS, Faults
+from .flight import CARRIER_TOPICS, Flight, Observer, Target
+from .harness import Harness
+from .rules import Result, evaluate
+
+#: After End, how long the carrier under test has to exit before the kit stops watching, seconds.
+END_GRACE_S = 15.0
+#: After the carrier under test exits, how long the kit still collects what it sent last, seconds.
+EXIT_GRACE_S = 1.0
+#: How often the kit asks the coordinator for its rejection counts, seconds.
+STATE_PERIOD_S = 1.0
+
+
+class Kit:
+    """One conformance run (see the package docstring).
+
+    Args:
+        scenario_path: the scenario file.
+        carrier: the id the carrier under test flies as.
+        command: COMMAND and its ARGS, with ``{placeholder}`` (harness.PLACEHOLDERS).
+        seed: root seed, overriding the scenario's.
+        faults: the faults to make (a subset of :data:`FAULTS`).
+        late_s: how long the late Decision is late, seconds.
+        timeout_s: the longest mission, seconds.
+        workdir: where the results and logs go (default: a new temporary directory).
+        log: where progress lines go (default: stderr).
+
+    Raises:
+        ValueError: the scenario has no such carrier (one line naming ``--carrier``).
+    """
+
+    def __init__(self, scenario_path: str, carrier: str, command: list[str], seed: int | None = None,
+                 faults: tuple[str, ...] = FAULTS, late_s: float = 3.0, timeout_s: float = 120.0,
+                 workdir: str | None = None, log: Callable[[str], None] | None = None):
+        self.target = Target.load(scenario_path, carrier, seed)
+        self.command = list(command)
+        self.faults = tuple(faults)
+        self.late_s = float(late_s)
+        self.timeout_s = float(timeout_s)
+        self.workdir = Path(workdir or tempfile.mkdtemp(prefix="conformance-"))
+        self.log = log or (lambda line: print(line, file=sys.stderr, flush=True))
+        self.flight = Flight()
+
+    def run(self) -> list[Result]:
+        """Fly the mission with the carrier under test, then judge it (:meth:`evaluate`)."""
+        t = self.target
+        with Harness(t, self.workdir) as harness:
+            observer = Observer(t, self.flight, harness.node)
+            harness.start_coordinator()
+            harness.start_other_carriers()
+            command = harness.expand(self.command)
+            self.log(f"conformance: mission {t.mission} on {harness.endpoint}; carrier {t.cid}: {shlex.join(command)}")
+            under_test = harness.start_under_test(command)
+            self._fly(harness, observer, Faults(t, self.flight, harness, observer, self.faults, self.late_s),
+                      under_test)
+        return self.evaluate()
+
+    def _fly(self, harness: Harness, observer: Observer, faults: Faults, under_test) -> None:
+        """Watch the mission until the carrier under test has exited (and what it sent last is in),
+        End came and it did not exit, or the timeout; faults are made as their triggers arrive."""
+        deadline = time.monotonic() + self.timeout_s
+        ended_at = exited_at = None
+        last_state_query = 0.0
+        while time.monotonic() < deadline:
+            now = time.monotonic()
+            harness.thaw_if_due(now)
+            if under_test.poll() is not None:
+                exited_at = exited_at or now
+                if now - exited_at > EXIT_GRACE_S:
+                    break
+            if ended_at is not None and now - ended_at > END_GRACE_S:
+                break
+            if now - last_state_query > STATE_PERIOD_S and not harness.frozen and not observer.gone:
+                last_state_query = now
+                observer.poll_rejections()
+            item = harness.node.next(0.05)
+            while item is not None:
+                seen = observer.take(item)
+                if seen is not None and seen.topic == "end" and ended_at is None:
+                    ended_at = time.monotonic()
+                    observer.poll_rejections()
+                if (seen is not None and seen.topic in CARRIER_TOPICS
+                        and isinstance(seen.message, (wm.Observation, wm.Confirm))):
+                    faults.react(seen)
+                item = harness.node.next(0.0)
+        observer.bank_rejections()
+        harness.thaw()
+        self.flight.exit_code, self.flight.output = harness.finish(
+            under_test, max(1.0, deadline - time.monotonic()))
+
+    def evaluate(self) -> list[Result]:
+        """Every rule judged on :attr:`flight`."""
+        return evaluate(self.target, self.flight)

@@ -1,0 +1,183 @@
+"""The rules a carrier is checked on (:data:`RULES`, each from a section of docs/protocol.md) and
+their evaluation on a recorded flight: a pure function of the target and what was seen."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from .. import messages as wm
+from .flight import Flight, Seen, Target
+
+#: Every rule the kit checks: (id, section of docs/protocol.md, what it says).
+RULES = (
+    ("decode", "Conventions", "every message it sends decodes, with the fields of the revision it announced"),
+    ("hello-first", "Hello", "a Hello comes before its first Observation, Confirm, Own or Bye"),
+    ("fingerprint", "Fingerprint", "its Hello carries the coordinator's fingerprint (no Refusal)"),
+    ("observation-stage", "Stage handshake", "an Observation is of the stage being collected (not a later or a decided one)"),
+    ("observation-time", "Conventions", "an Observation's t is t_j of its stage (±0.001 s), stage < N"),
+    ("observation-world", "Where observations come from", "x is the world's: features in sight at t_j, nil where not scheduled"),
+    ("passengers", "Messages", "passengers_left starts at the scenario's count and drops by one per deployment"),
+    ("confirm", "Confirm", "every Decision of a stage it joined for is answered (Confirm, or Own of that stage)"),
+    ("confirm-outcome", "Stage handshake", "the first answer follows the Decision: deployed / idle / refused / late"),
+    ("duplicate", "Stage handshake", "a repeated Decision is answered already, with the first outcome, nothing twice"),
+    ("late", "Stage handshake", "a Decision that comes late is still answered, once"),
+    ("restart", "Joining late, restarting, resynchronising", "when the coordinator's token reappears it says Hello again"),
+    ("epochs", "Epochs", "a Decision of a lower epoch than it heard is not answered (deposed)"),
+    ("bye", "Bye", "after End: Bye with reason end and its deployments, then the process exits 0"),
+    ("coordinator-rejections", "Rejections", "the coordinator rejected none of its messages (State, CarrierState.rejected)"),
+)
+
+
+@dataclass
+class Result:
+    """One rule's outcome: how often the carrier was exercised on it and the first failure."""
+
+    rule: str
+    exercised: int = 0
+    failure: str | None = None
+
+    def check(self, ok: bool, message: str = "") -> None:
+        self.exercised += 1
+        if not ok and self.failure is None:
+            self.failure = message[:300]
+
+    @property
+    def status(self) -> str:
+        return "-" if self.exercised == 0 else ("pass" if self.failure is None else "FAIL")
+
+
+def evaluate(target: Target, flight: Flight) -> list[Result]:
+    """Every rule of :data:`RULES`, in that order, judged on ``flight``."""
+    f = flight
+    results = {rule: Result(rule) for rule, _, _ in RULES}
+    msgs = [s for s in f.carrier if s.message is not None]
+    revision = next((s.message.revision for s in msgs if isinstance(s.message, wm.Hello)), 1)
+    for s in f.carrier:
+        ok = s.error is None
+        detail = f"{s.error}: {s.show()}" if s.error else ""
+        if ok:
+            try:
+                wm.decode(s.payload, revision=revision)
+            except wm.ProtocolError as exc:
+                ok, detail = False, f"{exc.reason} in revision {revision}: {exc.detail}: {s.show()}"
+        results["decode"].check(ok, detail)
+    hello_at = next((s.at for s in msgs if isinstance(s.message, wm.Hello)), None)
+    for s in msgs:
+        if isinstance(s.message, (wm.Observation, wm.Confirm, wm.Own, wm.Bye)):
+            results["hello-first"].check(hello_at is not None and s.at >= hello_at,
+                                         f"before any Hello: {s.show()}")
+            break
+    for s in msgs:
+        if isinstance(s.message, wm.Hello):
+            results["fingerprint"].check(s.message.fingerprint == target.fingerprint,
+                                         f"fingerprint {s.message.fingerprint}, the world's {target.fingerprint}: {s.show()}")
+    for s in f.refusals:
+        results["fingerprint"].check(False, f"refused: {s.show()}")
+    real = [d for d in f.decisions if not d.fake]
+    _observations(target, f, results, msgs, real)
+    _answers(target, f, results, msgs, real)
+    return [results[rule] for rule, _, _ in RULES]
+
+
+def _observations(target: Target, flight: Flight, results: dict, msgs: list[Seen], real: list[Seen]) -> None:
+    t = target
+    answers = first_answers(msgs)
+    for s in msgs:
+        m = s.message
+        if not isinstance(m, wm.Observation):
+            continue
+        decided = [d.message.stage for d in real if d.at <= s.at]
+        collecting = max(decided, default=-1) + 1
+        # stages it decided itself before this Observation: it may go on past them
+        own_before = {x.message.stage for x in msgs if isinstance(x.message, wm.Own) and x.at <= s.at}
+        results["observation-stage"].check(
+            m.stage == collecting or (m.stage < collecting and m.x is None and not t.valid[min(m.stage, t.n - 1)])
+            or (m.stage < collecting and _resent(flight, s))
+            or (m.stage > collecting and set(range(collecting, m.stage)) <= own_before),
+            f"stage {m.stage} while stage {collecting} was collected: {s.show()}")
+        in_range = m.stage < t.n and abs(m.t - t.times[m.stage]) <= 1e-3
+        results["observation-time"].check(in_range, f"t {m.t} for stage {m.stage}: {s.show()}")
+        if m.stage < t.n:
+            world_x = None if not t.valid[m.stage] else int(t.x[m.stage])
+            results["observation-world"].check(m.x == world_x, f"x {m.x}, the world's {world_x}: {s.show()}")
+            deployed_before = sum(1 for j, a in answers.items() if j < m.stage and a.deployed)
+            results["passengers"].check(m.passengers_left == t.passengers - deployed_before,
+                                        f"passengers_left {m.passengers_left}, expected "
+                                        f"{t.passengers - deployed_before}: {s.show()}")
+
+
+def _resent(flight: Flight, seen: Seen) -> bool:
+    """An Observation of a stage decided in the meantime, re-sent at a resynchronisation."""
+    return bool(flight.coordinator_back) and any(abs(seen.at - back) < 10.0 for back in flight.coordinator_back)
+
+
+def first_answers(msgs: list[Seen]) -> dict:
+    """stage -> the carrier's first Confirm or Own of it."""
+    out: dict = {}
+    for s in msgs:
+        m = s.message
+        if isinstance(m, (wm.Confirm, wm.Own)) and m.stage not in out:
+            out[m.stage] = m
+    return out
+
+
+def _answers(target: Target, flight: Flight, results: dict, msgs: list[Seen], real: list[Seen]) -> None:
+    t, f = target, flight
+    answers = first_answers(msgs)
+    left = t.passengers
+    for j in range(t.n):
+        decision = next((d for d in real if d.message.stage == j), None)
+        if decision is None:
+            continue
+        first = answers.get(j)
+        results["confirm"].check(first is not None, f"no Confirm or Own of stage {j}; its Decision: {decision.show()}")
+        if first is None or isinstance(first, wm.Own):
+            if isinstance(first, wm.Own):
+                left -= int(first.deployed)
+            continue
+        d = decision.message
+        selected = t.cid in d.deploy
+        expected = {"deployed": selected and t.valid[j] and left > 0, "idle": not selected,
+                    "refused": selected and (not t.valid[j] or left == 0), "late": selected}
+        results["confirm-outcome"].check(expected.get(first.status, False),
+                                         f"status {first.status!r} for a Decision "
+                                         f"{'selecting' if selected else 'not selecting'} it at stage {j} "
+                                         f"({left} passenger(s) left): {decision.show()}")
+        left -= int(first.deployed)
+        results["passengers"].check(first.passengers_left == left,
+                                    f"passengers_left {first.passengers_left} after stage {j}, expected {left}")
+    confirms = [s for s in msgs if isinstance(s.message, wm.Confirm)]
+    if "duplicate" in f.faults:
+        stage, at = f.faults["duplicate"]
+        again = [s.message for s in confirms if s.message.stage == stage and s.at > at]
+        first = answers.get(stage)
+        ok = bool(again) and all(c.status == "already" and first is not None and c.deployed == first.deployed
+                                 for c in again)
+        results["duplicate"].check(ok, f"answers to the repeated Decision of stage {stage}: "
+                                       f"{[(c.status, c.deployed) for c in again] or 'none'}")
+    if "late" in f.faults:
+        stage, _ = f.faults["late"]
+        n_first = sum(1 for s in confirms if s.message.stage == stage and s.message.status != "already")
+        results["late"].check(n_first == 1, f"{n_first} first answer(s) to the late Decision of stage {stage}")
+    if "restart" in f.faults:
+        back = f.coordinator_back[0] if f.coordinator_back else None
+        hello = back is not None and any(isinstance(s.message, wm.Hello) and s.at > back for s in msgs)
+        results["restart"].check(hello, "no Hello after the coordinator's token reappeared"
+                                 if back is not None else "the coordinator did not come back")
+    if "deposed" in f.faults:
+        stage, (start, _) = f.faults["deposed"]
+        real_at = next((d.at for d in real if d.message.stage == stage), float("inf"))
+        wrong = [s for s in confirms if s.message.stage == stage and start <= s.at < real_at]
+        results["epochs"].check(not wrong, f"answered a Decision of epoch 1 after hearing epoch 2: "
+                                           f"{wrong[0].show() if wrong else ''}")
+    if f.ends:
+        byes = [s for s in msgs if isinstance(s.message, wm.Bye)]
+        deployments = tuple(sorted(j for j, a in answers.items() if a.deployed))
+        bye = byes[-1].message if byes else None
+        results["bye"].check(bye is not None and bye.reason == "end" and tuple(bye.deployments) == deployments
+                             and f.exit_code == 0,
+                             f"Bye {byes[-1].show() if byes else 'missing'} (deployments {list(deployments)}), "
+                             f"exit code {f.exit_code}")
+    # Stage rejections are judged above (observation-stage): a carrier that decided a stage
+    # itself legitimately sends a later stage's Observation the coordinator rejects.
+    other = {k: v for k, v in f.rejected.items() if k not in ("future-stage", "stale-stage")}
+    results["coordinator-rejections"].check(not other, f"the coordinator rejected: {dict(f.rejected)}")
