@@ -38,7 +38,7 @@ def run(argv=None, prog: str = NAME, name: str = NAME, role: list | None = None)
             return _fail(None, lines)
     settings, problems = check(args, scenario)
     if settings is None:
-        return _fail(args.name, [str(p) for p in problems])
+        return _fail(args.name, [p.line() for p in problems])
     mains = {"coordinator": roles.coordinator, "carrier": roles.carrier, "router": roles.router,
              "viewer": roles.viewer, "report": roles.report, "all": supervisor.main}
     try:

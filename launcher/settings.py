@@ -1,5 +1,6 @@
-"""From a parsed command line to the launcher's settings: every problem with the flags as one line
-each (the flag, what it takes, what it was given), or a frozen :class:`Settings`. Nothing here
+"""From a parsed command line to the launcher's settings: every problem with the flags (a
+``validation.Problem`` each: the flag, what it takes, what it was given; one line by its
+``line()``), or a frozen :class:`Settings`. Nothing here
 changes the parsed ``argparse.Namespace``; what validation derives (the carrier ids, the planner
 options, the ROS domain) is a field of the settings.
 
@@ -13,22 +14,11 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 from launcher import ROBOT_SENSING
 from launcher.flags import flags_of
-
-
-class Problem(NamedTuple):
-    """One thing wrong with the command line."""
-
-    flag: str  # the flag at fault (or the variable, or the scenario's field)
-    expected: str  # what it takes
-    found: str  # what it was given
-    text: str = ""  # the line shown when "FLAG: expected ..., found ..." does not say it
-
-    def __str__(self) -> str:
-        return self.text or f"{self.flag}: expected {self.expected}, found {self.found}"
+from validation import Found, Problem
 
 
 @dataclass(frozen=True)
@@ -93,8 +83,8 @@ def check(args: argparse.Namespace, scenario=None) -> tuple[Settings | None, lis
         flags = flags._replace(ros2_domain=domain)
     if scenario is not None:
         problems += _mission(flags, scenario)
-        if not option_problems:
-            problems += _planner(flags, scenario, options)
+    if scenario is not None and not problems:  # the planner is built from the other flags
+        problems += _planner(flags, scenario, options)
     if problems:
         return None, problems
     return Settings(flags, scenario, carriers, options), []
@@ -106,25 +96,25 @@ def _values(f) -> list[Problem]:
 
     out = []
     if f.realtime < 0:
-        out.append(Problem("--realtime", "a factor >= 0", str(f.realtime)))
+        out.append(Problem("--realtime", "a factor >= 0", f.realtime))
     for flag, key in (("--iterations", "iterations"), ("--plan-ms", "plan_ms")):
         value = getattr(f, key)
         try:
             value is None or OPTIONS[key].check(value)
         except ValueError as exc:
-            out.append(Problem(flag, str(exc), str(value)))
+            out.append(Problem(flag, str(exc), value))
     if f.pose_interval is not None and f.pose_interval < 0:
-        out.append(Problem("--pose-interval", "seconds >= 0", str(f.pose_interval)))
+        out.append(Problem("--pose-interval", "seconds >= 0", f.pose_interval))
     if f.seed is not None and f.seed < 0:
-        out.append(Problem("--seed", "an integer >= 0", str(f.seed)))
+        out.append(Problem("--seed", "an integer >= 0", f.seed))
     for name in ("join_timeout", "stage_timeout", "decision_timeout", "coordinator_timeout", "peer_timeout",
                  "silence_timeout"):
         if getattr(f, name) <= 0:
-            out.append(Problem(f"--{name.replace('_', '-')}", "seconds > 0", str(getattr(f, name))))
+            out.append(Problem(f"--{name.replace('_', '-')}", "seconds > 0", getattr(f, name)))
     if f.routers is not None and f.routers < 0:
-        out.append(Problem("--routers", "an integer >= 0", str(f.routers)))
+        out.append(Problem("--routers", "an integer >= 0", f.routers))
     if f.carrier_processes is not None and f.carrier_processes < 1:
-        out.append(Problem("--carrier-processes", "an integer >= 1", str(f.carrier_processes)))
+        out.append(Problem("--carrier-processes", "an integer >= 1", f.carrier_processes))
     return out
 
 
@@ -136,8 +126,7 @@ def _planner_options(f) -> tuple[tuple, list[Problem]]:
         try:
             options.append(parse_option(text))
         except ValueError as exc:
-            out.append(Problem("--planner-option", "KEY=VALUE of planner.registry", repr(text),
-                               f"--planner-option: {exc}"))
+            out.append(Problem("--planner-option", "KEY=VALUE of planner.registry", text, str(exc)))
     return tuple(options), out
 
 
@@ -145,27 +134,23 @@ def _roles(f) -> list[Problem]:
     """Flags that go together, and what the live view needs."""
     out = []
     if f.decentralised and f.no_autonomy:
-        out.append(Problem("--decentralised", "no --no-autonomy", "--no-autonomy",
-                           "--decentralised and --no-autonomy exclude each other"))
+        out.append(Problem("--decentralised", "no --no-autonomy beside it (they exclude each other)", Found("both")))
     if f.decentralised and f.role == "coordinator":
-        out.append(Problem("--decentralised", "a role other than coordinator", "--role coordinator",
-                           "--decentralised runs no coordinator"))
+        out.append(Problem("--decentralised", "a role other than coordinator (it runs no coordinator)",
+                           Found("--role coordinator")))
     viewer = f.role == "viewer" or f.view
     if viewer and f.no_web and not f.save:
-        out.append(Problem("--no-web", "--save FILE.rrd beside it", "no --save",
-                           "--no-web needs --save FILE.rrd (else the viewer shows nothing)"))
+        out.append(Problem("--no-web", "--save FILE.rrd beside it (else the viewer shows nothing)", Found("no --save")))
     if viewer:
         try:
             import rerun  # noqa: F401
         except ImportError:
-            out.append(Problem("--view", "rerun-sdk installed", "no rerun module",
-                               "the live view needs rerun-sdk: pip install -e '.[view]'"))
+            out.append(Problem("--view" if f.view else "--role viewer",
+                               "rerun-sdk for the live view (pip install -e '.[view]')", Found("no rerun module")))
     if f.standby and f.role != "coordinator":
-        out.append(Problem("--standby", "--role coordinator", f"--role {f.role}",
-                           "--standby: only with --role coordinator"))
+        out.append(Problem("--standby", "--role coordinator", Found(f"--role {f.role}")))
     if f.role == "report" and not f.out:
-        out.append(Problem("--out", "the results directory to read", "nothing",
-                           "--role report needs --out DIR (the results directory to read)"))
+        out.append(Problem("--out", "DIR with --role report (the results directory to read)", Found("nothing")))
     return out
 
 
@@ -174,16 +159,16 @@ def _carriers(f, scenario) -> tuple[tuple[str, ...], list[Problem]]:
     if f.role != "carrier":
         return (), []
     if not f.carrier:
-        return (), [Problem("--carrier", "ID (or ID,ID,...)", "nothing", "--role carrier needs --carrier ID (or ID,ID,...)")]
+        return (), [Problem("--carrier", "ID (or ID,ID,...) with --role carrier", Found("nothing"))]
     ids = tuple(c.strip() for c in f.carrier.split(","))
     known = list(scenario.carrier_ids) if scenario is not None else []
     for cid in ids:
         if cid not in known:
             listed = ", ".join(known[:20]) + (", ..." if len(known) > 20 else "")
-            return (), [Problem("--carrier", f"one of {listed} (carriers of {f.scenario})", repr(cid))]
+            return (), [Problem("--carrier", f"one of {listed} (carriers of {f.scenario})", cid)]
     if len(set(ids)) != len(ids):
-        return (), [Problem("--carrier", "each carrier id once", repr(f.carrier),
-                            f"--carrier: a carrier id is repeated in {f.carrier!r}")]
+        return (), [Problem("--carrier", "each carrier id once", f.carrier,
+                            f"a carrier id is repeated in {f.carrier!r}")]
     return ids, []
 
 
@@ -200,32 +185,33 @@ def _ros2(f, carriers: tuple[str, ...]) -> tuple[int | None, list[Problem]]:
     if domain is None:
         text = os.environ.get("ROS_DOMAIN_ID", "").strip()
         if text and not text.isdigit():
-            return None, [Problem("ROS_DOMAIN_ID", "an integer 0..232", repr(text))]
+            return None, [Problem("ROS_DOMAIN_ID", "an integer 0..232", text)]
         domain = default_domain()
     line = check_domain(domain)
     if line:
-        out.append(Problem("--ros2-domain", "an integer 0..232 (a ROS domain id)", str(domain), line))
+        out.append(_said("--ros2-domain", line))
     if f.ros2_robot and (f.role != "carrier" or len(carriers) != 1):
-        out.append(Problem("--ros2-robot", "--role carrier and one --carrier ID", f"--role {f.role}",
-                           "--ros2-robot: only with --role carrier and one --carrier ID (the robot's carrier)"))
+        out.append(Problem("--ros2-robot", "", None, "only with --role carrier and one --carrier ID (the robot's carrier)"))
     if f.ros2_namespace is not None:
         if not f.ros2_robot:
-            out.append(Problem("--ros2-namespace", "--ros2-robot beside it", "no --ros2-robot",
-                               "--ros2-namespace: only with --ros2-robot (the robot's namespace)"))
+            out.append(Problem("--ros2-namespace", "", None, "only with --ros2-robot (the robot's namespace)"))
         else:
             line = check_namespace(f.ros2_namespace)
             if line:
-                out.append(Problem("--ros2-namespace", "a ROS 2 namespace", repr(f.ros2_namespace), line))
+                out.append(_said("--ros2-namespace", line))
     if f.robot_sensing is not None and not f.ros2_robot:
-        out.append(Problem("--robot-sensing", "--ros2-robot beside it", "no --ros2-robot",
-                           "--robot-sensing: only with --ros2-robot (what the robot's carrier observes)"))
+        out.append(Problem("--robot-sensing", "", None, "only with --ros2-robot (what the robot's carrier observes)"))
     if f.mcap_profile == "ros2" and f.role in ("all", "coordinator"):
         try:
             import rosbags  # noqa: F401
         except ImportError:
-            out.append(Problem("--mcap-profile", "rosbags installed for ros2", "no rosbags module",
-                               "--mcap-profile ros2 needs rosbags: pip install -e '.[ros2]'"))
+            out.append(Problem("--mcap-profile", "rosbags for ros2 (pip install -e '.[ros2]')", Found("no rosbags module")))
     return (domain if ros2 else None), out
+
+
+def _said(flag: str, line: str) -> Problem:
+    """A problem that another module put in words (``FLAG: ...``)."""
+    return Problem(flag, "", None, line.removeprefix(f"{flag}: "))
 
 
 def _mission(f, scenario) -> list[Problem]:
@@ -236,15 +222,15 @@ def _mission(f, scenario) -> list[Problem]:
     for k, cid in enumerate(scenario.carrier_ids):
         if not keys.ID_PATTERN.match(cid):
             out.append(Problem(f"{f.scenario}: carriers[{k}].id",
-                               f"an id usable in key expressions ({keys.ID_PATTERN.pattern})", repr(cid)))
+                               f"an id usable in key expressions ({keys.ID_PATTERN.pattern})", cid))
     if f.mission is None and not keys.ID_PATTERN.match(keys.mission_id_from_name(scenario.name)):
-        out.append(Problem(f"{f.scenario}: name", "a name a mission id derives from", repr(scenario.name),
-                           f"{f.scenario}: name: cannot derive a mission id from {scenario.name!r}; pass --mission"))
+        out.append(Problem(f"{f.scenario}: name", "", None, f"cannot derive a mission id from {scenario.name!r}; pass --mission"))
     if f.mission is not None:
         try:
             keys.check_id(f.mission, "--mission")
         except ValueError as exc:
-            out.append(Problem("--mission", f"an id matching {keys.ID_PATTERN.pattern}", repr(f.mission), str(exc)))
+            out.append(Problem("--mission", f"an id matching {keys.ID_PATTERN.pattern}", f.mission,
+                               str(exc).removeprefix("--mission ")))
     return out
 
 
@@ -258,8 +244,7 @@ def _planner(f, scenario, options: tuple) -> list[Problem]:
     try:
         make_planner(name, **kwargs)
     except ValueError as exc:
-        return [Problem("--planner", "a planner of planner.registry with valid options", repr(name),
-                        f"--planner: {exc}")]
+        return [Problem("--planner", "a planner of planner.registry with valid options", name, str(exc))]
     return []
 
 

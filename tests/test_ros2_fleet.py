@@ -244,7 +244,7 @@ def test_bad_ros2_flags_get_one_line(tiny, flags, line):
 
     settings, problems = check(parse_args(["scenarios/tiny.yaml", *flags]), tiny)
     assert settings is None and len(problems) == 1
-    assert line in str(problems[0]) and "\n" not in str(problems[0])
+    assert line in problems[0].line() and "\n" not in problems[0].line()
 
 
 def test_robot_sensing_reaches_the_robot_settings(tiny):
@@ -278,4 +278,4 @@ def test_ros2_domain_defaults_to_ros_domain_id(tiny, monkeypatch):
     monkeypatch.setenv("ROS_DOMAIN_ID", "x")
     args = parse_args(["scenarios/tiny.yaml", "--ros2"])
     settings, problems = check(args, tiny)
-    assert settings is None and [str(p) for p in problems] == ["ROS_DOMAIN_ID: expected an integer 0..232, found 'x'"]
+    assert settings is None and [p.line() for p in problems] == ["ROS_DOMAIN_ID: expected an integer 0..232, found 'x'"]
