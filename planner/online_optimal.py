@@ -45,9 +45,10 @@ what is beyond the limits for certain or as good as certain: :func:`estimate`'s 
 that decide at a stage in every reachable state: a lower bound) above the limit, or its upper
 bound on the elements and transitions, at its own pessimistic rates (:data:`SECONDS_PER_ELEMENT`,
 :data:`SECONDS_PER_TRANSITION`), above :data:`ESTIMATE_SLACK` times the limits, more than the
-largest estimate / counted ratio measured. ``python -m coordinator.solve``'s automatic field
-takes only what the estimate puts within :data:`AUTO_SECONDS` (cheap: it never starts a solve it
-may have to abandon).
+largest estimate / counted ratio measured. ``solve``'s automatic field takes what the estimate at
+the counted rates puts within :data:`AUTO_SECONDS` (:func:`auto_admit`) and solves it under
+:data:`MAX_SECONDS`, a margin that an admitted solve does not exhaust (cheap: refused in
+O(R·N·D²), never a solve it has to abandon).
 
 Pure: numpy and scipy only.
 """
@@ -74,9 +75,12 @@ MAX_STATES = 2.5e8
 #: memoised expectimax solves within a minute, the solver takes (``python -m
 #: tools.online_optimal_bench --admission K`` checks it).
 MAX_SECONDS = 60.0
-#: Estimated seconds (:func:`estimate`) under which ``python -m coordinator.solve`` adds the online
-#: optimum by itself.
+#: Counted seconds (:func:`estimate`'s ``counted_seconds``) within which ``solve`` adds the online
+#: optimum by itself (:func:`auto_admit`); the admitted solve runs under :data:`MAX_SECONDS`.
 AUTO_SECONDS = 10.0
+#: The automatic V*'s margin: :data:`MAX_SECONDS` / :data:`AUTO_SECONDS`, above the largest counted
+#: work / counted estimate measured (``tests/test_online_optimal.py`` checks a seeded sweep).
+AUTO_MARGIN = MAX_SECONDS / AUTO_SECONDS
 #: The estimate's cost of one tensor element of one joint action (add, add, maximum, expectation)
 #: and of one state transition (Python bookkeeping and numpy call overhead), seconds: pessimistic
 #: (``python -m tools.online_optimal_bench --estimates 40``: measured 0.04 to 0.6 of the estimate).
@@ -266,6 +270,11 @@ class SizeEstimate:
             (``SECONDS_FIXED + work * SECONDS_PER_ELEMENT + transitions *
             SECONDS_PER_TRANSITION``).
         components: conflict components solved separately.
+        transitions: state transitions (structure x joint action) the solve makes (an upper bound).
+        counted_seconds: ``work`` and ``transitions`` at the counted rates
+            (:data:`COUNTED_SECONDS_PER_ELEMENT`, :data:`COUNTED_SECONDS_PER_TRANSITION`): an upper
+            bound on the work a full solve counts (:class:`_Work`), so a limit at or above it is never
+            reached.
     """
 
     atoms: int
@@ -273,6 +282,8 @@ class SizeEstimate:
     work: float
     seconds: float
     components: int
+    transitions: float = 0.0
+    counted_seconds: float = 0.0
 
 
 def _carrier_stage_sums(d: int, a: int, b: int, k: int, decides: bool, forced_at: int, skips: int):
@@ -300,7 +311,7 @@ def _carrier_stage_sums(d: int, a: int, b: int, k: int, decides: bool, forced_at
 
 
 def estimate(problem: Problem, atoms: Atoms | None = None, max_seconds: float = MAX_SECONDS,
-             max_states: float = MAX_STATES, slack: float = 1.0) -> SizeEstimate:
+             max_states: float = MAX_STATES, slack: float = 1.0, counted: bool = False) -> SizeEstimate:
     """Estimate the exact solve's states, work and time, and refuse it when too large.
 
     O(R·N·D²) after the conflict components (O(R·N + overlap members)): per component and stage
@@ -310,6 +321,9 @@ def estimate(problem: Problem, atoms: Atoms | None = None, max_seconds: float = 
     bound: a carrier that cannot have released all its passengers before stage j decides there in
     every reachable state, so a component with m such carriers costs at least ``K^m`` there; a
     large fleet is refused by that bound alone.
+
+    ``counted``: judge the floor and the time at the counted rates (``counted_seconds``, what the
+    solve's own limit counts) instead of the estimate's pessimistic ones (``seconds``).
 
     Raises:
         TooLarge: the floor or the estimated time is above ``slack * max_seconds``, or the states
@@ -321,7 +335,9 @@ def estimate(problem: Problem, atoms: Atoms | None = None, max_seconds: float = 
     atoms = discretise(problem.prior) if atoms is None else atoms
     k = len(atoms.points)
     n_carriers, n_stages = problem.valid.shape
-    max_work = max_seconds / SECONDS_PER_ELEMENT
+    per_element, per_transition = ((COUNTED_SECONDS_PER_ELEMENT, COUNTED_SECONDS_PER_TRANSITION) if counted
+                                   else (SECONDS_PER_ELEMENT, SECONDS_PER_TRANSITION))
+    max_work = max_seconds / per_element
 
     def refuse(what: str) -> TooLarge:
         return TooLarge(
@@ -353,13 +369,14 @@ def estimate(problem: Problem, atoms: Atoms | None = None, max_seconds: float = 
             states += stage[1]
             work += stage[2]
             transitions += stage[3]
-        seconds = _seconds(work, transitions)
+        seconds = _seconds(work, transitions, per_element, per_transition)
         beyond = f", beyond {slack:g} x the limit" if slack != 1.0 else ""
         if seconds > slack * max_seconds:
             raise refuse(f"about {seconds:.3g} s estimated{beyond}")
         if states > slack * max_states:
             raise refuse(f"about {states:.3g} states estimated{beyond}")
-    return SizeEstimate(k, states, work, _seconds(work, transitions), len(components))
+    return SizeEstimate(k, states, work, _seconds(work, transitions), len(components), transitions,
+                        _seconds(work, transitions, COUNTED_SECONDS_PER_ELEMENT, COUNTED_SECONDS_PER_TRANSITION))
 
 
 def admit(problem: Problem, atoms: Atoms | None = None, max_seconds: float = MAX_SECONDS,
@@ -372,6 +389,25 @@ def admit(problem: Problem, atoms: Atoms | None = None, max_seconds: float = MAX
     the largest estimate / counted ratio measured. Every other instance is solved, and refused
     only if its counted work passes the limits."""
     return estimate(problem, atoms, max_seconds, max_states, ESTIMATE_SLACK)
+
+
+def auto_admit(problem: Problem, atoms: Atoms | None = None) -> SizeEstimate:
+    """The admission of the automatic V* (``solve``'s ``online_optimum``), O(R·N·D²): :class:`TooLarge`
+    unless :func:`estimate` at the counted rates puts the solve within :data:`AUTO_SECONDS`. The
+    admitted instance is then solved under the solver's own budget, :data:`MAX_SECONDS`: a solve
+    counts at most :data:`AUTO_MARGIN` times its counted estimate, so an admitted solve is not
+    abandoned, and an instance the pessimistic rates would refuse but the solver finishes quickly
+    gets its V*."""
+    return estimate(problem, atoms, AUTO_SECONDS, MAX_STATES, counted=True)
+
+
+def known_value(problem: Problem, policy: str = "optimal") -> "OnlineValue | None":
+    """The exact value of ``policy`` on this ``problem`` object when it is solved already (e.g. by
+    the ``online-optimal`` planner's :meth:`OnlineOptimalPlanner.warm_up`): read from the memo,
+    no new work; None when it is not."""
+    if policy not in _SOLVERS.get(problem, {}):
+        return None
+    return online_value(problem, policy, max_seconds=math.inf, max_states=math.inf)
 
 
 # ----------------------------------------------------------------------------- counted work

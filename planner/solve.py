@@ -22,7 +22,8 @@ def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clai
         "decision_ms" [ms per stage], "observations" [[x or None]], "observations_sampled",
         "clairvoyant" {"reward", "features", "exact"} (with ``clairvoyant``),
         "online_optimum" {"expected_reward", "exact", "atoms"[, "planner_expected_reward"]} (with
-        ``online_optimum``, when the instance is within :data:`planner.online_optimal.AUTO_SECONDS`),
+        ``online_optimum``, when ``planner`` is ``online-optimal`` or the instance is within
+        :func:`planner.online_optimal.auto_admit`),
         "upper_bound" {"expected_reward", "stderr", "method", "samples"} (with ``upper_bound``, when
         it fits :data:`planner.duality.DEFAULT_BUDGET_S`; :func:`planner.duality.seeded_bound`),
         "comms" {"loss", "delay", "groups"} (only with ``comms``), "released" [[passenger index per
@@ -98,20 +99,26 @@ def _upper_bound(problem, seed: int) -> dict | None:
 
 def _online_optimum(problem, planner_name: str) -> dict | None:
     """V* (and the planner's own exact value when the recursion can weigh its actions), or None
-    when the instance is beyond :data:`planner.online_optimal.AUTO_SECONDS` by its O(R·N·D²)
-    estimate (cheap: a solve the estimate admits is never abandoned, its counted work being far
-    below the estimate's seconds)."""
+    when the instance is beyond the automatic limit (:func:`planner.online_optimal.auto_admit`:
+    O(R·N·D²), at the rates the solver counts; the admitted solve runs under the solver's own
+    budget). After ``online-optimal`` ran, its V* is read from the solver's memo: no second solve,
+    and no admission to refuse what the planner solved."""
     from planner import online_optimal
 
+    best = online_optimal.known_value(problem) if planner_name == "online-optimal" else None
     try:
-        online_optimal.estimate(problem, max_seconds=online_optimal.AUTO_SECONDS)
-        best = online_optimal.online_value(problem, "optimal", max_seconds=online_optimal.AUTO_SECONDS)
+        if best is None:
+            online_optimal.auto_admit(problem)
+            best = online_optimal.online_value(problem, "optimal")
     except online_optimal.TooLarge:
         return None
     out = {"expected_reward": best.expected_reward, "exact": best.exact, "atoms": best.atoms}
     if planner_name == "online-optimal":
         out["planner_expected_reward"] = best.expected_reward
     elif planner_name in ("ssap", "random"):
-        own = online_optimal.online_value(problem, planner_name, max_seconds=online_optimal.AUTO_SECONDS)
+        try:
+            own = online_optimal.online_value(problem, planner_name)
+        except online_optimal.TooLarge:
+            return out
         out["planner_expected_reward"] = own.expected_reward
     return out

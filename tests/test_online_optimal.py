@@ -404,3 +404,108 @@ def test_solve_with_default_flags_is_bounded_for_32_carriers(tmp_path):
     out = json.loads(proc.stdout)
     assert "clairvoyant" in out and "online_optimum" not in out
     assert int(proc.stderr.strip().splitlines()[-1]) < 2_500_000
+
+
+# ----------------------------------------------------------------------------- the automatic V*
+
+def _users_instances() -> list[Problem]:
+    """Six instances as a user drew them: R = 3, N = 6, two passengers each, four overlap groups,
+    Poisson(3) (19 atoms), seeds 0..5 of ``random_instance``."""
+    return [random_instance(np.random.default_rng(s), carriers=3, passengers=2, stages=6, overlaps=4).problem
+            for s in range(6)]
+
+
+def test_the_automatic_admission_takes_what_the_solver_finishes():
+    """The pessimistic rates put four of the six beyond AUTO_SECONDS although each solves in a few
+    seconds; the admission at the counted rates takes all six, in O(R·N·D²), and still refuses
+    the paper's size and a 32-carrier fleet at once."""
+    problems = _users_instances()
+    refused_before = 0
+    for problem in problems:
+        try:
+            estimate(problem, max_seconds=online_optimal.AUTO_SECONDS)
+        except TooLarge:
+            refused_before += 1
+    assert refused_before >= 3
+    for problem in problems:
+        size = online_optimal.auto_admit(problem)
+        assert size.counted_seconds <= online_optimal.AUTO_SECONDS and size.counted_seconds < size.seconds
+    start = time.perf_counter()
+    for problem in (random_instance(np.random.default_rng(0)).problem, _chained(32), _chained(1024),
+                    random_instance(np.random.default_rng(0), carriers=32, passengers=3, stages=10,
+                                    overlaps=10).problem):
+        with pytest.raises(TooLarge):
+            online_optimal.auto_admit(problem)
+    assert time.perf_counter() - start < 2.0
+
+
+def test_the_counted_estimate_bounds_the_counted_work_within_the_automatic_margin():
+    """A seeded sweep of small instances: the work a solve counts stays below AUTO_MARGIN times the
+    estimate at the counted rates (so an admitted solve is never abandoned under MAX_SECONDS)."""
+    ratios = []
+    for carriers, stages, passengers, groups in itertools.product((1, 2, 3), (4, 5), (1, 2), (1, 3)):
+        for seed in range(2):
+            problem = random_instance(np.random.default_rng(100 * seed + groups), carriers=carriers,
+                                      passengers=passengers, stages=stages, overlaps=groups).problem
+            size = estimate(problem, max_seconds=math.inf, max_states=math.inf)
+            if size.counted_seconds > 0.5:
+                continue
+            ratios.append(online_value(problem, max_seconds=math.inf).counted_seconds / size.counted_seconds)
+    assert len(ratios) > 30 and max(ratios) < online_optimal.AUTO_MARGIN / 2
+
+
+def test_solve_reports_v_star_on_an_instance_the_pessimistic_estimate_refused(tmp_path, capsys):
+    """One of the user's instances (seed 1: the pessimistic estimate said about 54 s, the solve
+    counts about 4): ``solve`` now reports its V*, the exact value the solver gives."""
+    from planner.instance import instance_dict
+
+    inst = random_instance(np.random.default_rng(1), carriers=3, passengers=2, stages=6, overlaps=4)
+    with pytest.raises(TooLarge):
+        estimate(inst.problem, max_seconds=online_optimal.AUTO_SECONDS)
+    path = _write(tmp_path, instance_dict(inst))
+    assert solve.main([path, "--planner", "ssap", "--no-clairvoyant", "--no-upper-bound"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["online_optimum"]["expected_reward"] == pytest.approx(online_value(inst.problem).expected_reward,
+                                                                     rel=1e-12)
+    assert out["online_optimum"]["planner_expected_reward"] <= out["online_optimum"]["expected_reward"] + 1e-12
+
+
+def test_known_value_reads_what_the_planner_solved_without_new_work():
+    problem = _three_carriers()
+    assert online_optimal.known_value(problem) is None
+    planner = OnlineOptimalPlanner()
+    planner.warm_up(problem)
+    solved = online_optimal.online_value(problem)
+    known = online_optimal.known_value(problem)
+    assert known == solved and known.counted_seconds == solved.counted_seconds
+
+
+@pytest.mark.slow
+def test_online_optimal_reports_the_v_star_it_computed(tmp_path, capsys):
+    """R = 2, N = 6, D = 3: beyond the automatic admission (counted estimate above AUTO_SECONDS)
+    but within the solver's budget: ``--planner online-optimal`` reports the V* it computed (its
+    own expected reward), ``ssap`` on the same instance gets none."""
+    from planner.instance import instance_dict
+
+    inst = random_instance(np.random.default_rng(4), carriers=2, passengers=3, stages=6, overlaps=4)
+    with pytest.raises(TooLarge):
+        online_optimal.auto_admit(inst.problem)
+    path = _write(tmp_path, instance_dict(inst))
+    assert solve.main([path, "--planner", "online-optimal", "--no-clairvoyant", "--no-upper-bound"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    best = out["online_optimum"]
+    assert best["planner_expected_reward"] == best["expected_reward"] and best["exact"] is True
+    assert solve.main([path, "--planner", "ssap", "--no-clairvoyant", "--no-upper-bound"]) == 0
+    assert "online_optimum" not in json.loads(capsys.readouterr().out)
+
+
+@pytest.mark.slow
+def test_the_users_six_instances_all_get_v_star(tmp_path, capsys):
+    from planner.instance import instance_dict
+
+    for seed in range(6):
+        inst = random_instance(np.random.default_rng(seed), carriers=3, passengers=2, stages=6, overlaps=4)
+        path = _write(tmp_path, instance_dict(inst), f"user-{seed}.json")
+        assert solve.main([path, "--planner", "mcts-ssap", "--iterations", "200", "--no-clairvoyant",
+                           "--no-upper-bound"]) == 0
+        assert "online_optimum" in json.loads(capsys.readouterr().out), seed

@@ -24,7 +24,8 @@ Output (stdout, one JSON object)::
 time budget (``planner.duality.DEFAULT_BUDGET_S``, judged from the instance's sizes).
 
 ``online_optimum`` (planner/online_optimal.py) is the expected reward of the Bayes-optimal online
-policy, present only when the instance is small enough (``AUTO_SECONDS``); ``planner_expected_reward``
+policy, present when the planner is ``online-optimal`` (the V* it computed) or the instance is small
+enough (``planner.online_optimal.auto_admit``); ``planner_expected_reward``
 is the exact expected reward of the planner run, for ``ssap``, ``random`` and ``online-optimal``.
 Communication (planner/comms.py, docs/planner.md): ``--message-loss P`` drops every message
 (observation, intent, decision) with probability P in [0, 1]; ``--message-delay K`` delivers the
