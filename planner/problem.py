@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Protocol, Sequence
+from typing import Any, Protocol, Sequence
 
 import numpy as np
 import scipy  # scipy.stats is loaded on first use (its import takes ~1 s)
@@ -38,7 +38,7 @@ def _conflict_matrix(n_carriers: int, n_stages: int, overlaps: Sequence[np.ndarr
     return conflict
 
 
-def normalisation_scale(prior, normalize: str | float | None = "q90") -> float:
+def normalisation_scale(prior: Any, normalize: str | float | None = "q90") -> float:
     """The number rewards are divided by for planning.
 
     Args:
@@ -91,7 +91,7 @@ class Problem:
     passengers: np.ndarray
     valid: np.ndarray
     overlaps: tuple[np.ndarray, ...]
-    prior: object
+    prior: Any  # a frozen scipy.stats distribution (scipy ships no types)
     scale: float
     conflict: np.ndarray = field(repr=False)
     weights: np.ndarray | None = field(default=None, repr=False)
@@ -101,7 +101,7 @@ class Problem:
         passengers: int | Sequence[int],
         valid: np.ndarray,
         overlaps: Sequence[Sequence[Sequence[int]]] = (),
-        prior: object | None = None,
+        prior: Any = None,
         normalize: str | float = "q90",
         weights: Sequence[Sequence[float]] | None = None,
     ) -> "Problem":
@@ -163,8 +163,8 @@ def _weight_matrix(weights: Sequence[Sequence[float]], passengers: np.ndarray) -
     if len(weights) != len(passengers):
         raise ValueError(f"weights must hold one list per carrier ({len(passengers)}), got {len(weights)}")
     out = np.zeros((len(passengers), max(1, int(passengers.max(initial=0)))))
-    for r, row in enumerate(weights):
-        row = np.asarray(row, dtype=float).reshape(-1)
+    for r, given in enumerate(weights):
+        row = np.asarray(given, dtype=float).reshape(-1)
         if len(row) != passengers[r]:
             raise ValueError(f"weights[{r}] must hold {passengers[r]} values (one per passenger), got {len(row)}")
         if not (np.isfinite(row) & (row > 0)).all():
@@ -181,7 +181,7 @@ def in_order(deployed: np.ndarray) -> np.ndarray:
     return np.where(deployed, np.cumsum(deployed, axis=1) - 1, -1).astype(np.int64)
 
 
-def fill_releases(passengers, deployed: np.ndarray, released: np.ndarray | None) -> np.ndarray:
+def fill_releases(passengers: np.ndarray, deployed: np.ndarray, released: np.ndarray | None) -> np.ndarray:
     """int64 ``[R, N]``: ``released`` with every deployment whose passenger is unknown (-1) given
     the lowest index still aboard at that stage (what a carrier that was told no passenger
     releases); index order when ``released`` is None. ``passengers``: int ``[R]`` passengers
@@ -421,12 +421,12 @@ class OnlineResult:
     decision_ms: tuple[float, ...]
     released: np.ndarray | None = None
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.released is None:
             object.__setattr__(self, "released", in_order(self.deployed))
 
 
-def start_online(problem: Problem, x: np.ndarray, planner) -> tuple[np.ndarray, np.ndarray | None]:
+def start_online(problem: Problem, x: np.ndarray, planner: Planner) -> tuple[np.ndarray, np.ndarray | None]:
     """What every online loop does before its first stage: check ``x`` against the problem's
     shape, blank unscheduled stages (NaN), call the planner's ``warm_up(problem)`` when it has one
     (so no timed decision pays for compilation), and allocate ``released`` (int64 ``[R, N]`` of -1)
