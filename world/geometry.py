@@ -10,7 +10,8 @@ from typing import Sequence
 import numpy as np
 
 
-def point_along(waypoints: Sequence[tuple[float, float]], cumulative: np.ndarray, s: float) -> tuple[float, float]:
+def point_along(waypoints: Sequence[tuple[float, float]] | np.ndarray, cumulative: np.ndarray,
+                s: float) -> tuple[float, float]:
     """The point at arc length ``s`` (m) along the polyline ``waypoints`` whose cumulative leg
     lengths are ``cumulative`` (``[K]``, starting at 0). ``s`` is clamped to the path."""
     if s <= 0.0:

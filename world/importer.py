@@ -28,12 +28,17 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from world import geometry
 from world import grid as G
 from world.grid import GridError
+
+if TYPE_CHECKING:
+    from world.scenario import Scenario
+    from world.stages import StageGeometry
 
 #: The paper's sensing radius for frontier values (m).
 DEFAULT_RADIUS = 10.0
@@ -156,6 +161,7 @@ def read_routes(path: str) -> list[Route]:
         pts = ck.points(m["path"], f"{where}.path", 2)
         if ck.problems:
             break
+        assert pas is not None and start is not None and speed is not None  # read without a problem
         xy = np.asarray(pts, dtype=float)
         t = start + np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))]) / speed
         routes.append(Route(cid, int(pas), np.column_stack([t, xy]), f"{path}: {where}.path"))
@@ -203,6 +209,7 @@ def candidates(route: Route, spacing: float | None, count: int | None, tolerance
                             f"{length:.2f} m")
         arcs = np.arange(n) * float(spacing)
     else:
+        assert count is not None  # one of spacing and count is given
         arcs = np.linspace(0.0, length, int(count))
     points = np.array([geometry.point_along(simple, cum, float(s)) for s in arcs])
     leg = np.clip(np.searchsorted(cum, arcs, side="right") - 1, 0, len(cum) - 2)
@@ -259,7 +266,7 @@ def fit_prior(values: np.ndarray, choice: str = "auto") -> dict:
 # --------------------------------------------------------------------------- the import
 
 
-def import_run(st: ImportSettings, progress=print) -> ImportResult:
+def import_run(st: ImportSettings, progress: Callable[[str], None] = print) -> ImportResult:
     """Everything the import writes, computed; nothing written yet.
 
     Raises:
@@ -426,7 +433,8 @@ def _num(v: float) -> str:
     return repr(float(v))
 
 
-def _scenario_text(st: ImportSettings, name, grid, walls, cands, interval, n_stages, body, prior) -> str:
+def _scenario_text(st: ImportSettings, name: str, grid: G.OccupancyGrid, walls: list[np.ndarray],
+                   cands: list[Candidates], interval: float, n_stages: int, body: float, prior: dict) -> str:
     stem = Path(st.out).name.split(".")[0]
     xmin, ymin, xmax, ymax = grid.extent
     pad = grid.resolution
@@ -518,7 +526,7 @@ def write_outputs(st: ImportSettings, result: ImportResult) -> list[str]:
     return [str(p) for p in finals]
 
 
-def _self_check(scenario, report: dict, geo) -> None:
+def _self_check(scenario: Scenario, report: dict, geo: StageGeometry) -> None:
     """The written scenario puts carrier r on its k-th candidate at stage offset_r + k, and
     nowhere valid else."""
     for r, c in enumerate(scenario.carriers):
