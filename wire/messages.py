@@ -14,8 +14,8 @@ import functools
 import math
 import threading
 from collections import OrderedDict
-from dataclasses import dataclass, field, fields
-from typing import Any, Callable
+from dataclasses import Field, dataclass, field, fields
+from typing import Any, Callable, TypeVar, cast, overload
 
 import msgpack
 
@@ -86,7 +86,7 @@ Validator = Callable[[Any, str], Any]
 
 
 def _int(lo: int, hi: int) -> Validator:
-    def check(value, name):
+    def check(value: Any, name: str) -> int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise _refused("wrong-type", name, "integer", type(value).__name__)
         if not lo <= value <= hi:
@@ -96,7 +96,7 @@ def _int(lo: int, hi: int) -> Validator:
 
 
 def _float(lo: float, hi: float) -> Validator:
-    def check(value, name):
+    def check(value: Any, name: str) -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise _refused("wrong-type", name, "number", type(value).__name__)
         value = float(value)
@@ -106,14 +106,14 @@ def _float(lo: float, hi: float) -> Validator:
     return check
 
 
-def _bool(value, name):
+def _bool(value: Any, name: str) -> bool:
     if not isinstance(value, bool):
         raise _refused("wrong-type", name, "boolean", type(value).__name__)
     return value
 
 
 def _text(max_len: int = MAX_TEXT) -> Validator:
-    def check(value, name):
+    def check(value: Any, name: str) -> str:
         if not isinstance(value, str):
             raise _refused("wrong-type", name, "string", type(value).__name__)
         if len(value) > max_len:
@@ -125,7 +125,7 @@ def _text(max_len: int = MAX_TEXT) -> Validator:
 _ID_TEXT = _text(64)
 
 
-def _ident(value, name):
+def _ident(value: Any, name: str) -> str:
     _ID_TEXT(value, name)
     if not ID_PATTERN.match(value):
         raise ProtocolError("out-of-range", f"{name}: not a valid id: {value[:40]!r}")
@@ -133,13 +133,13 @@ def _ident(value, name):
 
 
 def _optional(inner: Validator) -> Validator:
-    def check(value, name):
+    def check(value: Any, name: str) -> Any:
         return None if value is None else inner(value, name)
     return check
 
 
 def _list(inner: Validator, max_len: int) -> Validator:
-    def check(value, name):
+    def check(value: Any, name: str) -> tuple:
         if not isinstance(value, (list, tuple)):
             raise _refused("wrong-type", name, "array", type(value).__name__)
         if len(value) > max_len:
@@ -151,7 +151,7 @@ def _list(inner: Validator, max_len: int) -> Validator:
 _COORD = _float(-MAX_COORD, MAX_COORD)
 
 
-def _plain_points(value) -> tuple | None:
+def _plain_points(value: Any) -> tuple | None:
     """``value``'s [x, y] items as :func:`_point` returns them when every one is a pair of plain
     numbers in range; None when one is not (then :func:`_point` names the defect)."""
     out = []
@@ -166,7 +166,7 @@ def _plain_points(value) -> tuple | None:
     return tuple(out)
 
 
-def _point(value, name):
+def _point(value: Any, name: str) -> tuple[float, float]:
     if not isinstance(value, (list, tuple)) or len(value) != 2:
         raise ProtocolError("wrong-type", f"{name}: expected [x, y]")
     return (_COORD(value[0], f"{name}[0]"), _COORD(value[1], f"{name}[1]"))
@@ -177,7 +177,7 @@ def _points(max_len: int) -> Validator:
     only when one is defective (then by :func:`_list` of :func:`_point`)."""
     one_by_one = _list(_point, max_len)
 
-    def check(value, name):
+    def check(value: Any, name: str) -> tuple:
         if isinstance(value, (list, tuple)) and len(value) <= max_len:
             fast = _plain_points(value)
             if fast is not None:
@@ -186,14 +186,14 @@ def _points(max_len: int) -> Validator:
     return check
 
 
-def _unique_ids(value, name):
+def _unique_ids(value: Any, name: str) -> tuple:
     ids = _list(_ident, MAX_CARRIERS)(value, name)
     if len(set(ids)) != len(ids):
         raise ProtocolError("out-of-range", f"{name}: repeated carrier id")
     return ids
 
 
-def _counts(value, name):
+def _counts(value: Any, name: str) -> tuple:
     if not isinstance(value, dict):
         raise _refused("wrong-type", name, "map", type(value).__name__)
     if len(value) > 64:
@@ -213,7 +213,8 @@ _MS = _float(0.0, 1e9)
 _NO_DEFAULT = object()
 
 
-def _spec(validator: Validator, as_map: bool = False, absent=_NO_DEFAULT, since: int = 1, values=None):
+def _spec(validator: Validator, as_map: bool = False, absent: Any = _NO_DEFAULT, since: int = 1,
+          values: dict[Any, int] | None = None) -> Any:
     """A dataclass field carrying its wire validator in metadata; ``as_map``: a tuple of sorted
     (key, value) pairs in Python, a map on the wire. ``absent``: the field is optional on the wire
     and a missing one means this value; the encoder leaves it out when it has this value (so a
@@ -326,7 +327,7 @@ class Decision:
     v: int = PROTOCOL_VERSION
     TYPE = "decision"
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.passengers and len(self.passengers) != len(self.deploy):
             raise ProtocolError("out-of-range", f"passengers: expected one per deploying carrier "
                                                 f"({len(self.deploy)}) or none, found {len(self.passengers)}")
@@ -375,7 +376,7 @@ class Confirm:
     v: int = PROTOCOL_VERSION
     TYPE = "confirm"
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if self.status not in CONFIRM_STATUSES:
             raise ProtocolError("out-of-range", f"status: expected one of {CONFIRM_STATUSES}, found {self.status!r}")
         if self.deployed and self.status not in RELEASING_STATUSES:
@@ -628,7 +629,7 @@ def refusal(mission: str, carrier: str, reason: str, fingerprint: str, expected:
     return answer
 
 
-def announced(payload) -> tuple[int, str]:
+def announced(payload: bytes) -> tuple[int, str]:
     """(revision, fingerprint) a Hello that failed to decode announced, as far as they can be
     read (:data:`UNANNOUNCED_REVISION` and "" when not): what its Refusal is written for."""
     try:
@@ -647,7 +648,7 @@ MESSAGE_TYPES = {cls.TYPE: cls for cls in (Hello, Observation, Decision, Confirm
                                             Pose, Accepted, Progress)}
 
 
-def fingerprint(value) -> str:
+def fingerprint(value: object) -> str:
     """16 hex digits identifying a value by its ``repr`` (a project-internal identity, e.g. for
     a scenario built in code without a file)."""
     import hashlib
@@ -674,7 +675,7 @@ def fingerprint_bytes(scenario_bytes: bytes, seed: int) -> str:
     return hashlib.sha256(header + bytes(scenario_bytes)).hexdigest()[:16]
 
 
-def scenario_fingerprint(scenario) -> str:
+def scenario_fingerprint(scenario: Any) -> str:
     """Identifies the world a process built: its scenario file's bytes and its seed
     (:func:`fingerprint_bytes`), so the same file with the same seed matches on any host, in any
     language. A scenario built in code (no file) falls back to its content's ``repr``."""
@@ -685,13 +686,13 @@ def scenario_fingerprint(scenario) -> str:
     if source and Path(source).is_file():
         return fingerprint_bytes(Path(source).read_bytes(), scenario.seed)
     if dataclasses.is_dataclass(scenario) and any(f.name == "source" for f in dataclasses.fields(scenario)):
-        scenario = dataclasses.replace(scenario, source="")
+        scenario = dataclasses.replace(cast(Any, scenario), source="")  # an instance (is_dataclass admits classes)
     return fingerprint(scenario)
 
 
 # --------------------------------------------------------------------------- codec
 
-def _on_wire(f, value, revision: int) -> bool:
+def _on_wire(f: Field[Any], value: Any, revision: int) -> bool:
     """Whether field ``f`` with ``value`` is sent to a peer of ``revision``: not when the peer's
     revision predates the field, nor when it has its ``absent`` value."""
     if f.metadata.get("since", 1) > revision:
@@ -699,7 +700,7 @@ def _on_wire(f, value, revision: int) -> bool:
     return "absent" not in f.metadata or value != f.metadata["absent"]
 
 
-def _to_wire(value, as_map: bool = False, revision: int = REVISION):
+def _to_wire(value: Any, as_map: bool = False, revision: int = REVISION) -> Any:
     """Dataclasses become maps (with ``type`` for messages) of the fields ``revision`` defines;
     (key, value) pair tuples of fields marked ``as_map`` become maps; other tuples become arrays."""
     if hasattr(value, "__dataclass_fields__"):
@@ -715,7 +716,7 @@ def _to_wire(value, as_map: bool = False, revision: int = REVISION):
     return value
 
 
-def defined_in(message, revision: int) -> bool:
+def defined_in(message: Any, revision: int) -> bool:
     """Whether a peer of ``revision`` can be sent ``message``: its type and its enumerated
     values exist in that revision (later optional fields are left out by :func:`encode`)."""
     if getattr(type(message), "SINCE", 1) > revision:
@@ -724,7 +725,7 @@ def defined_in(message, revision: int) -> bool:
                for f in fields(message) if "values" in f.metadata)
 
 
-def encode(message, revision: int = REVISION) -> bytes:
+def encode(message: Any, revision: int = REVISION) -> bytes:
     """Serialise one message dataclass to msgpack bytes (validated on the way out).
 
     Args:
@@ -748,7 +749,7 @@ def encode(message, revision: int = REVISION) -> bytes:
 
 
 @functools.cache
-def _fields_of(cls, revision: int) -> tuple[frozenset, tuple]:
+def _fields_of(cls: Any, revision: int) -> tuple[frozenset, tuple]:
     """The wire fields of ``cls`` a receiver of ``revision`` reads: their names, and per field in
     order (name, validator, optional, enumerated values or None)."""
     specs = tuple((f.name, f.metadata["check"], "absent" in f.metadata, f.metadata.get("values"))
@@ -756,7 +757,7 @@ def _fields_of(cls, revision: int) -> tuple[frozenset, tuple]:
     return frozenset(name for name, *_ in specs), specs
 
 
-def _build(cls, data: dict, where: str, revision: int = REVISION):
+def _build(cls: Any, data: dict, where: str, revision: int = REVISION) -> Any:
     names, specs = _fields_of(cls, revision)
     if not names.issuperset(data):
         unknown = set(data) - names
@@ -775,7 +776,7 @@ def _build(cls, data: dict, where: str, revision: int = REVISION):
     return cls(**values)
 
 
-def _nested(cls, value, name):
+def _nested(cls: Any, value: Any, name: str) -> Any:
     if not isinstance(value, dict):
         raise _refused("wrong-type", name, "map", type(value).__name__)
     data = dict(value)
@@ -785,7 +786,7 @@ def _nested(cls, value, name):
     return _build(cls, data, name, _DECODING.get())
 
 
-def _carrier_states(value, name):
+def _carrier_states(value: Any, name: str) -> tuple:
     if not isinstance(value, dict):
         raise _refused("wrong-type", name, "map", type(value).__name__)
     if len(value) > MAX_STATE_CARRIERS:
@@ -799,7 +800,16 @@ def _carrier_states(value, name):
 _DECODING: contextvars.ContextVar[int] = contextvars.ContextVar("decoding_revision", default=REVISION)
 
 
-def decode(data: bytes, expected: type | tuple[type, ...] | None = None, revision: int = REVISION):
+_M = TypeVar("_M")
+
+
+@overload
+def decode(data: bytes, expected: type[_M], revision: int = REVISION) -> _M: ...
+@overload
+def decode(data: bytes, expected: tuple[type, ...] | None = None, revision: int = REVISION) -> Any: ...
+
+
+def decode(data: bytes, expected: type | tuple[type, ...] | None = None, revision: int = REVISION) -> Any:
     """Parse and validate one message.
 
     Args:
@@ -871,7 +881,7 @@ class SharedDecoder:
         self._lock = threading.Lock()
         self._seen: "OrderedDict[tuple, tuple]" = OrderedDict()
 
-    def decode(self, data: bytes, expected: type | tuple[type, ...] | None = None):
+    def decode(self, data: bytes, expected: type | tuple[type, ...] | None = None) -> Any:
         """:func:`decode` (``revision`` :data:`REVISION`) of ``data``, computed once per distinct
         payload and ``expected``."""
         key = (bytes(data), expected)
