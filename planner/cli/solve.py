@@ -1,12 +1,14 @@
 """Run one planner online over one instance file and print the outcome as one JSON object.
 
-    python -m planner.cli.solve INSTANCE.json --planner NAME [--iterations K] [--plan-ms MS]
+    python -m planner.cli.solve INSTANCE.json --planner NAME [--planner-option KEY=VALUE ...] [--iterations K] [--plan-ms MS]
                               [--seed S] [--exploration C] [--samples M] [--layout L]
                               [--learn-prior [true|false]] [--no-clairvoyant] [--no-online-optimum]
                               [--no-upper-bound] [--message-loss P] [--message-delay K] [--groups 0,1/2,3]
 
 A thin command line: planner names, options, their ranges and defaults come from
-:mod:`planner.registry` (one flag per option), the work from :func:`planner.solve.solve_instance`.
+:mod:`planner.registry` (one flag per built-in option; ``--planner-option KEY=VALUE`` for any
+option by name, a plug-in's own ones included), the work from :func:`planner.solve.solve_instance`.
+``--planner`` takes a plug-in too: an entry point's name or ``package.module:Factory``.
 
 Output (stdout, one JSON object)::
 
@@ -52,7 +54,7 @@ from typing import Sequence
 from planner.instance import InstanceError
 from planner.learning import UnsupportedPrior
 from planner.online_optimal import TooLarge
-from planner.registry import OPTIONS, Option, make_planner, planner_names
+from planner.registry import OPTIONS, Option, PluginError, entry, known_names, make_planner, parse_option
 from planner.solve import solve_instance
 
 #: The command's name in its messages (``python -m coordinator.solve`` forwards here).
@@ -122,7 +124,10 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
         description="Run a deployment planner online over an instance file; print one JSON object.",
     )
     parser.add_argument("instance", help="instance JSON file (format: docs/planner.md)")
-    parser.add_argument("--planner", required=True, help=f"planner name: {', '.join(planner_names())}")
+    parser.add_argument("--planner", required=True,
+                        help=f"planner name: {', '.join(known_names())}, or a plug-in's package.module:Factory")
+    parser.add_argument("--planner-option", action="append", default=[], metavar="KEY=VALUE",
+                        help="a planner option by name, a plug-in's own options included (repeatable)")
     for option in OPTIONS.values():
         if option.kind is bool:  # --learn-prior alone means true; --learn-prior false also reads
             parser.add_argument("--" + option.name.replace("_", "-"), type=_option_type(option), nargs="?",
@@ -149,12 +154,25 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
     """Run the command on ``argv`` (``sys.argv[1:]`` when None); ``prog`` names it in messages.
     Returns the exit code."""
     args = build_parser(prog).parse_args(argv)
-    if args.planner not in planner_names():
-        print(f"{prog}: error: --planner: expected one of {', '.join(planner_names())}, found {args.planner!r}",
-              file=sys.stderr)
-        return EXIT_INPUT
     try:
-        planner = make_planner(args.planner, **{name: getattr(args, name) for name in OPTIONS})
+        entry(args.planner)
+    except PluginError as err:
+        print(f"{prog}: error: --planner: {err}", file=sys.stderr)
+        return EXIT_INPUT
+    except ValueError:
+        print(f"{prog}: error: --planner: expected one of {', '.join(sorted(known_names()))} or package.module:Factory, "
+              f"found {args.planner!r}", file=sys.stderr)
+        return EXIT_INPUT
+    options = {name: getattr(args, name) for name in OPTIONS}
+    for text in args.planner_option:
+        try:
+            key, value = parse_option(text, args.planner)
+        except ValueError as err:
+            print(f"{prog}: error: --planner-option: {err}", file=sys.stderr)
+            return EXIT_INPUT
+        options[key] = value
+    try:
+        planner = make_planner(args.planner, **options)
     except ImportError as err:
         print(f"{prog}: error: planner {args.planner!r} is not available: {err}", file=sys.stderr)
         return EXIT_PLANNER
