@@ -56,9 +56,8 @@ from wire.messages import REVISION, Bye, Confirm, Hello, Observation, Own, Share
 
 #: Longest sleep (s) of a carrier waiting for a message (a decision, End): any message, and a
 #: stop request (:meth:`Carrier.stop`, :func:`run_carriers`), wakes it at once, so this only sets
-#: how often it looks at its timers. Polls cost CPU in proportion to the wait: with hundreds of
-#: carriers per process and stages of seconds, 50 ms polls were a third of the carriers' CPU time,
-#: and 0.25 s polls most of it when stages took a minute (R = 1,024).
+#: how often it looks at its timers. Polls cost CPU in proportion to the wait, so with many
+#: carriers per process short polls were most of an idle carrier's CPU (docs/performance.md, "Costs behind the fleet's constants").
 IDLE_POLL_S = 2.0
 
 #: How a carrier gets its decisions (docs/fleet.md, "Without the coordinator").

@@ -16,19 +16,19 @@ class Onboard:
     """The on-board planner (:data:`planner.settings.ONBOARD_PLANNER`) and the planner's instance of the scenario,
     shared by the process's carriers (fully informed carriers compute the same joint action: it is
     computed once). Loading the planner core (numba, scipy, the compiled kernels) and the stage
-    geometry takes seconds — 3 s on an idle machine, three times that with six carriers starting
-    at once on two cores, 5 s for a 1,024-carrier scenario — so when it is loaded is a setting
-    (:data:`carriers.ONBOARD_LOADS`, ``CarrierConfig.onboard_load``):
+    geometry takes seconds of CPU and a planner's memory (docs/performance.md, "Costs behind the
+    fleet's constants"), so when it is loaded is a setting (:data:`carriers.ONBOARD_LOADS`,
+    ``CarrierConfig.onboard_load``):
 
     * ``start``: in the background when the carrier starts (:meth:`prepare`), not when the
       coordinator is already gone; the default of a process that simulates one carrier (a robot);
     * ``need``: in the background when the coordinator's token vanishes, and at the latest when
       the carrier decides alone (a decision later than its timeout); until then the carrier
       neither loads the planner nor listens to its peers. The default of a process that simulates
-      several carriers (large simulations: 16 processes loading it at once, and subscribing to
-      their peers, cost a 1,024-carrier fleet minutes; docs/performance.md, "Fleet scale"). A
-      decision that is merely late does not load it: in an overloaded simulation that would add
-      150 MB and seconds of CPU per process just when the CPU is short.
+      several carriers (large simulations: every process loading it at once, and subscribing to
+      its peers, delays a large fleet's join). A decision that is merely late does not load it:
+      in an overloaded simulation that would add the load's memory and CPU to every process just
+      when the CPU is short.
 
     A carrier that never decides alone (``coordinated``) never loads it; a decentralised one
     always does at the start."""

@@ -44,8 +44,8 @@ class StageGate:
 
     One Decision reaches every carrier of the process at once; without the gate, the first
     carriers to wake run their next stage's physics while the others still wait for the CPU to
-    send their Confirms, which spreads one stage's Confirms over the whole process's physics
-    (about 1 s per stage at 32 carriers per process). A carrier that has its Decision holds its
+    send their Confirms, which spreads one stage's Confirms over the whole process's physics. A
+    carrier that has its Decision holds its
     physics until every carrier of the process waiting on that stage has answered, at most
     :data:`GATE_HOLD_S`.
     """
@@ -95,8 +95,8 @@ class PhysicsThread(ThreadPoolExecutor):
     On one host every carrier process competes for the cores. When a Decision arrives, the
     processes that have answered it run their next stage's physics while the others are still
     answering it; with physics and messages at one priority the last Confirms waited for that
-    physics (round trip p99 about 1.0–1.5 s at 256 carriers in 8 processes on 2 cores). With the
-    physics thread yielding to the carriers' own threads (which only handle messages), the
+    physics (docs/performance.md, "Where a stage's wall time goes"). With the physics thread
+    yielding to the carriers' own threads (which only handle messages), the
     scheduler runs every process's answers first. A carrier's physics is its own (one pymunk
     space per carrier), so the order in which the thread runs the calls changes no result. Where
     the priority cannot be lowered (not Linux) the thread runs at the process's.

@@ -20,8 +20,8 @@ from wire.messages import End
 class _OfState:
     """``fn(state)`` of the coordinator's current state, computed again only when the state is a
     new object. A wait tests its condition after every inbox drain, and most drains apply no
-    event (Progress, Poses, at a thousand a second at R = 1,024 in drains of one or two); the
-    conditions are set differences over R carriers (``MissionState.waiting``). The state is
+    event (Progress and Poses arrive every wall second from every carrier, in drains of one or
+    two); the conditions are set differences over R carriers (``MissionState.waiting``). The state is
     immutable (mission.state), so the value is the one ``fn`` would give."""
 
     def __init__(self, owner, fn):

@@ -10,7 +10,8 @@ from pathlib import Path
 
 from wire.messages import Pose, ProtocolError, decode
 
-#: Poses set aside at most (about 30 MB): a stage's burst of 1,024 carriers at 20 Poses each.
+#: Poses set aside at most: more than one stage's burst of the largest fleet
+#: (``planner.limits.MAX_CARRIERS`` carriers at ``mission.timeouts.POSES_PER_STAGE`` each).
 POSES_HELD = 1 << 15
 
 
@@ -19,9 +20,8 @@ class RecorderHooks:
 
     Poses wait in ``self.poses`` (a deque of (carrier, inbox item)) until the coordinator has
     nothing else to do: a carrier sends a stage's Poses in a burst just before its Observation,
-    so recorded in arrival order they stood ahead of the stage's Observations in the inbox, and
-    at R = 256 decoding and recording them was a quarter of the coordinator's busy time between
-    the first Observation of a stage and its Decision."""
+    so recorded in arrival order they would stand ahead of the stage's Observations in the inbox,
+    between the stage's first Observation and its Decision."""
 
     def _pose(self, cid: str, item) -> None:
         """A carrier's Pose: not a mission event and never a rejection (docs/protocol.md, "Pose");

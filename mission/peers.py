@@ -35,8 +35,8 @@ COMPONENT_MAX = 64
 def conflict_adjacency(problem) -> list[frozenset]:
     """Per carrier index, the carriers it shares an overlap group with (itself included): the
     conflict graph that :func:`listened` walks. O(sum of the groups' sizes squared); a process
-    that runs many carriers computes it once for all of them (:class:`carriers.onboard.Onboard`):
-    at 1,024 carriers, each computing it for itself cost the fleet O(R²) at every join."""
+    that runs many carriers computes it once for all of them (:class:`carriers.onboard.Onboard`),
+    since each carrier computing it for itself costs the fleet O(R²) at every join."""
     adjacency = [set() for _ in range(problem.n_carriers)]
     for group in problem.overlaps:
         members = set(int(c) for c in np.asarray(group)[:, 0])

@@ -32,8 +32,8 @@ class Tally:
 
     The recordings ask for the reward after every confirmed deployment, so the penalties are kept
     as deployments come (a confirmation adds or removes its point's conflict row: O(R·N)), not
-    counted again over every deployment so far (O(R·N) per deployment, R²·N per stage: at
-    R = 1,024 that made the coordinator's stages slower as the mission went on)."""
+    counted again over every deployment so far (O(R·N) per deployment, R²·N per stage, which
+    makes a large fleet's stages slower as the mission goes on)."""
 
     def __init__(self, carrier_ids, n_stages: int, problem=None):
         self.ids = tuple(carrier_ids)

@@ -144,8 +144,7 @@ class PairMap(Mapping):
     """An immutable map keyed by (carrier, stage), kept per stage: :meth:`set` returns a new map
     that shares every other stage's entries with this one, so adding an entry costs O(R + N),
     not O(R·N). :func:`step` makes a new state per event; copying the whole maps per
-    Observation and Confirm was O(R·N) each, O(R²·N²) a mission (at 1,024 carriers, a tenth of
-    the coordinator's time in the stage loop). A plain :class:`~collections.abc.Mapping`
+    Observation and Confirm would be O(R·N) each, O(R²·N²) a mission. A plain :class:`~collections.abc.Mapping`
     otherwise (``==`` with a dict compares the entries); entries iterate stage by stage."""
 
     __slots__ = ("_stages", "_len")
@@ -508,7 +507,7 @@ def _expected(spec: MissionSpec, j: int, live: frozenset, accepted: dict, accoun
     """:meth:`MissionState.expected`, remembered for its last inputs, compared by identity: a
     state's fields are never changed in place (a change is a new object), so the same objects
     give the same count. A wait asks after every event that makes a new state; counting anew
-    each time was O(R) per Observation and Confirm (1.5 ms at R = 1,024, seconds per stage)."""
+    each time would be O(R) per Observation and Confirm, O(R²) per stage."""
     global _expected_memo
     memo = _expected_memo
     if (memo and memo[0] is spec and memo[1] == j and memo[2] is live and memo[3] is accepted

@@ -15,9 +15,9 @@ from planner.problem import evaluate, fill_releases, point_weights, rewards
 
 from .state import MissionState
 
-#: About how long the summary's clairvoyant bound may search (planner.clairvoyant.node_limit):
-#: all of it for a fleet of tens of carriers, about 1 s past that (the exact search rarely
-#: finishes there anyway).
+#: About how long (s) the summary's clairvoyant bound may search, turned into a node limit
+#: (planner.clairvoyant.node_limit) so that the bound does not depend on the host; a small
+#: fleet's search finishes well within it, a large one's rarely finishes at all.
 BOUND_SEARCH_S = 1.0
 
 

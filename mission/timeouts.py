@@ -25,8 +25,8 @@ def pose_interval(stage_interval_s: float, realtime: float) -> float:
     """run_fleet.py's ``--pose-interval`` when it is not given: :data:`POSE_INTERVAL_S`, or in an
     unpaced mission (``realtime`` 0) the whole seconds that keep a carrier within
     :data:`POSES_PER_STAGE` Poses a stage. A burst of Δt / 1 s Poses per carrier and stage is
-    nothing a viewer can follow at ``--realtime 0``, and with long stages it was most of the
-    fleet's work (480-s stages: 480 Poses per carrier and stage, the mission twice as long)."""
+    nothing a viewer can follow at ``--realtime 0``, and with long stages it costs more than the
+    mission's physics (docs/performance.md, "Where a stage's wall time goes")."""
     if realtime > 0 or stage_interval_s <= POSES_PER_STAGE * POSE_INTERVAL_S:
         return POSE_INTERVAL_S
     return float(math.ceil(stage_interval_s / POSES_PER_STAGE))

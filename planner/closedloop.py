@@ -16,8 +16,8 @@ future below it (a one-step rollout algorithm, i.e. policy improvement over its 
    component; a block's rollouts also simulate its halo (its direct neighbours) at their
    current actions, including what earlier blocks chose. A flip mostly changes its own and its
    neighbours' rewards, so scoring it over the whole component only adds noise and cost: with
-   blocks the cost per carrier stops growing with the component (quadratic to linear in R, and
-   better decisions on the grids, docs/performance.md).
+   blocks the cost per carrier stops growing with the component (quadratic to linear in R;
+   docs/performance.md, "Decision time against R").
 3. **Candidates.** For a block with ``k`` free carriers (may deploy, not forced) every one of
    the ``2^k`` joint actions is a candidate when ``k <= ENUMERATE_MAX``; otherwise a coordinate
    ascent from the base policy's action evaluates all single-carrier flips per round.
@@ -176,14 +176,11 @@ class _Stage(NamedTuple):
 
 
 # The rollout after the current stage (the loop over t below) is written out here and in
-# planner.decentralised._evaluate_imputed rather than shared, because sharing it costs more than
-# 1 %: one inlined numba function for both (dec-closed-loop passing the base rule of 0 rounds,
-# DLR's thresholds, as its Rule), commit f95fab9 ("closed-loop and dec-closed-loop: one rollout loop"), made
-# dec-closed-loop's decisions 6.8 % slower (shared / fused CPU time, median of 14 rounds at R = 12
-# and 32, 20,000 iterations; closed-loop 1.1 %): `python -m tools.rollout_bench --reps 7
-# --candidate f95fab9 --reference 6275f1f`. The two loops now differ in their rule
-# anyway (closed-loop's reads the base policy's thresholds and externalities). The anytime
-# sampling loop around the kernels is shared (sampled_mean).
+# planner.decentralised._evaluate_imputed rather than shared, because one inlined numba function
+# for both made the decisions measurably slower (`python -m tools.rollout_bench`; the figures:
+# docs/planner.md, "closed-loop"). The two loops differ in their rule anyway (closed-loop's
+# reads the base policy's thresholds and externalities). The anytime sampling loop around the
+# kernels is shared (sampled_mean).
 @njit(cache=True)
 def _evaluate(cand, stage, n_stages, net, selection, samples, out, control_variate, rule):
     """Per-sample control-variate values of every candidate.
@@ -646,7 +643,7 @@ class ClosedLoopPlanner:
     def warm_up(self, problem: Problem) -> None:
         """Compile the kernels (cached on disk) and prepare the problem's constants."""
         # Not planner.problem.warm_up_problem(): on that instance a kernel of the first real
-        # decision stays unloaded (first decision 6-8 ms against 2 ms after this one; measured).
+        # decision stays unloaded, so the first decision would pay for loading it.
         tiny = Problem.build(2, np.ones((2, 4), dtype=bool), [[[0, 1], [1, 1]], [[0, 2], [1, 3]]])
         x = np.full((2, 4), 3.0)
         ClosedLoopPlanner(iterations=8).decide(make_view(tiny, 0, x, np.zeros((2, 4), bool)),

@@ -121,8 +121,8 @@ class CompiledProblem:
 
     def links(self, open_: np.ndarray, past: np.ndarray) -> np.ndarray:
         """bool ``[R, R]``: carriers joined by a conflict between two relevant flat points of which
-        at least one is ``open_`` (the other open or ``past``); O(nnz), from the CSR lists (the
-        dense ``[R*N, R*N]`` masks were 151 MB each at R = 1,024)."""
+        at least one is ``open_`` (the other open or ``past``); O(nnz), from the CSR lists (a
+        dense ``[R*N, R*N]`` mask grows as (R·N)²)."""
         rows, cols = self.nbr_rows, self.nbr
         relevant = open_ | past
         keep = (open_[rows] & relevant[cols]) | (relevant[rows] & open_[cols])

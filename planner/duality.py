@@ -1,54 +1,13 @@
 """An upper bound on the expected reward of every online policy, much tighter than clairvoyance:
 the information-relaxation (duality) bound of Brown, Smith and Sun (Operations Research, 2010).
 
-The clairvoyant bound ``E[max_y R(y, x)]`` lets the deployments ``y`` see the whole observation
-matrix ``x``. Information relaxation keeps that, but charges for what looking ahead is worth:
-
-    U = E_x[ max_y ( R(y, x) - z(y, x) ) ],
-
-where the *penalty* ``z`` is built from an approximate value function ``W`` of the online state,
-
-    z(y, x) = sum over stages j of ( W_j(h_j) - E[ W_j(h_j) | h_{j-1}, y_{j-1} ] ),
-
-``h_j`` being the history up to stage j (observations of stages <= j, deployments before j).
-Each term has conditional mean zero given what an online policy knows when it decides, so
-``E[z(y, x)] = 0`` for every non-anticipative policy ``y``: such a policy earns
-``E[R] = E[R - z] <= U``. Any ``W`` gives a valid bound; ``W = V*`` gives ``U = V*``; zero gives
-the clairvoyant bound.
-
-Our ``W`` is the sum over carriers of their exact single-carrier DLR values-to-go, conflicts
-ignored: with ``n`` valid stages left (the current one included), ``d`` passengers left and the
-current observation ``x``, ``v(n, d, x) = max(x + S(n-1, d-1), S(n-1, d))`` (deployment forced
-when ``n <= d``, impossible when ``d = 0``), where ``S(n, d) = E[v(n, d, X)]`` is the optimal
-single-carrier value (:attr:`planner.compiled.CompiledProblem.slot_value`). The penalty is then
-``sum_r sum_{valid j} (v(n_rj, d_rj, x_rj) - S(n_rj, d_rj))``: it depends on a deployment set only
-through each carrier's passengers left at each of its stages. Without overlaps the inner maximum
-equals ``sum_r S_r`` on every sample (the bound is exact with zero variance); with overlaps it is
-what knowing the future is still worth for coordinating conflicted carriers.
-
-The inner maximisation (over deployment sets with exactly ``min(D_r, valid stages)`` per carrier
-— the deployment sets the forced rule allows) splits into the connected components of the
-carriers' conflict graph (the penalty is per carrier, rewards couple only conflicting points).
-Each component is solved
-
-* ``exact``: by enumerating every combination of its carriers' stage sets (small components);
-* ``mip``: by HiGHS branch and bound on a mixed-integer model of it (below); the value used is
-  HiGHS's *dual bound*, an upper bound on the component's maximum whether or not the search
-  finished within its time limit;
-* ``lp``: the same model's linear relaxation (integrality dropped), an upper bound.
-
-Relaxing the inner problem only raises ``max_y``, so the result stays a valid bound at any size.
-
-The model (one component): per carrier a flow of one unit through the layered graph of its
-(valid stage, passengers left) nodes with a *stay* and a *deploy* arc out of each node (the
-forced rule and the end count fixed by which nodes exist); an arc out of node ``(t, d)`` costs the
-penalty term ``phi[r, t, d]``; the deploy arcs at a point sum to ``y_a``. A point with no valid
-conflicting point earns ``x_a y_a``. A conflicted point ``a`` with ``M_a`` valid conflicting points
-earns ``sum_m x_a / (1 + m) w_am`` with ``sum_m w_am = y_a`` and, for ``x_a >= 0``,
-``sum_m m w_am >= sum_b q_ab`` (``<=`` for ``x_a < 0``), where ``q_ab >= y_a + y_b - 1``,
-``0 <= q_ab <= min(y_a, y_b)`` per conflicting pair. At integer ``y`` and ``w`` this is the penalty
-rule exactly (the maximisation takes the count it is allowed); in the LP every constraint holds
-for the true integer solutions, so the LP value is at least the integer maximum.
+``U = E_x[max_y (R(y, x) - z(y, x))]``, with a penalty ``z`` of mean zero for every
+non-anticipative policy built from the carriers' single-carrier DLR values-to-go; its inner
+maximum split into the conflict graph's components, each solved ``exact``, by HiGHS (``mip``, its
+dual bound), as the LP relaxation (``lp``) or by the ``separable`` fallback, every one a valid
+upper bound. The derivation, the
+model, the methods' limits, the time budget and the API: docs/planner.md, "An upper bound on every
+online policy".
 
 Pure: numpy only at import; ``highspy`` is imported inside :func:`_highs_value` (the only place
 that needs it).

@@ -1,39 +1,14 @@
 """Priors learned online: an empirical-Bayes estimate of f(x) from the observations so far, and a
 wrapper that gives any planner that estimate at every stage (the ``learn_prior`` option).
 
-Field teams rarely know their prior, and real features cluster: on urban_alpha the derived
-Poisson prior (mean 3.14, variance 3.14) meets observations with mean 2.5 and variance 15.5.
-
-**The model (counts).** A valid stage's count is ``x_i | λ_i ~ Poisson(λ_i)`` with the local
-intensity ``λ_i ~ Gamma`` varying from place to place (clusters). The marginal, and the predictive
-of the next observation, is negative binomial with mean ``m = E[λ]`` and variance
-``v = E[λ] + Var[λ] >= m``. The hyper-parameters are estimated by moments (parametric empirical
-Bayes): ``Var[λ] = v - m``; when the estimated ``v <= m`` the gamma mixing distribution is
-degenerate and the predictive is Poisson(m).
-
-**Shrinkage.** The stated prior counts as :data:`PRIOR_WEIGHT` (``n0``) pseudo-observations: the
-moments used are those of the mixture ``n0/(n0+n)`` stated prior + ``n/(n0+n)`` empirical
-distribution of the ``n`` observations received so far,
-
-    m = (n0 m0 + n xbar) / (n0 + n),
-    v = (n0 (v0 + (m0 - m)²) + n (s² + (xbar - m)²)) / (n0 + n),
-
-with ``m0``, ``v0`` the stated prior's mean and variance and ``s²`` the observations' variance
-(divisor n). No observation: the stated prior itself, unchanged. Many observations: the empirical
-moments. The estimate is pooled over carriers and stages (one prior for the fleet, as the problem
-has one).
-
-**Other priors.** A continuous stated prior on ``[0, ∞)`` (gamma, exponential, lognormal, uniform
-with ``low >= 0``) is replaced by the gamma distribution with the same shrunk moments; one on the
-whole line (normal, uniform with ``low < 0``) by the normal distribution with them. A discrete
-prior that is not on the counts 0, 1, 2, ... (a table with non-integer or negative values, a
-discrete uniform with ``low < 0``) is refused with one line (:class:`UnsupportedPrior`).
-
-**The wrapper.** :class:`LearnedPriorPlanner` decides stage j with its inner planner on the same
-problem whose prior is the estimate from ``x[:, :j + 1]`` (only those columns are read: strictly
-causal) and whose normalisation scale is the original problem's, so rewards, the MCTS
-exploration constant and reported values stay in one unit across stages. It keeps no state across
-stages: a recovered coordinator rebuilds the same estimate from the same observations.
+Counts are modelled as Poisson with a gamma-distributed local intensity (clusters), so the
+predictive is negative binomial (Poisson when the data show no overdispersion), its two moments
+estimated from the observations and shrunk towards the stated prior's with :data:`PRIOR_WEIGHT`
+pseudo-observations; continuous priors become the gamma or normal distribution with the shrunk
+moments; a discrete prior not on the counts is refused (:class:`UnsupportedPrior`).
+:class:`LearnedPriorPlanner` decides stage j on the problem whose prior is the estimate from
+``x[:, :j + 1]`` (strictly causal), keeping the original normalisation and no state across
+stages. The model, the formulas and why: docs/planner.md, "Learned priors".
 """
 from __future__ import annotations
 

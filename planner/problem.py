@@ -21,7 +21,7 @@ from functools import cached_property
 from typing import Any, Protocol, Sequence
 
 import numpy as np
-import scipy  # scipy.stats is loaded on first use (its import takes ~1 s)
+import scipy  # scipy.stats is loaded on first use: its import is slow and most processes never need it
 
 #: Quantile of the prior whose value normalises rewards for planning (the paper's 90th percentile).
 NORMALIZE_QUANTILE = 0.9
@@ -216,8 +216,7 @@ def penalties(problem: Problem, deployed: np.ndarray) -> np.ndarray:
     """
     sel = np.asarray(deployed, dtype=bool).ravel()
     # The selected rows, not columns: ``conflict`` is symmetric, and gathering a few contiguous
-    # rows reads megabytes where gathering columns touched the whole matrix (58 → 5 ms at
-    # R = 1,024, called by the live recording after every confirmed deployment).
+    # rows reads only those rows where gathering columns touches the whole matrix.
     p = 1 + problem.conflict[sel, :].sum(axis=0)
     return p.reshape(problem.valid.shape)
 

@@ -68,8 +68,8 @@ def log_path(out_dir: str | Path, carrier: str) -> Path:
 
 
 #: How a carrier log commits (SQLite ``synchronous`` in WAL mode): ``full`` survives a power loss
-#: of the carrier's host (an fsync per commit, about 0.5 ms alone and far more when hundreds of
-#: carriers of one host commit at once); ``normal`` survives the carrier process's crash, not
+#: of the carrier's host (an fsync per commit, which queues behind every other carrier of the
+#: host committing at once); ``normal`` survives the carrier process's crash, not
 #: its host's power loss. The one-host launcher uses ``normal``: a power loss there takes the
 #: whole fleet, coordinator included.
 SYNC_MODES = ("full", "normal")

@@ -9,10 +9,11 @@ first undecided stage, drawing the same planner random numbers (planners are sta
 Each write is one SQLite transaction, or, inside :meth:`MissionStore.batch` (what the
 coordinator holds while it drains its inbox), one savepoint of the batch's transaction, committed
 when the batch ends or :meth:`MissionStore.flush` is called — the coordinator flushes before it
-sends anything that depends on what it recorded (a Decision, an Accepted, a Refusal). One
-durable commit (``synchronous=FULL``: an fsync) took 0.55–5.6 ms on this project's machines
-(``python -m tools.overhead_bench``), so a commit per Observation and Confirm held the
-coordinator's loop for 0.3–2.9 s per stage at R = 256; a drained inbox now costs one commit. What a crash can lose is what it always could:
+sends anything that depends on what it recorded (a Decision, an Accepted, a Refusal). A durable
+commit (``synchronous=FULL``: an fsync) costs far more than a savepoint, and the coordinator's
+loop waits for it, so a drained inbox costs one commit, not one per event (``python -m
+tools.overhead_bench``; docs/performance.md, "Where a stage's wall time goes"). What a crash can
+lose is what it always could:
 messages received and not yet acted on, which the carriers send again when they resynchronise
 (docs/protocol.md). The processes never raise KeyboardInterrupt (signals only set a stop request
 honoured between steps), so no write is ever cut in half; should one fail anyway, its

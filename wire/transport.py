@@ -57,10 +57,10 @@ class SharedSession:
     """One zenoh session for the nodes of one process (the carriers it simulates), opened by the
     first node that needs it and closed when the last one closes.
 
-    A session per node cost each carrier of a shared process about 0.14 ms of CPU per second of
-    wall time even with no traffic (64 idle sessions: 8.7 ms/s; one session with the same 64
-    carriers' subscriptions and tokens: 0.18 ms/s), and made the router send every broadcast once
-    per carrier instead of once per process (docs/performance.md, "Carrier CPU per stage"). The
+    A session costs CPU per second of wall time even with no traffic, so a session per node
+    costs a shared process that CPU once per carrier, and makes the router send every broadcast
+    once per carrier instead of once per process (docs/performance.md, "Carrier CPU per stage").
+    The
     protocol cannot tell: every carrier keeps its own subscriptions, publishers and liveliness
     token, undeclared when that carrier closes.
 

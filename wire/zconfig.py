@@ -31,11 +31,10 @@ ACCEPT_PENDING = 2_000
 
 
 #: Zenoh's shared-memory transport, off by default for fleet processes. zenoh 1.x turns it on
-#: with a 16 MB pool per session that every message above 3 KB goes through (an Observation
-#: with a long trail, a large fleet's Decision): the pool's pages stay resident, so a process
-#: of 32 carriers (32 sessions) of a physics-heavy mission held about 520 MB of /dev/shm/*.zenoh
-#: on top of its 60 MB, and 256 carriers 4 GB or more. The fleet's messages are small and
-#: cross TCP anyway (loopback or hosts); a config file that mentions ``shared_memory`` decides.
+#: with a pool per session that every large message goes through (an Observation with a long
+#: trail, a large fleet's Decision), and the pool's pages stay resident, so memory grows with the
+#: sessions (docs/performance.md, "Memory"). The fleet's messages are small and cross TCP anyway
+#: (loopback or hosts); a config file that mentions ``shared_memory`` decides.
 SHARED_MEMORY = False
 
 

@@ -128,8 +128,8 @@ class _CarrierBody:
         and feed-forward velocity at t, the velocity command (capped), then SUBSTEPS steps of
         the space.
 
-        Written as one loop over local names (a carrier's physics is most of its CPU: 9,600
-        steps a stage on long streets), and through chipmunk's functions directly when pymunk's
+        Written as one loop over local names (with long stages a carrier's physics is most of its
+        CPU), and through chipmunk's functions directly when pymunk's
         wrapper has nothing to do around them (no body to check, nothing to add or remove after
         the step, no post-step callback: always so between two deployments), through the
         wrapper otherwise: the same C calls with the same arguments and the same float

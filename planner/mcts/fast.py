@@ -1,7 +1,7 @@
 """MCTS-SSAP and MCTS-Random, fast: array trees searched by numba kernels.
 
 The algorithm is the paper's (see :mod:`planner.mcts.reference` for the plain version and
-docs/performance.md for the measured comparison), in one of two tree layouts (``layout=``):
+docs/performance.md, "Planner decision time", for the comparison), in one of two tree layouts (``layout=``):
 
 * ``"joint"`` — the reference's tree: a node is one stage, its children are the joint actions
   of the carriers with a choice there (forced carriers fixed), ``2^k`` for ``k`` such carriers,
@@ -20,8 +20,9 @@ docs/performance.md for the measured comparison), in one of two tree layouts (``
   (an expanded node reserves a ``[stay, deploy]`` block of 2 ids).
 * ``"auto"`` (default) — joint for problems of at most ``JOINT_MAX_CARRIERS`` carriers, binary
   beyond. With the paper's nearly greedy exploration constant the binary levels lose quality
-  against the joint tree at R = 6 (docs/performance.md); beyond 8 carriers the joint tree
-  cannot try each root action even a few times in 10,000 iterations.
+  against the joint tree once the fleet has several carriers (docs/performance.md, "Planner
+  decision time"); beyond that size the joint tree cannot try each root action even a few times
+  in the default budget.
 
 Per iteration (the step functions of :mod:`planner.mcts.kernel`): UCT selection with constant ``c``
 on normalised rewards, expansion of one untried binary child (uniformly random when both are

@@ -36,8 +36,8 @@ Decision points are visited in *sequence order* ``q = (k - j0) * R + r`` (stage 
 root stage ``j0``, carrier ``r``), flat point ``a = r * N + k``.
 
 Random numbers come from a splitmix64 stream (a 64-bit counter in ``Scratch.state[0]``, seeded
-once per decision from the caller's numpy Generator): about 1 ns per draw, against about 20 ns
-for numba's ``np.random``, which matters at tens of draws per iteration.
+once per decision from the caller's numpy Generator): a draw is a few integer operations, far
+cheaper than numba's ``np.random``, which matters at tens of draws per iteration.
 """
 from __future__ import annotations
 
