@@ -16,7 +16,7 @@ import re
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, overload
 
 import numpy as np
 import yaml
@@ -40,7 +40,7 @@ MAX_MISSION_TIME = 1e5  # s, time of the last stage (the physics runs at 20 step
 CARRIER_RADIUS = 0.4
 
 
-def _stats():
+def _stats() -> Any:
     """scipy.stats, imported on first use (it takes a second to import; carriers rarely need it)."""
     from scipy import stats
 
@@ -266,7 +266,7 @@ class PriorSpec:
     """
 
     kind: str = "derived"
-    params: tuple[tuple[str, float], ...] = ()
+    params: tuple[tuple[str, float | tuple[float, ...]], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -354,7 +354,7 @@ class Scenario:
         """The same scenario with another root seed (other features, same schedules)."""
         return dataclasses.replace(self, seed=int(seed))
 
-    def prior_distribution(self):
+    def prior_distribution(self) -> Any:
         """The frozen ``scipy.stats`` prior of a valid stage's feature count."""
         if self.prior.kind == "derived":
             return _stats().poisson(self.derived_prior_mean())
@@ -411,9 +411,16 @@ class _Checker(Problems):
         self.missing(node, path, required)
         return node
 
+    @overload
+    def number(self, node: Any, path: str, *, minimum: float | None = None, exclusive: bool = False,
+               integer: Literal[True], maximum: float | None = None) -> int | None: ...
+    @overload
+    def number(self, node: Any, path: str, *, minimum: float | None = None, exclusive: bool = False,
+               integer: bool = False, maximum: float | None = None) -> float | None: ...
+
     def number(self, node: Any, path: str, *, minimum: float | None = None, exclusive: bool = False,
                integer: bool = False, maximum: float | None = None) -> float | None:
-        """The number, or None with the problem recorded (the maximum is named only when exceeded)."""
+        """The number (an int when ``integer``), or None with the problem recorded (the maximum is named only when exceeded)."""
         value = self.check(Number(integer, minimum, None, exclusive), node, path)
         if value is None or maximum is None:
             return value
@@ -487,10 +494,10 @@ if getattr(yaml, "__with_libyaml__", False):
 
     _FastUniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
 else:  # a PyYAML built without libyaml
-    _FastUniqueKeyLoader = None
+    _FastUniqueKeyLoader = None  # type: ignore[misc, assignment]
 
 
-def _parse_yaml(text: str):
+def _parse_yaml(text: str) -> Any:
     """The YAML document in ``text``, read by libyaml when PyYAML has it; a document it refuses
     is read again by the pure-Python parser, whose error (the documented message) is raised."""
     if _FastUniqueKeyLoader is not None:
@@ -553,7 +560,7 @@ def parse_scenario(data: Any, file: str = "<scenario>") -> Scenario:
     planner = _parse_planner(ck, top.get("planner", {}))
     prior = _parse_prior(ck, top.get("prior", "derived"))
 
-    if None not in (interval, n_stages, t0) and t0 + interval * (n_stages - 1) > MAX_MISSION_TIME:
+    if interval is not None and n_stages is not None and t0 is not None and t0 + interval * (n_stages - 1) > MAX_MISSION_TIME:
         ck.bad("stages", f"a last stage (first_stage_time + (stages - 1) x stage_interval) at most {MAX_MISSION_TIME:g} s",
                Found(f"{t0 + interval * (n_stages - 1):g} s"))
         n_stages = None
@@ -563,7 +570,7 @@ def parse_scenario(data: Any, file: str = "<scenario>") -> Scenario:
         if expected > MAX_EXPECTED_FEATURES:
             ck.bad("features.density", f"densities giving at most {MAX_EXPECTED_FEATURES:g} expected features on the map",
                    Found(f"{expected:.3g} expected features"))
-    if carriers is not None and None not in (interval, n_stages, t0):
+    if carriers is not None and interval is not None and n_stages is not None and t0 is not None:
         times = t0 + interval * np.arange(n_stages)
         for r, c in enumerate(carriers):
             n_valid = int(((c.start_time <= times) & (times <= c.stop_time)).sum())
@@ -575,6 +582,10 @@ def parse_scenario(data: Any, file: str = "<scenario>") -> Scenario:
         feats = _parse_replay(ck, top["features"]["replay"], feats, carriers, interval, n_stages, t0)
     if ck.problems:
         raise ScenarioError(ck.problems)
+    # no problem recorded: every value was read (a reader returns None only with a problem)
+    assert (name is not None and seed is not None and the_map is not None and feats is not None and radius is not None
+            and interval is not None and n_stages is not None and conflict is not None and carriers is not None
+            and planner is not None and prior is not None and t0 is not None and body is not None)
     return Scenario(name=name, seed=seed, map=the_map, features=feats, sensing_radius=radius,
                     stage_interval=interval, stages=n_stages, conflict_radius=conflict,
                     carriers=carriers, planner=planner, prior=prior, first_stage_time=t0,
@@ -602,7 +613,7 @@ def _parse_map(ck: _Checker, node: Any) -> MapSpec | None:
             ck.bad("map.bounds", "xmin < xmax and ymin < ymax", b)
             ok = False
         else:
-            bounds = tuple(float(v) for v in b)
+            bounds = (float(b[0]), float(b[1]), float(b[2]), float(b[3]))
     walls: list = []
     for key, min_count, out in (("walls", 2, walls),):
         lines = m.get(key, [])
@@ -657,15 +668,16 @@ def _parse_occupancy(ck: _Checker, node: Any) -> _grid.OccupancyGrid | None:
     levels = [ck.number(spec.get(key, default), f"map.occupancy.{key}", minimum=0, integer=True, maximum=100)
               for key, default in (("free_level", _grid.DEFAULT_FREE_LEVEL),
                                    ("occupied_level", _grid.DEFAULT_OCCUPIED_LEVEL))]
-    if name is None or None in levels:
+    free, occupied = levels
+    if name is None or free is None or occupied is None:
         return None
-    if levels[0] >= levels[1]:
-        ck.bad("map.occupancy.free_level", f"less than occupied_level ({levels[1]})", levels[0])
+    if free >= occupied:
+        ck.bad("map.occupancy.free_level", f"less than occupied_level ({occupied})", free)
         return None
     base = Path(ck.file).parent if ck.file and not ck.file.startswith("<") else Path(".")
     path = Path(name) if Path(name).is_absolute() else base / name
     try:
-        grid = _grid.read_map_yaml(path, free_level=levels[0], occupied_level=levels[1])
+        grid = _grid.read_map_yaml(path, free_level=free, occupied_level=occupied)
     except _grid.GridError as err:
         ck.raw("map.occupancy.file", f"expected a map_server map, found {err}")
         return None
@@ -705,6 +717,8 @@ def _parse_building(ck: _Checker, node: Any) -> Building | None:
         ck.bad("map.building.entrances", f"a list of sides among {list(_SIDES)}", entrances)
     if len(ck) > n0:
         return None
+    assert origin is not None and cols is not None and rows is not None and size is not None  # no problem
+    assert corridor is not None and door is not None
     return Building(origin=origin, cols=cols, rows=rows, room_size=size, corridor_width=corridor,
                     door_width=door, entrances=tuple(entrances))
 
@@ -745,7 +759,7 @@ def _parse_features(ck: _Checker, node: Any, the_map: MapSpec | None) -> Feature
             ck.bad(f"{path}.label", "a string", label)
         shape = shapes[0]
         val = cm[shape]
-        params = None
+        params: tuple[float, ...] | None = None
         if shape == "disc":
             dm = ck.mapping(val, f"{path}.disc", ("center", "radius"), ("center", "radius"))
             if dm is not None and "center" in dm and "radius" in dm:
@@ -778,16 +792,18 @@ def _parse_features(ck: _Checker, node: Any, the_map: MapSpec | None) -> Feature
             clusters.append(Cluster(shape=shape, params=params, density=cdens, label=label))
     if len(ck) > n0:
         return None
+    assert density is not None  # no problem recorded
     return FeatureSpec(density=density, clusters=tuple(clusters), from_map=from_map)
 
 
-def _parse_replay(ck: _Checker, node: Any, feats: FeatureSpec, carriers, interval, n_stages, t0) -> FeatureSpec | None:
+def _parse_replay(ck: _Checker, node: Any, feats: FeatureSpec, carriers: tuple[CarrierSpec, ...] | None,
+                  interval: float | None, n_stages: int | None, t0: float | None) -> FeatureSpec | None:
     """``features.replay``: carrier id -> one recorded count per stage (``null`` where the stage
     is not valid for it); every carrier listed, a number >= 0 at every valid stage."""
     if not isinstance(node, dict) or not node:
         ck.bad("features.replay", "a mapping of carrier ids to lists of recorded counts, one per stage", node)
         return None
-    if carriers is None or None in (interval, n_stages, t0):
+    if carriers is None or interval is None or n_stages is None or t0 is None:
         return None  # their own problems are reported
     n0 = len(ck)
     ids = [c.id for c in carriers]
@@ -836,7 +852,8 @@ def _parse_passenger_types(ck: _Checker, node: Any) -> dict[str, float]:
     return out
 
 
-def _parse_passengers(ck: _Checker, node: Any, path: str, types: dict[str, float]):
+def _parse_passengers(ck: _Checker, node: Any, path: str,
+                      types: dict[str, float]) -> tuple[int | None, tuple[float, ...], tuple[str, ...]]:
     """A carrier's ``passengers``: a count (every passenger weighs 1), or a list of passengers,
     each a type name of ``passenger_types`` or a mapping ``{type: NAME, value: W}`` (``value``
     required unless the type is in ``passenger_types``). Returns (count, values, type names)."""
@@ -938,6 +955,7 @@ def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None, types: dic
                 ck.bad(f"{path}.waypoints", "a path of non-zero length", Found("all points equal"))
         if len(ck) > k0:
             continue
+        assert cid is not None and pas is not None and start is not None and speed is not None and wps is not None
         length = float(np.hypot(*np.diff(np.asarray(wps), axis=0).T).sum())
         if stop is None:
             stop = start + length / speed
