@@ -383,7 +383,7 @@ def parse_option(text: str, name: str | None = None) -> tuple[str, Any]:
         raise ValueError(f"{key}: expected {err}{whose}, found {raw!r}") from None
 
 
-def make_planner(name: str, **options) -> object:
+def make_planner(name: str, **options: Any) -> object:
     """Build a planner by name.
 
     Args:
@@ -409,7 +409,8 @@ def make_planner(name: str, **options) -> object:
     return planner
 
 
-def planner_settings(scenario, name=None, iterations=None, plan_ms=None, extra=()) -> tuple[str, dict]:
+def planner_settings(scenario: Any, name: str | None = None, iterations: int | None = None,
+                     plan_ms: float | None = None, extra: Iterable[tuple[str, Any]] = ()) -> tuple[str, dict]:
     """(planner name, options for make_planner): the scenario's (``scenario.planner``), overridden
     by non-None flags.
 
@@ -443,8 +444,10 @@ def used_options(name: str, options: Mapping[str, Any]) -> dict[str, Any]:
     for key, value in options.items():
         if value is None or (key not in found.options and key not in own and key not in GENERIC_OPTIONS):
             continue
+        option = found.option(key)
+        assert option is not None  # unknown options were refused above
         try:
-            used[key] = found.option(key).check(value)
+            used[key] = option.check(value)
         except ValueError as err:
             raise ValueError(f"{whose}{key} must be {err}, got {value!r}") from None
     if used.get("learn_prior") is False:
@@ -456,20 +459,20 @@ def used_options(name: str, options: Mapping[str, Any]) -> dict[str, Any]:
 # Factories import their modules lazily: the MCTS and closed-loop modules load numba kernels.
 
 
-def _random(**_):
+def _random(**_: Any) -> object:
     from planner.policies import RandomPlanner
 
     return RandomPlanner()
 
 
-def _ssap(**_):
+def _ssap(**_: Any) -> object:
     from planner.policies import SSAPPlanner
 
     return SSAPPlanner()
 
 
 def _mcts(rollout: str) -> Callable[..., object]:
-    def factory(**options):
+    def factory(**options: Any) -> object:
         from planner.mcts.fast import MCTSPlanner
 
         return MCTSPlanner(rollout=rollout, **options)
@@ -477,25 +480,25 @@ def _mcts(rollout: str) -> Callable[..., object]:
     return factory
 
 
-def _closed_loop(**options):
+def _closed_loop(**options: Any) -> object:
     from planner.closedloop import ClosedLoopPlanner  # see docs/results.md
 
     return ClosedLoopPlanner(**options)
 
 
-def _dec_mcts(**options):
+def _dec_mcts(**options: Any) -> object:
     from planner.decmcts import DecMCTSPlanner  # decentralised: see planner/decentralised.py
 
     return DecMCTSPlanner(**options)
 
 
-def _dec_closed_loop(**options):
+def _dec_closed_loop(**options: Any) -> object:
     from planner.decentralised import DecClosedLoopPlanner
 
     return DecClosedLoopPlanner(**options)
 
 
-def _online_optimal(**_):
+def _online_optimal(**_: Any) -> object:
     # The exact Bayes-optimal policy for small instances; budget options do not apply to it.
     from planner.online_optimal import OnlineOptimalPlanner
 
