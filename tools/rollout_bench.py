@@ -6,8 +6,9 @@
 
 ``closed-loop``'s ``_evaluate`` and ``dec-closed-loop``'s ``_evaluate_imputed`` each write out
 the rollout of the sampled futures. Commit f95fab9 shared it (one numba function inlined into
-both, dec-closed-loop passing the base rule of 0 rounds, DLR's thresholds); it cost
-dec-closed-loop 6.8 %, so the loops stay written out and only the anytime sampling loop
+both, dec-closed-loop passing the base rule of 0 rounds, DLR's thresholds); it made
+dec-closed-loop slower (docs/planner.md, *closed-loop*, has the figures), so the loops stay written
+out and only the anytime sampling loop
 (:func:`planner.closedloop.sampled_mean`) is shared. This script loads ``planner/closedloop.py``
 and ``planner/decentralised.py`` of ``--candidate`` (default: the working tree) and of
 ``--reference`` (``git show``), compiles both in this process alike, and for each fleet size R
