@@ -867,8 +867,7 @@ def decode(data: bytes, expected: type | tuple[type, ...] | None = None, revisio
 class SharedDecoder:
     """Decodes a broadcast once for all the receivers of one process.
 
-    A Decision names about a third of the fleet, so decoding and validating it costs O(R)
-    (0.7 ms at R = 1,024 on an idle core); it reaches every carrier session of a process with the
+    A Decision names about a third of the fleet, so decoding and validating it costs O(R); it reaches every carrier session of a process with the
     same bytes, and decoding it per carrier made that O(R) per carrier, O(R²/K) per process of K
     processes (docs/performance.md, "Fleet scale"). This decodes each distinct payload once and
     gives every receiver the same frozen message, or a fresh :class:`ProtocolError` with the same

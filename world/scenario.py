@@ -489,8 +489,8 @@ _UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG,
 
 if getattr(yaml, "__with_libyaml__", False):
     class _FastUniqueKeyLoader(yaml.CSafeLoader):
-        """:class:`_UniqueKeyLoader` on libyaml's parser (7x faster: 0.8 s -> 0.1 s for 1,024
-        carriers, in every process of a fleet)."""
+        """:class:`_UniqueKeyLoader` on libyaml's parser: every process of a fleet reads the
+        scenario, so its parse time is paid once per process (docs/performance.md)."""
 
     _FastUniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
 else:  # a PyYAML built without libyaml
