@@ -69,10 +69,13 @@ class Harness:
 
     # ------------------------------------------------------------------ the project's processes
     def _run_fleet(self, *args: str) -> list[str]:
-        root = Path(__file__).resolve().parents[2]
+        """A launcher command line: the clone's run_fleet.py beside this package, else (an
+        installed wheel has no script) ``python -m launcher``."""
+        script = Path(__file__).resolve().parents[2] / "run_fleet.py"
+        launcher = [str(script)] if script.is_file() else ["-m", "launcher"]
         t = self.target
-        return [sys.executable, str(root / "run_fleet.py"), t.scenario_path, "--seed", str(t.seed),
-                "--mission", t.mission, "--connect", self.endpoint, *args]
+        return [sys.executable, *launcher, t.scenario_path, "--seed", str(t.seed), "--mission", t.mission,
+                "--connect", self.endpoint, *args]
 
     def start_coordinator(self) -> None:
         self.coordinator = self._start(self._run_fleet(
