@@ -21,10 +21,12 @@ Modules, bottom up:
 * :mod:`planner.registry`  planner names, options and their validation;
 * :mod:`planner.online`    the online loop: ``stage_step`` and ``run_online``;
 * :mod:`planner.instance`  the JSON instance format;
-* :mod:`planner.solve`    the solve command's work (the command line is :mod:`planner.cli.solve`).
+* :mod:`planner.solve`    the solve command's work (the command line is :mod:`planner.cli.solve`);
+* :mod:`planner.conformance`  the conformance kit of a planner plug-in (its command line is
+  :mod:`planner.cli.conformance`).
 
 The core has no command line: the planner's command lines (solve, bench, the exact solvers'
-measurements) are in :mod:`planner.cli`, the one place in planner/ with argparse;
-``python -m planner.online_optimal`` and ``planner.clairvoyant`` run ``__main__`` blocks that
-only forward there. planner/ imports nothing above it.
+measurements, conformance) are in :mod:`planner.cli`, the one place in planner/ with argparse;
+``python -m planner.online_optimal``, ``planner.clairvoyant`` and ``planner.conformance`` run
+``__main__`` blocks that only forward there. planner/ imports nothing above it.
 """

@@ -214,6 +214,8 @@ def declared_options(who: str, items: Iterable[Any]) -> tuple[tuple[str, ...], t
         if item.kind not in OPTION_KINDS:
             raise PluginError(f"{where} ({item.name}): expected a kind among int, float, str, bool, "
                               f"found {item.kind!r}")
+        if item.kind is str and not item.choices:
+            raise PluginError(f"{where} ({item.name}): expected choices for a str option, found none")
         if item.default is not None:
             try:
                 item.check(item.default)

@@ -104,7 +104,7 @@ def test_planner_modules_exist():
     core = _planner_modules()
     for name in ("limits", "priors", "problem", "compiled", "ssap", "policies", "registry", "closedloop",
                  "clairvoyant", "instance", "solve", "kernels", "mcts.fast", "mcts.kernel",
-                 "mcts.reference", "cli", "cli.solve", "cli.measure", "cli.bench"):
+                 "mcts.reference", "conformance", "cli", "cli.solve", "cli.measure", "cli.bench", "cli.conformance"):
         assert f"planner.{name}" in core
 
 
@@ -126,7 +126,8 @@ def test_planner_package_and_limits_are_light():
 #: names, so the planner modules whose commands the docs show keep a ``__main__`` block that only
 #: forwards there: exactly ``from planner.cli.M import F`` and ``raise SystemExit(F())``.
 FORWARDS = {"planner/online_optimal.py": ("planner.cli.measure", "optimal_table"),
-            "planner/clairvoyant.py": ("planner.cli.measure", "clairvoyant_times")}
+            "planner/clairvoyant.py": ("planner.cli.measure", "clairvoyant_times"),
+            "planner/conformance.py": ("planner.cli.conformance", "main")}
 CLI = "planner/cli/"
 
 

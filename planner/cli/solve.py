@@ -51,6 +51,7 @@ import os
 import sys
 from typing import Sequence
 
+from planner.cli import OneLineParser, integer_at_least
 from planner.instance import InstanceError
 from planner.learning import UnsupportedPrior
 from planner.online_optimal import TooLarge
@@ -64,13 +65,6 @@ EXIT_PLANNER = 1
 EXIT_INPUT = 2
 
 
-class _Parser(argparse.ArgumentParser):
-    """argparse with one-line errors (exit code 2)."""
-
-    def error(self, message: str):  # noqa: D401 - argparse hook
-        self.exit(EXIT_INPUT, f"{self.prog}: error: {message}\n")
-
-
 def _option_type(option: Option):
     """An argparse type checking one registry option (type and range) with its own message."""
 
@@ -79,22 +73,6 @@ def _option_type(option: Option):
             return option.parse(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected {option.expected()}, found {text!r}") from None
-
-    return parse
-
-
-def _nonnegative_int(unit: str = ""):
-    """An argparse type for an integer >= 0 (``unit`` is named in the message)."""
-    expected = "an integer >= 0" + (f" ({unit})" if unit else "")
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            value = -1
-        if value < 0:
-            raise argparse.ArgumentTypeError(f"expected {expected}, found {text!r}")
-        return value
 
     return parse
 
@@ -119,7 +97,7 @@ def _groups(text: str):
 
 
 def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
-    parser = _Parser(
+    parser = OneLineParser(
         prog=prog,
         description="Run a deployment planner online over an instance file; print one JSON object.",
     )
@@ -134,7 +112,7 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                                 const=True, metavar="true|false", help=option.help)
             continue
         parser.add_argument("--" + option.name.replace("_", "-"), type=_option_type(option), help=option.help)
-    parser.add_argument("--seed", type=_nonnegative_int(), default=0,
+    parser.add_argument("--seed", type=integer_at_least(0), default=0,
                         help="root seed: the planner's streams, and the observations when the file has none")
     parser.add_argument("--no-clairvoyant", action="store_true", help="skip the clairvoyant bound")
     parser.add_argument("--no-online-optimum", action="store_true",
@@ -143,7 +121,7 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
                         help="skip the information-relaxation upper bound (computed only within its time budget)")
     parser.add_argument("--message-loss", type=_loss, default=0.0, metavar="P",
                         help="probability in [0, 1] that a message is dropped (default 0)")
-    parser.add_argument("--message-delay", type=_nonnegative_int("stages"), default=0, metavar="K",
+    parser.add_argument("--message-delay", type=integer_at_least(0, "stages"), default=0, metavar="K",
                         help="stages every delivered message is late (default 0)")
     parser.add_argument("--groups", type=_groups, default=(), metavar="0,1/2,3",
                         help="carrier groups that cannot hear each other; the coordinator hears the first")
