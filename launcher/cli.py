@@ -102,7 +102,7 @@ def _conformance(argv: list[str]) -> int:
         return carrier_kit(argv[1:])
     kit = _planner_kit()
     if kit is None:
-        print(f"{PROG} conformance planner: the planner conformance kit (planner.conformance) is not installed "
+        print(f"{PROG} conformance planner: the planner conformance kit (planner.cli.conformance) is not installed "
               f"in this version", file=sys.stderr)
         return EXIT_USAGE
     return _call(kit, argv[1:], f"{PROG} conformance planner")
@@ -111,9 +111,9 @@ def _conformance(argv: list[str]) -> int:
 def _planner_kit():
     """The planner conformance kit's ``main``, or None when this version has none."""
     try:
-        from planner.conformance import main as kit
+        from planner.cli.conformance import main as kit
     except ImportError as exc:
-        if exc.name != "planner.conformance":
+        if exc.name not in ("planner.cli", "planner.cli.conformance"):
             raise  # the kit is there and something it needs is not: let that be seen
         return None
     return kit

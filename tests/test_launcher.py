@@ -245,3 +245,18 @@ def test_conformance_needs_a_kit(capsys):
         "marsupial-fleet conformance: expected a kit (carrier, planner), found 'plane'"]
     assert cli.main(["conformance", "carrier", "S.yaml"]) == EXIT_USAGE  # the kit's own usage line
     assert "python -m wire.conformance" in capsys.readouterr().err
+
+
+def test_conformance_planner_runs_the_planner_kit(capsys):
+    assert cli.main(["conformance", "planner", "ssap", "--instances", "1"]) == 0
+    assert capsys.readouterr().out.splitlines()[-1].startswith("planner 'ssap': conformant")
+    assert cli.main(["conformance", "planner", "nope:X"]) == EXIT_USAGE
+    assert capsys.readouterr().err.splitlines() == [
+        "marsupial-fleet conformance planner: error: PLANNER: planner 'nope:X': cannot import nope: "
+        "ModuleNotFoundError: No module named 'nope'"]
+
+
+def test_python_m_launcher_is_the_launcher():
+    shown = subprocess.run([sys.executable, "-m", "launcher", "--help"], capture_output=True, text=True,
+                           timeout=60, cwd=ROOT)
+    assert shown.returncode == 0 and shown.stdout == build_parser("python -m launcher").format_help()
