@@ -1,8 +1,8 @@
 """From a parsed command line to the launcher's settings: every problem with the flags (a
 ``validation.Problem`` each: the flag, what it takes, what it was given; one line by its
-``line()``), or a frozen :class:`Settings`. Nothing here
-changes the parsed ``argparse.Namespace``; what validation derives (the carrier ids, the planner
-options, the ROS domain) is a field of the settings.
+``line()``), or a frozen :class:`Settings`. Nothing here changes the parsed
+``argparse.Namespace``; what validation derives (the carrier ids, the planner options, the ROS
+domain) is a field of the settings.
 
 Checking loads only what the flags given need (rerun-sdk with the live view, ros2/ with ROS 2,
 the planner registry for the coordinator's planner), so a carrier process that parses its flags
