@@ -183,7 +183,7 @@ TLS_A = "python run_fleet.py scenarios/tiny.yaml --role carrier --carrier a --ze
 TLS_B = "python run_fleet.py scenarios/tiny.yaml --role carrier --carrier b --zenoh-config certs/carrier-b.json5"
 CERTS_SIX = ("python tools/gen_certs.py --out certs --scenario scenarios/six_carriers.yaml --hosts coord.lan "
              "10.0.0.1 --listen tls/0.0.0.0:7447 --connect tls/10.0.0.1:7447")
-SOLVE = "python -m coordinator.solve INSTANCE.json --planner NAME [--iterations K] [--plan-ms MS]"
+SOLVE = "python -m planner.cli.solve INSTANCE.json --planner NAME [--iterations K] [--plan-ms MS]"
 CONFORMANCE = ("python -m wire.conformance scenarios/tiny.yaml --carrier a -- python run_fleet.py {scenario} "
                "--role carrier --carrier {carrier} --connect {endpoint} --seed {seed} --mission {mission} "
                "--no-autonomy --out {workdir}")
@@ -311,6 +311,13 @@ RUNS = [
         S(SOLVE, ("INSTANCE.json", "{tmp}/example.json"), ("NAME", "ssap"), ("[--iterations K] ", ""),
           ("[--plan-ms MS]", "--plan-ms 20 --seed 1")),
     ), "slow", wall_s=240, mem_mb=1500, check=_solve_check),
+    # docs/planner.md, "Writing a planner plug-in": the example package installed by pip into a
+    # target directory (from a copy, offline), which the documented command then finds on PYTHONPATH.
+    Run("plugin-conformance", (
+        Step(None, raw="cp -r examples/greedy-planner {tmp}/greedy-planner && python -m pip install -q --no-deps "
+                       "--no-build-isolation --no-index --target {tmp}/site {tmp}/greedy-planner"),
+        S("python -m planner.conformance greedy --option q=0.8", ("python -m", "PYTHONPATH={tmp}/site python -m")),
+    ), "default", wall_s=180, mem_mb=1500),
     Run("overhead-bench", (S("python -m tools.overhead_bench", extra="--carriers 16 --seconds 2 --events 100"),),
         "default", wall_s=90, mem_mb=800),
     Run("write-scenario", (S("python -m tools.scale --write-scenario 256 /tmp/grid_256.yaml",
