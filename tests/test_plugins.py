@@ -253,3 +253,32 @@ def test_solve_runs_a_plugin_by_its_dotted_path(tmp_path, capsys):
                                 f"(an option of planner '{THRESHOLD}'), found '-4'"]
     assert solve.main([str(path), "--planner", "no_such_module_zz:P"]) == 2
     assert "--planner: planner 'no_such_module_zz:P': cannot import" in capsys.readouterr().err
+
+
+def test_a_scenario_names_a_plugin_and_its_own_options(tmp_path):
+    import yaml
+
+    import world
+    from planner.registry import planner_settings
+
+    base = yaml.safe_load((ROOT / "scenarios" / "tiny.yaml").read_text())
+
+    def load(planner):
+        path = tmp_path / "s.yaml"
+        path.write_text(yaml.safe_dump({**base, "planner": planner}))
+        return world.load_scenario(path)
+
+    scenario = load({"name": THRESHOLD, "cut": 5, "iterations": 50})
+    assert scenario.planner.plugin_options == (("cut", 5.0),)
+    name, options = planner_settings(scenario)
+    assert name == THRESHOLD and make_planner(name, **options).cut == 5.0
+    for planner, line in [
+        ({"name": THRESHOLD, "cut": -5}, "planner.cut: expected a number >= 0 (an option of planner "
+                                         "'planner_plugins:Threshold'), found -5"),
+        ({"name": "mcts-ssap", "cut": 5}, "planner.cut: expected a known key"),
+        ({"name": "no_such_module_zz:P"}, "planner.name: expected a loadable planner plug-in (planner "
+                                          "'no_such_module_zz:P': cannot import no_such_module_zz"),
+    ]:
+        with pytest.raises(world.ScenarioError) as err:
+            load(planner)
+        assert len(err.value.problems) == 1 and line in err.value.problems[0], err.value.problems

@@ -246,13 +246,17 @@ class PlannerSpec:
     samples: int = _OPT["samples"].default
     layout: str = _OPT["layout"].default
     learn_prior: bool = _OPT["learn_prior"].default
+    #: A plug-in planner's own options as the file gives them, checked: ``(key, value)`` pairs
+    #: (docs/planner.md, "Writing a planner plug-in").
+    plugin_options: tuple[tuple[str, Any], ...] = ()
 
     def options(self) -> dict[str, Any]:
         """Keyword options for ``planner.registry.make_planner(name, **options)`` (``plan_ms``
-        only when set)."""
+        only when set; a plug-in's own options too)."""
         out: dict[str, Any] = {key: getattr(self, key) for key in planners.OPTIONS}
         if self.plan_ms is None:
             out.pop("plan_ms")
+        out.update(self.plugin_options)
         return out
 
 
@@ -968,18 +972,32 @@ def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None, types: dic
 
 def _parse_planner(ck: _Checker, node: Any) -> PlannerSpec | None:
     """The ``planner`` block, checked by the planner registry (names, option types and ranges)."""
-    p = ck.mapping(node, "planner", _PLANNER_KEYS)
+    own = _plugin_options(node.get("name") if isinstance(node, dict) else None)
+    p = ck.mapping(node, "planner", (*_PLANNER_KEYS, *(o.name for o in own)))
     if p is None:
         return None
     name = p.get("name", planners.DEFAULT_PLANNER)
-    options = {key: p[key] for key in planners.OPTIONS if key in p}
+    options = {key: p[key] for key in (*planners.OPTIONS, *(o.name for o in own)) if key in p}
     problems = planners.check_settings(name, options)
     for problem in problems:
         ck.bad(f"planner.{problem.field}", problem.expected, problem.found)
     if problems:
         return None
-    checked = {key: planners.OPTIONS[key].check(v) for key, v in options.items() if v is not None}
-    return PlannerSpec(name=name, **checked)
+    checked = {key: planners.OPTIONS[key].check(v) for key, v in options.items()
+               if v is not None and key in planners.OPTIONS}
+    extra = tuple((o.name, o.check(options[o.name])) for o in own if options.get(o.name) is not None)
+    return PlannerSpec(name=name, **checked, plugin_options=extra)
+
+
+def _plugin_options(name: Any) -> tuple[planners.Option, ...]:
+    """The own options of a plug-in planner named in a file (none for a built-in, or a name the
+    registry cannot resolve: :func:`planner.registry.check_settings` reports that one)."""
+    if not isinstance(name, str) or name in planners.planner_names():
+        return ()
+    try:
+        return planners.entry(name).own
+    except ValueError:
+        return ()
 
 
 def _parse_prior(ck: _Checker, node: Any) -> PriorSpec | None:
