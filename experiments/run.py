@@ -163,7 +163,7 @@ def settings_of(args) -> dict:
         raise UsageError(f"--scaling-overlaps: expected an integer >= 0, found {args.scaling_overlaps}")
     overlaps = _int_list(args.overlaps, "overlaps", 0) if args.overlaps else (QUICK["overlaps"] if quick else OVERLAP_LEVELS)
     carriers = _int_list(args.carriers, "carriers", 1) if args.carriers else (QUICK["carriers"] if quick else CARRIER_LEVELS)
-    from planner.registry import planner_names
+    from planner.registry import is_planner, planner_names
 
     if args.planners is None:
         args.planners = ",".join(COMMS_PLANNERS if args.what == "comms" else DEFAULT_PLANNERS)
@@ -185,9 +185,10 @@ def settings_of(args) -> dict:
         losses = QUICK["losses"] if quick else LOSS_LEVELS
     if args.message_delay < 0:
         raise UsageError(f"--message-delay: expected an integer >= 0, found {args.message_delay}")
-    unknown = [p for p in planners if p not in planner_names()]
+    unknown = [p for p in planners if not is_planner(p)]
     if unknown or not planners:
-        raise UsageError(f"--planners: expected names among {', '.join(planner_names())}, found {args.planners!r}")
+        raise UsageError(f"--planners: expected names among {', '.join(planner_names())} or plug-ins (an entry "
+                         f"point's name, package.module:Factory), found {args.planners!r}")
     if args.what in ("urban", "all") and not args.scenario.is_file():
         raise UsageError(f"--scenario: expected an existing scenario file, found {str(args.scenario)!r}")
     return {"trials": trials, "iterations": iterations, "urban_trials": urban_trials, "overlaps": overlaps,

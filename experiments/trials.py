@@ -232,10 +232,10 @@ def warm_up_worker(names: tuple[str, ...] | None = None) -> None:
 
     clairvoyant.warm_up()
     from planner.instance import random_instance
-    from planner.registry import make_planner, planner_names
+    from planner.registry import is_planner, make_planner, planner_names
 
     inst = random_instance(np.random.default_rng(0), 2, 1, 3, 1, 3.0)
-    for name in planner_names() if names is None else [n for n in names if n in planner_names()]:
+    for name in planner_names() if names is None else [n for n in names if is_planner(n)]:
         planner = make_planner(name, iterations=16)
         warm = getattr(planner, "warm_up", None)
         if callable(warm):

@@ -308,6 +308,15 @@ def entry(name: Any) -> PlannerEntry:
     return found
 
 
+def is_planner(name: Any) -> bool:
+    """Whether :func:`make_planner` takes ``name``: registered, or a plug-in that loads."""
+    try:
+        entry(name)
+    except ValueError:
+        return False
+    return True
+
+
 def known_names() -> tuple[str, ...]:
     """The registered planners (registration order) and the installed plug-ins' entry-point names
     (sorted): every name but a dotted path that :func:`make_planner` accepts."""
