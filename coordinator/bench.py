@@ -8,4 +8,4 @@ import sys
 from planner.cli.bench import instance, main  # noqa: F401
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(prog="python -m coordinator.bench"))

@@ -157,8 +157,9 @@ def plan_ms_table(carriers: int, repeats: int) -> list[tuple[float, float, float
     return rows
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m planner.cli.bench", description=__doc__.split("\n\n")[0])
+def main(argv=None, prog: str = "python -m planner.cli.bench") -> int:
+    """Run the benchmark on ``argv`` (``sys.argv[1:]`` when None); ``prog`` names the command."""
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true",
                         help="2,000 iterations, fewer instances and decisions (a minute or two)")
     parser.add_argument("--sizes", default=",".join(map(str, SIZES)), help="fleet sizes R, comma-separated")
