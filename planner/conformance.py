@@ -338,6 +338,8 @@ def _check_options(name: str, entry: registry.PlannerEntry, options: Mapping[str
         pass
     else:
         return Check("options", FAIL, "bad-option-accepted", "an unknown option 'no_such_option' accepted")
+    if not used:
+        return Check("options", PASS, detail="no options declared; an unknown option refused")
     return Check("options", PASS, detail=f"{tried} bad values of {len(used)} options and an unknown option refused")
 
 
