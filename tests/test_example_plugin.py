@@ -92,7 +92,10 @@ def test_a_fleet_mission_flies_with_it(installed, tmp_path, monkeypatch):
     import world
 
     scenario = world.load_scenario(TINY)
+    from planner import registry
+
     monkeypatch.syspath_prepend(str(installed))
+    monkeypatch.setattr(registry, "_PLUGINS", {})  # the plug-in loaded here is forgotten afterwards
     reference, _ = offline(scenario, planner="greedy")
     np.testing.assert_array_equal(deployed_matrix(summary, scenario), reference.deployed)
     assert summary["total_reward"] == pytest.approx(reference.reward)
