@@ -18,7 +18,8 @@ from typing import Any
 
 from launcher import ROBOT_SENSING
 from launcher.flags import flags_of
-from validation import Found, Problem
+from planner.registry import OPTIONS
+from validation import Check, Found, Number, Problem, Problems
 
 
 @dataclass(frozen=True)
@@ -72,7 +73,7 @@ def check(args: argparse.Namespace, scenario=None) -> tuple[Settings | None, lis
         flags = flags._replace(scenario=scenario.source)
     problems: list[Problem] = []
     problems += _values(flags)
-    options, option_problems = _planner_options(flags)
+    options, option_problems = _planner_options(flags, scenario)
     problems += option_problems
     problems += _roles(flags)
     carriers, carrier_problems = _carriers(flags, scenario)
@@ -90,41 +91,42 @@ def check(args: argparse.Namespace, scenario=None) -> tuple[Settings | None, lis
     return Settings(flags, scenario, carriers, options), []
 
 
+#: The numeric flags' checks, in the order their problems are listed (the planner's budgets are
+#: checked by the registry's options).
+_NUMBERS: tuple[tuple[str, Check], ...] = (
+    ("realtime", Number(minimum=0, noun="a factor")),
+    ("iterations", OPTIONS["iterations"].spec),
+    ("plan_ms", OPTIONS["plan_ms"].spec),
+    ("pose_interval", Number(minimum=0, noun="seconds")),
+    ("seed", Number(integer=True, minimum=0)),
+    *((name, Number(minimum=0, exclusive=True, noun="seconds")) for name in (
+        "join_timeout", "stage_timeout", "decision_timeout", "coordinator_timeout", "peer_timeout", "silence_timeout")),
+    ("routers", Number(integer=True, minimum=0)),
+    ("carrier_processes", Number(integer=True, minimum=1)),
+)
+
+
 def _values(f) -> list[Problem]:
     """Each number in its range."""
-    from planner.registry import OPTIONS
-
-    out = []
-    if f.realtime < 0:
-        out.append(Problem("--realtime", "a factor >= 0", f.realtime))
-    for flag, key in (("--iterations", "iterations"), ("--plan-ms", "plan_ms")):
+    problems = Problems()
+    for key, spec in _NUMBERS:
         value = getattr(f, key)
-        try:
-            value is None or OPTIONS[key].check(value)
-        except ValueError as exc:
-            out.append(Problem(flag, str(exc), value))
-    if f.pose_interval is not None and f.pose_interval < 0:
-        out.append(Problem("--pose-interval", "seconds >= 0", f.pose_interval))
-    if f.seed is not None and f.seed < 0:
-        out.append(Problem("--seed", "an integer >= 0", f.seed))
-    for name in ("join_timeout", "stage_timeout", "decision_timeout", "coordinator_timeout", "peer_timeout",
-                 "silence_timeout"):
-        if getattr(f, name) <= 0:
-            out.append(Problem(f"--{name.replace('_', '-')}", "seconds > 0", getattr(f, name)))
-    if f.routers is not None and f.routers < 0:
-        out.append(Problem("--routers", "an integer >= 0", f.routers))
-    if f.carrier_processes is not None and f.carrier_processes < 1:
-        out.append(Problem("--carrier-processes", "an integer >= 1", f.carrier_processes))
-    return out
+        if value is not None:
+            problems.check(spec, value, f"--{key.replace('_', '-')}")
+    return problems.items
 
 
-def _planner_options(f) -> tuple[tuple, list[Problem]]:
-    from planner.registry import parse_option
+def _planner_options(f, scenario) -> tuple[tuple, list[Problem]]:
+    """``--planner-option``'s pairs, checked against the planner in force (a plug-in's own options
+    included): ``--planner``, else the scenario's."""
+    from planner.registry import DEFAULT_PLANNER, is_planner, parse_option
 
+    name = f.planner or (scenario.planner.name if scenario is not None else DEFAULT_PLANNER)
+    name = name if is_planner(name) else None  # an unknown planner is --planner's problem alone
     options, out = [], []
     for text in f.planner_option:
         try:
-            options.append(parse_option(text))
+            options.append(parse_option(text, name))
         except ValueError as exc:
             out.append(Problem("--planner-option", "KEY=VALUE of planner.registry", text, str(exc)))
     return tuple(options), out

@@ -7,7 +7,7 @@ take names and options from here:
 * :data:`OPTIONS` — every option with its type, range, default and help text
   (their defaults and choice lists are defined once in :mod:`planner.settings`);
 * :func:`check_settings` — validates a name and an options mapping, returning
-  :class:`SettingProblem` entries with field paths (``layout``, ``iterations``, ...) that callers
+  :class:`validation.Problem` entries with field paths (``layout``, ``iterations``, ...) that callers
   turn into their own one-line errors; :func:`parse_option` reads ``KEY=VALUE`` text;
 * :func:`make_planner` — builds a planner (heavy modules are imported lazily, on first use).
 
@@ -25,19 +25,14 @@ errors. Nothing of a plug-in (nor ``importlib.metadata``) is loaded until a name
 """
 from __future__ import annotations
 
-import difflib
-import math
 import keyword
 from dataclasses import dataclass
 from typing import Any, Callable, Iterable, Mapping
 
 # The defaults are defined in planner.settings (below the planners); DEFAULT_PLANNER and the others
 # stay importable from here for the registry's callers.
+from validation import Check, Choice, Flag, Number, Problem, did_you_mean
 from planner.settings import DEFAULT_EXPLORATION, DEFAULT_ITERATIONS, DEFAULT_PLANNER, DEFAULT_SAMPLES, LAYOUTS  # noqa: F401
-
-#: Command-line spellings of a ``bool`` option's values.
-_BOOL_TEXT = {"true": True, "false": False, "1": True, "0": False, "yes": True, "no": False}
-
 
 @dataclass(frozen=True)
 class Option:
@@ -61,52 +56,28 @@ class Option:
     maximum: float | None = None
     choices: tuple[str, ...] = ()
 
+    @property
+    def spec(self) -> Check:
+        """The option's declarative check (:mod:`validation`): its type, range or choices."""
+        if self.choices:
+            return Choice(self.choices)
+        if self.kind is bool:
+            return Flag()
+        return Number(integer=self.kind is int, minimum=self.minimum, maximum=self.maximum, exclusive=self.exclusive)
+
     def expected(self) -> str:
         """The "expected ..." text of an error about this option."""
-        if self.choices:
-            return f"one of {', '.join(self.choices)}"
-        if self.kind is bool:
-            return "true or false"
-        text = "an integer" if self.kind is int else "a number"
-        if self.minimum is not None:
-            text += f" {'>' if self.exclusive else '>='} {self.minimum:g}"
-        if self.maximum is not None:
-            text += f"{' and' if self.minimum is not None else ''} <= {self.maximum:g}"
-        return text
+        return self.spec.expected()
 
     def parse(self, text: str) -> Any:
         """Command-line text -> checked value (``true``/``false``, ``1``/``0``, ``yes``/``no``
-        for a ``bool`` option); raises ValueError with :meth:`expected`."""
-        value: Any = text.strip()
-        if self.kind is bool:
-            value = _BOOL_TEXT.get(value.lower(), value)
-        elif self.kind in (int, float):
-            try:
-                value = self.kind(value)
-            except ValueError:
-                raise ValueError(self.expected()) from None
-        return self.check(value)
+        for a ``bool`` option); raises ValueError (:class:`validation.Invalid`) with :meth:`expected`."""
+        return self.spec.parse(text)
 
     def check(self, value: Any) -> Any:
-        """The value normalised (ints as int, numbers as float); raises ValueError with
-        :meth:`expected` when it is out of type or range."""
-        if self.choices:
-            if not isinstance(value, str) or value not in self.choices:
-                raise ValueError(self.expected())
-            return value
-        if self.kind is bool:
-            if not isinstance(value, bool):
-                raise ValueError(self.expected())
-            return value
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise ValueError(self.expected())
-        if self.kind is int and not float(value).is_integer():
-            raise ValueError(self.expected())
-        if self.minimum is not None and (value <= self.minimum if self.exclusive else value < self.minimum):
-            raise ValueError(self.expected())
-        if self.maximum is not None and value > self.maximum:
-            raise ValueError(self.expected())
-        return int(value) if self.kind is int else float(value)
+        """The value normalised (ints as int, numbers as float); raises ValueError
+        (:class:`validation.Invalid`) with :meth:`expected` when it is out of type or range."""
+        return self.spec.check(value)
 
 
 #: Every planner option, in the order they are documented.
@@ -333,16 +304,7 @@ def defaults() -> dict[str, Any]:
     return {name: opt.default for name, opt in OPTIONS.items()}
 
 
-@dataclass(frozen=True)
-class SettingProblem:
-    """One thing wrong with planner settings: ``field`` is ``"name"`` or an option name."""
-
-    field: str
-    expected: str
-    found: Any
-
-
-def check_settings(name: Any, options: Mapping[str, Any]) -> list[SettingProblem]:
+def check_settings(name: Any, options: Mapping[str, Any]) -> list[Problem]:
     """Everything wrong with a planner name and its options (``None`` values mean "default");
     empty when they are fine. A plug-in's name is loaded to know its options; a plug-in's
     problems name it."""
@@ -351,25 +313,23 @@ def check_settings(name: Any, options: Mapping[str, Any]) -> list[SettingProblem
     try:
         found = entry(name)
     except PluginError as err:
-        problems.append(SettingProblem("name", f"a loadable planner plug-in ({err})", name))
+        problems.append(Problem("name", f"a loadable planner plug-in ({err})", name))
     except ValueError:
         names = known_names()
-        close = difflib.get_close_matches(str(name), names, n=1, cutoff=0.5)
-        hint = f" (did you mean '{close[0]}'?)" if close else ""
-        problems.append(SettingProblem("name", f"one of {', '.join(names)}{hint}", name))
+        problems.append(Problem("name", f"one of {', '.join(names)}{did_you_mean(name, names, cutoff=0.5)}", name))
     whose = f" (an option of planner {name!r})" if found is not None and found.plugin else ""
     for key, value in options.items():
         opt = OPTIONS.get(key) if found is None else found.option(key)
         if opt is None:
             known = OPTIONS if found is None else found.known()
-            problems.append(SettingProblem(key, f"a planner option ({', '.join(known)}){whose}", value))
+            problems.append(Problem(key, f"a planner option ({', '.join(known)}){whose}", value))
             continue
         if value is None:
             continue
         try:
             opt.check(value)
         except ValueError as err:
-            problems.append(SettingProblem(key, f"{err}{whose}", value))
+            problems.append(Problem(key, f"{err}{whose}", value))
     return problems
 
 

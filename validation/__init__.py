@@ -163,15 +163,17 @@ def _finite_number(value: Any) -> bool:
 @dataclass(frozen=True)
 class Number:
     """A finite number (``integer``: a whole one, returned as int; else returned as float) within
-    an inclusive range (``exclusive``: the minimum itself refused)."""
+    an inclusive range (``exclusive``: the minimum itself refused). ``noun`` names it in the
+    expected text in place of "an integer" / "a number" (``seconds`` -> "seconds > 0")."""
 
     integer: bool = False
     minimum: float | None = None
     maximum: float | None = None
     exclusive: bool = False
+    noun: str | None = None
 
     def expected(self) -> str:
-        text = "an integer" if self.integer else "a number"
+        text = self.noun or ("an integer" if self.integer else "a number")
         if self.minimum is not None:
             text += f" {'>' if self.exclusive else '>='} {self.minimum:g}"
         if self.maximum is not None:
