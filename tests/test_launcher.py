@@ -131,6 +131,21 @@ def test_every_problem_is_one_line_naming_the_flag(tiny):
     assert [p.field for p in problems] == ["--realtime", "--seed", "--routers", "--planner-option", "--standby"]
 
 
+def test_planner_options_are_those_of_the_planner_in_force(tiny):
+    """A plug-in's own option is taken for that plug-in (by --planner), refused naming the plug-in
+    when out of range, and refused for a built-in planner that has no such option."""
+    plugin = ["--planner", "planner_plugins:Threshold"]
+    settings, problems = check(parse_args([str(TINY), *plugin, "--planner-option", "cut=4.5"]), tiny)
+    assert problems == [] and settings.planner_options == (("cut", 4.5),)
+    _, problems = check(parse_args([str(TINY), *plugin, "--planner-option", "cut=-1"]), tiny)
+    assert [p.line() for p in problems] == [
+        "--planner-option: cut: expected a number >= 0 (an option of planner 'planner_plugins:Threshold'), found '-1'"]
+    _, problems = check(parse_args([str(TINY), "--planner", "ssap", "--planner-option", "cut=4.5"]), tiny)
+    assert len(problems) == 1 and problems[0].field == "--planner-option" and "cut=4.5" in problems[0].line()
+    _, problems = check(parse_args([str(TINY), "--planner", "nope", "--planner-option", "layout=joint"]), tiny)
+    assert [p.field for p in problems] == ["--planner"]
+
+
 def test_bad_flags_get_one_line_each_and_exit_2(tmp_path):
     proc = subprocess.run([sys.executable, str(ROOT / "run_fleet.py"), "tiny", "--seed", "-1", "--iterations", "0"],
                           cwd=tmp_path, capture_output=True, text=True, timeout=120)
