@@ -1,8 +1,10 @@
-"""The conformance kit (python -m wire.conformance): the project's own carrier and a carrier of
+"""The conformance kits (python -m wire.conformance): the project's own carrier and a carrier of
 revision 1 written from its page pass every rule, through the kit's faults (a late Decision, a
 duplicate, a coordinator restart, a deposed Decision); carriers broken on purpose fail on the
-rule they break. The flights start real processes (a coordinator twice, the other carriers, the
-carrier under test) and are slow; the rule evaluation itself is checked fast on recorded flights."""
+rule they break. The coordinator kit (python -m wire.conformance coordinator) passes the
+project's coordinator and fails the project's coordinator with one rule broken
+(tests/broken_coordinator.py) on that rule. The flights start real processes and most are slow;
+the rule evaluation itself is checked fast on recorded flights."""
 from __future__ import annotations
 
 import subprocess
@@ -17,6 +19,11 @@ from wire import conformance as wc
 from wire import messages as wm
 
 CLIENT = ROOT / "tests" / "revision1_carrier.py"
+BROKEN_COORDINATOR = ROOT / "tests" / "broken_coordinator.py"
+COORDINATOR_FLAGS = ["{scenario}", "--role", "coordinator", "--connect", "{endpoint}", "--mission", "{mission}",
+                     "--seed", "{seed}", "--out", "{workdir}", "--no-map", "--no-record", "--join-timeout", "3",
+                     "--silence-timeout", "2", "--realtime", "0"]
+PROJECT_COORDINATOR = [sys.executable, "-m", "launcher", *COORDINATOR_FLAGS]
 PROJECT_CARRIER = [sys.executable, str(ROOT / "run_fleet.py"), "{scenario}", "--role", "carrier", "--carrier",
                    "{carrier}", "--connect", "{endpoint}", "--seed", "{seed}", "--mission", "{mission}",
                    "--no-autonomy", "--out", "{workdir}"]
@@ -148,3 +155,91 @@ def test_a_broken_carrier_fails_the_rule_it_breaks(tmp_path, fault, rule):
     results = kit.run()
     assert not wc.passed(results)
     assert _statuses(results)[rule] == "FAIL", wc.table(results) + kit.flight.output
+
+
+# --------------------------------------------------------------------------- the coordinator kit
+
+def _coordinator_rows(stdout: str) -> dict:
+    names = {r for r, _, _ in wc.COORDINATOR_RULES}
+    return {line.split()[0]: line.split()[2] for line in stdout.splitlines() if line.split() and line.split()[0] in names}
+
+
+def test_the_coordinator_kit_help_documents_every_flag_fault_and_rule(capsys):
+    assert wc.main(["coordinator", "--help"]) == 0
+    text = capsys.readouterr().out
+    assert text.startswith("usage: python -m wire.conformance coordinator [SCENARIO] [options] -- COMMAND")
+    for flag in ("--seed", "--faults", "--timeout", "--workdir"):
+        assert flag in text, flag
+    assert "SIGKILL 10 s later" in text and "DIR/takeover" in text  # --timeout, --workdir explained
+    for variable, placeholder, _ in wc.coordflight.PLACEHOLDERS:
+        assert variable in text and "{" + placeholder + "}" in text
+    assert all(fault in text for fault in wc.coordflight.FAULTS)
+    assert all(rule in text and section in text for rule, section, _ in wc.COORDINATOR_RULES)
+    assert "exit status: 0" in text
+
+
+def test_the_carrier_kit_is_still_the_default_and_a_subcommand(capsys):
+    """The documented spelling without a subcommand and ``carrier`` reach the same kit."""
+    assert wc.main(["--help"]) == 0
+    default = capsys.readouterr().out
+    assert wc.main(["carrier", "--help"]) == 0
+    named = capsys.readouterr().out
+    assert "--carrier ID" in default and "'coordinator' checks a coordinator" in default
+    assert named.replace("python -m wire.conformance carrier", "python -m wire.conformance") == default
+
+
+def test_the_coordinator_kit_refuses_bad_usage(tmp_path):
+    for args, text in [(["coordinator"], "no COMMAND"), (["coordinator", "nowhere", "--", "true"], "no such file"),
+                       (["coordinator", "--faults", "meteor", "--", "true"], "unknown fault")]:
+        proc = subprocess.run([sys.executable, "-m", "wire.conformance", *args], capture_output=True, text=True,
+                              cwd=ROOT, timeout=60)
+        assert proc.returncode == 2 and text in proc.stderr, (args, proc.stderr)
+        assert "Traceback" not in proc.stderr
+
+
+def _coordinator_kit(tmp_path, command, faults) -> tuple[list, wc.CoordinatorKit]:
+    kit = wc.CoordinatorKit(str(TINY), command, faults=faults, timeout_s=90, workdir=str(tmp_path / "kit"),
+                            log=lambda line: None)
+    return kit.run(), kit
+
+
+def test_the_project_coordinator_passes_a_plain_flight(tmp_path):
+    """[P-5] every Hello answered, [P-6] Decisions in order and feasible, [P-9] End once: the
+    project's coordinator, no faults (quick: one flight of tiny)."""
+    results, kit = _coordinator_kit(tmp_path, PROJECT_COORDINATOR, ())
+    statuses = _statuses(results)
+    assert wc.passed(results), wc.table(results, wc.COORDINATOR_RULES) + kit.flights[0].output
+    assert {r for r, s in statuses.items() if s == "pass"} >= {"decode", "state", "hello-answered", "accepted",
+                                                               "decision-order", "end", "rejections"}
+
+
+def test_a_coordinator_deploying_every_carrier_fails_feasible(tmp_path):
+    """[P-6] a Decision selecting carriers that did not observe the stage fails ``feasible``."""
+    results, kit = _coordinator_kit(tmp_path, [sys.executable, str(BROKEN_COORDINATOR), "select-all",
+                                               *COORDINATOR_FLAGS], ())
+    assert not wc.passed(results)
+    assert _statuses(results)["feasible"] == "FAIL", wc.table(results, wc.COORDINATOR_RULES)
+
+
+@pytest.mark.slow
+def test_the_project_coordinator_passes_every_fault(tmp_path):
+    """The documented command on the project's coordinator: every rule exercised and passed, the
+    takeover flight included ([P-7] a newer epoch's Decision stops it)."""
+    proc = subprocess.run([sys.executable, "-m", "wire.conformance", "coordinator", str(TINY), "--workdir",
+                           str(tmp_path / "kit"), "--", *PROJECT_COORDINATOR], capture_output=True, text=True,
+                          cwd=ROOT, timeout=400)
+    assert proc.returncode == 0, proc.stdout + proc.stderr[-3000:]
+    rows = _coordinator_rows(proc.stdout)
+    assert set(rows) == {r for r, _, _ in wc.COORDINATOR_RULES} and set(rows.values()) == {"pass"}, proc.stdout
+    assert "conformance: PASS (coordinator: main exit code 0, takeover exit code 3" in proc.stdout
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("brk, faults, rule", [
+    ("no-accepted", (), "hello-answered"), ("ignore-takeover", ("takeover",), "takeover"),
+])
+def test_a_broken_coordinator_fails_the_rule_it_breaks(tmp_path, brk, faults, rule):
+    results, kit = _coordinator_kit(tmp_path, [sys.executable, str(BROKEN_COORDINATOR), brk, *COORDINATOR_FLAGS],
+                                    faults)
+    assert not wc.passed(results)
+    assert _statuses(results)[rule] == "FAIL", wc.table(results, wc.COORDINATOR_RULES)

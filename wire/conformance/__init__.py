@@ -1,7 +1,13 @@
-"""The conformance kit: fly a third-party carrier with the project's coordinator and check it
-against docs/protocol.md, rule by rule.
+"""The conformance kits: check a third-party carrier, or a third-party coordinator, against
+docs/protocol.md, rule by rule.
 
-    python -m wire.conformance SCENARIO --carrier ID [options] -- COMMAND [ARGS...]
+    python -m wire.conformance [carrier] SCENARIO --carrier ID [options] -- COMMAND [ARGS...]
+    python -m wire.conformance coordinator [SCENARIO] [options] -- COMMAND [ARGS...]
+
+The coordinator kit (``coordkit``) is the router and every carrier of the scenario (``fleet``:
+the scenario's truth and the kit's carriers; ``coordflight``: its flights, faults and what it
+saw; ``coordrules``: :data:`COORDINATOR_RULES` and their evaluation). The rest of this
+docstring is the carrier kit, the default:
 
 The kit is the mission's zenoh router (mode ``router``, ``tcp/127.0.0.1:<free port>``,
 multicast scouting off) and a passive observer of every message of the mission. It starts the
@@ -40,16 +46,19 @@ The parts, each doing one thing (each given its collaborators in its constructor
 * ``faults``: the scripted coordinator side, the deliberate faults and their triggers;
 * ``rules``: the rules and their evaluation, a pure function of the target and the flight;
 * ``report``: the table and the verdict; ``kit``: ``Kit``, the flight loop tying them together;
-* ``cli``: the command line, ``main(argv)``.
+* ``cli``: the command line, ``main(argv)`` (both kits).
 """
 from __future__ import annotations
 
+from . import coordflight
 from .cli import main
+from .coordkit import CoordinatorKit
+from .coordrules import COORDINATOR_RULES
 from .faults import FAULTS, SETTLE_S
 from .flight import CARRIER_TOPICS, Flight, Seen, Target
 from .kit import Kit
 from .report import passed, table, verdict
 from .rules import RULES, Result, evaluate
 
-__all__ = ["CARRIER_TOPICS", "FAULTS", "RULES", "SETTLE_S", "Flight", "Kit", "Result", "Seen", "Target", "evaluate",
-           "main", "passed", "table", "verdict"]
+__all__ = ["CARRIER_TOPICS", "COORDINATOR_RULES", "CoordinatorKit", "FAULTS", "RULES", "SETTLE_S", "Flight", "Kit", "Result", "Seen", "Target", "evaluate",
+           "coordflight", "main", "passed", "table", "verdict"]

@@ -6,10 +6,11 @@ from pathlib import Path
 from .rules import RULES, Result
 
 
-def table(results: list[Result]) -> str:
+def table(results: list[Result], rules: tuple = RULES) -> str:
     """One line per rule: id, times exercised, ``pass`` / ``FAIL`` / ``-``, and the first failure
-    (or what the rule says and its section of docs/protocol.md)."""
-    sections = {rule: (section, text) for rule, section, text in RULES}
+    (or what the rule says and its section of docs/protocol.md); ``rules``: the kit's table
+    (the carrier kit's by default)."""
+    sections = {rule: (section, text) for rule, section, text in rules}
     lines = [f"{'rule':<24} {'n':>4}  result  detail", "-" * 78]
     for r in results:
         section, text = sections[r.rule]
