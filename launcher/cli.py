@@ -8,6 +8,7 @@ line of the project. Each subcommand hands the rest of its arguments to that com
     marsupial-fleet experiments all                # python -m experiments
     marsupial-fleet record rebuild RUN_DIR         # python -m recording
     marsupial-fleet conformance carrier S.yaml --carrier a -- COMMAND   # python -m wire.conformance
+    marsupial-fleet conformance coordinator S.yaml -- COMMAND          # python -m wire.conformance coordinator
     marsupial-fleet conformance planner package.module:Factory         # python -m planner.conformance
 """
 from __future__ import annotations
@@ -28,10 +29,10 @@ COMMANDS = {
     "experiments": ("python -m experiments", "the paper's experiments, and check of published results"),
     "record": ("python -m recording", "mission recordings: rebuild mission.mcap from mission.db"),
     "conformance": ("python -m wire.conformance | python -m planner.conformance",
-                    "conformance kits: 'carrier' (a carrier on the wire) or 'planner' (a planner plug-in)"),
+                    "conformance kits: 'carrier' or 'coordinator' (a peer on the wire), 'planner' (a planner plug-in)"),
 }
 #: ``conformance``'s kits.
-KITS = ("carrier", "planner")
+KITS = ("carrier", "coordinator", "planner")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -100,6 +101,10 @@ def _conformance(argv: list[str]) -> int:
         from wire.conformance import main as carrier_kit
 
         return carrier_kit(argv[1:])
+    if argv[0] == "coordinator":
+        from wire.conformance.cli import coordinator_main
+
+        return coordinator_main(argv[1:], prog=f"{PROG} conformance coordinator")
     kit = _planner_kit()
     if kit is None:
         print(f"{PROG} conformance planner: the planner conformance kit (planner.cli.conformance) is not installed "

@@ -256,10 +256,13 @@ def test_conformance_needs_a_kit(capsys):
     assert cli.main(["conformance"]) == EXIT_USAGE
     assert cli.main(["conformance", "plane"]) == EXIT_USAGE
     assert capsys.readouterr().err.splitlines() == [
-        "marsupial-fleet conformance: expected a kit (carrier, planner), found nothing",
-        "marsupial-fleet conformance: expected a kit (carrier, planner), found 'plane'"]
+        "marsupial-fleet conformance: expected a kit (carrier, coordinator, planner), found nothing",
+        "marsupial-fleet conformance: expected a kit (carrier, coordinator, planner), found 'plane'"]
     assert cli.main(["conformance", "carrier", "S.yaml"]) == EXIT_USAGE  # the kit's own usage line
     assert "python -m wire.conformance" in capsys.readouterr().err
+    assert cli.main(["conformance", "coordinator"]) == EXIT_USAGE
+    assert capsys.readouterr().err.splitlines()[-1] == (
+        "marsupial-fleet conformance coordinator: error: no COMMAND after -- (the coordinator under test)")
 
 
 def test_conformance_planner_runs_the_planner_kit(capsys):
