@@ -154,10 +154,56 @@ def test_every_message_field_is_documented():
         assert _documented_fields(type_name) == in_code, type_name
 
 
+def _field_rows(section: str) -> dict[str, list[str]]:
+    """field -> its cells (field, type, since, presence, default, meaning) in a field table."""
+    rows = {}
+    for line in section.splitlines():
+        m = re.match(r"^\| `(\w+)` \|", line)
+        if m:
+            rows[m.group(1)] = [cell.strip() for cell in line.strip().strip("|").split("|")]
+    return rows
+
+
+def test_field_tables_say_since_and_presence_as_the_code_does():
+    """Each field table's columns (field, type, since, presence, default, meaning): `since` is the
+    revision the code marks (a message type's own revision for its required fields), `optional`
+    exactly the fields the codec takes as absent with a default, a required field `nullable`
+    exactly when it takes nil as a value, and every optional field names its default."""
+    from wire.messages import MESSAGE_TYPES, CarrierState, ProtocolError
+
+    sections = {name: PROTOCOL.split(f'(`type: "{name}"`')[1].split("\n### ")[0].split("\n## ")[0]
+                for name in MESSAGE_TYPES}
+    sections["carrier-state"] = PROTOCOL.split("### CarrierState")[1].split("\n### ")[0].split("\n## ")[0]
+    classes = {**MESSAGE_TYPES, "carrier-state": CarrierState}
+    for name, cls in classes.items():
+        rows = _field_rows(sections[name])
+        assert [c for c in rows.values() if len(c) != 6] == [], name
+        for f in fields(cls):
+            if f.name in ("mission", "v"):
+                continue
+            cells = rows[f.name]
+            since = max(f.metadata.get("since", 1), getattr(cls, "SINCE", 1))
+            assert cells[2] == str(since), (name, f.name, cells[2], since)
+            optional = "absent" in f.metadata
+            assert cells[3].startswith("optional") == optional, (name, f.name, cells[3])
+            assert cells[3].startswith("required") == (not optional), (name, f.name, cells[3])
+            assert (cells[4] != "—") == optional, (name, f.name, cells[4])
+            check = f.metadata["check"]
+            try:
+                check(None, f.name)
+                takes_nil = True
+            except ProtocolError:
+                takes_nil = False
+            except Exception:  # a nested map's validator: nil is not a map
+                takes_nil = False
+            if not optional:  # an optional field's nil is its absence ([P-1.3]), nullable or not
+                assert ("nullable" in cells[3]) == takes_nil, (name, f.name, cells[3])
+
+
 def test_every_rejection_reason_is_documented():
     from wire.messages import REASONS
 
-    table = PROTOCOL.split("## Rejections")[1].split("\n## ")[0]
+    table = PROTOCOL.split("### Rejections: the reason codes")[1].split("\n#")[0]
     documented = set(re.findall(r"^\| `([a-z-]+)` \|", table, re.M))
     used = set(REASONS)
     for path in [*(ROOT / "mission").glob("*.py"), *(ROOT / "wire").glob("*.py"),

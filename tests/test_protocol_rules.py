@@ -860,3 +860,17 @@ def test_the_kit_rules_are_on_the_page():
     for rule, section, _ in RULES:
         assert f"| `{rule}` | {section} |" in table, rule
         assert section in PAGE.split("## 11.")[0] or section == "Messages", section
+
+
+def test_the_coordinator_kit_rules_are_on_the_page():
+    """[P-11.1] every rule the coordinator kit checks is in the page's coordinator kit table, with
+    rule ids of the page."""
+    from wire.conformance.coordrules import COORDINATOR_RULES
+
+    table = PAGE.split("**The coordinator kit.**")[1].split("\n## ")[0]
+    book = rules()
+    for rule, _, _ in COORDINATOR_RULES:
+        row = next((line for line in table.splitlines() if line.startswith(f"| `{rule}` |")), None)
+        assert row is not None, rule
+        ids = CITED.findall(row.split("|")[2])
+        assert ids and set(ids) <= set(book), (rule, ids)
