@@ -127,7 +127,7 @@ def fingerprint(scenario_path: str, seed: int) -> str:
     return hashlib.sha256(f"marsupial-fleet/1 seed={int(seed)}\n".encode() + data).hexdigest()[:16]
 
 
-FAULTS = ("fingerprint", "future-obs", "no-confirm", "unknown-field", "stale-epoch")
+FAULTS = ("fingerprint", "future-obs", "no-confirm", "unknown-field", "stale-epoch", "ignore-refusal")
 
 
 def fly(endpoint: str, mission: str, cid: str, world: dict, decision_timeout_s: float = 30.0,
@@ -293,7 +293,7 @@ def fly(endpoint: str, mission: str, cid: str, world: dict, decision_timeout_s: 
                 if kind == "end":
                     ended = True
                 elif kind == "refusal":
-                    if message["fingerprint"] == mine_fp:
+                    if message["fingerprint"] == mine_fp and fault != "ignore-refusal":
                         outcome["reason"] = "world-mismatch"
                         return outcome
                 elif message.get("epoch", 1) < me["epoch"] and fault != "stale-epoch":

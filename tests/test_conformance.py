@@ -29,11 +29,11 @@ PROJECT_CARRIER = [sys.executable, str(ROOT / "run_fleet.py"), "{scenario}", "--
                    "--no-autonomy", "--out", "{workdir}"]
 
 
-def _client(tmp_path, fault=None) -> list[str]:
+def _client(tmp_path, fault=None, *extra) -> list[str]:
     tiny = world.load_scenario(TINY)
     path = sensed_world_file(tiny, world.simulate_mission(tiny), tiny.carrier_index("a"), tmp_path / "a.json")
     return [sys.executable, str(CLIENT), "--endpoint", "{endpoint}", "--mission", "{mission}", "--carrier",
-            "{carrier}", "--world", str(path), *(["--fault", fault] if fault else [])]
+            "{carrier}", "--world", str(path), *(["--fault", fault] if fault else []), *extra]
 
 
 def _statuses(results) -> dict:
@@ -107,12 +107,13 @@ def test_the_command_line_refuses_bad_usage(tmp_path):
 def test_the_help_documents_every_flag_and_what_the_carrier_is_told(capsys):
     assert wc.main(["--help"]) == 0
     text = capsys.readouterr().out
-    for flag in ("--carrier", "--seed", "--faults", "--late", "--timeout", "--workdir"):
+    for flag in ("--carrier", "--seed", "--faults", "--flight", "--revision", "--late", "--timeout", "--workdir"):
         assert flag in text, flag
     assert "COMMAND one more second" in text and "DIR/carrier" in text  # --timeout, --workdir
     for variable, placeholder, _ in wc.harness.PLACEHOLDERS:
         assert variable in text and "{" + placeholder + "}" in text
     assert all(fault in text for fault in wc.FAULTS) and all(rule in text for rule, _, _ in wc.RULES)
+    assert all(flight in text for flight in wc.FLIGHTS) and all(section in text for _, section, _ in wc.RULES)
     assert "exit status: 0" in text
 
 
@@ -155,6 +156,104 @@ def test_a_broken_carrier_fails_the_rule_it_breaks(tmp_path, fault, rule):
     results = kit.run()
     assert not wc.passed(results)
     assert _statuses(results)[rule] == "FAIL", wc.table(results) + kit.flight.output
+
+
+# --------------------------------------------------------------------------- the carrier kit's scripted flights
+
+def _flight(tmp_path, command, flight, revision=None) -> tuple[list, wc.Kit]:
+    kit = wc.Kit(str(TINY), "a", command, workdir=str(tmp_path / "kit"), log=lambda line: None, flight=flight,
+                 revision=revision, timeout_s=90)
+    return kit.run(), kit
+
+
+def _exercised_and_passed(results, kit, rules) -> None:
+    statuses = _statuses(results)
+    assert wc.passed(results), wc.table(results) + kit.flight.output
+    assert all(statuses[rule] == "pass" for rule in rules), wc.table(results)
+
+
+def test_the_project_carrier_passes_the_kits_own_coordinator(tmp_path):
+    """[P-5.8] Accepted and it goes on; [P-6.9] the named passenger is the one released (the kit
+    names the last on board, not the default); End and Bye. Quick: the kit is the coordinator."""
+    results, kit = _flight(tmp_path, PROJECT_CARRIER, "scripted")
+    _exercised_and_passed(results, kit, ("accepted", "passenger-named", "confirm-outcome", "bye"))
+
+
+def test_a_revision1_carrier_passes_a_revision1_coordinator(tmp_path):
+    """[P-4.3] each revision's carrier at its own revision: the revision-1 carrier written from its
+    page against the kit's coordinator speaking revision 1."""
+    results, kit = _flight(tmp_path, _client(tmp_path), "older", 1)
+    _exercised_and_passed(results, kit, ("older-revision", "confirm", "bye"))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("revision", [1, 2])
+def test_the_project_carrier_falls_back_to_an_older_coordinator(tmp_path, revision):
+    """[P-4.3] a coordinator whose State announces no revision is spoken revision 1 to: no Hello
+    revision, no Confirm passenger, whatever its Decisions carry."""
+    results, kit = _flight(tmp_path, PROJECT_CARRIER, "older", revision)
+    _exercised_and_passed(results, kit, ("older-revision", "confirm", "bye"))
+
+
+@pytest.mark.slow
+def test_the_project_carrier_stops_when_refused_and_ignores_anothers_refusal(tmp_path):
+    """[P-5.10] a Refusal naming another fingerprint is ignored; one naming its own stops it."""
+    results, kit = _flight(tmp_path, PROJECT_CARRIER, "refusal")
+    _exercised_and_passed(results, kit, ("refusal",))
+
+
+@pytest.mark.slow
+def test_a_revision1_carrier_stops_when_refused(tmp_path):
+    """[P-5.10] the revision-1 carrier, refused as world-mismatch (the only reason it knows)."""
+    results, kit = _flight(tmp_path, _client(tmp_path), "refusal")
+    _exercised_and_passed(results, kit, ("refusal",))
+
+
+@pytest.mark.slow
+def test_a_carrier_that_ignores_its_refusal_fails_refusal(tmp_path):
+    """[P-5.10] the revision-1 carrier broken to fly on after its Refusal."""
+    results, kit = _flight(tmp_path, _client(tmp_path, "ignore-refusal", "--decision-timeout", "1"), "refusal")
+    assert _statuses(results)["refusal"] == "FAIL", wc.table(results)
+
+
+@pytest.mark.slow
+def test_the_project_carrier_sends_progress_on_a_paced_mission(tmp_path):
+    """[P-10.6] stages of 2.5 s of wall time: Progress at least every 1.5 s on the way, of the
+    stage it works towards. The carrier is given the pace (--realtime) as well as the Accepted."""
+    results, kit = _flight(tmp_path, [*PROJECT_CARRIER, "--realtime", "2"], "progress")
+    _exercised_and_passed(results, kit, ("progress", "confirm", "bye"))
+    assert _statuses(results)["progress"] == "pass" and next(r for r in results if r.rule == "progress").exercised > 3
+
+
+@pytest.mark.slow
+def test_the_project_carrier_follows_the_higher_of_two_live_coordinators(tmp_path):
+    """[P-7.2] both coordinators live, the deposed one's contradicting Decision first at every
+    stage: only the higher epoch's are answered; [P-7.4] the deposed one's End does not end it."""
+    results, kit = _flight(tmp_path, PROJECT_CARRIER, "two-coordinators")
+    _exercised_and_passed(results, kit, ("two-coordinators", "deposed-end", "confirm-outcome", "bye"))
+
+
+@pytest.mark.slow
+def test_a_revision1_carrier_follows_the_higher_of_two_live_coordinators(tmp_path):
+    """[P-7.2] the revision-1 carrier (its End carries no epoch: no deposed End is sent to it)."""
+    results, kit = _flight(tmp_path, _client(tmp_path), "two-coordinators")
+    _exercised_and_passed(results, kit, ("two-coordinators", "confirm-outcome", "bye"))
+    assert _statuses(results)["deposed-end"] == "-"
+
+
+@pytest.mark.slow
+def test_a_carrier_answering_the_deposed_coordinator_fails_two_coordinators(tmp_path):
+    """[P-7.2] the revision-1 carrier broken to ignore epochs."""
+    results, kit = _flight(tmp_path, _client(tmp_path, "stale-epoch"), "two-coordinators")
+    assert _statuses(results)["two-coordinators"] == "FAIL", wc.table(results)
+
+
+def test_the_carrier_kit_refuses_a_bad_flight_or_revision(tmp_path):
+    for args, text in [(["--flight", "moon"], "invalid choice"), (["--flight", "older", "--revision", "3"], "--revision"),
+                       (["--revision", "0", "--flight", "scripted"], "--revision")]:
+        proc = subprocess.run([sys.executable, "-m", "wire.conformance", str(TINY), "--carrier", "a", *args, "--",
+                               "true"], capture_output=True, text=True, cwd=ROOT, timeout=60)
+        assert proc.returncode == 2 and text in proc.stderr, (args, proc.stderr)
 
 
 # --------------------------------------------------------------------------- the coordinator kit

@@ -56,9 +56,9 @@ from .coordkit import CoordinatorKit
 from .coordrules import COORDINATOR_RULES
 from .faults import FAULTS, SETTLE_S
 from .flight import CARRIER_TOPICS, Flight, Seen, Target
-from .kit import Kit
+from .kit import FLIGHTS, Kit
 from .report import passed, table, verdict
 from .rules import RULES, Result, evaluate
 
-__all__ = ["CARRIER_TOPICS", "COORDINATOR_RULES", "CoordinatorKit", "FAULTS", "RULES", "SETTLE_S", "Flight", "Kit", "Result", "Seen", "Target", "evaluate",
+__all__ = ["CARRIER_TOPICS", "COORDINATOR_RULES", "CoordinatorKit", "FAULTS", "FLIGHTS", "RULES", "SETTLE_S", "Flight", "Kit", "Result", "Seen", "Target", "evaluate",
            "coordflight", "main", "passed", "table", "verdict"]

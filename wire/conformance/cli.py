@@ -12,12 +12,13 @@ import sys
 import textwrap
 from pathlib import Path
 
+from .. import messages as wm
 from . import coordflight
 from .coordkit import CoordinatorKit
 from .coordrules import COORDINATOR_RULES
 from .faults import FAULT_TEXT, FAULTS
 from .harness import PLACEHOLDERS
-from .kit import Kit
+from .kit import FLIGHT_TEXT, FLIGHTS, Kit
 from .report import passed, table, verdict
 from .rules import RULES
 
@@ -35,17 +36,21 @@ def _entry(name: str, text: str, column: int) -> str:
 def _epilog() -> str:
     told = "\n".join(f"  {variable:<20} {'{' + name + '}':<12} {meaning}" for variable, name, meaning in PLACEHOLDERS)
     faults = "\n".join(_entry(name, text, 14) for name, text in FAULT_TEXT.items())
+    flights = "\n".join(_entry(name, text, 20) for name, text in FLIGHT_TEXT.items())
     rules = "\n".join(_entry(rule, f"{text} ({section})", 28) for rule, section, text in RULES)
     return f"""\
 COMMAND, the carrier under test, connects to the kit's router in zenoh client mode. It is told
 where and who it is by environment variables, and by placeholders the kit replaces in ARGS:
 {told}
 
-faults (--faults; all by default):
+flights (--flight; project by default):
+{flights}
+
+faults (--faults; all by default; the project flight's only):
 {faults}
 
 rules (one report line each: times exercised, pass, FAIL with the first message that broke it,
-or - when not exercised; docs/protocol.md, "Conformance kit"):
+or - when not exercised; docs/protocol.md, section 11):
 {rules}
 
 exit status: 0 when every exercised rule passes, 1 otherwise, 2 for a usage error.
@@ -73,6 +78,11 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, help="root seed (overrides the scenario's)")
     parser.add_argument("--faults", default=",".join(FAULTS), metavar="LIST",
                         help=f"comma-separated faults to make (default all: {','.join(FAULTS)}; 'none' for none)")
+    parser.add_argument("--flight", default="project", choices=FLIGHTS, metavar="FLIGHT",
+                        help=f"who the coordinator is: {', '.join(FLIGHTS)} (default project; listed below)")
+    parser.add_argument("--revision", type=int, metavar="R",
+                        help="the revision the kit's own coordinator speaks in the flights other than project "
+                             f"(1..{wm.REVISION}; default {wm.REVISION}, and 1 for older, which takes 1 or 2)")
     parser.add_argument("--late", type=float, default=3.0, metavar="SECONDS",
                         help="seconds the late Decision is late (default 3)")
     parser.add_argument("--timeout", type=float, default=180.0, metavar="SECONDS",
@@ -97,7 +107,8 @@ def _kit(parser: argparse.ArgumentParser, args: argparse.Namespace, command: lis
     if not Path(args.scenario).is_file():
         parser.error(f"scenario: no such file: {args.scenario}")
     try:
-        return Kit(args.scenario, args.carrier, command, args.seed, faults, args.late, args.timeout, args.workdir)
+        return Kit(args.scenario, args.carrier, command, args.seed, faults, args.late, args.timeout, args.workdir,
+                   flight=args.flight, revision=args.revision)
     except ValueError as exc:
         parser.error(str(exc))
 

@@ -100,6 +100,10 @@ class Flight:
     rejected: Counter = field(default_factory=Counter)  # coordinator's counts for the carrier
     exit_code: int | None = None
     output: str = ""
+    name: str = "project"  # the flight (kit.FLIGHTS)
+    revision: int | None = None  # the revision the kit's own coordinator speaks (None: the project's)
+    accepted: list = field(default_factory=list)  # Seen of Accepted to the carrier
+    fakes: set = field(default_factory=set)  # payloads of the kit's fakes, which the carrier must ignore
 
     def decided(self, stage: int) -> bool:
         """The coordinator's (not a fake) Decision of ``stage`` has been seen."""
@@ -160,6 +164,16 @@ class Observer:
             except wm.ProtocolError as exc:
                 seen.error = f"{exc.reason}: {exc.detail}"
             f.carrier.append(seen)
+            return seen
+        if item.payload in f.fakes:
+            return None  # the kit's own fake, on record where it was made
+        if item.key == keys.accepted_key(t.mission, t.cid):
+            seen = Seen(item.received, "accepted", item.payload)
+            try:
+                seen.message = wm.decode(item.payload, wm.Accepted)
+            except wm.ProtocolError:
+                return None
+            f.accepted.append(seen)
             return seen
         if item.key == keys.decision_key(t.mission):
             if any(d.fake and d.payload == item.payload for d in f.decisions):

@@ -14,6 +14,7 @@ from .faults import FAULTS, Faults
 from .flight import CARRIER_TOPICS, Flight, Observer, Target
 from .harness import Harness
 from .rules import Result, evaluate
+from .scripted import ScriptedCoordinator
 
 #: After End, how long the carrier under test has to exit before the kit stops watching, seconds.
 END_GRACE_S = 15.0
@@ -21,6 +22,24 @@ END_GRACE_S = 15.0
 EXIT_GRACE_S = 1.0
 #: How often the kit asks the coordinator for its rejection counts, seconds.
 STATE_PERIOD_S = 1.0
+#: The pace of the progress flight, simulated seconds per wall second.
+PROGRESS_REALTIME = 2.0
+#: The flights (``--flight``): who the coordinator is and what it does (the help prints these).
+FLIGHT_TEXT = {
+    "project": "the project's coordinator and the scenario's other carriers, with the faults of --faults",
+    "scripted": "the kit is the coordinator (revision --revision, epoch 1): Accepted, a Decision as soon as "
+                "the carrier has observed, the passenger to release named (the last on board), End",
+    "progress": f"as scripted, on a paced mission (realtime {PROGRESS_REALTIME:g}, announced in Accepted, revision 4; "
+                "give a carrier that does not read it the same pace in COMMAND): each stage takes its "
+                "interval / realtime in wall time, long enough that Progress must come",
+    "refusal": "the kit is the coordinator and refuses the carrier's Hello: first a Refusal naming another "
+               "fingerprint (to be ignored), a second later one naming the carrier's (it must stop)",
+    "older": "as scripted, the kit's coordinator speaking revision --revision (default 1 here): its State "
+             "announces no revision, the carrier must speak revision 1 to it",
+    "two-coordinators": "two coordinators of the kit, both live: epoch 2 truthful, epoch 1 deposed, publishing "
+                        "a contradicting Decision of each stage first and (revision 4) an End half-way",
+}
+FLIGHTS = tuple(FLIGHT_TEXT)
 
 
 class Kit:
@@ -36,6 +55,9 @@ class Kit:
         timeout_s: the longest mission, seconds.
         workdir: where the results and logs go (default: a new temporary directory).
         log: where progress lines go (default: stderr).
+        flight: one of :data:`FLIGHTS` (the faults are the ``project`` flight's).
+        revision: the revision the kit's own coordinator speaks (the other flights; default:
+            this code's, 1 for ``older``).
 
     Raises:
         ValueError: the scenario has no such carrier (one line naming ``--carrier``).
@@ -43,7 +65,13 @@ class Kit:
 
     def __init__(self, scenario_path: str, carrier: str, command: list[str], seed: int | None = None,
                  faults: tuple[str, ...] = FAULTS, late_s: float = 3.0, timeout_s: float = 120.0,
-                 workdir: str | None = None, log: Callable[[str], None] | None = None):
+                 workdir: str | None = None, log: Callable[[str], None] | None = None, flight: str = "project",
+                 revision: int | None = None):
+        if flight not in FLIGHTS:
+            raise ValueError(f"--flight: unknown flight {flight!r} (one of {', '.join(FLIGHTS)})")
+        revision = revision if revision is not None else (1 if flight == "older" else wm.REVISION)
+        if not 1 <= revision <= wm.REVISION or (flight == "older" and revision >= 3):
+            raise ValueError(f"--revision: {revision} (1..{wm.REVISION}; below 3 for the older flight)")
         self.target = Target.load(scenario_path, carrier, seed)
         self.command = list(command)
         self.faults = tuple(faults)
@@ -51,23 +79,51 @@ class Kit:
         self.timeout_s = float(timeout_s)
         self.workdir = Path(workdir or tempfile.mkdtemp(prefix="conformance-"))
         self.log = log or (lambda line: print(line, file=sys.stderr, flush=True))
-        self.flight = Flight()
+        self.flight = Flight(name=flight, revision=None if flight == "project" else revision)
 
     def run(self) -> list[Result]:
         """Fly the mission with the carrier under test, then judge it (:meth:`evaluate`)."""
         t = self.target
         with Harness(t, self.workdir) as harness:
             observer = Observer(t, self.flight, harness.node)
-            harness.start_coordinator()
-            harness.start_other_carriers()
+            scripted = self._coordinators(harness)
+            if not scripted:
+                harness.start_coordinator()
+                harness.start_other_carriers()
             command = harness.expand(self.command)
-            self.log(f"conformance: mission {t.mission} on {harness.endpoint}; carrier {t.cid}: {shlex.join(command)}")
+            self.log(f"conformance: flight {self.flight.name}, mission {t.mission} on {harness.endpoint}; "
+                     f"carrier {t.cid}: {shlex.join(command)}")
             under_test = harness.start_under_test(command)
-            self._fly(harness, observer, Faults(t, self.flight, harness, observer, self.faults, self.late_s),
-                      under_test)
+            enabled = self.faults if not scripted else ()
+            try:
+                self._fly(harness, observer, Faults(t, self.flight, harness, observer, enabled, self.late_s),
+                          under_test, scripted)
+            finally:
+                for coordinator in scripted:
+                    coordinator.node.close(3.0)
         return self.evaluate()
 
-    def _fly(self, harness: Harness, observer: Observer, faults: Faults, under_test) -> None:
+    def _coordinators(self, harness: Harness) -> list[ScriptedCoordinator]:
+        """The kit's own coordinators of this flight (none for ``project``), each on a client
+        session of the router."""
+        from ..transport import Node
+        from ..zconfig import make_config
+
+        f, revision = self.flight, self.flight.revision
+        if f.name == "project":
+            return []
+
+        def session():
+            return Node(make_config("client", connect=[harness.endpoint]))
+
+        if f.name == "two-coordinators":
+            return [ScriptedCoordinator(self.target, f, session(), 1, revision, deposed=True),
+                    ScriptedCoordinator(self.target, f, session(), 2, revision, hold={j: 0.3 for j in range(self.target.n)})]
+        return [ScriptedCoordinator(self.target, f, session(), 1, revision, refuse=f.name == "refusal",
+                                    realtime=PROGRESS_REALTIME if f.name == "progress" else 0.0)]
+
+    def _fly(self, harness: Harness, observer: Observer, faults: Faults, under_test,
+             scripted: list[ScriptedCoordinator]) -> None:
         """Watch the mission until the carrier under test has exited (and what it sent last is in),
         End came and it did not exit, or the timeout; faults are made as their triggers arrive."""
         deadline = time.monotonic() + self.timeout_s
@@ -76,6 +132,8 @@ class Kit:
         while time.monotonic() < deadline:
             now = time.monotonic()
             harness.thaw_if_due(now)
+            for coordinator in scripted:
+                coordinator.step(now)
             if under_test.poll() is not None:
                 exited_at = exited_at or now
                 if now - exited_at > EXIT_GRACE_S:

@@ -9,21 +9,33 @@ from .flight import Flight, Seen, Target
 
 #: Every rule the kit checks: (id, section of docs/protocol.md, what it says).
 RULES = (
-    ("decode", "Conventions", "every message it sends decodes, with the fields of the revision it announced"),
-    ("hello-first", "Hello", "a Hello comes before its first Observation, Confirm, Own or Bye"),
-    ("fingerprint", "Fingerprint", "its Hello carries the coordinator's fingerprint (no Refusal)"),
-    ("observation-stage", "Stage handshake", "an Observation is of the stage being collected (not a later or a decided one)"),
-    ("observation-time", "Conventions", "an Observation's t is t_j of its stage (±0.001 s), stage < N"),
-    ("observation-world", "Where observations come from", "x is the world's: features in sight at t_j, nil where not scheduled"),
-    ("passengers", "Messages", "passengers_left starts at the scenario's count and drops by one per deployment"),
-    ("confirm", "Confirm", "every Decision of a stage it joined for is answered (Confirm, or Own of that stage)"),
-    ("confirm-outcome", "Stage handshake", "the first answer follows the Decision: deployed / idle / refused / late"),
-    ("duplicate", "Stage handshake", "a repeated Decision is answered already, with the first outcome, nothing twice"),
-    ("late", "Stage handshake", "a Decision that comes late is still answered, once"),
-    ("restart", "Joining late, restarting, resynchronising", "when the coordinator's token reappears it says Hello again"),
-    ("epochs", "Epochs", "a Decision of a lower epoch than it heard is not answered (deposed)"),
-    ("bye", "Bye", "after End: Bye with reason end and its deployments, then the process exits 0"),
-    ("coordinator-rejections", "Rejections", "the coordinator rejected none of its messages (State, CarrierState.rejected)"),
+    ("decode", "[P-11.2]", "every message it sends decodes, with the fields of the revision it announced"),
+    ("hello-first", "[P-5.6]", "a Hello comes before its first Observation, Confirm, Own or Bye"),
+    ("fingerprint", "[P-2.6]", "its Hello carries the coordinator's fingerprint (no Refusal)"),
+    ("observation-stage", "[P-6.7]", "an Observation is of the stage being collected (not a later or a decided one)"),
+    ("observation-time", "[P-3.2]", "an Observation's t is t_j of its stage (±0.001 s), stage < N"),
+    ("observation-world", "[P-6.12]", "x is the world's: features in sight at t_j, nil where not scheduled"),
+    ("passengers", "[P-6.9]", "passengers_left starts at the scenario's count and drops by one per deployment"),
+    ("confirm", "[P-6.9]", "every Decision of a stage it joined for is answered (Confirm, or Own of that stage)"),
+    ("confirm-outcome", "[P-6.9]", "the first answer follows the Decision: deployed / idle / refused / late"),
+    ("passenger-named", "[P-6.9]", "a deployment releases the passenger the Decision names (Confirm passenger)"),
+    ("duplicate", "[P-6.8]", "a repeated Decision is answered already, with the first outcome, nothing twice"),
+    ("late", "[P-6.8]", "a Decision that comes late is still answered, once"),
+    ("restart", "[P-5.12]", "when the coordinator's token reappears it says Hello again"),
+    ("epochs", "[P-7.2]", "a Decision of a lower epoch than it heard is not answered (deposed)"),
+    ("two-coordinators", "[P-7.2]", "with two live coordinators it follows the higher epoch: no answer to the "
+                                    "lower epoch's Decisions"),
+    ("deposed-end", "[P-7.4]", "an End of a lower epoch than it heard does not end its mission (revision 4)"),
+    ("accepted", "[P-5.8]", "after Accepted it goes on: its Observation of the accepted next_stage, no Bye "
+                            "before End"),
+    ("refusal", "[P-5.10]", "a Refusal naming its fingerprint while its Hello is unanswered stops it: Bye "
+                            "world-mismatch, nothing after, exit; one naming another fingerprint is ignored"),
+    ("older-revision", "[P-4.3]", "to a coordinator whose State announces no revision it speaks revision 1: what it "
+                                  "sends decodes at the coordinator's revision (Progress aside, [P-4.6])"),
+    ("progress", "[P-10.6]", "Progress (sim clock) names the stage it works towards, t within it and never going "
+                             "back; simulating its way to an Observation for over 2 s, one at least every 1.5 s"),
+    ("bye", "[P-9.3]", "after End: Bye with reason end and its deployments, then the process exits 0"),
+    ("coordinator-rejections", "[P-3.4]", "the coordinator rejected none of its messages (State, CarrierState.rejected)"),
 )
 
 
@@ -75,6 +87,9 @@ def evaluate(target: Target, flight: Flight) -> list[Result]:
     real = [d for d in f.decisions if not d.fake]
     _observations(target, f, results, msgs, real)
     _answers(target, f, results, msgs, real)
+    _named(target, results, msgs, real)
+    _scripted(target, f, results, msgs, real)
+    _progress(target, f, results, msgs, real)
     return [results[rule] for rule, _, _ in RULES]
 
 
@@ -181,3 +196,88 @@ def _answers(target: Target, flight: Flight, results: dict, msgs: list[Seen], re
     # itself legitimately sends a later stage's Observation the coordinator rejects.
     other = {k: v for k, v in f.rejected.items() if k not in ("future-stage", "stale-stage")}
     results["coordinator-rejections"].check(not other, f"the coordinator rejected: {dict(f.rejected)}")
+
+
+def _named(target: Target, results: dict, msgs: list[Seen], real: list[Seen]) -> None:
+    """[P-6.9] the passenger a Decision names is the one released."""
+    answers = first_answers(msgs)
+    for d in real:
+        named = d.message.passenger_of(target.cid)
+        first = answers.get(d.message.stage)
+        if named is None or not isinstance(first, wm.Confirm) or first.status != "deployed":
+            continue
+        results["passenger-named"].check(first.passenger == named,
+                                         f"released passenger {first.passenger} where the Decision of stage "
+                                         f"{d.message.stage} names {named}: {d.show()}")
+
+
+def _scripted(target: Target, flight: Flight, results: dict, msgs: list[Seen], real: list[Seen]) -> None:
+    """The rules of the flights where the kit is the coordinator."""
+    f = flight
+    confirms = [s for s in msgs if isinstance(s.message, wm.Confirm)]
+    byes = [s for s in msgs if isinstance(s.message, wm.Bye)]
+    for fake in (d for d in f.decisions if d.fake and f.name == "two-coordinators"):
+        j = fake.message.stage
+        truth = next((d.at for d in real if d.message.stage == j), float("inf"))
+        wrong = [s for s in confirms if s.message.stage == j and fake.at <= s.at < truth]
+        results["two-coordinators"].check(not wrong, f"answered the epoch {fake.message.epoch} Decision of stage "
+                                                     f"{j}: {wrong[0].show() if wrong else ''}")
+    if "deposed-end" in f.faults:
+        _, at = f.faults["deposed-end"]
+        last = [s for s in confirms if s.message.stage == target.n - 1 and s.at > at]
+        ok = bool(last) and all(s.message.reason == "end" for s in byes) and bool(f.ends) and \
+            all(s.at > f.ends[0].at for s in byes)
+        results["deposed-end"].check(ok, f"after an End of epoch 1: {'no Confirm of the last stage' if not last else ''}"
+                                         f" Byes {[b.show() for b in byes]}")
+    for a in f.accepted:
+        later = [s for s in msgs if isinstance(s.message, wm.Observation) and s.message.stage >= a.message.next_stage]
+        early_bye = [s for s in byes if s.message.reason != "end"]
+        results["accepted"].check(bool(later) and not early_bye,
+                                  f"after {a.show()}: {early_bye[0].show() if early_bye else 'no Observation'}")
+    if "refusal" in f.faults:
+        _, foreign = f.faults.get("refusal-foreign", (None, 0.0))
+        _, at = f.faults["refusal"]
+        early = [s for s in byes if foreign <= s.at < at]
+        after = [s for s in msgs if isinstance(s.message, (wm.Observation, wm.Confirm, wm.Own)) and s.at > at + 0.5]
+        ok = not early and not after and bool(byes) and byes[-1].message.reason == "world-mismatch" \
+            and f.exit_code is not None
+        results["refusal"].check(ok, f"{'stopped on a Refusal naming another fingerprint: ' + early[0].show() if early else ''}"
+                                     f"{'sent after its Refusal: ' + after[0].show() if after else ''} "
+                                     f"Bye {byes[-1].show() if byes else 'none'}, exit code {f.exit_code}")
+    if f.revision is not None and f.revision < 3:
+        for s in msgs:
+            if isinstance(s.message, (wm.Progress, wm.Pose)):
+                continue
+            try:
+                wm.decode(s.payload, revision=f.revision)
+                results["older-revision"].check(True)
+            except wm.ProtocolError as exc:
+                results["older-revision"].check(False, f"{exc.reason} at revision {f.revision}: {exc.detail}: {s.show()}")
+
+
+def _progress(target: Target, flight: Flight, results: dict, msgs: list[Seen], real: list[Seen]) -> None:
+    """[P-10.6] what Progress says, and (the kit's own coordinator) how often it comes."""
+    t = target
+    previous = None
+    for s in msgs:
+        p = s.message
+        if not isinstance(p, wm.Progress):
+            continue
+        ok = p.stage <= t.n and (p.stage == t.n or p.t <= t.times[p.stage] + 1e-3)
+        ok = ok and (previous is None or (p.stage >= previous.stage and p.t >= previous.t - 1e-6))
+        results["progress"].check(ok, f"Progress stage {p.stage} t {p.t} after "
+                                      f"{(previous.stage, previous.t) if previous else 'none'}: {s.show()}")
+        previous = p
+    hello = next((s.message for s in msgs if isinstance(s.message, wm.Hello)), None)
+    if flight.revision is None or flight.revision < 3 or hello is None or hello.revision < 3:
+        return
+    for s in msgs:
+        o = s.message
+        if not isinstance(o, wm.Observation) or o.stage == 0:
+            continue
+        start = next((d.at for d in real if d.message.stage == o.stage - 1), None)
+        if start is None or s.at - start <= 2.0:
+            continue
+        heard = sorted([start, s.at] + [m.at for m in msgs if start < m.at < s.at and not isinstance(m.message, wm.Pose)])
+        gap = max(b - a for a, b in zip(heard, heard[1:]))
+        results["progress"].check(gap <= 1.5, f"silent {gap:.1f} s on its way to the Observation of stage {o.stage}")
