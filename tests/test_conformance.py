@@ -36,6 +36,12 @@ def _client(tmp_path, fault=None, *extra) -> list[str]:
             "{carrier}", "--world", str(path), *(["--fault", fault] if fault else []), *extra]
 
 
+#: The rules only the kit's own coordinators exercise (flights other than project).
+SCRIPTED_ONLY = {"two-coordinators", "deposed-end", "refusal", "older-revision"}
+#: The rules a revision-1 carrier is never exercised on (no Accepted, no passengers named, no Progress).
+LATER_REVISIONS = {"accepted", "passenger-named", "progress"}
+
+
 def _statuses(results) -> dict:
     return {r.rule: r.status for r in results}
 
@@ -135,7 +141,8 @@ def test_the_project_carrier_passes(tmp_path):
     assert proc.returncode == 0, proc.stdout + proc.stderr[-3000:]
     rows = {line.split()[0]: line.split()[2] for line in proc.stdout.splitlines()[2:] if line.split()[0] in
             {r for r, _, _ in wc.RULES}}
-    assert set(rows) == {r for r, _, _ in wc.RULES} and set(rows.values()) == {"pass"}, proc.stdout
+    assert set(rows) == {r for r, _, _ in wc.RULES}, proc.stdout
+    assert {r for r, status in rows.items() if status != "pass"} == SCRIPTED_ONLY, proc.stdout
 
 
 @pytest.mark.slow
@@ -143,7 +150,7 @@ def test_a_revision1_carrier_from_its_page_passes(tmp_path):
     kit = wc.Kit(str(TINY), "a", _client(tmp_path), workdir=str(tmp_path / "kit"), log=lambda line: None)
     results = kit.run()
     assert wc.passed(results), wc.table(results) + kit.flight.output
-    assert all(r.exercised for r in results), wc.table(results)
+    assert {r.rule for r in results if not r.exercised} == SCRIPTED_ONLY | LATER_REVISIONS, wc.table(results)
 
 
 @pytest.mark.slow
