@@ -376,6 +376,7 @@ def test_the_state_query_parameter_shapes_only_its_reply():
     assert keys.asked_revision({"revision": "2"}, wm.REVISION, 1) == 2
     assert keys.asked_revision({"revision": "123456"}, wm.REVISION, 1) == 1
     assert keys.asked_revision({"carrier": "a"}, wm.REVISION, 1) == 1
+    assert keys.asked_revision({"colour": "red", "revision": "3", "carrier": "a"}, wm.REVISION, 1) == 3  # unknown: ignored
     assert keys.state_selector(M, "a", 4) == f"marsupial/{M}/coordinator/state?carrier=a;revision=4"
 
 

@@ -76,7 +76,8 @@ def test_refusals_are_written_for_the_refused_carriers_revision():
 
 
 @pytest.mark.parametrize("body, reason", [
-    ({"v": 1.0}, "version"), ({"v": True}, "version"), ({"v": 2}, "version"), ({"type": None}, "unknown-type"),
+    ({"v": 1.0}, "version"), ({"v": True}, "version"), ({"v": 2}, "version"),
+    ({"type": None}, "missing-field"),  # nil type is absent type ([P-1.3])
 ])
 def test_envelope_values(body, reason):
     raw = {"v": 1, "type": "end", "mission": "m", "stages": 1, "reason": "complete", **body}
