@@ -99,6 +99,46 @@ def test_the_rules_on_a_recorded_flight(tmp_path):
     assert "decode" in failed and failed <= {"decode", "observation-stage"}
 
 
+FIXTURES = sorted((ROOT / "tests" / "fixtures" / "wire").glob("r*/messages.json"))
+
+
+@pytest.mark.parametrize("path", FIXTURES, ids=lambda p: p.parent.name)
+def test_each_revisions_fixtures_pass_the_kits_at_their_own_revision(tmp_path, path):
+    """[P-11.2] what a carrier of revision r sends (its fixtures) passes the carrier kit's decode,
+    and [P-4.3] the kit's coordinator speaking r finds nothing newer than r in it; [P-4.5] what a
+    coordinator sends such a carrier passes the coordinator kit's decode."""
+    import json
+
+    fixture = json.loads(path.read_text())
+    r = int(fixture["revision"])
+    kit = _kit(tmp_path)
+    kit.flight = wc.Flight(name="older" if r < 3 else "scripted", revision=r)
+    for i, body in enumerate(b for kind in fixture["carrier_sends"].values() for b in kind):
+        payload = msgpack.packb(body)
+        try:
+            kit.flight.carrier.append(wc.Seen(float(i), body["type"], payload, wm.decode(payload)))
+        except wm.ProtocolError as exc:
+            kit.flight.carrier.append(wc.Seen(float(i), body["type"], payload, None, f"{exc.reason}: {exc.detail}"))
+    results = _statuses(kit.evaluate())
+    assert results["decode"] == "pass", wc.table(kit.evaluate())
+    assert results["older-revision"] == ("pass" if r < 3 else "-"), wc.table(kit.evaluate())
+    if r == 2:  # Confirm passenger is revision 2's: a revision-1 coordinator must not be sent it
+        kit.flight.revision = 1
+        assert _statuses(kit.evaluate())["older-revision"] == "FAIL"
+    seen = wc.coordflight.Seen("main")
+    for i, body in enumerate(b for kind in fixture["carrier_accepts"].values() for b in kind):
+        payload = msgpack.packb(body)
+        heard = wc.coordflight.Heard(float(i), "fixture", payload)
+        try:
+            heard.message = wm.decode(payload)
+        except wm.ProtocolError as exc:
+            heard.error = f"{exc.reason}: {exc.detail}"
+        seen.heard.append(heard)
+    world_ = wc.fleet.World.load(str(TINY))
+    decode = next(x for x in wc.coordrules.evaluate(world_, [seen]) if x.rule == "decode")
+    assert decode.exercised == len(seen.heard) and decode.failure is None, decode.failure
+
+
 def test_the_command_line_refuses_bad_usage(tmp_path):
     for args, text in [([str(TINY), "--carrier", "a"], "usage"),
                        ([str(TINY), "--carrier", "zz", "--", "true"], "not a carrier"),

@@ -50,7 +50,7 @@ The parts, each doing one thing (each given its collaborators in its constructor
 """
 from __future__ import annotations
 
-from . import coordflight
+from . import coordflight, coordrules, fleet
 from .cli import main
 from .coordkit import CoordinatorKit
 from .coordrules import COORDINATOR_RULES
@@ -61,4 +61,4 @@ from .report import passed, table, verdict
 from .rules import RULES, Result, evaluate
 
 __all__ = ["CARRIER_TOPICS", "COORDINATOR_RULES", "CoordinatorKit", "FAULTS", "FLIGHTS", "RULES", "SETTLE_S", "Flight", "Kit", "Result", "Seen", "Target", "evaluate",
-           "coordflight", "main", "passed", "table", "verdict"]
+           "coordflight", "coordrules", "fleet", "main", "passed", "table", "verdict"]

@@ -135,8 +135,9 @@ def _hellos(w: World, seen: Seen, results: dict) -> None:
 
 def _counts(seen: Seen, results: dict) -> None:
     """What State says of each kit carrier's messages, at the last poll."""
-    first, last = seen.played and list(seen.played)[0], list(seen.played)[-1]
-    told = seen.told
+    if not seen.played:
+        return
+    first, last, told = list(seen.played)[0], list(seen.played)[-1], seen.told
     if "bad-hello" in seen.faults:
         mine = told.get(first)
         counts = dict(mine.rejected) if mine is not None else {}
