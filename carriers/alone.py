@@ -35,8 +35,8 @@ class Alone:
         while not self._stop.is_set() and not self.machine.resolved(j) and not self.machine.ended:
             waiting = self.book.waiting(j, self.presence.peers_live - {self.cid})
             now = time.monotonic()
-            if self.config.clock == "sim":
-                deadline = self.presence.last_heard(waiting, opened) + self.config.silence_timeout_s
+            if self.timers.clock == "sim":
+                deadline = self.presence.last_heard(waiting, opened) + self.timers.silence_timeout_s
             left = deadline - now
             if left <= 0 or not waiting:
                 break

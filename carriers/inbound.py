@@ -79,7 +79,7 @@ class Inbound:
             msg = decode(item.payload, End)
             if msg.mission != self.mission:
                 raise ProtocolError("wrong-mission", f"mission {msg.mission!r}")
-            self.apply(mc.EndHeard())
+            self.apply(mc.EndHeard(msg.epoch))  # a deposed coordinator's is rejected (mission.carrier)
             return
         if item.key in (keys.refusal_key(self.mission, self.cid), keys.accepted_key(self.mission, self.cid)):
             msg = decode(item.payload, (Refusal, Accepted))
@@ -88,6 +88,8 @@ class Inbound:
             # Only the answer to our latest Hello counts (docs/protocol.md, "Refusal"); one naming
             # another fingerprint, or coming after our Hello was accepted, is about someone else's.
             self.answer.answered(msg.fingerprint, msg if isinstance(msg, Refusal) else None)
+            if isinstance(msg, Accepted) and msg.fingerprint == self.fingerprint and mc.current(self.machine, msg.epoch):
+                self._follow_clock(msg)
             return
         if item.key != keys.decision_key(self.mission):
             raise ProtocolError("bad-key", f"message on {item.key[:80]}")
@@ -98,6 +100,15 @@ class Inbound:
             self.book.decision(msg.stage, msg.deploy)
         self.releases.name(self.machine, msg.stage, msg.epoch, msg.passenger_of(self.cid))
         self.apply(mc.DecisionHeard(msg.stage, msg.t, msg.deploy, self._position(), msg.epoch))
+
+    def _follow_clock(self, msg: Accepted) -> None:
+        """The mission's clock from an Accepted (revision 4; an earlier coordinator's says
+        nothing of it): the carrier's timers follow it (:func:`mission.carrier.follow`)."""
+        told = mc.Timers(msg.clock, msg.silence_timeout_s, msg.realtime) if msg.revision >= 4 else None
+        robot = getattr(self.ros2, "robot", None) is not None
+        self.timers, lines = mc.follow(self.timers, told, repace=not robot)
+        for line in lines:
+            self.log(line)
 
     def _peer(self, cid: str, topic: str, payload: bytes) -> None:
         """Another carrier's Observation, Own or Confirm: what it saw and did, for the book."""

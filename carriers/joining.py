@@ -89,6 +89,15 @@ class Joining:
         elif state.next_stage == j:
             self.apply(mc.Collecting(j, state.epoch))
 
+    def _resync_gap(self, stage: int) -> None:
+        """The Decision of ``stage`` came without an earlier one this carrier needs
+        (:class:`mission.carrier.AskState`): the lost stages are taken from State before it
+        confirms anything more (docs/protocol.md, [P-6.6])."""
+        state = self._query_once()
+        if state is not None and state.fingerprint != self.fingerprint:
+            state = None
+        self.apply(mc.Resync(self._state_seen(state), self._position(), gap=stage))
+
     def _query_once(self) -> State | None:
         """The State reply of the highest epoch (two coordinators may answer across a split)."""
         best = None

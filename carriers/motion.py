@@ -62,7 +62,7 @@ class Motion:
         ``paced``); on the sim clock a Progress message at least every ``progress_s`` of wall
         time on the way. Unpaced, in the process's physics thread when it has one
         (:class:`carriers.shared.PhysicsThread`) while this thread sends the Progress."""
-        if self.config.realtime <= 0 or not paced:
+        if self.timers.realtime <= 0 or not paced:
             if self.physics is None:
                 self._physics_until(t, self._progress)
                 return
@@ -78,7 +78,7 @@ class Motion:
             self.sim.advance_to(target)
             self._publish_poses()
             self._progress()
-            due = wall0 + (self.sim.time - t0) / self.config.realtime
+            due = wall0 + (self.sim.time - t0) / self.timers.realtime
             while time.monotonic() < due and not self._stop.is_set():
                 self._pump(min(0.05, due - time.monotonic()))
                 self._check_refused()
@@ -87,7 +87,7 @@ class Motion:
         """Sim clock: tell the coordinator and the peers that this carrier is working (a
         Progress message) when ``every_s`` passed since it last published one."""
         now = time.monotonic()
-        if self.config.clock != "sim" or now - self.track.progress_at < every_s:
+        if self.timers.clock != "sim" or now - self.track.progress_at < every_s:
             return
         self.track.progress_at = now
         if self.node.revision < Progress.SINCE:

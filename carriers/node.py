@@ -176,6 +176,9 @@ class Carrier(Motion, Inbound, Joining, Alone):
         self.store: CarrierLog | None = None  # the durable log, open while running
         self._alone = False  # deciding stages itself (logged once per spell)
         self.ros2 = None  # its ROS 2 node (ros2/publisher.py) while running with config.ros2
+        # What it times its waits by: its own settings until the coordinator's Accepted tells it
+        # the mission's (docs/protocol.md, [P-10.2]; :func:`mission.carrier.follow`).
+        self.timers = mc.Timers(config.clock, float(config.silence_timeout_s), float(config.realtime))
 
     # ------------------------------------------------------------------ views for tests and logs
     def log(self, line: str) -> None:
@@ -232,6 +235,8 @@ class Carrier(Motion, Inbound, Joining, Alone):
             elif isinstance(effect, mc.ResendObservation):
                 if self.pending is not None and self.pending.stage == effect.stage:
                     self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.pending)
+            elif isinstance(effect, mc.AskState):
+                self._resync_gap(effect.stage)
             elif isinstance(effect, mc.Reject):
                 self.node.reject(effect.reason, effect.detail, self.log)
             elif isinstance(effect, mc.Log):
@@ -275,8 +280,8 @@ class Carrier(Motion, Inbound, Joining, Alone):
                 # Alive while the Decision is on its way (slow on a saturated host): a Progress a
                 # third of the silence timeout apart, so the next stage's wait does not take
                 # this carrier for a stalled one before the Decision reaches it.
-                self._progress(self.config.silence_timeout_s / 3)
-                if waited >= self.config.decision_timeout_s and self.config.clock == "sim":
+                self._progress(self.timers.silence_timeout_s / 3)
+                if waited >= self.config.decision_timeout_s and self.timers.clock == "sim":
                     waited = 0.0
                     self._recover_decision(j)
                 elif waited >= self.config.decision_timeout_s:

@@ -14,7 +14,7 @@ from mission import events as ev
 from mission.peers import last_heard
 from mission.timeouts import DEFAULTS
 from wire import keys
-from wire.messages import End
+from wire.messages import REVISION, End
 
 
 class _OfState:
@@ -33,6 +33,12 @@ class _OfState:
         if state is not self._state:
             self._state, self._value = state, self._fn(state)
         return self._value
+
+
+def _by_progress(state, cids) -> tuple[frozenset, frozenset]:
+    """``cids`` as (those that send Progress, those of revision < 3 that send none)."""
+    mute = state.without_progress(cids)
+    return frozenset(cids).difference(mute), mute
 
 
 class StageClock:
@@ -58,17 +64,21 @@ class StageClock:
             self._wait(self.config.stage_timeout_s, lambda: not waiting_for())
             return
         silence = self.config.silence_timeout_s
+        split = _OfState(self, lambda state: _by_progress(state, state.waiting(j)))
 
         def done() -> bool:
-            waiting = waiting_for()
-            return not waiting or self._silent(waiting, opened)
+            return self._waited(split(), opened, self.config.stage_timeout_s)
 
         while not self._stop.is_set() and not done():
             self.pump(0.05)
-        stalled = sorted(waiting_for())
+        stalled, mute = (sorted(group) for group in split())
         if stalled and not self._stop.is_set():
             self.log(f"coordinator: stage {j}: nothing from {', '.join(stalled[:8])}"
                      f"{' ...' if len(stalled) > 8 else ''} for {silence:.0f} s (stalled); ∅ for them")
+        if mute and not self._stop.is_set():
+            self.log(f"coordinator: stage {j}: no Observation from {', '.join(mute[:8])}"
+                     f"{' ...' if len(mute) > 8 else ''} within the stage timeout "
+                     f"({self.config.stage_timeout_s:.0f} s: revision < 3, no Progress); ∅ for them")
 
     def _wait_confirms(self, j: int) -> None:
         """After the last decision: wait for its Confirms from the live carriers. Wall clock: at
@@ -78,12 +88,21 @@ class StageClock:
         if self.config.clock == "wall":
             self._wait(self.config.confirm_timeout_s, lambda: not unconfirmed())
             return
+        split = _OfState(self, lambda state: _by_progress(state, state.unconfirmed(j)))
         opened = time.monotonic()
         while not self._stop.is_set():
-            waiting = unconfirmed()
-            if not waiting or self._silent(waiting, opened):
+            if self._waited(split(), opened, self.config.confirm_timeout_s):
                 return
             self.pump(0.05)
+
+    def _waited(self, split, opened: float, deadline_s: float) -> bool:
+        """Sim clock: the wait opened at ``opened`` for ``split`` (carriers that send Progress,
+        carriers that send none) is over: the first are silent (:meth:`_silent`), and for the
+        second the wall-clock ``deadline_s`` passed (docs/protocol.md, [P-10.4]: a carrier of
+        revision < 3 is never taken as stalled for lack of Progress)."""
+        loud, mute = split
+        return ((not loud or self._silent(loud, opened))
+                and (not mute or time.monotonic() - opened >= deadline_s))
 
     def _silent(self, waiting, opened: float) -> bool:
         """Sim clock: nothing came from any of ``waiting`` for ``silence_timeout_s``, counted from
@@ -166,12 +185,15 @@ class StageClock:
         """Record End (once), publish it every ``end_repeat_s`` and wait for the live carriers'
         Byes, at most ``bye_timeout_s``. Runs to its end even when a stop was requested."""
         self.apply(ev.Ended(reason, time.time()))
-        end = End(self.mission, self.state.next_stage, self.state.end_reason or reason)
+        # With its epoch (revision 4: a carrier ignores a deposed coordinator's End), in the
+        # revision every carrier that said Hello reads, as the Decisions are.
+        end = End(self.mission, self.state.next_stage, self.state.end_reason or reason, self.epoch)
         deadline = time.monotonic() + self.config.bye_timeout_s
         last_put = grace = None
         while time.monotonic() < deadline:
             if last_put is None or time.monotonic() - last_put >= DEFAULTS.end_repeat_s:
-                self.node.put(keys.end_key(self.mission), end)  # repeated for carriers that missed it
+                # Repeated for carriers that missed it.
+                self.node.put(keys.end_key(self.mission), end, self.state.common_revision(REVISION))
                 last_put = time.monotonic()
             if self.state.all_said_bye():
                 # Every live carrier said Bye; one whose token vanished first may have its Bye on the way.

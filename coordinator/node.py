@@ -283,8 +283,10 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
                 revision)
             return
         self.refusals.pop(cid, None)
+        # The mission's clock (revision 4): a carrier times its waits by the coordinator's.
         answer = Accepted(self.mission, cid, self.fingerprint, self.state.accepted[cid].next_stage,
-                          self.state.next_stage, REVISION, self.epoch)
+                          self.state.next_stage, REVISION, self.epoch, self.config.clock,
+                          float(self.config.silence_timeout_s), float(self.config.realtime))
         if defined_in(answer, revision):
             self.node.put(keys.accepted_key(self.mission, cid), answer, revision)
 

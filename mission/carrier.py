@@ -112,10 +112,13 @@ class StateSeen:
 
 @dataclass(frozen=True)
 class Resync:
-    """The coordinator's token reappeared; ``state``: its State reply (None if none came)."""
+    """The coordinator's token reappeared; ``state``: its State reply (None if none came).
+    ``gap``: not the token, but a Decision of stage ``gap`` that came without the one(s)
+    before it (:class:`AskState`): the lost stages are taken from ``state``."""
 
     state: StateSeen | None
     position: Point
+    gap: int | None = None
 
 
 @dataclass(frozen=True)
@@ -129,7 +132,10 @@ class Collecting:
 
 @dataclass(frozen=True)
 class EndHeard:
-    pass
+    """End arrived, from a coordinator of ``epoch`` (None: the End states none, as before
+    revision 4)."""
+
+    epoch: int | None = None
 
 
 # --------------------------------------------------------------------------- effects
@@ -193,6 +199,15 @@ class SendHello:
 @dataclass(frozen=True)
 class ResendObservation:
     """Publish the pending Observation again (its stage is still open at the coordinator)."""
+
+    stage: int
+
+
+@dataclass(frozen=True)
+class AskState:
+    """Resynchronise from the coordinator's State now (:class:`Resync` with ``gap`` ``stage``):
+    the Decision of ``stage`` came and the Decision of a stage before it, which this carrier
+    waits for or will reach, never did (docs/protocol.md, [P-6.6])."""
 
     stage: int
 
@@ -369,6 +384,42 @@ class Releases:
         return self.released.get(stage)
 
 
+@dataclass(frozen=True)
+class Timers:
+    """What a carrier times its waits by (docs/protocol.md, [P-10.2]).
+
+    Attributes:
+        clock: ``sim`` or ``wall`` (:data:`mission.timeouts.CLOCKS`).
+        silence_timeout_s: sim clock: a peer silent this long is stalled; a carrier waiting for
+            a Decision sends Progress a third of it apart, seconds.
+        realtime: the pace, simulated seconds per wall second (0: unpaced).
+    """
+
+    clock: str
+    silence_timeout_s: float
+    realtime: float
+
+
+def follow(own: Timers, told: Timers | None, repace: bool = True) -> tuple[Timers, tuple[str, ...]]:
+    """The timers a carrier started with ``own`` uses once the coordinator told it the
+    mission's (``told``: its Accepted of revision 4 or later; None: it said nothing), and one
+    log line per setting that differs. The clock and the silence timeout are the coordinator's:
+    its waits judge the carrier by them (a carrier sending Progress by a longer silence timeout
+    would be taken as stalled; one on the wall clock would decide alone while the coordinator
+    waits). The pace is taken only when ``repace`` (a simulated body; a robot moves at its own
+    pace, and chose how it reads its clock when it started)."""
+    if told is None or told == own:
+        return own, ()
+    lines = []
+    for name, unit in (("clock", ""), ("silence_timeout_s", " s"), ("realtime", "")):
+        mine, theirs = getattr(own, name), getattr(told, name)
+        if mine != theirs:
+            kept = name == "realtime" and not repace
+            lines.append(f"the coordinator's {name} is {theirs}{unit}, this carrier's {mine}{unit}: "
+                         + ("keeping this carrier's (its body keeps its own pace)" if kept else "following the coordinator"))
+    return Timers(told.clock, told.silence_timeout_s, told.realtime if repace else own.realtime), tuple(lines)
+
+
 def initial(cid: str, valid, stage_times, passengers: int) -> CarrierState:
     return CarrierState(cid, tuple(bool(v) for v in valid), tuple(float(t) for t in stage_times), int(passengers))
 
@@ -484,7 +535,19 @@ def _on_decision(state: CarrierState, e: DecisionHeard):
     if j == state.stage and state.pending == j:
         new, effects = _answer(state, j, e.deploy, e.position, allow=True)
         return dataclasses.replace(new, latest_decided=latest), tuple(effects)
-    return dataclasses.replace(state, buffered={**state.buffered, j: tuple(e.deploy)}, latest_decided=latest), ()
+    lost = lost_stages(state, j)
+    new = dataclasses.replace(state, buffered={**state.buffered, j: tuple(e.deploy)}, latest_decided=latest)
+    # Decisions arrive in order: a later one with an earlier missing means that one was lost;
+    # its outcome comes from State before anything is confirmed ([P-6.6]).
+    return new, (AskState(j),) if lost else ()
+
+
+def lost_stages(state: CarrierState, j: int) -> tuple[int, ...]:
+    """The stages before ``j`` whose Decision this carrier still needs and has not received (it
+    waits at them or will reach them, they are not known to be decided from State, it did not
+    decide them itself): lost on the way when the Decision of ``j`` arrives."""
+    start = max(state.stage, state.joined, state.state_next)
+    return tuple(t for t in range(start, j) if t not in state.handled and t not in state.buffered)
 
 
 def _on_observed(state: CarrierState, e: Observed):
@@ -535,8 +598,13 @@ def _on_resync(state: CarrierState, e: Resync):
     new = state
     if s is not None:
         new = dataclasses.replace(new, state_next=max(new.state_next, s.next_stage), epoch=max(new.epoch, s.epoch))
-    effects: list = [Log("coordinator is back; re-sending hello and the pending observation"),
-                     SendHello(new.hello_stage(), new.passengers_left)]
+    effects: list = [Log("coordinator is back; re-sending hello and the pending observation") if e.gap is None
+                     else Log(f"the Decision of stage {e.gap} came without the one(s) before it; "
+                              + ("taking them from State" if s is not None else "no State answered"))]
+    if s is not None and e.gap is not None:
+        new, more = _take_lost(new, s, e.position)
+        effects += more
+    effects.append(SendHello(new.hello_stage(), new.passengers_left))
     if s is not None:
         last = s.last_decision
         for j in s.deployments:
@@ -560,6 +628,23 @@ def _on_resync(state: CarrierState, e: Resync):
     return new, tuple(_dedupe(effects))
 
 
+def _take_lost(state: CarrierState, s: StateSeen, position: Point):
+    """[P-6.6]: every stage from the one this carrier is at up to State's ``next_stage`` whose
+    Decision it has not received is held as the coordinator sees it (selecting this carrier
+    when State lists a deployment of it there, else not), so it deploys where the coordinator
+    counts a deployment; the stage it waits at (its body at t_j) is answered now, the others
+    as it passes them."""
+    held = dict(state.buffered)
+    for t in range(max(state.stage, state.joined), min(s.next_stage, state.n_stages)):
+        if t not in state.handled and t not in held:
+            held[t] = (state.cid,) if t in s.deployments else ()
+    new = dataclasses.replace(state, buffered=held)
+    j = new.pending
+    if j is not None and j == new.stage and j in held and j not in new.handled:
+        return _answer(new, j, held[j], position, allow=True)
+    return new, []
+
+
 def _dedupe(effects):
     """A Confirm sent in this step is not repeated as ``already`` in the same step."""
     sent = set()
@@ -572,6 +657,8 @@ def _dedupe(effects):
 
 
 def _on_end(state: CarrierState, e: EndHeard):
+    if e.epoch is not None and not current(state, e.epoch):  # a deposed coordinator cannot end it ([P-7.4])
+        return state, (Reject("deposed", f"End of epoch {e.epoch}; epoch {state.epoch} decides now"),)
     return dataclasses.replace(state, ended=True), ()
 
 

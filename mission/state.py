@@ -97,6 +97,10 @@ class MissionSpec:
         return self.valid[self.index(cid)][j]
 
 
+#: The first protocol revision whose carriers send Progress (docs/protocol.md, [P-10.4]).
+PROGRESS_REVISION = 3
+
+
 # --------------------------------------------------------------------------- records in the state
 
 @dataclass(frozen=True)
@@ -285,6 +289,13 @@ class MissionState:
     def bye_missing(self) -> bool:
         """Some carrier with an accepted Hello has not said Bye (live or not)."""
         return not set(self.accepted) <= self.byes
+
+    def without_progress(self, cids) -> frozenset:
+        """Those of ``cids`` whose accepted Hello announced a revision before Progress
+        (:data:`PROGRESS_REVISION`): they send none, so on the sim clock their silence says
+        nothing and only the stage timeout ends a wait for them (docs/protocol.md, [P-10.4])."""
+        return frozenset(cid for cid in cids
+                         if (info := self.accepted.get(cid)) is not None and info.revision < PROGRESS_REVISION)
 
     def revision_of(self, cid: str, highest: int) -> int:
         """The protocol revision to speak to carrier ``cid``: the lower of ``highest`` (the

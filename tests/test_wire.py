@@ -164,9 +164,12 @@ def test_epoch_is_optional_absent_means_1_and_left_out_when_1():
     assert raw["epoch"] == 2 and raw["last_decision"]["epoch"] == 2 and decode(encode(state)) == state
     assert decode(_pack({**_raw("decision"), "epoch": 1})).epoch == 1
     for value, reason in ((0, "out-of-range"), (-1, "out-of-range"), (2**31, "out-of-range"), ("2", "wrong-type"),
-                          (True, "wrong-type"), (None, "wrong-type")):
+                          (True, "wrong-type")):
         assert _reason(_pack({**_raw("decision"), "epoch": value})) == reason, value
         assert _reason(_pack({**_raw("state"), "epoch": value})) == reason, value
+    # [P-1.3] nil in an optional field that is not nullable is read as absent: epoch 1.
+    assert decode(_pack({**_raw("decision"), "epoch": None})).epoch == 1
+    assert decode(_pack({**_raw("state"), "epoch": None})).epoch == 1
 
 
 def test_encode_refuses_what_decode_would_reject():

@@ -54,8 +54,12 @@ def page_fields(revision: int) -> dict[str, set[str]]:
         section = page.split(head)[1].split("\n### ")[0].split("\n## ")[0]
         out[kind] = set(re.findall(r"^\| `(\w+)` \|", section, re.M)) | {"v", "type", "mission"}
     state = page.split('(`type: "state"`')[1].split("\n## ")[0]
-    sentence = state.split("CarrierState is a map")[1].split("\n\n")[0]
-    out["carrier-state"] = set(re.findall(r"`(\w+)` \(", sentence))
+    if "CarrierState is a map" in state:  # revisions 1 and 2: one sentence
+        sentence = state.split("CarrierState is a map")[1].split("\n\n")[0]
+        out["carrier-state"] = set(re.findall(r"`(\w+)` \(", sentence))
+    else:  # revision 3: a table of its own
+        table = state.split("### CarrierState")[1].split("\n### ")[0]
+        out["carrier-state"] = set(re.findall(r"^\| `(\w+)` \|", table, re.M))
     return out
 
 
@@ -72,6 +76,9 @@ def test_every_published_revision_is_kept():
         assert fixture(r)["revision"] == r
         assert page_fields(r)["decision"] >= {"stage", "t", "deploy", "planning_ms"}
     assert "passengers" not in page_fields(1)["decision"] and "passengers" in page_fields(2)["decision"]
+    assert "accepted" not in page_fields(2) and "progress" in page_fields(3) and "accepted" in page_fields(3)
+    assert page_fields(3)["carrier-state"] == {"passengers_left", "deployments", "live", "refused", "rejected"}
+    assert "epoch" not in page_fields(3)["end"] and "clock" not in page_fields(3)["accepted"]
 
 
 @pytest.mark.parametrize("revision", revisions())
@@ -85,7 +92,7 @@ def test_fixtures_follow_their_page(revision):
                 assert body["type"] == kind and set(body) <= fields[kind], (revision, kind, set(body) - fields[kind])
                 if kind == "state":
                     for entry in body["carriers"].values():
-                        assert set(entry) == fields["carrier-state"]
+                        assert {"passengers_left", "deployments", "live"} <= set(entry) <= fields["carrier-state"]
                     if body["last_decision"] is not None:
                         assert set(body["last_decision"]) <= fields["decision"]
 
@@ -111,6 +118,10 @@ def test_what_an_older_carrier_accepts_is_what_it_gets(revision):
             message = wm.decode(msgpack.packb(body), revision=revision)
             if kind == "decision" and not message.passengers and message.deploy:
                 message = dataclasses.replace(message, passengers=tuple(range(len(message.deploy))))
+            if kind == "end":  # revision 4's End epoch: never sent to an earlier carrier
+                message = dataclasses.replace(message, epoch=3)
+            if kind == "accepted":  # revision 4's mission clock: never sent to an earlier carrier
+                message = dataclasses.replace(message, clock="wall", silence_timeout_s=7.5, realtime=2.0)
             if kind == "state":
                 message = dataclasses.replace(message, revision=wm.REVISION)
                 if message.last_decision is not None and message.last_decision.deploy:

@@ -35,8 +35,9 @@ PROTOCOL_VERSION = 1
 #: only what the lower of the two revisions defines (:func:`encode`'s ``revision``).
 #: 1: the first published page (epochs, Own, Refusal, scoped State); 2: passenger types
 #: (Decision ``passengers``, Confirm ``passenger``); 3: revisions announced, every Hello answered
-#: (Accepted, Refusal reasons beyond the fingerprint), rejections visible in State.
-REVISION = 3
+#: (Accepted, Refusal reasons beyond the fingerprint), rejections visible in State; 4: End
+#: ``epoch`` (a deposed coordinator cannot end a mission), the mission's clock on Accepted.
+REVISION = 4
 
 #: What a peer that does not announce its revision speaks: revisions 1 and 2 did not announce
 #: theirs, and a revision-2 peer reads every message of revision 1.
@@ -102,6 +103,18 @@ def _float(lo: float, hi: float) -> Validator:
         value = float(value)
         if not math.isfinite(value) or not lo <= value <= hi:
             raise _refused("out-of-range", name, f"finite {lo}..{hi}", str(value))
+        return value
+    return check
+
+
+def _positive(hi: float) -> Validator:
+    """A finite number in ``(0, hi]``."""
+    inner = _float(0.0, hi)
+
+    def check(value: Any, name: str) -> float:
+        value = inner(value, name)
+        if value <= 0.0:
+            raise _refused("out-of-range", name, f"finite > 0 and <= {hi}", str(value))
         return value
     return check
 
@@ -239,6 +252,11 @@ _EPOCH = _int(1, 2**31 - 1)
 
 #: A protocol revision a peer announces (docs/protocol.md, "Revisions"); absent on the wire = 1.
 _REVISION = _int(1, 2**16 - 1)
+
+#: What an Accepted of revision 4 or later without ``clock``, ``silence_timeout_s``, ``realtime``
+#: means: the sim clock, a 30 s silence timeout, unpaced. Protocol constants, not the command
+#: line's defaults (mission.timeouts): a change of these would change what old messages mean.
+ACCEPTED_ABSENT = ("sim", 30.0, 0.0)
 
 
 # --------------------------------------------------------------------------- messages
@@ -421,12 +439,18 @@ class End:
 
     Attributes:
         stages: number of stages decided.
-        reason: ``complete`` or ``stopped``.
+        reason: ``complete`` or ``stopped`` (free text: a receiver acts on the End whatever it says).
+        epoch: the ending coordinator's epoch (revision 4; None: not stated, as by a coordinator of
+            an earlier revision or in a broadcast to carriers of one): a carrier ignores an End
+            whose stated epoch is lower than the highest it has heard (a deposed coordinator
+            cannot end the mission) and acts on one that states none, as before revision 4 (a
+            restarted coordinator of revision 3 has epoch 2 and states none).
     """
 
     mission: str = _spec(_ident)
     stages: int = _spec(_STAGE_COUNT)
     reason: str = _spec(_text(40))
+    epoch: int | None = _spec(_optional(_EPOCH), absent=None, since=4)
     v: int = PROTOCOL_VERSION
     TYPE = "end"
 
@@ -499,6 +523,11 @@ class Accepted:
             all are decided).
         revision: the newest revision the coordinator speaks.
         epoch: the coordinator's epoch (omitted when 1).
+        clock: the mission's clock, ``sim`` or ``wall`` (revision 4; absent = ``sim``).
+        silence_timeout_s: the coordinator's silence timeout, seconds > 0 (revision 4; absent = 30).
+        realtime: the mission's pace, simulated seconds per wall second, 0 = unpaced (revision 4;
+            absent = 0). The three are read only from an Accepted of ``revision`` >= 4: an earlier
+            coordinator says nothing of its clock.
     """
 
     mission: str = _spec(_ident)
@@ -508,6 +537,9 @@ class Accepted:
     collecting: int = _spec(_STAGE_COUNT)
     revision: int = _spec(_REVISION)
     epoch: int = _spec(_EPOCH, absent=1)
+    clock: str = _spec(_text(16), absent=ACCEPTED_ABSENT[0], since=4, values={"sim": 4, "wall": 4})
+    silence_timeout_s: float = _spec(_positive(1e9), absent=ACCEPTED_ABSENT[1], since=4)
+    realtime: float = _spec(_float(0.0, 1e9), absent=ACCEPTED_ABSENT[2], since=4)
     v: int = PROTOCOL_VERSION
     TYPE = "accepted"
     SINCE = 3
@@ -722,7 +754,7 @@ def defined_in(message: Any, revision: int) -> bool:
     if getattr(type(message), "SINCE", 1) > revision:
         return False
     return all(f.metadata["values"].get(getattr(message, f.name), REVISION + 1) <= revision
-               for f in fields(message) if "values" in f.metadata)
+               for f in fields(message) if "values" in f.metadata and f.metadata["since"] <= revision)
 
 
 def encode(message: Any, revision: int = REVISION) -> bytes:
@@ -764,9 +796,11 @@ def _build(cls: Any, data: dict, where: str, revision: int = REVISION) -> Any:
         raise ProtocolError("unknown-field", f"{where}: unexpected field {sorted(map(str, unknown))[0]!r}")
     values = {}
     for name, check, optional, allowed in specs:
-        if name not in data:
+        if name not in data or (optional and data[name] is None):
             if optional:
-                continue  # optional: the dataclass default is the documented meaning of absent
+                # Optional: the dataclass default is the documented meaning of absent, and nil
+                # there means absent too (docs/protocol.md, [P-1.3]).
+                continue
             raise ProtocolError("missing-field", f"{where}: missing field {name!r}")
         values[name] = check(data[name], f"{where}.{name}")
         if allowed is not None and allowed.get(values[name], REVISION + 1) > revision:
@@ -843,9 +877,9 @@ def decode(data: bytes, expected: type | tuple[type, ...] | None = None, revisio
         raise ProtocolError("missing-field", "missing field 'v'")
     if type(version) is not int or version != PROTOCOL_VERSION:  # 1.0 and true are not 1
         raise ProtocolError("version", f"unsupported protocol version {str(version)[:20]!r}, this is {PROTOCOL_VERSION}")
-    if "type" not in raw:
+    kind = raw.pop("type", None)
+    if kind is None:  # nil as absent ([P-1.3])
         raise ProtocolError("missing-field", "missing field 'type'")
-    kind = raw.pop("type")
     cls = MESSAGE_TYPES.get(kind) if isinstance(kind, str) else None
     if cls is None or getattr(cls, "SINCE", 1) > revision:
         raise ProtocolError("unknown-type", f"unknown message type {str(kind)[:40]!r}")
