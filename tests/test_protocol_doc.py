@@ -178,6 +178,8 @@ def test_field_tables_say_since_and_presence_as_the_code_does():
     for name, cls in classes.items():
         rows = _field_rows(sections[name])
         assert [c for c in rows.values() if len(c) != 6] == [], name
+        in_code = [f.name for f in fields(cls) if f.name not in ("mission", "v")]
+        assert [r for r in rows if r in in_code] == in_code, name  # the codec checks fields in this order
         for f in fields(cls):
             if f.name in ("mission", "v"):
                 continue

@@ -34,7 +34,6 @@ UNCITED_MUSTS: dict[str, str] = {
              "without citing the rule",
     "P-6.1": "the coordinator's stage loop as a whole (pacing, commit before publish): exercised by "
              "every mission test",
-    "P-6.3": "the coordinator's planning view: tests/test_mission.py without citing the rule",
     "P-6.12": "simulated carriers report the world: the conformance kit's rule observation-world",
     "P-7.1": "choosing an epoch: tests/test_store.py without citing the rule",
     "P-7.6": "a standby serves nothing: tests/test_fleet_faults.py (split brain) without citing the rule",
