@@ -88,7 +88,8 @@ class Inbound:
             # Only the answer to our latest Hello counts (docs/protocol.md, "Refusal"); one naming
             # another fingerprint, or coming after our Hello was accepted, is about someone else's.
             self.answer.answered(msg.fingerprint, msg if isinstance(msg, Refusal) else None)
-            if isinstance(msg, Accepted) and msg.fingerprint == self.fingerprint and mc.current(self.machine, msg.epoch):
+            ours = msg.fingerprint == self.fingerprint and mc.current(self.machine, msg.epoch)
+            if isinstance(msg, Accepted) and ours:
                 self._follow_clock(msg)
             return
         if item.key != keys.decision_key(self.mission):

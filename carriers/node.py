@@ -90,6 +90,8 @@ class CarrierConfig:
             observations.
         silence_timeout_s: deciding alone, sim clock: wait for a live peer's observation until
             nothing (not even Progress) came from it for this long (s).
+            ``clock``, ``silence_timeout_s`` and ``realtime`` hold until the coordinator's Accepted
+            tells the mission's (revision 4): the carrier then follows it (:attr:`Carrier.timers`).
         join_timeout_s: decentralised: before the first stage, wait this long for every
             carrier's liveliness token.
         planner_options: options of the on-board planner (iterations, plan_ms).

@@ -53,8 +53,8 @@ from mission import state as ms
 from mission.timeouts import CLOCKS, DEFAULTS
 from wire import keys
 from wire.messages import (
-    MAX_STATE_CARRIERS, REVISION, UNANNOUNCED_REVISION, Accepted, CarrierState, Decision, State, defined_in, encode,
-    refusal, scenario_fingerprint,
+    ACCEPTED_MAX, MAX_STATE_CARRIERS, REVISION, UNANNOUNCED_REVISION, Accepted, CarrierState, Decision, State,
+    defined_in, encode, refusal, scenario_fingerprint,
 )
 from wire.transport import Node
 
@@ -286,7 +286,8 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         # The mission's clock (revision 4): a carrier times its waits by the coordinator's.
         answer = Accepted(self.mission, cid, self.fingerprint, self.state.accepted[cid].next_stage,
                           self.state.next_stage, REVISION, self.epoch, self.config.clock,
-                          float(self.config.silence_timeout_s), float(self.config.realtime))
+                          min(float(self.config.silence_timeout_s), ACCEPTED_MAX),
+                          min(float(self.config.realtime), ACCEPTED_MAX))
         if defined_in(answer, revision):
             self.node.put(keys.accepted_key(self.mission, cid), answer, revision)
 

@@ -415,8 +415,8 @@ def follow(own: Timers, told: Timers | None, repace: bool = True) -> tuple[Timer
         mine, theirs = getattr(own, name), getattr(told, name)
         if mine != theirs:
             kept = name == "realtime" and not repace
-            lines.append(f"the coordinator's {name} is {theirs}{unit}, this carrier's {mine}{unit}: "
-                         + ("keeping this carrier's (its body keeps its own pace)" if kept else "following the coordinator"))
+            what = "keeping this carrier's (its body keeps its own pace)" if kept else "following the coordinator"
+            lines.append(f"the coordinator's {name} is {theirs}{unit}, this carrier's {mine}{unit}: {what}")
     return Timers(told.clock, told.silence_timeout_s, told.realtime if repace else own.realtime), tuple(lines)
 
 

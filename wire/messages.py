@@ -257,6 +257,8 @@ _REVISION = _int(1, 2**16 - 1)
 #: means: the sim clock, a 30 s silence timeout, unpaced. Protocol constants, not the command
 #: line's defaults (mission.timeouts): a change of these would change what old messages mean.
 ACCEPTED_ABSENT = ("sim", 30.0, 0.0)
+#: The largest silence timeout and pace an Accepted carries (a sender sends at most this).
+ACCEPTED_MAX = 1e9
 
 
 # --------------------------------------------------------------------------- messages
@@ -538,8 +540,8 @@ class Accepted:
     revision: int = _spec(_REVISION)
     epoch: int = _spec(_EPOCH, absent=1)
     clock: str = _spec(_text(16), absent=ACCEPTED_ABSENT[0], since=4, values={"sim": 4, "wall": 4})
-    silence_timeout_s: float = _spec(_positive(1e9), absent=ACCEPTED_ABSENT[1], since=4)
-    realtime: float = _spec(_float(0.0, 1e9), absent=ACCEPTED_ABSENT[2], since=4)
+    silence_timeout_s: float = _spec(_positive(ACCEPTED_MAX), absent=ACCEPTED_ABSENT[1], since=4)
+    realtime: float = _spec(_float(0.0, ACCEPTED_MAX), absent=ACCEPTED_ABSENT[2], since=4)
     v: int = PROTOCOL_VERSION
     TYPE = "accepted"
     SINCE = 3
