@@ -304,3 +304,18 @@ def test_a_pose_written_from_the_page_decodes():
         raise AssertionError("accepted a heading of 4 rad")
     except ProtocolError as exc:
         assert exc.reason == "out-of-range"
+
+
+def test_every_citation_of_a_section_resolves():
+    """Code and docs cite sections of this page by name (`docs/protocol.md, "Stage handshake"`):
+    each name is in one of the page's headings (ignoring case), so a reader finds it."""
+    headings = [line.lower() for line in PROTOCOL.splitlines() if line.startswith("#")]
+    citing = [p for p in ROOT.rglob("*") if p.suffix in (".py", ".md") and p.is_file()
+              and not {".venv", "fixtures", "journal", ".git"} & set(p.relative_to(ROOT).parts)]
+    unresolved = []
+    for path in citing:
+        for m in re.finditer(r'docs/protocol\.md,\s+((?:"[^"]+"(?:,\s*|\s+and\s+)?)+)', path.read_text(errors="replace")):
+            for name in re.findall(r'"([^"]+)"', m.group(1)):
+                if not any(name.lower() in h for h in headings):
+                    unresolved.append((str(path.relative_to(ROOT)), name))
+    assert unresolved == []
