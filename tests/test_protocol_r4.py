@@ -384,6 +384,8 @@ class ScriptedCoordinator:
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
         self.fingerprint = wm.scenario_fingerprint(scenario)
         self.epoch, self.revision, self.stages = epoch, revision, scenario.stages
+        # What State says (the test changes it as the mission it plays goes on).
+        self.next_stage, self.deployments, self.last_decision = 0, (), None
         self.node = Node(make_config("peer", [self.endpoint]))
         self.node.subscribe(f"{keys.prefix(M)}/carrier/**")
         self.node.serve(keys.state_key(M), self.state)
@@ -395,8 +397,11 @@ class ScriptedCoordinator:
 
     def state(self, parameters) -> bytes:
         asked = keys.asked_revision(parameters, self.revision or 1, 1)
-        return wm.encode(wm.State(mission=M, next_stage=0, stages=self.stages, fingerprint=self.fingerprint,
-                                  ended=False, carriers=(), last_decision=None, epoch=self.epoch,
+        left = 2 - len(self.deployments)
+        carriers = (("a", wm.CarrierState(left, tuple(self.deployments), True)),)
+        return wm.encode(wm.State(mission=M, next_stage=self.next_stage, stages=self.stages,
+                                  fingerprint=self.fingerprint, ended=False, carriers=carriers,
+                                  last_decision=self.last_decision, epoch=self.epoch,
                                   revision=self.revision or 1), asked)
 
     def _receive(self) -> None:
@@ -559,3 +564,46 @@ def test_a_revision_3_carrier_never_receives_revision_4_fields(tmp_path):
     assert end_a == end_b and "epoch" not in end_a  # one broadcast, in the lowest revision
     for body in (accepted_a, end_a):
         wm.decode(msgpack.packb(body), revision=3)
+
+
+def test_a_carrier_that_lost_a_decision_takes_it_from_state():
+    """[P-6.6] a real carrier waits at stage 0; the coordinator (played here) decided 0 selecting
+    it, but that Decision is lost: the carrier gets Decision 1 (nobody deploys). Before confirming
+    1 it asks State, which lists its deployment at 0: it deploys at 0 (Confirm ``deployed``, its
+    lowest passenger), says Hello from stage 2, answers 1 ``idle`` and goes on at stage 2; its
+    Bye reports the deployment at 0, as the coordinator counts it."""
+    tiny = world.load_scenario(TINY)
+    coordinator = ScriptedCoordinator(tiny, epoch=1, revision=4)
+    carrier = thread = None
+    confirms, hellos = [], []
+    try:
+        carrier, thread, out = _fly(tiny, coordinator, clock="sim")
+        assert coordinator.expect(wm.Hello) is not None
+        observation = coordinator.expect(wm.Observation)
+        assert observation is not None and observation.stage == 0
+        decision = wm.Decision(M, 1, 5.0, (), 1.0)
+        coordinator.next_stage, coordinator.deployments, coordinator.last_decision = 2, (0,), decision
+        coordinator.put(keys.decision_key(M), decision, 4)  # Decision 0 never went out: lost
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:
+            msg = coordinator.expect((wm.Confirm, wm.Hello, wm.Observation), timeout_s=1.0)
+            if isinstance(msg, wm.Confirm):
+                confirms.append((msg.stage, msg.status, msg.deployed, msg.passenger))
+            elif isinstance(msg, wm.Hello):
+                hellos.append(msg.next_stage)
+            elif isinstance(msg, wm.Observation) and msg.stage == 2:
+                break
+        else:
+            raise AssertionError(f"no Observation of stage 2; confirms {confirms}")
+        coordinator.put(keys.end_key(M), wm.End(M, 2, "stopped", epoch=1), 4)
+        bye = coordinator.expect(wm.Bye)
+        thread.join(30)
+    finally:
+        if carrier is not None:
+            carrier.stop()
+        if thread is not None:
+            thread.join(30)
+        coordinator.close()
+    assert confirms[0] == (0, "deployed", True, 0), confirms
+    assert (1, "idle", False, None) in confirms and hellos == [2], (confirms, hellos)
+    assert bye is not None and bye.deployments == (0,) and dict(bye.rejected) == {}
