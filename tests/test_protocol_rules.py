@@ -28,17 +28,11 @@ CITED = re.compile(r"\[(P-\d+\.\d+)\]")
 
 #: MUST rules that no test cites yet, each with the reason; keep it short and say so in reviews.
 UNCITED_MUSTS: dict[str, str] = {
-    "P-1.1": "transport settings (reliable BLOCK puts, scouting off): exercised by every flight, "
-             "not asserted as such",
     "P-2.5": "one token per role and id: a duplicate carrier is refused in tests/test_fleet_faults.py "
              "without citing the rule",
-    "P-6.1": "the coordinator's stage loop as a whole (pacing, commit before publish): exercised by "
-             "every mission test",
     "P-6.12": "simulated carriers report the world: the conformance kit's rule observation-world",
-    "P-7.1": "choosing an epoch: tests/test_store.py without citing the rule",
     "P-7.6": "a standby serves nothing: tests/test_fleet_faults.py (split brain) without citing the rule",
     "P-8.4": "deciding alone: tests/test_fleet_autonomy.py without citing the rule",
-    "P-8.6": "a coordinator that comes back: tests/test_mission.py without citing the rule",
     "P-9.1": "End and its repetition: every mission test's Byes, without citing the rule",
     "P-11.3": "the fixtures: tests/test_wire_revisions.py",
 }
@@ -709,7 +703,8 @@ def test_a_stage_is_held_while_no_carrier_is_live():
 
 
 def test_decisions_name_sorted_carriers_and_passengers():
-    """[P-6.4] a Decision's deploy is sorted by id with the passengers in the same order."""
+    """[P-6.4] a Decision's deploy is sorted by id with the passengers in the same order;
+    [P-6.1] it is committed (Record) before it is published."""
     s = accepted(accepted(ms.initial(spec(1)), "a"), "b")
     s, effects = ms.step(s, ev.Decided(0, ("b", "a"), 1.0, 0.0, (5, 7)))
     record = s.decisions[0]
@@ -721,7 +716,8 @@ def test_decisions_name_sorted_carriers_and_passengers():
 
 def test_collect_waits_for_the_expected_carriers():
     """[P-6.2] expected at j: live, Hello accepted, scheduled at j, not past j (no Own of j, no
-    Hello with a later next_stage); a vanished token removes the carrier at once."""
+    Hello with a later next_stage); a vanished token removes the carrier at once; [P-8.6] a
+    coordinator neither waits for nor plans a carrier at a stage it has passed."""
     s = ms.initial(spec(3))
     for cid in ("a", "b"):
         s, _ = ms.step(s, ev.LivelinessChanged(cid, True))
@@ -869,9 +865,55 @@ def test_the_coordinator_kit_rules_are_on_the_page():
     from wire.conformance.coordrules import COORDINATOR_RULES
 
     table = PAGE.split("**The coordinator kit.**")[1].split("\n## ")[0]
+    assert "| rule | rule of this page | the coordinator ... |" in table
     book = rules()
     for rule, _, _ in COORDINATOR_RULES:
         row = next((line for line in table.splitlines() if line.startswith(f"| `{rule}` |")), None)
         assert row is not None, rule
         ids = CITED.findall(row.split("|")[2])
         assert ids and set(ids) <= set(book), (rule, ids)
+
+
+def test_choosing_an_epoch(tmp_path):
+    """[P-7.1] 1 for a fresh mission; one more than the highest used before at every resumption;
+    at least the floor a standby learnt from the primary's State."""
+    from storage.missiondb import MissionStore
+
+    meta = {"mission": "tiny", "seed": 7, "planner": "ssap"}
+    path = tmp_path / "mission.db"
+    first = MissionStore(path, meta)
+    assert first.epoch == 1
+    first.close()
+    second = MissionStore(path, meta)
+    assert second.epoch == 2
+    second.raise_epoch(6)  # a carrier's Hello said 5: this process took 6 ([P-7.3])
+    second.close()
+    assert MissionStore(path, meta).epoch == 7
+    assert MissionStore(tmp_path / "standby.db", meta, min_epoch=4).epoch == 4
+
+
+def test_a_decision_of_the_coordinator_that_comes_back_counts_every_own():
+    """[P-8.6] an Own is the truth about that carrier at that stage whichever stage the
+    coordinator is at: counted as deployed, the carrier not waited for there, its passenger
+    recorded as unknown."""
+    s = accepted(accepted(ms.initial(spec(3)), "a"), "b")
+    for cid in ("a", "b"):
+        s, _ = ms.step(s, ev.LivelinessChanged(cid, True))
+    s, effects = ms.step(s, ev.Accounted("a", 1, 5.0, 2, True, (0.0, 0.0), 0))  # ahead of the coordinator
+    assert rejections(effects) == []
+    assert s.deployed()[0, 1] and "a" not in s.expected(1)
+    assert s.releases()[0, 1] == -1  # which passenger: unknown
+
+
+def test_puts_are_reliable_and_scouting_is_off():
+    """[P-1.1] every put of a message goes through a declared publisher, reliable with congestion
+    control BLOCK; the fleet's Zenoh configuration turns multicast scouting off."""
+    import json
+
+    from wire import zconfig
+
+    put = (ROOT / "wire" / "transport.py").read_text().split("    def put(")[1].split("    def put_raw(")[0]
+    assert "declare_publisher(" in put and "Reliability.RELIABLE" in put and "CongestionControl.BLOCK" in put
+    assert "session.put(" not in put
+    conf = zconfig.make_config("client", connect=["tcp/127.0.0.1:7447"])
+    assert json.loads(conf.get_json("scouting/multicast/enabled")) is False
