@@ -28,13 +28,13 @@ CITED = re.compile(r"\[(P-\d+\.\d+)\]")
 
 #: MUST rules that no test cites yet, each with the reason; keep it short and say so in reviews.
 UNCITED_MUSTS: dict[str, str] = {
-    "P-2.5": "one token per role and id: a duplicate carrier is refused in tests/test_fleet_faults.py "
-             "without citing the rule",
-    "P-6.12": "simulated carriers report the world: the conformance kit's rule observation-world",
-    "P-7.6": "a standby serves nothing: tests/test_fleet_faults.py (split brain) without citing the rule",
-    "P-8.4": "deciding alone: tests/test_fleet_autonomy.py without citing the rule",
-    "P-9.1": "End and its repetition: every mission test's Byes, without citing the rule",
-    "P-11.3": "the fixtures: tests/test_wire_revisions.py",
+    "P-2.5": "one token per role and id: tests/test_split_brain.py::"
+             "test_a_second_coordinator_and_a_second_carrier_process_refuse_to_start (real processes), "
+             "which does not cite the rule",
+    "P-6.12": "a simulated carrier reports the project's world: judged by the conformance kit's rule "
+              "observation-world on every carrier it flies (tests/test_conformance.py)",
+    "P-7.6": "a standby serves nothing while the primary lives: tests/test_split_brain.py::"
+             "test_standby_takes_over_a_killed_primary_with_a_higher_epoch, which does not cite the rule",
 }
 
 
@@ -917,3 +917,41 @@ def test_puts_are_reliable_and_scouting_is_off():
     assert "session.put(" not in put
     conf = zconfig.make_config("client", connect=["tcp/127.0.0.1:7447"])
     assert json.loads(conf.get_json("scouting/multicast/enabled")) is False
+
+
+@pytest.mark.parametrize("left, valid", [(0, True), (1, False)])
+def test_a_carrier_deciding_alone_never_deploys_what_it_cannot(left, valid):
+    """[P-8.4] deciding alone: never a deployment without a passenger or at a stage it is not
+    scheduled at; the outcome is logged before the Own that announces it."""
+    c = mc.initial("a", (valid,), (0.0,), left)
+    c, _ = mc.step(c, mc.Joined(0))
+    c, _ = mc.step(c, mc.Observed(0, 1, (0.0, 0.0)))
+    c, effects = mc.step(c, mc.DecidedOwn(0, True, (0.0, 0.0)))
+    assert [type(e) for e in effects] == [mc.LogOutcome, mc.SendOwn]
+    assert effects[1].deployed is False and c.passengers_left == left
+
+
+def test_end_is_broadcast_with_its_epoch_in_the_lowest_revision():
+    """[P-9.1] End goes out in the broadcast revision [P-4.2] with the coordinator's epoch
+    (revision 4 states it, 1 included [P-7.4]; revision 3 has no such field), repeated."""
+    end = wm.End(M, 3, "complete", 1)
+    assert msgpack.unpackb(wm.encode(end, 4))["epoch"] == 1
+    assert "epoch" not in msgpack.unpackb(wm.encode(end, 3))
+    clock = (ROOT / "coordinator" / "clock.py").read_text().split("def _end(")[1]
+    assert "self.node.put(keys.end_key(self.mission), end, self.state.common_revision(REVISION))" in clock
+    assert "DEFAULTS.end_repeat_s" in clock and "self.deposed_by is None" in (
+        ROOT / "coordinator" / "node.py").read_text()
+
+
+@pytest.mark.parametrize("revision", sorted(int(p.name[1:]) for p in (ROOT / "tests" / "fixtures" / "wire").glob("r*")))
+def test_each_revisions_fixtures_are_accepted(revision):
+    """[P-11.3] what a carrier of each published revision sends, today's receiver accepts as it
+    is, and re-encoded for that revision it is the same map."""
+    import json
+
+    doc = json.loads((ROOT / "tests" / "fixtures" / "wire" / f"r{revision}" / "messages.json").read_text())
+    for kind, samples in doc["carrier_sends"].items():
+        for sample in samples:
+            message = wm.decode(msgpack.packb(sample))
+            assert type(message).TYPE == kind
+            assert msgpack.unpackb(wm.encode(message, revision)) == sample
