@@ -147,9 +147,11 @@ def test_the_envelope(payload, expected):
 
 def test_nil_in_a_required_field_is_wrong_type_and_nullable_fields_take_nil():
     """[P-1.3] nil in a required field that is not nullable is wrong-type; a nullable one (an
-    Observation's x) takes nil as a value of its own."""
+    Observation's x) takes nil as a value of its own; nil in an optional field is its absence."""
     assert reason(body("hello", **dict(HELLO, host=None))) == "wrong-type"
     assert wm.decode(msgpack.packb(body("obs", **OBS))).x is None
+    hello = wm.decode(msgpack.packb(body("hello", **HELLO, epoch=None, revision=None)))
+    assert (hello.epoch, hello.revision) == (1, 1)  # nil in an optional field: its default
 
 
 def test_absent_optional_fields_have_their_defaults_and_unknown_fields_are_rejected():
