@@ -22,7 +22,7 @@ CLIENT = ROOT / "tests" / "revision1_carrier.py"
 BROKEN_COORDINATOR = ROOT / "tests" / "broken_coordinator.py"
 COORDINATOR_FLAGS = ["{scenario}", "--role", "coordinator", "--connect", "{endpoint}", "--mission", "{mission}",
                      "--seed", "{seed}", "--out", "{workdir}", "--no-map", "--no-record", "--join-timeout", "3",
-                     "--silence-timeout", "2", "--realtime", "0"]
+                     "--silence-timeout", "2", "--stage-timeout", "2", "--realtime", "0"]
 PROJECT_COORDINATOR = [sys.executable, "-m", "launcher", *COORDINATOR_FLAGS]
 PROJECT_CARRIER = [sys.executable, str(ROOT / "run_fleet.py"), "{scenario}", "--role", "carrier", "--carrier",
                    "{carrier}", "--connect", "{endpoint}", "--seed", "{seed}", "--mission", "{mission}",

@@ -45,6 +45,8 @@ FAULT_TEXT = {
                    "mission on its obs key (counted in State under malformed and wrong-mission)",
     "late-joiner": "the last carrier declares its token and says Hello only once stage 0 is decided",
     "silent": "the last carrier stops sending anything after answering stage N-3 (its token stays)",
+    "old-carrier": "the last carrier speaks revision 1: State asked without a revision, Hello without one, no "
+                   "Progress (it gets no Accepted; from its join on, Decisions and End are revision 1's)",
     "takeover": "a second flight: the first carrier's Hello reports epoch 5; once stage 1 is decided the "
                 "kit publishes a Decision of a higher epoch than the coordinator's (a newer coordinator)",
 }
@@ -188,6 +190,9 @@ class Flight:
         self.played = {cid: Played(r, cid, world.passengers[r]) for r, cid in enumerate(world.ids)}
         seen.played = self.played
         self.first, self.last = world.ids[0], world.ids[-1]
+        if "old-carrier" in faults and len(self.played) > 1:
+            self.played[self.last].revision = 1
+            seen.faults["old-carrier"] = (0, time.monotonic())
         self.epoch = 1  # the highest epoch the kit's carriers heard
         self.ended_at: float | None = None
         self.stop_at: float | None = None  # the takeover: the flight ends then
@@ -197,7 +202,7 @@ class Flight:
 
     # ------------------------------------------------------------------ the kit's carriers speaking
     def put(self, p: Played, topic: str, message: Any) -> None:
-        self.node.put(p.key(self.w, topic), message, wm.REVISION)
+        self.node.put(p.key(self.w, topic), message, p.revision)
 
     def state(self, cid: str, revision: int | None = wm.REVISION, timeout_s: float = 2.0) -> wm.State | None:
         """Ask State as carrier ``cid`` (announcing ``revision``; None: none), record every reply,
@@ -218,12 +223,13 @@ class Flight:
         """Token, State, Hello, the Observation of State's next stage; False when State did not answer."""
         if p.token is None:
             p.token = self.node.session.liveliness().declare_token(keys.carrier_alive(self.w.mission, p.cid))
-        state = self.state(p.cid)
+        state = self.state(p.cid, p.revision if p.revision >= 3 else None)
         if state is None:
             return False
         self.epoch = max(self.epoch, state.epoch)
         p.next_stage, p.joined = state.next_stage, True
-        self.seen.hellos.append((time.monotonic(), p.cid, "accepted", self.w.fingerprint, p.next_stage))
+        expect = "accepted" if p.revision >= 3 else f"revision-{p.revision}"
+        self.seen.hellos.append((time.monotonic(), p.cid, expect, self.w.fingerprint, p.next_stage))
         self.put(p, "hello", p.hello(self.w, p.next_stage, max(self.epoch, epoch)))
         if p.next_stage < self.w.n:
             self.put(p, "obs", p.observation(self.w, p.next_stage))
@@ -289,6 +295,11 @@ class Flight:
         if self.coordinator_epoch is None:
             self.coordinator_epoch = d.epoch
         w, j = self.w, d.stage
+        # The late joiner first: its Hello reaches the coordinator before the others' next
+        # Observations (puts of one session are ordered), so it is expected at the next stage.
+        if self._due("late-joiner") and len(self.played) > 1 and not self.played[self.last].joined:
+            if self.join(self.played[self.last]):
+                self.seen.faults["late-joiner"] = (self.played[self.last].next_stage, time.monotonic())
         for p in self.played.values():
             if not p.active or j not in p.observed or j in p.answered:
                 continue
@@ -302,9 +313,6 @@ class Flight:
                 if p.cid == self.first and self._due("bad-message"):
                     self.bad_messages()
                 self.put(p, "obs", p.observation(w, p.next_stage))
-        if self._due("late-joiner") and len(self.played) > 1 and not self.played[self.last].joined:
-            if self.join(self.played[self.last]):
-                self.seen.faults["late-joiner"] = (self.played[self.last].next_stage, time.monotonic())
         if self._due("takeover") and j >= 1:
             self.take_over(d)
 
@@ -343,7 +351,7 @@ class Flight:
             if now - last_progress > PROGRESS_S and self.ended_at is None and self.stop_at is None:
                 last_progress = now
                 for p in self.played.values():
-                    if p.active and p.next_stage < self.w.n:
+                    if p.active and p.next_stage < self.w.n and p.revision >= 3:
                         self.put(p, "progress", p.progress(self.w))
             if now - last_state > STATE_PERIOD_S and self.ended_at is None:
                 last_state = now

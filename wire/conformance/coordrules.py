@@ -18,32 +18,35 @@ SETTLE_S = 0.5
 #: Every rule the coordinator kit checks: (id, rule or section of docs/protocol.md, what it says).
 COORDINATOR_RULES = (
     ("decode", "[P-4.5]", "every message it publishes and every State reply decodes at the kit's revision"),
-    ("state", "[P-5]", "State answers a carrier's query: its fingerprint, N stages, only the asking carrier, the "
-                       "revision it speaks (>= 3); a query announcing no revision gets a revision-1 reply [P-4.2]"),
-    ("hello-answered", "[P-5]", f"every Hello of revision 3 or later is answered within {ANSWER_S:g} s: "
+    ("state", "[P-5.3]", "State answers a carrier's query: its fingerprint, N stages, only the asking carrier, the "
+                       "revision it speaks (>= 3); a query announcing no revision gets a revision-1 reply"),
+    ("hello-answered", "[P-5.8]", f"every Hello of revision 3 or later is answered within {ANSWER_S:g} s: "
                                 "Accepted or Refusal"),
-    ("accepted", "[P-5]", "a good Hello is accepted: Accepted names the carrier, the world's fingerprint, the "
+    ("accepted", "[P-5.8]", "a good Hello is accepted: Accepted names the carrier, the world's fingerprint, the "
                           "Hello's next_stage, collecting <= N, revision >= 3"),
-    ("refusal-reason", "[P-3]", "a bad Hello is refused with the reason of the first check it fails "
+    ("refusal-reason", "[P-3.3]", "a bad Hello is refused with the reason of the first check it fails "
                                 "(unknown-carrier, world-mismatch, missing-field), naming the fingerprint it "
                                 "carried and the coordinator's"),
-    ("refusal-keeps", "[P-5]", "a Refusal never undoes a Hello accepted before: State shows that carrier "
+    ("refusal-keeps", "[P-5.9]", "a Refusal never undoes a Hello accepted before: State shows that carrier "
                                "not refused and none of its later messages rejected no-hello"),
-    ("rejections", "[P-3]", "a bad message is counted in State under its reason (malformed, wrong-mission); "
+    ("rejections", "[P-3.4]", "a bad message is counted in State under its reason (malformed, wrong-mission); "
                             "the kit's good messages never are"),
-    ("decision-order", "[P-6]", "one Decision per stage, every stage in order, t = t_j; a repeat is identical"),
-    ("feasible", "[P-6]", "a carrier is selected only at a stage it observed with x, with a passenger left"),
-    ("forced", "[P-6]", "a carrier the forced rule binds at a stage (valid, d > 0, valid stages left <= d) "
+    ("decision-order", "[P-6.4]", "one Decision per stage, every stage in order, t = t_j; a repeat is identical"),
+    ("feasible", "[P-6.3]", "a carrier is selected only at a stage it observed with x, with a passenger left"),
+    ("forced", "[P-6.13]", "a carrier the forced rule binds at a stage (valid, d > 0, valid stages left <= d) "
                         "is selected"),
-    ("late-joiner", "[P-5]", "a carrier joining after stage 0 is accepted at State's next_stage, live, none of "
-                             "its messages rejected"),
-    ("silent-carrier", "[P-10]", "a carrier gone silent with its token held does not stop the mission: every "
+    ("late-joiner", "[P-5.11]", "a carrier joining after stage 0 is accepted (Accepted at State's next_stage, to "
+                                "revision 3 and later), live, none of its messages rejected"),
+    ("broadcast-revision", "[P-4.2]", "once a revision-1 carrier's Hello is accepted, what it broadcasts (Decisions "
+                                      "from that carrier's join stage on, End) is revision 1's; that carrier gets no "
+                                      "Accepted"),
+    ("silent-carrier", "[P-10.3]", "a carrier gone silent with its token held does not stop the mission: every "
                                  "later stage is decided and End comes"),
-    ("end", "[P-9]", "End once every stage is decided: stages N, reason complete, every repeat identical, no "
+    ("end", "[P-9.1]", "End once every stage is decided: stages N, reason complete, every repeat identical, no "
                      "Decision after it; its epoch the Decisions' [P-7.4]"),
-    ("hello-epoch", "[P-7]", f"after a Hello reporting epoch {HELLO_EPOCH} before its first Decision, its "
+    ("hello-epoch", "[P-7.3]", f"after a Hello reporting epoch {HELLO_EPOCH} before its first Decision, its "
                              f"Decisions carry a higher epoch"),
-    ("takeover", "[P-7]", "after a Decision of a higher epoch on its decision key it publishes no Decision "
+    ("takeover", "[P-7.3]", "after a Decision of a higher epoch on its decision key it publishes no Decision "
                           "and no End, and its process exits"),
 )
 
@@ -106,6 +109,10 @@ def _answers(w: World, seen: Seen) -> list:
 
 def _hellos(w: World, seen: Seen, results: dict) -> None:
     for (at, cid, expect, fingerprint, next_stage), answer in _answers(w, seen):
+        if expect.startswith("revision-"):  # an older carrier learns its acceptance from the Decisions
+            results["broadcast-revision"].check(not isinstance(getattr(answer, "message", None), wm.Accepted),
+                                                f"{seen.name}: Accepted to {cid}, a {expect} carrier: {answer and answer.show()}")
+            continue
         late = answer is not None and answer.at - at > ANSWER_S
         results["hello-answered"].check(answer is not None and not late,
                                         f"{seen.name}: Hello of {cid} ({expect} expected) "
@@ -177,6 +184,15 @@ def _decisions(w: World, seen: Seen, results: dict) -> None:
         firsts[d.stage] = h
         _feasible(w, seen, results, d)
     ends = seen.of(wm.End)
+    old = next(((at, ns) for at, _, expect, _, ns in seen.hellos if expect == "revision-1"), None)
+    if old is not None:
+        for h in [firsts[j] for j in sorted(firsts) if j >= old[1]] + ends:
+            try:
+                wm.decode(h.payload, revision=1)
+                results["broadcast-revision"].check(True)
+            except wm.ProtocolError as exc:
+                results["broadcast-revision"].check(False, f"{seen.name}: not revision 1's ({exc.reason}: {exc.detail}) "
+                                                           f"with a revision-1 carrier in the mission: {h.show()}")
     if "silent" in seen.faults:
         stage, _ = seen.faults["silent"]
         missing = [j for j in range(stage, w.n) if j not in firsts]
@@ -212,8 +228,11 @@ def _end(w: World, seen: Seen, results: dict, real: list[Heard], ends: list[Hear
     problems += ["repeats differ"] * any(e.payload != ends[0].payload for e in ends)
     problems += ["a Decision after End"] * any(h.at > ends[0].at for h in real)
     problems += ["End before the last Decision"] * (ends[0].at < last_decision)
-    if "epoch" in {f for f in getattr(wm.End, "__dataclass_fields__", {})}:
-        problems += [f"epoch {first.epoch}, the Decisions' {epoch}"] * (first.epoch != epoch)
+    # End's epoch is revision 4's [P-7.4]: absent in the revision-1 End a revision-1 carrier reads [P-4.2]
+    body = msgpack.unpackb(ends[0].payload)
+    older = any(expect == "revision-1" for _, _, expect, _, _ in seen.hellos)
+    if "epoch" in body or not older:
+        problems += [f"epoch {body.get('epoch')}, the Decisions' {epoch}"] * (body.get("epoch", 1) != epoch)
     results["end"].check(not problems, f"{seen.name}: {'; '.join(problems)}: {ends[0].show()}")
 
 

@@ -102,6 +102,7 @@ class Played:
     silent: bool = False
     done: bool = False
     token: Any = None
+    revision: int = wm.REVISION  # the revision it speaks (an older carrier: no Hello revision, no Progress)
 
     @property
     def active(self) -> bool:
@@ -109,7 +110,7 @@ class Played:
 
     def hello(self, w: World, next_stage: int, epoch: int) -> wm.Hello:
         return wm.Hello(w.mission, self.cid, 0, "conformance-kit", self.left, next_stage, w.fingerprint,
-                        epoch=max(1, epoch), revision=wm.REVISION)
+                        epoch=max(1, epoch), revision=self.revision)
 
     def observation(self, w: World, j: int) -> wm.Observation:
         x = w.x[self.r][j] if w.valid[self.r][j] else None
