@@ -350,8 +350,8 @@ def _coordinator_kit(tmp_path, command, faults) -> tuple[list, wc.CoordinatorKit
 
 
 def test_the_project_coordinator_passes_a_plain_flight(tmp_path):
-    """[P-5] every Hello answered, [P-6] Decisions in order and feasible, [P-9] End once: the
-    project's coordinator, no faults (quick: one flight of tiny)."""
+    """[P-5.8] every Hello answered, [P-6.4] Decisions in order, [P-6.3] feasible, [P-9.1] End
+    once, [P-5.3] State served: the project's coordinator, no faults (quick: one flight of tiny)."""
     results, kit = _coordinator_kit(tmp_path, PROJECT_COORDINATOR, ())
     statuses = _statuses(results)
     assert wc.passed(results), wc.table(results, wc.COORDINATOR_RULES) + kit.flights[0].output
@@ -360,7 +360,7 @@ def test_the_project_coordinator_passes_a_plain_flight(tmp_path):
 
 
 def test_a_coordinator_deploying_every_carrier_fails_feasible(tmp_path):
-    """[P-6] a Decision selecting carriers that did not observe the stage fails ``feasible``."""
+    """[P-6.3] a Decision selecting carriers that did not observe the stage fails ``feasible``."""
     results, kit = _coordinator_kit(tmp_path, [sys.executable, str(BROKEN_COORDINATOR), "select-all",
                                                *COORDINATOR_FLAGS], ())
     assert not wc.passed(results)
@@ -370,7 +370,8 @@ def test_a_coordinator_deploying_every_carrier_fails_feasible(tmp_path):
 @pytest.mark.slow
 def test_the_project_coordinator_passes_every_fault(tmp_path):
     """The documented command on the project's coordinator: every rule exercised and passed, the
-    takeover flight included ([P-7] a newer epoch's Decision stops it)."""
+    takeover flight included ([P-7.3] a newer epoch's Decision stops it; [P-4.2] a revision-1
+    carrier's join makes the broadcasts revision 1's; [P-3.3] bad Hellos refused with their reason)."""
     proc = subprocess.run([sys.executable, "-m", "wire.conformance", "coordinator", str(TINY), "--workdir",
                            str(tmp_path / "kit"), "--", *PROJECT_COORDINATOR], capture_output=True, text=True,
                           cwd=ROOT, timeout=400)
@@ -385,6 +386,7 @@ def test_the_project_coordinator_passes_every_fault(tmp_path):
     ("no-accepted", (), "hello-answered"), ("ignore-takeover", ("takeover",), "takeover"),
 ])
 def test_a_broken_coordinator_fails_the_rule_it_breaks(tmp_path, brk, faults, rule):
+    """[P-5.8] unanswered Hellos fail hello-answered; [P-7.3] ignoring a newer epoch fails takeover."""
     results, kit = _coordinator_kit(tmp_path, [sys.executable, str(BROKEN_COORDINATOR), brk, *COORDINATOR_FLAGS],
                                     faults)
     assert not wc.passed(results)

@@ -67,9 +67,10 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
         prog=prog, usage="%(prog)s SCENARIO --carrier ID [options] -- COMMAND [ARGS...]",
         formatter_class=argparse.RawDescriptionHelpFormatter, epilog=_epilog(),
         description=textwrap.fill(
-            "Fly a third-party carrier (COMMAND, everything after '--') with the project's coordinator and the "
-            "scenario's other carriers on a zenoh router of the kit's own (tcp/127.0.0.1, a free port, multicast "
-            "scouting off), make deliberate faults, and check the carrier against docs/protocol.md, rule by rule. "
+            "Fly a third-party carrier (COMMAND, everything after '--') on a zenoh router of the kit's own "
+            "(tcp/127.0.0.1, a free port, multicast scouting off), with the project's coordinator and the "
+            "scenario's other carriers (making deliberate faults) or with coordinators the kit plays itself "
+            "(--flight), and check the carrier against docs/protocol.md, rule by rule. "
             "This is the default kit ('carrier' may be written first); 'coordinator' checks a coordinator instead "
             "(python -m wire.conformance coordinator --help).",
             WIDTH))
@@ -77,21 +78,23 @@ def build_parser(prog: str = PROG) -> argparse.ArgumentParser:
     parser.add_argument("--carrier", required=True, metavar="ID", help="the id the carrier under test flies as")
     parser.add_argument("--seed", type=int, help="root seed (overrides the scenario's)")
     parser.add_argument("--faults", default=",".join(FAULTS), metavar="LIST",
-                        help=f"comma-separated faults to make (default all: {','.join(FAULTS)}; 'none' for none)")
+                        help=f"comma-separated faults to make in the project flight (default all: "
+                             f"{','.join(FAULTS)}; 'none' for none)")
     parser.add_argument("--flight", default="project", choices=FLIGHTS, metavar="FLIGHT",
                         help=f"who the coordinator is: {', '.join(FLIGHTS)} (default project; listed below)")
     parser.add_argument("--revision", type=int, metavar="R",
                         help="the revision the kit's own coordinator speaks in the flights other than project "
                              f"(1..{wm.REVISION}; default {wm.REVISION}, and 1 for older, which takes 1 or 2)")
     parser.add_argument("--late", type=float, default=3.0, metavar="SECONDS",
-                        help="seconds the late Decision is late (default 3)")
+                        help="seconds the late Decision is late (the project flight's fault late; default 3)")
     parser.add_argument("--timeout", type=float, default=180.0, metavar="SECONDS",
                         help="longest mission, seconds (default 180): counted from the carrier under test's "
                              "start; then the kit stops watching, gives COMMAND one more second to exit "
                              "(else kills it) and judges what it saw")
     parser.add_argument("--workdir", metavar="DIR",
                         help="where the coordinator's results (DIR/run) and the logs (DIR/coordinator.log, "
-                             "DIR/carriers.log) go, and COMMAND's own files ({workdir} = DIR/carrier); "
+                             "DIR/carriers.log; the project flight) go, and COMMAND's own files "
+                             "({workdir} = DIR/carrier); "
                              "default: a new temporary directory, named in the report's last line")
     return parser
 
