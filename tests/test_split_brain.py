@@ -1,8 +1,8 @@
 """Split brain and duplicates, as real OS processes over real Zenoh (docs/fleet.md, "Split
 brain"): a second coordinator of a live mission and a second process of a live carrier refuse to
 start (one stderr line, exit code 2, nothing written); a standby coordinator takes over a
-SIGKILLed primary on the same results directory with epoch 2, and a Decision of the old epoch
-(crafted here on a raw zenoh session) is ignored by the carriers (``deposed`` in their Bye)."""
+SIGKILLed primary on the same results directory with epoch 2, and a Decision and an End of the old epoch
+(crafted here on a raw zenoh session) are ignored by the carriers (``deposed`` in their Bye)."""
 from __future__ import annotations
 
 import json
@@ -125,6 +125,11 @@ def test_standby_takes_over_a_killed_primary_with_a_higher_epoch(tmp_path):
                  "t": 5.0 * (scenario.stages - 1), "deploy": ["a", "b"], "planning_ms": 0.0}  # epoch absent: 1
         session.declare_publisher("marsupial/faults/coordinator/decision", reliability=zenoh.Reliability.RELIABLE,
                                   congestion_control=zenoh.CongestionControl.BLOCK).put(msgpack.packb(stale))
+        # [P-7.4] an End of epoch 1 (the deposed primary's, as a coordinator that missed its
+        # deposition would send it): rejected, the carriers fly on to the standby's End.
+        stale_end = {"v": 1, "type": "end", "mission": "faults", "stages": k, "reason": "complete", "epoch": 1}
+        session.declare_publisher("marsupial/faults/coordinator/end", reliability=zenoh.Reliability.RELIABLE,
+                                  congestion_control=zenoh.CongestionControl.BLOCK).put(msgpack.packb(stale_end))
         codes = {name: fleet.procs[name].wait(90) for name in ("standby", "a", "b")}  # the router runs on
         sub.undeclare()
     finally:
@@ -147,8 +152,8 @@ def test_standby_takes_over_a_killed_primary_with_a_higher_epoch(tmp_path):
     assert sorted(epochs) == list(range(scenario.stages))
     assert all(epochs[j] == {2} for j in range(k + 1, scenario.stages)), epochs
     _check_at_most_once(fleet, scenario, summary)
-    for cid in scenario.carrier_ids:
-        assert summary["rejected"]["carriers"][cid].get("deposed", 0) >= 1, summary["rejected"]
+    for cid in scenario.carrier_ids:  # both the stale Decision and the stale End were rejected
+        assert summary["rejected"]["carriers"][cid].get("deposed", 0) >= 2, summary["rejected"]
     # The stale decision deployed nobody: every deployment is one of the coordinators' decisions.
     for r, carrier in enumerate(summary["carriers"]):
         for dep in carrier["deployments"]:
