@@ -263,6 +263,7 @@ class CarrierState:
         sensed: what the carrier observed at ``pending`` (None = ∅).
         ended: End was heard (or State says the mission ended).
         epoch: the highest coordinator epoch heard (Decision, State); 0 before any.
+        flying: it joined (:class:`Joined`): from then on it handles its stages.
     """
 
     cid: str
@@ -280,6 +281,7 @@ class CarrierState:
     ended: bool = False
     epoch: int = 0
     repeats: frozenset = frozenset()
+    flying: bool = False
 
     @property
     def n_stages(self) -> int:
@@ -506,7 +508,7 @@ def _on_joined(state: CarrierState, e: Joined):
         if e.next_stage > 0 else ()
     return dataclasses.replace(state, stage=e.next_stage, joined=e.next_stage,
                                state_next=max(state.state_next, e.next_stage),
-                               epoch=max(state.epoch, e.epoch)), effects
+                               epoch=max(state.epoch, e.epoch), flying=True), effects
 
 
 def _on_decision(state: CarrierState, e: DecisionHeard):
@@ -545,7 +547,10 @@ def _on_decision(state: CarrierState, e: DecisionHeard):
 def lost_stages(state: CarrierState, j: int) -> tuple[int, ...]:
     """The stages before ``j`` whose Decision this carrier still needs and has not received (it
     waits at them or will reach them, they are not known to be decided from State, it did not
-    decide them itself): lost on the way when the Decision of ``j`` arrives."""
+    decide them itself): lost on the way when the Decision of ``j`` arrives. None before it
+    joined (a Decision then is held: where it joins is not known yet)."""
+    if not state.flying:
+        return ()
     start = max(state.stage, state.joined, state.state_next)
     return tuple(t for t in range(start, j) if t not in state.handled and t not in state.buffered)
 

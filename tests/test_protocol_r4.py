@@ -260,9 +260,10 @@ def _confirms(effects):
     ([mc.Joined(0), mc.Observed(0)], _heard(0), False),                         # the one it waits for
     ([mc.Joined(0), mc.Observed(0), _heard(0), mc.MovedOn(0)], _heard(1), False),  # the next one
     ([mc.Joined(2)], _heard(1), False),                                          # before it joined
+    ([], _heard(2), False),                                                      # while it joins
     ([mc.Joined(0), mc.Observed(0), mc.DecidedOwn(0, False, P0), mc.MovedOn(0)], _heard(1), False),  # its own
     ([mc.Joined(0), mc.Observed(0), _heard(2)], _heard(2), False),               # a repeat: asked once
-], ids=["k2", "k3", "driving", "awaited", "next", "before-join", "decided-itself", "repeat"])
+], ids=["k2", "k3", "driving", "awaited", "next", "before-join", "joining", "decided-itself", "repeat"])
 def test_a_decision_gap_asks_state_before_confirming(before, event, asks):
     """[P-6.6] a Decision of j+k (k >= 2) without the Decision of j+1 the carrier waits for (or
     will reach) makes it resynchronise from State (:class:`AskState`) and confirm nothing yet."""
