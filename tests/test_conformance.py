@@ -367,6 +367,16 @@ def test_a_coordinator_deploying_every_carrier_fails_feasible(tmp_path):
     assert _statuses(results)["feasible"] == "FAIL", wc.table(results, wc.COORDINATOR_RULES)
 
 
+def test_a_coordinator_that_never_answers_fails_state(tmp_path):
+    """[P-5.3] a coordinator that exits at once: no State reply, no stage decided, a FAIL verdict."""
+    proc = subprocess.run([sys.executable, "-m", "wire.conformance", "coordinator", "--faults", "none", "--timeout",
+                           "20", "--workdir", str(tmp_path / "kit"), "--", sys.executable, "-c", "pass"],
+                          capture_output=True, text=True, cwd=ROOT, timeout=120)
+    rows = _coordinator_rows(proc.stdout)
+    assert proc.returncode == 1 and rows["state"] == "FAIL" and rows["end"] == "FAIL", proc.stdout + proc.stderr
+    assert "conformance: FAIL (coordinator: main exit code 0" in proc.stdout
+
+
 @pytest.mark.slow
 def test_the_project_coordinator_passes_every_fault(tmp_path):
     """The documented command on the project's coordinator: every rule exercised and passed, the

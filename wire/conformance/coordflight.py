@@ -348,6 +348,8 @@ class Flight:
                 break
             if self.stop_at is not None and (now > self.stop_at or self.router.proc.poll() is not None):
                 break
+            if self.ended_at is None and self.router.proc.poll() is not None and not self.node.pending():
+                break  # the coordinator exited before End: nothing more will come
             if now - last_progress > PROGRESS_S and self.ended_at is None and self.stop_at is None:
                 last_progress = now
                 for p in self.played.values():

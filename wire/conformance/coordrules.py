@@ -64,6 +64,8 @@ def evaluate(world: World, flights: list[Seen]) -> list[Result]:
 
 
 def _decode_and_state(w: World, seen: Seen, results: dict) -> None:
+    if not seen.states:
+        results["state"].check(False, f"{seen.name}: no State reply (exit code {seen.exit_code})")
     for h in seen.heard:
         if not h.fake:
             results["decode"].check(h.error is None, f"{seen.name}: {h.key}: {h.error}: {h.show()}")
@@ -199,7 +201,10 @@ def _decisions(w: World, seen: Seen, results: dict) -> None:
         results["silent-carrier"].check(not missing and bool(ends),
                                         f"{seen.name}: after {w.ids[-1]} went silent at stage {stage}: "
                                         f"{'stages ' + str(missing) + ' undecided' if missing else 'no End'}")
-    if len(firsts) == w.n and seen.name == "main":
+    if seen.name == "main" and len(firsts) < w.n:
+        results["end"].check(False, f"{seen.name}: stages {[j for j in range(w.n) if j not in firsts]} never decided "
+                                    f"(exit code {seen.exit_code})")
+    elif seen.name == "main":
         _end(w, seen, results, real, ends)
 
 
