@@ -88,8 +88,7 @@ class Inbound:
             # Only the answer to our latest Hello counts (docs/protocol.md, "Refusal"); one naming
             # another fingerprint, or coming after our Hello was accepted, is about someone else's.
             self.answer.answered(msg.fingerprint, msg if isinstance(msg, Refusal) else None)
-            ours = msg.fingerprint == self.fingerprint and mc.current(self.machine, msg.epoch)
-            if isinstance(msg, Accepted) and ours:
+            if isinstance(msg, Accepted) and msg.fingerprint == self.fingerprint:
                 self._follow_clock(msg)
             return
         if item.key != keys.decision_key(self.mission):
@@ -104,7 +103,10 @@ class Inbound:
 
     def _follow_clock(self, msg: Accepted) -> None:
         """The mission's clock from an Accepted (revision 4; an earlier coordinator's says
-        nothing of it): the carrier's timers follow it (:func:`mission.carrier.follow`)."""
+        nothing of it): the carrier's timers follow it (:func:`mission.carrier.follow`), unless
+        a deposed coordinator sent it."""
+        if not mc.current(self.machine, msg.epoch):
+            return
         told = mc.Timers(msg.clock, msg.silence_timeout_s, msg.realtime) if msg.revision >= 4 else None
         robot = getattr(self.ros2, "robot", None) is not None
         self.timers, lines = mc.follow(self.timers, told, repace=not robot)

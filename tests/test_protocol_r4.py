@@ -463,6 +463,9 @@ def test_a_deposed_coordinators_end_does_not_end_the_mission():
         while carrier.timers != mc.Timers("sim", 9.0, 0.0) and time.monotonic() < deadline:
             time.sleep(0.05)
         assert carrier.timers == mc.Timers("sim", 9.0, 0.0)
+        # Somebody else's Refusal (another fingerprint) and a deposed coordinator's End: ignored.
+        coordinator.put(keys.refusal_key(M, "a"), wm.Refusal(M, "a", "world-mismatch", "0" * 16,
+                                                             coordinator.fingerprint), 4)
         coordinator.put(keys.end_key(M), wm.End(M, 0, "complete", epoch=2), 4)
         assert coordinator.expect(wm.Bye, timeout_s=2.0) is None and thread.is_alive()
         coordinator.put(keys.end_key(M), wm.End(M, 0, "complete", epoch=3), 4)
