@@ -43,7 +43,16 @@ def ignore_takeover() -> None:
     Epochs._heard_decision = lambda self, item: None
 
 
-BREAKS = {"no-accepted": no_accepted, "select-all": select_all, "ignore-takeover": ignore_takeover}
+def no_token() -> None:
+    """[P-2.5] it declares no liveliness token (its duplicate probe still runs)."""
+    from wire.transport import Node
+
+    declare = Node.token
+    Node.token = lambda self, key: None if key.endswith("/coordinator/alive") else declare(self, key)
+
+
+BREAKS = {"no-accepted": no_accepted, "select-all": select_all, "ignore-takeover": ignore_takeover,
+          "no-token": no_token}
 
 if __name__ == "__main__":
     BREAKS[sys.argv[1]]()

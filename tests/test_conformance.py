@@ -393,10 +393,11 @@ def test_the_project_coordinator_passes_every_fault(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("brk, faults, rule", [
-    ("no-accepted", (), "hello-answered"), ("ignore-takeover", ("takeover",), "takeover"),
+    ("no-accepted", (), "hello-answered"), ("ignore-takeover", ("takeover",), "takeover"), ("no-token", (), "token"),
 ])
 def test_a_broken_coordinator_fails_the_rule_it_breaks(tmp_path, brk, faults, rule):
-    """[P-5.8] unanswered Hellos fail hello-answered; [P-7.3] ignoring a newer epoch fails takeover."""
+    """[P-5.8] unanswered Hellos fail hello-answered; [P-7.3] ignoring a newer epoch fails takeover;
+    [P-2.5] no liveliness token fails token."""
     results, kit = _coordinator_kit(tmp_path, [sys.executable, str(BROKEN_COORDINATOR), brk, *COORDINATOR_FLAGS],
                                     faults)
     assert not wc.passed(results)

@@ -89,6 +89,7 @@ class Seen:
         heard: every message of the coordinator (Decisions, Ends, Accepted, Refusals).
         states: (time, selector, the asking revision, payload) of each State reply.
         told: carrier -> its latest CarrierState (the coordinator's counts of its messages).
+        tokens: (time, ``alive`` or ``gone``) of the coordinator's liveliness token.
         played: the kit's carriers, as they ended the flight.
         exit_code: the coordinator's exit code (None: still running, stopped by the kit).
         exited_at: when it exited (monotonic s); ``output``: its last output.
@@ -101,6 +102,7 @@ class Seen:
     states: list = field(default_factory=list)
     told: dict = field(default_factory=dict)
     played: dict = field(default_factory=dict)
+    tokens: list = field(default_factory=list)  # (time, "alive" or "gone") of the coordinator's token
     exit_code: int | None = None
     exited_at: float | None = None
     output: str = ""
@@ -199,6 +201,7 @@ class Flight:
         self.coordinator_epoch: int | None = None
         m = world.mission
         self.node.subscribe(f"{keys.prefix(m)}/coordinator/**")
+        self.node.watch_liveliness(keys.coordinator_alive(m))
 
     # ------------------------------------------------------------------ the kit's carriers speaking
     def put(self, p: Played, topic: str, message: Any) -> None:
@@ -263,6 +266,9 @@ class Flight:
 
     # ------------------------------------------------------------------ what the coordinator says
     def take(self, item: Any) -> None:
+        if item.kind in ("alive", "gone"):
+            self.seen.tokens.append((item.received, item.kind))
+            return
         if item.kind != "sample":
             return
         heard = Heard(item.received, item.key, item.payload)

@@ -18,6 +18,7 @@ SETTLE_S = 0.5
 #: Every rule the coordinator kit checks: (id, rule or section of docs/protocol.md, what it says).
 COORDINATOR_RULES = (
     ("decode", "[P-4.5]", "every message it publishes and every State reply decodes at the kit's revision"),
+    ("token", "[P-2.5]", "its liveliness token is present before its first Decision and stays until its End"),
     ("state", "[P-5.3]", "State answers a carrier's query: its fingerprint, N stages, only the asking carrier, the "
                        "revision it speaks (>= 3); a query announcing no revision gets a revision-1 reply"),
     ("hello-answered", "[P-5.8]", f"every Hello of revision 3 or later is answered within {ANSWER_S:g} s: "
@@ -60,6 +61,7 @@ def evaluate(world: World, flights: list[Seen]) -> list[Result]:
         _counts(seen, results)
         _decisions(world, seen, results)
         _epochs(seen, results)
+        _token(seen, results)
     return [results[rule] for rule, _, _ in COORDINATOR_RULES]
 
 
@@ -239,6 +241,19 @@ def _end(w: World, seen: Seen, results: dict, real: list[Heard], ends: list[Hear
     if "epoch" in body or not older:
         problems += [f"epoch {body.get('epoch')}, the Decisions' {epoch}"] * (body.get("epoch", 1) != epoch)
     results["end"].check(not problems, f"{seen.name}: {'; '.join(problems)}: {ends[0].show()}")
+
+
+def _token(seen: Seen, results: dict) -> None:
+    """[P-2.5] the coordinator's token, from its first Decision to its End (or the flight's end)."""
+    real = seen.of(wm.Decision)
+    if not real:
+        return
+    start = real[0].at
+    stop = min([h.at for h in seen.of(wm.End)] + [seen.faults.get("takeover", (0, float("inf")))[1], float("inf")])
+    alive_at = next((at for at, kind in seen.tokens if kind == "alive"), None)
+    gone = [at for at, kind in seen.tokens if kind == "gone" and start < at < stop]
+    results["token"].check(alive_at is not None and alive_at <= start and not gone,
+                           f"{seen.name}: {'no token before its first Decision' if alive_at is None or alive_at > start else 'its token vanished while it decided'}")
 
 
 def _epochs(seen: Seen, results: dict) -> None:
