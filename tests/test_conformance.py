@@ -37,7 +37,7 @@ def _client(tmp_path, fault=None, *extra) -> list[str]:
 
 
 #: The rules only the kit's own coordinators exercise (flights other than project).
-SCRIPTED_ONLY = {"two-coordinators", "deposed-end", "refusal", "older-revision"}
+SCRIPTED_ONLY = {"two-coordinators", "deposed-end", "refusal", "older-revision", "decision-gap"}
 #: The rules a revision-1 carrier is never exercised on (no Accepted, no passengers named, no Progress).
 LATER_REVISIONS = {"accepted", "passenger-named", "progress"}
 
@@ -293,6 +293,21 @@ def test_a_carrier_answering_the_deposed_coordinator_fails_two_coordinators(tmp_
     """[P-7.2] the revision-1 carrier broken to ignore epochs."""
     results, kit = _flight(tmp_path, _client(tmp_path, "stale-epoch"), "two-coordinators")
     assert _statuses(results)["two-coordinators"] == "FAIL", wc.table(results)
+
+
+@pytest.mark.slow
+def test_the_project_carrier_resynchronises_on_a_decision_gap(tmp_path):
+    """[P-6.6] Decision 1 lost, Decision 2 published while it waits at 1: it asks State before
+    confirming 2, and goes on at 3."""
+    results, kit = _flight(tmp_path, PROJECT_CARRIER, "gap")
+    _exercised_and_passed(results, kit, ("decision-gap", "confirm-outcome", "observation-stage", "bye"))
+
+
+@pytest.mark.slow
+def test_a_carrier_going_on_at_once_after_a_gap_fails_decision_gap(tmp_path):
+    """[P-6.6] the revision-1 carrier, written before the rule, confirms Decision 2 without asking State."""
+    results, kit = _flight(tmp_path, _client(tmp_path), "gap")
+    assert _statuses(results)["decision-gap"] == "FAIL", wc.table(results)
 
 
 def test_the_carrier_kit_refuses_a_bad_flight_or_revision(tmp_path):

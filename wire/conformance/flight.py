@@ -104,6 +104,7 @@ class Flight:
     revision: int | None = None  # the revision the kit's own coordinator speaks (None: the project's)
     accepted: list = field(default_factory=list)  # Seen of Accepted to the carrier
     fakes: set = field(default_factory=set)  # payloads of the kit's fakes, which the carrier must ignore
+    state_queries: list = field(default_factory=list)  # when the carrier asked the kit's coordinator for State
 
     def decided(self, stage: int) -> bool:
         """The coordinator's (not a fake) Decision of ``stage`` has been seen."""

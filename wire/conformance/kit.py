@@ -36,6 +36,8 @@ FLIGHT_TEXT = {
                "fingerprint (to be ignored), a second later one naming the carrier's (it must stop)",
     "older": "as scripted, the kit's coordinator speaking revision --revision (default 1 here): its State "
              "announces no revision, the carrier must speak revision 1 to it",
+    "gap": "as scripted, with the Decision of stage 1 lost on its way: stage 2 is decided without the carrier "
+           "and published while it waits at 1",
     "two-coordinators": "two coordinators of the kit, both live: epoch 2 truthful, epoch 1 deposed, publishing "
                         "a contradicting Decision of each stage first and (revision 4) an End half-way",
 }
@@ -120,7 +122,8 @@ class Kit:
             return [ScriptedCoordinator(self.target, f, session(), 1, revision, deposed=True),
                     ScriptedCoordinator(self.target, f, session(), 2, revision, hold={j: 0.3 for j in range(self.target.n)})]
         return [ScriptedCoordinator(self.target, f, session(), 1, revision, refuse=f.name == "refusal",
-                                    realtime=PROGRESS_REALTIME if f.name == "progress" else 0.0)]
+                                    realtime=PROGRESS_REALTIME if f.name == "progress" else 0.0,
+                                    lose=1 if f.name == "gap" else None)]
 
     def _fly(self, harness: Harness, observer: Observer, faults: Faults, under_test,
              scripted: list[ScriptedCoordinator]) -> None:

@@ -20,6 +20,7 @@ RULES = (
     ("confirm", "[P-6.9]", "every Decision of a stage it joined for is answered (Confirm, or Own of that stage)"),
     ("confirm-outcome", "[P-6.9]", "the first answer follows the Decision: deployed / idle / refused / late"),
     ("passenger-named", "[P-6.9]", "a deployment releases the passenger the Decision names (Confirm passenger)"),
+    ("decision-gap", "[P-6.6]", "on Decision j+2 without Decision j+1 it asks State before confirming it"),
     ("duplicate", "[P-6.8]", "a repeated Decision is answered already, with the first outcome, nothing twice"),
     ("late", "[P-6.8]", "a Decision that comes late is still answered, once"),
     ("restart", "[P-5.12]", "when the coordinator's token reappears it says Hello again"),
@@ -215,6 +216,12 @@ def _scripted(target: Target, flight: Flight, results: dict, msgs: list[Seen], r
         wrong = [s for s in confirms if s.message.stage == j and fake.at <= s.at < truth]
         results["two-coordinators"].check(not wrong, f"answered the epoch {fake.message.epoch} Decision of stage "
                                                      f"{j}: {wrong[0].show() if wrong else ''}")
+    if "gap" in f.faults:
+        stage, at = f.faults["gap"]
+        answered = next((s.at for s in confirms if s.message.stage == stage), float("inf"))
+        asked = [q for q in f.state_queries if at < q < answered]
+        results["decision-gap"].check(bool(asked), f"no State query between the Decision of stage {stage} (that "
+                                                   f"of {stage - 1} lost) and its Confirm")
     if "deposed-end" in f.faults:
         _, at = f.faults["deposed-end"]
         last = [s for s in confirms if s.message.stage == target.n - 1 and s.at > at]

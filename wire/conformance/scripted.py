@@ -41,16 +41,19 @@ class ScriptedCoordinator:
         deposed: a deposed coordinator: its Decisions contradict the truth (marked fake in the
             flight), published at once; its End (revision 4) comes half-way.
         hold: stage -> seconds its Decision is held back after the Observation.
+        lose: a stage whose Decision is decided (deploying nobody) but never published; the next
+            stage is then decided at once without the carrier and published: a Decision gap.
         realtime: the mission's pace F, simulated seconds per wall second (0: unpaced), announced
             in Accepted (revision 4): Decision j goes out no earlier than (t_j - t_{j-1}) / F
             after Decision j - 1 ([P-6.1]).
     """
 
     def __init__(self, target: Target, flight: Flight, node: Any, epoch: int = 1, revision: int = wm.REVISION,
-                 refuse: bool = False, deposed: bool = False, hold: dict | None = None, realtime: float = 0.0):
+                 refuse: bool = False, deposed: bool = False, hold: dict | None = None, realtime: float = 0.0,
+                 lose: int | None = None):
         self.t, self.flight, self.node = target, flight, node
         self.epoch, self.revision, self.refuse, self.deposed = int(epoch), int(revision), refuse, deposed
-        self.hold, self.realtime = dict(hold or {}), float(realtime)
+        self.hold, self.realtime, self.lose = dict(hold or {}), float(realtime), lose
         self.published_at: float | None = None  # when its last Decision went out (monotonic s)
         self.hello_revision = wm.UNANNOUNCED_REVISION
         self.left, self.released = target.passengers, set()
@@ -70,6 +73,8 @@ class ScriptedCoordinator:
     # ------------------------------------------------------------------ what it answers
     def state_reply(self, parameters: dict) -> bytes:
         t = self.t
+        if parameters.get("carrier") == t.cid:
+            self.flight.state_queries.append(time.monotonic())
         asked = keys.asked_revision(parameters, self.revision, wm.UNANNOUNCED_REVISION)
         mine = () if parameters.get("carrier", t.cid) != t.cid else (
             (t.cid, wm.CarrierState(self.left, tuple(self.deployments), True)),)
@@ -178,6 +183,13 @@ class ScriptedCoordinator:
             self.bye = True
 
     def _publish(self, j: int) -> None:
+        if j == self.lose and j + 1 < self.t.n:
+            # Decision j is lost on its way; j + 1 is decided without the carrier, who waits at j.
+            self.decisions[j] = wm.Decision(self.t.mission, j, self.t.times[j], (), 0.0, epoch=self.epoch)
+            self.flight.faults["lost"] = (j, time.monotonic())
+            self._publish(j + 1)
+            self.flight.faults["gap"] = (j + 1, time.monotonic())
+            return
         d = self.decide(j)
         self.decisions[j] = d
         self.published_at = time.monotonic()
