@@ -10,11 +10,12 @@ saw; ``coordrules``: :data:`COORDINATOR_RULES` and their evaluation). The rest o
 docstring is the carrier kit, the default:
 
 The kit is the mission's zenoh router (mode ``router``, ``tcp/127.0.0.1:<free port>``,
-multicast scouting off) and a passive observer of every message of the mission. It starts the
+multicast scouting off) and a passive observer of every message of the mission. In its default
+flight (``--flight project``; the others play the coordinator themselves, ``scripted``) it starts the
 project's coordinator (``run_fleet.py --role coordinator``, a client of the router) and the
 scenario's other carriers (``run_fleet.py --role carrier --no-autonomy``, one process), then
 COMMAND, the carrier under test, told where and who it is by environment variables and by
-placeholders in ARGS (docs/protocol.md, "Conformance kit"):
+placeholders in ARGS (docs/protocol.md, section 11):
 
     MARSUPIAL_ENDPOINT  {endpoint}   the endpoint to connect to (zenoh client mode)
     MARSUPIAL_CARRIER   {carrier}    the carrier id it flies as
@@ -35,7 +36,7 @@ line per rule: how many times the carrier was exercised on it, pass or fail, and
 message that broke it. Exit status 0 only when every exercised rule passes (1 otherwise, 2 for a
 usage error).
 
-The rules are :data:`RULES`; each names the section of docs/protocol.md it comes from.
+The rules are :data:`RULES`; each cites the rule of docs/protocol.md it comes from.
 
 The parts, each doing one thing (each given its collaborators in its constructor):
 
@@ -43,7 +44,9 @@ The parts, each doing one thing (each given its collaborators in its constructor
   kit saw (``Seen``, ``Flight``), and the ``Observer`` filing the router's traffic into a flight;
 * ``harness``: the kit's router and the processes (coordinator, other carriers, the carrier under
   test and its placeholders);
-* ``faults``: the scripted coordinator side, the deliberate faults and their triggers;
+* ``faults``: the project flight's deliberate faults and their triggers;
+* ``scripted``: the coordinators the kit plays itself in the other flights (``--flight``: scripted,
+  progress, refusal, older, gap, two-coordinators);
 * ``rules``: the rules and their evaluation, a pure function of the target and the flight;
 * ``report``: the table and the verdict; ``kit``: ``Kit``, the flight loop tying them together;
 * ``cli``: the command line, ``main(argv)`` (both kits).
@@ -60,5 +63,8 @@ from .kit import FLIGHTS, Kit
 from .report import passed, table, verdict
 from .rules import RULES, Result, evaluate
 
-__all__ = ["CARRIER_TOPICS", "COORDINATOR_RULES", "CoordinatorKit", "FAULTS", "FLIGHTS", "RULES", "SETTLE_S", "Flight", "Kit", "Result", "Seen", "Target", "evaluate",
-           "coordflight", "coordrules", "fleet", "main", "passed", "table", "verdict"]
+__all__ = [
+    "CARRIER_TOPICS", "COORDINATOR_RULES", "CoordinatorKit", "FAULTS", "FLIGHTS", "RULES",
+    "SETTLE_S", "Flight", "Kit", "Result", "Seen", "Target", "evaluate", "coordflight",
+    "coordrules", "fleet", "main", "passed", "table", "verdict"
+]

@@ -115,7 +115,8 @@ def _hellos(w: World, seen: Seen, results: dict) -> None:
     for (at, cid, expect, fingerprint, next_stage), answer in _answers(w, seen):
         if expect.startswith("revision-"):  # an older carrier learns its acceptance from the Decisions
             results["broadcast-revision"].check(not isinstance(getattr(answer, "message", None), wm.Accepted),
-                                                f"{seen.name}: Accepted to {cid}, a {expect} carrier: {answer and answer.show()}")
+                                                f"{seen.name}: Accepted to {cid}, a {expect} carrier: "
+                                                f"{answer and answer.show()}")
             continue
         late = answer is not None and answer.at - at > ANSWER_S
         results["hello-answered"].check(answer is not None and not late,
@@ -252,8 +253,9 @@ def _token(seen: Seen, results: dict) -> None:
     stop = min([h.at for h in seen.of(wm.End)] + [seen.faults.get("takeover", (0, float("inf")))[1], float("inf")])
     alive_at = next((at for at, kind in seen.tokens if kind == "alive"), None)
     gone = [at for at, kind in seen.tokens if kind == "gone" and start < at < stop]
-    results["token"].check(alive_at is not None and alive_at <= start and not gone,
-                           f"{seen.name}: {'no token before its first Decision' if alive_at is None or alive_at > start else 'its token vanished while it decided'}")
+    early = alive_at is not None and alive_at <= start
+    results["token"].check(early and not gone, f"{seen.name}: " + ("its token vanished while it decided" if early
+                                                                   else "no token before its first Decision"))
 
 
 def _epochs(seen: Seen, results: dict) -> None:
