@@ -23,7 +23,11 @@ position at that moment) and carries out the effects in order (:class:`Deploy` b
 * when the coordinator comes back, the carrier resynchronises from State (:class:`Resync`) and
   repeats its answers and its own decisions;
 * a Decision of an epoch lower than the highest the carrier has heard (in a Decision or a
-  State) comes from a deposed coordinator: rejected (``deposed``), never answered.
+  State) comes from a deposed coordinator: rejected (``deposed``), never answered; so is an End
+  that states a lower epoch (an End that states none, of an earlier revision, ends the mission);
+* a Decision that arrives while the Decision of an earlier stage the carrier needs never did
+  (they arrive in order: that one was lost) makes it ask State first (:class:`AskState`) and
+  take the lost stages from it (:class:`Resync` with ``gap``).
 """
 from __future__ import annotations
 
