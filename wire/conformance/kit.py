@@ -39,7 +39,7 @@ FLIGHT_TEXT = {
     "gap": "as scripted, with the Decision of stage 1 lost on its way: stage 2 is decided without the carrier "
            "and published while it waits at 1",
     "two-coordinators": "two coordinators of the kit, both live: epoch 2 truthful, epoch 1 deposed, publishing "
-                        "a contradicting Decision of each stage first and (revision 4) an End half-way",
+                        "a contradicting Decision of each stage from 1 on first and (revision 4) an End half-way",
 }
 FLIGHTS = tuple(FLIGHT_TEXT)
 

@@ -38,8 +38,8 @@ class ScriptedCoordinator:
         refuse: refuse the carrier's first Hello (a Refusal ``world-mismatch`` naming its
             fingerprint), after a Refusal naming another fingerprint, which the carrier must ignore;
             it then decides nothing (a refused carrier's Observations are rejected).
-        deposed: a deposed coordinator: its Decisions contradict the truth (marked fake in the
-            flight), published at once; its End (revision 4) comes half-way.
+        deposed: a deposed coordinator: its Decisions from stage 1 on contradict the truth (marked
+            fake in the flight), published at once; its End (revision 4) comes half-way.
         hold: stage -> seconds its Decision is held back after the Observation.
         lose: a stage whose Decision is decided (deploying nobody) but never published; the next
             stage is then decided at once without the carrier and published: a Decision gap.
@@ -193,6 +193,8 @@ class ScriptedCoordinator:
         d = self.decide(j)
         self.decisions[j] = d
         self.published_at = time.monotonic()
+        if self.deposed and j == 0:
+            return  # from stage 1 on: by then the carrier has heard epoch 2 in a Decision, whatever State it took
         if self.deposed:
             payload = wm.encode(d, self.speaks)
             self.flight.fakes.add(payload)
