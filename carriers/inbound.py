@@ -81,10 +81,14 @@ class Inbound:
                 raise ProtocolError("wrong-mission", f"mission {msg.mission!r}")
             self.apply(mc.EndHeard(msg.epoch))  # a deposed coordinator's is rejected (mission.carrier)
             return
-        if item.key in (keys.refusal_key(self.mission, self.cid), keys.accepted_key(self.mission, self.cid)):
-            msg = decode(item.payload, (Refusal, Accepted))
-            if msg.mission != self.mission or msg.carrier != self.cid:
-                raise ProtocolError("wrong-mission", f"answer for {msg.mission!r}/{msg.carrier!r}")
+        answer_type = {keys.refusal_key(self.mission, self.cid): Refusal,
+                       keys.accepted_key(self.mission, self.cid): Accepted}.get(item.key)
+        if answer_type is not None:
+            msg = decode(item.payload, answer_type)  # each answer on its own key only [P-2.4]
+            if msg.mission != self.mission:
+                raise ProtocolError("wrong-mission", f"mission {msg.mission!r}")
+            if msg.carrier != self.cid:
+                raise ProtocolError("key-mismatch", f"answer for carrier {msg.carrier!r}")
             # Only the answer to our latest Hello counts (docs/protocol.md, "Refusal"); one naming
             # another fingerprint, or coming after our Hello was accepted, is about someone else's.
             self.answer.answered(msg.fingerprint, msg if isinstance(msg, Refusal) else None)

@@ -506,8 +506,8 @@ def _on_collecting(state: CarrierState, e: Collecting):
 
 
 def _on_joined(state: CarrierState, e: Joined):
-    if e.ended:
-        return dataclasses.replace(state, ended=True), ()
+    if e.ended:  # its Hello still says State's next stage [P-5.5]
+        return dataclasses.replace(state, ended=True, state_next=max(state.state_next, e.next_stage)), ()
     effects = (Log(f"joined at stage {e.next_stage} ({len(state.handled)} deployment(s) on record)"),) \
         if e.next_stage > 0 else ()
     return dataclasses.replace(state, stage=e.next_stage, joined=e.next_stage,

@@ -481,6 +481,57 @@ def test_a_deposed_coordinators_end_does_not_end_the_mission():
     assert out["reason"] == "end"
 
 
+def test_each_answer_only_on_its_own_key_and_for_its_own_carrier():
+    """[P-2.4] [P-3.3] a real carrier: an Accepted on the refusal key is rejected ``unknown-type``,
+    an answer naming another carrier on its key ``key-mismatch`` (the envelope's mission is
+    checked first, then the carrier against the key); its own Accepted is then taken, and its
+    Bye counts both rejections."""
+    tiny = world.load_scenario(TINY)
+    coordinator = ScriptedCoordinator(tiny, epoch=1, revision=4)
+    carrier = thread = None
+    try:
+        carrier, thread, out = _fly(tiny, coordinator)
+        assert coordinator.expect(wm.Hello) is not None
+        mine = wm.Accepted(M, "a", coordinator.fingerprint, 0, 0, 4, epoch=1)
+        coordinator.put(keys.refusal_key(M, "a"), mine, 4)
+        coordinator.put(keys.accepted_key(M, "a"), dataclasses.replace(mine, carrier="b"), 4)
+        time.sleep(0.5)
+        assert carrier.answer.unanswered is True
+        coordinator.put(keys.accepted_key(M, "a"), mine, 4)
+        assert coordinator.expect(wm.Observation) is not None
+        coordinator.put(keys.end_key(M), wm.End(M, 0, "complete", epoch=1), 4)
+        bye = coordinator.expect(wm.Bye)
+        thread.join(30)
+    finally:
+        if carrier is not None:
+            carrier.stop()
+        if thread is not None:
+            thread.join(30)
+        coordinator.close()
+    assert bye is not None and dict(bye.rejected) == {"unknown-type": 1, "key-mismatch": 1}
+
+
+def test_a_confirms_status_is_checked_in_table_order():
+    """[P-3.3] Confirm ``status`` (an enumeration, before ``position`` in its table) is checked in
+    its turn: a bad status with a bad position is ``out-of-range``, not ``wrong-type``."""
+    good = msgpack.unpackb(wm.encode(wm.Confirm(M, "a", 1, False, "idle", (0.0, 0.0), 1)))
+    for bad in ({**good, "status": "gone", "position": "here"}, {**good, "status": "gone"}):
+        with pytest.raises(wm.ProtocolError) as err:
+            wm.decode(msgpack.packb(bad))
+        assert err.value.reason == "out-of-range" and "status" in err.value.detail
+    with pytest.raises(wm.ProtocolError) as err:
+        wm.decode(msgpack.packb({**good, "position": "here"}))
+    assert err.value.reason == "wrong-type"
+
+
+def test_joining_an_ended_mission_says_hello_at_states_next_stage():
+    """[P-5.5] State ``ended`` at the first join: the carrier's Hello (before its Bye ``end``)
+    says State's ``next_stage``."""
+    state = mc.initial("a", [True] * 4, [0.0, 10.0, 20.0, 30.0], 2)
+    state, effects = mc.step(state, mc.Joined(4, ended=True, epoch=2))
+    assert state.ended and effects == () and state.hello_stage() == 4
+
+
 def test_a_revision_4_carrier_with_a_revision_3_coordinator():
     """[P-4.5] [P-7.4] [P-10.2] a coordinator of revision 3 restarted (epoch 2): its Accepted
     says nothing of the clock (the carrier keeps its own timers) and its End states no epoch,

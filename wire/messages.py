@@ -389,7 +389,7 @@ class Confirm:
     carrier: str = _spec(_ident)
     stage: int = _spec(_STAGE)
     deployed: bool = _spec(_bool)
-    status: str = _spec(_text(16))
+    status: str = _spec(_text(16), values=dict.fromkeys(CONFIRM_STATUSES, 1))  # in table order: [P-3.3]
     position: tuple[float, float] = _spec(_point)
     passengers_left: int = _spec(_PASSENGERS)
     passenger: int | None = _spec(_optional(_int(0, MAX_PASSENGERS - 1)), absent=None, since=2)
@@ -397,7 +397,7 @@ class Confirm:
     TYPE = "confirm"
 
     def __post_init__(self) -> None:
-        if self.status not in CONFIRM_STATUSES:
+        if self.status not in CONFIRM_STATUSES:  # built in code rather than decoded
             raise ProtocolError("out-of-range", f"status: expected one of {CONFIRM_STATUSES}, found {self.status!r}")
         if self.deployed and self.status not in RELEASING_STATUSES:
             raise ProtocolError("out-of-range", f"deployed: true with status {self.status!r}")
