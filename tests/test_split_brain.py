@@ -44,7 +44,7 @@ def _refused(argv: list[str]) -> subprocess.CompletedProcess:
 
 
 def test_a_second_coordinator_and_a_second_carrier_process_refuse_to_start(tmp_path):
-    """Primary coordinator and carrier a live (the coordinator waits for b before stage 0): a
+    """[P-2.5] one liveliness token per role and id. Primary coordinator and carrier a live (the coordinator waits for b before stage 0): a
     second coordinator exits 2 with one stderr line and creates nothing in its --out; a process
     for carriers a,b exits 2 naming a, before b ever shows up (no token of b reaches the
     coordinator's mission.db); so does one for a alone."""
@@ -90,7 +90,8 @@ def test_a_second_coordinator_and_a_second_carrier_process_refuse_to_start(tmp_p
 
 @pytest.mark.slow
 def test_standby_takes_over_a_killed_primary_with_a_higher_epoch(tmp_path):
-    """A router, a primary coordinator and a ``--standby`` coordinator on the same --out, two
+    """[P-7.6] a standby serves nothing while the primary lives (one State reply, one token).
+    A router, a primary coordinator and a ``--standby`` coordinator on the same --out, two
     carriers; SIGKILL the primary after stage 2: the standby takes over with epoch 2 and
     finishes the mission; every stage is decided exactly once, nothing is deployed twice, and a
     Decision of epoch 1 published afterwards on a raw session is rejected by both carriers
@@ -116,6 +117,12 @@ def test_standby_takes_over_a_killed_primary_with_a_higher_epoch(tmp_path):
         for cid in scenario.carrier_ids:
             fleet.carrier(cid)
         fleet.poll("stage 2 decided", lambda: fleet.decided() >= 2)
+        # [P-7.6] while the primary lives the standby answers no State query and declares no token.
+        states = [r for r in session.get("marsupial/faults/coordinator/state", timeout=2.0) if r.ok is not None]
+        tokens = [r for r in session.liveliness().get("marsupial/faults/coordinator/alive", timeout=2.0)
+                  if r.ok is not None]
+        assert len(states) == 1 and len(tokens) == 1, (len(states), len(tokens))
+        assert msgpack.unpackb(states[0].ok.payload.to_bytes()).get("epoch", 1) == 1
         fleet.kill("primary")
         k = fleet.decided()
         assert 2 <= k < scenario.stages - 2
