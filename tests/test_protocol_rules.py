@@ -505,6 +505,16 @@ def test_every_hello_is_answered():
     assert wm.announced(b"\xc1") == (1, "")
 
 
+def test_a_hello_of_another_type_is_refused_world_mismatch():
+    """[P-5.8] a payload of another type on a hello key is unknown-type, a reason no revision
+    lists for a Refusal: it is refused world-mismatch, without detail, even to revision 4."""
+    payload = msgpack.packb(body("obs", **dict(OBS, fingerprint="f", revision=wm.REVISION)))
+    assert reason(payload, wm.Hello) == "unknown-type"
+    revision, fp = wm.announced(payload)
+    answer = wm.refusal(M, "a", "unknown-type", fp, "f", "not a hello", revision)
+    assert (revision, answer.reason, answer.fingerprint, answer.detail) == (wm.REVISION, "world-mismatch", "f", "")
+
+
 def test_a_refusal_undoes_nothing():
     """[P-5.9] a Hello refused after an accepted one of the same carrier leaves it accepted."""
     s = accepted(ms.initial(spec()), "a")
