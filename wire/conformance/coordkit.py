@@ -3,6 +3,7 @@ flights (:mod:`wire.conformance.coordflight`) judged by its rules
 (:mod:`wire.conformance.coordrules`)."""
 from __future__ import annotations
 
+import gc
 import shlex
 import sys
 import tempfile
@@ -11,6 +12,7 @@ from pathlib import Path
 from typing import Callable
 
 from .coordflight import EXIT_S, FAULTS, Flight, Router, Seen
+from .kit import CLOSE_SETTLE_S
 from .coordrules import evaluate
 from .fleet import World
 from .rules import Result
@@ -59,4 +61,10 @@ class CoordinatorKit:
             flight.fly()
             seen.exit_code, seen.output = router.finish(EXIT_S if seen.faults.get("takeover") is None else 0.1)
             seen.exited_at = time.monotonic()
+            for played in flight.played.values():
+                played.token = None  # the kit's carriers' tokens go with the router's session
+        # zenoh releases a closed session's callbacks on its own threads, taking the GIL: let
+        # that happen now, not during the interpreter's finalisation (which aborts the process).
+        gc.collect()
+        time.sleep(CLOSE_SETTLE_S)
         return seen

@@ -2,6 +2,7 @@
 together, and the loop that flies the mission."""
 from __future__ import annotations
 
+import gc
 import shlex
 import sys
 import tempfile
@@ -20,6 +21,8 @@ from .scripted import ScriptedCoordinator
 END_GRACE_S = 15.0
 #: After the carrier under test exits, how long the kit still collects what it sent last, seconds.
 EXIT_GRACE_S = 1.0
+#: After the kit's sessions are closed, how long zenoh's threads are given to release them, seconds.
+CLOSE_SETTLE_S = 0.5
 #: How often the kit asks the coordinator for its rejection counts, seconds.
 STATE_PERIOD_S = 1.0
 #: The pace of the progress flight, simulated seconds per wall second.
@@ -103,6 +106,11 @@ class Kit:
             finally:
                 for coordinator in scripted:
                     coordinator.node.close(3.0)
+                scripted.clear()
+        # zenoh releases a closed session's callbacks on its own threads, taking the GIL: let
+        # that happen now, not during the interpreter's finalisation (which aborts the process).
+        gc.collect()
+        time.sleep(CLOSE_SETTLE_S)
         return self.evaluate()
 
     def _coordinators(self, harness: Harness) -> list[ScriptedCoordinator]:
