@@ -3,8 +3,10 @@ revision 1 written from its page pass every rule, through the kit's faults (a la
 duplicate, a coordinator restart, a deposed Decision); carriers broken on purpose fail on the
 rule they break. The coordinator kit (python -m wire.conformance coordinator) passes the
 project's coordinator and fails the project's coordinator with one rule broken
-(tests/broken_coordinator.py) on that rule. The flights start real processes and most are slow;
-the rule evaluation itself is checked fast on recorded flights."""
+(tests/broken_coordinator.py) on that rule. The flights start real processes; those with the
+project's coordinator restarted, or waiting out timeouts, are slow; the flights with the kit's own
+coordinator take seconds and run by default; the rule evaluation itself is checked fast on
+recorded flights."""
 from __future__ import annotations
 
 import subprocess
@@ -233,7 +235,6 @@ def test_a_revision1_carrier_passes_a_revision1_coordinator(tmp_path):
     _exercised_and_passed(results, kit, ("older-revision", "confirm", "bye"))
 
 
-@pytest.mark.slow
 @pytest.mark.parametrize("revision", [1, 2])
 def test_the_project_carrier_falls_back_to_an_older_coordinator(tmp_path, revision):
     """[P-4.3] a coordinator whose State announces no revision is spoken revision 1 to: no Hello
@@ -242,7 +243,6 @@ def test_the_project_carrier_falls_back_to_an_older_coordinator(tmp_path, revisi
     _exercised_and_passed(results, kit, ("older-revision", "confirm", "bye"))
 
 
-@pytest.mark.slow
 def test_the_project_carrier_stops_when_refused_and_ignores_anothers_refusal(tmp_path):
     """[P-5.10] a Refusal naming another fingerprint is ignored; one naming its own stops it."""
     results, kit = _flight(tmp_path, PROJECT_CARRIER, "refusal")
@@ -272,7 +272,6 @@ def test_the_project_carrier_sends_progress_on_a_paced_mission(tmp_path):
     assert _statuses(results)["progress"] == "pass" and next(r for r in results if r.rule == "progress").exercised > 3
 
 
-@pytest.mark.slow
 def test_the_project_carrier_follows_the_higher_of_two_live_coordinators(tmp_path):
     """[P-7.2] both coordinators live, the deposed one's contradicting Decision first at every
     stage: only the higher epoch's are answered; [P-7.4] the deposed one's End does not end it."""
@@ -295,7 +294,6 @@ def test_a_carrier_answering_the_deposed_coordinator_fails_two_coordinators(tmp_
     assert _statuses(results)["two-coordinators"] == "FAIL", wc.table(results)
 
 
-@pytest.mark.slow
 def test_the_project_carrier_resynchronises_on_a_decision_gap(tmp_path):
     """[P-6.6] Decision 1 lost, Decision 2 published while it waits at 1: it asks State before
     confirming 2, and goes on at 3."""
@@ -303,7 +301,6 @@ def test_the_project_carrier_resynchronises_on_a_decision_gap(tmp_path):
     _exercised_and_passed(results, kit, ("decision-gap", "confirm-outcome", "observation-stage", "bye"))
 
 
-@pytest.mark.slow
 def test_a_carrier_going_on_at_once_after_a_gap_fails_decision_gap(tmp_path):
     """[P-6.6] the revision-1 carrier, written before the rule, confirms Decision 2 without asking State."""
     results, kit = _flight(tmp_path, _client(tmp_path), "gap")
