@@ -179,7 +179,12 @@ exit status: 0 when every exercised rule passes, 1 otherwise, 2 for a usage erro
 example (the project's own coordinator):
   %(prog)s scenarios/tiny.yaml -- \\
       python -m launcher {{scenario}} --role coordinator --connect {{endpoint}} --mission {{mission}} \\
-      --seed {{seed}} --out {{workdir}} --no-map --no-record --join-timeout 3 --silence-timeout 2
+      --seed {{seed}} --out {{workdir}} --no-map --no-record --join-timeout 3 --silence-timeout 2 \\
+      --stage-timeout 2 --realtime 0
+
+The coordinator runs on the sim clock with timeouts short enough for the flight: the silent
+carrier is waited for its silence timeout (a revision-1 one, the stage timeout), the late joiner's
+token for the join timeout before stage 0.
 """
 
 
