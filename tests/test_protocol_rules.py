@@ -336,6 +336,20 @@ def test_the_observation_box():
     assert rejections(ms.step(s, ev.Observation("a", 0, 0.0, 3, (1.0, 1.0), 1))[1]) == ["stale-stage"]
 
 
+def test_a_repeat_is_compared_on_the_fields_the_page_names():
+    """[P-1.7] a repeat is absorbed uncounted: an Observation compared on x and position only
+    (not t, trail, passengers_left), an Own on x, deployed, position and passengers_left (not t);
+    a difference in a compared field is duplicate."""
+    s = accepted(ms.initial(spec()), "a")
+    s, _ = ms.step(s, ev.Observation("a", 0, 0.0, 2, (1.0, 1.0), 1, ((0.0, 0.0),)))
+    assert rejections(ms.step(s, ev.Observation("a", 0, 0.0009, 2, (1.0, 1.0), 0, ()))[1]) == []
+    assert rejections(ms.step(s, ev.Observation("a", 0, 0.0, 2, (1.0, 2.0), 1))[1]) == ["duplicate"]
+    s, _ = ms.step(s, ev.Accounted("a", 1, 5.0, 1, False, (2.0, 2.0), 1))
+    assert rejections(ms.step(s, ev.Accounted("a", 1, 5.0009, 1, False, (2.0, 2.0), 1))[1]) == []
+    assert rejections(ms.step(s, ev.Accounted("a", 1, 5.0, 1, False, (2.0, 2.0), 0))[1]) == ["duplicate"]
+    assert rejections(ms.step(s, ev.Accounted("a", 1, 5.0, 2, False, (2.0, 2.0), 1))[1]) == ["duplicate"]
+
+
 def test_poses_are_never_counted_and_do_not_make_a_carrier_heard():
     """[P-3.5] a Pose is not a mission event: the coordinator's inbox hands it to the recorder
     only, and it is not one of the topics that make a carrier heard [P-10.5]."""
