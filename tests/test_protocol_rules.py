@@ -28,13 +28,8 @@ CITED = re.compile(r"\[(P-\d+\.\d+)\]")
 
 #: MUST rules that no test cites yet, each with the reason; keep it short and say so in reviews.
 UNCITED_MUSTS: dict[str, str] = {
-    "P-2.5": "one token per role and id: tests/test_split_brain.py::"
-             "test_a_second_coordinator_and_a_second_carrier_process_refuse_to_start (real processes), "
-             "which does not cite the rule",
     "P-6.12": "a simulated carrier reports the project's world: judged by the conformance kit's rule "
               "observation-world on every carrier it flies (tests/test_conformance.py)",
-    "P-7.6": "a standby serves nothing while the primary lives: tests/test_split_brain.py::"
-             "test_standby_takes_over_a_killed_primary_with_a_higher_epoch, which does not cite the rule",
 }
 
 
