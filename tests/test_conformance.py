@@ -228,6 +228,7 @@ def test_the_project_carrier_passes_the_kits_own_coordinator(tmp_path):
     _exercised_and_passed(results, kit, ("accepted", "passenger-named", "confirm-outcome", "bye"))
 
 
+@pytest.mark.slow
 def test_a_revision1_carrier_passes_a_revision1_coordinator(tmp_path):
     """[P-4.3] each revision's carrier at its own revision: the revision-1 carrier written from its
     page against the kit's coordinator speaking revision 1."""
@@ -235,6 +236,7 @@ def test_a_revision1_carrier_passes_a_revision1_coordinator(tmp_path):
     _exercised_and_passed(results, kit, ("older-revision", "confirm", "bye"))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("revision", [1, 2])
 def test_the_project_carrier_falls_back_to_an_older_coordinator(tmp_path, revision):
     """[P-4.3] a coordinator whose State announces no revision is spoken revision 1 to: no Hello
@@ -243,6 +245,7 @@ def test_the_project_carrier_falls_back_to_an_older_coordinator(tmp_path, revisi
     _exercised_and_passed(results, kit, ("older-revision", "confirm", "bye"))
 
 
+@pytest.mark.slow
 def test_the_project_carrier_stops_when_refused_and_ignores_anothers_refusal(tmp_path):
     """[P-5.10] a Refusal naming another fingerprint is ignored; one naming its own stops it."""
     results, kit = _flight(tmp_path, PROJECT_CARRIER, "refusal")
@@ -272,6 +275,7 @@ def test_the_project_carrier_sends_progress_on_a_paced_mission(tmp_path):
     assert _statuses(results)["progress"] == "pass" and next(r for r in results if r.rule == "progress").exercised > 3
 
 
+@pytest.mark.slow
 def test_the_project_carrier_follows_the_higher_of_two_live_coordinators(tmp_path):
     """[P-7.2] both coordinators live, the deposed one's contradicting Decision first at every
     stage: only the higher epoch's are answered; [P-7.4] the deposed one's End does not end it."""
@@ -301,6 +305,7 @@ def test_the_project_carrier_resynchronises_on_a_decision_gap(tmp_path):
     _exercised_and_passed(results, kit, ("decision-gap", "confirm-outcome", "observation-stage", "bye"))
 
 
+@pytest.mark.slow
 def test_a_carrier_going_on_at_once_after_a_gap_fails_decision_gap(tmp_path):
     """[P-6.6] the revision-1 carrier, written before the rule, confirms Decision 2 without asking State."""
     results, kit = _flight(tmp_path, _client(tmp_path), "gap")
@@ -371,6 +376,7 @@ def test_the_project_coordinator_passes_a_plain_flight(tmp_path):
                                                                "decision-order", "end", "rejections"}
 
 
+@pytest.mark.slow
 def test_a_coordinator_deploying_every_carrier_fails_feasible(tmp_path):
     """[P-6.3] a Decision selecting carriers that did not observe the stage fails ``feasible``."""
     results, kit = _coordinator_kit(tmp_path, [sys.executable, str(BROKEN_COORDINATOR), "select-all",
