@@ -56,7 +56,7 @@ def _role_flags(p: argparse.ArgumentParser) -> None:
                         "merged_log.jsonl from the logs in --out, run after every one-host mission)")
     p.add_argument("--carrier", metavar="ID[,ID...]",
                    help="carrier id(s) (with --role carrier); several ids run in one process, "
-                        "each with its own Zenoh session")
+                        "sharing one Zenoh session (a carrier with --ros2 keeps one of its own)")
     p.add_argument("--carrier-processes", type=int, metavar="K",
                    help=f"one-host mode: run the carriers in K OS processes (default: one per carrier up to "
                         f"{AUTO_CARRIER_PROCESSES} carriers, else {AUTO_CARRIER_PROCESSES})")

@@ -5,6 +5,7 @@ carrier that has none, and what a peer of revision 3 gets and sends. State-machi
 tables of events; what needs the network runs on real Zenoh sessions on loopback."""
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import os
 import queue
@@ -435,13 +436,21 @@ class ScriptedCoordinator:
         self.node.close(3.0)
 
 
-def _fly(scenario, coordinator: ScriptedCoordinator, **options) -> tuple[Carrier, threading.Thread, dict]:
+@contextlib.contextmanager
+def _flying(scenario, coordinator: ScriptedCoordinator, **options):
+    """A real carrier ``a`` (coordinated) flying against ``coordinator``: yields (carrier, its
+    thread, {"reason": how its run ended}); stops both and closes the coordinator afterwards."""
     carrier = Carrier(scenario, CarrierConfig("a", log=Quiet(), mode="coordinated", **options),
                       make_config("client", [], [coordinator.endpoint]))
     out: dict = {}
     thread = threading.Thread(target=lambda: out.setdefault("reason", carrier.run()), daemon=True)
-    thread.start()
-    return carrier, thread, out
+    try:
+        thread.start()
+        yield carrier, thread, out
+    finally:
+        carrier.stop()
+        thread.join(30)
+        coordinator.close()
 
 
 def test_a_deposed_coordinators_end_does_not_end_the_mission():
@@ -451,9 +460,7 @@ def test_a_deposed_coordinators_end_does_not_end_the_mission():
     it: Bye ``end`` with the rejection counted."""
     tiny = world.load_scenario(TINY)
     coordinator = ScriptedCoordinator(tiny, epoch=3, revision=4)
-    carrier = thread = None
-    try:
-        carrier, thread, out = _fly(tiny, coordinator, clock="wall", silence_timeout_s=30.0)
+    with _flying(tiny, coordinator, clock="wall", silence_timeout_s=30.0) as (carrier, thread, out):
         hello = coordinator.expect(wm.Hello)
         assert hello is not None and hello.epoch == 3 and hello.revision == wm.REVISION
         coordinator.put(keys.accepted_key(M, "a"), wm.Accepted(
@@ -471,12 +478,6 @@ def test_a_deposed_coordinators_end_does_not_end_the_mission():
         coordinator.put(keys.end_key(M), wm.End(M, 0, "complete", epoch=3), 4)
         bye = coordinator.expect(wm.Bye)
         thread.join(30)
-    finally:
-        if carrier is not None:
-            carrier.stop()
-        if thread is not None:
-            thread.join(30)
-        coordinator.close()
     assert bye is not None and bye.reason == "end" and dict(bye.rejected) == {"deposed": 1}
     assert out["reason"] == "end"
 
@@ -488,9 +489,7 @@ def test_each_answer_only_on_its_own_key_and_for_its_own_carrier():
     Bye counts both rejections."""
     tiny = world.load_scenario(TINY)
     coordinator = ScriptedCoordinator(tiny, epoch=1, revision=4)
-    carrier = thread = None
-    try:
-        carrier, thread, out = _fly(tiny, coordinator)
+    with _flying(tiny, coordinator) as (carrier, thread, out):
         assert coordinator.expect(wm.Hello) is not None
         mine = wm.Accepted(M, "a", coordinator.fingerprint, 0, 0, 4, epoch=1)
         coordinator.put(keys.refusal_key(M, "a"), mine, 4)
@@ -502,12 +501,6 @@ def test_each_answer_only_on_its_own_key_and_for_its_own_carrier():
         coordinator.put(keys.end_key(M), wm.End(M, 0, "complete", epoch=1), 4)
         bye = coordinator.expect(wm.Bye)
         thread.join(30)
-    finally:
-        if carrier is not None:
-            carrier.stop()
-        if thread is not None:
-            thread.join(30)
-        coordinator.close()
     assert bye is not None and dict(bye.rejected) == {"unknown-type": 1, "key-mismatch": 1}
 
 
@@ -539,9 +532,7 @@ def test_a_revision_4_carrier_with_a_revision_3_coordinator():
     carrier sent reads at revision 3."""
     tiny = world.load_scenario(TINY)
     coordinator = ScriptedCoordinator(tiny, epoch=2, revision=3)
-    carrier = thread = None
-    try:
-        carrier, thread, out = _fly(tiny, coordinator, clock="wall", silence_timeout_s=12.0)
+    with _flying(tiny, coordinator, clock="wall", silence_timeout_s=12.0) as (carrier, thread, out):
         hello = coordinator.expect(wm.Hello)
         assert hello is not None and hello.revision == wm.REVISION and hello.epoch == 2
         coordinator.put(keys.accepted_key(M, "a"), wm.Accepted(M, "a", coordinator.fingerprint, 0, 0, 3, epoch=2), 3)
@@ -552,12 +543,6 @@ def test_a_revision_4_carrier_with_a_revision_3_coordinator():
         coordinator.put(keys.end_key(M), wm.End(M, 0, "complete", epoch=2), 3)  # encoded for revision 3: no epoch
         bye = coordinator.expect(wm.Bye)
         thread.join(30)
-    finally:
-        if carrier is not None:
-            carrier.stop()
-        if thread is not None:
-            thread.join(30)
-        coordinator.close()
     assert bye is not None and bye.reason == "end" and dict(bye.rejected) == {}
     assert out["reason"] == "end"
     assert carrier.node.revision == 3
@@ -629,10 +614,8 @@ def test_a_carrier_that_lost_a_decision_takes_it_from_state():
     Bye reports the deployment at 0, as the coordinator counts it."""
     tiny = world.load_scenario(TINY)
     coordinator = ScriptedCoordinator(tiny, epoch=1, revision=4)
-    carrier = thread = None
     confirms, hellos = [], []
-    try:
-        carrier, thread, out = _fly(tiny, coordinator, clock="sim")
+    with _flying(tiny, coordinator, clock="sim") as (carrier, thread, out):
         assert coordinator.expect(wm.Hello) is not None
         observation = coordinator.expect(wm.Observation)
         assert observation is not None and observation.stage == 0
@@ -653,12 +636,6 @@ def test_a_carrier_that_lost_a_decision_takes_it_from_state():
         coordinator.put(keys.end_key(M), wm.End(M, 2, "stopped", epoch=1), 4)
         bye = coordinator.expect(wm.Bye)
         thread.join(30)
-    finally:
-        if carrier is not None:
-            carrier.stop()
-        if thread is not None:
-            thread.join(30)
-        coordinator.close()
     assert confirms[0] == (0, "deployed", True, 0), confirms
     assert (1, "idle", False, None) in confirms and hellos == [2], (confirms, hellos)
     assert bye is not None and bye.deployments == (0,) and dict(bye.rejected) == {}
