@@ -18,6 +18,7 @@ import inspect
 import sys
 
 from mission.exits import EXIT_USAGE
+from validation import did_you_mean
 
 #: The command's name (its messages start with it).
 PROG = "marsupial-fleet"
@@ -90,17 +91,22 @@ def _record(argv: list[str]) -> int:
 
 
 def _conformance(argv: list[str]) -> int:
-    if not argv or argv[0] not in KITS:
-        if argv and argv[0] in ("-h", "--help"):
-            print(f"usage: {PROG} conformance {{{','.join(KITS)}}} ARGS (each kit takes --help)")
-            return 0
+    """The kit named first; anything else is the carrier kit's arguments (the default kit, as for
+    ``python -m wire.conformance``), unless it reads as a misspelt kit name."""
+    if argv and argv[0] in ("-h", "--help"):
+        print(f"usage: {PROG} conformance [{{{','.join(KITS)}}}] ARGS (each kit takes --help; the carrier kit "
+              "is the default)")
+        return 0
+    misspelt = bool(argv) and argv[0] not in KITS and not argv[0].startswith("-")
+    hint = did_you_mean(argv[0], KITS, cutoff=0.75) if misspelt else ""
+    if not argv or hint:
         found = repr(argv[0]) if argv else "nothing"
-        print(f"{PROG} conformance: expected a kit ({', '.join(KITS)}), found {found}", file=sys.stderr)
+        print(f"{PROG} conformance: expected a kit ({', '.join(KITS)}){hint}, found {found}", file=sys.stderr)
         return EXIT_USAGE
-    if argv[0] == "carrier":
+    if argv[0] not in KITS or argv[0] == "carrier":
         from wire.conformance import main as carrier_kit
 
-        return carrier_kit(argv[1:])
+        return carrier_kit(argv[1:] if argv[0] == "carrier" else argv)
     if argv[0] == "coordinator":
         from wire.conformance.cli import coordinator_main
 

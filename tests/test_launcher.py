@@ -257,8 +257,12 @@ def test_conformance_needs_a_kit(capsys):
     assert cli.main(["conformance", "plane"]) == EXIT_USAGE
     assert capsys.readouterr().err.splitlines() == [
         "marsupial-fleet conformance: expected a kit (carrier, coordinator, planner), found nothing",
-        "marsupial-fleet conformance: expected a kit (carrier, coordinator, planner), found 'plane'"]
+        "marsupial-fleet conformance: expected a kit (carrier, coordinator, planner) (did you mean 'planner'?), "
+        "found 'plane'"]
     assert cli.main(["conformance", "carrier", "S.yaml"]) == EXIT_USAGE  # the kit's own usage line
+    assert "python -m wire.conformance" in capsys.readouterr().err
+    # The carrier kit is the default: its arguments may come first, as for python -m wire.conformance.
+    assert cli.main(["conformance", "S.yaml"]) == EXIT_USAGE
     assert "python -m wire.conformance" in capsys.readouterr().err
     assert cli.main(["conformance", "coordinator"]) == EXIT_USAGE
     assert capsys.readouterr().err.splitlines()[-1] == (
