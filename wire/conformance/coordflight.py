@@ -25,6 +25,8 @@ import msgpack
 from .. import keys
 from .. import messages as wm
 from .fleet import Played, World
+# One record of a message heard, for both kits (its ``topic`` here is the key it came on).
+from .flight import Seen as Heard
 
 #: What the coordinator under test is told, by environment variable and by ``{placeholder}`` in
 #: its ARGS: (variable, placeholder, meaning).
@@ -58,24 +60,6 @@ STATE_PERIOD_S = 1.0  # how often the kit asks State for each carrier's counts, 
 END_WATCH_S = 3.0  # after the first End, how long the kit still watches for Decisions and Ends
 EXIT_S = 10.0  # after End (or the takeover), how long the coordinator has to exit, seconds
 ANSWER_S = 5.0  # how long a Hello may wait for its answer, seconds
-
-
-@dataclass
-class Heard:
-    """A message of the coordinator the kit heard: when (monotonic s), its key, payload, decoded."""
-
-    at: float
-    key: str
-    payload: bytes
-    message: Any = None
-    error: str | None = None
-    fake: bool = False  # the kit's own (the takeover's newer Decision)
-
-    def show(self) -> str:
-        try:
-            return str(msgpack.unpackb(self.payload))[:240]
-        except Exception:
-            return repr(self.payload[:80])
 
 
 @dataclass

@@ -70,7 +70,7 @@ def _decode_and_state(w: World, seen: Seen, results: dict) -> None:
         results["state"].check(False, f"{seen.name}: no State reply (exit code {seen.exit_code})")
     for h in seen.heard:
         if not h.fake:
-            results["decode"].check(h.error is None, f"{seen.name}: {h.key}: {h.error}: {h.show()}")
+            results["decode"].check(h.error is None, f"{seen.name}: {h.topic}: {h.error}: {h.show()}")
     for _, selector, revision, payload in seen.states:
         try:
             state = wm.decode(payload, wm.State)
@@ -99,7 +99,7 @@ def _answers(w: World, seen: Seen) -> list:
     pools: dict = {}
     for h in seen.heard:
         if isinstance(h.message, (wm.Accepted, wm.Refusal)):
-            pools.setdefault(h.key, []).append(h)
+            pools.setdefault(h.topic, []).append(h)
     out = []
     for hello in seen.hellos:
         at, cid = hello[0], hello[1]
