@@ -23,5 +23,8 @@ AUTO_CARRIER_PROCESSES = 16
 #: coordinator; robots would bring their own CPUs, so the simulated ones yield it: the routers
 #: forward a stage's Confirms and the coordinator stamps them while the carriers simulate.
 CARRIER_NICE = 5
-#: Roles whose process ends with ``os._exit`` once its ``main`` returned (launcher.main).
-HARD_EXIT_ROLES = ("coordinator", "carrier", "router")
+#: Roles whose process ends with ``os._exit`` once its ``main`` returned (launcher.main): the
+#: fleet's processes, and the one-host supervisor (``all``), whose children are stopped by then,
+#: so that nothing left in the interpreter's finalisation can keep a stopped fleet's launcher, and
+#: the terminal or pipe it holds, alive.
+HARD_EXIT_ROLES = ("coordinator", "carrier", "router", "all")
