@@ -1,0 +1,173 @@
+"""The fleet's timer rules as pure functions of what is known and of the time (docs/protocol.md,
+"Time", [P-10.n]; docs/architecture.md, "Time as an input").
+
+Nothing here reads a clock. A driver (a carrier or coordinator process, or the deterministic
+simulator, :mod:`mission.simulate`) passes the time an event happened at, or the time of a
+tick, and carries out the effect returned: :class:`Wait` (nothing to do before ``until``; the
+driver sleeps or schedules a tick then, or acts on the next message heard earlier), or the action
+the rule calls for. Each rule is a row of tests/test_timers.py.
+
+Times are seconds on the caller's clock (a process's monotonic clock, a simulated host's clock);
+only differences of two times of one clock are taken.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from .peers import last_heard
+
+
+# --------------------------------------------------------------------------- effects
+
+@dataclass(frozen=True)
+class Wait:
+    """Nothing to do before ``until`` (``math.inf``: until something is heard)."""
+
+    until: float = math.inf
+
+
+@dataclass(frozen=True)
+class GoOn:
+    """The wait is over. ``stalled``: those waited for taken as stalled (nothing from them for the
+    silence timeout, sim clock); ``late``: those past a deadline (wall clock, or a carrier that
+    sends no Progress)."""
+
+    stalled: frozenset = frozenset()
+    late: frozenset = frozenset()
+
+
+@dataclass(frozen=True)
+class AskState:
+    """Sim clock, a long wait for a Decision: ask the coordinator's State (a Decision lost in a
+    reconnection is recovered) and go on waiting ([P-10.8])."""
+
+
+@dataclass(frozen=True)
+class DecideAlone:
+    """Decide the stage on board ([P-8.1]): no coordinator to wait for, or (wall clock) none in
+    time."""
+
+
+@dataclass(frozen=True)
+class MoveOn:
+    """A coordinated carrier on the wall clock: no Decision in time, go on without deploying."""
+
+
+@dataclass(frozen=True)
+class GiveUp:
+    """End this participant's mission: ``reason`` (``coordinator-lost``)."""
+
+    reason: str
+
+
+@dataclass(frozen=True)
+class TakeOver:
+    """A standby coordinator: the primary is gone; open the mission with a new epoch."""
+
+
+# --------------------------------------------------------------------------- silence
+
+def silent(heard, among, opened: float, now: float, silence_s: float) -> bool:
+    """Nothing came from any of ``among`` for ``silence_s`` since the wait opened at ``opened``
+    ([P-10.3], [P-10.5]); the O(|among|) look is skipped until that much time has passed since then."""
+    return now - opened >= silence_s and now - last_heard(heard, among, opened) >= silence_s
+
+
+# --------------------------------------------------------------------------- coordinator
+
+def stage_wait(clock: str, loud, mute, heard, opened: float, now: float, stage_s: float,
+               silence_s: float) -> Wait | GoOn:
+    """The coordinator's wait for a stage's Observations, opened at ``opened`` ([P-10.3], [P-10.4]).
+
+    ``loud``: the carriers still waited for that send Progress; ``mute``: those of a revision
+    before Progress. Wall clock: the stage timeout is a deadline for all. Sim clock: a live
+    carrier that makes progress is waited for as long as it takes; the loud ones end the wait by
+    their silence, the mute ones by the stage timeout (their silence says nothing)."""
+    loud, mute = frozenset(loud), frozenset(mute)
+    if not loud and not mute:
+        return GoOn()
+    if clock == "wall":
+        return GoOn(late=loud | mute) if now - opened >= stage_s else Wait(opened + stage_s)
+    loud_done = not loud or silent(heard, loud, opened, now, silence_s)
+    mute_done = not mute or now - opened >= stage_s
+    if loud_done and mute_done:
+        return GoOn(stalled=loud, late=mute)
+    until = []
+    if not loud_done:
+        until.append(last_heard(heard, loud, opened) + silence_s)
+    if not mute_done:
+        until.append(opened + stage_s)
+    return Wait(min(until))
+
+
+def join_wait(clock: str, all_joined: bool, opened: float, last_join: float, now: float,
+              join_s: float) -> Wait | GoOn:
+    """Before stage 0: wait for every carrier's token and Hello ([P-5.11]). Wall clock: at most
+    ``join_s`` from ``opened``; sim clock: ``join_s`` from the last carrier that joined
+    (``last_join``), so a fleet starting slowly on a busy host is waited for while it arrives."""
+    if all_joined:
+        return GoOn()
+    since = opened if clock == "wall" else max(opened, last_join)
+    return GoOn() if now - since >= join_s else Wait(since + join_s)
+
+
+def bye_wait(all_live_said_bye: bool, bye_missing: bool, ended_at: float, grace_from: float | None,
+             now: float, bye_s: float, grace_s: float) -> Wait | GoOn:
+    """After End: wait for the live carriers' Byes, at most ``bye_s`` from ``ended_at``; once
+    every live carrier said Bye, a carrier whose token vanished without one gets ``grace_s`` more
+    from ``grace_from`` (when that happened): its Bye and its token's end travel apart
+    ([P-9.1])."""
+    if now - ended_at >= bye_s:
+        return GoOn()
+    if all_live_said_bye and (not bye_missing or (grace_from is not None and now - grace_from >= grace_s)):
+        return GoOn()
+    if all_live_said_bye and grace_from is not None:
+        return Wait(min(ended_at + bye_s, grace_from + grace_s))
+    return Wait(ended_at + bye_s)
+
+
+def standby(primary_present: bool, lost_at: float | None, now: float, poll_s: float) -> Wait | TakeOver:
+    """A standby coordinator: take over once the primary's token has been gone at one look
+    (``lost_at``: when its loss was noticed); looks again every ``poll_s``."""
+    if primary_present or lost_at is None:
+        return Wait(now + poll_s)
+    return TakeOver()
+
+
+# --------------------------------------------------------------------------- carrier
+
+def decision_wait(clock: str, mode: str, present: bool, waited_s: float, absent_s: float,
+                  decision_s: float, coordinator_s: float):
+    """A carrier's wait for a stage's Decision ([P-10.8], [P-8.1]).
+
+    Args:
+        clock: ``sim`` or ``wall``; mode: ``coordinated``, ``hybrid`` or ``decentralised``.
+        present: the coordinator's token is present.
+        waited_s: how long it waited while the coordinator was present, since it opened the wait
+            or last asked State.
+        absent_s: how long the coordinator has been absent (0 while present).
+
+    Returns :class:`DecideAlone` (decentralised; hybrid without a coordinator; wall clock, none
+    in time), :class:`MoveOn` (coordinated, wall clock, none in time), :class:`AskState` (sim
+    clock, ``decision_s`` waited: ask again, wait on), :class:`GiveUp` (the coordinator absent
+    for ``coordinator_s``, coordinated) or :class:`Wait`."""
+    if mode == "decentralised":
+        return DecideAlone()
+    if present:
+        if waited_s < decision_s:
+            return Wait()
+        if clock == "sim":
+            return AskState()
+        return MoveOn() if mode == "coordinated" else DecideAlone()
+    if mode == "hybrid":
+        return DecideAlone()
+    if absent_s >= coordinator_s:
+        return GiveUp("coordinator-lost")
+    return Wait()
+
+
+def due(last: float | None, now: float, interval_s: float) -> bool:
+    """A periodic message (Progress [P-10.6], Pose, End's repetition [P-9.1]) is due: never sent, or ``interval_s``
+    since the last one (an interval of 0 or less: never periodic)."""
+    return interval_s > 0 and (last is None or now - last >= interval_s)
