@@ -1,0 +1,187 @@
+"""``python -m mission.simulate SCENARIO --seeds A:B [--faults KINDS|all|none] [--json OUT]``: a
+campaign of seeded missions of one scenario in the deterministic simulator (mission/simulate.py;
+docs/fleet.md, "Deterministic simulation").
+
+Each seed is one mission: its fault schedule, network delays and clocks come from the seed; the
+world (features, paths, what each carrier senses) is the scenario's. The invariants are checked
+after every event; a seed that breaks one is printed with the command that replays it and its
+fault schedule shrunk to a minimal one that still fails.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+from mission import simulate as sim
+from mission.exits import EXIT_USAGE
+
+#: Most simulations one shrink may run (each removes a fault or halves one).
+SHRINK_RUNS = 40
+
+
+def build_fleet(path: str, mode: str = "hybrid") -> sim.Fleet:
+    """The simulator's :class:`mission.simulate.Fleet` of a scenario file (ScenarioError on bad input)."""
+    import numpy as np
+
+    import world
+    from planner.registry import make_planner, planner_settings, used_options
+    from planner.settings import ONBOARD_PLANNER
+    from wire.messages import scenario_fingerprint
+
+    scenario = world.load_scenario(path)
+    problem = world.build_problem(scenario)
+    name, options = planner_settings(scenario)
+    planner = make_planner(name, **used_options(name, options))
+    if callable(getattr(planner, "warm_up", None)):
+        planner.warm_up(problem)
+    onboard = make_planner(ONBOARD_PLANNER)
+    onboard.warm_up(problem)
+    return sim.Fleet(tuple(scenario.carrier_ids), tuple(int(p) for p in problem.passengers), np.asarray(problem.valid),
+                     tuple(float(t) for t in scenario.stage_times()), world.observe_all(scenario), problem, planner,
+                     onboard, int(scenario.seed), scenario_fingerprint(scenario), mode)
+
+
+def parse_seeds(text: str) -> range:
+    a, sep, b = text.partition(":")
+    try:
+        lo, hi = int(a), int(b) if sep else int(a) + 1
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--seeds: expected A:B (integers, B > A), found {text!r}") from None
+    if hi <= lo or lo < 0:
+        raise argparse.ArgumentTypeError(f"--seeds: expected A:B with 0 <= A < B, found {text!r}")
+    return range(lo, hi)
+
+
+def parse_kinds(text: str) -> tuple[str, ...]:
+    if text == "all":
+        return sim.FAULT_KINDS
+    if text == "none":
+        return ()
+    kinds = tuple(k.strip() for k in text.split(",") if k.strip())
+    bad = [k for k in kinds if k not in sim.FAULT_KINDS]
+    if bad or not kinds:
+        raise argparse.ArgumentTypeError(f"--faults: unknown kind(s) {', '.join(bad) or text!r}; expected all, none "
+                                         f"or a comma-separated list of {', '.join(sim.FAULT_KINDS)}")
+    return kinds
+
+
+def parse_schedule(text: str) -> tuple[sim.Fault, ...]:
+    try:
+        return tuple(sim.Fault(str(f["kind"]), float(f["at"]), float(f["until"]), str(f.get("who", "")),
+                               float(f.get("size", 0.0))) for f in json.loads(text))
+    except (ValueError, KeyError, TypeError) as exc:
+        raise argparse.ArgumentTypeError(f"--schedule: expected a JSON list of faults "
+                                         f"{{kind, at, until, who, size}}, {exc}") from None
+
+
+def shrink(fleet: sim.Fleet, seed: int, faults, plant=None) -> tuple:
+    """A minimal fault schedule that still breaks an invariant: faults removed one at a time,
+    then each one's window halved, while the mission still fails (at most :data:`SHRINK_RUNS`)."""
+    faults, runs = list(faults), 0
+
+    def fails(candidate) -> bool:
+        nonlocal runs
+        runs += 1
+        return bool(sim.simulate(fleet, seed, faults=tuple(candidate), plant=plant).violations)
+
+    changed = True
+    while changed and runs < SHRINK_RUNS:
+        changed = False
+        for k in range(len(faults)):
+            candidate = faults[:k] + faults[k + 1:]
+            if runs < SHRINK_RUNS and fails(candidate):
+                faults, changed = candidate, True
+                break
+    for k in range(len(faults)):
+        while runs < SHRINK_RUNS and faults[k].until - faults[k].at > 0.5:
+            f = faults[k]
+            half = sim.Fault(f.kind, f.at, f.at + (f.until - f.at) / 2, f.who, f.size)
+            if not fails(faults[:k] + [half] + faults[k + 1:]):
+                break
+            faults[k] = half
+    return tuple(faults)
+
+
+def replay_command(scenario: str, seed: int, kinds, faults=None, plant=None) -> str:
+    base = f"python -m mission.simulate {scenario} --seeds {seed}:{seed + 1}"
+    if faults is not None:
+        base += " --schedule '" + json.dumps([f.as_json() for f in faults]) + "'"
+    else:
+        base += " --faults " + (",".join(kinds) if kinds else "none")
+    return base + (f" --plant {plant}" if plant else "")
+
+
+def campaign(fleet: sim.Fleet, seeds, kinds, schedule=None, plant=None, progress=None) -> dict:
+    """Run every seed; the report's figures (the keys of ``--json``)."""
+    t0 = time.perf_counter()
+    per_seed, violations, events = [], [], 0
+    for k, seed in enumerate(seeds):
+        out = sim.simulate(fleet, seed, kinds=kinds, faults=schedule, plant=plant)
+        events += out.events
+        per_seed.append(out.as_json())
+        for line in out.violations:
+            violations.append({"seed": seed, "violation": line})
+        if progress is not None:
+            progress(k + 1, len(seeds), out)
+    seconds = time.perf_counter() - t0
+    return {"missions": len(per_seed), "events": events, "seconds": round(seconds, 3),
+            "missions_per_s": round(len(per_seed) / seconds, 2) if seconds else None,
+            "events_per_s": round(events / seconds, 1) if seconds else None,
+            "violations": violations, "per_seed": per_seed}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m mission.simulate", description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("scenario", help="a scenario file")
+    p.add_argument("--seeds", type=parse_seeds, default=range(0, 100), help="A:B: missions with seeds A..B-1 (0:100)")
+    p.add_argument("--faults", type=parse_kinds, default=sim.FAULT_KINDS,
+                   help="all (default), none, or a comma-separated list of: " + ", ".join(sim.FAULT_KINDS))
+    p.add_argument("--schedule", type=parse_schedule, default=None,
+                   help="a JSON list of faults to use instead of drawing them (what a shrunk failure prints)")
+    p.add_argument("--mode", choices=("hybrid", "coordinated"), default="hybrid", help="the carriers' mode")
+    p.add_argument("--plant", choices=sim.PLANTS, default=None,
+                   help="put back a known bug class (the campaign's power test); never for real use")
+    p.add_argument("--json", dest="json_out", type=Path, default=None, help="write the report as JSON here")
+    p.add_argument("--no-shrink", action="store_true", help="do not shrink the failing schedules")
+    p.add_argument("--quiet", action="store_true", help="no progress line")
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    from world import ScenarioError
+
+    try:
+        fleet = build_fleet(args.scenario, args.mode)
+    except (ScenarioError, OSError) as exc:
+        print(f"python -m mission.simulate: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+
+    def progress(done: int, total: int, out) -> None:
+        if not args.quiet and (done == total or done % max(1, total // 20) == 0):
+            print(f"  {done}/{total} missions, {out.events} events in the last, "
+                  f"{len(out.violations)} violation(s) in the last", file=sys.stderr, end="\r" if done < total else "\n")
+
+    report = campaign(fleet, args.seeds, args.faults, args.schedule, args.plant, progress)
+    failing = sorted({v["seed"] for v in report["violations"]})
+    for seed in failing[:5]:
+        row = next(r for r in report["per_seed"] if r["seed"] == seed)
+        print(f"seed {seed}: {row['violations'][0]}")
+        print(f"  replay: {replay_command(args.scenario, seed, args.faults, args.schedule, args.plant)}")
+        if not args.no_shrink:
+            faults = tuple(sim.Fault(**f) for f in row["faults"])
+            small = shrink(fleet, seed, faults, args.plant)
+            print(f"  shrunk to {len(small)} fault(s): {replay_command(args.scenario, seed, args.faults, small, args.plant)}")
+    hashes = [r["trace_hash"] for r in report["per_seed"]]
+    print(f"{report['missions']} missions, {report['events']:,} events in {report['seconds']:.1f} s "
+          f"({report['missions_per_s']} missions/s, {report['events_per_s']:,} events/s); "
+          f"{len(report['violations'])} violation(s) in {len(failing)} seed(s); "
+          f"trace {hashes[0] if len(hashes) == 1 else sim.combined_hash(hashes)}")
+    if args.json_out is not None:
+        args.json_out.parent.mkdir(parents=True, exist_ok=True)
+        args.json_out.write_text(json.dumps(report, indent=1) + "\n")
+    return 1 if failing else 0
