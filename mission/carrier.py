@@ -49,6 +49,29 @@ class Replayed:
 
 
 @dataclass(frozen=True)
+class Recalled:
+    """At join: the carrier's own log holds how it resolved ``stage``, a stage the coordinator
+    has not decided (State's next_stage is not past it): it decided it on board while the
+    coordinator was away (``own``, with what it sensed, ``x``). The answer stands as it was
+    (it is never acted on again) and its account goes to the coordinator again."""
+
+    stage: int
+    status: str
+    deployed: bool
+    position: Point
+    x: int | None = None
+
+
+@dataclass(frozen=True)
+class Missed:
+    """At join: the record lists a deployment of this carrier at ``stage`` that its own log has no
+    outcome for (:func:`missed`): the Decision never reached it; answered ``late``."""
+
+    stage: int
+    position: Point
+
+
+@dataclass(frozen=True)
 class Joined:
     """The first State answer: the carrier joins at ``next_stage`` (or the mission has ended)."""
 
@@ -430,10 +453,34 @@ def initial(cid: str, valid, stage_times, passengers: int) -> CarrierState:
     return CarrierState(cid, tuple(bool(v) for v in valid), tuple(float(t) for t in stage_times), int(passengers))
 
 
-def replay_plan(state: CarrierState, next_stage: int, deployments) -> list[int]:
-    """The recorded deployments a joining carrier replays in its world, ascending: those before
-    ``next_stage``, at most as many as it has passengers."""
-    return sorted(j for j in deployments if j < next_stage)[: state.passengers_left]
+def replay_plan(state: CarrierState, next_stage: int, deployments, logged=None) -> list[int]:
+    """The deployments a joining carrier replays in its world, ascending: those before
+    ``next_stage``, at most as many as it has passengers. ``deployments``: those on the
+    coordinator's record (State); ``logged``: stage -> deployed of the outcomes in the carrier's
+    own durable log, None when it has none (a new host). With its log, the log decides: a
+    deployment on record it has no outcome for never happened (its Decision never reached the
+    carrier: :func:`missed`), one its log holds did, on record or not (its Confirm or Own was lost)."""
+    if logged is None:
+        stages = set(deployments)
+    else:
+        stages = {j for j in deployments if logged.get(j)} | {j for j, deployed in logged.items() if deployed}
+    return sorted(j for j in stages if j < next_stage)[: state.passengers_left]
+
+
+def join_stage(next_stage: int, logged) -> int:
+    """Where a joining carrier goes on from: State's ``next_stage``, or after the last stage its
+    own log (``logged``: stage -> deployed, None: none) resolved, if later — the stages it
+    decided on board while the coordinator was away are done (:class:`Recalled`), never again."""
+    return max(next_stage, max(logged, default=-1) + 1) if logged else next_stage
+
+
+def missed(next_stage: int, deployments, logged) -> list[int]:
+    """The deployments on record (State) before ``next_stage`` whose Decision never reached the
+    carrier (its durable log, ``logged``, has no outcome there): it answers them ``late``
+    (:class:`Missed`), so the record counts the passenger as still on board. None without a log."""
+    if logged is None:
+        return []
+    return sorted(j for j in deployments if j < next_stage and j not in logged)
 
 
 # --------------------------------------------------------------------------- step
@@ -494,6 +541,24 @@ def _early_observation(state: CarrierState, j: int) -> tuple:
     if state.pending is not None and state.pending > j and state.pending >= state.decided_upto():
         return (ResendObservation(state.pending),)
     return ()
+
+
+def _on_recalled(state: CarrierState, e: Recalled):
+    if e.stage in state.handled:
+        return state, ()
+    left = state.passengers_left - int(e.deployed)
+    if left < 0:
+        raise ValueError("no passenger left for a deployment in the log")
+    position = (float(e.position[0]), float(e.position[1]))
+    answer = Answer(bool(e.deployed), e.status, position, left, e.x)
+    new = dataclasses.replace(state, passengers_left=left, handled={**state.handled, e.stage: answer})
+    return new, ((SendOwn(e.stage, e.x, answer.deployed, position, left),) if answer.own else ())
+
+
+def _on_missed(state: CarrierState, e: Missed):
+    if e.stage in state.handled:
+        return state, ()
+    return _answer(state, e.stage, (state.cid,), e.position, allow=False)
 
 
 def _on_collecting(state: CarrierState, e: Collecting):
@@ -674,5 +739,5 @@ def _on_end(state: CarrierState, e: EndHeard):
 _HANDLERS = {
     Replayed: _on_replayed, Joined: _on_joined, DecisionHeard: _on_decision, Observed: _on_observed,
     Passed: _on_passed, MovedOn: _on_moved_on, Resync: _on_resync, EndHeard: _on_end, DecidedOwn: _on_decided_own,
-    Collecting: _on_collecting,
+    Collecting: _on_collecting, Missed: _on_missed, Recalled: _on_recalled,
 }

@@ -44,7 +44,7 @@ from .timeouts import DEFAULTS
 
 #: The fault kinds a schedule draws from (docs/fleet.md, "Deterministic simulation").
 FAULT_KINDS = ("stale", "loss", "duplicate", "reorder", "partition", "router-lost", "crash", "coordinator-crash",
-               "takeover", "dual-start", "freeze", "slow", "corrupt", "clock-jump")
+               "takeover", "dual-start", "pause", "freeze", "slow", "corrupt", "clock-jump")
 #: Kinds under which the fleet must decide exactly like the offline planner: nothing is lost for
 #: long and nobody is stuck, only slow, repeated, out of order or spoken to by strangers.
 FAITHFUL_KINDS = frozenset({"duplicate", "reorder", "slow", "corrupt", "stale"})
@@ -103,6 +103,20 @@ class Fleet:
             step = stage_step(self.problem, x, deployed, self.planner, self.seed, j, released)
             rs = sorted(np.flatnonzero(step.deploy), key=lambda r: self.ids[r])
             hit = self.decisions[key] = (tuple(self.ids[r] for r in rs), tuple(int(step.passengers[r]) for r in rs))
+        return hit
+
+    def decide_local(self, local) -> bool:
+        """A carrier's on-board decision of its stage on its local view (memoised on the view)."""
+        from planner.decentralised import LocalDecision
+        from planner.problem import stage_rng
+
+        key = ("local", local.carrier, local.stage, np.nan_to_num(local.observations, nan=-1.0).tobytes(),
+               local.deployed.tobytes(),
+               local.seen.tobytes(), local.record.tobytes())
+        hit = self.decisions.get(key)
+        if hit is None:
+            hit = self.decisions[key] = bool(LocalDecision.of(self.onboard.decide_local(
+                local, stage_rng(self.seed, local.stage))).deploy)
         return hit
 
     def offline(self) -> dict:
@@ -185,12 +199,12 @@ def draw_faults(rng: np.random.Generator, kinds, ids, horizon: float) -> tuple[F
     for _ in range(int(rng.integers(1, 4))):
         kind = kinds[int(rng.integers(len(kinds)))]
         at = float(rng.uniform(0.0, horizon))
-        length = float(rng.uniform(2.0, 60.0))
+        length = float(rng.uniform(0.01, 1.0) if kind == "crash" else rng.uniform(2.0, 60.0))
         who = str(ids[int(rng.integers(len(ids)))])
         size = {"loss": rng.uniform(0.05, 0.5), "duplicate": rng.uniform(0.1, 0.9), "reorder": rng.uniform(5, 50),
                 "slow": rng.uniform(20.0, 80.0), "corrupt": float(rng.integers(1, 20)),
-                "clock-jump": rng.uniform(1.0, 90.0)}.get(kind, 0.0)
-        if kind in ("coordinator-crash", "takeover", "dual-start", "router-lost"):
+                "clock-jump": rng.uniform(1.0, 90.0), "pause": rng.uniform(LEASE_S + 1.0, 40.0)}.get(kind, 0.0)
+        if kind in ("coordinator-crash", "takeover", "dual-start", "router-lost", "pause"):
             who = "coordinator"
         out.append(Fault(kind, at, at + length, who, float(size)))
     return tuple(sorted(out, key=lambda f: (f.at, f.kind, f.who)))
@@ -417,11 +431,24 @@ class CoordinatorDriver:
             self.sim.token(self.name, False)
             return
         deploy, passengers = self.sim.fleet.decide(self.state, j)
+        paused = self.sim.pause(self)
+        if paused:  # the process stops between its epoch check and its record (a GC or VM pause)
+            self.sim.at(self.sim.t + paused, self._resume, j, deploy, passengers)
+            return
+        self.publish(j, deploy, passengers, now)
+
+    def publish(self, j: int, deploy, passengers, now: float) -> None:
         self.apply(ev.Decided(j, deploy, 0.0, now, passengers))
         self.apply(ev.Published(j, now))
         self.opened = now
         if self.state.next_stage >= self.sim.fleet.n_stages:
             self.phase = "confirm"
+
+    def _resume(self, j: int, deploy, passengers) -> None:
+        if self.alive:
+            now = self.sim.now_of(self.name)
+            self.publish(j, deploy, passengers, now)
+            self.advance(now)
 
 
 # --------------------------------------------------------------------------- a carrier's driver
@@ -473,6 +500,7 @@ class CarrierDriver:
         self.sim.check_carrier(self, before, event, effects)
         for effect in effects:
             self.execute(effect, now)
+        self.sim.check_on_board(self)
 
     def execute(self, effect, now: float) -> None:
         s, cid = self.sim, self.cid
@@ -558,11 +586,7 @@ class CarrierDriver:
         seen = mc.StateSeen(g("next_stage"), tuple(g("deployments")), g("last_decision"), g("ended"), g("epoch"))
         if self.phase == "joining":
             self.present = True  # it answered
-            if not seen.ended and not (self.sim.plant == "forget-on-restart" and self.life > 1):
-                for j in mc.replay_plan(self.machine, seen.next_stage, seen.deployments):
-                    self.apply(mc.Replayed(j, self.position()), now)
-                    self.sim.replayed(self, j)
-            self.apply(mc.Joined(seen.next_stage, seen.ended, seen.epoch), now)
+            self.join_from_state(seen, now)
             self.apply_effect_hello(now)
             self.begin_stage(self.machine.stage, now)
             return
@@ -578,6 +602,24 @@ class CarrierDriver:
                 self.apply(mc.Resync(seen, self.position()), now)
             elif seen.next_stage == j:
                 self.apply(mc.Collecting(j, seen.epoch), now)
+
+    def join_from_state(self, seen: mc.StateSeen, now: float) -> None:
+        """Join from the coordinator's State and the carrier's own log (carriers/joining.py's
+        path): the deployments replayed, the stages it resolved itself recalled, the deployments
+        on record it never made answered ``late``."""
+        entries = {e.stage: e for e in self.log.values() if e.status is not None}
+        logged = {j: e.deployed for j, e in entries.items()}
+        start = mc.join_stage(seen.next_stage, logged)
+        forget = self.sim.plant == "forget-on-restart" and self.life > 1
+        if not forget:
+            for j in mc.replay_plan(self.machine, min(seen.next_stage, start), seen.deployments, logged):
+                self.apply(mc.Replayed(j, self.position()), now)
+            for j in sorted(j for j in entries if j >= seen.next_stage):
+                e = entries[j]
+                self.apply(mc.Recalled(j, e.status, e.deployed, self.position(), e.x), now)
+        for j in mc.missed(seen.next_stage, seen.deployments, logged):
+            self.apply(mc.Missed(j, self.position()), now)
+        self.apply(mc.Joined(start if not forget else seen.next_stage, seen.ended, seen.epoch), now)
 
     def apply_effect_hello(self, now: float) -> None:
         self.execute(mc.SendHello(self.machine.hello_stage(), self.machine.passengers_left), now)
@@ -697,13 +739,9 @@ class CarrierDriver:
             self.peers = self.sim.peers_seen(self.cid)
 
     def decide_alone(self, j: int, now: float) -> None:
-        from planner.decentralised import LocalDecision
-        from planner.problem import stage_rng
-
         fleet = self.sim.fleet
         self.book.observation(self.cid, j, self.machine.sensed)
-        local = self.book.local_view(fleet.problem, self.cid, j, fleet.seed)
-        deploy = LocalDecision.of(fleet.onboard.decide_local(local, stage_rng(fleet.seed, j))).deploy
+        deploy = fleet.decide_local(self.book.local_view(fleet.problem, self.cid, j, fleet.seed))
         self.apply(mc.DecidedOwn(j, bool(deploy), self.position()), now)
         self.apply(mc.MovedOn(j), now)
         self.begin_stage(j + 1, now)
@@ -714,7 +752,6 @@ class CarrierDriver:
         next_stage = max((e.stage + 1 for e in done), default=0)
         for j in mc.replay_plan(self.machine, next_stage, [e.stage for e in done if e.deployed]):
             self.apply(mc.Replayed(j, self.position()), now)
-            self.sim.replayed(self, j)
         self.apply(mc.Joined(next_stage), now)
         self.begin_stage(self.machine.stage, now)
 
@@ -760,7 +797,7 @@ class Simulation:
         self.faults = tuple(faults) if faults is not None else draw_faults(self.rng, kinds, ids, horizon)
         self.carriers = {cid: CarrierDriver(self, cid) for cid in ids}
         names = ["coordinator"]
-        if any(f.kind in ("takeover", "dual-start") for f in self.faults):
+        if any(f.kind in ("takeover", "dual-start", "pause") for f in self.faults):
             names.append("standby")
         self.coordinators = {n: CoordinatorDriver(self, n) for n in names}
         self.coordinator_names = frozenset(names)
@@ -770,6 +807,7 @@ class Simulation:
         self.cut: set = set()
         self.frozen: dict = {}
         self.slow: dict = {}
+        self.paused: set = set()
         self.work_s = {cid: float(self.rng.uniform(0.005, 0.05)) for cid in ids}
         self._schedule_faults()
         self.at(0.0, self._start, self.coordinators["coordinator"], "coordinator")
@@ -963,7 +1001,7 @@ class Simulation:
         """The tokens across the cut vanish (the lease expired) or reappear (it healed)."""
         for h in hosts:
             for other in [*self.coordinator_names, *self.fleet.ids]:
-                if other == h or (other in hosts and not alive and False):
+                if other == h:
                     continue
                 self._notify(other, h, alive)
                 self._notify(h, other, alive)
@@ -976,6 +1014,9 @@ class Simulation:
             return
         target = self.carriers.get(dst) or self.coordinators.get(dst)
         if target is None or not (target.alive or target.phase == "standby"):
+            return
+        if self._frozen(dst):
+            self.at(self.frozen[dst], self._notify, dst, who, alive)
             return
         self.events += 1
         self.trace.update(f"{self.t:.9f}|{dst}|token|{who}|{alive}\n".encode())
@@ -996,6 +1037,19 @@ class Simulation:
             if isinstance(driver, CoordinatorDriver):
                 driver.phase = "new"
             driver.start(self.now_of(driver.name if isinstance(driver, CoordinatorDriver) else driver.cid))
+
+    def pause(self, driver: CoordinatorDriver) -> float:
+        """Seconds ``driver`` pauses now (0: none): the first decision of the primary at or after
+        a ``pause`` fault's start. Its whole process stops, its session too: its token vanishes
+        a lease later and reappears when it runs again."""
+        f = next((f for f in self.faults if f.kind == "pause" and f.at <= self.t and f not in self.paused), None)
+        if f is None or driver.name != "coordinator":
+            return 0.0
+        self.paused.add(f)
+        self.frozen[driver.name] = self.t + f.size
+        self.at(self.t + min(LEASE_S, f.size), self._lease, (driver.name,), False)
+        self.at(self.t + f.size, self._lease, (driver.name,), True)
+        return f.size
 
     def _freeze(self, who: str, until: float) -> None:
         self.frozen[who] = until
@@ -1051,9 +1105,6 @@ class Simulation:
             self.violate(f"carrier {cid} deployed {len(self.releases[cid])} passengers, it has "
                          f"{self.fleet.passengers[driver.r]}")
 
-    def replayed(self, driver: CarrierDriver, j: int) -> None:
-        """A restarted carrier replays a deployment on record: nothing leaves it."""
-
     def finished(self, driver: CarrierDriver, reason: str) -> None:
         self.finished_ids[driver.cid] = reason
 
@@ -1064,6 +1115,12 @@ class Simulation:
             if isinstance(effect, mc.LogOutcome) and isinstance(event, mc.DecisionHeard) and event.epoch < before.epoch:
                 self.violate(f"carrier {driver.cid} acted on a Decision of epoch {event.epoch} for stage "
                              f"{event.stage} after hearing epoch {before.epoch}")
+
+    def check_on_board(self, driver: CarrierDriver) -> None:
+        """A flying carrier counts the passengers it carries (its restarts included)."""
+        m, carried = driver.machine, self.fleet.passengers[driver.r] - len(self.releases[driver.cid])
+        if m.flying and m.passengers_left != carried:
+            self.violate(f"carrier {driver.cid} counts {m.passengers_left} passenger(s) on board, it carries {carried}")
 
     def check_coordinator(self, driver: CoordinatorDriver, before, event, effects) -> None:
         for effect in effects:
