@@ -22,7 +22,7 @@ from mission.exits import EXIT_USAGE
 SHRINK_RUNS = 40
 
 
-def build_fleet(path: str, mode: str = "hybrid") -> sim.Fleet:
+def build_fleet(path: str, mode: str = "hybrid", onboard_iterations: int | None = None) -> sim.Fleet:
     """The simulator's :class:`mission.simulate.Fleet` of a scenario file (ScenarioError on bad input)."""
     import numpy as np
 
@@ -37,7 +37,7 @@ def build_fleet(path: str, mode: str = "hybrid") -> sim.Fleet:
     planner = make_planner(name, **used_options(name, options))
     if callable(getattr(planner, "warm_up", None)):
         planner.warm_up(problem)
-    onboard = make_planner(ONBOARD_PLANNER)
+    onboard = make_planner(ONBOARD_PLANNER, **({} if onboard_iterations is None else {"iterations": onboard_iterations}))
     onboard.warm_up(problem)
     return sim.Fleet(tuple(scenario.carrier_ids), tuple(int(p) for p in problem.passengers), np.asarray(problem.valid),
                      tuple(float(t) for t in scenario.stage_times()), world.observe_all(scenario), problem, planner,
@@ -114,18 +114,39 @@ def replay_command(scenario: str, seed: int, kinds, faults=None, plant=None) -> 
     return base + (f" --plant {plant}" if plant else "")
 
 
-def campaign(fleet: sim.Fleet, seeds, kinds, schedule=None, plant=None, progress=None) -> dict:
-    """Run every seed; the report's figures (the keys of ``--json``)."""
+_FLEET: sim.Fleet | None = None  # a worker's fleet (inherited from the parent by fork)
+
+
+def _one(args) -> dict:
+    seed, kinds, schedule, plant = args
+    return sim.simulate(_FLEET, seed, kinds=kinds, faults=schedule, plant=plant).as_json()
+
+
+def campaign(fleet: sim.Fleet, seeds, kinds, schedule=None, plant=None, progress=None, jobs: int = 1) -> dict:
+    """Run every seed (``jobs`` worker processes, each seed's mission the same in any); the
+    report's figures (the keys of ``--json``)."""
+    global _FLEET
     t0 = time.perf_counter()
+    tasks = [(seed, tuple(kinds), schedule, plant) for seed in seeds]
+    _FLEET = fleet
+    if jobs > 1:
+        import multiprocessing
+
+        pool = multiprocessing.get_context("fork").Pool(jobs)
+        results = pool.imap(_one, tasks, chunksize=max(1, min(50, len(tasks) // (8 * jobs))))
+    else:
+        pool, results = None, map(_one, tasks)
     per_seed, violations, events = [], [], 0
-    for k, seed in enumerate(seeds):
-        out = sim.simulate(fleet, seed, kinds=kinds, faults=schedule, plant=plant)
-        events += out.events
-        per_seed.append(out.as_json())
-        for line in out.violations:
-            violations.append({"seed": seed, "violation": line})
-        if progress is not None:
-            progress(k + 1, len(seeds), out)
+    try:
+        for k, out in enumerate(results):
+            events += out["events"]
+            per_seed.append(out)
+            violations += [{"seed": out["seed"], "violation": line} for line in out["violations"]]
+            if progress is not None:
+                progress(k + 1, len(tasks), out)
+    finally:
+        if pool is not None:
+            pool.terminate()
     seconds = time.perf_counter() - t0
     return {"missions": len(per_seed), "events": events, "seconds": round(seconds, 3),
             "missions_per_s": round(len(per_seed) / seconds, 2) if seconds else None,
@@ -146,6 +167,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plant", choices=sim.PLANTS, default=None,
                    help="put back a known bug class (the campaign's power test); never for real use")
     p.add_argument("--json", dest="json_out", type=Path, default=None, help="write the report as JSON here")
+    p.add_argument("--jobs", type=int, default=1, help="worker processes (the missions are the same with any)")
+    p.add_argument("--onboard-iterations", type=int, default=None,
+                   help="the on-board planner's iteration budget (default: its own); a campaign of large "
+                        "fleets lowers it: the invariants do not depend on how well carriers decide alone")
     p.add_argument("--no-shrink", action="store_true", help="do not shrink the failing schedules")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     return p
@@ -156,17 +181,17 @@ def main(argv=None) -> int:
     from world import ScenarioError
 
     try:
-        fleet = build_fleet(args.scenario, args.mode)
+        fleet = build_fleet(args.scenario, args.mode, args.onboard_iterations)
     except (ScenarioError, OSError) as exc:
         print(f"python -m mission.simulate: {exc}", file=sys.stderr)
         return EXIT_USAGE
 
     def progress(done: int, total: int, out) -> None:
         if not args.quiet and (done == total or done % max(1, total // 20) == 0):
-            print(f"  {done}/{total} missions, {out.events} events in the last, "
-                  f"{len(out.violations)} violation(s) in the last", file=sys.stderr, end="\r" if done < total else "\n")
+            print(f"  {done}/{total} missions, {out['events']} events in the last, "
+                  f"{len(out['violations'])} violation(s) in the last", file=sys.stderr, end="\r" if done < total else "\n")
 
-    report = campaign(fleet, args.seeds, args.faults, args.schedule, args.plant, progress)
+    report = campaign(fleet, args.seeds, args.faults, args.schedule, args.plant, progress, max(1, args.jobs))
     failing = sorted({v["seed"] for v in report["violations"]})
     for seed in failing[:5]:
         row = next(r for r in report["per_seed"] if r["seed"] == seed)

@@ -710,7 +710,7 @@ class CarrierDriver:
                 self.apply(mc.MovedOn(j), now)
                 self.begin_stage(j + 1, now)
                 return None
-            waiting = self.book.waiting(j, self.peers - {self.cid})
+            waiting = self.book.waiting(j, sorted(self.peers - {self.cid}))
             rule = tm.stage_wait("sim", waiting, frozenset(), self.heard, self.opened, now, t.peer_s, t.silence_s)
             if isinstance(rule, tm.Wait):
                 self.progress(now, t.silence_s / 3)
@@ -800,7 +800,7 @@ class Simulation:
         if any(f.kind in ("takeover", "dual-start", "pause") for f in self.faults):
             names.append("standby")
         self.coordinators = {n: CoordinatorDriver(self, n) for n in names}
-        self.coordinator_names = frozenset(names)
+        self.coordinator_names = tuple(names)  # ordered: every iteration that sends is in a fixed order
         hosts = [*names, *ids]
         self.clocks = {h: Clock(float(self.rng.uniform(0, 1e4)), float(self.rng.uniform(-1e-4, 1e-4))) for h in hosts}
         self.median = {h: float(self.rng.uniform(2e-4, 3e-3)) for h in hosts}   # one-way to the router, s
@@ -1174,11 +1174,17 @@ class Simulation:
         logs = [CarrierRecord(cid, f"carriers/{cid}.db", {}, tuple(sorted(d.log.values(), key=lambda e: e.stage)))
                 for cid, d in self.carriers.items()]
         merged = merge(self.spec, self.db, logs)
-        for cid in self.fleet.ids:
-            record = merged.state.deployments_of(cid)
-            if record != physical[cid]:
+        confirmed = merged.state.confirmed_deployments()
+        for r, cid in enumerate(self.fleet.ids):
+            record, made = merged.state.deployments_of(cid), set(physical[cid])
+            sure = set(np.flatnonzero(confirmed[r]).tolist())
+            if self.carriers[cid].phase == "done" and record != physical[cid]:
                 self.violate(f"the mission's record (mission.db and the carriers' logs) has deployments {record} "
                              f"of {cid}, which deployed at {physical[cid]}")
+            elif not sure <= made <= set(record):
+                # a carrier that never came back: its unanswered decisions may or may not have been made
+                self.violate(f"the mission's record has deployments {record} (confirmed {sorted(sure)}) of {cid}, "
+                             f"which never came back and deployed at {physical[cid]}")
 
     def faults_faithful(self) -> bool:
         return all(f.kind in FAITHFUL_KINDS for f in self.faults)

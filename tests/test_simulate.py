@@ -1,0 +1,158 @@
+"""The deterministic simulator (mission/simulate.py, ``python -m mission.simulate``): fidelity
+without faults, determinism, a short campaign with every fault kind and no violation, the
+campaign's power against planted bugs, shrinking and replay, the command line's errors; and the
+carrier's join rules the simulator found wanting (mission.carrier: Missed, Recalled, join_stage)."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from launcher.simulate import build_fleet, campaign, shrink
+from mission import carrier as mc
+from mission import simulate as sim
+
+REPO = Path(__file__).resolve().parents[1]
+SIX = str(REPO / "scenarios" / "six_carriers.yaml")
+
+
+@pytest.fixture(scope="module")
+def fleet():
+    return build_fleet(SIX)
+
+
+def test_a_fault_free_mission_decides_exactly_like_the_offline_planner(fleet):
+    offline = fleet.offline()
+    for seed in range(3):
+        s = sim.Simulation(fleet, seed, kinds=())
+        out = s.run()
+        assert out.violations == [] and out.completed
+        final = s.coordinators["coordinator"].state
+        assert {j: d.deploy for j, d in final.decisions.items()} == offline
+        # what left the carriers is what the offline planner deployed
+        assert {cid: js for cid, js in out.deployments.items()} == {
+            cid: sorted(j for j, deploy in offline.items() if cid in deploy) for cid in fleet.ids}
+
+
+def test_the_same_seed_gives_the_same_trace_and_another_seed_another(fleet):
+    a, b, c = (sim.simulate(fleet, seed) for seed in (7, 7, 8))
+    assert a.trace_hash == b.trace_hash and a.faults == b.faults and a.events == b.events
+    assert a.trace_hash != c.trace_hash
+
+
+def test_a_short_campaign_with_every_fault_kind_finds_no_violation(fleet):
+    report = campaign(fleet, range(0, 200), sim.FAULT_KINDS)
+    assert report["missions"] == 200 and report["violations"] == []
+    drawn = {f["kind"] for row in report["per_seed"] for f in row["faults"]}
+    assert drawn == set(sim.FAULT_KINDS)  # every kind was exercised
+    assert all(row["completed"] for row in report["per_seed"])
+    assert set(report) >= {"missions", "events", "seconds", "violations", "per_seed"}
+    assert set(report["per_seed"][0]) >= {"seed", "trace_hash", "faults", "deployments", "reward"}
+
+
+#: Each planted bug class, the fault kind that exposes it, and the seeds searched.
+POWER = {
+    "confirm-twice": ("duplicate", 40),
+    "forget-on-restart": ("crash", 60),
+    "older-epoch": ("pause", 60),
+    "slow-as-empty": ("slow", 40),
+    "bye-without-hello": ("stale", 20),
+}
+
+
+@pytest.mark.parametrize("plant", sim.PLANTS)
+def test_the_campaign_finds_every_planted_bug_class(fleet, plant):
+    kind, seeds = POWER[plant]
+    found = [row["seed"] for row in campaign(fleet, range(seeds), (kind,), plant=plant)["per_seed"] if row["violations"]]
+    assert found, f"{plant}: no violation in {seeds} seeds with {kind} faults"
+    # and the real rules pass the same seeds
+    assert campaign(fleet, found[:3], (kind,))["violations"] == []
+
+
+def test_a_failing_schedule_shrinks_to_one_that_still_fails(fleet):
+    seed = next(s for s in range(40) if sim.simulate(fleet, s, kinds=("duplicate", "loss", "crash"),
+                                                     plant="confirm-twice").violations)
+    faults = sim.simulate(fleet, seed, kinds=("duplicate", "loss", "crash")).faults
+    small = shrink(fleet, seed, faults, "confirm-twice")
+    assert len(small) <= len(faults) and all(f.kind in ("duplicate", "loss", "crash") for f in small)
+    assert sim.simulate(fleet, seed, faults=small, plant="confirm-twice").violations
+    assert not sim.simulate(fleet, seed, faults=small).violations
+
+
+def _run(*args, timeout=300):
+    return subprocess.run([sys.executable, "-m", "mission.simulate", *args], cwd=REPO, capture_output=True,
+                          text=True, timeout=timeout)
+
+
+def test_the_command_writes_the_report_and_a_replay_gives_the_same_trace(tmp_path):
+    out = tmp_path / "r.json"
+    proc = _run(SIX, "--seeds", "3:6", "--json", str(out), "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    report = json.loads(out.read_text())
+    assert report["missions"] == 3 and report["violations"] == []
+    row = report["per_seed"][1]
+    assert row["seed"] == 4 and set(row["deployments"]) == {f"c{k}" for k in range(1, 7)}
+    again = tmp_path / "again.json"
+    schedule = json.dumps(row["faults"])
+    proc = _run(SIX, "--seeds", "4:5", "--schedule", schedule, "--json", str(again), "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(again.read_text())["per_seed"][0]["trace_hash"] == row["trace_hash"]
+
+
+@pytest.mark.parametrize("args, says", [
+    (["--seeds", "5:3"], "--seeds: expected A:B with 0 <= A < B"),
+    (["--seeds", "x"], "--seeds: expected A:B"),
+    (["--faults", "crash,meteor"], "--faults: unknown kind(s) meteor"),
+    (["--schedule", "[{\"at\": 1}]"], "--schedule: expected a JSON list of faults"),
+])
+def test_bad_flags_get_a_one_line_error(args, says):
+    proc = _run(SIX, *args)
+    assert proc.returncode == 2 and says in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_a_missing_scenario_gets_a_one_line_error(tmp_path):
+    proc = _run(str(tmp_path / "none.yaml"), "--seeds", "0:1")
+    assert proc.returncode == 2 and "none.yaml" in proc.stderr and "Traceback" not in proc.stderr
+
+
+# --------------------------------------------------------------------------- the join rules
+
+@pytest.mark.parametrize("next_stage, deployments, logged, replay, missed, start", [
+    # no log (a new host): the record decides, as before
+    (5, (1, 3), None, [1, 3], [], 5),
+    # the log holds both: replayed
+    (5, (1, 3), {1: True, 3: True, 4: False}, [1, 3], [], 5),
+    # on record at 3 but the log has no outcome there: its Decision never came: answered late
+    (5, (1, 3), {1: True, 2: False}, [1], [3], 5),
+    # the log holds a deployment the record lacks (its Confirm was lost): replayed
+    (5, (1,), {1: True, 2: True}, [1, 2], [], 5),
+    # it decided stages 5..7 on board while the coordinator was away: it goes on from 8
+    (5, (1,), {1: True, 5: False, 6: True, 7: False}, [1, 6], [], 8),
+])
+def test_a_joining_carrier_trusts_its_own_log(next_stage, deployments, logged, replay, missed, start):
+    state = mc.initial("a", [True] * 12, [float(t) for t in range(12)], 3)
+    at = mc.join_stage(next_stage, logged)
+    assert at == start
+    assert mc.replay_plan(state, at, deployments, logged) == replay
+    assert mc.missed(next_stage, deployments, logged) == missed
+
+
+def test_a_recalled_own_stage_is_kept_and_its_account_sent_again():
+    state = mc.initial("a", [True] * 4, [0.0, 1.0, 2.0, 3.0], 2)
+    state, effects = mc.step(state, mc.Recalled(1, "own", True, (1.0, 0.0), x=4))
+    assert state.passengers_left == 1 and state.handled[1].own
+    assert effects == (mc.SendOwn(1, 4, True, (1.0, 0.0), 1),)
+    state, effects = mc.step(state, mc.Joined(2))
+    state, effects = mc.step(state, mc.DecisionHeard(1, 1.0, ("a",), (1.0, 0.0)))
+    assert [type(e) for e in effects] == [mc.SendConfirm] and effects[0].status == "already"
+
+
+def test_a_missed_deployment_is_answered_late_and_never_made():
+    state = mc.initial("a", [True] * 4, [0.0, 1.0, 2.0, 3.0], 2)
+    state, effects = mc.step(state, mc.Missed(2, (2.0, 0.0)))
+    assert state.passengers_left == 2 and not state.handled[2].deployed
+    assert not any(isinstance(e, mc.Deploy) for e in effects)
+    assert [e.status for e in effects if isinstance(e, mc.SendConfirm)] == ["late"]
