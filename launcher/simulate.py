@@ -107,10 +107,9 @@ def shrink(fleet: sim.Fleet, seed: int, faults, plant=None) -> tuple:
 
 def replay_command(scenario: str, seed: int, kinds, faults=None, plant=None) -> str:
     base = f"python -m mission.simulate {scenario} --seeds {seed}:{seed + 1}"
+    base += " --faults " + (",".join(kinds) if kinds else "none")  # the draws a schedule replays after
     if faults is not None:
         base += " --schedule '" + json.dumps([f.as_json() for f in faults]) + "'"
-    else:
-        base += " --faults " + (",".join(kinds) if kinds else "none")
     return base + (f" --plant {plant}" if plant else "")
 
 

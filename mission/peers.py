@@ -137,6 +137,7 @@ class PeerBook:
         self.x_known = ~self.valid.copy()          # unscheduled stages are ∅, known in advance
         self.deployed = np.zeros((R, N), dtype=bool)
         self.source = np.where(self.valid, UNKNOWN, FROM_CARRIER).astype(np.int8)
+        self.at: dict = {}                         # carrier id -> the latest stage its Progress named
 
     @property
     def n_stages(self) -> int:
@@ -170,9 +171,16 @@ class PeerBook:
         self.source[col, stage] = FROM_DECISION
         self.x_known[col & ~selected, stage] = True
 
+    def progress(self, cid: str, stage: int) -> None:
+        """Carrier ``cid``'s Progress names ``stage`` (the stage it works towards or waits at,
+        [P-10.6])."""
+        self.at[cid] = max(self.at.get(cid, 0), int(stage))
+
     def waiting(self, stage: int, among) -> list[str]:
-        """Carriers of ``among`` whose observation of ``stage`` has not been heard."""
-        return [cid for cid in among if not self.x_known[self.index[cid], stage]]
+        """Carriers of ``among`` whose observation of ``stage`` has not been heard, and which are
+        not past it (a Progress naming a later stage: its observation of ``stage`` went out and
+        was lost; waiting for it would wait for nothing, as long as it is heard from)."""
+        return [cid for cid in among if not self.x_known[self.index[cid], stage] and self.at.get(cid, 0) <= stage]
 
     def local_view(self, problem, carrier: str, stage: int, seed: int):
         """Carrier ``carrier``'s :class:`~planner.decentralised.LocalView` of ``stage``: per other

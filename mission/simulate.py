@@ -105,6 +105,20 @@ class Fleet:
             hit = self.decisions[key] = (tuple(self.ids[r] for r in rs), tuple(int(step.passengers[r]) for r in rs))
         return hit
 
+    def listened_by(self) -> dict:
+        """carrier id -> the ids that listen to it (:func:`mission.peers.listened`: each carrier
+        deciding on board listens to its conflict component), computed once."""
+        key = ("listened",)
+        if key not in self.decisions:
+            from .peers import listened
+
+            out = {cid: [] for cid in self.ids}
+            for r, cid in enumerate(self.ids):
+                for b in listened(self.problem, r):
+                    out[self.ids[b]].append(cid)
+            self.decisions[key] = {cid: tuple(v) for cid, v in out.items()}
+        return self.decisions[key]
+
     def decide_local(self, local) -> bool:
         """A carrier's on-board decision of its stage on its local view (memoised on the view)."""
         from planner.decentralised import LocalDecision
@@ -203,7 +217,7 @@ def draw_faults(rng: np.random.Generator, kinds, ids, horizon: float) -> tuple[F
         who = str(ids[int(rng.integers(len(ids)))])
         size = {"loss": rng.uniform(0.05, 0.5), "duplicate": rng.uniform(0.1, 0.9), "reorder": rng.uniform(5, 50),
                 "slow": rng.uniform(20.0, 80.0), "corrupt": float(rng.integers(1, 20)),
-                "clock-jump": rng.uniform(1.0, 90.0), "pause": rng.uniform(LEASE_S + 1.0, 40.0)}.get(kind, 0.0)
+                "clock-jump": rng.uniform(1.0, 90.0), "pause": rng.uniform(LEASE_S + 0.5, LEASE_S + 10.0)}.get(kind, 0.0)
         if kind in ("coordinator-crash", "takeover", "dual-start", "router-lost", "pause"):
             who = "coordinator"
         out.append(Fault(kind, at, at + length, who, float(size)))
@@ -268,11 +282,12 @@ class CoordinatorDriver:
         self.last_end: float | None = None
         self.grace: float | None = None
         self.primary_lost: float | None = None
+        self.resuming = None  # (stage, deploy, passengers) of the decision a pause interrupted
 
     # -------------------------------------------------------------- life
     def start(self, now: float) -> None:
         self.alive = True
-        if self.phase == "standby":
+        if self.phase == "standby":  # no State: it watches the primary's token
             self.sim.token(self.name, True)
             self.sim.wake(self, now + DEFAULTS.standby_poll_s)
             return
@@ -376,6 +391,8 @@ class CoordinatorDriver:
 
     def _rule(self, now: float):
         st, fleet, t = self.state, self.sim.fleet, self.sim.timeouts
+        if self.resuming is not None:
+            return tm.Wait()  # paused in the middle of a decision: it goes on where it stopped
         if self.phase == "standby":
             rule = tm.standby(self.primary_lost is None, self.primary_lost, now, t.standby_poll_s)
             if isinstance(rule, tm.TakeOver):
@@ -433,18 +450,26 @@ class CoordinatorDriver:
         deploy, passengers = self.sim.fleet.decide(self.state, j)
         paused = self.sim.pause(self)
         if paused:  # the process stops between its epoch check and its record (a GC or VM pause)
-            self.sim.at(self.sim.t + paused, self._resume, j, deploy, passengers)
+            self.resuming = (j, deploy, passengers)
+            self.sim.at(self.sim.t + paused, self._resume)
             return
         self.publish(j, deploy, passengers, now)
 
     def publish(self, j: int, deploy, passengers, now: float) -> None:
+        if sum(isinstance(e, ev.Opened) for e in self.sim.db) > self.epoch:
+            # the store fences a deposed coordinator's write: a newer epoch opened the mission
+            # while this one was paused after its check; it steps down
+            self.phase, self.alive = "deposed", False
+            self.sim.token(self.name, False)
+            return
         self.apply(ev.Decided(j, deploy, 0.0, now, passengers))
         self.apply(ev.Published(j, now))
         self.opened = now
         if self.state.next_stage >= self.sim.fleet.n_stages:
             self.phase = "confirm"
 
-    def _resume(self, j: int, deploy, passengers) -> None:
+    def _resume(self) -> None:
+        (j, deploy, passengers), self.resuming = self.resuming, None
         if self.alive:
             now = self.sim.now_of(self.name)
             self.publish(j, deploy, passengers, now)
@@ -561,6 +586,7 @@ class CarrierDriver:
                 self.book.outcome(m.src, g("stage"), g("deployed"))
         elif m.kind == "progress" and m.src in self.sim.fleet.ids:
             self.heard[m.src] = now
+            self.book.progress(m.src, g("stage"))
         self.advance(now)
 
     def _token(self, who: str, alive: bool, now: float) -> None:
@@ -588,6 +614,8 @@ class CarrierDriver:
             self.present = True  # it answered
             self.join_from_state(seen, now)
             self.apply_effect_hello(now)
+            if self.sim.fleet.mode == "hybrid":
+                self.listen()
             self.begin_stage(self.machine.stage, now)
             return
         if not mc.current(self.machine, seen.epoch):
@@ -598,10 +626,12 @@ class CarrierDriver:
             self.apply(mc.Resync(seen, self.position(), gap=gap), now)
         elif self.phase == "wait":
             j = self.j
-            if seen.next_stage > j:
-                self.apply(mc.Resync(seen, self.position()), now)
-            elif seen.next_stage == j:
+            if seen.next_stage == j:
                 self.apply(mc.Collecting(j, seen.epoch), now)
+            else:
+                # past j: its Decision was lost; behind j: the coordinator never had this
+                # carrier's Hello or accounts of the stages since (lost): both resynchronise
+                self.apply(mc.Resync(seen, self.position()), now)
 
     def join_from_state(self, seen: mc.StateSeen, now: float) -> None:
         """Join from the coordinator's State and the carrier's own log (carriers/joining.py's
@@ -713,6 +743,10 @@ class CarrierDriver:
             waiting = self.book.waiting(j, sorted(self.peers - {self.cid}))
             rule = tm.stage_wait("sim", waiting, frozenset(), self.heard, self.opened, now, t.peer_s, t.silence_s)
             if isinstance(rule, tm.Wait):
+                if tm.due(self.last_progress, now, t.silence_s / 3):
+                    # its peers may be waiting for its observation as it waits for theirs, and
+                    # one of them lost: each Progress goes with the observation again (absorbed)
+                    self.sim.to_listeners(self.cid, msg("peer-obs", self.cid, stage=j, x=self.machine.sensed))
                 self.progress(now, t.silence_s / 3)
                 return min(rule.until, self.last_progress + t.silence_s / 3)
             self.decide_alone(j, now)
@@ -728,8 +762,7 @@ class CarrierDriver:
         if tm.due(self.last_progress, now, interval):
             self.last_progress = now
             self.sim.send(self.cid, "coordinators", msg("progress", self.cid, stage=self.j))
-            if self.listening:
-                self.sim.to_listeners(self.cid, msg("progress", self.cid))
+            self.sim.to_listeners(self.cid, msg("progress", self.cid, stage=self.j))
 
     def listen(self) -> None:
         """Deciding alone from now on: subscribe to the peers' messages and tokens."""
@@ -753,6 +786,7 @@ class CarrierDriver:
         for j in mc.replay_plan(self.machine, next_stage, [e.stage for e in done if e.deployed]):
             self.apply(mc.Replayed(j, self.position()), now)
         self.apply(mc.Joined(next_stage), now)
+        self.listen()
         self.begin_stage(self.machine.stage, now)
 
     def finish(self, reason: str, now: float) -> None:
@@ -790,21 +824,27 @@ class Simulation:
         self.releases: dict = {cid: [] for cid in fleet.ids}
         self.confirmed: set = set()
         self.listeners: set = set()
+        self.listened_by = fleet.listened_by() if fleet.mode != "coordinated" else {}
         self.epochs: dict = {}                   # (epoch, stage) -> the coordinator that published it
         self.finished_ids: dict = {}
         ids = fleet.ids
         horizon = 0.5 + 0.05 * fleet.n_stages
-        self.faults = tuple(faults) if faults is not None else draw_faults(self.rng, kinds, ids, horizon)
+        drawn = draw_faults(self.rng, kinds, ids, horizon)  # drawn always: a given schedule replays the same draws after
+        self.faults = tuple(faults) if faults is not None else drawn
         self.carriers = {cid: CarrierDriver(self, cid) for cid in ids}
         names = ["coordinator"]
         if any(f.kind in ("takeover", "dual-start", "pause") for f in self.faults):
             names.append("standby")
-        self.coordinators = {n: CoordinatorDriver(self, n) for n in names}
+        # a standby watches the primary (takeover, pause); two coordinators started together
+        # (dual-start) both open the mission: the first is deposed at its first decision
+        together = any(f.kind == "dual-start" for f in self.faults)
+        self.coordinators = {n: CoordinatorDriver(self, n, standby=n == "standby" and not together) for n in names}
         self.coordinator_names = tuple(names)  # ordered: every iteration that sends is in a fixed order
         hosts = [*names, *ids]
         self.clocks = {h: Clock(float(self.rng.uniform(0, 1e4)), float(self.rng.uniform(-1e-4, 1e-4))) for h in hosts}
         self.median = {h: float(self.rng.uniform(2e-4, 3e-3)) for h in hosts}   # one-way to the router, s
         self.cut: set = set()
+        self.fifo: dict = {}                     # (src, dst) -> the last delivery time scheduled
         self.frozen: dict = {}
         self.slow: dict = {}
         self.paused: set = set()
@@ -854,7 +894,11 @@ class Simulation:
             if t > bound + OVERRUN_S:
                 break
             self.t = t
-            fn(*args)
+            try:
+                fn(*args)
+            except Exception as exc:  # a process of the fleet would have crashed: a finding, not the end of a campaign
+                self.violate(f"a process raised {type(exc).__name__}: {exc}")
+                break
             if self.done():
                 break
         return self.outcome(bound)
@@ -888,9 +932,14 @@ class Simulation:
             self._deliver(src, cid, m)
 
     def to_listeners(self, src: str, m: Msg) -> None:
-        for cid in sorted(self.listeners):
-            if cid != src:
+        """To the carriers listening to ``src`` (its conflict component's, once they listen)."""
+        for cid in self.listened_by.get(src, ()):
+            if cid in self.listeners:
                 self._deliver(src, cid, m)
+
+    def hears(self, dst: str, src: str) -> bool:
+        """Carrier ``dst`` is subscribed to carrier ``src``'s messages and token."""
+        return dst in self.listeners and dst in self.listened_by.get(src, ())
 
     def _window(self, kind: str):
         return next((f for f in self.faults if f.kind == kind and f.at <= self.t < f.until), None)
@@ -901,11 +950,14 @@ class Simulation:
         lost = self._window("loss")
         if lost is not None and self.rng.random() < lost.size:
             return
-        delay = self._delay(src, dst)
-        self.at(self.t + delay, self._arrive, src, dst, m)
+        arrive = self.t + self._delay(src, dst)
+        if self._window("reorder") is None:  # one session, one link: first sent, first delivered
+            arrive = max(arrive, self.fifo.get((src, dst), 0.0))
+            self.fifo[(src, dst)] = arrive
+        self.at(arrive, self._arrive, src, dst, m)
         dup = self._window("duplicate")
         if dup is not None and self.rng.random() < dup.size:
-            self.at(self.t + delay + self._delay(src, dst), self._arrive, src, dst, m)
+            self.at(arrive + self._delay(src, dst), self._arrive, src, dst, m)
 
     def _delay(self, src: str, dst: str) -> float:
         d = sum(self.median[h] * math.exp(0.5 * self.rng.standard_normal()) for h in (src, dst) if h in self.median)
@@ -935,7 +987,7 @@ class Simulation:
         for other in [*self.coordinator_names, *self.fleet.ids]:
             if other == name:
                 continue
-            if other in self.fleet.ids and name in self.fleet.ids and other not in self.listeners:
+            if other in self.fleet.ids and name in self.fleet.ids and not self.hears(other, name):
                 continue
             self._deliver(name, other, msg("token", name, who=name, alive=alive))
         if alive:  # a newcomer's subscriptions see the tokens that are there (liveliness history)
@@ -949,7 +1001,7 @@ class Simulation:
         return coords
 
     def peers_seen(self, cid: str) -> set:
-        return {o for o, d in self.carriers.items() if d.alive and o != cid and o not in self.cut}
+        return {o for o, d in self.carriers.items() if d.alive and o != cid and o not in self.cut and self.hears(cid, o)}
 
     # -------------------------------------------------------------- the machines, as planted
     def coordinator_step(self, state, event):
@@ -1010,7 +1062,7 @@ class Simulation:
         d = self.carriers.get(who) or self.coordinators.get(who)
         if alive and not (d is not None and d.alive):
             return
-        if dst in self.fleet.ids and who in self.fleet.ids and dst not in self.listeners:
+        if dst in self.fleet.ids and who in self.fleet.ids and not self.hears(dst, who):
             return
         target = self.carriers.get(dst) or self.coordinators.get(dst)
         if target is None or not (target.alive or target.phase == "standby"):
