@@ -8,6 +8,7 @@ from __future__ import annotations
 import time
 
 from mission import carrier as mc
+from wire import keys
 
 #: How often a carrier deciding alone looks for the peers' observations it waits for (s).
 PEER_POLL_S = 0.02
@@ -40,6 +41,7 @@ class Alone:
             left = deadline - now
             if left <= 0 or not waiting:
                 break
+            self._repeat_observation(j)
             self._pump(min(left, PEER_POLL_S))  # peers' messages do not wake the carrier
         if self._stop.is_set() or self.machine.resolved(j) or self.machine.ended:
             return
@@ -47,3 +49,14 @@ class Alone:
         local = self.book.local_view(problem, self.cid, j, self.scenario.seed)
         deploy = LocalDecision.of(planner.decide_local(local, stage_rng(self.scenario.seed, j))).deploy
         self.apply(mc.DecidedOwn(j, bool(deploy), self._position()))
+
+    def _repeat_observation(self, j: int) -> None:
+        """Sim clock, waiting for peers: its observation of j goes out again every third of the
+        silence timeout (an identical repeat is absorbed), for peers waiting for it as it waits for
+        theirs while one of them was lost (found by mission.simulate: two carriers heard from
+        forever, each waiting for the other's lost observation)."""
+        now = time.monotonic()
+        if (self.timers.clock == "sim" and self.pending is not None and self.pending.stage == j
+                and now - self._repeated_at >= self.timers.silence_timeout_s / 3):
+            self._repeated_at = now
+            self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.pending)

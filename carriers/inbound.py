@@ -130,6 +130,7 @@ class Inbound:
             raise ProtocolError("key-mismatch", f"carrier {msg.carrier!r} on the key of {cid!r}")
         self.presence.heard_from(cid, time.monotonic())
         if topic == "progress":
+            self.book.progress(cid, msg.stage)  # a peer past a stage is not waited for there
             return
         if msg.stage >= self.n_stages:
             raise ProtocolError("out-of-range", f"stage {msg.stage} >= {self.n_stages}")

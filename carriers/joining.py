@@ -37,11 +37,34 @@ class Joining:
             self.log(f"the coordinator runs another world (fingerprint {state.fingerprint}, ours "
                      f"{self.fingerprint}): use the same scenario file and --seed")
             raise Exit("world-mismatch")
+        mine = state.carrier(self.cid)
+        recorded = tuple(mine.deployments) if mine else ()
+        entries = {e.stage: e for e in self.store.entries() if e.status is not None} if self.store is not None else {}
+        logged = {j: e.deployed for j, e in entries.items()} or None  # no outcome logged: the record decides
+        start = mc.join_stage(state.next_stage, logged)
+        recalled = [j for j in sorted(entries) if j >= state.next_stage]
         if not state.ended:
-            mine = state.carrier(self.cid)
-            self._replay(mc.replay_plan(self.machine, state.next_stage, mine.deployments if mine else ()))
-        self.apply(mc.Joined(state.next_stage, state.ended, state.epoch))
+            self._replay(mc.replay_plan(self.machine, min(state.next_stage, start), recorded, logged))
+            self._recall([entries[j] for j in recalled])
+        self.apply(mc.Joined(start, state.ended, state.epoch))
         self._hello(self.machine.hello_stage())
+        # after its Hello (it is accepted first): the deployments on record it never made answered
+        # late, its own decisions of the recalled stages said again
+        for j in mc.missed(state.next_stage, recorded, logged):
+            self.apply(mc.Missed(j, self._position()))
+        for effect in mc.accounts(self.machine, recalled):
+            self._execute(effect)
+
+    def _recall(self, entries) -> None:
+        """The stages its log resolved that the coordinator has not decided (it decided them on
+        board while the coordinator was away): kept as they were (:class:`mission.carrier.Recalled`,
+        its Own sent again), a deployment among them replayed in its world."""
+        for e in entries:
+            self._advance(self.scenario.stage_time(e.stage), paced=False)
+            self.apply(mc.Recalled(e.stage, e.status, e.deployed, self._position(), e.x))
+            if e.deployed:
+                self.sim.deploy(self.cid)
+            self.book.outcome(self.cid, e.stage, e.deployed)
 
     def _replay(self, stages) -> None:
         """The deployments on record at ``stages`` (ascending, at most the passengers on board:
@@ -88,6 +111,11 @@ class Joining:
             self.apply(mc.Resync(self._state_seen(state), self._position()))
         elif state.next_stage == j:
             self.apply(mc.Collecting(j, state.epoch))
+        else:
+            # the coordinator is behind this carrier: its Hello or its accounts of the stages
+            # since were lost; saying them again lets it go on (found by mission.simulate)
+            self.log(f"the coordinator is at stage {state.next_stage}, this carrier at {j}; resynchronising")
+            self.apply(mc.Resync(self._state_seen(state), self._position()))
 
     def _resync_gap(self, stage: int) -> None:
         """The Decision of ``stage`` came without an earlier one this carrier needs

@@ -177,6 +177,7 @@ class Carrier(Motion, Inbound, Joining, Alone):
         self.listening: tuple[str, ...] | None = None  # the carriers it hears (:meth:`_listen`)
         self.store: CarrierLog | None = None  # the durable log, open while running
         self._alone = False  # deciding stages itself (logged once per spell)
+        self._repeated_at = 0.0  # when it last repeated its observation to the peers it waits for (carriers/alone.py)
         self.ros2 = None  # its ROS 2 node (ros2/publisher.py) while running with config.ros2
         # What it times its waits by: its own settings until the coordinator's Accepted tells it
         # the mission's (docs/protocol.md, [P-10.2]; :func:`mission.carrier.follow`).
@@ -210,39 +211,43 @@ class Carrier(Motion, Inbound, Joining, Alone):
         """Step the carrier machine, then carry out its effects in order."""
         self.machine, effects = mc.step(self.machine, event)
         for effect in effects:
-            if isinstance(effect, mc.Deploy):
-                self.sim.deploy(self.cid)
-                released = self.releases.release(effect.stage)
-                if self.ros2 is not None:  # a robot's launcher gets the command
-                    self.ros2.release(effect.stage, released)
-            elif isinstance(effect, mc.SendConfirm):
-                self.node.put(keys.carrier_key(self.mission, self.cid, "confirm"), Confirm(
-                    self.mission, self.cid, effect.stage, effect.deployed, effect.status, effect.position,
-                    effect.passengers_left, self.releases.at(effect.stage) if effect.deployed else None))
-            elif isinstance(effect, mc.LogObservation):
-                if self.store is not None:
-                    self.store.observed(effect.stage, self.scenario.stage_time(effect.stage), effect.x, effect.position)
-                self.book.observation(self.cid, effect.stage, effect.x)
-            elif isinstance(effect, mc.LogOutcome):
-                if self.store is not None:
-                    self.store.outcome(effect.stage, self.scenario.stage_time(effect.stage), effect.status,
-                                       effect.deployed, effect.position, effect.passengers_left, time.time())
-                self.book.outcome(self.cid, effect.stage, effect.deployed)
-            elif isinstance(effect, mc.SendOwn):
-                self.node.put(keys.carrier_key(self.mission, self.cid, "own"), Own(
-                    self.mission, self.cid, effect.stage, float(self.scenario.stage_time(effect.stage)), effect.x,
-                    effect.deployed, effect.position, effect.passengers_left))
-            elif isinstance(effect, mc.SendHello):
-                self._hello(effect.next_stage)
-            elif isinstance(effect, mc.ResendObservation):
-                if self.pending is not None and self.pending.stage == effect.stage:
-                    self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.pending)
-            elif isinstance(effect, mc.AskState):
-                self._resync_gap(effect.stage)
-            elif isinstance(effect, mc.Reject):
-                self.node.reject(effect.reason, effect.detail, self.log)
-            elif isinstance(effect, mc.Log):
-                self.log(effect.line)
+            self._execute(effect)
+
+    def _execute(self, effect) -> None:
+        """Carry out one effect of the carrier machine."""
+        if isinstance(effect, mc.Deploy):
+            self.sim.deploy(self.cid)
+            released = self.releases.release(effect.stage)
+            if self.ros2 is not None:  # a robot's launcher gets the command
+                self.ros2.release(effect.stage, released)
+        elif isinstance(effect, mc.SendConfirm):
+            self.node.put(keys.carrier_key(self.mission, self.cid, "confirm"), Confirm(
+                self.mission, self.cid, effect.stage, effect.deployed, effect.status, effect.position,
+                effect.passengers_left, self.releases.at(effect.stage) if effect.deployed else None))
+        elif isinstance(effect, mc.LogObservation):
+            if self.store is not None:
+                self.store.observed(effect.stage, self.scenario.stage_time(effect.stage), effect.x, effect.position)
+            self.book.observation(self.cid, effect.stage, effect.x)
+        elif isinstance(effect, mc.LogOutcome):
+            if self.store is not None:
+                self.store.outcome(effect.stage, self.scenario.stage_time(effect.stage), effect.status,
+                                   effect.deployed, effect.position, effect.passengers_left, time.time())
+            self.book.outcome(self.cid, effect.stage, effect.deployed)
+        elif isinstance(effect, mc.SendOwn):
+            self.node.put(keys.carrier_key(self.mission, self.cid, "own"), Own(
+                self.mission, self.cid, effect.stage, float(self.scenario.stage_time(effect.stage)), effect.x,
+                effect.deployed, effect.position, effect.passengers_left))
+        elif isinstance(effect, mc.SendHello):
+            self._hello(effect.next_stage)
+        elif isinstance(effect, mc.ResendObservation):
+            if self.pending is not None and self.pending.stage == effect.stage:
+                self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.pending)
+        elif isinstance(effect, mc.AskState):
+            self._resync_gap(effect.stage)
+        elif isinstance(effect, mc.Reject):
+            self.node.reject(effect.reason, effect.detail, self.log)
+        elif isinstance(effect, mc.Log):
+            self.log(effect.line)
 
     def _hello(self, next_stage: int) -> None:
         self.answer.sent()

@@ -53,7 +53,8 @@ class Recalled:
     """At join: the carrier's own log holds how it resolved ``stage``, a stage the coordinator
     has not decided (State's next_stage is not past it): it decided it on board while the
     coordinator was away (``own``, with what it sensed, ``x``). The answer stands as it was
-    (it is never acted on again) and its account goes to the coordinator again."""
+    (it is never acted on again); after its Hello, its account goes to the coordinator again
+    (:func:`accounts`)."""
 
     stage: int
     status: str
@@ -551,8 +552,14 @@ def _on_recalled(state: CarrierState, e: Recalled):
         raise ValueError("no passenger left for a deployment in the log")
     position = (float(e.position[0]), float(e.position[1]))
     answer = Answer(bool(e.deployed), e.status, position, left, e.x)
-    new = dataclasses.replace(state, passengers_left=left, handled={**state.handled, e.stage: answer})
-    return new, ((SendOwn(e.stage, e.x, answer.deployed, position, left),) if answer.own else ())
+    return dataclasses.replace(state, passengers_left=left, handled={**state.handled, e.stage: answer}), ()
+
+
+def accounts(state: CarrierState, stages) -> tuple:
+    """The Own messages that say again how this carrier decided ``stages`` itself (those of them
+    it decided on board): after its Hello, a joining carrier's recalled stages ([P-8.5])."""
+    return tuple(SendOwn(j, a.x, a.deployed, a.position, a.passengers_left)
+                 for j in stages if (a := state.handled.get(j)) is not None and a.own)
 
 
 def _on_missed(state: CarrierState, e: Missed):

@@ -613,7 +613,6 @@ class CarrierDriver:
         if self.phase == "joining":
             self.present = True  # it answered
             self.join_from_state(seen, now)
-            self.apply_effect_hello(now)
             if self.sim.fleet.mode == "hybrid":
                 self.listen()
             self.begin_stage(self.machine.stage, now)
@@ -638,18 +637,22 @@ class CarrierDriver:
         path): the deployments replayed, the stages it resolved itself recalled, the deployments
         on record it never made answered ``late``."""
         entries = {e.stage: e for e in self.log.values() if e.status is not None}
-        logged = {j: e.deployed for j, e in entries.items()}
+        logged = {j: e.deployed for j, e in entries.items()} or None  # no outcome logged: the record decides
         start = mc.join_stage(seen.next_stage, logged)
         forget = self.sim.plant == "forget-on-restart" and self.life > 1
+        recalled = [j for j in sorted(entries) if j >= seen.next_stage]
         if not forget:
             for j in mc.replay_plan(self.machine, min(seen.next_stage, start), seen.deployments, logged):
                 self.apply(mc.Replayed(j, self.position()), now)
-            for j in sorted(j for j in entries if j >= seen.next_stage):
+            for j in recalled:
                 e = entries[j]
                 self.apply(mc.Recalled(j, e.status, e.deployed, self.position(), e.x), now)
+        self.apply(mc.Joined(start if not forget else seen.next_stage, seen.ended, seen.epoch), now)
+        self.apply_effect_hello(now)
         for j in mc.missed(seen.next_stage, seen.deployments, logged):
             self.apply(mc.Missed(j, self.position()), now)
-        self.apply(mc.Joined(start if not forget else seen.next_stage, seen.ended, seen.epoch), now)
+        for effect in mc.accounts(self.machine, recalled):
+            self.execute(effect, now)
 
     def apply_effect_hello(self, now: float) -> None:
         self.execute(mc.SendHello(self.machine.hello_stage(), self.machine.passengers_left), now)

@@ -461,7 +461,7 @@ def test_a_join_into_an_ended_mission():
     c, effects = mc.step(c, mc.Joined(2, ended=True))
     assert c.ended and effects == ()
     joining = (ROOT / "carriers" / "joining.py").read_text().split("def _join(")[1].split("def _replay")[0]
-    assert joining.index("mc.Joined(state.next_stage, state.ended") < joining.index("self._hello(")
+    assert joining.index("mc.Joined(start, state.ended") < joining.index("self._hello(")
 
 
 def test_hello_is_required():

@@ -131,7 +131,7 @@ def test_the_command_writes_the_report_and_a_replay_gives_the_same_trace(tmp_pat
 @pytest.mark.parametrize("args, says", [
     (["--seeds", "5:3"], "--seeds: expected A:B with 0 <= A < B"),
     (["--seeds", "x"], "--seeds: expected A:B"),
-    (["--faults", "crash,meteor"], "--faults: unknown kind(s) meteor"),
+    (["--faults", "crash,meteor"], "--faults: unknown kind(s)"),
     (["--schedule", "[{\"at\": 1}]"], "--schedule: expected a JSON list of faults"),
 ])
 def test_bad_flags_get_a_one_line_error(args, says):
