@@ -82,10 +82,10 @@ def test_a_short_campaign_with_every_fault_kind_finds_no_new_violation(fleet):
 #: decision and the store's one decision per stage leave no path for an older epoch's different
 #: Decision to reach a carrier (docs/fleet.md, "Deterministic simulation", "Power").
 POWER = {
-    "confirm-twice": ("duplicate", 40),
+    "confirm-twice": ("duplicate", 10),
     "forget-on-restart": ("crash", 60),
-    "slow-as-empty": ("slow", 40),
-    "bye-without-hello": ("stale", 20),
+    "slow-as-empty": ("slow", 15),
+    "bye-without-hello": ("stale", 5),
 }
 
 
