@@ -25,7 +25,12 @@ DEFAULT_PRIOR = {"kind": "poisson", "mean": 3.0}
 
 #: Top-level fields of an instance file.
 FIELDS = ("name", "comment", "carriers", "passengers", "stages", "prior", "normalize", "overlaps",
-          "valid", "observations", "passenger_values")
+          "valid", "observations", "passenger_values", "reward", "regions", "covers", "counts")
+
+#: The reward models an instance may name (``reward``); the first is the default.
+REWARDS = ("penalty", "coverage")
+#: Fields of the coverage reward only (``reward: coverage``).
+COVERAGE_FIELDS = ("regions", "covers", "counts")
 
 
 class Instance(NamedTuple):
@@ -122,16 +127,26 @@ def _passenger_values(data: dict, source: str, n_carriers: int, passengers) -> l
 
 
 def parse_instance(data: Any, source: str = "<instance>", seed: int = 0) -> tuple[Instance, bool]:
+    """Validate a decoded JSON instance; :func:`parse_instance_counts` without the region counts."""
+    instance, _, sampled = parse_instance_counts(data, source, seed)
+    return instance, sampled
+
+
+def parse_instance_counts(data: Any, source: str = "<instance>", seed: int = 0) -> tuple[Instance, np.ndarray | None, bool]:
     """Validate a decoded JSON instance.
 
     Args:
         data: the decoded JSON value.
         source: name used in error messages (the file name).
         seed: root seed; when the instance has no ``observations`` they are drawn from the prior
-            with ``SeedSequence(seed, spawn_key=OBSERVATION_SPAWN_KEY)`` at the valid stages.
+            with ``SeedSequence(seed, spawn_key=OBSERVATION_SPAWN_KEY)`` at the valid stages (a
+            coverage instance without ``counts`` draws its region counts from that stream).
 
     Returns:
-        (instance, sampled): ``sampled`` tells whether the observations were drawn.
+        (instance, counts, sampled): ``counts`` float ``[M]`` the realised region counts of a
+        ``reward: coverage`` instance (None for the penalty reward; the observations are then
+        their sums, :func:`planner.coverage.observations`); ``sampled`` tells whether the
+        observations (or counts) were drawn.
 
     Raises:
         InstanceError: the first problem found, as one line.
@@ -188,6 +203,11 @@ def parse_instance(data: Any, source: str = "<instance>", seed: int = 0) -> tupl
     if "valid" in data:
         valid = np.array(_matrix(data["valid"], source, "valid", shape, lambda v: isinstance(v, bool),
                                  "true or false"), dtype=bool)
+    if data.get("reward", REWARDS[0]) != REWARDS[0]:
+        return _parse_coverage(data, source, seed, passengers, weights, normalize, valid)
+    for key in COVERAGE_FIELDS:
+        if key in data:
+            raise InstanceError(source, key, 'only with "reward": "coverage"', "a penalty instance")
     observations = data.get("observations")
     if observations is not None:
         _matrix(observations, source, "observations", shape, lambda v: v is None or _num(v),
@@ -216,17 +236,109 @@ def parse_instance(data: Any, source: str = "<instance>", seed: int = 0) -> tupl
         valid = np.ones(shape, dtype=bool)
     problem = Problem.build(passengers, valid, overlaps, prior, normalize, weights)
     if observations is None:
-        rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=OBSERVATION_SPAWN_KEY))
-        return Instance(problem, sample_observations(problem, rng)), True
-    return Instance(problem, np.where(valid, x, np.nan)), False
+        return Instance(problem, sample_observations(problem, _observation_rng(seed))), None, True
+    return Instance(problem, np.where(valid, x, np.nan)), None, False
 
 
-def load_instance(path: str | Path, seed: int = 0) -> tuple[Instance, bool]:
-    """Read and validate an instance file; see :func:`parse_instance`.
+def _observation_rng(seed: int) -> np.random.Generator:
+    """The stream drawing what an instance file omits (observations, or a coverage instance's counts)."""
+    return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=OBSERVATION_SPAWN_KEY))
 
-    Raises:
-        InstanceError: unreadable file, invalid JSON, or any field problem (one line).
-    """
+
+# ----------------------------------------------------------------------------- the coverage reward
+
+def _parse_coverage(data: dict, source: str, seed: int, passengers, weights, normalize,
+                    valid: np.ndarray | None) -> tuple[Instance, np.ndarray, bool]:
+    """The rest of :func:`parse_instance_counts` for ``"reward": "coverage"`` (docs/planner.md,
+    "Coverage reward"): regions, covers and counts, checked structurally before any prior is built."""
+    from planner import coverage as cov
+
+    if data["reward"] not in REWARDS:
+        raise InstanceError(source, "reward", f"one of {', '.join(REWARDS)}", _show(data.get("reward")))
+    for key in ("observations", "overlaps"):
+        if key in data:
+            raise InstanceError(source, key, "absent in a coverage instance (derived from covers and counts)",
+                                "a value")
+    for key in ("regions", "covers"):
+        if key not in data:
+            raise InstanceError(source, key, "a required field of a coverage instance", "nothing (missing)")
+    n_carriers, n_stages = data["carriers"], data["stages"]
+    regions = data["regions"]
+    if not isinstance(regions, list) or not regions:
+        raise InstanceError(source, "regions", 'a non-empty list of regions like {"mean": 2.0}', _show(regions))
+    for m, region in enumerate(regions):
+        if not (isinstance(region, dict) and len(region) == 1 and ("mean" in region or "prior" in region)):
+            raise InstanceError(source, f"regions[{m}]", 'an object {"mean": MU} or {"prior": {...}}', _show(region))
+        if "mean" in region and not _positive(region["mean"]):
+            raise InstanceError(source, f"regions[{m}].mean", "a number > 0", _show(region["mean"]))
+    n_regions = len(regions)
+    covers = data["covers"]
+
+    def cell_ok(cell) -> bool:
+        return cell is None or (isinstance(cell, list) and all(_int(m) for m in cell))
+
+    _matrix(covers, source, "covers", (n_carriers, n_stages), cell_ok, "a list of region indices or null")
+    for r, row in enumerate(covers):
+        for j, cell in enumerate(row):
+            if valid is not None and valid[r][j] != (cell is not None):
+                raise InstanceError(source, f"covers[{r}][{j}]",
+                                    "null at a stage marked false in valid" if cell is not None
+                                    else "a list of region indices at a stage marked true in valid",
+                                    _show(cell))
+            for k, m in enumerate(cell or ()):
+                if not 0 <= m < n_regions:
+                    raise InstanceError(source, f"covers[{r}][{j}][{k}]", f"a region index in 0..{n_regions - 1}",
+                                        _show(m))
+    if valid is None:
+        valid = np.array([[cell is not None for cell in row] for row in covers], dtype=bool)
+    counts = data.get("counts")
+    if counts is not None:
+        if not isinstance(counts, list) or len(counts) != n_regions:
+            found = f"a list of {len(counts)}" if isinstance(counts, list) else _show(counts)
+            raise InstanceError(source, "counts", f"a list of {n_regions} counts >= 0 (one per region)", found)
+        for m, c in enumerate(counts):
+            if not (_num(c) and c >= 0):
+                raise InstanceError(source, f"counts[{m}]", "a count >= 0", _show(c))
+    # The priors last: building them loads scipy.stats.
+    region_priors = [_region_prior(region, source, f"regions[{m}]") for m, region in enumerate(regions)]
+    if counts is not None:
+        for m, (c, prior) in enumerate(zip(counts, region_priors)):
+            if not _in_support(prior, c):
+                lo, hi = prior.support()
+                raise InstanceError(source, f"counts[{m}]", f"a count region {m}'s prior can produce "
+                                    f"(support {lo:g}..{hi:g})", _show(c))
+    coverage = cov.Coverage.build(covers, region_priors)
+    if "prior" in data:
+        prior = make_prior(data["prior"], source)
+    else:  # a point's observation: the sum of its regions' counts; Poisson of the mean such sum
+        sums = np.diff(np.concatenate([[0.0], np.cumsum(coverage.means[coverage.idx])])[coverage.ptr])
+        point_mean = float(sums[valid.ravel()].mean()) if valid.any() else 0.0
+        prior = make_prior({"kind": "poisson", "mean": point_mean} if point_mean > 0 else DEFAULT_PRIOR, source)
+    try:
+        normalisation_scale(prior, normalize)
+    except ValueError as err:
+        raise InstanceError(source, "normalize", '"q90", "qNN", "none" or a number > 0 giving a positive scale',
+                            f"{_show(normalize)} ({err})") from None
+    problem = Problem.build(passengers, valid, coverage.overlaps(n_stages), prior, normalize, weights, coverage)
+    sampled = counts is None
+    realised = cov.sample_counts(coverage, _observation_rng(seed)) if sampled else np.array(counts, dtype=float)
+    return Instance(problem, cov.observations(coverage, realised, valid)), realised, sampled
+
+
+def _region_prior(region: dict, source: str, field: str):
+    """A region's count prior: Poisson(``mean``), or its ``prior`` object, which must be discrete on
+    counts >= 0 (a feature count is never negative nor continuous)."""
+    if "mean" in region:
+        return priors.build_prior({"kind": "poisson", "mean": region["mean"]})
+    prior = make_prior(region["prior"], source, f"{field}.prior")
+    if not priors.is_discrete(prior) or prior.support()[0] < 0:
+        raise InstanceError(source, f"{field}.prior", "a discrete prior on counts >= 0 (a region's feature count)",
+                            _show(region["prior"]))
+    return prior
+
+
+def _read(path: str | Path) -> Any:
+    """The decoded JSON of an instance file (constants such as NaN rejected)."""
     source = str(path)
     try:
         text = Path(path).read_text(encoding="utf-8")
@@ -240,7 +352,22 @@ def load_instance(path: str | Path, seed: int = 0) -> tuple[Instance, bool]:
         data = json.loads(text, parse_constant=reject_constant)
     except ValueError as err:
         raise InstanceError(source, "(file)", "valid JSON", str(err).splitlines()[0]) from None
-    return parse_instance(data, source, seed)
+    return data
+
+
+def load_instance(path: str | Path, seed: int = 0) -> tuple[Instance, bool]:
+    """Read and validate an instance file; see :func:`parse_instance`.
+
+    Raises:
+        InstanceError: unreadable file, invalid JSON, or any field problem (one line).
+    """
+    return parse_instance(_read(path), str(path), seed)
+
+
+def load_instance_counts(path: str | Path, seed: int = 0) -> tuple[Instance, np.ndarray | None, bool]:
+    """Read and validate an instance file, keeping a coverage instance's region counts; see
+    :func:`parse_instance_counts`."""
+    return parse_instance_counts(_read(path), str(path), seed)
 
 
 def instance_dict(instance: Instance, prior: dict | None = None, normalize: str | float = "q90") -> dict:

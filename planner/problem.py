@@ -86,6 +86,8 @@ class Problem:
             carrier r's passenger i (``i < D_r``; 0.0 pads the rows). Releasing passenger i at an
             observation x earns ``w_i * x / p``. None (no passenger values) is exactly the
             unweighted problem: every passenger weighs 1 and passengers are interchangeable.
+        coverage: a :class:`planner.coverage.Coverage` (the regions each point explores) for a
+            ``reward: coverage`` problem, None for the paper's penalty reward (:attr:`reward`).
     """
 
     passengers: np.ndarray
@@ -95,6 +97,7 @@ class Problem:
     scale: float
     conflict: np.ndarray = field(repr=False)
     weights: np.ndarray | None = field(default=None, repr=False)
+    coverage: Any = field(default=None, repr=False)
 
     @staticmethod
     def build(
@@ -104,6 +107,7 @@ class Problem:
         prior: Any = None,
         normalize: str | float = "q90",
         weights: Sequence[Sequence[float]] | None = None,
+        coverage: Any = None,
     ) -> "Problem":
         """Validate and assemble a problem.
 
@@ -115,6 +119,8 @@ class Problem:
             normalize: see :func:`normalisation_scale`.
             weights: None, or one list per carrier of its passengers' value weights (``D_r``
                 numbers > 0 each; ``passengers`` must then match the list lengths).
+            coverage: None (the penalty reward) or a :class:`planner.coverage.Coverage` of R * N
+                points (the coverage reward).
 
         Raises:
             ValueError: with a message naming what is wrong.
@@ -147,7 +153,14 @@ class Problem:
         # Instances are shared between planners and caches: make their arrays immutable.
         for arr in (d, valid, conflict, *groups) + (() if w is None else (w,)):
             arr.setflags(write=False)
-        return Problem(d, valid, tuple(groups), prior, scale, conflict, w)
+        if coverage is not None and len(coverage.ptr) != valid.size + 1:
+            raise ValueError(f"coverage must list the regions of {valid.size} points, got {len(coverage.ptr) - 1}")
+        return Problem(d, valid, tuple(groups), prior, scale, conflict, w, coverage)
+
+    @property
+    def reward(self) -> str:
+        """``"penalty"`` (the paper's 1/p rule) or ``"coverage"`` (:mod:`planner.coverage`)."""
+        return "penalty" if self.coverage is None else "coverage"
 
     @property
     def n_carriers(self) -> int:

@@ -1,0 +1,183 @@
+"""The coverage reward (issue 35): deployments valued by the features they cover together.
+
+The paper charges overlapping deployments a 1/p penalty; under ``reward: coverage`` a passenger
+released by carrier r at stage j explores a fixed set of *regions* (the cells of the arrangement
+of the candidate discs), and a set of deployments is worth the features in the union of the
+regions it explores, each region counted once.
+
+Pure numpy (scipy only through the region priors given to it); imports nothing of the package,
+so :mod:`planner.problem` can hold a :class:`Coverage` without a cycle.
+
+Rules:
+
+* **Value.** ``value = sum over regions m of counts[m] * best[m]`` where ``best[m]`` is the
+  largest weight among the deployed passengers whose disc covers m (0 when none does). Without
+  passenger values every weight is 1 and this is the sum of the counts over the union of the
+  covered regions. With passenger values (types) a region explored by several passengers is worth
+  the best of them once: exploring it again with a lighter passenger adds nothing, with a heavier
+  one adds the difference.
+* **Marginal gain** of one more deployment with weight w at flat point a:
+  ``sum over m in covers(a) of counts[m] * max(0, w - best[m])``; it reads only the regions the
+  point touches (the CSR lists :attr:`Coverage.ptr` / :attr:`Coverage.idx`), so adding a
+  deployment costs time proportional to its regions, not to all regions.
+* **Observations.** A carrier's observation at a valid stage is the sum of the counts of the
+  regions its disc covers (:func:`observations`), so ``x[r, j]`` keeps its meaning for every
+  planner that reads observations.
+* **Prior.** Counts of distinct regions are independent, region m's from its own prior
+  (Poisson(mean) from the instance's ``{"mean": mu}``): :func:`sample_counts`.
+  :func:`sample_counts_given` draws counts consistent with the observations seen so far (the
+  planners' futures; see its docstring for the approximation).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+
+
+@dataclass(frozen=True, eq=False)
+class Coverage:
+    """The regions and which decision points explore them (everything known in advance).
+
+    Attributes:
+        priors: one frozen scipy.stats distribution per region (M of them), the prior of its
+            feature count.
+        means: float ``[M]``: each region's prior mean count.
+        ptr: int64 ``[R*N + 1]`` and idx: int64 ``[ptr[-1]]``: CSR lists; the regions explored
+            by a passenger released at flat point ``a = r * N + j`` are ``idx[ptr[a]:ptr[a+1]]``
+            (empty at an invalid stage). Each list is sorted and duplicate-free.
+        poisson: whether every region prior is Poisson (the conditional draw is then exact per
+            observation: see :func:`sample_counts_given`).
+    """
+
+    priors: tuple[Any, ...]
+    means: np.ndarray
+    ptr: np.ndarray
+    idx: np.ndarray
+    poisson: bool
+
+    @staticmethod
+    def build(covers: Sequence[Sequence[Sequence[int] | None]], priors: Sequence[Any]) -> "Coverage":
+        """From ``covers[r][j]`` (region indices, or None at an invalid stage) and the region priors.
+
+        Raises:
+            ValueError: a region index outside ``0..M-1``.
+        """
+        n_regions = len(priors)
+        lists = [sorted(set(int(m) for m in (cell or ()))) for row in covers for cell in row]
+        for a, regions in enumerate(lists):
+            if regions and not (0 <= regions[0] and regions[-1] < n_regions):
+                raise ValueError(f"point {a}: region indices must lie in 0..{n_regions - 1}, got {regions}")
+        ptr = np.zeros(len(lists) + 1, dtype=np.int64)
+        ptr[1:] = np.cumsum([len(regions) for regions in lists])
+        idx = np.array([m for regions in lists for m in regions], dtype=np.int64)
+        means = np.array([float(p.mean()) for p in priors])
+        poisson = all(getattr(p.dist, "name", "") == "poisson" for p in priors)
+        for arr in (ptr, idx, means):
+            arr.setflags(write=False)
+        return Coverage(tuple(priors), means, ptr, idx, poisson)
+
+    @property
+    def n_regions(self) -> int:
+        return len(self.priors)
+
+    def regions(self, point: int) -> np.ndarray:
+        """int64: the regions explored from flat point ``point``."""
+        return self.idx[self.ptr[point]:self.ptr[point + 1]]
+
+    def overlaps(self, n_stages: int) -> list[list[list[int]]]:
+        """The penalty model's view of the same geometry: one overlap group of ``[carrier, stage]``
+        pairs per region explored from two or more points (what a planner that plans with the 1/p
+        penalty treats as conflicting)."""
+        points = np.repeat(np.arange(len(self.ptr) - 1), np.diff(self.ptr))
+        order = np.argsort(self.idx, kind="stable")
+        groups = []
+        for region_points in np.split(points[order], np.cumsum(np.bincount(self.idx, minlength=self.n_regions))[:-1]):
+            if len(region_points) >= 2:
+                groups.append([[int(a) // n_stages, int(a) % n_stages] for a in region_points])
+        return groups
+
+
+def best_weights(coverage: Coverage, deployed: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """float ``[M]``: each region's largest weight among the deployed passengers covering it (0
+    when none does). ``deployed``: bool ``[R, N]``; ``weights``: float ``[R, N]`` weight of the
+    passenger released at each point (:func:`planner.problem.point_weights`), None = all 1."""
+    best = np.zeros(coverage.n_regions)
+    flat = np.asarray(deployed, dtype=bool).reshape(-1)
+    w = None if weights is None else np.asarray(weights, dtype=float).reshape(-1)
+    for a in np.flatnonzero(flat):
+        regions = coverage.regions(a)
+        best[regions] = np.maximum(best[regions], 1.0 if w is None else w[a])
+    return best
+
+
+def value(coverage: Coverage, deployed: np.ndarray, counts: np.ndarray, weights: np.ndarray | None = None) -> float:
+    """The coverage value of a set of deployments: ``sum counts[m] * best[m]`` (module docstring).
+
+    Args:
+        deployed: bool ``[R, N]``.
+        counts: float ``[M]``: the feature count of every region.
+        weights: float ``[R, N]`` passenger weight per point, or None (every passenger weighs 1).
+    """
+    return float(np.dot(np.asarray(counts, dtype=float), best_weights(coverage, deployed, weights)))
+
+
+def marginal_gain(coverage: Coverage, best: np.ndarray, point: int, counts: np.ndarray, weight: float = 1.0) -> float:
+    """The value added by one more deployment of weight ``weight`` at flat point ``point`` on top
+    of the regions' current ``best`` weights (:func:`best_weights`); reads only its regions."""
+    regions = coverage.regions(point)
+    return float(np.dot(counts[regions], np.maximum(weight - best[regions], 0.0)))
+
+
+def add(coverage: Coverage, best: np.ndarray, point: int, weight: float = 1.0) -> None:
+    """Record a deployment of weight ``weight`` at flat point ``point`` in ``best`` (in place)."""
+    regions = coverage.regions(point)
+    best[regions] = np.maximum(best[regions], weight)
+
+
+def observations(coverage: Coverage, counts: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """float ``[R, N]``: each valid point's observation, the sum of its regions' counts; NaN elsewhere."""
+    counts = np.asarray(counts, dtype=float)
+    sums = np.add.reduceat(np.append(counts[coverage.idx], 0.0), coverage.ptr[:-1]) if len(coverage.idx) else None
+    x = np.zeros(valid.size) if sums is None else np.where(np.diff(coverage.ptr) > 0, sums, 0.0)
+    return np.where(valid, x.reshape(valid.shape), np.nan)
+
+
+def sample_counts(coverage: Coverage, rng: np.random.Generator) -> np.ndarray:
+    """float ``[M]``: independent draws of every region's count from its prior."""
+    if coverage.poisson:
+        return rng.poisson(coverage.means).astype(float)
+    return np.array([float(p.rvs(random_state=rng)) for p in coverage.priors])
+
+
+def sample_counts_given(coverage: Coverage, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """float ``[M]``: region counts drawn consistently with the observations seen so far.
+
+    ``x``: float ``[R, N]``, NaN where nothing was observed (∅ or future). Observed points are
+    visited in stage order (carriers in index order at a stage); the regions of a point not fixed
+    by an earlier one share what its observation leaves, ``x - (fixed counts)`` (0 when negative),
+    multinomially in proportion to their prior means: for Poisson regions this is exactly their
+    distribution given that sum. Overlaps between observed points make the whole a sequential
+    approximation of the posterior (an earlier point's split is not revised by a later point);
+    a point whose regions are all fixed adds nothing. Regions no observation reaches are drawn
+    from their priors. With non-Poisson region priors only the prior draw is used.
+    """
+    counts = sample_counts(coverage, rng)
+    if not coverage.poisson:
+        return counts
+    fixed = np.zeros(coverage.n_regions, dtype=bool)
+    n_stages = x.shape[1]
+    seen = ~np.isnan(x)
+    for j in range(n_stages):
+        for r in np.flatnonzero(seen[:, j]):
+            regions = coverage.regions(r * n_stages + j)
+            free = regions[~fixed[regions]]
+            if len(free) == 0:
+                continue
+            left = max(0, int(round(x[r, j] - counts[regions[fixed[regions]]].sum())))
+            share = coverage.means[free]
+            total = share.sum()
+            counts[free] = rng.multinomial(left, share / total) if total > 0 else 0.0
+            fixed[free] = True
+    return counts

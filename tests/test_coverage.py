@@ -1,0 +1,62 @@
+"""The coverage reward (issue 35): instance format, values and bad input."""
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from planner import coverage as cov
+from planner.instance import InstanceError, load_instance, load_instance_counts, parse_instance
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "coverage_tiny.json"
+
+
+def test_example_observations_are_sums_of_counts_and_value_counts_each_region_once():
+    (problem, x), counts, sampled = load_instance_counts(EXAMPLE)
+    assert problem.reward == "coverage" and not sampled
+    assert x[0].tolist()[:3] == [3.0, 5.0, 1.0] and np.isnan(x[0, 3])  # [0], [1, 2], [3]
+    deployed = np.zeros((3, 4), dtype=bool)
+    deployed[0, 1] = deployed[1, 2] = True  # regions {1, 2} and {2, 6}: region 2 counted once
+    assert cov.value(problem.coverage, deployed, counts) == 0 + 5 + 0
+    best = cov.best_weights(problem.coverage, deployed)
+    assert cov.marginal_gain(problem.coverage, best, 2 * 4 + 1, counts) == 3 + 2  # regions 0, 7
+    assert cov.marginal_gain(problem.coverage, best, 1 * 4 + 2, counts) == 0
+
+
+def test_penalty_is_the_default_and_coverage_fields_need_the_coverage_reward():
+    (problem, _), _ = load_instance(Path(__file__).parent / "golden" / "instances" / "paper-0.json")
+    assert problem.reward == "penalty" and problem.coverage is None
+    with pytest.raises(InstanceError, match="regions: expected only with"):
+        parse_instance({"carriers": 1, "passengers": 1, "stages": 1, "regions": [{"mean": 1}]}, "i.json")
+
+
+def _bad(change):
+    data = json.loads(EXAMPLE.read_text())
+    change(data)
+    with pytest.raises(InstanceError) as err:
+        parse_instance(data, "i.json")
+    return str(err.value)
+
+
+@pytest.mark.parametrize("change, line", [
+    (lambda d: d["covers"][0].__setitem__(0, [8]), "i.json: covers[0][0][0]: expected a region index in 0..7, found 8"),
+    (lambda d: d.__setitem__("valid", [[c is not None for c in row] for row in d["covers"]])
+     or d["valid"][0].__setitem__(0, False), "i.json: covers[0][0]: expected null at a stage marked false in valid"),
+    (lambda d: d["counts"].pop(), "i.json: counts: expected a list of 8 counts >= 0 (one per region), found a list of 7"),
+    (lambda d: d["counts"].__setitem__(1, -1), "i.json: counts[1]: expected a count >= 0, found -1"),
+    (lambda d: d["counts"].__setitem__(7, 5), "i.json: counts[7]: expected a count region 7's prior can produce"),
+    (lambda d: d["regions"].__setitem__(0, {"prior": {"kind": "normal", "mean": 1, "std": 1}}),
+     "i.json: regions[0].prior: expected a discrete prior on counts >= 0"),
+    (lambda d: d.__setitem__("reward", "cover"), "i.json: reward: expected one of penalty, coverage"),
+], ids=["region-index", "invalid-stage", "counts-length", "negative-count", "count-support", "region-prior", "reward"])
+def test_bad_coverage_input_is_one_line_naming_the_field(change, line):
+    message = _bad(change)
+    assert message.startswith(line) and "\n" not in message
+
+
+def test_sampled_counts_are_seeded():
+    data = json.loads(EXAMPLE.read_text())
+    del data["counts"]
+    a = parse_instance(data, "i.json", seed=3)[0].observations
+    b = parse_instance(data, "i.json", seed=3)[0].observations
+    assert np.array_equal(a, b, equal_nan=True)
