@@ -8,7 +8,6 @@ from __future__ import annotations
 import time
 
 from mission import carrier as mc
-from wire import keys
 
 #: How often a carrier deciding alone looks for the peers' observations it waits for (s).
 PEER_POLL_S = 0.02
@@ -56,7 +55,7 @@ class Alone:
         theirs while one of them was lost (found by mission.simulate: two carriers heard from
         forever, each waiting for the other's lost observation)."""
         now = time.monotonic()
-        if (self.timers.clock == "sim" and self.pending is not None and self.pending.stage == j
+        if (self.timers.clock == "sim"
                 and now - self._repeated_at >= self.timers.silence_timeout_s / 3):
             self._repeated_at = now
-            self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.pending)
+            self._execute(mc.ResendObservation(j))

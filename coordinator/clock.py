@@ -11,7 +11,7 @@ from __future__ import annotations
 import time
 
 from mission import events as ev
-from mission.peers import last_heard
+from mission.timers import silent
 from mission.timeouts import DEFAULTS
 from wire import keys
 from wire.messages import REVISION, End
@@ -106,10 +106,9 @@ class StageClock:
 
     def _silent(self, waiting, opened: float) -> bool:
         """Sim clock: nothing came from any of ``waiting`` for ``silence_timeout_s``, counted from
-        ``opened`` at the earliest (:func:`mission.peers.last_heard` is never before it, so the
+        ``opened`` at the earliest (:func:`mission.timers.silent`: the last time heard is never before it, so the
         O(|waiting|) look is skipped until that much time has passed since the wait opened)."""
-        silence, now = self.config.silence_timeout_s, time.monotonic()
-        return now - opened >= silence and now - last_heard(self.heard, waiting, opened) >= silence
+        return silent(self.heard, waiting, opened, time.monotonic(), self.config.silence_timeout_s)
 
     def _wait_for_carriers(self) -> None:
         """Before the first stage: wait until every carrier is live with an accepted Hello (or the

@@ -135,7 +135,12 @@ class Fleet:
 
     def offline(self) -> dict:
         """The offline planner's decisions (stage -> deploying ids) with every observation known:
-        what a fault-free mission must decide."""
+        what a fault-free mission must decide (computed once per fleet)."""
+        if ("offline",) not in self.decisions:
+            self.decisions[("offline",)] = self._offline()
+        return self.decisions[("offline",)]
+
+    def _offline(self) -> dict:
         state = ms.initial(self.spec())
         for cid in self.ids:
             state = ms.step(state, ev.LivelinessChanged(cid, True))[0]
@@ -574,7 +579,7 @@ class CarrierDriver:
             self._token(g("who"), g("alive"), now)
         elif m.kind == "state":
             self._state(m, now)
-        elif m.kind == "decision" and self.machine.flying or m.kind == "decision" and self.phase == "joining":
+        elif m.kind == "decision" and (self.machine.flying or self.phase == "joining"):
             self.apply(mc.DecisionHeard(g("stage"), g("t"), tuple(g("deploy")), self.position(), g("epoch")), now)
         elif m.kind == "end":
             self.apply(mc.EndHeard(g("epoch")), now)
@@ -708,12 +713,11 @@ class CarrierDriver:
             self.publish_observation(j)
             self.phase, self.waited, self.waited_from = "wait", 0.0, now
             return None
+        if self.phase in ("wait", "alone") and m.resolved(self.j):
+            self.move_on(self.j, now)
+            return None
         if self.phase == "wait":
             j = self.j
-            if m.resolved(j):
-                self.apply(mc.MovedOn(j), now)
-                self.begin_stage(j + 1, now)
-                return None
             if self.present:
                 self.waited += now - self.waited_from
             self.waited_from = now
@@ -739,10 +743,6 @@ class CarrierDriver:
             return wake
         if self.phase == "alone":
             j = self.j
-            if m.resolved(j):
-                self.apply(mc.MovedOn(j), now)
-                self.begin_stage(j + 1, now)
-                return None
             waiting = self.book.waiting(j, sorted(self.peers - {self.cid}))
             rule = tm.stage_wait("sim", waiting, frozenset(), self.heard, self.opened, now, t.peer_s, t.silence_s)
             if isinstance(rule, tm.Wait):
@@ -779,6 +779,10 @@ class CarrierDriver:
         self.book.observation(self.cid, j, self.machine.sensed)
         deploy = fleet.decide_local(self.book.local_view(fleet.problem, self.cid, j, fleet.seed))
         self.apply(mc.DecidedOwn(j, bool(deploy), self.position()), now)
+        self.move_on(j, now)
+
+    def move_on(self, j: int, now: float) -> None:
+        """Stage j is resolved: leave it and drive to the next."""
         self.apply(mc.MovedOn(j), now)
         self.begin_stage(j + 1, now)
 

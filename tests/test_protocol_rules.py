@@ -814,8 +814,15 @@ def test_silence_is_measured_from_the_stage_opening_and_the_last_message():
 
     assert last_heard({"a": 5.0}, {"a"}, 10.0) == 10.0
     assert last_heard({"a": 15.0}, {"a"}, 10.0) == 15.0
+    from mission.timers import silent
+
+    assert not silent({"a": 15.0}, {"a"}, 10.0, 44.0, 30.0) and silent({"a": 15.0}, {"a"}, 10.0, 45.0, 30.0)
+    assert not silent({}, {"a"}, 10.0, 39.0, 30.0) and silent({}, {"a"}, 10.0, 40.0, 30.0)
+    # the rule's one home, and the coordinator's stage clock reading it
+    timers = (ROOT / "mission" / "timers.py").read_text()
+    assert "now - opened >= silence_s and now - last_heard(heard, among, opened) >= silence_s" in timers
     clock = (ROOT / "coordinator" / "clock.py").read_text()
-    assert "now - opened >= silence and now - last_heard(self.heard, waiting, opened) >= silence" in clock
+    assert "silent(self.heard, waiting, opened, time.monotonic(), self.config.silence_timeout_s)" in clock
 
 
 def test_the_clocks():
