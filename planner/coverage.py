@@ -24,9 +24,10 @@ Rules:
   regions its disc covers (:func:`observations`), so ``x[r, j]`` keeps its meaning for every
   planner that reads observations.
 * **Prior.** Counts of distinct regions are independent, region m's from its own prior
-  (Poisson(mean) from the instance's ``{"mean": mu}``): :func:`sample_counts`.
-  :func:`sample_counts_given` draws counts consistent with the observations seen so far (the
-  planners' futures; see its docstring for the approximation).
+  (Poisson(mean) from the instance's ``{"mean": mu}``): :func:`sample_counts`. An observation
+  reveals the counts of the regions its disc covers (:func:`revealed`); a planner's future keeps
+  those and draws the rest from their priors (:func:`sample_counts_given`), which is exact since
+  distinct regions are independent.
 """
 from __future__ import annotations
 
@@ -47,8 +48,7 @@ class Coverage:
         ptr: int64 ``[R*N + 1]`` and idx: int64 ``[ptr[-1]]``: CSR lists; the regions explored
             by a passenger released at flat point ``a = r * N + j`` are ``idx[ptr[a]:ptr[a+1]]``
             (empty at an invalid stage). Each list is sorted and duplicate-free.
-        poisson: whether every region prior is Poisson (the conditional draw is then exact per
-            observation: see :func:`sample_counts_given`).
+        poisson: whether every region prior is Poisson (drawn in one vectorised call).
     """
 
     priors: tuple[Any, ...]
@@ -151,33 +151,31 @@ def sample_counts(coverage: Coverage, rng: np.random.Generator) -> np.ndarray:
     return np.array([float(p.rvs(random_state=rng)) for p in coverage.priors])
 
 
-def sample_counts_given(coverage: Coverage, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """float ``[M]``: region counts drawn consistently with the observations seen so far.
+def revealed(coverage: Coverage, x: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """float ``[M]``: the counts an observer knows, NaN for the others.
 
-    ``x``: float ``[R, N]``, NaN where nothing was observed (∅ or future). Observed points are
-    visited in stage order (carriers in index order at a stage); the regions of a point not fixed
-    by an earlier one share what its observation leaves, ``x - (fixed counts)`` (0 when negative),
-    multinomially in proportion to their prior means: for Poisson regions this is exactly their
-    distribution given that sum. Overlaps between observed points make the whole a sequential
-    approximation of the posterior (an earlier point's split is not revised by a later point);
-    a point whose regions are all fixed adds nothing. Regions no observation reaches are drawn
-    from their priors. With non-Poisson region priors only the prior draw is used.
+    An observation at point a reveals the count of every region a's disc covers (issue 35: a
+    carrier observes region counts; ``x[r, j]`` is their sum). ``x``: float ``[R, N]``, NaN where
+    nothing was observed (∅, or a stage not reached yet); ``counts``: float ``[M]`` the realised
+    counts (only the revealed entries are read).
     """
+    seen = np.flatnonzero(~np.isnan(np.asarray(x, dtype=float)).reshape(-1))
+    mask = np.zeros(coverage.n_regions, dtype=bool)
+    if len(seen):
+        starts, stops = coverage.ptr[seen], coverage.ptr[seen + 1]
+        lengths = stops - starts
+        if lengths.sum():
+            offsets = np.repeat(starts - np.cumsum(lengths) + lengths, lengths) + np.arange(lengths.sum())
+            mask[coverage.idx[offsets]] = True
+    return np.where(mask, np.asarray(counts, dtype=float), np.nan)
+
+
+def sample_counts_given(coverage: Coverage, known: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """float ``[M]``: a future consistent with what is known: the revealed counts as they are
+    (``known``, NaN where unrevealed: :func:`revealed`), the others drawn from their priors.
+    Exact: the counts of distinct regions are independent, so what was revealed says nothing of
+    the rest. The prior draw is made for every region (then overwritten), so the stream consumed
+    does not depend on what was revealed."""
     counts = sample_counts(coverage, rng)
-    if not coverage.poisson:
-        return counts
-    fixed = np.zeros(coverage.n_regions, dtype=bool)
-    n_stages = x.shape[1]
-    seen = ~np.isnan(x)
-    for j in range(n_stages):
-        for r in np.flatnonzero(seen[:, j]):
-            regions = coverage.regions(r * n_stages + j)
-            free = regions[~fixed[regions]]
-            if len(free) == 0:
-                continue
-            left = max(0, int(round(x[r, j] - counts[regions[fixed[regions]]].sum())))
-            share = coverage.means[free]
-            total = share.sum()
-            counts[free] = rng.multinomial(left, share / total) if total > 0 else 0.0
-            fixed[free] = True
-    return counts
+    known = np.asarray(known, dtype=float)
+    return np.where(np.isnan(known), counts, known)

@@ -179,7 +179,8 @@ def _forced_truth(problem: Problem, x: np.ndarray, deployed: np.ndarray, j: int)
     return can, can & (n <= d)
 
 
-def run_comms(problem: Problem, x: np.ndarray, planner, seed: int, comms: CommsSpec | None = None) -> OnlineResult:
+def run_comms(problem: Problem, x: np.ndarray, planner, seed: int, comms: CommsSpec | None = None,
+              counts: np.ndarray | None = None) -> OnlineResult:
     """Run ``planner`` stage by stage with the messages of ``comms`` realised from ``seed``.
 
     Stage j's planning stream is :func:`planner.problem.stage_rng` ``(seed, j)`` (each carrier of a
@@ -187,7 +188,8 @@ def run_comms(problem: Problem, x: np.ndarray, planner, seed: int, comms: CommsS
     planner gives exactly :func:`planner.online.run_online`'s result.
 
     ``decision_ms``: per stage, the coordinator's decision time (centralised) or the slowest
-    carrier's (decentralised: they plan in parallel).
+    carrier's (decentralised: they plan in parallel). ``counts``: the realised region counts of
+    a coverage problem (:func:`planner.online.run_online`).
     """
     comms = CommsSpec() if comms is None else comms
     comms.check(problem.n_carriers)
@@ -197,7 +199,7 @@ def run_comms(problem: Problem, x: np.ndarray, planner, seed: int, comms: CommsS
         deployed, times = _run_decentralised(problem, x, planner, seed, deliveries, released)
     else:
         deployed, times = _run_centralised(problem, x, planner, seed, deliveries, released)
-    reward, features = evaluate(problem, deployed, x, released)
+    reward, features = evaluate(problem, deployed, x, released, counts=counts)
     return OnlineResult(deployed, reward, features, tuple(times), released)
 
 

@@ -38,7 +38,7 @@ class StageStep:
 
 
 def stage_step(problem: Problem, x: np.ndarray, deployed: np.ndarray, planner: Planner, seed: int,
-               stage: int, released: np.ndarray | None = None) -> StageStep:
+               stage: int, released: np.ndarray | None = None, counts: np.ndarray | None = None) -> StageStep:
     """Decide stage ``stage`` of a mission with root seed ``seed``.
 
     Args:
@@ -51,12 +51,14 @@ def stage_step(problem: Problem, x: np.ndarray, deployed: np.ndarray, planner: P
         stage: the stage j being decided.
         released: int64 ``[R, N]`` or None: the passenger each past deployment released (read
             only for a problem with passenger values; None means index order).
+        counts: float ``[M]``: the realised region counts of a coverage problem (required there;
+            the view keeps only those the observations up to ``stage`` reveal), else None.
 
     Raises:
-        ValueError: ``stage`` outside the problem's stages.
+        ValueError: ``stage`` outside the problem's stages, or a coverage problem without counts.
         AssertionError: the planner broke a feasibility rule (see ``enforce``).
     """
-    view = make_view(problem, stage, x, deployed, released)
+    view = make_view(problem, stage, x, deployed, released, counts)
     t0 = time.perf_counter()
     decision = planner.decide(view, stage_rng(seed, stage))
     decision_ms = (time.perf_counter() - t0) * 1e3
@@ -64,7 +66,8 @@ def stage_step(problem: Problem, x: np.ndarray, deployed: np.ndarray, planner: P
     return StageStep(deploy, release(planner, view, deploy), decision_ms)
 
 
-def run_online(problem: Problem, x: np.ndarray, planner: Planner, seed: int) -> OnlineResult:
+def run_online(problem: Problem, x: np.ndarray, planner: Planner, seed: int,
+               counts: np.ndarray | None = None) -> OnlineResult:
     """Run ``planner`` stage by stage over realised observations ``x`` (NaN = ∅).
 
     Stage j is :func:`stage_step` (random stream ``stage_rng(seed, j)``). A NaN at a scheduled
@@ -72,21 +75,22 @@ def run_online(problem: Problem, x: np.ndarray, planner: Planner, seed: int) -> 
     ``warm_up(problem)`` method (e.g. to compile numba code) it is called once before the first
     timed decision, so ``decision_ms`` never includes compilation. A decentralised planner
     (``decentralised = True``, ``decide_local``) runs under perfect communication
-    (:func:`planner.decentralised.run_comms`).
+    (:func:`planner.decentralised.run_comms`). ``counts``: the realised region counts of a
+    coverage problem (``x`` is then their sums, :func:`planner.coverage.observations`).
     """
     if callable(getattr(planner, "decide_local", None)) and getattr(planner, "decentralised", False):
         # Imported here: the decentralised module loads numba kernels that a centralised run never needs.
         from planner.decentralised import run_comms  # every carrier decides; links are perfect here
 
-        return run_comms(problem, x, planner, seed)
+        return run_comms(problem, x, planner, seed, counts=counts)
     x, released = start_online(problem, x, planner)
     deployed = np.zeros(problem.valid.shape, dtype=bool)
     times = []
     for j in range(problem.n_stages):
-        step = stage_step(problem, x, deployed, planner, seed, j, released)
+        step = stage_step(problem, x, deployed, planner, seed, j, released, counts)
         times.append(step.decision_ms)
         deployed[:, j] = step.deploy
         if released is not None:
             released[:, j] = step.passengers
-    reward, features = evaluate(problem, deployed, x, released)
+    reward, features = evaluate(problem, deployed, x, released, counts=counts)
     return OnlineResult(deployed, reward, features, tuple(times), released)

@@ -247,14 +247,27 @@ def rewards(problem: Problem, deployed: np.ndarray, x: np.ndarray, p: np.ndarray
 
 
 def evaluate(problem: Problem, deployed: np.ndarray, x: np.ndarray,
-             released: np.ndarray | None = None, p: np.ndarray | None = None) -> tuple[float, float]:
-    """Total (normalised reward, raw features) of a full set of deployments under the penalty rule.
+             released: np.ndarray | None = None, p: np.ndarray | None = None,
+             counts: np.ndarray | None = None) -> tuple[float, float]:
+    """Total (normalised reward, raw features) of a full set of deployments.
 
-    With passenger values (``problem.weights``) a deployment earns ``w * x / p`` for the weight w
-    of the passenger ``released[r, j]`` (index order, :func:`in_order`, when ``released`` is None;
-    an unknown -1 is filled by :func:`fill_releases`); without, ``released`` is ignored and this
-    is ``sum x / p``. ``p``: as in :func:`rewards`.
+    Penalty reward: with passenger values (``problem.weights``) a deployment earns ``w * x / p``
+    for the weight w of the passenger ``released[r, j]`` (index order, :func:`in_order`, when
+    ``released`` is None; an unknown -1 is filled by :func:`fill_releases`); without, ``released``
+    is ignored and this is ``sum x / p``. ``p``: as in :func:`rewards`.
+
+    Coverage reward: :func:`planner.coverage.value` of the deployments over the realised region
+    ``counts`` (required), each region worth the weight of the best passenger exploring it.
     """
+    if problem.coverage is not None:
+        from planner import coverage as cov
+
+        deployed = np.asarray(deployed, dtype=bool)
+        weights = None
+        if problem.weights is not None:
+            weights = point_weights(problem, fill_releases(problem.passengers, deployed, released))
+        raw = cov.value(problem.coverage, deployed, _region_counts(problem, counts), weights)
+        return raw / problem.scale, raw
     if problem.weights is not None:
         deployed = np.asarray(deployed, dtype=bool)
         released = fill_releases(problem.passengers, deployed, released)
@@ -287,6 +300,9 @@ class StageView:
         released: int64 ``[R, N]`` or None: the passenger released at each past deployment (-1
             elsewhere); None means index order (:func:`in_order` of ``deployed``), which is all a
             problem without passenger values needs.
+        counts: float ``[M]`` or None: under the coverage reward, the region counts revealed by
+            the observations so far (:func:`planner.coverage.revealed`), NaN for the others;
+            None for the penalty reward.
     """
 
     problem: Problem
@@ -295,6 +311,7 @@ class StageView:
     valid: np.ndarray
     deployed: np.ndarray
     released: np.ndarray | None = None
+    counts: np.ndarray | None = None
 
     @property
     def passengers_left(self) -> np.ndarray:
@@ -341,13 +358,18 @@ class StageView:
 
 def make_view(
     problem: Problem, stage: int, x: np.ndarray, deployed: np.ndarray,
-    released: np.ndarray | None = None,
+    released: np.ndarray | None = None, counts: np.ndarray | None = None,
 ) -> StageView:
     """The causal view of stage ``stage`` given the realised observations ``x`` (NaN = ∅).
 
     Only ``x[:, :stage + 1]`` is read; later columns are masked, so a planner cannot peek.
     ``released`` (passengers released at past deployments) is kept only for a problem with
-    passenger values; None means index order.
+    passenger values; None means index order. ``counts`` (float ``[M]``, the realised region
+    counts) is required under the coverage reward, and only the counts the observations up to
+    ``stage`` reveal are kept.
+
+    Raises:
+        ValueError: ``stage`` outside the problem, or a coverage problem without ``counts``.
     """
     if not 0 <= stage < problem.n_stages:
         raise ValueError(f"stage {stage} outside 0..{problem.n_stages - 1}")
@@ -357,11 +379,26 @@ def make_view(
     valid[:, : stage + 1] &= ~np.isnan(seen[:, : stage + 1])
     past = np.zeros(problem.valid.shape, dtype=bool)
     past[:, :stage] = np.asarray(deployed, dtype=bool)[:, :stage]
+    known = None
+    if problem.coverage is not None:
+        from planner import coverage as cov
+
+        known = cov.revealed(problem.coverage, seen, _region_counts(problem, counts))
+    rel = None
     if released is not None and problem.weights is not None:
         rel = np.full(problem.valid.shape, -1, dtype=np.int64)
         rel[:, :stage] = np.where(past[:, :stage], np.asarray(released, dtype=np.int64)[:, :stage], -1)
-        return StageView(problem, stage, seen, valid, past, rel)
-    return StageView(problem, stage, seen, valid, past)
+    return StageView(problem, stage, seen, valid, past, rel, known)
+
+
+def _region_counts(problem: Problem, counts: np.ndarray | None) -> np.ndarray:
+    """``counts`` as float ``[M]`` for a coverage problem (ValueError when absent or misshapen)."""
+    if counts is None:
+        raise ValueError("a coverage problem needs its region counts (counts=)")
+    counts = np.asarray(counts, dtype=float).reshape(-1)
+    if counts.shape != (problem.coverage.n_regions,):
+        raise ValueError(f"counts must hold {problem.coverage.n_regions} region counts, got {counts.shape[0]}")
+    return counts
 
 
 class Planner(Protocol):

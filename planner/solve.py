@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from planner.instance import InstanceError, load_instance
+from planner.instance import InstanceError, load_instance_counts
 from planner.online import run_online
 
 
@@ -38,9 +38,9 @@ def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clai
         planner.online_optimal.TooLarge: ``planner`` is ``online-optimal`` and the instance is
             beyond its limits (one line).
     """
-    (problem, x), sampled = load_instance(path, seed=seed)
+    (problem, x), counts, sampled = load_instance_counts(path, seed=seed)
     if comms is None:
-        result = run_online(problem, x, planner, seed)
+        result = run_online(problem, x, planner, seed, counts)
     else:
         from planner.decentralised import run_comms
 
@@ -49,7 +49,7 @@ def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clai
         except ValueError:
             raise InstanceError(str(path), "--groups", f"carrier indices 0..{problem.n_carriers - 1}",
                                 repr([list(g) for g in comms.groups])) from None
-        result = run_comms(problem, x, planner, seed, comms)
+        result = run_comms(problem, x, planner, seed, comms, counts)
     out = {
         "planner": planner_name,
         "seed": seed,
@@ -66,18 +66,19 @@ def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clai
                            for r, row in enumerate(result.deployed)]
     if comms is not None:
         out["comms"] = {"loss": comms.loss, "delay": comms.delay, "groups": [list(g) for g in comms.groups]}
-    if clairvoyant:
+    coverage = problem.coverage is not None  # its bounds: not yet (issue 35)
+    if clairvoyant and not coverage:
         from planner import clairvoyant as bound_mod  # numba: loaded only when needed
 
         bound = bound_mod.solve(problem, x)
         out["clairvoyant"] = {"reward": bound.reward, "features": bound.features, "exact": bound.exact}
     # The exact online recursion knows no passenger values: no V* for a weighted instance.
-    if online_optimum and problem.weights is None:
+    if online_optimum and problem.weights is None and not coverage:
         # A planner that learns its prior is no longer the policy the exact recursion weighs.
         optimum = _online_optimum(problem, "" if getattr(planner, "learn_prior", False) else planner_name)
         if optimum is not None:
             out["online_optimum"] = optimum
-    if upper_bound and problem.weights is None:
+    if upper_bound and problem.weights is None and not coverage:
         bound = _upper_bound(problem, seed)
         if bound is not None:
             out["upper_bound"] = bound

@@ -60,3 +60,31 @@ def test_sampled_counts_are_seeded():
     a = parse_instance(data, "i.json", seed=3)[0].observations
     b = parse_instance(data, "i.json", seed=3)[0].observations
     assert np.array_equal(a, b, equal_nan=True)
+
+
+def test_a_view_holds_only_the_counts_its_observations_reveal():
+    """An observation reveals the counts of its disc's regions; the rest stay unknown (NaN), and a
+    future keeps what is known and draws the rest (issue 35: the observation model)."""
+    from planner.problem import make_view
+    (problem, x), counts, _ = load_instance_counts(EXAMPLE)
+    deployed = np.zeros(problem.valid.shape, dtype=bool)
+    view = make_view(problem, 0, x, deployed, counts=counts)
+    # stage 0 observed: carrier 0 -> region 0, carrier 1 -> region 4 (carrier 2 is ∅ there)
+    assert np.flatnonzero(~np.isnan(view.counts)).tolist() == [0, 4]
+    assert view.counts[[0, 4]].tolist() == [counts[0], counts[4]]
+    later = make_view(problem, 1, x, deployed, counts=counts)
+    assert np.flatnonzero(~np.isnan(later.counts)).tolist() == [0, 1, 2, 4, 5, 7]
+    future = cov.sample_counts_given(problem.coverage, later.counts, np.random.default_rng(3))
+    assert np.array_equal(future[[0, 1, 2, 4, 5, 7]], counts[[0, 1, 2, 4, 5, 7]])
+    with pytest.raises(ValueError, match="region counts"):
+        make_view(problem, 0, x, deployed)
+
+
+def test_coverage_evaluation_counts_each_region_once():
+    from planner.problem import evaluate
+    (problem, x), counts, _ = load_instance_counts(EXAMPLE)
+    deployed = np.zeros(problem.valid.shape, dtype=bool)
+    deployed[0, 1] = deployed[1, 2] = True  # both explore region 2 (count 5)
+    reward, features = evaluate(problem, deployed, x, counts=counts)
+    assert features == counts[[1, 2, 6]].sum()
+    assert reward == pytest.approx(features / problem.scale)
