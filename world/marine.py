@@ -71,7 +71,7 @@ def _transects(x0: float, x1: float, height: float, spacing: float) -> list[list
     return pts
 
 
-def _hotspots(rng: np.random.Generator, st: MarineSettings) -> list[dict]:
+def draw_hotspots(rng: np.random.Generator, st: MarineSettings) -> list[dict]:
     """The parent points of the Matérn cluster process as disc clusters (inside the area)."""
     area_km2 = st.width * st.height / 1e6
     n = int(rng.poisson(st.hotspots_per_km2 * area_km2))
@@ -106,7 +106,7 @@ def marine_document(st: MarineSettings = MarineSettings()) -> dict:
     doc = {
         "name": st.name, "seed": st.seed,
         "map": {"bounds": [0, 0, st.width, st.height]},
-        "features": {"density": st.background_density, "clusters": _hotspots(rng, st)},
+        "features": {"density": st.background_density, "clusters": draw_hotspots(rng, st)},
         "current": _current(rng, st),
         "links": {"model": "acoustic", "base": [st.width / 2, 0.0], "bitrate_bps": st.bitrate_bps,
                   "frame_bytes": st.frame_bytes, "noise_level_db": st.noise_level_db},
@@ -128,7 +128,8 @@ def _fitted_prior(doc: dict, st: MarineSettings) -> dict:
 
     s = parse_scenario(doc, "<marine>")
     values = np.concatenate([simulate_mission(s, seed=st.seed + k).x.ravel() for k in range(st.prior_seeds)])
-    return fit_prior(values[~np.isnan(values)])
+    values = values[~np.isnan(values)]
+    return fit_prior(values) if values.any() else "derived"  # nothing seen: the background's prior
 
 
 _HEADER = """\
