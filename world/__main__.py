@@ -31,7 +31,7 @@ def _prior_text(s: Scenario) -> str:
 def check(s: Scenario, seeds: int) -> str:
     """The summary printed by ``check``."""
     from world.features import sample_features
-    from world.links import describe_links
+    from world.report import describe_links
     from world.report import prior_report
     from world.stages import stage_geometry
 
