@@ -134,10 +134,12 @@ def _number(pb: Problems, p: Param, value, path: str) -> float | None:
     return int(value) if p.integer else float(value)
 
 
-def check_links(node, carrier_ids: tuple[str, ...] | None) -> tuple[LinkSpec | None, list[Problem]]:
+def check_links(node, carrier_ids: tuple[str, ...] | None,
+                bounds: tuple[float, float, float, float] | None = None) -> tuple[LinkSpec | None, list[Problem]]:
     """A scenario's ``links`` value (a model name or a mapping): the spec, or None and the
     problems with their field paths (``links.frame_bytes``, ``links.relays.carriers.c9`` ...).
-    ``carrier_ids``: the scenario's carriers (None when they have problems of their own)."""
+    ``carrier_ids``: the scenario's carriers, ``bounds`` its map's (xmin, ymin, xmax, ymax) in m
+    (None when they have problems of their own)."""
     pb = Problems()
     if node is None:
         return LinkSpec(), []
@@ -163,6 +165,8 @@ def check_links(node, carrier_ids: tuple[str, ...] | None) -> tuple[LinkSpec | N
         if (not isinstance(b, (list, tuple)) or len(b) != 2
                 or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) for v in b)):
             pb.add("links.base", "a point [x, y] (m): the coordinator's antenna or modem", b)
+        elif bounds is not None and not (bounds[0] <= b[0] <= bounds[2] and bounds[1] <= b[1] <= bounds[3]):
+            pb.add("links.base", f"a point inside map.bounds {list(bounds)}", b)
         else:
             base = (float(b[0]), float(b[1]))
     relays = RelaySpec()
@@ -301,16 +305,16 @@ def transmit(spec: LinkSpec, hops, size: int, send_time: float, rng: np.random.G
     hops = tuple(hops)
     if spec.model == "perfect":
         return Delivery(True, float(send_time), 1.0, float(send_time))
+    if spec.model == "acoustic" and len(hops) != 1:
+        raise ValueError(f"acoustic links have no relays: expected one hop, found {len(hops)}")
+    if spec.model == "acoustic" and size > spec.frame_bytes:
+        raise ValueError(f"a {size}-byte message does not fit links.frame_bytes = {spec.frame_bytes}")
     draws = rng.random(len(hops))
     ps = [probability(spec, margin_db(spec, d, w)) for d, w in hops]
     ok = bool(all(u < p for u, p in zip(draws, ps)))
     total = math.prod(ps)
     if spec.model == "radio":
         return Delivery(ok, float(send_time) + len(hops) * spec.latency_s, total, float(send_time))
-    if len(hops) != 1:
-        raise ValueError(f"acoustic links have no relays: expected one hop, found {len(hops)}")
-    if size > spec.frame_bytes:
-        raise ValueError(f"a {size}-byte message does not fit links.frame_bytes = {spec.frame_bytes}")
     start = max(float(send_time), (channel or Channel()).free_at)
     end = start + airtime_s(spec, size)
     return Delivery(ok, end + hops[0][0] / spec.sound_speed_mps, total, start, Channel(end))

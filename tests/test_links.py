@@ -141,8 +141,10 @@ def test_acoustic_channel_has_one_talker_at_a_time():
     (10, 2, "one hop"),
 ], ids=["too-big-for-frame", "acoustic-relay"])
 def test_acoustic_refusals(size, hops, error):
+    rng = np.random.default_rng(0)
     with pytest.raises(ValueError, match=error):
-        ch.transmit(ACOUSTIC, [(100.0, 0)] * hops, size, 0.0, np.random.default_rng(0))
+        ch.transmit(ACOUSTIC, [(100.0, 0)] * hops, size, 0.0, rng)
+    assert rng.random() == np.random.default_rng(0).random()  # a refused message draws nothing
 
 
 # --------------------------------------------------------------------------- best path
@@ -274,12 +276,27 @@ def test_links_default_is_perfect_and_a_name_is_enough():
     ({"model": "radio", "relays": {"count": -1}}, "links.relays.count", "an integer from 0 to 1000"),
     ({"model": "radio", "relays": {"count": 1, "drop_margin_db": 99}}, "links.relays.drop_margin_db", "from 0 to 60"),
     ({"model": "radio", "base": [1]}, "links.base", "a point [x, y]"),
+    ({"model": "acoustic", "base": [50, 20]}, "links.base", "a point inside map.bounds [0.0, 0.0, 40.0, 40.0]"),
     (7, "links", "a model name (perfect, radio, acoustic)"),
 ], ids=["model", "wall-loss", "exponent-type", "sound-speed", "frame-integer", "bitrate", "unknown-key",
         "relays-acoustic", "relays-perfect", "relays-default", "relay-carrier", "relay-count", "relay-margin",
-        "base", "not-a-mapping"])
+        "base", "base-outside", "not-a-mapping"])
 def test_bad_links_name_the_field(links, field, words):
     with pytest.raises(ScenarioError) as err:
         _scenario(links=links)
     lines = [line for line in err.value.problems if f"test.yaml: {field}:" in line]
     assert lines and words in lines[0], err.value.problems
+
+
+def test_the_map_shows_the_base_and_the_relays(tmp_path):
+    import matplotlib.pyplot as plt
+
+    from world.render import _draw_links, render_map
+
+    s = _corridor({"count": 3})
+    fig, ax = plt.subplots()
+    assert [h.get_label() for h in _draw_links(ax, s)] == ["base (radio links)", "relay (3)"]
+    assert sorted(tuple(line.get_xydata()[0]) for line in ax.lines) == [(0, 0), (100, 0), (200, 0), (300, 0)]
+    plt.close(fig)
+    assert _draw_links(ax, _scenario()) == []  # perfect links: nothing drawn
+    assert render_map(s, tmp_path / "relays.png", stage_labels=False).stat().st_size > 10_000

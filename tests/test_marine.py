@@ -181,3 +181,16 @@ def test_other_models_have_no_frame():
     data = copy.deepcopy(yaml.safe_load(MARINE.read_text()))
     data["links"] = {"model": "radio", "relays": {"count": 1}}
     assert frame_problems(parse_scenario(data, "m.yaml")) == []
+
+
+def test_wire_sizes_tool(tmp_path, capsys):
+    from tools.wire_sizes import main
+
+    assert main([str(MARINE)]) == 0
+    out = capsys.readouterr().out
+    sizes = {m.kind: m.size for m in message_sizes(load_scenario(MARINE))}
+    assert f"obs           {sizes['obs']:>3}   yes" in out and "obs+trail" in out and "DOES NOT FIT" in out
+    path = tmp_path / "m.yaml"
+    path.write_text(yaml.safe_dump(_with_frame(130)))
+    assert main([str(path)]) == 2
+    assert "links.frame_bytes" in capsys.readouterr().err

@@ -590,7 +590,8 @@ def parse_scenario(data: Any, file: str = "<scenario>") -> Scenario:
                        c.passengers)
     if feats is not None and isinstance(top["features"], dict) and "replay" in top["features"]:
         feats = _parse_replay(ck, top["features"]["replay"], feats, carriers, interval, n_stages, t0)
-    links, problems = _links.check_links(top.get("links"), None if carriers is None else tuple(c.id for c in carriers))
+    links, problems = _links.check_links(top.get("links"), None if carriers is None else tuple(c.id for c in carriers),
+                                         None if the_map is None else the_map.bounds)
     ck.extend(problems)
     current, problems = check_current(top["current"]) if "current" in top else (None, [])
     ck.extend(problems)
