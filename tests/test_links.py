@@ -4,6 +4,7 @@ walls counted in a real pymunk world, the relay dropping rule, and bad `links` i
 from __future__ import annotations
 
 import copy
+import dataclasses
 import math
 from pathlib import Path
 
@@ -300,3 +301,20 @@ def test_the_map_shows_the_base_and_the_relays(tmp_path):
     plt.close(fig)
     assert _draw_links(ax, _scenario()) == []  # perfect links: nothing drawn
     assert render_map(s, tmp_path / "relays.png", stage_labels=False).stat().st_size > 10_000
+
+
+def test_stage_connectivity_predicts_who_hears_whom():
+    from world.relays import stage_connectivity
+
+    s = _corridor({"count": 3}, fade=4.0)
+    m = LinkModel(s)
+    bare = stage_connectivity(m)
+    with_relays = stage_connectivity(m, fleet_relays(m))
+    assert bare.shape == with_relays.shape == (2, 2, 2)  # 2 stages; the base and carrier a
+    # stage 1 is at t = 1 s: the carrier is 2 m out, next to the base
+    assert bare[1, 0, 1] == pytest.approx(m.probability((0, 0), (2, 0))) and bare[1, 0, 1] == bare[1, 1, 0]
+    far = dataclasses.replace(s, stage_interval=165.0)  # stage 1 at 330 m, after every drop
+    mf = LinkModel(far)
+    assert stage_connectivity(mf)[1, 0, 1] < 0.1
+    assert stage_connectivity(mf, fleet_relays(mf))[1, 0, 1] > 0.95
+    assert np.isnan(stage_connectivity(LinkModel(dataclasses.replace(s, first_stage_time=200.0)))[0, 0, 1])

@@ -1,5 +1,5 @@
-"""Relay nodes ("breadcrumbs"): where each carrier drops its relays, by the documented rule
-(docs/scenario.md, "Relays").
+"""Relay nodes ("breadcrumbs"): where each carrier drops its relays, by the documented rule, and
+the network they make with the base and the carriers (docs/scenario.md, "links").
 
 Rule: a carrier with relays left checks its radio link to its last node — its last dropped
 relay, or the base before the first — every ``links.relays.step_m`` metres along its planned
@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from planner.links import best_path
 from world import geometry
 from world.links import LinkModel
 from world.scenario import CarrierSpec
@@ -89,3 +90,27 @@ def route_to_base(model: LinkModel, relays: tuple[Relay, ...], position, t: floa
     if not math.isfinite(float(nodes[0, 0])):
         return (), 0.0
     return model.route(nodes, 0, 1)
+
+
+def stage_connectivity(model: LinkModel, relays: tuple[Relay, ...] = ()) -> np.ndarray:
+    """float ``[N, R + 1, R + 1]``: at each stage time, the delivery probability of the best path
+    between every two participants — index 0 the base, 1 + r carrier r at its planned position
+    — through every node then in place (the base, the valid carriers, the relays dropped by
+    then: carriers forward messages too). NaN for a carrier not valid at the stage; 1 on the
+    diagonal. The geometry's prediction of who can hear whom, before the mission."""
+    s = model.scenario
+    valid = s.valid()
+    n_r = s.n_carriers
+    out = np.full((s.stages, n_r + 1, n_r + 1), np.nan)
+    for j in range(s.stages):
+        t = float(s.stage_time(j))
+        here = [r for r in range(n_r) if valid[r, j]]
+        carriers = np.asarray([s.carriers[r].position_at(t) for r in here], dtype=float).reshape(-1, 2)
+        nodes = np.vstack([np.asarray([model.base], dtype=float), carriers, nodes_at(model, relays, t)[1:]])
+        prob = model.graph(nodes)
+        index = [0] + [1 + r for r in here]  # participant index of node k < 1 + len(here)
+        for a in range(len(index)):
+            out[j, index[a], index[a]] = 1.0
+            for b in range(a + 1, len(index)):
+                out[j, index[a], index[b]] = out[j, index[b], index[a]] = best_path(prob, a, b)[1]
+    return out
