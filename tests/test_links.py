@@ -318,3 +318,12 @@ def test_stage_connectivity_predicts_who_hears_whom():
     assert stage_connectivity(mf)[1, 0, 1] < 0.1
     assert stage_connectivity(mf, fleet_relays(mf))[1, 0, 1] > 0.95
     assert np.isnan(stage_connectivity(LinkModel(dataclasses.replace(s, first_stage_time=200.0)))[0, 0, 1])
+
+
+@pytest.mark.parametrize("param", [*ch.RADIO_PARAMS, *ch.ACOUSTIC_PARAMS, *ch.RELAY_PARAMS], ids=lambda p: p.name)
+def test_the_docs_table_is_the_parameter_table(param):
+    """docs/scenario.md's parameter tables say what planner/links.py holds (default, range, unit)."""
+    text = (ROOT / "docs" / "scenario.md").read_text()
+    row = (f"| `{param.name}` | {param.default:g} | {param.lo:g} to {param.hi:g}{' (integer)' if param.integer else ''} "
+           f"| {param.unit or '—'} |")
+    assert row in text
