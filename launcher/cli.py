@@ -73,9 +73,9 @@ def _solve(argv: list[str]) -> int:
 
 
 def _world(argv: list[str]) -> int:
-    from world.__main__ import main as world
+    from launcher.scenario_check import world_command
 
-    return world(argv)
+    return world_command(argv)
 
 
 def _experiments(argv: list[str]) -> int:

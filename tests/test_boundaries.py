@@ -129,7 +129,9 @@ FORWARDS = {"planner/online_optimal.py": ("planner.cli.measure", "optimal_table"
             "planner/clairvoyant.py": ("planner.cli.measure", "clairvoyant_times"),
             "planner/conformance.py": ("planner.cli.conformance", "main"),
             # mission/ has no command line either: ``python -m mission.simulate`` is launcher/simulate.py's
-            "mission/simulate.py": ("launcher.simulate", "main")}
+            "mission/simulate.py": ("launcher.simulate", "main"),
+            # ``python -m world`` runs world/'s command with the wire's checks (launcher/scenario_check.py)
+            "world/__main__.py": ("launcher.scenario_check", "world_command")}
 CLI = "planner/cli/"
 
 

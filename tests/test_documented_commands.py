@@ -304,6 +304,11 @@ RUNS = [
                            ("map.png", "{tmp}/map.png"), ("[--trajectories]", "--trajectories"),
                            ("[--seed S]", "--seed 2"), ("[--no-stage-labels]", "--no-stage-labels")),),
         "default", wall_s=90, mem_mb=800),
+    Run("world-marine", (S("python -m world.marine --out SCENARIO.yaml [--seed S] [--vessels V]",
+                           ("SCENARIO.yaml", "{tmp}/marine.yaml"), ("[--seed S]", "--seed 7"),
+                           ("[--vessels V]", "--vessels 2")),), "default", wall_s=90, mem_mb=800),
+    Run("wire-sizes", (S("python -m tools.wire_sizes [SCENARIO.yaml]",
+                         ("[SCENARIO.yaml]", "scenarios/marine_survey.yaml")),), "default", wall_s=60, mem_mb=600),
     Run("solve-example", (
         Step(None, raw=EXAMPLE_JSON),
         S(SOLVE, ("INSTANCE.json", "{tmp}/example.json"), ("NAME", "mcts-ssap"), ("[--iterations K]", "--iterations 2000"),

@@ -10,9 +10,11 @@ import argparse
 import math
 import sys
 from collections import Counter
+from typing import Callable, Sequence
 
 import numpy as np
 
+from validation import Problem
 from world.scenario import Scenario, ScenarioError, load_scenario
 
 EXIT_BAD_INPUT = 2
@@ -29,6 +31,7 @@ def _prior_text(s: Scenario) -> str:
 def check(s: Scenario, seeds: int) -> str:
     """The summary printed by ``check``."""
     from world.features import sample_features
+    from world.report import describe_links
     from world.report import prior_report
     from world.stages import stage_geometry
 
@@ -80,6 +83,7 @@ def check(s: Scenario, seeds: int) -> str:
                  + (f", plan_ms {s.planner.plan_ms:g}" if s.planner.plan_ms is not None else "")
                  + f", exploration {s.planner.exploration:.4g}, samples {s.planner.samples}")
     lines.append(f"prior: {_prior_text(s)}")
+    lines.extend(describe_links(s))
     rep = prior_report(s, seeds=seeds)
     lines.append(f"prior vs world over {rep.seeds} seeds ({rep.samples} observed counts at actual positions, "
                  f"line of sight):")
@@ -91,7 +95,10 @@ def check(s: Scenario, seeds: int) -> str:
     return "\n".join(lines)
 
 
-def main(argv: list[str] | None = None) -> int:
+def main(argv: list[str] | None = None, checks: Sequence[Callable[[Scenario], list[Problem]]] = ()) -> int:
+    """The command. ``checks``: further checks of a loaded scenario that ``check`` runs, each
+    returning problems with field paths (launcher/scenario_check.py passes the wire's frame
+    check, which world/ cannot import)."""
     parser = argparse.ArgumentParser(prog="python -m world", description="Scenario tools.")
     sub = parser.add_subparsers(dest="command", required=True)
     p_check = sub.add_parser("check", help="validate a scenario and print a summary")
@@ -116,6 +123,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "check":
         if args.seeds < 1:
             print(f"--seeds: expected an integer >= 1, found {args.seeds}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        problems = [problem for extra in checks for problem in extra(s)]
+        for problem in problems:
+            print(problem.line(s.source), file=sys.stderr)
+        if problems:
             return EXIT_BAD_INPUT
         print(check(s, args.seeds))
         return 0
@@ -248,4 +260,5 @@ def _run_import(args) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from launcher.scenario_check import world_command
+    raise SystemExit(world_command())

@@ -88,6 +88,28 @@ def _draw_occupancy(ax, grid) -> None:
     im.set_transform(Affine2D().rotate(yaw).translate(x0, y0) + ax.transData)
 
 
+def _draw_links(ax, scenario) -> list:
+    """The base (the coordinator's antenna or modem) and the relays the carriers drop
+    (world/relays.py), when the scenario has a link model; their legend entries."""
+    if scenario.links.model == "perfect":
+        return []
+    from world.links import LinkModel
+    from world.relays import fleet_relays
+
+    model = LinkModel(scenario)
+    ax.plot(*model.base, marker="P", ms=11, color="#1a1a1a", mec="white", mew=0.8, zorder=9)
+    handles = [Line2D([], [], color="none", marker="P", mfc="#1a1a1a", mec="white", ms=9,
+                      label=f"base ({scenario.links.model} links)")]
+    relays = fleet_relays(model)
+    for relay in relays:
+        ax.plot(*relay.position, marker="^", ms=8, color=_colour(scenario.carrier_index(relay.carrier)), mec="black",
+                mew=0.6, zorder=9)
+    if relays:
+        handles.append(Line2D([], [], color="none", marker="^", mfc="#888888", mec="black", ms=7,
+                              label=f"relay ({len(relays)})"))
+    return handles
+
+
 def render_map(scenario, path: str | Path, deployments: Any = None, trajectories: Any = None,
                title: str | None = None, positions: np.ndarray | None = None,
                features: np.ndarray | None = None, stage_labels: bool = True, dpi: int = 130,
@@ -189,6 +211,8 @@ def render_map(scenario, path: str | Path, deployments: Any = None, trajectories
                 ax.annotate(str(j), pos[r, j], xytext=(3, 3), textcoords="offset points", fontsize=6.5,
                             color=col, zorder=8)
 
+    link_handles = _draw_links(ax, scenario)
+
     # actual trajectories
     for r, tr in _trajectory_list(scenario, trajectories):
         ax.plot(tr[:, 0], tr[:, 1], color=_colour(r), lw=1.0, ls="--", alpha=0.9, zorder=6)
@@ -237,6 +261,7 @@ def render_map(scenario, path: str | Path, deployments: Any = None, trajectories
     if scenario.map.occupancy is not None:
         handles += [Patch(fc=_OCCUPANCY_COLOURS[k], ec="#999999", lw=0.4, label=f"{name} cell")
                     for k, name in ((0, "free"), (2, "unknown"), (1, "occupied"))]
+    handles += link_handles
     if trajectories is not None:
         handles.append(Line2D([], [], color="#444444", lw=1, ls="--", label="actual trajectory"))
     if spots:

@@ -21,12 +21,14 @@ from typing import Any, Literal, overload
 import numpy as np
 import yaml
 
+from planner import links as _links
 from planner import priors
 from planner import registry as planners
 from planner.limits import MAX_CARRIERS, MAX_PASSENGERS, MAX_STAGES
 from validation import MISSING, Found, Number, Problems, Text, did_you_mean
 from world import building as _building
 from world import geometry
+from world.current import CurrentSpec, check_current
 from world import grid as _grid
 
 #: Default conflict radius as a multiple of the sensing radius (the paper's choice).
@@ -291,6 +293,8 @@ class Scenario:
         prior: prior spec; see :meth:`prior_distribution`.
         first_stage_time: t_0 (s); stage j is at t_0 + j·Δt.
         carrier_radius: the carriers' body radius (m); every leg keeps this clearance from walls.
+        links: the link model (``links``: perfect by default; planner.links, world/links.py).
+        current: the water's current field (``current``), or None (no current: the default).
         source: the file it was loaded from ("" if built in code).
     """
 
@@ -307,6 +311,8 @@ class Scenario:
     prior: PriorSpec = PriorSpec()
     first_stage_time: float = 0.0
     carrier_radius: float = CARRIER_RADIUS
+    links: _links.LinkSpec = _links.LinkSpec()
+    current: CurrentSpec | None = None
     source: str = field(default="", compare=False)
 
     @property
@@ -455,7 +461,7 @@ class _Checker(Problems):
 
 _TOP_KEYS = ("name", "seed", "map", "features", "sensing_radius", "stage_interval", "stages",
              "first_stage_time", "conflict_radius", "carriers", "planner", "prior", "passenger_types",
-             "carrier_radius")
+             "carrier_radius", "links", "current")
 _TOP_REQUIRED = ("name", "seed", "map", "features", "sensing_radius", "stage_interval", "stages", "carriers")
 _MAP_KEYS = ("bounds", "walls", "obstacles", "building", "occupancy")
 _OCCUPANCY_KEYS = ("file", "sha256", "free_level", "occupied_level")
@@ -584,16 +590,22 @@ def parse_scenario(data: Any, file: str = "<scenario>") -> Scenario:
                        c.passengers)
     if feats is not None and isinstance(top["features"], dict) and "replay" in top["features"]:
         feats = _parse_replay(ck, top["features"]["replay"], feats, carriers, interval, n_stages, t0)
+    links, problems = _links.check_links(top.get("links"), None if carriers is None else tuple(c.id for c in carriers),
+                                         None if the_map is None else the_map.bounds)
+    ck.extend(problems)
+    current, problems = check_current(top["current"]) if "current" in top else (None, [])
+    ck.extend(problems)
     if ck.problems:
         raise ScenarioError(ck.problems)
     # no problem recorded: every value was read (a reader returns None only with a problem)
     assert (name is not None and seed is not None and the_map is not None and feats is not None and radius is not None
             and interval is not None and n_stages is not None and conflict is not None and carriers is not None
-            and planner is not None and prior is not None and t0 is not None and body is not None)
+            and planner is not None and prior is not None and t0 is not None and body is not None
+            and links is not None)
     return Scenario(name=name, seed=seed, map=the_map, features=feats, sensing_radius=radius,
                     stage_interval=interval, stages=n_stages, conflict_radius=conflict,
                     carriers=carriers, planner=planner, prior=prior, first_stage_time=t0,
-                    carrier_radius=body, source=file)
+                    carrier_radius=body, links=links, current=current, source=file)
 
 
 def _parse_map(ck: _Checker, node: Any) -> MapSpec | None:

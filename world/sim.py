@@ -9,8 +9,9 @@ Carriers therefore never collide with each other; they do collide with walls.
 Control: every PHYSICS_DT the carrier's velocity is set to the path's feed-forward velocity plus
 CONTROL_GAIN × (reference − position), capped at MAX_SPEED_FACTOR × nominal speed, where the
 reference is the planned (schedule) position at the start of the step (so a carrier on
-schedule has zero error and moves exactly with the feed-forward). The physics then advances
-in SUBSTEPS equal sub-steps and resolves wall contacts.
+schedule has zero error and moves exactly with the feed-forward). A scenario's ``current``
+(world/current.py) adds the water's velocity at the carrier's position to that command. The
+physics then advances in SUBSTEPS equal sub-steps and resolves wall contacts.
 """
 from __future__ import annotations
 
@@ -91,6 +92,8 @@ class _CarrierBody:
         # only with a pymunk whose wrapper keeps its pending work where _drive looks (7.x)
         self.direct = all(hasattr(self.space, name) for name in _WRAPPER_STATE) and hasattr(self.body, "_body")
         self.max_speed = MAX_SPEED_FACTOR * self.spec.speed
+        # the water's velocity field (world/current.py), None without one (the physics is then unchanged)
+        self.current = scenario.current
         self.frozen_after = step_of(self.spec.stop_time + SETTLE_TIME)
         self.start_step = step_of(self.spec.start_time)
         # path as plain floats for the per-step reference (legs of zero length are dropped)
@@ -138,7 +141,7 @@ class _CarrierBody:
         spec = self.spec
         t_start, t_stop, speed, length = spec.start_time, spec.stop_time, spec.speed, self.length
         cum, units, points, last_leg = self.cum, self.units, self.points, len(self.cum) - 2
-        max_speed, trace = self.max_speed, self.trace
+        max_speed, trace, current = self.max_speed, self.trace, self.current
         space, body = self.space, self.body
         c_body = body._body if self.direct else None
         c_space = space._space if self.direct else None
@@ -163,6 +166,9 @@ class _CarrierBody:
             v = math.hypot(vx, vy)
             if v > max_speed:
                 vx, vy = vx * max_speed / v, vy * max_speed / v
+            if current is not None:  # the command is relative to the water, which moves the body
+                cx, cy = current.at(p.x, p.y)
+                vx, vy = vx + cx, vy + cy
             if c_body is None or space._bodies_to_check or space._add_later or space._remove_later \
                     or space._post_step_callbacks:
                 body.velocity = (vx, vy)
