@@ -177,7 +177,7 @@ def arrangement(positions: np.ndarray, valid: np.ndarray, radius: float, max_pai
         near = np.array([k for k in _near(grid, (cells[i][0], cells[i][1])) if k != i], dtype=np.int64)
         dx, dy = centres[near, 0] - cx, centres[near, 1] - cy
         d = np.hypot(dx, dy)
-        meet = (d < 2.0 * radius) & (d > 0)
+        meet = (d <= 2.0 * radius) & (d > 0)  # a tangent point cuts too: no arc has its midpoint there
         base = np.arctan2(dy[meet], dx[meet])
         half = np.arccos(np.clip(d[meet] / (2.0 * radius), -1.0, 1.0))
         cuts = np.sort(np.mod(np.concatenate([base - half, base + half]), 2 * math.pi))
@@ -220,11 +220,13 @@ def _positions(scenario) -> tuple[np.ndarray, np.ndarray]:
     return planned_positions(scenario), scenario.valid()
 
 
-def check_size(scenario, max_pairs: int = MAX_PAIRS) -> None:
-    """Raise :class:`ArrangementTooLarge` when the scenario's discs meet too often (cheap: the
-    planned positions and one pass of the grid; no arc is computed)."""
+def check_size(scenario, max_pairs: int | None = None) -> None:
+    """Raise :class:`ArrangementTooLarge` when the scenario's discs meet more often than
+    ``max_pairs`` (:data:`MAX_PAIRS` by default) allows (cheap: the planned positions and one pass
+    of the grid; no arc is computed)."""
     positions, valid = _positions(scenario)
-    _bound(np.unique(positions[valid].reshape(-1, 2), axis=0), scenario.sensing_radius, max_pairs)
+    _bound(np.unique(positions[valid].reshape(-1, 2), axis=0), scenario.sensing_radius,
+           MAX_PAIRS if max_pairs is None else max_pairs)
 
 
 def _bound(centres: np.ndarray, radius: float, max_pairs: int) -> None:
