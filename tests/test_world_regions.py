@@ -125,6 +125,20 @@ def test_a_dense_coverage_scenario_is_refused_at_load(tmp_path, monkeypatch):
         world.load_scenario(_coverage_yaml(tmp_path))
 
 
+def test_a_disc_met_by_too_many_is_refused_at_load(tmp_path):
+    """64 carriers whose paths all cross one point: their discs there meet 63 + others."""
+    data = yaml.safe_load(COVERAGE.read_text())
+    data.update(map={"bounds": [0, 0, 200, 200]}, features={"density": 0.01}, stages=3, stage_interval=1.0,
+                sensing_radius=6.0)
+    data["carriers"] = [{"id": f"c{k}", "passengers": 1, "start_time": 0, "speed": 1.0,
+                         "waypoints": [[100 + 2 * math.cos(k), 100 + 2 * math.sin(k)], [150, 150]]}
+                        for k in range(64)]
+    path = tmp_path / "crowd.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    with pytest.raises(world.ScenarioError, match=r"reward: expected at most 63 other candidate discs"):
+        world.load_scenario(path)
+
+
 def test_penalty_scenarios_are_unchanged():
     s = world.load_scenario(ROOT / "scenarios" / "six_carriers.yaml")
     assert s.reward == "penalty" and world.build_problem(s).coverage is None

@@ -23,10 +23,15 @@ from functools import lru_cache
 
 import numpy as np
 
+from planner.limits import MAX_POINT_REGIONS
+
 #: At most this many pairs of candidate discs whose centres share a neighbourhood of the 2ρ grid
 #: (an upper bound of the meeting pairs, counted in time linear in the discs); beyond it the
 #: arrangement is refused: its regions would be too many to plan with.
 MAX_PAIRS = 2_000_000
+#: At most this many other distinct discs may meet one disc: k circles cut a disc into at most
+#: k (k + 1) + 1 regions, so 63 keep every point's regions within MAX_POINT_REGIONS (4096).
+MAX_MET = 63
 #: Regions whose area is at most this fraction of a disc's are dropped as zero-area (tangencies
 #: and rounding leave such slivers; a feature lands in one with probability 0).
 ZERO_AREA = 1e-9
@@ -206,6 +211,10 @@ def arrangement(positions: np.ndarray, valid: np.ndarray, radius: float, max_pai
     for m, sig in enumerate(signatures):
         for k in sig:
             by_disc[k].append(m)
+    widest = max((len(regions) for regions in by_disc), default=0)
+    if widest > MAX_POINT_REGIONS:  # its Observation's counts would not fit one wire payload
+        raise ArrangementTooLarge(f"expected at most {MAX_POINT_REGIONS} regions in one candidate disc "
+                                  f"(planner.limits.MAX_POINT_REGIONS), found {widest}")
     covers = tuple(tuple(tuple(by_disc[k]) if k >= 0 else None for k in row) for row in disc_of.tolist())
     for arr in (centres, disc_of, areas):
         arr.setflags(write=False)
@@ -225,8 +234,17 @@ def check_size(scenario, max_pairs: int | None = None) -> None:
     ``max_pairs`` (:data:`MAX_PAIRS` by default) allows (cheap: the planned positions and one pass
     of the grid; no arc is computed)."""
     positions, valid = _positions(scenario)
-    _bound(np.unique(positions[valid].reshape(-1, 2), axis=0), scenario.sensing_radius,
-           MAX_PAIRS if max_pairs is None else max_pairs)
+    centres = np.unique(positions[valid].reshape(-1, 2), axis=0)
+    _bound(centres, scenario.sensing_radius, MAX_PAIRS if max_pairs is None else max_pairs)
+    if len(centres):  # walks the meeting pairs, bounded above
+        from scipy.spatial import cKDTree
+
+        met = cKDTree(centres).query_ball_point(centres, 2.0 * scenario.sensing_radius, return_length=True) - 1
+        if met.max() > MAX_MET:
+            k = int(np.argmax(met))
+            raise ArrangementTooLarge(
+                f"expected at most {MAX_MET} other candidate discs within 2 x sensing_radius of any one (so that "
+                f"its regions' counts fit one message), found {int(met[k])} round ({centres[k, 0]:g}, {centres[k, 1]:g})")
 
 
 def _bound(centres: np.ndarray, radius: float, max_pairs: int) -> None:
