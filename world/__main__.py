@@ -83,8 +83,9 @@ def check(s: Scenario, seeds: int) -> str:
                  + f", exploration {s.planner.exploration:.4g}, samples {s.planner.samples}")
     lines.append(f"prior: {_prior_text(s)}")
     rep = prior_report(s, seeds=seeds)
-    lines.append(f"prior vs world over {rep.seeds} seeds ({rep.samples} observed counts at actual positions, "
-                 f"line of sight):")
+    where = ("in the planned discs, region by region" if s.reward == "coverage"
+             else "at actual positions, line of sight")
+    lines.append(f"prior vs world over {rep.seeds} seeds ({rep.samples} observed counts {where}):")
     lines.append(f"  {'':<10} {'mean':>7} {'var':>7} {'q90':>5}")
     lines.append(f"  {'prior':<10} {rep.prior_mean:>7.3f} {rep.prior_var:>7.3f} {rep.prior_q90:>5g}")
     lines.append(f"  {'observed':<10} {rep.mean:>7.3f} {rep.var:>7.3f} {rep.q90:>5g}")
