@@ -294,8 +294,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
 
     # ------------------------------------------------------------------ the stage clock
     def _plan(self, j: int) -> tuple[tuple[str, ...], float, tuple[int, ...]]:
-        """(deploying carrier ids, sorted; planning time, ms; the passenger each releases, parallel):
-        the offline loop's own stage step (:func:`planner.online.stage_step`) on the mission's view."""
+        """(deploying ids sorted, planning ms, their passengers): the offline loop's stage_step on the mission's view."""
         step = stage_step(self.problem, self.state.planning_observations(j), self.state.deployed(), self.planner,
                           self.seed, j, self.state.releases() if self.problem.weights is not None else None,
                           planning_counts(self.state, self.problem))

@@ -304,6 +304,10 @@ RUNS = [
                            ("map.png", "{tmp}/map.png"), ("[--trajectories]", "--trajectories"),
                            ("[--seed S]", "--seed 2"), ("[--no-stage-labels]", "--no-stage-labels")),),
         "default", wall_s=90, mem_mb=800),
+    Run("world-export", (S("python -m world export SCENARIO.yaml -o instance.json [--seed S]",
+                           ("SCENARIO.yaml", "scenarios/six_carriers_coverage.yaml"),
+                           ("instance.json", "{tmp}/instance.json"), ("[--seed S]", "--seed 3")),),
+        "default", wall_s=90, mem_mb=800),
     Run("solve-example", (
         Step(None, raw=EXAMPLE_JSON),
         S(SOLVE, ("INSTANCE.json", "{tmp}/example.json"), ("NAME", "mcts-ssap"), ("[--iterations K]", "--iterations 2000"),
