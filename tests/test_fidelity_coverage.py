@@ -3,8 +3,8 @@ Zenoh makes exactly the offline planner's decisions (``planner.online.run_online
 ``world.observe_all`` and the realised region counts ``world.observe_counts``) on a coverage
 mission — scenarios/six_carriers_coverage.yaml on a saturated host, and a generated street grid
 (tools.scale's grid family, a seed and size the coverage code was not developed on) flown under
-``reward: coverage`` in 4 carrier processes. Identical observations, decisions, covered features
-and reward; every carrier sent its region counts (mission.db)."""
+``reward: coverage`` in 4 carrier processes, and a 256-carrier grid in 8. Identical observations,
+decisions, covered features and reward; every carrier sent its region counts (mission.db)."""
 from __future__ import annotations
 
 import os
@@ -53,3 +53,14 @@ def test_a_generated_street_grid_under_coverage_in_4_processes(tmp_path):
     assert world.build_problem(scenario).coverage.n_regions > 64
     summary, _ = _fly(path, tmp_path / "run", "--carrier-processes", "4", "--no-record")
     _assert_coverage(summary, scenario, tmp_path / "run")
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(1500)
+def test_a_256_carrier_street_grid_under_coverage_in_8_processes(tmp_path):
+    """The world's regions at fleet scale (8,281 regions) and 256 carriers sending their counts."""
+    mapping = dict(grid_scenario(256, seed=11), reward="coverage")
+    mapping["name"] = "grid_256_coverage"
+    path = _write(tmp_path, mapping)
+    summary, _ = _fly(path, tmp_path / "run", "--carrier-processes", "8", "--no-record")
+    _assert_coverage(summary, world.load_scenario(path), tmp_path / "run")
