@@ -305,8 +305,9 @@ class Carrier(Motion, Inbound, Joining, Alone):
 
     def _counts(self, j: int, x) -> tuple[int, ...] | None:
         """The region counts behind ``x`` at stage j under the coverage reward (world/regions.py),
-        None otherwise (and when a body other than the simulated one sensed ``x``)."""
-        counts = self.sim.sense_counts(self.cid, j) if x is not None else None
+        None otherwise (and when a body other than the simulated one, a ROS 2 robot's, sensed ``x``)."""
+        sense_counts = getattr(self.sim, "sense_counts", None)
+        counts = sense_counts(self.cid, j) if x is not None and sense_counts is not None else None
         return counts if counts is not None and sum(counts) == x else None
 
     def _fly(self) -> None:
