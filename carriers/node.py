@@ -236,7 +236,7 @@ class Carrier(Motion, Inbound, Joining, Alone):
         elif isinstance(effect, mc.SendOwn):
             self.node.put(keys.carrier_key(self.mission, self.cid, "own"), Own(
                 self.mission, self.cid, effect.stage, float(self.scenario.stage_time(effect.stage)), effect.x,
-                effect.deployed, effect.position, effect.passengers_left))
+                effect.deployed, effect.position, effect.passengers_left, self._counts(effect.stage, effect.x)))
         elif isinstance(effect, mc.SendHello):
             self._hello(effect.next_stage)
         elif isinstance(effect, mc.ResendObservation):
@@ -303,6 +303,13 @@ class Carrier(Motion, Inbound, Joining, Alone):
             last = now
             self._pump(IDLE_POLL_S)
 
+    def _counts(self, j: int, x) -> tuple[int, ...] | None:
+        """The region counts behind ``x`` at stage j under the coverage reward (world/regions.py),
+        None otherwise (and when a body other than the simulated one, a ROS 2 robot's, sensed ``x``)."""
+        sense_counts = getattr(self.sim, "sense_counts", None)
+        counts = sense_counts(self.cid, j) if x is not None and sense_counts is not None else None
+        return counts if counts is not None and sum(counts) == x else None
+
     def _fly(self) -> None:
         at_once = True  # the first stage after joining is reached at once, not paced
         j = self.machine.stage
@@ -325,7 +332,7 @@ class Carrier(Motion, Inbound, Joining, Alone):
             x = self.sim.sense(self.cid, j) if self.valid[j] else None
             self.pending = Observation(
                 self.mission, self.cid, j, float(t_j), x, self._position(), self.machine.passengers_left,
-                self._trail())
+                self._trail(), self._counts(j, x))
             self.apply(mc.Observed(j, x, self._position()))
             self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.pending)
             self.gate.waiting(j)

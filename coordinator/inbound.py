@@ -25,12 +25,14 @@ def to_event(msg, at: float):
         return ev.Hello(msg.carrier, msg.pid, msg.host, msg.passengers_left, msg.next_stage, msg.fingerprint, at,
                         msg.revision)
     if isinstance(msg, Observation):
-        return ev.Observation(msg.carrier, msg.stage, msg.t, msg.x, msg.position, msg.passengers_left, msg.trail, at)
+        return ev.Observation(msg.carrier, msg.stage, msg.t, msg.x, msg.position, msg.passengers_left, msg.trail, at,
+                              msg.counts)
     if isinstance(msg, Confirm):
         return ev.Confirmed(msg.carrier, msg.stage, msg.deployed, msg.status, msg.position, msg.passengers_left, at,
                             msg.passenger)
     if isinstance(msg, Own):
-        return ev.Accounted(msg.carrier, msg.stage, msg.t, msg.x, msg.deployed, msg.position, msg.passengers_left, at)
+        return ev.Accounted(msg.carrier, msg.stage, msg.t, msg.x, msg.deployed, msg.position, msg.passengers_left, at,
+                            msg.counts)
     if isinstance(msg, Bye):
         return ev.Bye(msg.carrier, msg.deployments, msg.rejected, msg.reason, at)
     raise TypeError(type(msg).__name__)

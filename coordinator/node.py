@@ -41,6 +41,7 @@ import numpy as np
 
 import world
 from planner.registry import make_planner, planner_settings, used_options
+from mission.coverage import planning_counts, spec_options
 from planner.online import stage_step
 from coordinator.clock import StageClock
 from coordinator.epochs import Epochs
@@ -150,7 +151,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         self.planner = make_planner(self.planner_name, **self.planner_options)
         self.fingerprint = scenario_fingerprint(scenario)
         self.spec = ms.MissionSpec.build(self.ids, self.problem.valid, self.problem.passengers,
-                                         scenario.stage_times(), self.fingerprint)
+                                         scenario.stage_times(), self.fingerprint, **spec_options(self.problem))
         self.state = ms.initial(self.spec)
         self._log = config.log or (lambda line: print(line, flush=True))
         self._served = self.state  # what State queries answer from: stored already
@@ -293,10 +294,10 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
 
     # ------------------------------------------------------------------ the stage clock
     def _plan(self, j: int) -> tuple[tuple[str, ...], float, tuple[int, ...]]:
-        """(deploying carrier ids, sorted; planning time, ms; the passenger each releases, parallel):
-        the offline loop's own stage step (:func:`planner.online.stage_step`) on the mission's view."""
+        """(deploying ids sorted, planning ms, their passengers): the offline loop's stage_step on the mission's view."""
         step = stage_step(self.problem, self.state.planning_observations(j), self.state.deployed(), self.planner,
-                          self.seed, j, self.state.releases() if self.problem.weights is not None else None)
+                          self.seed, j, self.state.releases() if self.problem.weights is not None else None,
+                          planning_counts(self.state, self.problem))
         rs = sorted(np.flatnonzero(step.deploy), key=lambda r: self.ids[r])
         return tuple(self.ids[r] for r in rs), step.decision_ms, tuple(int(step.passengers[r]) for r in rs)
 

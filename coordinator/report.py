@@ -162,6 +162,7 @@ def run_report(scenario, out, mission: str | None = None, seed: int | None = Non
     """
     from world import build_problem
     from coordinator.results import render_map, write_json
+    from mission.coverage import spec_options
     from mission.state import MissionSpec
     from mission.summary import RunInfo, summary as mission_summary
 
@@ -169,7 +170,7 @@ def run_report(scenario, out, mission: str | None = None, seed: int | None = Non
     scenario, mission, fingerprint = _identity(scenario, mission, seed)
     problem = build_problem(scenario)
     spec = MissionSpec.build(scenario.carrier_ids, problem.valid, problem.passengers, scenario.stage_times(),
-                             fingerprint)
+                             fingerprint, **spec_options(problem))
     events, db_meta, records, skipped = read_inputs(out, scenario, mission, fingerprint, set(spec.carriers))
     for line in skipped:
         log(line)

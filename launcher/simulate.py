@@ -32,6 +32,9 @@ def build_fleet(path: str, mode: str = "hybrid", onboard_iterations: int | None 
     from wire.messages import scenario_fingerprint
 
     scenario = world.load_scenario(path)
+    if scenario.reward == "coverage":  # its carriers send no region counts: refused, not flown wrong
+        raise world.ScenarioError([f"{path}: reward: expected penalty (the deterministic simulator does not model "
+                                   f"region counts yet), found coverage"])
     problem = world.build_problem(scenario)
     name, options = planner_settings(scenario)
     planner = make_planner(name, **used_options(name, options))

@@ -262,9 +262,12 @@ def print_results(settings: Settings, summary: dict, out: Path, started: float) 
     f = settings.flags
     bound = summary.get("clairvoyant") or {}  # None: the coordinator was stopped before the bound
     lat = summary.get("latency_ms", {})
+    told = (f"clairvoyant {'optimum' if bound.get('exact') else 'bound'} {bound.get('reward', float('nan')):.3f} "
+            f"({(bound.get('fraction') or 0) * 100:.0f}%)")
+    if summary.get("reward") == "coverage":  # the features in the union of the discs; no bound yet
+        told = f"coverage reward: {summary['coverage']['regions']} regions, clairvoyant not computed"
     print(f"total reward {summary['total_reward']:.3f} (features {summary['total_features']:.1f}); "
-          f"clairvoyant {'optimum' if bound.get('exact') else 'bound'} {bound.get('reward', float('nan')):.3f} "
-          f"({(bound.get('fraction') or 0) * 100:.0f}%); decision round trip p50 "
+          f"{told}; decision round trip p50 "
           f"{_ms(lat.get('p50'))} p99 {_ms(lat.get('p99'))}; wall {time.monotonic() - started:.1f} s")
     print(f"results: {out}/summary.json, mission.db, merged_log.jsonl"
           + ("" if f.no_record else ", ros2bag/" if f.mcap_profile == "ros2" else ", mission.mcap")

@@ -50,6 +50,7 @@ class Observation:
     passengers_left: int
     trail: tuple[Point, ...] = ()
     at: float = 0.0
+    counts: tuple[int, ...] | None = None  # the region counts behind x (coverage reward; else None)
 
 
 @dataclass(frozen=True)
@@ -110,6 +111,7 @@ class Accounted:
     position: Point
     passengers_left: int
     at: float = 0.0
+    counts: tuple[int, ...] | None = None  # the region counts behind x (coverage reward; else None)
 
 
 @dataclass(frozen=True)

@@ -62,6 +62,10 @@ class MissionSpec:
         passengers: ``[R]`` passengers each carrier starts with.
         stage_times: ``[N]`` t_j, seconds.
         fingerprint: the scenario fingerprint (docs/protocol.md, "Fingerprint").
+        min_revision: the lowest protocol revision a carrier may speak to fly this mission (a
+            coverage mission needs region counts: wire.messages.COUNTS_REVISION); 1 otherwise.
+        point_regions: under the coverage reward, ``[R][N]`` how many regions each point's disc
+            covers (the length of its Observation's ``counts``); None under the penalty reward.
     """
 
     carriers: tuple[str, ...]
@@ -69,15 +73,20 @@ class MissionSpec:
     passengers: tuple[int, ...]
     stage_times: tuple[float, ...]
     fingerprint: str
+    min_revision: int = 1
+    point_regions: tuple[tuple[int, ...], ...] | None = None
     _index: dict = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
         object.__setattr__(self, "_index", {cid: r for r, cid in enumerate(self.carriers)})
 
     @classmethod
-    def build(cls, carriers, valid, passengers, stage_times, fingerprint: str) -> "MissionSpec":
+    def build(cls, carriers, valid, passengers, stage_times, fingerprint: str, min_revision: int = 1,
+              point_regions=None) -> "MissionSpec":
+        regions = None if point_regions is None else tuple(tuple(int(k) for k in row) for row in point_regions)
         return cls(tuple(carriers), tuple(tuple(bool(v) for v in row) for row in np.asarray(valid)),
-                   tuple(int(p) for p in passengers), tuple(float(t) for t in stage_times), str(fingerprint))
+                   tuple(int(p) for p in passengers), tuple(float(t) for t in stage_times), str(fingerprint),
+                   int(min_revision), regions)
 
     @property
     def n_stages(self) -> int:
@@ -214,6 +223,8 @@ class MissionState:
         refused: carrier -> the fingerprint of its refused Hello (carriers never accepted).
         live: carriers whose liveliness token this coordinator process sees.
         reported: (carrier, stage) -> x (None = ∅) of the accepted Observations.
+        counts: (carrier, stage) -> the region counts of the accepted Observations and accounts
+            that carry them (the coverage reward; mission/coverage.py reads them).
         missing: (carrier, stage) pairs scheduled but without an Observation when decided.
         positions: (carrier, stage) -> (x, y) m, from the Observations.
         trails: carrier -> the points it drove through, from its Observations.
@@ -246,6 +257,7 @@ class MissionState:
     carrier_rejected: dict = field(default_factory=dict)
     ended: bool = False
     end_reason: str | None = None
+    counts: PairMap = field(default_factory=PairMap)
 
     # ------------------------------------------------------------------ the stage clock's predicates
     @property
@@ -578,10 +590,26 @@ def _on_hello(state: MissionState, e: ev.Hello):
             new = state
         effects += [Refuse(cid, e.fingerprint, "world-mismatch", detail, e.revision), Reject("world-mismatch", detail)]
         return new, tuple(effects)
+    if e.revision < state.spec.min_revision:
+        return _refuse_revision(state, e)
     refused = {k: v for k, v in state.refused.items() if k != cid}
     new = _replace(state, accepted={**state.accepted, cid: CarrierInfo(e.pid, e.host, e.next_stage, e.revision)},
                    refused=refused, byes=state.byes - {cid})  # a restarted carrier: its Bye is history
     return new, (Record(e, e.next_stage), Accept(cid, e.next_stage, e.revision))
+
+
+def _refuse_revision(state: MissionState, e: ev.Hello):
+    """A Hello of a revision too old for the mission (a coverage mission needs region counts):
+    refused ``version`` with the revision it needs; like a refused fingerprint, the carrier then
+    counts as joined (it will not fly) and a Hello accepted before stands."""
+    cid = e.carrier
+    detail = (f"carrier {cid} speaks protocol revision {e.revision}; this mission needs revision "
+              f"{state.spec.min_revision} or later (region counts: reward coverage)")
+    effects: list = [Refuse(cid, e.fingerprint, "version", detail, e.revision), Reject("version", detail)]
+    if cid in state.accepted or state.refused.get(cid) == e.fingerprint:
+        return state, tuple(effects)
+    new = _replace(state, refused={**state.refused, cid: e.fingerprint})
+    return new, (Record(e, None), Log(f"coordinator: refused carrier {cid}: {detail}"), *effects)
 
 
 def _check_time(state, e):
@@ -602,9 +630,27 @@ def _check_carrier_stage(state, e, what: str, timed: bool):
 
 
 def _same_observation(state: MissionState, e: ev.Observation) -> bool:
-    """``e`` repeats the accepted Observation of its carrier and stage (same x and position)."""
+    """``e`` repeats the accepted Observation of its carrier and stage (same x, position and
+    region counts)."""
     key = (e.carrier, e.stage)
-    return key in state.reported and state.reported[key] == e.x and state.positions.get(key) == tuple(e.position)
+    return (key in state.reported and state.reported[key] == e.x and state.positions.get(key) == tuple(e.position)
+            and state.counts.get(key) == e.counts)
+
+
+def _bad_counts(state: MissionState, e) -> tuple:
+    """The rejection of an Observation or account whose region counts do not fit the mission: a
+    coverage mission needs one count per region of the point's disc with every ``x``; a penalty
+    mission takes none."""
+    regions = state.spec.point_regions
+    if e.x is None or not state.spec.scheduled(e.carrier, e.stage):
+        return ()
+    if regions is None:
+        return () if e.counts is None else (Reject("out-of-range", "counts: expected none (a penalty mission)"),)
+    n = regions[state.spec.index(e.carrier)][e.stage]
+    if e.counts is None or len(e.counts) != n:
+        return (Reject("out-of-range", f"counts: expected {n} region counts of carrier {e.carrier} at stage "
+                                       f"{e.stage}, found {'none' if e.counts is None else len(e.counts)}"),)
+    return ()
 
 
 def _on_observation(state: MissionState, e: ev.Observation):
@@ -629,7 +675,11 @@ def _on_observation(state: MissionState, e: ev.Observation):
         if _same_observation(state, e):
             return state, ()  # the same Observation again (a carrier that was not sure it arrived)
         return state, (Reject("duplicate", f"second observation of carrier {cid} at stage {j}"),)
-    new = _replace(state, reported=state.reported.set((cid, j), e.x),
+    bad = _bad_counts(state, e)
+    if bad:
+        return state, bad
+    counts = state.counts if e.counts is None else state.counts.set((cid, j), tuple(e.counts))
+    new = _replace(state, counts=counts, reported=state.reported.set((cid, j), e.x),
                    positions=state.positions.set((cid, j), tuple(e.position)),
                    trails={**state.trails, cid: state.trails.get(cid, ()) + tuple(e.trail) + (tuple(e.position),)})
     return new, (Record(e, j),)
@@ -731,6 +781,8 @@ def _on_accounted(state: MissionState, e: ev.Accounted):
         effects.append(Log(f"coordinator: carrier {cid} deployed on its own at stage {j}"))
     new = _replace(state, accounts={**state.accounts, (cid, j): record},
                    positions=state.positions.set((cid, j), tuple(e.position)))
+    if record.x is not None and e.counts is not None and not _bad_counts(state, e):
+        new = _replace(new, counts=new.counts.set((cid, j), tuple(e.counts)))  # an account without them is kept
     return new, tuple(effects)
 
 

@@ -13,6 +13,7 @@ import numpy as np
 
 from planner.problem import evaluate, fill_releases, point_weights, rewards
 
+from .coverage import summary_fields
 from .state import MissionState
 
 #: About how long (s) the summary's clairvoyant bound may search, turned into a node limit
@@ -77,7 +78,11 @@ def summary(state: MissionState, problem, run: RunInfo, bound: bool = True) -> d
     typed = problem.weights is not None
     released = fill_releases(problem.passengers, actual, state.releases()) if typed else None
     raw = rewards(problem, actual, np.nan_to_num(x) * point_weights(problem, released) if typed else x)
-    total_reward, total_features = evaluate(problem, actual, x, released)
+    if problem.coverage is not None:  # the features in the union of the discs, each region once
+        cov = summary_fields(state, problem, actual, released)
+        total_reward, total_features = cov["total_reward"], cov["covered_features"]
+    else:
+        total_reward, total_features = evaluate(problem, actual, x, released)
     decided = state.decided()
     carriers = []
     for r, cid in enumerate(spec.carriers):
@@ -117,7 +122,9 @@ def summary(state: MissionState, problem, run: RunInfo, bound: bool = True) -> d
                       for j in range(spec.n_stages)],
         "observations": [[None if math.isnan(v) else float(v) for v in row] for row in x],
         "total_reward": float(total_reward), "total_features": float(total_features),
-        "clairvoyant": clairvoyant_bound(problem, x, float(total_reward)) if bound else None,
+        "reward": problem.reward,
+        **({} if problem.coverage is None else {"coverage": cov}),
+        "clairvoyant": clairvoyant_bound(problem, x, float(total_reward)) if bound and problem.coverage is None else None,
         "wall_time_s": float(run.wall_time_s),
         "latency_ms": {"p50": percentile(latencies, 50), "p99": percentile(latencies, 99),
                        "count": len(latencies),

@@ -30,5 +30,9 @@ MAX_PAYLOAD_BYTES = 128 * 1024
 MAX_TEXT = 200
 #: Most trail points [x, y] in one observation message.
 MAX_TRAIL = 512
+#: Most regions one decision point's disc may cover under the coverage reward (the region counts
+#: of one Observation, at most 5 bytes each on the wire: 20 KiB); a scenario whose arrangement has
+#: a point covering more is refused (world/regions.py).
+MAX_POINT_REGIONS = 4096
 #: Largest absolute coordinate on the wire, metres (scenario files are stricter).
 MAX_COORD = 1e7

@@ -23,7 +23,9 @@ Tables:
 
 * ``meta(key, value)`` — mission identity (mission id, scenario name and hash, seed, planner).
 * ``events(seq, wall_time, kind, carrier, stage, payload)`` — every event in arrival order
-  (``own``: a carrier's account of a stage it decided itself);
+  (``own``: a carrier's account of a stage it decided itself; an ``observation`` or ``own`` of a
+  coverage mission has ``counts``, its region counts: a key added without a schema change, read
+  as absent in older rows);
   append-only (triggers forbid UPDATE and DELETE). ``payload`` is JSON.
 * ``observations(carrier, stage, ...)``, ``decisions(stage, ...)``, ``confirmations(carrier,
   stage, ...)`` — typed copies of the first event of each kind per key; their primary keys make a
@@ -357,8 +359,9 @@ class MissionStore:
                        revision=e.revision,
                        compatible=e.fingerprint == state.spec.fingerprint)
         elif isinstance(e, ev.Observation):
+            extra = {} if e.counts is None else {"counts": list(e.counts)}  # the coverage reward's region counts
             self.observation(e.carrier, e.stage, e.x, e.position, wall_time=e.at, t=e.t,
-                             passengers_left=e.passengers_left, trail=[list(p) for p in e.trail])
+                             passengers_left=e.passengers_left, trail=[list(p) for p in e.trail], **extra)
         elif isinstance(e, ev.LivelinessChanged):
             self.event("alive" if e.alive else "dead", e.carrier, record.stage, wall_time=e.at)
         elif isinstance(e, ev.Decided):
@@ -375,8 +378,9 @@ class MissionStore:
                               state.confirms[(e.carrier, e.stage)].latency_ms, wall_time=e.at,
                               passengers_left=e.passengers_left, passenger=e.passenger)
         elif isinstance(e, ev.Accounted):
+            extra = {} if e.counts is None else {"counts": list(e.counts)}
             self.event("own", e.carrier, e.stage, wall_time=e.at, t=e.t, x=e.x, deployed=e.deployed,
-                       position=list(e.position), passengers_left=e.passengers_left)
+                       position=list(e.position), passengers_left=e.passengers_left, **extra)
         elif isinstance(e, ev.Bye):
             self.event("bye", e.carrier, None, wall_time=e.at, reason=e.reason, rejected=dict(e.rejected),
                        deployments=list(e.deployments))
@@ -477,6 +481,13 @@ def _point(value) -> tuple[float, float]:
     return (float(value[0]), float(value[1]))
 
 
+def _counts(p: dict) -> tuple[int, ...] | None:
+    """An observation's or account's region counts (the coverage reward); None in a row without
+    them (the penalty reward, and every row written before they existed)."""
+    counts = p.get("counts")
+    return None if counts is None else tuple(int(c) for c in counts)
+
+
 def _hello(cid, stage, p, at):
     if "fingerprint" not in p:
         return None  # written by an older version: pid and host only
@@ -492,7 +503,7 @@ _EVENT_FROM_ROW = {
     "dead": lambda cid, stage, p, at: ev.LivelinessChanged(cid, False, at),
     "observation": lambda cid, stage, p, at: ev.Observation(
         cid, stage, p.get("t", 0.0), p["x"], _point(p["position"]), p.get("passengers_left", 0),
-        tuple(_point(q) for q in p.get("trail", ())), at),
+        tuple(_point(q) for q in p.get("trail", ())), at, _counts(p)),
     "decision": lambda cid, stage, p, at: ev.Decided(stage, tuple(p["deploy"]), p["planning_ms"], at,
                                                      tuple(p.get("passengers", ()))),
     "published": lambda cid, stage, p, at: ev.Published(stage, at),
@@ -500,7 +511,7 @@ _EVENT_FROM_ROW = {
         cid, stage, p["deployed"], p["status"], _point(p["position"]), p.get("passengers_left", 0), at,
         p.get("passenger")),
     "own": lambda cid, stage, p, at: ev.Accounted(
-        cid, stage, p["t"], p["x"], p["deployed"], _point(p["position"]), p["passengers_left"], at),
+        cid, stage, p["t"], p["x"], p["deployed"], _point(p["position"]), p["passengers_left"], at, _counts(p)),
     "bye": lambda cid, stage, p, at: ev.Bye(
         cid, tuple(p.get("deployments", ())), tuple(sorted(p.get("rejected", {}).items())), p["reason"], at),
     "end": lambda cid, stage, p, at: ev.Ended(p["reason"], at),

@@ -39,7 +39,8 @@ def offline(scenario, planner=None, iterations=None, seed=None):
         scenario = scenario.with_seed(seed)
     name, options = planner_settings(scenario, planner, iterations)
     x = world.observe_all(scenario)
-    return run_online(build_problem(scenario), x, make_planner(name, **options), scenario.seed), x
+    return run_online(build_problem(scenario), x, make_planner(name, **options), scenario.seed,
+                      counts=world.observe_counts(scenario)), x
 
 
 class InProcessFleet:

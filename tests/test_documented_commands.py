@@ -309,6 +309,10 @@ RUNS = [
                            ("[--vessels V]", "--vessels 2")),), "default", wall_s=90, mem_mb=800),
     Run("wire-sizes", (S("python -m tools.wire_sizes [SCENARIO.yaml]",
                          ("[SCENARIO.yaml]", "scenarios/marine_survey.yaml")),), "default", wall_s=60, mem_mb=600),
+    Run("world-export", (S("python -m world export SCENARIO.yaml -o instance.json [--seed S]",
+                           ("SCENARIO.yaml", "scenarios/six_carriers_coverage.yaml"),
+                           ("instance.json", "{tmp}/instance.json"), ("[--seed S]", "--seed 3")),),
+        "default", wall_s=90, mem_mb=800),
     Run("solve-example", (
         Step(None, raw=EXAMPLE_JSON),
         S(SOLVE, ("INSTANCE.json", "{tmp}/example.json"), ("NAME", "mcts-ssap"), ("[--iterations K]", "--iterations 2000"),

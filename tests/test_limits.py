@@ -44,7 +44,11 @@ def test_messages_of_a_scenario_at_the_limits_encode():
     trail = tuple((-limits.MAX_COORD + 0.123456789, limits.MAX_COORD - 0.987654321) for _ in range(limits.MAX_TRAIL))
     obs = Observation(MISSION, ids[-1], last, 1e9 - 0.5, 10**9, trail[0], limits.MAX_PASSENGERS, trail)
     hello = Hello(MISSION, ids[-1], 2**31, "h" * 255, limits.MAX_PASSENGERS, limits.MAX_STAGES, "f" * 64)
-    for message in (state, decision, obs, hello):
+    # A coverage mission's Observation: the most region counts, each a 5-byte integer (revision 5).
+    counts = (10**9 // limits.MAX_POINT_REGIONS,) * limits.MAX_POINT_REGIONS
+    covered = Observation(MISSION, ids[-1], last, 1e9 - 0.5, sum(counts), trail[0], limits.MAX_PASSENGERS, trail,
+                          counts)
+    for message in (state, decision, obs, hello, covered):
         data = encode(message)  # raises "oversized" beyond MAX_PAYLOAD_BYTES
         assert len(data) <= limits.MAX_PAYLOAD_BYTES
         assert decode(data) == message

@@ -79,6 +79,26 @@ def test_every_published_revision_is_kept():
     assert "accepted" not in page_fields(2) and "progress" in page_fields(3) and "accepted" in page_fields(3)
     assert page_fields(3)["carrier-state"] == {"passengers_left", "deployments", "live", "refused", "rejected"}
     assert "epoch" not in page_fields(3)["end"] and "clock" not in page_fields(3)["accepted"]
+    assert "epoch" in page_fields(4)["end"] and "counts" not in page_fields(4)["obs"] | page_fields(4)["own"]
+
+
+def test_region_counts_are_left_out_for_a_revision_4_peer_and_unknown_to_it():
+    """Revision 5's Observation and Own ``counts`` (coverage missions): sent at 5, left out at 4,
+    ``unknown-field`` to a revision 4 reader; their sum must be ``x``."""
+    obs = wm.Observation("m", "a", 2, 40.0, 5, (1.0, 2.0), 3, (), counts=(2, 0, 3))
+    assert msgpack.unpackb(wm.encode(obs))["counts"] == [2, 0, 3]
+    assert "counts" not in msgpack.unpackb(wm.encode(obs, 4))
+    assert wm.decode(wm.encode(obs)).counts == (2, 0, 3)
+    with pytest.raises(wm.ProtocolError) as info:
+        wm.decode(wm.encode(obs), revision=4)
+    assert info.value.reason == "unknown-field"
+    for bad in (dict(x=6), dict(x=None)):
+        body = dict(msgpack.unpackb(wm.encode(obs)), **bad)
+        with pytest.raises(wm.ProtocolError) as info:
+            wm.decode(msgpack.packb(body))
+        assert info.value.reason == "out-of-range" and "counts" in info.value.detail
+    own = wm.Own("m", "a", 2, 40.0, 5, True, (1.0, 2.0), 2, counts=(5,))
+    assert wm.decode(wm.encode(own)).counts == (5,) and "counts" not in msgpack.unpackb(wm.encode(own, 4))
 
 
 @pytest.mark.parametrize("revision", revisions())
@@ -118,9 +138,9 @@ def test_what_an_older_carrier_accepts_is_what_it_gets(revision):
             message = wm.decode(msgpack.packb(body), revision=revision)
             if kind == "decision" and not message.passengers and message.deploy:
                 message = dataclasses.replace(message, passengers=tuple(range(len(message.deploy))))
-            if kind == "end":  # revision 4's End epoch: never sent to an earlier carrier
+            if kind == "end" and revision < 4:  # revision 4's End epoch: never sent to an earlier carrier
                 message = dataclasses.replace(message, epoch=3)
-            if kind == "accepted":  # revision 4's mission clock: never sent to an earlier carrier
+            if kind == "accepted" and revision < 4:  # revision 4's mission clock: never sent to an earlier carrier
                 message = dataclasses.replace(message, clock="wall", silence_timeout_s=7.5, realtime=2.0)
             if kind == "state":
                 message = dataclasses.replace(message, revision=wm.REVISION)

@@ -36,8 +36,9 @@ PROTOCOL_VERSION = 1
 #: 1: the first published page (epochs, Own, Refusal, scoped State); 2: passenger types
 #: (Decision ``passengers``, Confirm ``passenger``); 3: revisions announced, every Hello answered
 #: (Accepted, Refusal reasons beyond the fingerprint), rejections visible in State; 4: End
-#: ``epoch`` (a deposed coordinator cannot end a mission), the mission's clock on Accepted.
-REVISION = 4
+#: ``epoch`` (a deposed coordinator cannot end a mission), the mission's clock on Accepted; 5:
+#: region counts (Observation and Own ``counts``) for missions under the coverage reward.
+REVISION = 5
 
 #: What a peer that does not announce its revision speaks: revisions 1 and 2 did not announce
 #: theirs, and a revision-2 peer reads every message of revision 1.
@@ -46,7 +47,8 @@ UNANNOUNCED_REVISION = 1
 #: Size limits (payload, stages, carriers, trail, coordinates, text): one home, shared with the
 #: scenario validation so that a valid scenario's messages always encode.
 from planner.limits import (  # noqa: E402
-    MAX_CARRIERS, MAX_COORD, MAX_PASSENGERS, MAX_PAYLOAD_BYTES, MAX_STAGES, MAX_STATE_CARRIERS, MAX_TEXT, MAX_TRAIL,
+    MAX_CARRIERS, MAX_COORD, MAX_PASSENGERS, MAX_PAYLOAD_BYTES, MAX_POINT_REGIONS, MAX_STAGES, MAX_STATE_CARRIERS,
+    MAX_TEXT, MAX_TRAIL,
 )
 
 #: Every reason code :class:`ProtocolError` can carry (plus node-level ones in docs/protocol.md).
@@ -216,6 +218,25 @@ def _counts(value: Any, name: str) -> tuple:
     ))
 
 
+#: A feature count (an Observation's ``x``, a region's count).
+_COUNT = _int(0, 10**9)
+#: Region counts (revision 5): absent (nil) under the penalty reward and at a ∅ stage; a coverage
+#: mission refuses carriers of earlier revisions (mission.coverage.COUNTS_REVISION).
+_REGION_COUNTS = _optional(_list(_COUNT, MAX_POINT_REGIONS))
+
+
+def _check_counts(message: Any) -> None:
+    """The cross-field rule of ``counts`` (Observation, Own): only with an ``x``, and ``x`` is
+    their sum (docs/protocol.md, "Observation")."""
+    if message.counts is None:
+        return
+    if message.x is None:
+        raise ProtocolError("out-of-range", "counts: expected nil when x is nil")
+    if sum(message.counts) != message.x:
+        raise ProtocolError("out-of-range", f"counts: expected counts summing to x ({message.x}), "
+                                            f"found a sum of {sum(message.counts)}")
+
+
 _STAGE = _int(0, MAX_STAGES - 1)
 _STAGE_COUNT = _int(0, MAX_STAGES)
 _PASSENGERS = _int(0, MAX_PASSENGERS)
@@ -307,18 +328,26 @@ class Observation:
         passengers_left: passengers still on board before this stage's decision.
         trail: positions [x, y] (metres) the carrier drove through since its previous observation,
             oldest first, at most 512 points (for maps only).
+        counts: under the coverage reward, the feature count of each region the carrier's disc
+            covers at this stage, in the order of the scenario's ``covers`` (ascending region
+            index); ``x`` is their sum. None (absent) under the penalty reward and when ``x`` is
+            None (revision 5).
     """
 
     mission: str = _spec(_ident)
     carrier: str = _spec(_ident)
     stage: int = _spec(_STAGE)
     t: float = _spec(_SECONDS)
-    x: int | None = _spec(_optional(_int(0, 10**9)))
+    x: int | None = _spec(_optional(_COUNT))
     position: tuple[float, float] = _spec(_point)
     passengers_left: int = _spec(_PASSENGERS)
     trail: tuple[tuple[float, float], ...] = _spec(_points(MAX_TRAIL))
+    counts: tuple[int, ...] | None = _spec(_REGION_COUNTS, absent=None, since=5)
     v: int = PROTOCOL_VERSION
     TYPE = "obs"
+
+    def __post_init__(self) -> None:
+        _check_counts(self)
 
 
 @dataclass(frozen=True)
@@ -421,18 +450,24 @@ class Own:
         deployed: True if it released a passenger at this stage.
         position: where (the carrier's position at the stage time), metres.
         passengers_left: passengers on board after the stage.
+        counts: the region counts behind ``x`` under the coverage reward, as in
+            :class:`Observation` (revision 5).
     """
 
     mission: str = _spec(_ident)
     carrier: str = _spec(_ident)
     stage: int = _spec(_STAGE)
     t: float = _spec(_SECONDS)
-    x: int | None = _spec(_optional(_int(0, 10**9)))
+    x: int | None = _spec(_optional(_COUNT))
     deployed: bool = _spec(_bool)
     position: tuple[float, float] = _spec(_point)
     passengers_left: int = _spec(_PASSENGERS)
+    counts: tuple[int, ...] | None = _spec(_REGION_COUNTS, absent=None, since=5)
     v: int = PROTOCOL_VERSION
     TYPE = "own"
+
+    def __post_init__(self) -> None:
+        _check_counts(self)
 
 
 @dataclass(frozen=True)

@@ -21,8 +21,26 @@ def build_problem(scenario, geometry=None):
     from planner.problem import Problem
 
     geometry = stage_geometry(scenario) if geometry is None else geometry
+    if scenario.reward == "coverage":
+        # The regions of the candidate discs (world/regions.py); the point prior is the derived
+        # one, the mean of a point's sum of region means (density x pi r^2).
+        from world.regions import coverage
+
+        cov = coverage(scenario)
+        return Problem.build(scenario.passengers, geometry.valid, cov.overlaps(scenario.stages),
+                             scenario.prior_distribution(), weights=scenario.passenger_values(), coverage=cov)
     return Problem.build(scenario.passengers, geometry.valid, geometry.overlaps, scenario.prior_distribution(),
                          weights=scenario.passenger_values())
+
+
+def observe_counts(scenario, seed=None):
+    """int64 ``[M]``: the realised region counts of a ``reward: coverage`` scenario (the features of
+    ``seed``, the scenario's by default, in each region); None under the penalty reward."""
+    if scenario.reward != "coverage":
+        return None
+    from world.regions import region_counts
+
+    return region_counts(scenario, seed=seed)
 
 
 def render_map(scenario, path, deployments=None, trajectories=None, title=None, **kwargs):
@@ -36,5 +54,5 @@ __all__ = [
     "Building", "CarrierSpec", "build_problem", "Cluster", "Deployment", "FEATURES_SPAWN_KEY", "FeatureSpec", "MapSpec",
     "MissionTrace", "PHYSICS_DT", "PlannerSpec", "PriorSpec", "SUBSTEPS", "Scenario", "ScenarioError",
     "Simulation", "StageGeometry", "load_scenario", "observe_all", "parse_scenario", "render_map",
-    "sample_features", "simulate_mission", "stage_geometry",
+    "observe_counts", "sample_features", "simulate_mission", "stage_geometry",
 ]

@@ -1,5 +1,5 @@
-"""Command line: ``python -m world check SCENARIO.yaml``, ``python -m world render SCENARIO.yaml -o map.png``
-and ``python -m world import SOURCE --out SCENARIO.yaml ...`` (a team's own map and run:
+"""Command line: ``python -m world check SCENARIO.yaml``, ``python -m world render SCENARIO.yaml -o map.png``,
+``python -m world export SCENARIO.yaml -o instance.json`` (the planner's instance) and ``python -m world import SOURCE --out SCENARIO.yaml ...`` (a team's own map and run:
 world/importer.py).
 
 Exit codes: 0 success, 2 bad input (each problem on one line on stderr, no traceback).
@@ -79,20 +79,66 @@ def check(s: Scenario, seeds: int) -> str:
     lines.append(f"decision points: {n_valid} valid of {s.n_carriers * s.stages}")
     lines.append(f"overlaps: {len(geo.overlaps)} groups (size: count {dict(sorted(sizes.items()))}); "
                  f"{in_some} of {n_valid} points in some overlap; {pairs} conflicting pairs")
+    if s.reward == "coverage":
+        lines.extend(_coverage_lines(s))
     lines.append(f"planner: {s.planner.name}, iterations {s.planner.iterations}"
                  + (f", plan_ms {s.planner.plan_ms:g}" if s.planner.plan_ms is not None else "")
                  + f", exploration {s.planner.exploration:.4g}, samples {s.planner.samples}")
     lines.append(f"prior: {_prior_text(s)}")
     lines.extend(describe_links(s))
     rep = prior_report(s, seeds=seeds)
-    lines.append(f"prior vs world over {rep.seeds} seeds ({rep.samples} observed counts at actual positions, "
-                 f"line of sight):")
+    where = ("in the planned discs, region by region" if s.reward == "coverage"
+             else "at actual positions, line of sight")
+    lines.append(f"prior vs world over {rep.seeds} seeds ({rep.samples} observed counts {where}):")
     lines.append(f"  {'':<10} {'mean':>7} {'var':>7} {'q90':>5}")
     lines.append(f"  {'prior':<10} {rep.prior_mean:>7.3f} {rep.prior_var:>7.3f} {rep.prior_q90:>5g}")
     lines.append(f"  {'observed':<10} {rep.mean:>7.3f} {rep.var:>7.3f} {rep.q90:>5g}")
     lines.append("  observed mean per carrier: "
                  + ", ".join(f"{c.id} {v:.2f}" for c, v in zip(s.carriers, rep.per_carrier_mean) if not math.isnan(v)))
     return "\n".join(lines)
+
+
+def _coverage_lines(s: Scenario) -> list[str]:
+    """``check``'s report of a coverage scenario's regions (world/regions.py)."""
+    from world.regions import region_counts, region_means, scenario_regions
+
+    regions = scenario_regions(s)
+    per_point = [len(c) for row in regions.covers for c in row if c is not None]
+    shared = sum(1 for sig in regions.signatures if len(sig) >= 2)
+    counts = region_counts(s)
+    return [f"reward: coverage; regions: {regions.n_regions} cells of the arrangement of {len(regions.centres)} "
+            f"distinct discs of {s.sensing_radius:g} m ({shared} inside two or more discs)",
+            f"  regions per point: min {min(per_point, default=0)}, mean {np.mean(per_point or [0]):.2f}, "
+            f"max {max(per_point, default=0)}; area {regions.areas.sum():.1f} m² (union), smallest "
+            f"{regions.areas.min() if regions.n_regions else 0:.3g} m²",
+            f"  prior: Poisson(density x area) per region, mean total {region_means(s).sum():.2f}; "
+            f"realised at seed {s.seed}: {int(counts.sum())} features in the union"]
+
+
+def export(s: Scenario, seed: int | None = None) -> dict:
+    """The planner's instance of a scenario (docs/planner.md, "Instance files"): schedules, the
+    realised observations at ``seed`` (the scenario's by default) and, under ``reward: coverage``,
+    ``reward``, ``regions`` (their Poisson means), ``covers`` and the realised ``counts``."""
+    import world
+    from planner.instance import Instance, instance_dict
+
+    seed = s.seed if seed is None else int(seed)
+    problem = world.build_problem(s)
+    x = world.observe_all(s, seed)
+    prior = ({"kind": "poisson", "mean": s.derived_prior_mean()} if s.prior.kind == "derived"
+             else {"kind": s.prior.kind, **{k: list(v) if isinstance(v, tuple) else v for k, v in s.prior.params}})
+    out = {"name": s.name, "comment": f"exported from {s.source or s.name} at seed {seed} (python -m world export)",
+           **instance_dict(Instance(problem, x), prior)}
+    if s.reward == "coverage":
+        from world.regions import region_counts, region_means, scenario_regions
+
+        for key in ("overlaps", "observations"):  # derived from covers and counts
+            out.pop(key)
+        out["reward"] = "coverage"
+        out["regions"] = [{"mean": float(mu)} for mu in region_means(s)]
+        out["covers"] = [[None if c is None else list(c) for c in row] for row in scenario_regions(s).covers]
+        out["counts"] = region_counts(s, seed=seed).tolist()
+    return out
 
 
 def main(argv: list[str] | None = None, checks: Sequence[Callable[[Scenario], list[Problem]]] = ()) -> int:
@@ -110,6 +156,10 @@ def main(argv: list[str] | None = None, checks: Sequence[Callable[[Scenario], li
     p_render.add_argument("--trajectories", action="store_true", help="simulate and draw the actual trajectories")
     p_render.add_argument("--seed", type=int, default=None, help="feature seed (the scenario's by default)")
     p_render.add_argument("--no-stage-labels", action="store_true", help="omit stage numbers")
+    p_export = sub.add_parser("export", help="write the scenario's planner instance (JSON) at a seed")
+    p_export.add_argument("scenario")
+    p_export.add_argument("-o", "--output", required=True, help="output JSON file")
+    p_export.add_argument("--seed", type=int, default=None, help="feature seed (the scenario's by default)")
     _import_parser(sub)
     args = parser.parse_args(argv)
     if args.command == "import":
@@ -130,6 +180,17 @@ def main(argv: list[str] | None = None, checks: Sequence[Callable[[Scenario], li
         if problems:
             return EXIT_BAD_INPUT
         print(check(s, args.seeds))
+        return 0
+    if args.command == "export":
+        import json
+        from pathlib import Path
+
+        try:
+            Path(args.output).write_text(json.dumps(export(s, args.seed)) + "\n", encoding="utf-8")
+        except OSError as exc:
+            print(f"{args.output}: expected a writable JSON path, found {exc.strerror or exc}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+        print(f"wrote {args.output}")
         return 0
     from world.features import sample_features
     from world.render import render_map

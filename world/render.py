@@ -110,6 +110,19 @@ def _draw_links(ax, scenario) -> list:
     return handles
 
 
+def _draw_candidate_discs(ax, scenario):
+    """The coverage reward's candidate discs (world/regions.py), faint: where they overlap the
+    shading deepens, so the arrangement's regions show. Returns the regions."""
+    from matplotlib.collections import PatchCollection
+
+    from world.regions import scenario_regions
+
+    regions = scenario_regions(scenario)
+    discs = [Circle((float(x), float(y)), scenario.sensing_radius) for x, y in regions.centres]
+    ax.add_collection(PatchCollection(discs, fc=OVERLAP_COLOUR, alpha=0.08, ec=OVERLAP_COLOUR, lw=0.5, zorder=4))
+    return regions
+
+
 def render_map(scenario, path: str | Path, deployments: Any = None, trajectories: Any = None,
                title: str | None = None, positions: np.ndarray | None = None,
                features: np.ndarray | None = None, stage_labels: bool = True, dpi: int = 130,
@@ -175,9 +188,11 @@ def render_map(scenario, path: str | Path, deployments: Any = None, trajectories
     if len(feats):
         ax.scatter(feats[:, 0], feats[:, 1], s=5, c="#6b6b6b", alpha=0.7, lw=0, zorder=2)
 
-    # overlap groups: translucent hulls (3+ points) or thick bands (2 or collinear points)
+    # overlap groups: translucent hulls (3+ points) or thick bands (2 or collinear points); under
+    # the coverage reward the candidate discs instead, lightly: their overlaps are the regions
     pos = geo.positions
-    for group in geo.overlaps:
+    regions = _draw_candidate_discs(ax, scenario) if scenario.reward == "coverage" else None
+    for group in (geo.overlaps if regions is None else ()):
         pts = np.array([pos[r, j] for r, j in group])
         hull = convex_hull(pts)
         if np.ptp(pts, axis=0).max() < 0.01 * max(w, h):
@@ -250,7 +265,10 @@ def render_map(scenario, path: str | Path, deployments: Any = None, trajectories
         Line2D([], [], color="none", marker="o", mfc="#6b6b6b", mec="none", ms=3,
                label=(f"frontier cell ({len(feats)})" if scenario.features.from_map or scenario.replays
                       else f"feature ({len(feats)})")),
-        Patch(fc=OVERLAP_COLOUR, alpha=0.25, ec=OVERLAP_COLOUR, label=f"overlap group ({len(geo.overlaps)})"),
+        Patch(fc=OVERLAP_COLOUR, alpha=0.25, ec=OVERLAP_COLOUR, label=f"overlap group ({len(geo.overlaps)})")
+        if regions is None else
+        Patch(fc=OVERLAP_COLOUR, alpha=0.08, ec=OVERLAP_COLOUR, label=f"candidate disc ({len(regions.centres)}; "
+                                                                        f"{regions.n_regions} regions)"),
     ]
     if len(segs):
         handles.append(Line2D([], [], color="#222222", lw=2, label="wall"))

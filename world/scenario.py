@@ -295,6 +295,8 @@ class Scenario:
         carrier_radius: the carriers' body radius (m); every leg keeps this clearance from walls.
         links: the link model (``links``: perfect by default; planner.links, world/links.py).
         current: the water's current field (``current``), or None (no current: the default).
+        reward: ``penalty`` (the paper's 1/p rule) or ``coverage`` (deployments valued by the
+            features in the union of their discs: world/regions.py, docs/scenario.md).
         source: the file it was loaded from ("" if built in code).
     """
 
@@ -313,6 +315,7 @@ class Scenario:
     carrier_radius: float = CARRIER_RADIUS
     links: _links.LinkSpec = _links.LinkSpec()
     current: CurrentSpec | None = None
+    reward: str = "penalty"
     source: str = field(default="", compare=False)
 
     @property
@@ -461,7 +464,7 @@ class _Checker(Problems):
 
 _TOP_KEYS = ("name", "seed", "map", "features", "sensing_radius", "stage_interval", "stages",
              "first_stage_time", "conflict_radius", "carriers", "planner", "prior", "passenger_types",
-             "carrier_radius", "links", "current")
+             "carrier_radius", "links", "current", "reward")
 _TOP_REQUIRED = ("name", "seed", "map", "features", "sensing_radius", "stage_interval", "stages", "carriers")
 _MAP_KEYS = ("bounds", "walls", "obstacles", "building", "occupancy")
 _OCCUPANCY_KEYS = ("file", "sha256", "free_level", "occupied_level")
@@ -595,6 +598,7 @@ def parse_scenario(data: Any, file: str = "<scenario>") -> Scenario:
     ck.extend(problems)
     current, problems = check_current(top["current"]) if "current" in top else (None, [])
     ck.extend(problems)
+    reward = _parse_reward(ck, top, feats, prior)
     if ck.problems:
         raise ScenarioError(ck.problems)
     # no problem recorded: every value was read (a reader returns None only with a problem)
@@ -602,10 +606,44 @@ def parse_scenario(data: Any, file: str = "<scenario>") -> Scenario:
             and interval is not None and n_stages is not None and conflict is not None and carriers is not None
             and planner is not None and prior is not None and t0 is not None and body is not None
             and links is not None)
-    return Scenario(name=name, seed=seed, map=the_map, features=feats, sensing_radius=radius,
-                    stage_interval=interval, stages=n_stages, conflict_radius=conflict,
-                    carriers=carriers, planner=planner, prior=prior, first_stage_time=t0,
-                    carrier_radius=body, links=links, current=current, source=file)
+    scenario = Scenario(name=name, seed=seed, map=the_map, features=feats, sensing_radius=radius,
+                        stage_interval=interval, stages=n_stages, conflict_radius=conflict,
+                        carriers=carriers, planner=planner, prior=prior, first_stage_time=t0,
+                        carrier_radius=body, links=links, current=current, reward=reward,
+                        source=file)
+    if reward == "coverage":
+        from world import regions
+
+        try:  # refused before any arc is computed (time linear in the decision points)
+            regions.check_size(scenario)
+        except regions.ArrangementTooLarge as err:
+            raise ScenarioError([f"{file}: reward: {err}"]) from None
+    return scenario
+
+
+#: The reward models a scenario may name (``reward``); the first is the default.
+REWARDS = ("penalty", "coverage")
+
+
+def _parse_reward(ck: _Checker, top: dict, feats: FeatureSpec | None, prior: PriorSpec | None) -> str:
+    """``reward``: ``penalty`` (default) or ``coverage``. Under coverage every region's prior is
+    Poisson(density x area), so the prior must be derived, the density positive, and the
+    carriers must sense features (not replay recorded counts, which say nothing of regions)."""
+    reward = top.get("reward", REWARDS[0])
+    if reward not in REWARDS:
+        ck.bad("reward", f"one of {', '.join(REWARDS)}", reward)
+        return REWARDS[0]
+    if reward == "coverage":
+        if prior is not None and prior.kind != "derived":
+            ck.bad("prior", "derived under reward: coverage (each region's prior is Poisson(density x area))",
+                   Found(prior.kind))
+        if feats is not None and feats.replay:
+            ck.bad("features.replay", "absent under reward: coverage (recorded counts are not region counts)",
+                   Found("recorded observations"))
+        elif feats is not None and not feats.from_map and feats.density <= 0:
+            ck.bad("features.density", "a density > 0 under reward: coverage (the regions' prior intensity)",
+                   feats.density)
+    return reward
 
 
 def _parse_map(ck: _Checker, node: Any) -> MapSpec | None:

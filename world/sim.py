@@ -219,6 +219,7 @@ class Simulation:
         self._sense_xs = self._sense_pts[:, 0]
         self.deployments: list[Deployment] = []
         self._left = {cid: scenario.carriers[scenario.carrier_index(cid)].passengers for cid in ids}
+        self._counts: np.ndarray | None = None  # region counts (reward: coverage), on first use
         self._step = 0
 
     @property
@@ -245,6 +246,10 @@ class Simulation:
         """Features within the sensing radius of ``cid``'s actual position with line of sight; in
         a replayed mission (``features.replay``) the recorded value of ``stage`` (the stage whose
         time the simulation is at when None)."""
+        if self.scenario.reward == "coverage":  # the passenger's disc: its regions' features
+            s = self.scenario
+            j = round((self.time - s.first_stage_time) / s.stage_interval) if stage is None else int(stage)
+            return sum(self.sense_counts(cid, j) or ())
         if self.scenario.replays:
             s = self.scenario
             j = round((self.time - s.first_stage_time) / s.stage_interval) if stage is None else int(stage)
@@ -256,6 +261,24 @@ class Simulation:
         # absorbs rounding), and the count is order-free, so it equals the count over all features.
         lo, hi = np.searchsorted(self._sense_xs, [origin[0] - radius - 1e-6, origin[0] + radius + 1e-6])
         return geometry.count_visible(origin, self._sense_pts[lo:hi], radius, self.scenario.map.segments)
+
+    def sense_counts(self, cid: str, stage: int) -> tuple[int, ...] | None:
+        """Under ``reward: coverage``: the feature counts of the regions carrier ``cid``'s disc
+        covers at ``stage`` (in the order of the scenario's ``covers``; world/regions.py), None
+        at an invalid stage or under the penalty reward. Its observation is their sum."""
+        if self.scenario.reward != "coverage":
+            return None
+        from world.regions import scenario_regions
+
+        regions = scenario_regions(self.scenario)
+        covered = regions.covers[self.scenario.carrier_index(cid)][int(stage)]
+        if covered is None:
+            return None
+        if self._counts is None:  # the features near this simulation's carriers' discs suffice
+            rows = [self.scenario.carrier_index(c) for c in self._bodies]
+            discs = regions.disc_of[rows][regions.disc_of[rows] >= 0]
+            self._counts = regions.counts(regions.near(self.features, discs))
+        return tuple(int(self._counts[m]) for m in covered)
 
     def passengers_left(self, cid: str) -> int:
         return self._left[cid]
@@ -299,12 +322,15 @@ class MissionTrace:
         positions: float ``[R, N, 2]`` actual positions at the stage times (m); NaN where invalid.
         trajectories: per carrier, float ``[K, 3]`` samples (t s, x m, y m) up to the last stage.
         features: float ``[F, 2]`` feature positions (m).
+        counts: int64 ``[M]`` the realised region counts under ``reward: coverage`` (x is then the
+            sum of a point's regions' counts); None under the penalty reward.
     """
 
     x: np.ndarray
     positions: np.ndarray
     trajectories: tuple[np.ndarray, ...]
     features: np.ndarray
+    counts: np.ndarray | None = None
 
 
 @lru_cache(maxsize=32)
@@ -340,6 +366,13 @@ def simulate_mission(scenario: Scenario, seed: int | None = None, rows: Iterable
     trajectories = []
     segs = scenario.map.segments
     wanted = range(scenario.n_carriers) if rows is None else set(int(r) for r in rows)
+    counts = None
+    if scenario.reward == "coverage":  # a point observes its disc's regions (world/regions.py)
+        from world.regions import region_counts, scenario_regions
+
+        counts = region_counts(scenario, features)
+        sums = [[None if c is None else int(counts[list(c)].sum()) for c in row]
+                for row in scenario_regions(scenario).covers]
     for r in range(scenario.n_carriers):
         if r not in wanted:
             trajectories.append(np.empty((0, 3)))
@@ -348,9 +381,12 @@ def simulate_mission(scenario: Scenario, seed: int | None = None, rows: Iterable
         trajectories.append(trace)
         for j in np.flatnonzero(valid[r]):
             pos[r, j] = stage_pos[j]
-            x[r, j] = (scenario.features.replayed(r, j) if scenario.replays
-                       else geometry.count_visible(stage_pos[j], features, scenario.sensing_radius, segs))
-    return MissionTrace(x=x, positions=pos, trajectories=tuple(trajectories), features=features)
+            if counts is not None:
+                x[r, j] = sums[r][j]
+            else:
+                x[r, j] = (scenario.features.replayed(r, j) if scenario.replays
+                           else geometry.count_visible(stage_pos[j], features, scenario.sensing_radius, segs))
+    return MissionTrace(x=x, positions=pos, trajectories=tuple(trajectories), features=features, counts=counts)
 
 
 def observe_all(scenario: Scenario, seed: int | None = None) -> np.ndarray:
