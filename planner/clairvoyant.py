@@ -64,6 +64,9 @@ class ClairvoyantResult:
         nodes: search nodes visited (0 when the search was not attempted).
         released: int64 ``[R, N]``: the passenger of each deployment (-1 elsewhere), the best
             assignment :func:`planner.passengers.best_assignment` (index order without values).
+        gap: when not ``exact``, (features - value of the best feasible set found) / features
+            (the coverage reward's bound, :mod:`planner.coverage_bounds`; 0.0 otherwise).
+        method: how a coverage bound was found (``ilp``, ``lp``, ``union``); "" for the penalty.
     """
 
     deployed: np.ndarray
@@ -72,6 +75,8 @@ class ClairvoyantResult:
     exact: bool
     nodes: int = 0
     released: np.ndarray | None = None
+    gap: float = 0.0
+    method: str = ""
 
 
 def _valid_points(problem: Problem, x: np.ndarray) -> np.ndarray:
@@ -327,17 +332,25 @@ def node_limit(problem: Problem, seconds: float) -> int:
     return max(1, min(MAX_NODES, int(seconds * POINT_VISITS_PER_S / max(1, problem.valid.size))))
 
 
-def solve(problem: Problem, x: np.ndarray, max_nodes: int = MAX_NODES) -> ClairvoyantResult:
+def solve(problem: Problem, x: np.ndarray, max_nodes: int = MAX_NODES,
+          counts: np.ndarray | None = None) -> ClairvoyantResult:
     """Offline optimum of ``problem`` with all observations ``x[R, N]`` (NaN = ∅) known.
 
     Args:
         problem: the instance.
         x: float ``[R, N]`` realised observations.
         max_nodes: search-node limit; beyond it the conflict-free upper bound is returned.
+        counts: float ``[M]`` the realised region counts of a coverage problem (required there:
+            its clairvoyant is :func:`planner.coverage_bounds.solve`); ignored for the penalty.
 
     Returns:
         :class:`ClairvoyantResult`; ``exact=False`` marks an upper bound (see module docstring).
     """
+    if problem.coverage is not None:
+        from planner import coverage_bounds
+        from planner.problem import _region_counts
+
+        return coverage_bounds.solve(problem, x, _region_counts(problem, counts))
     x = np.asarray(x, dtype=float)
     if x.shape != problem.valid.shape:
         raise ValueError(f"observations shape {x.shape} != problem shape {problem.valid.shape}")
