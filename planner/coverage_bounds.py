@@ -371,21 +371,24 @@ def inner_maximum(problem: Problem, counts: np.ndarray, penalty: bool = True, in
     return model.solve(integer, time_limit_s).bound
 
 
-#: Seconds per penalty term (a carrier, stage and passengers-left triple; scipy pmf calls) of
-#: :func:`penalty_terms`; the HiGHS part of a sample follows :data:`planner.duality._COST`.
-PENALTY_TERM_S = 5e-5
+#: Cost model of one sample of :func:`upper_bound` (seconds, one core of the development machine):
+#: per HiGHS model, per column and per squared column (the LP), the MIP's factor over the LP
+#: (typical; one MIP is capped at :data:`planner.duality.MIP_TIME_LIMIT_S`), and per penalty
+#: term (a valid point and passengers left; :func:`penalty_terms`). Measured on
+#: examples/coverage_tiny.json: 3.3 ms (LP), 6.8 ms (MIP), 1.4 ms of penalty terms per sample.
+_COST = {"model": 0.003, "column": 4e-5, "column2": 1.5e-9, "mip": 2.0, "term": 6e-5}
 
 
 def estimate_seconds(problem: Problem, method: str, samples: int, penalty: bool = True) -> float:
-    """Predicted wall time of :func:`upper_bound` from the sizes alone (O(R*N + covers))."""
-    from planner.duality import _COST
-
+    """Predicted wall time of :func:`upper_bound` (``penalty`` True or "auto": with the pilot)
+    from the sizes alone (O(R*N + covers))."""
     columns = model_size(problem, problem.valid, flow=True).columns
-    per = _COST["lp"] * columns + _COST["lp2"] * columns ** 2 + _COST["model"]
+    per = _COST["model"] + _COST["column"] * columns + _COST["column2"] * columns ** 2
     per *= _COST["mip"] if method == "mip" else 1.0
     if penalty:
-        per += PENALTY_TERM_S * int(problem.valid.sum()) * int(problem.passengers.max(initial=0))
-    return per * samples
+        per += _COST["term"] * int(problem.valid.sum()) * int(problem.passengers.max(initial=0))
+    # the pilot of penalty="auto": both inner maxima of PILOT_SAMPLES count vectors
+    return per * (samples + (2 * PILOT_SAMPLES if penalty else 0))
 
 
 def plan(problem: Problem, budget_s: float, samples: int, penalty: bool = True) -> tuple[str, int]:
@@ -399,8 +402,9 @@ def plan(problem: Problem, budget_s: float, samples: int, penalty: bool = True) 
     methods = ("mip", "lp") if size.fits(ILP_COLUMNS, ILP_NONZEROS) else ("lp",)
     if size.fits(LP_COLUMNS, LP_NONZEROS):
         for method in methods:
-            per = estimate_seconds(problem, method, 1, penalty)
-            fit = min(samples, int(budget_s // per) if per > 0 else samples)
+            pilot = estimate_seconds(problem, method, 0, penalty)
+            per = estimate_seconds(problem, method, 1, penalty) - pilot
+            fit = min(samples, int((budget_s - pilot) // per) if per > 0 else samples)
             if fit >= MIN_SAMPLES:
                 return method, fit
     raise BoundTooLarge(f"coverage upper bound: {MIN_SAMPLES} samples by lp would take about "
@@ -408,13 +412,20 @@ def plan(problem: Problem, budget_s: float, samples: int, penalty: bool = True) 
                         f"budget (R={problem.n_carriers}, N={problem.n_stages}, {size.columns:,} columns)")
 
 
+#: Count vectors of the pilot that picks the penalty of ``penalty="auto"``.
+PILOT_SAMPLES = 8
+
+
 def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = 200, method: str = "mip",
-                penalty: bool = True, deadline_s: float | None = None):
+                penalty: bool | str = "auto", deadline_s: float | None = None):
     """The information-relaxation bound under coverage: the mean of :func:`inner_maximum` over
     ``samples`` count vectors drawn from the region priors with ``rng``; a
     :class:`planner.duality.UpperBound` (``penalty_scale`` 1.0 with the DLR penalty, 0.0 without:
     the clairvoyant mean). ``method``: ``mip`` (each sample's dual bound within
-    :data:`planner.duality.MIP_TIME_LIMIT_S`) or ``lp``.
+    :data:`planner.duality.MIP_TIME_LIMIT_S`) or ``lp``. ``penalty="auto"``: the DLR penalty or
+    none, whichever gives the smaller mean on :data:`PILOT_SAMPLES` count vectors drawn first
+    (then discarded, so the bound's samples are independent of the choice and it stays valid;
+    the DLR values come from one prior for every point and are not always the tighter).
 
     Raises:
         ValueError: a problem with passenger values (the DLR penalty knows no types), or fewer
@@ -430,11 +441,17 @@ def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = 200, 
         raise ValueError("coverage upper bound: expected an instance without passenger values, found passenger_values")
     if samples < 2:
         raise ValueError(f"coverage upper bound: expected at least 2 samples (for a standard error), found {samples}")
+
+    def value(counts, with_penalty):
+        return inner_maximum(problem, counts, with_penalty, method == "mip", MIP_TIME_LIMIT_S) / problem.scale
+
+    if penalty == "auto":
+        pilot = [cov.sample_counts(problem.coverage, rng) for _ in range(PILOT_SAMPLES)]
+        penalty = sum(value(c, True) for c in pilot) < sum(value(c, False) for c in pilot)
     values = np.empty(samples)
     start = time.perf_counter()
     for s in range(samples):
-        counts = cov.sample_counts(problem.coverage, rng)
-        values[s] = inner_maximum(problem, counts, penalty, method == "mip", MIP_TIME_LIMIT_S) / problem.scale
+        values[s] = value(cov.sample_counts(problem.coverage, rng), penalty)
         if deadline_s is not None and time.perf_counter() - start > deadline_s:
             raise BoundTooLarge(f"coverage upper bound: stopped after {s + 1} of {samples} samples at the "
                                 f"{deadline_s:g} s deadline")

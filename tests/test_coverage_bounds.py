@@ -1,0 +1,205 @@
+"""Bounds under the coverage reward (issue 35): the clairvoyant by integer programming against brute
+force, the LP and union bounds above it, the size refusal, the information-relaxation bound's
+zero-mean penalty and its place between the planners and the clairvoyant mean."""
+from __future__ import annotations
+
+import itertools
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from planner import clairvoyant, coverage as cov, coverage_bounds as cb, priors
+from planner.instance import load_instance_counts
+from planner.online import run_online
+from planner.problem import Problem, evaluate
+from planner.registry import make_planner
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "coverage_tiny.json"
+
+
+def random_coverage(rng, carriers=3, passengers=2, stages=4, regions=8, invalid=0.0, weights=None, binomial=False):
+    """A small seeded coverage instance: each valid point explores 1-3 random regions (Poisson
+    means in 0.5..3; region 0 binomial(4, 0.5) with ``binomial``). Returns (problem, x, counts)."""
+    valid = rng.random((carriers, stages)) >= invalid
+    covers = [[sorted(rng.choice(regions, size=int(rng.integers(1, 4)), replace=False).tolist()) if valid[r, j]
+               else None for j in range(stages)] for r in range(carriers)]
+    specs = [{"kind": "poisson", "mean": float(mu)} for mu in rng.uniform(0.5, 3.0, regions)]
+    if binomial:
+        specs[0] = {"kind": "binomial", "n": 4, "p": 0.5}
+    coverage = cov.Coverage.build(covers, [priors.build_prior(s) for s in specs])
+    problem = Problem.build(passengers, valid, coverage.overlaps(stages),
+                            priors.build_prior({"kind": "poisson", "mean": 4.0}), weights=weights, coverage=coverage)
+    counts = cov.sample_counts(coverage, rng)
+    return problem, cov.observations(coverage, counts, valid), counts
+
+
+def brute_force(problem, x, counts) -> float:
+    """The best value over every feasible deployment set (and every passenger assignment)."""
+    feasible = cb.feasible_points(problem, x)
+    ks = cb.quotas(problem, feasible)
+    per_carrier = []
+    for r in range(problem.n_carriers):
+        options = []
+        for stages in itertools.combinations(np.flatnonzero(feasible[r]).tolist(), int(ks[r])):
+            for who in itertools.permutations(range(int(problem.passengers[r])), int(ks[r])):
+                options.append((stages, who))
+                if problem.weights is None:
+                    break
+        per_carrier.append(options)
+    best = -1.0
+    for choice in itertools.product(*per_carrier):
+        deployed = np.zeros(problem.valid.shape, dtype=bool)
+        released = np.full(problem.valid.shape, -1, dtype=np.int64)
+        for r, (stages, who) in enumerate(choice):
+            deployed[r, list(stages)] = True
+            released[r, list(stages)] = who
+        best = max(best, evaluate(problem, deployed, x, released, counts=counts)[1])
+    return best
+
+
+def _check_feasible(problem, x, result):
+    feasible = cb.feasible_points(problem, x)
+    assert not (result.deployed & ~feasible).any()
+    assert (result.deployed.sum(axis=1) == cb.quotas(problem, feasible)).all()
+
+
+@pytest.mark.parametrize("invalid", [0.0, 0.3])
+@pytest.mark.parametrize("seed", range(6))
+def test_the_integer_program_is_the_brute_force_optimum(seed, invalid):
+    problem, x, counts = random_coverage(np.random.default_rng(seed), invalid=invalid)
+    result = cb.solve(problem, x, counts)
+    assert result.exact and result.method == "ilp" and result.gap == 0.0
+    assert result.features == pytest.approx(brute_force(problem, x, counts))
+    assert result.reward == pytest.approx(result.features / problem.scale)
+    _check_feasible(problem, x, result)
+    assert evaluate(problem, result.deployed, x, result.released, counts=counts)[1] == pytest.approx(result.features)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_with_passenger_values_each_region_is_worth_its_best_passenger(seed):
+    weights = [[3.0, 1.0], [1.0, 2.0], [0.5, 4.0]]
+    problem, x, counts = random_coverage(np.random.default_rng(100 + seed), invalid=0.2, weights=weights)
+    result = cb.solve(problem, x, counts)
+    assert result.exact
+    assert result.features == pytest.approx(brute_force(problem, x, counts))
+    assert evaluate(problem, result.deployed, x, result.released, counts=counts)[1] == pytest.approx(result.features)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_relaxations_bound_the_optimum_from_above_and_greedy_from_below(seed):
+    problem, x, counts = random_coverage(np.random.default_rng(200 + seed), carriers=4, stages=6, regions=10,
+                                         invalid=0.2)
+    exact = cb.solve(problem, x, counts, method="ilp")
+    lp = cb.solve(problem, x, counts, method="lp")
+    union = cb.solve(problem, x, counts, method="union")
+    assert exact.exact and not lp.exact and not union.exact
+    assert union.features + 1e-9 >= lp.features >= exact.features - 1e-9
+    greedy = evaluate(problem, *cb.greedy(problem, cb.feasible_points(problem, x), counts), counts=counts)[1]
+    assert greedy <= exact.features + 1e-9
+    for bound in (lp, union):
+        _check_feasible(problem, x, bound)
+        found = evaluate(problem, bound.deployed, x, bound.released, counts=counts)[1]
+        assert 0.0 <= bound.gap < 1.0 and bound.gap == pytest.approx((bound.features - found) / bound.features)
+
+
+def test_the_clairvoyant_entry_point_dispatches_on_the_reward():
+    (problem, x), counts, _ = load_instance_counts(EXAMPLE)
+    assert clairvoyant.solve(problem, x, counts=counts).features == cb.solve(problem, x, counts).features == 13.0
+    with pytest.raises(ValueError, match="region counts"):
+        clairvoyant.solve(problem, x)
+
+
+def test_a_model_beyond_its_size_is_refused_before_anything_is_built(monkeypatch):
+    rng = np.random.default_rng(0)
+    carriers, stages, regions = 300, 40, 30_000
+    covers = [[rng.choice(regions, size=12, replace=False).tolist() for _ in range(stages)] for _ in range(carriers)]
+    prior = priors.build_prior({"kind": "poisson", "mean": 1.0})
+    coverage = cov.Coverage.build(covers, [prior] * regions)
+    problem = Problem.build(3, np.ones((carriers, stages), dtype=bool), (), prior, coverage=coverage)
+    counts = np.ones(regions)
+    x = cov.observations(coverage, counts, problem.valid)
+
+    class Refused:
+        def __init__(self, *args, **kwargs):
+            raise AssertionError("a model was built")
+
+    monkeypatch.setattr("planner.highs.Model", Refused)
+    size = cb.model_size(problem, problem.valid)
+    assert size.columns > cb.ILP_COLUMNS and cb.method_for(size) == "lp"
+    with pytest.raises(cb.TooLarge, match="ilp model of about"):
+        cb.solve(problem, x, counts, method="ilp")
+    from planner import duality
+
+    with pytest.raises(duality.BoundTooLarge, match="coverage upper bound"):
+        cb.plan(problem, 3.0, 200)
+
+
+# ----------------------------------------------------------------------------- the upper bound
+
+
+def _policy_penalty(problem, counts, phi, rng) -> float:
+    """z along a non-anticipative policy's path: deploy when forced or when the observation beats
+    a coin-dependent threshold (it reads x at the stage it decides, never later)."""
+    x = cov.observations(problem.coverage, counts, problem.valid)
+    left = problem.passengers.copy()
+    stages_left = problem.valid[:, ::-1].cumsum(axis=1)[:, ::-1]
+    z = 0.0
+    for j in range(problem.n_stages):
+        for r in np.flatnonzero(problem.valid[:, j]):
+            z += phi[r, j, left[r]]
+            if left[r] and (stages_left[r, j] <= left[r] or x[r, j] > 3 + rng.integers(0, 3)):
+                left[r] -= 1
+    return z
+
+
+@pytest.mark.parametrize("binomial", [False, True])
+def test_the_penalty_has_mean_zero_along_a_non_anticipative_policy(binomial):
+    problem, _, _ = random_coverage(np.random.default_rng(7), carriers=3, passengers=2, stages=5, regions=6,
+                                    invalid=0.2, binomial=binomial)
+    rng = np.random.default_rng(1)
+    z = np.array([_policy_penalty(problem, counts, cb.penalty_terms(problem, counts), rng)
+                  for counts in (cov.sample_counts(problem.coverage, rng) for _ in range(3000))])
+    assert np.abs(z).mean() > 0.1  # a real penalty, not zero
+    assert abs(z.mean()) < 4 * z.std(ddof=1) / np.sqrt(len(z))
+
+
+def test_the_shortfall_is_exact_against_enumeration():
+    problem, _, _ = random_coverage(np.random.default_rng(3), regions=4, binomial=True)
+    regions = np.array([0, 1, 2])
+    rng = np.random.default_rng(5)
+    draws = np.array([cov.sample_counts(problem.coverage, rng)[regions].sum() for _ in range(40_000)])
+    for t in (-1.0, 0.0, 2.5, 6.0):
+        mc = np.maximum(t - draws, 0.0)
+        assert cb._shortfall(problem.coverage, regions, t) == pytest.approx(mc.mean(), abs=4 * mc.std() / 200 + 1e-12)
+
+
+@pytest.mark.parametrize("seed", range(2))
+def test_the_upper_bound_lies_between_the_planners_and_the_clairvoyant_mean(seed):
+    problem, _, _ = random_coverage(np.random.default_rng(300 + seed), carriers=2, passengers=1, stages=4, regions=6)
+    samples = 120
+    bound = cb.upper_bound(problem, np.random.default_rng(9), samples, "mip")
+    clair = cb.upper_bound(problem, np.random.default_rng(9), samples, "mip", penalty=False)
+    assert bound.expected_reward <= clair.expected_reward + 3 * clair.stderr
+    rng = np.random.default_rng(11)
+    for name in ("ssap", "random"):
+        planner = make_planner(name)
+        rewards = []
+        for t in range(300):
+            counts = cov.sample_counts(problem.coverage, rng)
+            x = cov.observations(problem.coverage, counts, problem.valid)
+            rewards.append(run_online(problem, x, planner, t, counts).reward)
+        mean, se = np.mean(rewards), np.std(rewards, ddof=1) / np.sqrt(len(rewards))
+        assert bound.expected_reward + 3 * (bound.stderr + se) >= mean, name
+
+
+def test_solve_reports_the_coverage_bounds_with_fractions(tmp_path):
+    from planner.solve import solve_instance
+
+    out = solve_instance(EXAMPLE, make_planner("ssap"), "ssap", 1)
+    clair = out["clairvoyant"]
+    assert clair["exact"] and clair["features"] == 13.0 and clair["reward"] == pytest.approx(13.0 / 5.0)
+    assert clair["fraction"] == pytest.approx(out["reward"] / clair["reward"]) and "gap" not in clair
+    assert out["upper_bound"]["method"] == "mip" and out["upper_bound"]["expected_reward"] > 0
+    json.dumps(out)
