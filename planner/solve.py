@@ -28,6 +28,8 @@ def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clai
         it fits :data:`planner.duality.DEFAULT_BUDGET_S`; :func:`planner.duality.seeded_bound`),
         "comms" {"loss", "delay", "groups"} (only with ``comms``), "released" [[passenger index per
         deployment, in stage order] per carrier] (only for an instance with ``passenger_values``)}``.
+        A ``reward: coverage`` instance reports its own bounds (:func:`_coverage_bounds`), each
+        with the planner's ``fraction`` of it.
 
     ``comms``: a :class:`planner.comms.CommsSpec`; None (the default) runs
     :func:`planner.online.run_online` exactly as before, otherwise
@@ -100,8 +102,10 @@ def _coverage_bounds(problem, x, counts, reward: float, seed: int, clairvoyant: 
     realised counts; exact by integer programming within its size, else a bound with its gap),
     ``upper_bound`` (the information-relaxation bound on the expected reward, when it fits
     :data:`planner.duality.DEFAULT_BUDGET_S`; its fraction is this one realisation's reward over
-    an expectation) and ``online_optimum`` (V* on tiny instances:
-    :func:`planner.coverage_optimal.online_value`)."""
+    an expectation) and ``online_optimum`` {"expected_reward", "exact", "truncation_error"} (V* of
+    the counts' truncated supports on tiny instances, within
+    :data:`planner.coverage_optimal.AUTO_NODES`: :func:`planner.coverage_optimal.online_value`;
+    ``exact`` when nothing was truncated)."""
     out: dict = {}
     if clairvoyant:
         from planner import coverage_bounds
@@ -123,6 +127,17 @@ def _coverage_bounds(problem, x, counts, reward: float, seed: int, clairvoyant: 
             out["upper_bound"] = {"expected_reward": bound.expected_reward, "stderr": bound.stderr,
                                   "method": bound.method, "samples": bound.samples,
                                   "fraction": _fraction(reward, bound.expected_reward)}
+    if online_optimum:
+        from planner import coverage_optimal
+
+        try:
+            best = coverage_optimal.online_value(problem, coverage_optimal.AUTO_TAIL, coverage_optimal.AUTO_NODES)
+        except coverage_optimal.TooLarge:
+            best = None
+        if best is not None:
+            out["online_optimum"] = {"expected_reward": best.expected_reward, "exact": best.truncation_error == 0,
+                                     "truncation_error": best.truncation_error,
+                                     "fraction": _fraction(reward, best.expected_reward)}
     return out
 
 
