@@ -333,14 +333,14 @@ def _shortfall(coverage: cov.Coverage, regions: np.ndarray, t: float) -> float:
     """``E[(t - U)^+]`` for U the sum of the counts of ``regions`` (independent, each >= 0): only
     U's values <= t matter, and only each region's values <= t reach them. Poisson regions are
     one Poisson (means summed); any other prior is convolved over its support points <= t."""
-    from scipy import stats
-
     if t < 0:
         return 0.0
     poisson = [m for m in regions.tolist() if getattr(coverage.priors[m].dist, "name", "") == "poisson"]
     mu = float(coverage.means[poisson].sum()) if poisson else 0.0
-    upto = np.arange(int(math.floor(t)) + 1, dtype=float)
-    dist = {float(u): float(p) for u, p in zip(upto, stats.poisson.pmf(upto, mu))} if mu > 0 else {0.0: 1.0}
+    dist, p = {}, math.exp(-mu)  # Poisson(mu) on 0..floor(t) by p(u) = p(u - 1) * mu / u
+    for u in range(int(math.floor(t)) + 1):
+        dist[float(u)] = p
+        p *= mu / (u + 1)
     for m in regions.tolist():
         if m in poisson:
             continue
