@@ -261,3 +261,28 @@ def test_solve_reports_the_coverage_bounds_with_fractions(tmp_path):
     assert not best["exact"] and 0 < best["truncation_error"] < 0.01
     assert best["expected_reward"] <= out["upper_bound"]["expected_reward"]
     json.dumps(out)
+
+
+# ----------------------------------------------------------------------------- experiments
+
+
+def _coverage_trial(task):
+    """A coverage trial for experiments.trials.run_trial: the counts ride in ``extra``."""
+    problem, x, counts = random_coverage(np.random.default_rng(task.trial), invalid=0.2)
+    return problem, x, 1000 + task.trial, {"counts": counts}
+
+
+def test_experiments_report_each_planner_as_a_fraction_of_the_coverage_clairvoyant():
+    from experiments.report import summarise
+    from experiments.trials import CLAIRVOYANT, Sweep, Task, run_trial
+
+    sweep = Sweep(instance=_coverage_trial)
+    rows = [run_trial(Task("coverage", 0, t, name, 0, 16), sweep) for t in range(3) for name in (CLAIRVOYANT, "ssap")]
+    for t in range(3):
+        problem, x, counts = random_coverage(np.random.default_rng(t), invalid=0.2)
+        clair = next(r for r in rows if r["trial"] == t and r["planner"] == CLAIRVOYANT)
+        assert clair["features"] == pytest.approx(brute_force(problem, x, counts)) and clair["exact"] == 1
+    summary = {r["planner"]: r for r in summarise(rows)}
+    assert summary[CLAIRVOYANT]["fraction_mean"] == 1.0 and summary[CLAIRVOYANT]["bound_exact"] == "3/3"
+    ssap = [r["reward"] / c["reward"] for r, c in zip(rows[1::2], rows[0::2])]
+    assert summary["ssap"]["fraction_mean"] == pytest.approx(np.mean(ssap)) and 0 < np.mean(ssap) <= 1
