@@ -283,11 +283,38 @@ def solve(problem: Problem, x: np.ndarray, counts: np.ndarray, method: str = "au
 # ----------------------------------------------------------------------------- the upper bound
 
 
-def penalty_terms(problem: Problem, counts: np.ndarray) -> np.ndarray:
-    """float ``[R, N, Dmax + 1]``: ``phi[r, j, d] = v(n, d, x_rj) - E[v(n, d, X_rj) | stages < j]``,
-    with ``v`` the single-carrier DLR value of deciding at x with n valid stages and d passengers
-    left (:func:`planner.duality.penalty_terms`' ``v``) and x_rj the sum of the point's region
-    counts (raw units; 0 at invalid stages and for d = 0).
+def values_to_go(problem: Problem) -> np.ndarray:
+    """float ``[R, N + 1, Dmax + 1]``: ``W[r, j, d]``, carrier r's optimal expected coverage from
+    stage j on with d passengers left *were it alone and its points' regions disjoint* (each
+    point's observation the sum of its regions' counts, unconditioned): the single-carrier DLR
+    value of that carrier's own point distributions, by backward induction over its valid stages
+    with the forced-deployment rule. Raw units; depends on the problem only."""
+    coverage = _check(problem)
+    n_carriers, n_stages = problem.valid.shape
+    dmax = int(problem.passengers.max(initial=0))
+    out = np.zeros((n_carriers, n_stages + 1, dmax + 1))
+    left = valid_stages_left(problem.valid)
+    for r in range(n_carriers):
+        for j in range(n_stages - 1, -1, -1):
+            nxt = out[r, j + 1]
+            if not problem.valid[r, j]:
+                out[r, j] = nxt
+                continue
+            regions = coverage.regions(r * n_stages + j)
+            mean = float(coverage.means[regions].sum())
+            for d in range(1, dmax + 1):
+                if left[r, j] <= d:  # forced: deploy
+                    out[r, j, d] = mean + nxt[d - 1]
+                else:  # E[max(X + A, B)] = A + E[X] + E[(B - A - X)^+]
+                    out[r, j, d] = nxt[d - 1] + mean + _shortfall(coverage, regions, nxt[d] - nxt[d - 1])
+    return out
+
+
+def penalty_terms(problem: Problem, counts: np.ndarray, values: np.ndarray | None = None) -> np.ndarray:
+    """float ``[R, N, Dmax + 1]``: ``phi[r, j, d] = v(j, d, x_rj) - E[v(j, d, X_rj) | stages < j]``
+    with ``v(j, d, x) = max(x + W[r, j+1, d-1], W[r, j+1, d])`` (``x + W[r, j+1, d-1]`` when
+    forced) for the values-to-go ``W`` (:func:`values_to_go` when None) and x_rj the sum of the
+    point's region counts (raw units; 0 at invalid stages and for d = 0).
 
     Zero mean for every non-anticipative policy: before stage j the observer knows the counts of
     the regions of every valid point at stages < j, so ``X_rj = K + U`` with K known and U the
@@ -295,19 +322,13 @@ def penalty_terms(problem: Problem, counts: np.ndarray) -> np.ndarray:
     ``E[max(K + U + A, B)] = K + A + E[U] + E[(B - A - K - U)^+]`` where the last term is a finite
     sum over U's values below ``B - A - K`` (:func:`_shortfall`): exact, no truncation.
     """
-    from planner.compiled import compile_problem
-
     coverage = _check(problem)
-    slot = compile_problem(problem).slot_value
+    w = values_to_go(problem) if values is None else values
     n_carriers, n_stages = problem.valid.shape
     dmax = int(problem.passengers.max(initial=0))
     out = np.zeros((n_carriers, n_stages, dmax + 1))
     left = valid_stages_left(problem.valid)
     known = np.zeros(coverage.n_regions, dtype=bool)  # revealed before the current stage
-
-    def s(nn, dd):
-        return slot[nn, min(dd, nn)]
-
     for j in range(n_stages):
         for r in np.flatnonzero(problem.valid[:, j]):
             regions = coverage.regions(int(r) * n_stages + j)
@@ -316,10 +337,9 @@ def penalty_terms(problem: Problem, counts: np.ndarray) -> np.ndarray:
             k_value = float(counts[regions[seen]].sum())
             unseen = regions[~seen]
             mu = float(coverage.means[unseen].sum())
-            n = int(left[r, j])
             for d in range(1, dmax + 1):
-                a_, b_ = s(n - 1, d - 1), s(n - 1, d)
-                if n <= d:  # forced: v = x + A
+                a_, b_ = w[r, j + 1, d - 1], w[r, j + 1, d]
+                if left[r, j] <= d:  # forced: v = x + A
                     out[r, j, d] = x_value - k_value - mu
                     continue
                 mean = k_value + a_ + mu + _shortfall(coverage, unseen, b_ - a_ - k_value)
@@ -469,3 +489,9 @@ def seeded_bound(problem: Problem, seed: int, budget_s: float | None = None, sam
     method, count = plan(problem, budget_s, duality.DEFAULT_SAMPLES if samples is None else samples)
     rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=duality.BOUND_SPAWN_KEY))
     return upper_bound(problem, rng, count, method, deadline_s=duality.DEADLINE_FACTOR * budget_s)
+
+
+if __name__ == "__main__":  # a forward only: the command line is planner.cli.measure's
+    from planner.cli.measure import coverage_bound_times
+
+    raise SystemExit(coverage_bound_times())
