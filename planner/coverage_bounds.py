@@ -39,8 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from planner import coverage as cov
-from planner.clairvoyant import ClairvoyantResult
-from planner.problem import Problem, evaluate, in_order, valid_stages_left
+from planner.problem import ClairvoyantResult, Problem, evaluate, in_order, valid_stages_left
 
 #: Largest integer program solved (columns, nonzeros of the constraint matrix).
 ILP_COLUMNS = 20_000
@@ -244,7 +243,7 @@ def solve(problem: Problem, x: np.ndarray, counts: np.ndarray, method: str = "au
             ``ilp`` / ``lp`` beyond their budget raise :class:`TooLarge` before building.
 
     Returns:
-        :class:`planner.clairvoyant.ClairvoyantResult`: ``features`` the optimum (``exact``) or an
+        :class:`planner.problem.ClairvoyantResult`: ``features`` the optimum (``exact``) or an
         upper bound on it, ``deployed`` / ``released`` the best feasible set found, ``gap`` and
         ``method``.
     """

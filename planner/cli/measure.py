@@ -3,11 +3,14 @@
     python -m planner.online_optimal [--instances K] [--samples S] [--iterations I] [--seed SEED]
     python -m planner.clairvoyant [--instances K] [--carriers R] [--passengers D] [--stages N]
                                   [--overlaps G] [--seed SEED]
+    python -m planner.coverage_bounds [--carriers R,R,...] [--instances K] [--passengers D]
+                                      [--stages N] [--reach C] [--mean MU] [--seed SEED]
 
-Both commands are kept where the docs call them: ``python -m`` runs the named file, so each of
-those two modules keeps a ``__main__`` block that only forwards here (one import, one
+The commands are kept where the docs call them: ``python -m`` runs the named file, so each of
+those modules keeps a ``__main__`` block that only forwards here (one import, one
 ``raise SystemExit`` of the call; tests/test_boundaries.py holds them to that), and all the
-argument parsing and printing is in :func:`optimal_table` and :func:`clairvoyant_times`.
+argument parsing and printing is in :func:`optimal_table`, :func:`clairvoyant_times` and
+:func:`coverage_bound_times`.
 """
 from __future__ import annotations
 
