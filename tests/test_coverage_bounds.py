@@ -200,6 +200,18 @@ def test_v_star_of_one_carrier_is_the_stopping_value_in_closed_form():
     assert co.online_value(problem, 1e-6).truncation_error < 1e-5
 
 
+def test_v_star_of_a_lone_carrier_with_disjoint_discs_is_its_dlr_value():
+    """Alone and without overlaps, what was revealed says nothing of the future: V* is the
+    single-carrier optimum, computed independently by the penalty's backward induction."""
+    from planner import coverage_optimal as co
+
+    problem = _instance([[[0], [1, 2], [3], [4, 5]]], [1.0, 0.5, 1.5, 2.0, 0.7, 0.4], 2)
+    best = co.online_value(problem, 1e-6)
+    dlr = cb.values_to_go(problem)[0, 0, 2] / problem.scale
+    assert best.expected_reward <= dlr + 1e-12 <= best.expected_reward + best.truncation_error + 1e-12
+    assert best.truncation_error < 1e-4
+
+
 def test_v_star_values_a_shared_region_once():
     from planner import coverage_optimal as co
 
@@ -286,3 +298,14 @@ def test_experiments_report_each_planner_as_a_fraction_of_the_coverage_clairvoya
     assert summary[CLAIRVOYANT]["fraction_mean"] == 1.0 and summary[CLAIRVOYANT]["bound_exact"] == "3/3"
     ssap = [r["reward"] / c["reward"] for r, c in zip(rows[1::2], rows[0::2])]
     assert summary["ssap"]["fraction_mean"] == pytest.approx(np.mean(ssap)) and 0 < np.mean(ssap) <= 1
+
+
+def test_an_integer_program_stopped_by_its_time_limit_reports_its_dual_bound_and_gap():
+    problem, x, counts = random_coverage(np.random.default_rng(5), carriers=12, passengers=3, stages=10, regions=40)
+    exact = cb.solve(problem, x, counts)
+    stopped = cb.solve(problem, x, counts, time_limit_s=1e-9)
+    assert exact.exact and not stopped.exact and stopped.method == "ilp"
+    found = evaluate(problem, stopped.deployed, x, stopped.released, counts=counts)[1]
+    assert found <= exact.features + 1e-9 <= stopped.features + 2e-9
+    assert stopped.gap == pytest.approx((stopped.features - found) / stopped.features)
+    _check_feasible(problem, x, stopped)
