@@ -380,12 +380,13 @@ def _shortfall(coverage: cov.Coverage, regions: np.ndarray, t: float) -> float:
 
 
 def inner_maximum(problem: Problem, counts: np.ndarray, penalty: bool = True, integer: bool = True,
-                  time_limit_s: float = 1.0) -> float:
+                  time_limit_s: float = 1.0, values: np.ndarray | None = None) -> float:
     """``max_y (value(y, counts) - z(y, counts))`` or an upper bound on it (the MIP's dual bound,
-    or the LP with ``integer=False``); raw units. ``penalty=False``: z = 0 (the clairvoyant)."""
+    or the LP with ``integer=False``); raw units. ``penalty=False``: z = 0 (the clairvoyant).
+    ``values``: :func:`values_to_go` when the caller keeps them."""
     counts = np.asarray(counts, dtype=float)
     dmax = int(problem.passengers.max(initial=0))
-    phi = penalty_terms(problem, counts) if penalty else np.zeros(problem.valid.shape + (dmax + 1,))
+    phi = penalty_terms(problem, counts, values) if penalty else np.zeros(problem.valid.shape + (dmax + 1,))
     model, _ = _build(problem, problem.valid, counts, integer, phi)
     return model.solve(integer, time_limit_s).bound
 
@@ -461,8 +462,10 @@ def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = 200, 
     if samples < 2:
         raise ValueError(f"coverage upper bound: expected at least 2 samples (for a standard error), found {samples}")
 
+    w = values_to_go(problem) if penalty else None
+
     def value(counts, with_penalty):
-        return inner_maximum(problem, counts, with_penalty, method == "mip", MIP_TIME_LIMIT_S) / problem.scale
+        return inner_maximum(problem, counts, with_penalty, method == "mip", MIP_TIME_LIMIT_S, w) / problem.scale
 
     if penalty == "auto":
         pilot = [cov.sample_counts(problem.coverage, rng) for _ in range(PILOT_SAMPLES)]

@@ -125,6 +125,8 @@ def _stages(problem: Problem, tail: float) -> tuple[list[_Stage], float]:
                     revealed.add(m)
                     key = frozenset(a for a in explorers[m] if a % n_stages >= j)
                     new.setdefault(key, []).append(m)
+        # Every group has two values at least: refuse before any distribution is built.
+        _check_size(j, 2 ** len(new) * 2 ** len(carriers))
         keys, covers, outcomes = [], [], []
         for key, regions in sorted(new.items(), key=lambda kv: sorted(kv[0])):
             values, probs, cut = _truncate(*_distribution(coverage, regions), tail)
@@ -132,8 +134,15 @@ def _stages(problem: Problem, tail: float) -> tuple[list[_Stage], float]:
             keys.append(frozenset(a for a in key if a % n_stages > j))
             covers.append(frozenset(a // n_stages for a in key if a % n_stages == j))
             outcomes.append((values, probs))
+        _check_size(j, math.prod(len(v) for v, _ in outcomes) * 2 ** len(carriers))
         stages.append(_Stage(carriers, tuple(keys), tuple(covers), tuple(outcomes)))
     return stages, error
+
+
+def _check_size(stage: int, pairs: int) -> None:
+    if pairs > MAX_OUTCOMES:
+        raise TooLarge(f"coverage V*: stage {stage} has {pairs:.3g} (outcome, action) pairs or more, "
+                       f"beyond {MAX_OUTCOMES:,}")
 
 
 def online_value(problem: Problem, tail: float = TAIL, max_nodes: int = MAX_NODES) -> CoverageOptimum:
@@ -143,10 +152,6 @@ def online_value(problem: Problem, tail: float = TAIL, max_nodes: int = MAX_NODE
     if problem.weights is not None:
         raise TooLarge("coverage V*: passenger values are not modelled (the recursion treats passengers as alike)")
     stages, error = _stages(problem, tail)
-    for j, st in enumerate(stages):
-        size = math.prod(len(v) for v, _ in st.outcomes) * 2 ** len(st.points)
-        if size > MAX_OUTCOMES:
-            raise TooLarge(f"coverage V*: stage {j} has {size:,} (outcome, action) pairs, beyond {MAX_OUTCOMES:,}")
     n_stages = problem.n_stages
     left_table = valid_stages_left(problem.valid)
     memo: dict = {}
