@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import heapq
 import math
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -348,6 +349,20 @@ def penalty_terms(problem: Problem, counts: np.ndarray, values: np.ndarray | Non
     return out
 
 
+_SUPPORTS: "weakref.WeakKeyDictionary[cov.Coverage, dict]" = weakref.WeakKeyDictionary()
+
+
+def _support(coverage: cov.Coverage, m: int) -> tuple[list, list]:
+    """Region m's (values, probabilities) (:func:`planner.priors.support`), cached per coverage."""
+    from planner.priors import support
+
+    cache = _SUPPORTS.setdefault(coverage, {})
+    if m not in cache:
+        values, probs = support(coverage.priors[m])
+        cache[m] = (values.tolist(), probs.tolist())
+    return cache[m]
+
+
 def _shortfall(coverage: cov.Coverage, regions: np.ndarray, t: float) -> float:
     """``E[(t - U)^+]`` for U the sum of the counts of ``regions`` (independent, each >= 0): only
     U's values <= t matter, and only each region's values <= t reach them. Poisson regions are
@@ -363,16 +378,10 @@ def _shortfall(coverage: cov.Coverage, regions: np.ndarray, t: float) -> float:
     for m in regions.tolist():
         if m in poisson:
             continue
-        prior = coverage.priors[m]
-        if hasattr(prior.dist, "xk"):  # a table prior: its own points
-            points = np.asarray(prior.dist.xk, dtype=float) * prior.kwds.get("scale", 1.0) + prior.kwds.get("loc", 0.0)
-            probs = np.asarray(prior.dist.pk, dtype=float)
-        else:
-            points = np.arange(max(0.0, prior.support()[0]), math.floor(t) + 1, dtype=float)
-            probs = prior.pmf(points)
+        points, probs = _support(coverage, m)
         nxt: dict[float, float] = {}
         for u, p in dist.items():
-            for v, q in zip(points.tolist(), probs.tolist()):
+            for v, q in zip(points, probs):
                 if u + v <= t and q > 0:
                     nxt[u + v] = nxt.get(u + v, 0.0) + p * q
         dist = nxt
