@@ -150,7 +150,9 @@ class Sweep:
     a sweep pickles (by reference) to ``spawn`` and cluster workers with its task.
 
     Attributes:
-        instance: the trial builder, ``task -> (problem, observations, planner_seed, extra)``.
+        instance: the trial builder, ``task -> (problem, observations, planner_seed, extra)``; a
+            builder of coverage trials puts the realised region counts in ``extra["counts"]``
+            (the planners and the clairvoyant read them there).
         columns: the sweep's own columns of a result row, ``(task, extra, result) -> dict``.
         wrap: ``(task, planner) -> planner``: the planner variant a task runs.
         comms: run under the task's communication model (``loss``, ``delay``) with ``run_comms``.
@@ -169,6 +171,7 @@ def run_trial(task: Task, sweep: Sweep = Sweep()) -> dict:
     from planner.online import run_online
 
     problem, x, planner_seed, extra = sweep.instance(task)
+    counts = extra.get("counts")  # a coverage trial's realised region counts (None for the penalty)
     row = {
         "sweep": task.sweep, "level": task.level, "trial": task.trial, "planner": task.planner,
         "carriers": problem.n_carriers, "passengers": int(problem.passengers.max()),
@@ -177,7 +180,9 @@ def run_trial(task: Task, sweep: Sweep = Sweep()) -> dict:
     }
     t0 = time.perf_counter()
     if task.planner == CLAIRVOYANT:
-        result = clairvoyant.solve(problem, x)
+        # Under coverage the clairvoyant is planner.coverage_bounds.solve (exact by integer
+        # programming within its size, else a bound: ``exact`` 0).
+        result = clairvoyant.solve(problem, x, counts=counts)
         elapsed = time.perf_counter() - t0
         row.update(reward=result.reward, features=result.features, exact=int(result.exact),
                    decision_ms_mean=elapsed * 1e3, decision_ms_max=elapsed * 1e3, wall_s=elapsed,
@@ -190,9 +195,9 @@ def run_trial(task: Task, sweep: Sweep = Sweep()) -> dict:
             from planner.comms import CommsSpec
             from planner.decentralised import run_comms
 
-            result = run_comms(problem, x, planner, planner_seed, CommsSpec(task.loss, task.delay))
+            result = run_comms(problem, x, planner, planner_seed, CommsSpec(task.loss, task.delay), counts)
         else:
-            result = run_online(problem, x, planner, planner_seed)
+            result = run_online(problem, x, planner, planner_seed, counts)
         elapsed = time.perf_counter() - t0
         ms = np.asarray(result.decision_ms)
         row.update(reward=result.reward, features=result.features, exact="",

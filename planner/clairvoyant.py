@@ -30,7 +30,6 @@ Exact method (branch and bound, compiled with numba):
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from itertools import combinations
 from typing import NamedTuple
 
@@ -39,7 +38,7 @@ import numpy as np
 
 from planner.compiled import compile_problem
 from planner.kernels import cache_follows_sources
-from planner.problem import Problem, evaluate, warm_up_problem
+from planner.problem import ClairvoyantResult, Problem, evaluate, warm_up_problem  # noqa: F401 (its home was here)
 
 #: Largest number of options one carrier may have for the exact search.
 MAX_OPTIONS = 200_000
@@ -48,30 +47,6 @@ MAX_NODES = 2_000_000
 #: Flat points a node visits per second here (a node visits every one of the R * N points; 300,000
 #: nodes of a 256-carrier, 12-stage street grid took 1.6 s). Only :func:`node_limit` reads it.
 POINT_VISITS_PER_S = 5e8
-
-
-@dataclass(frozen=True, eq=False)
-class ClairvoyantResult:
-    """Offline optimum (or upper bound) of one instance.
-
-    Attributes:
-        deployed: bool ``[R, N]``: the optimal deployments when ``exact``; the conflict-free
-            choice (each carrier's largest observations) otherwise.
-        reward: normalised total (raw / problem.scale): the optimum when ``exact``, otherwise an
-            upper bound on it (the conflict-free total).
-        features: raw total (sum of x / p), same meaning as ``reward``.
-        exact: whether ``reward`` is the optimum (True) or only an upper bound (False).
-        nodes: search nodes visited (0 when the search was not attempted).
-        released: int64 ``[R, N]``: the passenger of each deployment (-1 elsewhere), the best
-            assignment :func:`planner.passengers.best_assignment` (index order without values).
-    """
-
-    deployed: np.ndarray
-    reward: float
-    features: float
-    exact: bool
-    nodes: int = 0
-    released: np.ndarray | None = None
 
 
 def _valid_points(problem: Problem, x: np.ndarray) -> np.ndarray:
@@ -327,17 +302,25 @@ def node_limit(problem: Problem, seconds: float) -> int:
     return max(1, min(MAX_NODES, int(seconds * POINT_VISITS_PER_S / max(1, problem.valid.size))))
 
 
-def solve(problem: Problem, x: np.ndarray, max_nodes: int = MAX_NODES) -> ClairvoyantResult:
+def solve(problem: Problem, x: np.ndarray, max_nodes: int = MAX_NODES,
+          counts: np.ndarray | None = None) -> ClairvoyantResult:
     """Offline optimum of ``problem`` with all observations ``x[R, N]`` (NaN = ∅) known.
 
     Args:
         problem: the instance.
         x: float ``[R, N]`` realised observations.
         max_nodes: search-node limit; beyond it the conflict-free upper bound is returned.
+        counts: float ``[M]`` the realised region counts of a coverage problem (required there:
+            its clairvoyant is :func:`planner.coverage_bounds.solve`); ignored for the penalty.
 
     Returns:
         :class:`ClairvoyantResult`; ``exact=False`` marks an upper bound (see module docstring).
     """
+    if problem.coverage is not None:
+        from planner import coverage_bounds
+        from planner.problem import _region_counts
+
+        return coverage_bounds.solve(problem, x, _region_counts(problem, counts))
     x = np.asarray(x, dtype=float)
     if x.shape != problem.valid.shape:
         raise ValueError(f"observations shape {x.shape} != problem shape {problem.valid.shape}")

@@ -9,8 +9,8 @@ upper bound. The derivation, the
 model, the methods' limits, the time budget and the API: docs/planner.md, "An upper bound on every
 online policy".
 
-Pure: numpy only at import; ``highspy`` is imported inside :func:`_highs_value` (the only place
-that needs it).
+Pure: numpy only at import; HiGHS is driven through :mod:`planner.highs` (imported when a model is
+solved).
 """
 from __future__ import annotations
 
@@ -272,51 +272,49 @@ def inner_maximum(problem: Problem, x: np.ndarray, method: str = "exact", penalt
 # ----------------------------------------------------------------------------- the HiGHS model
 
 
-_BANNER_SHOWN = []  # non-empty once a Highs object exists in this process
-
-
-def _new_highs(highspy):
-    """A silent ``highspy.Highs``. HiGHS prints a banner on stdout when the first one of a process
-    is built, before any option can be set (stdout is a JSON document for ``solve``); that first
-    construction runs with file descriptor 1 pointed at /dev/null."""
-    import os
-    import sys
-
-    if not _BANNER_SHOWN:
-        sys.stdout.flush()
-        saved = os.dup(1)
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        try:
-            os.dup2(devnull, 1)
-            h = highspy.Highs()
-        finally:
-            os.dup2(saved, 1)
-            os.close(saved)
-            os.close(devnull)
-        _BANNER_SHOWN.append(True)
-    else:
-        h = highspy.Highs()
-    h.setOptionValue("output_flag", False)
-    return h
+def carrier_flow(model, problem: Problem, r: int, stages: np.ndarray, k: int, phi: np.ndarray,
+                 integer: bool) -> dict[int, list[int]]:
+    """Carrier r's deployments as a unit flow through its (stage, passengers left) network in
+    ``model`` (a :class:`planner.highs.Model`): one arc per move (stay, or deploy: one passenger
+    fewer) from each reachable node, each costing ``-phi[r, j, d]``; the carrier deploys exactly
+    ``k`` times. Returns ``{flat point: [its deploy arcs]}`` (a point is deployed at when one of
+    its arcs carries the flow)."""
+    n_stages = problem.n_stages
+    d0 = int(problem.passengers[r])
+    end, n = d0 - k, len(stages)
+    inflow: dict[tuple[int, int], list[int]] = {}
+    deploy_arcs: dict[int, list[int]] = {}
+    for t, j in enumerate(stages):
+        a = r * n_stages + int(j)
+        for d in range(end, d0 + 1):
+            if d0 - d > t or d - end > n - t:
+                continue  # node (t, d) unreachable
+            out = []
+            cost = -float(phi[r, j, d])
+            if d - end <= n - t - 1:
+                out.append(model.var(cost, is_int=integer))
+                inflow.setdefault((t + 1, d), []).append(out[-1])
+            if d - 1 >= end:
+                out.append(model.var(cost, is_int=integer))
+                inflow.setdefault((t + 1, d - 1), []).append(out[-1])
+                deploy_arcs.setdefault(a, []).append(out[-1])
+            if t == 0:
+                model.row(1.0, 1.0, out, [1.0] * len(out))
+            else:
+                ins = inflow.get((t, d), [])
+                model.row(0.0, 0.0, out + ins, [1.0] * len(out) + [-1.0] * len(ins))
+    return deploy_arcs
 
 
 def _highs_value(problem: Problem, x: np.ndarray, phi: np.ndarray, part: _Component, integer: bool,
                  time_limit_s: float) -> float:
     """The component's model (module docstring) solved by HiGHS: the MIP's dual bound
     (``integer``) or the LP optimum; raw units. Both are >= the component's inner maximum."""
-    import highspy  # the only HiGHS import of the planner core
+    from planner.highs import Model
 
     n_stages = problem.n_stages
-    cols_lo, cols_hi, cols_cost, cols_int = [], [], [], []
-
-    def var(cost: float, lo: float = 0.0, hi: float = 1.0, is_int: bool = False) -> int:
-        cols_lo.append(lo)
-        cols_hi.append(hi)
-        cols_cost.append(cost)
-        cols_int.append(is_int)
-        return len(cols_cost) - 1
-
-    rows: list[tuple[float, float, list[int], list[float]]] = []
+    model = Model()
+    var = model.var
     flat_points = np.concatenate([r * n_stages + s for r, s in zip(part.carriers, part.stages)])
     in_part = np.zeros(problem.n_carriers * n_stages, dtype=bool)
     in_part[flat_points] = True
@@ -324,28 +322,8 @@ def _highs_value(problem: Problem, x: np.ndarray, phi: np.ndarray, part: _Compon
     xs = np.asarray(x, dtype=float).ravel()
     deploy_arcs: dict[int, list[int]] = {}
     for r, stages, k in zip(part.carriers, part.stages, part.ks):
-        d0 = int(problem.passengers[r])
-        end, n = d0 - k, len(stages)
-        inflow: dict[tuple[int, int], list[int]] = {}
-        for t, j in enumerate(stages):
-            a = r * n_stages + int(j)
-            for d in range(end, d0 + 1):
-                if d0 - d > t or d - end > n - t:
-                    continue  # node (t, d) unreachable
-                out = []
-                cost = -float(phi[r, j, d])
-                if d - end <= n - t - 1:
-                    out.append(var(cost, is_int=integer))
-                    inflow.setdefault((t + 1, d), []).append(out[-1])
-                if d - 1 >= end:
-                    out.append(var(cost, is_int=integer))
-                    inflow.setdefault((t + 1, d - 1), []).append(out[-1])
-                    deploy_arcs.setdefault(a, []).append(out[-1])
-                if t == 0:
-                    rows.append((1.0, 1.0, out, [1.0] * len(out)))
-                else:
-                    ins = inflow.get((t, d), [])
-                    rows.append((0.0, 0.0, out + ins, [1.0] * len(out) + [-1.0] * len(ins)))
+        deploy_arcs.update(carrier_flow(model, problem, r, stages, k, phi, integer))
+    cols_cost = model.cost
     y = {}
     for a, arcs in deploy_arcs.items():
         nbrs = comp.nbr[comp.indptr[a]:comp.indptr[a + 1]]
@@ -355,62 +333,27 @@ def _highs_value(problem: Problem, x: np.ndarray, phi: np.ndarray, part: _Compon
                 cols_cost[arc] += float(xs[a])
             continue
         y[a] = var(0.0)
-        rows.append((0.0, 0.0, [y[a]] + arcs, [1.0] + [-1.0] * len(arcs)))
+        model.row(0.0, 0.0, [y[a]] + arcs, [1.0] + [-1.0] * len(arcs))
     q = {}
     for a in y:
         for b in comp.nbr[comp.indptr[a]:comp.indptr[a + 1]].tolist():
             if b in y and a < b:
                 q[(a, b)] = v = var(0.0)
-                rows.append((-1.0, np.inf, [v, y[a], y[b]], [1.0, -1.0, -1.0]))
-                rows.append((-np.inf, 0.0, [v, y[a]], [1.0, -1.0]))
-                rows.append((-np.inf, 0.0, [v, y[b]], [1.0, -1.0]))
+                model.row(-1.0, np.inf, [v, y[a], y[b]], [1.0, -1.0, -1.0])
+                model.row(-np.inf, 0.0, [v, y[a]], [1.0, -1.0])
+                model.row(-np.inf, 0.0, [v, y[b]], [1.0, -1.0])
     for a, ya in y.items():
         pairs = [q[(min(a, b), max(a, b))] for b in comp.nbr[comp.indptr[a]:comp.indptr[a + 1]].tolist() if b in y]
         xa = float(xs[a])
         if xa == 0.0:
             continue
         ws = [var(xa / (1.0 + m), is_int=integer) for m in range(len(pairs) + 1)]
-        rows.append((0.0, 0.0, ws + [ya], [1.0] * len(ws) + [-1.0]))
+        model.row(0.0, 0.0, ws + [ya], [1.0] * len(ws) + [-1.0])
         lo, hi = (0.0, np.inf) if xa > 0 else (-np.inf, 0.0)
-        rows.append((lo, hi, ws + pairs, list(range(len(ws))) + [-1.0] * len(pairs)))
-
-    h = _new_highs(highspy)
-    h.setOptionValue("threads", 1)
-    h.setOptionValue("time_limit", float(time_limit_s))
-    if integer:
-        h.setOptionValue("mip_rel_gap", 0.0)
-    lp = highspy.HighsLp()
-    ncol = len(cols_cost)
-    lp.num_col_ = ncol
-    lp.num_row_ = len(rows)
-    lp.col_cost_ = np.asarray(cols_cost)
-    lp.col_lower_ = np.asarray(cols_lo)
-    lp.col_upper_ = np.asarray(cols_hi)
-    lp.row_lower_ = np.array([r[0] for r in rows])
-    lp.row_upper_ = np.array([r[1] for r in rows])
-    lp.sense_ = highspy.ObjSense.kMaximize
-    starts, index, value = [0], [], []
-    for _, _, idx, val in rows:
-        index += idx
-        value += val
-        starts.append(len(index))
-    lp.a_matrix_.format_ = highspy.MatrixFormat.kRowwise
-    lp.a_matrix_.start_ = np.asarray(starts, dtype=np.int32)
-    lp.a_matrix_.index_ = np.asarray(index, dtype=np.int32)
-    lp.a_matrix_.value_ = np.asarray(value, dtype=float)
-    if integer:
-        lp.integrality_ = [highspy.HighsVarType.kInteger if c else highspy.HighsVarType.kContinuous
-                           for c in cols_int]
-    h.passModel(lp)
-    h.run()
-    info = h.getInfo()
-    if integer:
-        bound = float(info.mip_dual_bound)  # +inf when the search stopped before the root LP
-    else:
-        if h.getModelStatus() != highspy.HighsModelStatus.kOptimal:
-            return np.inf  # not solved in time: the caller falls back to the separable bound
-        bound = float(info.objective_function_value)
-    return bound
+        model.row(lo, hi, ws + pairs, list(range(len(ws))) + [-1.0] * len(pairs))
+    # The MIP's dual bound (+inf when stopped before the root LP); the LP's optimum, +inf when not
+    # solved in time (the caller then falls back to the separable bound).
+    return model.solve(integer, time_limit_s).bound
 
 
 # ----------------------------------------------------------------------------- the bound

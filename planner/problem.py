@@ -475,6 +475,35 @@ class OnlineResult:
             object.__setattr__(self, "released", in_order(self.deployed))
 
 
+@dataclass(frozen=True, eq=False)
+class ClairvoyantResult:
+    """Offline optimum (or upper bound) of one instance.
+
+    Attributes:
+        deployed: bool ``[R, N]``: the optimal deployments when ``exact``; the conflict-free
+            choice (each carrier's largest observations) otherwise.
+        reward: normalised total (raw / problem.scale): the optimum when ``exact``, otherwise an
+            upper bound on it (the conflict-free total).
+        features: raw total (sum of x / p), same meaning as ``reward``.
+        exact: whether ``reward`` is the optimum (True) or only an upper bound (False).
+        nodes: search nodes visited (0 when the search was not attempted).
+        released: int64 ``[R, N]``: the passenger of each deployment (-1 elsewhere), the best
+            assignment :func:`planner.passengers.best_assignment` (index order without values).
+        gap: when not ``exact``, (features - value of the best feasible set found) / features
+            (the coverage reward's bound, :mod:`planner.coverage_bounds`; 0.0 otherwise).
+        method: how a coverage bound was found (``ilp``, ``lp``, ``union``); "" for the penalty.
+    """
+
+    deployed: np.ndarray
+    reward: float
+    features: float
+    exact: bool
+    nodes: int = 0
+    released: np.ndarray | None = None
+    gap: float = 0.0
+    method: str = ""
+
+
 def start_online(problem: Problem, x: np.ndarray, planner: Planner) -> tuple[np.ndarray, np.ndarray | None]:
     """What every online loop does before its first stage: check ``x`` against the problem's
     shape, blank unscheduled stages (NaN), call the planner's ``warm_up(problem)`` when it has one

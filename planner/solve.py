@@ -28,6 +28,8 @@ def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clai
         it fits :data:`planner.duality.DEFAULT_BUDGET_S`; :func:`planner.duality.seeded_bound`),
         "comms" {"loss", "delay", "groups"} (only with ``comms``), "released" [[passenger index per
         deployment, in stage order] per carrier] (only for an instance with ``passenger_values``)}``.
+        A ``reward: coverage`` instance reports its own bounds (:func:`_coverage_bounds`), each
+        with the planner's ``fraction`` of it.
 
     ``comms``: a :class:`planner.comms.CommsSpec`; None (the default) runs
     :func:`planner.online.run_online` exactly as before, otherwise
@@ -66,22 +68,76 @@ def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clai
                            for r, row in enumerate(result.deployed)]
     if comms is not None:
         out["comms"] = {"loss": comms.loss, "delay": comms.delay, "groups": [list(g) for g in comms.groups]}
-    coverage = problem.coverage is not None  # its bounds: not yet (issue 35)
-    if clairvoyant and not coverage:
+    if problem.coverage is not None:
+        out.update(_coverage_bounds(problem, x, counts, result.reward, seed, clairvoyant, online_optimum,
+                                    upper_bound))
+        return out
+    if clairvoyant:
         from planner import clairvoyant as bound_mod  # numba: loaded only when needed
 
         bound = bound_mod.solve(problem, x)
         out["clairvoyant"] = {"reward": bound.reward, "features": bound.features, "exact": bound.exact}
     # The exact online recursion knows no passenger values: no V* for a weighted instance.
-    if online_optimum and problem.weights is None and not coverage:
+    if online_optimum and problem.weights is None:
         # A planner that learns its prior is no longer the policy the exact recursion weighs.
         optimum = _online_optimum(problem, "" if getattr(planner, "learn_prior", False) else planner_name)
         if optimum is not None:
             out["online_optimum"] = optimum
-    if upper_bound and problem.weights is None and not coverage:
+    if upper_bound and problem.weights is None:
         bound = _upper_bound(problem, seed)
         if bound is not None:
             out["upper_bound"] = bound
+    return out
+
+
+def _fraction(reward: float, bound: float) -> float | None:
+    """The planner's reward as a fraction of a bound (None when the bound is 0)."""
+    return reward / bound if bound > 0 else None
+
+
+def _coverage_bounds(problem, x, counts, reward: float, seed: int, clairvoyant: bool, online_optimum: bool,
+                     upper_bound: bool) -> dict:
+    """The bounds of a coverage instance (:mod:`planner.coverage_bounds`), each with the planner's
+    ``fraction`` of it: ``clairvoyant`` {"reward", "features", "exact", "method"[, "gap"]} (the
+    realised counts; exact by integer programming within its size, else a bound with its gap),
+    ``upper_bound`` (the information-relaxation bound on the expected reward, when it fits
+    :data:`planner.duality.DEFAULT_BUDGET_S`; its fraction is this one realisation's reward over
+    an expectation) and ``online_optimum`` {"expected_reward", "exact", "truncation_error"} (V* of
+    the counts' truncated supports on tiny instances, within
+    :data:`planner.coverage_optimal.AUTO_NODES`: :func:`planner.coverage_optimal.online_value`;
+    ``exact`` when nothing was truncated)."""
+    out: dict = {}
+    if clairvoyant:
+        from planner import coverage_bounds
+
+        bound = coverage_bounds.solve(problem, x, counts)
+        out["clairvoyant"] = {"reward": bound.reward, "features": bound.features, "exact": bound.exact,
+                              "method": bound.method}
+        if not bound.exact:
+            out["clairvoyant"]["gap"] = bound.gap
+        out["clairvoyant"]["fraction"] = _fraction(reward, bound.reward)
+    if upper_bound and problem.weights is None:
+        from planner import coverage_bounds, duality
+
+        try:
+            bound = coverage_bounds.seeded_bound(problem, seed)
+        except duality.BoundTooLarge:
+            bound = None
+        if bound is not None:
+            out["upper_bound"] = {"expected_reward": bound.expected_reward, "stderr": bound.stderr,
+                                  "method": bound.method, "samples": bound.samples,
+                                  "fraction": _fraction(reward, bound.expected_reward)}
+    if online_optimum:
+        from planner import coverage_optimal
+
+        try:
+            best = coverage_optimal.online_value(problem, coverage_optimal.AUTO_TAIL, coverage_optimal.AUTO_NODES)
+        except coverage_optimal.TooLarge:
+            best = None
+        if best is not None:
+            out["online_optimum"] = {"expected_reward": best.expected_reward, "exact": best.truncation_error == 0,
+                                     "truncation_error": best.truncation_error,
+                                     "fraction": _fraction(reward, best.expected_reward)}
     return out
 
 

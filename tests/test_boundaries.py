@@ -127,6 +127,7 @@ def test_planner_package_and_limits_are_light():
 #: forwards there: exactly ``from planner.cli.M import F`` and ``raise SystemExit(F())``.
 FORWARDS = {"planner/online_optimal.py": ("planner.cli.measure", "optimal_table"),
             "planner/clairvoyant.py": ("planner.cli.measure", "clairvoyant_times"),
+            "planner/coverage_bounds.py": ("planner.cli.measure", "coverage_bound_times"),
             "planner/conformance.py": ("planner.cli.conformance", "main"),
             # mission/ has no command line either: ``python -m mission.simulate`` is launcher/simulate.py's
             "mission/simulate.py": ("launcher.simulate", "main"),

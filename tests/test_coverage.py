@@ -88,3 +88,32 @@ def test_coverage_evaluation_counts_each_region_once():
     reward, features = evaluate(problem, deployed, x, counts=counts)
     assert features == counts[[1, 2, 6]].sum()
     assert reward == pytest.approx(features / problem.scale)
+
+
+def _set_region(m, region):
+    return lambda d: d["regions"].__setitem__(m, region)
+
+
+@pytest.mark.parametrize("change, line", [
+    (lambda d: d["covers"][1].__setitem__(0, [-1]), "i.json: covers[1][0][0]: expected a region index in 0..7, found -1"),
+    (lambda d: d["covers"][1].__setitem__(0, [1.5]), "i.json: covers[1][0]: expected a list of region indices or null"),
+    (lambda d: d.__setitem__("valid", [[True] * 4] * 3),
+     "i.json: covers[0][3]: expected a list of region indices at a stage marked true in valid, found null"),
+    (lambda d: d["counts"].append(1), "i.json: counts: expected a list of 8 counts >= 0 (one per region), found a list of 9"),
+    (lambda d: d.__setitem__("counts", 5), "i.json: counts: expected a list of 8 counts >= 0 (one per region), found 5"),
+    (lambda d: d["counts"].__setitem__(0, "3"), 'i.json: counts[0]: expected a count >= 0, found "3"'),
+    (lambda d: d["counts"].__setitem__(0, 1.5), "i.json: counts[0]: expected a count region 0's prior can produce"),
+    (_set_region(0, {"mean": 0}), "i.json: regions[0].mean: expected a number > 0, found 0"),
+    (_set_region(0, {"mu": 1}), 'i.json: regions[0]: expected an object {"mean": MU} or {"prior": {...}}'),
+    (_set_region(0, {"prior": {"kind": "discrete_uniform", "low": -1, "high": 3}}),
+     "i.json: regions[0].prior: expected a discrete prior on counts >= 0"),
+    (_set_region(0, {"prior": {"kind": "table", "values": [-1, 2], "probabilities": [0.5, 0.5]}}),
+     "i.json: regions[0].prior: expected a discrete prior on counts >= 0"),
+    (_set_region(0, {"prior": {"kind": "poison", "mean": 1}}), "i.json: regions[0].prior.kind: expected one of poisson"),
+], ids=["negative-region-index", "non-integer-region-index", "null-at-a-valid-stage", "counts-too-long",
+        "counts-not-a-list", "count-not-a-number", "count-off-the-support", "region-mean-not-positive",
+        "region-unknown-field", "region-prior-negative-support", "region-table-negative", "region-prior-kind"])
+def test_more_bad_coverage_input_is_one_line_naming_the_field(change, line):
+    """Issue 35 item 8: every way a region, a cover list or the counts can be wrong."""
+    message = _bad(change)
+    assert message.startswith(line) and "\n" not in message

@@ -3,11 +3,14 @@
     python -m planner.online_optimal [--instances K] [--samples S] [--iterations I] [--seed SEED]
     python -m planner.clairvoyant [--instances K] [--carriers R] [--passengers D] [--stages N]
                                   [--overlaps G] [--seed SEED]
+    python -m planner.coverage_bounds [--carriers R,R,...] [--instances K] [--passengers D]
+                                      [--stages N] [--reach C] [--mean MU] [--seed SEED]
 
-Both commands are kept where the docs call them: ``python -m`` runs the named file, so each of
-those two modules keeps a ``__main__`` block that only forwards here (one import, one
+The commands are kept where the docs call them: ``python -m`` runs the named file, so each of
+those modules keeps a ``__main__`` block that only forwards here (one import, one
 ``raise SystemExit`` of the call; tests/test_boundaries.py holds them to that), and all the
-argument parsing and printing is in :func:`optimal_table` and :func:`clairvoyant_times`.
+argument parsing and printing is in :func:`optimal_table`, :func:`clairvoyant_times` and
+:func:`coverage_bound_times`.
 """
 from __future__ import annotations
 
@@ -96,3 +99,62 @@ def clairvoyant_times(argv=None) -> None:
     print(f"R={args.carriers} D={args.passengers} N={args.stages} overlaps={args.overlaps}: "
           f"{args.instances} instances, exact {exact}, ms mean {np.mean(times):.2f} median "
           f"{np.median(times):.2f} max {np.max(times):.2f}, nodes mean {np.mean(nodes):.0f} max {np.max(nodes)}")
+
+
+def _lattice_coverage(rng: np.random.Generator, carriers: int, passengers: int, stages: int, reach: int,
+                      mean: float):
+    """A coverage instance on a lattice (benchmark only): carrier r's stage j sits near cell
+    (2r, 2j) (jittered by one cell) and explores the cells within ``reach`` (Chebyshev), each
+    cell a region with a Poisson(``mean``) count. Returns (problem, x, counts)."""
+    from planner import coverage as cov, priors
+    from planner.problem import Problem
+
+    width, height = 2 * carriers + 2 * reach + 2, 2 * stages + 2 * reach + 2
+    covers = []
+    for r in range(carriers):
+        row = []
+        for j in range(stages):
+            cx, cy = 2 * r + reach + int(rng.integers(0, 2)), 2 * j + reach + int(rng.integers(0, 2))
+            row.append([x * height + y for x in range(cx - reach, cx + reach + 1)
+                        for y in range(cy - reach, cy + reach + 1)])
+        covers.append(row)
+    prior = priors.build_prior({"kind": "poisson", "mean": mean})
+    coverage = cov.Coverage.build(covers, [prior] * (width * height))
+    point = priors.build_prior({"kind": "poisson", "mean": mean * (2 * reach + 1) ** 2})
+    problem = Problem.build(passengers, np.ones((carriers, stages), dtype=bool), coverage.overlaps(stages), point,
+                            coverage=coverage)
+    counts = cov.sample_counts(coverage, rng)
+    return problem, cov.observations(coverage, counts, problem.valid), counts
+
+
+def coverage_bound_times(argv=None) -> None:
+    """``python -m planner.coverage_bounds``: the coverage clairvoyant's method, time and gap on
+    lattice instances (:func:`_lattice_coverage`) of growing R."""
+    from planner import coverage_bounds
+
+    parser = argparse.ArgumentParser(prog="python -m planner.coverage_bounds", description=coverage_bound_times.__doc__)
+    parser.add_argument("--carriers", default="4,8,16,32,64", help="comma-separated R values")
+    parser.add_argument("--instances", type=int, default=3)
+    parser.add_argument("--passengers", type=int, default=3)
+    parser.add_argument("--stages", type=int, default=10)
+    parser.add_argument("--reach", type=int, default=2)
+    parser.add_argument("--mean", type=float, default=0.3)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    print("| R | columns | nonzeros | method | exact | gap mean (max) | ms mean (max) |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
+    for carriers in (int(v) for v in args.carriers.split(",")):
+        rng = np.random.default_rng(np.random.SeedSequence(args.seed, spawn_key=(carriers,)))
+        times, gaps, exact, sizes, methods = [], [], 0, [], set()
+        for _ in range(args.instances):
+            problem, x, counts = _lattice_coverage(rng, carriers, args.passengers, args.stages, args.reach, args.mean)
+            sizes.append(coverage_bounds.model_size(problem, problem.valid))
+            start = time.perf_counter()
+            result = coverage_bounds.solve(problem, x, counts)
+            times.append((time.perf_counter() - start) * 1e3)
+            gaps.append(result.gap)
+            exact += result.exact
+            methods.add(result.method)
+        print(f"| {carriers} | {max(s.columns for s in sizes):,} | {max(s.nonzeros for s in sizes):,} | "
+              f"{'/'.join(sorted(methods))} | {exact}/{args.instances} | {np.mean(gaps):.4f} ({np.max(gaps):.4f}) | "
+              f"{np.mean(times):.0f} ({np.max(times):.0f}) |", flush=True)
