@@ -301,6 +301,7 @@ def write(rows: list[dict], out: Path, settings: dict, seconds: float, jobs: int
     """``coverage_trials.csv``, ``coverage_summary.csv``, ``coverage.png`` and ``coverage.md``
     under ``out``; returns the run-info entry."""
     write_trials(rows, out / "coverage_trials.csv")
+    rows = read_trials(out / "coverage_trials.csv")  # the report: a function of the CSV alone (--report-only)
     summary = summarise(rows)
     write_csv(summary, out / "coverage_summary.csv", SUMMARY_FIELDS)
     setting = (f"D = 3, N = 10, {settings['trials']} worlds per (R, level), {settings['iterations']} iterations "
