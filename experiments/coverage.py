@@ -243,6 +243,13 @@ def markdown(summary: list[dict]) -> list[str]:
     else:
         text += ["", "No clairvoyant coverage bound: `planner.clairvoyant.solve` takes no region counts on this "
                  "revision (experiments.coverage.coverage_clairvoyant), so the fraction-of-bound columns are left out."]
+    lenses_rows = [r for r in summary if r["overlaps"] > 0 and r["coverage_n"] and r["planner"] != CLAIRVOYANT]
+    unchanged = [p for p in planners if any(r["planner"] == p for r in lenses_rows)
+                 and all(r["same"] == r["coverage_n"] for r in lenses_rows if r["planner"] == p)]
+    if unchanged:
+        text += ["", "Planners whose coverage plan is their penalty plan in every world with lenses (they do not decide "
+                 "by coverage: SSAP and Random by design, as they ignore overlap): "
+                 + ", ".join(_label(p) for p in unchanged) + "."]
     if pending:
         text += ["", "*pending*: planners that cannot plan under coverage on this revision (penalty-planned results "
                  "only): " + "; ".join(f"{_label(p)}: `{next(r['error'] for r in summary if r['planner'] == p and r['error'])}`"
@@ -251,6 +258,30 @@ def markdown(summary: list[dict]) -> list[str]:
              _table(summary, lambda r: ("pending" if not r["coverage_n"] else f"{r['decision_ms_coverage']:.1f}")
                     + f" / {r['decision_ms_penalty']:.1f}", planners)]
     return text
+
+
+def versus(rows: list[dict], a: str, b: str) -> str:
+    """Markdown: planner ``a`` − planner ``b``, both planned with the 1/p penalty, per (R, level):
+    the paired difference under true coverage and as the 1/p model values the same plans (mean
+    [95 % CI]); empty when either planner is missing."""
+    by = defaultdict(dict)
+    for r in _present(rows, "penalty_reward"):
+        by[(r["carriers"], r["level"], r["trial"])][r["planner"]] = r
+    diffs = defaultdict(lambda: ([], []))
+    for (carriers, level, _), d in by.items():
+        if a in d and b in d:
+            diffs[(carriers, level)][0].append(d[a]["penalty_reward"] - d[b]["penalty_reward"])
+            diffs[(carriers, level)][1].append(d[a]["penalty_model_reward"] - d[b]["penalty_model_reward"])
+    if not diffs:
+        return ""
+
+    def cell(v):
+        return f"{np.mean(v):+.2f} [{np.mean(v) - ci95(v):+.2f}, {np.mean(v) + ci95(v):+.2f}]"
+
+    lines = [f"| R | level | {_label(a)} − {_label(b)} under true coverage | as the 1/p model values them |",
+             "|---|---|---|---|"]
+    lines += [f"| {c} | {k} | {cell(true)} | {cell(model)} |" for (c, k), (true, model) in sorted(diffs.items())]
+    return "\n".join(lines)
 
 
 def plot(summary: list[dict], path: Path, title: str) -> None:
@@ -313,9 +344,14 @@ def write(rows: list[dict], out: Path, settings: dict, seconds: float, jobs: int
     text = ["## Coverage against the 1/p penalty", "",
             f"Random coverage worlds (experiments.coverage_world), {setting}; each planner plans every world "
             "with the coverage reward and with the 1/p penalty (the world's lenses as overlap groups), both plans "
-            "valued under true coverage.", "", *markdown(summary), "", "![coverage against penalty](coverage.png)", "",
-            f"Wall time: {seconds:.1f} s with {jobs} worker process(es) for {len(rows)} tasks; worker seconds: "
-            + ", ".join(f"{_label(k)} {v:.0f} s" for k, v in sorted(worker.items(), key=lambda kv: planner_order(kv[0])))
-            + "."]
+            "valued under true coverage.", "", *markdown(summary), "", "![coverage against penalty](coverage.png)", ""]
+    for a, b in (("closed-loop", "ssap"), ("closed-loop", "mcts-ssap")):
+        table = versus(rows, a, b)
+        if table:
+            text += ["How the 1/p model misjudges the planners' differences: both planned with the penalty, paired on "
+                     "the same worlds, mean [95 % CI]:", "", table, ""]
+    text.append(f"Wall time: {seconds:.1f} s with {jobs} worker process(es) for {len(rows)} tasks; worker seconds: "
+                + ", ".join(f"{_label(k)} {v:.0f} s" for k, v in sorted(worker.items(), key=lambda kv: planner_order(kv[0])))
+                + ".")
     (out / "coverage.md").write_text("\n".join(text) + "\n")
     return {"sweep": "coverage", "seconds": round(seconds, 1), "tasks": len(rows), "jobs": jobs}
