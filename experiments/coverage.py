@@ -176,11 +176,13 @@ def summarise(rows: list[dict]) -> list[dict]:
                         f"{name}_sem": sem(values) if values else float("nan"),
                         f"{name}_fraction": float(np.mean(fractions)) if fractions else float("nan")})
         model = [r["penalty_model_reward"] / r["penalty_reward"] for r in pen if r["penalty_reward"] > 0]
+        planned = cov if planner != CLAIRVOYANT else []  # the clairvoyant's time is not a decision time
         row.update(diff_mean=float(np.mean(diff)) if diff else float("nan"), diff_ci=ci95(diff),
                    wins=int(np.sum(np.asarray(diff) > 1e-12)), losses=int(np.sum(np.asarray(diff) < -1e-12)),
                    same=sum(int(r["same_deployed"]) for r in rs if str(r.get("same_deployed", "")) in ("0", "1")),
                    model_pct=100 * float(np.mean(model)) if model else float("nan"),
-                   decision_ms_coverage=float(np.mean([r["decision_ms_coverage"] for r in cov])) if cov and planner != CLAIRVOYANT else float("nan"),
+                   decision_ms_coverage=float(np.mean([r["decision_ms_coverage"] for r in planned])) if planned
+                   else float("nan"),
                    decision_ms_penalty=float(np.mean([r["decision_ms_penalty"] for r in pen])) if pen else float("nan"))
         out.append(row)
     return out
@@ -251,9 +253,9 @@ def markdown(summary: list[dict]) -> list[str]:
                  "by coverage: SSAP and Random by design, as they ignore overlap): "
                  + ", ".join(_label(p) for p in unchanged) + "."]
     if pending:
+        errors = {r["planner"]: r["error"] for r in reversed(summary) if r["error"]}  # each planner's first error
         text += ["", "*pending*: planners that cannot plan under coverage on this revision (penalty-planned results "
-                 "only): " + "; ".join(f"{_label(p)}: `{next(r['error'] for r in summary if r['planner'] == p and r['error'])}`"
-                                        for p in pending) + "."]
+                 "only): " + "; ".join(f"{_label(p)}: `{errors[p]}`" for p in pending) + "."]
     text += ["", "Mean decision time per stage, ms, planning with coverage / with the penalty:", "",
              _table(summary, lambda r: ("pending" if not r["coverage_n"] else f"{r['decision_ms_coverage']:.1f}")
                     + f" / {r['decision_ms_penalty']:.1f}", planners)]
