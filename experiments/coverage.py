@@ -1,10 +1,12 @@
 """``python -m experiments coverage`` (issue 35 item 6): how much reward the paper's 1/p penalty
 loses against the true coverage reward, on the same worlds.
 
-Worlds (:mod:`experiments.coverage_world`): R carriers (``--carriers``, default 4, 8, 16, 32,
-64), D = 3, N = 10; overlap level k (``--overlaps``, the paper's Fig. 2 levels 0, 4, ..., 20) puts
-``k * R / 4`` lenses (regions shared by 2 or 3 decision points) among the R·N points: at R = 4
-exactly the paper's k overlap groups, at larger R the same number of lenses per decision point.
+Worlds (:mod:`experiments.coverage_world`, the stand-in of ``planner.instance.random_coverage_instance``):
+R carriers (``--carriers``, default 4, 8, 16, 32, 64), D = 3, N = 10, two own regions per point,
+Poisson(1.5) each; overlap level k (``--overlaps``, the paper's Fig. 2 levels 0, 4, ..., 20) puts
+``k * R / 4`` lenses (regions shared by 2 or 3 decision points, Poisson(1.5)) among the R·N
+points: at R = 4 as many as the paper's k overlap groups, at larger R the same number of lenses
+per decision point.
 
 Per world and planner one row holds both plans, made with the same planner seed:
 
@@ -20,9 +22,8 @@ keeps its penalty-planned result; its coverage columns stay empty and ``error`` 
 tables mark it *pending*). The clairvoyant coverage bound is a row per world when
 :func:`coverage_clairvoyant` finds it; otherwise its rows and the fraction columns are left out.
 
-Streams: world (R, k, t) from ``SeedSequence(seed, spawn_key=(1000, t))`` (so at R = 4 its
-lenses are the overlap sweep's groups of trial t, and level k's lenses are the first k of level
-k + 4's); planner seed ``(1000, t, 1)``, as the other random sweeps.
+Streams: world (R, k, t) from ``SeedSequence(seed, spawn_key=(1000, t))`` (level k's lenses are
+the first k·R/4 of level k + 4's); planner seed ``(1000, t, 1)``, as the other random sweeps.
 """
 from __future__ import annotations
 
@@ -81,18 +82,18 @@ def build_tasks(settings: dict) -> list[Task]:
 
 @lru_cache(maxsize=8)
 def world(seed: int, trial: int, carriers: int, overlaps: int, passengers: int, stages: int, mean: float):
-    """``(coverage instance, planner seed)`` of a world (module docstring: streams); cached per
+    """``((problem, x, counts), planner seed)`` of a world (module docstring: streams); cached per
     process, since every planner of a world rebuilds it."""
     from experiments.coverage_world import random_coverage_instance
 
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1000, trial)))
-    inst = random_coverage_instance(rng, carriers, passengers, stages, overlaps, mean)
-    return inst, seed_of(seed, (1000, trial, 1))
+    (problem, x), counts = random_coverage_instance(rng, carriers, passengers, stages, overlaps, mean)
+    return (problem, x, counts), seed_of(seed, (1000, trial, 1))
 
 
 def run_task(task: Task) -> dict:
     """One planner (or the clairvoyant) on one world, planned both ways; one row of :data:`FIELDS`."""
-    from experiments.coverage_world import penalty_problem
+    from experiments.coverage_world import penalty_twin
     from planner.online import run_online
     from planner.problem import evaluate
 
@@ -110,7 +111,7 @@ def run_task(task: Task) -> dict:
                    deployed_coverage=encode(result.deployed), wall_s=time.perf_counter() - t0)
         return row
     planner = _planner(task.planner, task.iterations)
-    planned = run_online(penalty_problem(problem), x, planner, planner_seed)
+    planned = run_online(penalty_twin(problem), x, planner, planner_seed)
     reward, features = evaluate(problem, planned.deployed, x, planned.released, counts=counts)
     row.update(penalty_reward=reward, penalty_features=features, penalty_model_reward=planned.reward,
                deployed_penalty=encode(planned.deployed), decision_ms_penalty=float(np.mean(planned.decision_ms)))

@@ -1,91 +1,72 @@
 """Seeded random coverage worlds for ``python -m experiments coverage`` (issue 35 item 6).
 
-A stand-in for ``planner.instance.random_coverage_instance`` (branch cov-planners): once that
-lands, :func:`random_coverage_instance` here should be replaced by it (one import in
-:mod:`experiments.coverage`).
+Stand-ins, until branch cov-planners lands, for ``planner.instance.random_coverage_instance`` and
+``planner.instance.penalty_twin`` as that branch defines them (commit 83109a7): the same
+signatures, the same draws in the same order, so the same seed gives the same world, and
+swapping the import in :mod:`experiments.coverage` for the shared functions leaves every
+committed row of the experiment unchanged (``python -m experiments check`` tells). Delete this
+module then.
 
-The world at overlap level k (the paper's Fig. 2: k overlap groups among R·N decision points):
-
-* every decision point's disc has a **private region** (explored from it alone);
-* each of the k overlap groups is a **lens**: one region shared by its 2 or 3 points, drawn
-  exactly as :func:`planner.instance.random_instance` draws an overlap group (same stream, same
-  draw order: validity, then the groups). The penalty model's view of the world
-  (``Coverage.overlaps(N)``) is therefore the penalty sweep's overlap groups of the same stream;
-* lens g holds a share ``s_g ~ U(SHARE)`` of a disc's expected features: Poisson(``s_g * mean``);
-  a point's private region holds the rest, Poisson(``mean * max(FLOOR, 1 - sum of its lenses'
-  shares)``). A point's observation (the sum of its regions' counts) is thus Poisson(``mean``), as
-  in the paper, unless its lenses alone hold more than ``1 - FLOOR`` of a disc;
-* the realised counts are drawn last, one Poisson per region.
-
-The world is built as a coverage instance document (docs/planner.md, "Coverage reward") and
-parsed by :func:`planner.instance.parse_instance_counts`, so the problem's point prior,
-normalisation and penalty overlaps are the instance format's own rules.
+The world (combinatorial, no geometry): every valid decision point's disc has ``own`` regions
+nobody else explores, each Poisson(``mean / own``), so a point that shares nothing observes
+Poisson(``mean``) as in the paper; ``overlaps`` shared regions (the overlap level), each explored
+by 2 or 3 distinct valid points (the first uniform among the valid points, the others uniform
+among the valid points within ``reach`` stages of it, or all valid points when ``reach`` is None),
+each Poisson(``mean / own``) too (a lens about the size of one own cell). Draw order: validity,
+shared regions, counts.
 """
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import numpy as np
 
-#: Range of a lens's share of a disc's expected features: discs that graze to discs that nearly coincide.
-SHARE = (0.2, 0.8)
-#: Smallest share of a disc's expected features its private region keeps.
-FLOOR = 0.1
+
+def point_prior_spec(coverage, valid: np.ndarray) -> dict:
+    """The pooled prior of a coverage problem's observations: Poisson of the mean, over the valid
+    points, of the sum of a point's region means (Poisson(3) when no point explores any)."""
+    sums = np.diff(np.concatenate([[0.0], np.cumsum(coverage.means[coverage.idx])])[coverage.ptr])
+    point_mean = float(sums[np.asarray(valid).ravel()].mean()) if np.any(valid) else 0.0
+    return {"kind": "poisson", "mean": point_mean if point_mean > 0 else 3.0}
 
 
-class CoverageInstance(NamedTuple):
-    """A coverage problem, its observations ``x[R, N]`` (sums of counts, NaN = ∅) and the
-    realised region counts ``[M]``."""
-
-    problem: object
-    observations: np.ndarray
-    counts: np.ndarray
-
-
-def coverage_document(rng: np.random.Generator, carriers: int = 4, passengers: int = 3, stages: int = 10,
-                      overlaps: int = 20, mean: float = 3.0, invalid_fraction: float = 0.0) -> dict:
-    """The world as a ``reward: coverage`` instance document (module docstring): regions
-    ``[private of each valid point in flat order..., lens of each group...]``."""
-    n_points = carriers * stages
-    valid = rng.random((carriers, stages)) >= invalid_fraction
-    groups = [rng.choice(n_points, size=min(int(rng.integers(2, 4)), n_points), replace=False)
-              for _ in range(overlaps)]
-    shares = rng.uniform(*SHARE, size=overlaps)
-    flat_valid = valid.reshape(-1)
-    private = {int(a): m for m, a in enumerate(np.flatnonzero(flat_valid))}
-    lens_share = np.zeros(n_points)
-    lenses: list[list[int]] = [[] for _ in range(n_points)]
-    for g, members in enumerate(groups):
-        for a in members:
-            if flat_valid[a]:  # an invalid point explores nothing
-                lenses[a].append(len(private) + g)
-                lens_share[a] += shares[g]
-    means = [mean * max(FLOOR, 1.0 - lens_share[a]) for a in private] + [mean * s for s in shares]
-    counts = rng.poisson(means)
-    covers = [[([private[r * stages + j], *lenses[r * stages + j]] if valid[r, j] else None)
-               for j in range(stages)] for r in range(carriers)]
-    return {"reward": "coverage", "carriers": carriers, "passengers": passengers, "stages": stages,
-            "regions": [{"mean": float(m)} for m in means], "covers": covers,
-            "counts": [int(c) for c in counts]}
-
-
-def random_coverage_instance(rng: np.random.Generator, carriers: int = 4, passengers: int = 3, stages: int = 10,
-                             overlaps: int = 20, mean: float = 3.0, invalid_fraction: float = 0.0) -> CoverageInstance:
-    """A seeded random coverage world (module docstring); the same generator state gives the same
-    world. Arguments as :func:`planner.instance.random_instance`'s."""
-    from planner.instance import parse_instance_counts
-
-    doc = coverage_document(rng, carriers, passengers, stages, overlaps, mean, invalid_fraction)
-    (problem, x), counts, _ = parse_instance_counts(doc, "<random coverage world>")
-    return CoverageInstance(problem, x, counts)
-
-
-def penalty_problem(problem):
-    """The penalty model's problem of a coverage world: the same points, passengers, prior and
-    normalisation scale, overlap groups ``coverage.overlaps(N)``, no coverage."""
+def random_coverage_instance(rng: np.random.Generator, carriers: int = 4, passengers: int | list[int] = 3,
+                             stages: int = 10, overlaps: int = 20, mean: float = 3.0, own: int = 2,
+                             reach: int | None = None, invalid_fraction: float = 0.0, weights=None):
+    """``(Instance(problem, x), counts)``: a random coverage world (module docstring);
+    ``problem.overlaps`` its penalty view (one group per shared region), ``counts`` float ``[M]``."""
+    from planner import coverage as cov
+    from planner import priors
+    from planner.instance import Instance
     from planner.problem import Problem
 
-    if problem.coverage is None:
-        raise ValueError("penalty_problem: expected a coverage problem, found a penalty one")
-    return Problem.build(problem.passengers, problem.valid, problem.coverage.overlaps(problem.n_stages),
-                         problem.prior, normalize=problem.scale)
+    if own < 1:
+        raise ValueError(f"own must be >= 1 (regions of a point's own disc), got {own}")
+    valid = rng.random((carriers, stages)) >= invalid_fraction
+    points = np.flatnonzero(valid.ravel())
+    covers: list[list[int]] = [[] for _ in range(carriers * stages)]
+    for i, a in enumerate(points):
+        covers[a] = list(range(i * own, (i + 1) * own))
+    n_own = own * len(points)
+    shared = overlaps if len(points) >= 2 else 0
+    for k in range(shared):
+        first = int(rng.choice(points))
+        near = points if reach is None else points[np.abs(points % stages - first % stages) <= reach]
+        near = near[near != first]
+        size = min(int(rng.integers(2, 4)) - 1, len(near))
+        for a in [first, *rng.choice(near, size=size, replace=False).tolist()] if size else [first]:
+            covers[a].append(n_own + k)
+    region_prior = priors.build_prior({"kind": "poisson", "mean": mean / own})
+    grid = [[covers[r * stages + j] if valid[r, j] else None for j in range(stages)] for r in range(carriers)]
+    coverage = cov.Coverage.build(grid, [region_prior] * (n_own + shared))
+    problem = Problem.build(passengers, valid, coverage.overlaps(stages),
+                            priors.build_prior(point_prior_spec(coverage, valid)), weights=weights, coverage=coverage)
+    counts = cov.sample_counts(coverage, rng)
+    return Instance(problem, cov.observations(coverage, counts, valid)), counts
+
+
+def penalty_twin(problem):
+    """The penalty model's problem of a coverage world: the same passengers, schedule, prior (so
+    the same scale) and passenger values, one overlap group per shared region, the 1/p reward."""
+    from planner.problem import Problem
+
+    return Problem(problem.passengers, problem.valid, problem.overlaps, problem.prior, problem.scale,
+                   problem.conflict, problem.weights)

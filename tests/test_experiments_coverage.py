@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from experiments import coverage, run
-from experiments.coverage_world import FLOOR, SHARE, coverage_document, penalty_problem, random_coverage_instance
+from experiments.coverage_world import penalty_twin, random_coverage_instance
 from experiments.trials import CLAIRVOYANT, Task, decode
 
 PLANNERS = ("closed-loop", "ssap", "random")
@@ -108,36 +108,30 @@ def test_report_only_rewrites_the_same_summary(results, tmp_path):
 # ----------------------------------------------------------------------------- the generator
 
 
-def test_same_seed_same_world_and_lenses_at_the_overlap_sweeps_groups():
-    from planner.instance import random_instance
+def test_same_seed_same_world_and_its_penalty_twin():
+    def world(seed):
+        return random_coverage_instance(np.random.default_rng(seed), 4, 3, 10, 12)
 
-    def stream():
-        return np.random.default_rng(np.random.SeedSequence(7, spawn_key=(1000, 2)))
+    (problem, x), counts = world(7)
+    (_, x2), counts2 = world(7)
+    assert np.array_equal(counts, counts2) and np.array_equal(x, x2)
+    assert not np.array_equal(counts, world(8)[1])
+    assert problem.coverage.n_regions == 2 * 40 + 12 and len(counts) == 92
+    assert np.allclose(problem.coverage.means, 1.5)  # own regions and lenses: Poisson(mean / own)
+    # x is the sum of each point's region counts; the lenses are the penalty view's overlap groups.
+    assert x[1, 2] == sum(counts[m] for m in problem.coverage.regions(1 * 10 + 2))
+    assert len(problem.overlaps) == 12 and all(2 <= len(g) <= 3 for g in problem.overlaps)
+    twin = penalty_twin(problem)
+    assert twin.coverage is None and twin.scale == problem.scale and twin.overlaps == problem.overlaps
 
-    assert coverage_document(stream(), 4, 3, 10, 12) == coverage_document(stream(), 4, 3, 10, 12)
-    assert coverage_document(stream(), 4, 3, 10, 12) != coverage_document(np.random.default_rng(8), 4, 3, 10, 12)
-    problem, x, counts = random_coverage_instance(stream(), 4, 3, 10, 12)
-    groups = random_instance(stream(), 4, 3, 10, 12).problem.overlaps
-    assert sorted(sorted(map(tuple, g.tolist())) for g in problem.overlaps) == \
-        sorted(sorted(map(tuple, g.tolist())) for g in groups)
-    assert problem.coverage.n_regions == 40 + 12 and len(counts) == 52
-    penalty = penalty_problem(problem)
-    assert penalty.coverage is None and penalty.scale == problem.scale and len(penalty.overlaps) == 12
 
+def test_a_level_adds_lenses_to_the_lower_levels_ones():
+    """Level k's lenses are the first of level k + 4's (same stream): paired across levels."""
+    def lenses(n):
+        (problem, _), _ = random_coverage_instance(np.random.default_rng(3), 8, 3, 10, n)
+        return [sorted(map(tuple, g.tolist())) for g in problem.overlaps]
 
-def test_a_disc_holds_the_mean_unless_its_lenses_hold_more():
-    doc = coverage_document(np.random.default_rng(3), 8, 3, 10, 40, mean=3.0)
-    means = np.array([r["mean"] for r in doc["regions"]])
-    n_points = 80
-    lens = means[n_points:] / 3.0
-    assert ((SHARE[0] <= lens) & (lens <= SHARE[1])).all()
-    for row in doc["covers"]:
-        for regions in row:
-            private, shared = regions[0], regions[1:]
-            assert private < n_points and all(m >= n_points for m in shared)
-            lens_share = sum(means[m] for m in shared) / 3.0
-            assert means[private] == pytest.approx(3.0 * max(FLOOR, 1 - lens_share))
-            assert sum(means[m] for m in regions) == pytest.approx(max(3.0, 3.0 * (FLOOR + lens_share)))
+    assert lenses(16)[:8] == lenses(8)
 
 
 # ----------------------------------------------------------------------------- pending and bound
