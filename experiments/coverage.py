@@ -181,6 +181,7 @@ def summarise(rows: list[dict]) -> list[dict]:
         row.update(diff_mean=float(np.mean(diff)) if diff else float("nan"), diff_ci=ci95(diff),
                    wins=int(np.sum(np.asarray(diff) > 1e-12)), losses=int(np.sum(np.asarray(diff) < -1e-12)),
                    same=sum(int(r["same_deployed"]) for r in rs if str(r.get("same_deployed", "")) in ("0", "1")),
+                   exact=sum(str(r.get("exact", "")) in ("1", "True") for r in rs),
                    model_pct=100 * float(np.mean(model)) if model else float("nan"),
                    decision_ms_coverage=float(np.mean([r["decision_ms_coverage"] for r in planned])) if planned
                    else float("nan"),
@@ -190,7 +191,7 @@ def summarise(rows: list[dict]) -> list[dict]:
 
 
 SUMMARY_FIELDS = ("carriers", "level", "overlaps", "planner", "n", "coverage_n", "coverage_mean", "coverage_sem",
-                  "penalty_mean", "penalty_sem", "diff_mean", "diff_ci", "wins", "losses", "same", "model_pct",
+                  "penalty_mean", "penalty_sem", "diff_mean", "diff_ci", "wins", "losses", "same", "exact", "model_pct",
                   "coverage_fraction", "penalty_fraction", "decision_ms_coverage", "decision_ms_penalty", "error")
 
 
@@ -241,8 +242,10 @@ def markdown(summary: list[dict]) -> list[str]:
             "heuristic undervalues what it deploys):", "",
             _table(summary, lambda r: f"{r['model_pct']:.1f} %", planners)]
     if any(r["planner"] == CLAIRVOYANT for r in summary):
-        text += ["", "Mean per-trial fraction of the clairvoyant coverage bound: planned with coverage / with the 1/p "
-                 "penalty:", "", _table(summary, _fractions, planners)]
+        bound = [r for r in summary if r["planner"] == CLAIRVOYANT]
+        text += ["", "Mean per-trial fraction of the clairvoyant coverage bound (exact maximum coverage in "
+                 f"{sum(r['exact'] for r in bound)} of {sum(r['n'] for r in bound)} worlds, an upper bound in the "
+                 "others): planned with coverage / with the 1/p penalty:", "", _table(summary, _fractions, planners)]
     else:
         text += ["", "No clairvoyant coverage bound: `planner.clairvoyant.solve` takes no region counts on this "
                  "revision (experiments.coverage.coverage_clairvoyant), so the fraction-of-bound columns are left out."]
