@@ -23,7 +23,7 @@ TRIAL_FIELDS = (
     "decision_ms_max", "wall_s", "deployed",
 )
 #: Columns of the per-trial CSVs that measure time, not decisions: they differ from run to run.
-TIMING_FIELDS = ("decision_ms_mean", "decision_ms_max", "wall_s")
+TIMING_FIELDS = ("decision_ms_mean", "decision_ms_max", "wall_s", "decision_ms_coverage", "decision_ms_penalty")
 #: Columns of the summary CSV (one row per sweep level and planner).
 SUMMARY_FIELDS = (
     "sweep", "level", "planner", "n", "reward_mean", "reward_sem", "features_mean", "features_sem",

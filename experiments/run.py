@@ -11,10 +11,11 @@ Usage::
     python -m experiments priors --trials 20 --iterations 2000   # stated / learned / oracle priors
     python -m experiments types                                  # type-aware vs type-blind (30 trials, 2000 iterations)
     python -m experiments bound                                  # the upper bound against V* and the planners
+    python -m experiments coverage                               # coverage-planned vs 1/p-planned, same worlds
     python -m experiments check                                  # do the committed results come from this code?
 
-``comms``, ``priors`` (experiments.priors), ``types`` (experiments.types) and ``bound``
-(experiments.bound) are not part of ``all``.
+``comms``, ``priors`` (experiments.priors), ``types`` (experiments.types), ``bound``
+(experiments.bound) and ``coverage`` (experiments.coverage) are not part of ``all``.
 
 Each sweep writes to ``--out`` (default ``docs/results``; ``--quick`` runs default to a temporary
 directory so they never overwrite the committed results): ``<sweep>_trials.csv`` (one row per
@@ -41,7 +42,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
 from pathlib import Path
 
-from experiments import bound, priors, report, types
+from experiments import bound, coverage, priors, report, types
 from experiments.trials import CLAIRVOYANT, Sweep, Task, decode, run_trial, urban_trial, warm_up_worker
 from planner.settings import DEFAULT_ITERATIONS
 from world.paths import IN_CLONE, REPO_ROOT as ROOT
@@ -80,6 +81,8 @@ def run_task(task: Task) -> dict:
     task's sweep from :data:`SWEEPS`."""
     if task.sweep in ("bound", "bound-tiny"):
         return bound.run_task(task)
+    if task.sweep == "coverage":
+        return coverage.run_task(task)
     return run_trial(task, SWEEPS[task.sweep])
 
 
@@ -106,7 +109,8 @@ def parse_args(argv=None) -> argparse.Namespace:
                                 formatter_class=argparse.RawDescriptionHelpFormatter,
                                 epilog="python -m experiments check [--help]: re-run a seeded sample of a results "
                                        "directory's tasks and compare them with its rows (experiments.check)")
-    p.add_argument("what", nargs="?", default="all", choices=("overlap", "scaling", "urban", "comms", "all", "priors", "types", "bound"),
+    p.add_argument("what", nargs="?", default="all", choices=("overlap", "scaling", "urban", "comms", "all", "priors", "types", "bound",
+                                              "coverage"),
                    help="which experiment (default: all)")
     p.add_argument("--trials", type=int, default=None, help="trials per level (default 50; quick 3)")
     p.add_argument("--iterations", type=int, default=None,
@@ -127,8 +131,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--losses", default=None,
                    help="message-loss levels of the comms experiment (default 0,0.25,0.5,0.75,0.9,1)")
     p.add_argument("--message-delay", type=int, default=0, help="message delay (stages) in the comms experiment")
-    p.add_argument("--overlaps", default=None, help="overlap levels of the overlap sweep (default 0,4,...,20)")
-    p.add_argument("--carriers", default=None, help="fleet sizes of the scaling sweep (default 2,...,6,12,24,32)")
+    p.add_argument("--overlaps", default=None,
+                   help="overlap levels of the overlap and coverage sweeps (default 0,4,...,20)")
+    p.add_argument("--carriers", default=None, help="fleet sizes of the scaling sweep (default 2,...,6,12,24,32) "
+                                                    "and of the coverage sweep (default 4,8,16,32,64; quick 4,8)")
     p.add_argument("--scaling-overlaps", type=int, default=10, help="overlaps in the scaling sweep (default 10)")
     p.add_argument("--urban-trials", type=int, default=None, help="world seeds of the urban run (default 20; quick 2)")
     p.add_argument("--scenario", type=Path, default=DEFAULT_SCENARIO, help="scenario of the urban run")
@@ -162,7 +168,11 @@ def settings_of(args) -> dict:
     if args.scaling_overlaps < 0:
         raise UsageError(f"--scaling-overlaps: expected an integer >= 0, found {args.scaling_overlaps}")
     overlaps = _int_list(args.overlaps, "overlaps", 0) if args.overlaps else (QUICK["overlaps"] if quick else OVERLAP_LEVELS)
-    carriers = _int_list(args.carriers, "carriers", 1) if args.carriers else (QUICK["carriers"] if quick else CARRIER_LEVELS)
+    if args.what == "coverage":
+        carrier_defaults = coverage.QUICK_CARRIERS if quick else coverage.CARRIER_LEVELS
+    else:
+        carrier_defaults = QUICK["carriers"] if quick else CARRIER_LEVELS
+    carriers = _int_list(args.carriers, "carriers", 1) if args.carriers else carrier_defaults
     from planner.registry import is_planner, planner_names
 
     if args.planners is None:
@@ -174,6 +184,8 @@ def settings_of(args) -> dict:
         planners = types.DEFAULT_PLANNERS
     if args.what == "bound" and args.planners == ",".join(DEFAULT_PLANNERS):
         planners = bound.DEFAULT_PLANNERS
+    if args.what == "coverage" and args.planners == ",".join(DEFAULT_PLANNERS):
+        planners = coverage.DEFAULT_PLANNERS
     if args.losses:
         try:
             losses = tuple(float(v) for v in args.losses.split(",") if v.strip())
@@ -204,6 +216,8 @@ def build_tasks(sweep: str, s: dict, args) -> list[Task]:
         return types.build_tasks(s)
     if sweep == "bound":
         return bound.build_tasks(s)
+    if sweep == "coverage":
+        return coverage.build_tasks(s)
     names = (*s["planners"], CLAIRVOYANT)
     tasks = []
     if sweep == "overlap":
@@ -245,6 +259,8 @@ def rebuild_settings(sweep: str, s: dict, args) -> dict:
         return {"scenario": str(scenario.relative_to(ROOT) if scenario.is_relative_to(ROOT) else scenario)}
     if sweep == "bound":
         return {"bound_trials": s["bound_trials"]}
+    if sweep == "coverage":
+        return {"carriers": list(s["carriers"])}
     return {}
 
 
@@ -325,6 +341,8 @@ def _write_sweep(sweep: str, rows: list[dict], out: Path, seconds: float, jobs: 
         return types.write(rows, out, s, seconds, jobs)
     if sweep == "bound":
         return bound.write(rows, out, s, seconds, jobs)
+    if sweep == "coverage":
+        return coverage.write(rows, out, s, seconds, jobs)
     report.write_trials(rows, out / f"{sweep}_trials.csv")
     summary = report.summarise(rows)
     report.write_summary(summary, out / f"{sweep}_summary.csv")
@@ -478,6 +496,8 @@ def main(argv=None) -> int:
                 rows = types.read_trials(path)
             elif sweep == "bound":
                 rows = bound.read_trials(path)
+            elif sweep == "coverage":
+                rows = coverage.read_trials(path)
             else:
                 rows = report.read_trials(path)
             s = {**s, "trials": prior["trials"], "urban_trials": prior["trials"], "iterations": prior["iterations"]}
@@ -505,7 +525,7 @@ def main(argv=None) -> int:
             info["sweeps"][sweep] = {**timing, "trials": s["urban_trials"] if sweep == "urban" else s["trials"],
                                      "iterations": s["iterations"], "seed": s["seed"],
                                      "planners": list(s["planners"]),
-                                     "levels": list(s["overlaps"] if sweep == "overlap" else
+                                     "levels": list(s["overlaps"] if sweep in ("overlap", "coverage") else
                                                     s["carriers"] if sweep == "scaling" else
                                                     s["losses"] if sweep == "comms" else [0]),
                                      **rebuild_settings(sweep, s, args)}

@@ -27,6 +27,8 @@ RUNS = (
     ["comms", "--trials", "1", "--iterations", "40", "--losses", "0,0.5", "--planners", "dec-closed-loop,ssap"],
     ["types", "--trials", "1", "--iterations", "40"],
     ["bound", "--quick", "--iterations", "40", "--planners", "closed-loop,ssap"],
+    ["coverage", "--trials", "1", "--iterations", "40", "--carriers", "4,8", "--overlaps", "0,8",
+     "--planners", "closed-loop,ssap"],
 )
 
 
@@ -68,7 +70,7 @@ def _edit_row(path: Path, match: dict, column: str, value: str) -> None:
 def test_every_row_of_an_untouched_run_is_reproduced(results, capsys):
     code, out = _check(results, capsys)
     assert code == 0, out
-    for name in ("overlap", "scaling", "urban", "comms", "types", "bound"):
+    for name in ("overlap", "scaling", "urban", "comms", "types", "bound", "coverage"):
         line = next(line for line in out.splitlines() if f"{name}_trials.csv:" in line)
         assert line.endswith("identical"), line
         n, total = line.split(": ")[1].split(" tasks")[0].split(" of ")
@@ -89,6 +91,19 @@ def test_a_changed_outcome_is_named_by_row_and_column(results, tmp_path, capsys)
     assert diffs[0].startswith("sweep overlap level 9 trial 1 planner closed-loop: reward committed '99', re-run ")
     assert diffs[1].startswith("sweep comms-r6 level 50 trial 0 planner ssap: deployed committed '0|0|0|0|0|0'")
     assert "2 difference(s)" in text.splitlines()[-1]
+
+
+def test_a_changed_coverage_plan_or_fleet_size_is_named(results, tmp_path, capsys):
+    out = _copy(results, tmp_path, ("coverage",))
+    _edit_row(out / "coverage_trials.csv", {"config": "R = 8", "level": "8", "planner": "ssap"},
+              "deployed_penalty", "0|0|0|0|0|0|0|0")
+    code, text = _check(out, capsys)
+    assert code == 1 and "sweep coverage config R = 8 level 8 trial 0 planner ssap: deployed_penalty committed" in text
+    info = json.loads((out / "run_info.json").read_text())
+    info["sweeps"]["coverage"]["carriers"] = [4, 9]
+    (out / "run_info.json").write_text(json.dumps(info))
+    code, text = _check(out, capsys)
+    assert code == 1 and "config R = 9 level 0 trial 0 planner closed-loop: no committed row" in text
 
 
 def test_a_setting_other_than_the_recorded_one_shows_in_the_rows(results, tmp_path, capsys):
