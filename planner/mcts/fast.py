@@ -53,6 +53,7 @@ import numpy as np
 
 from planner import ssap
 from planner.compiled import compile_problem
+from planner.coverage_plan import covered_regions, marginal_gains, plan_for
 from planner.mcts import kernel as _k
 from planner.problem import Problem, StageView, make_view, point_weights, warm_up_problem
 from planner.settings import DEFAULT_EXPLORATION, DEFAULT_ITERATIONS, DEFAULT_SAMPLES, LAYOUTS, check_budget
@@ -81,11 +82,35 @@ JOINT_MAX_CARRIERS = 8
 JOINT_LIMIT = 16
 
 
-def _model(problem: Problem) -> _k.Model:
-    """The compiled problem as the kernels read it."""
+def _model(problem: Problem, cover: _k.Cover | None = None) -> _k.Model:
+    """The compiled problem as the kernels read it (``cover``: the coverage reward's arrays, None
+    for the penalty rule)."""
     cp = compile_problem(problem)
     s = cp.sampler
-    return _k.Model(cp.table, cp.ucut, s.points, s.cdf, s.guide, cp.indptr, cp.nbr, float(cp.scale))
+    return _k.Model(cp.table, cp.ucut, s.points, s.cdf, s.guide, cp.indptr, cp.nbr, float(cp.scale),
+                    _NO_COVER if cover is None else cover)
+
+
+_I0, _F0 = np.zeros(1, dtype=np.int64), np.zeros(1)
+#: The penalty rule's placeholder (same types as a real one: one compiled kernel serves both).
+_NO_COVER = _k.Cover(False, _I0, _I0, _I0, _F0, _I0, _F0, _F0, _F0, _F0, _I0, _I0, _I0, 0.0)
+
+
+def cover_state(view: StageView) -> _k.Cover:
+    """The coverage reward of one decision as the kernels read it: the problem's CSR lists and
+    per-point thresholds (:func:`planner.coverage_plan.plan_for`), the counts the view reveals,
+    the regions its past deployments cover and their (revealed) value."""
+    problem = view.problem
+    plan = plan_for(problem)
+    n_regions = problem.coverage.n_regions
+    known = np.ascontiguousarray(view.counts, dtype=np.float64)
+    covered = np.zeros(n_regions, dtype=np.int64)
+    for a in np.flatnonzero(view.deployed.reshape(-1)).tolist():
+        covered[plan.idx[plan.ptr[a]:plan.ptr[a + 1]]] += 1
+    past_value = float(np.nan_to_num(known, nan=0.0)[covered > 0].sum())
+    return _k.Cover(True, plan.ptr, plan.idx, plan.tptr, plan.thr, plan.rptr, plan.rpoints, plan.rcdf, known,
+                    np.zeros(n_regions), np.zeros(n_regions, dtype=np.int64), np.zeros(1, dtype=np.int64),
+                    covered, past_value)
 
 
 @functools.lru_cache(maxsize=1)
@@ -236,7 +261,8 @@ class MCTSPlanner:
         if problem is None:
             problem = warm_up_problem()
         x = np.where(problem.valid, 1.0, np.nan)
-        view = make_view(problem, 0, x, np.zeros(problem.valid.shape, dtype=bool))
+        counts = None if problem.coverage is None else np.ones(problem.coverage.n_regions)
+        view = make_view(problem, 0, x, np.zeros(problem.valid.shape, dtype=bool), counts=counts)
         saved = (self.iterations, self.plan_ms)
         layout = self.layout
         self.iterations, self.plan_ms = 2, None
@@ -277,6 +303,8 @@ class MCTSPlanner:
         xval = np.zeros(n_carriers * n_stages, dtype=np.float64)
         xval[past] = known.reshape(-1)[past]
         weighted = problem.weights is not None
+        if weighted and problem.coverage is not None:
+            raise ValueError(f"{self.name}: passenger values under the coverage reward are not supported")
         if weighted:  # passenger values: past deployments with their passengers' weights
             # In units of the mean passenger value, so the exploration constant keeps its meaning.
             unit = float(problem.weights[problem.weights > 0].mean())
@@ -300,7 +328,7 @@ class MCTSPlanner:
             np.zeros_like(ws0),  # ws
             np.zeros(n_carriers, dtype=np.int64),  # dleft
         )
-        fixed = (root, _model(problem), _k.Settings(ROLLOUTS[self.rollout], self.exploration, self.samples),
+        fixed = (root, _model(problem, None if problem.coverage is None else cover_state(view)), _k.Settings(ROLLOUTS[self.rollout], self.exploration, self.samples),
                  _uct_tables(), scratch)
         if layout == "joint":
             # Upper bound of the choice carriers at any node: carriers with a passenger left and a
@@ -412,6 +440,12 @@ class MCTSPlanner:
                 selected = view.deployed.copy()
                 selected[:, j0] = decision
                 a = r * n_stages + j0
+                if problem.coverage is not None:  # ... or on the marginal coverage
+                    n, d = int(stages_left[r]), int(passengers_left[r])
+                    gain = marginal_gains(problem, view.counts, covered_regions(problem, selected), [a])[0]
+                    decision[r] = self.rollout == "ssap" and plan_for(problem).deploys(a, gain, n, d)
+                    node = _k.UNEXPANDED
+                    continue
                 conflicts = int(np.count_nonzero(compile_problem(problem).conflict[a] & selected.reshape(-1)))
                 n, d = int(stages_left[r]), int(passengers_left[r])
                 if self.rollout == "ssap":

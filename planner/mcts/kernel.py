@@ -13,6 +13,8 @@ rollout                     :func:`simulate` samples the unknown observations an
                             :func:`rollout` (SSAP on conflict-discounted observations, or
                             uniformly random feasible), ``samples`` times
 evaluation (penalty rule)   :func:`evaluate` (the whole trajectory: past + tree + rollout)
+coverage reward             :func:`simulate_cover` / :func:`rollout_cover`: the same steps, every
+                            deployment valued by its marginal coverage (:class:`Cover`)
 backup                      :func:`backup` (visits, value sums, means along the path)
 ==========================  ===================================================================
 
@@ -74,6 +76,29 @@ _TO_UNIT = 1.0 / 9007199254740992.0  # 2**-53
 # ----------------------------------------------------------------------------- named structures
 
 
+class Cover(NamedTuple):
+    """The coverage reward as the kernels read it (``on`` False: the penalty rule, and the arrays
+    are placeholders). Per problem: the CSR lists and thresholds of
+    :class:`planner.coverage_plan.CoveragePlan`; per decision: the revealed counts, the regions
+    the past covers and the per-sample counts drawn lazily (a region's count is drawn the first
+    time a sample reads it: ``stamp[m] == tick[0]``)."""
+
+    on: bool
+    ptr: np.ndarray         # int64 [R*N + 1] point -> regions (CSR)
+    idx: np.ndarray         # int64 [nnz]
+    tptr: np.ndarray        # int64 [R*N + 1] point -> thresholds with the tie margin (CSR)
+    thr: np.ndarray         # float64
+    rptr: np.ndarray        # int64 [M + 1] region -> inverse-CDF table (CSR)
+    rpoints: np.ndarray     # float64
+    rcdf: np.ndarray        # float64
+    known: np.ndarray       # float64 [M] revealed counts, NaN elsewhere
+    cnt: np.ndarray         # float64 [M] this sample's counts where stamp[m] == tick[0]
+    stamp: np.ndarray       # int64 [M]
+    tick: np.ndarray        # int64 [1] the current sample's id
+    covered: np.ndarray     # int64 [M] deployments of the current trajectory covering each region
+    past_value: float       # raw coverage of the deployments before the root stage
+
+
 class Model(NamedTuple):
     """The compiled problem as the kernels read it (:class:`planner.compiled.CompiledProblem`)."""
 
@@ -85,6 +110,7 @@ class Model(NamedTuple):
     indptr: np.ndarray  # int64 [R*N + 1] CSR of "shares an overlap"
     nbr: np.ndarray     # int64 [nnz]
     scale: float        # rewards are divided by it (normalised rewards)
+    cover: Cover        # the coverage reward (cover.on), else placeholders
 
 
 class Root(NamedTuple):
@@ -332,6 +358,121 @@ def weigh(n, pts, xval, n_stages, vs_left, table, d0, ws0, ws, dleft):
         dleft[r] = d - 1
 
 
+# ----------------------------------------------------------------------------- the coverage reward
+
+
+@njit(cache=True, inline="always")
+def _count(m, cover, state):
+    """Region m's count in the current sample: revealed, or drawn from its prior once per sample."""
+    c = cover.known[m]
+    if not np.isnan(c):
+        return c
+    if cover.stamp[m] == cover.tick[0]:
+        return cover.cnt[m]
+    u = _random(state)
+    i = cover.rptr[m]
+    last = cover.rptr[m + 1] - 1
+    while i < last and cover.rcdf[i] <= u:
+        i += 1
+    c = cover.rpoints[i]
+    cover.cnt[m] = c
+    cover.stamp[m] = cover.tick[0]
+    return c
+
+
+@njit(cache=True)
+def cover_gain(a, cover, state):
+    """Marginal coverage of a deployment at flat point a over the current trajectory: the counts
+    of its regions no deployment of the trajectory covers yet (reads only a's regions)."""
+    g = 0.0
+    for e in range(cover.ptr[a], cover.ptr[a + 1]):
+        m = cover.idx[e]
+        if cover.covered[m] == 0:
+            g += _count(m, cover, state)
+    return g
+
+
+@njit(cache=True, inline="always")
+def cover_add(a, cover, step):
+    """Add (``step`` 1) or remove (-1) the deployment at flat point a from the covered regions."""
+    for e in range(cover.ptr[a], cover.ptr[a + 1]):
+        cover.covered[cover.idx[e]] += step
+
+
+@njit(cache=True)
+def rollout_cover(q, n, root, policy, scratch, cover):
+    """:func:`rollout` under the coverage reward; returns (len(pts), raw gain of the rollout).
+
+    SSAP: a carrier deploys iff forced or the deployment's marginal coverage over the trajectory
+    so far (past + tree + rollout) exceeds the point's threshold (the analogue of the penalty
+    rollout's ``x / (1 + c)``); random: with probability ``d / n``. Every deployment adds its
+    marginal coverage, so the sum is the trajectory's coverage beyond the tree path's.
+    """
+    j0, valid, vs_left = root.j0, root.valid, root.vs_left
+    state, left, mark, pts = scratch.state, scratch.left, scratch.mark, scratch.pts
+    n_carriers, n_stages = valid.shape
+    total = 0.0
+    k = j0 + q // n_carriers
+    r = q % n_carriers
+    while k < n_stages:
+        while r < n_carriers:
+            d = left[r]
+            if d > 0 and valid[r, k]:
+                ns = vs_left[r, k]
+                a = r * n_stages + k
+                g = -1.0  # not computed yet
+                if forced(ns, d):
+                    go = True
+                elif policy == ROLLOUT_SSAP:
+                    g = cover_gain(a, cover, state)
+                    go = g > cover.thr[cover.tptr[a] + ns - d]
+                else:
+                    go = _random(state) * ns < d
+                if go:
+                    total += cover_gain(a, cover, state) if g < 0.0 else g
+                    cover_add(a, cover, 1)
+                    mark[a] = 1
+                    pts[n] = a
+                    n += 1
+                    left[r] = d - 1
+            r += 1
+        r = 0
+        k += 1
+    return n, total
+
+
+@njit(cache=True)
+def simulate_cover(q, n_tree, root, model, settings, scratch):
+    """:func:`simulate` under the coverage reward: per sample, a future of the unrevealed region
+    counts (drawn lazily), the tree path's deployments and the rollout each adding their marginal
+    coverage; the trajectory is worth the past's coverage plus those gains (past + tree + rollout).
+    On exit the marks and covered regions of the path and rollout are cleared."""
+    left, left_tree, mark, pts, state = scratch.left, scratch.left_tree, scratch.mark, scratch.pts, scratch.state
+    cover = model.cover
+    n_carriers = left.shape[0]
+    for r in range(n_carriers):
+        left_tree[r] = left[r]
+    total = 0.0
+    for _s in range(settings.samples):
+        cover.tick[0] += 1
+        gain = 0.0
+        for i in range(n_tree):
+            a = pts[i]
+            gain += cover_gain(a, cover, state)
+            cover_add(a, cover, 1)
+        for r in range(n_carriers):
+            left[r] = left_tree[r]
+        n, more = rollout_cover(q, n_tree, root, settings.rollout, scratch, cover)
+        total += cover.past_value + gain + more
+        for i in range(n):
+            cover_add(pts[i], cover, -1)
+        for i in range(n_tree, n):
+            mark[pts[i]] = 0
+    for i in range(n_tree):
+        mark[pts[i]] = 0
+    return total / (settings.samples * model.scale)
+
+
 @njit(cache=True, inline="always")
 def simulate(q, n_tree, root, model, settings, scratch):
     """Mean normalised reward of ``settings.samples`` rollouts below a tree path.
@@ -341,10 +482,12 @@ def simulate(q, n_tree, root, model, settings, scratch):
     of the path's points are sampled afresh per sample where unknown (after the root stage).
     On exit every mark of the path and rollout is cleared; ``left`` is clobbered.
     """
+    if model.cover.on:
+        return simulate_cover(q, n_tree, root, model, settings, scratch)
     left, left_tree, mark, xval, pts = scratch.left, scratch.left_tree, scratch.mark, scratch.xval, scratch.pts
     state = scratch.state
     j0, d0, valid, vs_left, known, known_flat, past, ws0, weighted = root
-    table, ucut, points, cdf, guide, indptr, nbr, scale = model
+    table, ucut, points, cdf, guide, indptr, nbr, scale, _ = model
     policy, _, samples = settings
     n_carriers = left.shape[0]
     for r in range(n_carriers):
