@@ -362,41 +362,51 @@ def weigh(n, pts, xval, n_stages, vs_left, table, d0, ws0, ws, dleft):
 
 
 @njit(cache=True, inline="always")
-def _count(m, cover, state):
-    """Region m's count in the current sample: revealed, or drawn from its prior once per sample."""
-    c = cover.known[m]
-    if not np.isnan(c):
-        return c
-    if cover.stamp[m] == cover.tick[0]:
-        return cover.cnt[m]
-    u = _random(state)
-    i = cover.rptr[m]
-    last = cover.rptr[m + 1] - 1
-    while i < last and cover.rcdf[i] <= u:
-        i += 1
-    c = cover.rpoints[i]
-    cover.cnt[m] = c
-    cover.stamp[m] = cover.tick[0]
-    return c
-
-
-@njit(cache=True)
-def cover_gain(a, cover, state):
+def _gain(a, ptr, idx, covered, known, cnt, stamp, tick, rptr, rpoints, rcdf, state):
     """Marginal coverage of a deployment at flat point a over the current trajectory: the counts
-    of its regions no deployment of the trajectory covers yet (reads only a's regions)."""
+    of its regions no deployment of the trajectory covers yet (reads only a's regions). A region's
+    count is the revealed one, or drawn from its prior the first time sample ``tick`` reads it.
+    Arrays are :class:`Cover`'s, passed unpacked (no reference counting in the loops)."""
     g = 0.0
-    for e in range(cover.ptr[a], cover.ptr[a + 1]):
-        m = cover.idx[e]
-        if cover.covered[m] == 0:
-            g += _count(m, cover, state)
+    for e in range(ptr[a], ptr[a + 1]):
+        m = idx[e]
+        if covered[m] != 0:
+            continue
+        c = known[m]
+        if np.isnan(c):
+            if stamp[m] == tick:
+                c = cnt[m]
+            else:
+                u = _random(state)
+                i = rptr[m]
+                last = rptr[m + 1] - 1
+                while i < last and rcdf[i] <= u:
+                    i += 1
+                c = rpoints[i]
+                cnt[m] = c
+                stamp[m] = tick
+        g += c
     return g
 
 
 @njit(cache=True, inline="always")
-def cover_add(a, cover, step):
+def _cover_add(a, ptr, idx, covered, step):
     """Add (``step`` 1) or remove (-1) the deployment at flat point a from the covered regions."""
-    for e in range(cover.ptr[a], cover.ptr[a + 1]):
-        cover.covered[cover.idx[e]] += step
+    for e in range(ptr[a], ptr[a + 1]):
+        covered[idx[e]] += step
+
+
+@njit(cache=True)
+def cover_gain(a, cover, state):
+    """:func:`_gain` of flat point a with the arrays of ``cover`` (sample ``cover.tick[0]``)."""
+    return _gain(a, cover.ptr, cover.idx, cover.covered, cover.known, cover.cnt, cover.stamp, cover.tick[0],
+                 cover.rptr, cover.rpoints, cover.rcdf, state)
+
+
+@njit(cache=True)
+def cover_add(a, cover, step):
+    """:func:`_cover_add` with the arrays of ``cover``."""
+    _cover_add(a, cover.ptr, cover.idx, cover.covered, step)
 
 
 @njit(cache=True)
@@ -410,6 +420,10 @@ def rollout_cover(q, n, root, policy, scratch, cover):
     """
     j0, valid, vs_left = root.j0, root.valid, root.vs_left
     state, left, mark, pts = scratch.state, scratch.left, scratch.mark, scratch.pts
+    ptr, idx, tptr, thr, rptr, rpoints, rcdf = cover.ptr, cover.idx, cover.tptr, cover.thr, cover.rptr, \
+        cover.rpoints, cover.rcdf
+    known, cnt, stamp, covered = cover.known, cover.cnt, cover.stamp, cover.covered
+    tick = cover.tick[0]
     n_carriers, n_stages = valid.shape
     total = 0.0
     k = j0 + q // n_carriers
@@ -424,13 +438,15 @@ def rollout_cover(q, n, root, policy, scratch, cover):
                 if forced(ns, d):
                     go = True
                 elif policy == ROLLOUT_SSAP:
-                    g = cover_gain(a, cover, state)
-                    go = g > cover.thr[cover.tptr[a] + ns - d]
+                    g = _gain(a, ptr, idx, covered, known, cnt, stamp, tick, rptr, rpoints, rcdf, state)
+                    go = g > thr[tptr[a] + ns - d]
                 else:
                     go = _random(state) * ns < d
                 if go:
-                    total += cover_gain(a, cover, state) if g < 0.0 else g
-                    cover_add(a, cover, 1)
+                    if g < 0.0:
+                        g = _gain(a, ptr, idx, covered, known, cnt, stamp, tick, rptr, rpoints, rcdf, state)
+                    total += g
+                    _cover_add(a, ptr, idx, covered, 1)
                     mark[a] = 1
                     pts[n] = a
                     n += 1
@@ -449,23 +465,25 @@ def simulate_cover(q, n_tree, root, model, settings, scratch):
     On exit the marks and covered regions of the path and rollout are cleared."""
     left, left_tree, mark, pts, state = scratch.left, scratch.left_tree, scratch.mark, scratch.pts, scratch.state
     cover = model.cover
+    ptr, idx, covered, known, cnt, stamp = cover.ptr, cover.idx, cover.covered, cover.known, cover.cnt, cover.stamp
+    rptr, rpoints, rcdf, tick = cover.rptr, cover.rpoints, cover.rcdf, cover.tick
     n_carriers = left.shape[0]
     for r in range(n_carriers):
         left_tree[r] = left[r]
     total = 0.0
     for _s in range(settings.samples):
-        cover.tick[0] += 1
+        tick[0] += 1
         gain = 0.0
         for i in range(n_tree):
             a = pts[i]
-            gain += cover_gain(a, cover, state)
-            cover_add(a, cover, 1)
+            gain += _gain(a, ptr, idx, covered, known, cnt, stamp, tick[0], rptr, rpoints, rcdf, state)
+            _cover_add(a, ptr, idx, covered, 1)
         for r in range(n_carriers):
             left[r] = left_tree[r]
         n, more = rollout_cover(q, n_tree, root, settings.rollout, scratch, cover)
         total += cover.past_value + gain + more
         for i in range(n):
-            cover_add(pts[i], cover, -1)
+            _cover_add(pts[i], ptr, idx, covered, -1)
         for i in range(n_tree, n):
             mark[pts[i]] = 0
     for i in range(n_tree):
