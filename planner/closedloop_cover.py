@@ -35,14 +35,16 @@ from planner.mcts.fast import cover_state
 from planner.problem import StageView
 
 
-def draw_counts(coverage, known: np.ndarray, rng: np.random.Generator, batch: int) -> np.ndarray:
-    """float ``[batch, M]``: ``batch`` futures of the region counts, each the revealed ``known``
-    counts (NaN elsewhere) with the others drawn from their priors (as
-    :func:`planner.coverage.sample_counts_given`, in one vectorised call when all are Poisson)."""
-    if coverage.poisson:
-        draws = rng.poisson(coverage.means, size=(batch, coverage.n_regions)).astype(float)
+def draw_counts(problem, known: np.ndarray, rng: np.random.Generator, batch: int) -> np.ndarray:
+    """float ``[batch, P]``: ``batch`` futures of the planning regions' counts
+    (:class:`planner.coverage_plan.CoveragePlan`), each the revealed ``known`` (float ``[P]``,
+    NaN elsewhere) with the others drawn from their priors (as
+    :func:`planner.coverage.sample_counts_given`; one vectorised call when all are Poisson)."""
+    plan = plan_for(problem)
+    if plan.poisson:  # a sum of independent Poisson counts is Poisson of the summed means
+        draws = rng.poisson(plan.pmeans, size=(batch, len(plan.pmeans))).astype(float)
     else:
-        draws = np.array([cov.sample_counts(coverage, rng) for _ in range(batch)]).reshape(batch, -1)
+        draws = plan.plan_counts(np.array([cov.sample_counts(problem.coverage, rng) for _ in range(batch)]))
     return np.where(np.isnan(known)[None, :], draws, known[None, :])
 
 
@@ -52,11 +54,12 @@ def score_actions(actions, counts, root, scratch, cover, out):
     ``root.j0`` and the base policy after it add over the past, on future ``counts[s]``."""
     n_carriers, n_stages = root.valid.shape
     left, mark, pts, state = scratch.left, scratch.mark, scratch.pts, scratch.state
-    known = cover.known
     for s in range(counts.shape[0]):
-        for m in range(counts.shape[1]):
-            known[m] = counts[s, m]
+        for m in range(counts.shape[1]):  # every count known: the rollout draws nothing
+            cover.cnt[m] = counts[s, m]
+            cover.stamp[m] = -1
         for c in range(actions.shape[0]):
+            cover.tick[0] += 1  # a new trajectory: nothing of the previous one is covered
             n = 0
             total = 0.0
             for r in range(n_carriers):
@@ -64,7 +67,7 @@ def score_actions(actions, counts, root, scratch, cover, out):
                 if actions[c, r]:
                     a = r * n_stages + root.j0
                     total += _k.cover_gain(a, cover, state)
-                    _k.cover_add(a, cover, 1)
+                    _k.cover_add(a, cover)
                     mark[a] = 1
                     pts[n] = a
                     n += 1
@@ -72,7 +75,6 @@ def score_actions(actions, counts, root, scratch, cover, out):
             n, more = _k.rollout_cover(n_carriers, n, root, _k.ROLLOUT_SSAP, scratch, cover)
             out[c, s] = total + more
             for i in range(n):
-                _k.cover_add(pts[i], cover, -1)
                 mark[pts[i]] = 0
 
 
@@ -111,7 +113,7 @@ def decide_cover(planner, view: StageView, rng: np.random.Generator) -> np.ndarr
     n_cand = (1 << k) * 1 if k <= ENUMERATE_MAX else (k + 1) * 3
     samples = int(np.clip(planner.iterations // n_cand, SAMPLES_MIN, SAMPLES_MAX))
     cover = cover_state(view)
-    known = np.array(cover.known)
+    known = plan_for(problem).plan_counts(view.counts)
     vs_left = view.stages_left_table
     root = _k.Root(view.stage, view.passengers_left.astype(np.int64), np.ascontiguousarray(view.valid, dtype=np.uint8),
                    vs_left, np.zeros((1, 1)), np.zeros(1), np.zeros(0, dtype=np.int64), np.zeros((1, 1)), False)
@@ -124,7 +126,7 @@ def decide_cover(planner, view: StageView, rng: np.random.Generator) -> np.ndarr
     def score(actions: np.ndarray, deadline: float | None) -> np.ndarray:
         def evaluate(batch: int) -> np.ndarray:
             out = np.empty((len(actions), batch))
-            score_actions(np.ascontiguousarray(actions), draw_counts(problem.coverage, known, rng, batch),
+            score_actions(np.ascontiguousarray(actions), draw_counts(problem, known, rng, batch),
                           root, scratch, cover, out)
             return out
 

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from planner import priors, ssap
+from planner.compiled import GUIDE_FACTOR
 from planner.problem import Problem
 
 #: Point-prior mass below this is dropped from a convolution's tails (as ``priors.TAIL``).
@@ -43,7 +44,12 @@ def point_support(coverage, point: int) -> tuple[np.ndarray, np.ndarray]:
     """The prior of flat point ``point``'s observation (the sum of its regions' independent
     counts) as support points float ``[K]`` ascending and their masses float ``[K]``: Poisson of
     the summed means when every region is Poisson, else the convolution of the region supports."""
-    regions = coverage.regions(point)
+    return sum_support(coverage, coverage.regions(point))
+
+
+def sum_support(coverage, regions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The prior of the sum of the counts of ``regions`` (:func:`point_support`'s rule)."""
+    regions = np.asarray(regions, dtype=np.int64)
     if len(regions) == 0:
         return np.zeros(1), np.ones(1)
     if coverage.poisson:
@@ -88,17 +94,46 @@ class CoveragePlan:
         ptr, idx: the problem's CSR point -> regions lists (:class:`planner.coverage.Coverage`).
         tptr: ``[R*N + 1]``; thr: ``[tptr[-1]]``: point a's thresholds with their tie margin
             (``cut(T[i])``, i = 0..n_a) are ``thr[tptr[a]:tptr[a + 1]]`` (empty at an invalid stage).
-        rptr: ``[M + 1]``; rpoints, rcdf: region m's support and CDF (last entry 1.0) are
-            ``rpoints[rptr[m]:rptr[m + 1]]``, ``rcdf[...]``.
+        owner: ``[M]``: the *planning region* of each region. A region explored by one point only
+            (a private one) is read by that point alone and revealed with its other private
+            regions, so a point's private regions are one planning region (their sum, prior the
+            convolution); a shared region is a planning region of its own. Values are additive
+            over regions, so coverage over planning regions is the coverage over regions.
+        pptr, pidx: the CSR point -> planning regions lists (a point's aggregate first).
+        pmeans: ``[P]`` each planning region's prior mean; poisson: all Poisson.
+        rptr, rpoints, rcdf: planning region m's support and CDF (last entry 1.0) are
+            ``rpoints[rptr[m]:rptr[m + 1]]``, ``rcdf[...]``; gptr, guide: its guide table
+            (:class:`planner.compiled.Sampler`'s, indices from ``rptr[m]``) is
+            ``guide[gptr[m]:gptr[m + 1]]``.
+        solo: uint8 ``[R*N]``: the point explores only its own aggregate (no shared region);
+            ucut: like ``thr``: the point prior's CDF at each threshold, so an unrevealed solo
+            point's observation ``quantile(u)`` exceeds the threshold iff ``u >= ucut``.
     """
 
     ptr: np.ndarray
     idx: np.ndarray
     tptr: np.ndarray
     thr: np.ndarray
+    owner: np.ndarray
+    pptr: np.ndarray
+    pidx: np.ndarray
+    pmeans: np.ndarray
     rptr: np.ndarray
     rpoints: np.ndarray
     rcdf: np.ndarray
+    gptr: np.ndarray
+    guide: np.ndarray
+    solo: np.ndarray
+    ucut: np.ndarray
+    poisson: bool
+
+    def plan_counts(self, counts: np.ndarray) -> np.ndarray:
+        """float ``[..., P]``: planning-region counts of region counts ``[..., M]`` (NaN where a
+        region is unrevealed: a point's private regions are revealed together)."""
+        counts = np.asarray(counts, dtype=float)
+        out = np.zeros(counts.shape[:-1] + (len(self.pmeans),))
+        np.add.at(out, (..., self.owner), counts)
+        return out
 
     def threshold(self, point: int, n: int, d: int) -> float:
         """The value a deployment at ``point`` with ``n`` valid stages and ``d`` passengers left
@@ -129,18 +164,62 @@ def _build(problem: Problem) -> CoveragePlan:
     tptr = np.zeros(len(rows) + 1, dtype=np.int64)
     tptr[1:] = np.cumsum([len(t) for t in rows])
     thr = np.concatenate(rows) if tptr[-1] else np.zeros(0)
-    regions = [_region_support(p) for p in coverage.priors]
-    rptr = np.zeros(len(regions) + 1, dtype=np.int64)
-    rptr[1:] = np.cumsum([len(p) for p, _ in regions])
-    rpoints = np.concatenate([p for p, _ in regions])
-    rcdf = np.concatenate([np.cumsum(m) / math.fsum(m.tolist()) for _, m in regions])
+    owner, pptr, pidx, members = _planning_regions(coverage, n_carriers * n_stages)
+    supports = [sum_support(coverage, regions) for regions in members]
+    rptr = np.zeros(len(supports) + 1, dtype=np.int64)
+    rptr[1:] = np.cumsum([len(p) for p, _ in supports])
+    rpoints = np.concatenate([p for p, _ in supports])
+    rcdf = np.concatenate([np.cumsum(m) / math.fsum(m.tolist()) for _, m in supports])
     rcdf[rptr[1:] - 1] = 1.0  # a uniform in [0, 1) always finds a point
+    guides = [np.searchsorted(rcdf[lo:hi], np.arange(GUIDE_FACTOR * (hi - lo)) / (GUIDE_FACTOR * (hi - lo)),
+                              side="right") for lo, hi in zip(rptr[:-1].tolist(), rptr[1:].tolist())]
+    gptr = np.zeros(len(guides) + 1, dtype=np.int64)
+    gptr[1:] = np.cumsum([len(g) for g in guides])
+    guide = np.concatenate(guides).astype(np.int64)
+    pmeans = np.array([float(coverage.means[regions].sum()) for regions in members])
+    solo = np.zeros(n_carriers * n_stages, dtype=np.uint8)
+    ucut = np.ones(len(thr))
+    for a in range(n_carriers * n_stages):
+        lo, hi = pptr[a], pptr[a + 1]
+        if hi - lo == 1 and len(members[pidx[lo]]) == len(coverage.regions(a)):  # its aggregate only
+            solo[a] = 1
+            m = pidx[lo]
+            points, cdf = rpoints[rptr[m]:rptr[m + 1]], rcdf[rptr[m]:rptr[m + 1]]
+            at = np.searchsorted(points, thr[tptr[a]:tptr[a + 1]], side="right") - 1
+            ucut[tptr[a]:tptr[a + 1]] = np.where(at >= 0, cdf[np.clip(at, 0, None)], 0.0)
     arrays = (np.ascontiguousarray(coverage.ptr, dtype=np.int64), np.ascontiguousarray(coverage.idx, dtype=np.int64),
-              tptr, np.ascontiguousarray(thr, dtype=np.float64), rptr,
-              np.ascontiguousarray(rpoints, dtype=np.float64), np.ascontiguousarray(rcdf, dtype=np.float64))
+              tptr, np.ascontiguousarray(thr, dtype=np.float64), owner, pptr, pidx, pmeans, rptr,
+              np.ascontiguousarray(rpoints, dtype=np.float64), np.ascontiguousarray(rcdf, dtype=np.float64), gptr,
+              guide, solo,
+              np.ascontiguousarray(ucut, dtype=np.float64))
     for arr in arrays:
         arr.setflags(write=False)
-    return CoveragePlan(*arrays)
+    return CoveragePlan(*arrays, bool(coverage.poisson))
+
+
+def _planning_regions(coverage, n_points: int):
+    """(owner ``[M]``, pptr, pidx, members): a point's private regions (explored by it alone)
+    become one planning region, each shared region stays one (:class:`CoveragePlan`);
+    ``members[p]`` the regions of planning region p (a region nobody explores is one too)."""
+    degree = np.bincount(coverage.idx, minlength=coverage.n_regions)
+    owner = np.full(coverage.n_regions, -1, dtype=np.int64)
+    members: list[list[int]] = []
+    lists: list[list[int]] = []
+    for a in range(n_points):
+        private = [m for m in coverage.regions(a).tolist() if degree[m] == 1]
+        if private:
+            owner[private] = len(members)
+            members.append(private)
+        lists.append([len(members) - 1] if private else [])
+    for m in np.flatnonzero(degree != 1).tolist():
+        owner[m] = len(members)
+        members.append([m])
+    for a in range(n_points):
+        lists[a] += sorted({int(owner[m]) for m in coverage.regions(a).tolist() if degree[m] >= 2})
+    pptr = np.zeros(n_points + 1, dtype=np.int64)
+    pptr[1:] = np.cumsum([len(x) for x in lists])
+    pidx = np.array([p for x in lists for p in x], dtype=np.int64)
+    return owner, pptr, pidx, [np.array(m, dtype=np.int64) for m in members]
 
 
 _PLANS: "weakref.WeakKeyDictionary[Problem, CoveragePlan]" = weakref.WeakKeyDictionary()

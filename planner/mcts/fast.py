@@ -93,23 +93,30 @@ def _model(problem: Problem, cover: _k.Cover | None = None) -> _k.Model:
 
 _I0, _F0 = np.zeros(1, dtype=np.int64), np.zeros(1)
 #: The penalty rule's placeholder (same types as a real one: one compiled kernel serves both).
-_NO_COVER = _k.Cover(False, _I0, _I0, _I0, _F0, _I0, _F0, _F0, _F0, _F0, _I0, _I0, _I0, 0.0)
+_NO_COVER = _k.Cover(False, _I0, _I0, _I0, _F0, _F0, np.zeros(1, dtype=np.uint8), _I0, _F0, _F0, _I0, _I0, _F0,
+                     _I0, _I0, _I0, 0.0)
 
 
 def cover_state(view: StageView) -> _k.Cover:
     """The coverage reward of one decision as the kernels read it: the problem's CSR lists and
     per-point thresholds (:func:`planner.coverage_plan.plan_for`), the counts the view reveals,
     the regions its past deployments cover and their (revealed) value."""
-    problem = view.problem
+    return cover_arrays(view.problem, view.counts, view.deployed)
+
+
+def cover_arrays(problem: Problem, known: np.ndarray, deployed: np.ndarray) -> _k.Cover:
+    """:func:`cover_state` from the revealed region counts ``known`` (float ``[M]``, NaN
+    unrevealed) and the past deployments ``deployed`` (bool ``[R, N]``)."""
     plan = plan_for(problem)
-    n_regions = problem.coverage.n_regions
-    known = np.ascontiguousarray(view.counts, dtype=np.float64)
-    covered = np.zeros(n_regions, dtype=np.int64)
-    for a in np.flatnonzero(view.deployed.reshape(-1)).tolist():
-        covered[plan.idx[plan.ptr[a]:plan.ptr[a + 1]]] += 1
-    past_value = float(np.nan_to_num(known, nan=0.0)[covered > 0].sum())
-    return _k.Cover(True, plan.ptr, plan.idx, plan.tptr, plan.thr, plan.rptr, plan.rpoints, plan.rcdf, known,
-                    np.zeros(n_regions), np.zeros(n_regions, dtype=np.int64), np.zeros(1, dtype=np.int64),
+    cnt = plan.plan_counts(known)
+    revealed = ~np.isnan(cnt)
+    covered = np.zeros(len(cnt), dtype=np.int64)  # -1: covered by the past (the kernels' ticks start at 1)
+    for a in np.flatnonzero(np.asarray(deployed).reshape(-1)).tolist():
+        covered[plan.pidx[plan.pptr[a]:plan.pptr[a + 1]]] = -1
+    past_value = float(cnt[(covered < 0) & revealed].sum())
+    stamp = np.where(revealed, -1, 0).astype(np.int64)  # -1: revealed; 0: no sample drew it yet
+    return _k.Cover(True, plan.pptr, plan.pidx, plan.tptr, plan.thr, plan.ucut, plan.solo, plan.rptr, plan.rpoints,
+                    plan.rcdf, plan.gptr, plan.guide, np.ascontiguousarray(np.nan_to_num(cnt, nan=0.0)), stamp, np.zeros(1, dtype=np.int64),
                     covered, past_value)
 
 
