@@ -195,3 +195,21 @@ def test_mcts_ssap_covers_more_than_ssap_under_heavy_overlap():
     diff = _heavy_overlap_totals(make_planner("mcts-ssap", iterations=1000), 60) \
         - _heavy_overlap_totals(make_planner("ssap"), 60)
     assert diff.mean() > 2 * diff.std(ddof=1) / np.sqrt(len(diff)), (diff.mean(), diff.std(ddof=1))
+
+
+@pytest.mark.parametrize("name", ["ssap", "mcts-ssap", "closed-loop", "dec-closed-loop"])
+def test_solve_reports_the_true_coverage_of_the_planners_deployments(name):
+    from pathlib import Path
+
+    from planner.instance import load_instance_counts
+    from planner.solve import solve_instance
+
+    example = Path(__file__).resolve().parents[1] / "examples" / "coverage_tiny.json"
+    out = solve_instance(example, make_planner(name, **({} if "ssap" == name else {"iterations": 300})), name, 0,
+                         clairvoyant=False, online_optimum=False, upper_bound=False)
+    (problem, _), counts, _ = load_instance_counts(example)
+    deployed = np.zeros(problem.valid.shape, dtype=bool)
+    for r, stages in enumerate(out["deployments"]):
+        deployed[r, stages] = True
+    assert out["features"] == cov.value(problem.coverage, deployed, counts)
+    assert deployed.sum(axis=1).tolist() == problem.passengers.tolist()
