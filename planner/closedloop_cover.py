@@ -28,7 +28,7 @@ import numpy as np
 from numba import njit
 
 from planner import coverage as cov
-from planner.coverage_plan import covered_regions, marginal_gains, plan_for
+from planner.coverage_plan import plan_for
 from planner.kernels import cache_follows_sources
 from planner.mcts import kernel as _k
 from planner.mcts.fast import cover_state
@@ -86,14 +86,15 @@ def base_action_cover(view: StageView) -> np.ndarray:
     plan = plan_for(problem)
     j = view.stage
     decision = view.must_deploy.copy()
-    covered = covered_regions(problem, view.deployed)
+    best = cov.best_weights(problem.coverage, view.deployed)  # 1 where covered
+    counts = np.nan_to_num(view.counts, nan=0.0)  # a point observed now has its regions revealed
     for r in np.flatnonzero(view.can_deploy).tolist():
         a = r * problem.n_stages + j
         if not decision[r]:
-            gain = marginal_gains(problem, view.counts, covered, [a])[0]
+            gain = cov.marginal_gain(problem.coverage, best, a, counts)
             decision[r] = plan.deploys(a, gain, int(view.stages_left[r]), int(view.passengers_left[r]))
         if decision[r]:
-            covered[problem.coverage.regions(a)] = True
+            cov.add(problem.coverage, best, a)
     return decision
 
 

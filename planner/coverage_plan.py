@@ -15,8 +15,12 @@
   passengers deploys at ``s_k`` iff forced or its value exceeds ``cut(T_k[n - d])``
   (:func:`planner.ssap.cut`). Sums are correctly rounded (:func:`math.fsum`), as in
   :mod:`planner.ssap`.
-* **Region samplers.** Each region's prior as an inverse-CDF table (CSR ``rptr``/``rpoints``/
-  ``rcdf``) for the kernels that draw futures.
+* **Planning regions.** What the kernels draw futures of: a point's private regions (explored
+  by no other point) summed into one region, each shared region one; each with its prior as an
+  inverse-CDF table with a guide (CSR). Exact: values add over regions and a point's private
+  regions are revealed together (:class:`CoveragePlan`).
+
+The marginal coverage of one deployment on revealed counts is :func:`planner.coverage.marginal_gain`.
 """
 from __future__ import annotations
 
@@ -233,21 +237,3 @@ def plan_for(problem: Problem) -> CoveragePlan:
             raise ValueError("plan_for needs a coverage problem (reward: coverage)")
         plan = _PLANS[problem] = _build(problem)
     return plan
-
-
-def marginal_gains(problem: Problem, view_counts: np.ndarray, covered: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """float ``[len(points)]``: each point's marginal coverage over the regions already
-    ``covered`` (bool ``[M]``), with the counts ``view_counts`` (NaN entries count 0)."""
-    coverage = problem.coverage
-    counts = np.nan_to_num(np.asarray(view_counts, dtype=float), nan=0.0)
-    gain = counts * ~np.asarray(covered, dtype=bool)
-    return np.array([math.fsum(gain[coverage.regions(int(a))].tolist()) for a in np.asarray(points).tolist()])
-
-
-def covered_regions(problem: Problem, deployed: np.ndarray) -> np.ndarray:
-    """bool ``[M]``: the regions explored by the ``deployed`` (bool ``[R, N]``) points."""
-    coverage = problem.coverage
-    out = np.zeros(coverage.n_regions, dtype=bool)
-    for a in np.flatnonzero(np.asarray(deployed, dtype=bool).reshape(-1)).tolist():
-        out[coverage.regions(a)] = True
-    return out

@@ -51,9 +51,10 @@ import time
 
 import numpy as np
 
+from planner import coverage as cov
 from planner import ssap
 from planner.compiled import compile_problem
-from planner.coverage_plan import covered_regions, marginal_gains, plan_for
+from planner.coverage_plan import plan_for
 from planner.mcts import kernel as _k
 from planner.problem import Problem, StageView, make_view, point_weights, warm_up_problem
 from planner.settings import DEFAULT_EXPLORATION, DEFAULT_ITERATIONS, DEFAULT_SAMPLES, LAYOUTS, check_budget
@@ -449,7 +450,8 @@ class MCTSPlanner:
                 a = r * n_stages + j0
                 if problem.coverage is not None:  # ... or on the marginal coverage
                     n, d = int(stages_left[r]), int(passengers_left[r])
-                    gain = marginal_gains(problem, view.counts, covered_regions(problem, selected), [a])[0]
+                    gain = cov.marginal_gain(problem.coverage, cov.best_weights(problem.coverage, selected), a,
+                                             np.nan_to_num(view.counts, nan=0.0))
                     decision[r] = self.rollout == "ssap" and plan_for(problem).deploys(a, gain, n, d)
                     node = _k.UNEXPANDED
                     continue
