@@ -44,7 +44,8 @@ def draw_counts(problem, known: np.ndarray, rng: np.random.Generator, batch: int
     if plan.poisson:  # a sum of independent Poisson counts is Poisson of the summed means
         draws = rng.poisson(plan.pmeans, size=(batch, len(plan.pmeans))).astype(float)
     else:
-        draws = plan.plan_counts(np.array([cov.sample_counts(problem.coverage, rng) for _ in range(batch)]))
+        draws = plan.plan_counts(np.column_stack([np.asarray(prior.rvs(size=batch, random_state=rng), dtype=float)
+                                                  for prior in problem.coverage.priors]))  # one call per region
     return np.where(np.isnan(known)[None, :], draws, known[None, :])
 
 

@@ -503,3 +503,14 @@ def random_coverage_instance(
                             priors.build_prior(point_prior_spec(coverage, valid)), weights=weights, coverage=coverage)
     counts = cov.sample_counts(coverage, rng)
     return Instance(problem, cov.observations(coverage, counts, valid)), counts
+
+
+def penalty_twin(problem: Problem) -> Problem:
+    """The penalty model's problem of a coverage problem's world: the same passengers, schedule,
+    prior (so the same scale), normalisation and passenger values, with one overlap group per
+    region explored from two or more points (:meth:`planner.coverage.Coverage.overlaps`) and the
+    1/p reward. Its planners read the same observations (the sums of the counts); their
+    deployments are then scored by true coverage (:func:`planner.problem.evaluate` on the coverage
+    problem)."""
+    return Problem(problem.passengers, problem.valid, problem.overlaps, problem.prior, problem.scale,
+                   problem.conflict, problem.weights)

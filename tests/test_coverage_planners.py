@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from planner import coverage as cov
-from planner.instance import random_coverage_instance
+from planner.instance import penalty_twin, random_coverage_instance
 
 
 def test_random_coverage_instances_are_seeded_and_consistent():
@@ -24,6 +24,9 @@ def test_random_coverage_instances_are_seeded_and_consistent():
     for group in problem.overlaps:  # reach=1: a shared region's points lie within 1 stage of each other
         stages = [j for _, j in group.tolist()]
         assert max(stages) - min(stages) <= 2
+    twin = penalty_twin(problem)  # the same world under the 1/p penalty
+    assert twin.reward == "penalty" and twin.scale == problem.scale and len(twin.overlaps) == len(problem.overlaps)
+    assert np.array_equal(twin.conflict, problem.conflict) and np.array_equal(twin.valid, problem.valid)
 
 
 # ----------------------------------------------------------------------------- planners

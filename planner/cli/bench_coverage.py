@@ -29,7 +29,7 @@ import time
 
 import numpy as np
 
-from planner.instance import random_coverage_instance
+from planner.instance import penalty_twin, random_coverage_instance
 from planner.mcts.fast import MCTSPlanner
 from planner.online import run_online
 from planner.problem import Problem
@@ -50,8 +50,7 @@ def worlds(family: str, carriers: int, i: int) -> tuple[Problem, Problem, np.nda
     rng = np.random.default_rng(np.random.SeedSequence(SEED, spawn_key=(f, carriers, i)))
     (problem, x), counts = random_coverage_instance(rng, carriers=carriers, passengers=PASSENGERS, stages=STAGES,
                                                     overlaps=shared(carriers), mean=MEAN, own=OWN, reach=reach)
-    penalty = Problem.build(problem.passengers, problem.valid, [g.tolist() for g in problem.overlaps], problem.prior)
-    return problem, penalty, x, counts
+    return problem, penalty_twin(problem), x, counts
 
 
 def decision_ms(planner: MCTSPlanner, family: str, carriers: int, count: int, coverage: bool) -> np.ndarray:
