@@ -187,7 +187,7 @@ def test_closed_loop_covers_more_than_ssap_under_heavy_overlap():
     """A statistical claim that could fail: over 20 seeded worlds with heavy overlap (40 shared
     regions among 32 points, neighbours within a stage), planning by marginal coverage beats the
     overlap-blind baseline by more than two standard errors of the paired mean difference."""
-    diff = _heavy_overlap_totals(make_planner("closed-loop", iterations=2000), 20) \
+    diff = _heavy_overlap_totals(make_planner("closed-loop", iterations=1000), 20) \
         - _heavy_overlap_totals(make_planner("ssap"), 20)
     assert diff.mean() > 2 * diff.std(ddof=1) / np.sqrt(len(diff)), (diff.mean(), diff.std(ddof=1))
 
