@@ -669,8 +669,6 @@ class ClosedLoopPlanner:
         if not free.any():
             return decision
         if problem.coverage is not None:
-            if problem.weights is not None:
-                raise ValueError(f"{self.name}: passenger values under the coverage reward are not supported")
             from planner.closedloop_cover import decide_cover  # the coverage form (its own numba kernel)
 
             return decide_cover(self, view, rng)

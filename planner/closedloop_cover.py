@@ -105,6 +105,8 @@ def decide_cover(planner, view: StageView, rng: np.random.Generator) -> np.ndarr
     from planner.closedloop import ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, every_combination, sampled_mean
 
     problem = view.problem
+    if problem.weights is not None:
+        raise ValueError("closed-loop: passenger values under the coverage reward are not supported")
     n_carriers, n_stages = problem.valid.shape
     free = view.can_deploy & ~view.must_deploy
     base = base_action_cover(view)

@@ -35,7 +35,8 @@ from planner.online import run_online  # noqa: E402
 from planner.registry import make_planner  # noqa: E402
 
 #: The planners that decide under coverage, with small budgets (the default suite stays fast).
-COVERAGE_PLANNERS = [("random", {}), ("ssap", {}), ("mcts-ssap", {"iterations": 60}), ("mcts-random", {"iterations": 60}),
+COVERAGE_PLANNERS = [("random", {}), ("ssap", {}), ("mcts-ssap", {"iterations": 60}),
+                     ("mcts-random", {"iterations": 60}),
                      ("mcts-ssap", {"iterations": 60, "layout": "binary"}), ("closed-loop", {"iterations": 200}),
                      ("dec-closed-loop", {"iterations": 200})]
 
@@ -216,3 +217,11 @@ def test_solve_reports_the_true_coverage_of_the_planners_deployments(name):
         deployed[r, stages] = True
     assert out["features"] == cov.value(problem.coverage, deployed, counts)
     assert deployed.sum(axis=1).tolist() == problem.passengers.tolist()
+
+
+@pytest.mark.parametrize("name", ["mcts-ssap", "closed-loop", "dec-closed-loop"])
+def test_passenger_values_under_coverage_are_refused_in_one_line(name):
+    (problem, x), counts = random_coverage_instance(np.random.default_rng(0), carriers=2, passengers=2, stages=4,
+                                                    overlaps=3, weights=[[2.0, 1.0], [1.0, 1.0]])
+    with pytest.raises(ValueError, match="passenger values under the coverage reward are not supported"):
+        run_online(problem, x, make_planner(name, iterations=50), 0, counts=counts)

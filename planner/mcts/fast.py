@@ -117,8 +117,8 @@ def cover_arrays(problem: Problem, known: np.ndarray, deployed: np.ndarray) -> _
     past_value = float(cnt[(covered < 0) & revealed].sum())
     stamp = np.where(revealed, -1, 0).astype(np.int64)  # -1: revealed; 0: no sample drew it yet
     return _k.Cover(True, plan.pptr, plan.pidx, plan.tptr, plan.thr, plan.ucut, plan.solo, plan.rptr, plan.rpoints,
-                    plan.rcdf, plan.gptr, plan.guide, np.ascontiguousarray(np.nan_to_num(cnt, nan=0.0)), stamp, np.zeros(1, dtype=np.int64),
-                    covered, past_value)
+                    plan.rcdf, plan.gptr, plan.guide, np.ascontiguousarray(np.nan_to_num(cnt, nan=0.0)), stamp,
+                    np.zeros(1, dtype=np.int64), covered, past_value)
 
 
 @functools.lru_cache(maxsize=1)
@@ -336,7 +336,8 @@ class MCTSPlanner:
             np.zeros_like(ws0),  # ws
             np.zeros(n_carriers, dtype=np.int64),  # dleft
         )
-        fixed = (root, _model(problem, None if problem.coverage is None else cover_state(view)), _k.Settings(ROLLOUTS[self.rollout], self.exploration, self.samples),
+        cover = None if problem.coverage is None else cover_state(view)
+        fixed = (root, _model(problem, cover), _k.Settings(ROLLOUTS[self.rollout], self.exploration, self.samples),
                  _uct_tables(), scratch)
         if layout == "joint":
             # Upper bound of the choice carriers at any node: carriers with a passenger left and a
