@@ -225,3 +225,23 @@ def test_passenger_values_under_coverage_are_refused_in_one_line(name):
                                                     overlaps=3, weights=[[2.0, 1.0], [1.0, 1.0]])
     with pytest.raises(ValueError, match="passenger values under the coverage reward are not supported"):
         run_online(problem, x, make_planner(name, iterations=50), 0, counts=counts)
+
+
+def test_a_point_exploring_nothing_and_a_region_nobody_explores_are_planned_for():
+    """Edge cases of an instance file: a valid stage whose disc covers no region (its observation
+    is 0) and a region no point explores (never read)."""
+    import json
+    from pathlib import Path
+
+    from planner.instance import parse_instance_counts
+
+    data = json.loads((Path(__file__).resolve().parents[1] / "examples" / "coverage_tiny.json").read_text())
+    data["covers"][2][0] = []
+    data["regions"].append({"mean": 4.0})
+    data["counts"].append(6)
+    (problem, x), counts, _ = parse_instance_counts(data, "edge.json")
+    assert x[2, 0] == 0.0
+    for name, options in COVERAGE_PLANNERS[1:]:
+        result = run_online(problem, x, make_planner(name, **options), 3, counts=counts)
+        assert result.deployed.sum(axis=1).tolist() == problem.passengers.tolist()
+        assert result.features == cov.value(problem.coverage, result.deployed, counts)

@@ -447,8 +447,8 @@ def rollout_cover(q, n, root, policy, scratch, cover):
                 if forced(ns, d):
                     go = True
                 elif policy == ROLLOUT_SSAP:
-                    m = idx[ptr[a]]
-                    if solo[a] and stamp[m] >= 0:
+                    if solo[a] and stamp[idx[ptr[a]]] >= 0:
+                        m = idx[ptr[a]]
                         # Its own unrevealed aggregate only (read by no other point, so never
                         # marked covered): x > t iff u >= ucut, the count looked up only to deploy.
                         u = _random(state)
