@@ -14,10 +14,12 @@ region, :meth:`planner.coverage.Coverage.overlaps`). Two families from fixed see
 
 For each fleet size, family and model: the median and p95 wall time of every decision of complete
 online missions (``run_online``'s ``decision_ms``: kernels loaded and per-problem tables built
-before the first timed decision) at ``--iterations`` (10,000) iterations, and the ratio of the
-medians. With ``--busy`` (default) every row is measured twice: on the host as it is, and with a
-busy loop of this benchmark's own (one process spinning on a core) running alongside. Figures are
-wall-clock; the load average is printed with them.
+before the first timed decision) at ``--iterations`` (10,000) iterations, the median CPU time of
+the same decisions (``time.thread_time``: what the decision itself costs, whatever else runs on
+the host), and the ratios of the medians. The two models fly each world back to back, so they
+share the host's conditions. With ``--busy`` (default) every row is measured twice: on the host as
+it is, and with a busy loop of this benchmark's own (one process spinning on a core) running
+alongside. The load average is printed with the figures.
 """
 from __future__ import annotations
 
@@ -53,16 +55,37 @@ def worlds(family: str, carriers: int, i: int) -> tuple[Problem, Problem, np.nda
     return problem, penalty_twin(problem), x, counts
 
 
-def decision_ms(planner: MCTSPlanner, family: str, carriers: int, count: int, coverage: bool) -> np.ndarray:
-    """Every decision's wall time (ms) of complete missions on worlds 0..count-1 (seed i)."""
-    out = []
+class _CPUTimed:
+    """A planner whose decisions' CPU times (ms, ``time.thread_time``) are recorded."""
+
+    def __init__(self, planner: MCTSPlanner):
+        self.planner, self.name, self.cpu_ms = planner, planner.name, []
+
+    def warm_up(self, problem: Problem) -> None:
+        self.planner.warm_up(problem)
+
+    def decide(self, view, rng):
+        t0 = time.thread_time()
+        out = self.planner.decide(view, rng)
+        self.cpu_ms.append((time.thread_time() - t0) * 1e3)
+        return out
+
+
+def decision_ms(planner: MCTSPlanner, family: str, carriers: int, count: int) -> dict:
+    """Every decision's wall and CPU time (ms) of complete missions on worlds 0..count-1 (seed i),
+    per model (``"penalty"``, ``"coverage"``), the two models flying each world back to back."""
+    out = {model: {"wall": [], "cpu": []} for model in ("penalty", "coverage")}
     for i in range(count):
         problem, penalty, x, counts = worlds(family, carriers, i)
-        if coverage:
-            out.extend(run_online(problem, x, planner, seed=i, counts=counts).decision_ms)
-        else:
-            out.extend(run_online(penalty, x, planner, seed=i).decision_ms)
-    return np.asarray(out)
+        for model in out:
+            timed = _CPUTimed(planner)
+            if model == "coverage":
+                result = run_online(problem, x, timed, seed=i, counts=counts)
+            else:
+                result = run_online(penalty, x, timed, seed=i)
+            out[model]["wall"].extend(result.decision_ms)
+            out[model]["cpu"].extend(timed.cpu_ms)
+    return {model: {k: np.asarray(v) for k, v in times.items()} for model, times in out.items()}
 
 
 def busy_loop() -> subprocess.Popen:
@@ -82,19 +105,22 @@ def main(argv: list[str] | None = None) -> int:
     planner = MCTSPlanner("ssap", iterations=args.iterations)
     print(f"mcts-ssap, {args.iterations} iterations, D = {PASSENGERS}, N = {STAGES}, {args.instances} worlds "
           f"per row; load average {os.getloadavg()[0]:.1f}")
-    print("| host | R | family | penalty median ms (p95) | coverage median ms (p95) | coverage / penalty |")
-    print("|---|---|---|---|---|---|")
+    print("| host | R | family | penalty wall median ms (p95) | coverage wall median ms (p95) | wall ratio | "
+          "penalty CPU median ms | coverage CPU median ms | CPU ratio |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for host in ["as is", "busy loop"] if args.busy else ["as is"]:
         spinner = busy_loop() if host == "busy loop" else None
         try:
             time.sleep(0.2 if spinner else 0.0)
             for carriers in sizes:
                 for family in FAMILIES:
-                    pen = decision_ms(planner, family, carriers, args.instances, coverage=False)
-                    cov = decision_ms(planner, family, carriers, args.instances, coverage=True)
-                    ratio = float(np.median(cov) / np.median(pen))
-                    print(f"| {host} | {carriers} | {family} | {np.median(pen):.1f} ({np.percentile(pen, 95):.1f}) | "
-                          f"{np.median(cov):.1f} ({np.percentile(cov, 95):.1f}) | {ratio:.2f} |", flush=True)
+                    times = decision_ms(planner, family, carriers, args.instances)
+                    pen, cov = times["penalty"], times["coverage"]
+                    wall = [f"{np.median(t['wall']):.1f} ({np.percentile(t['wall'], 95):.1f})" for t in (pen, cov)]
+                    cpu = [float(np.median(t["cpu"])) for t in (pen, cov)]
+                    print(f"| {host} | {carriers} | {family} | {wall[0]} | {wall[1]} | "
+                          f"{np.median(cov['wall']) / np.median(pen['wall']):.2f} | {cpu[0]:.1f} | {cpu[1]:.1f} | "
+                          f"{cpu[1] / cpu[0]:.2f} |", flush=True)
         finally:
             if spinner is not None:
                 spinner.kill()
