@@ -648,6 +648,12 @@ class ClosedLoopPlanner:
         x = np.full((2, 4), 3.0)
         ClosedLoopPlanner(iterations=8).decide(make_view(tiny, 0, x, np.zeros((2, 4), bool)),
                                                np.random.default_rng(0))
+        if problem.coverage is not None:  # the coverage kernel, on the problem itself
+            counts = np.ones(problem.coverage.n_regions)
+            ClosedLoopPlanner(iterations=8).decide(make_view(problem, 0, np.where(problem.valid, 1.0, np.nan),
+                                                             np.zeros(problem.valid.shape, bool), counts=counts),
+                                                   np.random.default_rng(0))
+            return
         compile_problem(problem).slot_value
 
     # The decision -----------------------------------------------------------------------------
@@ -662,6 +668,10 @@ class ClosedLoopPlanner:
         decision = must.copy()
         if not free.any():
             return decision
+        if problem.coverage is not None:
+            from planner.closedloop_cover import decide_cover  # the coverage form (its own numba kernel)
+
+            return decide_cover(self, view, rng)
         prep = compile_problem(problem)
         valid = np.ascontiguousarray(view.valid)
         left = view.passengers_left.astype(np.int64)
@@ -732,10 +742,20 @@ class ClosedLoopPlanner:
         positions ``flip``: all ``2^k`` combinations when ``k <= ENUMERATE_MAX``, else coordinate
         ascent over single flips (3 rounds, or until the deadline). ``ctx``: the :class:`_Stage`."""
         k = len(flip)
+        def score(actions, score_deadline):
+            return self._score(actions, members, samples, score_deadline, ctx, rng)
+
         if k <= ENUMERATE_MAX:
             actions = every_combination(base, flip)
-            score = self._score(actions, members, samples, deadline, ctx, rng)
-            return actions[int(np.argmax(score))]
+            return actions[int(np.argmax(score(actions, deadline)))]
+        return self.ascend(base, flip, deadline, score)
+
+    @staticmethod
+    def ascend(base, flip, deadline, score):
+        """Coordinate ascent over single flips of the positions ``flip`` of the joint action
+        ``base`` (3 rounds, or until ``deadline``); ``score(actions, deadline)`` estimates each
+        candidate of a round (the first candidate is the current action)."""
+        k = len(flip)
         current = base
         for _ in range(3 if deadline is None else 1 << 30):
             actions = np.repeat(current[None, :], k + 1, axis=0)
@@ -746,8 +766,7 @@ class ClosedLoopPlanner:
                 if time.perf_counter() >= deadline:
                     break
                 round_deadline = time.perf_counter() + (deadline - time.perf_counter()) / 2
-            score = self._score(actions, members, samples, round_deadline, ctx, rng)
-            best = int(np.argmax(score))
+            best = int(np.argmax(score(actions, round_deadline)))
             if best == 0:
                 break
             current = actions[best]

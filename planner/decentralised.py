@@ -23,6 +23,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from planner import coverage as cov
 from planner import ssap
 from planner.closedloop import (BLOCK, ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, Candidates, ClosedLoopPlanner, Net,
                                 Selection, base_action, block_halo, conflict_components, every_combination, grow_block,
@@ -87,6 +88,9 @@ class LocalView:
 
         released: int64 ``[R, N]`` or None: the passengers of the known deployments (-1 where
             unknown; None: index order), for a problem with passenger values.
+        counts: float ``[M]`` or None: under the coverage reward, the region counts this carrier
+            knows (those its known observations reveal, :func:`planner.coverage.revealed`; NaN
+            elsewhere); None for the penalty reward.
     """
 
     problem: Problem
@@ -99,6 +103,7 @@ class LocalView:
     record: np.ndarray
     intents: tuple
     released: np.ndarray | None = None
+    counts: np.ndarray | None = None
 
     @property
     def valid(self) -> np.ndarray:
@@ -116,7 +121,7 @@ class LocalView:
 
     def stage_view(self) -> StageView:
         """The central :class:`StageView` of this knowledge (exact when :attr:`complete`)."""
-        return make_view(self.problem, self.stage, self.observations, self.deployed, self.released)
+        return make_view(self.problem, self.stage, self.observations, self.deployed, self.released, self.counts)
 
     def own(self) -> tuple[bool, bool, int, int]:
         """(can deploy, must deploy, valid stages left n, passengers left d) of this carrier."""
@@ -140,7 +145,7 @@ def local_views(view: StageView, seed: int = 0) -> list[LocalView]:
     seen = np.full(R, j + 1, dtype=np.int64)
     record = np.full(R, j, dtype=np.int64)
     return [LocalView(problem, r, j, int(seed), view.observations, view.deployed, seen, record, (None,) * R,
-                      view.released) for r in range(R)]
+                      view.released, view.counts) for r in range(R)]
 
 
 def decide_all(planner, view: StageView, rng: np.random.Generator) -> np.ndarray:
@@ -158,15 +163,17 @@ def decide_all(planner, view: StageView, rng: np.random.Generator) -> np.ndarray
 
 
 def coordinator_view(problem: Problem, stage: int, x: np.ndarray, heard: np.ndarray,
-                     belief: np.ndarray, released: np.ndarray | None = None) -> StageView:
+                     belief: np.ndarray, released: np.ndarray | None = None,
+                     counts: np.ndarray | None = None) -> StageView:
     """The coordinator's view at ``stage``: observations it received (``heard[r]``: carrier r's
     observations are known at stages ``< heard[r]``); a carrier whose stage-j observation did not
     arrive is planned as unable to deploy now (its stage looks ∅, so it is not forced by the
     coordinator either: the carrier applies the forced rule itself); ``belief`` the deployments it
     believes happened (the truth up to each carrier's last delivered observation, its own
-    decisions after)."""
+    decisions after). ``counts``: a coverage problem's realised region counts (the view keeps
+    those the received observations reveal)."""
     known = np.where(np.arange(problem.n_stages)[None, :] < heard[:, None], x, np.nan)
-    return make_view(problem, stage, known, belief, released)
+    return make_view(problem, stage, known, belief, released, counts)
 
 
 def _forced_truth(problem: Problem, x: np.ndarray, deployed: np.ndarray, j: int) -> tuple[np.ndarray, np.ndarray]:
@@ -196,15 +203,15 @@ def run_comms(problem: Problem, x: np.ndarray, planner, seed: int, comms: CommsS
     x, released = start_online(problem, x, planner)
     deliveries = realise(comms, problem.n_carriers, problem.n_stages, seed)
     if callable(getattr(planner, "decide_local", None)):
-        deployed, times = _run_decentralised(problem, x, planner, seed, deliveries, released)
+        deployed, times = _run_decentralised(problem, x, planner, seed, deliveries, released, counts)
     else:
-        deployed, times = _run_centralised(problem, x, planner, seed, deliveries, released)
+        deployed, times = _run_centralised(problem, x, planner, seed, deliveries, released, counts)
     reward, features = evaluate(problem, deployed, x, released, counts=counts)
     return OnlineResult(deployed, reward, features, tuple(times), released)
 
 
 def _release(problem: Problem, x: np.ndarray, deployed: np.ndarray, released: np.ndarray | None,
-             planner, j: int) -> None:
+             planner, j: int, counts: np.ndarray | None = None) -> None:
     """Fill ``released[:, j]``: the passenger each stage-j deployment released. A carrier picks it
     on board from what it always knows itself (its observation, its valid stages left, who is
     still aboard) by the planner's passenger rule (:func:`planner.passengers.release`), so the
@@ -213,10 +220,10 @@ def _release(problem: Problem, x: np.ndarray, deployed: np.ndarray, released: np
         return
     from planner.passengers import release
 
-    released[:, j] = release(planner, make_view(problem, j, x, deployed, released), deployed[:, j])
+    released[:, j] = release(planner, make_view(problem, j, x, deployed, released, counts), deployed[:, j])
 
 
-def _run_centralised(problem, x, planner, seed, dl: Deliveries, released=None):
+def _run_centralised(problem, x, planner, seed, dl: Deliveries, released=None, counts=None):
     R, N = problem.valid.shape
     deployed = np.zeros((R, N), dtype=bool)   # the truth (carrier side)
     decided = np.zeros((R, N), dtype=bool)    # the coordinator's decisions
@@ -230,7 +237,7 @@ def _run_centralised(problem, x, planner, seed, dl: Deliveries, released=None):
         belief = np.where(before, deployed, decided)
         belief[:, j:] = False
         view = coordinator_view(problem, j, x, heard, belief,
-                                None if released is None else np.where(belief & deployed, released, -1))
+                                None if released is None else np.where(belief & deployed, released, -1), counts)
         t0 = time.perf_counter()
         decision = planner.decide(view, stage_rng(seed, j))
         times.append((time.perf_counter() - t0) * 1e3)
@@ -239,11 +246,11 @@ def _run_centralised(problem, x, planner, seed, dl: Deliveries, released=None):
         can, must = _forced_truth(problem, x, deployed, j)
         told = dl.decision[:, j] <= j
         deployed[:, j] = (told & decision & can) | must
-        _release(problem, x, deployed, released, planner, j)
+        _release(problem, x, deployed, released, planner, j, counts)
     return deployed, times
 
 
-def _run_decentralised(problem, x, planner, seed, dl: Deliveries, released=None):
+def _run_decentralised(problem, x, planner, seed, dl: Deliveries, released=None, counts=None):
     R, N = problem.valid.shape
     deployed = np.zeros((R, N), dtype=bool)
     sent: list[list] = [[None] * N for _ in range(R)]  # intents published, [carrier][stage]
@@ -269,7 +276,8 @@ def _run_decentralised(problem, x, planner, seed, dl: Deliveries, released=None)
             intents = tuple(sent[b][last_int[b]] if b != r and last_int[b] >= 0 else None for b in range(R))
             local = LocalView(problem, r, j, int(seed), obs, dep, seen.astype(np.int64),
                               record.astype(np.int64), intents,
-                              None if released is None else np.where(dep, released, -1))
+                              None if released is None else np.where(dep, released, -1),
+                              None if problem.coverage is None else cov.revealed(problem.coverage, obs, counts))
             t0 = time.perf_counter()
             out = LocalDecision.of(planner.decide_local(local, stage_rng(seed, j)))
             slowest = max(slowest, (time.perf_counter() - t0) * 1e3)
@@ -280,7 +288,7 @@ def _run_decentralised(problem, x, planner, seed, dl: Deliveries, released=None)
             decision[r] = out.deploy
             sent[r][j] = out.intent
         deployed[:, j] = decision
-        _release(problem, x, deployed, released, planner, j)
+        _release(problem, x, deployed, released, planner, j, counts)
         times.append(slowest)
     return deployed, times
 
@@ -439,6 +447,13 @@ class DecClosedLoopPlanner:
         if not can or must:
             return LocalDecision(bool(must))
         r, j = local.carrier, local.stage
+        if local.problem.coverage is not None and not local.complete:
+            # Coverage, partial information: closed-loop's coverage search on what this carrier
+            # knows (carriers it has not heard from at stage j cannot act in its candidates; their
+            # unheard deployments count as absent) and its own part of the best joint action.
+            from planner.closedloop_cover import decide_cover
+
+            return LocalDecision(bool(decide_cover(self._central, local.stage_view(), rng)[r]))
         if local.complete:
             view = local.stage_view()
             key = (id(local.problem), j, view.observations.tobytes(), view.deployed.tobytes(),

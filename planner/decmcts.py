@@ -349,6 +349,13 @@ def optimise_distribution(values: np.ndarray, steps: int = GRADIENT_STEPS, alpha
     return q
 
 
+def _refuse_coverage(problem: Problem) -> None:
+    """dec-mcts plans with the penalty rule only (its kernel scores trajectories by x / p)."""
+    if problem.coverage is not None:
+        raise ValueError("dec-mcts: the coverage reward is not supported (it plans with the 1/p penalty); "
+                         "use dec-closed-loop")
+
+
 class DecMCTSPlanner:
     """Dec-MCTS with SSAP rollouts, one tree per carrier (see the module docstring).
 
@@ -368,6 +375,7 @@ class DecMCTSPlanner:
         self.exploration = DEFAULT_EXPLORATION if exploration is None else float(exploration)
 
     def warm_up(self, problem: Problem) -> None:
+        _refuse_coverage(problem)
         tiny = warm_up_problem()
         xs = np.full((2, 3), 3.0)
         local = LocalView(tiny, 0, 0, 0, np.where([[1, 0, 0], [1, 0, 0]], xs, np.nan), np.zeros((2, 3), bool),
@@ -383,6 +391,7 @@ class DecMCTSPlanner:
 
     def decide_local(self, local: LocalView, rng: np.random.Generator) -> LocalDecision:
         problem = local.problem
+        _refuse_coverage(problem)
         R, N = problem.valid.shape
         if N > MAX_STAGES:
             raise ValueError(f"dec-mcts supports at most {MAX_STAGES} stages, got {N}")

@@ -308,12 +308,7 @@ def _parse_coverage(data: dict, source: str, seed: int, passengers, weights, nor
                 raise InstanceError(source, f"counts[{m}]", f"a count region {m}'s prior can produce "
                                     f"(support {lo:g}..{hi:g})", _show(c))
     coverage = cov.Coverage.build(covers, region_priors)
-    if "prior" in data:
-        prior = make_prior(data["prior"], source)
-    else:  # a point's observation: the sum of its regions' counts; Poisson of the mean such sum
-        sums = np.diff(np.concatenate([[0.0], np.cumsum(coverage.means[coverage.idx])])[coverage.ptr])
-        point_mean = float(sums[valid.ravel()].mean()) if valid.any() else 0.0
-        prior = make_prior({"kind": "poisson", "mean": point_mean} if point_mean > 0 else DEFAULT_PRIOR, source)
+    prior = make_prior(data["prior"] if "prior" in data else point_prior_spec(coverage, valid), source)
     try:
         normalisation_scale(prior, normalize)
     except ValueError as err:
@@ -323,6 +318,15 @@ def _parse_coverage(data: dict, source: str, seed: int, passengers, weights, nor
     sampled = counts is None
     realised = cov.sample_counts(coverage, _observation_rng(seed)) if sampled else np.array(counts, dtype=float)
     return Instance(problem, cov.observations(coverage, realised, valid)), realised, sampled
+
+
+def point_prior_spec(coverage, valid: np.ndarray) -> dict:
+    """The pooled prior of a coverage problem's observations (``Problem.prior``: its scale, and the
+    prior of planners that read one prior for every point): Poisson of the mean, over the valid
+    points, of the sum of a point's region means; the default prior when no point explores any."""
+    sums = np.diff(np.concatenate([[0.0], np.cumsum(coverage.means[coverage.idx])])[coverage.ptr])
+    point_mean = float(sums[np.asarray(valid).ravel()].mean()) if np.any(valid) else 0.0
+    return {"kind": "poisson", "mean": point_mean} if point_mean > 0 else dict(DEFAULT_PRIOR)
 
 
 def _region_prior(region: dict, source: str, field: str):
@@ -432,3 +436,81 @@ def random_instance(
     problem = Problem.build(passengers, valid, groups, priors.build_prior({"kind": "poisson", "mean": mean}),
                             weights=weights)
     return Instance(problem, sample_observations(problem, rng))
+
+
+def random_coverage_instance(
+    rng: np.random.Generator,
+    carriers: int = 4,
+    passengers: int | list[int] = 3,
+    stages: int = 10,
+    overlaps: int = 20,
+    mean: float = 3.0,
+    own: int = 2,
+    reach: int | None = None,
+    invalid_fraction: float = 0.0,
+    weights=None,
+) -> tuple[Instance, np.ndarray]:
+    """A random ``reward: coverage`` instance and its realised region counts (issue 35).
+
+    Combinatorial (no geometry), the coverage twin of :func:`random_instance`:
+
+    * Each decision point is invalid (∅, known in advance) independently with probability
+      ``invalid_fraction``.
+    * Every valid point's disc has ``own`` regions nobody else explores, each with prior
+      Poisson(``mean / own``): a point that shares nothing observes Poisson(``mean``), as in
+      :func:`random_instance`.
+    * ``overlaps`` shared regions (the overlap level, as :func:`random_instance`'s overlap groups
+      and the paper's Fig. 2), each explored by 2 or 3 (equally likely) distinct valid points and
+      with prior Poisson(``mean / own``) (a lens between discs about the size of one own cell). The
+      first point is drawn uniformly among the valid points; the others uniformly among the valid
+      points within ``reach`` stages of it (any carrier), or among all valid points when ``reach``
+      is None (the paper's uniform overlaps). A point drawn twice leaves the region smaller.
+    * The counts are drawn from the region priors; the observations are their sums.
+    * ``weights``: None or one list of passenger weights per carrier (``Problem.weights``); it
+      draws nothing.
+
+    Draw order (fixed, so a seed gives one instance): validity, shared regions, counts.
+
+    Returns:
+        ``(Instance(problem, x), counts)``: ``problem.coverage`` the regions (own regions first,
+        point by point, then the shared ones), ``problem.overlaps`` the penalty model's view of the
+        same world (one group per shared region, :meth:`planner.coverage.Coverage.overlaps`), so
+        one world can be planned under both models; ``problem.prior`` the pooled prior
+        (:func:`point_prior_spec`); ``counts`` float ``[M]``.
+    """
+    from planner import coverage as cov
+
+    if own < 1:
+        raise ValueError(f"own must be >= 1 (regions of a point's own disc), got {own}")
+    valid = rng.random((carriers, stages)) >= invalid_fraction
+    points = np.flatnonzero(valid.ravel())
+    covers: list[list[int]] = [[] for _ in range(carriers * stages)]
+    for i, a in enumerate(points):
+        covers[a] = list(range(i * own, (i + 1) * own))
+    n_own = own * len(points)
+    for k in range(overlaps if len(points) >= 2 else 0):
+        first = int(rng.choice(points))
+        near = points if reach is None else points[np.abs(points % stages - first % stages) <= reach]
+        near = near[near != first]
+        size = min(int(rng.integers(2, 4)) - 1, len(near))
+        for a in [first, *rng.choice(near, size=size, replace=False).tolist()] if size else [first]:
+            covers[a].append(n_own + k)
+    n_regions = n_own + (overlaps if len(points) >= 2 else 0)
+    region_prior = priors.build_prior({"kind": "poisson", "mean": mean / own})
+    grid = [[covers[r * stages + j] if valid[r, j] else None for j in range(stages)] for r in range(carriers)]
+    coverage = cov.Coverage.build(grid, [region_prior] * n_regions)
+    problem = Problem.build(passengers, valid, coverage.overlaps(stages),
+                            priors.build_prior(point_prior_spec(coverage, valid)), weights=weights, coverage=coverage)
+    counts = cov.sample_counts(coverage, rng)
+    return Instance(problem, cov.observations(coverage, counts, valid)), counts
+
+
+def penalty_twin(problem: Problem) -> Problem:
+    """The penalty model's problem of a coverage problem's world: the same passengers, schedule,
+    prior (so the same scale), normalisation and passenger values, with one overlap group per
+    region explored from two or more points (:meth:`planner.coverage.Coverage.overlaps`) and the
+    1/p reward. Its planners read the same observations (the sums of the counts); their
+    deployments are then scored by true coverage (:func:`planner.problem.evaluate` on the coverage
+    problem)."""
+    return Problem(problem.passengers, problem.valid, problem.overlaps, problem.prior, problem.scale,
+                   problem.conflict, problem.weights)

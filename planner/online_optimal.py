@@ -329,6 +329,11 @@ def estimate(problem: Problem, atoms: Atoms | None = None, max_seconds: float = 
         TooLarge: the floor or the estimated time is above ``slack * max_seconds``, or the states
             above ``slack * max_states``.
     """
+    if problem.coverage is not None:
+        # Its state would hold every revealed count that a later point can still add: the joint
+        # expectation over a stage's newly revealed regions is beyond even tiny instances here.
+        raise TooLarge("online-optimal: expected a penalty instance (the exact recursion over region counts of "
+                       "reward: coverage is not implemented), found reward: coverage")
     if problem.weights is not None:
         raise TooLarge("online-optimal: expected an instance without passenger values (the exact recursion "
                        "has none), found passenger_values")

@@ -9,6 +9,7 @@ import numpy as np
 
 from planner import ssap
 from planner.compiled import compile_problem
+from planner.coverage_plan import plan_for
 from planner.problem import Problem, StageView
 
 
@@ -37,15 +38,26 @@ class SSAPPlanner:
 
     Deterministic (the random stream is unused): carrier r deploys iff its observation exceeds
     ``a[n, n - d]`` for its ``n`` valid stages left and ``d`` passengers left, or it must deploy.
+    Under the coverage reward the observation is the sum of the point's region counts, overlap is
+    still ignored, and the thresholds are the point's own (:mod:`planner.coverage_plan`: DLR over
+    the carrier's per-point priors).
     """
 
     name = "ssap"
 
     def warm_up(self, problem: Problem) -> None:
         """Compute (and cache) the threshold table before the first timed decision."""
-        compile_problem(problem).table
+        if problem.coverage is not None:
+            plan_for(problem)
+        else:
+            compile_problem(problem).table
 
     def decide(self, view: StageView, rng: np.random.Generator) -> np.ndarray:
+        if view.problem.coverage is not None:
+            return np.array([self._deploys_cover(view.problem, r, view.stage, view.observations[r, view.stage],
+                                                 int(n), int(d)) if can else False
+                             for r, (can, n, d) in enumerate(zip(view.can_deploy, view.stages_left,
+                                                                 view.passengers_left))], dtype=bool)
         table = compile_problem(view.problem).table
         x = view.observations[:, view.stage]
         d = view.passengers_left
@@ -62,5 +74,13 @@ class SSAPPlanner:
         can, must, n, d = local.own()
         if not can:
             return False
+        x = float(local.observations[local.carrier, local.stage])
+        if local.problem.coverage is not None:
+            return self._deploys_cover(local.problem, local.carrier, local.stage, x, n, d)
         table = compile_problem(local.problem).table
-        return bool(ssap.decide(table, float(local.observations[local.carrier, local.stage]), n, d))
+        return bool(ssap.decide(table, x, n, d))
+
+    @staticmethod
+    def _deploys_cover(problem: Problem, r: int, stage: int, x: float, n: int, d: int) -> bool:
+        """Coverage: the threshold rule on ``x`` with the point's own thresholds (overlap ignored)."""
+        return d > 0 and n > 0 and plan_for(problem).deploys(r * problem.n_stages + stage, float(x), n, d)

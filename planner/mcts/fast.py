@@ -51,8 +51,10 @@ import time
 
 import numpy as np
 
+from planner import coverage as cov
 from planner import ssap
 from planner.compiled import compile_problem
+from planner.coverage_plan import plan_for
 from planner.mcts import kernel as _k
 from planner.problem import Problem, StageView, make_view, point_weights, warm_up_problem
 from planner.settings import DEFAULT_EXPLORATION, DEFAULT_ITERATIONS, DEFAULT_SAMPLES, LAYOUTS, check_budget
@@ -81,11 +83,42 @@ JOINT_MAX_CARRIERS = 8
 JOINT_LIMIT = 16
 
 
-def _model(problem: Problem) -> _k.Model:
-    """The compiled problem as the kernels read it."""
+def _model(problem: Problem, cover: _k.Cover | None = None) -> _k.Model:
+    """The compiled problem as the kernels read it (``cover``: the coverage reward's arrays, None
+    for the penalty rule)."""
     cp = compile_problem(problem)
     s = cp.sampler
-    return _k.Model(cp.table, cp.ucut, s.points, s.cdf, s.guide, cp.indptr, cp.nbr, float(cp.scale))
+    return _k.Model(cp.table, cp.ucut, s.points, s.cdf, s.guide, cp.indptr, cp.nbr, float(cp.scale),
+                    _NO_COVER if cover is None else cover)
+
+
+_I0, _F0 = np.zeros(1, dtype=np.int64), np.zeros(1)
+#: The penalty rule's placeholder (same types as a real one: one compiled kernel serves both).
+_NO_COVER = _k.Cover(False, _I0, _I0, _I0, _F0, _F0, np.zeros(1, dtype=np.uint8), _I0, _F0, _F0, _I0, _I0, _F0,
+                     _I0, _I0, _I0, 0.0)
+
+
+def cover_state(view: StageView) -> _k.Cover:
+    """The coverage reward of one decision as the kernels read it: the problem's CSR lists and
+    per-point thresholds (:func:`planner.coverage_plan.plan_for`), the counts the view reveals,
+    the regions its past deployments cover and their (revealed) value."""
+    return cover_arrays(view.problem, view.counts, view.deployed)
+
+
+def cover_arrays(problem: Problem, known: np.ndarray, deployed: np.ndarray) -> _k.Cover:
+    """:func:`cover_state` from the revealed region counts ``known`` (float ``[M]``, NaN
+    unrevealed) and the past deployments ``deployed`` (bool ``[R, N]``)."""
+    plan = plan_for(problem)
+    cnt = plan.plan_counts(known)
+    revealed = ~np.isnan(cnt)
+    covered = np.zeros(len(cnt), dtype=np.int64)  # -1: covered by the past (the kernels' ticks start at 1)
+    for a in np.flatnonzero(np.asarray(deployed).reshape(-1)).tolist():
+        covered[plan.pidx[plan.pptr[a]:plan.pptr[a + 1]]] = -1
+    past_value = float(cnt[(covered < 0) & revealed].sum())
+    stamp = np.where(revealed, -1, 0).astype(np.int64)  # -1: revealed; 0: no sample drew it yet
+    return _k.Cover(True, plan.pptr, plan.pidx, plan.tptr, plan.thr, plan.ucut, plan.solo, plan.rptr, plan.rpoints,
+                    plan.rcdf, plan.gptr, plan.guide, np.ascontiguousarray(np.nan_to_num(cnt, nan=0.0)), stamp,
+                    np.zeros(1, dtype=np.int64), covered, past_value)
 
 
 @functools.lru_cache(maxsize=1)
@@ -236,7 +269,8 @@ class MCTSPlanner:
         if problem is None:
             problem = warm_up_problem()
         x = np.where(problem.valid, 1.0, np.nan)
-        view = make_view(problem, 0, x, np.zeros(problem.valid.shape, dtype=bool))
+        counts = None if problem.coverage is None else np.ones(problem.coverage.n_regions)
+        view = make_view(problem, 0, x, np.zeros(problem.valid.shape, dtype=bool), counts=counts)
         saved = (self.iterations, self.plan_ms)
         layout = self.layout
         self.iterations, self.plan_ms = 2, None
@@ -277,6 +311,8 @@ class MCTSPlanner:
         xval = np.zeros(n_carriers * n_stages, dtype=np.float64)
         xval[past] = known.reshape(-1)[past]
         weighted = problem.weights is not None
+        if weighted and problem.coverage is not None:
+            raise ValueError(f"{self.name}: passenger values under the coverage reward are not supported")
         if weighted:  # passenger values: past deployments with their passengers' weights
             # In units of the mean passenger value, so the exploration constant keeps its meaning.
             unit = float(problem.weights[problem.weights > 0].mean())
@@ -300,7 +336,8 @@ class MCTSPlanner:
             np.zeros_like(ws0),  # ws
             np.zeros(n_carriers, dtype=np.int64),  # dleft
         )
-        fixed = (root, _model(problem), _k.Settings(ROLLOUTS[self.rollout], self.exploration, self.samples),
+        cover = None if problem.coverage is None else cover_state(view)
+        fixed = (root, _model(problem, cover), _k.Settings(ROLLOUTS[self.rollout], self.exploration, self.samples),
                  _uct_tables(), scratch)
         if layout == "joint":
             # Upper bound of the choice carriers at any node: carriers with a passenger left and a
@@ -412,6 +449,13 @@ class MCTSPlanner:
                 selected = view.deployed.copy()
                 selected[:, j0] = decision
                 a = r * n_stages + j0
+                if problem.coverage is not None:  # ... or on the marginal coverage
+                    n, d = int(stages_left[r]), int(passengers_left[r])
+                    gain = cov.marginal_gain(problem.coverage, cov.best_weights(problem.coverage, selected), a,
+                                             np.nan_to_num(view.counts, nan=0.0))
+                    decision[r] = self.rollout == "ssap" and plan_for(problem).deploys(a, gain, n, d)
+                    node = _k.UNEXPANDED
+                    continue
                 conflicts = int(np.count_nonzero(compile_problem(problem).conflict[a] & selected.reshape(-1)))
                 n, d = int(stages_left[r]), int(passengers_left[r])
                 if self.rollout == "ssap":

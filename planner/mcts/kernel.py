@@ -13,6 +13,8 @@ rollout                     :func:`simulate` samples the unknown observations an
                             :func:`rollout` (SSAP on conflict-discounted observations, or
                             uniformly random feasible), ``samples`` times
 evaluation (penalty rule)   :func:`evaluate` (the whole trajectory: past + tree + rollout)
+coverage reward             :func:`simulate_cover` / :func:`rollout_cover`: the same steps, every
+                            deployment valued by its marginal coverage (:class:`Cover`)
 backup                      :func:`backup` (visits, value sums, means along the path)
 ==========================  ===================================================================
 
@@ -74,6 +76,32 @@ _TO_UNIT = 1.0 / 9007199254740992.0  # 2**-53
 # ----------------------------------------------------------------------------- named structures
 
 
+class Cover(NamedTuple):
+    """The coverage reward as the kernels read it (``on`` False: the penalty rule, and the arrays
+    are placeholders), over the *planning regions* of :class:`planner.coverage_plan.CoveragePlan`
+    (a point's private regions summed into one). Per problem: the CSR lists, thresholds and
+    priors; per decision: the revealed counts, the regions the past covers and the per-sample
+    counts, drawn lazily (a region's count is drawn the first time a sample reads it)."""
+
+    on: bool
+    ptr: np.ndarray         # int64 [R*N + 1] point -> planning regions (CSR)
+    idx: np.ndarray         # int64 [nnz]
+    tptr: np.ndarray        # int64 [R*N + 1] point -> thresholds with the tie margin (CSR)
+    thr: np.ndarray         # float64
+    ucut: np.ndarray        # float64 like thr: the point prior's CDF at each threshold
+    solo: np.ndarray        # uint8 [R*N] the point explores its own aggregate only
+    rptr: np.ndarray        # int64 [P + 1] planning region -> inverse-CDF table (CSR)
+    rpoints: np.ndarray     # float64
+    rcdf: np.ndarray        # float64
+    gptr: np.ndarray        # int64 [P + 1] planning region -> guide table (CSR)
+    guide: np.ndarray       # int64 first index (from rptr[m]) with rcdf > k / len
+    cnt: np.ndarray         # float64 [P] counts: revealed (stamp -1) or this sample's (stamp == tick)
+    stamp: np.ndarray       # int64 [P]
+    tick: np.ndarray        # int64 [1] the current sample's id (>= 1)
+    covered: np.ndarray     # int64 [P] -1: covered by the past; == tick: by the current trajectory
+    past_value: float       # raw coverage of the deployments before the root stage
+
+
 class Model(NamedTuple):
     """The compiled problem as the kernels read it (:class:`planner.compiled.CompiledProblem`)."""
 
@@ -85,6 +113,7 @@ class Model(NamedTuple):
     indptr: np.ndarray  # int64 [R*N + 1] CSR of "shares an overlap"
     nbr: np.ndarray     # int64 [nnz]
     scale: float        # rewards are divided by it (normalised rewards)
+    cover: Cover        # the coverage reward (cover.on), else placeholders
 
 
 class Root(NamedTuple):
@@ -332,6 +361,160 @@ def weigh(n, pts, xval, n_stages, vs_left, table, d0, ws0, ws, dleft):
         dleft[r] = d - 1
 
 
+# ----------------------------------------------------------------------------- the coverage reward
+
+
+@njit(cache=True, inline="always")
+def _region_draw(m, u, rptr, rpoints, rcdf, gptr, guide):
+    """Planning region m's count at uniform u (:func:`planner.kernels.quantile` on its CSR rows)."""
+    g0 = gptr[m]
+    i = rptr[m] + guide[g0 + int(u * (gptr[m + 1] - g0))]
+    while rcdf[i] <= u:
+        i += 1
+    return rpoints[i]
+
+
+@njit(cache=True, inline="always")
+def _gain(a, ptr, idx, covered, cnt, stamp, tick, rptr, rpoints, rcdf, gptr, guide, state):
+    """Marginal coverage of a deployment at flat point a over the current trajectory: the counts
+    of its regions no deployment of the trajectory covers yet (reads only a's regions). A region's
+    count is the revealed one, or drawn from its prior the first time sample ``tick`` reads it.
+    Arrays are :class:`Cover`'s, passed unpacked (no reference counting in the loops)."""
+    g = 0.0
+    for e in range(ptr[a], ptr[a + 1]):
+        m = idx[e]
+        cv = covered[m]
+        if cv == tick or cv < 0:  # covered by the past or the current trajectory
+            continue
+        st = stamp[m]
+        if st != tick and st >= 0:
+            cnt[m] = _region_draw(m, _random(state), rptr, rpoints, rcdf, gptr, guide)
+            stamp[m] = tick
+        g += cnt[m]
+    return g
+
+
+@njit(cache=True, inline="always")
+def _cover_add(a, ptr, idx, covered, tick):
+    """Mark the regions of a deployment at flat point a covered in trajectory ``tick`` (a new
+    tick uncovers them all at once: nothing to clear; the past's -1 stays)."""
+    for e in range(ptr[a], ptr[a + 1]):
+        m = idx[e]
+        if covered[m] >= 0:
+            covered[m] = tick
+
+
+@njit(cache=True)
+def cover_gain(a, cover, state):
+    """:func:`_gain` of flat point a with the arrays of ``cover`` (sample ``cover.tick[0]``)."""
+    return _gain(a, cover.ptr, cover.idx, cover.covered, cover.cnt, cover.stamp, cover.tick[0],
+                 cover.rptr, cover.rpoints, cover.rcdf, cover.gptr, cover.guide, state)
+
+
+@njit(cache=True)
+def cover_add(a, cover):
+    """:func:`_cover_add` with the arrays of ``cover`` (trajectory ``cover.tick[0]``)."""
+    _cover_add(a, cover.ptr, cover.idx, cover.covered, cover.tick[0])
+
+
+@njit(cache=True)
+def rollout_cover(q, n, root, policy, scratch, cover):
+    """:func:`rollout` under the coverage reward; returns (len(pts), raw gain of the rollout).
+
+    SSAP: a carrier deploys iff forced or the deployment's marginal coverage over the trajectory
+    so far (past + tree + rollout) exceeds the point's threshold (the analogue of the penalty
+    rollout's ``x / (1 + c)``); random: with probability ``d / n``. Every deployment adds its
+    marginal coverage, so the sum is the trajectory's coverage beyond the tree path's.
+    """
+    j0, valid, vs_left = root.j0, root.valid, root.vs_left
+    state, left, mark, pts = scratch.state, scratch.left, scratch.mark, scratch.pts
+    ptr, idx, tptr, thr, rptr, rpoints, rcdf = cover.ptr, cover.idx, cover.tptr, cover.thr, cover.rptr, \
+        cover.rpoints, cover.rcdf
+    cnt, stamp, covered, solo, ucut = cover.cnt, cover.stamp, cover.covered, cover.solo, cover.ucut
+    gptr, guide = cover.gptr, cover.guide
+    tick = cover.tick[0]
+    n_carriers, n_stages = valid.shape
+    total = 0.0
+    k = j0 + q // n_carriers
+    r = q % n_carriers
+    while k < n_stages:
+        while r < n_carriers:
+            d = left[r]
+            if d > 0 and valid[r, k]:
+                ns = vs_left[r, k]
+                a = r * n_stages + k
+                g = -1.0  # not computed yet
+                if forced(ns, d):
+                    go = True
+                elif policy == ROLLOUT_SSAP:
+                    if solo[a] and stamp[idx[ptr[a]]] >= 0:
+                        m = idx[ptr[a]]
+                        # Its own unrevealed aggregate only (read by no other point, so never
+                        # marked covered): x > t iff u >= ucut, the count looked up only to deploy.
+                        u = _random(state)
+                        if u >= ucut[tptr[a] + ns - d]:
+                            total += _region_draw(m, u, rptr, rpoints, rcdf, gptr, guide)
+                            mark[a] = 1
+                            pts[n] = a
+                            n += 1
+                            left[r] = d - 1
+                        r += 1
+                        continue
+                    else:
+                        g = _gain(a, ptr, idx, covered, cnt, stamp, tick, rptr, rpoints, rcdf, gptr, guide,
+                                  state)
+                        go = g > thr[tptr[a] + ns - d]
+                else:
+                    go = _random(state) * ns < d
+                if go:
+                    if g < 0.0:
+                        g = _gain(a, ptr, idx, covered, cnt, stamp, tick, rptr, rpoints, rcdf, gptr, guide,
+                                  state)
+                    total += g
+                    _cover_add(a, ptr, idx, covered, tick)
+                    mark[a] = 1
+                    pts[n] = a
+                    n += 1
+                    left[r] = d - 1
+            r += 1
+        r = 0
+        k += 1
+    return n, total
+
+
+@njit(cache=True, inline="always")
+def simulate_cover(q, n_tree, root, model, settings, scratch):
+    """:func:`simulate` under the coverage reward: per sample, a future of the unrevealed region
+    counts (drawn lazily), the tree path's deployments and the rollout each adding their marginal
+    coverage; the trajectory is worth the past's coverage plus those gains (past + tree + rollout).
+    On exit the marks of the path and rollout are cleared (each sample is a new ``tick``: what
+    it covered is uncovered by the next)."""
+    left, left_tree, mark, pts, state = scratch.left, scratch.left_tree, scratch.mark, scratch.pts, scratch.state
+    cover = model.cover
+    ptr, idx, covered, cnt, stamp = cover.ptr, cover.idx, cover.covered, cover.cnt, cover.stamp
+    rptr, rpoints, rcdf, tick, gptr, guide = cover.rptr, cover.rpoints, cover.rcdf, cover.tick, cover.gptr, cover.guide
+    n_carriers = left.shape[0]
+    for r in range(n_carriers):
+        left_tree[r] = left[r]
+    total = 0.0
+    for _s in range(settings.samples):
+        tick[0] += 1
+        gain = 0.0
+        for i in range(n_tree):
+            a = pts[i]
+            gain += _gain(a, ptr, idx, covered, cnt, stamp, tick[0], rptr, rpoints, rcdf, gptr, guide, state)
+            _cover_add(a, ptr, idx, covered, tick[0])
+        for r in range(n_carriers):
+            left[r] = left_tree[r]
+        n, more = rollout_cover(q, n_tree, root, settings.rollout, scratch, cover)
+        total += cover.past_value + gain + more
+        for i in range(n_tree, n):
+            mark[pts[i]] = 0
+    for i in range(n_tree):
+        mark[pts[i]] = 0
+    return total / (settings.samples * model.scale)
+
+
 @njit(cache=True, inline="always")
 def simulate(q, n_tree, root, model, settings, scratch):
     """Mean normalised reward of ``settings.samples`` rollouts below a tree path.
@@ -341,10 +524,12 @@ def simulate(q, n_tree, root, model, settings, scratch):
     of the path's points are sampled afresh per sample where unknown (after the root stage).
     On exit every mark of the path and rollout is cleared; ``left`` is clobbered.
     """
+    if model.cover.on:
+        return simulate_cover(q, n_tree, root, model, settings, scratch)
     left, left_tree, mark, xval, pts = scratch.left, scratch.left_tree, scratch.mark, scratch.xval, scratch.pts
     state = scratch.state
     j0, d0, valid, vs_left, known, known_flat, past, ws0, weighted = root
-    table, ucut, points, cdf, guide, indptr, nbr, scale = model
+    table, ucut, points, cdf, guide, indptr, nbr, scale, _ = model
     policy, _, samples = settings
     n_carriers = left.shape[0]
     for r in range(n_carriers):
