@@ -1,7 +1,7 @@
 """``python -m experiments coverage`` (issue 35 item 6): how much reward the paper's 1/p penalty
 loses against the true coverage reward, on the same worlds.
 
-Worlds (:mod:`experiments.coverage_world`, the stand-in of ``planner.instance.random_coverage_instance``):
+Worlds (:func:`planner.instance.random_coverage_instance`):
 R carriers (``--carriers``, default 4, 8, 16, 32, 64), D = 3, N = 10, two own regions per point,
 Poisson(1.5) each; overlap level k (``--overlaps``, the paper's Fig. 2 levels 0, 4, ..., 20) puts
 ``k * R / 4`` lenses (regions shared by 2 or 3 decision points, Poisson(1.5)) among the R·N
@@ -84,7 +84,7 @@ def build_tasks(settings: dict) -> list[Task]:
 def world(seed: int, trial: int, carriers: int, overlaps: int, passengers: int, stages: int, mean: float):
     """``((problem, x, counts), planner seed)`` of a world (module docstring: streams); cached per
     process, since every planner of a world rebuilds it."""
-    from experiments.coverage_world import random_coverage_instance
+    from planner.instance import random_coverage_instance
 
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1000, trial)))
     (problem, x), counts = random_coverage_instance(rng, carriers, passengers, stages, overlaps, mean)
@@ -93,7 +93,7 @@ def world(seed: int, trial: int, carriers: int, overlaps: int, passengers: int, 
 
 def run_task(task: Task) -> dict:
     """One planner (or the clairvoyant) on one world, planned both ways; one row of :data:`FIELDS`."""
-    from experiments.coverage_world import penalty_twin
+    from planner.instance import penalty_twin
     from planner.online import run_online
     from planner.problem import evaluate
 
@@ -348,7 +348,7 @@ def write(rows: list[dict], out: Path, settings: dict, seconds: float, jobs: int
     for r in rows:
         worker[r["planner"]] += float(r["wall_s"])
     text = ["## Coverage against the 1/p penalty", "",
-            f"Random coverage worlds (experiments.coverage_world), {setting}; each planner plans every world "
+            f"Random coverage worlds (planner.instance.random_coverage_instance), {setting}; each planner plans every world "
             "with the coverage reward and with the 1/p penalty (the world's lenses as overlap groups), both plans "
             "valued under true coverage.", "", *markdown(summary), "", "![coverage against penalty](coverage.png)", ""]
     for a, b in (("closed-loop", "ssap"), ("closed-loop", "mcts-ssap")):
