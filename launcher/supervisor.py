@@ -264,8 +264,8 @@ def print_results(settings: Settings, summary: dict, out: Path, started: float) 
     lat = summary.get("latency_ms", {})
     told = (f"clairvoyant {'optimum' if bound.get('exact') else 'bound'} {bound.get('reward', float('nan')):.3f} "
             f"({(bound.get('fraction') or 0) * 100:.0f}%)")
-    if summary.get("reward") == "coverage":  # the features in the union of the discs; no bound yet
-        told = f"coverage reward: {summary['coverage']['regions']} regions, clairvoyant not computed"
+    if summary.get("reward") == "coverage":  # the features in the union of the discs (maximum coverage bound)
+        told = f"coverage reward over {summary['coverage']['regions']} regions; {told}"
     print(f"total reward {summary['total_reward']:.3f} (features {summary['total_features']:.1f}); "
           f"{told}; decision round trip p50 "
           f"{_ms(lat.get('p50'))} p99 {_ms(lat.get('p99'))}; wall {time.monotonic() - started:.1f} s")

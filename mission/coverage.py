@@ -47,12 +47,12 @@ def summary_fields(state, problem, deployed: np.ndarray, released: np.ndarray | 
     deployments (``covered_features``, each region once, worth its best passenger's weight under
     passenger types; ``reward`` the same over the problem's scale), the regions and how many were
     revealed. Every deployment's own regions were revealed by its observation; a region revealed by
-    nobody counts 0."""
+    nobody counts 0. ``known`` (the revealed counts, NaN elsewhere) is for the caller's bound and is
+    not written out."""
     from planner.problem import evaluate
 
     known = revealed_counts(state, problem.coverage)
     reward, covered = evaluate(problem, deployed, state.observations(), released, counts=np.nan_to_num(known))
     return {"reward": "coverage", "total_reward": float(reward), "covered_features": float(covered),
             "regions": int(problem.coverage.n_regions), "regions_revealed": int((~np.isnan(known)).sum()),
-            "revealed_features": float(np.nansum(known)), "clairvoyant": None,
-            "clairvoyant_note": "not computed: the planner's coverage bound (issue 35, item 5) is not there yet"}
+            "revealed_features": float(np.nansum(known)), "known": known}

@@ -50,20 +50,26 @@ def percentile(values, q) -> float | None:
     return float(np.percentile(values, q)) if len(values) else None
 
 
-def clairvoyant_bound(problem, x: np.ndarray, total_reward: float) -> dict:
+def clairvoyant_bound(problem, x: np.ndarray, total_reward: float, counts: np.ndarray | None = None) -> dict:
     """The offline optimum for the realised observations (``{"error": ...}`` if it fails: the
     bound is a report, never a reason to lose the summary). Its search gets about
     :data:`BOUND_SEARCH_S` of work (:func:`planner.clairvoyant.node_limit`); past it the
-    conflict-free upper bound stands, ``exact: false``."""
+    conflict-free upper bound stands, ``exact: false``. Under the coverage reward ``counts`` are
+    the revealed region counts (every region a feasible deployment explores was revealed by that
+    point's observation) and the bound is maximum coverage (:mod:`planner.coverage_bounds`: exact
+    integer programme, or its relaxation with ``gap`` beyond the documented size)."""
     from planner import clairvoyant
 
     try:
         bound = clairvoyant.solve(problem, np.where(problem.valid, x, np.nan),
-                                  max_nodes=clairvoyant.node_limit(problem, BOUND_SEARCH_S))
+                                  max_nodes=clairvoyant.node_limit(problem, BOUND_SEARCH_S), counts=counts)
     except Exception as exc:
         return {"error": f"{type(exc).__name__}: {exc}"}
-    return {"reward": bound.reward, "features": bound.features, "exact": bool(bound.exact),
-            "fraction": (total_reward / bound.reward) if bound.reward > 0 else None}
+    out = {"reward": bound.reward, "features": bound.features, "exact": bool(bound.exact),
+           "fraction": (total_reward / bound.reward) if bound.reward > 0 else None}
+    if problem.coverage is not None:
+        out.update(method=bound.method, gap=float(bound.gap))
+    return out
 
 
 def summary(state: MissionState, problem, run: RunInfo, bound: bool = True) -> dict:
@@ -80,6 +86,7 @@ def summary(state: MissionState, problem, run: RunInfo, bound: bool = True) -> d
     raw = rewards(problem, actual, np.nan_to_num(x) * point_weights(problem, released) if typed else x)
     if problem.coverage is not None:  # the features in the union of the discs, each region once
         cov = summary_fields(state, problem, actual, released)
+        known = np.nan_to_num(cov.pop("known"))
         total_reward, total_features = cov["total_reward"], cov["covered_features"]
     else:
         total_reward, total_features = evaluate(problem, actual, x, released)
@@ -124,7 +131,9 @@ def summary(state: MissionState, problem, run: RunInfo, bound: bool = True) -> d
         "total_reward": float(total_reward), "total_features": float(total_features),
         "reward": problem.reward,
         **({} if problem.coverage is None else {"coverage": cov}),
-        "clairvoyant": clairvoyant_bound(problem, x, float(total_reward)) if bound and problem.coverage is None else None,
+        "clairvoyant": clairvoyant_bound(problem, x, float(total_reward),
+                                         None if problem.coverage is None else known)
+        if bound else None,
         "wall_time_s": float(run.wall_time_s),
         "latency_ms": {"p50": percentile(latencies, 50), "p99": percentile(latencies, 99),
                        "count": len(latencies),

@@ -126,6 +126,14 @@ def test_a_coverage_mission_flies_as_the_offline_planner_decides(tmp_path):
     assert summary["coverage"]["covered_features"] == reference.features == summary["total_features"]
     assert summary["coverage"]["regions_revealed"] == summary["coverage"]["regions"]
     assert summary["rejected"]["coordinator"] == {}
+    if summary["clairvoyant"] is not None:  # written once the bound is computed (maximum coverage)
+        from planner import clairvoyant
+        from world.regions import region_counts
+
+        best = clairvoyant.solve(world.build_problem(s), x, counts=region_counts(s))
+        assert summary["clairvoyant"]["features"] == pytest.approx(best.features)
+        assert summary["clairvoyant"]["method"] == "ilp" and summary["clairvoyant"]["exact"]
+        assert best.features >= reference.features
     stored = [e for e in load_events(tmp_path / "run" / "mission.db") if isinstance(e, ev.Observation) and e.counts]
     assert sum(sum(e.counts) for e in stored) == np.nansum(x)
 
