@@ -6,11 +6,10 @@ world (one replay for both paths), and later resynchronising from State when a D
 """
 from __future__ import annotations
 
-import time
-
 from carriers.exits import Exit
 from mission import carrier as mc
-from mission.timeouts import DEFAULTS
+from mission import timers as tm
+from mission.timeouts import DEFAULTS, STATE_RETRY_S
 from wire import keys
 from wire.messages import REVISION, ProtocolError, State, decode
 
@@ -22,8 +21,8 @@ class Joining:
         if self.config.mode == "decentralised":
             self._join_alone()
             return
-        state = self._query_state()
-        if state is None and self.config.mode == "hybrid" and not self._stop.is_set():
+        state, outcome = self._query_state()
+        if isinstance(outcome, tm.DecideAlone) and not self._stop.is_set():
             self.log(f"no coordinator answered within {self.config.coordinator_timeout_s:.0f} s; going on without it")
             # A coordinator that appears later (one slow to start) is one to resynchronise with:
             # its token's arrival makes this carrier say Hello and hand over what it decided.
@@ -31,7 +30,7 @@ class Joining:
             self._join_alone()
             return
         if state is None:
-            raise Exit("stopped" if self._stop.is_set() else "coordinator-lost")
+            raise Exit("stopped" if self._stop.is_set() or outcome is None else outcome.reason)
         self.presence.coordinator_answered()  # present, even if its token is not pumped yet
         if state.fingerprint != self.fingerprint:
             self.log(f"the coordinator runs another world (fingerprint {state.fingerprint}, ours "
@@ -89,9 +88,14 @@ class Joining:
         self._replay(mc.replay_plan(self.machine, next_stage, [e.stage for e in entries if e.deployed]))
         self._listen(wait=True)
         others = set(self.listening)
-        deadline = time.monotonic() + self.config.join_timeout_s
-        while not self._stop.is_set() and not others <= self.presence.peers_live and time.monotonic() < deadline:
-            self._pump(min(0.2, max(0.0, deadline - time.monotonic())))
+        opened = self.clock()
+        while not self._stop.is_set():  # a deadline on either clock [P-8.5]: no joiner extends it
+            now = self.clock()
+            rule = tm.join_wait("wall", others <= self.presence.peers_live, opened, opened, now,
+                                self.config.join_timeout_s)
+            if isinstance(rule, tm.GoOn):
+                break
+            self._pump(min(0.2, rule.until - now))
         missing = sorted(others - self.presence.peers_live)
         if missing and next_stage == 0:
             self.log(f"starting without carrier(s) {', '.join(missing)} (no token after "
@@ -142,15 +146,25 @@ class Joining:
             self.node.revision = min(REVISION, best.revision)
         return best
 
-    def _query_state(self) -> State | None:
-        """Ask the coordinator for the mission state, retrying until coordinator_timeout_s."""
-        deadline = time.monotonic() + self.config.coordinator_timeout_s
-        while not self._stop.is_set() and time.monotonic() < deadline:
-            state = self._query_once()
-            if state is not None:
-                return state
-            self._pump(0.2)
-        return None
+    def _query_state(self) -> tuple[State | None, object]:
+        """Ask the coordinator for the mission state by :func:`mission.timers.state_query`
+        ([P-5.2]): again 0.2 s after a query without reply, until the coordinator timeout.
+        Returns the State (None: none) and the rule's last effect (None: stopped or answered)."""
+        first, failed = self.clock(), None
+        while not self._stop.is_set():
+            now = self.clock()
+            rule = tm.state_query(self.config.mode, first, failed, now, self.config.coordinator_timeout_s,
+                                  STATE_RETRY_S)
+            if isinstance(rule, tm.AskState):
+                state = self._query_once()
+                if state is not None:
+                    return state, None
+                failed = self.clock()
+            elif isinstance(rule, tm.Wait):
+                self._pump(rule.until - now)
+            else:
+                return None, rule
+        return None, None
 
     def _state_seen(self, state: State | None) -> mc.StateSeen | None:
         if state is None:

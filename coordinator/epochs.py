@@ -9,9 +9,9 @@ needs a session or the store is here. :class:`Epochs` is a part of
 """
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
+from mission import timers as tm
 from mission.timeouts import DEFAULTS
 from storage.missiondb import MissionStore, StoreBusy
 from wire import keys
@@ -72,7 +72,8 @@ class Epochs:
     def _claim(self) -> bool:
         """Before this coordinator declares its token: is another coordinator of the mission
         live? Not a standby: raise :class:`DuplicateCoordinator`. A standby waits while the
-        primary's token is present, querying its State now and then for its epoch; returns
+        primary's token is present (:func:`mission.timers.standby`), querying its State every
+        ``standby_state_s`` for its epoch; returns
         False when stopped before the primary vanished, True when this process may go on."""
         alive = keys.coordinator_alive(self.mission)
         if not self.node.live_tokens(alive, DEFAULTS.liveliness_check_s):
@@ -84,14 +85,17 @@ class Epochs:
                  f"liveliness token to vanish")
         asked = None
         while not self._stop.is_set():
-            if asked is None or time.monotonic() - asked >= DEFAULTS.standby_state_s:
+            if tm.due(asked, self.clock(), DEFAULTS.standby_state_s):
                 self._learn_epoch()
-                asked = time.monotonic()
-            if not self.node.live_tokens(alive, DEFAULTS.liveliness_check_s):
+                asked = self.clock()
+            present = bool(self.node.live_tokens(alive, DEFAULTS.liveliness_check_s))
+            looked = self.clock()
+            rule = tm.standby(present, None if present else looked, looked, DEFAULTS.standby_poll_s)
+            if isinstance(rule, tm.TakeOver):
                 self.log(f"coordinator: the primary's liveliness token vanished; taking over mission "
                          f"{self.mission} (it had epoch {self.known_epoch or 'unknown'})")
                 return True
-            self._stop.wait(DEFAULTS.standby_poll_s)
+            self._stop.wait(rule.until - looked)
         return False
 
     def _open_store(self, path: Path, meta: dict) -> MissionStore:

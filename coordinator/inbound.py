@@ -7,8 +7,6 @@ a message it cannot read is rejected (and a Hello it cannot read is answered).
 """
 from __future__ import annotations
 
-import time
-
 from mission import events as ev
 from mission import state as ms
 from wire import keys
@@ -103,7 +101,7 @@ class Inbound:
             raise ProtocolError("wrong-mission", f"mission {msg.mission!r} on {self.mission!r}")
         if msg.carrier != cid:
             raise ProtocolError("key-mismatch", f"carrier {msg.carrier!r} on the key of {cid!r}")
-        self.heard[cid] = time.monotonic()
+        self.heard[cid] = item.received  # heard when it arrived [P-10.5]
         if isinstance(msg, Progress):
             return
         if isinstance(msg, Hello) and msg.epoch > self.epoch and msg.fingerprint == self.fingerprint:

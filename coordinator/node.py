@@ -172,8 +172,8 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         self.refusals: dict[str, str] = {}
         if config.clock not in CLOCKS:
             raise ValueError(f"clock must be one of {CLOCKS}, found {config.clock!r}")
-        # When something last arrived from each carrier (monotonic s): what tells a slow carrier
-        # (it sends Progress) from a stuck one on the sim clock. Not a mission event: not stored.
+        self.clock = time.monotonic  # what its waits read (mission.timers decides); the inbox's clock
+        # When each carrier was last heard (self.clock's s): a slow one (Progress) or a stuck one, sim clock.
         self.heard: dict[str, float] = {}
 
     # ------------------------------------------------------------------ views of the state
@@ -319,7 +319,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         if not self._open_session():  # a standby stopped while the primary lived: nothing of ours to record
             self.log(f"coordinator: standby for mission {self.mission} stopped; it never took over")
             return {"ended": False, "standby": True}
-        started = time.monotonic()  # the mission's wall time: a standby's wait is not part of it
+        started = self.clock()  # the mission's wall time: a standby's wait is not part of it
         out.mkdir(parents=True, exist_ok=True)
         self._open_mission(out)
         try:
@@ -329,7 +329,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
                 raise
             self.apply(ev.Ended("stopped", time.time()))
         finally:
-            summary = self._results(out, time.monotonic() - started)
+            summary = self._results(out, self.clock() - started)
         return summary
 
     def _open_session(self) -> bool:

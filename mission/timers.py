@@ -132,6 +132,12 @@ def bye_wait(all_live_said_bye: bool, bye_missing: bool, ended_at: float, grace_
     return Wait(ended_at + bye_s)
 
 
+def end_due(last: float | None, ended_at: float, now: float, repeat_s: float, bye_s: float) -> bool:
+    """End goes out again ([P-9.1]): first at once, then every ``repeat_s`` while the Bye wait
+    opened at ``ended_at`` lasts (``bye_s``)."""
+    return last is None or (now - ended_at < bye_s and due(last, now, repeat_s))
+
+
 def standby(primary_present: bool, lost_at: float | None, now: float, poll_s: float) -> Wait | TakeOver:
     """A standby coordinator: take over once the primary's token has been gone at one look
     (``lost_at``: when its loss was noticed); looks again every ``poll_s``."""

@@ -97,6 +97,16 @@ def test_end_is_repeated_when_due():
     assert not tm.due(None, 5.0, 0.0) and not tm.due(0.0, 5.0, -1.0)
 
 
+@pytest.mark.parametrize("last, now, expected", rows([
+    ("[P-9.1] End goes out at once", None, 0.0, True),
+    ("[P-9.1] not again before the repeat interval", 0.0, 0.4, False),
+    ("[P-9.1] again every 0.5 s", 1.0, 1.5, True),
+    ("[P-9.1] not once the Bye wait is over", 1.5, 2.0, False),
+]))
+def test_end_due(last, now, expected):
+    assert tm.end_due(last, 0.0, now, 0.5, 2.0) is expected
+
+
 # --------------------------------------------------------------------------- standby [P-7.6]
 
 @pytest.mark.parametrize("present, lost_at, now, expected", rows([
