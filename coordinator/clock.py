@@ -21,42 +21,23 @@ from wire.messages import REVISION, End
 POLL_S = 0.05
 
 
-class _OfState:
-    """``fn(state)`` of the coordinator's current state, computed again only when the state is a
-    new object. A wait tests its condition after every inbox drain, and most drains apply no
-    event (Progress and Poses arrive every wall second from every carrier, in drains of one or
-    two); the conditions are set differences over R carriers (``MissionState.waiting``). The state is
-    immutable (mission.state), so the value is the one ``fn`` would give."""
-
-    def __init__(self, owner, fn):
-        self._owner, self._fn = owner, fn
-        self._state = self._value = None
-
-    def __call__(self):
-        state = self._owner.state
-        if state is not self._state:
-            self._state, self._value = state, self._fn(state)
-        return self._value
-
-
-def _by_progress(state, cids) -> tuple[frozenset, frozenset]:
-    """``cids`` as (those that send Progress, those of revision < 3 that send none)."""
-    mute = state.without_progress(cids)
-    return frozenset(cids).difference(mute), mute
-
-
 class StageClock:
     """The coordinator's waits and its stage loop: each wait is a driver of a rule of
     :mod:`mission.timers`, evaluated at the time the loop last looked at its clock."""
 
     def _drive(self, rule):
         """Handle inbound items until ``rule(now)`` says anything but wait, or a stop request;
-        returns what it said (None: stopped)."""
+        returns what it said (None: stopped). A rule's inputs are the mission state, the time and
+        when carriers were heard, and hearing one only delays a wait's end: so a
+        :class:`mission.timers.Wait` stands until its ``until`` or a new state (most drains apply
+        no event: Progress, Poses, about a thousand a second at R = 1,024)."""
+        effect, seen = None, None
         while not self._stop.is_set():
             now = self.clock()
-            effect = rule(now)
-            if not isinstance(effect, tm.Wait):
-                return effect
+            if effect is None or self.state is not seen or now >= effect.until:
+                seen, effect = self.state, rule(now)
+                if not isinstance(effect, tm.Wait):
+                    return effect
             self.pump(min(POLL_S, effect.until - now))
         return None
 
@@ -68,8 +49,7 @@ class StageClock:
         stalled and not waited for any more; a dead or cut-off one leaves ``expected`` by itself
         when its token vanishes."""
         clock, silence = self.config.clock, self.config.silence_timeout_s
-        split = _OfState(self, lambda state: _by_progress(state, state.waiting(j)))
-        done = self._drive(lambda now: tm.stage_wait(clock, *split(), self.heard, opened, now,
+        done = self._drive(lambda now: tm.stage_wait(clock, *self.state.waited_for(j), self.heard, opened, now,
                                                      self.config.stage_timeout_s, silence))
         if done is None or clock == "wall":
             return
@@ -86,9 +66,8 @@ class StageClock:
         """After the last decision: wait for its Confirms from the live carriers, by the stage's
         rule with the confirm timeout ([P-10.3]). Wall clock: at most ``confirm_timeout_s``; sim
         clock: until nothing came from any carrier still unconfirmed for ``silence_timeout_s``."""
-        split = _OfState(self, lambda state: _by_progress(state, state.unconfirmed(j)))
         opened = self.clock()
-        self._drive(lambda now: tm.stage_wait(self.config.clock, *split(), self.heard, opened, now,
+        self._drive(lambda now: tm.stage_wait(self.config.clock, *self.state.confirms_awaited(j), self.heard, opened, now,
                                               self.config.confirm_timeout_s, self.config.silence_timeout_s))
 
     def _wait_for_carriers(self) -> None:

@@ -834,7 +834,7 @@ def test_silence_is_measured_from_the_stage_opening_and_the_last_message():
     assert "now - opened >= silence_s and now - last_heard(heard, among, opened) >= silence_s" in timers
     assert tm.stage_wait("sim", {"a"}, (), {"a": 15.0}, 10.0, 44.0, 5.0, 30.0) == tm.Wait(45.0)
     clock = (ROOT / "coordinator" / "clock.py").read_text().split("def _wait_stage(")[1].split("def _wait_confirms(")[0]
-    assert "tm.stage_wait(clock, *split(), self.heard, opened, now," in clock
+    assert "tm.stage_wait(clock, *self.state.waited_for(j), self.heard, opened, now," in clock
 
 
 def test_the_clocks():
