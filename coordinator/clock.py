@@ -140,7 +140,7 @@ class StageClock:
             deploy, planning_ms, passengers = self._plan(j)
             newer = self.store.newer_epoch()  # a standby took over on our disk while we were cut off
             if newer is not None:
-                self._deposed(newer, "mission.db records it")
+                self.epochs.deposed(newer, "mission.db records it")
                 return
             self.apply(ev.Decided(j, deploy, planning_ms, time.time(), passengers))  # records, then publishes
             last_published = self.clock()
@@ -154,7 +154,7 @@ class StageClock:
         self.apply(ev.Ended(reason, time.time()))
         # With its epoch (revision 4: a carrier ignores a deposed coordinator's End), in the
         # revision every carrier that said Hello reads, as the Decisions are.
-        end = End(self.mission, self.state.next_stage, self.state.end_reason or reason, self.epoch)
+        end = End(self.mission, self.state.next_stage, self.state.end_reason or reason, self.epochs.epoch)
         ended_at, last_put, grace = self.clock(), None, None
         while True:
             now = self.clock()

@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import Counter, deque
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -45,7 +45,7 @@ from planner.online import stage_step
 from coordinator.clock import StageClock
 from coordinator.epochs import Epochs
 from coordinator.inbound import Inbound
-from coordinator.recorder import RecorderHooks
+from coordinator.recorder import Recording, start as start_recording
 from coordinator.results import CoordinatorResults
 from storage.missiondb import MissionStore
 from mission import events as ev
@@ -111,15 +111,15 @@ class CoordinatorConfig:
     standby: bool = False
 
 
-class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults):
+class Coordinator(Inbound, StageClock, CoordinatorResults):
     """One coordinator process: the Zenoh node, the store, the stage clock, and the mission state
     (``self.state``, a :class:`mission.state.MissionState` changed only by :meth:`apply`).
 
     Its jobs live in modules of their own: what it receives (:class:`coordinator.inbound.Inbound`),
-    its waits and stage loop (:class:`coordinator.clock.StageClock`), split brain
-    (:class:`coordinator.epochs.Epochs`), the recorder (:class:`coordinator.recorder.RecorderHooks`)
-    and its results (:class:`coordinator.results.CoordinatorResults`); this class keeps the state,
-    the answers (State, Accepted, Refusal), the planner call and the run's phases.
+    its waits and stage loop (:class:`coordinator.clock.StageClock`) and its results (:class:`coordinator.results.CoordinatorResults`); this class keeps the state,
+    the answers (State, Accepted, Refusal), the planner call and the run's phases. Its
+    collaborators: split brain (:class:`coordinator.epochs.Epochs`), the recorder
+    (:class:`coordinator.recorder.Recording`).
 
     Args:
         scenario: the loaded scenario (its seed is replaced by ``config.seed`` when given).
@@ -157,15 +157,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         self._stop = stop if stop is not None else threading.Event()
         self.node: Node | None = None
         self.store: MissionStore | None = None
-        self.recorder = None  # recording.live.LiveRecorder while mission.mcap is written
-        self.poses: deque = deque()  # Poses waiting for an idle moment (coordinator.recorder)
-        # Split brain (docs/fleet.md): this process's epoch (set when it opens mission.db), the
-        # highest epoch a live primary reported while this one stood by, and the epoch of a
-        # newer coordinator that deposed this one (None while not deposed).
-        self.epoch = 1
-        self.known_epoch = 0
-        self._first_stage = 0  # the first stage this process decides (a newer epoch is taken before it)
-        self.deposed_by: int | None = None
+        self.recording = Recording(self.mission, self.spec.has, self.log)  # mission.mcap, the ROS 2 topics
         # What State tells each carrier of what this process refused or rejected of it
         # (docs/protocol.md, "Rejections"): counts per reason, and its last Hello's refusal.
         self.told: dict[str, Counter] = {cid: Counter() for cid in self.ids}
@@ -173,6 +165,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         if config.clock not in CLOCKS:
             raise ValueError(f"clock must be one of {CLOCKS}, found {config.clock!r}")
         self.clock = time.monotonic  # what its waits read (mission.timers decides); the inbox's clock
+        self.epochs = Epochs(self.mission, self.log, self._stop, self.clock)  # split brain (docs/fleet.md)
         # When each carrier was last heard (self.clock's s): a slow one (Progress) or a stuck one, sim clock.
         self.heard: dict[str, float] = {}
 
@@ -196,6 +189,10 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
     def resumed(self) -> bool:
         return self.state.resumed
 
+    @property
+    def epoch(self) -> int:
+        return self.epochs.epoch
+
     def deployed(self) -> np.ndarray:
         """bool ``[R, N]``: the planner's view of the past (:meth:`mission.state.MissionState.deployed`)."""
         return self.state.deployed()
@@ -203,7 +200,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
     def _decision(self, j: int, st: ms.MissionState | None = None) -> Decision:
         """The Decision of stage j as published: from ``st`` (the current state by default)."""
         d = (self.state if st is None else st).decisions[j]
-        return Decision(self.mission, j, self.spec.stage_times[j], d.deploy, d.planning_ms, self.epoch,
+        return Decision(self.mission, j, self.spec.stage_times[j], d.deploy, d.planning_ms, self.epochs.epoch,
                         passengers=d.passengers)
 
     def _refresh_state(self) -> None:
@@ -227,7 +224,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         last = self._decision(st.next_stage - 1, st) if (st.next_stage - 1) in st.decisions else None
         return encode(State(
             mission=self.mission, next_stage=st.next_stage, stages=self.n_stages, fingerprint=self.fingerprint,
-            ended=st.ended, carriers=carriers, last_decision=last, epoch=self.epoch, revision=REVISION), asked)
+            ended=st.ended, carriers=carriers, last_decision=last, epoch=self.epochs.epoch, revision=REVISION), asked)
 
     def _carrier_state(self, st, cid: str) -> CarrierState:
         """One carrier's entry: its deployments as the planner sees them (its accounts, its
@@ -246,7 +243,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         self.state, effects = ms.step(self.state, event)
         for effect in effects:
             if isinstance(effect, ms.Record):  # the recorder gets it once mission.db has it
-                self.store.record(effect, self.state, None if self.recorder is None else self.recorder.event)
+                self.store.record(effect, self.state, self.recording.event)
             elif isinstance(effect, ms.Reject):
                 self._reject(effect.reason, effect.detail, getattr(event, "carrier", None))
             elif isinstance(effect, ms.Refuse):
@@ -285,7 +282,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         self.refusals.pop(cid, None)
         # The mission's clock (revision 4): a carrier times its waits by the coordinator's.
         answer = Accepted(self.mission, cid, self.fingerprint, self.state.accepted[cid].next_stage,
-                          self.state.next_stage, REVISION, self.epoch, self.config.clock,
+                          self.state.next_stage, REVISION, self.epochs.epoch, self.config.clock,
                           min(float(self.config.silence_timeout_s), ACCEPTED_MAX),
                           min(float(self.config.realtime), ACCEPTED_MAX))
         if defined_in(answer, revision):
@@ -334,7 +331,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
 
     def _open_session(self) -> bool:
         """The Zenoh session (None when stopped before it opened) and the claim on the mission
-        (:meth:`coordinator.epochs.Epochs._claim`); False: a standby stopped, session closed."""
+        (:meth:`coordinator.epochs.Epochs.claim`); False: a standby stopped, session closed."""
         from wire.zconfig import OpenStopped
 
         if not self._stop.is_set():
@@ -345,7 +342,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         if self.node is None:
             return True
         try:
-            claimed = self._claim()
+            claimed = self.epochs.claim(self.node, self.config.standby)
         except BaseException:
             self.node.close(DEFAULTS.close_s)
             self.node = None
@@ -362,20 +359,21 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         # Higher than every epoch used before for this mission: the ones in mission.db and the
         # one a primary reported while this process stood by; 1 for a fresh mission.
         try:
-            self.store = self._open_store(out / "mission.db", meta)
+            self.store = self.epochs.open_store(out / "mission.db", meta)
         except BaseException:
             if self.node is not None:
                 self.node.close(DEFAULTS.close_s)
             raise
-        self.epoch = self.store.epoch
-        self._open_recorder(out)
+        start_recording(self.recording, self.config, self.node, out, self.scenario, self.problem,
+                        {k: meta[k] for k in ("mission", "scenario", "seed", "planner", "fingerprint")},
+                        self.store.mission_events)
 
     def _mission(self) -> None:
         """Recover the state, then serve the mission to its end (or record that it was stopped
         before the session opened: nothing to tell anyone, but on record)."""
         # Recovery is the live fold over the stored events (the last one is this process's open).
         self.state = ms.fold(self.spec, self.store.mission_events())
-        self._first_stage = self.state.next_stage
+        self.epochs.first_stage = self.state.next_stage
         if self.state.resumed:
             self.log(f"coordinator: resumed from {self.store.path}: {len(self.state.decisions)} stage(s) "
                      f"decided, continuing at stage {self.state.next_stage}")
@@ -398,7 +396,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         self._stages()
         if not self._stop.is_set():
             self._wait_confirms(self.n_stages - 1)
-        if self.deposed_by is None:  # deposed: the newer coordinator ends the mission
+        if self.epochs.deposed_by is None:  # deposed: the newer coordinator ends the mission
             self._end("stopped" if self._stop.is_set() else "complete")
 
     def _serve(self) -> None:
@@ -409,6 +407,6 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         self.node.serve(keys.state_key(self.mission), self.state_reply)
         self.node.token(keys.coordinator_alive(self.mission))
         self.log(f"coordinator: mission {self.mission}, {len(self.ids)} carriers, {self.n_stages} stages, "
-                 f"planner {self.planner_name} {self.planner_options}, seed {self.seed}, epoch {self.epoch}, "
+                 f"planner {self.planner_name} {self.planner_options}, seed {self.seed}, epoch {self.epochs.epoch}, "
                  f"{self.config.clock} clock")
 

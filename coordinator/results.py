@@ -67,10 +67,10 @@ class CoordinatorResults:
         finalised in between; map.png; then the session and the store are closed. A deposed
         coordinator writes no summary.json or map.png: the results are the newer coordinator's
         (which may share this --out directory)."""
-        deposed = self.deposed_by is not None
+        deposed = self.epochs.deposed_by is not None
         if not deposed:
             write_json(out / "summary.json", self.summary(wall_s, bound=False))
-        self._close_recorder()
+        self.recording.close()
         summary = self.summary(wall_s, bound=not deposed)
         if not deposed:
             write_json(out / "summary.json", summary)
@@ -88,9 +88,9 @@ class CoordinatorResults:
             pid=os.getpid(), host=socket.gethostname(), wall_time_s=wall_s,
             rejected=dict(self.node.rejected) if self.node else {},
             passenger_types=tuple(c.passenger_types for c in self.scenario.carriers)), bound=bound)
-        out["epoch"] = self.epoch  # of the coordinator that wrote this summary (docs/fleet.md)
-        if self.deposed_by is not None:
-            out["deposed_by"] = self.deposed_by
+        out["epoch"] = self.epochs.epoch  # of the coordinator that wrote this summary (docs/fleet.md)
+        if self.epochs.deposed_by is not None:
+            out["deposed_by"] = self.epochs.deposed_by
         return out
 
     def _render(self, path: Path) -> None:

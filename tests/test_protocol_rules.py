@@ -780,13 +780,16 @@ def test_takeover_before_deciding_and_deposition_after():
     and re-publish [P-7.5]; after it decided one: deposed; a coordinator ignores Decisions of its
     own or a lower epoch on its decision key."""
     epochs = (ROOT / "coordinator" / "epochs.py").read_text()
-    body_ = epochs.split("def _carrier_epoch(")[1].split("def _heard_decision")[0]
-    assert "self.state.next_stage > self._first_stage" in body_ and "self._deposed(" in body_
-    assert "self.epoch = epoch + 1" in body_ and "self._publish_decision(" in body_
-    heard = epochs.split("def _heard_decision(")[1].split("def _deposed")[0]
+    body_ = epochs.split("def carrier_heard(")[1].split("def decision_heard")[0]
+    assert "if next_stage > self.first_stage:\n            self.deposed(" in body_
+    assert "self.epoch = epoch + 1" in body_ and "return True" in body_
+    inbound = (ROOT / "coordinator" / "inbound.py").read_text()
+    republish = inbound.split("if self.epochs.carrier_heard(")[1].split("self.apply(")[0]
+    assert "self._publish_decision(self._decision(self.state.next_stage - 1))" in republish
+    heard = epochs.split("def decision_heard(")[1].split("def deposed")[0]
     assert "msg.epoch > self.epoch" in heard and "except ProtocolError:\n            return" in heard
     node = (ROOT / "coordinator" / "node.py").read_text()
-    assert "if self.deposed_by is None:  # deposed: the newer coordinator ends the mission" in node
+    assert "if self.epochs.deposed_by is None:  # deposed: the newer coordinator ends the mission" in node
     assert "self._publish_decision(self._decision(self.state.next_stage - 1))  # idempotent re-publication" in node
 
 
@@ -979,7 +982,7 @@ def test_end_is_broadcast_with_its_epoch_in_the_lowest_revision():
     assert "epoch" not in msgpack.unpackb(wm.encode(end, 3))
     clock = (ROOT / "coordinator" / "clock.py").read_text().split("def _end(")[1]
     assert "self.node.put(keys.end_key(self.mission), end, self.state.common_revision(REVISION))" in clock
-    assert "DEFAULTS.end_repeat_s" in clock and "self.deposed_by is None" in (
+    assert "DEFAULTS.end_repeat_s" in clock and "self.epochs.deposed_by is None" in (
         ROOT / "coordinator" / "node.py").read_text()
 
 
