@@ -46,7 +46,7 @@ from coordinator.clock import StageClock
 from coordinator.epochs import Epochs
 from coordinator.inbound import Inbound
 from coordinator.recorder import Recording, start as start_recording
-from coordinator.results import CoordinatorResults
+from coordinator.results import results_for
 from storage.missiondb import MissionStore
 from mission import events as ev
 from mission import state as ms
@@ -111,15 +111,15 @@ class CoordinatorConfig:
     standby: bool = False
 
 
-class Coordinator(Inbound, StageClock, CoordinatorResults):
+class Coordinator(Inbound, StageClock):
     """One coordinator process: the Zenoh node, the store, the stage clock, and the mission state
     (``self.state``, a :class:`mission.state.MissionState` changed only by :meth:`apply`).
 
-    Its jobs live in modules of their own: what it receives (:class:`coordinator.inbound.Inbound`),
-    its waits and stage loop (:class:`coordinator.clock.StageClock`) and its results (:class:`coordinator.results.CoordinatorResults`); this class keeps the state,
-    the answers (State, Accepted, Refusal), the planner call and the run's phases. Its
+    Its jobs live in modules of their own: what it receives (:class:`coordinator.inbound.Inbound`)
+    and its waits and stage loop (:class:`coordinator.clock.StageClock`); this class keeps the
+    state, the answers (State, Accepted, Refusal), the planner call and the run's phases. Its
     collaborators: split brain (:class:`coordinator.epochs.Epochs`), the recorder
-    (:class:`coordinator.recorder.Recording`).
+    (:class:`coordinator.recorder.Recording`), the results (:class:`coordinator.results.Results`).
 
     Args:
         scenario: the loaded scenario (its seed is replaced by ``config.seed`` when given).
@@ -166,6 +166,8 @@ class Coordinator(Inbound, StageClock, CoordinatorResults):
             raise ValueError(f"clock must be one of {CLOCKS}, found {config.clock!r}")
         self.clock = time.monotonic  # what its waits read (mission.timers decides); the inbox's clock
         self.epochs = Epochs(self.mission, self.log, self._stop, self.clock)  # split brain (docs/fleet.md)
+        self.results = results_for(scenario, self.scenario_path, self.mission, self.planner_name, self.planner_options,
+                                   self.seed, (config.render, self.log, self.epochs, self.recording))
         # When each carrier was last heard (self.clock's s): a slow one (Progress) or a stuck one, sim clock.
         self.heard: dict[str, float] = {}
 
@@ -188,10 +190,6 @@ class Coordinator(Inbound, StageClock, CoordinatorResults):
     @property
     def resumed(self) -> bool:
         return self.state.resumed
-
-    @property
-    def epoch(self) -> int:
-        return self.epochs.epoch
 
     def deployed(self) -> np.ndarray:
         """bool ``[R, N]``: the planner's view of the past (:meth:`mission.state.MissionState.deployed`)."""
@@ -326,7 +324,7 @@ class Coordinator(Inbound, StageClock, CoordinatorResults):
                 raise
             self.apply(ev.Ended("stopped", time.time()))
         finally:
-            summary = self._results(out, self.clock() - started)
+            summary = self.results.finish(out, self.clock() - started, self.state, self.problem, self.node, self.store)
         return summary
 
     def _open_session(self) -> bool:
