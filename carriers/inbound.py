@@ -61,7 +61,7 @@ class Inbound:
                 raise ProtocolError("bad-key", f"liveliness token on {item.key[:80]}")
             if item.kind == "alive":
                 if self.presence.coordinator_alive():  # it came back
-                    self.apply(mc.Resync(self._state_seen(self._query_once()), self._position()))
+                    self.apply(mc.Resync(self.queries.seen(self.queries.once(self.node)), self._position()))
             else:
                 self.presence.coordinator_gone(item.received)
                 if self.config.mode == "hybrid":

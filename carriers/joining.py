@@ -2,7 +2,7 @@
 coordinator answering, from its own durable log), replaying the deployments on record in its
 world (one replay for both paths), and later resynchronising from State when a Decision was lost.
 
-:class:`Joining` is a part of :class:`carriers.node.Carrier`.
+:class:`Joining` is a part of :class:`carriers.node.Carrier`; :class:`StateQueries` a collaborator.
 """
 from __future__ import annotations
 
@@ -107,44 +107,28 @@ class Joining:
         decided j already, the Decision was lost on the way: resynchronise (it is taken from
         State). If it still collects j, it may not have our Observation (mission.carrier,
         Collecting). Otherwise the coordinator is still at work: go on waiting."""
-        state = self._query_once()
+        state = self.queries.once(self.node)
         if state is None or not mc.current(self.machine, state.epoch):
             return
         if state.next_stage > j:
             self.log(f"stage {j} was decided but its Decision did not arrive; taking it from State")
-            self.apply(mc.Resync(self._state_seen(state), self._position()))
+            self.apply(mc.Resync(self.queries.seen(state), self._position()))
         elif state.next_stage == j:
             self.apply(mc.Collecting(j, state.epoch))
         else:
             # the coordinator is behind this carrier: its Hello or its accounts of the stages
             # since were lost; saying them again lets it go on (found by mission.simulate)
             self.log(f"the coordinator is at stage {state.next_stage}, this carrier at {j}; resynchronising")
-            self.apply(mc.Resync(self._state_seen(state), self._position()))
+            self.apply(mc.Resync(self.queries.seen(state), self._position()))
 
     def _resync_gap(self, stage: int) -> None:
         """The Decision of ``stage`` came without an earlier one this carrier needs
         (:class:`mission.carrier.AskState`): the lost stages are taken from State before it
         confirms anything more (docs/protocol.md, [P-6.6])."""
-        state = self._query_once()
+        state = self.queries.once(self.node)
         if state is not None and state.fingerprint != self.fingerprint:
             state = None
-        self.apply(mc.Resync(self._state_seen(state), self._position(), gap=stage))
-
-    def _query_once(self) -> State | None:
-        """The State reply of the highest epoch (two coordinators may answer across a split)."""
-        best = None
-        selector = keys.state_selector(self.mission, self.cid, REVISION)
-        for payload in self.node.query(selector, timeout_s=DEFAULTS.state_query_s):
-            try:
-                state = decode(payload, State)
-            except ProtocolError as exc:
-                self.node.reject(exc.reason, exc.detail, self.log)
-                continue
-            if state.mission == self.mission and (best is None or state.epoch > best.epoch):
-                best = state
-        if best is not None:  # speak the coordinator's revision from now on (docs/protocol.md, "Compatibility")
-            self.node.revision = min(REVISION, best.revision)
-        return best
+        self.apply(mc.Resync(self.queries.seen(state), self._position(), gap=stage))
 
     def _query_state(self) -> tuple[State | None, object]:
         """Ask the coordinator for the mission state by :func:`mission.timers.state_query`
@@ -156,7 +140,7 @@ class Joining:
             rule = tm.state_query(self.config.mode, first, failed, now, self.config.coordinator_timeout_s,
                                   STATE_RETRY_S)
             if isinstance(rule, tm.AskState):
-                state = self._query_once()
+                state = self.queries.once(self.node)
                 if state is not None:
                     return state, None
                 failed = self.clock()
@@ -166,7 +150,33 @@ class Joining:
                 return None, rule
         return None, None
 
-    def _state_seen(self, state: State | None) -> mc.StateSeen | None:
+
+class StateQueries:
+    """A carrier's State queries ([P-5.2]): one query's reply of the highest epoch, the revision
+    it speaks from then on, and what its machine takes from a State. A collaborator of
+    :class:`carriers.node.Carrier`, handed the node each time (it opens with the run)."""
+
+    def __init__(self, mission: str, cid: str, log):
+        self.mission, self.cid, self.log = mission, cid, log
+
+    def once(self, node) -> State | None:
+        """The State reply of the highest epoch (two coordinators may answer across a split)."""
+        best = None
+        selector = keys.state_selector(self.mission, self.cid, REVISION)
+        for payload in node.query(selector, timeout_s=DEFAULTS.state_query_s):
+            try:
+                state = decode(payload, State)
+            except ProtocolError as exc:
+                node.reject(exc.reason, exc.detail, self.log)
+                continue
+            if state.mission == self.mission and (best is None or state.epoch > best.epoch):
+                best = state
+        if best is not None:  # speak the coordinator's revision from now on (docs/protocol.md, "Compatibility")
+            node.revision = min(REVISION, best.revision)
+        return best
+
+    def seen(self, state: State | None) -> mc.StateSeen | None:
+        """What :mod:`mission.carrier` takes from a State (None: none)."""
         if state is None:
             return None
         mine = state.carrier(self.cid)

@@ -42,7 +42,7 @@ import world
 from carriers.alone import Alone
 from carriers.exits import EXIT_CODES, Exit
 from carriers.inbound import Inbound
-from carriers.joining import Joining
+from carriers.joining import Joining, StateQueries
 from carriers import ONBOARD_LOADS
 from carriers.motion import Motion, Track
 from carriers.onboard import Onboard
@@ -166,6 +166,7 @@ class Carrier(Motion, Inbound, Joining, Alone):
         self.pending: Observation | None = None
         self.track = Track(self.clock())  # what its motion has published so far
         self.answer = mc.HelloAnswer(self.fingerprint)  # the coordinator's answer to its latest Hello
+        self.queries = StateQueries(self.mission, self.cid, self.log)  # its State queries [P-5.2]
         self.onboard = onboard if onboard is not None else Onboard(scenario, config.planner_options)
         self.onboard_load = config.onboard_load or "start"
         if self.onboard_load not in ONBOARD_LOADS:
