@@ -172,3 +172,18 @@ def test_the_coordinator_on_the_wall_clock_waits_the_stage_timeout(tmp_path):
     coordinator.heard = {cid: opened + 4.9 for cid in TINY.carrier_ids}
     coordinator._wait_stage(0, opened)
     assert 5.0 <= clock.now - opened < 5.1 and not any("stalled" in line for line in lines)
+
+
+def test_no_wait_of_the_processes_reads_the_clock_itself():
+    """carriers/ and coordinator/ call no ``time.monotonic()``: a process's clock is its
+    ``clock`` attribute, read by its drivers, and every timing decision is a mission.timers rule."""
+    import ast
+
+    calls = []
+    for folder in ("carriers", "coordinator"):
+        for path in sorted((ROOT / folder).glob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+                        and node.func.attr in ("monotonic", "perf_counter")):
+                    calls.append(f"{path.relative_to(ROOT)}:{node.lineno}")
+    assert calls == []
