@@ -7,8 +7,6 @@ events of ``mission.carrier`` or facts for its :class:`mission.peers.PeerBook` a
 """
 from __future__ import annotations
 
-import time
-
 from mission import carrier as mc
 from wire import keys
 from wire.messages import Accepted, Confirm, Decision, End, Observation, Own, Progress, ProtocolError, Refusal, decode
@@ -63,9 +61,9 @@ class Inbound:
                 raise ProtocolError("bad-key", f"liveliness token on {item.key[:80]}")
             if item.kind == "alive":
                 if self.presence.coordinator_alive():  # it came back
-                    self.apply(mc.Resync(self._state_seen(self._query_once()), self._position()))
+                    self.apply(mc.Resync(self.queries.seen(self.queries.once(self.node)), self._position()))
             else:
-                self.presence.coordinator_gone(time.monotonic())
+                self.presence.coordinator_gone(item.received)
                 if self.config.mode == "hybrid":
                     self.onboard.prepare()  # it may have to decide alone soon
                 self.log("coordinator's liveliness token vanished; "
@@ -73,7 +71,7 @@ class Inbound:
             return
         parsed = keys.parse_carrier_key(self.mission, item.key)
         if parsed is not None and parsed[1] in PEER_TOPICS:
-            self._peer(parsed[0], parsed[1], item.payload)
+            self._peer(parsed[0], parsed[1], item.payload, item.received)
             return
         if item.key == keys.end_key(self.mission):
             msg = decode(item.payload, End)
@@ -117,8 +115,9 @@ class Inbound:
         for line in lines:
             self.log(line)
 
-    def _peer(self, cid: str, topic: str, payload: bytes) -> None:
-        """Another carrier's Observation, Own or Confirm: what it saw and did, for the book."""
+    def _peer(self, cid: str, topic: str, payload: bytes, at: float) -> None:
+        """Another carrier's Observation, Own, Confirm or Progress, heard at ``at`` (the carrier's
+        clock): what it saw and did, for the book, and when it was last heard [P-10.5]."""
         if cid == self.cid:
             return  # our own puts, delivered to our own subscription
         if cid not in self.book.index:
@@ -128,7 +127,7 @@ class Inbound:
             raise ProtocolError("wrong-mission", f"mission {msg.mission!r}")
         if msg.carrier != cid:
             raise ProtocolError("key-mismatch", f"carrier {msg.carrier!r} on the key of {cid!r}")
-        self.presence.heard_from(cid, time.monotonic())
+        self.presence.heard_from(cid, at)
         if topic == "progress":
             self.book.progress(cid, msg.stage)  # a peer past a stage is not waited for there
             return

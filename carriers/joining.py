@@ -2,15 +2,14 @@
 coordinator answering, from its own durable log), replaying the deployments on record in its
 world (one replay for both paths), and later resynchronising from State when a Decision was lost.
 
-:class:`Joining` is a part of :class:`carriers.node.Carrier`.
+:class:`Joining` is a part of :class:`carriers.node.Carrier`; :class:`StateQueries` a collaborator.
 """
 from __future__ import annotations
 
-import time
-
 from carriers.exits import Exit
 from mission import carrier as mc
-from mission.timeouts import DEFAULTS
+from mission import timers as tm
+from mission.timeouts import DEFAULTS, STATE_RETRY_S
 from wire import keys
 from wire.messages import REVISION, ProtocolError, State, decode
 
@@ -22,8 +21,8 @@ class Joining:
         if self.config.mode == "decentralised":
             self._join_alone()
             return
-        state = self._query_state()
-        if state is None and self.config.mode == "hybrid" and not self._stop.is_set():
+        state, outcome = self._query_state()
+        if isinstance(outcome, tm.DecideAlone) and not self._stop.is_set():
             self.log(f"no coordinator answered within {self.config.coordinator_timeout_s:.0f} s; going on without it")
             # A coordinator that appears later (one slow to start) is one to resynchronise with:
             # its token's arrival makes this carrier say Hello and hand over what it decided.
@@ -31,7 +30,7 @@ class Joining:
             self._join_alone()
             return
         if state is None:
-            raise Exit("stopped" if self._stop.is_set() else "coordinator-lost")
+            raise Exit("stopped" if self._stop.is_set() or outcome is None else outcome.reason)
         self.presence.coordinator_answered()  # present, even if its token is not pumped yet
         if state.fingerprint != self.fingerprint:
             self.log(f"the coordinator runs another world (fingerprint {state.fingerprint}, ours "
@@ -89,9 +88,14 @@ class Joining:
         self._replay(mc.replay_plan(self.machine, next_stage, [e.stage for e in entries if e.deployed]))
         self._listen(wait=True)
         others = set(self.listening)
-        deadline = time.monotonic() + self.config.join_timeout_s
-        while not self._stop.is_set() and not others <= self.presence.peers_live and time.monotonic() < deadline:
-            self._pump(min(0.2, max(0.0, deadline - time.monotonic())))
+        opened = self.clock()
+        while not self._stop.is_set():  # a deadline on either clock [P-8.5]: no joiner extends it
+            now = self.clock()
+            rule = tm.join_wait("wall", others <= self.presence.peers_live, opened, opened, now,
+                                self.config.join_timeout_s)
+            if isinstance(rule, tm.GoOn):
+                break
+            self._pump(min(0.2, rule.until - now))
         missing = sorted(others - self.presence.peers_live)
         if missing and next_stage == 0:
             self.log(f"starting without carrier(s) {', '.join(missing)} (no token after "
@@ -103,56 +107,76 @@ class Joining:
         decided j already, the Decision was lost on the way: resynchronise (it is taken from
         State). If it still collects j, it may not have our Observation (mission.carrier,
         Collecting). Otherwise the coordinator is still at work: go on waiting."""
-        state = self._query_once()
+        state = self.queries.once(self.node)
         if state is None or not mc.current(self.machine, state.epoch):
             return
         if state.next_stage > j:
             self.log(f"stage {j} was decided but its Decision did not arrive; taking it from State")
-            self.apply(mc.Resync(self._state_seen(state), self._position()))
+            self.apply(mc.Resync(self.queries.seen(state), self._position()))
         elif state.next_stage == j:
             self.apply(mc.Collecting(j, state.epoch))
         else:
             # the coordinator is behind this carrier: its Hello or its accounts of the stages
             # since were lost; saying them again lets it go on (found by mission.simulate)
             self.log(f"the coordinator is at stage {state.next_stage}, this carrier at {j}; resynchronising")
-            self.apply(mc.Resync(self._state_seen(state), self._position()))
+            self.apply(mc.Resync(self.queries.seen(state), self._position()))
 
     def _resync_gap(self, stage: int) -> None:
         """The Decision of ``stage`` came without an earlier one this carrier needs
         (:class:`mission.carrier.AskState`): the lost stages are taken from State before it
         confirms anything more (docs/protocol.md, [P-6.6])."""
-        state = self._query_once()
+        state = self.queries.once(self.node)
         if state is not None and state.fingerprint != self.fingerprint:
             state = None
-        self.apply(mc.Resync(self._state_seen(state), self._position(), gap=stage))
+        self.apply(mc.Resync(self.queries.seen(state), self._position(), gap=stage))
 
-    def _query_once(self) -> State | None:
+    def _query_state(self) -> tuple[State | None, object]:
+        """Ask the coordinator for the mission state by :func:`mission.timers.state_query`
+        ([P-5.2]): again 0.2 s after a query without reply, until the coordinator timeout.
+        Returns the State (None: none) and the rule's last effect (None: stopped or answered)."""
+        first, failed = self.clock(), None
+        while not self._stop.is_set():
+            now = self.clock()
+            rule = tm.state_query(self.config.mode, first, failed, now, self.config.coordinator_timeout_s,
+                                  STATE_RETRY_S)
+            if isinstance(rule, tm.AskState):
+                state = self.queries.once(self.node)
+                if state is not None:
+                    return state, None
+                failed = self.clock()
+            elif isinstance(rule, tm.Wait):
+                self._pump(rule.until - now)
+            else:
+                return None, rule
+        return None, None
+
+
+class StateQueries:
+    """A carrier's State queries ([P-5.2]): one query's reply of the highest epoch, the revision
+    it speaks from then on, and what its machine takes from a State. A collaborator of
+    :class:`carriers.node.Carrier`, handed the node each time (it opens with the run)."""
+
+    def __init__(self, mission: str, cid: str, log):
+        self.mission, self.cid, self.log = mission, cid, log
+
+    def once(self, node) -> State | None:
         """The State reply of the highest epoch (two coordinators may answer across a split)."""
         best = None
         selector = keys.state_selector(self.mission, self.cid, REVISION)
-        for payload in self.node.query(selector, timeout_s=DEFAULTS.state_query_s):
+        for payload in node.query(selector, timeout_s=DEFAULTS.state_query_s):
             try:
                 state = decode(payload, State)
             except ProtocolError as exc:
-                self.node.reject(exc.reason, exc.detail, self.log)
+                node.reject(exc.reason, exc.detail, self.log)
                 continue
             if state.mission == self.mission and (best is None or state.epoch > best.epoch):
                 best = state
         if best is not None:  # speak the coordinator's revision from now on (docs/protocol.md, "Compatibility")
-            self.node.revision = min(REVISION, best.revision)
+            node.revision = min(REVISION, best.revision)
         return best
 
-    def _query_state(self) -> State | None:
-        """Ask the coordinator for the mission state, retrying until coordinator_timeout_s."""
-        deadline = time.monotonic() + self.config.coordinator_timeout_s
-        while not self._stop.is_set() and time.monotonic() < deadline:
-            state = self._query_once()
-            if state is not None:
-                return state
-            self._pump(0.2)
-        return None
-
-    def _state_seen(self, state: State | None) -> mc.StateSeen | None:
+    def seen(self, state: State | None) -> mc.StateSeen | None:
+        """What :mod:`mission.carrier` takes from a State (None: none)."""
         if state is None:
             return None
         mine = state.carrier(self.cid)

@@ -6,12 +6,12 @@ what the motion publishes: Poses, Progress (sim clock), the trail of an Observat
 """
 from __future__ import annotations
 
-import time
 from concurrent import futures
 
 import numpy as np
 
 from mission.timeouts import DEFAULTS
+from mission.timers import GoOn, due, pace
 from wire import keys
 from wire.messages import Pose, Progress
 
@@ -31,7 +31,7 @@ class Track:
         trail_from: the first trajectory sample not sent in an Observation's trail yet.
         pose_from: the first trajectory sample not considered for a Pose yet.
         heading: the heading of the last Pose (rad).
-        progress_at: when the carrier last sent Progress (monotonic s).
+        progress_at: when the carrier last sent Progress (the carrier's clock, s).
     """
 
     def __init__(self, now: float):
@@ -72,22 +72,26 @@ class Motion:
             self._progress()
             job.result()
             return
-        wall0, t0 = time.monotonic(), self.sim.time
+        wall0, t0 = self.clock(), self.sim.time
         while self.sim.time < t - 1e-9 and not self._stop.is_set():
             target = min(t, self.sim.time + PACE_CHUNK_S)
             self.sim.advance_to(target)
             self._publish_poses()
             self._progress()
-            due = wall0 + (self.sim.time - t0) / self.timers.realtime
-            while time.monotonic() < due and not self._stop.is_set():
-                self._pump(min(0.05, due - time.monotonic()))
+            while not self._stop.is_set():  # the chunk's wall time (mission.timers.pace)
+                now = self.clock()
+                rule = pace(wall0, self.sim.time - t0, self.timers.realtime, now)
+                if isinstance(rule, GoOn):
+                    break
+                self._pump(min(0.05, rule.until - now))
                 self._check_refused()
 
-    def _progress(self, every_s: float = DEFAULTS.progress_s) -> None:
+    def _progress(self, every_s: float = DEFAULTS.progress_s, now: float | None = None) -> None:
         """Sim clock: tell the coordinator and the peers that this carrier is working (a
-        Progress message) when ``every_s`` passed since it last published one."""
-        now = time.monotonic()
-        if self.timers.clock != "sim" or now - self.track.progress_at < every_s:
+        Progress message) when it is due (:func:`mission.timers.due`: ``every_s`` since the last;
+        ``now``: the caller's look at the clock, else the clock now) [P-10.6]."""
+        now = self.clock() if now is None else now
+        if self.timers.clock != "sim" or not due(self.track.progress_at, now, every_s):
             return
         self.track.progress_at = now
         if self.node.revision < Progress.SINCE:

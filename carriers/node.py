@@ -42,13 +42,14 @@ import world
 from carriers.alone import Alone
 from carriers.exits import EXIT_CODES, Exit
 from carriers.inbound import Inbound
-from carriers.joining import Joining
+from carriers.joining import Joining, StateQueries
 from carriers import ONBOARD_LOADS
 from carriers.motion import Motion, Track
 from carriers.onboard import Onboard
 from carriers.shared import GATE_HOLD_S, PhysicsThread, SharedWorld, StageGate
 from storage.carrierlog import CarrierLog, LogMismatch, log_path
 from mission import carrier as mc
+from mission import timers as tm
 from mission.peers import PeerBook, Presence
 from mission.timeouts import CLOCKS, DEFAULTS, POSE_INTERVAL_S
 from wire import keys
@@ -160,10 +161,12 @@ class Carrier(Motion, Inbound, Joining, Alone):
         self._stop = stop if stop is not None else threading.Event()
         self.sim: world.Simulation | None = None
         self.node = None
-        self.presence = Presence(time.monotonic())  # the coordinator's and the peers' tokens, what came when
+        self.clock = time.monotonic  # the one clock its waits read, once per look (mission.timers rules decide)
+        self.presence = Presence(self.clock())  # the coordinator's and the peers' tokens, what came when
         self.pending: Observation | None = None
-        self.track = Track(time.monotonic())  # what its motion has published so far
+        self.track = Track(self.clock())  # what its motion has published so far
         self.answer = mc.HelloAnswer(self.fingerprint)  # the coordinator's answer to its latest Hello
+        self.queries = StateQueries(self.mission, self.cid, self.log)  # its State queries [P-5.2]
         self.onboard = onboard if onboard is not None else Onboard(scenario, config.planner_options)
         self.onboard_load = config.onboard_load or "start"
         if self.onboard_load not in ONBOARD_LOADS:
@@ -177,7 +180,7 @@ class Carrier(Motion, Inbound, Joining, Alone):
         self.listening: tuple[str, ...] | None = None  # the carriers it hears (:meth:`_listen`)
         self.store: CarrierLog | None = None  # the durable log, open while running
         self._alone = False  # deciding stages itself (logged once per spell)
-        self._repeated_at = 0.0  # when it last repeated its observation to the peers it waits for (carriers/alone.py)
+        self._repeated_at: float | None = None  # when it last repeated its observation to the peers it waits for (carriers/alone.py)
         self.ros2 = None  # its ROS 2 node (ros2/publisher.py) while running with config.ros2
         # What it times its waits by: its own settings until the coordinator's Accepted tells it
         # the mission's (docs/protocol.md, [P-10.2]; :func:`mission.carrier.follow`).
@@ -269,39 +272,36 @@ class Carrier(Motion, Inbound, Joining, Alone):
     # ------------------------------------------------------------------ the stages
     def _wait_decision(self, j: int) -> None:
         """Until stage j is resolved (answered, or the coordinator moved on), End, or a stop
-        request; deciding alone (hybrid without the coordinator, decentralised) it does not wait.
-        While the coordinator's token is present: on the wall clock at most the decision timeout
-        (then it decides the stage itself); on the sim clock as long as it takes (the
-        coordinator may be planning a large fleet, or waiting for slow carriers), asking its
-        State every decision timeout so that a Decision lost in a reconnection is recovered, and
-        sending Progress every third of the silence timeout."""
-        waited = 0.0
-        last = time.monotonic()
+        request, by :func:`mission.timers.decision_wait` ([P-10.8], [P-8.1]): the time the
+        coordinator's token is present counted by :class:`mission.timers.DecisionWait`; it asks
+        State (sim clock), decides alone, moves on or gives up as the rule says. While the token
+        is present it sends Progress every third of the silence timeout."""
+        wait = tm.DecisionWait.opened(self.clock())
         while not self._stop.is_set() and not self.machine.ended and not self.machine.resolved(j):
             self._check_refused()
-            now = time.monotonic()
-            if self.config.mode == "decentralised":
-                return
-            if self.presence.coordinator_present:
-                waited += now - last
-                # Alive while the Decision is on its way (slow on a saturated host): a Progress a
-                # third of the silence timeout apart, so the next stage's wait does not take
-                # this carrier for a stalled one before the Decision reaches it.
-                self._progress(self.timers.silence_timeout_s / 3)
-                if waited >= self.config.decision_timeout_s and self.timers.clock == "sim":
-                    waited = 0.0
-                    self._recover_decision(j)
-                elif waited >= self.config.decision_timeout_s:
+            now = self.clock()
+            present = self.presence.coordinator_present
+            wait = wait.tick(now, present)
+            rule = tm.decision_wait(self.timers.clock, self.config.mode, present, wait.waited_s,
+                                    self.presence.absent_for(now), self.config.decision_timeout_s,
+                                    self.config.coordinator_timeout_s)
+            if present and isinstance(rule, (tm.Wait, tm.AskState)):
+                # Alive while the Decision is on its way (slow on a saturated host), so the next
+                # stage's wait does not take this carrier for a stalled one [P-10.6].
+                self._progress(self.timers.silence_timeout_s / 3, now)
+            if isinstance(rule, tm.AskState):
+                wait = wait.asked()
+                self._recover_decision(j)
+            elif isinstance(rule, (tm.MoveOn, tm.DecideAlone)):
+                if wait.waited_s >= self.config.decision_timeout_s:  # none in time (wall clock)
                     self.log(f"no decision for stage {j} within {self.config.decision_timeout_s:.0f} s; "
-                             + ("going on" if self.config.mode == "coordinated" else "deciding on board"))
-                    return
-            elif self.config.mode == "hybrid":
+                             + ("going on" if isinstance(rule, tm.MoveOn) else "deciding on board"))
                 return
-            elif self.presence.absent_for(now) >= self.config.coordinator_timeout_s:
+            elif isinstance(rule, tm.GiveUp):
                 self.log(f"coordinator absent for {self.config.coordinator_timeout_s:.0f} s; exiting")
-                raise Exit("coordinator-lost")
-            last = now
-            self._pump(IDLE_POLL_S)
+                raise Exit(rule.reason)
+            else:
+                self._pump(IDLE_POLL_S)
 
     def _counts(self, j: int, x) -> tuple[int, ...] | None:
         """The region counts behind ``x`` at stage j under the coverage reward (world/regions.py),
@@ -350,6 +350,18 @@ class Carrier(Motion, Inbound, Joining, Alone):
             self.pending = None
             j += 1
 
+    def _wait_end(self) -> None:
+        """After the last stage: End, by :func:`mission.timers.end_wait` [P-9.5] (it comes from a
+        coordinator: waited for only while one is there)."""
+        opened, present = self.clock(), self.presence.coordinator_present
+        while not self._stop.is_set():
+            now = self.clock()
+            rule = tm.end_wait(self.machine.ended, present, opened, now, self.config.end_timeout_s)
+            if isinstance(rule, tm.GoOn):
+                return
+            self._check_refused()
+            self._pump(min(IDLE_POLL_S, rule.until - now))
+
     def run(self) -> str:
         from wire.transport import Node
         from wire.zconfig import OpenStopped
@@ -386,11 +398,7 @@ class Carrier(Motion, Inbound, Joining, Alone):
             self.node.token(keys.carrier_alive(self.mission, self.cid))
             self._join()
             self._fly()
-            # End comes from a coordinator: wait for it only while one is there.
-            deadline = time.monotonic() + (self.config.end_timeout_s if self.presence.coordinator_present else 0.0)
-            while not self.machine.ended and not self._stop.is_set() and time.monotonic() < deadline:
-                self._check_refused()
-                self._pump(IDLE_POLL_S)
+            self._wait_end()
             reason = "stopped" if self._stop.is_set() else ("end" if self.machine.ended else "finished")
         except Exit as exc:
             reason = exc.reason

@@ -11,122 +11,87 @@ from __future__ import annotations
 import time
 
 from mission import events as ev
-from mission.timers import silent
+from mission import timers as tm
 from mission.timeouts import DEFAULTS
 from wire import keys
 from wire.messages import REVISION, End
 
 
-class _OfState:
-    """``fn(state)`` of the coordinator's current state, computed again only when the state is a
-    new object. A wait tests its condition after every inbox drain, and most drains apply no
-    event (Progress and Poses arrive every wall second from every carrier, in drains of one or
-    two); the conditions are set differences over R carriers (``MissionState.waiting``). The state is
-    immutable (mission.state), so the value is the one ``fn`` would give."""
-
-    def __init__(self, owner, fn):
-        self._owner, self._fn = owner, fn
-        self._state = self._value = None
-
-    def __call__(self):
-        state = self._owner.state
-        if state is not self._state:
-            self._state, self._value = state, self._fn(state)
-        return self._value
-
-
-def _by_progress(state, cids) -> tuple[frozenset, frozenset]:
-    """``cids`` as (those that send Progress, those of revision < 3 that send none)."""
-    mute = state.without_progress(cids)
-    return frozenset(cids).difference(mute), mute
+#: Longest the coordinator waits for inbox items before it looks at its clock again (s).
+POLL_S = 0.05
 
 
 class StageClock:
-    """The coordinator's waits and its stage loop."""
+    """The coordinator's waits and its stage loop: each wait is a driver of a rule of
+    :mod:`mission.timers`, evaluated at the time the loop last looked at its clock."""
 
-    def _wait(self, seconds: float, done=lambda: False) -> None:
-        """Handle inbound items for up to ``seconds`` or until ``done()`` or a stop request."""
-        deadline = time.monotonic() + seconds
-        while not self._stop.is_set() and not done():
-            left = deadline - time.monotonic()
-            if left <= 0:
-                return
-            self.pump(min(0.05, left))
+    def _drive(self, rule):
+        """Handle inbound items until ``rule(now)`` says anything but wait, or a stop request;
+        returns what it said (None: stopped). A rule's inputs are the mission state, the time and
+        when carriers were heard, and hearing one only delays a wait's end: so a
+        :class:`mission.timers.Wait` stands until its ``until`` or a new state (most drains apply
+        no event: Progress, Poses, about a thousand a second at R = 1,024)."""
+        effect, seen = None, None
+        while not self._stop.is_set():
+            now = self.clock()
+            if effect is None or self.state is not seen or now >= effect.until:
+                seen, effect = self.state, rule(now)
+                if not isinstance(effect, tm.Wait):
+                    return effect
+            self.pump(min(POLL_S, effect.until - now))
+        return None
 
     def _wait_stage(self, j: int, opened: float) -> None:
-        """Until every expected carrier's Observation of j is in, or a stop request. Wall clock:
-        at most ``stage_timeout_s``. Sim clock: as long as some carrier still waited for is
-        making progress: one that nothing came from for ``silence_timeout_s`` (since the stage
-        opened) is stalled and not waited for any more; a dead or cut-off one leaves
-        ``expected`` by itself when its token vanishes."""
-        waiting_for = _OfState(self, lambda state: state.waiting(j))
-        if self.config.clock == "wall":
-            self._wait(self.config.stage_timeout_s, lambda: not waiting_for())
+        """Until every expected carrier's Observation of j is in, or a stop request, by
+        :func:`mission.timers.stage_wait` ([P-10.3], [P-10.4]). Wall clock: at most
+        ``stage_timeout_s``. Sim clock: as long as some carrier still waited for is making
+        progress: one that nothing came from for ``silence_timeout_s`` (since the stage opened) is
+        stalled and not waited for any more; a dead or cut-off one leaves ``expected`` by itself
+        when its token vanishes."""
+        clock, silence = self.config.clock, self.config.silence_timeout_s
+        done = self._drive(lambda now: tm.stage_wait(clock, *self.state.waited_for(j), self.heard, opened, now,
+                                                     self.config.stage_timeout_s, silence))
+        if done is None or clock == "wall":
             return
-        silence = self.config.silence_timeout_s
-        split = _OfState(self, lambda state: _by_progress(state, state.waiting(j)))
-
-        def done() -> bool:
-            return self._waited(split(), opened, self.config.stage_timeout_s)
-
-        while not self._stop.is_set() and not done():
-            self.pump(0.05)
-        stalled, mute = (sorted(group) for group in split())
-        if stalled and not self._stop.is_set():
+        stalled, mute = sorted(done.stalled), sorted(done.late)
+        if stalled:
             self.log(f"coordinator: stage {j}: nothing from {', '.join(stalled[:8])}"
                      f"{' ...' if len(stalled) > 8 else ''} for {silence:.0f} s (stalled); ∅ for them")
-        if mute and not self._stop.is_set():
+        if mute:
             self.log(f"coordinator: stage {j}: no Observation from {', '.join(mute[:8])}"
                      f"{' ...' if len(mute) > 8 else ''} within the stage timeout "
                      f"({self.config.stage_timeout_s:.0f} s: revision < 3, no Progress); ∅ for them")
 
     def _wait_confirms(self, j: int) -> None:
-        """After the last decision: wait for its Confirms from the live carriers. Wall clock: at
-        most ``confirm_timeout_s``; sim clock: until nothing came from any carrier still
-        unconfirmed for ``silence_timeout_s``."""
-        unconfirmed = _OfState(self, lambda state: state.unconfirmed(j))
-        if self.config.clock == "wall":
-            self._wait(self.config.confirm_timeout_s, lambda: not unconfirmed())
-            return
-        split = _OfState(self, lambda state: _by_progress(state, state.unconfirmed(j)))
-        opened = time.monotonic()
-        while not self._stop.is_set():
-            if self._waited(split(), opened, self.config.confirm_timeout_s):
-                return
-            self.pump(0.05)
-
-    def _waited(self, split, opened: float, deadline_s: float) -> bool:
-        """Sim clock: the wait opened at ``opened`` for ``split`` (carriers that send Progress,
-        carriers that send none) is over: the first are silent (:meth:`_silent`), and for the
-        second the wall-clock ``deadline_s`` passed (docs/protocol.md, [P-10.4]: a carrier of
-        revision < 3 is never taken as stalled for lack of Progress)."""
-        loud, mute = split
-        return ((not loud or self._silent(loud, opened))
-                and (not mute or time.monotonic() - opened >= deadline_s))
-
-    def _silent(self, waiting, opened: float) -> bool:
-        """Sim clock: nothing came from any of ``waiting`` for ``silence_timeout_s``, counted from
-        ``opened`` at the earliest (:func:`mission.timers.silent`: the last time heard is never before it, so the
-        O(|waiting|) look is skipped until that much time has passed since the wait opened)."""
-        return silent(self.heard, waiting, opened, time.monotonic(), self.config.silence_timeout_s)
+        """After the last decision: wait for its Confirms from the live carriers, by the stage's
+        rule with the confirm timeout ([P-10.3]). Wall clock: at most ``confirm_timeout_s``; sim
+        clock: until nothing came from any carrier still unconfirmed for ``silence_timeout_s``."""
+        opened = self.clock()
+        self._drive(lambda now: tm.stage_wait(self.config.clock, *self.state.confirms_awaited(j), self.heard, opened, now,
+                                              self.config.confirm_timeout_s, self.config.silence_timeout_s))
 
     def _wait_for_carriers(self) -> None:
-        """Before the first stage: wait until every carrier is live with an accepted Hello (or the
-        join timeout; on resume at most the stage timeout, since some carriers may be gone). On
-        the sim clock the join timeout runs from the last carrier that joined: a fleet whose
-        processes start slowly on a busy host is waited for while it keeps arriving."""
+        """Before the first stage: wait until every carrier is live with an accepted Hello, by
+        :func:`mission.timers.join_wait` ([P-5.11]): the join timeout (on resume at most the stage
+        timeout, since some carriers may be gone); on the sim clock it runs from the last carrier
+        that joined: a fleet whose processes start slowly on a busy host is waited for while it
+        keeps arriving."""
         wait_s = self.config.join_timeout_s
         if self.state.resumed:
             wait_s = min(wait_s, self.config.stage_timeout_s)
+
         def count() -> int:
             return sum(1 for cid in self.state.live if cid in self.state.accepted)
 
-        joined = -1
-        while not self._stop.is_set() and not self.state_all_joined() and count() > joined:
-            joined = count()
-            self._wait(wait_s, lambda: self.state_all_joined() or (self.config.clock == "sim" and count() > joined))
-            if self.config.clock == "wall":
-                break
+        opened = self.clock()
+        joined = [count(), opened]  # the most carriers joined so far, and when that many first were
+
+        def rule(now: float):
+            if count() > joined[0]:
+                joined[:] = [count(), now]
+            return tm.join_wait(self.config.clock, self.state_all_joined(), opened, joined[1], now, wait_s)
+
+        self._drive(rule)
         missing = sorted(cid for cid in self.ids if not (cid in self.state.live and cid in self.state.accepted))
         if missing and not self._stop.is_set():
             self.log(f"coordinator: starting without carrier(s) {', '.join(missing)} (not live with a Hello "
@@ -156,48 +121,52 @@ class StageClock:
         for j in range(self.state.next_stage, self.n_stages):
             if self._stop.is_set():
                 return
-            if self.config.realtime > 0 and last_published is not None and not self.state.behind(j):
+            if last_published is not None and not self.state.behind(j):
                 # Paced like the carriers: Δt / realtime after the previous decision went out
                 # (not when the carriers are past j already: then it catches up at once).
-                self._wait(last_published + self.scenario.stage_interval / self.config.realtime - time.monotonic())
+                self._drive(lambda now: tm.pace(last_published, self.scenario.stage_interval, self.config.realtime,
+                                                now))
             if j > 0 and not self.state.live:
                 # Nobody to decide for (cut off, or every carrier gone): deciding now would only
                 # record empty stages the carriers decide themselves. Hold until one is back (its
-                # Hello says where it is), at most the join timeout.
+                # Hello says where it is), at most the join timeout [P-6.5].
                 self.log(f"coordinator: no carrier is live; holding stage {j} (at most {self.config.join_timeout_s:.0f} s)")
-                self._wait(self.config.join_timeout_s, lambda: bool(self.state.live))
-            opened = time.monotonic()
+                held = self.clock()
+                self._drive(lambda now: tm.hold(bool(self.state.live), held, now, self.config.join_timeout_s))
+            opened = self.clock()
             self._wait_stage(j, opened)
             if self._stop.is_set():
                 return
             deploy, planning_ms, passengers = self._plan(j)
             newer = self.store.newer_epoch()  # a standby took over on our disk while we were cut off
             if newer is not None:
-                self._deposed(newer, "mission.db records it")
+                self.epochs.deposed(newer, "mission.db records it")
                 return
             self.apply(ev.Decided(j, deploy, planning_ms, time.time(), passengers))  # records, then publishes
-            last_published = time.monotonic()
+            last_published = self.clock()
             self._progress(j, (last_published - opened) * 1e3 - planning_ms)
             self.pump(0.0)
 
     def _end(self, reason: str) -> None:
         """Record End (once), publish it every ``end_repeat_s`` and wait for the live carriers'
-        Byes, at most ``bye_timeout_s``. Runs to its end even when a stop was requested."""
+        Byes, at most ``bye_timeout_s`` (:func:`mission.timers.end_due`, :func:`mission.timers.bye_wait`,
+        [P-9.1]). Runs to its end even when a stop was requested."""
         self.apply(ev.Ended(reason, time.time()))
         # With its epoch (revision 4: a carrier ignores a deposed coordinator's End), in the
         # revision every carrier that said Hello reads, as the Decisions are.
-        end = End(self.mission, self.state.next_stage, self.state.end_reason or reason, self.epoch)
-        deadline = time.monotonic() + self.config.bye_timeout_s
-        last_put = grace = None
-        while time.monotonic() < deadline:
-            if last_put is None or time.monotonic() - last_put >= DEFAULTS.end_repeat_s:
+        end = End(self.mission, self.state.next_stage, self.state.end_reason or reason, self.epochs.epoch)
+        ended_at, last_put, grace = self.clock(), None, None
+        while True:
+            now = self.clock()
+            if tm.end_due(last_put, ended_at, now, DEFAULTS.end_repeat_s, self.config.bye_timeout_s):
                 # Repeated for carriers that missed it.
                 self.node.put(keys.end_key(self.mission), end, self.state.common_revision(REVISION))
-                last_put = time.monotonic()
-            if self.state.all_said_bye():
-                # Every live carrier said Bye; one whose token vanished first may have its Bye on the way.
-                grace = grace or time.monotonic() + DEFAULTS.bye_grace_s
-                if not self.state.bye_missing() or time.monotonic() >= grace:
-                    break
-            self.pump(0.05)
+                last_put = self.clock()
+            if grace is None and self.state.all_said_bye():
+                grace = now  # one whose token vanished first may have its Bye on the way
+            rule = tm.bye_wait(self.state.all_said_bye(), self.state.bye_missing(), ended_at, grace, now,
+                               self.config.bye_timeout_s, DEFAULTS.bye_grace_s)
+            if isinstance(rule, tm.GoOn):
+                break
+            self.pump(min(POLL_S, rule.until - now))
         self.log(f"coordinator: mission {self.state.end_reason} after {self.state.next_stage} stage(s)")

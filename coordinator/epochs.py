@@ -4,14 +4,14 @@ epoch this process takes (above every one used before: mission.db's and a live p
 the reaction to a newer epoch (a carrier heard it, a Decision of it, mission.db records it).
 
 The carrier's rule (a lower epoch's Decision is ``deposed``) is in ``mission.carrier``; what
-needs a session or the store is here. :class:`Epochs` is a part of
-:class:`coordinator.node.Coordinator`.
+needs a session or the store is here. :class:`Epochs` is a collaborator of
+:class:`coordinator.node.Coordinator`, given what it needs.
 """
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
+from mission import timers as tm
 from mission.timeouts import DEFAULTS
 from storage.missiondb import MissionStore, StoreBusy
 from wire import keys
@@ -29,38 +29,56 @@ class DuplicateCoordinator(RuntimeError):
 
 
 class Epochs:
-    """The coordinator's claim on its mission and its epochs."""
+    """This coordinator's claim on its mission and its epochs.
 
-    def _carrier_epoch(self, cid: str, epoch: int) -> None:
-        """A carrier has heard a higher epoch than ours. Before this process decided a stage (it
-        may have re-published the last decision) a coordinator that had that epoch is gone or out
-        of our reach: take the next epoch (recorded, so a restart goes higher still) and
-        re-publish. After it, a newer coordinator decides this mission: we are deposed."""
+    Attributes:
+        epoch: this process's epoch (set when it opens mission.db, raised when a carrier heard a
+            higher one before this process decided a stage).
+        known: the highest epoch a live primary reported while this one stood by.
+        first_stage: the first stage this process decides (a newer epoch is taken before it).
+        deposed_by: the epoch of a newer coordinator that deposed this one (None while not).
+
+    Args:
+        mission: the mission id; log: a callable taking one line; stop: the coordinator's stop
+        request (set when it is deposed); clock: what its standby wait reads.
+    """
+
+    def __init__(self, mission: str, log, stop, clock):
+        self.mission, self.log, self._stop, self.clock = mission, log, stop, clock
+        self.epoch = 1
+        self.known = 0
+        self.first_stage = 0
+        self.deposed_by: int | None = None
+
+    def carrier_heard(self, cid: str, epoch: int, next_stage: int, store) -> bool:
+        """A carrier has heard a higher epoch than ours (its Hello). Before this process decided a
+        stage (it may have re-published the last decision) a coordinator that had that epoch is
+        gone or out of our reach: take the next epoch (recorded, so a restart goes higher still);
+        True: the caller re-publishes. After it, a newer coordinator decides this mission: we are
+        deposed."""
         if self.deposed_by is not None:
-            return
-        if self.state.next_stage > self._first_stage:
-            self._deposed(epoch, f"carrier {cid} has heard it")
-            return
+            return False
+        if next_stage > self.first_stage:
+            self.deposed(epoch, f"carrier {cid} has heard it")
+            return False
         self.log(f"coordinator: carrier {cid} has heard epoch {epoch}; this coordinator takes epoch {epoch + 1}")
         self.epoch = epoch + 1
-        self.store.raise_epoch(self.epoch)
-        self._refresh_state()
-        if self.state.next_stage > 0:
-            self._publish_decision(self._decision(self.state.next_stage - 1))
+        store.raise_epoch(self.epoch)
+        return True
 
-    def _heard_decision(self, item) -> None:
+    def decision_heard(self, payload: bytes) -> None:
         """A Decision on this mission's decision key (ours come back to us): one of a higher
         epoch means another coordinator took over (e.g. a partition healed after a standby
         took over): stop deciding, publish no End, exit (docs/fleet.md, "Split brain"). Anything
         else there is not addressed to this coordinator: ignored, not counted (carriers count it)."""
         try:
-            msg = decode(item.payload, Decision)
+            msg = decode(payload, Decision)
         except ProtocolError:
             return
         if msg.mission == self.mission and msg.epoch > self.epoch:
-            self._deposed(msg.epoch, "it decides")
+            self.deposed(msg.epoch, "it decides")
 
-    def _deposed(self, epoch: int, how: str) -> None:
+    def deposed(self, epoch: int, how: str) -> None:
         """Stop deciding: a coordinator of a higher epoch took over (no End, no summary.json)."""
         if self.deposed_by is not None:
             return
@@ -69,38 +87,46 @@ class Epochs:
                  f"this one has epoch {self.epoch}); stopping without End")
         self._stop.set()
 
-    def _claim(self) -> bool:
-        """Before this coordinator declares its token: is another coordinator of the mission
-        live? Not a standby: raise :class:`DuplicateCoordinator`. A standby waits while the
-        primary's token is present, querying its State now and then for its epoch; returns
-        False when stopped before the primary vanished, True when this process may go on."""
+    def claim(self, node, standby: bool) -> bool:
+        """Before this coordinator declares its token on ``node``: is another coordinator of the
+        mission live? Not a ``standby``: raise :class:`DuplicateCoordinator`. A standby waits
+        while the primary's token is present (:func:`mission.timers.standby`), querying its State
+        every ``standby_state_s`` for its epoch; returns False when stopped before the primary
+        vanished, True when this process may go on."""
         alive = keys.coordinator_alive(self.mission)
-        if not self.node.live_tokens(alive, DEFAULTS.liveliness_check_s):
+        if not node.live_tokens(alive, DEFAULTS.liveliness_check_s):
             return True
-        if not self.config.standby:
+        if not standby:
             raise DuplicateCoordinator(self.mission)
-        self.known_epoch = max(self.known_epoch, 1)  # a primary lives: its epoch is 1 at least
+        self.known = max(self.known, 1)  # a primary lives: its epoch is 1 at least
         self.log(f"coordinator: standby: mission {self.mission} has a live coordinator; waiting for its "
                  f"liveliness token to vanish")
         asked = None
         while not self._stop.is_set():
-            if asked is None or time.monotonic() - asked >= DEFAULTS.standby_state_s:
-                self._learn_epoch()
-                asked = time.monotonic()
-            if not self.node.live_tokens(alive, DEFAULTS.liveliness_check_s):
+            if tm.due(asked, self.clock(), DEFAULTS.standby_state_s):
+                self._learn(node)
+                asked = self.clock()
+            present = bool(node.live_tokens(alive, DEFAULTS.liveliness_check_s))
+            looked = self.clock()
+            rule = tm.standby(present, None if present else looked, looked, DEFAULTS.standby_poll_s)
+            if isinstance(rule, tm.TakeOver):
                 self.log(f"coordinator: the primary's liveliness token vanished; taking over mission "
-                         f"{self.mission} (it had epoch {self.known_epoch or 'unknown'})")
+                         f"{self.mission} (it had epoch {self.known or 'unknown'})")
                 return True
-            self._stop.wait(DEFAULTS.standby_poll_s)
+            self._stop.wait(rule.until - looked)
         return False
 
-    def _open_store(self, path: Path, meta: dict) -> MissionStore:
-        """mission.db, waiting while another process holds its write lock (a standby taking over
-        from a primary that hangs in the middle of a write on the same disk)."""
+    def open_store(self, path: Path, meta: dict) -> MissionStore:
+        """mission.db with this process's epoch, higher than every one used before for this
+        mission (mission.db's and the one a primary reported while this process stood by),
+        waiting while another process holds its write lock (a standby taking over from a
+        primary that hangs in the middle of a write on the same disk)."""
         logged = False
         while True:
             try:
-                return MissionStore(path, meta, min_epoch=self.known_epoch + 1)
+                store = MissionStore(path, meta, min_epoch=self.known + 1)
+                self.epoch = store.epoch
+                return store
             except StoreBusy as exc:
                 if not logged:
                     self.log(f"coordinator: {exc}; waiting for it")
@@ -108,13 +134,13 @@ class Epochs:
                 if self._stop.wait(0.5):
                     raise
 
-    def _learn_epoch(self) -> None:
+    def _learn(self, node) -> None:
         """The primary's epoch, from its State (and the last Decision in it)."""
-        for payload in self.node.query(keys.state_key(self.mission), timeout_s=DEFAULTS.state_query_s):
+        for payload in node.query(keys.state_key(self.mission), timeout_s=DEFAULTS.state_query_s):
             try:
                 state = decode(payload, State)
             except ProtocolError:
                 continue
             if state.mission == self.mission:
                 last = state.last_decision.epoch if state.last_decision is not None else 0
-                self.known_epoch = max(self.known_epoch, state.epoch, last)
+                self.known = max(self.known, state.epoch, last)

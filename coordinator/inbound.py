@@ -7,8 +7,6 @@ a message it cannot read is rejected (and a Hello it cannot read is answered).
 """
 from __future__ import annotations
 
-import time
-
 from mission import events as ev
 from mission import state as ms
 from wire import keys
@@ -50,10 +48,10 @@ class Inbound:
         """Wait up to ``timeout_s`` seconds for inbox items, then handle every queued one, their
         writes to mission.db committed together (storage.missiondb, :meth:`MissionStore.batch`).
         With Poses set aside and an empty inbox, record them instead of waiting, until an item
-        arrives (:meth:`coordinator.recorder.RecorderHooks._record_poses`)."""
-        item = self.node.next(0.0 if self.poses else max(0.0, timeout_s))
+        arrives (:meth:`coordinator.recorder.Recording.record_poses`)."""
+        item = self.node.next(0.0 if self.recording.poses else max(0.0, timeout_s))
         if item is None:
-            self._record_poses(busy=self.node.pending)
+            self.recording.record_poses(busy=self.node.pending)
             return
         if self.store is None:
             self._drain(item)
@@ -89,11 +87,11 @@ class Inbound:
             self.apply(ev.LivelinessChanged(parsed[0], item.kind == "alive", item.wall))
             return
         if item.key == keys.decision_key(self.mission):
-            self._heard_decision(item)
+            self.epochs.decision_heard(item.payload)
             return
         parsed = keys.parse_carrier_key(self.mission, item.key)
         if parsed is not None and parsed[1] == "pose":
-            self._pose(parsed[0], item)
+            self.recording.pose(parsed[0], item)
             return
         if parsed is None or parsed[1] not in TOPIC_TYPES:
             raise ProtocolError("bad-key", f"message on {item.key[:80]}")
@@ -105,9 +103,12 @@ class Inbound:
             raise ProtocolError("wrong-mission", f"mission {msg.mission!r} on {self.mission!r}")
         if msg.carrier != cid:
             raise ProtocolError("key-mismatch", f"carrier {msg.carrier!r} on the key of {cid!r}")
-        self.heard[cid] = time.monotonic()
+        self.heard[cid] = item.received  # heard when it arrived [P-10.5]
         if isinstance(msg, Progress):
             return
-        if isinstance(msg, Hello) and msg.epoch > self.epoch and msg.fingerprint == self.fingerprint:
-            self._carrier_epoch(cid, msg.epoch)
+        if isinstance(msg, Hello) and msg.epoch > self.epochs.epoch and msg.fingerprint == self.fingerprint:
+            if self.epochs.carrier_heard(cid, msg.epoch, self.state.next_stage, self.store):
+                self._refresh_state()  # State and the last Decision again, in the new epoch [P-7.5]
+                if self.state.next_stage > 0:
+                    self._publish_decision(self._decision(self.state.next_stage - 1))
         self.apply(to_event(msg, item.wall))

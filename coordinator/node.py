@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import Counter, deque
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -46,8 +46,8 @@ from planner.online import stage_step
 from coordinator.clock import StageClock
 from coordinator.epochs import Epochs
 from coordinator.inbound import Inbound
-from coordinator.recorder import RecorderHooks
-from coordinator.results import CoordinatorResults
+from coordinator.recorder import Recording, start as start_recording
+from coordinator.results import results_for
 from storage.missiondb import MissionStore
 from mission import events as ev
 from mission import state as ms
@@ -112,15 +112,15 @@ class CoordinatorConfig:
     standby: bool = False
 
 
-class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults):
+class Coordinator(Inbound, StageClock):
     """One coordinator process: the Zenoh node, the store, the stage clock, and the mission state
     (``self.state``, a :class:`mission.state.MissionState` changed only by :meth:`apply`).
 
-    Its jobs live in modules of their own: what it receives (:class:`coordinator.inbound.Inbound`),
-    its waits and stage loop (:class:`coordinator.clock.StageClock`), split brain
-    (:class:`coordinator.epochs.Epochs`), the recorder (:class:`coordinator.recorder.RecorderHooks`)
-    and its results (:class:`coordinator.results.CoordinatorResults`); this class keeps the state,
-    the answers (State, Accepted, Refusal), the planner call and the run's phases.
+    Its jobs live in modules of their own: what it receives (:class:`coordinator.inbound.Inbound`)
+    and its waits and stage loop (:class:`coordinator.clock.StageClock`); this class keeps the
+    state, the answers (State, Accepted, Refusal), the planner call and the run's phases. Its
+    collaborators: split brain (:class:`coordinator.epochs.Epochs`), the recorder
+    (:class:`coordinator.recorder.Recording`), the results (:class:`coordinator.results.Results`).
 
     Args:
         scenario: the loaded scenario (its seed is replaced by ``config.seed`` when given).
@@ -158,23 +158,18 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         self._stop = stop if stop is not None else threading.Event()
         self.node: Node | None = None
         self.store: MissionStore | None = None
-        self.recorder = None  # recording.live.LiveRecorder while mission.mcap is written
-        self.poses: deque = deque()  # Poses waiting for an idle moment (coordinator.recorder)
-        # Split brain (docs/fleet.md): this process's epoch (set when it opens mission.db), the
-        # highest epoch a live primary reported while this one stood by, and the epoch of a
-        # newer coordinator that deposed this one (None while not deposed).
-        self.epoch = 1
-        self.known_epoch = 0
-        self._first_stage = 0  # the first stage this process decides (a newer epoch is taken before it)
-        self.deposed_by: int | None = None
+        self.recording = Recording(self.mission, self.spec.has, self.log)  # mission.mcap, the ROS 2 topics
         # What State tells each carrier of what this process refused or rejected of it
         # (docs/protocol.md, "Rejections"): counts per reason, and its last Hello's refusal.
         self.told: dict[str, Counter] = {cid: Counter() for cid in self.ids}
         self.refusals: dict[str, str] = {}
         if config.clock not in CLOCKS:
             raise ValueError(f"clock must be one of {CLOCKS}, found {config.clock!r}")
-        # When something last arrived from each carrier (monotonic s): what tells a slow carrier
-        # (it sends Progress) from a stuck one on the sim clock. Not a mission event: not stored.
+        self.clock = time.monotonic  # what its waits read (mission.timers decides); the inbox's clock
+        self.epochs = Epochs(self.mission, self.log, self._stop, self.clock)  # split brain (docs/fleet.md)
+        self.results = results_for(scenario, self.scenario_path, self.mission, self.planner_name, self.planner_options,
+                                   self.seed, (config.render, self.log, self.epochs, self.recording))
+        # When each carrier was last heard (self.clock's s): a slow one (Progress) or a stuck one, sim clock.
         self.heard: dict[str, float] = {}
 
     # ------------------------------------------------------------------ views of the state
@@ -204,7 +199,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
     def _decision(self, j: int, st: ms.MissionState | None = None) -> Decision:
         """The Decision of stage j as published: from ``st`` (the current state by default)."""
         d = (self.state if st is None else st).decisions[j]
-        return Decision(self.mission, j, self.spec.stage_times[j], d.deploy, d.planning_ms, self.epoch,
+        return Decision(self.mission, j, self.spec.stage_times[j], d.deploy, d.planning_ms, self.epochs.epoch,
                         passengers=d.passengers)
 
     def _refresh_state(self) -> None:
@@ -228,7 +223,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         last = self._decision(st.next_stage - 1, st) if (st.next_stage - 1) in st.decisions else None
         return encode(State(
             mission=self.mission, next_stage=st.next_stage, stages=self.n_stages, fingerprint=self.fingerprint,
-            ended=st.ended, carriers=carriers, last_decision=last, epoch=self.epoch, revision=REVISION), asked)
+            ended=st.ended, carriers=carriers, last_decision=last, epoch=self.epochs.epoch, revision=REVISION), asked)
 
     def _carrier_state(self, st, cid: str) -> CarrierState:
         """One carrier's entry: its deployments as the planner sees them (its accounts, its
@@ -247,7 +242,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         self.state, effects = ms.step(self.state, event)
         for effect in effects:
             if isinstance(effect, ms.Record):  # the recorder gets it once mission.db has it
-                self.store.record(effect, self.state, None if self.recorder is None else self.recorder.event)
+                self.store.record(effect, self.state, self.recording.event)
             elif isinstance(effect, ms.Reject):
                 self._reject(effect.reason, effect.detail, getattr(event, "carrier", None))
             elif isinstance(effect, ms.Refuse):
@@ -286,7 +281,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         self.refusals.pop(cid, None)
         # The mission's clock (revision 4): a carrier times its waits by the coordinator's.
         answer = Accepted(self.mission, cid, self.fingerprint, self.state.accepted[cid].next_stage,
-                          self.state.next_stage, REVISION, self.epoch, self.config.clock,
+                          self.state.next_stage, REVISION, self.epochs.epoch, self.config.clock,
                           min(float(self.config.silence_timeout_s), ACCEPTED_MAX),
                           min(float(self.config.realtime), ACCEPTED_MAX))
         if defined_in(answer, revision):
@@ -320,7 +315,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         if not self._open_session():  # a standby stopped while the primary lived: nothing of ours to record
             self.log(f"coordinator: standby for mission {self.mission} stopped; it never took over")
             return {"ended": False, "standby": True}
-        started = time.monotonic()  # the mission's wall time: a standby's wait is not part of it
+        started = self.clock()  # the mission's wall time: a standby's wait is not part of it
         out.mkdir(parents=True, exist_ok=True)
         self._open_mission(out)
         try:
@@ -330,12 +325,12 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
                 raise
             self.apply(ev.Ended("stopped", time.time()))
         finally:
-            summary = self._results(out, time.monotonic() - started)
+            summary = self.results.finish(out, self.clock() - started, self.state, self.problem, self.node, self.store)
         return summary
 
     def _open_session(self) -> bool:
         """The Zenoh session (None when stopped before it opened) and the claim on the mission
-        (:meth:`coordinator.epochs.Epochs._claim`); False: a standby stopped, session closed."""
+        (:meth:`coordinator.epochs.Epochs.claim`); False: a standby stopped, session closed."""
         from wire.zconfig import OpenStopped
 
         if not self._stop.is_set():
@@ -346,7 +341,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         if self.node is None:
             return True
         try:
-            claimed = self._claim()
+            claimed = self.epochs.claim(self.node, self.config.standby)
         except BaseException:
             self.node.close(DEFAULTS.close_s)
             self.node = None
@@ -363,20 +358,21 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         # Higher than every epoch used before for this mission: the ones in mission.db and the
         # one a primary reported while this process stood by; 1 for a fresh mission.
         try:
-            self.store = self._open_store(out / "mission.db", meta)
+            self.store = self.epochs.open_store(out / "mission.db", meta)
         except BaseException:
             if self.node is not None:
                 self.node.close(DEFAULTS.close_s)
             raise
-        self.epoch = self.store.epoch
-        self._open_recorder(out)
+        start_recording(self.recording, self.config, self.node, out, self.scenario, self.problem,
+                        {k: meta[k] for k in ("mission", "scenario", "seed", "planner", "fingerprint")},
+                        self.store.mission_events)
 
     def _mission(self) -> None:
         """Recover the state, then serve the mission to its end (or record that it was stopped
         before the session opened: nothing to tell anyone, but on record)."""
         # Recovery is the live fold over the stored events (the last one is this process's open).
         self.state = ms.fold(self.spec, self.store.mission_events())
-        self._first_stage = self.state.next_stage
+        self.epochs.first_stage = self.state.next_stage
         if self.state.resumed:
             self.log(f"coordinator: resumed from {self.store.path}: {len(self.state.decisions)} stage(s) "
                      f"decided, continuing at stage {self.state.next_stage}")
@@ -399,7 +395,7 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         self._stages()
         if not self._stop.is_set():
             self._wait_confirms(self.n_stages - 1)
-        if self.deposed_by is None:  # deposed: the newer coordinator ends the mission
+        if self.epochs.deposed_by is None:  # deposed: the newer coordinator ends the mission
             self._end("stopped" if self._stop.is_set() else "complete")
 
     def _serve(self) -> None:
@@ -410,6 +406,6 @@ class Coordinator(Inbound, StageClock, Epochs, RecorderHooks, CoordinatorResults
         self.node.serve(keys.state_key(self.mission), self.state_reply)
         self.node.token(keys.coordinator_alive(self.mission))
         self.log(f"coordinator: mission {self.mission}, {len(self.ids)} carriers, {self.n_stages} stages, "
-                 f"planner {self.planner_name} {self.planner_options}, seed {self.seed}, epoch {self.epoch}, "
+                 f"planner {self.planner_name} {self.planner_options}, seed {self.seed}, epoch {self.epochs.epoch}, "
                  f"{self.config.clock} clock")
 

@@ -1,11 +1,11 @@
-"""The coordinator's recorder hooks: mission.mcap (or the ROS 2 bag) and the ROS 2 topics
-written as the mission runs (recording/live.py, imported only when recording), fed every
-recorded event after mission.db has it and the carriers' Poses.
-
-:class:`RecorderHooks` is a part of :class:`coordinator.node.Coordinator`.
+"""The coordinator's recorder: mission.mcap (or the ROS 2 bag) and the ROS 2 topics written as
+the mission runs (recording/live.py, imported only when recording), fed every recorded event
+after mission.db has it and the carriers' Poses. :class:`Recording` is a collaborator of
+:class:`coordinator.node.Coordinator`, given what it needs.
 """
 from __future__ import annotations
 
+from collections import deque
 from pathlib import Path
 
 from wire.messages import Pose, ProtocolError, decode
@@ -15,24 +15,41 @@ from wire.messages import Pose, ProtocolError, decode
 POSES_HELD = 1 << 15
 
 
-class RecorderHooks:
-    """Start, feed and finalise the coordinator's recorder (``self.recorder``).
+class Recording:
+    """The coordinator's recorder: started by :meth:`open` (or never: not recording), fed every
+    recorded event (:attr:`event`) and the carriers' Poses, finalised by :meth:`close`.
 
-    Poses wait in ``self.poses`` (a deque of (carrier, inbox item)) until the coordinator has
+    Poses wait in :attr:`poses` (a deque of (carrier, inbox item)) until the coordinator has
     nothing else to do: a carrier sends a stage's Poses in a burst just before its Observation,
     so recorded in arrival order they would stand ahead of the stage's Observations in the inbox,
-    between the stage's first Observation and its Decision."""
+    between the stage's first Observation and its Decision.
 
-    def _pose(self, cid: str, item) -> None:
+    Args:
+        mission: the mission id (a Pose of another is dropped).
+        has: whether a carrier id is the scenario's.
+        log: where its failures are logged (a callable taking one line).
+    """
+
+    def __init__(self, mission: str, has, log):
+        self.mission, self._has, self.log = mission, has, log
+        self.recorder = None  # recording.live.LiveRecorder while mission.mcap is written
+        self.poses: deque = deque()
+
+    @property
+    def event(self):
+        """What mission.db hands each recorded event to (None: not recording)."""
+        return None if self.recorder is None else self.recorder.event
+
+    def pose(self, cid: str, item) -> None:
         """A carrier's Pose: not a mission event and never a rejection (docs/protocol.md, "Pose");
-        set aside for the recorder (:meth:`_record_poses`); past :data:`POSES_HELD` waiting, the
+        set aside for the recorder (:meth:`record_poses`); past :data:`POSES_HELD` waiting, the
         oldest is recorded now (a coordinator that is never idle holds a bounded backlog)."""
-        if self.recorder is not None and self.spec.has(cid):
+        if self.recorder is not None and self._has(cid):
             if len(self.poses) >= POSES_HELD:
                 self._record_pose(*self.poses.popleft())
             self.poses.append((cid, item))
 
-    def _record_poses(self, busy=lambda: False) -> None:
+    def record_poses(self, busy=lambda: False) -> None:
         """Record the Poses set aside, oldest first, until none is left or ``busy()``."""
         while self.poses and not busy():
             self._record_pose(*self.poses.popleft())
@@ -48,31 +65,36 @@ class RecorderHooks:
         if msg.mission == self.mission and msg.carrier == cid:
             self.recorder.message(msg)
 
-    def _open_recorder(self, out: Path) -> None:
-        """Start mission.mcap (recording/live.py), replaying the events already in mission.db
-        (a resumed mission's past; a fresh mission's ``open``)."""
-        ros2 = self.config.ros2 if self.node is not None else None
-        if not self.config.record and ros2 is None:
-            return
+    def open(self, out: Path, scenario, problem, metadata: dict, profile: str | None, sinks, past) -> None:
+        """Start mission.mcap (recording/live.py) in ``profile`` (None: no file, only ``sinks``,
+        the ROS 2 topics), replaying ``past`` (the events already in mission.db: a resumed
+        mission's past; a fresh mission's ``open``)."""
         try:
             from recording.live import LiveRecorder
 
-            self.recorder = LiveRecorder(out, self.scenario, self.problem, metadata={
-                "mission": self.mission, "scenario": self.scenario.name, "seed": self.seed,
-                "planner": self.planner_name, "fingerprint": self.fingerprint}, log=self.log,
-                profile=self.config.record_profile if self.config.record else None,
-                sinks=() if ros2 is None else (ros2.coordinator_sink(self.node.session, self.problem, self.log),))
-            for event in self.store.mission_events():
+            self.recorder = LiveRecorder(out, scenario, problem, metadata=metadata, log=self.log, profile=profile,
+                                         sinks=sinks())
+            for event in past():
                 self.recorder.event(event)
         except Exception as exc:
             self.log(f"coordinator: mission.mcap not recorded: {type(exc).__name__}: {exc}")
             self.recorder = None
 
-    def _close_recorder(self) -> None:
-        self._record_poses()
+    def close(self) -> None:
+        self.record_poses()
         if self.recorder is not None:
             try:
                 self.recorder.close()
             except Exception as exc:
                 self.log(f"coordinator: mission.mcap not finalised: {type(exc).__name__}: {exc}")
             self.recorder = None
+
+
+def start(recording: Recording, config, node, out: Path, scenario, problem, metadata: dict, past) -> None:
+    """Start ``recording`` as the coordinator's ``config`` asks (``record``, ``record_profile``,
+    ``ros2``: its topics only with a session, ``node``); nothing when it asks for neither."""
+    ros2 = config.ros2 if node is not None else None
+    if not config.record and ros2 is None:
+        return
+    recording.open(out, scenario, problem, metadata, config.record_profile if config.record else None,
+                   lambda: () if ros2 is None else (ros2.coordinator_sink(node.session, problem, recording.log),), past)

@@ -3,6 +3,7 @@ and by the report (coordinator/report.py): summary.json (atomically) and map.png
 state. One home, so the two never draw or write differently."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import socket
@@ -56,45 +57,66 @@ def render_map(scenario, state, path, title: str, trails: dict | None = None) ->
                      deployment_labels=labels)
 
 
-class CoordinatorResults:
-    """The coordinator's results at the end of its run (summary.json, map.png). A part of
-    :class:`coordinator.node.Coordinator`."""
+class Results:
+    """The coordinator's results at the end of its run (summary.json, map.png): a collaborator of
+    :class:`coordinator.node.Coordinator` given the run's own facts at the start (``info``, a
+    :class:`mission.summary.RunInfo` without its wall time and rejections) and what it writes
+    from at the end.
 
-    def _results(self, out: Path, wall_s: float) -> dict:
+    Args:
+        scenario: the scenario (map.png, the title); render: draw map.png; log: a callable taking
+        one line; epochs: the coordinator's :class:`coordinator.epochs.Epochs` (its epoch, whether
+        it was deposed); recording: its :class:`coordinator.recorder.Recording`.
+    """
+
+    def __init__(self, scenario, info: RunInfo, render: bool, log, epochs, recording):
+        self.scenario, self.info, self.render, self.log = scenario, info, render, log
+        self.epochs, self.recording = epochs, recording
+
+    def finish(self, out: Path, wall_s: float, state, problem, node, store) -> dict:
         """summary.json twice: at once without the clairvoyant bound, then with it, each write
         atomic, so a coordinator killed while the bound is computed (its launcher's grace after
-        Ctrl-C is a few seconds) still leaves a complete summary.json, and mission.mcap is
-        finalised in between; map.png; then the session and the store are closed. A deposed
-        coordinator writes no summary.json or map.png: the results are the newer coordinator's
-        (which may share this --out directory)."""
-        deposed = self.deposed_by is not None
+        Ctrl-C is a few seconds) still leaves a complete summary.json, and mission.mcap
+        (``recording``) is finalised in between; map.png; then the session (``node``) and the
+        store are closed. A deposed coordinator writes no summary.json or map.png: the results
+        are the newer coordinator's (which may share this --out directory)."""
+        epochs = self.epochs
+        deposed = epochs.deposed_by is not None
+        rejected = dict(node.rejected) if node else {}
         if not deposed:
-            write_json(out / "summary.json", self.summary(wall_s, bound=False))
-        self._close_recorder()
-        summary = self.summary(wall_s, bound=not deposed)
+            write_json(out / "summary.json", self.summary(state, problem, epochs, rejected, wall_s, bound=False))
+        self.recording.close()
+        summary = self.summary(state, problem, epochs, rejected, wall_s, bound=not deposed)
         if not deposed:
             write_json(out / "summary.json", summary)
-        if self.node is not None:
-            self.node.close(DEFAULTS.close_s)
-        if self.config.render and not deposed:
-            self._render(out / "map.png")
-        self.store.close()
+        if node is not None:
+            node.close(DEFAULTS.close_s)
+        if self.render and not deposed:
+            self._render(state, out / "map.png")
+        store.close()
         return summary
 
-    def summary(self, wall_s: float, bound: bool = True) -> dict:
-        out = mission_summary(self.state, self.problem, RunInfo(
-            scenario=self.scenario.name, scenario_file=str(self.scenario_path), mission=self.mission,
-            planner=self.planner_name, planner_options=self.planner_options, seed=self.seed,
-            pid=os.getpid(), host=socket.gethostname(), wall_time_s=wall_s,
-            rejected=dict(self.node.rejected) if self.node else {},
-            passenger_types=tuple(c.passenger_types for c in self.scenario.carriers)), bound=bound)
-        out["epoch"] = self.epoch  # of the coordinator that wrote this summary (docs/fleet.md)
-        if self.deposed_by is not None:
-            out["deposed_by"] = self.deposed_by
+    def summary(self, state, problem, epochs, rejected: dict, wall_s: float, bound: bool = True) -> dict:
+        out = mission_summary(state, problem, dataclasses.replace(self.info, wall_time_s=wall_s, rejected=rejected),
+                              bound=bound)
+        out["epoch"] = epochs.epoch  # of the coordinator that wrote this summary (docs/fleet.md)
+        if epochs.deposed_by is not None:
+            out["deposed_by"] = epochs.deposed_by
         return out
 
-    def _render(self, path: Path) -> None:
+    def _render(self, state, path: Path) -> None:
         try:
-            render_map(self.scenario, self.state, path, title=f"{self.scenario.name}: {self.planner_name}, seed {self.seed}")
+            render_map(self.scenario, state, path,
+                       title=f"{self.scenario.name}: {self.info.planner}, seed {self.info.seed}")
         except Exception as exc:
             self.log(f"coordinator: map.png not drawn: {type(exc).__name__}: {exc}")
+
+
+def results_for(scenario, scenario_path: str, mission: str, planner: str, planner_options: dict, seed: int,
+                given: tuple) -> Results:
+    """The coordinator's :class:`Results`, with this process's facts (pid, host); ``given``: the
+    rest of :class:`Results`'s arguments (render, log, epochs, recording)."""
+    return Results(scenario, RunInfo(
+        scenario=scenario.name, scenario_file=str(scenario_path), mission=mission, planner=planner,
+        planner_options=planner_options, seed=seed, pid=os.getpid(), host=socket.gethostname(),
+        passenger_types=tuple(c.passenger_types for c in scenario.carriers)), *given)

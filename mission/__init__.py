@@ -11,7 +11,8 @@
   the same fold;
 * :mod:`mission.carrier` — the carrier's side: which stage it is at, decisions handled at most
   once with their first answer, late / idle / already, resynchronisation from State;
-* :mod:`mission.timeouts` — every timeout default.
+* :mod:`mission.timeouts` — every timeout default;
+* :mod:`mission.timers` — every timer rule, a pure function of what is known and the time.
 
 Nothing here imports zenoh, msgpack, sqlite3 or pymunk, and nothing does I/O or reads a clock:
 the processes (coordinator/node.py, carriers/node.py) move bytes, keep time and persist.

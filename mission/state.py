@@ -258,6 +258,11 @@ class MissionState:
     ended: bool = False
     end_reason: str | None = None
     counts: PairMap = field(default_factory=PairMap)
+    # Who is still waited for, remembered (the fields are never changed in place, so the same
+    # objects give the same answer): :class:`_Expected` is handed from a state to the states made
+    # from it (``dataclasses.replace`` passes it on); ``_waited`` is this state's own.
+    _expected: "_Expected" = field(default_factory=lambda: _Expected(), compare=False, repr=False)
+    _waited: dict = field(default_factory=dict, init=False, compare=False, repr=False)
 
     # ------------------------------------------------------------------ the stage clock's predicates
     @property
@@ -276,8 +281,8 @@ class MissionState:
     def expected(self, j: int) -> frozenset:
         """Carriers the coordinator waits for at stage j: live, Hello accepted, scheduled at j,
         not past it. Counted again (O(R)) only when what it reads is new: every Observation and
-        Confirm makes a new state, but leaves these fields as they were (see :func:`_expected`)."""
-        return _expected(self.spec, j, self.live, self.accepted, self.accounts)
+        Confirm makes a new state, but leaves these fields as they were (:class:`_Expected`)."""
+        return self._expected.of(self, j)
 
     def waiting(self, j: int) -> frozenset:
         """Expected carriers whose Observation of j has not arrived."""
@@ -301,6 +306,25 @@ class MissionState:
     def bye_missing(self) -> bool:
         """Some carrier with an accepted Hello has not said Bye (live or not)."""
         return not set(self.accepted) <= self.byes
+
+    def waited_for(self, j: int) -> tuple[frozenset, frozenset]:
+        """Who the wait for stage j's Observations is still for, as (those that send Progress,
+        those of a revision before it: :meth:`without_progress`): the input of
+        :func:`mission.timers.stage_wait`. Remembered in this state: a wait asks after every
+        inbox drain, and most drains apply no event (Progress, Poses)."""
+        return self._remember(("stage", j), self.waiting)
+
+    def confirms_awaited(self, j: int) -> tuple[frozenset, frozenset]:
+        """:meth:`waited_for` of the wait for stage j's Confirms (:meth:`unconfirmed`)."""
+        return self._remember(("confirm", j), self.unconfirmed)
+
+    def _remember(self, key, who) -> tuple[frozenset, frozenset]:
+        value = self._waited.get(key)
+        if value is None:
+            cids = who(key[1])
+            mute = self.without_progress(cids)
+            value = self._waited[key] = (frozenset(cids).difference(mute), mute)
+        return value
 
     def without_progress(self, cids) -> frozenset:
         """Those of ``cids`` whose accepted Hello announced a revision before Progress
@@ -522,25 +546,29 @@ def _passed(accepted: dict, accounts: dict, cid: str, j: int) -> bool:
     return (cid, j) in accounts or (info is not None and info.next_stage > j)
 
 
-#: The last :func:`_expected` count: (its inputs, its value), replaced in one assignment.
-_expected_memo: tuple = ()
+class _Expected:
+    """:meth:`MissionState.expected`'s last count, with the objects it read (compared by
+    identity: a state's fields are never changed in place, so the same objects give the same
+    count). One per lineage of states (a coordinator's, a report's fold), handed on by
+    :func:`step`: a wait asks after every event that makes a new state, and counting anew each
+    time would be O(R) per Observation and Confirm, O(R²) per stage."""
 
+    __slots__ = ("_last",)
 
-def _expected(spec: MissionSpec, j: int, live: frozenset, accepted: dict, accounts: dict) -> frozenset:
-    """:meth:`MissionState.expected`, remembered for its last inputs, compared by identity: a
-    state's fields are never changed in place (a change is a new object), so the same objects
-    give the same count. A wait asks after every event that makes a new state; counting anew
-    each time would be O(R) per Observation and Confirm, O(R²) per stage."""
-    global _expected_memo
-    memo = _expected_memo
-    if (memo and memo[0] is spec and memo[1] == j and memo[2] is live and memo[3] is accepted
-            and memo[4] is accounts):
-        return memo[5]
-    value = frozenset(cid for r, cid in enumerate(spec.carriers)
-                      if spec.valid[r][j] and cid in live and cid in accepted
-                      and not _passed(accepted, accounts, cid, j))
-    _expected_memo = (spec, j, live, accepted, accounts, value)
-    return value
+    def __init__(self):
+        self._last: tuple = ()
+
+    def of(self, state: "MissionState", j: int) -> frozenset:
+        spec, live, accepted, accounts = state.spec, state.live, state.accepted, state.accounts
+        last = self._last
+        if (last and last[0] is spec and last[1] == j and last[2] is live and last[3] is accepted
+                and last[4] is accounts):
+            return last[5]
+        value = frozenset(cid for r, cid in enumerate(spec.carriers)
+                          if spec.valid[r][j] and cid in live and cid in accepted
+                          and not _passed(accepted, accounts, cid, j))
+        self._last = (spec, j, live, accepted, accounts, value)  # replaced in one assignment
+        return value
 
 
 def _unknown(state, cid):

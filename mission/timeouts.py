@@ -31,6 +31,10 @@ def pose_interval(stage_interval_s: float, realtime: float) -> float:
         return POSE_INTERVAL_S
     return float(math.ceil(stage_interval_s / POSES_PER_STAGE))
 
+#: A State query that got no reply is asked again this long after (s; docs/protocol.md, [P-5.2]);
+#: opening a Zenoh session is retried as often.
+STATE_RETRY_S = 0.2
+
 #: The mission clocks: ``sim`` (a simulated mission: slow work is waited for) and ``wall`` (a
 #: real-time mission: wall-clock deadlines).
 CLOCKS = ("sim", "wall")

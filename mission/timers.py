@@ -66,6 +66,11 @@ class TakeOver:
     """A standby coordinator: the primary is gone; open the mission with a new epoch."""
 
 
+@dataclass(frozen=True)
+class Attempt:
+    """Try (again) now: open the session, or query State ([P-5.2])."""
+
+
 # --------------------------------------------------------------------------- silence
 
 def silent(heard, among, opened: float, now: float, silence_s: float) -> bool:
@@ -127,6 +132,12 @@ def bye_wait(all_live_said_bye: bool, bye_missing: bool, ended_at: float, grace_
     return Wait(ended_at + bye_s)
 
 
+def end_due(last: float | None, ended_at: float, now: float, repeat_s: float, bye_s: float) -> bool:
+    """End goes out again ([P-9.1]): first at once, then every ``repeat_s`` while the Bye wait
+    opened at ``ended_at`` lasts (``bye_s``)."""
+    return last is None or (now - ended_at < bye_s and due(last, now, repeat_s))
+
+
 def standby(primary_present: bool, lost_at: float | None, now: float, poll_s: float) -> Wait | TakeOver:
     """A standby coordinator: take over once the primary's token has been gone at one look
     (``lost_at``: when its loss was noticed); looks again every ``poll_s``."""
@@ -145,7 +156,7 @@ def decision_wait(clock: str, mode: str, present: bool, waited_s: float, absent_
         clock: ``sim`` or ``wall``; mode: ``coordinated``, ``hybrid`` or ``decentralised``.
         present: the coordinator's token is present.
         waited_s: how long it waited while the coordinator was present, since it opened the wait
-            or last asked State.
+            (sim clock: or last asked State): :class:`DecisionWait`.
         absent_s: how long the coordinator has been absent (0 while present).
 
     Returns :class:`DecideAlone` (decentralised; hybrid without a coordinator; wall clock, none
@@ -165,6 +176,90 @@ def decision_wait(clock: str, mode: str, present: bool, waited_s: float, absent_
     if absent_s >= coordinator_s:
         return GiveUp("coordinator-lost")
     return Wait()
+
+
+@dataclass(frozen=True)
+class DecisionWait:
+    """What a carrier's wait for a Decision has counted ([P-10.8]): ``waited_s``, the time the
+    coordinator's token was present since the wait opened or State was last asked, up to
+    ``last`` (when it last looked). An interval counts as present when the token is present at
+    its end (the carrier notes a vanished token as it happens: the interval it was present in
+    ends then). Wall clock: the sum runs across absences; sim clock: it starts again at each
+    State query (:meth:`asked`)."""
+
+    waited_s: float
+    last: float
+
+    @classmethod
+    def opened(cls, now: float) -> "DecisionWait":
+        return cls(0.0, now)
+
+    def tick(self, now: float, present: bool) -> "DecisionWait":
+        return DecisionWait(self.waited_s + (now - self.last if present else 0.0), now)
+
+    def asked(self) -> "DecisionWait":
+        return DecisionWait(0.0, self.last)
+
+
+def peer_wait(clock: str, waiting, heard, opened: float, now: float, peer_s: float,
+              silence_s: float) -> Wait | GoOn:
+    """A carrier deciding stage j alone waits for the Observations of j of its live peers
+    (``waiting``: those not heard yet) from ``opened`` ([P-8.4]): wall clock, at most ``peer_s``;
+    sim clock, while any of them is heard from (until the silence timeout passed since the wait
+    opened and since the last message of any of them). The coordinator's stage wait with every
+    peer sending Progress."""
+    return stage_wait(clock, waiting, (), heard, opened, now, peer_s, silence_s)
+
+
+def end_wait(ended: bool, present: bool, opened: float, now: float, end_s: float) -> Wait | GoOn:
+    """A carrier past its last stage waits for End ([P-9.5]): at most ``end_s`` from ``opened``
+    when the coordinator's token was present then (``present``), not at all when it was absent."""
+    if ended or not present or now - opened >= end_s:
+        return GoOn()
+    return Wait(opened + end_s)
+
+
+def retry(first: float, failed: float | None, now: float, timeout_s: float,
+          retry_s: float) -> Attempt | Wait | GiveUp:
+    """Something tried until it works, at most ``timeout_s`` from the first try at ``first``:
+    again ``retry_s`` after the last failure (``failed``; None: not tried yet), then
+    :class:`GiveUp` (``timeout``). Opening a session, querying State ([P-5.2])."""
+    if now - first >= timeout_s:
+        return GiveUp("timeout")
+    if failed is None or now - failed >= retry_s:
+        return Attempt()
+    return Wait(min(failed + retry_s, first + timeout_s))
+
+
+def state_query(mode: str, first: float, failed: float | None, now: float, coordinator_s: float,
+                retry_s: float) -> AskState | Wait | DecideAlone | GiveUp:
+    """A joining carrier's State query ([P-5.2], [P-5.5] 4): asked again ``retry_s`` after one got
+    no reply, until the coordinator timeout passed since the first; then a hybrid carrier goes
+    on from its own log (:class:`DecideAlone`) and a coordinated one exits (``coordinator-lost``)."""
+    rule = retry(first, failed, now, coordinator_s, retry_s)
+    if isinstance(rule, Attempt):
+        return AskState()
+    if isinstance(rule, GiveUp):
+        return DecideAlone() if mode == "hybrid" else GiveUp("coordinator-lost")
+    return rule
+
+
+def pace(since: float, sim_s: float, realtime: float, now: float) -> Wait | GoOn:
+    """A paced mission (``realtime`` F > 0): ``sim_s`` simulated seconds after the wall time
+    ``since`` are due at ``since + sim_s / F`` (a carrier's physics, the coordinator's next stage
+    after its last Decision); unpaced (F <= 0) at once."""
+    if realtime <= 0:
+        return GoOn()
+    until = since + sim_s / realtime
+    return GoOn() if now >= until else Wait(until)
+
+
+def hold(live: bool, opened: float, now: float, join_s: float) -> Wait | GoOn:
+    """The coordinator holds a stage j > 0 while no carrier is live ([P-6.5]): until one is, at
+    most ``join_s`` from ``opened``."""
+    if live or now - opened >= join_s:
+        return GoOn()
+    return Wait(opened + join_s)
 
 
 def due(last: float | None, now: float, interval_s: float) -> bool:

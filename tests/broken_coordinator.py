@@ -40,7 +40,7 @@ def ignore_takeover() -> None:
     """[P-7] a newer epoch's Decision on its key is ignored: it goes on deciding and ends the mission."""
     from coordinator.epochs import Epochs
 
-    Epochs._heard_decision = lambda self, item: None
+    Epochs.decision_heard = lambda self, payload: None
 
 
 def no_token() -> None:

@@ -275,21 +275,3 @@ def test_generated_scenarios_are_valid_at_every_size_and_length(family, n, stage
 
     scenario = parse_scenario(FAMILIES[family](n, seed=4, stages=stages))
     assert scenario.n_carriers == n and scenario.stages == stages
-
-
-def test_a_wait_computes_its_condition_again_only_for_a_new_state():
-    # coordinator.clock._OfState: a drain that applied no event (Progress, Poses) costs no O(R)
-    # recount of who is still waited for; a new state (an applied event) gets one.
-    from types import SimpleNamespace
-
-    from coordinator.clock import _OfState
-
-    calls = []
-    first, second = ["s", 1], ["s", 2]
-    owner = SimpleNamespace(state=first)
-    condition = _OfState(owner, lambda state: calls.append(state) or len(calls))
-    assert [condition(), condition(), condition()] == [1, 1, 1] and calls == [first]
-    owner.state = second
-    assert condition() == 2 and condition() == 2 and calls == [first, second]
-    owner.state = ["s", 2]  # an equal state that is a new object is a new state
-    assert condition() == 3

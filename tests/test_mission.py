@@ -121,8 +121,27 @@ def test_stage_clock_predicates(events, j, expected, waiting):
     assert state.stage_complete(j) == (not waiting)
 
 
+def test_who_is_waited_for_is_remembered_in_the_state():
+    """One home for who a wait is still for: ``waited_for`` / ``confirms_awaited`` split it by
+    Progress [P-10.4] and are remembered in the state (the same state answers with the same
+    object); ``expected`` is handed on to the states made from it while live, accepted and
+    accounts are the same objects; two coordinators' states (two lineages) keep their own."""
+    loud = ev.Hello("a", 100, "host", 2, 0, "fp", 1.0, ms.PROGRESS_REVISION)
+    quiet = ev.Hello("b", 100, "host", 2, 0, "fp", 1.0, ms.PROGRESS_REVISION - 1)  # sends no Progress
+    state, _ = run([ev.Opened(0.0), live("a"), live("b"), loud, quiet])
+    assert state.waited_for(1) == ({"a"}, {"b"}) and state.waited_for(1) is state.waited_for(1)
+    assert state.confirms_awaited(0) == ({"a"}, {"b"})
+    after, _ = ms.step(state, obs("a", 0, 3))
+    assert after.waited_for(0) == (frozenset(), frozenset()) and state.waited_for(0) == ({"a"}, frozenset())
+    assert after.expected(1) is state.expected(1)
+    other, _ = run(READY)
+    assert other.expected(1) == {"a", "b"} and after.expected(1) is state.expected(1)
+    gone, _ = ms.step(after, live("b", False))
+    assert gone.waited_for(1) == ({"a"}, frozenset()) and gone.expected(1) == {"a"}
+
+
 def test_the_clock_predicates_follow_every_event():
-    """expected(j) is remembered for its inputs (mission.state._expected): after each event of a
+    """expected(j) is remembered for its inputs (mission.state._Expected): after each event of a
     mission with a crash, a rejoin, a Hello from a later stage and an account, every stage's
     expected, waiting and unconfirmed equal a count from scratch, asked of the new state and the
     one before it in turns."""
@@ -142,6 +161,8 @@ def test_the_clock_predicates_follow_every_event():
             previous, (state, _) = state, ms.step(state, e)
             for st in (state, previous, state):
                 assert (st.expected(j), st.waiting(j), st.unconfirmed(j)) == scratch(st, j), (e, j)
+                assert set().union(*st.waited_for(j)) == st.waiting(j)
+                assert set().union(*st.confirms_awaited(j)) == st.unconfirmed(j)
 
 
 def test_missing_carrier_is_empty_and_recorded_with_the_decision():

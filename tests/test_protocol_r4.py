@@ -581,9 +581,9 @@ def test_a_revision_3_carrier_never_receives_revision_4_fields(tmp_path):
             assert item is not None and item.key == keys.accepted_key(M, cid), item
             got[cid].put(item.payload)
         deadline = time.monotonic() + 10
-        while fleet.coordinator.epoch < 6 and time.monotonic() < deadline:
+        while fleet.coordinator.epochs.epoch < 6 and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert fleet.coordinator.epoch == 6
+        assert fleet.coordinator.epochs.epoch == 6
         fleet.coordinator.stop()
         for cid, node in peers.items():
             item = node.next(10.0)

@@ -702,11 +702,18 @@ def test_when_a_carrier_decides_alone():
     clock) the decision timeout passed; on the sim clock, with the token present, it asks State
     instead and goes on waiting; a coordinated carrier exits coordinator-lost after the
     coordinator timeout."""
+    from mission import timers as tm
+
+    rule = tm.decision_wait  # its table: tests/test_timers.py
+    assert rule("sim", "hybrid", True, 30.0, 0.0, 30.0, 30.0) == tm.AskState()
+    assert rule("wall", "hybrid", True, 30.0, 0.0, 30.0, 30.0) == tm.DecideAlone()
+    assert rule("sim", "hybrid", False, 0.0, 0.0, 30.0, 30.0) == tm.DecideAlone()
+    assert rule("sim", "coordinated", False, 0.0, 30.0, 30.0, 30.0) == tm.GiveUp("coordinator-lost")
+    # the carrier's wait is a driver of that rule: it carries out each of its effects
     wait = (ROOT / "carriers" / "node.py").read_text().split("def _wait_decision(")[1].split("def _fly(")[0]
-    sim = re.search(r'waited >= self\.config\.decision_timeout_s and self\.\w+\.clock == "sim"', wait).start()
-    assert wait.index("self._recover_decision(j)") > sim
-    assert wait.index('elif self.config.mode == "hybrid":\n                return') > sim
-    assert 'raise Exit("coordinator-lost")' in wait
+    assert "tm.decision_wait(self.timers.clock, self.config.mode, present, wait.waited_s," in wait
+    assert wait.index("isinstance(rule, tm.AskState)") < wait.index("self._recover_decision(j)")
+    assert "raise Exit(rule.reason)" in wait and "monotonic" not in wait
     c = mc.initial("a", (True,), (0.0,), 1)
     c, _ = mc.step(c, mc.Joined(0))
     c, _ = mc.step(c, mc.Observed(0, 1, (0.0, 0.0)))
@@ -718,9 +725,12 @@ def test_when_a_carrier_decides_alone():
 def test_a_stage_is_held_while_no_carrier_is_live():
     """[P-6.5] the coordinator's stage loop holds a stage j > 0 while no carrier is live (at most
     the join timeout)."""
+    from mission import timers as tm
+
+    assert tm.hold(False, 0.0, 19.0, 20.0) == tm.Wait(20.0) and tm.hold(True, 0.0, 1.0, 20.0) == tm.GoOn()
     loop = (ROOT / "coordinator" / "clock.py").read_text().split("def _stages(")[1]
     assert "if j > 0 and not self.state.live:" in loop
-    assert "self._wait(self.config.join_timeout_s, lambda: bool(self.state.live))" in loop
+    assert "tm.hold(bool(self.state.live), held, now, self.config.join_timeout_s)" in loop
 
 
 def test_decisions_name_sorted_carriers_and_passengers():
@@ -770,13 +780,16 @@ def test_takeover_before_deciding_and_deposition_after():
     and re-publish [P-7.5]; after it decided one: deposed; a coordinator ignores Decisions of its
     own or a lower epoch on its decision key."""
     epochs = (ROOT / "coordinator" / "epochs.py").read_text()
-    body_ = epochs.split("def _carrier_epoch(")[1].split("def _heard_decision")[0]
-    assert "self.state.next_stage > self._first_stage" in body_ and "self._deposed(" in body_
-    assert "self.epoch = epoch + 1" in body_ and "self._publish_decision(" in body_
-    heard = epochs.split("def _heard_decision(")[1].split("def _deposed")[0]
+    body_ = epochs.split("def carrier_heard(")[1].split("def decision_heard")[0]
+    assert "if next_stage > self.first_stage:\n            self.deposed(" in body_
+    assert "self.epoch = epoch + 1" in body_ and "return True" in body_
+    inbound = (ROOT / "coordinator" / "inbound.py").read_text()
+    republish = inbound.split("if self.epochs.carrier_heard(")[1].split("self.apply(")[0]
+    assert "self._publish_decision(self._decision(self.state.next_stage - 1))" in republish
+    heard = epochs.split("def decision_heard(")[1].split("def deposed")[0]
     assert "msg.epoch > self.epoch" in heard and "except ProtocolError:\n            return" in heard
     node = (ROOT / "coordinator" / "node.py").read_text()
-    assert "if self.deposed_by is None:  # deposed: the newer coordinator ends the mission" in node
+    assert "if self.epochs.deposed_by is None:  # deposed: the newer coordinator ends the mission" in node
     assert "self._publish_decision(self._decision(self.state.next_stage - 1))  # idempotent re-publication" in node
 
 
@@ -814,6 +827,7 @@ def test_silence_is_measured_from_the_stage_opening_and_the_last_message():
 
     assert last_heard({"a": 5.0}, {"a"}, 10.0) == 10.0
     assert last_heard({"a": 15.0}, {"a"}, 10.0) == 15.0
+    from mission import timers as tm
     from mission.timers import silent
 
     assert not silent({"a": 15.0}, {"a"}, 10.0, 44.0, 30.0) and silent({"a": 15.0}, {"a"}, 10.0, 45.0, 30.0)
@@ -821,8 +835,9 @@ def test_silence_is_measured_from_the_stage_opening_and_the_last_message():
     # the rule's one home, and the coordinator's stage clock reading it
     timers = (ROOT / "mission" / "timers.py").read_text()
     assert "now - opened >= silence_s and now - last_heard(heard, among, opened) >= silence_s" in timers
-    clock = (ROOT / "coordinator" / "clock.py").read_text()
-    assert "silent(self.heard, waiting, opened, time.monotonic(), self.config.silence_timeout_s)" in clock
+    assert tm.stage_wait("sim", {"a"}, (), {"a": 15.0}, 10.0, 44.0, 5.0, 30.0) == tm.Wait(45.0)
+    clock = (ROOT / "coordinator" / "clock.py").read_text().split("def _wait_stage(")[1].split("def _wait_confirms(")[0]
+    assert "tm.stage_wait(clock, *self.state.waited_for(j), self.heard, opened, now," in clock
 
 
 def test_the_clocks():
@@ -844,7 +859,7 @@ def test_what_keeps_a_carrier_heard():
     confirm, own, bye or progress key that passes the key, codec and envelope checks, before the
     mission's checks; a carrier deciding alone does the same for its peers' messages."""
     inbound = (ROOT / "coordinator" / "inbound.py").read_text().split("def _handle(")[1]
-    assert inbound.index("key-mismatch") < inbound.index("self.heard[cid] = time.monotonic()") < inbound.index(
+    assert inbound.index("key-mismatch") < inbound.index("self.heard[cid] = item.received") < inbound.index(
         "self.apply(to_event(msg")
     peers = (ROOT / "carriers" / "inbound.py").read_text().split("def _peer(")[1]
     assert peers.index("key-mismatch") < peers.index("self.presence.heard_from(cid")
@@ -967,7 +982,7 @@ def test_end_is_broadcast_with_its_epoch_in_the_lowest_revision():
     assert "epoch" not in msgpack.unpackb(wm.encode(end, 3))
     clock = (ROOT / "coordinator" / "clock.py").read_text().split("def _end(")[1]
     assert "self.node.put(keys.end_key(self.mission), end, self.state.common_revision(REVISION))" in clock
-    assert "DEFAULTS.end_repeat_s" in clock and "self.deposed_by is None" in (
+    assert "DEFAULTS.end_repeat_s" in clock and "self.epochs.deposed_by is None" in (
         ROOT / "coordinator" / "node.py").read_text()
 
 

@@ -262,9 +262,9 @@ def test_a_coordinator_on_a_fresh_out_takes_a_higher_epoch_than_its_carriers_hea
             time.sleep(0.05)
         other.put("marsupial/tiny/carrier/a/hello",
                   Hello("tiny", "a", 1, "elsewhere", 2, 0, coordinator.fingerprint, epoch=4))
-        while coordinator.epoch != 5 and time.monotonic() < deadline:
+        while coordinator.epochs.epoch != 5 and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert coordinator.epoch == 5
+        assert coordinator.epochs.epoch == 5
         for cid in tiny.carrier_ids:
             fleet.start_carrier(cid)
         summary = fleet.join()

@@ -139,7 +139,10 @@ def open_session(conf: zenoh.Config, timeout_s: float = 10.0, retry_s: float = 0
     """
     import time
 
-    deadline = time.monotonic() + timeout_s
+    from mission.timers import GiveUp, retry
+
+    first = time.monotonic()
+    deadline = first + timeout_s  # bounds one attempt in flight; retry() decides whether to try again
     last = "timed out"
     while True:
         if stop is not None and stop.is_set():
@@ -169,13 +172,15 @@ def open_session(conf: zenoh.Config, timeout_s: float = 10.0, retry_s: float = 0
             return result["session"]
         if "error" in result:
             last = str(result["error"]).splitlines()[0].split(" at /")[0]
-        if time.monotonic() >= deadline:
+        failed = time.monotonic()
+        rule = retry(first, failed, failed, timeout_s, retry_s)  # the coordinator timeout [P-5.2]'s shape
+        if isinstance(rule, GiveUp):
             raise ConfigError(f"could not open a zenoh session within {timeout_s:.0f} s: {last}")
         if stop is not None:
-            if stop.wait(retry_s):
+            if stop.wait(rule.until - failed):
                 raise OpenStopped("stop requested while opening the zenoh session")
         else:
-            time.sleep(retry_s)
+            time.sleep(rule.until - failed)
 
 
 def close_session(session, entities: Sequence = (), timeout_s: float = 3.0) -> bool:

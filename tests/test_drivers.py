@@ -1,0 +1,189 @@
+"""The processes' waits are drivers of mission.timers: with the clock given (no socket, no wall
+time) a carrier's and a coordinator's waits do what the rules say at the times they say
+(docs/architecture.md, "Time as an input")."""
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+
+import world
+from carriers.exits import Exit
+from carriers.motion import Track
+from carriers.node import Carrier, CarrierConfig
+from mission import carrier as mc
+from mission.peers import Presence
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = world.load_scenario(ROOT / "scenarios" / "tiny.yaml")
+
+
+class FakeClock:
+    def __init__(self, now: float = 1000.0):
+        self.now = now
+
+    def __call__(self) -> float:
+        return self.now
+
+
+class QuietNode:
+    """A node nothing arrives on: waiting in its inbox only lets the given clock run. It records
+    the State queries (at the clock's time) and stops the carrier after ``queries`` of them."""
+
+    revision = 4
+
+    def __init__(self, clock: FakeClock, stop: threading.Event, queries: int = 3):
+        self.clock, self.stop, self.queries, self.asked, self.puts = clock, stop, queries, [], []
+
+    def next(self, timeout_s: float):
+        self.clock.now += max(0.0, timeout_s)
+        return None
+
+    def drain(self):
+        return []
+
+    def query(self, selector, timeout_s):
+        self.asked.append(self.clock.now)
+        self.clock.now += timeout_s  # no reply: the query waits its whole time
+        if len(self.asked) >= self.queries:
+            self.stop.set()
+        return []
+
+    def put(self, key, msg, *args):
+        self.puts.append((self.clock.now, key.rsplit("/", 1)[-1]))
+
+    def reject(self, *args):
+        raise AssertionError(args)
+
+    def wake(self):
+        pass
+
+
+def carrier_at_stage_0(mode: str, clock_name: str = "sim", **timeouts):
+    stop = threading.Event()
+    config = CarrierConfig(carrier=TINY.carrier_ids[0], mode=mode, clock=clock_name, log=lambda line: None,
+                           **timeouts)
+    carrier = Carrier(TINY, config, None, stop=stop)
+    clock = FakeClock()
+    carrier.clock = clock
+    carrier.presence, carrier.track = Presence(clock()), Track(clock())  # made on the carrier's clock
+    carrier.sim = SimpleNamespace(time=0.0, position=lambda cid: (0.0, 0.0))  # a body standing still
+    carrier.node = QuietNode(clock, stop)
+    carrier.timers = mc.Timers(clock_name, config.silence_timeout_s, 0.0)
+    carrier.machine, _ = mc.step(carrier.machine, mc.Joined(0))
+    carrier.machine, _ = mc.step(carrier.machine, mc.Observed(0, 1, (0.0, 0.0)))
+    return carrier, clock
+
+
+def test_a_carrier_waiting_on_the_sim_clock_asks_state_every_decision_timeout():
+    """[P-10.8] the coordinator present, sim clock: State asked once per decision timeout of
+    the carrier's clock (the query's own 2 s count as waiting), never deciding alone; Progress
+    every third of the silence timeout meanwhile [P-10.6]."""
+    carrier, clock = carrier_at_stage_0("coordinated", decision_timeout_s=30.0, silence_timeout_s=9.0)
+    carrier.presence.coordinator_alive()
+    start = clock.now
+    carrier._wait_decision(0)
+    asked = [t - start for t in carrier.node.asked]
+    assert asked == [30.0, 60.0, 90.0]
+    progress = [t - start for t, topic in carrier.node.puts if topic == "progress"]
+    assert progress and all(b - a >= 3.0 for a, b in zip(progress, progress[1:]))
+    assert not carrier.machine.resolved(0)
+
+
+@pytest.mark.parametrize("mode, expected", [("coordinated", "going on"), ("hybrid", "deciding on board")])
+def test_a_carrier_on_the_wall_clock_stops_waiting_after_the_decision_timeout(mode, expected):
+    """[P-8.1] wall clock, the coordinator present: the wait ends after the decision timeout of
+    the carrier's clock, without asking State."""
+    carrier, clock = carrier_at_stage_0(mode, "wall", decision_timeout_s=30.0)
+    lines = []
+    carrier._log = lines.append
+    carrier.presence.coordinator_alive()
+    start = clock.now
+    carrier._wait_decision(0)
+    assert carrier.node.asked == [] and 30.0 <= clock.now - start < 32.0
+    assert any(expected in line for line in lines), lines
+
+
+def test_a_coordinated_carrier_exits_after_the_coordinator_timeout():
+    """[P-8.1] the coordinator's token gone: a coordinated carrier holds, then exits
+    coordinator-lost once it has been absent for the coordinator timeout of its clock."""
+    carrier, clock = carrier_at_stage_0("coordinated", coordinator_timeout_s=30.0)
+    carrier.presence.coordinator_alive()
+    gone = clock.now
+    carrier.presence.coordinator_gone(gone)
+    with pytest.raises(Exit) as exc:
+        carrier._wait_decision(0)
+    assert exc.value.reason == "coordinator-lost" and 30.0 <= clock.now - gone < 32.0
+
+
+def test_a_joining_carrier_asks_state_again_until_the_coordinator_timeout():
+    """[P-5.2] no reply: asked again 0.2 s after the last query's end, until the coordinator
+    timeout since the first; then [P-5.5] 4 a coordinated carrier exits coordinator-lost."""
+    carrier, clock = carrier_at_stage_0("coordinated", coordinator_timeout_s=10.0)
+    carrier.node.queries = 1000
+    start = clock.now
+    state, outcome = carrier._query_state()
+    asked = [round(t - start, 6) for t in carrier.node.asked]
+    assert state is None and outcome.reason == "coordinator-lost"
+    assert asked == [0.0, 2.2, 4.4, 6.6, 8.8]
+
+
+def coordinator_waiting(clock_name: str, tmp_path, **timeouts):
+    """The tiny mission's coordinator with both carriers live and accepted (revision 4), its
+    inbox empty: waiting only lets its clock run."""
+    from coordinator.node import Coordinator, CoordinatorConfig
+    from mission import events as ev
+    from mission import state as ms
+    from wire.messages import REVISION
+
+    lines = []
+    coordinator = Coordinator(TINY, CoordinatorConfig(out_dir=str(tmp_path), clock=clock_name, log=lines.append,
+                                                      **timeouts), None)
+    clock = FakeClock()
+    coordinator.clock = clock
+    coordinator.pump = lambda timeout_s: setattr(clock, "now", clock.now + max(0.0, timeout_s))
+    state = coordinator.state
+    for cid in TINY.carrier_ids:
+        state, _ = ms.step(state, ev.LivelinessChanged(cid, True))
+        state, _ = ms.step(state, ev.Hello(cid, 1, "h", 1, 0, coordinator.fingerprint, 0.0, REVISION))
+    coordinator.state = state
+    return coordinator, clock, lines
+
+
+def test_the_coordinator_waits_for_a_carrier_heard_from_until_its_silence(tmp_path):
+    """[P-10.3] sim clock: a carrier heard from 10 s after the stage opened is waited for past
+    the stage timeout, until the silence timeout after that; then it is stalled (logged)."""
+    coordinator, clock, lines = coordinator_waiting("sim", tmp_path, silence_timeout_s=30.0, stage_timeout_s=5.0)
+    opened = clock.now
+    coordinator.heard = {cid: opened + 10.0 for cid in TINY.carrier_ids}
+    waiting = coordinator.state.waiting(0)
+    assert waiting
+    coordinator._wait_stage(0, opened)
+    assert 40.0 <= clock.now - opened < 40.1
+    assert any("stalled" in line and all(cid in line for cid in waiting) for line in lines), lines
+
+
+def test_the_coordinator_on_the_wall_clock_waits_the_stage_timeout(tmp_path):
+    """[P-10.3] wall clock: the stage timeout is a deadline, whoever is heard from."""
+    coordinator, clock, lines = coordinator_waiting("wall", tmp_path, silence_timeout_s=30.0, stage_timeout_s=5.0)
+    opened = clock.now
+    coordinator.heard = {cid: opened + 4.9 for cid in TINY.carrier_ids}
+    coordinator._wait_stage(0, opened)
+    assert 5.0 <= clock.now - opened < 5.1 and not any("stalled" in line for line in lines)
+
+
+def test_no_wait_of_the_processes_reads_the_clock_itself():
+    """carriers/ and coordinator/ call no ``time.monotonic()``: a process's clock is its
+    ``clock`` attribute, read by its drivers, and every timing decision is a mission.timers rule."""
+    import ast
+
+    calls = []
+    for folder in ("carriers", "coordinator"):
+        for path in sorted((ROOT / folder).glob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+                        and node.func.attr in ("monotonic", "perf_counter")):
+                    calls.append(f"{path.relative_to(ROOT)}:{node.lineno}")
+    assert calls == []
