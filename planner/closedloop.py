@@ -53,12 +53,11 @@ from numba import njit
 
 from planner import ssap
 from planner.compiled import compile_problem
+from planner.joint import ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, every_combination, sampled_mean
 from planner.kernels import cache_follows_sources, cut, deploys, rank
 from planner.problem import Problem, StageView, make_view, point_weights
 from planner.settings import check_budget
 
-#: Largest number of free carriers in one component whose 2^k joint actions are all evaluated.
-ENUMERATE_MAX = 6
 #: Largest number of carriers searched together. A larger conflict component is split into
 #: connected blocks of at most this many carriers, searched one after another; each block's
 #: rollouts also simulate its neighbours (its halo) at their current actions. This keeps the
@@ -67,11 +66,6 @@ BLOCK = 32
 #: Alternations of :func:`conflict_values` behind the rollouts' base policy (0: DLR's thresholds
 #: without externalities, the conflict-aware SSAP rule).
 RULE_ROUNDS = 6
-#: Bounds on the number of sampled futures per candidate (common to all candidates).
-SAMPLES_MIN = 16
-SAMPLES_MAX = 4096
-#: Sampled futures per batch in the time-budget mode.
-BATCH = 32
 
 
 # ----------------------------------------------------------------------------- numba kernels
@@ -562,17 +556,6 @@ def conflict_components(adjacency: np.ndarray) -> list[np.ndarray]:
     return comps
 
 
-def every_combination(base: np.ndarray, flip: np.ndarray) -> np.ndarray:
-    """bool ``[2^k, m]``: ``base`` with every combination of actions of the ``k`` carriers at
-    positions ``flip``, ``base`` itself first (so it wins ties under ``argmax``)."""
-    k = len(flip)
-    codes = np.arange(1 << k)
-    actions = np.repeat(base[None, :], len(codes), axis=0)
-    actions[:, flip] = ((codes[:, None] >> np.arange(k)[None, :]) & 1).astype(bool)
-    first = int(np.flatnonzero((actions == base).all(axis=1))[0])
-    return actions[np.r_[first, np.delete(codes, first)]]
-
-
 def grow_block(seed: int, adjacency: np.ndarray, allowed: np.ndarray, size: int) -> np.ndarray:
     """Up to ``size`` carriers reached breadth-first from ``seed`` through ``allowed`` carriers
     (bool ``[R]``), nearest first (ties in index order); sorted."""
@@ -810,22 +793,6 @@ class ClosedLoopPlanner:
         d_after = np.minimum(comp_left[None, :] - actions.astype(np.int64), n_stages)
         exact = prep.slot_value[n_after[None, :], d_after].sum(axis=1)
         return mean + exact
-
-
-def sampled_mean(n_candidates: int, samples: int, deadline: float | None, evaluate) -> np.ndarray:
-    """The closed-loop planners' anytime sampling loop: the mean over sampled futures of
-    ``evaluate(batch)``, float ``[n_candidates, batch]`` values of ``batch`` fresh futures (it
-    draws them). Without a ``deadline`` one batch of ``samples``; with one (``time.perf_counter``
-    seconds), batches of :data:`BATCH` until it passes (at least one)."""
-    sums = np.zeros(n_candidates)
-    count = 0
-    while True:
-        batch = samples if deadline is None else BATCH
-        sums += evaluate(batch).sum(axis=1)
-        count += batch
-        if deadline is None or time.perf_counter() >= deadline:
-            break
-    return sums / count
 
 
 def _dlr_rule(prep, q: int, n: int) -> Rule:

@@ -29,6 +29,7 @@ from numba import njit
 
 from planner import coverage as cov
 from planner.coverage_plan import plan_for
+from planner.joint import ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, every_combination, sampled_mean
 from planner.kernels import cache_follows_sources
 from planner.mcts import kernel as _k
 from planner.mcts.fast import cover_state
@@ -58,7 +59,7 @@ def score_actions(actions, counts, root, scratch, cover, out):
     for s in range(counts.shape[0]):
         for m in range(counts.shape[1]):  # every count known: the rollout draws nothing
             cover.cnt[m] = counts[s, m]
-            cover.stamp[m] = -1
+            cover.marks[_k.STAMP, m] = -1
         for c in range(actions.shape[0]):
             cover.tick[0] += 1  # a new trajectory: nothing of the previous one is covered
             n = 0
@@ -102,8 +103,6 @@ def base_action_cover(view: StageView) -> np.ndarray:
 def decide_cover(planner, view: StageView, rng: np.random.Generator) -> np.ndarray:
     """closed-loop's decision under the coverage reward (module docstring). ``planner``: the
     :class:`planner.closedloop.ClosedLoopPlanner` (its budget and search)."""
-    from planner.closedloop import ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, every_combination, sampled_mean
-
     problem = view.problem
     if problem.weights is not None:
         raise ValueError("closed-loop: passenger values under the coverage reward are not supported")

@@ -25,11 +25,12 @@ from numba import njit
 
 from planner import coverage as cov
 from planner import ssap
-from planner.closedloop import (BLOCK, ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, Candidates, ClosedLoopPlanner, Net,
-                                Selection, base_action, block_halo, conflict_components, every_combination, grow_block,
-                                marginal_gain, sampled_mean, select_point, undo_selection)
+from planner.closedloop import (BLOCK, Candidates, ClosedLoopPlanner, Net,
+                                Selection, base_action, block_halo, conflict_components, grow_block,
+                                marginal_gain, select_point, undo_selection)
 from planner.comms import CommsSpec, Deliveries, realise
 from planner.compiled import compile_problem
+from planner.joint import ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, every_combination, sampled_mean
 from planner.kernels import cache_follows_sources, deploys
 from planner.problem import (OnlineResult, Problem, StageView, enforce, evaluate, make_view,
                              stage_rng, start_online, valid_stages_left, warm_up_problem)
@@ -400,7 +401,7 @@ class DecClosedLoopPlanner:
       stream — the joint action every fully informed carrier computes — and executes its own part.
       With perfect communication this *is* ``closed-loop``, decision for decision;
     * otherwise it searches its own conflict component: candidates are the joint actions of the
-      members it knows (all ``2^k`` up to :data:`~planner.closedloop.ENUMERATE_MAX`, else its own
+      members it knows (all ``2^k`` up to :data:`~planner.joint.ENUMERATE_MAX`, else its own
       two choices with the others at the conflict-aware SSAP action), and every carrier it has
       not heard from is *predicted by its known policy*: from its last known deployment on it
       follows its SSAP thresholds on observations drawn from the prior (its own where received).

@@ -9,7 +9,7 @@ the rollout of the sampled futures. Commit f95fab9 shared it (one numba function
 both, dec-closed-loop passing the base rule of 0 rounds, DLR's thresholds); it made
 dec-closed-loop slower (docs/planner.md, *closed-loop*, has the figures), so the loops stay written
 out and only the anytime sampling loop
-(:func:`planner.closedloop.sampled_mean`) is shared. This script loads ``planner/closedloop.py``
+(:func:`planner.joint.sampled_mean`) is shared. This script loads ``planner/closedloop.py``
 and ``planner/decentralised.py`` of ``--candidate`` (default: the working tree) and of
 ``--reference`` (``git show``), compiles both in this process alike, and for each fleet size R
 (D = 3, N = 10, 10 overlap groups, Poisson(3), an instance of

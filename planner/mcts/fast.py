@@ -95,7 +95,7 @@ def _model(problem: Problem, cover: _k.Cover | None = None) -> _k.Model:
 _I0, _F0 = np.zeros(1, dtype=np.int64), np.zeros(1)
 #: The penalty rule's placeholder (same types as a real one: one compiled kernel serves both).
 _NO_COVER = _k.Cover(False, _I0, _I0, _I0, _F0, _F0, np.zeros(1, dtype=np.uint8), _I0, _F0, _F0, _I0, _I0, _F0,
-                     _I0, _I0, _I0, 0.0)
+                     np.zeros((2, 1), dtype=np.int64), _I0, 0.0)
 
 
 def cover_state(view: StageView) -> _k.Cover:
@@ -117,8 +117,8 @@ def cover_arrays(problem: Problem, known: np.ndarray, deployed: np.ndarray) -> _
     past_value = float(cnt[(covered < 0) & revealed].sum())
     stamp = np.where(revealed, -1, 0).astype(np.int64)  # -1: revealed; 0: no sample drew it yet
     return _k.Cover(True, plan.pptr, plan.pidx, plan.tptr, plan.thr, plan.ucut, plan.solo, plan.rptr, plan.rpoints,
-                    plan.rcdf, plan.gptr, plan.guide, np.ascontiguousarray(np.nan_to_num(cnt, nan=0.0)), stamp,
-                    np.zeros(1, dtype=np.int64), covered, past_value)
+                    plan.rcdf, plan.gptr, plan.guide, np.ascontiguousarray(np.nan_to_num(cnt, nan=0.0)),
+                    np.ascontiguousarray(np.stack([covered, stamp])), np.zeros(1, dtype=np.int64), past_value)
 
 
 @functools.lru_cache(maxsize=1)

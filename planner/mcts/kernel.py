@@ -75,6 +75,9 @@ _TO_UNIT = 1.0 / 9007199254740992.0  # 2**-53
 
 # ----------------------------------------------------------------------------- named structures
 
+#: The rows of :attr:`Cover.marks`.
+COVERED, STAMP = 0, 1
+
 
 class Cover(NamedTuple):
     """The coverage reward as the kernels read it (``on`` False: the penalty rule, and the arrays
@@ -96,9 +99,9 @@ class Cover(NamedTuple):
     gptr: np.ndarray        # int64 [P + 1] planning region -> guide table (CSR)
     guide: np.ndarray       # int64 first index (from rptr[m]) with rcdf > k / len
     cnt: np.ndarray         # float64 [P] counts: revealed (stamp -1) or this sample's (stamp == tick)
-    stamp: np.ndarray       # int64 [P]
+    marks: np.ndarray       # int64 [2, P] row COVERED: -1 covered by the past, == tick by the current
+                            # trajectory; row STAMP: -1 revealed, == tick drawn for the current sample
     tick: np.ndarray        # int64 [1] the current sample's id (>= 1)
-    covered: np.ndarray     # int64 [P] -1: covered by the past; == tick: by the current trajectory
     past_value: float       # raw coverage of the deployments before the root stage
 
 
@@ -375,7 +378,7 @@ def _region_draw(m, u, rptr, rpoints, rcdf, gptr, guide):
 
 
 @njit(cache=True, inline="always")
-def _gain(a, ptr, idx, covered, cnt, stamp, tick, rptr, rpoints, rcdf, gptr, guide, state):
+def _gain(a, ptr, idx, marks, cnt, tick, rptr, rpoints, rcdf, gptr, guide, state):
     """Marginal coverage of a deployment at flat point a over the current trajectory: the counts
     of its regions no deployment of the trajectory covers yet (reads only a's regions). A region's
     count is the revealed one, or drawn from its prior the first time sample ``tick`` reads it.
@@ -383,38 +386,38 @@ def _gain(a, ptr, idx, covered, cnt, stamp, tick, rptr, rpoints, rcdf, gptr, gui
     g = 0.0
     for e in range(ptr[a], ptr[a + 1]):
         m = idx[e]
-        cv = covered[m]
+        cv = marks[COVERED, m]
         if cv == tick or cv < 0:  # covered by the past or the current trajectory
             continue
-        st = stamp[m]
+        st = marks[STAMP, m]
         if st != tick and st >= 0:
             cnt[m] = _region_draw(m, _random(state), rptr, rpoints, rcdf, gptr, guide)
-            stamp[m] = tick
+            marks[STAMP, m] = tick
         g += cnt[m]
     return g
 
 
 @njit(cache=True, inline="always")
-def _cover_add(a, ptr, idx, covered, tick):
+def _cover_add(a, ptr, idx, marks, tick):
     """Mark the regions of a deployment at flat point a covered in trajectory ``tick`` (a new
     tick uncovers them all at once: nothing to clear; the past's -1 stays)."""
     for e in range(ptr[a], ptr[a + 1]):
         m = idx[e]
-        if covered[m] >= 0:
-            covered[m] = tick
+        if marks[COVERED, m] >= 0:
+            marks[COVERED, m] = tick
 
 
 @njit(cache=True)
 def cover_gain(a, cover, state):
     """:func:`_gain` of flat point a with the arrays of ``cover`` (sample ``cover.tick[0]``)."""
-    return _gain(a, cover.ptr, cover.idx, cover.covered, cover.cnt, cover.stamp, cover.tick[0],
-                 cover.rptr, cover.rpoints, cover.rcdf, cover.gptr, cover.guide, state)
+    return _gain(a, cover.ptr, cover.idx, cover.marks, cover.cnt, cover.tick[0], cover.rptr, cover.rpoints,
+                 cover.rcdf, cover.gptr, cover.guide, state)
 
 
 @njit(cache=True)
 def cover_add(a, cover):
     """:func:`_cover_add` with the arrays of ``cover`` (trajectory ``cover.tick[0]``)."""
-    _cover_add(a, cover.ptr, cover.idx, cover.covered, cover.tick[0])
+    _cover_add(a, cover.ptr, cover.idx, cover.marks, cover.tick[0])
 
 
 @njit(cache=True)
@@ -430,7 +433,7 @@ def rollout_cover(q, n, root, policy, scratch, cover):
     state, left, mark, pts = scratch.state, scratch.left, scratch.mark, scratch.pts
     ptr, idx, tptr, thr, rptr, rpoints, rcdf = cover.ptr, cover.idx, cover.tptr, cover.thr, cover.rptr, \
         cover.rpoints, cover.rcdf
-    cnt, stamp, covered, solo, ucut = cover.cnt, cover.stamp, cover.covered, cover.solo, cover.ucut
+    cnt, marks, solo, ucut = cover.cnt, cover.marks, cover.solo, cover.ucut
     gptr, guide = cover.gptr, cover.guide
     tick = cover.tick[0]
     n_carriers, n_stages = valid.shape
@@ -447,7 +450,7 @@ def rollout_cover(q, n, root, policy, scratch, cover):
                 if forced(ns, d):
                     go = True
                 elif policy == ROLLOUT_SSAP:
-                    if solo[a] and stamp[idx[ptr[a]]] >= 0:
+                    if solo[a] and marks[STAMP, idx[ptr[a]]] >= 0:
                         m = idx[ptr[a]]
                         # Its own unrevealed aggregate only (read by no other point, so never
                         # marked covered): x > t iff u >= ucut, the count looked up only to deploy.
@@ -461,17 +464,15 @@ def rollout_cover(q, n, root, policy, scratch, cover):
                         r += 1
                         continue
                     else:
-                        g = _gain(a, ptr, idx, covered, cnt, stamp, tick, rptr, rpoints, rcdf, gptr, guide,
-                                  state)
+                        g = _gain(a, ptr, idx, marks, cnt, tick, rptr, rpoints, rcdf, gptr, guide, state)
                         go = g > thr[tptr[a] + ns - d]
                 else:
                     go = _random(state) * ns < d
                 if go:
                     if g < 0.0:
-                        g = _gain(a, ptr, idx, covered, cnt, stamp, tick, rptr, rpoints, rcdf, gptr, guide,
-                                  state)
+                        g = _gain(a, ptr, idx, marks, cnt, tick, rptr, rpoints, rcdf, gptr, guide, state)
                     total += g
-                    _cover_add(a, ptr, idx, covered, tick)
+                    _cover_add(a, ptr, idx, marks, tick)
                     mark[a] = 1
                     pts[n] = a
                     n += 1
@@ -491,7 +492,7 @@ def simulate_cover(q, n_tree, root, model, settings, scratch):
     it covered is uncovered by the next)."""
     left, left_tree, mark, pts, state = scratch.left, scratch.left_tree, scratch.mark, scratch.pts, scratch.state
     cover = model.cover
-    ptr, idx, covered, cnt, stamp = cover.ptr, cover.idx, cover.covered, cover.cnt, cover.stamp
+    ptr, idx, marks, cnt = cover.ptr, cover.idx, cover.marks, cover.cnt
     rptr, rpoints, rcdf, tick, gptr, guide = cover.rptr, cover.rpoints, cover.rcdf, cover.tick, cover.gptr, cover.guide
     n_carriers = left.shape[0]
     for r in range(n_carriers):
@@ -502,8 +503,8 @@ def simulate_cover(q, n_tree, root, model, settings, scratch):
         gain = 0.0
         for i in range(n_tree):
             a = pts[i]
-            gain += _gain(a, ptr, idx, covered, cnt, stamp, tick[0], rptr, rpoints, rcdf, gptr, guide, state)
-            _cover_add(a, ptr, idx, covered, tick[0])
+            gain += _gain(a, ptr, idx, marks, cnt, tick[0], rptr, rpoints, rcdf, gptr, guide, state)
+            _cover_add(a, ptr, idx, marks, tick[0])
         for r in range(n_carriers):
             left[r] = left_tree[r]
         n, more = rollout_cover(q, n_tree, root, settings.rollout, scratch, cover)

@@ -1,0 +1,44 @@
+"""One stage's joint actions and their sampled values: what the closed-loop planners share
+(:mod:`planner.closedloop`, its coverage form :mod:`planner.closedloop_cover`, and the on-board
+:mod:`planner.decentralised`)."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+#: Largest number of free carriers in one component whose 2^k joint actions are all evaluated.
+ENUMERATE_MAX = 6
+#: Bounds on the number of sampled futures per candidate (common to all candidates).
+SAMPLES_MIN = 16
+SAMPLES_MAX = 4096
+#: Sampled futures per batch in the time-budget mode.
+BATCH = 32
+
+
+def every_combination(base: np.ndarray, flip: np.ndarray) -> np.ndarray:
+    """bool ``[2^k, m]``: ``base`` with every combination of actions of the ``k`` carriers at
+    positions ``flip``, ``base`` itself first (so it wins ties under ``argmax``)."""
+    k = len(flip)
+    codes = np.arange(1 << k)
+    actions = np.repeat(base[None, :], len(codes), axis=0)
+    actions[:, flip] = ((codes[:, None] >> np.arange(k)[None, :]) & 1).astype(bool)
+    first = int(np.flatnonzero((actions == base).all(axis=1))[0])
+    return actions[np.r_[first, np.delete(codes, first)]]
+
+
+
+def sampled_mean(n_candidates: int, samples: int, deadline: float | None, evaluate) -> np.ndarray:
+    """The closed-loop planners' anytime sampling loop: the mean over sampled futures of
+    ``evaluate(batch)``, float ``[n_candidates, batch]`` values of ``batch`` fresh futures (it
+    draws them). Without a ``deadline`` one batch of ``samples``; with one (``time.perf_counter``
+    seconds), batches of :data:`BATCH` until it passes (at least one)."""
+    sums = np.zeros(n_candidates)
+    count = 0
+    while True:
+        batch = samples if deadline is None else BATCH
+        sums += evaluate(batch).sum(axis=1)
+        count += batch
+        if deadline is None or time.perf_counter() >= deadline:
+            break
+    return sums / count
