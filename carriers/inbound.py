@@ -134,6 +134,6 @@ class Inbound:
         if msg.stage >= self.n_stages:
             raise ProtocolError("out-of-range", f"stage {msg.stage} >= {self.n_stages}")
         if topic in ("obs", "own"):
-            self.book.observation(cid, msg.stage, msg.x)
+            self.book.observation(cid, msg.stage, msg.x, msg.counts)
         if topic in ("own", "confirm"):
             self.book.outcome(cid, msg.stage, msg.deployed)

@@ -82,7 +82,7 @@ class Joining:
         entries = [e for e in self.store.entries() if e.status is not None] if self.store is not None else []
         for e in entries:
             if e.observed:
-                self.book.observation(self.cid, e.stage, e.x)
+                self.book.observation(self.cid, e.stage, e.x, self._counts(e.stage, e.x))
             self.book.outcome(self.cid, e.stage, e.deployed)
         next_stage = max((e.stage + 1 for e in entries), default=0)
         self._replay(mc.replay_plan(self.machine, next_stage, [e.stage for e in entries if e.deployed]))

@@ -230,7 +230,7 @@ class Carrier(Motion, Inbound, Joining, Alone):
         elif isinstance(effect, mc.LogObservation):
             if self.store is not None:
                 self.store.observed(effect.stage, self.scenario.stage_time(effect.stage), effect.x, effect.position)
-            self.book.observation(self.cid, effect.stage, effect.x)
+            self.book.observation(self.cid, effect.stage, effect.x, self._counts(effect.stage, effect.x))
         elif isinstance(effect, mc.LogOutcome):
             if self.store is not None:
                 self.store.outcome(effect.stage, self.scenario.stage_time(effect.stage), effect.status,

@@ -138,17 +138,21 @@ class PeerBook:
         self.deployed = np.zeros((R, N), dtype=bool)
         self.source = np.where(self.valid, UNKNOWN, FROM_CARRIER).astype(np.int8)
         self.at: dict = {}                         # carrier id -> the latest stage its Progress named
+        self.counts: dict = {}                     # (r, stage) -> region counts behind x (coverage reward)
 
     @property
     def n_stages(self) -> int:
         return self.valid.shape[1]
 
-    def observation(self, cid: str, stage: int, x) -> None:
-        """Carrier ``cid`` observed ``x`` (None = ∅) at ``stage``."""
+    def observation(self, cid: str, stage: int, x, counts=None) -> None:
+        """Carrier ``cid`` observed ``x`` (None = ∅) at ``stage``; ``counts``: the region counts
+        behind it under the coverage reward (in the order of the point's regions), else None."""
         r = self.index[cid]
         if self.valid[r, stage]:
             self.x[r, stage] = np.nan if x is None else float(x)
             self.x_known[r, stage] = True
+            if counts is not None:
+                self.counts[r, int(stage)] = tuple(counts)
 
     def outcome(self, cid: str, stage: int, deployed: bool) -> None:
         """Carrier ``cid`` says whether it deployed at ``stage`` (its Confirm or Own)."""
@@ -200,7 +204,21 @@ class PeerBook:
         obs = np.where(stages[None, :] < seen[:, None], self.x, np.nan)
         dep = self.deployed & (stages[None, :] < record[:, None])
         return LocalView(problem, r, j, int(seed), obs, dep, seen.astype(np.int64), record.astype(np.int64),
-                         (None,) * R)
+                         (None,) * R, counts=self._known_counts(problem, seen))
+
+    def _known_counts(self, problem, seen: np.ndarray):
+        """Under the coverage reward, float ``[M]``: the region counts of the observations in the
+        view (``t < seen[b]``), NaN for the others (:func:`planner.coverage.revealed`'s rule);
+        None under the penalty reward."""
+        coverage = problem.coverage
+        if coverage is None:
+            return None
+        out = np.full(coverage.n_regions, np.nan)
+        n_stages = self.n_stages
+        for (b, t), counts in self.counts.items():
+            if t < seen[b]:
+                out[coverage.regions(b * n_stages + t)] = counts
+        return out
 
 
 def _prefix(known: np.ndarray) -> np.ndarray:

@@ -118,6 +118,27 @@ def test_resync_repeats_own_decisions_as_own_and_answers_as_already():
 
 # --------------------------------------------------------------------------- the peer book
 
+def test_peer_book_view_reveals_the_region_counts_of_its_prefix_only():
+    """Under the coverage reward a view knows the counts behind the observations it holds."""
+    from planner.problem import Problem
+    from planner.coverage import Coverage
+    from planner.priors import build_prior
+
+    valid = np.ones((2, 2), dtype=bool)
+    covers = [[[0], [1, 2]], [[2, 3], [4]]]
+    coverage = Coverage.build(covers, [build_prior({"kind": "poisson", "mean": 1.0})] * 5)
+    problem = Problem.build(1, valid, coverage.overlaps(2), coverage=coverage)
+    book = PeerBook(("a", "b"), valid)
+    book.observation("a", 0, 3, (3,))
+    book.observation("a", 1, 5, (1, 4))
+    book.observation("b", 1, 2, (2,))  # b's stage 0 was never heard: its stage 1 is beyond the prefix
+    view = book.local_view(problem, "a", 1, seed=0)
+    assert view.counts[:3].tolist() == [3.0, 1.0, 4.0] and np.isnan(view.counts[3:]).all()
+    book.observation("b", 0, 6, (4, 2))  # the heard counts of a shared region agree (region 2)
+    assert book.local_view(problem, "a", 1, seed=0).counts.tolist() == [3.0, 1.0, 4.0, 2.0, 2.0]
+    assert PeerBook(("a", "b"), valid).local_view(Problem.build(1, valid, []), "a", 0, seed=0).counts is None
+
+
 def test_peer_book_view_is_the_prefix_of_what_was_heard():
     from planner.problem import Problem
 
@@ -150,10 +171,14 @@ def test_peer_book_view_is_the_prefix_of_what_was_heard():
 
 # --------------------------------------------------------------------------- a decentralised fleet
 
-def test_decentralised_fleet_makes_the_centralised_closed_loop_decisions(tmp_path):
+@pytest.mark.parametrize("reward", ["penalty", "coverage"])
+def test_decentralised_fleet_makes_the_centralised_closed_loop_decisions(tmp_path, reward):
     """tiny.yaml with no coordinator: two carriers (threads, each its own Zenoh session) on a zenoh
     router, every stage decided on board; the deployments equal the centralised closed-loop's
-    (the planner core over the world's observations), and each carrier's log has them."""
+    (the planner core over the world's observations), and each carrier's log has them. Under the
+    coverage reward the carriers hear each other's region counts and decide by marginal coverage."""
+    import yaml
+
     import world
     from storage.carrierlog import log_path, read_log
     from carriers.node import CarrierConfig
@@ -161,7 +186,10 @@ def test_decentralised_fleet_makes_the_centralised_closed_loop_decisions(tmp_pat
     from fleet_helpers import TINY, offline
     from wire.zconfig import free_port, make_config, open_session, close_session
 
-    tiny = world.load_scenario(str(TINY))
+    data = yaml.safe_load(TINY.read_text())
+    data.update(name=f"tiny_{reward}", reward=reward)
+    (tmp_path / "tiny.yaml").write_text(yaml.safe_dump(data, sort_keys=False))
+    tiny = world.load_scenario(str(tmp_path / "tiny.yaml"))
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = open_session(make_config("router", [endpoint]), 10.0)
     try:
