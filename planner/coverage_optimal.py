@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import weakref
 from dataclasses import dataclass
 
 import numpy as np
@@ -145,43 +146,56 @@ def _check_size(stage: int, pairs: int) -> None:
                        f"beyond {MAX_OUTCOMES:,}")
 
 
-def online_value(problem: Problem, tail: float = TAIL, max_nodes: int = MAX_NODES) -> CoverageOptimum:
-    """V* of a coverage ``problem`` (module docstring). Raises :class:`TooLarge` (one line)."""
-    if problem.coverage is None:
-        raise ValueError("coverage V*: expected a coverage problem (reward: coverage)")
-    if problem.weights is not None:
-        raise TooLarge("coverage V*: passenger values are not modelled (the recursion treats passengers as alike)")
-    stages, error = _stages(problem, tail)
-    n_stages = problem.n_stages
-    left_table = valid_stages_left(problem.valid)
-    memo: dict = {}
-    nodes = [0]
+class _Recursion:
+    """The memoised recursion of one problem (module docstring): V* from any stage and state, and
+    the value of each action at a stage (what the ``online-optimal`` planner takes the best of)."""
 
-    def value(j: int, left: tuple, state: frozenset) -> float:
+    def __init__(self, problem: Problem, tail: float):
+        if problem.coverage is None:
+            raise ValueError("coverage V*: expected a coverage problem (reward: coverage)")
+        if problem.weights is not None:
+            raise TooLarge("coverage V*: passenger values are not modelled (the recursion treats passengers as alike)")
+        self.problem, self.tail = problem, tail
+        self.stages, self.error = _stages(problem, tail)
+        self.left_table = valid_stages_left(problem.valid)
+        self.memo: dict = {}
+        self.splits: dict = {}
+        self.nodes = 0
+        self.max_nodes = MAX_NODES
+
+    def value(self, j: int, left: tuple, state: frozenset) -> float:
         """Expected best coverage from stage j; ``state``: {(later points, carriers at j, count)},
         one entry per distinct later-points key (a set: canonical without sorting)."""
-        if j == n_stages:
+        if j == self.problem.n_stages:
             return 0.0
         key = (j, left, state)
-        found = memo.get(key)
+        found = self.memo.get(key)
         if found is not None:
             return found
-        st = stages[j]
+        st = self.stages[j]
         can = [r for r in st.points if left[r] > 0]
-        must = [r for r in can if left_table[r, j] <= left[r]]
-        free = [r for r in can if r not in must]
-        actions = [frozenset(must) | frozenset(c) for k in range(len(free) + 1)
-                   for c in itertools.combinations(free, k)]
+        must = [r for r in can if self.left_table[r, j] <= left[r]]
         total = 0.0
         for combo in itertools.product(*[range(len(v)) for v, _ in st.outcomes]):
-            nodes[0] += 1
-            if nodes[0] > max_nodes:
-                raise TooLarge(f"coverage V*: more than {max_nodes:,} (state, outcome) evaluations")
+            self.nodes += 1
+            if self.nodes > self.max_nodes:
+                raise TooLarge(f"coverage V*: more than {self.max_nodes:,} (state, outcome) evaluations")
             p = math.prod(float(st.outcomes[g][1][i]) for g, i in enumerate(combo))
             groups = list(state) + [(k, st.covers[g], float(st.outcomes[g][0][i])) for g, (k, i) in
                                     enumerate(zip(st.groups, combo))]
-            best = -np.inf
-            for action in actions:
+            total += p * max(v for _, v in self.action_values(j, left, groups, can, must))
+        self.memo[key] = total
+        return total
+
+    def action_values(self, j: int, left: tuple, groups: list, can: list, must: list) -> list:
+        """``[(action, value)]`` at stage j for every subset of ``can`` holding ``must`` (in
+        subset-size order, then ``itertools.combinations``' order): the counts of the groups the
+        action covers plus V* of the next state. ``groups``: (later points, carriers at j, count)."""
+        free = [r for r in can if r not in must]
+        out = []
+        for k in range(len(free) + 1):
+            for c in itertools.combinations(free, k):
+                action = frozenset(must) | frozenset(c)
                 gain, nxt = 0.0, {}
                 for later, now, count in groups:
                     if now & action:
@@ -189,22 +203,92 @@ def online_value(problem: Problem, tail: float = TAIL, max_nodes: int = MAX_NODE
                     elif later:
                         nxt[later] = nxt.get(later, 0.0) + count
                 left2 = tuple(d - (r in action) for r, d in enumerate(left))
-                state2 = frozenset((*split(later, j + 1), count) for later, count in nxt.items())
-                best = max(best, gain + value(j + 1, left2, state2))
-            total += p * best
-        memo[key] = total
-        return total
+                state2 = frozenset((*self._split(later, j + 1), count) for later, count in nxt.items())
+                out.append((action, gain + self.value(j + 1, left2, state2)))
+        return out
 
-    splits: dict = {}
-
-    def split(later: frozenset, j: int) -> tuple[frozenset, frozenset]:
+    def _split(self, later: frozenset, j: int) -> tuple[frozenset, frozenset]:
         """A group's later points as (points after stage j, carriers at stage j); cached."""
-        found = splits.get((later, j))
+        found = self.splits.get((later, j))
         if found is None:
-            found = splits[(later, j)] = (frozenset(a for a in later if a % n_stages > j),
-                                          frozenset(a // n_stages for a in later if a % n_stages == j))
+            n_stages = self.problem.n_stages
+            found = self.splits[(later, j)] = (frozenset(a for a in later if a % n_stages > j),
+                                               frozenset(a // n_stages for a in later if a % n_stages == j))
         return found
 
+    def groups_of(self, view) -> list:
+        """The revealed counts of ``view`` (a :class:`planner.problem.StageView`) that can still add
+        coverage, as the recursion's groups entering its stage: each revealed region no past
+        deployment covers and some valid point at the stage or later explores, keyed by those
+        points (split into later points and carriers at the stage; equal keys merged)."""
+        problem, j = self.problem, view.stage
+        coverage, n_stages = problem.coverage, problem.n_stages
+        covered = np.zeros(coverage.n_regions, dtype=bool)
+        for a in np.flatnonzero(view.deployed.reshape(-1)):
+            covered[coverage.regions(int(a))] = True
+        explorers: dict[int, set[int]] = {}
+        for a in np.flatnonzero(problem.valid.reshape(-1)):
+            if int(a) % n_stages >= j:
+                for m in coverage.regions(int(a)).tolist():
+                    explorers.setdefault(m, set()).add(int(a))
+        merged: dict = {}
+        for m in np.flatnonzero(~np.isnan(view.counts) & ~covered).tolist():
+            key = frozenset(explorers.get(m, ()))
+            if key:
+                merged[key] = merged.get(key, 0.0) + float(view.counts[m])
+        return [(*self._split(key, j), count) for key, count in merged.items()]
+
+
+def online_value(problem: Problem, tail: float = TAIL, max_nodes: int = MAX_NODES) -> CoverageOptimum:
+    """V* of a coverage ``problem`` (module docstring). Raises :class:`TooLarge` (one line)."""
+    solver = _Recursion(problem, tail)
+    solver.max_nodes = max_nodes
     start = tuple(int(d) for d in problem.passengers)
-    raw = value(0, start, frozenset())
-    return CoverageOptimum(raw / problem.scale, error / problem.scale, nodes[0])
+    raw = solver.value(0, start, frozenset())
+    return CoverageOptimum(raw / problem.scale, solver.error / problem.scale, solver.nodes)
+
+
+def decide(problem: Problem, view, tail: float = AUTO_TAIL, max_nodes: int = MAX_NODES) -> np.ndarray:
+    """The ``online-optimal`` decision of a coverage stage view: the feasible joint action of the
+    best value (banked coverage now plus V* of the next state); the first in the recursion's action
+    order on ties within 1e-12 relative. The recursion is memoised per problem, so a mission's
+    stages share one solve. Scheduled validity after the stage (surprises at the stage itself
+    decide who may deploy). The continuation values use the coarser :data:`AUTO_TAIL` by default: a
+    decision compares actions on the same truncated futures. Raises :class:`TooLarge`."""
+    solver = recursion(problem, tail, max_nodes)
+    can = np.flatnonzero(view.can_deploy).tolist()
+    must = np.flatnonzero(view.must_deploy).tolist()
+    left = tuple(int(d) for d in view.passengers_left)
+    best_action, best = None, 0.0
+    for action, v in solver.action_values(view.stage, left, solver.groups_of(view), can, must):
+        if best_action is None or v > best + 1e-12 * max(1.0, abs(best)):
+            best_action, best = action, v
+    out = np.zeros(problem.n_carriers, dtype=bool)
+    out[sorted(best_action)] = True
+    return out
+
+
+def recursion(problem: Problem, tail: float = TAIL, max_nodes: int = MAX_NODES) -> _Recursion:
+    """The problem's memoised recursion, built on first use (its memo serves every stage of the
+    problem's missions); a refusal drops it, so the next call is refused the same way."""
+    solver = _SOLVERS.get(problem)
+    if solver is None or (solver.max_nodes, solver.tail) != (max_nodes, tail):
+        solver = _Recursion(problem, tail)
+        solver.max_nodes = max_nodes
+        _SOLVERS[problem] = solver
+    return solver
+
+
+#: One recursion per coverage problem and its limits.
+_SOLVERS: "weakref.WeakKeyDictionary[Problem, _Recursion]" = weakref.WeakKeyDictionary()
+
+
+def warm_up(problem: Problem) -> None:
+    """Solve the whole recursion (V* from the start) before a mission's first timed decision.
+    Raises :class:`TooLarge` (and drops the partial memo)."""
+    solver = recursion(problem, AUTO_TAIL)
+    try:
+        solver.value(0, tuple(int(d) for d in problem.passengers), frozenset())
+    except TooLarge:
+        _SOLVERS.pop(problem, None)
+        raise

@@ -721,7 +721,8 @@ class OnlineOptimalPlanner:
     1e-12 relative: the first in bitmask order of the component's carriers, which for exact ties
     is the first in bitmask order of the whole fleet). Deterministic; the random stream is unused.
     Online surprises are handled: the current stage's realised validity decides who can deploy,
-    later stages follow the schedule.
+    later stages follow the schedule. Under the coverage reward the recursion is
+    :mod:`planner.coverage_optimal`'s, over the revealed region counts (tiny instances only).
 
     Raises (from ``warm_up`` or ``decide``):
         TooLarge: the instance is beyond the limits.
@@ -735,10 +736,19 @@ class OnlineOptimalPlanner:
 
     def warm_up(self, problem: Problem) -> None:
         """Check the size and solve the whole recursion before the first timed decision."""
+        if problem.coverage is not None:
+            from planner import coverage_optimal
+
+            _coverage(coverage_optimal.warm_up, problem)
+            return
         online_value(problem, "optimal", self.max_seconds, self.max_states)
 
     def decide(self, view: StageView, rng: np.random.Generator) -> np.ndarray:
         problem = view.problem
+        if problem.coverage is not None:  # the recursion over revealed region counts
+            from planner import coverage_optimal
+
+            return _coverage(coverage_optimal.decide, problem, view)
 
         def decide(solvers):
             return [r for solver in solvers for r in _component_decision(solver, view)]
@@ -746,6 +756,16 @@ class OnlineOptimalPlanner:
         out = np.zeros(problem.n_carriers, dtype=bool)
         out[np.array(_solving(problem, "optimal", self.max_seconds, self.max_states, decide), dtype=np.int64)] = True
         return out
+
+
+def _coverage(fn, *args):
+    """``fn(*args)`` of :mod:`planner.coverage_optimal`, its refusal as this module's TooLarge."""
+    from planner import coverage_optimal
+
+    try:
+        return fn(*args)
+    except coverage_optimal.TooLarge as err:
+        raise TooLarge(f"online-optimal: {err}") from None
 
 
 def _component_decision(solver: _Solver, view: StageView) -> list[int]:
