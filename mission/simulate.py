@@ -822,6 +822,7 @@ class Simulation:
         self.spec = fleet.spec()
         self.db: list = []                       # mission.db: the coordinators' durable record
         self.heap: list = []
+        self.ticks: dict = {}                    # host -> (true time, life) of its one pending tick
         self.seq = 0
         self.t = 0.0
         self.trace = hashlib.blake2b(digest_size=16)
@@ -880,12 +881,21 @@ class Simulation:
 
     def wake(self, driver, local: float) -> None:
         """Tick ``driver`` when its host's clock reads ``local`` (a stale tick of an earlier life
-        is dropped)."""
+        is dropped). A driver has one pending tick, its earliest: a tick runs its whole rule, so a
+        later one asked for meanwhile is asked again by that run if it is still wanted."""
         name = driver.name if isinstance(driver, CoordinatorDriver) else driver.cid
         life = getattr(driver, "life", 0)
-        self.at(max(self.t, self.true_of(name, local)) + 1e-9, self._tick, driver, name, life)
+        t = max(self.t, self.true_of(name, local)) + 1e-9
+        pending = self.ticks.get(name)
+        if pending is not None and pending[1] == life and pending[0] <= t:
+            return
+        self.ticks[name] = (t, life)
+        self.at(t, self._tick, driver, name, life)
 
     def _tick(self, driver, name: str, life: int) -> None:
+        if self.ticks.get(name) != (self.t, life):
+            return  # superseded by an earlier tick, which asked again for what it still wants
+        del self.ticks[name]
         if not driver.alive or getattr(driver, "life", 0) != life or self._frozen(name):
             return
         driver.advance(self.now_of(name))
@@ -951,10 +961,12 @@ class Simulation:
     def _window(self, kind: str):
         return next((f for f in self.faults if f.kind == kind and f.at <= self.t < f.until), None)
 
-    def _deliver(self, src: str, dst: str, m: Msg) -> None:
+    def _deliver(self, src: str, dst: str, m: Msg, reliable: bool = False) -> None:
+        """``reliable``: a liveliness token's change, which is state kept in step by the session
+        (Zenoh's liveliness), not a message: never lost or repeated while the link is up."""
         if src in self.cut or dst in self.cut:
             return
-        lost = self._window("loss")
+        lost = None if reliable else self._window("loss")
         if lost is not None and self.rng.random() < lost.size:
             return
         arrive = self.t + self._delay(src, dst)
@@ -962,7 +974,7 @@ class Simulation:
             arrive = max(arrive, self.fifo.get((src, dst), 0.0))
             self.fifo[(src, dst)] = arrive
         self.at(arrive, self._arrive, src, dst, m)
-        dup = self._window("duplicate")
+        dup = None if reliable else self._window("duplicate")
         if dup is not None and self.rng.random() < dup.size:
             self.at(arrive + self._delay(src, dst), self._arrive, src, dst, m)
 
@@ -996,10 +1008,10 @@ class Simulation:
                 continue
             if other in self.fleet.ids and name in self.fleet.ids and not self.hears(other, name):
                 continue
-            self._deliver(name, other, msg("token", name, who=name, alive=alive))
+            self._deliver(name, other, msg("token", name, who=name, alive=alive), reliable=True)
         if alive:  # a newcomer's subscriptions see the tokens that are there (liveliness history)
             for other in self._present(name):
-                self._deliver(other, name, msg("token", other, who=other, alive=True))
+                self._deliver(other, name, msg("token", other, who=other, alive=True), reliable=True)
 
     def _present(self, name: str):
         coords = [n for n, d in self.coordinators.items() if d.alive and n != name]

@@ -60,7 +60,7 @@ def test_the_trace_is_the_same_in_another_process_with_another_hash_seed(tmp_pat
 #: Seeds of six_carriers (every fault kind) whose violations are known and not fixed yet
 #: (docs/fleet.md, "Deterministic simulation", "Open findings"); this list may only shrink:
 #: a new failing seed fails the test, and so does a listed one that passes.
-KNOWN_OPEN = {72: "did not complete"}
+KNOWN_OPEN: dict = {}
 
 
 def test_a_short_campaign_with_every_fault_kind_finds_no_new_violation(fleet):
