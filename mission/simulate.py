@@ -288,12 +288,12 @@ class CoordinatorDriver:
         self.grace: float | None = None
         self.primary_lost: float | None = None
         self.resuming = None  # (stage, deploy, passengers) of the decision a pause interrupted
+        self.life = 0         # its process's starts: what a paused process left scheduled dies with it
 
     # -------------------------------------------------------------- life
     def start(self, now: float) -> None:
-        self.alive = True
-        if self.phase == "standby":  # no State: it watches the primary's token
-            self.sim.token(self.name, True)
+        self.alive, self.life = True, self.life + 1
+        if self.phase == "standby":  # no State and no token of its own: it watches the primary's
             self.sim.wake(self, now + DEFAULTS.standby_poll_s)
             return
         self.open(now)
@@ -311,7 +311,7 @@ class CoordinatorDriver:
         self.sim.wake(self, now)
 
     def crash(self) -> None:
-        self.alive = False
+        self.alive, self.resuming = False, None  # a paused process killed does not resume
         self.phase = "dead" if self.phase != "standby" else "dead-standby"
         self.sim.token(self.name, False)
 
@@ -456,7 +456,7 @@ class CoordinatorDriver:
         paused = self.sim.pause(self)
         if paused:  # the process stops between its epoch check and its record (a GC or VM pause)
             self.resuming = (j, deploy, passengers)
-            self.sim.at(self.sim.t + paused, self._resume)
+            self.sim.at(self.sim.t + paused, self._resume, self.life)
             return
         self.publish(j, deploy, passengers, now)
 
@@ -473,7 +473,9 @@ class CoordinatorDriver:
         if self.state.next_stage >= self.sim.fleet.n_stages:
             self.phase = "confirm"
 
-    def _resume(self) -> None:
+    def _resume(self, life: int) -> None:
+        if life != self.life or self.resuming is None:
+            return  # it was killed while paused (and maybe restarted: a new process)
         (j, deploy, passengers), self.resuming = self.resuming, None
         if self.alive:
             now = self.sim.now_of(self.name)
@@ -852,6 +854,7 @@ class Simulation:
         self.clocks = {h: Clock(float(self.rng.uniform(0, 1e4)), float(self.rng.uniform(-1e-4, 1e-4))) for h in hosts}
         self.median = {h: float(self.rng.uniform(2e-4, 3e-3)) for h in hosts}   # one-way to the router, s
         self.cut: set = set()
+        self.lapsed: set = set()                 # hosts whose tokens vanished a lease after a cut or pause
         self.fifo: dict = {}                     # (src, dst) -> the last delivery time scheduled
         self.frozen: dict = {}
         self.slow: dict = {}
@@ -921,7 +924,8 @@ class Simulation:
         return self.outcome(bound)
 
     def done(self) -> bool:
-        return (all(d.phase in ("done", "dead", "deposed", "dead-standby", "standby") for d in self.coordinators.values())
+        return (all(d.phase in ("done", "dead", "deposed", "dead-standby", "standby", "refused")
+                    for d in self.coordinators.values())
                 and all(d.phase in ("done", "dead") for d in self.carriers.values())
                 and any(d.phase == "done" for d in self.coordinators.values()))
 
@@ -1013,8 +1017,13 @@ class Simulation:
             for other in self._present(name):
                 self._deliver(other, name, msg("token", other, who=other, alive=True), reliable=True)
 
+    def has_token(self, name: str) -> bool:
+        """``name``'s process lives and has declared its token (a waiting standby has none)."""
+        d = self.carriers.get(name) or self.coordinators.get(name)
+        return d is not None and d.alive and getattr(d, "phase", "") != "standby"
+
     def _present(self, name: str):
-        coords = [n for n, d in self.coordinators.items() if d.alive and n != name]
+        coords = [n for n in self.coordinator_names if n != name and self.has_token(n)]
         if name in self.coordinator_names:
             return [*coords, *(cid for cid, d in self.carriers.items() if d.alive)]
         return coords
@@ -1070,6 +1079,7 @@ class Simulation:
 
     def _lease(self, hosts, alive: bool) -> None:
         """The tokens across the cut vanish (the lease expired) or reappear (it healed)."""
+        (self.lapsed.difference_update if alive else self.lapsed.update)(hosts)
         for h in hosts:
             for other in [*self.coordinator_names, *self.fleet.ids]:
                 if other == h:
@@ -1078,8 +1088,7 @@ class Simulation:
                 self._notify(h, other, alive)
 
     def _notify(self, dst: str, who: str, alive: bool) -> None:
-        d = self.carriers.get(who) or self.coordinators.get(who)
-        if alive and not (d is not None and d.alive):
+        if alive and not self.has_token(who):
             return
         if dst in self.fleet.ids and who in self.fleet.ids and not self.hears(dst, who):
             return
@@ -1093,6 +1102,13 @@ class Simulation:
         self.trace.update(f"{self.t:.9f}|{dst}|token|{who}|{alive}\n".encode())
         target.hear(msg("token", who, who=who, alive=alive), self.now_of(dst))
 
+    def claimed(self, name: str) -> bool:
+        """Another coordinator's token is live where ``name`` looks for it at its start
+        (:meth:`coordinator.epochs.Epochs._claim`): it lives, has a token (a waiting standby has
+        none), its lease has not lapsed, and ``name`` reaches the router."""
+        return name not in self.cut and any(
+            self.has_token(other) and other not in self.lapsed for other in self.coordinator_names if other != name)
+
     def _heal(self, hosts) -> None:
         self.cut.difference_update(hosts)
         self._lease(hosts, True)
@@ -1105,8 +1121,12 @@ class Simulation:
 
     def _restart(self, driver) -> None:
         if not driver.alive and driver.phase in ("dead", "dead-standby"):
+            self.frozen.pop(driver.name if isinstance(driver, CoordinatorDriver) else driver.cid, None)  # a new process
             if isinstance(driver, CoordinatorDriver):
-                driver.phase = "new"
+                driver.phase = "new" if driver.phase == "dead" else "standby"
+                if driver.phase == "new" and self.claimed(driver.name):
+                    driver.phase = "refused"  # coordinator.epochs: DuplicateCoordinator, it exits
+                    return
             driver.start(self.now_of(driver.name if isinstance(driver, CoordinatorDriver) else driver.cid))
 
     def pause(self, driver: CoordinatorDriver) -> float:
@@ -1118,9 +1138,15 @@ class Simulation:
             return 0.0
         self.paused.add(f)
         self.frozen[driver.name] = self.t + f.size
-        self.at(self.t + min(LEASE_S, f.size), self._lease, (driver.name,), False)
-        self.at(self.t + f.size, self._lease, (driver.name,), True)
+        self.at(self.t + min(LEASE_S, f.size), self._paused_lease, driver, driver.life, False)
+        self.at(self.t + f.size, self._paused_lease, driver, driver.life, True)
         return f.size
+
+    def _paused_lease(self, driver: CoordinatorDriver, life: int, alive: bool) -> None:
+        """A paused process's session lapses and comes back with it; a process killed while paused
+        took its session along (:meth:`CoordinatorDriver.crash`), a restarted one has its own."""
+        if driver.life == life and driver.alive:
+            self._lease((driver.name,), alive)
 
     def _freeze(self, who: str, until: float) -> None:
         self.frozen[who] = until
