@@ -103,9 +103,11 @@ class Inbound:
             raise ProtocolError("wrong-mission", f"mission {msg.mission!r} on {self.mission!r}")
         if msg.carrier != cid:
             raise ProtocolError("key-mismatch", f"carrier {msg.carrier!r} on the key of {cid!r}")
-        self.heard[cid] = time.monotonic()
         if isinstance(msg, Progress):
+            if msg.stage <= self.state.next_stage:  # one past the stage collected sends nothing more for it:
+                self.heard[cid] = time.monotonic()  # its silence ends the wait (found by mission.simulate)
             return
+        self.heard[cid] = time.monotonic()
         if isinstance(msg, Hello) and msg.epoch > self.epoch and msg.fingerprint == self.fingerprint:
             self._carrier_epoch(cid, msg.epoch)
         self.apply(to_event(msg, item.wall))

@@ -326,8 +326,9 @@ class CoordinatorDriver:
             return
         cid = m.src
         if m.kind in ("hello", "obs", "confirm", "own", "bye", "progress") and cid in self.sim.fleet.ids \
-                and not (self.sim.plant == "slow-as-empty" and m.kind == "progress"):
-            self.heard[cid] = now  # [P-10.5]
+                and not (self.sim.plant == "slow-as-empty" and m.kind == "progress") \
+                and not (m.kind == "progress" and m.get("stage") > self.state.next_stage):
+            self.heard[cid] = now  # [P-10.5]; a carrier past the stage collected sends nothing more for it
         g = m.get
         if m.kind == "hello":
             self.apply(ev.Hello(cid, 1, cid, g("passengers_left"), g("next_stage"), g("fingerprint"), now, 4))
@@ -516,6 +517,7 @@ class CarrierDriver:
         self.listening = False
         self.asked = self.opened = self.waited_from = now
         self.last_progress: float | None = None
+        self.gap, self.resync = None, False      # a State query to resynchronise from, outstanding
         self.phase = "joining"
         self.sim.token(self.cid, True)
         self.sim.send(self.cid, ROUTER, msg("query", self.cid))
@@ -561,8 +563,7 @@ class CarrierDriver:
         elif isinstance(effect, mc.ResendObservation):
             self.publish_observation(effect.stage)
         elif isinstance(effect, mc.AskState):
-            self.gap = effect.stage
-            s.send(cid, ROUTER, msg("query", cid))
+            self.ask_state(now, effect.stage)
         elif isinstance(effect, mc.Reject):
             s.count_reject(effect.reason)
 
@@ -608,9 +609,7 @@ class CarrierDriver:
         if was and not self.present:
             self.absent_since = now
         if not was and self.present and self.machine.flying and not self.machine.ended:
-            self.gap = None  # the coordinator is back: resynchronise from its State [P-5.12]
-            self.resync = True
-            self.sim.send(self.cid, ROUTER, msg("query", self.cid))
+            self.ask_state(now)  # the coordinator is back: resynchronise from its State [P-5.12]
 
     def _state(self, m: Msg, now: float) -> None:
         g = m.get
@@ -626,9 +625,8 @@ class CarrierDriver:
             return
         if not mc.current(self.machine, seen.epoch):
             return
-        gap = getattr(self, "gap", None)
-        if gap is not None or getattr(self, "resync", False):
-            self.gap, self.resync = None, False
+        if self.resync:
+            gap, self.gap, self.resync = self.gap, None, False
             self.apply(mc.Resync(seen, self.position(), gap=gap), now)
         elif self.phase == "wait":
             j = self.j
@@ -638,6 +636,27 @@ class CarrierDriver:
                 # past j: its Decision was lost; behind j: the coordinator never had this
                 # carrier's Hello or accounts of the stages since (lost): both resynchronise
                 self.apply(mc.Resync(seen, self.position()), now)
+
+    def ask_state(self, now: float, gap: int | None = None) -> None:
+        """Resynchronise from State (the coordinator's token came back, or a Decision came after a
+        lost one: ``gap``). Like carriers/joining.py's ``_query_once``, the query waits
+        ``state_query_s`` for a reply; none: :class:`mission.carrier.Resync` without a State (its
+        Hello and answers go out all the same)."""
+        self.gap, self.resync, self.asks = gap, True, getattr(self, "asks", 0) + 1
+        self.sim.send(self.cid, ROUTER, msg("query", self.cid))
+        self.sim.at(self.sim.true_of(self.cid, now + self.sim.timeouts.state_query_s), self._unanswered, self.life,
+                    self.asks)
+
+    def _unanswered(self, life: int, ask: int) -> None:
+        if life != self.life or ask != self.asks or not self.resync or not self.alive:
+            return
+        if self.sim._frozen(self.cid):  # stuck in its query: it times out when it runs again
+            self.sim.at(self.sim.frozen[self.cid], self._unanswered, life, ask)
+            return
+        now = self.sim.now_of(self.cid)
+        gap, self.gap, self.resync = self.gap, None, False
+        self.apply(mc.Resync(None, self.position(), gap=gap), now)
+        self.advance(now)
 
     def join_from_state(self, seen: mc.StateSeen, now: float) -> None:
         """Join from the coordinator's State and the carrier's own log (carriers/joining.py's
