@@ -1096,12 +1096,14 @@ class Simulation:
         self.at(self.t + min(LEASE_S, until - self.t), self._lease, tuple(hosts), False)
         self.at(until, self._heal, tuple(hosts))
 
-    def _lease(self, hosts, alive: bool) -> None:
-        """The tokens across the cut vanish (the lease expired) or reappear (it healed)."""
+    def _lease(self, hosts, alive: bool, reached: bool = False) -> None:
+        """The tokens across the cut vanish (the lease expired) or reappear (it healed).
+        ``reached``: only between hosts the network reaches (a paused process's session; a host
+        cut off meanwhile learns the truth when its own cut heals)."""
         (self.lapsed.difference_update if alive else self.lapsed.update)(hosts)
         for h in hosts:
             for other in [*self.coordinator_names, *self.fleet.ids]:
-                if other == h:
+                if other == h or reached and (other in self.cut or h in self.cut):
                     continue
                 self._notify(other, h, alive)
                 self._notify(h, other, alive)
@@ -1165,7 +1167,7 @@ class Simulation:
         """A paused process's session lapses and comes back with it; a process killed while paused
         took its session along (:meth:`CoordinatorDriver.crash`), a restarted one has its own."""
         if driver.life == life and driver.alive:
-            self._lease((driver.name,), alive)
+            self._lease((driver.name,), alive, reached=True)
 
     def _freeze(self, who: str, until: float) -> None:
         self.frozen[who] = until
