@@ -269,6 +269,19 @@ class LogEntry:
 
 # --------------------------------------------------------------------------- the coordinator's driver
 
+@dataclass
+class Disk:
+    """A coordinator's mission.db: its durable record (``events``, what :func:`mission.state.fold`
+    reads at a restart) and the highest epoch opened on it (``epoch``: the store fences a write
+    of a lower one). A primary and its standby share one, or each has its own
+    (:attr:`Simulation.separate`)."""
+
+    name: str
+    events: list = field(default_factory=list)
+    epoch: int = 0
+
+
+
 class CoordinatorDriver:
     """A coordinator process on a simulated host: its mission state, its durable record (``db``,
     shared with a standby: mission.db on the disk they share), its waits by :mod:`mission.timers`.
@@ -276,8 +289,8 @@ class CoordinatorDriver:
     Phases: ``standby`` (a live primary exists), ``join``, ``stage``, ``confirm``, ``end`` (the
     Bye wait), ``done``, ``deposed``."""
 
-    def __init__(self, sim: "Simulation", name: str, standby: bool = False):
-        self.sim, self.name = sim, name
+    def __init__(self, sim: "Simulation", name: str, disk: Disk, standby: bool = False):
+        self.sim, self.name, self.disk = sim, name, disk
         self.phase = "standby" if standby else "new"
         self.alive = False
         self.state: ms.MissionState | None = None
@@ -298,11 +311,13 @@ class CoordinatorDriver:
             return
         self.open(now)
 
-    def open(self, now: float) -> None:
-        """Open the mission: a fresh start, a restart or a takeover (the record folded, a new epoch)."""
-        self.sim.db.append(ev.Opened(now))
-        self.state = ms.fold(self.sim.spec, self.sim.db)
-        self.epoch = self.state.opens
+    def open(self, now: float, known: int = 0) -> None:
+        """Open the mission: a fresh start, a restart or a takeover (the record folded, a new
+        epoch above every one opened on its disk and ``known``, the primary's that a standby
+        learnt from its State: storage.missiondb's ``min_epoch``)."""
+        self.disk.events.append(ev.Opened(now))
+        self.state = ms.fold(self.sim.spec, self.disk.events)
+        self.epoch = self.disk.epoch = max(self.disk.epoch, known) + 1
         self.phase, self.opened, self.last_join, self.heard = "join", now, now, {}
         self.sim.token(self.name, True)
         if self.state.ended:  # a complete mission is final: nothing to do
@@ -344,7 +359,15 @@ class CoordinatorDriver:
             self.apply(ev.Bye(cid, tuple(g("deployments", ())), (), g("reason", "finished"), now))
         elif m.kind == "query":
             self.sim.send(self.name, cid, self.state_reply(cid))
+        elif m.kind == "decision" and m.get("epoch") > self.epoch:
+            self.depose()  # coordinator.epochs._heard_decision: a newer coordinator decides
+            return
         self.advance(now)
+
+    def depose(self) -> None:
+        """Stop deciding, without End: a coordinator of a newer epoch took over."""
+        self.phase, self.alive, self.resuming = "deposed", False, None
+        self.sim.token(self.name, False)
 
     def _token(self, m: Msg, now: float) -> None:
         who, alive = m.get("who"), m.get("alive")
@@ -372,7 +395,7 @@ class CoordinatorDriver:
         self.sim.check_coordinator(self, before, event, effects)
         for effect in effects:
             if isinstance(effect, ms.Record):
-                self.sim.db.append(effect.event)
+                self.disk.events.append(effect.event)
             elif isinstance(effect, ms.Accept):
                 self.sim.send(self.name, effect.carrier, msg("accepted", self.name, next_stage=effect.next_stage,
                                                               epoch=self.epoch))
@@ -402,7 +425,7 @@ class CoordinatorDriver:
         if self.phase == "standby":
             rule = tm.standby(self.primary_lost is None, self.primary_lost, now, t.standby_poll_s)
             if isinstance(rule, tm.TakeOver):
-                self.open(now)
+                self.open(now, max(d.epoch for d in self.sim.coordinators.values()))
                 return tm.Wait()
             return rule
         if self.phase == "join":
@@ -448,10 +471,8 @@ class CoordinatorDriver:
         return tm.Wait()
 
     def decide(self, j: int, now: float) -> None:
-        newer = sum(isinstance(e, ev.Opened) for e in self.sim.db)
-        if newer > self.epoch:  # a standby took over on the shared disk: deposed, no Decision
-            self.phase, self.alive = "deposed", False
-            self.sim.token(self.name, False)
+        if self.disk.epoch > self.epoch:  # a standby took over on the shared disk: deposed, no Decision
+            self.depose()
             return
         deploy, passengers = self.sim.fleet.decide(self.state, j)
         paused = self.sim.pause(self)
@@ -462,11 +483,10 @@ class CoordinatorDriver:
         self.publish(j, deploy, passengers, now)
 
     def publish(self, j: int, deploy, passengers, now: float) -> None:
-        if sum(isinstance(e, ev.Opened) for e in self.sim.db) > self.epoch:
+        if self.disk.epoch > self.epoch:
             # the store fences a deposed coordinator's write: a newer epoch opened the mission
             # while this one was paused after its check; it steps down
-            self.phase, self.alive = "deposed", False
-            self.sim.token(self.name, False)
+            self.depose()
             return
         self.apply(ev.Decided(j, deploy, 0.0, now, passengers))
         self.apply(ev.Published(j, now))
@@ -841,7 +861,6 @@ class Simulation:
         self.fleet, self.seed, self.timeouts, self.plant = fleet, int(seed), timeouts, plant
         self.rng = np.random.default_rng([int(fleet.seed) & 0xFFFFFFFF, int(seed)])
         self.spec = fleet.spec()
-        self.db: list = []                       # mission.db: the coordinators' durable record
         self.heap: list = []
         self.ticks: dict = {}                    # host -> (true time, life) of its one pending tick
         self.seq = 0
@@ -860,6 +879,9 @@ class Simulation:
         horizon = 0.5 + 0.05 * fleet.n_stages
         drawn = draw_faults(self.rng, kinds, ids, horizon)  # drawn always: a given schedule replays the same draws after
         self.faults = tuple(faults) if faults is not None else drawn
+        self.windows: dict = {}                 # kind -> its faults, in schedule order
+        for f in self.faults:
+            self.windows.setdefault(f.kind, []).append(f)
         self.carriers = {cid: CarrierDriver(self, cid) for cid in ids}
         names = ["coordinator"]
         if any(f.kind in ("takeover", "dual-start", "pause") for f in self.faults):
@@ -867,7 +889,14 @@ class Simulation:
         # a standby watches the primary (takeover, pause); two coordinators started together
         # (dual-start) both open the mission: the first is deposed at its first decision
         together = any(f.kind == "dual-start" for f in self.faults)
-        self.coordinators = {n: CoordinatorDriver(self, n, standby=n == "standby" and not together) for n in names}
+        # a waiting standby has its own disk in half the missions (from a stream of its own: the
+        # draws of the rest stay the same): a deposed primary keeps its stale store, and a
+        # Decision of its older epoch can reach a carrier (docs/fleet.md, "Split brain")
+        self.separate = ("standby" in names and not together
+                         and np.random.default_rng([int(fleet.seed) & 0xFFFFFFFF, int(seed), 2]).random() < 0.5)
+        shared = Disk("mission.db")
+        self.coordinators = {n: CoordinatorDriver(self, n, Disk(f"{n}/mission.db") if self.separate and n == "standby"
+                                                  else shared, standby=n == "standby" and not together) for n in names}
         self.coordinator_names = tuple(names)  # ordered: every iteration that sends is in a fixed order
         hosts = [*names, *ids]
         self.clocks = {h: Clock(float(self.rng.uniform(0, 1e4)), float(self.rng.uniform(-1e-4, 1e-4))) for h in hosts}
@@ -943,10 +972,10 @@ class Simulation:
         return self.outcome(bound)
 
     def done(self) -> bool:
-        return (all(d.phase in ("done", "dead", "deposed", "dead-standby", "standby", "refused")
-                    for d in self.coordinators.values())
-                and all(d.phase in ("done", "dead") for d in self.carriers.values())
-                and any(d.phase == "done" for d in self.coordinators.values()))
+        return (any(d.phase == "done" for d in self.coordinators.values())  # first: the cheap, rarely true test
+                and all(d.phase in ("done", "dead", "deposed", "dead-standby", "standby", "refused")
+                        for d in self.coordinators.values())
+                and all(d.phase in ("done", "dead") for d in self.carriers.values()))
 
     def liveness_bound(self) -> float:
         """Simulated seconds within which a mission whose schedule heals completes: the last
@@ -968,8 +997,14 @@ class Simulation:
             self._deliver(src, dst, m)
 
     def broadcast(self, src: str, m: Msg) -> None:
+        """To every carrier; a Decision also to the other live coordinators (they subscribe to
+        the decision key: coordinator.epochs._heard_decision)."""
         for cid in self.fleet.ids:
             self._deliver(src, cid, m)
+        if m.kind == "decision" and self.separate:
+            for name in self.coordinator_names:
+                if name != src and self.has_token(name):
+                    self._deliver(src, name, m)
 
     def to_listeners(self, src: str, m: Msg) -> None:
         """To the carriers listening to ``src`` (its conflict component's, once they listen)."""
@@ -982,7 +1017,10 @@ class Simulation:
         return dst in self.listeners and dst in self.listened_by.get(src, ())
 
     def _window(self, kind: str):
-        return next((f for f in self.faults if f.kind == kind and f.at <= self.t < f.until), None)
+        for f in self.windows.get(kind, ()):
+            if f.at <= self.t < f.until:
+                return f
+        return None
 
     def _deliver(self, src: str, dst: str, m: Msg, reliable: bool = False) -> None:
         """``reliable``: a liveliness token's change, which is state kept in step by the session
@@ -1240,6 +1278,12 @@ class Simulation:
         if m.flying and m.passengers_left != carried:
             self.violate(f"carrier {driver.cid} counts {m.passengers_left} passenger(s) on board, it carries {carried}")
 
+    @property
+    def db(self) -> list:
+        """The mission's record: the disk of the coordinator that completed it (else the primary's)."""
+        final = next((d for d in self.coordinators.values() if d.phase == "done"), self.coordinators["coordinator"])
+        return final.disk.events
+
     def check_coordinator(self, driver: CoordinatorDriver, before, event, effects) -> None:
         for effect in effects:
             if not isinstance(effect, ms.Record):
@@ -1248,7 +1292,7 @@ class Simulation:
             if isinstance(e, (ev.Bye, ev.Observation, ev.Confirmed)) and e.carrier not in before.accepted:
                 self.violate(f"{driver.name} recorded a {type(e).__name__} of {e.carrier} without its accepted Hello")
             if isinstance(e, ev.Confirmed):
-                key = (e.carrier, e.stage)
+                key = (driver.disk.name, e.carrier, e.stage)  # each store records it once
                 if key in self.confirmed:
                     self.violate(f"{driver.name} recorded a second Confirm of {e.carrier} at stage {e.stage}")
                 self.confirmed.add(key)
