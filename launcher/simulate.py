@@ -22,8 +22,10 @@ from mission.exits import EXIT_USAGE
 SHRINK_RUNS = 40
 
 
-def build_fleet(path: str, mode: str = "hybrid", onboard_iterations: int | None = None) -> sim.Fleet:
-    """The simulator's :class:`mission.simulate.Fleet` of a scenario file (ScenarioError on bad input)."""
+def build_fleet(path: str, mode: str = "hybrid", onboard_iterations: int | None = None,
+                seed: int | None = None) -> sim.Fleet:
+    """The simulator's :class:`mission.simulate.Fleet` of a scenario file (ScenarioError on bad
+    input); ``seed``: the world's root seed instead of the scenario's (run_fleet.py's ``--seed``)."""
     import numpy as np
 
     import world
@@ -32,6 +34,8 @@ def build_fleet(path: str, mode: str = "hybrid", onboard_iterations: int | None 
     from wire.messages import scenario_fingerprint
 
     scenario = world.load_scenario(path)
+    if seed is not None:
+        scenario = scenario.with_seed(int(seed))
     problem = world.build_problem(scenario)
     name, options = planner_settings(scenario)
     planner = make_planner(name, **used_options(name, options))

@@ -490,6 +490,7 @@ class CoordinatorDriver:
             return
         self.apply(ev.Decided(j, deploy, 0.0, now, passengers))
         self.apply(ev.Published(j, now))
+        self.sim.decided_at.setdefault(j, self.sim.t)
         self.opened = now
         if self.state.next_stage >= self.sim.fleet.n_stages:
             self.phase = "confirm"
@@ -875,6 +876,7 @@ class Simulation:
         self.listened_by = fleet.listened_by() if fleet.mode != "coordinated" else {}
         self.epochs: dict = {}                   # (epoch, stage) -> the coordinator that published it
         self.finished_ids: dict = {}
+        self.decided_at: dict = {}               # stage -> the true time its first Decision was published
         ids = fleet.ids
         horizon = 0.5 + 0.05 * fleet.n_stages
         drawn = draw_faults(self.rng, kinds, ids, horizon)  # drawn always: a given schedule replays the same draws after
