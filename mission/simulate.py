@@ -1342,7 +1342,10 @@ class Simulation:
         for r, cid in enumerate(self.fleet.ids):
             record, made = merged.state.deployments_of(cid), set(physical[cid])
             sure = set(np.flatnonzero(confirmed[r]).tolist())
-            if self.carriers[cid].phase == "done" and record != physical[cid]:
+            if self.carriers[cid].phase == "done" and cid in merged.state.byes and record != physical[cid]:
+                # its Bye on record: it told the coordinator all it made (one whose Bye was lost, e.g.
+                # a coordinated carrier giving up while the coordinator was down, is as one that
+                # never came back: a Decision for it after it left counts as gone)
                 self.violate(f"the mission's record (mission.db and the carriers' logs) has deployments {record} "
                              f"of {cid}, which deployed at {physical[cid]}")
             elif not sure <= made <= set(record):
