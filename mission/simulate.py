@@ -319,6 +319,7 @@ class CoordinatorDriver:
         self.state = ms.fold(self.sim.spec, self.disk.events)
         self.epoch = self.disk.epoch = max(self.disk.epoch, known) + 1
         self.phase, self.opened, self.last_join, self.heard = "join", now, now, {}
+        self.joined_count = sum(1 for cid in self.state.live if cid in self.state.accepted)
         self.sim.token(self.name, True)
         if self.state.ended:  # a complete mission is final: nothing to do
             self.phase = "end"
@@ -347,7 +348,7 @@ class CoordinatorDriver:
         g = m.get
         if m.kind == "hello":
             self.apply(ev.Hello(cid, 1, cid, g("passengers_left"), g("next_stage"), g("fingerprint"), now, 4))
-            self.last_join = now
+            self.joined(now)
         elif m.kind == "obs":
             self.apply(ev.Observation(cid, g("stage"), g("t"), g("x"), (0.0, 0.0), g("passengers_left"), (), now))
         elif m.kind == "confirm":
@@ -369,13 +370,20 @@ class CoordinatorDriver:
         self.phase, self.alive, self.resuming = "deposed", False, None
         self.sim.token(self.name, False)
 
+    def joined(self, now: float) -> None:
+        """The join wait runs from when the count of live carriers with an accepted Hello last grew
+        (coordinator/clock.py's ``_wait_for_carriers``): a Hello said again does not restart it."""
+        st = self.state
+        count = sum(1 for cid in st.live if cid in st.accepted)
+        if count > self.joined_count:
+            self.last_join, self.joined_count = now, count
+
     def _token(self, m: Msg, now: float) -> None:
         who, alive = m.get("who"), m.get("alive")
         if who in self.sim.fleet.ids:
             if self.state is not None and self.phase not in ("standby", "dead", "dead-standby"):
                 self.apply(ev.LivelinessChanged(who, alive, now))
-                if alive:
-                    self.last_join = now
+                self.joined(now)
                 self.advance(now)
         elif who != self.name and self.phase == "standby":
             self.primary_lost = None if alive else now

@@ -76,6 +76,13 @@ def test_a_short_campaign_with_every_fault_kind_finds_no_new_violation(fleet):
     assert set(report["per_seed"][0]) >= {"seed", "trace_hash", "faults", "deployments", "reward"}
 
 
+def test_a_short_campaign_of_coordinated_carriers_finds_no_violation():
+    """Carriers that hold without a coordinator (--no-autonomy): give up after its absence, the
+    join wait of a standby on its own disk (found: a Hello said again restarted it)."""
+    report = campaign(build_fleet(SIX, mode="coordinated"), range(0, 100), sim.FAULT_KINDS)
+    assert report["missions"] == 100 and report["violations"] == []
+
+
 #: Each planted bug class, the fault kinds that expose it, and the seeds searched. ``older-epoch``
 #: (a carrier accepting a deposed coordinator's Decision) needs a standby on its own disk (half
 #: the missions with a standby) and a primary paused past its lease while the mission is still
