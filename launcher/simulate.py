@@ -1,5 +1,5 @@
 """``python -m mission.simulate SCENARIO --seeds A:B [--faults KINDS|all|none] [--json OUT]``: a
-campaign of seeded missions of one scenario in the deterministic simulator (mission/simulate.py;
+campaign of seeded missions of one scenario in the deterministic simulator (mission/simulate/;
 docs/fleet.md, "Deterministic simulation").
 
 Each seed is one mission: its fault schedule, network delays and clocks come from the seed; the

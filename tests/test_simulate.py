@@ -1,4 +1,4 @@
-"""The deterministic simulator (mission/simulate.py, ``python -m mission.simulate``): fidelity
+"""The deterministic simulator (mission/simulate/, ``python -m mission.simulate``): fidelity
 without faults, determinism, a short campaign with every fault kind and no violation, the
 campaign's power against planted bugs, shrinking and replay, the command line's errors; and the
 carrier's join rules the simulator found wanting (mission.carrier: Missed, Recalled, join_stage)."""
