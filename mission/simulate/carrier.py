@@ -69,11 +69,13 @@ class CarrierDriver:
         if isinstance(effect, mc.LogObservation):
             self.log[effect.stage] = LogEntry(effect.stage, float(s.fleet.stage_times[effect.stage]), effect.x, True,
                                               effect.position)
+            self.book.observation(cid, effect.stage, effect.x)
         elif isinstance(effect, mc.LogOutcome):
             entry = self.log.get(effect.stage) or LogEntry(effect.stage, float(s.fleet.stage_times[effect.stage]))
             self.log[effect.stage] = dataclasses.replace(entry, position=effect.position, status=effect.status,
                                                          deployed=effect.deployed,
                                                          passengers_left=effect.passengers_left)
+            self.book.outcome(cid, effect.stage, effect.deployed)
         elif isinstance(effect, mc.Deploy):
             s.released(self, effect.stage)
         elif isinstance(effect, mc.SendConfirm):
@@ -111,6 +113,8 @@ class CarrierDriver:
         elif m.kind == "state":
             self._state(m, now)
         elif m.kind == "decision" and (self.machine.flying or self.phase == "joining"):
+            if g("stage") < self.sim.fleet.n_stages and mc.current(self.machine, g("epoch")):
+                self.book.decision(g("stage"), tuple(g("deploy")))  # what it decides alone later knows (carriers/inbound.py)
             self.apply(mc.DecisionHeard(g("stage"), g("t"), tuple(g("deploy")), self.position(), g("epoch")), now)
         elif m.kind == "end":
             self.apply(mc.EndHeard(g("epoch")), now)
@@ -198,9 +202,11 @@ class CarrierDriver:
         if not forget:
             for j in mc.replay_plan(self.machine, min(seen.next_stage, start), seen.deployments, logged):
                 self.apply(mc.Replayed(j, self.position()), now)
+                self.book.outcome(self.cid, j, True)
             for j in recalled:
                 e = entries[j]
                 self.apply(mc.Recalled(j, e.status, e.deployed, self.position(), e.x), now)
+                self.book.outcome(self.cid, j, e.deployed)
         self.apply(mc.Joined(start if not forget else seen.next_stage, seen.ended, seen.epoch), now)
         self.apply_effect_hello(now)
         for j in mc.missed(seen.next_stage, seen.deployments, logged):
@@ -338,9 +344,14 @@ class CarrierDriver:
     def join_alone(self, now: float) -> None:
         """No coordinator answered: go on from the durable log (hybrid)."""
         done = [e for e in self.log.values() if e.status is not None]
+        for e in done:  # its own log is what its on-board decisions know of its past (carriers/joining.py)
+            if e.observed:
+                self.book.observation(self.cid, e.stage, e.x)
+            self.book.outcome(self.cid, e.stage, e.deployed)
         next_stage = max((e.stage + 1 for e in done), default=0)
         for j in mc.replay_plan(self.machine, next_stage, [e.stage for e in done if e.deployed]):
             self.apply(mc.Replayed(j, self.position()), now)
+            self.book.outcome(self.cid, j, True)
         self.apply(mc.Joined(next_stage), now)
         self.listen()
         self.begin_stage(self.machine.stage, now)
