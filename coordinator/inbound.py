@@ -103,9 +103,11 @@ class Inbound:
             raise ProtocolError("wrong-mission", f"mission {msg.mission!r} on {self.mission!r}")
         if msg.carrier != cid:
             raise ProtocolError("key-mismatch", f"carrier {msg.carrier!r} on the key of {cid!r}")
-        self.heard[cid] = item.received  # heard when it arrived [P-10.5]
         if isinstance(msg, Progress):
+            if msg.stage <= self.state.next_stage:  # one past the stage collected sends nothing more for it:
+                self.heard[cid] = item.received  # its silence ends the wait (found by mission.simulate)
             return
+        self.heard[cid] = item.received  # heard when it arrived [P-10.5]
         if isinstance(msg, Hello) and msg.epoch > self.epochs.epoch and msg.fingerprint == self.fingerprint:
             if self.epochs.carrier_heard(cid, msg.epoch, self.state.next_stage, self.store):
                 self._refresh_state()  # State and the last Decision again, in the new epoch [P-7.5]

@@ -1,5 +1,5 @@
 """``python -m mission.simulate SCENARIO --seeds A:B [--faults KINDS|all|none] [--json OUT]``: a
-campaign of seeded missions of one scenario in the deterministic simulator (mission/simulate.py;
+campaign of seeded missions of one scenario in the deterministic simulator (mission/simulate/;
 docs/fleet.md, "Deterministic simulation").
 
 Each seed is one mission: its fault schedule, network delays and clocks come from the seed; the
@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -22,8 +23,10 @@ from mission.exits import EXIT_USAGE
 SHRINK_RUNS = 40
 
 
-def build_fleet(path: str, mode: str = "hybrid", onboard_iterations: int | None = None) -> sim.Fleet:
-    """The simulator's :class:`mission.simulate.Fleet` of a scenario file (ScenarioError on bad input)."""
+def build_fleet(path: str, mode: str = "hybrid", onboard_iterations: int | None = None,
+                seed: int | None = None) -> sim.Fleet:
+    """The simulator's :class:`mission.simulate.Fleet` of a scenario file (ScenarioError on bad
+    input); ``seed``: the world's root seed instead of the scenario's (run_fleet.py's ``--seed``)."""
     import numpy as np
 
     import world
@@ -35,6 +38,8 @@ def build_fleet(path: str, mode: str = "hybrid", onboard_iterations: int | None 
     if scenario.reward == "coverage":  # its carriers send no region counts: refused, not flown wrong
         raise world.ScenarioError([f"{path}: reward: expected penalty (the deterministic simulator does not model "
                                    f"region counts yet), found coverage"])
+    if seed is not None:
+        scenario = scenario.with_seed(int(seed))
     problem = world.build_problem(scenario)
     name, options = planner_settings(scenario)
     planner = make_planner(name, **used_options(name, options))
@@ -124,11 +129,18 @@ def _one(args) -> dict:
     return sim.simulate(_FLEET, seed, kinds=kinds, faults=schedule, plant=plant).as_json()
 
 
+def _cpu() -> float:
+    """CPU seconds of this process and its reaped workers (what the campaign costs, whatever else
+    runs on the machine)."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
 def campaign(fleet: sim.Fleet, seeds, kinds, schedule=None, plant=None, progress=None, jobs: int = 1) -> dict:
     """Run every seed (``jobs`` worker processes, each seed's mission the same in any); the
     report's figures (the keys of ``--json``)."""
     global _FLEET
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), _cpu()
     tasks = [(seed, tuple(kinds), schedule, plant) for seed in seeds]
     _FLEET = fleet
     if jobs > 1:
@@ -146,11 +158,14 @@ def campaign(fleet: sim.Fleet, seeds, kinds, schedule=None, plant=None, progress
             violations += [{"seed": out["seed"], "violation": line} for line in out["violations"]]
             if progress is not None:
                 progress(k + 1, len(tasks), out)
+        if pool is not None:
+            pool.close()
+            pool.join()  # reaped: their CPU time counts in os.times()
     finally:
         if pool is not None:
             pool.terminate()
-    seconds = time.perf_counter() - t0
-    return {"missions": len(per_seed), "events": events, "seconds": round(seconds, 3),
+    seconds, cpu = time.perf_counter() - t0, _cpu() - cpu0
+    return {"missions": len(per_seed), "events": events, "seconds": round(seconds, 3), "cpu_seconds": round(cpu, 3),
             "missions_per_s": round(len(per_seed) / seconds, 2) if seconds else None,
             "events_per_s": round(events / seconds, 1) if seconds else None,
             "violations": violations, "per_seed": per_seed}

@@ -130,7 +130,7 @@ FORWARDS = {"planner/online_optimal.py": ("planner.cli.measure", "optimal_table"
             "planner/coverage_bounds.py": ("planner.cli.measure", "coverage_bound_times"),
             "planner/conformance.py": ("planner.cli.conformance", "main"),
             # mission/ has no command line either: ``python -m mission.simulate`` is launcher/simulate.py's
-            "mission/simulate.py": ("launcher.simulate", "main"),
+            "mission/simulate/__main__.py": ("launcher.simulate", "main"),
             # ``python -m world`` runs world/'s command with the wire's checks (launcher/scenario_check.py)
             "world/__main__.py": ("launcher.scenario_check", "world_command")}
 CLI = "planner/cli/"
@@ -149,7 +149,8 @@ def _forward_lines(path: Path) -> set[int]:
             if isinstance(node, ast.ImportFrom) and node.module == FORWARDS[rel][0]}
 
 
-@pytest.mark.parametrize("path", [*sorted((REPO / "planner").rglob("*.py")), REPO / "mission" / "simulate.py"],
+@pytest.mark.parametrize("path", [*sorted((REPO / "planner").rglob("*.py")),
+                                  *sorted((REPO / "mission" / "simulate").glob("*.py"))],
                          ids=lambda p: str(p.relative_to(REPO)))
 def test_the_core_has_no_command_line(path):
     """No argparse in planner/ outside planner/cli/, and no ``__main__`` block but the forwards,

@@ -1,4 +1,4 @@
-"""The deterministic simulator (mission/simulate.py, ``python -m mission.simulate``): fidelity
+"""The deterministic simulator (mission/simulate/, ``python -m mission.simulate``): fidelity
 without faults, determinism, a short campaign with every fault kind and no violation, the
 campaign's power against planted bugs, shrinking and replay, the command line's errors; and the
 carrier's join rules the simulator found wanting (mission.carrier: Missed, Recalled, join_stage)."""
@@ -60,7 +60,7 @@ def test_the_trace_is_the_same_in_another_process_with_another_hash_seed(tmp_pat
 #: Seeds of six_carriers (every fault kind) whose violations are known and not fixed yet
 #: (docs/fleet.md, "Deterministic simulation", "Open findings"); this list may only shrink:
 #: a new failing seed fails the test, and so does a listed one that passes.
-KNOWN_OPEN = {72: "did not complete"}
+KNOWN_OPEN: dict = {}
 
 
 def test_a_short_campaign_with_every_fault_kind_finds_no_new_violation(fleet):
@@ -76,26 +76,37 @@ def test_a_short_campaign_with_every_fault_kind_finds_no_new_violation(fleet):
     assert set(report["per_seed"][0]) >= {"seed", "trace_hash", "faults", "deployments", "reward"}
 
 
-#: Each planted bug class, the fault kind that exposes it, and the seeds searched. Not here:
-#: ``older-epoch`` (a carrier accepting a deposed coordinator's Decision), which no campaign of
-#: this simulator finds yet: with the coordinators' one shared mission.db, the epoch check before a
-#: decision and the store's one decision per stage leave no path for an older epoch's different
-#: Decision to reach a carrier (docs/fleet.md, "Deterministic simulation", "Power").
+def test_a_short_campaign_of_coordinated_carriers_finds_no_violation():
+    """Carriers that hold without a coordinator (--no-autonomy): give up after its absence, the
+    join wait of a standby on its own disk (found: a Hello said again restarted it)."""
+    report = campaign(build_fleet(SIX, mode="coordinated"), range(0, 100), sim.FAULT_KINDS)
+    assert report["missions"] == 100 and report["violations"] == []
+
+
+#: Each planted bug class, the fault kinds that expose it, and the seeds searched. ``older-epoch``
+#: (a carrier accepting a deposed coordinator's Decision) needs a standby on its own disk (half
+#: the missions with a standby) and a primary paused past its lease while the mission is still
+#: flying when it resumes (a slow carrier keeps it so).
 POWER = {
-    "confirm-twice": ("duplicate", 10),
-    "forget-on-restart": ("crash", 60),
-    "slow-as-empty": ("slow", 15),
-    "bye-without-hello": ("stale", 5),
+    "confirm-twice": (("duplicate",), 10),
+    "forget-on-restart": (("crash",), 60),
+    "older-epoch": (("pause", "slow"), 20),
+    "slow-as-empty": (("slow",), 15),
+    "bye-without-hello": (("stale",), 5),
 }
+
+
+def test_the_power_test_holds_every_planted_bug_class():
+    assert set(POWER) == set(sim.PLANTS)
 
 
 @pytest.mark.parametrize("plant", sorted(POWER))
 def test_the_campaign_finds_every_planted_bug_class(fleet, plant):
-    kind, seeds = POWER[plant]
-    found = [row["seed"] for row in campaign(fleet, range(seeds), (kind,), plant=plant)["per_seed"] if row["violations"]]
-    assert found, f"{plant}: no violation in {seeds} seeds with {kind} faults"
+    kinds, seeds = POWER[plant]
+    found = [row["seed"] for row in campaign(fleet, range(seeds), kinds, plant=plant)["per_seed"] if row["violations"]]
+    assert found, f"{plant}: no violation in {seeds} seeds with {', '.join(kinds)} faults"
     # and the real rules pass the same seeds
-    assert campaign(fleet, found[:3], (kind,))["violations"] == []
+    assert campaign(fleet, found[:3], kinds)["violations"] == []
 
 
 def test_a_failing_schedule_shrinks_to_one_that_still_fails(fleet):

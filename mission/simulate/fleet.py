@@ -1,0 +1,111 @@
+"""What the simulator needs of a scenario: :class:`Fleet` (built from a scenario file by
+:mod:`launcher.simulate`), with the planners' steps memoised on their exact inputs."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .. import events as ev
+from .. import state as ms
+
+@dataclass(frozen=True)
+class Fleet:
+    """What the simulator needs of a scenario (all numbers; :mod:`launcher.simulate` builds it).
+
+    Attributes:
+        ids: carrier ids in scenario order; passengers: ``[R]``; valid: bool ``[R, N]``;
+        stage_times: ``[N]`` s; x: float ``[R, N]``, what each carrier senses (NaN: invalid);
+        problem: the planner core's instance; planner: the coordinator's planner (stateless);
+        onboard: the on-board planner (``decide_local``); seed: the scenario's root seed;
+        fingerprint: the world fingerprint every Hello carries; mode: the carriers' mode.
+    """
+
+    ids: tuple
+    passengers: tuple
+    valid: np.ndarray
+    stage_times: tuple
+    x: np.ndarray
+    problem: object
+    planner: object
+    onboard: object
+    seed: int
+    fingerprint: str = "sim"
+    mode: str = "hybrid"
+    decisions: dict = field(default_factory=dict, compare=False, repr=False)  # the planner's memo
+
+    @property
+    def n_stages(self) -> int:
+        return len(self.stage_times)
+
+    def spec(self) -> ms.MissionSpec:
+        return ms.MissionSpec.build(self.ids, self.valid, self.passengers, self.stage_times, self.fingerprint)
+
+    def decide(self, state: ms.MissionState, j: int) -> tuple[tuple, tuple]:
+        """(deploying ids, sorted; the passenger each releases): the coordinator's stage step on
+        the mission's view. Planners are stateless, so the step is a function of its inputs and
+        is memoised on them (the campaign's missions share most of their stages)."""
+        from planner.online import stage_step
+
+        x, deployed = state.planning_observations(j), state.deployed()
+        released = state.releases() if self.problem.weights is not None else None
+        key = (j, np.nan_to_num(x[:, : j + 1], nan=-1.0).tobytes(), deployed[:, :j].tobytes(),
+               None if released is None else released[:, :j].tobytes())
+        hit = self.decisions.get(key)
+        if hit is None:
+            step = stage_step(self.problem, x, deployed, self.planner, self.seed, j, released)
+            rs = sorted(np.flatnonzero(step.deploy), key=lambda r: self.ids[r])
+            hit = self.decisions[key] = (tuple(self.ids[r] for r in rs), tuple(int(step.passengers[r]) for r in rs))
+        return hit
+
+    def listened_by(self) -> dict:
+        """carrier id -> the ids that listen to it (:func:`mission.peers.listened`: each carrier
+        deciding on board listens to its conflict component), computed once."""
+        key = ("listened",)
+        if key not in self.decisions:
+            from ..peers import listened
+
+            out = {cid: [] for cid in self.ids}
+            for r, cid in enumerate(self.ids):
+                for b in listened(self.problem, r):
+                    out[self.ids[b]].append(cid)
+            self.decisions[key] = {cid: tuple(v) for cid, v in out.items()}
+        return self.decisions[key]
+
+    def decide_local(self, local) -> bool:
+        """A carrier's on-board decision of its stage on its local view (memoised on the view)."""
+        from planner.decentralised import LocalDecision
+        from planner.problem import stage_rng
+
+        key = ("local", local.carrier, local.stage, np.nan_to_num(local.observations, nan=-1.0).tobytes(),
+               local.deployed.tobytes(),
+               local.seen.tobytes(), local.record.tobytes())
+        hit = self.decisions.get(key)
+        if hit is None:
+            hit = self.decisions[key] = bool(LocalDecision.of(self.onboard.decide_local(
+                local, stage_rng(self.seed, local.stage))).deploy)
+        return hit
+
+    def offline(self) -> dict:
+        """The offline planner's decisions (stage -> deploying ids) with every observation known:
+        what a fault-free mission must decide (computed once per fleet)."""
+        if ("offline",) not in self.decisions:
+            self.decisions[("offline",)] = self._offline()
+        return self.decisions[("offline",)]
+
+    def _offline(self) -> dict:
+        state = ms.initial(self.spec())
+        for cid in self.ids:
+            state = ms.step(state, ev.LivelinessChanged(cid, True))[0]
+            state = ms.step(state, ev.Hello(cid, 0, "sim", self.passengers[self.ids.index(cid)], 0, self.fingerprint,
+                                            revision=4))[0]
+        out = {}
+        for j in range(self.n_stages):
+            for r, cid in enumerate(self.ids):
+                if self.valid[r, j]:
+                    xv = None if np.isnan(self.x[r, j]) else int(self.x[r, j])
+                    state = ms.step(state, ev.Observation(cid, j, self.stage_times[j], xv, (0.0, 0.0), 0))[0]
+            deploy, passengers = self.decide(state, j)
+            state = ms.step(state, ev.Decided(j, deploy, 0.0, 0.0, passengers))[0]
+            out[j] = deploy
+        return out
