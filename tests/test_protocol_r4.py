@@ -34,10 +34,10 @@ P0 = (0.0, 0.0)
 #: from a value), and CarrierState inside State.
 SAMPLES = {
     "hello": wm.Hello(M, "a", 1, "h", 1, 0, "f", epoch=2, revision=4),
-    "obs": wm.Observation(M, "a", 0, 0.0, 1, P0, 1, ()),
+    "obs": wm.Observation(M, "a", 0, 0.0, 1, P0, 1, (), counts=(1, 0)),
     "decision": wm.Decision(M, 1, 5.0, ("a",), 1.0, epoch=2, passengers=(1,)),
     "confirm": wm.Confirm(M, "a", 1, True, "deployed", P0, 1, passenger=1),
-    "own": wm.Own(M, "a", 0, 0.0, None, False, P0, 1),
+    "own": wm.Own(M, "a", 0, 0.0, 2, False, P0, 1, counts=(2,)),
     "end": wm.End(M, 4, "complete", epoch=2),
     "bye": wm.Bye(M, "a", (0,), (("deposed", 1),), "end"),
     "state": wm.State(mission=M, next_stage=2, stages=4, fingerprint="f", ended=False,
@@ -67,6 +67,8 @@ NULLABLE = {("obs", "x"), ("own", "x"), ("state", "last_decision")}
 def _decode_with(kind: str, name: str, value) -> object:
     raw = wm._to_wire(SAMPLES[kind])
     raw[name] = value
+    if name == "x" and value is None:
+        raw.pop("counts", None)  # [P-6.14] counts only with an x
     return wm.decode(msgpack.packb(raw, use_bin_type=True))
 
 
@@ -148,7 +150,7 @@ def test_revision_4_fields_exist_from_revision_4_only():
     ``silence_timeout_s``, ``realtime``: a reader of revision 3 finds them ``unknown-field``, an
     encoder for revision 3 leaves them out, and the revision-3 Accepted is still sent (its
     enumerated ``clock`` is not a revision-3 value, but revision 3 has no such field)."""
-    assert wm.REVISION == 4
+    assert wm.REVISION >= 4
     for kind, names in (("end", {"epoch"}), ("accepted", {"clock", "silence_timeout_s", "realtime"})):
         sample = SAMPLES[kind]
         assert names <= set(msgpack.unpackb(wm.encode(sample)))
@@ -158,6 +160,19 @@ def test_revision_4_fields_exist_from_revision_4_only():
         assert info.value.reason == "unknown-field"
         assert wm.defined_in(sample, 3)
     assert not wm.defined_in(SAMPLES["accepted"], 2)
+
+
+def test_revision_5_counts_exist_from_revision_5_only():
+    """[P-6.14] revision 5 adds Observation and Own ``counts``: an encoder for revision 4 leaves
+    them out, and a reader of revision 4 finds them ``unknown-field``."""
+    assert wm.REVISION >= 5
+    for kind in ("obs", "own"):
+        sample = SAMPLES[kind]
+        assert "counts" in msgpack.unpackb(wm.encode(sample))
+        assert "counts" not in msgpack.unpackb(wm.encode(sample, 4))
+        with pytest.raises(wm.ProtocolError) as info:
+            wm.decode(wm.encode(sample), revision=4)
+        assert info.value.reason == "unknown-field"
 
 
 def test_accepted_clock_defaults_and_ranges():
