@@ -1,5 +1,6 @@
 """A carrier's body in motion: physics to a stage time at fixed steps (paced or not), and
-what the motion publishes: Poses, Progress (sim clock), the trail of an Observation.
+what the motion publishes: Poses, Progress (sim clock), the trail of an Observation; the region
+counts behind what the body sensed.
 
 :class:`Motion` is a part of :class:`carriers.node.Carrier` (it uses the carrier's ``sim``,
 ``node``, ``config`` and its inbox pump while it paces).
@@ -46,6 +47,13 @@ class Motion:
 
     def _position(self) -> tuple[float, float]:
         return tuple(map(float, self.sim.position(self.cid)))
+
+    def _counts(self, j: int, x) -> tuple[int, ...] | None:
+        """The region counts behind ``x`` at stage j under the coverage reward (world/regions.py),
+        None otherwise (and when a body other than the simulated one, a ROS 2 robot's, sensed ``x``)."""
+        sense_counts = getattr(self.sim, "sense_counts", None)
+        counts = sense_counts(self.cid, j) if x is not None and sense_counts is not None else None
+        return counts if counts is not None and sum(counts) == x else None
 
     def _physics_until(self, t: float, each_chunk=None) -> None:
         """Physics to mission time ``t`` (s) at fixed steps, unpaced, a chunk at a time so that a

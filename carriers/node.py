@@ -124,14 +124,15 @@ class CarrierConfig:
     ros2: object = None
 
 
-class Carrier(Motion, Inbound, Joining, Alone):
+class Carrier(Motion, Inbound, Joining):
     """One carrier. ``run()`` returns its exit reason (a key of :data:`EXIT_CODES`).
 
     ``self.machine`` is the :class:`mission.carrier.CarrierState`, changed only by :meth:`apply`.
-    Its jobs live in modules of their own: the body in motion (:class:`carriers.motion.Motion`),
-    what it receives (:class:`carriers.inbound.Inbound`), its join paths and State queries
-    (:class:`carriers.joining.Joining`), deciding a stage on board (:class:`carriers.alone.Alone`);
-    this class keeps the stage loop and the effects of ``mission.carrier``.
+    Its jobs live in modules of their own: parts of this class (mixins) for the body in motion
+    (:class:`carriers.motion.Motion`), what it receives (:class:`carriers.inbound.Inbound`) and its
+    join paths (:class:`carriers.joining.Joining`); collaborators it wires for its State queries
+    (:class:`carriers.joining.StateQueries`) and deciding a stage on board
+    (:class:`carriers.alone.Alone`). This class keeps the stage loop and the effects of ``mission.carrier``.
     """
 
     def __init__(self, scenario, config: CarrierConfig, zconf, stop: threading.Event | None = None,
@@ -179,8 +180,7 @@ class Carrier(Motion, Inbound, Joining, Alone):
         self.releases = mc.Releases(scenario.carriers[self.r].passengers)
         self.listening: tuple[str, ...] | None = None  # the carriers it hears (:meth:`_listen`)
         self.store: CarrierLog | None = None  # the durable log, open while running
-        self._alone = False  # deciding stages itself (logged once per spell)
-        self._repeated_at: float | None = None  # when it last repeated its observation to the peers it waits for (carriers/alone.py)
+        self.alone = Alone(self.cid, self.book, self.onboard, scenario.seed, config.peer_timeout_s, self.log)
         self.ros2 = None  # its ROS 2 node (ros2/publisher.py) while running with config.ros2
         # What it times its waits by: its own settings until the coordinator's Accepted tells it
         # the mission's (docs/protocol.md, [P-10.2]; :func:`mission.carrier.follow`).
@@ -277,7 +277,7 @@ class Carrier(Motion, Inbound, Joining, Alone):
         State (sim clock), decides alone, moves on or gives up as the rule says. While the token
         is present it sends Progress every third of the silence timeout."""
         wait = tm.DecisionWait.opened(self.clock())
-        while not self._stop.is_set() and not self.machine.ended and not self.machine.resolved(j):
+        while not self._settled(j):
             self._check_refused()
             now = self.clock()
             present = self.presence.coordinator_present
@@ -303,12 +303,9 @@ class Carrier(Motion, Inbound, Joining, Alone):
             else:
                 self._pump(IDLE_POLL_S)
 
-    def _counts(self, j: int, x) -> tuple[int, ...] | None:
-        """The region counts behind ``x`` at stage j under the coverage reward (world/regions.py),
-        None otherwise (and when a body other than the simulated one, a ROS 2 robot's, sensed ``x``)."""
-        sense_counts = getattr(self.sim, "sense_counts", None)
-        counts = sense_counts(self.cid, j) if x is not None and sense_counts is not None else None
-        return counts if counts is not None and sum(counts) == x else None
+    def _settled(self, j: int) -> bool:
+        """Stage j needs no decision of the carrier's own: resolved, End, or a stop request."""
+        return self._stop.is_set() or self.machine.resolved(j) or self.machine.ended
 
     def _fly(self) -> None:
         at_once = True  # the first stage after joining is reached at once, not paced
@@ -340,11 +337,14 @@ class Carrier(Motion, Inbound, Joining, Alone):
                 self._wait_decision(j)
             finally:
                 self.gate.answered(j)
-            if (self.config.mode != "coordinated" and not self.machine.resolved(j) and not self.machine.ended
-                    and not self._stop.is_set()):
-                self._decide_alone(j)
+            if self.config.mode != "coordinated" and not self._settled(j):
+                self._listen(wait=True)
+                deploy = self.alone.decide(j, self.clock, self.presence, lambda: self.timers, lambda: self._settled(j),
+                                           self._pump, lambda: self._execute(mc.ResendObservation(j)))
+                if deploy is not None:
+                    self.apply(mc.DecidedOwn(j, deploy, self._position()))
             elif self.machine.resolved(j):
-                self._alone = False
+                self.alone.answered()
                 self.gate.hold(j, GATE_HOLD_S)  # the process's other carriers confirm first
             self.apply(mc.MovedOn(j))
             self.pending = None

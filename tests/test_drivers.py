@@ -130,6 +130,53 @@ def test_a_joining_carrier_asks_state_again_until_the_coordinator_timeout():
     assert asked == [0.0, 2.2, 4.4, 6.6, 8.8]
 
 
+def alone_at_stage_1(clock_name: str, peer_timeout_s: float = 5.0, silence_timeout_s: float = 9.0):
+    """A carrier's on-board decision (:class:`carriers.alone.Alone`) on its own, with a given
+    clock: the tiny mission's first carrier at stage 1, its peer (scheduled there) live and silent
+    from now on."""
+    from carriers.alone import Alone
+    from mission.peers import PeerBook
+
+    clock = FakeClock()
+    me, peer = TINY.carrier_ids[:2]
+    book = PeerBook(TINY.carrier_ids, TINY.valid())
+    onboard = SimpleNamespace(get=lambda: (_ for _ in ()).throw(AssertionError("planner not asked")))
+    alone = Alone(me, book, onboard, TINY.seed, peer_timeout_s, lambda line: None)
+    alone.deploy = lambda j: True  # the planner's choice is not what is tested here
+    presence = Presence(clock())
+    presence.peer(peer, True)
+    presence.heard_from(peer, clock())
+    resent = []
+    pump = lambda s: setattr(clock, "now", clock.now + s)
+    run = lambda settled=lambda: False: alone.decide(
+        1, clock, presence, lambda: mc.Timers(clock_name, silence_timeout_s, 0.0), settled, pump,
+        lambda: resent.append(clock.now))
+    return alone, clock, run, resent
+
+
+def test_deciding_alone_on_the_wall_clock_waits_the_peer_timeout():
+    """[P-8.4] wall clock: the peer's observation is waited for the peer timeout at most, then
+    the carrier decides; it repeats nothing (a wall-clock wait is a deadline)."""
+    alone, clock, run, resent = alone_at_stage_1("wall", peer_timeout_s=5.0)
+    start = clock.now
+    assert run() is True and alone.deciding
+    assert 5.0 <= clock.now - start < 5.1 and resent == []
+    alone.answered()
+    assert not alone.deciding
+
+
+def test_deciding_alone_on_the_sim_clock_waits_out_a_silent_peer_and_repeats_its_observation():
+    """[P-8.4] sim clock: a peer silent since the wait opened is waited for the silence timeout
+    (not the peer timeout); meanwhile the carrier's observation goes out again every third of it;
+    a stage settled meanwhile (a Decision came) is not decided on board."""
+    alone, clock, run, resent = alone_at_stage_1("sim", peer_timeout_s=1.0, silence_timeout_s=9.0)
+    start = clock.now
+    assert run() is True
+    assert 9.0 <= clock.now - start < 9.1
+    assert [round(t - start) for t in resent] == [0, 3, 6]
+    assert run(settled=lambda: True) is None
+
+
 def coordinator_waiting(clock_name: str, tmp_path, **timeouts):
     """The tiny mission's coordinator with both carriers live and accepted (revision 4), its
     inbox empty: waiting only lets its clock run."""
