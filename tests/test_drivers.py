@@ -68,8 +68,8 @@ def carrier_at_stage_0(mode: str, clock_name: str = "sim", **timeouts):
     carrier = Carrier(TINY, config, None, stop=stop)
     clock = FakeClock()
     carrier.clock = clock
-    carrier.presence, carrier.track = Presence(clock()), Track(clock())  # made on the carrier's clock
-    carrier.sim = SimpleNamespace(time=0.0, position=lambda cid: (0.0, 0.0))  # a body standing still
+    carrier.presence, carrier.motion.track = Presence(clock()), Track(clock())  # made on the carrier's clock
+    carrier.motion.body = SimpleNamespace(time=0.0, position=lambda cid: (0.0, 0.0))  # a body standing still
     carrier.node = QuietNode(clock, stop)
     carrier.timers = mc.Timers(clock_name, config.silence_timeout_s, 0.0)
     carrier.machine, _ = mc.step(carrier.machine, mc.Joined(0))
