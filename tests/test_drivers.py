@@ -177,6 +177,53 @@ def test_deciding_alone_on_the_sim_clock_waits_out_a_silent_peer_and_repeats_its
     assert run(settled=lambda: True) is None
 
 
+class StraightBody:
+    """A body driving along x at 1 m/s; one trajectory sample per simulated second."""
+
+    def __init__(self):
+        self.time = 0.0
+
+    def advance_to(self, t: float) -> None:
+        self.time = max(self.time, t)
+
+    def trajectory(self, cid):
+        import numpy as np
+
+        ts = np.arange(0.0, np.floor(self.time + 1e-9) + 1.0)
+        return np.column_stack([ts, ts, np.zeros_like(ts)])
+
+
+def test_a_paced_body_waits_its_inbox_and_reads_the_carrier_again_after_each_wait():
+    """The body in motion (:class:`carriers.motion.Motion`) with a given clock: 4 s of simulated
+    time at twice the wall time take 2 s of its clock, spent in the carrier's inbox wait; one Pose
+    per simulated second, each with the passengers the carrier has at that look (a deployment
+    heard during a wait shows in the next Poses); Progress once per second of its clock."""
+    from carriers.motion import Motion, Moving
+
+    clock, stop = FakeClock(), threading.Event()
+    motion = Motion("tiny", "a", 1.0, stop, None, clock())
+    motion.body = StraightBody()
+    node = QuietNode(clock, stop)
+    sent = []
+    node.put = lambda key, msg, *args: sent.append((clock.now, key.rsplit("/", 1)[-1], msg))
+    carrier = {"passengers_left": 2}
+
+    def wait(s):
+        clock.now += s
+        if clock.now - start >= 1.0:
+            carrier["passengers_left"] = 1  # a Decision handled while it waited
+
+    start = clock.now
+    motion.advance(4.0, True, lambda: Moving(node, None, clock, mc.Timers("sim", 9.0, 2.0), 0,
+                                             carrier["passengers_left"]), wait)
+    assert 2.0 <= clock.now - start < 2.1
+    poses = [(msg.t, msg.passengers_left) for _, topic, msg in sent if topic == "pose"]
+    assert [t for t, _ in poses] == [0.0, 1.0, 2.0, 3.0, 4.0]
+    assert poses[0][1] == 2 and poses[-1][1] == 1
+    progress = [t - start for t, topic, _ in sent if topic == "progress"]
+    assert progress and all(b - a >= 1.0 for a, b in zip(progress, progress[1:]))
+
+
 def coordinator_waiting(clock_name: str, tmp_path, **timeouts):
     """The tiny mission's coordinator with both carriers live and accepted (revision 4), its
     inbox empty: waiting only lets its clock run."""
