@@ -1,4 +1,5 @@
-"""How a carrier's run ends: its exit reasons and the process exit code each maps to."""
+"""How a carrier's run ends: its exit reasons, the process exit code each maps to, and the exit a
+refused Hello means."""
 from __future__ import annotations
 
 from mission.exits import STOPPED
@@ -14,3 +15,17 @@ class Exit(Exception):
     def __init__(self, reason: str):
         super().__init__(reason)
         self.reason = reason
+
+
+def refused_exit(refused, fingerprint: str, log) -> None:
+    """End the run when the coordinator refused the carrier's Hello (``refused``: its Refusal,
+    None: not refused): ``world-mismatch`` for another world (with what to do about it),
+    ``refused`` otherwise; one log line either way."""
+    if refused is None:
+        return
+    if refused.reason != "world-mismatch":
+        log(f"the coordinator refused our Hello ({refused.reason}: {refused.detail})")
+        raise Exit("refused")
+    log(f"the coordinator refused our Hello ({refused.reason}: fingerprint {fingerprint}, "
+        f"the coordinator's {refused.expected}): use the same scenario file and --seed")
+    raise Exit("world-mismatch")

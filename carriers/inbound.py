@@ -61,7 +61,7 @@ class Inbound:
                 raise ProtocolError("bad-key", f"liveliness token on {item.key[:80]}")
             if item.kind == "alive":
                 if self.presence.coordinator_alive():  # it came back
-                    self.apply(mc.Resync(self.queries.seen(self.queries.once(self.node)), self._position()))
+                    self.apply(mc.Resync(self.queries.seen(self.queries.once(self.node)), self.motion.position()))
             else:
                 self.presence.coordinator_gone(item.received)
                 if self.config.mode == "hybrid":
@@ -101,7 +101,7 @@ class Inbound:
         if msg.stage < self.n_stages and mc.current(self.machine, msg.epoch):  # not a deposed coordinator's
             self.book.decision(msg.stage, msg.deploy)
         self.releases.name(self.machine, msg.stage, msg.epoch, msg.passenger_of(self.cid))
-        self.apply(mc.DecisionHeard(msg.stage, msg.t, msg.deploy, self._position(), msg.epoch))
+        self.apply(mc.DecisionHeard(msg.stage, msg.t, msg.deploy, self.motion.position(), msg.epoch))
 
     def _follow_clock(self, msg: Accepted) -> None:
         """The mission's clock from an Accepted (revision 4; an earlier coordinator's says

@@ -50,7 +50,7 @@ class Joining:
         # after its Hello (it is accepted first): the deployments on record it never made answered
         # late, its own decisions of the recalled stages said again
         for j in mc.missed(state.next_stage, recorded, logged):
-            self.apply(mc.Missed(j, self._position()))
+            self.apply(mc.Missed(j, self.motion.position()))
         for effect in mc.accounts(self.machine, recalled):
             self._execute(effect)
 
@@ -60,9 +60,9 @@ class Joining:
         its Own sent again), a deployment among them replayed in its world."""
         for e in entries:
             self._advance(self.scenario.stage_time(e.stage), paced=False)
-            self.apply(mc.Recalled(e.stage, e.status, e.deployed, self._position(), e.x))
+            self.apply(mc.Recalled(e.stage, e.status, e.deployed, self.motion.position(), e.x))
             if e.deployed:
-                self.sim.deploy(self.cid)
+                self.motion.body.deploy(self.cid)
             self.book.outcome(self.cid, e.stage, e.deployed)
 
     def _replay(self, stages) -> None:
@@ -71,8 +71,8 @@ class Joining:
         each stage time unpaced and a passenger released there."""
         for j in stages:
             self._advance(self.scenario.stage_time(j), paced=False)
-            self.apply(mc.Replayed(j, self._position()))
-            self.sim.deploy(self.cid)
+            self.apply(mc.Replayed(j, self.motion.position()))
+            self.motion.body.deploy(self.cid)
             self.book.outcome(self.cid, j, True)
 
     def _join_alone(self) -> None:
@@ -82,7 +82,7 @@ class Joining:
         entries = [e for e in self.store.entries() if e.status is not None] if self.store is not None else []
         for e in entries:
             if e.observed:
-                self.book.observation(self.cid, e.stage, e.x, self._counts(e.stage, e.x))
+                self.book.observation(self.cid, e.stage, e.x, self.motion.counts(e.stage, e.x))
             self.book.outcome(self.cid, e.stage, e.deployed)
         next_stage = max((e.stage + 1 for e in entries), default=0)
         self._replay(mc.replay_plan(self.machine, next_stage, [e.stage for e in entries if e.deployed]))
@@ -112,14 +112,14 @@ class Joining:
             return
         if state.next_stage > j:
             self.log(f"stage {j} was decided but its Decision did not arrive; taking it from State")
-            self.apply(mc.Resync(self.queries.seen(state), self._position()))
+            self.apply(mc.Resync(self.queries.seen(state), self.motion.position()))
         elif state.next_stage == j:
             self.apply(mc.Collecting(j, state.epoch))
         else:
             # the coordinator is behind this carrier: its Hello or its accounts of the stages
             # since were lost; saying them again lets it go on (found by mission.simulate)
             self.log(f"the coordinator is at stage {state.next_stage}, this carrier at {j}; resynchronising")
-            self.apply(mc.Resync(self.queries.seen(state), self._position()))
+            self.apply(mc.Resync(self.queries.seen(state), self.motion.position()))
 
     def _resync_gap(self, stage: int) -> None:
         """The Decision of ``stage`` came without an earlier one this carrier needs
@@ -128,7 +128,7 @@ class Joining:
         state = self.queries.once(self.node)
         if state is not None and state.fingerprint != self.fingerprint:
             state = None
-        self.apply(mc.Resync(self.queries.seen(state), self._position(), gap=stage))
+        self.apply(mc.Resync(self.queries.seen(state), self.motion.position(), gap=stage))
 
     def _query_state(self) -> tuple[State | None, object]:
         """Ask the coordinator for the mission state by :func:`mission.timers.state_query`

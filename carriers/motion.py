@@ -1,12 +1,16 @@
 """A carrier's body in motion: physics to a stage time at fixed steps (paced or not), and
-what the motion publishes: Poses, Progress (sim clock), the trail of an Observation.
+what the motion publishes: Poses, Progress (sim clock), the trail of an Observation; the region
+counts behind what the body sensed.
 
-:class:`Motion` is a part of :class:`carriers.node.Carrier` (it uses the carrier's ``sim``,
-``node``, ``config`` and its inbox pump while it paces).
+:class:`Motion` is a collaborator of :class:`carriers.node.Carrier`: it owns the body and what
+its motion has published, and is handed, at each call that publishes, what the carrier is now
+(:class:`Moving`: its wire node, clock, timers, stage), and while it paces its inbox wait.
 """
 from __future__ import annotations
 
+import threading
 from concurrent import futures
+from typing import NamedTuple
 
 import numpy as np
 
@@ -41,79 +45,122 @@ class Track:
         self.progress_at = now
 
 
-class Motion:
-    """The carrier's physics and what its motion publishes."""
+class Moving(NamedTuple):
+    """What the carrier is at one look, for what its motion publishes (read again after every
+    wait of its inbox: a message may change its timers or its machine).
 
-    def _position(self) -> tuple[float, float]:
-        return tuple(map(float, self.sim.position(self.cid)))
+    Attributes:
+        node: its wire node (``wire.transport.Node``).
+        ros2: its ROS 2 node (ros2/publisher.py), or None.
+        clock: its clock (monotonic s).
+        timers: its :class:`mission.carrier.Timers`.
+        stage: its machine's stage.
+        passengers_left: its machine's passengers left.
+    """
+
+    node: object
+    ros2: object
+    clock: object
+    timers: object
+    stage: int
+    passengers_left: int
+
+
+class Motion:
+    """The carrier's physics and what its motion publishes.
+
+    Attributes:
+        body: its body: a ``world.Simulation`` of this carrier (set when the carrier runs), or a
+            ROS 2 robot's body that replaces it (ros2/publisher.py); None before.
+        track: what its motion has published so far (:class:`Track`).
+    """
+
+    def __init__(self, mission: str, cid: str, pose_interval_s: float, stop: threading.Event, physics, now: float):
+        self.mission, self.cid, self.pose_interval_s, self.stop = mission, cid, pose_interval_s, stop
+        self.physics = physics  # the process's PhysicsThread, or None: physics in the carrier's thread
+        self.body = None
+        self.track = Track(now)
+
+    def position(self) -> tuple[float, float]:
+        return tuple(map(float, self.body.position(self.cid)))
+
+    def counts(self, j: int, x) -> tuple[int, ...] | None:
+        """The region counts behind ``x`` at stage j under the coverage reward (world/regions.py),
+        None otherwise (and when a body other than the simulated one, a ROS 2 robot's, sensed ``x``)."""
+        sense_counts = getattr(self.body, "sense_counts", None)
+        counts = sense_counts(self.cid, j) if x is not None and sense_counts is not None else None
+        return counts if counts is not None and sum(counts) == x else None
 
     def _physics_until(self, t: float, each_chunk=None) -> None:
         """Physics to mission time ``t`` (s) at fixed steps, unpaced, a chunk at a time so that a
         stop request is seen soon (``each_chunk()`` after each)."""
         while True:  # at least once: a body may have to look at the time (a robot's odometry)
-            self.sim.advance_to(min(t, self.sim.time + PROGRESS_CHUNK_S))
+            self.body.advance_to(min(t, self.body.time + PROGRESS_CHUNK_S))
             if each_chunk is not None:
                 each_chunk()
-            if self.sim.time >= t - 1e-9 or self._stop.is_set():
+            if self.body.time >= t - 1e-9 or self.stop.is_set():
                 return
 
-    def _advance(self, t: float, paced: bool = True) -> None:
+    def advance(self, t: float, paced: bool, moving, wait) -> None:
         """Physics to mission time ``t`` (s) at fixed steps, paced when realtime > 0 (and
         ``paced``); on the sim clock a Progress message at least every ``progress_s`` of wall
         time on the way. Unpaced, in the process's physics thread when it has one
-        (:class:`carriers.shared.PhysicsThread`) while this thread sends the Progress."""
-        if self.timers.realtime <= 0 or not paced:
+        (:class:`carriers.shared.PhysicsThread`) while this thread sends the Progress.
+        ``moving()``: what the carrier is now (:class:`Moving`); ``wait(s)``: its inbox wait while
+        it paces (its messages handled meanwhile)."""
+        now = moving()
+        if now.timers.realtime <= 0 or not paced:  # no inbox wait on the way: the carrier stays as it is
             if self.physics is None:
-                self._physics_until(t, self._progress)
+                self._physics_until(t, lambda: self.progress(now))
                 return
             job = self.physics.submit(self._physics_until, t)
             while not futures.wait((job,), DEFAULTS.progress_s).done:
-                self._progress()
-            self._progress()
+                self.progress(now)
+            self.progress(now)
             job.result()
             return
-        wall0, t0 = self.clock(), self.sim.time
-        while self.sim.time < t - 1e-9 and not self._stop.is_set():
-            target = min(t, self.sim.time + PACE_CHUNK_S)
-            self.sim.advance_to(target)
-            self._publish_poses()
-            self._progress()
-            while not self._stop.is_set():  # the chunk's wall time (mission.timers.pace)
-                now = self.clock()
-                rule = pace(wall0, self.sim.time - t0, self.timers.realtime, now)
+        wall0, t0 = now.clock(), self.body.time
+        while self.body.time < t - 1e-9 and not self.stop.is_set():
+            target = min(t, self.body.time + PACE_CHUNK_S)
+            self.body.advance_to(target)
+            self.publish_poses(moving())
+            self.progress(moving())
+            while not self.stop.is_set():  # the chunk's wall time (mission.timers.pace)
+                now = moving()
+                at = now.clock()
+                rule = pace(wall0, self.body.time - t0, now.timers.realtime, at)
                 if isinstance(rule, GoOn):
                     break
-                self._pump(min(0.05, rule.until - now))
-                self._check_refused()
+                wait(min(0.05, rule.until - at))
 
-    def _progress(self, every_s: float = DEFAULTS.progress_s, now: float | None = None) -> None:
+    def progress(self, moving: Moving, every_s: float = DEFAULTS.progress_s, now: float | None = None) -> None:
         """Sim clock: tell the coordinator and the peers that this carrier is working (a
         Progress message) when it is due (:func:`mission.timers.due`: ``every_s`` since the last;
         ``now``: the caller's look at the clock, else the clock now) [P-10.6]."""
-        now = self.clock() if now is None else now
-        if self.timers.clock != "sim" or not due(self.track.progress_at, now, every_s):
+        now = moving.clock() if now is None else now
+        if moving.timers.clock != "sim" or not due(self.track.progress_at, now, every_s):
             return
         self.track.progress_at = now
-        if self.node.revision < Progress.SINCE:
+        if moving.node.revision < Progress.SINCE:
             return  # a coordinator of an earlier revision has no Progress (it would reject it)
-        self.node.put(keys.carrier_key(self.mission, self.cid, "progress"),
-                      Progress(self.mission, self.cid, self.machine.stage, float(self.sim.time)))
+        moving.node.put(keys.carrier_key(self.mission, self.cid, "progress"),
+                        Progress(self.mission, self.cid, moving.stage, float(self.body.time)))
 
-    def _trail(self) -> tuple:
-        samples = self.sim.trajectory(self.cid)
+    def trail(self) -> tuple:
+        samples = self.body.trajectory(self.cid)
         new = samples[self.track.trail_from:, 1:3]
         self.track.trail_from = len(samples)
         if len(new) > MAX_TRAIL:
             new = new[np.linspace(0, len(new) - 1, MAX_TRAIL).astype(int)]
         return tuple((float(a), float(b)) for a, b in new)
 
-    def _publish_poses(self) -> None:
+    def publish_poses(self, moving: Moving) -> None:
         """A Pose for every pose tick the physics passed since the last call: the trajectory
         samples (one per second of simulated time) whose time is a multiple of the interval."""
-        every = self.config.pose_interval_s
-        if every <= 0 or self.node is None:
+        every = self.pose_interval_s
+        if every <= 0 or moving.node is None:
             return
-        samples = self.sim.trajectory(self.cid)
+        samples = self.body.trajectory(self.cid)
         step = max(1, int(round(every)))
         track = self.track
         for k in range(track.pose_from, len(samples)):
@@ -122,9 +169,9 @@ class Motion:
                 if dx * dx + dy * dy > 1e-12:
                     track.heading = float(np.arctan2(dy, dx))
             if k % step == 0:
-                self.node.put(keys.carrier_key(self.mission, self.cid, "pose"), Pose(
+                moving.node.put(keys.carrier_key(self.mission, self.cid, "pose"), Pose(
                     self.mission, self.cid, float(samples[k, 0]), (float(samples[k, 1]), float(samples[k, 2])),
-                    track.heading, self.machine.passengers_left))
-                if self.ros2 is not None:
-                    self.ros2.pose(float(samples[k, 0]), float(samples[k, 1]), float(samples[k, 2]), track.heading)
+                    track.heading, moving.passengers_left))
+                if moving.ros2 is not None:
+                    moving.ros2.pose(float(samples[k, 0]), float(samples[k, 1]), float(samples[k, 2]), track.heading)
         track.pose_from = len(samples)

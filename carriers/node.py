@@ -40,11 +40,11 @@ from dataclasses import dataclass
 
 import world
 from carriers.alone import Alone
-from carriers.exits import EXIT_CODES, Exit
+from carriers.exits import EXIT_CODES, Exit, refused_exit
 from carriers.inbound import Inbound
 from carriers.joining import Joining, StateQueries
 from carriers import ONBOARD_LOADS
-from carriers.motion import Motion, Track
+from carriers.motion import Motion, Moving
 from carriers.onboard import Onboard
 from carriers.shared import GATE_HOLD_S, PhysicsThread, SharedWorld, StageGate
 from storage.carrierlog import CarrierLog, LogMismatch, log_path
@@ -124,14 +124,15 @@ class CarrierConfig:
     ros2: object = None
 
 
-class Carrier(Motion, Inbound, Joining, Alone):
+class Carrier(Inbound, Joining):
     """One carrier. ``run()`` returns its exit reason (a key of :data:`EXIT_CODES`).
 
     ``self.machine`` is the :class:`mission.carrier.CarrierState`, changed only by :meth:`apply`.
-    Its jobs live in modules of their own: the body in motion (:class:`carriers.motion.Motion`),
-    what it receives (:class:`carriers.inbound.Inbound`), its join paths and State queries
-    (:class:`carriers.joining.Joining`), deciding a stage on board (:class:`carriers.alone.Alone`);
-    this class keeps the stage loop and the effects of ``mission.carrier``.
+    Its jobs live in modules of their own: parts of this class (mixins) for what it receives
+    (:class:`carriers.inbound.Inbound`) and its join paths (:class:`carriers.joining.Joining`);
+    collaborators it wires for its body in motion (:class:`carriers.motion.Motion`), its State
+    queries (:class:`carriers.joining.StateQueries`) and deciding a stage on board
+    (:class:`carriers.alone.Alone`). This class keeps the stage loop and the effects of ``mission.carrier``.
     """
 
     def __init__(self, scenario, config: CarrierConfig, zconf, stop: threading.Event | None = None,
@@ -144,7 +145,6 @@ class Carrier(Motion, Inbound, Joining, Alone):
         self.config = config
         self.zconf = zconf
         self.session = session  # the process's wire.transport.SharedSession, or None: a session of its own
-        self.physics = physics  # the process's PhysicsThread, or None: physics in the carrier's thread
         self.cid = keys.check_id(config.carrier, "carrier")
         self.r = scenario.carrier_index(self.cid)  # KeyError for an unknown id (checked by the CLI)
         self.mission = keys.check_id(config.mission or keys.mission_id_from_name(scenario.name), "mission")
@@ -159,12 +159,11 @@ class Carrier(Motion, Inbound, Joining, Alone):
         self.machine = mc.initial(self.cid, self.valid, scenario.stage_times(), scenario.carriers[self.r].passengers)
         self._log = config.log or (lambda line: print(line, flush=True))
         self._stop = stop if stop is not None else threading.Event()
-        self.sim: world.Simulation | None = None
         self.node = None
         self.clock = time.monotonic  # the one clock its waits read, once per look (mission.timers rules decide)
         self.presence = Presence(self.clock())  # the coordinator's and the peers' tokens, what came when
         self.pending: Observation | None = None
-        self.track = Track(self.clock())  # what its motion has published so far
+        self.motion = Motion(self.mission, self.cid, config.pose_interval_s, self._stop, physics, self.clock())
         self.answer = mc.HelloAnswer(self.fingerprint)  # the coordinator's answer to its latest Hello
         self.queries = StateQueries(self.mission, self.cid, self.log)  # its State queries [P-5.2]
         self.onboard = onboard if onboard is not None else Onboard(scenario, config.planner_options)
@@ -179,8 +178,7 @@ class Carrier(Motion, Inbound, Joining, Alone):
         self.releases = mc.Releases(scenario.carriers[self.r].passengers)
         self.listening: tuple[str, ...] | None = None  # the carriers it hears (:meth:`_listen`)
         self.store: CarrierLog | None = None  # the durable log, open while running
-        self._alone = False  # deciding stages itself (logged once per spell)
-        self._repeated_at: float | None = None  # when it last repeated its observation to the peers it waits for (carriers/alone.py)
+        self.alone = Alone(self.cid, self.book, self.onboard, scenario.seed, config.peer_timeout_s, self.log)
         self.ros2 = None  # its ROS 2 node (ros2/publisher.py) while running with config.ros2
         # What it times its waits by: its own settings until the coordinator's Accepted tells it
         # the mission's (docs/protocol.md, [P-10.2]; :func:`mission.carrier.follow`).
@@ -219,7 +217,7 @@ class Carrier(Motion, Inbound, Joining, Alone):
     def _execute(self, effect) -> None:
         """Carry out one effect of the carrier machine."""
         if isinstance(effect, mc.Deploy):
-            self.sim.deploy(self.cid)
+            self.motion.body.deploy(self.cid)
             released = self.releases.release(effect.stage)
             if self.ros2 is not None:  # a robot's launcher gets the command
                 self.ros2.release(effect.stage, released)
@@ -230,7 +228,7 @@ class Carrier(Motion, Inbound, Joining, Alone):
         elif isinstance(effect, mc.LogObservation):
             if self.store is not None:
                 self.store.observed(effect.stage, self.scenario.stage_time(effect.stage), effect.x, effect.position)
-            self.book.observation(self.cid, effect.stage, effect.x, self._counts(effect.stage, effect.x))
+            self.book.observation(self.cid, effect.stage, effect.x, self.motion.counts(effect.stage, effect.x))
         elif isinstance(effect, mc.LogOutcome):
             if self.store is not None:
                 self.store.outcome(effect.stage, self.scenario.stage_time(effect.stage), effect.status,
@@ -239,7 +237,7 @@ class Carrier(Motion, Inbound, Joining, Alone):
         elif isinstance(effect, mc.SendOwn):
             self.node.put(keys.carrier_key(self.mission, self.cid, "own"), Own(
                 self.mission, self.cid, effect.stage, float(self.scenario.stage_time(effect.stage)), effect.x,
-                effect.deployed, effect.position, effect.passengers_left, self._counts(effect.stage, effect.x)))
+                effect.deployed, effect.position, effect.passengers_left, self.motion.counts(effect.stage, effect.x)))
         elif isinstance(effect, mc.SendHello):
             self._hello(effect.next_stage)
         elif isinstance(effect, mc.ResendObservation):
@@ -258,16 +256,8 @@ class Carrier(Motion, Inbound, Joining, Alone):
             self.mission, self.cid, os.getpid(), socket.gethostname()[:255], self.machine.passengers_left,
             next_stage, self.fingerprint, max(1, self.machine.epoch), REVISION))
 
-    # ------------------------------------------------------------------ the Hello's answer
     def _check_refused(self) -> None:
-        refused = self.answer.refused
-        if refused is not None:
-            if refused.reason != "world-mismatch":
-                self.log(f"the coordinator refused our Hello ({refused.reason}: {refused.detail})")
-                raise Exit("refused")
-            self.log(f"the coordinator refused our Hello ({refused.reason}: fingerprint {self.fingerprint}, "
-                     f"the coordinator's {refused.expected}): use the same scenario file and --seed")
-            raise Exit("world-mismatch")
+        refused_exit(self.answer.refused, self.fingerprint, self.log)
 
     # ------------------------------------------------------------------ the stages
     def _wait_decision(self, j: int) -> None:
@@ -277,7 +267,7 @@ class Carrier(Motion, Inbound, Joining, Alone):
         State (sim clock), decides alone, moves on or gives up as the rule says. While the token
         is present it sends Progress every third of the silence timeout."""
         wait = tm.DecisionWait.opened(self.clock())
-        while not self._stop.is_set() and not self.machine.ended and not self.machine.resolved(j):
+        while not self._settled(j):
             self._check_refused()
             now = self.clock()
             present = self.presence.coordinator_present
@@ -288,7 +278,7 @@ class Carrier(Motion, Inbound, Joining, Alone):
             if present and isinstance(rule, (tm.Wait, tm.AskState)):
                 # Alive while the Decision is on its way (slow on a saturated host), so the next
                 # stage's wait does not take this carrier for a stalled one [P-10.6].
-                self._progress(self.timers.silence_timeout_s / 3, now)
+                self.motion.progress(self._moving(), self.timers.silence_timeout_s / 3, now)
             if isinstance(rule, tm.AskState):
                 wait = wait.asked()
                 self._recover_decision(j)
@@ -303,12 +293,18 @@ class Carrier(Motion, Inbound, Joining, Alone):
             else:
                 self._pump(IDLE_POLL_S)
 
-    def _counts(self, j: int, x) -> tuple[int, ...] | None:
-        """The region counts behind ``x`` at stage j under the coverage reward (world/regions.py),
-        None otherwise (and when a body other than the simulated one, a ROS 2 robot's, sensed ``x``)."""
-        sense_counts = getattr(self.sim, "sense_counts", None)
-        counts = sense_counts(self.cid, j) if x is not None and sense_counts is not None else None
-        return counts if counts is not None and sum(counts) == x else None
+    def _moving(self) -> Moving:
+        """What its motion reads of the carrier now (:class:`carriers.motion.Moving`)."""
+        return Moving(self.node, self.ros2, self.clock, self.timers, self.machine.stage, self.machine.passengers_left)
+
+    def _advance(self, t: float, paced: bool = True) -> None:
+        """Its body to mission time ``t`` (:meth:`carriers.motion.Motion.advance`); while it paces,
+        its messages are handled and a refused Hello ends it."""
+        self.motion.advance(t, paced, self._moving, lambda s: (self._pump(s), self._check_refused()))
+
+    def _settled(self, j: int) -> bool:
+        """Stage j needs no decision of the carrier's own: resolved, End, or a stop request."""
+        return self._stop.is_set() or self.machine.resolved(j) or self.machine.ended
 
     def _fly(self) -> None:
         at_once = True  # the first stage after joining is reached at once, not paced
@@ -317,34 +313,37 @@ class Carrier(Motion, Inbound, Joining, Alone):
             t_j = self.scenario.stage_time(j)
             # Joining, or catching up with stages decided without us: not paced.
             self._advance(t_j, paced=not (at_once or self.machine.behind(j)))
-            self._publish_poses()
+            self.motion.publish_poses(self._moving())
             if self._stop.is_set():
                 break
             if self.machine.behind(j):
                 # Decided without our observation (we were cut off, or too slow): ∅ for us.
                 # Publishing it would only be rejected as stale; answer its decision if it
                 # reached us; go on at once.
-                self.apply(mc.Passed(j, self._position()))
+                self.apply(mc.Passed(j, self.motion.position()))
                 at_once = True
                 j += 1
                 continue
             at_once = False
-            x = self.sim.sense(self.cid, j) if self.valid[j] else None
+            x = self.motion.body.sense(self.cid, j) if self.valid[j] else None
             self.pending = Observation(
-                self.mission, self.cid, j, float(t_j), x, self._position(), self.machine.passengers_left,
-                self._trail(), self._counts(j, x))
-            self.apply(mc.Observed(j, x, self._position()))
+                self.mission, self.cid, j, float(t_j), x, self.motion.position(), self.machine.passengers_left,
+                self.motion.trail(), self.motion.counts(j, x))
+            self.apply(mc.Observed(j, x, self.motion.position()))
             self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.pending)
             self.gate.waiting(j)
             try:
                 self._wait_decision(j)
             finally:
                 self.gate.answered(j)
-            if (self.config.mode != "coordinated" and not self.machine.resolved(j) and not self.machine.ended
-                    and not self._stop.is_set()):
-                self._decide_alone(j)
+            if self.config.mode != "coordinated" and not self._settled(j):
+                self._listen(wait=True)
+                deploy = self.alone.decide(j, self.clock, self.presence, lambda: self.timers, lambda: self._settled(j),
+                                           self._pump, lambda: self._execute(mc.ResendObservation(j)))
+                if deploy is not None:
+                    self.apply(mc.DecidedOwn(j, deploy, self.motion.position()))
             elif self.machine.resolved(j):
-                self._alone = False
+                self.alone.answered()
                 self.gate.hold(j, GATE_HOLD_S)  # the process's other carriers confirm first
             self.apply(mc.MovedOn(j))
             self.pending = None
@@ -367,7 +366,7 @@ class Carrier(Motion, Inbound, Joining, Alone):
         from wire.zconfig import OpenStopped
 
         reason = "finished"
-        self.sim = world.Simulation(self.scenario, carriers=[self.cid],
+        self.motion.body = world.Simulation(self.scenario, carriers=[self.cid],
                                     features=None if self.shared is None else self.shared.features)
         try:
             self.node = Node(self.zconf, open_timeout_s=self.config.coordinator_timeout_s, stop=self._stop,

@@ -158,7 +158,7 @@ class CarrierRos2:
                                    sync=carrier.config.realtime <= 0, log=carrier.log, stop=carrier._stop,
                                    ack_timeout_s=settings.ack_timeout_s, timeout_s=settings.robot_timeout_s,
                                    sensing=settings.sensing)
-            carrier.sim = self.robot
+            carrier.motion.body = self.robot
             self.node.claimed = self.robot.ours  # the robot's own topics: it refuses them itself
         self.node.watch_graph()
 

@@ -68,8 +68,8 @@ def carrier_at_stage_0(mode: str, clock_name: str = "sim", **timeouts):
     carrier = Carrier(TINY, config, None, stop=stop)
     clock = FakeClock()
     carrier.clock = clock
-    carrier.presence, carrier.track = Presence(clock()), Track(clock())  # made on the carrier's clock
-    carrier.sim = SimpleNamespace(time=0.0, position=lambda cid: (0.0, 0.0))  # a body standing still
+    carrier.presence, carrier.motion.track = Presence(clock()), Track(clock())  # made on the carrier's clock
+    carrier.motion.body = SimpleNamespace(time=0.0, position=lambda cid: (0.0, 0.0))  # a body standing still
     carrier.node = QuietNode(clock, stop)
     carrier.timers = mc.Timers(clock_name, config.silence_timeout_s, 0.0)
     carrier.machine, _ = mc.step(carrier.machine, mc.Joined(0))
@@ -128,6 +128,100 @@ def test_a_joining_carrier_asks_state_again_until_the_coordinator_timeout():
     asked = [round(t - start, 6) for t in carrier.node.asked]
     assert state is None and outcome.reason == "coordinator-lost"
     assert asked == [0.0, 2.2, 4.4, 6.6, 8.8]
+
+
+def alone_at_stage_1(clock_name: str, peer_timeout_s: float = 5.0, silence_timeout_s: float = 9.0):
+    """A carrier's on-board decision (:class:`carriers.alone.Alone`) on its own, with a given
+    clock: the tiny mission's first carrier at stage 1, its peer (scheduled there) live and silent
+    from now on."""
+    from carriers.alone import Alone
+    from mission.peers import PeerBook
+
+    clock = FakeClock()
+    me, peer = TINY.carrier_ids[:2]
+    book = PeerBook(TINY.carrier_ids, TINY.valid())
+    onboard = SimpleNamespace(get=lambda: (_ for _ in ()).throw(AssertionError("planner not asked")))
+    alone = Alone(me, book, onboard, TINY.seed, peer_timeout_s, lambda line: None)
+    alone.deploy = lambda j: True  # the planner's choice is not what is tested here
+    presence = Presence(clock())
+    presence.peer(peer, True)
+    presence.heard_from(peer, clock())
+    resent = []
+    pump = lambda s: setattr(clock, "now", clock.now + s)
+    run = lambda settled=lambda: False: alone.decide(
+        1, clock, presence, lambda: mc.Timers(clock_name, silence_timeout_s, 0.0), settled, pump,
+        lambda: resent.append(clock.now))
+    return alone, clock, run, resent
+
+
+def test_deciding_alone_on_the_wall_clock_waits_the_peer_timeout():
+    """[P-8.4] wall clock: the peer's observation is waited for the peer timeout at most, then
+    the carrier decides; it repeats nothing (a wall-clock wait is a deadline)."""
+    alone, clock, run, resent = alone_at_stage_1("wall", peer_timeout_s=5.0)
+    start = clock.now
+    assert run() is True and alone.deciding
+    assert 5.0 <= clock.now - start < 5.1 and resent == []
+    alone.answered()
+    assert not alone.deciding
+
+
+def test_deciding_alone_on_the_sim_clock_waits_out_a_silent_peer_and_repeats_its_observation():
+    """[P-8.4] sim clock: a peer silent since the wait opened is waited for the silence timeout
+    (not the peer timeout); meanwhile the carrier's observation goes out again every third of it;
+    a stage settled meanwhile (a Decision came) is not decided on board."""
+    alone, clock, run, resent = alone_at_stage_1("sim", peer_timeout_s=1.0, silence_timeout_s=9.0)
+    start = clock.now
+    assert run() is True
+    assert 9.0 <= clock.now - start < 9.1
+    assert [round(t - start) for t in resent] == [0, 3, 6]
+    assert run(settled=lambda: True) is None
+
+
+class StraightBody:
+    """A body driving along x at 1 m/s; one trajectory sample per simulated second."""
+
+    def __init__(self):
+        self.time = 0.0
+
+    def advance_to(self, t: float) -> None:
+        self.time = max(self.time, t)
+
+    def trajectory(self, cid):
+        import numpy as np
+
+        ts = np.arange(0.0, np.floor(self.time + 1e-9) + 1.0)
+        return np.column_stack([ts, ts, np.zeros_like(ts)])
+
+
+def test_a_paced_body_waits_its_inbox_and_reads_the_carrier_again_after_each_wait():
+    """The body in motion (:class:`carriers.motion.Motion`) with a given clock: 4 s of simulated
+    time at twice the wall time take 2 s of its clock, spent in the carrier's inbox wait; one Pose
+    per simulated second, each with the passengers the carrier has at that look (a deployment
+    heard during a wait shows in the next Poses); Progress once per second of its clock."""
+    from carriers.motion import Motion, Moving
+
+    clock, stop = FakeClock(), threading.Event()
+    motion = Motion("tiny", "a", 1.0, stop, None, clock())
+    motion.body = StraightBody()
+    node = QuietNode(clock, stop)
+    sent = []
+    node.put = lambda key, msg, *args: sent.append((clock.now, key.rsplit("/", 1)[-1], msg))
+    carrier = {"passengers_left": 2}
+
+    def wait(s):
+        clock.now += s
+        if clock.now - start >= 1.0:
+            carrier["passengers_left"] = 1  # a Decision handled while it waited
+
+    start = clock.now
+    motion.advance(4.0, True, lambda: Moving(node, None, clock, mc.Timers("sim", 9.0, 2.0), 0,
+                                             carrier["passengers_left"]), wait)
+    assert 2.0 <= clock.now - start < 2.1
+    poses = [(msg.t, msg.passengers_left) for _, topic, msg in sent if topic == "pose"]
+    assert [t for t, _ in poses] == [0.0, 1.0, 2.0, 3.0, 4.0]
+    assert poses[0][1] == 2 and poses[-1][1] == 1
+    progress = [t - start for t, topic, _ in sent if topic == "progress"]
+    assert progress and all(b - a >= 1.0 for a, b in zip(progress, progress[1:]))
 
 
 def coordinator_waiting(clock_name: str, tmp_path, **timeouts):
