@@ -42,17 +42,16 @@ def planning_counts(state, problem) -> np.ndarray | None:
     return None if problem.coverage is None else revealed_counts(state, problem.coverage)
 
 
-def summary_fields(state, problem, deployed: np.ndarray, released: np.ndarray | None) -> dict:
+def summary_fields(problem, deployed: np.ndarray, released: np.ndarray | None, x: np.ndarray,
+                   known: np.ndarray) -> dict:
     """summary.json's ``coverage`` entry: the reward model, the features covered by the
     deployments (``covered_features``, each region once, worth its best passenger's weight under
     passenger types; ``reward`` the same over the problem's scale), the regions and how many were
     revealed. Every deployment's own regions were revealed by its observation; a region revealed by
-    nobody counts 0. ``known`` (the revealed counts, NaN elsewhere) is for the caller's bound and is
-    not written out."""
+    nobody counts 0. ``x``: the observations; ``known``: :func:`revealed_counts` (NaN unrevealed)."""
     from planner.problem import evaluate
 
-    known = revealed_counts(state, problem.coverage)
-    reward, covered = evaluate(problem, deployed, state.observations(), released, counts=np.nan_to_num(known))
+    reward, covered = evaluate(problem, deployed, x, released, counts=np.nan_to_num(known))
     return {"reward": "coverage", "total_reward": float(reward), "covered_features": float(covered),
             "regions": int(problem.coverage.n_regions), "regions_revealed": int((~np.isnan(known)).sum()),
-            "revealed_features": float(np.nansum(known)), "known": known}
+            "revealed_features": float(np.nansum(known))}

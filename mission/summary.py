@@ -13,7 +13,7 @@ import numpy as np
 
 from planner.problem import evaluate, fill_releases, point_weights, rewards
 
-from .coverage import summary_fields
+from .coverage import revealed_counts, summary_fields
 from .state import MissionState
 
 #: About how long (s) the summary's clairvoyant bound may search, turned into a node limit
@@ -85,8 +85,8 @@ def summary(state: MissionState, problem, run: RunInfo, bound: bool = True) -> d
     released = fill_releases(problem.passengers, actual, state.releases()) if typed else None
     raw = rewards(problem, actual, np.nan_to_num(x) * point_weights(problem, released) if typed else x)
     if problem.coverage is not None:  # the features in the union of the discs, each region once
-        cov = summary_fields(state, problem, actual, released)
-        known = np.nan_to_num(cov.pop("known"))
+        revealed = revealed_counts(state, problem.coverage)
+        cov = summary_fields(problem, actual, released, x, revealed)
         total_reward, total_features = cov["total_reward"], cov["covered_features"]
     else:
         total_reward, total_features = evaluate(problem, actual, x, released)
@@ -132,7 +132,7 @@ def summary(state: MissionState, problem, run: RunInfo, bound: bool = True) -> d
         "reward": problem.reward,
         **({} if problem.coverage is None else {"coverage": cov}),
         "clairvoyant": clairvoyant_bound(problem, x, float(total_reward),
-                                         None if problem.coverage is None else known)
+                                         None if problem.coverage is None else np.nan_to_num(revealed))
         if bound else None,
         "wall_time_s": float(run.wall_time_s),
         "latency_ms": {"p50": percentile(latencies, 50), "p99": percentile(latencies, 99),
