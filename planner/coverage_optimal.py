@@ -108,13 +108,18 @@ class _Stage:
     outcomes: tuple[tuple, ...]             # per new group: (values, probabilities)
 
 
-def _stages(problem: Problem, tail: float) -> tuple[list[_Stage], float]:
+def _explorers(problem: Problem) -> dict[int, set[int]]:
+    """region -> the valid flat points exploring it."""
+    explorers: dict[int, set[int]] = {}
+    for a in np.flatnonzero(problem.valid.reshape(-1)):
+        for m in problem.coverage.regions(int(a)).tolist():
+            explorers.setdefault(m, set()).add(int(a))
+    return explorers
+
+
+def _stages(problem: Problem, tail: float, explorers: dict[int, set[int]]) -> tuple[list[_Stage], float]:
     coverage = problem.coverage
     n_stages = problem.n_stages
-    explorers: dict[int, set[int]] = {}  # region -> valid flat points exploring it
-    for a in np.flatnonzero(problem.valid.reshape(-1)):
-        for m in coverage.regions(int(a)).tolist():
-            explorers.setdefault(m, set()).add(int(a))
     revealed: set[int] = set()
     stages, error = [], 0.0
     for j in range(n_stages):
@@ -156,7 +161,8 @@ class _Recursion:
         if problem.weights is not None:
             raise TooLarge("coverage V*: passenger values are not modelled (the recursion treats passengers as alike)")
         self.problem, self.tail = problem, tail
-        self.stages, self.error = _stages(problem, tail)
+        self.explorers = _explorers(problem)
+        self.stages, self.error = _stages(problem, tail, self.explorers)
         self.left_table = valid_stages_left(problem.valid)
         self.memo: dict = {}
         self.splits: dict = {}
@@ -226,14 +232,9 @@ class _Recursion:
         covered = np.zeros(coverage.n_regions, dtype=bool)
         for a in np.flatnonzero(view.deployed.reshape(-1)):
             covered[coverage.regions(int(a))] = True
-        explorers: dict[int, set[int]] = {}
-        for a in np.flatnonzero(problem.valid.reshape(-1)):
-            if int(a) % n_stages >= j:
-                for m in coverage.regions(int(a)).tolist():
-                    explorers.setdefault(m, set()).add(int(a))
         merged: dict = {}
         for m in np.flatnonzero(~np.isnan(view.counts) & ~covered).tolist():
-            key = frozenset(explorers.get(m, ()))
+            key = frozenset(a for a in self.explorers.get(m, ()) if a % n_stages >= j)
             if key:
                 merged[key] = merged.get(key, 0.0) + float(view.counts[m])
         return [(*self._split(key, j), count) for key, count in merged.items()]
