@@ -385,12 +385,21 @@ class MissionState:
 
     def deployed(self) -> np.ndarray:
         """bool ``[R, N]``: the planner's view of the past: per carrier and stage its account,
-        else its Confirm, else the decision (a decision nobody answered is taken as done)."""
+        else its Confirm, else the decision (a decision nobody answered is taken as done while
+        the carrier has a passenger left for it: one it reported deploying late, after the
+        decision was planned, leaves it none, and it refuses)."""
         out = self.decided()
+        reported = np.zeros_like(out)
         for (cid, j), c in self.confirms.items():
             out[self.spec.index(cid), j] = c.deployed
+            reported[self.spec.index(cid), j] = True
         for (cid, j), a in self.accounts.items():
             out[self.spec.index(cid), j] = a.deployed
+            reported[self.spec.index(cid), j] = True
+        room = np.asarray(self.spec.passengers) - (out & reported).sum(axis=1)
+        for r in np.flatnonzero((out & ~reported).sum(axis=1) > np.maximum(room, 0)):
+            guessed = np.flatnonzero(out[r] & ~reported[r])
+            out[r, guessed[max(0, int(room[r])):]] = False  # the earliest guesses keep the room
         return out
 
     def releases(self) -> np.ndarray:

@@ -633,3 +633,16 @@ def test_pair_map_is_a_mapping_that_set_never_changes():
     with pytest.raises(KeyError):
         pm[("zz", 9)]
     assert "c1" not in pm and 5 not in pm
+
+
+def test_a_decision_left_no_room_by_later_reports_is_not_taken_as_done():
+    """Carrier a (2 passengers) was named at stages 0 and 2 with no answer, and reports deploying
+    at stage 1: it has room for one of the two guesses only, the earlier one."""
+    events = READY + [obs("a", 0, 3), decide(0, ["a"]), obs("a", 1, 3, at=7.0), obs("b", 1, 1, at=7.0),
+                      decide(1, [], at=7.5), obs("a", 2, 3, at=12.0), obs("b", 2, 1, at=12.0),
+                      decide(2, ["a"], at=12.5), confirm("a", 1, True, "already", at=13.0)]
+    state, _ = run(events)
+    assert state.decided()[0].tolist() == [True, False, True]
+    assert state.deployed()[0].tolist() == [True, True, False]
+    assert state.passengers_left().tolist() == [0, 1]
+    assert state.releases()[0, 2] == -1

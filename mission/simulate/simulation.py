@@ -6,6 +6,8 @@ import dataclasses
 import hashlib
 import heapq
 import math
+import traceback
+from pathlib import Path
 
 import numpy as np
 
@@ -137,7 +139,9 @@ class Simulation:
             try:
                 fn(*args)
             except Exception as exc:  # a process of the fleet would have crashed: a finding, not the end of a campaign
-                self.violate(f"a process raised {type(exc).__name__}: {exc}")
+                where = traceback.extract_tb(exc.__traceback__)[-1]
+                self.violate(f"a process raised {type(exc).__name__}: {exc} "
+                             f"({Path(where.filename).name}:{where.lineno} in {where.name})")
                 break
             if self.done():
                 break
