@@ -236,6 +236,7 @@ class MissionState:
             themselves.
         byes: carriers that said Bye since their last accepted Hello.
         carrier_rejected: carrier -> its rejection counts, from its last Bye.
+        bye_deployments: carrier -> the stages its last Bye lists as deployed.
         ended, end_reason: End was published (``complete`` or ``stopped``).
     """
 
@@ -255,6 +256,7 @@ class MissionState:
     accounts: dict = field(default_factory=dict)
     byes: frozenset = frozenset()
     carrier_rejected: dict = field(default_factory=dict)
+    bye_deployments: dict = field(default_factory=dict)
     ended: bool = False
     end_reason: str | None = None
     counts: PairMap = field(default_factory=PairMap)
@@ -385,9 +387,8 @@ class MissionState:
 
     def deployed(self) -> np.ndarray:
         """bool ``[R, N]``: the planner's view of the past: per carrier and stage its account,
-        else its Confirm, else the decision (a decision nobody answered is taken as done while
-        the carrier has a passenger left for it: one it reported deploying late, after the
-        decision was planned, leaves it none, and it refuses)."""
+        else its Confirm, else the decision (a decision nobody answered is taken as done, within
+        :meth:`_settle_guesses`)."""
         out = self.decided()
         reported = np.zeros_like(out)
         for (cid, j), c in self.confirms.items():
@@ -396,11 +397,23 @@ class MissionState:
         for (cid, j), a in self.accounts.items():
             out[self.spec.index(cid), j] = a.deployed
             reported[self.spec.index(cid), j] = True
-        room = np.asarray(self.spec.passengers) - (out & reported).sum(axis=1)
-        for r in np.flatnonzero((out & ~reported).sum(axis=1) > np.maximum(room, 0)):
-            guessed = np.flatnonzero(out[r] & ~reported[r])
-            out[r, guessed[max(0, int(room[r])):]] = False  # the earliest guesses keep the room
+        for r in np.flatnonzero((out & ~reported).any(axis=1)):
+            self._settle_guesses(self.spec.carriers[r], out[r], reported[r])
         return out
+
+    def _settle_guesses(self, cid: str, row: np.ndarray, reported: np.ndarray) -> None:
+        """Carrier ``cid``'s unanswered decisions (``row`` True where ``reported`` is False),
+        taken as done while it has a passenger left for them, the earliest first (a deployment
+        it reported late, after the decision was planned, can leave it none: it refuses), and
+        not after its Bye unless the Bye lists them (the carrier's own account of its
+        deployments, [P-9.4]). In place."""
+        guessed = np.flatnonzero(row & ~reported)
+        if cid in self.byes:
+            listed = self.bye_deployments.get(cid, ())
+            row[[j for j in guessed if j not in listed]] = False
+            guessed = np.flatnonzero(row & ~reported)
+        room = max(0, self.spec.passengers[self.spec.index(cid)] - int((row & reported).sum()))
+        row[guessed[room:]] = False
 
     def releases(self) -> np.ndarray:
         """int64 ``[R, N]``: the passenger index of each deployment :meth:`deployed` sees (its
@@ -420,13 +433,14 @@ class MissionState:
 
     def deployments_of(self, cid: str) -> list[int]:
         """Stages of carrier ``cid``'s deployments as :meth:`deployed` sees them, O(N)."""
-        out = []
+        row, reported = np.zeros(self.spec.n_stages, dtype=bool), np.zeros(self.spec.n_stages, dtype=bool)
         for j in range(self.spec.n_stages):
             record = self.accounts.get((cid, j)) or self.confirms.get((cid, j))
-            if (record.deployed if record is not None
-                    else j in self.decisions and cid in self.decisions[j].deploy):
-                out.append(j)
-        return out
+            reported[j] = record is not None
+            row[j] = (record.deployed if record is not None
+                      else j in self.decisions and cid in self.decisions[j].deploy)
+        self._settle_guesses(cid, row, reported)
+        return np.flatnonzero(row).tolist()
 
     def confirmed_deployments(self) -> np.ndarray:
         """bool ``[R, N]``: deployments a carrier reported, by its account or its Confirm (what
@@ -828,7 +842,8 @@ def _on_bye(state: MissionState, e: ev.Bye):
     if bad:
         return state, bad
     new = _replace(state, byes=state.byes | {e.carrier},
-                   carrier_rejected={**state.carrier_rejected, e.carrier: dict(e.rejected)})
+                   carrier_rejected={**state.carrier_rejected, e.carrier: dict(e.rejected)},
+                   bye_deployments={**state.bye_deployments, e.carrier: frozenset(e.deployments)})
     return new, (Record(e, None),)
 
 

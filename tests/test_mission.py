@@ -646,3 +646,13 @@ def test_a_decision_left_no_room_by_later_reports_is_not_taken_as_done():
     assert state.deployed()[0].tolist() == [True, True, False]
     assert state.passengers_left().tolist() == [0, 1]
     assert state.releases()[0, 2] == -1
+
+
+@pytest.mark.parametrize("listed, deployed", [((), False), ((0,), True)])
+def test_a_bye_settles_the_decisions_its_carrier_did_not_answer(listed, deployed):
+    """Carrier a was named at stage 0 and never answered; its Bye lists its deployments."""
+    state, _ = run(READY + [obs("a", 0, 3), decide(0, ["a"])])
+    assert state.deployed()[0, 0] and state.deployments_of("a") == [0]
+    state, _ = ms.step(state, ev.Bye("a", listed, (), "end", 20.0))
+    assert state.deployed()[0, 0] == deployed and state.deployments_of("a") == list(listed)
+    assert state.passengers_left()[0] == 2 - len(listed)
