@@ -13,6 +13,7 @@ import time
 from mission import events as ev
 from mission import timers as tm
 from mission.timeouts import DEFAULTS
+from storage.missiondb import StoreFenced
 from wire import keys
 from wire.messages import REVISION, End
 
@@ -138,11 +139,11 @@ class StageClock:
             if self._stop.is_set():
                 return
             deploy, planning_ms, passengers = self._plan(j)
-            newer = self.store.newer_epoch()  # a standby took over on our disk while we were cut off
-            if newer is not None:
-                self.epochs.deposed(newer, "mission.db records it")
+            try:  # records, then publishes
+                self.apply(ev.Decided(j, deploy, planning_ms, time.time(), passengers))
+            except StoreFenced as exc:  # a standby took over on our disk while we were cut off or paused
+                self.epochs.deposed(exc.epoch, "mission.db records it")
                 return
-            self.apply(ev.Decided(j, deploy, planning_ms, time.time(), passengers))  # records, then publishes
             last_published = self.clock()
             self._progress(j, (last_published - opened) * 1e3 - planning_ms)
             self.pump(0.0)

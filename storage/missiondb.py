@@ -99,6 +99,16 @@ class StoreBusy(RuntimeError):
     that hangs, or was frozen, in the middle of a write): try again later."""
 
 
+class StoreFenced(RuntimeError):
+    """A decision's write refused in its own transaction: another coordinator opened this
+    mission.db with a newer epoch (a standby that took over on the same disk while this process
+    was paused or cut off between its check and its write). Nothing of it was written."""
+
+    def __init__(self, path, epoch: int):
+        super().__init__(f"{path}: a coordinator of epoch {epoch} took over this mission")
+        self.epoch = epoch
+
+
 @dataclass
 class MissionRecord:
     """Everything :meth:`MissionStore.replay` recovers.
@@ -282,8 +292,13 @@ class MissionStore:
     def decision(self, stage: int, deploy, planning_ms: float, *, missing=(), wall_time: float | None = None,
                  **payload) -> None:
         """Record the decision of ``stage``, and in the same transaction the ``missing`` carriers
-        (scheduled, no observation: ∅). Raises sqlite3.IntegrityError if it was decided before."""
+        (scheduled, no observation: ∅). Raises :class:`StoreFenced` when a newer epoch opened
+        this file (checked under the write lock, in the decision's transaction), and
+        sqlite3.IntegrityError if the stage was decided before."""
         with self._tx():
+            newer = self.newer_epoch()
+            if newer is not None:
+                raise StoreFenced(self.path, newer)
             for cid in missing:
                 seq = self._event("missing", cid, stage, {}, wall_time)
                 self.db.execute(

@@ -143,3 +143,22 @@ def test_epochs_grow_with_every_open_and_a_newer_one_on_the_same_file_is_seen(tm
     assert third.epoch == 7 and highest_epoch(path) == 7
     third.close()
     assert MissionStore(path, META).epoch == 8
+
+
+def test_a_decision_of_an_older_epoch_is_fenced_in_its_own_transaction(tmp_path):
+    """A coordinator that checked its epoch, then paused while a standby opened the same file:
+    its decision's write is refused under the write lock, and nothing of it is written."""
+    from storage.missiondb import StoreFenced
+
+    path = tmp_path / "mission.db"
+    first = MissionStore(path, META)
+    first.decision(0, ["a"], 1.0)
+    second = MissionStore(path, META)
+    with pytest.raises(StoreFenced, match="epoch 2") as raised:
+        first.decision(1, ["b"], 1.0, missing=["c"])
+    assert raised.value.epoch == 2
+    second.decision(1, ["c"], 2.0)
+    assert second.replay().decisions == {0: (("a",), 1.0), 1: (("c",), 2.0)}
+    assert ("c", 1) not in second.replay().observations
+    first.close()
+    second.close()

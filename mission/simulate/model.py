@@ -14,6 +14,9 @@ FAULT_KINDS = ("stale", "loss", "duplicate", "reorder", "partition", "router-los
 FAITHFUL_KINDS = frozenset({"duplicate", "reorder", "slow", "corrupt", "stale"})
 #: Zenoh's lease: a cut-off session's tokens vanish this long after the cut (s).
 LEASE_S = 10.0
+#: A client opening its session retries this often while the router is out of reach (s; the
+#: ``retry_s`` of wire.zconfig.open_session).
+OPEN_RETRY_S = 0.2
 #: The router: every message goes through it.
 ROUTER = "router"
 

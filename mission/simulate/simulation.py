@@ -18,7 +18,7 @@ from ..timeouts import DEFAULTS
 from .carrier import CarrierDriver
 from .coordinator import CoordinatorDriver, Disk
 from .fleet import Fleet
-from .model import FAITHFUL_KINDS, FAULT_KINDS, LEASE_S, ROUTER, Clock, Fault, Msg, Outcome, draw_faults, msg
+from .model import FAITHFUL_KINDS, FAULT_KINDS, LEASE_S, OPEN_RETRY_S, ROUTER, Clock, Fault, Msg, Outcome, draw_faults, msg
 
 #: Stop a mission this long (simulated s) after its liveness bound: it did not complete.
 OVERRUN_S = 60.0
@@ -359,10 +359,26 @@ class Simulation:
             self.frozen.pop(driver.name if isinstance(driver, CoordinatorDriver) else driver.cid, None)  # a new process
             if isinstance(driver, CoordinatorDriver):
                 driver.phase = "new" if driver.phase == "dead" else "standby"
-                if driver.phase == "new" and self.claimed(driver.name):
-                    driver.phase = "refused"  # coordinator.epochs: DuplicateCoordinator, it exits
-                    return
-            driver.start(self.now_of(driver.name if isinstance(driver, CoordinatorDriver) else driver.cid))
+                self._open(driver, driver.life)
+                return
+            driver.start(self.now_of(driver.cid))
+
+    def _open(self, driver: CoordinatorDriver, life: int) -> None:
+        """A coordinator process opening its session, a client of the router: while its host is
+        cut off it cannot (wire.zconfig.open_session tries every ``OPEN_RETRY_S``; one that
+        gives up after its timeout is started again by its supervisor, as if it went on
+        trying); once open, one that is no standby refuses to start while another coordinator's
+        token is live (coordinator.epochs: DuplicateCoordinator, it exits). A coordinator
+        restarted during a router loss thus never opens a second epoch beside a live standby's."""
+        if driver.life != life or driver.alive:
+            return
+        if driver.name in self.cut:
+            self.at(self.t + OPEN_RETRY_S, self._open, driver, life)
+            return
+        if driver.phase == "new" and self.claimed(driver.name):
+            driver.phase = "refused"
+            return
+        driver.start(self.now_of(driver.name))
 
     def pause(self, driver: CoordinatorDriver) -> float:
         """Seconds ``driver`` pauses now (0: none): the first decision of the primary at or after
