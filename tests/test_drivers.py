@@ -11,7 +11,6 @@ import pytest
 
 import world
 from carriers.exits import Exit
-from carriers.motion import Track
 from carriers.node import Carrier, CarrierConfig
 from mission import carrier as mc
 from mission.peers import Presence
@@ -65,10 +64,8 @@ def carrier_at_stage_0(mode: str, clock_name: str = "sim", **timeouts):
     stop = threading.Event()
     config = CarrierConfig(carrier=TINY.carrier_ids[0], mode=mode, clock=clock_name, log=lambda line: None,
                            **timeouts)
-    carrier = Carrier(TINY, config, None, stop=stop)
     clock = FakeClock()
-    carrier.clock = clock
-    carrier.presence, carrier.motion.track = Presence(clock()), Track(clock())  # made on the carrier's clock
+    carrier = Carrier(TINY, config, None, stop=stop, clock=clock)  # its presence and motion made on that clock
     carrier.motion.body = SimpleNamespace(time=0.0, position=lambda cid: (0.0, 0.0))  # a body standing still
     carrier.node = QuietNode(clock, stop)
     carrier.timers = mc.Timers(clock_name, config.silence_timeout_s, 0.0)
@@ -124,7 +121,7 @@ def test_a_joining_carrier_asks_state_again_until_the_coordinator_timeout():
     carrier, clock = carrier_at_stage_0("coordinated", coordinator_timeout_s=10.0)
     carrier.node.queries = 1000
     start = clock.now
-    state, outcome = carrier._query_state()
+    state, outcome = carrier.joining.query_state(carrier)
     asked = [round(t - start, 6) for t in carrier.node.asked]
     assert state is None and outcome.reason == "coordinator-lost"
     assert asked == [0.0, 2.2, 4.4, 6.6, 8.8]

@@ -438,10 +438,11 @@ def test_a_carrier_joins_after_subscribing():
     """[P-5.1] the project's carrier subscribes to its coordinator keys and declares its token
     before it joins (the order of run's statements: subscribe, token, join)."""
     source = (ROOT / "carriers" / "node.py").read_text().split("def run(")[1]
-    order = [source.index(s) for s in ("subscribe(keys.decision_key", "subscribe(keys.end_key",
-                                      "subscribe(keys.refusal_key", "subscribe(keys.accepted_key",
-                                      "node.token(", "self._join()")]
+    order = [source.index(s) for s in ("self.inbound.subscribe(self.node)", "node.token(", "self.joining.join(self)")]
     assert order == sorted(order)
+    subscribe = (ROOT / "carriers" / "inbound.py").read_text().split("def subscribe(")[1].split("def listen(")[0]
+    assert all(f"subscribe(keys.{key}" in subscribe for key in ("decision_key", "end_key", "refusal_key",
+                                                                 "accepted_key"))
 
 
 def test_state_is_asked_of_every_coordinator():
@@ -460,8 +461,8 @@ def test_a_join_into_an_ended_mission():
     c = mc.initial("a", (True,) * 2, (0.0, 5.0), 1)
     c, effects = mc.step(c, mc.Joined(2, ended=True))
     assert c.ended and effects == ()
-    joining = (ROOT / "carriers" / "joining.py").read_text().split("def _join(")[1].split("def _replay")[0]
-    assert joining.index("mc.Joined(start, state.ended") < joining.index("self._hello(")
+    joining = (ROOT / "carriers" / "joining.py").read_text().split("def join(")[1].split("def _recall")[0]
+    assert joining.index("mc.Joined(start, state.ended") < joining.index("mc.SendHello(")
 
 
 def test_hello_is_required():
@@ -712,7 +713,7 @@ def test_when_a_carrier_decides_alone():
     # the carrier's wait is a driver of that rule: it carries out each of its effects
     wait = (ROOT / "carriers" / "node.py").read_text().split("def _wait_decision(")[1].split("def _fly(")[0]
     assert "tm.decision_wait(self.timers.clock, self.config.mode, present, wait.waited_s," in wait
-    assert wait.index("isinstance(rule, tm.AskState)") < wait.index("self._recover_decision(j)")
+    assert wait.index("isinstance(rule, tm.AskState)") < wait.index("self.joining.recover_decision(self, j)")
     assert "raise Exit(rule.reason)" in wait and "monotonic" not in wait
     c = mc.initial("a", (True,), (0.0,), 1)
     c, _ = mc.step(c, mc.Joined(0))
@@ -873,7 +874,7 @@ def test_a_carrier_waiting_on_the_sim_clock_asks_state():
     c, _ = mc.step(c, mc.Observed(0, 1, (0.0, 0.0)))
     _, effects = mc.step(c, mc.Collecting(0))
     assert effects == (mc.ResendObservation(0),)
-    joining = (ROOT / "carriers" / "joining.py").read_text().split("def _recover_decision(")[1]
+    joining = (ROOT / "carriers" / "joining.py").read_text().split("def recover_decision(")[1]
     assert "if state.next_stage > j:" in joining and "mc.Resync(" in joining
 
 
