@@ -87,6 +87,40 @@ class Epochs:
                  f"this one has epoch {self.epoch}); stopping without End")
         self._stop.set()
 
+    def fenced(self, store) -> bool:
+        """Deposed (:meth:`deposed`) when ``store`` (mission.db) records a newer epoch than ours:
+        a standby took over on our disk while we were cut off."""
+        newer = store.newer_epoch()
+        if newer is not None:
+            self.deposed(newer, "mission.db records it")
+        return newer is not None
+
+    def session(self, open_node, standby: bool) -> tuple:
+        """The coordinator's Zenoh session (``open_node()`` opens it; it raises
+        ``wire.zconfig.OpenStopped`` when stopped first) and the claim on the mission
+        (:meth:`claim`): (node, True) when this process may go on, (None, True) when stopped
+        before the session opened, (None, False) when a standby stopped while the primary lived
+        (its session closed)."""
+        from wire.zconfig import OpenStopped
+
+        node = None
+        if not self._stop.is_set():
+            try:
+                node = open_node()
+            except OpenStopped:
+                node = None
+        if node is None:
+            return None, True
+        try:
+            claimed = self.claim(node, standby)
+        except BaseException:
+            node.close(DEFAULTS.close_s)
+            raise
+        if not claimed:
+            node.close(DEFAULTS.close_s)
+            return None, False
+        return node, True
+
     def claim(self, node, standby: bool) -> bool:
         """Before this coordinator declares its token on ``node``: is another coordinator of the
         mission live? Not a ``standby``: raise :class:`DuplicateCoordinator`. A standby waits

@@ -230,10 +230,9 @@ def coordinator_waiting(clock_name: str, tmp_path, **timeouts):
     from wire.messages import REVISION
 
     lines = []
-    coordinator = Coordinator(TINY, CoordinatorConfig(out_dir=str(tmp_path), clock=clock_name, log=lines.append,
-                                                      **timeouts), None)
     clock = FakeClock()
-    coordinator.clock = clock
+    coordinator = Coordinator(TINY, CoordinatorConfig(out_dir=str(tmp_path), clock=clock_name, log=lines.append,
+                                                      **timeouts), None, clock=clock)
     coordinator.pump = lambda timeout_s: setattr(clock, "now", clock.now + max(0.0, timeout_s))
     state = coordinator.state
     for cid in TINY.carrier_ids:
@@ -251,7 +250,7 @@ def test_the_coordinator_waits_for_a_carrier_heard_from_until_its_silence(tmp_pa
     coordinator.heard = {cid: opened + 10.0 for cid in TINY.carrier_ids}
     waiting = coordinator.state.waiting(0)
     assert waiting
-    coordinator._wait_stage(0, opened)
+    coordinator.stage_clock.wait_stage(coordinator, 0, opened)
     assert 40.0 <= clock.now - opened < 40.1
     assert any("stalled" in line and all(cid in line for cid in waiting) for line in lines), lines
 
@@ -261,7 +260,7 @@ def test_the_coordinator_on_the_wall_clock_waits_the_stage_timeout(tmp_path):
     coordinator, clock, lines = coordinator_waiting("wall", tmp_path, silence_timeout_s=30.0, stage_timeout_s=5.0)
     opened = clock.now
     coordinator.heard = {cid: opened + 4.9 for cid in TINY.carrier_ids}
-    coordinator._wait_stage(0, opened)
+    coordinator.stage_clock.wait_stage(coordinator, 0, opened)
     assert 5.0 <= clock.now - opened < 5.1 and not any("stalled" in line for line in lines)
 
 

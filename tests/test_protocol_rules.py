@@ -730,8 +730,8 @@ def test_a_stage_is_held_while_no_carrier_is_live():
 
     assert tm.hold(False, 0.0, 19.0, 20.0) == tm.Wait(20.0) and tm.hold(True, 0.0, 1.0, 20.0) == tm.GoOn()
     loop = (ROOT / "coordinator" / "clock.py").read_text().split("def _stages(")[1]
-    assert "if j > 0 and not self.state.live:" in loop
-    assert "tm.hold(bool(self.state.live), held, now, self.config.join_timeout_s)" in loop
+    assert "if j > 0 and not c.state.live:" in loop
+    assert "tm.hold(bool(c.state.live), held, now, self.config.join_timeout_s)" in loop
 
 
 def test_decisions_name_sorted_carriers_and_passengers():
@@ -784,13 +784,16 @@ def test_takeover_before_deciding_and_deposition_after():
     body_ = epochs.split("def carrier_heard(")[1].split("def decision_heard")[0]
     assert "if next_stage > self.first_stage:\n            self.deposed(" in body_
     assert "self.epoch = epoch + 1" in body_ and "return True" in body_
-    inbound = (ROOT / "coordinator" / "inbound.py").read_text()
-    republish = inbound.split("if self.epochs.carrier_heard(")[1].split("self.apply(")[0]
+    inbound = (ROOT / "coordinator" / "inbound.py").read_text().split("def read(")[1]
+    assert "msg.epoch > self.epochs.epoch and msg.fingerprint == self.fingerprint" in inbound
+    take = (ROOT / "coordinator" / "node.py").read_text().split("def _take(")[1]
+    republish = take.split("self.epochs.carrier_heard(")[1].split("self.apply(")[0]
     assert "self._publish_decision(self._decision(self.state.next_stage - 1))" in republish
     heard = epochs.split("def decision_heard(")[1].split("def deposed")[0]
     assert "msg.epoch > self.epoch" in heard and "except ProtocolError:\n            return" in heard
     node = (ROOT / "coordinator" / "node.py").read_text()
-    assert "if self.epochs.deposed_by is None:  # deposed: the newer coordinator ends the mission" in node
+    clock = (ROOT / "coordinator" / "clock.py").read_text()
+    assert "if self.epochs.deposed_by is None:  # deposed: the newer coordinator ends the mission" in clock
     assert "self._publish_decision(self._decision(self.state.next_stage - 1))  # idempotent re-publication" in node
 
 
@@ -837,8 +840,8 @@ def test_silence_is_measured_from_the_stage_opening_and_the_last_message():
     timers = (ROOT / "mission" / "timers.py").read_text()
     assert "now - opened >= silence_s and now - last_heard(heard, among, opened) >= silence_s" in timers
     assert tm.stage_wait("sim", {"a"}, (), {"a": 15.0}, 10.0, 44.0, 5.0, 30.0) == tm.Wait(45.0)
-    clock = (ROOT / "coordinator" / "clock.py").read_text().split("def _wait_stage(")[1].split("def _wait_confirms(")[0]
-    assert "tm.stage_wait(clock, *self.state.waited_for(j), self.heard, opened, now," in clock
+    clock = (ROOT / "coordinator" / "clock.py").read_text().split("def wait_stage(")[1].split("def _wait_confirms(")[0]
+    assert "tm.stage_wait(clock, *c.state.waited_for(j), c.heard, opened, now," in clock
 
 
 def test_the_clocks():
@@ -859,9 +862,11 @@ def test_what_keeps_a_carrier_heard():
     """[P-10.5] the coordinator notes a carrier heard for every message on its hello, obs,
     confirm, own, bye or progress key that passes the key, codec and envelope checks, before the
     mission's checks; a carrier deciding alone does the same for its peers' messages."""
-    inbound = (ROOT / "coordinator" / "inbound.py").read_text().split("def _handle(")[1]
-    assert inbound.index("key-mismatch") < inbound.index("self.heard[cid] = item.received") < inbound.index(
-        "self.apply(to_event(msg")
+    inbound = (ROOT / "coordinator" / "inbound.py").read_text().split("def read(")[1]
+    assert inbound.index("key-mismatch") < inbound.index("Heard(carrier=cid, at=item.received") < inbound.index(
+        "Heard(to_event(msg, item.wall), cid, item.received")
+    take = (ROOT / "coordinator" / "node.py").read_text().split("def _take(")[1]
+    assert take.index("self.heard[heard.carrier] = heard.at") < take.index("self.apply(heard.event)")
     peers = (ROOT / "carriers" / "inbound.py").read_text().split("def _peer(")[1]
     assert peers.index("key-mismatch") < peers.index("self.presence.heard_from(cid")
 
@@ -981,10 +986,11 @@ def test_end_is_broadcast_with_its_epoch_in_the_lowest_revision():
     end = wm.End(M, 3, "complete", 1)
     assert msgpack.unpackb(wm.encode(end, 4))["epoch"] == 1
     assert "epoch" not in msgpack.unpackb(wm.encode(end, 3))
-    clock = (ROOT / "coordinator" / "clock.py").read_text().split("def _end(")[1]
-    assert "self.node.put(keys.end_key(self.mission), end, self.state.common_revision(REVISION))" in clock
-    assert "DEFAULTS.end_repeat_s" in clock and "self.epochs.deposed_by is None" in (
-        ROOT / "coordinator" / "node.py").read_text()
+    clock = (ROOT / "coordinator" / "clock.py").read_text()
+    end = clock.split("def end(")[1]
+    assert "c.put_end(end)" in end and "DEFAULTS.end_repeat_s" in end and "self.epochs.deposed_by is None" in clock
+    put = (ROOT / "coordinator" / "node.py").read_text().split("def put_end(")[1].split("def ")[0]
+    assert "self.node.put(keys.end_key(self.mission), end, self.state.common_revision(REVISION))" in put
 
 
 @pytest.mark.parametrize("revision", sorted(int(p.name[1:]) for p in (ROOT / "tests" / "fixtures" / "wire").glob("r*")))
