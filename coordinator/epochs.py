@@ -1,7 +1,8 @@
-"""Split brain on the coordinator's side (docs/fleet.md, "Split brain"): claiming the mission
-(a live coordinator of it refuses this one, or a standby waits for its token to vanish), the
-epoch this process takes (above every one used before: mission.db's and a live primary's), and
-the reaction to a newer epoch (a carrier heard it, a Decision of it, mission.db records it).
+"""Split brain on the coordinator's side (docs/fleet.md, "Split brain"): opening the session and
+claiming the mission (a live coordinator of it refuses this one, or a standby waits for its token
+to vanish), the epoch this process takes (above every one used before: mission.db's and a live
+primary's), and the reaction to a newer epoch (a carrier heard it, a Decision of it, mission.db
+records it).
 
 The carrier's rule (a lower epoch's Decision is ``deposed``) is in ``mission.carrier``; what
 needs a session or the store is here. :class:`Epochs` is a collaborator of
