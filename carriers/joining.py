@@ -1,33 +1,86 @@
 """How a carrier joins a mission and catches up: from the coordinator's State (or, with no
 coordinator answering, from its own durable log), replaying the deployments on record in its
-world (one replay for both paths), and later resynchronising from State when a Decision was lost.
+world (one replay for both paths), and later resynchronising from State when a Decision was lost
+or the coordinator came back.
 
-:class:`Joining` is a part of :class:`carriers.node.Carrier`; :class:`StateQueries` a collaborator.
+:class:`Joining` and :class:`StateQueries` are collaborators of :class:`carriers.node.Carrier`:
+each is given what it needs when it is built; :class:`Joining` drives the carrier through a
+narrow interface (:class:`Joiner`: its machine, effects, body and inbox), handed at each call.
 """
 from __future__ import annotations
+
+import threading
+from typing import Any, Callable, Protocol
 
 from carriers.exits import Exit
 from mission import carrier as mc
 from mission import timers as tm
+from mission.peers import PeerBook, Presence
 from mission.timeouts import DEFAULTS, STATE_RETRY_S
 from wire import keys
 from wire.messages import REVISION, ProtocolError, State, decode
 
 
-class Joining:
-    """The carrier's join paths and its State queries."""
+class Joiner(Protocol):
+    """What the join paths drive of a carrier (:class:`carriers.node.Carrier`).
 
-    def _join(self) -> None:
+    Attributes:
+        machine: its :class:`mission.carrier.CarrierState` (read: :meth:`apply` changes it).
+        node: its wire node (``wire.transport.Node``), open while it runs.
+        store: its durable log (``storage.carrierlog.CarrierLog``), None: none.
+    """
+
+    machine: mc.CarrierState
+    node: Any
+    store: Any
+
+    def apply(self, event) -> None:
+        """Step its machine with ``event`` and carry out the effects."""
+
+    def execute(self, effect) -> None:
+        """Carry out one effect of its machine."""
+
+    def advance(self, t: float, paced: bool = True) -> None:
+        """Its body to mission time ``t`` (s)."""
+
+    def pump(self, timeout_s: float) -> None:
+        """Wait up to ``timeout_s`` for its messages and take them."""
+
+
+class Joining:
+    """The carrier's join paths and its resynchronisation from State.
+
+    Args:
+        cid: the carrier's id; fingerprint: its world's; config: its ``CarrierConfig`` (``mode``,
+        ``coordinator_timeout_s``, ``join_timeout_s``); stage_time(j): mission time (s) of stage
+        j; queries: its :class:`StateQueries`; book: its :class:`mission.peers.PeerBook`; motion:
+        its ``carriers.motion.Motion`` (position, body); inbound: its
+        ``carriers.inbound.Inbound`` (whom it listens to; its ``presence``, the
+        :class:`mission.peers.Presence`); clock: its clock (s); stop: its stop request; log: a
+        callable taking one line.
+    """
+
+    def __init__(self, cid: str, fingerprint: str, config, stage_time: Callable[[int], float],
+                 queries: StateQueries, book: PeerBook, motion, inbound, clock: Callable[[], float],
+                 stop: threading.Event, log):
+        self.cid, self.fingerprint, self.config, self.stage_time = cid, fingerprint, config, stage_time
+        self.queries, self.book, self.motion, self.inbound = queries, book, motion, inbound
+        self.presence: Presence = inbound.presence
+        self.clock, self._stop, self.log = clock, stop, log
+
+    def join(self, carrier: Joiner) -> None:
+        """Join the mission: from the coordinator's State, or alone (decentralised, or no
+        coordinator answered in time: hybrid)."""
         if self.config.mode == "decentralised":
-            self._join_alone()
+            self._join_alone(carrier)
             return
-        state, outcome = self._query_state()
+        state, outcome = self.query_state(carrier)
         if isinstance(outcome, tm.DecideAlone) and not self._stop.is_set():
             self.log(f"no coordinator answered within {self.config.coordinator_timeout_s:.0f} s; going on without it")
             # A coordinator that appears later (one slow to start) is one to resynchronise with:
             # its token's arrival makes this carrier say Hello and hand over what it decided.
             self.presence.coordinator_seen = True
-            self._join_alone()
+            self._join_alone(carrier)
             return
         if state is None:
             raise Exit("stopped" if self._stop.is_set() or outcome is None else outcome.reason)
@@ -38,56 +91,58 @@ class Joining:
             raise Exit("world-mismatch")
         mine = state.carrier(self.cid)
         recorded = tuple(mine.deployments) if mine else ()
-        entries = {e.stage: e for e in self.store.entries() if e.status is not None} if self.store is not None else {}
+        store = carrier.store
+        entries = {e.stage: e for e in store.entries() if e.status is not None} if store is not None else {}
         logged = {j: e.deployed for j, e in entries.items()} or None  # no outcome logged: the record decides
         start = mc.join_stage(state.next_stage, logged)
         recalled = [j for j in sorted(entries) if j >= state.next_stage]
         if not state.ended:
-            self._replay(mc.replay_plan(self.machine, min(state.next_stage, start), recorded, logged))
-            self._recall([entries[j] for j in recalled])
-        self.apply(mc.Joined(start, state.ended, state.epoch))
-        self._hello(self.machine.hello_stage())
+            self._replay(carrier, mc.replay_plan(carrier.machine, min(state.next_stage, start), recorded, logged))
+            self._recall(carrier, [entries[j] for j in recalled])
+        carrier.apply(mc.Joined(start, state.ended, state.epoch))
+        carrier.execute(mc.SendHello(carrier.machine.hello_stage(), carrier.machine.passengers_left))
         # after its Hello (it is accepted first): the deployments on record it never made answered
         # late, its own decisions of the recalled stages said again
         for j in mc.missed(state.next_stage, recorded, logged):
-            self.apply(mc.Missed(j, self.motion.position()))
-        for effect in mc.accounts(self.machine, recalled):
-            self._execute(effect)
+            carrier.apply(mc.Missed(j, self.motion.position()))
+        for effect in mc.accounts(carrier.machine, recalled):
+            carrier.execute(effect)
 
-    def _recall(self, entries) -> None:
+    def _recall(self, carrier: Joiner, entries) -> None:
         """The stages its log resolved that the coordinator has not decided (it decided them on
         board while the coordinator was away): kept as they were (:class:`mission.carrier.Recalled`,
         its Own sent again), a deployment among them replayed in its world."""
         for e in entries:
-            self._advance(self.scenario.stage_time(e.stage), paced=False)
-            self.apply(mc.Recalled(e.stage, e.status, e.deployed, self.motion.position(), e.x))
+            carrier.advance(self.stage_time(e.stage), paced=False)
+            carrier.apply(mc.Recalled(e.stage, e.status, e.deployed, self.motion.position(), e.x))
             if e.deployed:
                 self.motion.body.deploy(self.cid)
             self.book.outcome(self.cid, e.stage, e.deployed)
 
-    def _replay(self, stages) -> None:
+    def _replay(self, carrier: Joiner, stages) -> None:
         """The deployments on record at ``stages`` (ascending, at most the passengers on board:
         :func:`mission.carrier.replay_plan`) replayed in the carrier's world: the body driven to
         each stage time unpaced and a passenger released there."""
         for j in stages:
-            self._advance(self.scenario.stage_time(j), paced=False)
-            self.apply(mc.Replayed(j, self.motion.position()))
+            carrier.advance(self.stage_time(j), paced=False)
+            carrier.apply(mc.Replayed(j, self.motion.position()))
             self.motion.body.deploy(self.cid)
             self.book.outcome(self.cid, j, True)
 
-    def _join_alone(self) -> None:
+    def _join_alone(self, carrier: Joiner) -> None:
         """Join with no coordinator: go on from the carrier's own log (the deployments on record
         are replayed in its world), after waiting (at most ``join_timeout_s``) for every other
         carrier's token, so that nobody starts the mission alone."""
-        entries = [e for e in self.store.entries() if e.status is not None] if self.store is not None else []
+        store = carrier.store
+        entries = [e for e in store.entries() if e.status is not None] if store is not None else []
         for e in entries:
             if e.observed:
                 self.book.observation(self.cid, e.stage, e.x, self.motion.counts(e.stage, e.x))
             self.book.outcome(self.cid, e.stage, e.deployed)
         next_stage = max((e.stage + 1 for e in entries), default=0)
-        self._replay(mc.replay_plan(self.machine, next_stage, [e.stage for e in entries if e.deployed]))
-        self._listen(wait=True)
-        others = set(self.listening)
+        self._replay(carrier, mc.replay_plan(carrier.machine, next_stage, [e.stage for e in entries if e.deployed]))
+        self.inbound.listen(carrier.node, wait=True)
+        others = set(self.inbound.listening)
         opened = self.clock()
         while not self._stop.is_set():  # a deadline on either clock [P-8.5]: no joiner extends it
             now = self.clock()
@@ -95,42 +150,43 @@ class Joining:
                                 self.config.join_timeout_s)
             if isinstance(rule, tm.GoOn):
                 break
-            self._pump(min(0.2, rule.until - now))
+            carrier.pump(min(0.2, rule.until - now))
         missing = sorted(others - self.presence.peers_live)
         if missing and next_stage == 0:
             self.log(f"starting without carrier(s) {', '.join(missing)} (no token after "
                      f"{self.config.join_timeout_s:.0f} s)")
-        self.apply(mc.Joined(next_stage))
+        carrier.apply(mc.Joined(next_stage))
 
-    def _recover_decision(self, j: int) -> None:
+    def recover_decision(self, carrier: Joiner, j: int) -> None:
         """Sim clock, a long wait for the Decision of j: if the coordinator's State says it has
         decided j already, the Decision was lost on the way: resynchronise (it is taken from
         State). If it still collects j, it may not have our Observation (mission.carrier,
         Collecting). Otherwise the coordinator is still at work: go on waiting."""
-        state = self.queries.once(self.node)
-        if state is None or not mc.current(self.machine, state.epoch):
+        state = self.queries.once(carrier.node)
+        if state is None or not mc.current(carrier.machine, state.epoch):
             return
         if state.next_stage > j:
             self.log(f"stage {j} was decided but its Decision did not arrive; taking it from State")
-            self.apply(mc.Resync(self.queries.seen(state), self.motion.position()))
+            carrier.apply(mc.Resync(self.queries.seen(state), self.motion.position()))
         elif state.next_stage == j:
-            self.apply(mc.Collecting(j, state.epoch))
+            carrier.apply(mc.Collecting(j, state.epoch))
         else:
             # the coordinator is behind this carrier: its Hello or its accounts of the stages
             # since were lost; saying them again lets it go on (found by mission.simulate)
             self.log(f"the coordinator is at stage {state.next_stage}, this carrier at {j}; resynchronising")
-            self.apply(mc.Resync(self.queries.seen(state), self.motion.position()))
+            carrier.apply(mc.Resync(self.queries.seen(state), self.motion.position()))
 
-    def _resync_gap(self, stage: int) -> None:
-        """The Decision of ``stage`` came without an earlier one this carrier needs
-        (:class:`mission.carrier.AskState`): the lost stages are taken from State before it
-        confirms anything more (docs/protocol.md, [P-6.6])."""
-        state = self.queries.once(self.node)
-        if state is not None and state.fingerprint != self.fingerprint:
+    def resync(self, carrier: Joiner, gap: int | None = None) -> None:
+        """Resynchronise from the coordinator's State (:class:`mission.carrier.Resync`): its token
+        came back (``gap`` None), or the Decision of stage ``gap`` came without an earlier one
+        this carrier needs (:class:`mission.carrier.AskState`): the lost stages are taken from a
+        State of its world before it confirms anything more (docs/protocol.md, [P-6.6])."""
+        state = self.queries.once(carrier.node)
+        if gap is not None and state is not None and state.fingerprint != self.fingerprint:
             state = None
-        self.apply(mc.Resync(self.queries.seen(state), self.motion.position(), gap=stage))
+        carrier.apply(mc.Resync(self.queries.seen(state), self.motion.position(), gap=gap))
 
-    def _query_state(self) -> tuple[State | None, object]:
+    def query_state(self, carrier: Joiner) -> tuple[State | None, Any]:
         """Ask the coordinator for the mission state by :func:`mission.timers.state_query`
         ([P-5.2]): again 0.2 s after a query without reply, until the coordinator timeout.
         Returns the State (None: none) and the rule's last effect (None: stopped or answered)."""
@@ -140,12 +196,12 @@ class Joining:
             rule = tm.state_query(self.config.mode, first, failed, now, self.config.coordinator_timeout_s,
                                   STATE_RETRY_S)
             if isinstance(rule, tm.AskState):
-                state = self.queries.once(self.node)
+                state = self.queries.once(carrier.node)
                 if state is not None:
                     return state, None
                 failed = self.clock()
             elif isinstance(rule, tm.Wait):
-                self._pump(rule.until - now)
+                carrier.pump(rule.until - now)
             else:
                 return None, rule
         return None, None

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import world
 from carriers.alone import Alone
 from carriers.exits import EXIT_CODES, Exit, refused_exit
-from carriers.inbound import Inbound
+from carriers.inbound import Follow, Inbound, Rejoin
 from carriers.joining import Joining, StateQueries
 from carriers import ONBOARD_LOADS
 from carriers.motion import Motion, Moving
@@ -124,20 +124,45 @@ class CarrierConfig:
     ros2: object = None
 
 
-class Carrier(Inbound, Joining):
+def check_config(config: CarrierConfig) -> None:
+    """A ``ValueError`` naming the first setting of ``config`` out of its choices."""
+    if config.mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, found {config.mode!r}")
+    if config.clock not in CLOCKS:
+        raise ValueError(f"clock must be one of {CLOCKS}, found {config.clock!r}")
+    if (config.onboard_load or "start") not in ONBOARD_LOADS:
+        raise ValueError(f"onboard_load must be one of {ONBOARD_LOADS}, found {config.onboard_load!r}")
+
+
+def open_log(config: CarrierConfig, meta: dict, log) -> CarrierLog | None:
+    """The carrier's durable log (``<out_dir>/carriers/<id>.db``; None: no ``out_dir``) for the
+    mission ``meta`` describes; one of another mission there ends the run (``log-mismatch``)."""
+    if config.out_dir is None:
+        return None
+    try:
+        return CarrierLog(log_path(config.out_dir, meta["carrier"]), meta, sync=config.log_sync)
+    except LogMismatch as exc:
+        log(str(exc))
+        raise Exit("log-mismatch")
+
+
+class Carrier:
     """One carrier. ``run()`` returns its exit reason (a key of :data:`EXIT_CODES`).
 
     ``self.machine`` is the :class:`mission.carrier.CarrierState`, changed only by :meth:`apply`.
-    Its jobs live in modules of their own: parts of this class (mixins) for what it receives
-    (:class:`carriers.inbound.Inbound`) and its join paths (:class:`carriers.joining.Joining`);
-    collaborators it wires for its body in motion (:class:`carriers.motion.Motion`), its State
-    queries (:class:`carriers.joining.StateQueries`) and deciding a stage on board
-    (:class:`carriers.alone.Alone`). This class keeps the stage loop and the effects of ``mission.carrier``.
+    Its jobs live in collaborators it holds, each given what it needs: what it receives
+    (:class:`carriers.inbound.Inbound`: it applies the events and carries out the effects that
+    reads, :meth:`pump`), its join paths
+    (:class:`carriers.joining.Joining`), its State queries (:class:`carriers.joining.StateQueries`),
+    its body in motion (:class:`carriers.motion.Motion`) and deciding a stage on board
+    (:class:`carriers.alone.Alone`). This class keeps the stage loop and the effects of
+    ``mission.carrier``. ``clock``: what its waits read (monotonic s; a test hands in its own).
     """
 
     def __init__(self, scenario, config: CarrierConfig, zconf, stop: threading.Event | None = None,
                  shared: SharedWorld | None = None, onboard: Onboard | None = None, gate: StageGate | None = None,
-                 broadcasts: SharedDecoder | None = None, session=None, physics: PhysicsThread | None = None):
+                 broadcasts: SharedDecoder | None = None, session=None, physics: PhysicsThread | None = None,
+                 clock=time.monotonic):
         if config.seed is not None and shared is None:
             scenario = scenario.with_seed(int(config.seed))
         self.scenario = scenario
@@ -148,10 +173,7 @@ class Carrier(Inbound, Joining):
         self.cid = keys.check_id(config.carrier, "carrier")
         self.r = scenario.carrier_index(self.cid)  # KeyError for an unknown id (checked by the CLI)
         self.mission = keys.check_id(config.mission or keys.mission_id_from_name(scenario.name), "mission")
-        if config.mode not in MODES:
-            raise ValueError(f"mode must be one of {MODES}, found {config.mode!r}")
-        if config.clock not in CLOCKS:
-            raise ValueError(f"clock must be one of {CLOCKS}, found {config.clock!r}")
+        check_config(config)
         valid = scenario.valid() if shared is None else shared.valid
         self.valid = valid[self.r]
         self.n_stages = scenario.stages
@@ -160,7 +182,7 @@ class Carrier(Inbound, Joining):
         self._log = config.log or (lambda line: print(line, flush=True))
         self._stop = stop if stop is not None else threading.Event()
         self.node = None
-        self.clock = time.monotonic  # the one clock its waits read, once per look (mission.timers rules decide)
+        self.clock = clock  # the one clock its waits read, once per look (mission.timers rules decide)
         self.presence = Presence(self.clock())  # the coordinator's and the peers' tokens, what came when
         self.pending: Observation | None = None
         self.motion = Motion(self.mission, self.cid, config.pose_interval_s, self._stop, physics, self.clock())
@@ -168,17 +190,18 @@ class Carrier(Inbound, Joining):
         self.queries = StateQueries(self.mission, self.cid, self.log)  # its State queries [P-5.2]
         self.onboard = onboard if onboard is not None else Onboard(scenario, config.planner_options)
         self.onboard_load = config.onboard_load or "start"
-        if self.onboard_load not in ONBOARD_LOADS:
-            raise ValueError(f"onboard_load must be one of {ONBOARD_LOADS}, found {config.onboard_load!r}")
         self.gate = gate if gate is not None else StageGate()
-        self.broadcasts = broadcasts if broadcasts is not None else SharedDecoder()  # the process's Decisions
         self.book = PeerBook(scenario.carrier_ids, valid)  # what it heard of every carrier's stages
         # Passenger types: the passenger each Decision named for this carrier, and the passenger
         # released at each stage of this process (docs/protocol.md, Decision).
         self.releases = mc.Releases(scenario.carriers[self.r].passengers)
-        self.listening: tuple[str, ...] | None = None  # the carriers it hears (:meth:`_listen`)
+        self.inbound = Inbound(self.mission, self.cid, config.mode, self.onboard,
+                               broadcasts if broadcasts is not None else SharedDecoder(),  # the process's Decisions
+                               self.book, self.presence, self.answer, self.releases, self.motion.position, self.log)
         self.store: CarrierLog | None = None  # the durable log, open while running
         self.alone = Alone(self.cid, self.book, self.onboard, scenario.seed, config.peer_timeout_s, self.log)
+        self.joining = Joining(self.cid, self.fingerprint, config, scenario.stage_time, self.queries, self.book,
+                               self.motion, self.inbound, self.clock, self._stop, self.log)
         self.ros2 = None  # its ROS 2 node (ros2/publisher.py) while running with config.ros2
         # What it times its waits by: its own settings until the coordinator's Accepted tells it
         # the mission's (docs/protocol.md, [P-10.2]; :func:`mission.carrier.follow`).
@@ -212,9 +235,9 @@ class Carrier(Inbound, Joining):
         """Step the carrier machine, then carry out its effects in order."""
         self.machine, effects = mc.step(self.machine, event)
         for effect in effects:
-            self._execute(effect)
+            self.execute(effect)
 
-    def _execute(self, effect) -> None:
+    def execute(self, effect) -> None:
         """Carry out one effect of the carrier machine."""
         if isinstance(effect, mc.Deploy):
             self.motion.body.deploy(self.cid)
@@ -239,25 +262,33 @@ class Carrier(Inbound, Joining):
                 self.mission, self.cid, effect.stage, float(self.scenario.stage_time(effect.stage)), effect.x,
                 effect.deployed, effect.position, effect.passengers_left, self.motion.counts(effect.stage, effect.x)))
         elif isinstance(effect, mc.SendHello):
-            self._hello(effect.next_stage)
+            self.answer.sent()
+            self.node.put(keys.carrier_key(self.mission, self.cid, "hello"), Hello(
+                self.mission, self.cid, os.getpid(), socket.gethostname()[:255], self.machine.passengers_left,
+                effect.next_stage, self.fingerprint, max(1, self.machine.epoch), REVISION))
         elif isinstance(effect, mc.ResendObservation):
             if self.pending is not None and self.pending.stage == effect.stage:
                 self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.pending)
-        elif isinstance(effect, mc.AskState):
-            self._resync_gap(effect.stage)
+        elif isinstance(effect, mc.AskState):  # a Decision came without an earlier one
+            self.joining.resync(self, gap=effect.stage)
+        elif isinstance(effect, Rejoin):  # the coordinator is back
+            self.joining.resync(self)
+        elif isinstance(effect, Follow):  # the mission's timers (a robot keeps its own pace)
+            self.timers, lines = mc.follow(self.timers, effect.timers, getattr(self.ros2, "robot", None) is None)
+            for line in lines:
+                self.log(line)
         elif isinstance(effect, mc.Reject):
             self.node.reject(effect.reason, effect.detail, self.log)
         elif isinstance(effect, mc.Log):
             self.log(effect.line)
 
-    def _hello(self, next_stage: int) -> None:
-        self.answer.sent()
-        self.node.put(keys.carrier_key(self.mission, self.cid, "hello"), Hello(
-            self.mission, self.cid, os.getpid(), socket.gethostname()[:255], self.machine.passengers_left,
-            next_stage, self.fingerprint, max(1, self.machine.epoch), REVISION))
-
     def _check_refused(self) -> None:
         refused_exit(self.answer.refused, self.fingerprint, self.log)
+
+    def pump(self, timeout_s: float) -> None:
+        """Take what arrived, waiting up to ``timeout_s`` for the inbox's first item
+        (:meth:`carriers.inbound.Inbound.pump`: its events applied, its effects carried out)."""
+        self.inbound.pump(self.node, timeout_s, lambda: self.machine, self.apply, self.execute)
 
     # ------------------------------------------------------------------ the stages
     def _wait_decision(self, j: int) -> None:
@@ -281,7 +312,7 @@ class Carrier(Inbound, Joining):
                 self.motion.progress(self._moving(), self.timers.silence_timeout_s / 3, now)
             if isinstance(rule, tm.AskState):
                 wait = wait.asked()
-                self._recover_decision(j)
+                self.joining.recover_decision(self, j)
             elif isinstance(rule, (tm.MoveOn, tm.DecideAlone)):
                 if wait.waited_s >= self.config.decision_timeout_s:  # none in time (wall clock)
                     self.log(f"no decision for stage {j} within {self.config.decision_timeout_s:.0f} s; "
@@ -291,16 +322,16 @@ class Carrier(Inbound, Joining):
                 self.log(f"coordinator absent for {self.config.coordinator_timeout_s:.0f} s; exiting")
                 raise Exit(rule.reason)
             else:
-                self._pump(IDLE_POLL_S)
+                self.pump(IDLE_POLL_S)
 
     def _moving(self) -> Moving:
         """What its motion reads of the carrier now (:class:`carriers.motion.Moving`)."""
         return Moving(self.node, self.ros2, self.clock, self.timers, self.machine.stage, self.machine.passengers_left)
 
-    def _advance(self, t: float, paced: bool = True) -> None:
+    def advance(self, t: float, paced: bool = True) -> None:
         """Its body to mission time ``t`` (:meth:`carriers.motion.Motion.advance`); while it paces,
         its messages are handled and a refused Hello ends it."""
-        self.motion.advance(t, paced, self._moving, lambda s: (self._pump(s), self._check_refused()))
+        self.motion.advance(t, paced, self._moving, lambda s: (self.pump(s), self._check_refused()))
 
     def _settled(self, j: int) -> bool:
         """Stage j needs no decision of the carrier's own: resolved, End, or a stop request."""
@@ -312,7 +343,7 @@ class Carrier(Inbound, Joining):
         while j < self.n_stages and not self.machine.ended and not self._stop.is_set():
             t_j = self.scenario.stage_time(j)
             # Joining, or catching up with stages decided without us: not paced.
-            self._advance(t_j, paced=not (at_once or self.machine.behind(j)))
+            self.advance(t_j, paced=not (at_once or self.machine.behind(j)))
             self.motion.publish_poses(self._moving())
             if self._stop.is_set():
                 break
@@ -337,9 +368,9 @@ class Carrier(Inbound, Joining):
             finally:
                 self.gate.answered(j)
             if self.config.mode != "coordinated" and not self._settled(j):
-                self._listen(wait=True)
+                self.inbound.listen(self.node, wait=True)
                 deploy = self.alone.decide(j, self.clock, self.presence, lambda: self.timers, lambda: self._settled(j),
-                                           self._pump, lambda: self._execute(mc.ResendObservation(j)))
+                                           self.pump, lambda: self.execute(mc.ResendObservation(j)))
                 if deploy is not None:
                     self.apply(mc.DecidedOwn(j, deploy, self.motion.position()))
             elif self.machine.resolved(j):
@@ -359,7 +390,7 @@ class Carrier(Inbound, Joining):
             if isinstance(rule, tm.GoOn):
                 return
             self._check_refused()
-            self._pump(min(IDLE_POLL_S, rule.until - now))
+            self.pump(min(IDLE_POLL_S, rule.until - now))
 
     def run(self) -> str:
         from wire.transport import Node
@@ -376,26 +407,17 @@ class Carrier(Inbound, Joining):
         try:
             if self.config.ros2 is not None:  # its ROS 2 node; a robot's body replaces the simulated one
                 self.ros2 = self.config.ros2.attach(self)
-            if self.config.out_dir is not None:
-                try:
-                    self.store = CarrierLog(log_path(self.config.out_dir, self.cid), {
-                        "mission": self.mission, "carrier": self.cid, "scenario": self.scenario.name,
-                        "fingerprint": self.fingerprint, "seed": int(self.scenario.seed)}, sync=self.config.log_sync)
-                except LogMismatch as exc:
-                    self.log(str(exc))
-                    raise Exit("log-mismatch")
-            self.node.subscribe(keys.decision_key(self.mission))
-            self.node.subscribe(keys.end_key(self.mission))
-            self.node.subscribe(keys.refusal_key(self.mission, self.cid))
-            self.node.subscribe(keys.accepted_key(self.mission, self.cid))
-            self.node.watch_liveliness(keys.coordinator_alive(self.mission))
+            self.store = open_log(self.config, {
+                "mission": self.mission, "carrier": self.cid, "scenario": self.scenario.name,
+                "fingerprint": self.fingerprint, "seed": int(self.scenario.seed)}, self.log)
+            self.inbound.subscribe(self.node)
             if self.config.mode == "decentralised" or (self.config.mode == "hybrid" and self.onboard_load == "start"):
                 self.onboard.prepare()
             if self.config.mode == "decentralised":
                 # Subscribed before its token appears: a carrier that sees the token can reach it.
-                self._listen(wait=True)
+                self.inbound.listen(self.node, wait=True)
             self.node.token(keys.carrier_alive(self.mission, self.cid))
-            self._join()
+            self.joining.join(self)
             self._fly()
             self._wait_end()
             reason = "stopped" if self._stop.is_set() else ("end" if self.machine.ended else "finished")

@@ -1,7 +1,8 @@
-"""Split brain on the coordinator's side (docs/fleet.md, "Split brain"): claiming the mission
-(a live coordinator of it refuses this one, or a standby waits for its token to vanish), the
-epoch this process takes (above every one used before: mission.db's and a live primary's), and
-the reaction to a newer epoch (a carrier heard it, a Decision of it, mission.db records it).
+"""Split brain on the coordinator's side (docs/fleet.md, "Split brain"): opening the session and
+claiming the mission (a live coordinator of it refuses this one, or a standby waits for its token
+to vanish), the epoch this process takes (above every one used before: mission.db's and a live
+primary's), and the reaction to a newer epoch (a carrier heard it, a Decision of it, mission.db
+records it).
 
 The carrier's rule (a lower epoch's Decision is ``deposed``) is in ``mission.carrier``; what
 needs a session or the store is here. :class:`Epochs` is a collaborator of
@@ -9,11 +10,12 @@ needs a session or the store is here. :class:`Epochs` is a collaborator of
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
 from pathlib import Path
 
 from mission import timers as tm
 from mission.timeouts import DEFAULTS
-from storage.missiondb import MissionStore, StoreBusy
+from storage.missiondb import MissionStore, StoreBusy, StoreFenced
 from wire import keys
 from wire.messages import Decision, ProtocolError, State, decode
 
@@ -86,6 +88,43 @@ class Epochs:
         self.log(f"coordinator: deposed: a coordinator of epoch {epoch} took over mission {self.mission} ({how}; "
                  f"this one has epoch {self.epoch}); stopping without End")
         self._stop.set()
+
+    @contextmanager
+    def fencing(self):
+        """Around a decision's write: mission.db refuses it when it records a newer epoch than
+        ours (:class:`storage.missiondb.StoreFenced`, checked under the write lock in the
+        decision's transaction: a standby took over on our disk while we were cut off or
+        paused): deposed (:meth:`deposed`), nothing of it written or published."""
+        try:
+            yield
+        except StoreFenced as exc:
+            self.deposed(exc.epoch, "mission.db records it")
+
+    def session(self, open_node, standby: bool) -> tuple:
+        """The coordinator's Zenoh session (``open_node()`` opens it; it raises
+        ``wire.zconfig.OpenStopped`` when stopped first) and the claim on the mission
+        (:meth:`claim`): (node, True) when this process may go on, (None, True) when stopped
+        before the session opened, (None, False) when a standby stopped while the primary lived
+        (its session closed)."""
+        from wire.zconfig import OpenStopped
+
+        node = None
+        if not self._stop.is_set():
+            try:
+                node = open_node()
+            except OpenStopped:
+                node = None
+        if node is None:
+            return None, True
+        try:
+            claimed = self.claim(node, standby)
+        except BaseException:
+            node.close(DEFAULTS.close_s)
+            raise
+        if not claimed:
+            node.close(DEFAULTS.close_s)
+            return None, False
+        return node, True
 
     def claim(self, node, standby: bool) -> bool:
         """Before this coordinator declares its token on ``node``: is another coordinator of the

@@ -1,11 +1,18 @@
 """What the coordinator receives: its inbox (the carriers' messages on their keys, their
 liveliness tokens, Decisions on the mission's decision key) checked at the wire level (key
-layout, decoding, mission id, the carrier id in the key), turned into mission events and applied;
-a message it cannot read is rejected (and a Hello it cannot read is answered).
+layout, decoding, mission id, the carrier id in the key) and turned into what each says
+(:class:`Heard`: a mission event, the carrier heard from, a higher epoch it heard); a message it
+cannot read is rejected (and a Hello it cannot read is answered).
 
-:class:`Inbound` is a part of :class:`coordinator.node.Coordinator`.
+:class:`Inbound` is a collaborator of :class:`coordinator.node.Coordinator`, given what it needs
+when it is built; it hands a Decision on the decision key to the split-brain collaborator
+(``coordinator.epochs.Epochs``) and a Pose to the recorder (``coordinator.recorder.Recording``),
+and changes nothing of the coordinator's: the coordinator takes what it reads
+(:meth:`coordinator.node.Coordinator.pump`).
 """
 from __future__ import annotations
+
+from typing import Any, NamedTuple
 
 from mission import events as ev
 from mission import state as ms
@@ -41,76 +48,113 @@ def to_event(msg, at: float):
 BATCH_MAX = 1024
 
 
+class Heard(NamedTuple):
+    """What one inbox item says (:meth:`Inbound.read`).
+
+    Attributes:
+        event: its mission event (None: none).
+        carrier: the carrier it came from, heard at ``at`` (the inbox's clock, s) [P-10.5];
+            None: no carrier's message.
+        progress: a Progress of this stage (None: not a Progress): heard only while the stage it
+            names is not past the stage collected (one past it sends nothing more for that stage:
+            its silence ends the wait; found by mission.simulate).
+        epoch: a Hello of a higher epoch than this coordinator's, of its world [P-7.3] (None: none).
+    """
+
+    event: Any = None
+    carrier: str | None = None
+    at: float = 0.0
+    progress: int | None = None
+    epoch: int | None = None
+
+
 class Inbound:
-    """The coordinator's receiving side."""
+    """The coordinator's receiving side.
 
-    def pump(self, timeout_s: float) -> None:
-        """Wait up to ``timeout_s`` seconds for inbox items, then handle every queued one, their
-        writes to mission.db committed together (storage.missiondb, :meth:`MissionStore.batch`).
-        With Poses set aside and an empty inbox, record them instead of waiting, until an item
-        arrives (:meth:`coordinator.recorder.Recording.record_poses`)."""
-        item = self.node.next(0.0 if self.recording.poses else max(0.0, timeout_s))
+    Args:
+        mission: the mission id; has(cid): whether ``cid`` is one of its carriers; fingerprint:
+        its world's; epochs: its ``coordinator.epochs.Epochs``; recording: its
+        ``coordinator.recorder.Recording``.
+    """
+
+    def __init__(self, mission: str, has, fingerprint: str, epochs, recording):
+        self.mission, self.has, self.fingerprint = mission, has, fingerprint
+        self.epochs, self.recording = epochs, recording
+
+    def subscribe(self, node) -> None:
+        """The inbox's keys on ``node``: the carriers' messages and tokens, the mission's
+        Decisions (a newer epoch's deposes this coordinator)."""
+        node.subscribe(f"{keys.prefix(self.mission)}/carrier/**")
+        node.subscribe(keys.decision_key(self.mission))
+        node.watch_liveliness(keys.carrier_alive_pattern(self.mission))
+
+    def pump(self, node, store, timeout_s: float, take, reject, answer_hello) -> None:
+        """Wait up to ``timeout_s`` seconds for inbox items on ``node``, then hand what each queued
+        one says to ``take`` (:meth:`read`), their writes to mission.db (``store``, None: none yet)
+        committed together (storage.missiondb, :meth:`MissionStore.batch`). One it cannot read is
+        rejected: ``reject(reason, detail, carrier)``; a Hello among them is answered too:
+        ``answer_hello(carrier, revision, refusal)``. With Poses set aside and an empty inbox,
+        record them instead of waiting, until an item arrives
+        (:meth:`coordinator.recorder.Recording.record_poses`)."""
+        item = node.next(0.0 if self.recording.poses else max(0.0, timeout_s))
         if item is None:
-            self.recording.record_poses(busy=self.node.pending)
+            self.recording.record_poses(busy=node.pending)
             return
-        if self.store is None:
-            self._drain(item)
+        if store is None:
+            self._drain(node, store, item, (take, reject, answer_hello))
             return
-        with self.store.batch():
-            self._drain(item)
+        with store.batch():
+            self._drain(node, store, item, (take, reject, answer_hello))
 
-    def _drain(self, item) -> None:
+    def _drain(self, node, store, item, given) -> None:
+        take, reject, answer_hello = given
         handled = 0
         while item is not None:
             handled += 1
-            if handled % BATCH_MAX == 0 and self.store is not None:
-                self.store.flush()  # a long burst is committed in parts
+            if handled % BATCH_MAX == 0 and store is not None:
+                store.flush()  # a long burst is committed in parts
             try:
-                self._handle(item)
+                heard = self.read(item)
+                if heard is not None:
+                    take(heard)
             except ProtocolError as exc:
                 parsed = keys.parse_carrier_key(self.mission, item.key) if item.kind == "sample" else None
-                self._reject(exc.reason, exc.detail, parsed[0] if parsed else None)
+                reject(exc.reason, exc.detail, parsed[0] if parsed else None)
                 if parsed is not None and parsed[1] == "hello":  # a Hello it could not read: answered too
                     revision, fp = announced(item.payload)
-                    self._answer_hello(parsed[0], revision, ms.Refuse(parsed[0], fp, exc.reason, exc.detail))
-            item = self.node.next(0.0)
+                    answer_hello(parsed[0], revision, ms.Refuse(parsed[0], fp, exc.reason, exc.detail))
+            item = node.next(0.0)
 
-    def _handle(self, item) -> None:
-        """Decode one inbox item into a mission event and apply it (wire-level checks only here:
-        key layout, decoding, mission id, the carrier id in the key)."""
+    def read(self, item) -> Heard | None:
+        """What one inbox item says (wire-level checks only here: key layout, decoding, mission
+        id, the carrier id in the key); None: nothing for the coordinator (its own token, a
+        Decision: :meth:`coordinator.epochs.Epochs.decision_heard`, a Pose: set aside for the
+        recorder). Raises :class:`ProtocolError`."""
         if item.kind in ("alive", "gone"):
             if item.key == keys.coordinator_alive(self.mission):
-                return
+                return None
             parsed = keys.parse_carrier_key(self.mission, item.key)
             if parsed is None or parsed[1] != "alive":
                 raise ProtocolError("bad-key", f"liveliness token on {item.key[:80]}")
-            self.apply(ev.LivelinessChanged(parsed[0], item.kind == "alive", item.wall))
-            return
+            return Heard(ev.LivelinessChanged(parsed[0], item.kind == "alive", item.wall))
         if item.key == keys.decision_key(self.mission):
             self.epochs.decision_heard(item.payload)
-            return
+            return None
         parsed = keys.parse_carrier_key(self.mission, item.key)
         if parsed is not None and parsed[1] == "pose":
             self.recording.pose(parsed[0], item)
-            return
+            return None
         if parsed is None or parsed[1] not in TOPIC_TYPES:
             raise ProtocolError("bad-key", f"message on {item.key[:80]}")
         cid, topic = parsed
-        if not self.spec.has(cid):
+        if not self.has(cid):
             raise ProtocolError("unknown-carrier", f"message from carrier {cid!r}")
-        msg = decode(item.payload, TOPIC_TYPES[topic])
+        msg: Any = decode(item.payload, TOPIC_TYPES[topic])
         if msg.mission != self.mission:
             raise ProtocolError("wrong-mission", f"mission {msg.mission!r} on {self.mission!r}")
         if msg.carrier != cid:
             raise ProtocolError("key-mismatch", f"carrier {msg.carrier!r} on the key of {cid!r}")
         if isinstance(msg, Progress):
-            if msg.stage <= self.state.next_stage:  # one past the stage collected sends nothing more for it:
-                self.heard[cid] = item.received  # its silence ends the wait (found by mission.simulate)
-            return
-        self.heard[cid] = item.received  # heard when it arrived [P-10.5]
-        if isinstance(msg, Hello) and msg.epoch > self.epochs.epoch and msg.fingerprint == self.fingerprint:
-            if self.epochs.carrier_heard(cid, msg.epoch, self.state.next_stage, self.store):
-                self._refresh_state()  # State and the last Decision again, in the new epoch [P-7.5]
-                if self.state.next_stage > 0:
-                    self._publish_decision(self._decision(self.state.next_stage - 1))
-        self.apply(to_event(msg, item.wall))
+            return Heard(carrier=cid, at=item.received, progress=msg.stage)
+        newer = isinstance(msg, Hello) and msg.epoch > self.epochs.epoch and msg.fingerprint == self.fingerprint
+        return Heard(to_event(msg, item.wall), cid, item.received, epoch=msg.epoch if newer else None)

@@ -54,7 +54,7 @@ from mission import state as ms
 from mission.timeouts import CLOCKS, DEFAULTS
 from wire import keys
 from wire.messages import (
-    ACCEPTED_MAX, MAX_STATE_CARRIERS, REVISION, UNANNOUNCED_REVISION, Accepted, CarrierState, Decision, State,
+    ACCEPTED_MAX, MAX_STATE_CARRIERS, REVISION, UNANNOUNCED_REVISION, Accepted, CarrierState, Decision, End, State,
     defined_in, encode, refusal, scenario_fingerprint,
 )
 from wire.transport import Node
@@ -112,15 +112,16 @@ class CoordinatorConfig:
     standby: bool = False
 
 
-class Coordinator(Inbound, StageClock):
+class Coordinator:
     """One coordinator process: the Zenoh node, the store, the stage clock, and the mission state
     (``self.state``, a :class:`mission.state.MissionState` changed only by :meth:`apply`).
 
-    Its jobs live in modules of their own: what it receives (:class:`coordinator.inbound.Inbound`)
-    and its waits and stage loop (:class:`coordinator.clock.StageClock`); this class keeps the
-    state, the answers (State, Accepted, Refusal), the planner call and the run's phases. Its
-    collaborators: split brain (:class:`coordinator.epochs.Epochs`), the recorder
-    (:class:`coordinator.recorder.Recording`), the results (:class:`coordinator.results.Results`).
+    Its jobs live in collaborators it holds, each given what it needs: what it receives
+    (:class:`coordinator.inbound.Inbound`, taken by :meth:`pump`), its waits and stage loop
+    (:class:`coordinator.clock.StageClock`), split brain and its session
+    (:class:`coordinator.epochs.Epochs`), the recorder (:class:`coordinator.recorder.Recording`),
+    the results (:class:`coordinator.results.Results`); this class keeps the state, the answers
+    (State, Accepted, Refusal), the planner call and the run's opening.
 
     Args:
         scenario: the loaded scenario (its seed is replaced by ``config.seed`` when given).
@@ -129,10 +130,11 @@ class Coordinator(Inbound, StageClock):
         scenario_path: shown in summary.json.
         stop: the stop request (a ``threading.Event``; a new one by default), set by
             :meth:`stop` or by a signal handler.
+        clock: what its waits read (monotonic s; a test hands in its own).
     """
 
     def __init__(self, scenario, config: CoordinatorConfig, zconf, scenario_path: str = "",
-                 stop: threading.Event | None = None):
+                 stop: threading.Event | None = None, clock=time.monotonic):
         if config.seed is not None:
             scenario = scenario.with_seed(int(config.seed))
         self.scenario = scenario
@@ -165,8 +167,11 @@ class Coordinator(Inbound, StageClock):
         self.refusals: dict[str, str] = {}
         if config.clock not in CLOCKS:
             raise ValueError(f"clock must be one of {CLOCKS}, found {config.clock!r}")
-        self.clock = time.monotonic  # what its waits read (mission.timers decides); the inbox's clock
+        self.clock = clock  # what its waits read (mission.timers decides); the inbox's clock
         self.epochs = Epochs(self.mission, self.log, self._stop, self.clock)  # split brain (docs/fleet.md)
+        self.inbound = Inbound(self.mission, self.spec.has, self.fingerprint, self.epochs, self.recording)
+        self.stage_clock = StageClock(config, self.spec, scenario.stage_interval, self.mission, self.epochs, self._stop,
+                                      self.clock, self.log)
         self.results = results_for(scenario, self.scenario_path, self.mission, self.planner_name, self.planner_options,
                                    self.seed, (config.render, self.log, self.epochs, self.recording))
         # When each carrier was last heard (self.clock's s): a slow one (Progress) or a stuck one, sim clock.
@@ -287,7 +292,36 @@ class Coordinator(Inbound, StageClock):
         if defined_in(answer, revision):
             self.node.put(keys.accepted_key(self.mission, cid), answer, revision)
 
-    # ------------------------------------------------------------------ the stage clock
+    # ------------------------------------------------------------------ what it receives
+    def pump(self, timeout_s: float) -> None:
+        """Take what arrived, waiting up to ``timeout_s`` for it (:meth:`coordinator.inbound.Inbound.pump`)."""
+        self.inbound.pump(self.node, self.store, timeout_s, self._take, self._reject, self._answer_hello)
+
+    def _take(self, heard) -> None:
+        """What one inbox item says (:class:`coordinator.inbound.Heard`): when its carrier was heard,
+        a takeover of the higher epoch it heard, its mission event."""
+        if heard.carrier is not None and (heard.progress is None or heard.progress <= self.state.next_stage):
+            self.heard[heard.carrier] = heard.at  # when it arrived [P-10.5] (see Heard.progress)
+        if heard.epoch is not None and self.epochs.carrier_heard(heard.carrier, heard.epoch, self.state.next_stage,
+                                                                 self.store):
+            self._refresh_state()  # State and the last Decision again, in the new epoch [P-7.5]
+            if self.state.next_stage > 0:
+                self._publish_decision(self._decision(self.state.next_stage - 1))
+        if heard.event is not None:
+            self.apply(heard.event)
+
+    # ------------------------------------------------------------------ the stage clock's calls
+    def decide(self, j: int) -> float | None:
+        """Plan stage j, record and publish its Decision: its planning ms (None: deposed, Epochs.fencing)."""
+        deploy, planning_ms, passengers = self._plan(j)
+        with self.epochs.fencing():
+            self.apply(ev.Decided(j, deploy, planning_ms, time.time(), passengers))  # records, then publishes
+        return planning_ms if self.epochs.deposed_by is None else None
+
+    def put_end(self, end: End) -> None:
+        """End, in the revision every carrier that said Hello reads (as the Decisions are)."""
+        self.node.put(keys.end_key(self.mission), end, self.state.common_revision(REVISION))
+
     def _plan(self, j: int) -> tuple[tuple[str, ...], float, tuple[int, ...]]:
         """(deploying ids sorted, planning ms, their passengers): the offline loop's stage_step on the mission's view."""
         step = stage_step(self.problem, self.state.planning_observations(j), self.state.deployed(), self.planner,
@@ -312,7 +346,8 @@ class Coordinator(Inbound, StageClock):
 
         out = Path(self.config.out_dir)
         # The session first: a duplicate is refused (or waited for) before mission.db is touched.
-        if not self._open_session():  # a standby stopped while the primary lived: nothing of ours to record
+        self.node, claimed = self.epochs.session(lambda: Node(self.zconf, stop=self._stop), self.config.standby)
+        if not claimed:  # a standby stopped while the primary lived: nothing of ours to record
             self.log(f"coordinator: standby for mission {self.mission} stopped; it never took over")
             return {"ended": False, "standby": True}
         started = self.clock()  # the mission's wall time: a standby's wait is not part of it
@@ -327,29 +362,6 @@ class Coordinator(Inbound, StageClock):
         finally:
             summary = self.results.finish(out, self.clock() - started, self.state, self.problem, self.node, self.store)
         return summary
-
-    def _open_session(self) -> bool:
-        """The Zenoh session (None when stopped before it opened) and the claim on the mission
-        (:meth:`coordinator.epochs.Epochs.claim`); False: a standby stopped, session closed."""
-        from wire.zconfig import OpenStopped
-
-        if not self._stop.is_set():
-            try:
-                self.node = Node(self.zconf, stop=self._stop)
-            except OpenStopped:
-                self.node = None
-        if self.node is None:
-            return True
-        try:
-            claimed = self.epochs.claim(self.node, self.config.standby)
-        except BaseException:
-            self.node.close(DEFAULTS.close_s)
-            self.node = None
-            raise
-        if not claimed:
-            self.node.close(DEFAULTS.close_s)
-            self.node = None
-        return claimed
 
     def _open_mission(self, out: Path) -> None:
         """mission.db (this process's epoch with it) and the recorder."""
@@ -388,21 +400,11 @@ class Coordinator(Inbound, StageClock):
             warm(self.problem)
         if self.state.next_stage > 0:
             self._publish_decision(self._decision(self.state.next_stage - 1))  # idempotent re-publication
-        if self.state.ended:  # resumed a complete mission: only tell late carriers it is over
-            self._end(self.state.end_reason)
-            return
-        self._wait_for_carriers()
-        self._stages()
-        if not self._stop.is_set():
-            self._wait_confirms(self.n_stages - 1)
-        if self.epochs.deposed_by is None:  # deposed: the newer coordinator ends the mission
-            self._end("stopped" if self._stop.is_set() else "complete")
+        self.stage_clock.serve(self)  # the carriers' join, the stages, the last Confirms, End
 
     def _serve(self) -> None:
         """Subscribe, watch the carriers' tokens, answer State, declare this coordinator's token."""
-        self.node.subscribe(f"{keys.prefix(self.mission)}/carrier/**")
-        self.node.subscribe(keys.decision_key(self.mission))  # a newer epoch deposes us
-        self.node.watch_liveliness(keys.carrier_alive_pattern(self.mission))
+        self.inbound.subscribe(self.node)
         self.node.serve(keys.state_key(self.mission), self.state_reply)
         self.node.token(keys.coordinator_alive(self.mission))
         self.log(f"coordinator: mission {self.mission}, {len(self.ids)} carriers, {self.n_stages} stages, "

@@ -11,7 +11,6 @@ import pytest
 
 import world
 from carriers.exits import Exit
-from carriers.motion import Track
 from carriers.node import Carrier, CarrierConfig
 from mission import carrier as mc
 from mission.peers import Presence
@@ -65,10 +64,8 @@ def carrier_at_stage_0(mode: str, clock_name: str = "sim", **timeouts):
     stop = threading.Event()
     config = CarrierConfig(carrier=TINY.carrier_ids[0], mode=mode, clock=clock_name, log=lambda line: None,
                            **timeouts)
-    carrier = Carrier(TINY, config, None, stop=stop)
     clock = FakeClock()
-    carrier.clock = clock
-    carrier.presence, carrier.motion.track = Presence(clock()), Track(clock())  # made on the carrier's clock
+    carrier = Carrier(TINY, config, None, stop=stop, clock=clock)  # its presence and motion made on that clock
     carrier.motion.body = SimpleNamespace(time=0.0, position=lambda cid: (0.0, 0.0))  # a body standing still
     carrier.node = QuietNode(clock, stop)
     carrier.timers = mc.Timers(clock_name, config.silence_timeout_s, 0.0)
@@ -124,7 +121,7 @@ def test_a_joining_carrier_asks_state_again_until_the_coordinator_timeout():
     carrier, clock = carrier_at_stage_0("coordinated", coordinator_timeout_s=10.0)
     carrier.node.queries = 1000
     start = clock.now
-    state, outcome = carrier._query_state()
+    state, outcome = carrier.joining.query_state(carrier)
     asked = [round(t - start, 6) for t in carrier.node.asked]
     assert state is None and outcome.reason == "coordinator-lost"
     assert asked == [0.0, 2.2, 4.4, 6.6, 8.8]
@@ -233,10 +230,9 @@ def coordinator_waiting(clock_name: str, tmp_path, **timeouts):
     from wire.messages import REVISION
 
     lines = []
-    coordinator = Coordinator(TINY, CoordinatorConfig(out_dir=str(tmp_path), clock=clock_name, log=lines.append,
-                                                      **timeouts), None)
     clock = FakeClock()
-    coordinator.clock = clock
+    coordinator = Coordinator(TINY, CoordinatorConfig(out_dir=str(tmp_path), clock=clock_name, log=lines.append,
+                                                      **timeouts), None, clock=clock)
     coordinator.pump = lambda timeout_s: setattr(clock, "now", clock.now + max(0.0, timeout_s))
     state = coordinator.state
     for cid in TINY.carrier_ids:
@@ -254,7 +250,7 @@ def test_the_coordinator_waits_for_a_carrier_heard_from_until_its_silence(tmp_pa
     coordinator.heard = {cid: opened + 10.0 for cid in TINY.carrier_ids}
     waiting = coordinator.state.waiting(0)
     assert waiting
-    coordinator._wait_stage(0, opened)
+    coordinator.stage_clock.wait_stage(coordinator, 0, opened)
     assert 40.0 <= clock.now - opened < 40.1
     assert any("stalled" in line and all(cid in line for cid in waiting) for line in lines), lines
 
@@ -264,7 +260,7 @@ def test_the_coordinator_on_the_wall_clock_waits_the_stage_timeout(tmp_path):
     coordinator, clock, lines = coordinator_waiting("wall", tmp_path, silence_timeout_s=30.0, stage_timeout_s=5.0)
     opened = clock.now
     coordinator.heard = {cid: opened + 4.9 for cid in TINY.carrier_ids}
-    coordinator._wait_stage(0, opened)
+    coordinator.stage_clock.wait_stage(coordinator, 0, opened)
     assert 5.0 <= clock.now - opened < 5.1 and not any("stalled" in line for line in lines)
 
 

@@ -438,10 +438,11 @@ def test_a_carrier_joins_after_subscribing():
     """[P-5.1] the project's carrier subscribes to its coordinator keys and declares its token
     before it joins (the order of run's statements: subscribe, token, join)."""
     source = (ROOT / "carriers" / "node.py").read_text().split("def run(")[1]
-    order = [source.index(s) for s in ("subscribe(keys.decision_key", "subscribe(keys.end_key",
-                                      "subscribe(keys.refusal_key", "subscribe(keys.accepted_key",
-                                      "node.token(", "self._join()")]
+    order = [source.index(s) for s in ("self.inbound.subscribe(self.node)", "node.token(", "self.joining.join(self)")]
     assert order == sorted(order)
+    subscribe = (ROOT / "carriers" / "inbound.py").read_text().split("def subscribe(")[1].split("def listen(")[0]
+    assert all(f"subscribe(keys.{key}" in subscribe for key in ("decision_key", "end_key", "refusal_key",
+                                                                 "accepted_key"))
 
 
 def test_state_is_asked_of_every_coordinator():
@@ -460,8 +461,8 @@ def test_a_join_into_an_ended_mission():
     c = mc.initial("a", (True,) * 2, (0.0, 5.0), 1)
     c, effects = mc.step(c, mc.Joined(2, ended=True))
     assert c.ended and effects == ()
-    joining = (ROOT / "carriers" / "joining.py").read_text().split("def _join(")[1].split("def _replay")[0]
-    assert joining.index("mc.Joined(start, state.ended") < joining.index("self._hello(")
+    joining = (ROOT / "carriers" / "joining.py").read_text().split("def join(")[1].split("def _recall")[0]
+    assert joining.index("mc.Joined(start, state.ended") < joining.index("mc.SendHello(")
 
 
 def test_hello_is_required():
@@ -648,15 +649,21 @@ def test_an_early_observation_is_sent_again():
 
 
 def test_what_counts_as_done():
-    """[P-6.11] per carrier and stage: its Own, else its Confirm, else the Decision."""
+    """[P-6.11] per carrier and stage: its Own, else its Confirm, else the Decision, within the
+    carrier's passengers and its Bye."""
     s = accepted(accepted(ms.initial(spec(2)), "a"), "b")
     s, _ = ms.step(s, ev.Decided(0, ("a", "b"), 1.0))
     s, _ = ms.step(s, ev.Confirmed("a", 0, False, "refused", (0.0, 0.0), 1))
     deployed = s.deployed()
     assert not deployed[0, 0] and deployed[1, 0]  # a's Confirm wins, b's Decision stands
     s, _ = ms.step(s, ev.Accounted("b", 1, 5.0, 1, True, (0.0, 0.0), 0))
-    assert s.deployed()[1, 1]
-    assert s.deployments_of("b") == [0, 1] and s.deployments_of("a") == []
+    # b has one passenger and accounts for it at stage 1: the unanswered Decision of stage 0 has
+    # no passenger left to count (exception 2); a's refusal leaves a with none
+    assert s.deployed()[1].tolist() == [False, True]
+    assert s.deployments_of("b") == [1] and s.deployments_of("a") == []
+    s, _ = ms.step(s, ev.Decided(1, ("a",), 1.0))
+    s, _ = ms.step(s, ev.Bye("a", (), (), "end", 9.0))
+    assert s.deployments_of("a") == []  # exception 1: its Bye lists no deployment
 
 
 def test_the_forced_rule():
@@ -712,7 +719,7 @@ def test_when_a_carrier_decides_alone():
     # the carrier's wait is a driver of that rule: it carries out each of its effects
     wait = (ROOT / "carriers" / "node.py").read_text().split("def _wait_decision(")[1].split("def _fly(")[0]
     assert "tm.decision_wait(self.timers.clock, self.config.mode, present, wait.waited_s," in wait
-    assert wait.index("isinstance(rule, tm.AskState)") < wait.index("self._recover_decision(j)")
+    assert wait.index("isinstance(rule, tm.AskState)") < wait.index("self.joining.recover_decision(self, j)")
     assert "raise Exit(rule.reason)" in wait and "monotonic" not in wait
     c = mc.initial("a", (True,), (0.0,), 1)
     c, _ = mc.step(c, mc.Joined(0))
@@ -729,8 +736,8 @@ def test_a_stage_is_held_while_no_carrier_is_live():
 
     assert tm.hold(False, 0.0, 19.0, 20.0) == tm.Wait(20.0) and tm.hold(True, 0.0, 1.0, 20.0) == tm.GoOn()
     loop = (ROOT / "coordinator" / "clock.py").read_text().split("def _stages(")[1]
-    assert "if j > 0 and not self.state.live:" in loop
-    assert "tm.hold(bool(self.state.live), held, now, self.config.join_timeout_s)" in loop
+    assert "if j > 0 and not c.state.live:" in loop
+    assert "tm.hold(bool(c.state.live), held, now, self.config.join_timeout_s)" in loop
 
 
 def test_decisions_name_sorted_carriers_and_passengers():
@@ -783,13 +790,16 @@ def test_takeover_before_deciding_and_deposition_after():
     body_ = epochs.split("def carrier_heard(")[1].split("def decision_heard")[0]
     assert "if next_stage > self.first_stage:\n            self.deposed(" in body_
     assert "self.epoch = epoch + 1" in body_ and "return True" in body_
-    inbound = (ROOT / "coordinator" / "inbound.py").read_text()
-    republish = inbound.split("if self.epochs.carrier_heard(")[1].split("self.apply(")[0]
+    inbound = (ROOT / "coordinator" / "inbound.py").read_text().split("def read(")[1]
+    assert "msg.epoch > self.epochs.epoch and msg.fingerprint == self.fingerprint" in inbound
+    take = (ROOT / "coordinator" / "node.py").read_text().split("def _take(")[1]
+    republish = take.split("self.epochs.carrier_heard(")[1].split("self.apply(")[0]
     assert "self._publish_decision(self._decision(self.state.next_stage - 1))" in republish
     heard = epochs.split("def decision_heard(")[1].split("def deposed")[0]
     assert "msg.epoch > self.epoch" in heard and "except ProtocolError:\n            return" in heard
     node = (ROOT / "coordinator" / "node.py").read_text()
-    assert "if self.epochs.deposed_by is None:  # deposed: the newer coordinator ends the mission" in node
+    clock = (ROOT / "coordinator" / "clock.py").read_text()
+    assert "if self.epochs.deposed_by is None:  # deposed: the newer coordinator ends the mission" in clock
     assert "self._publish_decision(self._decision(self.state.next_stage - 1))  # idempotent re-publication" in node
 
 
@@ -836,8 +846,8 @@ def test_silence_is_measured_from_the_stage_opening_and_the_last_message():
     timers = (ROOT / "mission" / "timers.py").read_text()
     assert "now - opened >= silence_s and now - last_heard(heard, among, opened) >= silence_s" in timers
     assert tm.stage_wait("sim", {"a"}, (), {"a": 15.0}, 10.0, 44.0, 5.0, 30.0) == tm.Wait(45.0)
-    clock = (ROOT / "coordinator" / "clock.py").read_text().split("def _wait_stage(")[1].split("def _wait_confirms(")[0]
-    assert "tm.stage_wait(clock, *self.state.waited_for(j), self.heard, opened, now," in clock
+    clock = (ROOT / "coordinator" / "clock.py").read_text().split("def wait_stage(")[1].split("def _wait_confirms(")[0]
+    assert "tm.stage_wait(clock, *c.state.waited_for(j), c.heard, opened, now," in clock
 
 
 def test_the_clocks():
@@ -858,9 +868,11 @@ def test_what_keeps_a_carrier_heard():
     """[P-10.5] the coordinator notes a carrier heard for every message on its hello, obs,
     confirm, own, bye or progress key that passes the key, codec and envelope checks, before the
     mission's checks; a carrier deciding alone does the same for its peers' messages."""
-    inbound = (ROOT / "coordinator" / "inbound.py").read_text().split("def _handle(")[1]
-    assert inbound.index("key-mismatch") < inbound.index("self.heard[cid] = item.received") < inbound.index(
-        "self.apply(to_event(msg")
+    inbound = (ROOT / "coordinator" / "inbound.py").read_text().split("def read(")[1]
+    assert inbound.index("key-mismatch") < inbound.index("Heard(carrier=cid, at=item.received") < inbound.index(
+        "Heard(to_event(msg, item.wall), cid, item.received")
+    take = (ROOT / "coordinator" / "node.py").read_text().split("def _take(")[1]
+    assert take.index("self.heard[heard.carrier] = heard.at") < take.index("self.apply(heard.event)")
     peers = (ROOT / "carriers" / "inbound.py").read_text().split("def _peer(")[1]
     assert peers.index("key-mismatch") < peers.index("self.presence.heard_from(cid")
 
@@ -873,7 +885,7 @@ def test_a_carrier_waiting_on_the_sim_clock_asks_state():
     c, _ = mc.step(c, mc.Observed(0, 1, (0.0, 0.0)))
     _, effects = mc.step(c, mc.Collecting(0))
     assert effects == (mc.ResendObservation(0),)
-    joining = (ROOT / "carriers" / "joining.py").read_text().split("def _recover_decision(")[1]
+    joining = (ROOT / "carriers" / "joining.py").read_text().split("def recover_decision(")[1]
     assert "if state.next_stage > j:" in joining and "mc.Resync(" in joining
 
 
@@ -980,10 +992,11 @@ def test_end_is_broadcast_with_its_epoch_in_the_lowest_revision():
     end = wm.End(M, 3, "complete", 1)
     assert msgpack.unpackb(wm.encode(end, 4))["epoch"] == 1
     assert "epoch" not in msgpack.unpackb(wm.encode(end, 3))
-    clock = (ROOT / "coordinator" / "clock.py").read_text().split("def _end(")[1]
-    assert "self.node.put(keys.end_key(self.mission), end, self.state.common_revision(REVISION))" in clock
-    assert "DEFAULTS.end_repeat_s" in clock and "self.epochs.deposed_by is None" in (
-        ROOT / "coordinator" / "node.py").read_text()
+    clock = (ROOT / "coordinator" / "clock.py").read_text()
+    end = clock.split("def end(")[1]
+    assert "c.put_end(end)" in end and "DEFAULTS.end_repeat_s" in end and "self.epochs.deposed_by is None" in clock
+    put = (ROOT / "coordinator" / "node.py").read_text().split("def put_end(")[1].split("def ")[0]
+    assert "self.node.put(keys.end_key(self.mission), end, self.state.common_revision(REVISION))" in put
 
 
 @pytest.mark.parametrize("revision", sorted(int(p.name[1:]) for p in (ROOT / "tests" / "fixtures" / "wire").glob("r*")))
