@@ -328,13 +328,16 @@ def _run_decentralised(problem, x, planner, seed, dl: Deliveries, released=None,
 class Unknown(NamedTuple):
     """What a carrier does not know of the members of its component: ``known`` bool ``[m]`` (the
     member's stage-j state is known), ``start`` int64 ``[m]`` (first stage of an unknown member
-    whose deployment is unknown), ``left_start`` int64 ``[m]`` (its passengers left there), and
-    ``xobs`` float ``[R, N]`` the known observations (NaN unknown)."""
+    whose deployment is unknown), ``left_start`` int64 ``[m]`` (its passengers left there),
+    ``xobs`` float ``[R, N]`` the known observations (NaN unknown), and ``aware`` bool ``[m, N]``:
+    the member is predicted to hear the others at stage t (it then weighs conflicts; else it
+    follows its plain thresholds, as a carrier cut off does)."""
 
     known: np.ndarray
     start: np.ndarray
     left_start: np.ndarray
     xobs: np.ndarray
+    aware: np.ndarray
 
 
 # The rollout loop below is closed-loop's, written out: see the note above
@@ -358,7 +361,7 @@ def _evaluate_imputed(cand, unknown, stage, n_stages, net, selection, past, samp
     through ``stage``; then every member follows the conflict-aware SSAP rollout.
     """
     actions, members, xnow, left0 = cand
-    known, start, left_start, xobs = unknown
+    known, start, left_start, xobs, aware = unknown
     valid, nleft, table, nbr_ptr, nbr_idx = net
     sel, p, xv = selection
     n_cand = actions.shape[0]
@@ -407,7 +410,7 @@ def _evaluate_imputed(cand, unknown, stage, n_stages, net, selection, past, samp
                     if d > 0:
                         q = r * n_stages + t
                         g = marginal_gain(q, xs, sel, p, xv, nbr_ptr, nbr_idx)
-                        if deploys(table, g, n, d):
+                        if deploys(table, g if aware[i, t] else xs, n, d):
                             total += g
                             nlog = select_point(q, xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
                             left[i] = d - 1
@@ -417,6 +420,21 @@ def _evaluate_imputed(cand, unknown, stage, n_stages, net, selection, past, samp
                         lefti[i] = d - 1
             undo_selection(sel, p, log, nlog)
             out[k, s] = total - plain
+
+
+def predicted_aware(local: LocalView, comp: np.ndarray) -> np.ndarray:
+    """bool ``[m, N]``: whether member ``comp[i]`` is predicted to hear, at stage t, someone who
+    knows the others' deployments — the coordinator (a coordinated fleet) or another member —
+    with probability at least 1/2 (:attr:`LocalView.contact`); all True without a prediction."""
+    N = local.problem.n_stages
+    if local.contact is None:
+        return np.ones((len(comp), N), dtype=bool)
+    senders = 1 + np.asarray(comp)
+    if local.coordinated:
+        senders = np.append(senders, 0)
+    heard = local.contact[:, senders][:, :, 1 + np.asarray(comp)]        # [N, senders, m]
+    heard[:, np.arange(len(comp)), np.arange(len(comp))] = 0.0            # not itself
+    return np.ascontiguousarray((heard >= 0.5).any(axis=1).T)
 
 
 class DecClosedLoopPlanner:
@@ -436,7 +454,10 @@ class DecClosedLoopPlanner:
       The sampled futures then run the conflict-aware SSAP rollout for all, with the plain-SSAP
       control variate, as in closed-loop. So a carrier that hears nobody still expects the
       others to deploy where their thresholds make it likely, and avoids the overlaps those
-      deployments would crowd, instead of acting like plain SSAP. A component of more than
+      deployments would crowd, instead of acting like plain SSAP. Where the links predict that a
+      member will hear nobody at a future stage (:attr:`LocalView.contact`), the sampled futures
+      have it follow its plain thresholds there (it cannot weigh conflicts it does not hear of).
+      A component of more than
       ``block`` carriers (default :data:`~planner.closedloop.BLOCK`) is cut down to the carrier's
       own block — the ``block`` carriers nearest it, breadth-first — and that block's halo, with
       the budget of the carriers searched (``iterations`` rollouts of them), so an on-board
@@ -559,7 +580,8 @@ class DecClosedLoopPlanner:
         m = len(comp)
         deadline = None if self.plan_ms is None else time.perf_counter() + self.plan_ms / 1e3
         cand = Candidates(actions, comp, xnow_all[comp], left[comp])
-        unknown = Unknown(known[comp], start[comp], left[comp], np.ascontiguousarray(local.observations))
+        unknown = Unknown(known[comp], start[comp], left[comp], np.ascontiguousarray(local.observations),
+                          predicted_aware(local, comp))
         net = Net(valid, nleft, prep.table, prep.indptr, prep.nbr)
         selection = Selection(sel, p, xv)
 

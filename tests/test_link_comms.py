@@ -120,3 +120,59 @@ def test_a_carrier_cut_off_from_a_decentralised_fleet_still_predicts_its_peers()
         plain = run_comms(inst.problem, inst.observations, make_planner("ssap"), 1, CommsSpec(loss=1.0))
         differs += int((alone.deployed != plain.deployed).any())
     assert differs > 0
+
+
+def test_predicted_awareness_follows_the_contact_matrix():
+    from planner.decentralised import LocalView, predicted_aware
+
+    inst = random_instance(np.random.default_rng(2), 3, 2, 6, 5, 3.0)
+    R, N = 3, 6
+    empty = np.full((R, N), np.nan)
+    view = LocalView(inst.problem, 0, 0, 0, empty, np.zeros((R, N), bool), np.zeros(R, np.int64),
+                     np.zeros(R, np.int64), (None,) * R)
+    comp = np.array([0, 2])
+    assert predicted_aware(view, comp).all()                       # no prediction: everyone hears
+    c = contact(LinkComms(_cut(R, N, 2, 2, 4)), R, N)
+    from dataclasses import replace
+
+    aware = predicted_aware(replace(view, contact=c), comp)
+    assert not aware[:, 2:4].any() and aware[:, [0, 1, 4, 5]].all()     # two members: neither hears
+    aware = predicted_aware(replace(view, contact=c, coordinated=True), comp)
+    assert aware[0].all() and not aware[1, 2:4].any()                    # 0 still hears the coordinator
+    # Cut off from carrier 0 only, carrier 2 still hears the coordinator: aware when coordinated.
+    p = np.ones((N, R + 1, R + 1))
+    p[:, 1, 3] = p[:, 3, 1] = 0.0
+    lone = replace(view, contact=contact(LinkComms(p), R, N))
+    assert not predicted_aware(lone, comp)[1].any() and predicted_aware(replace(lone, coordinated=True), comp)[1].all()
+
+
+def test_the_world_predicts_the_links_of_a_scenario():
+    import world
+    from world.linkplan import link_comms, summary
+    from world.links import LinkModel
+    from world.paths import REPO_ROOT
+
+    marine = world.load_scenario(REPO_ROOT / "scenarios" / "marine_survey.yaml")
+    comms = link_comms(marine)
+    R, N = marine.n_carriers, marine.stages
+    comms.check(R, N)
+    model = LinkModel(marine)
+    j = 5
+    t = float(marine.stage_time(j))
+    a, b = marine.carriers[0].position_at(t), marine.carriers[2].position_at(t)
+    assert comms.probability[j, 1, 3] == pytest.approx(model.probability(a, b))    # the direct hop
+    assert comms.probability[j, 0, 1] == pytest.approx(model.probability(model.base, a))
+    valid = marine.valid()
+    assert np.isnan(comms.probability[:, 1:, 0][~valid.T]).all()
+    figures = summary(comms)
+    assert 0.5 < figures["least"] <= figures["mean"] < 1.0
+    # Slower modems, longer frames: the stage's messages no longer cross within a stage.
+    import dataclasses
+
+    slow = dataclasses.replace(marine, links=dataclasses.replace(
+        marine.links, params=tuple((k, 50.0 if k == "bitrate_bps" else 4096 if k == "frame_bytes" else v)
+                                   for k, v in marine.links.params)))
+    late = link_comms(slow)
+    assert late.delay is not None and late.delay.max() >= 1
+    six = world.load_scenario(REPO_ROOT / "scenarios" / "six_carriers.yaml")
+    assert link_comms(six).perfect
