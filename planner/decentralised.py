@@ -210,8 +210,9 @@ def run_comms(problem: Problem, x: np.ndarray, planner, seed: int, comms: CommsS
     ``comms``: a :class:`~planner.comms.CommsSpec` or the links' :class:`~planner.comms.LinkComms`;
     every carrier's view carries the model's prediction (:func:`planner.comms.contact`) when the
     model is not perfect. ``fallback``: for a centralised planner, the on-board planner
-    (``decide_local``) a carrier whose decision did not arrive in time runs on what it heard —
-    the fleet's hybrid carriers; None: it deploys only when forced.
+    (``decide_local``) a carrier runs on what it heard when its decision did not arrive in time,
+    or arrived but planned it as ∅ (its observation had not reached the coordinator) — the
+    fleet's hybrid carriers; None: it deploys only when forced.
     """
     comms = CommsSpec() if comms is None else comms
     comms.check(problem.n_carriers)
@@ -263,6 +264,9 @@ def _run_centralised(problem, x, planner, seed, dl: Deliveries, released=None, c
         decided[:, j] = decision
         can, must = _forced_truth(problem, x, deployed, j)
         told = dl.decision[:, j] <= j
+        if fallback is not None:
+            # A decision that planned a carrier as ∅ (its observation did not arrive) is none for it.
+            told &= heard > j
         deployed[:, j] = (told & decision & can) | must
         if fallback is not None:
             for r in np.flatnonzero(~told & can & ~must):
