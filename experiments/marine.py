@@ -16,6 +16,8 @@ observations and planner seed:
 * ``dec``: dec-closed-loop over the acoustic links (no coordinator);
 * ``ssap`` (needs no messages) and the clairvoyant bound.
 
+A result row's ``planner`` column names the arm (``algorithm`` the planner it runs).
+
 Streams: generator seed of family f, trial t ``seed_of(seed, (1003, f, t))`` (also the world
 seed); planner seed ``(1003, f, t, 1)``.
 """
@@ -34,7 +36,7 @@ from experiments.trials import CLAIRVOYANT, Task, _planner, encode, seed_of
 #: (label, MarineSettings overrides) of each family.
 FAMILIES = (("survey, 3 vessels, 98 dB", {}),
             ("wide, 4 vessels, 101 dB", {"vessels": 4, "width": 3200.0, "height": 2000.0, "noise_level_db": 101.0}))
-#: Arms: (name, planner, links) — links "perfect" or "acoustic"; the hybrid arm adds the fallback.
+#: Arms: (name, planner); the links are perfect for "perfect" and "ssap", the predicted acoustic ones for the others.
 ARMS = (("perfect", "closed-loop"), ("acoustic", "closed-loop"), ("hybrid", "closed-loop"),
         ("dec", "dec-closed-loop"), ("ssap", "ssap"), (CLAIRVOYANT, CLAIRVOYANT))
 LABELS = {"perfect": "closed-loop, perfect links", "acoustic": "closed-loop, acoustic",
@@ -43,7 +45,7 @@ LABELS = {"perfect": "closed-loop, perfect links", "acoustic": "closed-loop, aco
 DEFAULT_TRIALS, DEFAULT_ITERATIONS = 5, 2000
 #: Prior fit of each generated world: seeds simulated (world/marine.py's ``prior_seeds``).
 PRIOR_SEEDS = 8
-FIELDS = ("sweep", "level", "family", "trial", "arm", "planner", "world_seed", "planner_seed", "iterations",
+FIELDS = ("sweep", "level", "family", "trial", "planner", "algorithm", "world_seed", "planner_seed", "iterations",
           "carriers", "stages", "link_mean", "link_least", "reward", "features", "wall_s", "deployed")
 
 
@@ -89,7 +91,7 @@ def run_task(task: Task) -> dict:
             fallback = _planner("dec-closed-loop", task.iterations) if task.planner == "hybrid" else None
             result = run_comms(problem, x, planner, planner_seed, comms, fallback=fallback)
     return {"sweep": "marine", "level": task.level, "family": FAMILIES[task.level][0], "trial": task.trial,
-            "arm": task.planner, "planner": name, "world_seed": gen, "planner_seed": planner_seed,
+            "planner": task.planner, "algorithm": name, "world_seed": gen, "planner_seed": planner_seed,
             "iterations": task.iterations, "carriers": problem.n_carriers, "stages": problem.n_stages,
             "link_mean": links["mean"], "link_least": links["least"], "reward": float(result.reward),
             "features": float(result.features), "wall_s": time.perf_counter() - t0,
@@ -105,7 +107,7 @@ def _kept(rows: list[dict]) -> dict:
     """(level, trial) -> arm -> reward as a fraction of the perfect-links arm."""
     by = defaultdict(dict)
     for r in rows:
-        by[r["level"], r["trial"]][r["arm"]] = r
+        by[r["level"], r["trial"]][r["planner"]] = r
     return {k: {a: v["reward"] / arms["perfect"]["reward"] for a, v in arms.items()}
             for k, arms in by.items() if "perfect" in arms and arms["perfect"]["reward"] > 0}
 
@@ -138,10 +140,15 @@ def plot(rows: list[dict], path: Path, title: str) -> None:
     plt.close(fig)
 
 
+def write_trials(rows: list[dict], path: Path) -> None:
+    """One row per (family, world, arm); ``planner`` names the arm, ``algorithm`` its planner."""
+    write_csv(sorted(rows, key=lambda r: (r["level"], r["trial"], [a for a, _ in ARMS].index(r["planner"]))),
+              path, FIELDS)
+
+
 def write(rows: list[dict], out: Path, settings: dict, seconds: float, jobs: int) -> dict:
     """``marine_trials.csv``, ``marine.png`` and ``marine.md`` under ``out``; the run-info entry."""
-    write_csv(sorted(rows, key=lambda r: (r["level"], r["trial"], [a for a, _ in ARMS].index(r["arm"]))),
-              out / "marine_trials.csv", FIELDS)
+    write_trials(rows, out / "marine_trials.csv")
     rows = read_trials(out / "marine_trials.csv")
     kept = _kept(rows)
     plot(rows, out / "marine.png", f"Marine family: {settings['trials']} generated worlds per family, "
@@ -161,7 +168,7 @@ def write(rows: list[dict], out: Path, settings: dict, seconds: float, jobs: int
         text += [f"### {label}", "", "| seed (world) | link | " + " | ".join(LABELS[a] for a in arms) + " |",
                  "|---" * (len(arms) + 2) + "|"]
         for t in sorted({r["trial"] for r in sub}):
-            got = {r["arm"]: r for r in sub if r["trial"] == t}
+            got = {r["planner"]: r for r in sub if r["trial"] == t}
             first = next(iter(got.values()))
             cells = []
             for a in arms:

@@ -192,6 +192,8 @@ def settings_of(args) -> dict:
         planners = bound.DEFAULT_PLANNERS
     if args.what == "coverage" and args.planners == ",".join(DEFAULT_PLANNERS):
         planners = coverage.DEFAULT_PLANNERS
+    if args.what == "marine":  # its arms are fixed (experiments.marine.ARMS)
+        planners = tuple(dict.fromkeys(name for _, name in marine.ARMS if name != CLAIRVOYANT))
     if args.losses:
         try:
             losses = tuple(float(v) for v in args.losses.split(",") if v.strip())
