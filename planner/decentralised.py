@@ -427,15 +427,15 @@ def _evaluate_imputed(cand, unknown, stage, n_stages, net, selection, past, samp
 
 
 def predicted_aware(local: LocalView, comp: np.ndarray) -> np.ndarray:
-    """bool ``[m, N]``: whether member ``comp[i]`` is predicted to hear, at stage t, someone who
-    knows the others' deployments — the coordinator (a coordinated fleet) or another member —
-    with probability at least 1/2 (:attr:`LocalView.contact`); all True without a prediction."""
+    """bool ``[m, N]``: in a coordinated fleet, whether member ``comp[i]`` is predicted to hear,
+    at stage t, the coordinator or another member with probability at least 1/2
+    (:attr:`LocalView.contact`): one that hears nobody decides by its thresholds (the rule of a
+    carrier cut off). All True without a prediction, and in a fleet without a coordinator,
+    where a carrier that hears nobody still predicts its peers."""
     N = local.problem.n_stages
-    if local.contact is None:
+    if local.contact is None or not local.coordinated:
         return np.ones((len(comp), N), dtype=bool)
-    senders = 1 + np.asarray(comp)
-    if local.coordinated:
-        senders = np.append(senders, 0)
+    senders = np.append(1 + np.asarray(comp), 0)
     heard = local.contact[:, senders][:, :, 1 + np.asarray(comp)]        # [N, senders, m]
     heard[:, np.arange(len(comp)), np.arange(len(comp))] = 0.0            # not itself
     return np.ascontiguousarray((heard >= 0.5).any(axis=1).T)
@@ -458,9 +458,10 @@ class DecClosedLoopPlanner:
       The sampled futures then run the conflict-aware SSAP rollout for all, with the plain-SSAP
       control variate, as in closed-loop. So a carrier that hears nobody still expects the
       others to deploy where their thresholds make it likely, and avoids the overlaps those
-      deployments would crowd, instead of acting like plain SSAP. Where the links predict that a
-      member will hear nobody at a future stage (:attr:`LocalView.contact`), the sampled futures
-      have it follow its plain thresholds there (it cannot weigh conflicts it does not hear of).
+      deployments would crowd, instead of acting like plain SSAP. In a coordinated fleet, where
+      the links predict that a member will hear nobody at a future stage
+      (:attr:`LocalView.contact`), the sampled futures have it follow its plain thresholds there
+      (the rule of a carrier cut off, below).
       A component of more than
       ``block`` carriers (default :data:`~planner.closedloop.BLOCK`) is cut down to the carrier's
       own block — the ``block`` carriers nearest it, breadth-first — and that block's halo, with

@@ -135,15 +135,17 @@ def test_predicted_awareness_follows_the_contact_matrix():
     c = contact(LinkComms(_cut(R, N, 2, 2, 4)), R, N)
     from dataclasses import replace
 
-    aware = predicted_aware(replace(view, contact=c), comp)
-    assert not aware[:, 2:4].any() and aware[:, [0, 1, 4, 5]].all()     # two members: neither hears
+    assert predicted_aware(replace(view, contact=c), comp).all()        # no coordinator: peers predicted
     aware = predicted_aware(replace(view, contact=c, coordinated=True), comp)
     assert aware[0].all() and not aware[1, 2:4].any()                    # 0 still hears the coordinator
     # Cut off from carrier 0 only, carrier 2 still hears the coordinator: aware when coordinated.
     p = np.ones((N, R + 1, R + 1))
     p[:, 1, 3] = p[:, 3, 1] = 0.0
     lone = replace(view, contact=contact(LinkComms(p), R, N))
-    assert not predicted_aware(lone, comp)[1].any() and predicted_aware(replace(lone, coordinated=True), comp)[1].all()
+    assert predicted_aware(replace(lone, coordinated=True), comp)[1].all()
+    p[:, 0, 3] = 0.0
+    alone = replace(view, contact=contact(LinkComms(p), R, N), coordinated=True)
+    assert not predicted_aware(alone, comp)[1].any() and predicted_aware(alone, comp)[0].all()
 
 
 def test_the_world_predicts_the_links_of_a_scenario():
