@@ -120,7 +120,7 @@ def plot(rows: list[dict], path: Path, title: str) -> None:
 
     kept = _kept(rows)
     arms = [a for a, _ in ARMS if a != "perfect"]
-    fig, axes = plt.subplots(1, len(FAMILIES), figsize=(5.5 * len(FAMILIES), 3.8), sharey=True, squeeze=False)
+    fig, axes = plt.subplots(1, len(FAMILIES), figsize=(6 * len(FAMILIES), 4.2), sharey=True, squeeze=False)
     for f, ax in enumerate(axes[0]):
         trials = sorted(t for (lv, t) in kept if lv == f)
         width = 0.8 / len(arms)
@@ -129,13 +129,15 @@ def plot(rows: list[dict], path: Path, title: str) -> None:
             ax.bar(np.arange(len(trials)) + (k - len(arms) / 2 + 0.5) * width, ys, width, label=LABELS[arm])
         ax.axhline(100, color="black", lw=0.8)
         ax.axhline(90, color="tab:red", lw=0.8, ls="--")
-        ax.set_xticks(range(len(trials)), [f"seed {t}" for t in trials])
+        ax.set_xticks(range(len(trials)), [str(t) for t in trials])
+        ax.set_xlabel("world (trial)")
         ax.set_title(FAMILIES[f][0], fontsize=10)
-        ax.set_ylim(0, 130)
+        ax.set_ylim(0, 170)
     axes[0][0].set_ylabel("reward, % of closed-loop with perfect links")
-    axes[0][0].legend(fontsize=7, loc="lower left")
+    handles, names = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, names, loc="lower center", ncol=len(arms), fontsize=8, frameon=False)
     fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
