@@ -42,7 +42,7 @@ ARMS = (("perfect", "closed-loop"), ("acoustic", "closed-loop"), ("hybrid", "clo
 LABELS = {"perfect": "closed-loop, perfect links", "acoustic": "closed-loop, acoustic",
           "hybrid": "closed-loop, acoustic, hybrid carriers", "dec": "dec-closed-loop, acoustic",
           "ssap": "SSAP", CLAIRVOYANT: "clairvoyant bound"}
-DEFAULT_TRIALS, DEFAULT_ITERATIONS = 5, 2000
+DEFAULT_TRIALS, DEFAULT_ITERATIONS = 10, 2000
 #: Prior fit of each generated world: seeds simulated (world/marine.py's ``prior_seeds``).
 PRIOR_SEEDS = 8
 FIELDS = ("sweep", "level", "family", "trial", "planner", "algorithm", "world_seed", "planner_seed", "iterations",

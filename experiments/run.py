@@ -12,7 +12,7 @@ Usage::
     python -m experiments types                                  # type-aware vs type-blind (30 trials, 2000 iterations)
     python -m experiments bound                                  # the upper bound against V* and the planners
     python -m experiments coverage                               # coverage-planned vs 1/p-planned, same worlds
-    python -m experiments marine --trials 5 --iterations 2000    # the marine family, perfect vs acoustic links
+    python -m experiments marine --trials 10 --iterations 2000   # the marine family, perfect vs acoustic links
     python -m experiments check                                  # do the committed results come from this code?
 
 ``comms``, ``priors`` (experiments.priors), ``types`` (experiments.types), ``bound``
