@@ -178,3 +178,12 @@ def test_the_world_predicts_the_links_of_a_scenario():
     assert late.delay is not None and late.delay.max() >= 1
     six = world.load_scenario(REPO_ROOT / "scenarios" / "six_carriers.yaml")
     assert link_comms(six).perfect
+
+
+def test_the_targets_tool_prints_the_cut_off_table(capsys):
+    from tools.links_targets import main
+
+    assert main(["cut-off", "--seeds", "2", "--iterations", "100"]) == 0
+    out = capsys.readouterr().out
+    assert "| 2 |" in out and "below SSAP alone on 0 of 2 seeds" in out
+    assert main(["loss", "--trials", "0"]) == 2
