@@ -35,14 +35,14 @@ from pathlib import Path
 
 import numpy as np
 
-from experiments import bound, coverage, priors, report, run, types
+from experiments import bound, coverage, marine, priors, report, run, types
 
 #: The columns that name a row (which task it is); the others are its outcome.
 IDENTITY = ("sweep", "case", "config", "level", "trial", "planner", "variant", "prior")
 #: The per-trial CSV of each sweep and the sweep's writer of it.
 TRIALS = {"overlap": report.write_trials, "scaling": report.write_trials, "urban": report.write_trials,
           "comms": report.write_trials, "types": types.write_trials, "priors": priors.write_trials,
-          "bound": bound.write_trials, "coverage": coverage.write_trials}
+          "bound": bound.write_trials, "coverage": coverage.write_trials, "marine": marine.write_trials}
 
 
 def parse_args(argv=None) -> argparse.Namespace:

@@ -12,10 +12,12 @@ Usage::
     python -m experiments types                                  # type-aware vs type-blind (30 trials, 2000 iterations)
     python -m experiments bound                                  # the upper bound against V* and the planners
     python -m experiments coverage                               # coverage-planned vs 1/p-planned, same worlds
+    python -m experiments marine --trials 10 --iterations 2000   # the marine family, perfect vs acoustic links
     python -m experiments check                                  # do the committed results come from this code?
 
 ``comms``, ``priors`` (experiments.priors), ``types`` (experiments.types), ``bound``
-(experiments.bound) and ``coverage`` (experiments.coverage) are not part of ``all``.
+(experiments.bound), ``coverage`` (experiments.coverage) and ``marine`` (experiments.marine) are not
+part of ``all``.
 
 Each sweep writes to ``--out`` (default ``docs/results``; ``--quick`` runs default to a temporary
 directory so they never overwrite the committed results): ``<sweep>_trials.csv`` (one row per
@@ -42,7 +44,7 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
 from pathlib import Path
 
-from experiments import bound, coverage, priors, report, types
+from experiments import bound, coverage, marine, priors, report, types
 from experiments.trials import CLAIRVOYANT, Sweep, Task, decode, run_trial, urban_trial, warm_up_worker
 from planner.settings import DEFAULT_ITERATIONS
 from world.paths import IN_CLONE, REPO_ROOT as ROOT
@@ -83,6 +85,8 @@ def run_task(task: Task) -> dict:
         return bound.run_task(task)
     if task.sweep == "coverage":
         return coverage.run_task(task)
+    if task.sweep == "marine":
+        return marine.run_task(task)
     return run_trial(task, SWEEPS[task.sweep])
 
 
@@ -110,7 +114,7 @@ def parse_args(argv=None) -> argparse.Namespace:
                                 epilog="python -m experiments check [--help]: re-run a seeded sample of a results "
                                        "directory's tasks and compare them with its rows (experiments.check)")
     p.add_argument("what", nargs="?", default="all", choices=("overlap", "scaling", "urban", "comms", "all", "priors", "types", "bound",
-                                              "coverage"),
+                                              "coverage", "marine"),
                    help="which experiment (default: all)")
     p.add_argument("--trials", type=int, default=None, help="trials per level (default 50; quick 3)")
     p.add_argument("--iterations", type=int, default=None,
@@ -150,6 +154,8 @@ def settings_of(args) -> dict:
     quick = args.quick
     # The types sweep's defaults keep its default run to a few minutes on two cores.
     full_trials, full_iterations = (30, 2000) if args.what == "types" else (50, DEFAULT_ITERATIONS)
+    if args.what == "marine":
+        full_trials, full_iterations = marine.DEFAULT_TRIALS, marine.DEFAULT_ITERATIONS
     if args.what == "bound":  # trials per configuration: experiments.bound.CONFIGS unless given
         full_iterations = bound.DEFAULT_ITERATIONS
     trials = args.trials if args.trials is not None else (QUICK["trials"] if quick else full_trials)
@@ -186,6 +192,8 @@ def settings_of(args) -> dict:
         planners = bound.DEFAULT_PLANNERS
     if args.what == "coverage" and args.planners == ",".join(DEFAULT_PLANNERS):
         planners = coverage.DEFAULT_PLANNERS
+    if args.what == "marine":  # its arms are fixed (experiments.marine.ARMS)
+        planners = tuple(dict.fromkeys(name for _, name in marine.ARMS if name != CLAIRVOYANT))
     if args.losses:
         try:
             losses = tuple(float(v) for v in args.losses.split(",") if v.strip())
@@ -218,6 +226,8 @@ def build_tasks(sweep: str, s: dict, args) -> list[Task]:
         return bound.build_tasks(s)
     if sweep == "coverage":
         return coverage.build_tasks(s)
+    if sweep == "marine":
+        return marine.build_tasks(s)
     names = (*s["planners"], CLAIRVOYANT)
     tasks = []
     if sweep == "overlap":
@@ -343,6 +353,8 @@ def _write_sweep(sweep: str, rows: list[dict], out: Path, seconds: float, jobs: 
         return bound.write(rows, out, s, seconds, jobs)
     if sweep == "coverage":
         return coverage.write(rows, out, s, seconds, jobs)
+    if sweep == "marine":
+        return marine.write(rows, out, s, seconds, jobs)
     report.write_trials(rows, out / f"{sweep}_trials.csv")
     summary = report.summarise(rows)
     report.write_summary(summary, out / f"{sweep}_summary.csv")
@@ -498,6 +510,8 @@ def main(argv=None) -> int:
                 rows = bound.read_trials(path)
             elif sweep == "coverage":
                 rows = coverage.read_trials(path)
+            elif sweep == "marine":
+                rows = marine.read_trials(path)
             else:
                 rows = report.read_trials(path)
             s = {**s, "trials": prior["trials"], "urban_trials": prior["trials"], "iterations": prior["iterations"]}

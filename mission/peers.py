@@ -139,6 +139,7 @@ class PeerBook:
         self.source = np.where(self.valid, UNKNOWN, FROM_CARRIER).astype(np.int8)
         self.at: dict = {}                         # carrier id -> the latest stage its Progress named
         self.counts: dict = {}                     # (r, stage) -> region counts behind x (coverage reward)
+        self.coordinated = False                   # a coordinator's Decision was heard: a hybrid fleet
 
     @property
     def n_stages(self) -> int:
@@ -166,6 +167,7 @@ class PeerBook:
     def decision(self, stage: int, deploy) -> None:
         """The coordinator's decision of ``stage`` selected ``deploy``; carriers whose own word
         about the stage is heard already keep it."""
+        self.coordinated = True
         selected = np.zeros(len(self.carriers), dtype=bool)
         for cid in deploy:
             if cid in self.index:
@@ -190,7 +192,8 @@ class PeerBook:
         """Carrier ``carrier``'s :class:`~planner.decentralised.LocalView` of ``stage``: per other
         carrier, its observations up to the first one not heard and its deployments up to the
         first stage whose action is unknown; its own row through ``stage`` (observations) and
-        ``stage - 1`` (deployments), which it must have fed in."""
+        ``stage - 1`` (deployments), which it must have fed in. ``coordinated`` once a
+        coordinator's Decision was heard (its peers are decided by a coordinator)."""
         from planner.decentralised import LocalView
 
         r, j = self.index[carrier], int(stage)
@@ -204,7 +207,7 @@ class PeerBook:
         obs = np.where(stages[None, :] < seen[:, None], self.x, np.nan)
         dep = self.deployed & (stages[None, :] < record[:, None])
         return LocalView(problem, r, j, int(seed), obs, dep, seen.astype(np.int64), record.astype(np.int64),
-                         (None,) * R, counts=self._known_counts(problem, seen))
+                         (None,) * R, counts=self._known_counts(problem, seen), coordinated=self.coordinated)
 
     def _known_counts(self, problem, seen: np.ndarray):
         """Under the coverage reward, float ``[M]``: the region counts of the observations in the

@@ -17,7 +17,7 @@ The truth used for evaluation and for the carriers' own rules is what the carrie
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -28,7 +28,7 @@ from planner import ssap
 from planner.closedloop import (BLOCK, Candidates, ClosedLoopPlanner, Net,
                                 Selection, base_action, block_halo, conflict_components, grow_block,
                                 marginal_gain, select_point, undo_selection)
-from planner.comms import CommsSpec, Deliveries, realise
+from planner.comms import CommsSpec, Deliveries, LinkComms, contact, realise
 from planner.compiled import compile_problem
 from planner.joint import ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, every_combination, sampled_mean
 from planner.kernels import cache_follows_sources, deploys
@@ -92,6 +92,12 @@ class LocalView:
         counts: float ``[M]`` or None: under the coverage reward, the region counts this carrier
             knows (those its known observations reveal, :func:`planner.coverage.revealed`; NaN
             elsewhere); None for the penalty reward.
+        contact: float ``[N, R + 1, R + 1]`` or None: the links' prediction, known before the
+            mission, of who hears whom at each stage (:func:`planner.comms.contact`: index 0 the
+            coordinator, 1 + r carrier r); None: no prediction (everyone is assumed to hear
+            everyone from the next stage on).
+        coordinated: the other carriers are decided by a coordinator (a hybrid fleet: this carrier
+            decides alone because no decision reached it); False: every carrier decides on board.
     """
 
     problem: Problem
@@ -105,6 +111,8 @@ class LocalView:
     intents: tuple
     released: np.ndarray | None = None
     counts: np.ndarray | None = None
+    contact: np.ndarray | None = None
+    coordinated: bool = False
 
     @property
     def valid(self) -> np.ndarray:
@@ -187,8 +195,8 @@ def _forced_truth(problem: Problem, x: np.ndarray, deployed: np.ndarray, j: int)
     return can, can & (n <= d)
 
 
-def run_comms(problem: Problem, x: np.ndarray, planner, seed: int, comms: CommsSpec | None = None,
-              counts: np.ndarray | None = None) -> OnlineResult:
+def run_comms(problem: Problem, x: np.ndarray, planner, seed: int, comms: CommsSpec | LinkComms | None = None,
+              counts: np.ndarray | None = None, fallback=None) -> OnlineResult:
     """Run ``planner`` stage by stage with the messages of ``comms`` realised from ``seed``.
 
     Stage j's planning stream is :func:`planner.problem.stage_rng` ``(seed, j)`` (each carrier of a
@@ -198,15 +206,24 @@ def run_comms(problem: Problem, x: np.ndarray, planner, seed: int, comms: CommsS
     ``decision_ms``: per stage, the coordinator's decision time (centralised) or the slowest
     carrier's (decentralised: they plan in parallel). ``counts``: the realised region counts of
     a coverage problem (:func:`planner.online.run_online`).
+
+    ``comms``: a :class:`~planner.comms.CommsSpec` or the links' :class:`~planner.comms.LinkComms`;
+    every carrier's view carries the model's prediction (:func:`planner.comms.contact`) when the
+    model is not perfect. ``fallback``: for a centralised planner, the on-board planner
+    (``decide_local``) a carrier runs on what it heard when its decision did not arrive in time,
+    or arrived but planned it as ∅ (its observation had not reached the coordinator) — the
+    fleet's hybrid carriers; None: it deploys only when forced.
     """
     comms = CommsSpec() if comms is None else comms
     comms.check(problem.n_carriers)
     x, released = start_online(problem, x, planner)
     deliveries = realise(comms, problem.n_carriers, problem.n_stages, seed)
+    predicted = None if comms.perfect else contact(comms, problem.n_carriers, problem.n_stages)
     if callable(getattr(planner, "decide_local", None)):
-        deployed, times = _run_decentralised(problem, x, planner, seed, deliveries, released, counts)
+        deployed, times = _run_decentralised(problem, x, planner, seed, deliveries, released, counts, predicted)
     else:
-        deployed, times = _run_centralised(problem, x, planner, seed, deliveries, released, counts)
+        deployed, times = _run_centralised(problem, x, planner, seed, deliveries, released, counts, fallback,
+                                           predicted)
     reward, features = evaluate(problem, deployed, x, released, counts=counts)
     return OnlineResult(deployed, reward, features, tuple(times), released)
 
@@ -224,7 +241,8 @@ def _release(problem: Problem, x: np.ndarray, deployed: np.ndarray, released: np
     released[:, j] = release(planner, make_view(problem, j, x, deployed, released, counts), deployed[:, j])
 
 
-def _run_centralised(problem, x, planner, seed, dl: Deliveries, released=None, counts=None):
+def _run_centralised(problem, x, planner, seed, dl: Deliveries, released=None, counts=None, fallback=None,
+                     predicted=None):
     R, N = problem.valid.shape
     deployed = np.zeros((R, N), dtype=bool)   # the truth (carrier side)
     decided = np.zeros((R, N), dtype=bool)    # the coordinator's decisions
@@ -246,39 +264,53 @@ def _run_centralised(problem, x, planner, seed, dl: Deliveries, released=None, c
         decided[:, j] = decision
         can, must = _forced_truth(problem, x, deployed, j)
         told = dl.decision[:, j] <= j
+        if fallback is not None:
+            # A decision that planned a carrier as ∅ (its observation did not arrive) is none for it.
+            told &= heard > j
         deployed[:, j] = (told & decision & can) | must
+        if fallback is not None:
+            for r in np.flatnonzero(~told & can & ~must):
+                local = replace(heard_view(problem, x, deployed, released, counts, dl, r, j, seed, predicted),
+                                coordinated=True)
+                deployed[r, j] = LocalDecision.of(fallback.decide_local(local, stage_rng(seed, j))).deploy
         _release(problem, x, deployed, released, planner, j, counts)
     return deployed, times
 
 
-def _run_decentralised(problem, x, planner, seed, dl: Deliveries, released=None, counts=None):
+def heard_view(problem, x, deployed, released, counts, dl: Deliveries, r: int, j: int, seed: int,
+               predicted=None, sent=None) -> LocalView:
+    """Carrier r's :class:`LocalView` of stage j from the observation messages (x <= s,
+    deployments < s) and intent messages (x, deployments <= s, intent) that reached it by stage j
+    (``sent[b][s]``: the intents published; None: none)."""
+    R, N = problem.valid.shape
+    stages = np.arange(N)
+    obs_ok = dl.observation[:, r, : j + 1] <= j            # [R, j + 1]
+    int_ok = dl.intent[:, r, : j + 1] <= j
+    last_obs = np.where(obs_ok.any(axis=1), j - np.argmax(obs_ok[:, ::-1], axis=1), -1)
+    last_int = np.where(int_ok.any(axis=1), j - np.argmax(int_ok[:, ::-1], axis=1), -1)
+    seen = np.maximum(last_obs, last_int) + 1
+    record = np.maximum(np.maximum(last_obs, last_int + 1), 0)
+    seen[r], record[r] = j + 1, j
+    obs = np.where(stages[None, :] < seen[:, None], x, np.nan)
+    dep = deployed & (stages[None, :] < record[:, None])
+    intents = tuple(sent[b][last_int[b]] if sent is not None and b != r and last_int[b] >= 0 else None
+                    for b in range(R))
+    return LocalView(problem, r, j, int(seed), obs, dep, seen.astype(np.int64), record.astype(np.int64), intents,
+                     None if released is None else np.where(dep, released, -1),
+                     None if problem.coverage is None else cov.revealed(problem.coverage, obs, counts), predicted)
+
+
+def _run_decentralised(problem, x, planner, seed, dl: Deliveries, released=None, counts=None, predicted=None):
     R, N = problem.valid.shape
     deployed = np.zeros((R, N), dtype=bool)
     sent: list[list] = [[None] * N for _ in range(R)]  # intents published, [carrier][stage]
-    stages = np.arange(N)
     times = []
     for j in range(N):
         decision = np.zeros(R, dtype=bool)
         slowest = 0.0
         can, must = _forced_truth(problem, x, deployed, j)
         for r in range(R):
-            # Observation messages (x <= s, deployments < s) and intent messages (x, deployments
-            # <= s, intent) from b that reached r by stage j.
-            obs_ok = dl.observation[:, r, : j + 1] <= j            # [R, j + 1]
-            int_ok = dl.intent[:, r, : j + 1] <= j
-            last_obs = np.where(obs_ok.any(axis=1), j - np.argmax(obs_ok[:, ::-1], axis=1), -1)
-            last_int = np.where(int_ok.any(axis=1), j - np.argmax(int_ok[:, ::-1], axis=1), -1)
-            seen = np.maximum(last_obs, last_int) + 1
-            record = np.maximum(last_obs, last_int + 1)
-            record = np.maximum(record, 0)
-            seen[r], record[r] = j + 1, j
-            obs = np.where(stages[None, :] < seen[:, None], x, np.nan)
-            dep = deployed & (stages[None, :] < record[:, None])
-            intents = tuple(sent[b][last_int[b]] if b != r and last_int[b] >= 0 else None for b in range(R))
-            local = LocalView(problem, r, j, int(seed), obs, dep, seen.astype(np.int64),
-                              record.astype(np.int64), intents,
-                              None if released is None else np.where(dep, released, -1),
-                              None if problem.coverage is None else cov.revealed(problem.coverage, obs, counts))
+            local = heard_view(problem, x, deployed, released, counts, dl, r, j, seed, predicted, sent)
             t0 = time.perf_counter()
             out = LocalDecision.of(planner.decide_local(local, stage_rng(seed, j)))
             slowest = max(slowest, (time.perf_counter() - t0) * 1e3)
@@ -300,13 +332,16 @@ def _run_decentralised(problem, x, planner, seed, dl: Deliveries, released=None,
 class Unknown(NamedTuple):
     """What a carrier does not know of the members of its component: ``known`` bool ``[m]`` (the
     member's stage-j state is known), ``start`` int64 ``[m]`` (first stage of an unknown member
-    whose deployment is unknown), ``left_start`` int64 ``[m]`` (its passengers left there), and
-    ``xobs`` float ``[R, N]`` the known observations (NaN unknown)."""
+    whose deployment is unknown), ``left_start`` int64 ``[m]`` (its passengers left there),
+    ``xobs`` float ``[R, N]`` the known observations (NaN unknown), and ``aware`` bool ``[m, N]``:
+    the member is predicted to hear the others at stage t (it then weighs conflicts; else it
+    follows its plain thresholds, as a carrier cut off does)."""
 
     known: np.ndarray
     start: np.ndarray
     left_start: np.ndarray
     xobs: np.ndarray
+    aware: np.ndarray
 
 
 # The rollout loop below is closed-loop's, written out: see the note above
@@ -330,7 +365,7 @@ def _evaluate_imputed(cand, unknown, stage, n_stages, net, selection, past, samp
     through ``stage``; then every member follows the conflict-aware SSAP rollout.
     """
     actions, members, xnow, left0 = cand
-    known, start, left_start, xobs = unknown
+    known, start, left_start, xobs, aware = unknown
     valid, nleft, table, nbr_ptr, nbr_idx = net
     sel, p, xv = selection
     n_cand = actions.shape[0]
@@ -379,7 +414,7 @@ def _evaluate_imputed(cand, unknown, stage, n_stages, net, selection, past, samp
                     if d > 0:
                         q = r * n_stages + t
                         g = marginal_gain(q, xs, sel, p, xv, nbr_ptr, nbr_idx)
-                        if deploys(table, g, n, d):
+                        if deploys(table, g if aware[i, t] else xs, n, d):
                             total += g
                             nlog = select_point(q, xs, sel, p, xv, nbr_ptr, nbr_idx, log, nlog)
                             left[i] = d - 1
@@ -389,6 +424,21 @@ def _evaluate_imputed(cand, unknown, stage, n_stages, net, selection, past, samp
                         lefti[i] = d - 1
             undo_selection(sel, p, log, nlog)
             out[k, s] = total - plain
+
+
+def predicted_aware(local: LocalView, comp: np.ndarray) -> np.ndarray:
+    """bool ``[m, N]``: in a coordinated fleet, whether member ``comp[i]`` is predicted to hear,
+    at stage t, the coordinator or another member with probability at least 1/2
+    (:attr:`LocalView.contact`): one that hears nobody decides by its thresholds (the rule of a
+    carrier cut off). All True without a prediction, and in a fleet without a coordinator,
+    where a carrier that hears nobody still predicts its peers."""
+    N = local.problem.n_stages
+    if local.contact is None or not local.coordinated:
+        return np.ones((len(comp), N), dtype=bool)
+    senders = np.append(1 + np.asarray(comp), 0)
+    heard = local.contact[:, senders][:, :, 1 + np.asarray(comp)]        # [N, senders, m]
+    heard[:, np.arange(len(comp)), np.arange(len(comp))] = 0.0            # not itself
+    return np.ascontiguousarray((heard >= 0.5).any(axis=1).T)
 
 
 class DecClosedLoopPlanner:
@@ -408,13 +458,19 @@ class DecClosedLoopPlanner:
       The sampled futures then run the conflict-aware SSAP rollout for all, with the plain-SSAP
       control variate, as in closed-loop. So a carrier that hears nobody still expects the
       others to deploy where their thresholds make it likely, and avoids the overlaps those
-      deployments would crowd, instead of acting like plain SSAP. A component of more than
+      deployments would crowd, instead of acting like plain SSAP. In a coordinated fleet, where
+      the links predict that a member will hear nobody at a future stage
+      (:attr:`LocalView.contact`), the sampled futures have it follow its plain thresholds there
+      (the rule of a carrier cut off, below).
+      A component of more than
       ``block`` carriers (default :data:`~planner.closedloop.BLOCK`) is cut down to the carrier's
       own block — the ``block`` carriers nearest it, breadth-first — and that block's halo, with
       the budget of the carriers searched (``iterations`` rollouts of them), so an on-board
       decision costs the same whatever the fleet's size.
 
-    A component without conflicts is decided by SSAP (optimal there). Budget as closed-loop's:
+    A component without conflicts is decided by SSAP (optimal there), and so is a carrier of a
+    coordinated fleet (:attr:`LocalView.coordinated`) that knows the stage of none of its
+    component's other members: cut off, it earns what SSAP alone would. Budget as closed-loop's:
     ``iterations`` full-fleet rollouts per decision, per carrier, or ``plan_ms`` milliseconds
     per carrier (sampled futures in batches until the time is spent; not bit-reproducible, and
     fully informed carriers then no longer share one joint action by construction). Publishes no intent (its policy
@@ -463,7 +519,7 @@ class DecClosedLoopPlanner:
                 self._memo = (key, enforce(view, self._central.decide(view, rng)))
             return LocalDecision(bool(self._memo[1][r]))
         scored = self.partial_scores(local, rng)
-        if scored is None:  # no conflict can touch this carrier: independent SSAP is optimal
+        if scored is None:  # no conflict can touch it (SSAP is optimal), or cut off from a coordinated fleet
             return LocalDecision(ssap.decide(compile_problem(local.problem).table, float(local.observations[r, j]),
                                              n, d))
         actions, score, me = scored
@@ -490,6 +546,12 @@ class DecClosedLoopPlanner:
         linked = adjacency | np.eye(R, dtype=bool)
         comp = next(c for c in conflict_components(linked) if r in c)
         if not adjacency[np.ix_(comp, comp)].any():
+            return None
+        if local.coordinated and not known[comp[comp != r]].any():
+            # Cut off from a coordinated fleet: the coordinator plans a carrier it did not hear
+            # as absent, so the peers' deployments ignore this carrier's, and it learns none of
+            # them: they are not its SSAP-following peers of the search below. SSAP (the
+            # dominance guarantee, docs/planner.md, "A carrier cut off").
             return None
         budget = R  # single-carrier trajectories: iterations x budget
         if self.block > 0 and len(comp) > self.block:
@@ -523,7 +585,8 @@ class DecClosedLoopPlanner:
         m = len(comp)
         deadline = None if self.plan_ms is None else time.perf_counter() + self.plan_ms / 1e3
         cand = Candidates(actions, comp, xnow_all[comp], left[comp])
-        unknown = Unknown(known[comp], start[comp], left[comp], np.ascontiguousarray(local.observations))
+        unknown = Unknown(known[comp], start[comp], left[comp], np.ascontiguousarray(local.observations),
+                          predicted_aware(local, comp))
         net = Net(valid, nleft, prep.table, prep.indptr, prep.nbr)
         selection = Selection(sel, p, xv)
 

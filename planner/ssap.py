@@ -237,3 +237,23 @@ def table_for_prior(prior, n_stages: int) -> np.ndarray:
 def table_for(problem) -> np.ndarray:
     """Threshold table (read-only) of a :class:`planner.problem.Problem` (see :func:`table_for_prior`)."""
     return table_for_prior(problem.prior, problem.n_stages)
+
+
+def alone(problem, x: np.ndarray, deployed: np.ndarray, r: int, first: int) -> np.ndarray:
+    """bool ``[R, N]``: ``deployed`` with carrier r's deployments from stage ``first`` on replaced
+    by what its own SSAP policy does on its observations ``x[r]`` (NaN = ∅), the others' and its
+    earlier ones unchanged: what a carrier deciding alone by SSAP from ``first`` would have done
+    (the yardstick of a carrier cut off, docs/planner.md)."""
+    from planner.problem import valid_stages_left
+
+    valid = problem.valid[r] & ~np.isnan(x[r])
+    left = valid_stages_left(valid[None, :])[0]
+    table = table_for(problem)
+    out = np.array(deployed, dtype=bool, copy=True)
+    out[r, first:] = False
+    d = int(problem.passengers[r] - out[r].sum())
+    for j in np.flatnonzero(valid[first:]) + first:
+        if d > 0 and (left[j] <= d or decide(table, float(x[r, j]), int(left[j]), d)):
+            out[r, j] = True
+            d -= 1
+    return out

@@ -382,6 +382,8 @@ RUNS = [
         "heavy", wall_s=3600, mem_mb=4000,
         check=_reproduces(("docs/results/coverage_trials.csv", "coverage10/coverage_trials.csv"))),
     Run("experiments-coverage-quick", (S("python -m experiments coverage --quick"),), "slow", wall_s=300, mem_mb=3000),
+    Run("experiments-marine", (S("python -m experiments marine", extra="--out {tmp}/marine"),), "slow",
+        wall_s=900, mem_mb=3000, check=_reproduces(("docs/results/marine_trials.csv", "marine/marine_trials.csv"))),
     Run("coverage-report-only", (
         Step(None, raw="cp -r docs/results {tmp}/results"),
         S("python -m experiments coverage --report-only", extra="--out {tmp}/results"),

@@ -108,7 +108,10 @@ def test_coordinator_cut_off_carriers_deploy_alone_then_decisions_resume(base, t
 
 @needs_netns
 def test_one_carrier_cut_off_deploys_alone_at_least_as_well_as_ssap(base, tmp_path):
-    """Over 5 seeds: on one seed of five, SSAP alone did better (docs/results/faults)."""
+    """On each of 5 seeds: cut off from a coordinated fleet the carrier decides by SSAP (issue 36;
+    before, SSAP alone did better on one seed of five). The substitute replaces its decisions
+    after the cut too (c1 has one stage left then): at or above it on 5 of 5 seeds in
+    docs/results/faults."""
     rewards, ssap = [], []
     for seed in range(1, 6):
         result, details, out = _fault("carrier-cut-off", seed, tmp_path)
@@ -125,7 +128,7 @@ def test_one_carrier_cut_off_deploys_alone_at_least_as_well_as_ssap(base, tmp_pa
               f"uninterrupted {base(seed).reward:.3f}")
         rewards.append(result.reward)
         ssap.append(details["ssap_substitute"])
-    assert np.mean(rewards) >= np.mean(ssap)
+    assert all(r >= s - 1e-9 for r, s in zip(rewards, ssap)), list(zip(rewards, ssap))
 
 
 @needs_netns

@@ -223,22 +223,12 @@ def ssap_substitute(scenario, result: Outcome, cid: str, out: Path) -> float:
     import world
     from storage.carrierlog import log_path, read_log
     from planner import ssap
-    from planner.compiled import compile_problem
-    from planner.problem import evaluate, valid_stages_left
+    from planner.problem import evaluate
 
     problem = world.build_problem(scenario)
     r = scenario.carrier_index(cid)
     first = min((e.stage for e in read_log(log_path(out, cid))[1] if e.own), default=problem.n_stages)
-    valid = problem.valid[r] & ~np.isnan(result.x[r])
-    left = valid_stages_left(valid[None, :])[0]
-    table = compile_problem(problem).table
-    deployed = result.deployed.copy()
-    deployed[r, first:] = False
-    d = int(problem.passengers[r] - deployed[r].sum())
-    for j in np.flatnonzero(valid[first:]) + first:
-        if d > 0 and (left[j] <= d or ssap.decide(table, float(result.x[r, j]), int(left[j]), d)):
-            deployed[r, j] = True
-            d -= 1
+    deployed = ssap.alone(problem, result.x, result.deployed, r, first)
     return float(evaluate(problem, deployed, np.where(problem.valid, result.x, np.nan))[0])
 
 
