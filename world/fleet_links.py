@@ -106,7 +106,7 @@ class FleetLinks:
 
     def size(self, kind: str) -> int:
         """Bytes of a message of ``kind`` (the simulator's kinds map onto the wire's)."""
-        return int(self.sizes.get(SIM_KINDS.get(kind, kind), 0))
+        return int(self.sizes[SIM_KINDS.get(kind, kind)])
 
 
 #: The simulator's message kinds -> the wire kind whose size they take (a peer's copy of an

@@ -1,0 +1,144 @@
+"""The scenario's link model in the deterministic simulator (mission/simulate/links.py,
+world/fleet_links.py): perfect links leave the network as it was; acoustic links delay by
+distance / sound speed and airtime on one shared channel, lose by the model, deterministically
+from the seed; radio messages take the best path through the relays dropped by then."""
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
+import yaml
+
+from launcher.simulate import build_fleet, main
+from mission import simulate as sim
+from mission.simulate.links import LinkLayer
+from planner import links as ch
+from wire.sizes import link_sizes
+from world.fleet_links import FleetLinks
+from world.scenario import load_scenario, parse_scenario
+
+ROOT = Path(__file__).resolve().parents[1]
+MARINE = ROOT / "scenarios" / "marine_survey.yaml"
+
+
+@pytest.fixture(scope="module")
+def marine():
+    return build_fleet(str(MARINE))
+
+
+def _noisy(tmp_path, noise: float = 112.0) -> str:
+    data = yaml.safe_load(MARINE.read_text())
+    data["links"]["noise_level_db"] = noise  # nominal range 770 m: most of the survey out of reach
+    path = tmp_path / "noisy.yaml"
+    path.write_text(yaml.safe_dump(data))
+    return str(path)
+
+
+def test_perfect_links_leave_the_network_and_its_draws_as_they_were(marine):
+    scenario = load_scenario(MARINE)
+    perfect = dataclasses.replace(scenario, links=ch.LinkSpec())
+    bare = dataclasses.replace(marine, links=None, decisions={})
+    with_perfect = dataclasses.replace(marine, links=FleetLinks(perfect, link_sizes(perfect)), decisions={})
+    for seed in (0, 1):
+        a, b = sim.simulate(bare, seed), sim.simulate(with_perfect, seed)
+        assert a.trace_hash == b.trace_hash and a.events == b.events and b.links == {}
+
+
+def test_acoustic_links_are_deterministic_slower_and_change_the_trace(marine):
+    bare = dataclasses.replace(marine, links=None, decisions={})
+    a, b = sim.simulate(marine, 3, kinds=()), sim.simulate(marine, 3, kinds=())
+    assert a.trace_hash == b.trace_hash and a.links == b.links and a.links["sent"] > 0
+    p = sim.simulate(bare, 3, kinds=())
+    assert p.trace_hash != a.trace_hash and a.completed and a.violations == []
+    # every stage's messages take seconds of airtime on one channel: the mission takes far longer
+    assert a.seconds > 50 * p.seconds
+
+
+def test_lossy_acoustic_links_lose_messages_and_the_fleet_still_completes(tmp_path):
+    fleet = build_fleet(_noisy(tmp_path))
+    outs = [sim.simulate(fleet, seed, kinds=()) for seed in (0, 1)]
+    for out in outs:
+        assert out.completed and out.violations == []  # the fidelity check is off once a message is lost
+        assert out.links["lost"] > 0.3 * out.links["sent"]
+
+
+class _Driver(SimpleNamespace):
+    pass
+
+
+def _layer(scenario, stages: dict, t: float = 0.0) -> LinkLayer:
+    links = FleetLinks(scenario, link_sizes(scenario) if scenario.links.model == "acoustic" else {"obs": 100})
+    carriers = {cid: _Driver(machine=SimpleNamespace(stage=stages.get(cid, 0)), alive=True) for cid in links.ids}
+    fake = SimpleNamespace(fleet=SimpleNamespace(seed=scenario.seed), carriers=carriers, t=t)
+    return LinkLayer(fake, links, seed=0)
+
+
+def test_acoustic_delay_is_airtime_plus_distance_over_sound_speed_on_one_channel():
+    s = load_scenario(MARINE)
+    s = dataclasses.replace(s, links=dataclasses.replace(s.links, params=tuple(
+        (k, 0.0 if k == "fade_db" else v) for k, v in s.links.params)))  # no fading: within range, always delivered
+    layer = _layer(s, {"vessel1": 0, "vessel2": 0})
+    links = layer.links
+    size = links.size("obs")
+    air = 8 * size / s.links.bitrate_bps
+    d1 = math.dist(links.position("vessel1", 0), links.model.base)
+    d2 = math.dist(links.position("vessel2", 0), links.model.base)
+    first = SimpleNamespace(kind="obs")
+    assert layer.delay("vessel1", "coordinator", first) == pytest.approx(air + d1 / s.links.sound_speed_mps)
+    # the same transmission heard by a second receiver: same start, its own distance
+    assert layer.delay("vessel1", "standby", first) == pytest.approx(air + d1 / s.links.sound_speed_mps)
+    # another message sent at the same time waits for the channel: one talker at a time
+    assert layer.delay("vessel2", "coordinator", SimpleNamespace(kind="obs")) == pytest.approx(
+        2 * air + d2 / s.links.sound_speed_mps)
+    assert layer.sent == 3 and layer.lost == 0
+
+
+def _corridor(count: int, fade: float = 4.0):
+    tiny = yaml.safe_load((ROOT / "scenarios" / "tiny.yaml").read_text())
+    data = copy.deepcopy(tiny)
+    data.update(map={"bounds": [-10, -10, 400, 100], "walls": []}, features={"density": 0.0}, stages=3,
+                stage_interval=75.0,
+                carriers=[{"id": "a", "passengers": 1, "start_time": 0, "speed": 2.0, "waypoints": [[0, 0], [300, 0]]}],
+                links={"model": "radio", "base": [0, 0], "fade_db": fade, "relays": {"count": count}})
+    return parse_scenario(data, "corridor.yaml")
+
+
+def test_radio_messages_take_the_relays_dropped_by_then():
+    s = _corridor(3)
+    links = FleetLinks(s, {"obs": 100})
+    assert [r.position for r in links.relays] == [(100.0, 0.0), (200.0, 0.0)]  # the third not needed by 300 m
+    # stage 2 (t = 150 s): the carrier is at 300 m, both relays dropped: three hops of 100 m
+    hops = links.between("a", "coordinator", {"a": 2})
+    assert [round(d) for d, _ in hops] == [100, 100, 100] and ch.margin_db(s.links, 100.0) >= 0
+    # stage 1 (t = 75 s, 150 m out): only the first relay is down
+    assert [round(d) for d, _ in links.between("a", "coordinator", {"a": 1})] == [50, 100]
+    bare = FleetLinks(_corridor(0), {"obs": 100})
+    assert [round(d) for d, _ in bare.between("a", "coordinator", {"a": 2})] == [300]
+    m = SimpleNamespace(kind="obs")
+    steady = _corridor(3, fade=0.0)  # no fading: a hop at margin >= 0 always arrives, below never
+    assert _layer(steady, {"a": 2}).delay("a", "coordinator", m) is not None
+    assert _layer(_corridor(0, fade=0.0), {"a": 2}).delay("a", "coordinator", m) is None  # 300 m: margin -4.3 dB
+    fates = [_layer(s, {"a": 2}).delay("a", "coordinator", m) for _ in range(3)]
+    assert len(set(fates)) == 1 and fates[0] == pytest.approx(3 * s.links.latency_s)  # same seed, same fate
+
+
+def test_the_command_compares_with_perfect_links(tmp_path, capsys):
+    out = tmp_path / "p.json"
+    assert main([str(MARINE), "--seeds", "0:2", "--faults", "none", "--quiet", "--perfect-links", "--json",
+                 str(out)]) == 0
+    rows = yaml.safe_load(out.read_text())["per_seed"]
+    assert all("links" not in row for row in rows)
+
+
+def test_a_frame_too_small_is_refused_before_the_simulation(tmp_path, capsys):
+    data = yaml.safe_load(MARINE.read_text())
+    data["links"]["frame_bytes"] = 150
+    path = tmp_path / "small.yaml"
+    path.write_text(yaml.safe_dump(data))
+    assert main([str(path), "--seeds", "0:1", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "links.frame_bytes: expected at least" in err and "hello message" in err
