@@ -54,6 +54,7 @@ from mission.peers import PeerBook, Presence
 from mission.timeouts import CLOCKS, DEFAULTS, POSE_INTERVAL_S
 from wire import keys
 from wire.messages import REVISION, Bye, Confirm, Hello, Observation, Own, SharedDecoder, scenario_fingerprint
+from wire.link_filter import link_filter
 from wire.sizes import fit_to_links
 
 #: Longest sleep (s) of a carrier waiting for a message (a decision, End): any message, and a
@@ -372,6 +373,7 @@ class Carrier(Inbound, Joining):
         try:
             self.node = Node(self.zconf, open_timeout_s=self.config.coordinator_timeout_s, stop=self._stop,
                              shared=self.session)
+            self.node.links = link_filter(self.scenario, self.mission, self.cid, self.motion.position, self.config.realtime)
         except OpenStopped:
             return "stopped"
         try:

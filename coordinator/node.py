@@ -57,6 +57,7 @@ from wire.messages import (
     ACCEPTED_MAX, MAX_STATE_CARRIERS, REVISION, UNANNOUNCED_REVISION, Accepted, CarrierState, Decision, State,
     defined_in, encode, refusal, scenario_fingerprint,
 )
+from wire.link_filter import link_filter
 from wire.transport import Node
 
 @dataclass(frozen=True)
@@ -336,6 +337,7 @@ class Coordinator(Inbound, StageClock):
         if not self._stop.is_set():
             try:
                 self.node = Node(self.zconf, stop=self._stop)
+                self.node.links = link_filter(self.scenario, self.mission, "coordinator", realtime=self.config.realtime)
             except OpenStopped:
                 self.node = None
         if self.node is None:

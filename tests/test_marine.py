@@ -13,7 +13,7 @@ import yaml
 
 from launcher.scenario_check import world_command
 from wire import messages as wm
-from wire.sizes import FITTED_KINDS, STAGE_KINDS, fit_trail, frame_problems, link_sizes, message_sizes
+from wire.sizes import STAGE_KINDS, UNCHECKED_KINDS, fit_trail, frame_problems, link_sizes, message_sizes
 from world.current import CurrentSpec, Vortex
 from world.marine import MarineSettings, draw_hotspots, marine_document, write_marine
 from world.scenario import ScenarioError, load_scenario, parse_scenario
@@ -149,7 +149,7 @@ def test_frame_check_names_each_message_that_does_not_fit(frame, kinds):
     s = parse_scenario(_with_frame(frame), "m.yaml")
     sizes = {m.kind: m.size for m in message_sizes(s)}
     assert [k for k in STAGE_KINDS if sizes[k] > frame] == [k for k in kinds if sizes[k] > frame]
-    expected = [k for k in sizes if k not in FITTED_KINDS and sizes[k] > frame]  # every kind that crosses the links
+    expected = [k for k in sizes if k not in UNCHECKED_KINDS and sizes[k] > frame]  # every kind that crosses the links
     problems = frame_problems(s)
     assert [p.field for p in problems] == ["links.frame_bytes"] * len(expected)
     for p, k in zip(problems, expected):
@@ -231,4 +231,4 @@ def test_link_sizes_count_the_fitted_observation():
     s = load_scenario(MARINE)
     sizes = link_sizes(s)
     assert sizes["obs"] == {m.kind: m.size for m in message_sizes(s)}["obs+fitted"] <= s.links.frame_bytes
-    assert max(sizes[k] for k in sizes if k not in FITTED_KINDS) <= s.links.frame_bytes
+    assert max(sizes[k] for k in sizes if k not in UNCHECKED_KINDS) <= s.links.frame_bytes

@@ -142,3 +142,69 @@ def test_a_frame_too_small_is_refused_before_the_simulation(tmp_path, capsys):
     assert main([str(path), "--seeds", "0:1", "--quiet"]) == 2
     err = capsys.readouterr().err
     assert "links.frame_bytes: expected at least" in err and "hello message" in err
+
+
+# --------------------------------------------------------------------------- the picture and the recording
+def test_the_scene_and_the_recording_carry_the_base_and_the_relays():
+    from foxglove.messages import SceneUpdate
+
+    from recording.mcap import world_entities
+    from world.scene import build_scene
+
+    s = _corridor(3)
+    scene = build_scene(s)
+    assert scene.links == "radio" and scene.base == (0.0, 0.0)
+    assert [r.position for r in scene.relays] == [(100.0, 0.0), (200.0, 0.0)]
+    data = SceneUpdate(entities=world_entities(scene, 0.0)).encode()
+    assert b"links/base" in data and b"links/relay/a/0" in data and b"links/relay/a/1" in data
+    assert b"dropped_at_s" in data and b"100.000" in data  # the second relay's planned drop time
+    assert build_scene(load_scenario(ROOT / "scenarios" / "tiny.yaml")).base is None  # perfect: none
+
+
+# --------------------------------------------------------------------------- the real fleet's receive filter
+def _key(mission: str, cid: str, topic: str) -> str:
+    from wire import keys
+
+    return keys.carrier_key(mission, cid, topic)
+
+
+def test_the_receive_filter_is_absent_on_perfect_links():
+    from wire.link_filter import link_filter
+
+    assert link_filter(load_scenario(ROOT / "scenarios" / "tiny.yaml"), "m", "coordinator") is None
+
+
+def test_the_receive_filter_delays_by_the_model_and_learns_positions():
+    from wire import messages as wm
+    from wire.link_filter import link_filter
+
+    s = load_scenario(MARINE)
+    s = dataclasses.replace(s, links=dataclasses.replace(s.links, params=tuple(
+        (k, 0.0 if k == "fade_db" else v) for k, v in s.links.params)))
+    f = link_filter(s, "marine_survey", "coordinator", realtime=0.0)
+    obs = wm.encode(wm.Observation("marine_survey", "vessel2", 3, 360.0, 1, (1200.0, 600.0), 3, ()))
+    delay = f.delay(_key("marine_survey", "vessel2", "obs"), obs)
+    # 600 m from the base (1200, 0): airtime of its bytes, then 0.4 s of sound (the channel was free)
+    assert delay == pytest.approx(8 * len(obs) / s.links.bitrate_bps + 600.0 / 1500.0, abs=0.05)
+    assert f.positions["vessel2"] == (1200.0, 600.0)
+    far = wm.encode(wm.Observation("marine_survey", "vessel1", 3, 360.0, 1, (1200.0, 1600.0 + 2000.0), 3, ()))
+    assert f.delay(_key("marine_survey", "vessel1", "obs"), far) is None  # 3.6 km: beyond range, no fading
+    assert f.sent == 2 and f.lost == 1
+    pose = wm.encode(wm.Pose("marine_survey", "vessel3", 1.0, (5.0, 5.0), 0.0, 3))
+    assert f.delay(_key("marine_survey", "vessel3", "pose"), pose) == 0.0 and f.positions["vessel3"] == (5.0, 5.0)
+
+
+def test_a_node_holds_a_delayed_sample_and_drops_a_lost_one():
+    from wire.transport import Held, Inbound, Node
+
+    node = Node.__new__(Node)  # the inbox logic only: no zenoh session
+    import queue
+
+    node.inbox, node._held, node._held_quiet, node._quiet = queue.Queue(), Held(), Held(), []
+    fates = {"a": 0.0, "b": None, "c": 0.3}
+    node.links = SimpleNamespace(delay=lambda key, payload: fates[key])
+    for key in ("c", "b", "a"):
+        node.inbox.put(Inbound("sample", key, b"x"))
+    node.inbox.put(Inbound("alive", "token"))
+    got = [node.next(1.0) for _ in range(3)]
+    assert [i.key for i in got] == ["a", "token", "c"] and node.next(0.05) is None

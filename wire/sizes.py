@@ -25,8 +25,10 @@ from .keys import mission_id_from_name, state_selector
 _MAX_X = 10**9 - 1
 #: The message kinds every stage of a mission sends (an Own only when a carrier decides alone).
 STAGE_KINDS = ("obs", "decision", "confirm", "own")
-#: The kinds that never cross a link: ``obs+trail`` is sent fitted to the frame (:func:`fit_trail`).
-FITTED_KINDS = ("obs+trail",)
+#: The kinds the frame check skips: ``obs+trail`` is sent fitted to the frame on acoustic links
+#: (:func:`fit_trail`), and ``obs+fitted`` fits whenever ``obs`` does; Poses are viewers' traffic,
+#: not carried over the links (wire/link_filter.py).
+UNCHECKED_KINDS = ("obs+trail", "obs+fitted", "pose")
 #: First Douglas-Peucker tolerance (m) :func:`fit_trail` tries; it doubles until the trail fits.
 TRAIL_TOLERANCE_M = 0.5
 
@@ -134,19 +136,19 @@ def link_sizes(scenario) -> dict:
 
 def frame_problems(scenario) -> list[Problem]:
     """Under ``links.model: acoustic``: ``links.frame_bytes`` must hold every message that crosses
-    the links (all but :data:`FITTED_KINDS`: an Observation's trail is fitted); one problem per
+    the links (all but :data:`UNCHECKED_KINDS`); one problem per
     kind that does not fit, naming its size, or one saying the frame holds no message at all.
     Nothing for the other models."""
     if scenario.links.model != "acoustic":
         return []
     frame = scenario.links.frame_bytes
     sizes = message_sizes(scenario)
-    smallest = min(sizes, key=lambda s: s.size)
+    smallest = min((s for s in sizes if s.kind not in UNCHECKED_KINDS), key=lambda s: s.size)
     if frame < smallest.size:
         return [Problem("links.frame_bytes", f"at least {smallest.size} bytes (the smallest message of this fleet, "
                         f"{smallest.kind}, takes {smallest.size}; a stage needs up to "
-                        f"{max(s.size for s in sizes if s.stage)})", Found(f"{frame} bytes: no message fits"))]
+                        f"{max(s.size for s in sizes if s.stage and s.kind not in UNCHECKED_KINDS)})", Found(f"{frame} bytes: no message fits"))]
     return [Problem("links.frame_bytes", f"at least {s.size} bytes: "
                     + (f"every stage sends the {s.kind} message, " if s.stage else f"the fleet sends the {s.kind} message, ")
                     + f"{s.size} bytes for this fleet ({s.note})", Found(f"{frame} bytes"))
-            for s in sizes if s.kind not in FITTED_KINDS and s.size > frame]
+            for s in sizes if s.kind not in UNCHECKED_KINDS and s.size > frame]
