@@ -232,3 +232,24 @@ def test_link_sizes_count_the_fitted_observation():
     sizes = link_sizes(s)
     assert sizes["obs"] == {m.kind: m.size for m in message_sizes(s)}["obs+fitted"] <= s.links.frame_bytes
     assert max(sizes[k] for k in sizes if k not in UNCHECKED_KINDS) <= s.links.frame_bytes
+
+
+# --------------------------------------------------------------------------- bad links through `python -m world check`
+@pytest.mark.parametrize("links, field, words", [
+    ({"bitrate_bps": 0}, "links.bitrate_bps", "expected a number from 1 to 1e+06 (bit/s"),
+    ({"fade_db": 25}, "links.fade_db", "expected a number from 0 to 20 (dB"),
+    ({"frame_bytes": 16}, "links.frame_bytes", "no message fits"),
+    ({"relays": {"count": 1}}, "links.relays", "only with links.model radio"),
+    ({"model": "perfect", "relays": {"count": 1}}, "links.relays", "found links.model perfect"),
+], ids=["param-out-of-range", "fade-out-of-range", "frame-too-small-for-any", "relays-acoustic", "relays-perfect"])
+def test_world_check_names_the_bad_links_field(tmp_path, capsys, links, field, words):
+    data = yaml.safe_load(MARINE.read_text())
+    data["links"].update(links)
+    if links.get("model") == "perfect":
+        data["links"] = {"model": "perfect", "relays": links["relays"]}
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data))
+    assert world_command(["check", str(path), "--seeds", "2"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    hits = [line for line in err if line.startswith(f"{path}: {field}: ")]
+    assert hits and words in hits[0], err
