@@ -208,3 +208,16 @@ def test_a_node_holds_a_delayed_sample_and_drops_a_lost_one():
     node.inbox.put(Inbound("alive", "token"))
     got = [node.next(1.0) for _ in range(3)]
     assert [i.key for i in got] == ["a", "token", "c"] and node.next(0.05) is None
+
+
+def test_the_live_view_draws_the_base_and_the_relays():
+    from viewer.rerun_view import RerunView
+    from world.scene import build_scene
+
+    logged = {}
+    rec = SimpleNamespace(log=lambda path, value, static=False: logged.setdefault(path, value))
+    RerunView(rec, build_scene(_corridor(3)))
+    assert "world/links/base" in logged and "world/links/relays" in logged
+    logged.clear()
+    RerunView(rec, build_scene(load_scenario(ROOT / "scenarios" / "tiny.yaml")))
+    assert not any(path.startswith("world/links") for path in logged)
