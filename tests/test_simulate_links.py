@@ -221,3 +221,16 @@ def test_the_live_view_draws_the_base_and_the_relays():
     logged.clear()
     RerunView(rec, build_scene(load_scenario(ROOT / "scenarios" / "tiny.yaml")))
     assert not any(path.startswith("world/links") for path in logged)
+
+
+def test_the_receive_filter_routes_radio_through_the_relays_dropped_by_the_stage_it_heard():
+    from wire import messages as wm
+    from wire.link_filter import link_filter
+
+    s = _corridor(3, fade=0.0)
+    f = link_filter(s, "m", "coordinator")
+    far = wm.encode(wm.Observation("m", "a", 0, 0.0, 1, (300.0, 0.0), 1, ()))
+    assert f.delay(_key("m", "a", "obs"), far) is None  # stage 0 heard: no relay down, 300 m in the open
+    later = wm.encode(wm.Observation("m", "a", 1, 75.0, 1, (300.0, 0.0), 1, ()))
+    # stage 1 heard: the relay at 100 m (dropped at 50 s) is down: 200 m and 100 m, two hops
+    assert f.delay(_key("m", "a", "obs"), later) == pytest.approx(2 * s.links.latency_s)
