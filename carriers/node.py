@@ -54,6 +54,8 @@ from mission.peers import PeerBook, Presence
 from mission.timeouts import CLOCKS, DEFAULTS, POSE_INTERVAL_S
 from wire import keys
 from wire.messages import REVISION, Bye, Confirm, Hello, Observation, Own, SharedDecoder, scenario_fingerprint
+from wire.link_filter import link_filter
+from wire.sizes import fit_to_links
 
 #: Longest sleep (s) of a carrier waiting for a message (a decision, End): any message, and a
 #: stop request (:meth:`Carrier.stop`, :func:`run_carriers`), wakes it at once, so this only sets
@@ -357,9 +359,9 @@ class Carrier:
                 continue
             at_once = False
             x = self.motion.body.sense(self.cid, j) if self.valid[j] else None
-            self.pending = Observation(
+            self.pending = fit_to_links(Observation(  # acoustic: the trail fitted to the frame (wire/sizes.py)
                 self.mission, self.cid, j, float(t_j), x, self.motion.position(), self.machine.passengers_left,
-                self.motion.trail(), self.motion.counts(j, x))
+                self.motion.trail(), self.motion.counts(j, x)), self.scenario.links)
             self.apply(mc.Observed(j, x, self.motion.position()))
             self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.pending)
             self.gate.waiting(j)
@@ -401,7 +403,8 @@ class Carrier:
                                     features=None if self.shared is None else self.shared.features)
         try:
             self.node = Node(self.zconf, open_timeout_s=self.config.coordinator_timeout_s, stop=self._stop,
-                             shared=self.session)
+                             shared=self.session, links=link_filter(self.scenario, self.mission, self.cid,
+                                                                    self.motion.position, self.config.realtime))
         except OpenStopped:
             return "stopped"
         try:

@@ -57,6 +57,7 @@ from wire.messages import (
     ACCEPTED_MAX, MAX_STATE_CARRIERS, REVISION, UNANNOUNCED_REVISION, Accepted, CarrierState, Decision, End, State,
     defined_in, encode, refusal, scenario_fingerprint,
 )
+from wire.link_filter import link_filter
 from wire.transport import Node
 
 @dataclass(frozen=True)
@@ -346,7 +347,9 @@ class Coordinator:
 
         out = Path(self.config.out_dir)
         # The session first: a duplicate is refused (or waited for) before mission.db is touched.
-        self.node, claimed = self.epochs.session(lambda: Node(self.zconf, stop=self._stop), self.config.standby)
+        links = link_filter(self.scenario, self.mission, "coordinator", realtime=self.config.realtime)
+        self.node, claimed = self.epochs.session(lambda: Node(self.zconf, stop=self._stop, links=links),
+                                                 self.config.standby)
         if not claimed:  # a standby stopped while the primary lived: nothing of ours to record
             self.log(f"coordinator: standby for mission {self.mission} stopped; it never took over")
             return {"ended": False, "standby": True}

@@ -271,12 +271,15 @@ def load_scenario(text: str):
     """(the scenario that ``text`` names, []), or (None, the lines that say why not): the world's
     one line per problem of the file."""
     import world
+    from wire.sizes import frame_problems
 
     path, line = resolve_scenario(text)
     if path is None:
         return None, [line]
     try:
-        return world.load_scenario(path), []
+        scenario = world.load_scenario(path)
+        frames = frame_problems(scenario)  # a message the acoustic frame cannot hold: refused, never lost in flight
+        return (None, [p.line(path) for p in frames]) if frames else (scenario, [])
     except world.ScenarioError as exc:
         return None, list(exc.problems)
     except OSError as exc:

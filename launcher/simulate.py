@@ -10,6 +10,7 @@ fault schedule shrunk to a minimal one that still fails.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import sys
@@ -24,17 +25,26 @@ SHRINK_RUNS = 40
 
 
 def build_fleet(path: str, mode: str = "hybrid", onboard_iterations: int | None = None,
-                seed: int | None = None) -> sim.Fleet:
+                seed: int | None = None, perfect_links: bool = False) -> sim.Fleet:
     """The simulator's :class:`mission.simulate.Fleet` of a scenario file (ScenarioError on bad
-    input); ``seed``: the world's root seed instead of the scenario's (run_fleet.py's ``--seed``)."""
+    input); ``seed``: the world's root seed instead of the scenario's (run_fleet.py's ``--seed``);
+    ``perfect_links``: fly it on perfect links whatever its ``links`` say (a comparison)."""
     import numpy as np
 
     import world
     from planner.registry import make_planner, planner_settings, used_options
     from planner.settings import ONBOARD_PLANNER
     from wire.messages import scenario_fingerprint
+    from wire.sizes import frame_problems, link_sizes
+    from world.fleet_links import FleetLinks
 
     scenario = world.load_scenario(path)
+    if perfect_links:
+        scenario = dataclasses.replace(scenario, links=dataclasses.replace(scenario.links, model="perfect", params=(),
+                                                                           relays=type(scenario.links.relays)()))
+    frames = frame_problems(scenario)
+    if frames:  # a message the acoustic frame cannot hold is refused here, never lost in flight
+        raise world.ScenarioError([p.line(path) for p in frames])
     if scenario.reward == "coverage":  # its carriers send no region counts: refused, not flown wrong
         raise world.ScenarioError([f"{path}: reward: expected penalty (the deterministic simulator does not model "
                                    f"region counts yet), found coverage"])
@@ -49,7 +59,8 @@ def build_fleet(path: str, mode: str = "hybrid", onboard_iterations: int | None 
     onboard.warm_up(problem)
     return sim.Fleet(tuple(scenario.carrier_ids), tuple(int(p) for p in problem.passengers), np.asarray(problem.valid),
                      tuple(float(t) for t in scenario.stage_times()), world.observe_all(scenario), problem, planner,
-                     onboard, int(scenario.seed), scenario_fingerprint(scenario), mode)
+                     onboard, int(scenario.seed), scenario_fingerprint(scenario), mode,
+                     links=FleetLinks(scenario, link_sizes(scenario)) if scenario.links.model != "perfect" else None)
 
 
 def parse_seeds(text: str) -> range:
@@ -188,6 +199,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--onboard-iterations", type=int, default=None,
                    help="the on-board planner's iteration budget (default: its own); a campaign of large "
                         "fleets lowers it: the invariants do not depend on how well carriers decide alone")
+    p.add_argument("--perfect-links", action="store_true",
+                   help="fly the scenario on perfect links whatever its links say (to compare with its link model)")
     p.add_argument("--no-shrink", action="store_true", help="do not shrink the failing schedules")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     return p
@@ -198,7 +211,7 @@ def main(argv=None) -> int:
     from world import ScenarioError
 
     try:
-        fleet = build_fleet(args.scenario, args.mode, args.onboard_iterations)
+        fleet = build_fleet(args.scenario, args.mode, args.onboard_iterations, perfect_links=args.perfect_links)
     except (ScenarioError, OSError) as exc:
         print(f"python -m mission.simulate: {exc}", file=sys.stderr)
         return EXIT_USAGE

@@ -16,7 +16,8 @@ Channels (docs/fleet.md, "mission.mcap"):
 topic              schema                   what
 =================  =======================  ==============================================
 /world             foxglove.SceneUpdate     the map once at t = 0: bounds, walls, obstacles,
-                                            features, planned paths, overlap groups
+                                            features, planned paths, overlap groups, the
+                                            links' base and relays (drop time as metadata)
 /carriers          foxglove.SceneUpdate     each carrier as a labelled entity, per pose
 /tf                foxglove.FrameTransform  map -> <carrier id>, per pose
 /deployments       foxglove.SceneUpdate     each deployed passenger with its sensing disc
@@ -140,6 +141,26 @@ def world_entities(scene: Scene, t: float) -> list[SceneEntity]:
         ents.append(SceneEntity(timestamp=ts, frame_id=FRAME, id=f"overlap/{k}", lines=[_line(
             group.outline, OVERLAP_COLOUR, 0.2, LinePrimitiveLineType.LineStrip, alpha=0.8, z=0.03)],
             metadata=[foxglove.messages.KeyValuePair(key="members", value=label)]))
+    ents.extend(link_entities(scene, ts))
+    return ents
+
+
+def link_entities(scene: Scene, ts) -> list[SceneEntity]:
+    """The base (``links/base``) and each relay (``links/relay/<carrier>/<k>``, in its carrier's
+    colour, its planned drop time as metadata ``dropped_at_s``) when the scene has a link model."""
+    if scene.base is None:
+        return []
+    x, y = scene.base
+    ents = [SceneEntity(timestamp=ts, frame_id=FRAME, id="links/base", texts=[_text(x, y, 1.0, f"base ({scene.links})")],
+                        spheres=[SpherePrimitive(pose=_pose(x, y, 0.5), size=Vector3(x=3.0, y=3.0, z=3.0),
+                                                 color=colour("#1a1a1a"))])]
+    for relay in scene.relays:
+        rx, ry = relay.position
+        ents.append(SceneEntity(
+            timestamp=ts, frame_id=FRAME, id=f"links/relay/{relay.carrier}/{relay.index}",
+            spheres=[SpherePrimitive(pose=_pose(rx, ry, 0.5), size=Vector3(x=2.0, y=2.0, z=2.0),
+                                     color=colour(scene.carrier(relay.carrier).colour))],
+            metadata=[foxglove.messages.KeyValuePair(key="dropped_at_s", value=f"{relay.time:.3f}")]))
     return ents
 
 

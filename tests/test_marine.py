@@ -13,7 +13,7 @@ import yaml
 
 from launcher.scenario_check import world_command
 from wire import messages as wm
-from wire.sizes import STAGE_KINDS, frame_problems, message_sizes
+from wire.sizes import STAGE_KINDS, UNCHECKED_KINDS, fit_trail, frame_problems, link_sizes, message_sizes
 from world.current import CurrentSpec, Vortex
 from world.marine import MarineSettings, draw_hotspots, marine_document, write_marine
 from world.scenario import ScenarioError, load_scenario, parse_scenario
@@ -148,8 +148,8 @@ def _with_frame(frame: int) -> Path:
 def test_frame_check_names_each_message_that_does_not_fit(frame, kinds):
     s = parse_scenario(_with_frame(frame), "m.yaml")
     sizes = {m.kind: m.size for m in message_sizes(s)}
-    expected = [k for k in STAGE_KINDS if sizes[k] > frame]
-    assert expected == [k for k in kinds if sizes[k] > frame]
+    assert [k for k in STAGE_KINDS if sizes[k] > frame] == [k for k in kinds if sizes[k] > frame]
+    expected = [k for k in sizes if k not in UNCHECKED_KINDS and sizes[k] > frame]  # every kind that crosses the links
     problems = frame_problems(s)
     assert [p.field for p in problems] == ["links.frame_bytes"] * len(expected)
     for p, k in zip(problems, expected):
@@ -189,8 +189,67 @@ def test_wire_sizes_tool(tmp_path, capsys):
     assert main([str(MARINE)]) == 0
     out = capsys.readouterr().out
     sizes = {m.kind: m.size for m in message_sizes(load_scenario(MARINE))}
-    assert f"obs           {sizes['obs']:>3}   yes" in out and "obs+trail" in out and "DOES NOT FIT" in out
+    assert f"obs           {sizes['obs']:>3}   yes" in out and "obs+trail" in out and "not sent so: see obs+fitted" in out and "DOES NOT FIT" not in out
     path = tmp_path / "m.yaml"
     path.write_text(yaml.safe_dump(_with_frame(130)))
     assert main([str(path)]) == 2
     assert "links.frame_bytes" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- the trail fitted to the frame
+def _obs(trail) -> wm.Observation:
+    return wm.Observation("marine_survey", "vessel1", 20, 2400.123456789, 10**9 - 1, (1234.56789, -987.654321), 3,
+                          tuple(trail))
+
+
+def test_a_trail_that_fits_is_sent_as_it_is():
+    obs = _obs([(1.0, 2.0), (3.0, 4.0)])
+    assert fit_trail(obs, 256) is obs
+
+
+def test_a_straight_trail_keeps_its_ends_and_a_turn_its_corner():
+    straight = _obs([(100.0 + k, 200.0) for k in range(120)])
+    fitted = fit_trail(straight, 256)
+    assert fitted.trail == ((100.0, 200.0), (219.0, 200.0)) and len(wm.encode(fitted)) <= 256
+    turn = _obs([(float(k), 0.0) for k in range(60)] + [(59.0, float(k)) for k in range(1, 60)])
+    assert fit_trail(turn, 256).trail == ((0.0, 0.0), (59.0, 0.0), (59.0, 59.0))
+    assert fitted.position == straight.position and fitted.x == straight.x  # only the informative trail changes
+
+
+def test_a_wiggling_trail_is_thinned_until_it_fits_and_decodes():
+    rng = np.random.default_rng(3)
+    wiggle = _obs([(float(k), float(v)) for k, v in enumerate(rng.normal(0, 50, 400))])
+    for frame in (140, 166, 256, 600):
+        fitted = fit_trail(wiggle, frame)
+        data = wm.encode(fitted)
+        assert len(data) <= frame and wm.decode(data) == fitted
+        assert set(fitted.trail) <= set(wiggle.trail)
+    assert fit_trail(wiggle, 128).trail == ()  # room for the Observation alone: an empty trail
+
+
+def test_link_sizes_count_the_fitted_observation():
+    s = load_scenario(MARINE)
+    sizes = link_sizes(s)
+    assert sizes["obs"] == {m.kind: m.size for m in message_sizes(s)}["obs+fitted"] <= s.links.frame_bytes
+    assert max(sizes[k] for k in sizes if k not in UNCHECKED_KINDS) <= s.links.frame_bytes
+
+
+# --------------------------------------------------------------------------- bad links through `python -m world check`
+@pytest.mark.parametrize("links, field, words", [
+    ({"bitrate_bps": 0}, "links.bitrate_bps", "expected a number from 1 to 1e+06 (bit/s"),
+    ({"fade_db": 25}, "links.fade_db", "expected a number from 0 to 20 (dB"),
+    ({"frame_bytes": 16}, "links.frame_bytes", "no message fits"),
+    ({"relays": {"count": 1}}, "links.relays", "only with links.model radio"),
+    ({"model": "perfect", "relays": {"count": 1}}, "links.relays", "found links.model perfect"),
+], ids=["param-out-of-range", "fade-out-of-range", "frame-too-small-for-any", "relays-acoustic", "relays-perfect"])
+def test_world_check_names_the_bad_links_field(tmp_path, capsys, links, field, words):
+    data = yaml.safe_load(MARINE.read_text())
+    data["links"].update(links)
+    if links.get("model") == "perfect":
+        data["links"] = {"model": "perfect", "relays": links["relays"]}
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(data))
+    assert world_command(["check", str(path), "--seeds", "2"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    hits = [line for line in err if line.startswith(f"{path}: {field}: ")]
+    assert hits and words in hits[0], err

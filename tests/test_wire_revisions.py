@@ -254,3 +254,17 @@ def test_the_state_query_announces_the_askers_revision(parameters, revision):
 
     assert keys.asked_revision(parameters, 3, 1) == revision
     assert keys.state_selector("m", "c1", 3) == "marsupial/m/coordinator/state?carrier=c1;revision=3"
+
+
+@pytest.mark.parametrize("revision", revisions())
+def test_a_trail_fitted_to_an_acoustic_frame_is_an_observation_of_every_revision(revision):
+    """On acoustic links a carrier thins its trail to fit the frame (wire.sizes.fit_trail): no new
+    field, no new encoding, so a coordinator of any published revision reads it as any other."""
+    from wire.sizes import fit_trail
+
+    full = wm.Observation("m", "c1", 3, 360.0, 4, (300.0, 100.0), 2, tuple((float(k), 0.5 * k) for k in range(300)))
+    fitted = fit_trail(full, 180)
+    body = msgpack.unpackb(wm.encode(fitted, revision))
+    assert len(wm.encode(fitted, revision)) <= 180 and 0 < len(fitted.trail) < len(full.trail)
+    assert set(body) <= page_fields(revision)["obs"] and set(body) == shape(msgpack.unpackb(wm.encode(full, revision)), "obs")
+    assert wm.decode(wm.encode(fitted, revision)) == fitted

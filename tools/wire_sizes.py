@@ -9,7 +9,7 @@ import argparse
 import sys
 
 from scenarios import bundled_path
-from wire.sizes import frame_problems, message_sizes
+from wire.sizes import UNCHECKED_KINDS, frame_problems, message_sizes
 from world.scenario import ScenarioError, load_scenario
 
 
@@ -28,7 +28,9 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  {'kind':<10} {'bytes':>6} {'stage':>5}  {'airtime s' if frame else ''}  note")
     for m in message_sizes(s):
         air = f"{8 * m.size / s.links.bitrate_bps:>9.3f}" if frame else ""
-        fits = "" if frame is None else ("  fits" if m.size <= frame else "  DOES NOT FIT")
+        fits = "" if frame is None else ("  fits" if m.size <= frame else
+                                         "  not sent so: see obs+fitted" if m.kind == "obs+trail" else
+                                         "  not on the links" if m.kind in UNCHECKED_KINDS else "  DOES NOT FIT")
         print(f"  {m.kind:<10} {m.size:>6} {'yes' if m.stage else '':>5}  {air}  {m.note}{fits}")
     problems = frame_problems(s)
     for p in problems:

@@ -9,6 +9,7 @@ world/bounds, world/walls      LineStrips2D      the map (static)
 world/features                 Points2D          features of interest (static)
 world/paths/<id>               LineStrips2D      planned paths in carrier colours (static)
 world/overlaps                 LineStrips2D      overlap groups' outlines (static)
+world/links/base, world/links/relays Points2D   the base and the relays dropped (static; links not perfect)
 world/carriers/<id>            Points2D          each carrier, labelled ``id (passengers left)``
 world/trails/<id>              LineStrips2D      where it drove (from its poses)
 world/observations/<id>        LineStrips2D      its sensing circle at its last observation, ``x=…``
@@ -94,6 +95,13 @@ class RerunView(Sink):
         if s.overlaps:
             rec.log("world/overlaps", rr.LineStrips2D([g.outline for g in s.overlaps], radii=0.12,
                                                       colors=[rgb(OVERLAP_COLOUR) + (160,)]), static=True)
+        if s.base is not None:
+            rec.log("world/links/base", rr.Points2D([s.base], radii=1.5, colors=[(26, 26, 26)],
+                                                    labels=[f"base ({s.links})"]), static=True)
+        if s.relays:
+            rec.log("world/links/relays", rr.Points2D([r.position for r in s.relays], radii=1.0,
+                                                      colors=[rgb(s.carrier(r.carrier).colour) for r in s.relays]),
+                    static=True)
 
     # ------------------------------------------------------------------ the stream
     def pose(self, t, carrier, position, heading, passengers_left):

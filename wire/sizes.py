@@ -9,18 +9,28 @@ may name a longer one). A fresh mission's epoch (1, left off the wire) is assume
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
+
+import numpy as np
 
 from planner.limits import MAX_TRAIL
 from validation import Found, Problem
+from world.grid import simplify_mask
 
 from . import messages as wm
-from .keys import mission_id_from_name
+from .keys import mission_id_from_name, state_selector
 
 #: The largest feature count an Observation or Own carries on the wire.
 _MAX_X = 10**9 - 1
 #: The message kinds every stage of a mission sends (an Own only when a carrier decides alone).
 STAGE_KINDS = ("obs", "decision", "confirm", "own")
+#: The kinds the frame check skips: ``obs+trail`` is sent fitted to the frame on acoustic links
+#: (:func:`fit_trail`), and ``obs+fitted`` fits whenever ``obs`` does; Poses are viewers' traffic,
+#: not carried over the links (wire/link_filter.py).
+UNCHECKED_KINDS = ("obs+trail", "obs+fitted", "pose")
+#: First Douglas-Peucker tolerance (m) :func:`fit_trail` tries; it doubles until the trail fits.
+TRAIL_TOLERANCE_M = 0.5
 
 
 @dataclass(frozen=True)
@@ -64,28 +74,81 @@ def _messages(scenario) -> list[tuple[str, object, str]]:
         ("progress", wm.Progress(mission, cid, n, t), "liveness"),
         ("bye", wm.Bye(mission, cid, deployments, (), "end"), "at the end"),
         ("end", wm.End(mission, n, "complete"), "at the end"),
+        ("query", state_selector(mission, cid, wm.REVISION), "a State query's selector (a Zenoh get)"),
     ]
+
+
+def _size(message) -> int:
+    return len(message.encode()) if isinstance(message, str) else len(wm.encode(message))
+
+
+def fit_trail(message: wm.Observation, frame_bytes: int) -> wm.Observation:
+    """``message`` with its trail thinned until the whole Observation fits ``frame_bytes``
+    (acoustic links; unchanged when it fits already). The trail is informative (docs/protocol.md,
+    Observation ``trail``): a subset of the positions driven through is still one, so this is no
+    change of the wire. Douglas-Peucker at :data:`TRAIL_TOLERANCE_M`, doubled until it fits;
+    a trail still too long after that keeps evenly spaced points; at worst it is empty (the
+    record still draws the straight line between the stages' positions)."""
+    if len(wm.encode(message)) <= frame_bytes or not message.trail:
+        return message
+    line = np.asarray(message.trail, dtype=float)
+    tol = TRAIL_TOLERANCE_M
+    while tol < 1e6:
+        kept = line if len(line) <= 2 else line[simplify_mask(line, tol)]
+        fitted = dataclasses.replace(message, trail=tuple((float(a), float(b)) for a, b in kept))
+        if len(wm.encode(fitted)) <= frame_bytes:
+            return fitted
+        if len(kept) <= 2:
+            break
+        tol *= 2
+    for k in range(min(len(line), 2), -1, -1):  # the ends, the last point, or nothing
+        kept = line[np.linspace(0, len(line) - 1, k).astype(int)] if k else line[:0]
+        fitted = dataclasses.replace(message, trail=tuple((float(a), float(b)) for a, b in kept))
+        if len(wm.encode(fitted)) <= frame_bytes:
+            return fitted
+    return fitted
 
 
 def message_sizes(scenario) -> list[Size]:
     """The size of every message kind for ``scenario``'s fleet (see the module's note)."""
-    return [Size(kind, len(wm.encode(message)), kind in STAGE_KINDS, note)
-            for kind, message, note in _messages(scenario)]
+    out = [Size(kind, _size(message), kind in STAGE_KINDS, note) for kind, message, note in _messages(scenario)]
+    if scenario.links.model == "acoustic":  # what the carriers send: the trail fitted to the frame
+        full = next(m for k, m, _ in _messages(scenario) if k == "obs+trail")
+        fitted = fit_trail(full, scenario.links.frame_bytes)
+        out.append(Size("obs+fitted", len(wm.encode(fitted)), True,
+                        f"as carriers send it on acoustic links: the trail fitted ({len(fitted.trail)} points)"))
+    return out
+
+
+def fit_to_links(message: wm.Observation, links) -> wm.Observation:
+    """An Observation as a carrier sends it on the scenario's ``links``: its trail fitted to the
+    frame under ``acoustic`` (:func:`fit_trail`), as it is otherwise."""
+    return fit_trail(message, links.frame_bytes) if links.model == "acoustic" else message
+
+
+def link_sizes(scenario) -> dict:
+    """kind -> bytes of what crosses the links: the Observation as the carriers send it (its
+    trail fitted under acoustic links) under ``obs``."""
+    sizes = {s.kind: s.size for s in message_sizes(scenario)}
+    sizes["obs"] = sizes.get("obs+fitted", sizes["obs+trail"])
+    return sizes
 
 
 def frame_problems(scenario) -> list[Problem]:
-    """Under ``links.model: acoustic``: ``links.frame_bytes`` must hold every message a stage
-    needs (:data:`STAGE_KINDS`); one problem per kind that does not fit, naming its size, or one
-    saying the frame holds no message at all. Nothing for the other models."""
+    """Under ``links.model: acoustic``: ``links.frame_bytes`` must hold every message that crosses
+    the links (all but :data:`UNCHECKED_KINDS`); one problem per
+    kind that does not fit, naming its size, or one saying the frame holds no message at all.
+    Nothing for the other models."""
     if scenario.links.model != "acoustic":
         return []
     frame = scenario.links.frame_bytes
     sizes = message_sizes(scenario)
-    smallest = min(sizes, key=lambda s: s.size)
+    smallest = min((s for s in sizes if s.kind not in UNCHECKED_KINDS), key=lambda s: s.size)
     if frame < smallest.size:
         return [Problem("links.frame_bytes", f"at least {smallest.size} bytes (the smallest message of this fleet, "
                         f"{smallest.kind}, takes {smallest.size}; a stage needs up to "
-                        f"{max(s.size for s in sizes if s.stage)})", Found(f"{frame} bytes: no message fits"))]
-    return [Problem("links.frame_bytes", f"at least {s.size} bytes: every stage sends the {s.kind} message, "
-                    f"{s.size} bytes for this fleet ({s.note})", Found(f"{frame} bytes"))
-            for s in sizes if s.stage and s.size > frame]
+                        f"{max(s.size for s in sizes if s.stage and s.kind not in UNCHECKED_KINDS)})", Found(f"{frame} bytes: no message fits"))]
+    return [Problem("links.frame_bytes", f"at least {s.size} bytes: "
+                    + (f"every stage sends the {s.kind} message, " if s.stage else f"the fleet sends the {s.kind} message, ")
+                    + f"{s.size} bytes for this fleet ({s.note})", Found(f"{frame} bytes"))
+            for s in sizes if s.kind not in UNCHECKED_KINDS and s.size > frame]

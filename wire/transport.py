@@ -6,6 +6,7 @@ node's own threads.
 """
 from __future__ import annotations
 
+import heapq
 import queue
 import threading
 import time
@@ -51,6 +52,27 @@ def _sample_item(sample) -> Inbound:
     limit = messages.MAX_PAYLOAD_BYTES
     data = payload.to_bytes() if len(payload) <= limit else b"\0" * (limit + 1)
     return Inbound("sample", str(sample.key_expr), data, time.monotonic(), time.time())
+
+
+class Held:
+    """Messages a :class:`wire.link_filter.LinkFilter` delayed, released in order of their due time."""
+
+    def __init__(self):
+        self.heap: list = []
+        self.seq = 0
+
+    def add(self, due: float, item) -> None:
+        self.seq += 1
+        heapq.heappush(self.heap, (due, self.seq, item))
+
+    def due(self, now: float):
+        """The next item due by ``now`` (monotonic s), else None."""
+        if self.heap and self.heap[0][0] <= now:
+            return heapq.heappop(self.heap)[2]
+        return None
+
+    def next_due(self) -> float | None:
+        return self.heap[0][0] if self.heap else None
 
 
 class SharedSession:
@@ -103,10 +125,11 @@ class Node:
         shared: the process's :class:`SharedSession` to declare on instead of a session of the
             node's own (then ``conf`` is not used); :meth:`close` undeclares only this node's
             entities.
+        links: the scenario's links applied to what arrives (:attr:`links`).
     """
 
     def __init__(self, conf: zenoh.Config | None, open_timeout_s: float = 10.0, stop: threading.Event | None = None,
-                 shared: SharedSession | None = None):
+                 shared: SharedSession | None = None, links=None):
         self._shared = shared
         self.session = (open_session(conf, open_timeout_s, stop=stop) if shared is None
                         else shared.acquire(open_timeout_s, stop))
@@ -120,6 +143,10 @@ class Node:
         #: The protocol revision :meth:`put` encodes for (docs/protocol.md, "Revisions"): this
         #: code's own until the node's owner learns its peer's.
         self.revision = messages.REVISION
+        #: The scenario's links applied to what arrives (:class:`wire.link_filter.LinkFilter`,
+        #: given by the node's owner); None: every sample as zenoh delivers it.
+        self.links = links
+        self._held, self._held_quiet = Held(), Held()
 
     # ------------------------------------------------------------------ declarations
     def subscribe(self, key_expr: str, wake: bool = True) -> None:
@@ -147,15 +174,35 @@ class Node:
 
     def drain(self) -> list[Inbound]:
         """Every sample waiting on the ``wake=False`` subscriptions, per subscription in arrival
-        order (``received`` and ``wall``: when drained)."""
+        order (``received`` and ``wall``: when drained); with :attr:`links`, those it lets through
+        now, the ones it held when due."""
         out = []
         for sub in self._quiet:
             while True:
                 sample = sub.try_recv()
                 if sample is None:
                     break
-                out.append(_sample_item(sample))
+                item = self._through_links(_sample_item(sample), quiet=True)
+                if item is not None:
+                    out.append(item)
+        if self.links is not None:
+            now = time.monotonic()
+            while (held := self._held_quiet.due(now)) is not None:
+                out.append(held)
         return out
+
+    def _through_links(self, item: Inbound, quiet: bool = False) -> Inbound | None:
+        """``item`` if the links deliver it now; None if they drop it or hold it (then it comes
+        out of :meth:`next` or :meth:`drain` when due)."""
+        if self.links is None or item.kind != "sample":
+            return item
+        delay = self.links.delay(item.key, item.payload)
+        if delay is None:
+            return None
+        if delay <= 0.0:
+            return item
+        (self._held_quiet if quiet else self._held).add(time.monotonic() + delay, item)
+        return None
 
     def watch_liveliness(self, key_expr: str) -> None:
         """Liveliness tokens matching ``key_expr`` (existing ones included) land in the inbox as
@@ -245,7 +292,26 @@ class Node:
                     out.append(reply.ok.payload.to_bytes())
         except Exception:
             pass
+        if self.links is not None:  # the query and its replies cross the links (both drawn here)
+            out = self._replies_through_links(str(key_expr), out)
         return out
+
+    def _replies_through_links(self, selector: str, replies: list[bytes]) -> list[bytes]:
+        """The replies the links deliver: the query goes out (its own fate and delay, the link
+        being the same both ways), then each reply; the caller waits for the latest (an acoustic
+        round trip takes seconds: it is waited for, not cut at the query's timeout)."""
+        key = selector.split("?", 1)[0]
+        out_delay = self.links.delay(key, selector.encode())
+        if out_delay is None:
+            return []
+        kept, wait = [], 0.0
+        for data in replies:
+            delay = self.links.delay(key, data)
+            if delay is not None:
+                kept.append(data)
+                wait = max(wait, delay)
+        time.sleep(out_delay + wait)
+        return kept
 
     def live_tokens(self, key_expr: str, timeout_s: float) -> list[str]:
         """Key expressions of the liveliness tokens matching ``key_expr`` that exist right now
@@ -259,15 +325,37 @@ class Node:
         return sorted(set(found))
 
     def pending(self) -> bool:
-        """Whether an inbox item is waiting."""
-        return not self.inbox.empty()
+        """Whether an inbox item is waiting (or a held one is due)."""
+        due = self._held.next_due()
+        return not self.inbox.empty() or (due is not None and due <= time.monotonic())
 
     def next(self, timeout_s: float) -> Inbound | None:
-        """The next inbox item, or None after ``timeout_s`` seconds."""
-        try:
-            return self.inbox.get(timeout=max(0.0, timeout_s))
-        except queue.Empty:
-            return None
+        """The next inbox item, or None after ``timeout_s`` seconds (with :attr:`links`: the next
+        one they let through, a held one when it is due)."""
+        if self.links is None:
+            try:
+                return self.inbox.get(timeout=max(0.0, timeout_s))
+            except queue.Empty:
+                return None
+        deadline = time.monotonic() + max(0.0, timeout_s)
+        while True:
+            now = time.monotonic()
+            held = self._held.due(now)
+            if held is not None:
+                return held
+            wait = deadline - now
+            due = self._held.next_due()
+            if due is not None:
+                wait = min(wait, due - now)
+            try:
+                item = self.inbox.get(timeout=max(0.0, wait)) if wait > 0 else self.inbox.get_nowait()
+            except queue.Empty:
+                if time.monotonic() >= deadline and (due is None or due > deadline):
+                    return None
+                continue
+            item = self._through_links(item)
+            if item is not None:
+                return item
 
     def wake(self) -> None:
         """Wake whoever waits in :meth:`next` (an ``Inbound("wake", "")`` item, which carries

@@ -92,6 +92,10 @@ class Scene:
         overlaps: the overlap groups.
         stage_times: float ``[N]`` (s).
         planned: float ``[R, N, 2]`` planned decision points (m), NaN where not scheduled.
+        links: the link model's name (``perfect``: no base, no relays).
+        base: (x, y) the coordinator's antenna or modem (m); None on perfect links.
+        relays: the relays the carriers drop (:class:`world.relays.Relay`: carrier, position,
+            planned drop time), in order.
     """
 
     name: str
@@ -104,6 +108,9 @@ class Scene:
     overlaps: tuple[SceneOverlap, ...]
     stage_times: np.ndarray
     planned: np.ndarray
+    links: str = "perfect"
+    base: tuple[float, float] | None = None
+    relays: tuple = ()
 
     def carrier(self, cid: str) -> SceneCarrier:
         """The carrier ``cid`` (KeyError for an unknown id); a lookup, not a scan: the recorders
@@ -177,4 +184,16 @@ def build_scene(scenario, seed: int | None = None) -> Scene:
         overlaps=tuple(overlaps),
         stage_times=np.asarray(scenario.stage_times(), dtype=float),
         planned=geometry.positions,
+        **_links(scenario),
     )
+
+
+def _links(scenario) -> dict:
+    """The scene's link fields: the model, the base and the relays (none on perfect links)."""
+    if scenario.links.model == "perfect":
+        return {}
+    from world.links import LinkModel
+    from world.relays import fleet_relays
+
+    model = LinkModel(scenario)
+    return {"links": scenario.links.model, "base": tuple(map(float, model.base)), "relays": fleet_relays(model)}

@@ -19,6 +19,9 @@ class Fleet:
         problem: the planner core's instance; planner: the coordinator's planner (stateless);
         onboard: the on-board planner (``decide_local``); seed: the scenario's root seed;
         fingerprint: the world fingerprint every Hello carries; mode: the carriers' mode.
+        links: the link model between the participants (:class:`world.fleet_links.FleetLinks`:
+            ``spec``, ``between(src, dst, stages, alive)``, ``size(kind)``); None or a ``perfect``
+            spec: the network as without one (mission/simulate/links.py).
     """
 
     ids: tuple
@@ -33,6 +36,7 @@ class Fleet:
     fingerprint: str = "sim"
     mode: str = "hybrid"
     decisions: dict = field(default_factory=dict, compare=False, repr=False)  # the planner's memo
+    links: object = field(default=None, compare=False, repr=False)
 
     @property
     def n_stages(self) -> int:

@@ -95,7 +95,8 @@ def draw_faults(rng: np.random.Generator, kinds, ids, horizon: float) -> tuple[F
 @dataclass
 class Outcome:
     """One simulated mission: its seed, faults, the trace's hash and length, the violations
-    found (each a one-line string), what each carrier deployed, the reward, simulated seconds."""
+    found (each a one-line string), what each carrier deployed, the reward, simulated seconds,
+    and under a link model how many messages it carried and lost (``links``)."""
 
     seed: int
     faults: tuple
@@ -106,9 +107,10 @@ class Outcome:
     reward: float = 0.0
     seconds: float = 0.0
     completed: bool = False
+    links: dict = field(default_factory=dict)  # the link model's counts (sent, lost); empty on perfect links
 
     def as_json(self) -> dict:
-        return {"seed": self.seed, "trace_hash": self.trace_hash, "faults": [f.as_json() for f in self.faults],
+        return {**({"links": self.links} if self.links else {}),"seed": self.seed, "trace_hash": self.trace_hash, "faults": [f.as_json() for f in self.faults],
                 "deployments": self.deployments, "reward": round(self.reward, 9), "events": self.events,
                 "seconds": round(self.seconds, 6), "completed": self.completed, "violations": self.violations}
 

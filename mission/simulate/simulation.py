@@ -18,7 +18,9 @@ from ..timeouts import DEFAULTS
 from .carrier import CarrierDriver
 from .coordinator import CoordinatorDriver, Disk
 from .fleet import Fleet
-from .model import FAITHFUL_KINDS, FAULT_KINDS, LEASE_S, OPEN_RETRY_S, ROUTER, Clock, Fault, Msg, Outcome, draw_faults, msg
+from .links import LinkLayer
+from .model import (FAITHFUL_KINDS, FAULT_KINDS, LEASE_S, OPEN_RETRY_S, ROUTER, Clock, Fault, Msg, Outcome, draw_faults,
+                    msg)
 
 #: Stop a mission this long (simulated s) after its liveness bound: it did not complete.
 OVERRUN_S = 60.0
@@ -82,6 +84,9 @@ class Simulation:
         self.slow: dict = {}
         self.paused: set = set()
         self.work_s = {cid: float(self.rng.uniform(0.005, 0.05)) for cid in ids}
+        # the scenario's link model (its own Generator: a perfect mission draws and delays as without one)
+        links = fleet.links
+        self.links = LinkLayer(self, links, seed) if links is not None and links.spec.model != "perfect" else None
         self._schedule_faults()
         self.at(0.0, self._start, self.coordinators["coordinator"], "coordinator")
         if "standby" in self.coordinators:
@@ -206,7 +211,12 @@ class Simulation:
         lost = None if reliable else self._window("loss")
         if lost is not None and self.rng.random() < lost.size:
             return
-        arrive = self.t + self._delay(src, dst)
+        extra = 0.0
+        if self.links is not None and not reliable:
+            extra = self.links.delay(src, dst, m)
+            if extra is None:
+                return
+        arrive = self.t + self._delay(src, dst) + extra
         if self._window("reorder") is None:  # one session, one link: first sent, first delivered
             arrive = max(arrive, self.fifo.get((src, dst), 0.0))
             self.fifo[(src, dst)] = arrive
@@ -504,6 +514,8 @@ class Simulation:
             deployed[fleet.ids.index(cid), js] = True
         out.reward = float(evaluate(fleet.problem, deployed, fleet.x)[0])
         out.completed = self.done()
+        if self.links is not None:
+            out.links = {"sent": self.links.sent, "lost": self.links.lost}
         final = next((d for d in self.coordinators.values() if d.phase == "done"), None)
         if not out.completed:
             self.violate(f"the mission did not complete within its liveness bound of {bound:.0f} s "
@@ -544,7 +556,9 @@ class Simulation:
                              f"which never came back and deployed at {physical[cid]}")
 
     def faults_faithful(self) -> bool:
-        return all(f.kind in FAITHFUL_KINDS for f in self.faults)
+        """Nothing lost for long: faithful fault kinds only, and no message lost by the link model
+        (its delays alone are faithful)."""
+        return all(f.kind in FAITHFUL_KINDS for f in self.faults) and (self.links is None or self.links.lost == 0)
 
 
 def simulate(fleet: Fleet, seed: int, kinds=FAULT_KINDS, faults=None, plant: str | None = None) -> Outcome:
