@@ -97,6 +97,8 @@ class CarrierConfig:
             tells the mission's (revision 4): the carrier then follows it (:attr:`Carrier.timers`).
         join_timeout_s: decentralised: before the first stage, wait this long for every
             carrier's liveliness token.
+        hello_timeout_s: its latest Hello unanswered this long (the coordinator's token
+            present), it says Hello again, the interval doubling ([P-5.14]).
         planner_options: options of the on-board planner (iterations, plan_ms).
         log_sync: how the durable log commits (:data:`storage.carrierlog.SYNC_MODES`).
         onboard_load: when the on-board planner is loaded (:data:`carriers.ONBOARD_LOADS`;
@@ -120,6 +122,7 @@ class CarrierConfig:
     peer_timeout_s: float = DEFAULTS.peer_s
     silence_timeout_s: float = DEFAULTS.silence_s
     join_timeout_s: float = DEFAULTS.join_s
+    hello_timeout_s: float = DEFAULTS.hello_s
     planner_options: tuple = ()
     log_sync: str = "full"
     onboard_load: str | None = None
@@ -264,7 +267,7 @@ class Carrier:
                 self.mission, self.cid, effect.stage, float(self.scenario.stage_time(effect.stage)), effect.x,
                 effect.deployed, effect.position, effect.passengers_left, self.motion.counts(effect.stage, effect.x)))
         elif isinstance(effect, mc.SendHello):
-            self.answer.sent()
+            self.answer.sent(self.clock(), effect.again)
             self.node.put(keys.carrier_key(self.mission, self.cid, "hello"), Hello(
                 self.mission, self.cid, os.getpid(), socket.gethostname()[:255], self.machine.passengers_left,
                 effect.next_stage, self.fingerprint, max(1, self.machine.epoch), REVISION))
@@ -291,6 +294,17 @@ class Carrier:
         """Take what arrived, waiting up to ``timeout_s`` for the inbox's first item
         (:meth:`carriers.inbound.Inbound.pump`: its events applied, its effects carried out)."""
         self.inbound.pump(self.node, timeout_s, lambda: self.machine, self.apply, self.execute)
+        self._hello_again()
+
+    def _hello_again(self) -> None:
+        """Its latest Hello unanswered for the retry time while the coordinator's token is present:
+        said again, with what went out since ([P-5.14]); only to a coordinator that answers
+        Hellos (its State announced revision 3 or later: the revision this carrier speaks)."""
+        rule = tm.hello_again(bool(self.answer.unanswered), self.node.revision >= 3,
+                              self.presence.coordinator_present, self.answer.at, self.answer.tries, self.clock(),
+                              self.config.hello_timeout_s)
+        if isinstance(rule, tm.Attempt):
+            self.apply(mc.HelloUnanswered(self.motion.position()))
 
     # ------------------------------------------------------------------ the stages
     def _wait_decision(self, j: int) -> None:

@@ -22,6 +22,8 @@ position at that moment) and carries out the effects in order (:class:`Deploy` b
   acts on it (:class:`Deploy`), and every observation when it is made (:class:`LogObservation`);
 * when the coordinator comes back, the carrier resynchronises from State (:class:`Resync`) and
   repeats its answers and its own decisions;
+* a Hello with no answer for its retry time (it was lost on the link) is said again
+  (:class:`HelloUnanswered`), with the pending Observation and the answers since the join;
 * a Decision of an epoch lower than the highest the carrier has heard (in a Decision or a
   State) comes from a deposed coordinator: rejected (``deposed``), never answered; so is an End
   that states a lower epoch (an End that states none, of an earlier revision, ends the mission);
@@ -159,6 +161,15 @@ class Collecting:
 
 
 @dataclass(frozen=True)
+class HelloUnanswered:
+    """The carrier's latest Hello has had no answer for its retry time while the coordinator's
+    token was present (:func:`mission.timers.hello_again`): it was lost on the way, so were the
+    messages since (rejected ``no-hello``); say them again ([P-5.14])."""
+
+    position: Point
+
+
+@dataclass(frozen=True)
 class EndHeard:
     """End arrived, from a coordinator of ``epoch`` (None: the End states none, as before
     revision 4)."""
@@ -218,10 +229,12 @@ class LogOutcome:
 
 @dataclass(frozen=True)
 class SendHello:
-    """Publish Hello with ``next_stage`` (where the carrier goes on from)."""
+    """Publish Hello with ``next_stage`` (where the carrier goes on from); ``again``: the latest
+    one had no answer ([P-5.14]: the retry time doubles, :class:`HelloAnswer`)."""
 
     next_stage: int
     passengers_left: int
+    again: bool = False
 
 
 @dataclass(frozen=True)
@@ -359,20 +372,26 @@ class HelloAnswer:
         fingerprint: the carrier's world fingerprint.
         unanswered: None before any Hello; True while the latest one is not answered yet.
         refused: the Refusal of the latest Hello (any object the process hands in), else None.
+        at: when the latest Hello went out (the caller's clock, s).
+        tries: the Hellos said again since the latest of a join or a Resync ([P-5.14]).
     """
 
     def __init__(self, fingerprint: str):
         self.fingerprint = fingerprint
         self.unanswered: bool | None = None
         self.refused = None
+        self.at = 0.0
+        self.tries = 0
 
     @property
     def said_hello(self) -> bool:
         return self.unanswered is not None
 
-    def sent(self) -> None:
-        """A Hello went out."""
+    def sent(self, at: float = 0.0, again: bool = False) -> None:
+        """A Hello went out at ``at``; ``again``: the previous one had no answer."""
         self.unanswered = True
+        self.at = float(at)
+        self.tries = self.tries + 1 if again else 0
 
     def answered(self, fingerprint: str, refusal=None) -> bool:
         """An answer naming ``fingerprint`` arrived (``refusal``: the Refusal, None for Accepted);
@@ -700,13 +719,30 @@ def _on_resync(state: CarrierState, e: Resync):
             effects += more
         if s.ended:
             new = dataclasses.replace(new, ended=True)
-    if new.pending is not None and new.pending >= new.state_next and new.pending not in new.handled:
-        effects.append(ResendObservation(new.pending))
-    for j in sorted(new.handled):
-        if j >= new.joined:
-            a = new.handled[j]
-            effects.append(SendOwn(j, a.x, a.deployed, a.position, a.passengers_left) if a.own else _already(new, j))
+    effects += _said_again(new)
     return new, tuple(_dedupe(effects))
+
+
+def _said_again(state: CarrierState) -> list:
+    """After a Hello of a Resync or said again: the pending Observation if its stage is still
+    open, and the answer to every stage handled since the join (Confirm ``already``, or its Own):
+    what a coordinator that missed them (or rejected them before the Hello) needs."""
+    effects: list = []
+    if state.pending is not None and state.pending >= state.state_next and state.pending not in state.handled:
+        effects.append(ResendObservation(state.pending))
+    for j in sorted(state.handled):
+        if j >= state.joined:
+            a = state.handled[j]
+            effects.append(SendOwn(j, a.x, a.deployed, a.position, a.passengers_left) if a.own else _already(state, j))
+    return effects
+
+
+def _on_hello_unanswered(state: CarrierState, e: HelloUnanswered):
+    """[P-5.14]: Hello again, then what went out since the lost one (a Resync without a State)."""
+    if state.ended or not state.flying:
+        return state, ()
+    return state, (Log("no answer to its Hello; saying it again"),
+                   SendHello(state.hello_stage(), state.passengers_left, again=True), *_said_again(state))
 
 
 def _take_lost(state: CarrierState, s: StateSeen, position: Point):
@@ -746,5 +782,5 @@ def _on_end(state: CarrierState, e: EndHeard):
 _HANDLERS = {
     Replayed: _on_replayed, Joined: _on_joined, DecisionHeard: _on_decision, Observed: _on_observed,
     Passed: _on_passed, MovedOn: _on_moved_on, Resync: _on_resync, EndHeard: _on_end, DecidedOwn: _on_decided_own,
-    Collecting: _on_collecting, Missed: _on_missed, Recalled: _on_recalled,
+    Collecting: _on_collecting, Missed: _on_missed, Recalled: _on_recalled, HelloUnanswered: _on_hello_unanswered,
 }

@@ -78,6 +78,10 @@ class Timeouts:
             without its observation, a carrier deciding alone without its peer's. Only a
             process that is alive but stuck gets there: a slow one sends Progress, a dead one
             loses its token, a cut-off one its lease.
+        hello_s: carrier: its latest Hello unanswered this long while the coordinator's token is
+            present, it says Hello again, then after twice as long, doubling (docs/protocol.md,
+            [P-5.14]). As long as Zenoh's lease (10 s): a coordinator stopped for longer loses its
+            token, so a Hello unanswered by then was lost on the way, not just slow.
     """
 
     join_s: float = 20.0
@@ -97,6 +101,7 @@ class Timeouts:
     peer_s: float = 5.0
     progress_s: float = 1.0
     silence_s: float = 30.0
+    hello_s: float = 10.0
 
 
 #: The defaults.

@@ -201,6 +201,20 @@ class DecisionWait:
         return DecisionWait(0.0, self.last)
 
 
+def hello_again(unanswered: bool, answers: bool, present: bool, sent: float, tries: int, now: float,
+                retry_s: float) -> Wait | Attempt:
+    """A carrier's latest Hello, sent at ``sent``, has no answer ([P-5.14]): say it again (:class:`Attempt`)
+    ``retry_s * 2**tries`` after it went out (``tries``: the Hellos said again since the last one a
+    join or a Resync sent), so the interval doubles and a mission of any length says it a few
+    times at most. Nothing to wait for when it was answered (``unanswered`` False), when the
+    coordinator sends no answers (``answers`` False: its State announced revision 1 or 2), or while
+    its token is absent (``present`` False: its return is a Resync, which says Hello anyway)."""
+    if not (unanswered and answers and present):
+        return Wait()
+    due_at = sent + retry_s * 2 ** tries
+    return Attempt() if now >= due_at else Wait(due_at)
+
+
 def peer_wait(clock: str, waiting, heard, opened: float, now: float, peer_s: float,
               silence_s: float) -> Wait | GoOn:
     """A carrier deciding stage j alone waits for the Observations of j of its live peers

@@ -89,6 +89,28 @@ def test_a_carrier_waiting_on_the_sim_clock_asks_state_every_decision_timeout():
     assert not carrier.machine.resolved(0)
 
 
+@pytest.mark.parametrize("revision, present, expected", [
+    (4, True, [0.0, 10.0, 30.0, 70.0]),  # unanswered: again after 10, 20, 40 s (the retry time doubling)
+    (2, True, [0.0]),                    # a coordinator of revision 1 or 2 sends no Accepted: never again
+    (4, False, [0.0]),                   # the coordinator's token absent: its return is a Resync
+], ids=["unanswered", "revision-2", "absent"])
+def test_a_carrier_says_an_unanswered_hello_again(revision, present, expected):
+    """[P-5.14] the real carrier's wait for a Decision says its Hello again when no answer came,
+    the interval doubling, only to a coordinator that answers Hellos and whose token is present."""
+    carrier, clock = carrier_at_stage_0("coordinated", decision_timeout_s=30.0, hello_timeout_s=10.0)
+    carrier.node.revision = revision
+    if present:
+        carrier.presence.coordinator_alive()
+    start = clock.now
+    carrier.execute(mc.SendHello(0, 1))
+    if present:
+        carrier._wait_decision(0)
+    else:
+        carrier.pump(100.0)
+    hellos = [t - start for t, topic in carrier.node.puts if topic == "hello"]
+    assert len(hellos) == len(expected) and all(e <= h < e + 2.5 for h, e in zip(hellos, expected)), hellos
+
+
 @pytest.mark.parametrize("mode, expected", [("coordinated", "going on"), ("hybrid", "deciding on board")])
 def test_a_carrier_on_the_wall_clock_stops_waiting_after_the_decision_timeout(mode, expected):
     """[P-8.1] wall clock, the coordinator present: the wait ends after the decision timeout of

@@ -577,6 +577,48 @@ def test_a_resync_repeats_answers_and_confirms_lost_deployments():
     assert not any(k[0] == "ResendObservation" for k in kinds)  # stage 1 is decided
 
 
+
+def test_a_hello_without_an_answer_is_said_again():
+    """[P-5.14] a carrier whose latest Hello had no answer says it again with what went out since
+    (its pending Observation, a Confirm already for each stage handled since the join), as a
+    Resync without a State; nothing before it flies or once its mission ended. The retry time
+    doubles (mission.timers.hello_again; tests/test_timers.py) from the latest Hello of a join or
+    a Resync."""
+    c = mc.initial("a", (True,) * 3, (0.0, 5.0, 10.0), 2)
+    assert mc.step(c, mc.HelloUnanswered((0.0, 0.0))) == (c, ())  # not flying: no Hello to repeat
+    c, _ = mc.step(c, mc.Joined(0))
+    c, _ = mc.step(c, mc.Observed(0, 1, (0.0, 0.0)))
+    c, _ = mc.step(c, mc.DecisionHeard(0, 0.0, ("a",), (0.0, 0.0)))
+    c, _ = mc.step(c, mc.MovedOn(0))
+    c, _ = mc.step(c, mc.Observed(1, 1, (0.0, 0.0)))
+    after, effects = mc.step(c, mc.HelloUnanswered((1.0, 1.0)))
+    sent = [e for e in effects if not isinstance(e, mc.Log)]
+    assert after == c
+    assert sent == [mc.SendHello(1, 1, again=True), mc.ResendObservation(1), mc.SendConfirm(0, True, "already",
+                                                                                              (0.0, 0.0), 1)]
+    ended, _ = mc.step(c, mc.EndHeard(None))
+    assert mc.step(ended, mc.HelloUnanswered((1.0, 1.0)))[1] == ()
+    answer = mc.HelloAnswer("f")
+    answer.sent(3.0)
+    answer.sent(13.0, again=True)
+    answer.sent(33.0, again=True)
+    assert (answer.at, answer.tries, answer.unanswered) == (33.0, 2, True)
+    answer.sent(40.0)  # a Resync's Hello: from the retry time again
+    assert (answer.at, answer.tries) == (40.0, 0)
+
+
+def test_a_hello_said_again_is_answered_and_changes_nothing():
+    """[P-5.14] [P-5.8] the coordinator answers a Hello said again as any Hello (an Accepted each)
+    and keeps what it holds of the carrier: its Observations, its join."""
+    s = ms.initial(spec())
+    s, _ = ms.step(s, ev.LivelinessChanged("a", True))
+    s = accepted(s, "a")
+    s, _ = ms.step(s, ev.Observation("a", 0, 0.0, 2, (0.0, 0.0), 1))
+    again, effects = ms.step(s, ev.Hello("a", 1, "h", 1, 0, "f", 0.0, wm.REVISION))
+    assert [type(e) for e in effects if isinstance(e, (ms.Accept, ms.Refuse))] == [ms.Accept]
+    assert again.reported == s.reported and again.accepted == s.accepted and again.waiting(0) == s.waiting(0)
+
+
 # --- rules: 6 stages
 
 def test_every_carrier_observes_every_stage():

@@ -202,6 +202,36 @@ def test_retry(failed, now, expected):
     assert tm.retry(0.0, failed, now, 30.0, 0.2) == expected
 
 
+# --------------------------------------------------------------------------- a Hello said again [P-5.14]
+
+@pytest.mark.parametrize("unanswered, answers, present, tries, now, expected", rows([
+    ("[P-5.14] answered: nothing to do", False, True, True, 0, 100.0, tm.Wait()),
+    ("[P-5.14] no Hello yet: nothing to do", None, True, True, 0, 100.0, tm.Wait()),
+    ("[P-5.14] unanswered, before the retry time", True, True, True, 0, 14.9, tm.Wait(15.0)),
+    ("[P-5.14] unanswered for the retry time: again", True, True, True, 0, 15.0, tm.Attempt()),
+    ("[P-5.14] said again once: twice the retry time", True, True, True, 1, 20.0, tm.Wait(25.0)),
+    ("[P-5.14] said again twice: four times", True, True, True, 2, 44.9, tm.Wait(45.0)),
+    ("[P-5.14] four times the retry time passed", True, True, True, 2, 45.0, tm.Attempt()),
+    ("[P-5.14] a coordinator of revision 1 or 2 sends no answer: never again", True, False, True, 0, 1e9, tm.Wait()),
+    ("[P-5.14] the coordinator's token absent: its return is a Resync", True, True, False, 0, 1e9, tm.Wait()),
+]))
+def test_hello_again(unanswered, answers, present, tries, now, expected):
+    assert tm.hello_again(unanswered, answers, present, 5.0, tries, now, 10.0) == expected
+
+
+def test_hello_again_is_bounded():
+    """[P-5.14] the interval doubles: a Hello never answered is said again a logarithmic number of
+    times in a mission of any length."""
+    sent, tries, now, said = 0.0, 0, 0.0, 0
+    while now < 1e6:
+        rule = tm.hello_again(True, True, True, sent, tries, now, DEFAULTS.hello_s)
+        if isinstance(rule, tm.Attempt):
+            sent, tries, said = now, tries + 1, said + 1
+        else:
+            now = rule.until
+    assert said == 16  # 10 s · (2^16 - 1) < 1e6 s < 10 s · (2^17 - 1)
+
+
 @pytest.mark.parametrize("mode, failed, now, expected", rows([
     ("[P-5.2] the first query", "hybrid", None, 0.0, tm.AskState()),
     ("[P-5.2] no reply: again 0.2 s later", "coordinated", 2.0, 2.0 + STATE_RETRY_S, tm.AskState()),

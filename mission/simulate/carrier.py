@@ -46,6 +46,7 @@ class CarrierDriver:
         self.asked = self.opened = self.waited_from = now
         self.last_progress: float | None = None
         self.gap, self.resync = None, False      # a State query to resynchronise from, outstanding
+        self.answer = mc.HelloAnswer(fleet.fingerprint)  # the answer to its latest Hello [P-5.14]
         self.phase = "joining"
         self.sim.token(self.cid, True)
         self.sim.send(self.cid, ROUTER, msg("query", self.cid))
@@ -88,6 +89,7 @@ class CarrierDriver:
                                             passengers_left=effect.passengers_left))
             s.to_listeners(cid, msg("peer-own", cid, stage=effect.stage, x=effect.x, deployed=effect.deployed))
         elif isinstance(effect, mc.SendHello):
+            self.answer.sent(now, effect.again)
             s.send(cid, "coordinators", msg("hello", cid, next_stage=effect.next_stage,
                                             passengers_left=effect.passengers_left, fingerprint=s.fleet.fingerprint))
         elif isinstance(effect, mc.ResendObservation):
@@ -118,6 +120,8 @@ class CarrierDriver:
             self.apply(mc.DecisionHeard(g("stage"), g("t"), tuple(g("deploy")), self.position(), g("epoch")), now)
         elif m.kind == "end":
             self.apply(mc.EndHeard(g("epoch")), now)
+        elif m.kind in ("accepted", "refusal"):  # the simulated fleet builds one world: never refused for it
+            self.answer.answered(self.sim.fleet.fingerprint)
         elif m.kind in ("peer-obs", "peer-own") and m.src in self.sim.fleet.ids:
             self.heard[m.src] = now
             if g("x") is not None or m.kind == "peer-obs":
@@ -232,10 +236,18 @@ class CarrierDriver:
     def advance(self, now: float) -> None:
         while self.alive:
             until = self._rule(now)
-            if until is not None:
-                if math.isfinite(until):
-                    self.sim.wake(self, until)
-                return
+            if until is None:
+                continue
+            # every coordinator of the simulator answers Hellos (revision >= 3)
+            again = tm.hello_again(bool(self.answer.unanswered), True, self.present, self.answer.at,
+                                   self.answer.tries, now, self.sim.timeouts.hello_s)
+            if isinstance(again, tm.Attempt):
+                self.apply(mc.HelloUnanswered(self.position()), now)
+                continue
+            until = min(until, again.until)
+            if math.isfinite(until):
+                self.sim.wake(self, until)
+            return
 
     def _rule(self, now: float):
         """One step of the carrier's loop at ``now``: None when something changed (look again),
