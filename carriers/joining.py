@@ -81,6 +81,8 @@ class Joining:
             # its token's arrival makes this carrier say Hello and hand over what it decided.
             self.presence.coordinator_seen = True
             self._join_alone(carrier)
+            if self.presence.coordinator_present:  # its token came while no State answered: it is back [P-5.12]
+                self.resync(carrier)
             return
         if state is None:
             raise Exit("stopped" if self._stop.is_set() or outcome is None else outcome.reason)

@@ -18,7 +18,7 @@ from typing import Callable, Protocol, cast
 from mission import events as ev
 from mission import state as ms
 from mission import timers as tm
-from mission.timeouts import DEFAULTS
+from mission.timeouts import resumed_join
 from wire.messages import End
 
 
@@ -134,7 +134,7 @@ class StageClock:
         keeps arriving."""
         wait_s = self.config.join_timeout_s
         if c.state.resumed:
-            wait_s = min(wait_s, self.config.stage_timeout_s)
+            wait_s = resumed_join(wait_s, self.config.stage_timeout_s, self.config.rejoin_timeout_s)
 
         def count() -> int:
             return sum(1 for cid in c.state.live if cid in c.state.accepted)
@@ -207,14 +207,14 @@ class StageClock:
         ended_at, last_put, grace = self.clock(), None, None
         while True:
             now = self.clock()
-            if tm.end_due(last_put, ended_at, now, DEFAULTS.end_repeat_s, self.config.bye_timeout_s):
+            if tm.end_due(last_put, ended_at, now, self.config.end_repeat_s, self.config.bye_timeout_s):
                 # Repeated for carriers that missed it.
                 c.put_end(end)
                 last_put = self.clock()
             if grace is None and c.state.all_said_bye():
                 grace = now  # one whose token vanished first may have its Bye on the way
             rule = tm.bye_wait(c.state.all_said_bye(), c.state.bye_missing(), ended_at, grace, now,
-                               self.config.bye_timeout_s, DEFAULTS.bye_grace_s)
+                               self.config.bye_timeout_s, self.config.bye_grace_s)
             if isinstance(rule, tm.GoOn):
                 break
             c.pump(min(POLL_S, rule.until - now))

@@ -80,6 +80,10 @@ class CoordinatorConfig:
             this long (s) is taken as stalled (∅ at this stage).
         confirm_timeout_s: after the last decision, wait this long (s) for its confirmations.
         bye_timeout_s: after End, wait this long (s) for carriers' Bye messages.
+        rejoin_timeout_s: resumed on a mission on record, its join wait (s); None: the smaller
+            of the join and the stage timeout (:func:`mission.timeouts.resumed_join`).
+        end_repeat_s, bye_grace_s: End's repetition and a Bye's grace after its token's end
+            (:class:`mission.timeouts.Timeouts`).
         render: draw map.png at the end.
         log: where progress lines go (a callable taking one string).
         record: write mission.mcap as the mission runs (recording/live.py).
@@ -105,6 +109,9 @@ class CoordinatorConfig:
     silence_timeout_s: float = DEFAULTS.silence_s
     confirm_timeout_s: float = DEFAULTS.confirm_s
     bye_timeout_s: float = DEFAULTS.bye_s
+    rejoin_timeout_s: float | None = None
+    end_repeat_s: float = DEFAULTS.end_repeat_s
+    bye_grace_s: float = DEFAULTS.bye_grace_s
     render: bool = True
     log: object = None
     record: bool = True  # write mission.mcap (recording/live.py)

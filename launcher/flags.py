@@ -127,21 +127,23 @@ def _view_flags(p: argparse.ArgumentParser) -> None:
 def _timeout_flags(p: argparse.ArgumentParser):
     from mission.timeouts import DEFAULTS
 
-    t = p.add_argument_group("timeouts (seconds)")
-    t.add_argument("--join-timeout", type=float, default=DEFAULTS.join_s,
-                   help="coordinator: wait for carriers before stage 0 (default %(default)s)")
-    t.add_argument("--stage-timeout", type=float, default=DEFAULTS.stage_s,
+    t = p.add_argument_group("timeouts (seconds)", "Not given, a timeout is its default, lengthened on acoustic "
+                             "links by the link model's latency (docs/fleet.md, \"Waits over slow links\"); given, it "
+                             "stands as given.")
+    t.add_argument("--join-timeout", type=float, default=None,
+                   help=f"coordinator: wait for carriers before stage 0 (default {DEFAULTS.join_s:g})")
+    t.add_argument("--stage-timeout", type=float, default=None,
                    help="coordinator, --clock wall: wait per stage for observations, and after the last decision "
-                        "(at least 3 s) for its Confirms (default %(default)s)")
-    t.add_argument("--decision-timeout", type=float, default=DEFAULTS.decision_s,
+                        f"(at least 3 s) for its Confirms (default {DEFAULTS.stage_s:g})")
+    t.add_argument("--decision-timeout", type=float, default=None,
                    help="carrier: --clock wall: wait per stage for the decision, then decide it on board; "
-                        "--clock sim: ask the coordinator's State again after this long (default %(default)s)")
-    t.add_argument("--silence-timeout", type=float, default=DEFAULTS.silence_s,
+                        f"--clock sim: ask the coordinator's State again after this long (default {DEFAULTS.decision_s:g})")
+    t.add_argument("--silence-timeout", type=float, default=None,
                    help="--clock sim: a carrier waited for that sent nothing, not even Progress, for this long "
-                        "is taken as stalled (default %(default)s)")
-    t.add_argument("--coordinator-timeout", type=float, default=DEFAULTS.coordinator_s,
+                        f"is taken as stalled (default {DEFAULTS.silence_s:g})")
+    t.add_argument("--coordinator-timeout", type=float, default=None,
                    help="carrier: at the start, wait this long for a coordinator (then go on without it); "
-                        "with --no-autonomy, exit when it has been absent this long (default %(default)s)")
+                        f"with --no-autonomy, exit when it has been absent this long (default {DEFAULTS.coordinator_s:g})")
     return t
 
 
@@ -160,9 +162,9 @@ def _onboard_flags(p: argparse.ArgumentParser, t) -> None:
                    help="carrier: how its durable log commits: full survives a power loss of its host, normal "
                         "only a crash of the process (default full with --role carrier, normal for the one-host "
                         "launcher's carriers: a power loss takes the whole fleet there)")
-    t.add_argument("--peer-timeout", type=float, default=DEFAULTS.peer_s,
+    t.add_argument("--peer-timeout", type=float, default=None,
                    help="carrier deciding on board, --clock wall: wait per stage for the other carriers' "
-                        "observations (default %(default)s)")
+                        f"observations (default {DEFAULTS.peer_s:g})")
 
 
 def _output_flags(p: argparse.ArgumentParser) -> None:

@@ -28,19 +28,19 @@ def coordinator(settings: Settings, stop: threading.Event) -> int:
     newer coordinator took over, ``STOPPED`` when stopped first."""
     from coordinator.epochs import DuplicateCoordinator
     from coordinator.node import Coordinator, CoordinatorConfig
-    from mission.timeouts import DEFAULTS
     from storage.missiondb import StoreBusy, StoreMismatch
 
-    f = settings.flags
+    f, t = settings.flags, settings.timeouts()
     coord = Coordinator(settings.scenario, CoordinatorConfig(
         out_dir=settings.out(), mission=f.mission, planner=f.planner, iterations=f.iterations, plan_ms=f.plan_ms,
         planner_options=settings.planner_options, seed=f.seed, realtime=f.realtime,
-        join_timeout_s=f.join_timeout, clock=f.clock, stage_timeout_s=f.stage_timeout,
-        silence_timeout_s=f.silence_timeout, render=not f.no_map, record=not f.no_record,
+        join_timeout_s=t.join_s, clock=f.clock, stage_timeout_s=t.stage_s,
+        silence_timeout_s=t.silence_s, render=not f.no_map, record=not f.no_record,
         record_profile=f.mcap_profile, ros2=settings.ros2(),
         # Wall clock: the last stage's Confirms take a round trip, which grows with the fleet's
         # load as the observations' arrival does, so the stage timeout bounds it too.
-        confirm_timeout_s=max(DEFAULTS.confirm_s, f.stage_timeout), standby=f.standby),
+        confirm_timeout_s=max(t.confirm_s, t.stage_s), standby=f.standby, bye_timeout_s=t.bye_s,
+        rejoin_timeout_s=t.rejoin_s, end_repeat_s=t.end_repeat_s, bye_grace_s=t.bye_grace_s),
         zenoh_config(f, "coordinator"), scenario_path=f.scenario, stop=stop)
     try:
         summary = coord.run()
@@ -63,7 +63,7 @@ def carrier(settings: Settings, stop: threading.Event) -> int:
     from planner.registry import planner_settings
     from wire.zconfig import ConfigError
 
-    f, scenario = settings.flags, settings.scenario
+    f, scenario, t = settings.flags, settings.scenario, settings.timeouts()
     log = (lambda line: None) if f.quiet else (lambda line: print(line, flush=True))
     mode = "decentralised" if f.decentralised else "coordinated" if f.no_autonomy else "hybrid"
     _, options = planner_settings(scenario, None, f.iterations, f.plan_ms, settings.planner_options)
@@ -71,9 +71,10 @@ def carrier(settings: Settings, stop: threading.Event) -> int:
     out = settings.out()  # its log: pass the same --out again to resume from it
     configs = [CarrierConfig(
         carrier=cid, mission=f.mission, seed=f.seed, realtime=f.realtime, clock=f.clock,
-        silence_timeout_s=f.silence_timeout, decision_timeout_s=f.decision_timeout,
-        coordinator_timeout_s=f.coordinator_timeout, log=log, pose_interval_s=poses, mode=mode, out_dir=out,
-        peer_timeout_s=f.peer_timeout, join_timeout_s=f.join_timeout, planner_options=tuple(sorted(options.items())),
+        silence_timeout_s=t.silence_s, decision_timeout_s=t.decision_s, end_timeout_s=t.end_s,
+        coordinator_timeout_s=t.coordinator_s, log=log, pose_interval_s=poses, mode=mode, out_dir=out,
+        peer_timeout_s=t.peer_s, join_timeout_s=t.join_s, hello_timeout_s=t.hello_s,
+        planner_options=tuple(sorted(options.items())),
         log_sync=f.log_sync or "full", onboard_load=f.onboard_load, ros2=settings.ros2())
         for cid in settings.carriers]
     try:
@@ -131,7 +132,7 @@ def viewer(settings: Settings, stop: threading.Event) -> int:
     f = settings.flags
     view = Viewer(settings.scenario, ViewerConfig(
         mission=f.mission, seed=f.seed, web=not f.no_web, web_port=f.web_port, grpc_port=f.grpc_port,
-        save=f.save, linger_s=f.linger, open_timeout_s=f.coordinator_timeout, ready_file=f.ready_file),
+        save=f.save, linger_s=f.linger, open_timeout_s=settings.timeouts().coordinator_s, ready_file=f.ready_file),
         zenoh_config(f, "viewer"), stop=stop)
     try:
         return view.run()

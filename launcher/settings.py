@@ -10,6 +10,7 @@ loads no planner kernels (tests/test_fleet_scale.py)."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import time
 from dataclasses import dataclass
@@ -20,6 +21,11 @@ from launcher import ROBOT_SENSING
 from launcher.flags import flags_of
 from planner.registry import OPTIONS
 from validation import Check, Found, Number, Problem, Problems
+
+
+#: The timeout flags and the :class:`mission.timeouts.Timeouts` field each sets.
+TIMEOUT_FLAGS = {"join_timeout": "join_s", "stage_timeout": "stage_s", "decision_timeout": "decision_s",
+                 "silence_timeout": "silence_s", "coordinator_timeout": "coordinator_s", "peer_timeout": "peer_s"}
 
 
 @dataclass(frozen=True)
@@ -55,6 +61,26 @@ class Settings:
 
         return Ros2Settings(domain=f.ros2_domain, robot=f.ros2_robot, namespace=f.ros2_namespace or "/",
                             sensing=f.robot_sensing or ROBOT_SENSING[0])
+
+    def timeouts(self):
+        """The mission's waits (:class:`mission.timeouts.Timeouts`; docs/fleet.md, "Waits over
+        slow links"): the defaults with the timeout flags given over them, and each wait that
+        crosses the links and was not given lengthened by the link model's latency bound
+        (:func:`world.fleet_links.latency_bound`), in wall seconds: divided by ``--realtime``
+        when the mission is paced, as the links' delays are (wire/link_filter.py)."""
+        from mission.timeouts import DEFAULTS, over_links
+
+        given = {name: getattr(self.flags, flag) for flag, name in TIMEOUT_FLAGS.items()
+                 if getattr(self.flags, flag) is not None}
+        latency = 0.0
+        if self.scenario is not None and self.scenario.links.model != "perfect":
+            from wire.sizes import link_sizes
+            from world.fleet_links import latency_bound
+
+            latency = latency_bound(self.scenario, link_sizes(self.scenario))
+            if self.flags.realtime and self.flags.realtime > 0:
+                latency /= self.flags.realtime
+        return over_links(dataclasses.replace(DEFAULTS, **given), latency, given)
 
     def out(self) -> str:
         """``--out``, else a fresh ``runs/<mission id>-<timestamp>`` under the current directory."""

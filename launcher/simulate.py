@@ -35,8 +35,9 @@ def build_fleet(path: str, mode: str = "hybrid", onboard_iterations: int | None 
     from planner.registry import make_planner, planner_settings, used_options
     from planner.settings import ONBOARD_PLANNER
     from wire.messages import scenario_fingerprint
+    from mission.timeouts import DEFAULTS, over_links
     from wire.sizes import frame_problems, link_sizes
-    from world.fleet_links import FleetLinks
+    from world.fleet_links import FleetLinks, latency_bound
 
     scenario = world.load_scenario(path)
     if perfect_links:
@@ -60,7 +61,8 @@ def build_fleet(path: str, mode: str = "hybrid", onboard_iterations: int | None 
     return sim.Fleet(tuple(scenario.carrier_ids), tuple(int(p) for p in problem.passengers), np.asarray(problem.valid),
                      tuple(float(t) for t in scenario.stage_times()), world.observe_all(scenario), problem, planner,
                      onboard, int(scenario.seed), scenario_fingerprint(scenario), mode,
-                     links=FleetLinks(scenario, link_sizes(scenario)) if scenario.links.model != "perfect" else None)
+                     links=FleetLinks(scenario, link_sizes(scenario)) if scenario.links.model != "perfect" else None,
+                     timeouts=over_links(DEFAULTS, latency_bound(scenario, link_sizes(scenario))))
 
 
 def parse_seeds(text: str) -> range:

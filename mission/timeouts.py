@@ -6,10 +6,12 @@ All values are seconds of wall time. Which of them end a wait depends on the mis
 simulated mission, whatever its ``--realtime`` pace) only failure detection ends a wait for a
 participant that is live and making progress (its liveliness token, the Zenoh lease,
 ``silence_s``); on the ``wall`` clock (real robots) ``stage_s``, ``decision_s`` and ``peer_s``
-are deadlines, and a late observation is legitimately ∅.
+are deadlines, and a late observation is legitimately ∅. On links slower than a LAN (acoustic),
+:func:`over_links` lengthens the waits that cross them by the link model's latency bound.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -82,6 +84,8 @@ class Timeouts:
             present, it says Hello again, then after twice as long, doubling (docs/protocol.md,
             [P-5.14]). As long as Zenoh's lease (10 s): a coordinator stopped for longer loses its
             token, so a Hello unanswered by then was lost on the way, not just slow.
+        rejoin_s: coordinator resumed on a mission on record: its join wait
+            (:meth:`resumed_join_s`; None: the smaller of ``join_s`` and ``stage_s``).
     """
 
     join_s: float = 20.0
@@ -102,7 +106,56 @@ class Timeouts:
     progress_s: float = 1.0
     silence_s: float = 30.0
     hello_s: float = 10.0
+    rejoin_s: float | None = None
+
+    def resumed_join_s(self) -> float:
+        return resumed_join(self.join_s, self.stage_s, self.rejoin_s)
+
+
+def resumed_join(join_s: float, stage_s: float, rejoin_s: float | None = None) -> float:
+    """A resumed coordinator's join wait ([P-5.11]): ``rejoin_s`` when set (:func:`over_links`),
+    else the smaller of the join and the stage timeout (some carriers may be gone: the mission is
+    not held a whole join timeout for them)."""
+    return min(join_s, stage_s) if rejoin_s is None else rejoin_s
 
 
 #: The defaults.
 DEFAULTS = Timeouts()
+
+#: The waits that cross the links, and how many one-way messages each covers: what it waits for
+#: and what must go out first (docs/fleet.md, "Waits over slow links"). The others are local
+#: (a session's close, a liveliness query) or the pace of periodic messages (Progress).
+LINK_WAITS = {
+    "join_s": 3,          # a carrier's State query, the State reply, its Hello
+    "stage_s": 2,         # the Decision of the stage before out, the Observation back
+    "confirm_s": 2,       # the last Decision out, its Confirm back
+    "bye_s": 2,           # End out, the Bye back
+    "bye_grace_s": 1,     # a Bye crossing the links while its token's end does not
+    "end_repeat_s": 1,    # End said again no sooner than one crosses the channel
+    "decision_s": 2,      # the Observation out, the Decision back
+    "coordinator_s": 2,   # the State query out, its reply back
+    "end_s": 2,           # the last Confirm out, End back
+    "state_query_s": 2,   # the query out, the replies back
+    "peer_s": 1,          # the peers' Observations
+    "silence_s": 1,       # a Progress late by a crossing
+    "hello_s": 2,         # the Hello out, its Accepted back
+}
+#: A resumed coordinator's join wait covers a Resync: State query, reply and Hello.
+REJOIN_MESSAGES = 3
+
+
+def over_links(base: Timeouts, latency_s: float, given=()) -> Timeouts:
+    """The waits of a mission whose links take up to ``latency_s`` seconds one way (the link
+    model's bound, :func:`world.fleet_links.latency_bound`): each wait of :data:`LINK_WAITS` is
+    its value in ``base`` plus as many ``latency_s`` as the messages it covers, except those named
+    in ``given`` (set explicitly, by a flag: they stand as given). A resumed coordinator's join
+    wait becomes the smaller of ``base``'s join and stage timeouts plus :data:`REJOIN_MESSAGES`
+    latencies, at most the join wait. ``latency_s`` 0 (perfect and radio links): ``base``."""
+    if latency_s <= 0:
+        return base
+    if latency_s != latency_s or latency_s == math.inf:
+        raise ValueError(f"latency_s: expected a finite number of seconds, found {latency_s}")
+    longer = {name: getattr(base, name) + n * latency_s for name, n in LINK_WAITS.items() if name not in given}
+    out = dataclasses.replace(base, **longer)
+    rejoin = min(base.join_s, base.stage_s) + REJOIN_MESSAGES * latency_s
+    return dataclasses.replace(out, rejoin_s=min(out.join_s, rejoin))

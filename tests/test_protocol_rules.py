@@ -1036,7 +1036,7 @@ def test_end_is_broadcast_with_its_epoch_in_the_lowest_revision():
     assert "epoch" not in msgpack.unpackb(wm.encode(end, 3))
     clock = (ROOT / "coordinator" / "clock.py").read_text()
     end = clock.split("def end(")[1]
-    assert "c.put_end(end)" in end and "DEFAULTS.end_repeat_s" in end and "self.epochs.deposed_by is None" in clock
+    assert "c.put_end(end)" in end and "self.config.end_repeat_s" in end and "self.epochs.deposed_by is None" in clock
     put = (ROOT / "coordinator" / "node.py").read_text().split("def put_end(")[1].split("def ")[0]
     assert "self.node.put(keys.end_key(self.mission), end, self.state.common_revision(REVISION))" in put
 

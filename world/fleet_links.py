@@ -109,6 +109,29 @@ class FleetLinks:
         return int(self.sizes[SIM_KINDS.get(kind, kind)])
 
 
+#: One stage's frames on the shared acoustic channel: each carrier's (its Observation, Progress and
+#: Confirm) and the coordinator's (the Decision); what a message may queue behind.
+STAGE_FRAMES = (("obs", "progress", "confirm"), ("decision",))
+
+
+def latency_bound(scenario: Scenario, sizes: dict) -> float:
+    """The link model's worst one-way latency of a message between two participants, seconds
+    (docs/fleet.md, "Waits over slow links"). Acoustic: the channel time of one stage's frames
+    (:data:`STAGE_FRAMES`, the fleet's carriers each sending theirs: a message may wait for all of
+    them on the one channel) plus the propagation across the mission's extent (the diagonal of
+    the box that holds every waypoint and the base: no two participants are farther apart) at
+    ``sound_speed_mps``. Perfect and radio: 0 (a radio hop's ``latency_s`` is milliseconds; the
+    waits' defaults hold it). ``sizes``: bytes per message kind (:func:`wire.sizes.link_sizes`)."""
+    spec = scenario.links
+    if spec.model != "acoustic":
+        return 0.0
+    per_carrier, once = STAGE_FRAMES
+    frames = len(scenario.carriers) * sum(int(sizes[k]) for k in per_carrier) + sum(int(sizes[k]) for k in once)
+    points = np.array([p for c in scenario.carriers for p in c.waypoints] + [LinkModel(scenario).base], dtype=float)
+    extent = float(np.hypot(*(points.max(axis=0) - points.min(axis=0))))
+    return ch.airtime_s(spec, frames) + extent / spec.sound_speed_mps
+
+
 #: The simulator's message kinds -> the wire kind whose size they take (a peer's copy of an
 #: Observation or Own is the same message; a Refusal is about an Accepted's size).
 SIM_KINDS = {"peer-obs": "obs", "peer-own": "own", "refusal": "accepted"}

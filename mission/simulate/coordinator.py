@@ -9,7 +9,6 @@ from dataclasses import dataclass, field
 from .. import events as ev
 from .. import state as ms
 from .. import timers as tm
-from ..timeouts import DEFAULTS
 from .model import Msg, msg
 
 @dataclass
@@ -50,7 +49,7 @@ class CoordinatorDriver:
     def start(self, now: float) -> None:
         self.alive, self.life = True, self.life + 1
         if self.phase == "standby":  # no State and no token of its own: it watches the primary's
-            self.sim.wake(self, now + DEFAULTS.standby_poll_s)
+            self.sim.wake(self, now + self.sim.timeouts.standby_poll_s)
             return
         self.open(now)
 
@@ -180,7 +179,7 @@ class CoordinatorDriver:
                 return tm.Wait()
             return rule
         if self.phase == "join":
-            join_s = min(t.join_s, t.stage_s) if st.resumed else t.join_s
+            join_s = t.resumed_join_s() if st.resumed else t.join_s
             rule = tm.join_wait("sim", st.all_joined(), self.opened, self.last_join, now, join_s)
             if isinstance(rule, tm.GoOn):
                 self.phase, self.opened = ("stage", now) if st.next_stage < fleet.n_stages else ("confirm", now)

@@ -8,6 +8,7 @@ import numpy as np
 
 from .. import events as ev
 from .. import state as ms
+from ..timeouts import DEFAULTS, Timeouts
 
 @dataclass(frozen=True)
 class Fleet:
@@ -22,6 +23,8 @@ class Fleet:
         links: the link model between the participants (:class:`world.fleet_links.FleetLinks`:
             ``spec``, ``between(src, dst, stages, alive)``, ``size(kind)``); None or a ``perfect``
             spec: the network as without one (mission/simulate/links.py).
+        timeouts: the fleet's waits (:func:`mission.timeouts.over_links` of the link model's
+            latency bound: the defaults on perfect and radio links).
     """
 
     ids: tuple
@@ -37,6 +40,7 @@ class Fleet:
     mode: str = "hybrid"
     decisions: dict = field(default_factory=dict, compare=False, repr=False)  # the planner's memo
     links: object = field(default=None, compare=False, repr=False)
+    timeouts: Timeouts = field(default=DEFAULTS, compare=False)
 
     @property
     def n_stages(self) -> int:

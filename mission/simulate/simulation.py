@@ -14,7 +14,6 @@ import numpy as np
 from .. import carrier as mc
 from .. import events as ev
 from .. import state as ms
-from ..timeouts import DEFAULTS
 from .carrier import CarrierDriver
 from .coordinator import CoordinatorDriver, Disk
 from .fleet import Fleet
@@ -32,8 +31,9 @@ class Simulation:
     (:data:`PLANTS`), None for the real rules."""
 
     def __init__(self, fleet: Fleet, seed: int, faults=None, kinds=FAULT_KINDS, plant: str | None = None,
-                 timeouts=DEFAULTS):
-        self.fleet, self.seed, self.timeouts, self.plant = fleet, int(seed), timeouts, plant
+                 timeouts=None):
+        self.fleet, self.seed, self.plant = fleet, int(seed), plant
+        self.timeouts = fleet.timeouts if timeouts is None else timeouts  # the fleet's: its links' waits
         self.rng = np.random.default_rng([int(fleet.seed) & 0xFFFFFFFF, int(seed)])
         self.spec = fleet.spec()
         self.heap: list = []
