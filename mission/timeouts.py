@@ -135,7 +135,6 @@ LINK_WAITS = {
     "decision_s": 2,      # the Observation out, the Decision back
     "coordinator_s": 2,   # the State query out, its reply back
     "end_s": 2,           # the last Confirm out, End back
-    "state_query_s": 2,   # the query out, the replies back
     "peer_s": 1,          # the peers' Observations
     "silence_s": 1,       # a Progress late by a crossing
     "hello_s": 2,         # the Hello out, its Accepted back

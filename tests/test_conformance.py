@@ -39,7 +39,7 @@ def _client(tmp_path, fault=None, *extra) -> list[str]:
 
 
 #: The rules only the kit's own coordinators exercise (flights other than project).
-SCRIPTED_ONLY = {"two-coordinators", "deposed-end", "refusal", "older-revision", "decision-gap"}
+SCRIPTED_ONLY = {"two-coordinators", "deposed-end", "refusal", "older-revision", "decision-gap", "hello-again"}
 #: The rules a revision-1 carrier is never exercised on (no Accepted, no passengers named, no Progress).
 LATER_REVISIONS = {"accepted", "passenger-named", "progress"}
 
@@ -303,6 +303,14 @@ def test_the_project_carrier_resynchronises_on_a_decision_gap(tmp_path):
     confirming 2, and goes on at 3."""
     results, kit = _flight(tmp_path, PROJECT_CARRIER, "gap")
     _exercised_and_passed(results, kit, ("decision-gap", "confirm-outcome", "observation-stage", "bye"))
+
+
+@pytest.mark.slow
+def test_the_project_carrier_says_an_unanswered_hello_again(tmp_path):
+    """[P-5.14] the kit loses the carrier's first two Hellos: it says Hello again (after 10 s, then
+    20 s) with its pending Observation, and flies the mission once the third is answered."""
+    results, kit = _flight(tmp_path, PROJECT_CARRIER, "unanswered")
+    _exercised_and_passed(results, kit, ("hello-again", "accepted", "confirm-outcome", "bye"))
 
 
 @pytest.mark.slow

@@ -87,14 +87,18 @@ def test_acoustic_delay_is_airtime_plus_distance_over_sound_speed_on_one_channel
     air = 8 * size / s.links.bitrate_bps
     d1 = math.dist(links.position("vessel1", 0), links.model.base)
     d2 = math.dist(links.position("vessel2", 0), links.model.base)
-    first = SimpleNamespace(kind="obs")
+    first = sim.msg("obs", "vessel1", stage=0)
     assert layer.delay("vessel1", "coordinator", first) == pytest.approx(air + d1 / s.links.sound_speed_mps)
     # the same transmission heard by a second receiver: same start, its own distance
     assert layer.delay("vessel1", "standby", first) == pytest.approx(air + d1 / s.links.sound_speed_mps)
+    # the peers' copy of it is the same publication on the wire: the same transmission
+    d3 = math.dist(links.position("vessel1", 0), links.position("vessel3", 0))
+    assert layer.delay("vessel1", "vessel3", sim.msg("peer-obs", "vessel1", stage=0)) == pytest.approx(
+        air + d3 / s.links.sound_speed_mps)
     # another message sent at the same time waits for the channel: one talker at a time
-    assert layer.delay("vessel2", "coordinator", SimpleNamespace(kind="obs")) == pytest.approx(
+    assert layer.delay("vessel2", "coordinator", sim.msg("obs", "vessel2", stage=0)) == pytest.approx(
         2 * air + d2 / s.links.sound_speed_mps)
-    assert layer.sent == 3 and layer.lost == 0
+    assert layer.sent == 4 and layer.lost == 0
 
 
 def _corridor(count: int, fade: float = 4.0):
@@ -118,7 +122,7 @@ def test_radio_messages_take_the_relays_dropped_by_then():
     assert [round(d) for d, _ in links.between("a", "coordinator", {"a": 1})] == [50, 100]
     bare = FleetLinks(_corridor(0), {"obs": 100})
     assert [round(d) for d, _ in bare.between("a", "coordinator", {"a": 2})] == [300]
-    m = SimpleNamespace(kind="obs")
+    m = sim.msg("obs", "a", stage=2)
     steady = _corridor(3, fade=0.0)  # no fading: a hop at margin >= 0 always arrives, below never
     assert _layer(steady, {"a": 2}).delay("a", "coordinator", m) is not None
     assert _layer(_corridor(0, fade=0.0), {"a": 2}).delay("a", "coordinator", m) is None  # 300 m: margin -4.3 dB

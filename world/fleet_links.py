@@ -106,7 +106,13 @@ class FleetLinks:
 
     def size(self, kind: str) -> int:
         """Bytes of a message of ``kind`` (the simulator's kinds map onto the wire's)."""
-        return int(self.sizes[SIM_KINDS.get(kind, kind)])
+        return int(self.sizes[self.wire_kind(kind)])
+
+    @staticmethod
+    def wire_kind(kind: str) -> str:
+        """The wire kind of the simulator's message ``kind`` (a peer's copy is the message itself), or
+        the one whose size it takes (:data:`SIM_KINDS`)."""
+        return SIM_KINDS.get(kind, kind)
 
 
 #: One stage's frames on the shared acoustic channel: each carrier's (its Observation, Progress and

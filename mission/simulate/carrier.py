@@ -11,7 +11,6 @@ import numpy as np
 from .. import carrier as mc
 from .. import timers as tm
 from ..peers import PeerBook
-from ..timeouts import DEFAULTS, STATE_RETRY_S
 from .model import ROUTER, LogEntry, Msg, msg
 
 class CarrierDriver:
@@ -37,8 +36,6 @@ class CarrierDriver:
         self.alive, self.life = True, self.life + 1
         self.machine = mc.initial(self.cid, fleet.valid[self.r], fleet.stage_times, fleet.passengers[self.r])
         self.present = False          # a coordinator's token is present
-        self.vanished = False         # a coordinator's token vanished since this process started
-        self.back = False             # ... and came back while it joins: asked again soon
         self.coordinators: set = set()
         self.absent_since = now
         self.peers: set = set()
@@ -145,10 +142,8 @@ class CarrierDriver:
         (self.coordinators.add if alive else self.coordinators.discard)(who)
         self.present = bool(self.coordinators)
         if was and not self.present:
-            self.absent_since, self.vanished = now, True
-        if not was and self.present and self.phase == "joining" and self.vanished:
-            self.back = True  # back while this carrier asks for State: its next query comes soon
-        elif not was and self.present and self.machine.flying and not self.machine.ended:
+            self.absent_since = now
+        if not was and self.present and self.machine.flying and not self.machine.ended:
             self.ask_state(now)  # the coordinator is back: resynchronise from its State [P-5.12]
 
     def _state(self, m: Msg, now: float) -> None:
@@ -264,15 +259,10 @@ class CarrierDriver:
                     return None
                 self.finish("coordinator-lost", now)
                 return None
-            # a query waits state_query_s for its reply (over slow links, the reply's crossing);
-            # after a coordinator came back, no longer than a real carrier, which asks again every
-            # 2.2 s while none answers (carriers/joining.py): it finds the coordinator as soon
-            wait = min(t.state_query_s, DEFAULTS.state_query_s + STATE_RETRY_S) if self.back else t.state_query_s
-            if now - self.asked >= wait:
-                self.asked, self.back = now, False
+            if now - self.asked >= t.state_query_s:
+                self.asked = now
                 self.sim.send(self.cid, ROUTER, msg("query", self.cid))
-                wait = t.state_query_s
-            return self.asked + wait
+            return self.asked + t.state_query_s
         if m.ended and self.phase in ("work", "wait", "alone"):
             self.phase, self.opened = "end", now
         if self.phase == "work":

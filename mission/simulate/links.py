@@ -12,7 +12,8 @@ exactly those of a mission without a link model.
 Acoustic: one shared half-duplex channel for the whole fleet. A message waits until the channel
 is free, occupies it for its airtime and arrives distance / sound speed after its last bit; a
 message sent to several receivers at once (a Decision, an Observation to the coordinators and
-the listening peers) is one transmission, each receiver drawing its own fate.
+the listening peers) is one transmission, each receiver drawing its own fate; so is a carrier's Observation, Own or Progress
+and the copy its listening peers get (one publication on the wire).
 
 Liveliness tokens are not messages: they are the Zenoh session's state and the link model does
 not touch them (as in the real fleet, whose filter acts on samples only).
@@ -33,7 +34,7 @@ class LinkLayer:
         self.spec: ch.LinkSpec = links.spec
         self.rng = np.random.default_rng([int(sim.fleet.seed) & 0xFFFFFFFF, int(seed), 3])
         self.channel = ch.Channel()
-        self._sending: tuple | None = None    # (src, message, send time, start of its transmission)
+        self._sending: tuple | None = None    # ((src, wire kind, stage, send time), start of its transmission)
         self.sent = self.lost = 0
 
     def stages(self) -> dict:
@@ -48,14 +49,17 @@ class LinkLayer:
         alive = [cid for cid, d in sim.carriers.items() if d.alive]
         hops = self.links.between(src, dst, stages, alive)
         size = self.links.size(m.kind)
-        same = self._sending is not None and self._sending[0] == src and self._sending[1] is m and self._sending[2] == sim.t
-        if same:  # another receiver of the same transmission: its start and airtime, its own fate
-            fate = ch.transmit(self.spec, hops, size, self._sending[3], self.rng)
+        # one put reaches the coordinators and the listening peers alike (an Observation and its
+        # peers' copy are one publication on the wire): one transmission, whatever the receivers
+        sending = (src, self.links.wire_kind(m.kind), m.get("stage"), sim.t)
+        if self._sending is not None and self._sending[0] == sending:
+            # another receiver of the same transmission: its start and airtime, its own fate
+            fate = ch.transmit(self.spec, hops, size, self._sending[1], self.rng)
         else:
             fate = ch.transmit(self.spec, hops, size, sim.t, self.rng, self.channel)
             if fate.channel is not None:
                 self.channel = fate.channel
-            self._sending = (src, m, sim.t, fate.start)
+            self._sending = (sending, fate.start)
         self.sent += 1
         if not fate.delivered:
             self.lost += 1

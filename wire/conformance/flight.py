@@ -17,6 +17,8 @@ from .. import messages as wm
 
 #: Topics of the carrier under test that the kit records.
 CARRIER_TOPICS = ("hello", "obs", "confirm", "own", "bye", "pose", "progress")
+#: The unanswered flight: the kit answers the carrier's Hello of this number (the earlier are lost).
+UNANSWERED = 3
 
 
 @dataclass(frozen=True, eq=False)

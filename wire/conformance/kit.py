@@ -12,7 +12,7 @@ from typing import Callable
 
 from .. import messages as wm
 from .faults import FAULTS, Faults
-from .flight import CARRIER_TOPICS, Flight, Observer, Target
+from .flight import CARRIER_TOPICS, UNANSWERED, Flight, Observer, Target
 from .harness import Harness
 from .rules import Result, evaluate
 from .scripted import ScriptedCoordinator
@@ -43,6 +43,9 @@ FLIGHT_TEXT = {
            "and published while it waits at 1",
     "two-coordinators": "two coordinators of the kit, both live: epoch 2 truthful, epoch 1 deposed, publishing "
                         "a contradicting Decision of each stage from 1 on first and (revision 4) an End half-way",
+    "unanswered": f"as scripted, the carrier's first {UNANSWERED - 1} Hellos lost on their way (a lossy link): the "
+                  f"kit answers the Hello said again {UNANSWERED - 1} times (it must be, [P-5.14]) and reads no "
+                  "Observation before it",
 }
 FLIGHTS = tuple(FLIGHT_TEXT)
 
@@ -131,7 +134,8 @@ class Kit:
                     ScriptedCoordinator(self.target, f, session(), 2, revision, hold={j: 0.3 for j in range(self.target.n)})]
         return [ScriptedCoordinator(self.target, f, session(), 1, revision, refuse=f.name == "refusal",
                                     realtime=PROGRESS_REALTIME if f.name == "progress" else 0.0,
-                                    lose=1 if f.name == "gap" else None)]
+                                    lose=1 if f.name == "gap" else None,
+                                    answer_from=UNANSWERED if f.name == "unanswered" else 1)]
 
     def _fly(self, harness: Harness, observer: Observer, faults: Faults, under_test,
              scripted: list[ScriptedCoordinator]) -> None:

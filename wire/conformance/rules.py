@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from .. import messages as wm
-from .flight import Flight, Seen, Target
+from .flight import UNANSWERED, Flight, Seen, Target
 
 #: Every rule the kit checks: (id, section of docs/protocol.md, what it says).
 RULES = (
@@ -28,6 +28,8 @@ RULES = (
     ("two-coordinators", "[P-7.2]", "with two live coordinators it follows the higher epoch: no answer to the "
                                     "lower epoch's Decisions"),
     ("deposed-end", "[P-7.4]", "an End of a lower epoch than it heard does not end its mission (revision 4)"),
+    ("hello-again", "[P-5.14]", "a Hello without an answer is said again, then its pending Observation; no sooner "
+                                "than 1 s, each wait at least the one before (the unanswered flight)"),
     ("accepted", "[P-5.8]", "after Accepted it goes on: its Observation of the accepted next_stage, no Bye "
                             "before End"),
     ("refusal", "[P-5.10]", "a Refusal naming its fingerprint while its Hello is unanswered stops it: Bye "
@@ -234,6 +236,8 @@ def _scripted(target: Target, flight: Flight, results: dict, msgs: list[Seen], r
         early_bye = [s for s in byes if s.message.reason != "end"]
         results["accepted"].check(bool(later) and not early_bye,
                                   f"after {a.show()}: {early_bye[0].show() if early_bye else 'no Observation'}")
+    if "unanswered" in f.faults:
+        _hello_again(results, msgs)
     if "refusal" in f.faults:
         _, foreign = f.faults.get("refusal-foreign", (None, 0.0))
         _, at = f.faults["refusal"]
@@ -253,6 +257,18 @@ def _scripted(target: Target, flight: Flight, results: dict, msgs: list[Seen], r
                 results["older-revision"].check(True)
             except wm.ProtocolError as exc:
                 results["older-revision"].check(False, f"{exc.reason} at revision {f.revision}: {exc.detail}: {s.show()}")
+
+
+def _hello_again(results: dict, msgs: list[Seen]) -> None:
+    """[P-5.14] the unanswered flight: its Hellos until the kit answered one (the kit answers the
+    third), each wait from the last no shorter than 1 s nor than the wait before it (0.5 s
+    slack: a carrier looks at its timers when it wakes), and an Observation after the answered one."""
+    hellos = [s.at for s in msgs if isinstance(s.message, wm.Hello)][:UNANSWERED]
+    waits = [b - a for a, b in zip(hellos, hellos[1:])]
+    ok = len(hellos) == UNANSWERED and waits[0] >= 1.0 and all(b >= a - 0.5 for a, b in zip(waits, waits[1:]))
+    ok = ok and any(isinstance(s.message, wm.Observation) and s.at > hellos[-1] for s in msgs)
+    results["hello-again"].check(ok, f"{len(hellos)} Hello(s) without an answer, waits "
+                                     f"{[round(w, 1) for w in waits]} s; the kit answers Hello {UNANSWERED}")
 
 
 def _progress(target: Target, flight: Flight, results: dict, msgs: list[Seen], real: list[Seen]) -> None:

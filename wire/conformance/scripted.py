@@ -46,14 +46,18 @@ class ScriptedCoordinator:
         realtime: the mission's pace F, simulated seconds per wall second (0: unpaced), announced
             in Accepted (revision 4): Decision j goes out no earlier than (t_j - t_{j-1}) / F
             after Decision j - 1 ([P-6.1]).
+        answer_from: the carrier's Hello of this number is the first it hears: the earlier ones
+            are lost on their way (no answer, and no Observation read before it, as a coordinator
+            without the carrier's Hello rejects them), noted as the fault ``unanswered``.
     """
 
     def __init__(self, target: Target, flight: Flight, node: Any, epoch: int = 1, revision: int = wm.REVISION,
                  refuse: bool = False, deposed: bool = False, hold: dict | None = None, realtime: float = 0.0,
-                 lose: int | None = None):
+                 lose: int | None = None, answer_from: int = 1):
         self.t, self.flight, self.node = target, flight, node
         self.epoch, self.revision, self.refuse, self.deposed = int(epoch), int(revision), refuse, deposed
         self.hold, self.realtime, self.lose = dict(hold or {}), float(realtime), lose
+        self.answer_from, self.hellos = int(answer_from), 0  # the Hello it first hears, those that came
         self.published_at: float | None = None  # when its last Decision went out (monotonic s)
         self.hello_revision = wm.UNANNOUNCED_REVISION
         self.left, self.released = target.passengers, set()
@@ -101,6 +105,10 @@ class ScriptedCoordinator:
 
     def hello(self, h: wm.Hello) -> None:
         t = self.t
+        self.hellos += 1
+        if self.hellos < self.answer_from:  # lost on its way: nobody answers
+            self.flight.faults.setdefault("unanswered", (None, time.monotonic()))
+            return
         self.hello_revision = h.revision
         if self.refuse and "refusal" not in self.flight.faults:
             self._fake(keys.refusal_key(t.mission, t.cid), wm.refusal(
@@ -170,7 +178,8 @@ class ScriptedCoordinator:
         if isinstance(message, wm.Hello):
             self.hello(message)
         elif isinstance(message, wm.Observation) and not self.refuse and message.stage == self.next_stage \
-                and message.stage not in self.due and message.stage not in self.observed:
+                and message.stage not in self.due and message.stage not in self.observed \
+                and self.hellos >= self.answer_from:
             j = message.stage
             self.observed[j] = message.x
             due = time.monotonic() + self.hold.get(j, 0.0)
