@@ -52,7 +52,7 @@ class Joining:
 
     Args:
         cid: the carrier's id; fingerprint: its world's; config: its ``CarrierConfig`` (``mode``,
-        ``coordinator_timeout_s``, ``join_timeout_s``); stage_time(j): mission time (s) of stage
+        ``coordinator_timeout_s``, ``join_timeout_s``, ``hello_timeout_s``); stage_time(j): mission time (s) of stage
         j; queries: its :class:`StateQueries`; book: its :class:`mission.peers.PeerBook`; motion:
         its ``carriers.motion.Motion`` (position, body); inbound: its
         ``carriers.inbound.Inbound`` (whom it listens to; its ``presence``, the
@@ -158,6 +158,15 @@ class Joining:
             self.log(f"starting without carrier(s) {', '.join(missing)} (no token after "
                      f"{self.config.join_timeout_s:.0f} s)")
         carrier.apply(mc.Joined(next_stage))
+
+    def hello_again(self, carrier: Joiner, answer: mc.HelloAnswer) -> None:
+        """Its latest Hello (``answer``) unanswered for the retry time while the coordinator's token
+        is present: said again, with what went out since ([P-5.14]); only to a coordinator that
+        answers Hellos (its State announced revision 3 or later: the revision the carrier speaks)."""
+        rule = tm.hello_again(bool(answer.unanswered), carrier.node.revision >= 3, self.presence.coordinator_present,
+                              answer.at, answer.tries, self.clock(), self.config.hello_timeout_s)
+        if isinstance(rule, tm.Attempt):
+            carrier.apply(mc.HelloUnanswered(self.motion.position()))
 
     def recover_decision(self, carrier: Joiner, j: int) -> None:
         """Sim clock, a long wait for the Decision of j: if the coordinator's State says it has

@@ -294,17 +294,7 @@ class Carrier:
         """Take what arrived, waiting up to ``timeout_s`` for the inbox's first item
         (:meth:`carriers.inbound.Inbound.pump`: its events applied, its effects carried out)."""
         self.inbound.pump(self.node, timeout_s, lambda: self.machine, self.apply, self.execute)
-        self._hello_again()
-
-    def _hello_again(self) -> None:
-        """Its latest Hello unanswered for the retry time while the coordinator's token is present:
-        said again, with what went out since ([P-5.14]); only to a coordinator that answers
-        Hellos (its State announced revision 3 or later: the revision this carrier speaks)."""
-        rule = tm.hello_again(bool(self.answer.unanswered), self.node.revision >= 3,
-                              self.presence.coordinator_present, self.answer.at, self.answer.tries, self.clock(),
-                              self.config.hello_timeout_s)
-        if isinstance(rule, tm.Attempt):
-            self.apply(mc.HelloUnanswered(self.motion.position()))
+        self.joining.hello_again(self, self.answer)
 
     # ------------------------------------------------------------------ the stages
     def _wait_decision(self, j: int) -> None:
