@@ -137,13 +137,15 @@ def _timeout_flags(p: argparse.ArgumentParser):
                         f"(at least 3 s) for its Confirms (default {DEFAULTS.stage_s:g})")
     t.add_argument("--decision-timeout", type=float, default=None,
                    help="carrier: --clock wall: wait per stage for the decision, then decide it on board; "
-                        f"--clock sim: ask the coordinator's State again after this long (default {DEFAULTS.decision_s:g})")
+                        "--clock sim: ask the coordinator's State again after this long "
+                        f"(default {DEFAULTS.decision_s:g})")
     t.add_argument("--silence-timeout", type=float, default=None,
                    help="--clock sim: a carrier waited for that sent nothing, not even Progress, for this long "
                         f"is taken as stalled (default {DEFAULTS.silence_s:g})")
     t.add_argument("--coordinator-timeout", type=float, default=None,
                    help="carrier: at the start, wait this long for a coordinator (then go on without it); "
-                        f"with --no-autonomy, exit when it has been absent this long (default {DEFAULTS.coordinator_s:g})")
+                        "with --no-autonomy, exit when it has been absent this long "
+                        f"(default {DEFAULTS.coordinator_s:g})")
     return t
 
 

@@ -72,7 +72,8 @@ def test_the_latency_bound_is_a_stage_of_frames_and_the_crossing_of_the_mission(
 
 def test_the_simulator_takes_its_waits_from_the_links():
     fleet = build_fleet(str(MARINE))
-    assert fleet.timeouts == over_links(DEFAULTS, latency_bound(load_scenario(MARINE), link_sizes(load_scenario(MARINE))))
+    scenario = load_scenario(MARINE)
+    assert fleet.timeouts == over_links(DEFAULTS, latency_bound(scenario, link_sizes(scenario)))
     assert fleet.timeouts.resumed_join_s() > 30.0
     assert build_fleet(str(MARINE), perfect_links=True).timeouts == DEFAULTS
 

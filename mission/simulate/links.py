@@ -11,8 +11,8 @@ exactly those of a mission without a link model.
 
 Acoustic: one shared half-duplex channel for the whole fleet. A message waits until the channel
 is free, occupies it for its airtime and arrives distance / sound speed after its last bit; a
-message sent to several receivers at once (a Decision, an Observation to the coordinators and
-the listening peers) is one transmission, each receiver drawing its own fate; so is a carrier's Observation, Own or Progress
+message sent to several receivers at once (a Decision, a message to both coordinators) is one
+transmission, each receiver drawing its own fate; so is a carrier's Observation, Own or Progress
 and the copy its listening peers get (one publication on the wire).
 
 Liveliness tokens are not messages: they are the Zenoh session's state and the link model does
