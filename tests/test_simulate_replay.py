@@ -150,4 +150,7 @@ def test_simulated_intruders_replayed_on_real_processes_change_no_decision(tmp_p
     rejected = json.loads((tmp_path / "run" / "summary.json").read_text())["rejected"]["coordinator"]
     stale = sum(1 for k, m in sent if k < 0 and not m.garbled and m.mission == "m")
     assert rejected.get("no-hello", 0) >= stale, rejected
-    assert sum(rejected.values()) >= len(sent), (rejected, len(sent))
+    # every message published before the last stage's Decision reached a coordinator still
+    # deciding; one after it may arrive when the coordinator has written its summary, or exited
+    deciding = sum(1 for k, _ in sent if k <= fleet.n_stages - 2)
+    assert sum(rejected.values()) >= deciding, (rejected, deciding)
