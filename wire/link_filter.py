@@ -102,11 +102,8 @@ class LinkFilter:
         if kind in UNFILTERED or sender == self.receiver:
             return 0.0
         a, b = self.where(sender), self.where(self.receiver)
-        if self.spec.model == "radio":
-            others = [self.links.model.base] + [p for c, p in self.positions.items() if c not in (sender, self.receiver)]
-            hops = self.links.path(a, b, others, self.links.relays_at(dict.fromkeys(self.links.ids, self.stage)))
-        else:
-            hops = (self.links.hop(tuple(map(float, a)), tuple(map(float, b))),)
+        hops = self.links.path(a, b, (p for c, p in self.positions.items() if c not in (sender, self.receiver)),
+                               dict.fromkeys(self.links.ids, self.stage))
         now = (time.monotonic() - self.t0) * self.pace
         size = len(payload)
         if self.spec.model == "acoustic" and size > self.spec.frame_bytes:

@@ -8,7 +8,7 @@ forward messages, as in :func:`world.relays.stage_connectivity`). Acoustic: one 
 modem hears its peer or not; no relays). Perfect: no hop is ever asked for.
 
 The simulator (mission/simulate/links.py) and the real fleet's receive filter
-(:mod:`launcher.link_filter`) both ask this object; it caches the walls and paths per position,
+(:mod:`wire.link_filter`) both ask this object; it caches the walls and paths per position,
 so a campaign of missions over the same world computes each once.
 """
 from __future__ import annotations
@@ -71,25 +71,27 @@ class FleetLinks:
             hit = self._hop[key] = self.model.hop(*key)
         return hit
 
-    def path(self, src, dst, forwarders=(), relays=()) -> tuple[tuple[float, int], ...]:
-        """The hops of a message from position ``src`` to ``dst``: direct for acoustic; for radio
-        the best path through the positions ``forwarders`` (other live carriers, the base) and
-        ``relays`` (:class:`Relay`). Empty when src and dst are the same point."""
+    def path(self, src, dst, carriers=(), stages=None) -> tuple[tuple[float, int], ...]:
+        """The hops of a message from position ``src`` to ``dst`` now: direct unless the links
+        are radio; radio: the best path through the base, the positions ``carriers`` (the other
+        live carriers; only iterated on radio links) and the relays dropped by ``stages``
+        (carrier -> the stage it is at, :meth:`relays_at`)."""
         src, dst = tuple(map(float, src)), tuple(map(float, dst))
         if self.spec.model != "radio":
             return (self.hop(src, dst),)
-        extra = tuple(sorted({tuple(map(float, p)) for p in forwarders} | {r.position for r in relays}
-                             - {src, dst}))
+        relays = self.relays_at(stages or {})
+        extra = tuple(sorted({tuple(map(float, p)) for p in (self.model.base, *carriers)}
+                             | {r.position for r in relays} - {src, dst}))
         key = (src, dst, extra)
         hit = self._paths.get(key)
         if hit is None:
             nodes = [src, dst, *extra]
             k = len(nodes)
-            prob = np.ones((k, k))
+            distances, walls = np.zeros((k, k)), np.zeros((k, k), dtype=np.int64)
             for i in range(k):
                 for j in range(i + 1, k):
-                    prob[i, j] = prob[j, i] = ch.probability(self.spec, ch.margin_db(self.spec, *self.hop(nodes[i], nodes[j])))
-            route, _ = ch.best_path(prob, 0, 1)
+                    distances[i, j], walls[i, j] = self.hop(nodes[i], nodes[j])
+            route, _ = ch.best_path(ch.hop_probabilities(self.spec, distances, walls), 0, 1)
             if not route:  # no path above probability 0: the direct hop, which will fail
                 route = (0, 1)
             hit = self._paths[key] = tuple(self.hop(nodes[a], nodes[b]) for a, b in zip(route[:-1], route[1:]))
@@ -99,10 +101,8 @@ class FleetLinks:
         """The hops from participant ``src`` to ``dst`` now: ``stages`` carrier -> the stage it is
         at; ``alive``: the carriers whose radios run (forwarders besides the base)."""
         a, b = self.position(src, stages.get(src, 0)), self.position(dst, stages.get(dst, 0))
-        if self.spec.model != "radio":
-            return (self.hop(a, b),)
-        fwd = [self.model.base] + [self.carrier_position(c, stages.get(c, 0)) for c in alive if c not in (src, dst)]
-        return self.path(a, b, fwd, self.relays_at(stages))
+        return self.path(a, b, (self.carrier_position(c, stages.get(c, 0)) for c in alive if c not in (src, dst)),
+                         stages)
 
     def size(self, kind: str) -> int:
         """Bytes of a message of ``kind`` (the simulator's kinds map onto the wire's)."""
