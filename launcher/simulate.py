@@ -58,11 +58,12 @@ def build_fleet(path: str, mode: str = "hybrid", onboard_iterations: int | None 
         planner.warm_up(problem)
     onboard = make_planner(ONBOARD_PLANNER, **({} if onboard_iterations is None else {"iterations": onboard_iterations}))
     onboard.warm_up(problem)
+    sizes = link_sizes(scenario)
     return sim.Fleet(tuple(scenario.carrier_ids), tuple(int(p) for p in problem.passengers), np.asarray(problem.valid),
                      tuple(float(t) for t in scenario.stage_times()), world.observe_all(scenario), problem, planner,
                      onboard, int(scenario.seed), scenario_fingerprint(scenario), mode,
-                     links=FleetLinks(scenario, link_sizes(scenario)) if scenario.links.model != "perfect" else None,
-                     timeouts=over_links(DEFAULTS, latency_bound(scenario, link_sizes(scenario))))
+                     links=FleetLinks(scenario, sizes) if scenario.links.model != "perfect" else None,
+                     timeouts=over_links(DEFAULTS, latency_bound(scenario, sizes)))
 
 
 def parse_seeds(text: str) -> range:
