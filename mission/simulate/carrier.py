@@ -1,6 +1,7 @@
-"""A carrier process on a simulated host (:class:`CarrierDriver`): the real machine
-(:func:`mission.carrier.step`) driven by the timer rules of :mod:`mission.timers` on its host's
-clock, its durable log kept across a crash."""
+"""A carrier process on a simulated host (:class:`CarrierDriver`): the carrier's lifecycle
+machine (:mod:`mission.carrier_life`) and its handshake machine (:func:`mission.carrier.step`),
+the same machines the real carrier process drives, under its host's simulated clock and network;
+its durable log kept across a crash."""
 from __future__ import annotations
 
 import dataclasses
@@ -9,27 +10,32 @@ import math
 import numpy as np
 
 from .. import carrier as mc
+from .. import carrier_life as cl
 from .. import timers as tm
 from ..peers import PeerBook
 from .model import ROUTER, LogEntry, Msg, msg
 
 class CarrierDriver:
-    """A carrier process on a simulated host: its machine (:mod:`mission.carrier`), its durable
-    log (``log``: the outcomes and observations it wrote, kept across a crash), its body's work
-    towards each stage (seconds of its host's time, :meth:`Simulation.work`), its waits by
-    :mod:`mission.timers`.
+    """A carrier process on a simulated host: its lifecycle machine (``lifecycle``,
+    :mod:`mission.carrier_life`), its handshake machine (``machine``, :mod:`mission.carrier`), its
+    durable log (``log``: the outcomes and observations it wrote, kept across a crash) and its
+    body's work towards each stage (seconds of its host's time, :meth:`Simulation.work`). This
+    driver only feeds the machines its host's clock and messages and carries out their effects.
 
-    Phases: ``joining`` (asked State), ``work`` (driving to stage ``j``), ``wait`` (waiting for
-    the Decision of ``j``), ``alone`` (waiting for its peers before deciding ``j`` on board),
-    ``end`` (waiting for End after its last stage), ``done``, ``dead``."""
+    ``phase``: the lifecycle's phase, or ``dead`` while its process is down."""
 
     def __init__(self, sim, cid: str):
         self.sim, self.cid = sim, cid
         self.r = sim.fleet.ids.index(cid)
         self.log: dict = {}           # the durable log: stage -> LogEntry
-        self.phase = "dead"
-        self.alive = False
+        self.alive = self.finished_now = False
         self.life = 0
+        self.lifecycle = cl.initial(sim.fleet.mode, sim.timeouts)
+        self.timers = mc.Timers("sim", float(sim.timeouts.silence_s), 0.0)
+
+    @property
+    def phase(self) -> str:
+        return self.lifecycle.phase.value if self.alive or self.finished_now else "dead"
 
     def start(self, now: float) -> None:
         fleet = self.sim.fleet
@@ -42,17 +48,15 @@ class CarrierDriver:
         self.heard: dict = {}
         self.book = PeerBook(fleet.ids, fleet.valid)
         self.listening = False
-        self.asked = self.opened = self.waited_from = now
-        self.last_progress: float | None = None
+        self.alone_next = 0           # joining alone: the stage after the last its log resolved
         self.gap, self.resync = None, False      # a State query to resynchronise from, outstanding
         self.answer = mc.HelloAnswer(fleet.fingerprint)  # the answer to its latest Hello [P-5.14]
-        self.phase = "joining"
         self.sim.token(self.cid, True)
-        self.sim.send(self.cid, ROUTER, msg("query", self.cid))
-        self.sim.wake(self, now + self.sim.timeouts.state_query_s)
+        self.step(cl.Start(now), now)
+        self.advance(now)
 
     def crash(self) -> None:
-        self.alive, self.phase = False, "dead"
+        self.alive = self.finished_now = False
         self.sim.token(self.cid, False)
 
     # -------------------------------------------------------------- the machine and its effects
@@ -113,7 +117,7 @@ class CarrierDriver:
             self._token(g("who"), g("alive"), now)
         elif m.kind == "state":
             self._state(m, now)
-        elif m.kind == "decision" and (self.machine.flying or self.phase == "joining"):
+        elif m.kind == "decision" and (self.machine.flying or self.lifecycle.phase is cl.Phase.JOINING):
             if g("stage") < self.sim.fleet.n_stages and mc.current(self.machine, g("epoch")):
                 self.book.decision(g("stage"), tuple(g("deploy")))  # what it decides alone later knows (carriers/inbound.py)
             self.apply(mc.DecisionHeard(g("stage"), g("t"), tuple(g("deploy")), self.position(), g("epoch")), now)
@@ -151,20 +155,20 @@ class CarrierDriver:
         if g("fingerprint") != self.sim.fleet.fingerprint:
             return
         seen = mc.StateSeen(g("next_stage"), tuple(g("deployments")), g("last_decision"), g("ended"), g("epoch"))
-        if self.phase == "joining":
+        if self.lifecycle.phase is cl.Phase.JOINING:
             self.present = True  # it answered
             self.join_from_state(seen, now)
             if self.sim.fleet.mode == "hybrid":
                 self.listen()
-            self.begin_stage(self.machine.stage, now)
+            self.step(cl.Answered(now), now)
             return
         if not mc.current(self.machine, seen.epoch):
             return
         if self.resync:
             gap, self.gap, self.resync = self.gap, None, False
             self.apply(mc.Resync(seen, self.position(), gap=gap), now)
-        elif self.phase == "wait":
-            j = self.j
+        elif self.lifecycle.phase is cl.Phase.WAIT:
+            j = self.lifecycle.stage
             if seen.next_stage == j:
                 self.apply(mc.Collecting(j, seen.epoch), now)
             else:
@@ -223,115 +227,85 @@ class CarrierDriver:
     def position(self) -> tuple[float, float]:
         return (float(self.machine.stage), float(self.r))
 
-    # -------------------------------------------------------------- the stage loop
-    def begin_stage(self, j: int, now: float) -> None:
-        fleet = self.sim.fleet
-        if self.machine.ended or j >= fleet.n_stages:
-            self.phase, self.opened = "end", now
-            return
-        self.j, self.phase = j, "work"
-        self.work_done = now + (0.0 if self.machine.behind(j) else self.sim.work(self, j))
+    # -------------------------------------------------------------- the lifecycle and its effects
+    def view(self) -> cl.View:
+        a = self.answer
+        others = {src for src, dsts in self.sim.listened_by.items() if self.cid in dsts and src != self.cid}
+        # every coordinator of the simulator answers Hellos (revision >= 3)
+        return cl.View(self.machine, self.present, self.absent_since, self.timers, frozenset(self.peers), self.heard,
+                       self.book, others <= self.peers, cl.Hello(bool(a.unanswered), True, a.at, a.tries))
+
+    def step(self, event, now: float) -> float | None:
+        """Step the lifecycle with ``event`` and carry out its effects: the time to be woken at
+        (its :class:`mission.timers.Wait`), None when it is to be stepped again at once."""
+        self.lifecycle, effects = cl.step(self.lifecycle, event, self.view())
+        until = None
+        for effect in effects:
+            if isinstance(effect, tm.Wait):
+                until = effect.until
+            elif self.alive:
+                self.run(effect, now)
+        return until
 
     def advance(self, now: float) -> None:
         while self.alive:
-            until = self._rule(now)
+            until = self.step(cl.Tick(now), now)
             if until is None:
                 continue
-            # every coordinator of the simulator answers Hellos (revision >= 3)
-            again = tm.hello_again(bool(self.answer.unanswered), True, self.present, self.answer.at,
-                                   self.answer.tries, now, self.sim.timeouts.hello_s)
-            if isinstance(again, tm.Attempt):
-                self.apply(mc.HelloUnanswered(self.position()), now)
-                continue
-            until = min(until, again.until)
             if math.isfinite(until):
                 self.sim.wake(self, until)
             return
 
-    def _rule(self, now: float):
-        """One step of the carrier's loop at ``now``: None when something changed (look again),
-        else the time to wake up at."""
-        t, fleet, m = self.sim.timeouts, self.sim.fleet, self.machine
-        if self.phase == "joining":
-            if now - self.opened >= t.coordinator_s:
-                if fleet.mode == "hybrid":
-                    self.join_alone(now)
-                    return None
-                self.finish("coordinator-lost", now)
-                return None
-            if now - self.asked >= t.state_query_s:
-                self.asked = now
-                self.sim.send(self.cid, ROUTER, msg("query", self.cid))
-            return self.asked + t.state_query_s
-        if m.ended and self.phase in ("work", "wait", "alone"):
-            self.phase, self.opened = "end", now
-        if self.phase == "work":
-            if now < self.work_done:
-                self.progress(now, t.progress_s)
-                return min(self.work_done, self.last_progress + t.progress_s)
-            j = self.j
-            if m.behind(j):
-                self.apply(mc.Passed(j, self.position()), now)
-                self.begin_stage(j + 1, now)
-                return None
+    def run(self, effect, now: float) -> None:
+        """Carry out one effect of the lifecycle machine."""
+        s, cid, fleet = self.sim, self.cid, self.sim.fleet
+        if isinstance(effect, cl.Drive):
+            work = 0.0 if self.machine.behind(effect.stage) else s.work(self, effect.stage)
+            s.at(s.true_of(cid, now + work), self._arrive, self.life, effect.stage)
+        elif isinstance(effect, cl.Observe):
+            j = effect.stage
             x = None if np.isnan(fleet.x[self.r, j]) else int(fleet.x[self.r, j])
             self.apply(mc.Observed(j, x, self.position()), now)
             self.publish_observation(j)
-            self.phase, self.waited, self.waited_from = "wait", 0.0, now
-            return None
-        if self.phase in ("wait", "alone") and m.resolved(self.j):
-            self.move_on(self.j, now)
-            return None
-        if self.phase == "wait":
-            j = self.j
-            if self.present:
-                self.waited += now - self.waited_from
-            self.waited_from = now
-            rule = tm.decision_wait("sim", fleet.mode, self.present, self.waited, now - self.absent_since,
-                                    t.decision_s, t.coordinator_s)
-            if isinstance(rule, tm.AskState):
-                self.waited = 0.0
-                self.sim.send(self.cid, ROUTER, msg("query", self.cid))
-                return None
-            if isinstance(rule, tm.DecideAlone):
-                self.phase, self.opened = "alone", now
-                self.listen()
-                return None
-            if isinstance(rule, tm.GiveUp):
-                self.finish(rule.reason, now)
-                return None
-            self.progress(now, t.silence_s / 3)
-            wake = self.last_progress + t.silence_s / 3
-            if self.present:
-                wake = min(wake, now + (t.decision_s - self.waited))
-            else:
-                wake = min(wake, self.absent_since + t.coordinator_s)
-            return wake
-        if self.phase == "alone":
-            j = self.j
-            waiting = self.book.waiting(j, sorted(self.peers - {self.cid}))
-            rule = tm.stage_wait("sim", waiting, frozenset(), self.heard, self.opened, now, t.peer_s, t.silence_s)
-            if isinstance(rule, tm.Wait):
-                if tm.due(self.last_progress, now, t.silence_s / 3):
-                    # its peers may be waiting for its observation as it waits for theirs, and
-                    # one of them lost: each Progress goes with the observation again (absorbed)
-                    self.sim.to_listeners(self.cid, msg("peer-obs", self.cid, stage=j, x=self.machine.sensed))
-                self.progress(now, t.silence_s / 3)
-                return min(rule.until, self.last_progress + t.silence_s / 3)
-            self.decide_alone(j, now)
-            return None
-        if self.phase == "end":
-            if m.ended or now - self.opened >= t.end_s:
-                self.finish("finished", now)
-                return None
-            return self.opened + t.end_s
-        return math.inf
+        elif isinstance(effect, cl.Pass):
+            self.apply(mc.Passed(effect.stage, self.position()), now)
+        elif isinstance(effect, cl.MoveOn):
+            self.apply(mc.MovedOn(effect.stage), now)
+        elif isinstance(effect, cl.DecideOnBoard):
+            j = effect.stage
+            self.book.observation(cid, j, self.machine.sensed)
+            deploy = fleet.decide_local(self.book.local_view(fleet.problem, cid, j, fleet.seed))
+            self.apply(mc.DecidedOwn(j, bool(deploy), self.position()), now)
+        elif isinstance(effect, cl.SendProgress):
+            s.send(cid, "coordinators", msg("progress", cid, stage=effect.stage))
+            s.to_listeners(cid, msg("progress", cid, stage=effect.stage))
+        elif isinstance(effect, cl.RepeatObservation):
+            s.to_listeners(cid, msg("peer-obs", cid, stage=effect.stage, x=self.machine.sensed))
+        elif isinstance(effect, (cl.Query, cl.AskState)):
+            s.send(cid, ROUTER, msg("query", cid))
+        elif isinstance(effect, cl.Listen):
+            self.listen()
+        elif isinstance(effect, cl.JoinAlone):
+            self.join_alone(now)
+        elif isinstance(effect, cl.Gathered):
+            self.apply(mc.Joined(self.alone_next), now)
+            if self.present:  # its token came while no State answered: it is back, resynchronise [P-5.12]
+                self.ask_state(now)
+        elif isinstance(effect, cl.SayHelloAgain):
+            self.apply(mc.HelloUnanswered(self.position()), now)
+        elif isinstance(effect, cl.Finish):
+            self.finish(effect.reason)
 
-    def progress(self, now: float, interval: float) -> None:
-        if tm.due(self.last_progress, now, interval):
-            self.last_progress = now
-            self.sim.send(self.cid, "coordinators", msg("progress", self.cid, stage=self.j))
-            self.sim.to_listeners(self.cid, msg("progress", self.cid, stage=self.j))
+    def _arrive(self, life: int, j: int) -> None:
+        """Its body reached t_j (the work of :class:`mission.carrier_life.Drive` is done)."""
+        if life != self.life or not self.alive:
+            return
+        if self.sim._frozen(self.cid):  # stuck: it gets there when it runs again
+            self.sim.at(self.sim.frozen[self.cid], self._arrive, life, j)
+            return
+        now = self.sim.now_of(self.cid)
+        self.step(cl.Arrived(j, now), now)
+        self.advance(now)
 
     def listen(self) -> None:
         """Deciding alone from now on: subscribe to the peers' messages and tokens."""
@@ -340,38 +314,23 @@ class CarrierDriver:
             self.sim.listeners.add(self.cid)
             self.peers = self.sim.peers_seen(self.cid)
 
-    def decide_alone(self, j: int, now: float) -> None:
-        fleet = self.sim.fleet
-        self.book.observation(self.cid, j, self.machine.sensed)
-        deploy = fleet.decide_local(self.book.local_view(fleet.problem, self.cid, j, fleet.seed))
-        self.apply(mc.DecidedOwn(j, bool(deploy), self.position()), now)
-        self.move_on(j, now)
-
-    def move_on(self, j: int, now: float) -> None:
-        """Stage j is resolved: leave it and drive to the next."""
-        self.apply(mc.MovedOn(j), now)
-        self.begin_stage(j + 1, now)
-
     def join_alone(self, now: float) -> None:
-        """No coordinator answered: go on from the durable log (hybrid)."""
+        """No coordinator answered: go on from the durable log (hybrid), once its peers' tokens
+        are there (:class:`mission.carrier_life.Gathered`)."""
         done = [e for e in self.log.values() if e.status is not None]
         for e in done:  # its own log is what its on-board decisions know of its past (carriers/joining.py)
             if e.observed:
                 self.book.observation(self.cid, e.stage, e.x)
             self.book.outcome(self.cid, e.stage, e.deployed)
-        next_stage = max((e.stage + 1 for e in done), default=0)
-        for j in mc.replay_plan(self.machine, next_stage, [e.stage for e in done if e.deployed]):
+        self.alone_next = max((e.stage + 1 for e in done), default=0)
+        for j in mc.replay_plan(self.machine, self.alone_next, [e.stage for e in done if e.deployed]):
             self.apply(mc.Replayed(j, self.position()), now)
             self.book.outcome(self.cid, j, True)
-        self.apply(mc.Joined(next_stage), now)
         self.listen()
-        self.begin_stage(self.machine.stage, now)
-        if self.present:  # its token came while no State answered: it is back, resynchronise [P-5.12]
-            self.ask_state(now)
 
-    def finish(self, reason: str, now: float) -> None:
+    def finish(self, reason: str) -> None:
         self.sim.send(self.cid, "coordinators", msg("bye", self.cid, deployments=self.machine.deployments(),
                                                     reason=reason))
-        self.phase, self.alive = "done", False
+        self.alive, self.finished_now = False, True
         self.sim.finished(self, reason)
         self.sim.token(self.cid, False, after=0.05)
