@@ -14,9 +14,8 @@ from typing import Any, Callable, Protocol
 
 from carriers.exits import Exit
 from mission import carrier as mc
-from mission import timers as tm
 from mission.peers import PeerBook, Presence
-from mission.timeouts import DEFAULTS, STATE_RETRY_S
+from mission.timeouts import DEFAULTS
 from wire import keys
 from wire.messages import REVISION, ProtocolError, State, decode
 
@@ -67,25 +66,13 @@ class Joining:
         self.queries, self.book, self.motion, self.inbound = queries, book, motion, inbound
         self.presence: Presence = inbound.presence
         self.clock, self._stop, self.log = clock, stop, log
+        self.next_alone = 0  # joining alone: the stage after the last its log resolved
 
-    def join(self, carrier: Joiner) -> None:
-        """Join the mission: from the coordinator's State, or alone (decentralised, or no
-        coordinator answered in time: hybrid)."""
-        if self.config.mode == "decentralised":
-            self._join_alone(carrier)
-            return
-        state, outcome = self.query_state(carrier)
-        if isinstance(outcome, tm.DecideAlone) and not self._stop.is_set():
-            self.log(f"no coordinator answered within {self.config.coordinator_timeout_s:.0f} s; going on without it")
-            # A coordinator that appears later (one slow to start) is one to resynchronise with:
-            # its token's arrival makes this carrier say Hello and hand over what it decided.
-            self.presence.coordinator_seen = True
-            self._join_alone(carrier)
-            if self.presence.coordinator_present:  # its token came while no State answered: it is back [P-5.12]
-                self.resync(carrier)
-            return
-        if state is None:
-            raise Exit("stopped" if self._stop.is_set() or outcome is None else outcome.reason)
+    def from_state(self, carrier: Joiner, state: State) -> None:
+        """Join from the coordinator's State (the answer to the lifecycle's
+        :class:`mission.carrier_life.Query`) and the carrier's own durable log: the deployments on
+        record replayed, the stages it resolved itself recalled, its Hello, then the deployments on
+        record it never made answered ``late`` and its own decisions said again."""
         self.presence.coordinator_answered()  # present, even if its token is not pumped yet
         if state.fingerprint != self.fingerprint:
             self.log(f"the coordinator runs another world (fingerprint {state.fingerprint}, ours "
@@ -131,42 +118,36 @@ class Joining:
             self.motion.body.deploy(self.cid)
             self.book.outcome(self.cid, j, True)
 
-    def _join_alone(self, carrier: Joiner) -> None:
-        """Join with no coordinator: go on from the carrier's own log (the deployments on record
-        are replayed in its world), after waiting (at most ``join_timeout_s``) for every other
-        carrier's token, so that nobody starts the mission alone."""
+    def alone_from_log(self, carrier: Joiner) -> None:
+        """Join with no coordinator (decentralised, or none answered: hybrid): go on from the
+        carrier's own log (the deployments on record replayed in its world) and listen to its
+        peers; the lifecycle then waits (at most ``join_timeout_s``) for every other carrier's
+        token, so that nobody starts the mission alone (:meth:`gathered`)."""
+        if self.config.mode == "hybrid":
+            # A coordinator that appears later (one slow to start) is one to resynchronise with:
+            # its token's arrival makes this carrier say Hello and hand over what it decided.
+            self.presence.coordinator_seen = True
         store = carrier.store
         entries = [e for e in store.entries() if e.status is not None] if store is not None else []
         for e in entries:
             if e.observed:
                 self.book.observation(self.cid, e.stage, e.x, self.motion.counts(e.stage, e.x))
             self.book.outcome(self.cid, e.stage, e.deployed)
-        next_stage = max((e.stage + 1 for e in entries), default=0)
-        self._replay(carrier, mc.replay_plan(carrier.machine, next_stage, [e.stage for e in entries if e.deployed]))
+        self.next_alone = max((e.stage + 1 for e in entries), default=0)
+        self._replay(carrier, mc.replay_plan(carrier.machine, self.next_alone,
+                                             [e.stage for e in entries if e.deployed]))
         self.inbound.listen(carrier.node, wait=True)
-        others = set(self.inbound.listening)
-        opened = self.clock()
-        while not self._stop.is_set():  # a deadline on either clock [P-8.5]: no joiner extends it
-            now = self.clock()
-            rule = tm.join_wait("wall", others <= self.presence.peers_live, opened, opened, now,
-                                self.config.join_timeout_s)
-            if isinstance(rule, tm.GoOn):
-                break
-            carrier.pump(min(0.2, rule.until - now))
-        missing = sorted(others - self.presence.peers_live)
-        if missing and next_stage == 0:
+
+    def gathered(self, carrier: Joiner) -> None:
+        """The wait for the peers' tokens is over: the carrier joins at the stage after the last its
+        log resolved; a coordinator whose token came meanwhile is one to resynchronise with."""
+        missing = sorted(set(self.inbound.listening or ()) - self.presence.peers_live)
+        if missing and self.next_alone == 0:
             self.log(f"starting without carrier(s) {', '.join(missing)} (no token after "
                      f"{self.config.join_timeout_s:.0f} s)")
-        carrier.apply(mc.Joined(next_stage))
-
-    def hello_again(self, carrier: Joiner, answer: mc.HelloAnswer) -> None:
-        """Its latest Hello (``answer``) unanswered for the retry time while the coordinator's token
-        is present: said again, with what went out since ([P-5.14]); only to a coordinator that
-        answers Hellos (its State announced revision 3 or later: the revision the carrier speaks)."""
-        rule = tm.hello_again(bool(answer.unanswered), carrier.node.revision >= 3, self.presence.coordinator_present,
-                              answer.at, answer.tries, self.clock(), self.config.hello_timeout_s)
-        if isinstance(rule, tm.Attempt):
-            carrier.apply(mc.HelloUnanswered(self.motion.position()))
+        carrier.apply(mc.Joined(self.next_alone))
+        if self.config.mode == "hybrid" and self.presence.coordinator_present:  # it is back [P-5.12]
+            self.resync(carrier)
 
     def recover_decision(self, carrier: Joiner, j: int) -> None:
         """Sim clock, a long wait for the Decision of j: if the coordinator's State says it has
@@ -196,26 +177,6 @@ class Joining:
         if gap is not None and state is not None and state.fingerprint != self.fingerprint:
             state = None
         carrier.apply(mc.Resync(self.queries.seen(state), self.motion.position(), gap=gap))
-
-    def query_state(self, carrier: Joiner) -> tuple[State | None, Any]:
-        """Ask the coordinator for the mission state by :func:`mission.timers.state_query`
-        ([P-5.2]): again 0.2 s after a query without reply, until the coordinator timeout.
-        Returns the State (None: none) and the rule's last effect (None: stopped or answered)."""
-        first, failed = self.clock(), None
-        while not self._stop.is_set():
-            now = self.clock()
-            rule = tm.state_query(self.config.mode, first, failed, now, self.config.coordinator_timeout_s,
-                                  STATE_RETRY_S)
-            if isinstance(rule, tm.AskState):
-                state = self.queries.once(carrier.node)
-                if state is not None:
-                    return state, None
-                failed = self.clock()
-            elif isinstance(rule, tm.Wait):
-                carrier.pump(rule.until - now)
-            else:
-                return None, rule
-        return None, None
 
 
 class StateQueries:

@@ -140,7 +140,12 @@ class Motion:
         now = moving.clock() if now is None else now
         if moving.timers.clock != "sim" or not due(self.track.progress_at, now, every_s):
             return
-        self.track.progress_at = now
+        self.send_progress(moving, now)
+
+    def send_progress(self, moving: Moving, now: float | None = None) -> None:
+        """A Progress message now (its lifecycle's :class:`mission.carrier_life.SendProgress`, or
+        :meth:`progress` when due)."""
+        self.track.progress_at = moving.clock() if now is None else now
         if moving.node.revision < Progress.SINCE:
             return  # a coordinator of an earlier revision has no Progress (it would reject it)
         moving.node.put(keys.carrier_key(self.mission, self.cid, "progress"),

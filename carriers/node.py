@@ -49,6 +49,7 @@ from carriers.onboard import Onboard
 from carriers.shared import GATE_HOLD_S, PhysicsThread, SharedWorld, StageGate
 from storage.carrierlog import CarrierLog, LogMismatch, log_path
 from mission import carrier as mc
+from mission import carrier_life as cl
 from mission import timers as tm
 from mission.peers import PeerBook, Presence
 from mission.timeouts import CLOCKS, DEFAULTS, POSE_INTERVAL_S
@@ -62,6 +63,9 @@ from wire.sizes import fit_to_links
 #: how often it looks at its timers. Polls cost CPU in proportion to the wait, so with many
 #: carriers per process short polls were most of an idle carrier's CPU (docs/performance.md, "Costs behind the fleet's constants").
 IDLE_POLL_S = 2.0
+#: How often a carrier deciding alone looks for the peers' observations it waits for (s): the
+#: peers' messages do not wake it.
+PEER_POLL_S = 0.02
 
 #: How a carrier gets its decisions (docs/fleet.md, "Without the coordinator").
 MODES = ("hybrid", "decentralised", "coordinated")
@@ -139,6 +143,17 @@ def check_config(config: CarrierConfig) -> None:
         raise ValueError(f"onboard_load must be one of {ONBOARD_LOADS}, found {config.onboard_load!r}")
 
 
+def waits_of(config: CarrierConfig):
+    """The waits of :mod:`mission.carrier_life` a carrier of ``config`` times by
+    (:class:`mission.timeouts.Timeouts`)."""
+    import dataclasses
+
+    return dataclasses.replace(DEFAULTS, decision_s=float(config.decision_timeout_s),
+                               coordinator_s=float(config.coordinator_timeout_s), end_s=float(config.end_timeout_s),
+                               peer_s=float(config.peer_timeout_s), join_s=float(config.join_timeout_s),
+                               hello_s=float(config.hello_timeout_s))
+
+
 def open_log(config: CarrierConfig, meta: dict, log) -> CarrierLog | None:
     """The carrier's durable log (``<out_dir>/carriers/<id>.db``; None: no ``out_dir``) for the
     mission ``meta`` describes; one of another mission there ends the run (``log-mismatch``)."""
@@ -204,13 +219,16 @@ class Carrier:
                                broadcasts if broadcasts is not None else SharedDecoder(),  # the process's Decisions
                                self.book, self.presence, self.answer, self.releases, self.motion.position, self.log)
         self.store: CarrierLog | None = None  # the durable log, open while running
-        self.alone = Alone(self.cid, self.book, self.onboard, scenario.seed, config.peer_timeout_s, self.log)
+        self.alone = Alone(self.cid, self.book, self.onboard, scenario.seed, self.log)
         self.joining = Joining(self.cid, self.fingerprint, config, scenario.stage_time, self.queries, self.book,
                                self.motion, self.inbound, self.clock, self._stop, self.log)
         self.ros2 = None  # its ROS 2 node (ros2/publisher.py) while running with config.ros2
         # What it times its waits by: its own settings until the coordinator's Accepted tells it
         # the mission's (docs/protocol.md, [P-10.2]; :func:`mission.carrier.follow`).
         self.timers = mc.Timers(config.clock, float(config.silence_timeout_s), float(config.realtime))
+        # Its lifecycle (:mod:`mission.carrier_life`): the phase it is in and every wait it keeps.
+        self.life = cl.initial(config.mode, waits_of(config))
+        self.reason = "finished"  # why it ends (carriers/exits.py), once its lifecycle is done
 
     # ------------------------------------------------------------------ views for tests and logs
     def log(self, line: str) -> None:
@@ -294,41 +312,6 @@ class Carrier:
         """Take what arrived, waiting up to ``timeout_s`` for the inbox's first item
         (:meth:`carriers.inbound.Inbound.pump`: its events applied, its effects carried out)."""
         self.inbound.pump(self.node, timeout_s, lambda: self.machine, self.apply, self.execute)
-        self.joining.hello_again(self, self.answer)
-
-    # ------------------------------------------------------------------ the stages
-    def _wait_decision(self, j: int) -> None:
-        """Until stage j is resolved (answered, or the coordinator moved on), End, or a stop
-        request, by :func:`mission.timers.decision_wait` ([P-10.8], [P-8.1]): the time the
-        coordinator's token is present counted by :class:`mission.timers.DecisionWait`; it asks
-        State (sim clock), decides alone, moves on or gives up as the rule says. While the token
-        is present it sends Progress every third of the silence timeout."""
-        wait = tm.DecisionWait.opened(self.clock())
-        while not self._settled(j):
-            self._check_refused()
-            now = self.clock()
-            present = self.presence.coordinator_present
-            wait = wait.tick(now, present)
-            rule = tm.decision_wait(self.timers.clock, self.config.mode, present, wait.waited_s,
-                                    self.presence.absent_for(now), self.config.decision_timeout_s,
-                                    self.config.coordinator_timeout_s)
-            if present and isinstance(rule, (tm.Wait, tm.AskState)):
-                # Alive while the Decision is on its way (slow on a saturated host), so the next
-                # stage's wait does not take this carrier for a stalled one [P-10.6].
-                self.motion.progress(self._moving(), self.timers.silence_timeout_s / 3, now)
-            if isinstance(rule, tm.AskState):
-                wait = wait.asked()
-                self.joining.recover_decision(self, j)
-            elif isinstance(rule, (tm.MoveOn, tm.DecideAlone)):
-                if wait.waited_s >= self.config.decision_timeout_s:  # none in time (wall clock)
-                    self.log(f"no decision for stage {j} within {self.config.decision_timeout_s:.0f} s; "
-                             + ("going on" if isinstance(rule, tm.MoveOn) else "deciding on board"))
-                return
-            elif isinstance(rule, tm.GiveUp):
-                self.log(f"coordinator absent for {self.config.coordinator_timeout_s:.0f} s; exiting")
-                raise Exit(rule.reason)
-            else:
-                self.pump(IDLE_POLL_S)
 
     def _moving(self) -> Moving:
         """What its motion reads of the carrier now (:class:`carriers.motion.Moving`)."""
@@ -339,64 +322,100 @@ class Carrier:
         its messages are handled and a refused Hello ends it."""
         self.motion.advance(t, paced, self._moving, lambda s: (self.pump(s), self._check_refused()))
 
-    def _settled(self, j: int) -> bool:
-        """Stage j needs no decision of the carrier's own: resolved, End, or a stop request."""
-        return self._stop.is_set() or self.machine.resolved(j) or self.machine.ended
+    # ------------------------------------------------------------------ its lifecycle
+    def view(self) -> cl.View:
+        """What its lifecycle machine reads now (:class:`mission.carrier_life.View`)."""
+        p, a = self.presence, self.answer
+        listened = self.inbound.listening
+        return cl.View(self.machine, p.coordinator_present, p.absent_since, self.timers, frozenset(p.peers_live),
+                       p.heard, self.book, set(listened or ()) <= p.peers_live,
+                       cl.Hello(bool(a.unanswered), self.node.revision >= 3, a.at, a.tries))
 
-    def _fly(self) -> None:
-        at_once = True  # the first stage after joining is reached at once, not paced
-        j = self.machine.stage
-        while j < self.n_stages and not self.machine.ended and not self._stop.is_set():
-            t_j = self.scenario.stage_time(j)
-            # Joining, or catching up with stages decided without us: not paced.
-            self.advance(t_j, paced=not (at_once or self.machine.behind(j)))
-            self.motion.publish_poses(self._moving())
-            if self._stop.is_set():
-                break
-            if self.machine.behind(j):
-                # Decided without our observation (we were cut off, or too slow): ∅ for us.
-                # Publishing it would only be rejected as stale; answer its decision if it
-                # reached us; go on at once.
-                self.apply(mc.Passed(j, self.motion.position()))
-                at_once = True
-                j += 1
-                continue
-            at_once = False
-            x = self.motion.body.sense(self.cid, j) if self.valid[j] else None
-            self.pending = fit_to_links(Observation(  # acoustic: the trail fitted to the frame (wire/sizes.py)
-                self.mission, self.cid, j, float(t_j), x, self.motion.position(), self.machine.passengers_left,
-                self.motion.trail(), self.motion.counts(j, x)), self.scenario.links)
-            self.apply(mc.Observed(j, x, self.motion.position()))
-            self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.pending)
-            self.gate.waiting(j)
-            try:
-                self._wait_decision(j)
-            finally:
-                self.gate.answered(j)
-            if self.config.mode != "coordinated" and not self._settled(j):
-                self.inbound.listen(self.node, wait=True)
-                deploy = self.alone.decide(j, self.clock, self.presence, lambda: self.timers, lambda: self._settled(j),
-                                           self.pump, lambda: self.execute(mc.ResendObservation(j)))
-                if deploy is not None:
-                    self.apply(mc.DecidedOwn(j, deploy, self.motion.position()))
-            elif self.machine.resolved(j):
-                self.alone.answered()
-                self.gate.hold(j, GATE_HOLD_S)  # the process's other carriers confirm first
-            self.apply(mc.MovedOn(j))
-            self.pending = None
-            j += 1
+    def step(self, event) -> float | None:
+        """Step its lifecycle with ``event`` and carry out the effects: the time to wait until
+        (the :class:`mission.timers.Wait`), None when it is to be stepped again at once."""
+        self.life, effects = cl.step(self.life, event, self.view())
+        until = None
+        for effect in effects:
+            if isinstance(effect, tm.Wait):
+                until = effect.until
+            else:
+                self.run_effect(effect)
+        return until
 
-    def _wait_end(self) -> None:
-        """After the last stage: End, by :func:`mission.timers.end_wait` [P-9.5] (it comes from a
-        coordinator: waited for only while one is there)."""
-        opened, present = self.clock(), self.presence.coordinator_present
-        while not self._stop.is_set():
+    def fly(self, until=None) -> None:
+        """Its lifecycle from where it is until it is done (or ``until(life)`` holds): the clock
+        fed to the machine as ticks, what arrives in between taken (:meth:`pump`). A stop request
+        ends it with Bye ``stopped``."""
+        while self.life.phase is not cl.Phase.DONE and not (until is not None and until(self.life)):
             now = self.clock()
-            rule = tm.end_wait(self.machine.ended, present, opened, now, self.config.end_timeout_s)
-            if isinstance(rule, tm.GoOn):
-                return
+            if self._stop.is_set():
+                self.step(cl.Stopped(now))
+                break
             self._check_refused()
-            self.pump(min(IDLE_POLL_S, rule.until - now))
+            wake = self.step(cl.Tick(now))
+            if wake is None:
+                continue
+            poll = PEER_POLL_S if self.life.phase is cl.Phase.ALONE else IDLE_POLL_S
+            self.pump(max(0.0, min(poll, wake - now)))
+
+    def run_effect(self, effect) -> None:
+        """Carry out one effect of its lifecycle machine."""
+        if isinstance(effect, cl.Drive):
+            j = effect.stage
+            self.advance(self.scenario.stage_time(j), paced=effect.paced)
+            self.motion.publish_poses(self._moving())
+            if not self._stop.is_set():
+                self.step(cl.Arrived(j, self.clock()))
+        elif isinstance(effect, cl.Observe):
+            self._observe(effect.stage)
+        elif isinstance(effect, cl.Pass):
+            # decided without its Observation (cut off, or too slow): ∅ for it; publishing it would
+            # only be rejected as stale; its decision answered if it reached it
+            self.apply(mc.Passed(effect.stage, self.motion.position()))
+        elif isinstance(effect, cl.MoveOn):
+            self.gate.answered(effect.stage)
+            if effect.answered:
+                self.gate.hold(effect.stage, GATE_HOLD_S)  # the process's other carriers confirm first
+            self.apply(mc.MovedOn(effect.stage))
+            self.pending = None
+        elif isinstance(effect, cl.DecideOnBoard):
+            self.apply(mc.DecidedOwn(effect.stage, self.alone.deploy(effect.stage), self.motion.position()))
+        elif isinstance(effect, cl.AskState):
+            self.joining.recover_decision(self, effect.stage)
+        elif isinstance(effect, cl.Query):
+            state = self.queries.once(self.node)
+            if state is not None:
+                self.joining.from_state(self, state)
+                self.step(cl.Answered(self.clock()))
+        elif isinstance(effect, cl.SendProgress):
+            self.motion.send_progress(self._moving())
+        elif isinstance(effect, cl.RepeatObservation):
+            self.execute(mc.ResendObservation(effect.stage))
+        elif isinstance(effect, cl.Listen):
+            self.inbound.listen(self.node, wait=True)
+        elif isinstance(effect, cl.JoinAlone):
+            self.joining.alone_from_log(self)
+        elif isinstance(effect, cl.Gathered):
+            self.joining.gathered(self)
+        elif isinstance(effect, cl.SayHelloAgain):
+            self.apply(mc.HelloUnanswered(self.motion.position()))
+        elif isinstance(effect, cl.Note):
+            self.log(effect.line)
+        elif isinstance(effect, cl.Finish):
+            self.reason = effect.reason
+
+    def _observe(self, j: int) -> None:
+        """Sense at stage j and publish the Observation (acoustic: the trail fitted to the frame,
+        wire/sizes.py); then it waits for the stage's decision."""
+        t_j = self.scenario.stage_time(j)
+        x = self.motion.body.sense(self.cid, j) if self.valid[j] else None
+        self.pending = fit_to_links(Observation(
+            self.mission, self.cid, j, float(t_j), x, self.motion.position(), self.machine.passengers_left,
+            self.motion.trail(), self.motion.counts(j, x)), self.scenario.links)
+        self.apply(mc.Observed(j, x, self.motion.position()))
+        self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.pending)
+        self.gate.waiting(j)
 
     def run(self) -> str:
         from wire.transport import Node
@@ -424,10 +443,9 @@ class Carrier:
                 # Subscribed before its token appears: a carrier that sees the token can reach it.
                 self.inbound.listen(self.node, wait=True)
             self.node.token(keys.carrier_alive(self.mission, self.cid))
-            self.joining.join(self)
-            self._fly()
-            self._wait_end()
-            reason = "stopped" if self._stop.is_set() else ("end" if self.machine.ended else "finished")
+            self.step(cl.Start(self.clock()))  # it joins: State asked, or (decentralised) its log
+            self.fly()
+            reason = "stopped" if self._stop.is_set() else self.reason
         except Exit as exc:
             reason = exc.reason
         except Exception as exc:  # a body that names its exit reason (a robot of another ROS 2 format)

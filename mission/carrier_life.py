@@ -368,6 +368,12 @@ def _to_end(life: Life, now: float, view: View):
     return dataclasses.replace(life, phase=Phase.END, opened=now, end_present=view.present), ()
 
 
+def _stage_ended(life: Life, now: float, view: View):
+    """End came while the carrier was at a stage: it leaves the stage and waits for nothing more."""
+    life, _ = _to_end(life, now, view)
+    return life, (MoveOn(life.stage),)
+
+
 def _progress(life: Life, now: float, view: View, every_s: float) -> tuple[Life, tuple]:
     """Progress when due on the sim clock ([P-10.6]), and when the next one is due."""
     if view.timers.clock != "sim" or every_s <= 0:
@@ -423,7 +429,7 @@ def _resolved(life: Life, now: float, view: View):
 def _wait(life: Life, now: float, view: View):
     m, w, j = view.machine, life.waits, life.stage
     if m.ended:
-        return _to_end(life, now, view)
+        return _stage_ended(life, now, view)
     if m.resolved(j):
         return _resolved(life, now, view)
     wait = life.wait.tick(now, view.present)
@@ -464,7 +470,7 @@ def _wait(life: Life, now: float, view: View):
 def _alone(life: Life, now: float, view: View):
     m, w, j = view.machine, life.waits, life.stage
     if m.ended:
-        return _to_end(life, now, view)
+        return _stage_ended(life, now, view)
     if m.resolved(j):
         return _resolved(life, now, view)
     waiting = view.book.waiting(j, view.peers_live - {m.cid}) if view.book is not None else ()

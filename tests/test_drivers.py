@@ -3,6 +3,7 @@ time) a carrier's and a coordinator's waits do what the rules say at the times t
 (docs/architecture.md, "Time as an input")."""
 from __future__ import annotations
 
+import dataclasses
 import threading
 from pathlib import Path
 from types import SimpleNamespace
@@ -13,7 +14,8 @@ import world
 from carriers.exits import Exit
 from carriers.node import Carrier, CarrierConfig
 from mission import carrier as mc
-from mission.peers import Presence
+from mission import carrier_life as cl
+from mission import timers as tm
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = world.load_scenario(ROOT / "scenarios" / "tiny.yaml")
@@ -61,17 +63,27 @@ class QuietNode:
 
 
 def carrier_at_stage_0(mode: str, clock_name: str = "sim", **timeouts):
+    """The tiny mission's first carrier waiting for the Decision of stage 0 (its lifecycle in
+    phase ``wait``), its node quiet: the real carrier's loop (:meth:`Carrier.fly`) over the
+    given clock."""
     stop = threading.Event()
     config = CarrierConfig(carrier=TINY.carrier_ids[0], mode=mode, clock=clock_name, log=lambda line: None,
                            **timeouts)
     clock = FakeClock()
     carrier = Carrier(TINY, config, None, stop=stop, clock=clock)  # its presence and motion made on that clock
-    carrier.motion.body = SimpleNamespace(time=0.0, position=lambda cid: (0.0, 0.0))  # a body standing still
+    carrier.motion.body = SimpleNamespace(time=0.0, position=lambda cid: (0.0, 0.0),  # a body standing still
+                                          deploy=lambda cid: None)
     carrier.node = QuietNode(clock, stop)
     carrier.timers = mc.Timers(clock_name, config.silence_timeout_s, 0.0)
     carrier.machine, _ = mc.step(carrier.machine, mc.Joined(0))
     carrier.machine, _ = mc.step(carrier.machine, mc.Observed(0, 1, (0.0, 0.0)))
+    carrier.life = dataclasses.replace(carrier.life, phase=cl.Phase.WAIT, stage=0,
+                                       wait=tm.DecisionWait.opened(clock.now))
     return carrier, clock
+
+
+def at_stage_0(life) -> bool:
+    return life.phase is not cl.Phase.WAIT
 
 
 def test_a_carrier_waiting_on_the_sim_clock_asks_state_every_decision_timeout():
@@ -81,12 +93,12 @@ def test_a_carrier_waiting_on_the_sim_clock_asks_state_every_decision_timeout():
     carrier, clock = carrier_at_stage_0("coordinated", decision_timeout_s=30.0, silence_timeout_s=9.0)
     carrier.presence.coordinator_alive()
     start = clock.now
-    carrier._wait_decision(0)
+    carrier.fly(until=at_stage_0)
     asked = [t - start for t in carrier.node.asked]
     assert asked == [30.0, 60.0, 90.0]
     progress = [t - start for t, topic in carrier.node.puts if topic == "progress"]
     assert progress and all(b - a >= 3.0 for a, b in zip(progress, progress[1:]))
-    assert not carrier.machine.resolved(0)
+    assert not carrier.machine.resolved(0) and carrier.reason == "stopped"
 
 
 @pytest.mark.parametrize("revision, present, expected", [
@@ -95,18 +107,15 @@ def test_a_carrier_waiting_on_the_sim_clock_asks_state_every_decision_timeout():
     (4, False, [0.0]),                   # the coordinator's token absent: its return is a Resync
 ], ids=["unanswered", "revision-2", "absent"])
 def test_a_carrier_says_an_unanswered_hello_again(revision, present, expected):
-    """[P-5.14] the real carrier's wait for a Decision says its Hello again when no answer came,
-    the interval doubling, only to a coordinator that answers Hellos and whose token is present."""
+    """[P-5.14] the real carrier's lifecycle says its Hello again when no answer came, the
+    interval doubling, only to a coordinator that answers Hellos and whose token is present."""
     carrier, clock = carrier_at_stage_0("coordinated", decision_timeout_s=30.0, hello_timeout_s=10.0)
     carrier.node.revision = revision
     if present:
         carrier.presence.coordinator_alive()
     start = clock.now
     carrier.execute(mc.SendHello(0, 1))
-    if present:
-        carrier._wait_decision(0)
-    else:
-        carrier.pump(100.0)
+    carrier.fly(until=lambda life: at_stage_0(life) or clock.now - start >= 100.0)
     hellos = [t - start for t, topic in carrier.node.puts if topic == "hello"]
     assert len(hellos) == len(expected) and all(e <= h < e + 2.5 for h, e in zip(hellos, expected)), hellos
 
@@ -120,8 +129,10 @@ def test_a_carrier_on_the_wall_clock_stops_waiting_after_the_decision_timeout(mo
     carrier._log = lines.append
     carrier.presence.coordinator_alive()
     start = clock.now
-    carrier._wait_decision(0)
+    carrier.inbound.listening = ()  # deciding alone: nobody to listen to (its node is quiet)
+    carrier.fly(until=at_stage_0)
     assert carrier.node.asked == [] and 30.0 <= clock.now - start < 32.0
+    assert carrier.life.phase is (cl.Phase.WORK if mode == "coordinated" else cl.Phase.ALONE)
     assert any(expected in line for line in lines), lines
 
 
@@ -132,68 +143,66 @@ def test_a_coordinated_carrier_exits_after_the_coordinator_timeout():
     carrier.presence.coordinator_alive()
     gone = clock.now
     carrier.presence.coordinator_gone(gone)
-    with pytest.raises(Exit) as exc:
-        carrier._wait_decision(0)
-    assert exc.value.reason == "coordinator-lost" and 30.0 <= clock.now - gone < 32.0
+    carrier.fly()
+    assert carrier.reason == "coordinator-lost" and 30.0 <= clock.now - gone < 32.0
 
 
 def test_a_joining_carrier_asks_state_again_until_the_coordinator_timeout():
     """[P-5.2] no reply: asked again 0.2 s after the last query's end, until the coordinator
     timeout since the first; then [P-5.5] 4 a coordinated carrier exits coordinator-lost."""
     carrier, clock = carrier_at_stage_0("coordinated", coordinator_timeout_s=10.0)
+    carrier.machine = mc.initial(carrier.cid, carrier.valid, TINY.stage_times(), 1)
     carrier.node.queries = 1000
     start = clock.now
-    state, outcome = carrier.joining.query_state(carrier)
+    carrier.step(cl.Start(start))
+    carrier.fly()
     asked = [round(t - start, 6) for t in carrier.node.asked]
-    assert state is None and outcome.reason == "coordinator-lost"
+    assert carrier.reason == "coordinator-lost" and not carrier.machine.flying
     assert asked == [0.0, 2.2, 4.4, 6.6, 8.8]
 
 
 def alone_at_stage_1(clock_name: str, peer_timeout_s: float = 5.0, silence_timeout_s: float = 9.0):
-    """A carrier's on-board decision (:class:`carriers.alone.Alone`) on its own, with a given
-    clock: the tiny mission's first carrier at stage 1, its peer (scheduled there) live and silent
-    from now on."""
-    from carriers.alone import Alone
-    from mission.peers import PeerBook
-
-    clock = FakeClock()
+    """A carrier deciding stage 1 on board (its lifecycle in phase ``alone``) with a given clock:
+    the tiny mission's first carrier, its peer (scheduled there) live and silent from now on."""
+    carrier, clock = carrier_at_stage_0("hybrid", clock_name, peer_timeout_s=peer_timeout_s,
+                                        silence_timeout_s=silence_timeout_s)
     me, peer = TINY.carrier_ids[:2]
-    book = PeerBook(TINY.carrier_ids, TINY.valid())
-    onboard = SimpleNamespace(get=lambda: (_ for _ in ()).throw(AssertionError("planner not asked")))
-    alone = Alone(me, book, onboard, TINY.seed, peer_timeout_s, lambda line: None)
-    alone.deploy = lambda j: True  # the planner's choice is not what is tested here
-    presence = Presence(clock())
-    presence.peer(peer, True)
-    presence.heard_from(peer, clock())
-    resent = []
-    pump = lambda s: setattr(clock, "now", clock.now + s)
-    run = lambda settled=lambda: False: alone.decide(
-        1, clock, presence, lambda: mc.Timers(clock_name, silence_timeout_s, 0.0), settled, pump,
-        lambda: resent.append(clock.now))
-    return alone, clock, run, resent
+    carrier.machine, _ = mc.step(carrier.machine, mc.MovedOn(0))
+    carrier.machine, _ = mc.step(carrier.machine, mc.Observed(1, 1, (0.0, 0.0)))
+    carrier.pending = SimpleNamespace(stage=1)
+    carrier.inbound.listening = (peer,)
+    carrier.presence.peer(peer, True)
+    carrier.presence.heard_from(peer, clock())
+    carrier.alone.deploy = lambda j: True  # the planner's choice is not what is tested here
+    carrier.life = dataclasses.replace(carrier.life, phase=cl.Phase.ALONE, stage=1, opened=clock.now, deciding=True)
+    resent = lambda: [t for t, topic in carrier.node.puts if topic == "obs"]
+    return carrier, clock, resent
 
 
 def test_deciding_alone_on_the_wall_clock_waits_the_peer_timeout():
     """[P-8.4] wall clock: the peer's observation is waited for the peer timeout at most, then
     the carrier decides; it repeats nothing (a wall-clock wait is a deadline)."""
-    alone, clock, run, resent = alone_at_stage_1("wall", peer_timeout_s=5.0)
+    carrier, clock, resent = alone_at_stage_1("wall", peer_timeout_s=5.0)
     start = clock.now
-    assert run() is True and alone.deciding
-    assert 5.0 <= clock.now - start < 5.1 and resent == []
-    alone.answered()
-    assert not alone.deciding
+    carrier.fly(until=lambda life: life.phase is not cl.Phase.ALONE)
+    assert carrier.machine.handled[1].status == "own" and carrier.machine.handled[1].deployed
+    assert 5.0 <= clock.now - start < 5.1 and resent() == []
 
 
 def test_deciding_alone_on_the_sim_clock_waits_out_a_silent_peer_and_repeats_its_observation():
     """[P-8.4] sim clock: a peer silent since the wait opened is waited for the silence timeout
     (not the peer timeout); meanwhile the carrier's observation goes out again every third of it;
     a stage settled meanwhile (a Decision came) is not decided on board."""
-    alone, clock, run, resent = alone_at_stage_1("sim", peer_timeout_s=1.0, silence_timeout_s=9.0)
+    carrier, clock, resent = alone_at_stage_1("sim", peer_timeout_s=1.0, silence_timeout_s=9.0)
     start = clock.now
-    assert run() is True
+    carrier.fly(until=lambda life: life.phase is not cl.Phase.ALONE)
+    assert carrier.machine.handled[1].status == "own"
     assert 9.0 <= clock.now - start < 9.1
-    assert [round(t - start) for t in resent] == [0, 3, 6]
-    assert run(settled=lambda: True) is None
+    assert [round(t - start) for t in resent()] == [0, 3, 6]
+    carrier, clock, resent = alone_at_stage_1("sim", peer_timeout_s=1.0, silence_timeout_s=9.0)
+    carrier.apply(mc.DecisionHeard(1, float(TINY.stage_time(1)), (), (0.0, 0.0)))
+    carrier.fly(until=lambda life: life.phase is not cl.Phase.ALONE)
+    assert carrier.machine.handled[1].status == "idle"
 
 
 class StraightBody:
@@ -299,3 +308,21 @@ def test_no_wait_of_the_processes_reads_the_clock_itself():
                         and node.func.attr in ("monotonic", "perf_counter")):
                     calls.append(f"{path.relative_to(ROOT)}:{node.lineno}")
     assert calls == []
+
+
+def test_no_driver_compares_times_itself():
+    """The drivers of the lifecycles (carriers/, coordinator/, mission/simulate/) compare no
+    difference of two times: every wait is a rule of mission.timers, called by a machine
+    (mission/carrier_life.py) or a driver (docs/architecture.md, "The carrier's lifecycle")."""
+    import ast
+
+    found = []
+    for folder in ("carriers", "coordinator", "mission/simulate"):
+        for path in sorted((ROOT / folder).glob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.Compare) and any(
+                        isinstance(side, ast.BinOp) and isinstance(side.op, ast.Sub)
+                        and any(isinstance(n, ast.Name) and n.id == "now" for n in ast.walk(side))
+                        for side in (node.left, *node.comparators)):
+                    found.append(f"{path.relative_to(ROOT)}:{node.lineno}")
+    assert found == []

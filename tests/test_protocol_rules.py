@@ -438,7 +438,7 @@ def test_a_carrier_joins_after_subscribing():
     """[P-5.1] the project's carrier subscribes to its coordinator keys and declares its token
     before it joins (the order of run's statements: subscribe, token, join)."""
     source = (ROOT / "carriers" / "node.py").read_text().split("def run(")[1]
-    order = [source.index(s) for s in ("self.inbound.subscribe(self.node)", "node.token(", "self.joining.join(self)")]
+    order = [source.index(s) for s in ("self.inbound.subscribe(self.node)", "node.token(", "self.step(cl.Start(")]
     assert order == sorted(order)
     subscribe = (ROOT / "carriers" / "inbound.py").read_text().split("def subscribe(")[1].split("def listen(")[0]
     assert all(f"subscribe(keys.{key}" in subscribe for key in ("decision_key", "end_key", "refusal_key",
@@ -461,7 +461,7 @@ def test_a_join_into_an_ended_mission():
     c = mc.initial("a", (True,) * 2, (0.0, 5.0), 1)
     c, effects = mc.step(c, mc.Joined(2, ended=True))
     assert c.ended and effects == ()
-    joining = (ROOT / "carriers" / "joining.py").read_text().split("def join(")[1].split("def _recall")[0]
+    joining = (ROOT / "carriers" / "joining.py").read_text().split("def from_state(")[1].split("def _recall")[0]
     assert joining.index("mc.Joined(start, state.ended") < joining.index("mc.SendHello(")
 
 
@@ -758,11 +758,12 @@ def test_when_a_carrier_decides_alone():
     assert rule("wall", "hybrid", True, 30.0, 0.0, 30.0, 30.0) == tm.DecideAlone()
     assert rule("sim", "hybrid", False, 0.0, 0.0, 30.0, 30.0) == tm.DecideAlone()
     assert rule("sim", "coordinated", False, 0.0, 30.0, 30.0, 30.0) == tm.GiveUp("coordinator-lost")
-    # the carrier's wait is a driver of that rule: it carries out each of its effects
-    wait = (ROOT / "carriers" / "node.py").read_text().split("def _wait_decision(")[1].split("def _fly(")[0]
-    assert "tm.decision_wait(self.timers.clock, self.config.mode, present, wait.waited_s," in wait
-    assert wait.index("isinstance(rule, tm.AskState)") < wait.index("self.joining.recover_decision(self, j)")
-    assert "raise Exit(rule.reason)" in wait and "monotonic" not in wait
+    # the carrier's lifecycle machine (mission/carrier_life.py) calls that rule and carries out
+    # each of its effects; the real carrier and the simulator drive the machine
+    wait = (ROOT / "mission" / "carrier_life.py").read_text().split("def _wait(")[1].split("def _alone(")[0]
+    assert "tm.decision_wait(view.timers.clock, life.mode, view.present, wait.waited_s," in wait
+    assert wait.index("isinstance(rule, tm.AskState)") < wait.index("AskState(j)")
+    assert "_finish(life, rule.reason" in wait
     c = mc.initial("a", (True,), (0.0,), 1)
     c, _ = mc.step(c, mc.Joined(0))
     c, _ = mc.step(c, mc.Observed(0, 1, (0.0, 0.0)))

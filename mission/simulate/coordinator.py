@@ -187,8 +187,9 @@ class CoordinatorDriver:
             return rule
         if self.phase == "stage":
             j = st.next_stage
-            if j > 0 and not st.live and now - self.opened < t.join_s:
-                return tm.Wait(self.opened + t.join_s)  # nobody to decide for: hold
+            hold = tm.hold(bool(st.live), self.opened, now, t.join_s)
+            if j > 0 and isinstance(hold, tm.Wait):
+                return hold  # nobody to decide for: hold [P-6.5]
             waiting = st.waiting(j)
             rule = tm.stage_wait("sim", waiting, frozenset(), self.heard, self.opened, now, t.stage_s, t.silence_s)
             if isinstance(rule, tm.GoOn):
