@@ -306,7 +306,7 @@ def step(life: Life, event, view: View) -> tuple[Life, tuple]:
             return life, effects
         again = _hello_again(life, event.now, view)
         if isinstance(again, tm.Attempt):
-            return life, (SayHelloAgain(),)
+            return life, (*effects[:-1], SayHelloAgain())
         until = min(effects[-1].until, again.until)
         return life, (*effects[:-1], tm.Wait(until))
     raise TypeError(f"not a carrier lifecycle event: {event!r}")
