@@ -169,14 +169,13 @@ def open_log(config: CarrierConfig, meta: dict, log) -> CarrierLog | None:
 class Carrier:
     """One carrier. ``run()`` returns its exit reason (a key of :data:`EXIT_CODES`).
 
-    ``self.machine`` is the :class:`mission.carrier.CarrierState`, changed only by :meth:`apply`.
-    Its jobs live in collaborators it holds, each given what it needs: what it receives
-    (:class:`carriers.inbound.Inbound`: it applies the events and carries out the effects that
-    reads, :meth:`pump`), its join paths
-    (:class:`carriers.joining.Joining`), its State queries (:class:`carriers.joining.StateQueries`),
-    its body in motion (:class:`carriers.motion.Motion`) and deciding a stage on board
-    (:class:`carriers.alone.Alone`). This class keeps the stage loop and the effects of
-    ``mission.carrier``. ``clock``: what its waits read (monotonic s; a test hands in its own).
+    A driver of two pure machines: its lifecycle (``self.life``, :mod:`mission.carrier_life`,
+    changed only by :meth:`step`) and its stage handshake (``self.machine``,
+    :class:`mission.carrier.CarrierState`, changed only by :meth:`apply`). :meth:`fly` feeds the
+    clock to the lifecycle and carries out the effects of both; its collaborators execute them
+    (:class:`carriers.inbound.Inbound`, :class:`carriers.joining.Joining`,
+    :class:`carriers.motion.Motion`, :class:`carriers.alone.Alone`). ``clock``: what it feeds its
+    lifecycle (monotonic s; a test hands in its own).
     """
 
     def __init__(self, scenario, config: CarrierConfig, zconf, stop: threading.Event | None = None,
@@ -196,7 +195,6 @@ class Carrier:
         check_config(config)
         valid = scenario.valid() if shared is None else shared.valid
         self.valid = valid[self.r]
-        self.n_stages = scenario.stages
         self.fingerprint = scenario_fingerprint(scenario) if shared is None else shared.fingerprint
         self.machine = mc.initial(self.cid, self.valid, scenario.stage_times(), scenario.carriers[self.r].passengers)
         self._log = config.log or (lambda line: print(line, flush=True))
