@@ -273,6 +273,18 @@ def coordinator_waiting(clock_name: str, tmp_path, **timeouts):
     return coordinator, clock, lines
 
 
+def stage_0_opened(coordinator, clock):
+    """Its lifecycle collecting stage 0 (opened now) until it decides: its decision recorded (the
+    time) and taken as deposed, so the loop ends there."""
+    from mission import coordinator_life as kl
+
+    decided = []
+    coordinator.decide = lambda j: decided.append(clock.now)
+    coordinator.stage_clock.life = dataclasses.replace(coordinator.stage_clock.life, phase=kl.Phase.STAGE, stage=0,
+                                                       opened=clock.now)
+    return decided
+
+
 def test_the_coordinator_waits_for_a_carrier_heard_from_until_its_silence(tmp_path):
     """[P-10.3] sim clock: a carrier heard from 10 s after the stage opened is waited for past
     the stage timeout, until the silence timeout after that; then it is stalled (logged)."""
@@ -281,8 +293,9 @@ def test_the_coordinator_waits_for_a_carrier_heard_from_until_its_silence(tmp_pa
     coordinator.heard = {cid: opened + 10.0 for cid in TINY.carrier_ids}
     waiting = coordinator.state.waiting(0)
     assert waiting
-    coordinator.stage_clock.wait_stage(coordinator, 0, opened)
-    assert 40.0 <= clock.now - opened < 40.1
+    decided = stage_0_opened(coordinator, clock)
+    coordinator.stage_clock.fly(coordinator)
+    assert len(decided) == 1 and 40.0 <= decided[0] - opened < 40.1
     assert any("stalled" in line and all(cid in line for cid in waiting) for line in lines), lines
 
 
@@ -291,8 +304,9 @@ def test_the_coordinator_on_the_wall_clock_waits_the_stage_timeout(tmp_path):
     coordinator, clock, lines = coordinator_waiting("wall", tmp_path, silence_timeout_s=30.0, stage_timeout_s=5.0)
     opened = clock.now
     coordinator.heard = {cid: opened + 4.9 for cid in TINY.carrier_ids}
-    coordinator.stage_clock.wait_stage(coordinator, 0, opened)
-    assert 5.0 <= clock.now - opened < 5.1 and not any("stalled" in line for line in lines)
+    decided = stage_0_opened(coordinator, clock)
+    coordinator.stage_clock.fly(coordinator)
+    assert len(decided) == 1 and 5.0 <= decided[0] - opened < 5.1 and not any("stalled" in line for line in lines)
 
 
 def test_no_wait_of_the_processes_reads_the_clock_itself():

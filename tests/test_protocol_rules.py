@@ -778,9 +778,9 @@ def test_a_stage_is_held_while_no_carrier_is_live():
     from mission import timers as tm
 
     assert tm.hold(False, 0.0, 19.0, 20.0) == tm.Wait(20.0) and tm.hold(True, 0.0, 1.0, 20.0) == tm.GoOn()
-    loop = (ROOT / "coordinator" / "clock.py").read_text().split("def _stages(")[1]
-    assert "if j > 0 and not c.state.live:" in loop
-    assert "tm.hold(bool(c.state.live), held, now, self.config.join_timeout_s)" in loop
+    loop = (ROOT / "mission" / "coordinator_life.py").read_text().split("def _stage(")[1]
+    assert "if j > 0 and not st.live:" in loop
+    assert "tm.hold(False, life.held_at, now, w.join_s)" in loop  # the lifecycle's table: tests/test_coordinator_life.py
 
 
 def test_decisions_name_sorted_carriers_and_passengers():
@@ -842,7 +842,8 @@ def test_takeover_before_deciding_and_deposition_after():
     assert "msg.epoch > self.epoch" in heard and "except ProtocolError:\n            return" in heard
     node = (ROOT / "coordinator" / "node.py").read_text()
     clock = (ROOT / "coordinator" / "clock.py").read_text()
-    assert "if self.epochs.deposed_by is None:  # deposed: the newer coordinator ends the mission" in clock
+    assert "if self.epochs.deposed_by is not None:  # deposed: the newer coordinator ends the mission" in clock
+    assert "self.step(c, cl.Deposed())" in clock
     assert "self._publish_decision(self._decision(self.state.next_stage - 1))  # idempotent re-publication" in node
 
 
@@ -885,12 +886,12 @@ def test_silence_is_measured_from_the_stage_opening_and_the_last_message():
 
     assert not silent({"a": 15.0}, {"a"}, 10.0, 44.0, 30.0) and silent({"a": 15.0}, {"a"}, 10.0, 45.0, 30.0)
     assert not silent({}, {"a"}, 10.0, 39.0, 30.0) and silent({}, {"a"}, 10.0, 40.0, 30.0)
-    # the rule's one home, and the coordinator's stage clock reading it
+    # the rule's one home, and the coordinator's lifecycle reading it
     timers = (ROOT / "mission" / "timers.py").read_text()
     assert "now - opened >= silence_s and now - last_heard(heard, among, opened) >= silence_s" in timers
     assert tm.stage_wait("sim", {"a"}, (), {"a": 15.0}, 10.0, 44.0, 5.0, 30.0) == tm.Wait(45.0)
-    clock = (ROOT / "coordinator" / "clock.py").read_text().split("def wait_stage(")[1].split("def _wait_confirms(")[0]
-    assert "tm.stage_wait(clock, *c.state.waited_for(j), c.heard, opened, now," in clock
+    life = (ROOT / "mission" / "coordinator_life.py").read_text().split("def _stage(")[1].split("def _stage_notes(")[0]
+    assert "tm.stage_wait(life.clock, *st.waited_for(j), view.heard, life.opened, now," in life
 
 
 def test_the_clocks():
@@ -1036,8 +1037,9 @@ def test_end_is_broadcast_with_its_epoch_in_the_lowest_revision():
     assert msgpack.unpackb(wm.encode(end, 4))["epoch"] == 1
     assert "epoch" not in msgpack.unpackb(wm.encode(end, 3))
     clock = (ROOT / "coordinator" / "clock.py").read_text()
-    end = clock.split("def end(")[1]
-    assert "c.put_end(end)" in end and "self.config.end_repeat_s" in end and "self.epochs.deposed_by is None" in clock
+    assert "c.put_end(self.end_message)" in clock and "self.epochs.epoch)" in clock
+    life = (ROOT / "mission" / "coordinator_life.py").read_text().split("def _end(")[1]
+    assert "tm.end_due(life.last_end, life.ended_at, now, w.end_repeat_s, w.bye_s)" in life
     put = (ROOT / "coordinator" / "node.py").read_text().split("def put_end(")[1].split("def ")[0]
     assert "self.node.put(keys.end_key(self.mission), end, self.state.common_revision(REVISION))" in put
 

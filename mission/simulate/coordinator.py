@@ -1,11 +1,13 @@
 """A coordinator process on a simulated host (:class:`CoordinatorDriver`) and its mission.db
-(:class:`Disk`): the real machine (:func:`mission.state.step`) driven by the timer rules of
-:mod:`mission.timers` on its host's clock."""
+(:class:`Disk`): the coordinator's lifecycle machine (:mod:`mission.coordinator_life`) and its
+mission machine (:func:`mission.state.step`), the machines the real coordinator drives, on its
+host's simulated clock and network."""
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
 
+from .. import coordinator_life as cl
 from .. import events as ev
 from .. import state as ms
 from .. import timers as tm
@@ -25,31 +27,39 @@ class Disk:
 
 
 class CoordinatorDriver:
-    """A coordinator process on a simulated host: its mission state, its durable record (``db``,
-    shared with a standby: mission.db on the disk they share), its waits by :mod:`mission.timers`.
+    """A coordinator process on a simulated host: its lifecycle (``lifecycle``), its mission state,
+    its durable record (``db``, shared with a standby: mission.db on the disk they share).
 
-    Phases: ``standby`` (a live primary exists), ``join``, ``stage``, ``confirm``, ``end`` (the
-    Bye wait), ``done``, ``deposed``."""
+    ``status``: its process — ``standby`` (waiting for the primary's token to go), ``new`` (not
+    started), ``open`` (serving the mission: :attr:`phase` is then its lifecycle's), ``dead``,
+    ``dead-standby``, ``refused`` (another coordinator's token was live at its start)."""
 
     def __init__(self, sim, name: str, disk: Disk, standby: bool = False):
         self.sim, self.name, self.disk = sim, name, disk
-        self.phase = "standby" if standby else "new"
+        self.status = "standby" if standby else "new"
+        self.lifecycle = cl.initial(sim.timeouts)
         self.alive = False
         self.state: ms.MissionState | None = None
         self.epoch = 0
         self.heard: dict = {}
-        self.opened = self.last_join = self.ended_at = 0.0
-        self.last_end: float | None = None
-        self.grace: float | None = None
         self.primary_lost: float | None = None
         self.resuming = None  # (stage, deploy, passengers) of the decision a pause interrupted
         self.life = 0         # its process's starts: what a paused process left scheduled dies with it
 
+    @property
+    def phase(self) -> str:
+        return self.lifecycle.phase.value if self.status == "open" else self.status
+
+    @phase.setter
+    def phase(self, value: str) -> None:
+        self.status = value
+
     # -------------------------------------------------------------- life
     def start(self, now: float) -> None:
         self.alive, self.life = True, self.life + 1
-        if self.phase == "standby":  # no State and no token of its own: it watches the primary's
-            self.sim.wake(self, now + self.sim.timeouts.standby_poll_s)
+        if self.status == "standby":  # no State and no token of its own: it watches the primary's
+            self.lifecycle = cl.initial(self.sim.timeouts, standby=True)
+            self.advance(now)
             return
         self.open(now)
 
@@ -60,17 +70,14 @@ class CoordinatorDriver:
         self.disk.events.append(ev.Opened(now))
         self.state = ms.fold(self.sim.spec, self.disk.events)
         self.epoch = self.disk.epoch = max(self.disk.epoch, known) + 1
-        self.phase, self.opened, self.last_join, self.heard = "join", now, now, {}
-        self.joined_count = sum(1 for cid in self.state.live if cid in self.state.accepted)
+        self.status, self.heard = "open", {}
         self.sim.token(self.name, True)
-        if self.state.ended:  # a complete mission is final: nothing to do
-            self.phase = "end"
-            self.ended_at = now
+        self.step(cl.Opened(now), now)
         self.sim.wake(self, now)
 
     def crash(self) -> None:
         self.alive, self.resuming = False, None  # a paused process killed does not resume
-        self.phase = "dead" if self.phase != "standby" else "dead-standby"
+        self.status = "dead" if self.status != "standby" else "dead-standby"
         self.sim.token(self.name, False)
 
     # -------------------------------------------------------------- inputs
@@ -80,7 +87,7 @@ class CoordinatorDriver:
         if m.kind == "token":
             self._token(m, now)
             return
-        if self.phase in ("standby", "new", "dead", "dead-standby") or self.state is None:
+        if self.status != "open" or self.state is None:
             return
         cid = m.src
         if m.kind in ("hello", "obs", "confirm", "own", "bye", "progress") and cid in self.sim.fleet.ids \
@@ -90,7 +97,6 @@ class CoordinatorDriver:
         g = m.get
         if m.kind == "hello":
             self.apply(ev.Hello(cid, 1, cid, g("passengers_left"), g("next_stage"), g("fingerprint"), now, 4))
-            self.joined(now)
         elif m.kind == "obs":
             self.apply(ev.Observation(cid, g("stage"), g("t"), g("x"), (0.0, 0.0), g("passengers_left"), (), now))
         elif m.kind == "confirm":
@@ -109,25 +115,17 @@ class CoordinatorDriver:
 
     def depose(self) -> None:
         """Stop deciding, without End: a coordinator of a newer epoch took over."""
-        self.phase, self.alive, self.resuming = "deposed", False, None
+        self.lifecycle, _ = cl.step(self.lifecycle, cl.Deposed(), self.view())
+        self.alive, self.resuming = False, None
         self.sim.token(self.name, False)
-
-    def joined(self, now: float) -> None:
-        """The join wait runs from when the count of live carriers with an accepted Hello last grew
-        (coordinator/clock.py's ``_wait_for_carriers``): a Hello said again does not restart it."""
-        st = self.state
-        count = sum(1 for cid in st.live if cid in st.accepted)
-        if count > self.joined_count:
-            self.last_join, self.joined_count = now, count
 
     def _token(self, m: Msg, now: float) -> None:
         who, alive = m.get("who"), m.get("alive")
         if who in self.sim.fleet.ids:
-            if self.state is not None and self.phase not in ("standby", "dead", "dead-standby"):
+            if self.state is not None and self.status == "open":
                 self.apply(ev.LivelinessChanged(who, alive, now))
-                self.joined(now)
                 self.advance(now)
-        elif who != self.name and self.phase == "standby":
+        elif who != self.name and self.status == "standby":
             self.primary_lost = None if alive else now
 
     def state_reply(self, cid: str) -> Msg:
@@ -158,68 +156,44 @@ class CoordinatorDriver:
             elif isinstance(effect, ms.Reject):
                 self.sim.count_reject(effect.reason)
 
-    # -------------------------------------------------------------- the waits
-    def advance(self, now: float) -> None:
-        """Run the phase's timer rule at ``now`` and carry out what it says, until it says wait."""
-        while self.alive:
-            rule = self._rule(now)
-            if isinstance(rule, tm.Wait):
-                if math.isfinite(rule.until):
-                    self.sim.wake(self, rule.until)
-                return
+    # -------------------------------------------------------------- the lifecycle and its effects
+    def view(self) -> cl.View:
+        return cl.View(self.state, self.heard, self.primary_lost is None, self.primary_lost)
 
-    def _rule(self, now: float):
-        st, fleet, t = self.state, self.sim.fleet, self.sim.timeouts
-        if self.resuming is not None:
-            return tm.Wait()  # paused in the middle of a decision: it goes on where it stopped
-        if self.phase == "standby":
-            rule = tm.standby(self.primary_lost is None, self.primary_lost, now, t.standby_poll_s)
-            if isinstance(rule, tm.TakeOver):
-                self.open(now, max(d.epoch for d in self.sim.coordinators.values()))
-                return tm.Wait()
-            return rule
-        if self.phase == "join":
-            join_s = t.resumed_join_s() if st.resumed else t.join_s
-            rule = tm.join_wait("sim", st.all_joined(), self.opened, self.last_join, now, join_s)
-            if isinstance(rule, tm.GoOn):
-                self.phase, self.opened = ("stage", now) if st.next_stage < fleet.n_stages else ("confirm", now)
-                return None
-            return rule
-        if self.phase == "stage":
-            j = st.next_stage
-            hold = tm.hold(bool(st.live), self.opened, now, t.join_s)
-            if j > 0 and isinstance(hold, tm.Wait):
-                return hold  # nobody to decide for: hold [P-6.5]
-            waiting = st.waiting(j)
-            rule = tm.stage_wait("sim", waiting, frozenset(), self.heard, self.opened, now, t.stage_s, t.silence_s)
-            if isinstance(rule, tm.GoOn):
-                self.decide(j, now)
-                return None
-            return rule
-        if self.phase == "confirm":
-            last = fleet.n_stages - 1
-            loud = st.unconfirmed(last) if last in st.decisions else frozenset()
-            rule = tm.stage_wait("sim", loud, frozenset(), self.heard, self.opened, now, t.confirm_s, t.silence_s)
-            if isinstance(rule, tm.GoOn):
-                self.apply(ev.Ended("complete", now))
-                self.phase, self.ended_at, self.grace, self.last_end = "end", now, None, None
-                return None
-            return rule
-        if self.phase == "end":
-            if tm.due(self.last_end, now, t.end_repeat_s):
-                self.sim.broadcast(self.name, msg("end", self.name, epoch=self.epoch))
-                self.last_end = now
-            if st.all_said_bye() and self.grace is None:
-                self.grace = now
-            rule = tm.bye_wait(st.all_said_bye(), st.bye_missing(), self.ended_at, self.grace, now, t.bye_s,
-                               t.bye_grace_s)
-            if isinstance(rule, tm.GoOn):
-                self.phase = "done"
-                self.sim.token(self.name, False)
-                self.alive = False
-                return tm.Wait()
-            return tm.Wait(min(rule.until, self.last_end + t.end_repeat_s))
-        return tm.Wait()
+    def step(self, event, now: float) -> float | None:
+        """Step the lifecycle with ``event`` and carry out its effects: the time to be woken at, None
+        when it is to be stepped again at once."""
+        self.lifecycle, effects = cl.step(self.lifecycle, event, self.view())
+        until = None
+        for effect in effects:
+            if isinstance(effect, tm.Wait):
+                until = effect.until
+            else:
+                self.run(effect, now)
+        return until
+
+    def advance(self, now: float) -> None:
+        """Step the lifecycle at ``now`` and carry out what it says, until it says wait."""
+        while self.alive:
+            until = self.step(cl.Tick(now), now)
+            if until is None:
+                continue
+            if math.isfinite(until):
+                self.sim.wake(self, until)
+            return
+
+    def run(self, effect, now: float) -> None:
+        if isinstance(effect, cl.TakeOver):
+            self.open(now, max(d.epoch for d in self.sim.coordinators.values()))
+        elif isinstance(effect, cl.Decide):
+            self.decide(effect.stage, now)
+        elif isinstance(effect, cl.RecordEnd):
+            self.apply(ev.Ended(effect.reason, now))
+        elif isinstance(effect, cl.PublishEnd):
+            self.sim.broadcast(self.name, msg("end", self.name, epoch=self.epoch))
+        elif isinstance(effect, cl.Finish):
+            self.sim.token(self.name, False)
+            self.alive = False
 
     def decide(self, j: int, now: float) -> None:
         if self.disk.epoch > self.epoch:  # a standby took over on the shared disk: deposed, no Decision
@@ -242,9 +216,7 @@ class CoordinatorDriver:
         self.apply(ev.Decided(j, deploy, 0.0, now, passengers))
         self.apply(ev.Published(j, now))
         self.sim.decided_at.setdefault(j, self.sim.t)
-        self.opened = now
-        if self.state.next_stage >= self.sim.fleet.n_stages:
-            self.phase = "confirm"
+        self.step(cl.Decided(j, now), now)
 
     def _resume(self, life: int) -> None:
         if life != self.life or self.resuming is None:
