@@ -18,6 +18,7 @@ from mission import carrier as mc
 from mission.peers import PeerBook, Presence
 from wire import keys
 from wire.messages import Accepted, Confirm, Decision, End, Observation, Own, Progress, ProtocolError, Refusal, decode
+from mission.modes import Mode
 
 #: What peers publish that a carrier reads, and the message type of each.
 PEER_TOPICS = {"obs": Observation, "own": Own, "confirm": Confirm, "progress": Progress}
@@ -44,7 +45,7 @@ class Inbound:
 
     Args:
         mission, cid: the mission's and this carrier's ids; mode: the carrier's mode
-        (``carriers.node.MODES``); onboard: its ``carriers.onboard.Onboard`` (whom it listens to;
+        (:data:`mission.modes.MODES`); onboard: its ``carriers.onboard.Onboard`` (whom it listens to;
         loaded when the coordinator vanishes, hybrid); broadcasts: the process's
         :class:`wire.messages.SharedDecoder` (a Decision is decoded once per process); book,
         presence, answer, releases: the books it feeds; position(): where the carrier is now;
@@ -71,7 +72,7 @@ class Inbound:
         """Subscribe on ``node`` to the carriers this one listens to (:func:`mission.peers.listened`:
         its conflict component, or its neighbours in a large one) once the on-board planner's
         instance is built (``wait``: build it now)."""
-        if self.listening is not None or self.mode == "coordinated" or not (wait or self.onboard.ready()):
+        if self.listening is not None or self.mode == Mode.COORDINATED or not (wait or self.onboard.ready()):
             return
         ids = self.book.carriers
         self.listening = tuple(ids[b] for b in self.onboard.listened(self.book.index[self.cid]))
@@ -104,7 +105,7 @@ class Inbound:
         except ProtocolError as exc:
             node.reject(exc.reason, exc.detail, self.log)
 
-    def read(self, item, machine: mc.CarrierState):
+    def read(self, item, machine: mc.Handshake):
         """Feed the books what one inbox item says and return what the carrier does with it: an
         event of its machine (:class:`mission.carrier.DecisionHeard`,
         :class:`mission.carrier.EndHeard`), an effect (:class:`Rejoin`, :class:`Follow`,
@@ -152,12 +153,12 @@ class Inbound:
         if item.kind == "alive":
             return Rejoin() if self.presence.coordinator_alive() else None  # it came back
         self.presence.coordinator_gone(item.received)
-        if self.mode == "hybrid":
+        if self.mode == Mode.HYBRID:
             self.onboard.prepare()  # it may have to decide alone soon
         return mc.Log("coordinator's liveliness token vanished; "
-                      + ("holding" if self.mode == "coordinated" else "deciding on board"))
+                      + ("holding" if self.mode == Mode.COORDINATED else "deciding on board"))
 
-    def _answer(self, msg, machine: mc.CarrierState) -> Follow | None:
+    def _answer(self, msg, machine: mc.Handshake) -> Follow | None:
         """The coordinator's answer to a Hello. Only the answer to our latest Hello counts
         (docs/protocol.md, "Refusal"); one naming another fingerprint, or coming after our Hello
         was accepted, is about someone else's. An Accepted of our world tells the mission's clock

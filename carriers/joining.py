@@ -18,18 +18,19 @@ from mission.peers import PeerBook, Presence
 from mission.timeouts import DEFAULTS
 from wire import keys
 from wire.messages import REVISION, ProtocolError, State, decode
+from mission.modes import Mode
 
 
 class Joiner(Protocol):
     """What the join paths drive of a carrier (:class:`carriers.node.Carrier`).
 
     Attributes:
-        machine: its :class:`mission.carrier.CarrierState` (read: :meth:`apply` changes it).
+        machine: its :class:`mission.carrier.Handshake` (read: :meth:`apply` changes it).
         node: its wire node (``wire.transport.Node``), open while it runs.
         store: its durable log (``storage.carrierlog.CarrierLog``), None: none.
     """
 
-    machine: mc.CarrierState
+    machine: mc.Handshake
     node: Any
     store: Any
 
@@ -123,7 +124,7 @@ class Joining:
         carrier's own log (the deployments on record replayed in its world) and listen to its
         peers; the lifecycle then waits (at most ``join_timeout_s``) for every other carrier's
         token, so that nobody starts the mission alone (:meth:`gathered`)."""
-        if self.config.mode == "hybrid":
+        if self.config.mode == Mode.HYBRID:
             # A coordinator that appears later (one slow to start) is one to resynchronise with:
             # its token's arrival makes this carrier say Hello and hand over what it decided.
             self.presence.coordinator_seen = True
@@ -146,7 +147,7 @@ class Joining:
             self.log(f"starting without carrier(s) {', '.join(missing)} (no token after "
                      f"{self.config.join_timeout_s:.0f} s)")
         carrier.apply(mc.Joined(self.next_alone))
-        if self.config.mode == "hybrid" and self.presence.coordinator_present:  # it is back [P-5.12]
+        if self.config.mode == Mode.HYBRID and self.presence.coordinator_present:  # it is back [P-5.12]
             self.resync(carrier)
 
     def recover_decision(self, carrier: Joiner, j: int) -> None:

@@ -57,6 +57,7 @@ from wire import keys
 from wire.messages import REVISION, Bye, Confirm, Hello, Observation, Own, SharedDecoder, scenario_fingerprint
 from wire.link_filter import link_filter
 from wire.sizes import fit_to_links
+from mission.modes import MODES, Mode
 
 #: Longest sleep (s) of a carrier waiting for a message (a decision, End): any message, and a
 #: stop request (:meth:`Carrier.stop`, :func:`run_carriers`), wakes it at once, so this only sets
@@ -66,9 +67,6 @@ IDLE_POLL_S = 2.0
 #: How often a carrier deciding alone looks for the peers' observations it waits for (s): the
 #: peers' messages do not wake it.
 PEER_POLL_S = 0.02
-
-#: How a carrier gets its decisions (docs/fleet.md, "Without the coordinator").
-MODES = ("hybrid", "decentralised", "coordinated")
 
 
 @dataclass(frozen=True)
@@ -121,7 +119,7 @@ class CarrierConfig:
     end_timeout_s: float = DEFAULTS.end_s
     log: object = None
     pose_interval_s: float = POSE_INTERVAL_S
-    mode: str = "hybrid"
+    mode: str = Mode.HYBRID
     out_dir: str | None = None
     peer_timeout_s: float = DEFAULTS.peer_s
     silence_timeout_s: float = DEFAULTS.silence_s
@@ -171,7 +169,7 @@ class Carrier:
 
     A driver of two pure machines: its lifecycle (``self.life``, :mod:`mission.carrier_life`,
     changed only by :meth:`step`) and its stage handshake (``self.machine``,
-    :class:`mission.carrier.CarrierState`, changed only by :meth:`apply`). :meth:`fly` feeds the
+    :class:`mission.carrier.Handshake`, changed only by :meth:`apply`). :meth:`fly` feeds the
     clock to the lifecycle and carries out the effects of both; its collaborators execute them
     (:class:`carriers.inbound.Inbound`, :class:`carriers.joining.Joining`,
     :class:`carriers.motion.Motion`, :class:`carriers.alone.Alone`). ``clock``: what it feeds its
@@ -435,9 +433,9 @@ class Carrier:
                 "mission": self.mission, "carrier": self.cid, "scenario": self.scenario.name,
                 "fingerprint": self.fingerprint, "seed": int(self.scenario.seed)}, self.log)
             self.inbound.subscribe(self.node)
-            if self.config.mode == "decentralised" or (self.config.mode == "hybrid" and self.onboard_load == "start"):
+            if self.config.mode == Mode.DECENTRALISED or (self.config.mode == Mode.HYBRID and self.onboard_load == "start"):
                 self.onboard.prepare()
-            if self.config.mode == "decentralised":
+            if self.config.mode == Mode.DECENTRALISED:
                 # Subscribed before its token appears: a carrier that sees the token can reach it.
                 self.inbound.listen(self.node, wait=True)
             self.node.token(keys.carrier_alive(self.mission, self.cid))
@@ -453,7 +451,7 @@ class Carrier:
             self.log(str(exc))
         finally:
             try:
-                if self.answer.said_hello or self.config.mode == "decentralised":  # a Bye needs a Hello
+                if self.answer.said_hello or self.config.mode == Mode.DECENTRALISED:  # a Bye needs a Hello
                     self.node.put(keys.carrier_key(self.mission, self.cid, "bye"), Bye(
                         self.mission, self.cid, self.machine.deployments(),
                         tuple(sorted(self.node.rejected.items())), reason))

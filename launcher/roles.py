@@ -10,6 +10,7 @@ from pathlib import Path
 
 from launcher.settings import Settings, zenoh_config
 from mission.exits import EXIT_DEPOSED, EXIT_USAGE, STOPPED
+from mission.modes import Mode
 
 
 def say(settings: Settings, message: str) -> None:
@@ -65,7 +66,7 @@ def carrier(settings: Settings, stop: threading.Event) -> int:
 
     f, scenario, t = settings.flags, settings.scenario, settings.timeouts()
     log = (lambda line: None) if f.quiet else (lambda line: print(line, flush=True))
-    mode = "decentralised" if f.decentralised else "coordinated" if f.no_autonomy else "hybrid"
+    mode = Mode.DECENTRALISED if f.decentralised else Mode.COORDINATED if f.no_autonomy else Mode.HYBRID
     _, options = planner_settings(scenario, None, f.iterations, f.plan_ms, settings.planner_options)
     poses = pose_interval(scenario.stage_interval, f.realtime) if f.pose_interval is None else f.pose_interval
     out = settings.out()  # its log: pass the same --out again to resume from it

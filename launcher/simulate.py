@@ -19,12 +19,13 @@ from pathlib import Path
 
 from mission import simulate as sim
 from mission.exits import EXIT_USAGE
+from mission.modes import Mode
 
 #: Most simulations one shrink may run (each removes a fault or halves one).
 SHRINK_RUNS = 40
 
 
-def build_fleet(path: str, mode: str = "hybrid", onboard_iterations: int | None = None,
+def build_fleet(path: str, mode: str = Mode.HYBRID, onboard_iterations: int | None = None,
                 seed: int | None = None, perfect_links: bool = False) -> sim.Fleet:
     """The simulator's :class:`mission.simulate.Fleet` of a scenario file (ScenarioError on bad
     input); ``seed``: the world's root seed instead of the scenario's (run_fleet.py's ``--seed``);
@@ -194,7 +195,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="all (default), none, or a comma-separated list of: " + ", ".join(sim.FAULT_KINDS))
     p.add_argument("--schedule", type=parse_schedule, default=None,
                    help="a JSON list of faults to use instead of drawing them (what a shrunk failure prints)")
-    p.add_argument("--mode", choices=("hybrid", "coordinated"), default="hybrid", help="the carriers' mode")
+    p.add_argument("--mode", choices=(Mode.HYBRID.value, Mode.COORDINATED.value), default=Mode.HYBRID.value,
+                   help="the carriers' mode")
     p.add_argument("--plant", choices=sim.PLANTS, default=None,
                    help="put back a known bug class (the campaign's power test); never for real use")
     p.add_argument("--json", dest="json_out", type=Path, default=None, help="write the report as JSON here")

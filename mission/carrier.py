@@ -36,6 +36,8 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
+from .timeouts import T_TOLERANCE_S
+
 Point = tuple[float, float]
 
 
@@ -282,12 +284,10 @@ class Answer:
         return self.status == "own"
 
 
-#: Largest accepted difference between a Decision's ``t`` and the stage time, seconds.
-T_TOLERANCE_S = 1e-3
 
 
 @dataclass(frozen=True)
-class CarrierState:
+class Handshake:
     """One carrier's view of the mission.
 
     Attributes:
@@ -347,7 +347,7 @@ class CarrierState:
         return tuple(sorted(j for j, a in self.handled.items() if a.deployed))
 
 
-def current(state: CarrierState, epoch: int) -> bool:
+def current(state: Handshake, epoch: int) -> bool:
     """A Decision or State of ``epoch`` comes from the coordinator that decides now: its epoch is
     at least the highest the carrier has heard (a lower one is a deposed coordinator's)."""
     return epoch >= state.epoch
@@ -417,7 +417,7 @@ class Releases:
         self.named: dict[int, int] = {}     # stage -> the passenger a Decision named
         self.released: dict[int, int] = {}  # stage -> the passenger released there
 
-    def name(self, state: CarrierState, stage: int, epoch: int, passenger: int | None) -> None:
+    def name(self, state: Handshake, stage: int, epoch: int, passenger: int | None) -> None:
         """A Decision of ``epoch`` named ``passenger`` (None: none) for this carrier at ``stage``;
         a deposed coordinator's naming is ignored."""
         if passenger is not None and current(state, epoch):
@@ -469,11 +469,11 @@ def follow(own: Timers, told: Timers | None, repace: bool = True) -> tuple[Timer
     return Timers(told.clock, told.silence_timeout_s, told.realtime if repace else own.realtime), tuple(lines)
 
 
-def initial(cid: str, valid, stage_times, passengers: int) -> CarrierState:
-    return CarrierState(cid, tuple(bool(v) for v in valid), tuple(float(t) for t in stage_times), int(passengers))
+def initial(cid: str, valid, stage_times, passengers: int) -> Handshake:
+    return Handshake(cid, tuple(bool(v) for v in valid), tuple(float(t) for t in stage_times), int(passengers))
 
 
-def replay_plan(state: CarrierState, next_stage: int, deployments, logged=None) -> list[int]:
+def replay_plan(state: Handshake, next_stage: int, deployments, logged=None) -> list[int]:
     """The deployments a joining carrier replays in its world, ascending: those before
     ``next_stage``, at most as many as it has passengers. ``deployments``: those on the
     coordinator's record (State); ``logged``: stage -> deployed of the outcomes in the carrier's
@@ -505,14 +505,14 @@ def missed(next_stage: int, deployments, logged) -> list[int]:
 
 # --------------------------------------------------------------------------- step
 
-def step(state: CarrierState, event) -> tuple[CarrierState, tuple]:
+def step(state: Handshake, event) -> tuple[Handshake, tuple]:
     handler = _HANDLERS.get(type(event))
     if handler is None:
         raise TypeError(f"not a carrier event: {event!r}")
     return handler(state, event)
 
 
-def _answer(state: CarrierState, j: int, deploy, position: Point, allow: bool):
+def _answer(state: Handshake, j: int, deploy, position: Point, allow: bool):
     """Execute (or decline) one decision and confirm it: at most once per stage."""
     selected = state.cid in deploy
     effects = []
@@ -540,12 +540,12 @@ def _answer(state: CarrierState, j: int, deploy, position: Point, allow: bool):
     return new, effects
 
 
-def _already(state: CarrierState, j: int) -> SendConfirm:
+def _already(state: Handshake, j: int) -> SendConfirm:
     first = state.handled[j]
     return SendConfirm(j, first.deployed, "already", first.position, first.passengers_left)
 
 
-def _on_replayed(state: CarrierState, e: Replayed):
+def _on_replayed(state: Handshake, e: Replayed):
     if state.passengers_left <= 0:
         raise ValueError("no passenger left to replay a deployment")
     left = state.passengers_left - 1
@@ -553,7 +553,7 @@ def _on_replayed(state: CarrierState, e: Replayed):
     return dataclasses.replace(state, passengers_left=left, handled={**state.handled, e.stage: answer}), ()
 
 
-def _early_observation(state: CarrierState, j: int) -> tuple:
+def _early_observation(state: Handshake, j: int) -> tuple:
     """A Decision of j came while this carrier is at a later stage (it gave up waiting for j, or
     decided j and more on its own while cut off): the coordinator was behind it, so its
     Observation of the stage it is at arrived too early and was rejected as future-stage; it is
@@ -563,7 +563,7 @@ def _early_observation(state: CarrierState, j: int) -> tuple:
     return ()
 
 
-def _on_recalled(state: CarrierState, e: Recalled):
+def _on_recalled(state: Handshake, e: Recalled):
     if e.stage in state.handled:
         return state, ()
     left = state.passengers_left - int(e.deployed)
@@ -574,20 +574,20 @@ def _on_recalled(state: CarrierState, e: Recalled):
     return dataclasses.replace(state, passengers_left=left, handled={**state.handled, e.stage: answer}), ()
 
 
-def accounts(state: CarrierState, stages) -> tuple:
+def accounts(state: Handshake, stages) -> tuple:
     """The Own messages that say again how this carrier decided ``stages`` itself (those of them
     it decided on board): after its Hello, a joining carrier's recalled stages ([P-8.5])."""
     return tuple(SendOwn(j, a.x, a.deployed, a.position, a.passengers_left)
                  for j in stages if (a := state.handled.get(j)) is not None and a.own)
 
 
-def _on_missed(state: CarrierState, e: Missed):
+def _on_missed(state: Handshake, e: Missed):
     if e.stage in state.handled:
         return state, ()
     return _answer(state, e.stage, (state.cid,), e.position, allow=False)
 
 
-def _on_collecting(state: CarrierState, e: Collecting):
+def _on_collecting(state: Handshake, e: Collecting):
     """State says the coordinator collects the stage this carrier waits at: it may never have
     had this carrier's Observation (rejected as future-stage, or lost in a reconnection); an
     identical repeat is absorbed by the coordinator."""
@@ -596,7 +596,7 @@ def _on_collecting(state: CarrierState, e: Collecting):
     return state, ()
 
 
-def _on_joined(state: CarrierState, e: Joined):
+def _on_joined(state: Handshake, e: Joined):
     if e.ended:  # its Hello still says State's next stage [P-5.5]
         return dataclasses.replace(state, ended=True, state_next=max(state.state_next, e.next_stage)), ()
     effects = (Log(f"joined at stage {e.next_stage} ({len(state.handled)} deployment(s) on record)"),) \
@@ -606,7 +606,7 @@ def _on_joined(state: CarrierState, e: Joined):
                                epoch=max(state.epoch, e.epoch), flying=True), effects
 
 
-def _on_decision(state: CarrierState, e: DecisionHeard):
+def _on_decision(state: Handshake, e: DecisionHeard):
     if not current(state, e.epoch):
         return state, (Reject("deposed", f"decision for stage {e.stage} of epoch {e.epoch}; "
                                          f"epoch {state.epoch} decides now"),)
@@ -639,7 +639,7 @@ def _on_decision(state: CarrierState, e: DecisionHeard):
     return new, (AskState(j),) if lost else ()
 
 
-def lost_stages(state: CarrierState, j: int) -> tuple[int, ...]:
+def lost_stages(state: Handshake, j: int) -> tuple[int, ...]:
     """The stages before ``j`` whose Decision this carrier still needs and has not received (it
     waits at them or will reach them, they are not known to be decided from State, it did not
     decide them itself): lost on the way when the Decision of ``j`` arrives. None before it
@@ -650,13 +650,13 @@ def lost_stages(state: CarrierState, j: int) -> tuple[int, ...]:
     return tuple(t for t in range(start, j) if t not in state.handled and t not in state.buffered)
 
 
-def _on_observed(state: CarrierState, e: Observed):
+def _on_observed(state: Handshake, e: Observed):
     x = e.x if state.valid[e.stage] else None
     return (dataclasses.replace(state, stage=e.stage, pending=e.stage, sensed=x),
             (LogObservation(e.stage, x, (float(e.position[0]), float(e.position[1]))),))
 
 
-def _on_decided_own(state: CarrierState, e: DecidedOwn):
+def _on_decided_own(state: Handshake, e: DecidedOwn):
     """The carrier's own decision of the stage it waits at: at most once per stage, like a
     coordinator's; a deployment it cannot make (no passenger, not scheduled) is not made."""
     j = e.stage
@@ -675,7 +675,7 @@ def _on_decided_own(state: CarrierState, e: DecidedOwn):
     return dataclasses.replace(state, passengers_left=left, handled={**state.handled, j: answer}), tuple(effects)
 
 
-def _on_passed(state: CarrierState, e: Passed):
+def _on_passed(state: Handshake, e: Passed):
     j = e.stage
     new, effects = dataclasses.replace(state, stage=j), []
     if j in state.buffered and j not in state.handled:
@@ -683,11 +683,11 @@ def _on_passed(state: CarrierState, e: Passed):
     return dataclasses.replace(new, stage=j + 1, pending=None), tuple(effects)
 
 
-def _on_moved_on(state: CarrierState, e: MovedOn):
+def _on_moved_on(state: Handshake, e: MovedOn):
     return dataclasses.replace(state, stage=e.stage + 1, pending=None), ()
 
 
-def _on_resync(state: CarrierState, e: Resync):
+def _on_resync(state: Handshake, e: Resync):
     """The coordinator came back (restarted, or a partition healed): announce ourselves again,
     learn how far the mission got, take its last decision (its re-publication may have raced
     our reconnection), re-send the pending Observation if its stage is still open, and repeat
@@ -723,7 +723,7 @@ def _on_resync(state: CarrierState, e: Resync):
     return new, tuple(_dedupe(effects))
 
 
-def _said_again(state: CarrierState) -> list:
+def _said_again(state: Handshake) -> list:
     """After a Hello of a Resync or said again: the pending Observation if its stage is still
     open, and the answer to every stage handled since the join (Confirm ``already``, or its Own):
     what a coordinator that missed them (or rejected them before the Hello) needs."""
@@ -737,7 +737,7 @@ def _said_again(state: CarrierState) -> list:
     return effects
 
 
-def _on_hello_unanswered(state: CarrierState, e: HelloUnanswered):
+def _on_hello_unanswered(state: Handshake, e: HelloUnanswered):
     """[P-5.14]: Hello again, then what went out since the lost one (a Resync without a State)."""
     if state.ended or not state.flying:
         return state, ()
@@ -745,7 +745,7 @@ def _on_hello_unanswered(state: CarrierState, e: HelloUnanswered):
                    SendHello(state.hello_stage(), state.passengers_left, again=True), *_said_again(state))
 
 
-def _take_lost(state: CarrierState, s: StateSeen, position: Point):
+def _take_lost(state: Handshake, s: StateSeen, position: Point):
     """[P-6.6]: every stage from the one this carrier is at up to State's ``next_stage`` whose
     Decision it has not received is held as the coordinator sees it (selecting this carrier
     when State lists a deployment of it there, else not), so it deploys where the coordinator
@@ -773,7 +773,7 @@ def _dedupe(effects):
         yield effect
 
 
-def _on_end(state: CarrierState, e: EndHeard):
+def _on_end(state: Handshake, e: EndHeard):
     if e.epoch is not None and not current(state, e.epoch):  # a deposed coordinator cannot end it ([P-7.4])
         return state, (Reject("deposed", f"End of epoch {e.epoch}; epoch {state.epoch} decides now"),)
     return dataclasses.replace(state, ended=True), ()

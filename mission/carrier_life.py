@@ -39,6 +39,7 @@ from typing import Any
 from . import carrier as mc
 from . import timers as tm
 from .timeouts import STATE_RETRY_S, Timeouts
+from .modes import Mode
 
 
 class Phase(str, enum.Enum):
@@ -221,7 +222,7 @@ class View:
     """What the driver knows at the step, read and never changed by this machine.
 
     Attributes:
-        machine: the handshake machine (:class:`mission.carrier.CarrierState`).
+        machine: the handshake machine (:class:`mission.carrier.Handshake`).
         present: the coordinator's token is present (or it answered since it vanished).
         absent_since: since when it is absent (s, the driver's clock).
         timers: what the carrier times its waits by (:class:`mission.carrier.Timers`).
@@ -231,7 +232,7 @@ class View:
         hello: :class:`Hello`.
     """
 
-    machine: mc.CarrierState
+    machine: mc.Handshake
     present: bool
     absent_since: float
     timers: mc.Timers
@@ -314,7 +315,7 @@ def step(life: Life, event, view: View) -> tuple[Life, tuple]:
 
 def _start(life: Life, now: float):
     life = dataclasses.replace(Life(life.mode, life.waits), opened=now)
-    if life.mode == "decentralised":
+    if life.mode == Mode.DECENTRALISED:
         return dataclasses.replace(life, phase=Phase.GATHERING), (JoinAlone(),)
     return dataclasses.replace(life, phase=Phase.JOINING, asked=now), (Query(),)
 
@@ -462,7 +463,7 @@ def _wait(life: Life, now: float, view: View):
     until = _next_progress(life, view, silence3) if view.present else math.inf
     if view.present:
         until = min(until, now + (w.decision_s - wait.waited_s))
-    elif life.mode == "coordinated":
+    elif life.mode == Mode.COORDINATED:
         until = min(until, view.absent_since + w.coordinator_s)
     return life, (*sent, tm.Wait(until))
 

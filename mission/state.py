@@ -42,9 +42,8 @@ from types import MappingProxyType
 import numpy as np
 
 from . import events as ev
+from .timeouts import T_TOLERANCE_S
 
-#: Largest accepted difference between an Observation's ``t`` and the stage time t_j, seconds.
-T_TOLERANCE_S = 1e-3
 
 #: Confirm statuses that count for the decision round-trip latency.
 LATENCY_STATUSES = ("deployed", "idle")

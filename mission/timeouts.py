@@ -122,6 +122,10 @@ def resumed_join(join_s: float, stage_s: float, rejoin_s: float | None = None) -
 #: The defaults.
 DEFAULTS = Timeouts()
 
+#: Largest accepted difference between a message's ``t`` (an Observation's, a Decision's) and
+#: the stage time t_j it names, seconds.
+T_TOLERANCE_S = 1e-3
+
 #: The waits that cross the links, and how many one-way messages each covers: what it waits for
 #: and what must go out first (docs/fleet.md, "Waits over slow links"). The others are local
 #: (a session's close, a liveliness query) or the pace of periodic messages (Progress).

@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass
 
 from .peers import last_heard
+from .modes import Mode
 
 
 # --------------------------------------------------------------------------- effects
@@ -163,15 +164,15 @@ def decision_wait(clock: str, mode: str, present: bool, waited_s: float, absent_
     in time), :class:`MoveOn` (coordinated, wall clock, none in time), :class:`AskState` (sim
     clock, ``decision_s`` waited: ask again, wait on), :class:`GiveUp` (the coordinator absent
     for ``coordinator_s``, coordinated) or :class:`Wait`."""
-    if mode == "decentralised":
+    if mode == Mode.DECENTRALISED:
         return DecideAlone()
     if present:
         if waited_s < decision_s:
             return Wait()
         if clock == "sim":
             return AskState()
-        return MoveOn() if mode == "coordinated" else DecideAlone()
-    if mode == "hybrid":
+        return MoveOn() if mode == Mode.COORDINATED else DecideAlone()
+    if mode == Mode.HYBRID:
         return DecideAlone()
     if absent_s >= coordinator_s:
         return GiveUp("coordinator-lost")
@@ -254,7 +255,7 @@ def state_query(mode: str, first: float, failed: float | None, now: float, coord
     if isinstance(rule, Attempt):
         return AskState()
     if isinstance(rule, GiveUp):
-        return DecideAlone() if mode == "hybrid" else GiveUp("coordinator-lost")
+        return DecideAlone() if mode == Mode.HYBRID else GiveUp("coordinator-lost")
     return rule
 
 

@@ -20,7 +20,7 @@ WAITS = dataclasses.replace(DEFAULTS, decision_s=30.0, coordinator_s=30.0, end_s
 SIM, WALL = mc.Timers("sim", 9.0, 0.0), mc.Timers("wall", 9.0, 0.0)
 
 
-def machine(stage: int = 0, pending: int | None = None, **changes) -> mc.CarrierState:
+def machine(stage: int = 0, pending: int | None = None, **changes) -> mc.Handshake:
     m = mc.initial("a", (True,) * 4, (0.0, 5.0, 10.0, 15.0), 2)
     m, _ = mc.step(m, mc.Joined(0))
     m = dataclasses.replace(m, stage=stage, pending=pending)

@@ -856,7 +856,7 @@ def test_bye_only_after_hello():
     from carriers.exits import EXIT_CODES
 
     node = (ROOT / "carriers" / "node.py").read_text()
-    assert 'if self.answer.said_hello or self.config.mode == "decentralised":  # a Bye needs a Hello' in node
+    assert 'if self.answer.said_hello or self.config.mode == Mode.DECENTRALISED:  # a Bye needs a Hello' in node
     table = PAGE.split("**[P-9.4]")[1].split("\n\n", 2)[1]
     documented = set(re.findall(r"^\| `([a-z0-9-]+)` \|", table, re.M))
     assert documented == set(EXIT_CODES) - {"log-mismatch"}  # a log mismatch stops before the Hello

@@ -273,4 +273,17 @@ def test_no_rule_reads_a_clock():
     tree = ast.parse(inspect.getsource(tm))
     imported = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
     imported |= {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module}
-    assert imported <= {"__future__", "math", "dataclasses", "peers"}, imported
+    assert imported <= {"__future__", "math", "dataclasses", "peers", "modes"}, imported
+
+
+@pytest.mark.parametrize("module", ["mission.carrier_life", "mission.coordinator_life"])
+def test_no_lifecycle_reads_a_clock(module):
+    """Time is an input of the lifecycle machines too: they import no clock, nor any I/O."""
+    import ast
+    import importlib
+    import inspect
+
+    tree = ast.parse(inspect.getsource(importlib.import_module(module)))
+    imported = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+    imported |= {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module}
+    assert imported <= {"__future__", "math", "dataclasses", "enum", "typing", None, "timeouts", "modes"}, imported

@@ -14,6 +14,7 @@ from .. import carrier_life as cl
 from .. import timers as tm
 from ..peers import PeerBook
 from .model import ROUTER, LogEntry, Msg, msg
+from ..modes import Mode
 
 class CarrierDriver:
     """A carrier process on a simulated host: its lifecycle machine (``lifecycle``,
@@ -158,7 +159,7 @@ class CarrierDriver:
         if self.lifecycle.phase is cl.Phase.JOINING:
             self.present = True  # it answered
             self.join_from_state(seen, now)
-            if self.sim.fleet.mode == "hybrid":
+            if self.sim.fleet.mode == Mode.HYBRID:
                 self.listen()
             self.step(cl.Answered(now), now)
             return

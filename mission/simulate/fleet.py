@@ -9,6 +9,7 @@ import numpy as np
 from .. import events as ev
 from .. import state as ms
 from ..timeouts import DEFAULTS, Timeouts
+from ..modes import Mode
 
 @dataclass(frozen=True)
 class Fleet:
@@ -37,7 +38,7 @@ class Fleet:
     onboard: object
     seed: int
     fingerprint: str = "sim"
-    mode: str = "hybrid"
+    mode: str = Mode.HYBRID
     decisions: dict = field(default_factory=dict, compare=False, repr=False)  # the planner's memo
     links: object = field(default=None, compare=False, repr=False)
     timeouts: Timeouts = field(default=DEFAULTS, compare=False)

@@ -20,6 +20,7 @@ from .fleet import Fleet
 from .links import LinkLayer
 from .model import (FAITHFUL_KINDS, FAULT_KINDS, LEASE_S, OPEN_RETRY_S, ROUTER, Clock, Fault, Msg, Outcome, draw_faults,
                     msg)
+from ..modes import Mode
 
 #: Stop a mission this long (simulated s) after its liveness bound: it did not complete.
 OVERRUN_S = 60.0
@@ -47,7 +48,7 @@ class Simulation:
         self.releases: dict = {cid: [] for cid in fleet.ids}
         self.confirmed: set = set()
         self.listeners: set = set()
-        self.listened_by = fleet.listened_by() if fleet.mode != "coordinated" else {}
+        self.listened_by = fleet.listened_by() if fleet.mode != Mode.COORDINATED else {}
         self.epochs: dict = {}                   # (epoch, stage) -> the coordinator that published it
         self.finished_ids: dict = {}
         self.decided_at: dict = {}               # stage -> the true time its first Decision was published
