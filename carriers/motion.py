@@ -73,6 +73,8 @@ class Motion:
         body: its body: a ``world.Simulation`` of this carrier (set when the carrier runs), or a
             ROS 2 robot's body that replaces it (ros2/publisher.py); None before.
         track: what its motion has published so far (:class:`Track`).
+        pending: the Observation it published at the stage whose decision it waits for (None:
+            none waits).
     """
 
     def __init__(self, mission: str, cid: str, pose_interval_s: float, stop: threading.Event, physics, now: float):
@@ -80,6 +82,7 @@ class Motion:
         self.physics = physics  # the process's PhysicsThread, or None: physics in the carrier's thread
         self.body = None
         self.track = Track(now)
+        self.pending = None
 
     def position(self) -> tuple[float, float]:
         return tuple(map(float, self.body.position(self.cid)))

@@ -37,6 +37,7 @@ import socket
 import threading
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import world
 from carriers.alone import Alone
@@ -141,6 +142,35 @@ def check_config(config: CarrierConfig) -> None:
         raise ValueError(f"onboard_load must be one of {ONBOARD_LOADS}, found {config.onboard_load!r}")
 
 
+def _print(line: str) -> None:
+    print(line, flush=True)
+
+
+@dataclass(frozen=True)
+class Who:
+    """Which carrier of which mission: its scenario, id and index, the mission id, the world's
+    fingerprint and the stages it is scheduled at."""
+
+    scenario: Any
+    cid: str
+    r: int
+    mission: str
+    fingerprint: str
+    valid: tuple
+
+
+@dataclass(frozen=True)
+class Parts:
+    """What a carrier shares with the other carriers of its process (carriers/process.py): its Zenoh
+    config, the process's session (None: one of its own), the world derived once
+    (:class:`carriers.shared.SharedWorld`, None: its own) and the stage gate."""
+
+    zconf: Any
+    session: Any
+    shared: Any
+    gate: StageGate
+
+
 def waits_of(config: CarrierConfig):
     """The waits of :mod:`mission.carrier_life` a carrier of ``config`` times by
     (:class:`mission.timeouts.Timeouts`)."""
@@ -182,72 +212,64 @@ class Carrier:
                  clock=time.monotonic):
         if config.seed is not None and shared is None:
             scenario = scenario.with_seed(int(config.seed))
-        self.scenario = scenario
-        self.shared = shared
-        self.config = config
-        self.zconf = zconf
-        self.session = session  # the process's wire.transport.SharedSession, or None: a session of its own
-        self.cid = keys.check_id(config.carrier, "carrier")
-        self.r = scenario.carrier_index(self.cid)  # KeyError for an unknown id (checked by the CLI)
-        self.mission = keys.check_id(config.mission or keys.mission_id_from_name(scenario.name), "mission")
         check_config(config)
+        self.config = config
+        cid = keys.check_id(config.carrier, "carrier")
+        r = scenario.carrier_index(cid)  # KeyError for an unknown id (checked by the CLI)
         valid = scenario.valid() if shared is None else shared.valid
-        self.valid = valid[self.r]
-        self.fingerprint = scenario_fingerprint(scenario) if shared is None else shared.fingerprint
-        self.machine = mc.initial(self.cid, self.valid, scenario.stage_times(), scenario.carriers[self.r].passengers)
-        self._log = config.log or (lambda line: print(line, flush=True))
+        self.who = Who(scenario, cid, r, keys.check_id(config.mission or keys.mission_id_from_name(scenario.name),
+                                                       "mission"),
+                       scenario_fingerprint(scenario) if shared is None else shared.fingerprint, tuple(valid[r]))
+        # what it shares with the other carriers of its process (carriers/process.py)
+        self.parts = Parts(zconf, session, shared, gate if gate is not None else StageGate())
+        self.machine = mc.initial(cid, self.valid, scenario.stage_times(), scenario.carriers[r].passengers)
         self._stop = stop if stop is not None else threading.Event()
         self.node = None
-        self.clock = clock  # the one clock its waits read, once per look (mission.timers rules decide)
-        self.presence = Presence(self.clock())  # the coordinator's and the peers' tokens, what came when
-        self.pending: Observation | None = None
-        self.motion = Motion(self.mission, self.cid, config.pose_interval_s, self._stop, physics, self.clock())
-        self.answer = mc.HelloAnswer(self.fingerprint)  # the coordinator's answer to its latest Hello
-        self.queries = StateQueries(self.mission, self.cid, self.log)  # its State queries [P-5.2]
-        self.onboard = onboard if onboard is not None else Onboard(scenario, config.planner_options)
-        self.onboard_load = config.onboard_load or "start"
-        self.gate = gate if gate is not None else StageGate()
-        self.book = PeerBook(scenario.carrier_ids, valid)  # what it heard of every carrier's stages
-        # Passenger types: the passenger each Decision named for this carrier, and the passenger
-        # released at each stage of this process (docs/protocol.md, Decision).
-        self.releases = mc.Releases(scenario.carriers[self.r].passengers)
-        self.inbound = Inbound(self.mission, self.cid, config.mode, self.onboard,
+        self.clock = clock  # the one clock its lifecycle is fed, once per look (mission.timers rules decide)
+        self.motion = Motion(self.mission, cid, config.pose_interval_s, self._stop, physics, self.clock())
+        onboard = onboard if onboard is not None else Onboard(scenario, config.planner_options)
+        book = PeerBook(scenario.carrier_ids, valid)  # what it heard of every carrier's stages
+        # What it receives and the books it feeds: who is there, the answer to its latest Hello, the
+        # passenger each Decision named for it (docs/protocol.md, Decision).
+        self.inbound = Inbound(self.mission, cid, config.mode, onboard,
                                broadcasts if broadcasts is not None else SharedDecoder(),  # the process's Decisions
-                               self.book, self.presence, self.answer, self.releases, self.motion.position, self.log)
+                               book, Presence(self.clock()), mc.HelloAnswer(self.fingerprint),
+                               mc.Releases(scenario.carriers[r].passengers), self.motion.position, self.log)
         self.store: CarrierLog | None = None  # the durable log, open while running
-        self.alone = Alone(self.cid, self.book, self.onboard, scenario.seed, self.log)
-        self.joining = Joining(self.cid, self.fingerprint, config, scenario.stage_time, self.queries, self.book,
-                               self.motion, self.inbound, self.clock, self._stop, self.log)
+        self.alone = Alone(cid, book, onboard, scenario.seed, self.log)
+        self.joining = Joining(cid, self.fingerprint, config, scenario.stage_time,
+                               StateQueries(self.mission, cid, self.log), book, self.motion, self.inbound, self.clock,
+                               self._stop, self.log)
         self.ros2 = None  # its ROS 2 node (ros2/publisher.py) while running with config.ros2
         # What it times its waits by: its own settings until the coordinator's Accepted tells it
         # the mission's (docs/protocol.md, [P-10.2]; :func:`mission.carrier.follow`).
         self.timers = mc.Timers(config.clock, float(config.silence_timeout_s), float(config.realtime))
         # Its lifecycle (:mod:`mission.carrier_life`): the phase it is in and every wait it keeps.
         self.life = cl.initial(config.mode, waits_of(config))
-        self.reason = "finished"  # why it ends (carriers/exits.py), once its lifecycle is done
+
+    # ------------------------------------------------------------------ its parts, by name
+    scenario = property(lambda self: self.who.scenario)
+    cid = property(lambda self: self.who.cid)
+    mission = property(lambda self: self.who.mission)
+    fingerprint = property(lambda self: self.who.fingerprint)
+    valid = property(lambda self: self.who.valid)
+    presence = property(lambda self: self.inbound.presence)  # the coordinator's and the peers' tokens
+    answer = property(lambda self: self.inbound.answer)      # the coordinator's answer to its latest Hello
+    releases = property(lambda self: self.inbound.releases)  # the passenger each stage releases
+    book = property(lambda self: self.inbound.book)          # what it heard of every carrier's stages
+    gate = property(lambda self: self.parts.gate)
+    pending = property(lambda self: self.motion.pending)     # the Observation waiting for its decision
+    reason = property(lambda self: self.life.reason or "finished")  # why it ended (carriers/exits.py)
 
     # ------------------------------------------------------------------ views for tests and logs
     def log(self, line: str) -> None:
-        self._log(f"carrier {self.cid}: {line}")
+        (self.config.log or _print)(f"carrier {self.cid}: {line}")
 
     def stop(self) -> None:
         self._stop.set()
         node = self.node
         if node is not None:
             node.wake()
-
-    @property
-    def stage(self) -> int:
-        return self.machine.stage
-
-    @property
-    def handled(self) -> dict:
-        """stage -> the first answer (:class:`mission.carrier.Answer`)."""
-        return self.machine.handled
-
-    @property
-    def ended(self) -> bool:
-        return self.machine.ended
 
     # ------------------------------------------------------------------ the one way state changes
     def apply(self, event) -> None:
@@ -286,8 +308,9 @@ class Carrier:
                 self.mission, self.cid, os.getpid(), socket.gethostname()[:255], self.machine.passengers_left,
                 effect.next_stage, self.fingerprint, max(1, self.machine.epoch), REVISION))
         elif isinstance(effect, mc.ResendObservation):
-            if self.pending is not None and self.pending.stage == effect.stage:
-                self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.pending)
+            pending = self.motion.pending
+            if pending is not None and pending.stage == effect.stage:
+                self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), pending)
         elif isinstance(effect, mc.AskState):  # a Decision came without an earlier one
             self.joining.resync(self, gap=effect.stage)
         elif isinstance(effect, Rejoin):  # the coordinator is back
@@ -374,13 +397,13 @@ class Carrier:
             if effect.answered:
                 self.gate.hold(effect.stage, GATE_HOLD_S)  # the process's other carriers confirm first
             self.apply(mc.MovedOn(effect.stage))
-            self.pending = None
+            self.motion.pending = None
         elif isinstance(effect, cl.DecideOnBoard):
             self.apply(mc.DecidedOwn(effect.stage, self.alone.deploy(effect.stage), self.motion.position()))
         elif isinstance(effect, cl.AskState):
             self.joining.recover_decision(self, effect.stage)
         elif isinstance(effect, cl.Query):
-            state = self.queries.once(self.node)
+            state = self.joining.queries.once(self.node)
             if state is not None:
                 self.joining.from_state(self, state)
                 self.step(cl.Answered(self.clock()))
@@ -399,18 +422,18 @@ class Carrier:
         elif isinstance(effect, cl.Note):
             self.log(effect.line)
         elif isinstance(effect, cl.Finish):
-            self.reason = effect.reason
+            pass  # the lifecycle is done (its reason: :attr:`reason`)
 
     def _observe(self, j: int) -> None:
         """Sense at stage j and publish the Observation (acoustic: the trail fitted to the frame,
         wire/sizes.py); then it waits for the stage's decision."""
         t_j = self.scenario.stage_time(j)
         x = self.motion.body.sense(self.cid, j) if self.valid[j] else None
-        self.pending = fit_to_links(Observation(
+        self.motion.pending = fit_to_links(Observation(
             self.mission, self.cid, j, float(t_j), x, self.motion.position(), self.machine.passengers_left,
             self.motion.trail(), self.motion.counts(j, x)), self.scenario.links)
         self.apply(mc.Observed(j, x, self.motion.position()))
-        self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.pending)
+        self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.motion.pending)
         self.gate.waiting(j)
 
     def run(self) -> str:
@@ -419,10 +442,10 @@ class Carrier:
 
         reason = "finished"
         self.motion.body = world.Simulation(self.scenario, carriers=[self.cid],
-                                    features=None if self.shared is None else self.shared.features)
+                                    features=None if self.parts.shared is None else self.parts.shared.features)
         try:
-            self.node = Node(self.zconf, open_timeout_s=self.config.coordinator_timeout_s, stop=self._stop,
-                             shared=self.session, links=link_filter(self.scenario, self.mission, self.cid,
+            self.node = Node(self.parts.zconf, open_timeout_s=self.config.coordinator_timeout_s, stop=self._stop,
+                             shared=self.parts.session, links=link_filter(self.scenario, self.mission, self.cid,
                                                                     self.motion.position, self.config.realtime))
         except OpenStopped:
             return "stopped"
@@ -433,8 +456,9 @@ class Carrier:
                 "mission": self.mission, "carrier": self.cid, "scenario": self.scenario.name,
                 "fingerprint": self.fingerprint, "seed": int(self.scenario.seed)}, self.log)
             self.inbound.subscribe(self.node)
-            if self.config.mode == Mode.DECENTRALISED or (self.config.mode == Mode.HYBRID and self.onboard_load == "start"):
-                self.onboard.prepare()
+            if self.config.mode == Mode.DECENTRALISED or (self.config.mode == Mode.HYBRID
+                                                        and (self.config.onboard_load or "start") == "start"):
+                self.alone.onboard.prepare()
             if self.config.mode == Mode.DECENTRALISED:
                 # Subscribed before its token appears: a carrier that sees the token can reach it.
                 self.inbound.listen(self.node, wait=True)

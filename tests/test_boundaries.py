@@ -446,6 +446,21 @@ def test_processes_are_thin():
     assert problems == []
 
 
+#: Most attributes a process object holds (its parts are named structures and collaborators).
+PROCESS_ATTRIBUTES_MAX = 15
+
+
+@pytest.mark.parametrize("path, name", [("carriers/node.py", "Carrier")])
+def test_process_objects_hold_few_attributes(path, name):
+    """A process object is a driver: its machines, its collaborators and its I/O, at most
+    fifteen attributes (what they hold is theirs: properties name what it reads of them)."""
+    tree = ast.parse((REPO / path).read_text())
+    cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == name)
+    stored = {n.attr for n in ast.walk(cls) if isinstance(n, ast.Attribute) and isinstance(n.ctx, ast.Store)
+              and isinstance(n.value, ast.Name) and n.value.id == "self"}
+    assert len(stored) <= PROCESS_ATTRIBUTES_MAX, sorted(stored)
+
+
 #: Most parameters a function of the project may take (numba kernels included): beyond, pass named
 #: structures (NamedTuples of arrays, as planner/mcts/kernel.py does).
 MAX_PARAMETERS = 12

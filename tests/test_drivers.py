@@ -126,7 +126,7 @@ def test_a_carrier_on_the_wall_clock_stops_waiting_after_the_decision_timeout(mo
     the carrier's clock, without asking State."""
     carrier, clock = carrier_at_stage_0(mode, "wall", decision_timeout_s=30.0)
     lines = []
-    carrier._log = lines.append
+    carrier.config = dataclasses.replace(carrier.config, log=lines.append)
     carrier.presence.coordinator_alive()
     start = clock.now
     carrier.inbound.listening = ()  # deciding alone: nobody to listen to (its node is quiet)
@@ -169,7 +169,7 @@ def alone_at_stage_1(clock_name: str, peer_timeout_s: float = 5.0, silence_timeo
     me, peer = TINY.carrier_ids[:2]
     carrier.machine, _ = mc.step(carrier.machine, mc.MovedOn(0))
     carrier.machine, _ = mc.step(carrier.machine, mc.Observed(1, 1, (0.0, 0.0)))
-    carrier.pending = SimpleNamespace(stage=1)
+    carrier.motion.pending = SimpleNamespace(stage=1)
     carrier.inbound.listening = (peer,)
     carrier.presence.peer(peer, True)
     carrier.presence.heard_from(peer, clock())

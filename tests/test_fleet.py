@@ -195,9 +195,9 @@ def test_restarted_carrier_rejoins_with_its_recorded_deployments(tiny, tmp_path)
     second = fleet.start_carrier("a", realtime=5.0)
     summary = fleet.join()
     assert fleet.results["a"] == "end" and summary["ended"]
-    assert second.stage == tiny.stages
+    assert second.machine.stage == tiny.stages
     # The new process replayed what the log holds and never deployed a stage twice.
-    replayed = sorted(j for j, c in second.handled.items() if c.status == "deployed" and j < 2)
+    replayed = sorted(j for j, c in second.machine.handled.items() if c.status == "deployed" and j < 2)
     assert len(replayed) == before
     a = summary["carriers"][ra]
     stages = [d["stage"] for d in a["deployments"]]
