@@ -163,7 +163,7 @@ def test_a_carrier_process_loads_no_planner_kernels():
         "args = parse_args(sys.argv[1:])\n"
         "assert check(args, s)[1] == []\n"
         "c = Carrier(s, CarrierConfig('a'), None, shared=shared_world(s))\n"
-        "sim = world.Simulation(s, ['a'], features=c.shared.features); sim.advance_to(10.0); sim.sense('a')\n"
+        "sim = world.Simulation(s, ['a'], features=c.parts.shared.features); sim.advance_to(10.0); sim.sense('a')\n"
         "import wire.transport\n"
         "heavy = sorted({m.split('.')[0] for m in sys.modules} & {'numba', 'scipy', 'matplotlib', 'llvmlite'})\n"
         "print(','.join(heavy) or 'none')\n" % (str(TINY), str(TINY)))
