@@ -176,18 +176,33 @@ def test_bound_experiment_takes_every_prior_kind_within_the_exact_solvers_limits
 def test_bound_experiment_targets_are_marked_met_or_not():
     from experiments import bound as experiment
 
-    tiny = {"all": {"valid": "2/2", "all_valid": True, "bound_excess_pct": 1.0, "clairvoyant_excess_pct": 2.0,
-                    "ratio": 0.5}}
-    summary = [{"planner": "closed-loop", "carriers": 128, "config": "R = 128", "fraction_mean": 0.95,
+    tiny = {"all": {"valid": "2/2", "all_valid": True, "bound_excess_pct": 1.2, "dlr_excess_pct": 1.4,
+                    "clairvoyant_excess_pct": 2.0, "ratio": 0.5}}
+    summary = [{"planner": "closed-loop", "carriers": 128, "config": "R = 128", "fraction_mean": 0.98,
                 "fraction_sem": 0.01, "n": 5},
-               {"planner": "closed-loop", "carriers": 256, "config": "R = 256", "fraction_mean": 0.85,
+               {"planner": "closed-loop", "carriers": 256, "config": "R = 256", "fraction_mean": 0.96,
                 "fraction_sem": 0.01, "n": 5},
-               {"planner": "closed-loop", "carriers": 4, "config": "R = 4", "fraction_mean": 0.5,
+               {"planner": "closed-loop", "carriers": 4, "config": "R = 4, 0 overlaps", "fraction_mean": 0.5,
                 "fraction_sem": 0.01, "n": 5}]
     lines = experiment.targets(summary, tiny)
-    assert lines[0].endswith("— met") and lines[1].endswith("— NOT MET")  # validity; ratio 0.5 > 1/3
-    assert lines[2].endswith("— met") and "R = 128" in lines[2] and lines[3].endswith("— NOT MET")
-    assert len(lines) == 4  # R = 4 is below the fraction target's range
+    assert lines[0].endswith("— met")  # validity
+    assert lines[1].endswith("— NOT MET") and "1.4" in lines[1]  # 1.2 % > 1 %
+    assert lines[2].endswith("— NOT MET")  # ratio 0.5 > 1/3
+    assert lines[3].endswith("— met") and "R = 128" in lines[3] and lines[4].endswith("— NOT MET")
+    assert len(lines) == 5  # the conflict-free configuration has no fraction target
+
+
+def test_bound_experiment_split_table_names_the_best_planner_and_the_gap():
+    from experiments import bound as experiment
+
+    level = next(i for i, c in enumerate(experiment.CONFIGS) if c[1] == 32)
+    summary = [{"level": level, "planner": experiment.UPPER_BOUND, "reward_mean": 86.0, "reward_sem": 0.1,
+                "stderr_mean": 0.2},
+               {"level": level, "planner": "closed-loop", "fraction_mean": 0.97, "fraction_sem": 0.01},
+               {"level": level, "planner": "ssap", "fraction_mean": 0.80, "fraction_sem": 0.01},
+               {"level": 0, "planner": "ssap", "fraction_mean": 0.99, "fraction_sem": 0.01}]
+    table = experiment.split_table(summary).splitlines()
+    assert len(table) == 3 and "R = 32" in table[2] and "0.970" in table[2] and "3.0 %" in table[2]
 
 
 @pytest.mark.slow
@@ -223,6 +238,8 @@ def test_bound_experiment_quick_run(tmp_path):
                            "--out", str(tmp_path)], capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr
     assert {"bound.md", "bound.png", "bound_trials.csv", "bound_summary.csv"} <= {p.name for p in tmp_path.iterdir()}
+    text = (tmp_path / "bound.md").read_text()
+    assert "### Where the gap is" in text and "| R = 32, 160 overlaps |" in text.split("### Where the gap is")[1]
 
 
 # ----------------------------------------------------------------------------- the discounted penalty
