@@ -48,14 +48,19 @@ class BoundTooLarge(ValueError):
 # ----------------------------------------------------------------------------- the penalty
 
 
-def penalty_terms(problem: Problem, x: np.ndarray, scale: float = 1.0) -> np.ndarray:
+def penalty_terms(problem: Problem, x: np.ndarray, scale: float = 1.0,
+                  discount: np.ndarray | None = None) -> np.ndarray:
     """float ``[R, N, Dmax + 1]``: ``phi[r, j, d]``, the penalty term of carrier r at stage j with
-    d passengers left before j, ``scale * (v(n, d, x[r, j]) - S(n, d))`` at valid stages (0 at
-    invalid ones and for ``d = 0``); raw units. ``scale = 0`` is the zero penalty (clairvoyance).
+    d passengers left before j, ``scale * (g(x[r, j]) - E[g(X)])`` at valid stages (0 at invalid
+    ones and for ``d = 0``); raw units. ``scale = 0`` is the zero penalty (clairvoyance).
+
+    ``g`` is the carrier's one-stage Bellman value ``max(rho x + V(j+1, d-1), V(j+1, d))`` (deploy
+    forced when its valid stages left equal ``d``) of the single-carrier values
+    :func:`carrier_values` under the per-point ``discount`` rho (None: rho = 1, the DLR values, and
+    ``E[g(X)]`` is the DLR slot value S(n, d)). Any rho gives a term of mean zero given the past.
 
     ``x``: float ``[R, N]`` observations (NaN = ∅; every scheduled stage must be observed).
     """
-    slot = compile_problem(problem).slot_value  # [N + 1, N + 1], S(n, d), d clipped to n
     n_carriers, n_stages = problem.valid.shape
     dmax = int(problem.passengers.max(initial=0))
     out = np.zeros((n_carriers, n_stages, dmax + 1))
@@ -65,16 +70,118 @@ def penalty_terms(problem: Problem, x: np.ndarray, scale: float = 1.0) -> np.nda
     r_idx, j_idx = np.nonzero(problem.valid)
     n = left[r_idx, j_idx]
     xv = np.asarray(x, dtype=float)[r_idx, j_idx]
+    if discount is None:
+        slot = compile_problem(problem).slot_value  # [N + 1, N + 1], S(n, d), d clipped to n
+
+        def after(dd):  # V(j + 1, dd): the DLR value of n - 1 stages
+            return slot[n - 1, np.minimum(dd, n - 1)]
+
+        now = [slot[n, np.minimum(d, n)] for d in range(dmax + 1)]
+        rho = np.ones_like(xv)
+    else:
+        values = carrier_values(problem, discount)  # [R, N + 1, Dmax + 1]
+
+        def after(dd):
+            return values[r_idx, j_idx + 1, np.minimum(dd, dmax)]
+
+        now = [values[r_idx, j_idx, d] for d in range(dmax + 1)]
+        rho = np.asarray(discount, dtype=float)[r_idx, j_idx]
     for d in range(1, dmax + 1):
-
-        def s(nn, dd):
-            return slot[nn, np.minimum(dd, nn)]
-
-        deploy = xv + s(n - 1, np.full_like(n, d - 1))
-        stay = s(n - 1, np.full_like(n, d))
+        dd = np.minimum(d, n)
+        deploy = rho * xv + after(dd - 1)
+        stay = after(dd)
         value = np.where(n <= d, deploy, np.maximum(deploy, stay))
-        out[r_idx, j_idx, d] = scale * (value - s(n, np.full_like(n, d)))
+        out[r_idx, j_idx, d] = scale * (value - now[d])
     return out
+
+
+def _expected_max(prior):
+    """A function ``c -> E[max(X, c)]`` (float array in, float array out) exact for the prior: a sum
+    over the support (discrete; tail mass below ``priors.TAIL`` dropped) or tail integrals
+    (continuous, :mod:`planner.ssap`'s quadrature)."""
+    from planner import priors, ssap
+
+    if priors.is_discrete(prior):
+        points, mass = priors.support(prior)
+
+        def expected(c):
+            c = np.asarray(c, dtype=float)
+            return (mass[None, :] * np.maximum(points[None, :], c.reshape(-1, 1))).sum(axis=1).reshape(c.shape)
+
+        return expected
+    clipped = ssap.clipped_mean(prior)
+
+    def expected(c):
+        c = np.asarray(c, dtype=float)
+        return np.array([clipped(v, np.inf) for v in c.ravel().tolist()]).reshape(c.shape)
+
+    return expected
+
+
+_VALUES: "weakref.WeakKeyDictionary[Problem, dict]" = weakref.WeakKeyDictionary()
+
+
+def carrier_values(problem: Problem, discount: np.ndarray) -> np.ndarray:
+    """float ``[R, N + 1, Dmax + 1]``: ``V[r, j, d]``, the optimal expected total (raw units) of
+    carrier r alone from stage j on with d passengers left (clipped to its valid stages left) when
+    a deployment at (r, j') earns ``discount[r, j'] * x``; ``V[r, N, :] = 0``. The DLR recurrence
+    with a point-dependent reward: ``V(j, d) = E[max(rho X + V(j+1, d-1), V(j+1, d))]``, the deploy
+    forced when the stages left equal d. ``discount``: float ``[R, N]``, positive at valid points."""
+    rho_all = np.ascontiguousarray(discount, dtype=float)
+    if rho_all.shape != problem.valid.shape or not (rho_all[problem.valid] > 0).all():
+        raise ValueError("discount: expected a positive [R, N] array at every scheduled point")
+    cache = _VALUES.setdefault(problem, {})
+    key = rho_all.tobytes()
+    if key not in cache:
+        cache[key] = _carrier_values(problem, rho_all)
+        cache[key].setflags(write=False)
+    return cache[key]
+
+
+def _carrier_values(problem: Problem, rho_all: np.ndarray) -> np.ndarray:
+    n_carriers, n_stages = problem.valid.shape
+    dmax = int(problem.passengers.max(initial=0))
+    left = valid_stages_left(problem.valid)
+    expected_max = _expected_max(problem.prior)
+    mean = float(problem.prior.mean())
+    values = np.zeros((n_carriers, n_stages + 1, dmax + 1))
+    for j in range(n_stages - 1, -1, -1):
+        values[:, j] = values[:, j + 1]
+        rows = np.flatnonzero(problem.valid[:, j])
+        if len(rows) == 0:
+            continue
+        n, rho, nxt = left[rows, j], rho_all[rows, j], values[rows, j + 1]
+        for d in range(1, dmax + 1):
+            dd = np.minimum(d, n)
+            a = nxt[np.arange(len(rows)), dd - 1]
+            b = nxt[np.arange(len(rows)), np.minimum(dd, dmax)]
+            forced = dd >= n
+            free = np.flatnonzero(~forced)
+            out = rho * mean + a
+            if len(free):
+                out[free] = a[free] + rho[free] * expected_max((b[free] - a[free]) / rho[free])
+            values[rows, j, d] = out
+    return values
+
+
+#: Strengths ``c`` of :func:`conflict_discount` tried by :func:`upper_bound` (``strength="auto"``);
+#: 0 is the DLR penalty.
+STRENGTHS = (0.0, 0.25, 0.5)
+
+
+def conflict_discount(problem: Problem, strength: float) -> np.ndarray:
+    """float ``[R, N]``: ``1 / (1 + strength * m)`` at each point, ``m`` the expected number of
+    conflicting deployments of the other valid points (each carrier deploying at a uniformly
+    random ``min(D_r, valid stages)`` of its valid stages); 1 at invalid points. A guess of the
+    share of ``x`` a deployment keeps; any positive array keeps the penalty's mean zero."""
+    n_carriers, n_stages = problem.valid.shape
+    total = problem.valid.sum(axis=1)
+    rate = np.minimum(problem.passengers, total) / np.maximum(total, 1)  # [R]
+    pi = (problem.valid * rate[:, None]).ravel().astype(float)
+    comp = compile_problem(problem)
+    m = np.zeros(n_carriers * n_stages)
+    np.add.at(m, comp.nbr_rows, pi[comp.nbr])
+    return (1.0 / (1.0 + strength * m)).reshape(n_carriers, n_stages)
 
 
 # ----------------------------------------------------------------------------- inner maximum
@@ -228,7 +335,7 @@ def _separable_value(problem: Problem, x: np.ndarray, phi: np.ndarray, parts: li
 
 
 def inner_maximum(problem: Problem, x: np.ndarray, method: str = "exact", penalty_scale: float = 1.0,
-                  mip_time_limit_s: float = MIP_TIME_LIMIT_S) -> float:
+                  mip_time_limit_s: float = MIP_TIME_LIMIT_S, discount: np.ndarray | None = None) -> float:
     """``max_y (R(y, x) - z(y, x))`` for one observation matrix, or an upper bound on it; raw units.
 
     Args:
@@ -239,6 +346,8 @@ def inner_maximum(problem: Problem, x: np.ndarray, method: str = "exact", penalt
             relaxation) or ``separable`` (interactions ignored; the fallback of an LP HiGHS cannot
             finish within :data:`LP_TIME_LIMIT_S`).
         penalty_scale: 1.0 for the DLR penalty, 0.0 for none (the clairvoyant optimum).
+        discount: float ``[R, N]``, the penalty's per-point discount (:func:`penalty_terms`;
+            None: the DLR values).
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
@@ -246,7 +355,7 @@ def inner_maximum(problem: Problem, x: np.ndarray, method: str = "exact", penalt
     if np.isnan(x[problem.valid]).any():
         raise ValueError("the bound needs an observation at every scheduled stage (found NaN at a valid stage)")
     x = np.where(problem.valid, x, 0.0)
-    phi = penalty_terms(problem, x, penalty_scale)
+    phi = penalty_terms(problem, x, penalty_scale, discount)
     parts = _components(problem)
     if method == "separable":
         return _separable_value(problem, x, phi, parts)
@@ -371,6 +480,9 @@ class UpperBound:
             (components of one carrier are always solved exactly).
         samples: observation matrices drawn.
         penalty_scale: 1.0 (the DLR penalty) or 0.0 (none: the clairvoyant bound's mean).
+        strength: the penalty's conflict discount (:func:`conflict_discount`; 0: the DLR values).
+        pilot_samples: observation matrices drawn first to choose ``strength`` among
+            :data:`STRENGTHS`, then discarded (0: no choice made).
     """
 
     expected_reward: float
@@ -378,6 +490,8 @@ class UpperBound:
     method: str
     samples: int
     penalty_scale: float = 1.0
+    strength: float = 0.0
+    pilot_samples: int = 0
 
 
 def auto_method(problem: Problem) -> str:
@@ -437,13 +551,37 @@ def check_budget(problem: Problem, method: str, samples: int, budget_s: float) -
                             f"{budget_s:g} s budget (R={problem.n_carriers}, N={problem.n_stages})")
 
 
+def choose_strength(problem: Problem, rng: np.random.Generator, method: str, pilot: int | None = None) -> float:
+    """The strength of :data:`STRENGTHS` whose penalty gives the smallest mean inner maximum on
+    ``pilot`` observation matrices drawn from ``rng`` (the same matrices for every strength), ties
+    to the first; 0.0 without conflicts. The caller discards these matrices: the bound's own
+    samples are then independent of the choice, so its mean stays an unbiased estimate of a valid
+    bound (the smallest of several means of the *same* samples would be biased low)."""
+    pilot = PILOT_SAMPLES if pilot is None else pilot
+    if len(compile_problem(problem).nbr) == 0 or pilot < 1:
+        return 0.0
+    xs = [sample_observations(problem, rng) for _ in range(pilot)]
+    means = [sum(inner_maximum(problem, x, method, discount=conflict_discount(problem, c)) for x in xs)
+             for c in STRENGTHS]
+    return float(STRENGTHS[int(np.argmin(means))])
+
+
+#: Observation matrices of the pilot that chooses the penalty's strength (``strength="auto"``).
+PILOT_SAMPLES = 8
+
+
 def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAULT_SAMPLES,
-                method: str = "auto", penalty_scale: float = 1.0, deadline_s: float | None = None) -> UpperBound:
+                method: str = "auto", penalty_scale: float = 1.0, deadline_s: float | None = None,
+                strength: float | str = "auto", pilot: int | None = None) -> UpperBound:
     """The information-relaxation bound of ``problem``: the mean of :func:`inner_maximum` over
     ``samples`` observation matrices drawn from the prior with ``rng`` (scheduled stages only).
 
     Args:
         method: ``auto`` (:func:`auto_method`) or one of :data:`METHODS`.
+        strength: the penalty's conflict discount (:func:`conflict_discount`), or ``auto``: the
+            best of :data:`STRENGTHS` on ``pilot`` (default :data:`PILOT_SAMPLES`) matrices drawn
+            first from ``rng`` and discarded (:func:`choose_strength`; no pilot when
+            ``penalty_scale`` is 0 or nothing conflicts).
         deadline_s: stop with :class:`BoundTooLarge` once this much wall time has passed (checked
             after each sample; None: no limit). The result never depends on timing: it is the
             bound of all ``samples`` or nothing.
@@ -457,15 +595,22 @@ def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAU
     if samples < 2:
         raise ValueError(f"upper bound: expected at least 2 samples (for a standard error), found {samples}")
     method = auto_method(problem) if method == "auto" else method
-    values = np.empty(samples)
     start = time.perf_counter()
+    pilot_samples = 0
+    if strength == "auto":
+        pilot_samples = 0 if penalty_scale == 0.0 or len(compile_problem(problem).nbr) == 0 else (
+            PILOT_SAMPLES if pilot is None else pilot)
+        strength = choose_strength(problem, rng, method, pilot_samples) if pilot_samples else 0.0
+    strength = float(strength)
+    discount = conflict_discount(problem, strength) if strength and penalty_scale else None
+    values = np.empty(samples)
     for s in range(samples):
         x = sample_observations(problem, rng)
-        values[s] = inner_maximum(problem, x, method, penalty_scale) / problem.scale
+        values[s] = inner_maximum(problem, x, method, penalty_scale, discount=discount) / problem.scale
         if deadline_s is not None and time.perf_counter() - start > deadline_s:
             raise BoundTooLarge(f"upper bound: stopped after {s + 1} of {samples} samples at the {deadline_s:g} s deadline")
     return UpperBound(float(values.mean()), float(values.std(ddof=1) / math.sqrt(samples)), method, samples,
-                      penalty_scale)
+                      penalty_scale, strength if discount is not None else 0.0, pilot_samples)
 
 
 #: Fewest samples :func:`plan` accepts (fewer would make the standard error meaningless).
@@ -480,7 +625,8 @@ DEADLINE_FACTOR = 3.0
 def plan(problem: Problem, budget_s: float = DEFAULT_BUDGET_S, samples: int = DEFAULT_SAMPLES) -> tuple[str, int]:
     """``(method, samples)`` for a bound within ``budget_s`` by :func:`estimate_seconds` (sizes
     alone, so the choice is the same on a fast and a loaded machine): :func:`auto_method` or, if
-    that does not fit, ``lp``; as many samples as fit, at most ``samples``.
+    that does not fit, ``lp``; as many samples as fit, at most ``samples``, after the pilot that
+    chooses the penalty's strength (:data:`STRENGTHS` times :data:`PILOT_SAMPLES` inner maxima).
 
     Raises:
         BoundTooLarge: not even :data:`MIN_SAMPLES` samples fit (one line; quick: no solve).
@@ -489,9 +635,10 @@ def plan(problem: Problem, budget_s: float = DEFAULT_BUDGET_S, samples: int = DE
     if problem.weights is not None:
         raise ValueError("upper bound: expected an instance without passenger values, found passenger_values")
     first = auto_method(problem)
+    pilot = len(STRENGTHS) * PILOT_SAMPLES if len(compile_problem(problem).nbr) else 0
     for method in dict.fromkeys((first, "mip" if first == "exact" else first, "lp")):
         per = estimate_seconds(problem, method, 1)
-        fit = min(samples, int(budget_s // per) if per > 0 else samples)
+        fit = min(samples, int(budget_s // per) - pilot if per > 0 else samples)
         if fit >= MIN_SAMPLES:
             return method, fit
     raise BoundTooLarge(f"upper bound: {MIN_SAMPLES} samples by lp would take about "

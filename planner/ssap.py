@@ -107,6 +107,12 @@ def _clipped_mean_factory(prior):
     return clipped_mean
 
 
+def clipped_mean(prior):
+    """A function ``(a, b) -> E[min(max(X, a), b)]`` for ``a <= b`` (either may be infinite), exact
+    for ``prior`` as the thresholds are (closed form, finite sum or quadrature)."""
+    return _clipped_mean_factory(prior)
+
+
 def thresholds(prior, n_max: int) -> np.ndarray:
     """DLR threshold table.
 
