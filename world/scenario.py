@@ -1096,10 +1096,10 @@ def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None, types: dic
         wps = ck.points(cm["waypoints"], f"{path}.waypoints", 2) if "waypoints" in cm else None
         storey = ""
         if the_map is not None and the_map.storeys:
-            names = [s.name for s in the_map.storeys]
+            storey_names = [s.name for s in the_map.storeys]
             storey = str(cm.get("storey", ""))
-            if storey not in names:
-                ck.bad(f"{path}.storey", f"one of map.storeys' names ({', '.join(names)})", cm.get("storey"))
+            if storey not in storey_names:
+                ck.bad(f"{path}.storey", f"one of map.storeys' names ({', '.join(storey_names)})", cm.get("storey"))
         elif "storey" in cm:
             ck.bad(f"{path}.storey", "no storey (the map has no map.storeys)", cm["storey"])
         stop = None

@@ -682,9 +682,15 @@ def _pyramid(classes: np.ndarray, levels: int) -> list[np.ndarray]:
 
 
 def write_octomap(grid: VoxelGrid, path: str | Path) -> Path:
-    """Write ``grid`` as an OctoMap ``.bt`` file (free and occupied leaves, pruned where eight
-    siblings agree), readable by OctoMap's ``readBinary`` and octovis."""
+    """Write ``grid`` as an OctoMap ``.bt`` file (:func:`octomap_bytes`)."""
     path = Path(path)
+    path.write_bytes(octomap_bytes(grid))
+    return path
+
+
+def octomap_bytes(grid: VoxelGrid) -> bytes:
+    """``grid`` as an OctoMap ``.bt`` file's bytes (free and occupied leaves, pruned where eight
+    siblings agree), readable by OctoMap's ``readBinary`` and octovis."""
     key0 = np.asarray(grid.key0, dtype=np.int64)
     ext = np.asarray(grid.shape, dtype=np.int64)
     levels = max(1, int(math.ceil(math.log2(max(int(ext.max()), 1)))))
@@ -736,5 +742,4 @@ def write_octomap(grid: VoxelGrid, path: str | Path) -> Path:
         node(TREE_DEPTH, np.zeros(3, dtype=np.int64))
     header = (f"{BT_HEADER.decode()}\nid OcTree\nsize {nodes if root == 3 else 0}\n"
               f"res {grid.resolution!r}\ndata\n").encode()
-    path.write_bytes(header + b"".join(chunks))
-    return path
+    return header + b"".join(chunks)
