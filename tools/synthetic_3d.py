@@ -186,6 +186,9 @@ def run(seed: int = 0, storeys: int = 2, size=(24.0, 14.0), carriers: int = 2, s
             origin = p + [0.0, 0.0, SENSOR_HEIGHT]
             out.append((float(t), cid, origin, lidar(b, origin, points, max_range, rng)))
     out.sort(key=lambda s: (s[0], s[1]))
+    for k in range(1, len(out)):  # distinct stamps: a folder names each scan by its stamp
+        if out[k][0] <= out[k - 1][0] + 1e-6:
+            out[k] = (out[k - 1][0] + 1e-3, *out[k][1:])
     return Run3D(b, routes, out)
 
 
