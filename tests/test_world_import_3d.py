@@ -69,6 +69,13 @@ def test_folder_and_bag_replay_agree_and_the_mission_observes_them(recorded, tmp
     trace = world.simulate_mission(s)
     for r, c in enumerate(s.carriers):
         assert np.hypot(*(trace.trajectories[r][-1, 1:] - np.asarray(c.waypoints[-1]))) < 0.5, c.id
+    # the picture: a top view, one panel per storey
+    out = world.render_map(s, tmp_path / "map.png", trajectories=trace.trajectories,
+                           deployments=[(c.id, tuple(trace.positions[r, fr["first_stage"][c.id] + 2])) for r, c in enumerate(s.carriers)])
+    import matplotlib.image as mpimg
+
+    img = mpimg.imread(out)
+    assert img.shape[1] > 1.8 * img.shape[0]  # two panels side by side
 
 
 @pytest.mark.slow
