@@ -674,11 +674,51 @@ def _pyramid(classes: np.ndarray, levels: int) -> list[np.ndarray]:
     for _ in range(levels):
         a = out[-1]
         X, Y, Z = a.shape
-        b = a.reshape(X // 2, 2, Y // 2, 2, Z // 2, 2).transpose(0, 2, 4, 1, 3, 5).reshape(X // 2, Y // 2, Z // 2, 8)
-        first = b[..., 0]
-        same = np.all(b == first[..., None], axis=-1) & (first != 3)
-        out.append(np.where(same, first, 3).astype(np.uint8))
+        b = a.reshape(X // 2, 2, Y // 2, 2, Z // 2, 2)
+        first = b[:, :1, :, :1, :, :1]
+        same = np.all(b == first, axis=(1, 3, 5)) & (first[:, 0, :, 0, :, 0] != 3)
+        out.append(np.where(same, first[:, 0, :, 0, :, 0], 3).astype(np.uint8))
     return out
+
+
+@numba.njit(cache=True)
+def _subtree(flat, offsets, shapes, level, ix, iy, iz, out, n):
+    """The .bt bytes of the mixed node at pyramid ``level`` index (ix, iy, iz), depth first,
+    written to ``out`` from ``n``; returns (new n, nodes below it)."""
+    sl = np.empty(TREE_DEPTH + 1, dtype=np.int64)
+    sx = np.empty(TREE_DEPTH + 1, dtype=np.int64)
+    sy = np.empty(TREE_DEPTH + 1, dtype=np.int64)
+    sz = np.empty(TREE_DEPTH + 1, dtype=np.int64)
+    si = np.empty(TREE_DEPTH + 1, dtype=np.int64)
+    nodes = 0
+    top = 0
+    sl[0], sx[0], sy[0], sz[0], si[0] = level, ix, iy, iz, -1
+    while top >= 0:
+        lv, x, y, z = sl[top], sx[top], sy[top], sz[top]
+        c = lv - 1
+        Y, Z = shapes[c, 1], shapes[c, 2]
+        if si[top] == -1:  # first visit: the node's two bytes
+            bits = 0
+            for i in range(8):
+                cx, cy, cz = 2 * x + (i & 1), 2 * y + ((i >> 1) & 1), 2 * z + ((i >> 2) & 1)
+                v = flat[offsets[c] + (cx * Y + cy) * Z + cz]
+                if v != 0:
+                    nodes += 1
+                    bits |= int(v) << (2 * i)
+            out[n] = bits & 0xFF
+            out[n + 1] = bits >> 8
+            n += 2
+            si[top] = 0
+        i = si[top]
+        if i == 8:
+            top -= 1
+            continue
+        si[top] = i + 1
+        cx, cy, cz = 2 * x + (i & 1), 2 * y + ((i >> 1) & 1), 2 * z + ((i >> 2) & 1)
+        if flat[offsets[c] + (cx * Y + cy) * Z + cz] == 3:
+            top += 1
+            sl[top], sx[top], sy[top], sz[top], si[top] = c, cx, cy, cz, -1
+    return n, nodes
 
 
 def write_octomap(grid: VoxelGrid, path: str | Path) -> Path:
@@ -693,47 +733,56 @@ def octomap_bytes(grid: VoxelGrid) -> bytes:
     siblings agree), readable by OctoMap's ``readBinary`` and octovis."""
     key0 = np.asarray(grid.key0, dtype=np.int64)
     ext = np.asarray(grid.shape, dtype=np.int64)
-    levels = max(1, int(math.ceil(math.log2(max(int(ext.max()), 1)))))
+    levels = 5  # the pyramid's nodes of up to 32 voxels a side; larger nodes are few
     side = 1 << levels
-    lo = (key0 // side) * side  # the region: 2 x 2 x 2 aligned cubes of side 2^levels
-    padded = np.full((2 * side,) * 3, UNKNOWN, dtype=np.int8)
+    lo = (key0 // side) * side
+    hi = -((-(key0 + ext)) // side) * side
+    padded = np.full(tuple(int(v) for v in hi - lo), UNKNOWN, dtype=np.int8)
     off = key0 - lo
     padded[off[0]:off[0] + ext[0], off[1]:off[1] + ext[1], off[2]:off[2] + ext[2]] = grid.classes
-    pyr = _pyramid(padded, levels)  # pyr[levels] is 2 x 2 x 2
+    pyr = _pyramid(padded, levels)
+    shapes = np.array([p.shape for p in pyr], dtype=np.int64)
+    offsets = np.concatenate([[0], np.cumsum([p.size for p in pyr])]).astype(np.int64)
+    flat = np.concatenate([p.ravel() for p in pyr])
     top = pyr[levels]
+    buf = np.empty(2 * int(flat.size) + 64, dtype=np.uint8)
+    n = 0
+    nodes = 1
 
     def code(side_log: int, kmin: np.ndarray) -> int:
         """0 unknown, 1 free, 2 occupied (uniform) or 3 mixed: the node of side 2^side_log at kmin."""
         if side_log <= levels:
             idx = (kmin - lo) >> side_log
-            n = 2 << (levels - side_log)
-            if np.any(idx < 0) or np.any(idx >= n):
+            if np.any(idx < 0) or np.any(idx >= shapes[side_log]):
                 return 0
             return int(pyr[side_log][tuple(idx)])
-        a = np.clip((kmin - lo) >> levels, 0, 2)
-        b = np.clip((kmin + (1 << side_log) - lo) >> levels, 0, 2)
+        a = np.clip((kmin - lo) >> levels, 0, shapes[levels])
+        b = np.clip((kmin + (1 << side_log) - lo) >> levels, 0, shapes[levels])
         cells = top[a[0]:b[0], a[1]:b[1], a[2]:b[2]].ravel()
-        inside = len(cells) == (1 << (side_log - levels)) ** 3
-        values = set(cells.tolist()) | ({0} if not inside else set())
+        values = set(cells.tolist()) | ({0} if len(cells) < (1 << (side_log - levels)) ** 3 else set())
         return values.pop() if len(values) == 1 else 3
 
-    chunks: list[bytes] = []
-    nodes = 1
-    offsets = [np.array([i & 1, (i >> 1) & 1, (i >> 2) & 1], dtype=np.int64) for i in range(8)]
+    offsets8 = [np.array([i & 1, (i >> 1) & 1, (i >> 2) & 1], dtype=np.int64) for i in range(8)]
 
     def node(side_log: int, kmin: np.ndarray) -> None:
-        nonlocal nodes
+        nonlocal n, nodes
+        if side_log == levels:
+            idx = (kmin - lo) >> levels
+            n, below = _subtree(flat, offsets, shapes, levels, int(idx[0]), int(idx[1]), int(idx[2]), buf, n)
+            nodes += below
+            return
         half = 1 << (side_log - 1)
         bits, inner = 0, []
         for i in range(8):
-            c = kmin + offsets[i] * half
+            c = kmin + offsets8[i] * half
             v = code(side_log - 1, c)
             if v:
                 nodes += 1
                 bits |= v << (2 * i)
                 if v == 3:
                     inner.append(c)
-        chunks.append(bytes((bits & 0xFF, bits >> 8)))
+        buf[n], buf[n + 1] = bits & 0xFF, bits >> 8
+        n += 2
         for c in inner:
             node(side_log - 1, c)
 
@@ -742,4 +791,4 @@ def octomap_bytes(grid: VoxelGrid) -> bytes:
         node(TREE_DEPTH, np.zeros(3, dtype=np.int64))
     header = (f"{BT_HEADER.decode()}\nid OcTree\nsize {nodes if root == 3 else 0}\n"
               f"res {grid.resolution!r}\ndata\n").encode()
-    return header + b"".join(chunks)
+    return header + buf[:n].tobytes()
