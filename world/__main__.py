@@ -348,8 +348,15 @@ def _run_import(args) -> int:
         return EXIT_BAD_INPUT
     try:
         # progress on stdout: on bad input stderr holds exactly the one line naming it
-        result = imp.import_run(settings, progress=lambda line: print(line, flush=True))
-        written = imp.write_outputs(settings, result)
+        from world import import3d
+
+        say = lambda line: print(line, flush=True)  # noqa: E731
+        if import3d.is_3d(settings):  # an OctoMap, a folder of scans or a bag's point clouds
+            result = import3d.import_3d(settings, progress=say)
+            written = import3d.write_outputs_3d(settings, result)
+        else:
+            result = imp.import_run(settings, progress=say)
+            written = imp.write_outputs(settings, result)
     except G.GridError as err:
         print(str(err), file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -342,7 +342,7 @@ def import_3d(st: ImportSettings, progress: Callable[[str], None] = print) -> Im
     name = st.name or Path(st.out).name.split(".")[0]
     data = V.octomap_bytes(grid)
     digest = hashlib.sha256(data).hexdigest()
-    text = _scenario_text(st, name, grid, levels, walls_by, cands, routes, of, interval, n_stages, body, prior, digest)
+    text = _scenario_text(st, name, grid, levels, walls_by, cands, of, (interval, n_stages, body), prior, digest)
     report = {
         "frontier_voxels": frontier_total,
         "carriers": {c.route.id: [{"t": float(t), "x": float(p[0]), "y": float(p[1]), "z": float(z), "value": int(v)}
@@ -412,8 +412,9 @@ def _positions(routes: list[tuple[Route, np.ndarray]], st: ImportSettings) -> li
 
 
 def _scenario_text(st: ImportSettings, name: str, grid: V.VoxelGrid, levels: list[float], walls_by: list,
-                   cands: list[Candidates], routes, of: dict[str, int], interval: float, n_stages: int, body: float,
+                   cands: list[Candidates], of: dict[str, int], timing: tuple[float, int, float],
                    prior: dict, digest: str) -> str:
+    interval, n_stages, body = timing  # stage interval (s), stages, carrier radius (m)
     stem = Path(st.out).name.split(".")[0]
     x0, y0, _, x1, y1, _ = grid.extent
     pad = grid.resolution

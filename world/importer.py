@@ -287,10 +287,7 @@ def import_run(st: ImportSettings, progress: Callable[[str], None] = print) -> I
         GridError: bad input, naming the file, field or topic.
     """
     from world import bag as B
-    from world import import3d
 
-    if import3d.is_3d(st):
-        return import3d.import_3d(st, progress)
     source = Path(st.source)
     is_bag = source.is_dir()
     history_stamps: list[float] = []
@@ -517,11 +514,7 @@ def write_outputs(st: ImportSettings, result: ImportResult) -> list[str]:
     from world.scenario import ScenarioError, load_scenario
     from world.stages import stage_geometry
 
-    if result.octomap is not None:
-        from world.import3d import write_outputs_3d
-
-        return write_outputs_3d(st, result)
-    assert result.grid is not None
+    assert result.grid is not None and result.octomap is None  # a 3D import: world.import3d.write_outputs_3d
     out = Path(st.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     stem = out.name.split(".")[0]

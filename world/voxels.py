@@ -245,9 +245,13 @@ def _coord_key(c: float, factor: float) -> int:
 
 
 @numba.njit(cache=True, nogil=True)
-def _ray(ox, oy, oz, ex, ey, ez, res, key0x, key0y, key0z, stamp, code, logodds, miss, lo, hi):
-    """OctoMap's computeRayKeys from (o) to (e) (float32 coordinates), each voxel not yet
-    marked in this scan given one miss update. Returns nothing."""
+def _ray(o, e, res, key0, stamp, code, logodds, model):
+    """OctoMap's computeRayKeys from ``o`` to ``e`` (float32 (x, y, z)), each voxel not yet
+    marked in this scan given one miss update; ``model`` (miss, clamp lo, clamp hi)."""
+    ox, oy, oz = o
+    ex, ey, ez = e
+    key0x, key0y, key0z = key0[0], key0[1], key0[2]
+    miss, lo, hi = model
     factor = 1.0 / res
     kox, koy, koz = _coord_key(ox, factor), _coord_key(oy, factor), _coord_key(oz, factor)
     kex, key_, kez = _coord_key(ex, factor), _coord_key(ey, factor), _coord_key(ez, factor)
@@ -332,7 +336,7 @@ def _insert_scan(points, origin, maxrange, res, key0, stamp, scan, logodds, hit,
             ex = np.float32(ox + np.float32(np.float32(dx / norm) * m))
             ey = np.float32(oy + np.float32(np.float32(dy / norm) * m))
             ez = np.float32(oz + np.float32(np.float32(dz / norm) * m))
-        _ray(ox, oy, oz, ex, ey, ez, res, key0[0], key0[1], key0[2], stamp, free_code, logodds, miss, lo, hi)
+        _ray((ox, oy, oz), (ex, ey, ez), res, key0, stamp, free_code, logodds, (miss, lo, hi))
     for p in range(n):
         if inside[p]:
             i = _coord_key(points[p, 0], factor) - key0[0]
