@@ -340,7 +340,9 @@ def import_3d(st: ImportSettings, progress: Callable[[str], None] = print) -> Im
     observed = np.concatenate([c.values for c in cands])
     prior = fit_prior(observed, st.prior)
     name = st.name or Path(st.out).name.split(".")[0]
-    data = V.octomap_bytes(grid)
+    src = Path(st.source)
+    # a .bt source is the map as it is: written beside the scenario unchanged
+    data = src.read_bytes() if src.suffix.lower() == ".bt" and scans is None else V.octomap_bytes(grid)
     digest = hashlib.sha256(data).hexdigest()
     text = _scenario_text(st, name, grid, levels, walls_by, cands, of, (interval, n_stages, body), prior, digest)
     report = {

@@ -671,17 +671,41 @@ def read_octomap(path: str | Path, params: OccupancyParams = OccupancyParams()) 
     return VoxelGrid(out, res, tuple(int(v) for v in lo), where)
 
 
+@numba.njit(cache=True)
+def _codes(classes, out):
+    X, Y, Z = classes.shape
+    for i in range(X):
+        for j in range(Y):
+            for k in range(Z):
+                v = classes[i, j, k]
+                out[i, j, k] = 0 if v == -1 else (1 if v == 0 else 2)
+
+
+@numba.njit(cache=True)
+def _reduce(a, out):
+    X, Y, Z = out.shape
+    for i in range(X):
+        for j in range(Y):
+            for k in range(Z):
+                first = a[2 * i, 2 * j, 2 * k]
+                same = first != 3
+                for c in range(1, 8):
+                    if a[2 * i + (c & 1), 2 * j + ((c >> 1) & 1), 2 * k + ((c >> 2) & 1)] != first:
+                        same = False
+                        break
+                out[i, j, k] = first if same else 3
+
+
 def _pyramid(classes: np.ndarray, levels: int) -> list[np.ndarray]:
     """Per level l (node side 2^l voxels): 0 unknown, 1 free, 2 occupied (uniform) or 3 mixed."""
-    base = np.where(classes == UNKNOWN, 0, np.where(classes == FREE, 1, 2)).astype(np.uint8)
+    base = np.empty(classes.shape, dtype=np.uint8)
+    _codes(classes, base)
     out = [base]
     for _ in range(levels):
         a = out[-1]
-        X, Y, Z = a.shape
-        b = a.reshape(X // 2, 2, Y // 2, 2, Z // 2, 2)
-        first = b[:, :1, :, :1, :, :1]
-        same = np.all(b == first, axis=(1, 3, 5)) & (first[:, 0, :, 0, :, 0] != 3)
-        out.append(np.where(same, first[:, 0, :, 0, :, 0], 3).astype(np.uint8))
+        nxt = np.empty((a.shape[0] // 2, a.shape[1] // 2, a.shape[2] // 2), dtype=np.uint8)
+        _reduce(a, nxt)
+        out.append(nxt)
     return out
 
 
