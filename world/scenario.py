@@ -764,7 +764,7 @@ def _parse_storeys(ck: _Checker, node: Any, bounds: tuple[float, float, float, f
     if not isinstance(node, list) or not node:
         ck.bad("map.storeys", "a non-empty list of storeys {name, base, walls}", node)
         return None
-    out = []
+    out: list[Storey] = []
     n0 = len(ck)
     for i, item in enumerate(node):
         where = f"map.storeys[{i}]"
