@@ -11,13 +11,12 @@ Two cases, each on the generated families of tools/synthetic_3d.py (seed 0):
   it), written as a .bt, imported with 3 carriers x 19 points.
 
 Each import runs as the command a user runs (a child process); its wall time and its peak
-resident memory (the child's ru_maxrss) are printed next to the targets (60 s and 4 GB; 30 s).
+resident memory (its own ru_maxrss, read by a wrapper process) are printed next to the targets (60 s and 4 GB; 30 s).
 ``--busy`` runs every case again with a CPU-bound process beside it (a busy host).
 """
 from __future__ import annotations
 
 import argparse
-import resource
 import subprocess
 import sys
 import tempfile
@@ -32,17 +31,21 @@ from world import voxels as V
 ROOT = Path(__file__).resolve().parents[1]
 
 
+#: Runs one command and prints its peak resident memory (KiB, its own ru_maxrss) on stderr's last line.
+_WRAP = ("import resource, subprocess, sys; rc = subprocess.run(sys.argv[1:]).returncode; "
+         "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, file=sys.stderr); sys.exit(rc)")
+
+
 def _timed(args: list[str]) -> tuple[float, float, str]:
-    """(wall s, peak RSS GB of this child, last stdout line) of ``python -m world import ...``."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    """(wall s, peak RSS GB, the values line) of ``python -m world import ...`` in its own process."""
     t0 = time.perf_counter()
-    done = subprocess.run([sys.executable, "-m", "world", "import", *args], cwd=ROOT, capture_output=True, text=True)
+    done = subprocess.run([sys.executable, "-c", _WRAP, sys.executable, "-m", "world", "import", *args], cwd=ROOT,
+                          capture_output=True, text=True)
     wall = time.perf_counter() - t0
     if done.returncode:
         raise SystemExit(f"import failed: {done.stderr.strip()}")
-    peak = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    # ru_maxrss is the largest child so far (KiB): only a new maximum is this child's own
-    return wall, max(peak, before) / 2**20 if peak > before else float("nan"), done.stdout.strip().splitlines()[-2]
+    peak_kib = int(done.stderr.strip().splitlines()[-1])
+    return wall, peak_kib / 2**20, done.stdout.strip().splitlines()[-2]
 
 
 def scans_case(work: Path, family: str, n_scans: int, points: int, max_range: float, voxel: float) -> list[str]:
