@@ -485,6 +485,7 @@ IMPORT3D_BAG = ("python -m world import /tmp/run3d/bag --cloud-topic c0=/c0/poin
 IMPORT3D_FOLDER = ("python -m world import /tmp/run3d/scans --routes /tmp/run3d/routes.yaml --stages 8 --replay "
                    "--out /tmp/run3d/run.yaml")
 RENDER3D = "python -m world render /tmp/run3d/run.yaml -o /tmp/run3d/map.png --trajectories"
+URBAN3D = "python -m experiments urban --scenario /tmp/run3d/run.yaml --quick --out /tmp/run3d/urban"
 IMPORT3D_SYNOPSIS = ("python -m world import SOURCE --out S.yaml [--routes ROUTES.yaml] [--odom ID=TOPIC]... "
                      "[--cloud-topic [ID=]TOPIC]... [--stages N | --stage-spacing M] [--radius M] [--keep-above M] "
                      "[--keep-below M] [--voxel M] [--neighbours 6|26] [--max-range M] [--sensor-offset X Y Z] "
@@ -499,6 +500,7 @@ def _bag_report_3d(outputs, tmp):
     assert report["frontier_voxels"] > 0 and [s["carriers"] for s in report["storeys"]] == [["c0"], ["c1"]]
     assert all("z" in p for ps in report["carriers"].values() for p in ps)
     assert (tmp / "run3d" / "map.png").stat().st_size > 10_000
+    assert (tmp / "run3d" / "urban" / "urban_map_mcts-ssap.png").is_file()
 
 
 RUNS += [
@@ -507,6 +509,7 @@ RUNS += [
         S(IMPORT3D_BAG, RUN3D),
         S(IMPORT3D_FOLDER, RUN3D),
         S(RENDER3D, RUN3D),
+        S(URBAN3D, RUN3D),
         S(IMPORT3D_SYNOPSIS, ("SOURCE", "{tmp}/run3d/bag"), ("[--routes ROUTES.yaml] ", ""),
           ("--out S.yaml", "--out {tmp}/run3d/syn.yaml"), ("[--odom ID=TOPIC]...", "--odom c0=/c0/odom --odom c1=/c1/odom"),
           ("[--cloud-topic [ID=]TOPIC]...", "--cloud-topic c0=/c0/points --cloud-topic c1=/c1/points"),
