@@ -143,6 +143,32 @@ def _around(box, neighbours: int) -> np.ndarray:
     return (idx[keep] + 0.5) * 0.25
 
 
+def test_in_process_import_of_a_known_building(tmp_path):
+    """The library path (world.import3d) on the building known by construction: the paper's
+    default filter, the report's additions and the files written."""
+    from world import import3d
+    from world.importer import ImportSettings
+
+    path, box, _ = _building_bt(tmp_path)
+    (tmp_path / "r.yaml").write_text(
+        "carriers:\n  - {id: low, passengers: 1, start: 0, speed: 1, path: [[1.0, 3.0, 0.5], [9.0, 3.0, 0.5]]}\n")
+    st = ImportSettings(source=str(path), out=str(tmp_path / "k.yaml"), routes=str(tmp_path / "r.yaml"), stages=4,
+                        report=str(tmp_path / "k.json"))
+    assert import3d.is_3d(st)
+    result = import3d.import_3d(st, progress=lambda line: None)
+    written = import3d.write_outputs_3d(st, result)
+    assert [Path(p).name for p in written] == ["k.yaml", "k.map.bt", "k.json"]
+    assert (tmp_path / "k.map.bt").read_bytes() == path.read_bytes()  # a .bt source is kept as it is
+    rep = json.loads((tmp_path / "k.json").read_text())
+    front = _around(box, 6)
+    assert rep["frontier_voxels"] == len(front)
+    for p in rep["carriers"]["low"]:
+        q = np.array([p["x"], p["y"], p["z"]])
+        dz = front[:, 2] - q[2]
+        assert p["value"] == int(((np.linalg.norm(front - q, axis=1) <= 10.0) & ((dz > 1.0) | (dz < -0.1))).sum())
+    assert sum(p["value"] for p in rep["carriers"]["low"]) > 0
+
+
 @pytest.mark.slow
 def test_octomap_values_known_by_construction(tmp_path):
     path, box, grid = _building_bt(tmp_path)
