@@ -297,3 +297,43 @@ def test_bad_inputs_one_line_nothing_left(recorded, tmp_path):
         assert expected in lines[0], (case, lines[0])
         assert not out.exists() and not (tmp_path / f"{case}.json").exists() and not (tmp_path / f"{case}.map.bt").exists()
     assert not list(tmp_path.glob(".*tmp")) and not list(tmp_path.glob(".import-*"))
+
+
+def test_mcap_and_rerun_draw_the_voxels(tmp_path):
+    """A 3D import's scene carries its occupied and frontier voxels: mission.mcap's
+    /world/voxels (foxglove.PointCloud) and the rerun view's Points3D; a 2D scene none."""
+    import rerun as rr
+    from mcap.reader import make_reader
+
+    import world
+    from recording.mcap import McapRecorder
+    from viewer.rerun_view import RerunView, blueprint
+    from world import import3d
+    from world.importer import ImportSettings
+    from world.scene import build_scene
+
+    path, box, grid = _building_bt(tmp_path)
+    (tmp_path / "r.yaml").write_text(
+        "carriers:\n  - {id: low, passengers: 1, start: 0, speed: 1, path: [[1.0, 3.0, 0.5], [9.0, 3.0, 0.5]]}\n")
+    st = ImportSettings(source=str(path), out=str(tmp_path / "k.yaml"), routes=str(tmp_path / "r.yaml"), stages=4)
+    import3d.write_outputs_3d(st, import3d.import_3d(st, progress=lambda line: None))
+    scene = build_scene(world.load_scenario(tmp_path / "k.yaml"))
+    occupied = int((grid.classes == V.OCCUPIED).sum())
+    assert int((scene.voxels[:, 3] == 0).sum()) == occupied and int((scene.voxels[:, 3] == 1).sum()) == len(_around(box, 6))
+    rec = McapRecorder(tmp_path / "m.mcap", scene)
+    rec.close()
+    with open(tmp_path / "m.mcap", "rb") as f:
+        msgs = [(s.name, m.data) for s, _, m in make_reader(f).iter_messages(topics=["/world/voxels"])]
+    assert len(msgs) == 1 and msgs[0][0] == "foxglove.PointCloud"
+    assert len(msgs[0][1]) >= 16 * len(scene.voxels)
+    import dataclasses
+
+    sizes = []
+    for k, sc in enumerate((scene, dataclasses.replace(scene, voxels=scene.voxels[:0]))):
+        stream = rr.RecordingStream("voxels-test")
+        stream.save(str(tmp_path / f"v{k}.rrd"), default_blueprint=blueprint(voxels=True))
+        RerunView(stream, sc)
+        stream.flush()
+        sizes.append((tmp_path / f"v{k}.rrd").stat().st_size)
+    assert sizes[0] > sizes[1] + 4 * len(scene.voxels)  # the points, compressed
+    assert len(build_scene(world.load_scenario(ROOT / "scenarios" / "tiny.yaml")).voxels) == 0
