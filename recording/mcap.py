@@ -18,6 +18,8 @@ topic              schema                   what
 /world             foxglove.SceneUpdate     the map once at t = 0: bounds, walls, obstacles,
                                             features, planned paths, overlap groups, the
                                             links' base and relays (drop time as metadata)
+/world/voxels      foxglove.PointCloud      a 3D import's map once at t = 0 (only then):
+                                            occupied voxels grey, frontier voxels red
 /carriers          foxglove.SceneUpdate     each carrier as a labelled entity, per pose
 /tf                foxglove.FrameTransform  map -> <carrier id>, per pose
 /deployments       foxglove.SceneUpdate     each deployed passenger with its sensing disc
@@ -36,6 +38,7 @@ import math
 from pathlib import Path
 
 import foxglove
+import numpy as np
 from foxglove import channels as fch
 from foxglove.mcap import MCAPWriteOptions
 from foxglove.messages import (
@@ -114,6 +117,27 @@ def _line(points, hex_colour, thickness, kind=LinePrimitiveLineType.LineStrip, a
 def _text(x, y, z, text, hex_colour="#000000", size=14.0) -> TextPrimitive:
     return TextPrimitive(pose=_pose(x, y, z), billboard=True, font_size=size, scale_invariant=True,
                          color=colour(hex_colour), text=text)
+
+
+def voxel_cloud(scene: Scene, t: float):
+    """A 3D import's voxels as a foxglove.PointCloud: float32 x, y, z and uint8 RGBA (occupied
+    grey, frontier red)."""
+    from foxglove.messages import PackedElementField, PackedElementFieldNumericType, PointCloud
+
+    v = scene.voxels
+    rec = np.zeros(len(v), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"),
+                                  ("blue", "u1"), ("alpha", "u1")])
+    rec["x"], rec["y"], rec["z"] = v[:, 0], v[:, 1], v[:, 2]
+    frontier = v[:, 3] == 1
+    rec["red"] = np.where(frontier, 214, 150)
+    rec["green"] = np.where(frontier, 39, 150)
+    rec["blue"] = np.where(frontier, 40, 150)
+    rec["alpha"] = 255
+    F, U = PackedElementFieldNumericType.Float32, PackedElementFieldNumericType.Uint8
+    fields = [PackedElementField(name=n, offset=o, type=F) for n, o in (("x", 0), ("y", 4), ("z", 8))]
+    fields += [PackedElementField(name=n, offset=12 + k, type=U) for k, n in enumerate(("red", "green", "blue", "alpha"))]
+    return PointCloud(timestamp=stamp(t), frame_id=FRAME, pose=_pose(0.0, 0.0), point_stride=16, fields=fields,
+                      data=rec.tobytes())
 
 
 def world_entities(scene: Scene, t: float) -> list[SceneEntity]:
@@ -198,6 +222,8 @@ class McapRecorder(Sink):
             self.writer.write_metadata("mission", {str(k): str(v) for k, v in metadata.items()})
         t0 = min(0.0, float(scene.stage_times[0])) if len(scene.stage_times) else 0.0  # before the first pose
         self.world.log(SceneUpdate(entities=world_entities(scene, t0)), log_time=ns(t0))
+        if len(scene.voxels):
+            fch.PointCloudChannel("/world/voxels", context=self.ctx).log(voxel_cloud(scene, t0), log_time=ns(t0))
 
     # ------------------------------------------------------------------ the stream
     def _json(self, topic: str, t: float, body: dict) -> None:

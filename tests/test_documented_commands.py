@@ -476,6 +476,52 @@ RUNS += [
         check=lambda outputs, tmp: (tmp / "myrun" / "urban" / "urban_map_mcts-ssap.png").is_file() or 1 / 0),
 ]
 
+# ---- docs/scenario.md, "3D maps and scans": the worked example and the synopsis
+RUN3D = ("/tmp/run3d", "{tmp}/run3d")
+SYNTHETIC_3D = "python -m tools.synthetic_3d /tmp/run3d --scans 40 --points 4000 --bag"
+IMPORT3D_BAG = ("python -m world import /tmp/run3d/bag --cloud-topic c0=/c0/points --cloud-topic c1=/c1/points "
+                "--odom c0=/c0/odom --odom c1=/c1/odom --stages 8 --replay --out /tmp/run3d/bag.yaml "
+                "--report /tmp/run3d/bag.json")
+IMPORT3D_FOLDER = ("python -m world import /tmp/run3d/scans --routes /tmp/run3d/routes.yaml --stages 8 --replay "
+                   "--out /tmp/run3d/run.yaml")
+RENDER3D = "python -m world render /tmp/run3d/run.yaml -o /tmp/run3d/map.png --trajectories"
+URBAN3D = "python -m experiments urban --scenario /tmp/run3d/run.yaml --quick --out /tmp/run3d/urban"
+IMPORT3D_SYNOPSIS = ("python -m world import SOURCE --out S.yaml [--routes ROUTES.yaml] [--odom ID=TOPIC]... "
+                     "[--cloud-topic [ID=]TOPIC]... [--stages N | --stage-spacing M] [--radius M] [--keep-above M] "
+                     "[--keep-below M] [--voxel M] [--neighbours 6|26] [--max-range M] [--sensor-offset X Y Z] "
+                     "[--log-odds HIT MISS OCC MIN MAX] [--replay] [--report R.json]")
+
+
+def _bag_report_3d(outputs, tmp):
+    """The bag's report: z and frontier_voxels, two storeys; the picture written."""
+    import json
+
+    report = json.loads((tmp / "run3d" / "bag.json").read_text())
+    assert report["frontier_voxels"] > 0 and [s["carriers"] for s in report["storeys"]] == [["c0"], ["c1"]]
+    assert all("z" in p for ps in report["carriers"].values() for p in ps)
+    assert (tmp / "run3d" / "map.png").stat().st_size > 10_000
+    assert (tmp / "run3d" / "urban" / "urban_map_mcts-ssap.png").is_file()
+
+
+RUNS += [
+    Run("world-import-3d", (
+        S(SYNTHETIC_3D, RUN3D),
+        S(IMPORT3D_BAG, RUN3D),
+        S(IMPORT3D_FOLDER, RUN3D),
+        S(RENDER3D, RUN3D),
+        S(URBAN3D, RUN3D),
+        S(IMPORT3D_SYNOPSIS, ("SOURCE", "{tmp}/run3d/bag"), ("[--routes ROUTES.yaml] ", ""),
+          ("--out S.yaml", "--out {tmp}/run3d/syn.yaml"), ("[--odom ID=TOPIC]...", "--odom c0=/c0/odom --odom c1=/c1/odom"),
+          ("[--cloud-topic [ID=]TOPIC]...", "--cloud-topic c0=/c0/points --cloud-topic c1=/c1/points"),
+          ("[--stages N | --stage-spacing M]", "--stages 6"), ("[--radius M]", "--radius 8"),
+          ("[--keep-above M]", "--keep-above 1.5"), ("[--keep-below M]", "--keep-below 0.2"),
+          ("[--voxel M]", "--voxel 0.25"), ("[--neighbours 6|26]", "--neighbours 26"), ("[--max-range M]", "--max-range 30"),
+          ("[--sensor-offset X Y Z]", "--sensor-offset 0 0 0.5"),
+          ("[--log-odds HIT MISS OCC MIN MAX]", "--log-odds 0.7 0.4 0.5 0.1192 0.971"), ("[--replay]", "--replay"),
+          ("[--report R.json]", "--report {tmp}/run3d/syn.json")),
+    ), "slow", wall_s=300, mem_mb=2000, check=_bag_report_3d),
+]
+
 #: Documented commands executed elsewhere with the same arguments.
 COVERED = {
     FRESH_TEST: Covered(".ci/run", "the test command itself: .ci/run runs it on a clean machine (this module "

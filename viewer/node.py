@@ -200,7 +200,7 @@ class Viewer:
             if self.config.save:
                 Path(self.config.save).parent.mkdir(parents=True, exist_ok=True)
                 sinks.append(rr.FileSink(str(self.config.save)))
-            rec.set_sinks(*sinks, default_blueprint=blueprint())
+            rec.set_sinks(*sinks, default_blueprint=blueprint(voxels=len(scene.voxels) > 0))
             view = RerunView(rec, scene, build_problem(self.scenario))
             clock = Clock(scene.stage_times)
             if self.url:

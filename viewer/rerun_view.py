@@ -14,6 +14,8 @@ world/carriers/<id>            Points2D          each carrier, labelled ``id (pa
 world/trails/<id>              LineStrips2D      where it drove (from its poses)
 world/observations/<id>        LineStrips2D      its sensing circle at its last observation, ``x=…``
 world/deployments/<id>/<j>     Points2D          a deployed passenger and its sensing disc
+voxels                         Points3D          a 3D import's occupied (grey) and frontier (red)
+                                                 voxels (static), in a 3D view beside the map
 reward                         Scalars           reward so far (penalty rule, confirmed only)
 log                            TextLog           joins, decisions, deployments, the end
 =============================  ================  ===========================================
@@ -34,11 +36,15 @@ TIMELINE = "sim_time"
 MAX_TRAIL_POINTS = 4000
 
 
-def blueprint() -> rrb.Blueprint:
-    """The map large on the left, reward and the log on the right, time panel below."""
+def blueprint(voxels: bool = False) -> rrb.Blueprint:
+    """The map large on the left, reward and the log on the right, time panel below; with
+    ``voxels`` (a 3D import) the voxels in a 3D view under the map."""
+    view = rrb.Spatial2DView(origin="/world", name="mission map")
+    if voxels:
+        view = rrb.Vertical(view, rrb.Spatial3DView(origin="/voxels", name="voxels (3D)"))
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial2DView(origin="/world", name="mission map"),
+            view,
             rrb.Vertical(rrb.TimeSeriesView(origin="/reward", name="reward so far"),
                          rrb.TextLogView(origin="/log", name="events")),
             column_shares=[3, 1]),
@@ -87,6 +93,11 @@ class RerunView(Sink):
         if len(s.walls):
             rec.log("world/walls", rr.LineStrips2D([[(a, b), (c, d)] for a, b, c, d in s.walls], radii=0.35,
                                                    colors=[rgb(WALL_COLOUR)]), static=True)
+        if len(s.voxels):
+            frontier = s.voxels[:, 3] == 1
+            rec.log("voxels", rr.Points3D(s.voxels[:, :3], radii=0.05,
+                                          colors=np.where(frontier[:, None], [[214, 39, 40]], [[150, 150, 150]])),
+                    static=True)
         if len(s.features):
             rec.log("world/features", rr.Points2D(s.features, radii=0.35, colors=[rgb(FEATURE_COLOUR)]), static=True)
         for c in s.carriers:

@@ -47,6 +47,14 @@ def check(s: Scenario, seeds: int) -> str:
                f"corridors {b.corridor_width:g} m, doors {b.door_width:g} m, entrances {list(b.entrances)}")
     lines.append(f"map: {xmax - xmin:g} x {ymax - ymin:g} m, {len(m.segments)} wall segments, "
                  f"{len(m.obstacles)} obstacles, building: {bld}")
+    if m.storeys:
+        lines.append("storeys: " + "; ".join(f"{st.name} at z {st.base:g} m ({sum(len(w) - 1 for w in st.walls)} wall "
+                                             f"segments, carriers {', '.join(c.id for c in s.carriers if c.storey == st.name)})"
+                                             for st in m.storeys))
+    if m.voxels is not None:
+        v = m.voxels
+        lines.append(f"voxels: {v.path} (frontier: {v.neighbours} neighbours, kept more than {v.keep_above:g} m above "
+                     f"or {v.keep_below:g} m below the carrier)")
     cl = ", ".join(f"{c.label or c.shape} ({c.density:g}/m² over {c.area:.0f} m²)" for c in s.features.clusters)
     if s.replays:
         lines.append(f"features: recorded observations (features.replay) at {int(s.valid().sum())} valid stages; "
@@ -234,13 +242,22 @@ def _positive(kind):
     return parse
 
 
+def _cloud(text: str) -> tuple[str, str]:
+    """``--cloud-topic [ID=]TOPIC``."""
+    cid, sep, topic = text.rpartition("=")
+    if not (topic or "").strip() or (sep and not cid):
+        raise argparse.ArgumentTypeError(f"expected [ID=]TOPIC, found {text!r}")
+    return cid, topic
+
+
 def _import_parser(sub) -> None:
     from world import importer as imp
 
     p = sub.add_parser("import", help="a scenario from your own map (map_server YAML) or recorded run (ROS 2 bag)",
                        description="Import a map_server map or a ROS 2 bag as a scenario (docs/scenario.md, "
                                    "\"Your own map and runs\").")
-    p.add_argument("source", metavar="SOURCE", help="a map_server map YAML, or a ROS 2 bag directory (MCAP or sqlite3)")
+    p.add_argument("source", metavar="SOURCE", help="a map_server map YAML, a ROS 2 bag directory (MCAP or sqlite3), "
+                   "an OctoMap file (.bt/.ot) or a folder of PCD/PLY scans with poses.txt")
     p.add_argument("--out", required=True, metavar="SCENARIO.yaml", help="the scenario to write (its map is written "
                    "beside it as NAME.map.yaml and NAME.map.pgm)")
     p.add_argument("--routes", metavar="ROUTES.yaml", help="the carriers' routes: carriers: [{id, passengers, start, "
@@ -280,6 +297,25 @@ def _import_parser(sub) -> None:
     p.add_argument("--prior", choices=imp.PRIOR_CHOICES, default="auto",
                    help="the prior's family, fitted to the values by moments (default auto: negative binomial when "
                         "the variance exceeds the mean, else Poisson)")
+    g3 = p.add_argument_group("3D sources (docs/scenario.md, \"3D maps and scans\")")
+    g3.add_argument("--cloud-topic", action="append", type=_cloud, default=[], metavar="[ID=]TOPIC",
+                    help="a bag's sensor_msgs/msg/PointCloud2 scans (ID=TOPIC per carrier; TOPIC alone with one carrier)")
+    g3.add_argument("--keep-above", type=float, default=1.0, metavar="METRES",
+                    help="count frontier voxels more than this above the carrier (default 1.0 m, the paper's)")
+    g3.add_argument("--keep-below", type=float, default=0.1, metavar="METRES",
+                    help="... or more than this below it (default 0.1 m; --keep-above 0 --keep-below 0 counts all)")
+    g3.add_argument("--voxel", type=float, default=None, metavar="METRES",
+                    help="voxel size of a map ray cast from scans (default 0.2 m; an OctoMap keeps its own)")
+    g3.add_argument("--neighbours", type=int, choices=(6, 26), default=6,
+                    help="a frontier voxel has an unknown one among its 6 face (default) or 26 neighbours")
+    g3.add_argument("--max-range", type=float, default=-1.0, metavar="METRES",
+                    help="longest ray inserted (OctoMap's maxrange; default: every ray whole)")
+    g3.add_argument("--sensor-offset", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
+                    help="the sensor's position on the carrier's base (m) when /tf_static has no mounting")
+    g3.add_argument("--log-odds", type=float, nargs=5, default=(0.7, 0.4, 0.5, 0.1192, 0.971),
+                    metavar=("HIT", "MISS", "OCC", "MIN", "MAX"),
+                    help="OctoMap's sensor model: prob_hit, prob_miss, occupancy threshold, clamping min and max "
+                         "(default OctoMap's 0.7 0.4 0.5 0.1192 0.971)")
     p.add_argument("--free-level", type=int, default=None, metavar="0..100",
                    help="a bag map's cell value at or below which it is free (default 25, map_saver's)")
     p.add_argument("--occupied-level", type=int, default=None, metavar="0..100",
@@ -302,15 +338,25 @@ def _run_import(args) -> int:
         radius=args.radius, replay=args.replay, report=args.report, stage_interval=args.stage_interval,
         align=args.align, name=args.name, seed=args.seed, conflict_radius=args.conflict_radius,
         carrier_radius=args.carrier_radius, path_tolerance=args.path_tolerance,
-        wall_tolerance=args.wall_tolerance, prior=args.prior, free_level=free, occupied_level=occupied)
+        wall_tolerance=args.wall_tolerance, prior=args.prior, free_level=free, occupied_level=occupied,
+        cloud_topics=tuple(args.cloud_topic), keep_above=args.keep_above, keep_below=args.keep_below,
+        voxel=args.voxel, neighbours=args.neighbours, max_range=args.max_range,
+        sensor_offset=tuple(args.sensor_offset), log_odds=tuple(args.log_odds))
     if args.stages is not None and args.stages < 2:
         print(f"--stages: expected an integer >= 2 (the first and last point of each route), found {args.stages}",
               file=sys.stderr)
         return EXIT_BAD_INPUT
     try:
         # progress on stdout: on bad input stderr holds exactly the one line naming it
-        result = imp.import_run(settings, progress=lambda line: print(line, flush=True))
-        written = imp.write_outputs(settings, result)
+        from world import import3d
+
+        say = lambda line: print(line, flush=True)  # noqa: E731
+        if import3d.is_3d(settings):  # an OctoMap, a folder of scans or a bag's point clouds
+            result = import3d.import_3d(settings, progress=say)
+            written = import3d.write_outputs_3d(settings, result)
+        else:
+            result = imp.import_run(settings, progress=say)
+            written = imp.write_outputs(settings, result)
     except G.GridError as err:
         print(str(err), file=sys.stderr)
         return EXIT_BAD_INPUT

@@ -75,6 +75,18 @@ class ImportSettings:
     prior: str = "auto"
     free_level: int = G.DEFAULT_FREE_LEVEL
     occupied_level: int = G.DEFAULT_OCCUPIED_LEVEL
+    # 3D sources (world/import3d.py): PointCloud2 topics as (carrier id or "", topic), the
+    # paper's height filter (m), the voxel size (m; None: the OctoMap's, or 0.2 for scans),
+    # frontier neighbours, the longest ray (m, < 0 whole), the sensor's fixed mounting (m) and
+    # OctoMap's sensor model as (prob_hit, prob_miss, occupancy, clamp_min, clamp_max)
+    cloud_topics: tuple[tuple[str, str], ...] = ()
+    keep_above: float = 1.0
+    keep_below: float = 0.1
+    voxel: float | None = None
+    neighbours: int = 6
+    max_range: float = -1.0
+    sensor_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    log_odds: tuple[float, float, float, float, float] = (0.7, 0.4, 0.5, 0.1192, 0.971)
 
 
 @dataclass(frozen=True)
@@ -117,8 +129,10 @@ class Candidates:
 class ImportResult:
     scenario_text: str
     report: dict
-    grid: G.OccupancyGrid
+    grid: G.OccupancyGrid | None
     summary: list[str]
+    #: a 3D import's map as OctoMap .bt bytes, written beside the scenario (world/import3d.py)
+    octomap: bytes | None = None
 
 
 # --------------------------------------------------------------------------- routes
@@ -348,25 +362,7 @@ def import_run(st: ImportSettings, progress: Callable[[str], None] = print) -> I
         for c in cands:
             c.values = counter.count(c.points, st.radius)
 
-    # the mission's stages
-    all_gaps = np.concatenate([np.diff(c.times) for c in cands])
-    if st.stage_interval is not None:
-        interval = float(st.stage_interval)
-    else:
-        interval = max(0.1, round(float(np.median(all_gaps)) if len(all_gaps) else 1.0, 1))
-    t_min = min(float(c.times[0]) for c in cands)
-    for c in cands:
-        c.offset = 0 if st.align == "index" else int(round((float(c.times[0]) - t_min) / interval))
-    n_stages = max(c.offset + len(c.points) for c in cands)
-    from planner.limits import MAX_CARRIERS, MAX_STAGES
-
-    if n_stages > MAX_STAGES or len(cands) > MAX_CARRIERS:
-        raise GridError("--stage-spacing/--stages", f"at most {MAX_STAGES} stages and {MAX_CARRIERS} carriers",
-                        f"{n_stages} stages, {len(cands)} carriers")
-    for c in cands:
-        if c.route.passengers > len(c.points):
-            raise GridError(f"--passengers {c.route.id}", f"at most {len(c.points)} (its candidate points)",
-                            str(c.route.passengers))
+    interval, n_stages = schedule(st, cands)
 
     walls = G.wall_lines(grid, st.wall_tolerance)
     segs = np.concatenate([np.column_stack([w[:-1], w[1:]]) for w in walls]) if walls else np.zeros((0, 4))
@@ -395,6 +391,33 @@ def import_run(st: ImportSettings, progress: Callable[[str], None] = print) -> I
                f"values ({'replay: latest map at each time' if st.replay else 'static map'}, radius {st.radius:g} m): "
                f"mean {observed.mean():.2f}, max {int(observed.max())}; prior {prior}"]
     return ImportResult(text, report, grid, summary)
+
+
+def schedule(st: ImportSettings, cands: list[Candidates]) -> tuple[float, int]:
+    """The mission's stage interval (s) and stage count; sets each candidate list's offset.
+
+    Raises:
+        GridError: too many stages or carriers, more passengers than candidates.
+    """
+    all_gaps = np.concatenate([np.diff(c.times) for c in cands])
+    if st.stage_interval is not None:
+        interval = float(st.stage_interval)
+    else:
+        interval = max(0.1, round(float(np.median(all_gaps)) if len(all_gaps) else 1.0, 1))
+    t_min = min(float(c.times[0]) for c in cands)
+    for c in cands:
+        c.offset = 0 if st.align == "index" else int(round((float(c.times[0]) - t_min) / interval))
+    n_stages = max(c.offset + len(c.points) for c in cands)
+    from planner.limits import MAX_CARRIERS, MAX_STAGES
+
+    if n_stages > MAX_STAGES or len(cands) > MAX_CARRIERS:
+        raise GridError("--stage-spacing/--stages", f"at most {MAX_STAGES} stages and {MAX_CARRIERS} carriers",
+                        f"{n_stages} stages, {len(cands)} carriers")
+    for c in cands:
+        if c.route.passengers > len(c.points):
+            raise GridError(f"--passengers {c.route.id}", f"at most {len(c.points)} (its candidate points)",
+                            str(c.route.passengers))
+    return interval, n_stages
 
 
 def _carrier_radius(cands: list[Candidates], segs: np.ndarray) -> float:
@@ -491,6 +514,7 @@ def write_outputs(st: ImportSettings, result: ImportResult) -> list[str]:
     from world.scenario import ScenarioError, load_scenario
     from world.stages import stage_geometry
 
+    assert result.grid is not None and result.octomap is None  # a 3D import: world.import3d.write_outputs_3d
     out = Path(st.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     stem = out.name.split(".")[0]

@@ -147,6 +147,8 @@ def render_map(scenario, path: str | Path, deployments: Any = None, trajectories
     Returns:
         The path written.
     """
+    if scenario.map.voxels is not None or scenario.map.storeys:
+        return render_map_3d(scenario, path, deployments, trajectories, title, positions, dpi)
     geo = stage_geometry(scenario)
     feats = sample_features(scenario) if features is None else np.asarray(features)
     xmin, ymin, xmax, ymax = scenario.map.bounds
@@ -295,6 +297,103 @@ def render_map(scenario, path: str | Path, deployments: Any = None, trajectories
            f"{n_valid} decision points, sensing {scenario.sensing_radius:g} m, conflict {scenario.conflict_radius:g} m")
     ax.set_title(f"{title or scenario.name}\n{sub}", fontsize=10)
     fig.tight_layout()
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=dpi)
+    plt.close(fig)
+    return out
+
+
+#: A storey's top view draws the occupied voxels from 0.1 m to this height above its base (m).
+TOP_VIEW_HEIGHT = 2.5
+
+
+def render_map_3d(scenario, path: str | Path, deployments: Any = None, trajectories: Any = None,
+                  title: str | None = None, positions: np.ndarray | None = None, dpi: int = 130) -> Path:
+    """A 3D import's map (``map.voxels``, ``map.storeys``) as a top view, one panel per storey:
+    the occupied voxels from 0.1 m to TOP_VIEW_HEIGHT above the storey's base (under the next
+    storey) coloured by their highest voxel's height, the storey's walls, the frontier voxels its carriers' values retain (within
+    the sensing radius of one of its decision points and passing the height filter; the others of
+    that height range in grey), and its carriers' routes, decision points and deployments."""
+    from scipy.spatial import cKDTree
+
+    from world import voxels as V
+
+    geo = stage_geometry(scenario)
+    m = scenario.map
+    grid = V.read_octomap(m.voxels.path) if m.voxels is not None else None
+    storeys = list(m.storeys) or [None]
+    n = len(storeys)
+    xmin, ymin, xmax, ymax = m.bounds
+    w, h = xmax - xmin, ymax - ymin
+    fig, axes = plt.subplots(1, n, figsize=(min(7.0 * n, 20.0) + 2.0, max(4.0, min(9.0, 6.0 * h / w + 1.5))),
+                             squeeze=False)
+    pos = geo.positions if positions is None else np.asarray(positions)
+    spots = _deployment_spots(scenario, deployments, pos)
+    tracks = dict(_trajectory_list(scenario, trajectories))
+    front = zc = None
+    if grid is not None:
+        front = grid.centres(V.frontier_mask(grid.classes, m.voxels.neighbours))
+        zc = grid.lower[2] + (np.arange(grid.shape[2]) + 0.5) * grid.resolution
+    image = None
+    for k, (ax, st) in enumerate(zip(axes[0], storeys)):
+        base = st.base if st is not None else -np.inf
+        top = storeys[k + 1].base if st is not None and k + 1 < n else np.inf
+        ax.set_aspect("equal")
+        ax.set_xlim(xmin, xmax)
+        ax.set_ylim(ymin, ymax)
+        ax.set_facecolor("#fbfbf8")
+        mine = [r for r, c in enumerate(scenario.carriers) if st is None or c.storey == st.name]
+        if grid is not None:
+            # below the ceiling: the storey's walls and what stands on its floor
+            band = (zc > base + 0.1) & (zc < min(top, base + TOP_VIEW_HEIGHT)) if st is not None else zc > -np.inf
+            occ = grid.classes[:, :, band] == V.OCCUPIED
+            height = np.where(occ.any(axis=2), zc[band][np.argmax(occ[:, :, ::-1], axis=2) * -1 + occ.shape[2] - 1],
+                              np.nan)
+            x0, y0, _, x1, y1, _ = grid.extent
+            image = ax.imshow(height.T, origin="lower", extent=(x0, x1, y0, y1), cmap="viridis", alpha=0.85, vmin=float(zc[0]), vmax=float(zc[-1]),
+                              interpolation="nearest", zorder=1)
+            inside = front[(front[:, 2] >= base - 1.0) & (front[:, 2] < top)] if st is not None else front
+            pts = np.array([[pos[r, j, 0], pos[r, j, 1], base if st is not None else 0.0]
+                            for r in mine for j in np.flatnonzero(geo.valid[r])]).reshape(-1, 3)
+            keep = np.zeros(len(front), dtype=bool)
+            if len(pts):
+                near = cKDTree(pts).query(front, distance_upper_bound=scenario.sensing_radius)[0] <= scenario.sensing_radius
+                keep = near & V.kept(front[:, 2] - (base if st is not None else 0.0), m.voxels.keep_above,
+                                     m.voxels.keep_below)
+            ax.scatter(inside[:, 0], inside[:, 1], s=0.8, c="#9a9a9a", lw=0, alpha=0.4, zorder=2)
+            ax.scatter(front[keep, 0], front[keep, 1], s=1.0, c="#d62728", lw=0, alpha=0.35, zorder=2)
+            ax.text(0.01, 0.01, f"frontier voxels retained: {int(keep.sum())}", transform=ax.transAxes, fontsize=8,
+                    va="bottom", bbox={"fc": "white", "ec": "none", "alpha": 0.8}, zorder=10)
+        segs = m.carrier_segments(st.name if st is not None else "")
+        if len(segs):
+            from matplotlib.collections import LineCollection
+
+            ax.add_collection(LineCollection(segs.reshape(-1, 2, 2), colors="#222222", linewidths=1.2, zorder=3))
+        for r in mine:
+            c = scenario.carriers[r]
+            col = _colour(r)
+            wp = np.asarray(c.waypoints)
+            ax.plot(wp[:, 0], wp[:, 1], color=col, lw=1.6, alpha=0.8, zorder=5, label=f"{c.id} ({c.passengers} pass.)")
+            ok = geo.valid[r]
+            ax.scatter(pos[r, ok, 0], pos[r, ok, 1], s=22, c=col, edgecolors="white", linewidths=0.7, zorder=6)
+            if r in tracks:
+                ax.plot(tracks[r][:, 0], tracks[r][:, 1], color=col, lw=1.0, ls="--", zorder=6)
+        for r, (x, y) in spots:
+            if r in mine:
+                ax.plot(x, y, marker="*", ms=14, color=_colour(r), mec="black", mew=0.7, zorder=9)
+        name = f"storey {st.name} (base z {st.base:g} m)" if st is not None else "map"
+        ax.set_title(name, fontsize=10)
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        ax.tick_params(labelsize=8)
+        if mine:
+            ax.legend(loc="upper right", fontsize=7, framealpha=0.8)
+    if image is not None:
+        fig.colorbar(image, ax=list(axes[0]), shrink=0.8, label="highest occupied voxel (m)")
+    fig.suptitle(f"{title or scenario.name}: top view; red = frontier voxels the values retain "
+                 f"(> {m.voxels.keep_above:g} m above or > {m.voxels.keep_below:g} m below the carrier), "
+                 "stars = deployments" if m.voxels is not None else (title or scenario.name), fontsize=10)
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=dpi)

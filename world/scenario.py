@@ -115,6 +115,20 @@ class MapSpec:
     obstacles: tuple[tuple[tuple[float, float], ...], ...] = ()
     building: Building | None = None
     occupancy: _grid.OccupancyGrid | None = None
+    storeys: tuple["Storey", ...] = ()
+    voxels: "VoxelsSpec | None" = None
+
+    def storey(self, name: str) -> "Storey | None":
+        return next((s for s in self.storeys if s.name == name), None)
+
+    def carrier_segments(self, storey: str = "") -> np.ndarray:
+        """float ``[W, 4]``: the walls a carrier on ``storey`` meets: :attr:`segments` and its
+        storey's walls ("": none)."""
+        st = self.storey(storey) if storey else None
+        if st is None or not st.walls:
+            return self.segments
+        segs = [(a[0], a[1], b[0], b[1]) for line in st.walls for a, b in zip(line[:-1], line[1:])]
+        return np.concatenate([self.segments, np.asarray(segs, dtype=float).reshape(-1, 4)])
 
     @cached_property
     def segments(self) -> np.ndarray:
@@ -183,6 +197,30 @@ class FeatureSpec:
 
 
 @dataclass(frozen=True)
+class Storey:
+    """One storey of a multi-storey map (``map.storeys``): ``name``, ``base`` (m, the floor's
+    height in the map frame) and its ``walls`` (polylines, m): only carriers on this storey
+    meet them."""
+
+    name: str
+    base: float
+    walls: tuple[tuple[tuple[float, float], ...], ...] = ()
+
+
+@dataclass(frozen=True)
+class VoxelsSpec:
+    """``map.voxels``: the 3D map a scenario was imported from (an OctoMap ``.bt`` beside it),
+    read only by what draws it. ``path`` the file, ``sha256`` its bytes' digest, and the
+    frontier rule its values used (``neighbours``, ``keep_above``, ``keep_below`` m)."""
+
+    path: Path
+    sha256: str
+    neighbours: int = 6
+    keep_above: float = 1.0
+    keep_below: float = 0.1
+
+
+@dataclass(frozen=True)
 class CarrierSpec:
     """One carrier's declared schedule.
 
@@ -198,6 +236,8 @@ class CarrierSpec:
             file gives a count: every passenger weighs 1).
         passenger_types: the type name of each passenger ("" for none), in listed order (empty
             when the file gives a count).
+        storey: the storey it drives on (``map.storeys``; "" without storeys): its world holds
+            that storey's walls.
     """
 
     id: str
@@ -208,6 +248,7 @@ class CarrierSpec:
     waypoints: tuple[tuple[float, float], ...]
     passenger_values: tuple[float, ...] = ()
     passenger_types: tuple[str, ...] = ()
+    storey: str = ""
 
     @cached_property
     def _cumulative(self) -> np.ndarray:
@@ -466,14 +507,16 @@ _TOP_KEYS = ("name", "seed", "map", "features", "sensing_radius", "stage_interva
              "first_stage_time", "conflict_radius", "carriers", "planner", "prior", "passenger_types",
              "carrier_radius", "links", "current", "reward")
 _TOP_REQUIRED = ("name", "seed", "map", "features", "sensing_radius", "stage_interval", "stages", "carriers")
-_MAP_KEYS = ("bounds", "walls", "obstacles", "building", "occupancy")
+_MAP_KEYS = ("bounds", "walls", "obstacles", "building", "occupancy", "storeys", "voxels")
+_STOREY_KEYS = ("name", "base", "walls")
+_VOXELS_KEYS = ("file", "sha256", "neighbours", "keep_above", "keep_below")
 _OCCUPANCY_KEYS = ("file", "sha256", "free_level", "occupied_level")
 _BUILDING_KEYS = ("origin", "rooms", "room_size", "corridor_width", "door_width", "entrances")
 _FEATURE_KEYS = ("density", "clusters", "from_map", "replay")
 #: What ``features.from_map`` may name.
 FROM_MAP_KINDS = ("frontier",)
 _CLUSTER_KEYS = ("disc", "rect", "room", "density", "label")
-_CARRIER_KEYS = ("id", "passengers", "start_time", "stop_time", "speed", "waypoints")
+_CARRIER_KEYS = ("id", "passengers", "start_time", "stop_time", "speed", "waypoints", "storey")
 _PASSENGER_KEYS = ("type", "value")
 _PLANNER_KEYS = ("name", *planners.OPTIONS)
 _SIDES = ("west", "east", "south", "north")
@@ -705,10 +748,79 @@ def _parse_map(ck: _Checker, node: Any) -> MapSpec | None:
             ck.bad("map.building", f"a building inside map.bounds {list(bounds)}",
                    Found(f"its outer wall spans {[round(v, 3) for v in building.extent]}"))
             ok = False
+    storeys = _parse_storeys(ck, m["storeys"], bounds) if "storeys" in m else ()
+    ok &= storeys is not None
+    voxels = _parse_voxels(ck, m["voxels"]) if "voxels" in m else None
+    ok &= "voxels" not in m or voxels is not None
     if not ok or bounds is None:
         return None
     return MapSpec(bounds=bounds, walls=tuple(walls), obstacles=tuple(obstacles), building=building,
-                   occupancy=occupancy)
+                   occupancy=occupancy, storeys=storeys or (), voxels=voxels)
+
+
+def _parse_storeys(ck: _Checker, node: Any, bounds: tuple[float, float, float, float] | None
+                   ) -> tuple[Storey, ...] | None:
+    """``map.storeys``: a list of ``{name, base (m), walls}``; a carrier names its storey."""
+    if not isinstance(node, list) or not node:
+        ck.bad("map.storeys", "a non-empty list of storeys {name, base, walls}", node)
+        return None
+    out: list[Storey] = []
+    n0 = len(ck)
+    for i, item in enumerate(node):
+        where = f"map.storeys[{i}]"
+        sm = ck.mapping(item, where, _STOREY_KEYS, ("name", "base"))
+        if sm is None:
+            continue
+        name = sm["name"]
+        if not isinstance(name, (str, int)) or isinstance(name, bool) or not re.fullmatch(r"[A-Za-z0-9_\-]+", str(name)):
+            ck.bad(f"{where}.name", "a string of letters, digits, '_' or '-'", name)
+        elif any(s.name == str(name) for s in out):
+            ck.bad(f"{where}.name", "a unique storey name", name)
+        base = ck.number(sm["base"], f"{where}.base", minimum=-MAX_COORDINATE)
+        lines = sm.get("walls", [])
+        walls = []
+        if not isinstance(lines, list):
+            ck.bad(f"{where}.walls", "a list of polylines (each a list of points [x, y] in m)", lines)
+        else:
+            for k, line in enumerate(lines):
+                pts = ck.points(line, f"{where}.walls[{k}]", 2)
+                if pts is not None:
+                    if bounds is not None and not all(_inside(p, bounds) for p in pts):
+                        ck.bad(f"{where}.walls[{k}]", f"points inside map.bounds {list(bounds)}", [list(p) for p in pts][:3])
+                    walls.append(pts)
+        if len(ck) == n0 and base is not None:
+            out.append(Storey(str(name), float(base), tuple(walls)))
+    return tuple(out) if len(ck) == n0 else None
+
+
+def _parse_voxels(ck: _Checker, node: Any) -> VoxelsSpec | None:
+    """``map.voxels``: ``{file, sha256, neighbours, keep_above, keep_below}``; the file (relative
+    to the scenario) must exist and match its digest."""
+    vm = ck.mapping(node, "map.voxels", _VOXELS_KEYS, ("file", "sha256"))
+    if vm is None:
+        return None
+    name = ck.string(vm["file"], "map.voxels.file")
+    digest = ck.string(vm["sha256"], "map.voxels.sha256")
+    nb = vm.get("neighbours", 6)
+    if nb not in (6, 26):
+        ck.bad("map.voxels.neighbours", "6 or 26", nb)
+        return None
+    above = ck.number(vm.get("keep_above", 1.0), "map.voxels.keep_above", minimum=0)
+    below = ck.number(vm.get("keep_below", 0.1), "map.voxels.keep_below", minimum=0)
+    if name is None or digest is None or above is None or below is None:
+        return None
+    base = Path(ck.file).parent if ck.file and not ck.file.startswith("<") else Path(".")
+    path = Path(name) if Path(name).is_absolute() else base / name
+    try:
+        found = _grid.file_sha256(path)
+    except OSError as exc:
+        ck.bad("map.voxels.file", "an existing OctoMap file beside the scenario", Found(f"{path}: {exc.strerror or exc}"))
+        return None
+    if found != digest:
+        ck.bad("map.voxels.sha256", f"the digest of {path} ({found[:16]}...)",
+               Found(f"{digest[:16]}... (the map changed since the scenario was written)"))
+        return None
+    return VoxelsSpec(path, digest, int(nb), float(above), float(below))
 
 
 def _parse_occupancy(ck: _Checker, node: Any) -> _grid.OccupancyGrid | None:
@@ -982,6 +1094,14 @@ def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None, types: dic
         start = ck.number(cm["start_time"], f"{path}.start_time", minimum=0) if "start_time" in cm else None
         speed = ck.number(cm["speed"], f"{path}.speed", minimum=0, exclusive=True) if "speed" in cm else None
         wps = ck.points(cm["waypoints"], f"{path}.waypoints", 2) if "waypoints" in cm else None
+        storey = ""
+        if the_map is not None and the_map.storeys:
+            storey_names = [s.name for s in the_map.storeys]
+            storey = str(cm.get("storey", ""))
+            if storey not in storey_names:
+                ck.bad(f"{path}.storey", f"one of map.storeys' names ({', '.join(storey_names)})", cm.get("storey"))
+        elif "storey" in cm:
+            ck.bad(f"{path}.storey", "no storey (the map has no map.storeys)", cm["storey"])
         stop = None
         if "stop_time" in cm:
             stop = ck.number(cm["stop_time"], f"{path}.stop_time", minimum=0)
@@ -996,7 +1116,7 @@ def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None, types: dic
                     if geometry.inside_polygon(np.asarray([p]), poly)[0]:
                         ck.bad(f"{path}.waypoints[{k}]", "a point outside every obstacle",
                                Found(f"{list(p)} inside map.obstacles[{i}]"))
-            segs = the_map.segments
+            segs = the_map.carrier_segments(storey)
             for k, (a, b) in enumerate(zip(wps[:-1], wps[1:])):
                 hit = geometry.first_blocking_segment(a, b, segs, clearance=body)
                 if hit is not None:
@@ -1014,7 +1134,7 @@ def _parse_carriers(ck: _Checker, node: Any, the_map: MapSpec | None, types: dic
         if stop is None:
             stop = start + length / speed
         out.append(CarrierSpec(id=cid, passengers=pas, start_time=start, stop_time=stop, speed=speed, waypoints=wps,
-                               passenger_values=values, passenger_types=names))
+                               passenger_values=values, passenger_types=names, storey=storey))
     if len(ck) > n0:
         return None
     return tuple(out)

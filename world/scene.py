@@ -12,7 +12,7 @@ Imports numpy and world/ only (no matplotlib, no zenoh).
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -96,6 +96,9 @@ class Scene:
         base: (x, y) the coordinator's antenna or modem (m); None on perfect links.
         relays: the relays the carriers drop (:class:`world.relays.Relay`: carrier, position,
             planned drop time), in order.
+        voxels: float32 ``[K, 4]`` a 3D import's map (``map.voxels``): x, y, z (m) and kind (0
+            occupied, 1 frontier voxel), at most :data:`MAX_SCENE_VOXELS` (every k-th of each
+            kind beyond); empty without one. Walls: every storey's, overlaid.
     """
 
     name: str
@@ -111,6 +114,7 @@ class Scene:
     links: str = "perfect"
     base: tuple[float, float] | None = None
     relays: tuple = ()
+    voxels: np.ndarray = field(default_factory=lambda: np.zeros((0, 4), dtype=np.float32))
 
     def carrier(self, cid: str) -> SceneCarrier:
         """The carrier ``cid`` (KeyError for an unknown id); a lookup, not a scan: the recorders
@@ -176,7 +180,9 @@ def build_scene(scenario, seed: int | None = None) -> Scene:
     return Scene(
         name=scenario.name,
         bounds=tuple(float(v) for v in scenario.map.bounds),
-        walls=np.asarray(scenario.map.segments, dtype=float).reshape(-1, 4),
+        walls=np.concatenate([np.asarray(scenario.map.segments, dtype=float).reshape(-1, 4)]
+                             + [scenario.map.carrier_segments(st.name)[len(scenario.map.segments):]
+                                for st in scenario.map.storeys]),
         obstacles=tuple(np.asarray(p, dtype=float) for p in scenario.map.obstacles),
         features=np.asarray(sample_features(scenario, seed), dtype=float).reshape(-1, 2),
         sensing_radius=float(scenario.sensing_radius),
@@ -184,8 +190,30 @@ def build_scene(scenario, seed: int | None = None) -> Scene:
         overlaps=tuple(overlaps),
         stage_times=np.asarray(scenario.stage_times(), dtype=float),
         planned=geometry.positions,
+        voxels=_voxels(scenario),
         **_links(scenario),
     )
+
+
+#: Most voxels a scene carries (each kind thinned to every k-th beyond its share).
+MAX_SCENE_VOXELS = 400_000
+
+
+def _voxels(scenario) -> np.ndarray:
+    """The occupied and frontier voxels' centres of a 3D import's map (module docstring)."""
+    spec = scenario.map.voxels
+    if spec is None:
+        return np.zeros((0, 4), dtype=np.float32)
+    from world import voxels as V
+
+    grid = V.read_octomap(spec.path)
+    out = []
+    for kind, mask in ((0, grid.classes == V.OCCUPIED), (1, V.frontier_mask(grid.classes, spec.neighbours))):
+        pts = grid.centres(mask)
+        step = max(1, -(-len(pts) // (MAX_SCENE_VOXELS // 2)))
+        pts = pts[::step]
+        out.append(np.column_stack([pts, np.full(len(pts), kind)]))
+    return np.concatenate(out).astype(np.float32)
 
 
 def _links(scenario) -> dict:

@@ -75,7 +75,7 @@ class _CarrierBody:
         self.spec = scenario.carriers[r]
         self.space = pymunk.Space()
         self.space.iterations = 10
-        for x1, y1, x2, y2 in scenario.map.segments:
+        for x1, y1, x2, y2 in scenario.map.carrier_segments(self.spec.storey):
             seg = pymunk.Segment(self.space.static_body, (float(x1), float(y1)), (float(x2), float(y2)), WALL_RADIUS)
             seg.friction = 0.0
             seg.elasticity = 0.0
