@@ -2,7 +2,7 @@
 
 numba checks a cached function against its own file only; a kernel that inlines a rule of
 planner/kernels.py (or reads a constant of planner/ssap.py) would keep yesterday's rule after that
-file changed. planner.kernels.cache_follows_sources stamps every cached function with a digest of
+file changed. planner.jitcache.cache_follows_sources stamps every cached function with a digest of
 all planner sources.
 """
 from __future__ import annotations
@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 import planner
-from planner.kernels import sources_digest
+from planner.jitcache import sources_digest
 
 ROOT = Path(__file__).resolve().parents[1]
 
