@@ -20,8 +20,9 @@ per machine.
   "compiling ..." / "compiled ... in N s" of every planner kernel it compiles (a kernel loaded
   from the cache says nothing), and "waiting for another process compiling ...".
 
-Every kernel module calls :func:`cache_follows_sources` with its ``globals()`` at its end. This
-relies on numba's cache classes (``numba.core.caching``; numba is pinned in constraints.txt, and
+Every kernel module calls :func:`cache_follows_sources` with its ``globals()`` at its end. Importing
+this module does not import numba (a process sets :func:`report_compiles` before it knows whether
+its planner has kernels). This relies on numba's cache classes (``numba.core.caching``; numba is pinned in constraints.txt, and
 tests/test_numba_cache.py checks the mechanism).
 """
 from __future__ import annotations
@@ -35,11 +36,6 @@ import threading
 import time
 from pathlib import Path
 from typing import Callable
-
-import numba
-from numba.core import event, sigutils
-from numba.core.caching import CompileResultCacheImpl, FunctionCache, _CacheLocator
-from numba.core.compiler_lock import global_compiler_lock
 
 try:
     import fcntl
@@ -76,45 +72,86 @@ def cache_root() -> Path:
 def cache_dir() -> Path:
     """The folder of today's planner kernels: :func:`cache_root` / ``numba-<version>-<digest>``
     (the digest's first 16 hex digits)."""
+    import numba
+
     return cache_root() / f"numba-{numba.__version__}-{sources_digest()[:16]}"
 
 
-class _Locator(_CacheLocator):
-    """A planner module's kernels in :func:`cache_dir`, under the module's path in the package;
-    stamped with the sources digest instead of the file's time stamp."""
+@functools.lru_cache(maxsize=1)
+def _cache_class():
+    """The planner's numba cache class (numba imported on first use)."""
+    from numba.core import event
+    from numba.core.caching import CompileResultCacheImpl, FunctionCache, _CacheLocator
 
-    def __init__(self, py_func, py_file):
-        self._lineno = py_func.__code__.co_firstlineno
-        module = Path(py_file).resolve().relative_to(PACKAGE.parent).with_suffix("")
-        self._cache_path = str(cache_dir() / module)
+    class _CompileListener(event.Listener):
+        """Reports the planner kernels numba compiles (its ``numba:compile`` event fires only when a
+        kernel is not in the cache)."""
 
-    def get_cache_path(self):
-        return self._cache_path
+        def __init__(self):
+            self._started = threading.local()
 
-    def get_source_stamp(self):
-        return (STAMP_TAG, sources_digest())
+        def _name(self, ev):
+            func = getattr(ev.data.get("dispatcher"), "py_func", None)
+            module = getattr(func, "__module__", "") or ""
+            return f"{module}.{func.__qualname__}" if module.startswith("planner.") else None
 
-    def get_disambiguator(self):
-        return str(self._lineno)
+        def on_start(self, ev):
+            name = self._name(ev)
+            if name is None:
+                return
+            self._started.__dict__.setdefault("stack", []).append(time.monotonic())
+            if _reporter[0] is None:
+                return
+            if not _told_where[0]:
+                _told_where[0] = True
+                _report(f"compiling the planner's kernels, once for this machine (cache: {cache_dir()})")
+            _report(f"compiling {name}")
 
-    @classmethod
-    def from_function(cls, py_func, py_file):
-        if not Path(py_file).resolve().is_relative_to(PACKAGE):
-            return None
-        self = cls(py_func, py_file)
-        try:
-            self.ensure_cache_path()
-        except OSError:
-            return None  # not writable: numba's own locators
-        return self
+        def on_end(self, ev):
+            name = self._name(ev)
+            stack = self._started.__dict__.get("stack")
+            if name is None or not stack:
+                return
+            _report(f"compiled {name} in {time.monotonic() - stack.pop():.1f} s")
 
+    class _Locator(_CacheLocator):
+        """A planner module's kernels in :func:`cache_dir`, under the module's path in the package;
+        stamped with the sources digest instead of the file's time stamp."""
 
-class _Impl(CompileResultCacheImpl):
-    _locator_classes = [_Locator, *CompileResultCacheImpl._locator_classes]
+        def __init__(self, py_func, py_file):
+            self._lineno = py_func.__code__.co_firstlineno
+            module = Path(py_file).resolve().relative_to(PACKAGE.parent).with_suffix("")
+            self._cache_path = str(cache_dir() / module)
 
+        def get_cache_path(self):
+            return self._cache_path
 
-class _PlannerCache(FunctionCache):
-    _impl_class = _Impl
+        def get_source_stamp(self):
+            return (STAMP_TAG, sources_digest())
+
+        def get_disambiguator(self):
+            return str(self._lineno)
+
+        @classmethod
+        def from_function(cls, py_func, py_file):
+            if not Path(py_file).resolve().is_relative_to(PACKAGE):
+                return None
+            self = cls(py_func, py_file)
+            try:
+                self.ensure_cache_path()
+            except OSError:
+                return None  # not writable: numba's own locators
+            return self
+
+    class _Impl(CompileResultCacheImpl):
+        _locator_classes = [_Locator, *CompileResultCacheImpl._locator_classes]
+
+    class _PlannerCache(FunctionCache):
+        _impl_class = _Impl
+
+    # Reports the planner kernels numba compiles: its numba:compile event fires only on a cache miss.
+    event.register("numba:compile", _CompileListener())
+    return _PlannerCache
 
 
 def cache_follows_sources(namespace: dict) -> None:
@@ -126,7 +163,7 @@ def cache_follows_sources(namespace: dict) -> None:
         if getattr(getattr(obj, "_cache", None), "_cache_file", None) is None \
                 or getattr(getattr(obj, "py_func", None), "__module__", None) != module:
             continue  # not a cached dispatcher, or one another module defines (and equips)
-        obj._cache = _PlannerCache(obj.py_func)
+        obj._cache = _cache_class()(obj.py_func)
         stamp = obj._cache._cache_file._source_stamp
         if not (isinstance(stamp, tuple) and stamp[:1] == (STAMP_TAG,)):  # numba's own locator
             obj._cache._cache_file._source_stamp = (STAMP_TAG, sources_digest(), stamp)
@@ -176,6 +213,9 @@ def _one_compiler(dispatcher) -> None:
     """Make ``dispatcher`` compile a signature it has not loaded only under its kernel's lock
     file (the instance's ``compile`` shadows the class's: numba calls ``self.compile`` both for
     a call from Python and for a call from another kernel being compiled)."""
+    from numba.core import sigutils
+    from numba.core.compiler_lock import global_compiler_lock
+
     compile_ = type(dispatcher).compile.__get__(dispatcher)
     cache = dispatcher._cache
     lock = Path(cache.cache_path) / f"{cache._impl.filename_base}.lock"
@@ -207,38 +247,3 @@ def _report(message: str) -> None:
     log = _reporter[0]
     if log is not None:
         log(message)
-
-
-class _CompileListener(event.Listener):
-    """Reports the planner kernels numba compiles (its ``numba:compile`` event fires only when a
-    kernel is not in the cache)."""
-
-    def __init__(self):
-        self._started = threading.local()
-
-    def _name(self, ev):
-        func = getattr(ev.data.get("dispatcher"), "py_func", None)
-        module = getattr(func, "__module__", "") or ""
-        return f"{module}.{func.__qualname__}" if module.startswith("planner.") else None
-
-    def on_start(self, ev):
-        name = self._name(ev)
-        if name is None:
-            return
-        self._started.__dict__.setdefault("stack", []).append(time.monotonic())
-        if _reporter[0] is None:
-            return
-        if not _told_where[0]:
-            _told_where[0] = True
-            _report(f"compiling the planner's kernels, once for this machine (cache: {cache_dir()})")
-        _report(f"compiling {name}")
-
-    def on_end(self, ev):
-        name = self._name(ev)
-        stack = self._started.__dict__.get("stack")
-        if name is None or not stack:
-            return
-        _report(f"compiled {name} in {time.monotonic() - stack.pop():.1f} s")
-
-
-event.register("numba:compile", _CompileListener())
