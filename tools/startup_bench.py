@@ -82,8 +82,10 @@ def install(tree: Path, venv: Path) -> float:
     """A new venv at ``venv`` with ``tree`` pip-installed (its constraints); seconds taken."""
     start = time.monotonic()
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
-    subprocess.run([str(venv / "bin" / "python"), "-m", "pip", "install", "-q", str(tree), "-c",
-                    str(tree / "constraints.txt")], check=True, cwd=tree)
+    out = subprocess.run([str(venv / "bin" / "python"), "-m", "pip", "install", "-q", str(tree), "-c",
+                          str(tree / "constraints.txt")], cwd=tree, capture_output=True, text=True)
+    if out.returncode != 0:
+        raise SystemExit(f"startup_bench: pip install {tree} failed:\n{out.stderr[-2000:]}")
     return time.monotonic() - start
 
 
