@@ -32,7 +32,6 @@ import functools
 import hashlib
 import os
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Callable
@@ -88,7 +87,7 @@ def _cache_class():
         kernel is not in the cache)."""
 
         def __init__(self):
-            self._started = threading.local()
+            self._started = []  # start times of the compilations in progress (numba's compiler lock: one thread)
 
         def _name(self, ev):
             func = getattr(ev.data.get("dispatcher"), "py_func", None)
@@ -99,7 +98,7 @@ def _cache_class():
             name = self._name(ev)
             if name is None:
                 return
-            self._started.__dict__.setdefault("stack", []).append(time.monotonic())
+            self._started.append(time.monotonic())
             if _reporter[0] is None:
                 return
             if not _told_where[0]:
@@ -109,10 +108,9 @@ def _cache_class():
 
         def on_end(self, ev):
             name = self._name(ev)
-            stack = self._started.__dict__.get("stack")
-            if name is None or not stack:
+            if name is None or not self._started:
                 return
-            _report(f"compiled {name} in {time.monotonic() - stack.pop():.1f} s")
+            _report(f"compiled {name} in {time.monotonic() - self._started.pop():.1f} s")
 
     class _Locator(_CacheLocator):
         """A planner module's kernels in :func:`cache_dir`, under the module's path in the package;
