@@ -11,7 +11,9 @@ For the working tree (its tracked and untracked, not ignored, files) and for a b
 2. ``python run_fleet.py SCENARIO --out ...`` runs from that folder **cold** (no compiled kernel
    anywhere: numba's default cache files beside the sources are removed, ``NUMBA_CACHE_DIR``
    is unset and ``XDG_CACHE_HOME`` points at an empty folder, the user cache of a new machine),
-   then **warm** (the same command again);
+   then **warm** (the same command again), then **compiled**: cold again, but after ``python -m
+   planner.cli.compile`` (a new machine whose installation compiled the kernels; trees with that
+   command only);
 3. each run's output lines are time-stamped as they arrive: ``first stage s`` is the time from
    the command to its first decided stage's line (``stage ...``), ``silence s`` the longest gap
    between two output lines before it.
@@ -97,7 +99,7 @@ def _clear_numba_cache(tree: Path) -> None:
 
 def run_fleet(name: str, tree: Path, venv: Path, scenario: Path, out: Path, mode: str, cache_home: Path) -> Run:
     """``run_fleet.py scenario`` from ``tree`` with the venv's interpreter, its lines time-stamped."""
-    if mode == "cold":
+    if mode in ("cold", "compiled"):
         _clear_numba_cache(tree)
         shutil.rmtree(cache_home, ignore_errors=True)
     cache_home.mkdir(parents=True, exist_ok=True)
@@ -105,6 +107,11 @@ def run_fleet(name: str, tree: Path, venv: Path, scenario: Path, out: Path, mode
     env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "PYTHONPATH", "VIRTUAL_ENV")}
     env.update(XDG_CACHE_HOME=str(cache_home), PYTHONUNBUFFERED="1",
                PATH=f"{venv / 'bin'}{os.pathsep}{env.get('PATH', '')}")
+    if mode == "compiled":  # the install step for a robot host: compile ahead of the first run
+        began = time.monotonic()
+        subprocess.run([str(venv / "bin" / "python"), "-m", "planner.cli.compile"], cwd=tree, env=env, check=True,
+                       capture_output=True)
+        print(f"  {name:8} python -m planner.cli.compile: {time.monotonic() - began:.1f} s", flush=True)
     start = time.monotonic()
     proc = subprocess.Popen([str(venv / "bin" / "python"), "run_fleet.py", str(scenario), "--out", str(out)],
                             cwd=tree, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
@@ -164,8 +171,10 @@ def main(argv=None) -> int:
         scenarios.append(grid.resolve())
     runs: list[Run] = []
     for scenario in scenarios:
-        for mode in ("cold", "warm"):
+        for mode in ("cold", "warm", "compiled"):
             for name, (src, venv) in installed.items():
+                if mode == "compiled" and not (src / "planner" / "cli" / "compile.py").exists():
+                    continue  # a tree without the compile command
                 run = run_fleet(name, src, venv, scenario if scenario.is_absolute() else src / scenario,
                                 work / name / f"run_{scenario.stem}_{mode}", mode, work / name / "cache_home")
                 runs.append(run)
@@ -177,12 +186,14 @@ def main(argv=None) -> int:
     print("|---|---|---|---|---|---|---|---|")
     ok = True
     for scenario in scenarios:
-        for mode in ("cold", "warm"):
+        for mode in ("cold", "warm", "compiled"):
             row = {r.tree: r for r in runs if r.scenario == scenario.name and r.mode == mode}
+            if "tree" not in row:
+                continue
             t, b = row["tree"], row.get("baseline")
             ratio = (f"{t.first_stage_s / b.first_stage_s:.2f}" if b and t.first_stage_s and b.first_stage_s
                      else "-")
-            target = COLD_TARGET_S if mode == "cold" else WARM_TARGET_S
+            target = WARM_TARGET_S if mode == "warm" else COLD_TARGET_S
             met = t.first_stage_s is not None and t.first_stage_s <= target
             print(f"| {scenario.stem} | {mode} | {_fmt(t.first_stage_s)} | {t.silence_s:.1f} | "
                   f"{_fmt(b.first_stage_s) if b else '-'} | {f'{b.silence_s:.1f}' if b else '-'} | {ratio} | "
