@@ -134,11 +134,11 @@ def _cache_class():
         def from_function(cls, py_func, py_file):
             if not Path(py_file).resolve().is_relative_to(PACKAGE):
                 return None
-            self = cls(py_func, py_file)
             try:
+                self = cls(py_func, py_file)
                 self.ensure_cache_path()
-            except OSError:
-                return None  # not writable: numba's own locators
+            except (OSError, RuntimeError):  # no home folder, or not writable: numba's own locators
+                return None
             return self
 
     class _Impl(CompileResultCacheImpl):
