@@ -29,6 +29,7 @@ def coordinator(settings: Settings, stop: threading.Event) -> int:
     newer coordinator took over, ``STOPPED`` when stopped first."""
     from coordinator.epochs import DuplicateCoordinator
     from coordinator.node import Coordinator, CoordinatorConfig
+    from planner.jitcache import report_compiles
     from storage.missiondb import StoreBusy, StoreMismatch
 
     f, t = settings.flags, settings.timeouts()
@@ -43,6 +44,8 @@ def coordinator(settings: Settings, stop: threading.Event) -> int:
         confirm_timeout_s=max(t.confirm_s, t.stage_s), standby=f.standby, bye_timeout_s=t.bye_s,
         rejoin_timeout_s=t.rejoin_s, end_repeat_s=t.end_repeat_s, bye_grace_s=t.bye_grace_s),
         zenoh_config(f, "coordinator"), scenario_path=f.scenario, stop=stop)
+    # A kernel compiled on this machine for the first time takes seconds: say which (planner/jitcache.py).
+    report_compiles(lambda line: coord.log(f"coordinator: {line}"))
     try:
         summary = coord.run()
     except (StoreMismatch, DuplicateCoordinator) as exc:
@@ -61,11 +64,13 @@ def carrier(settings: Settings, stop: threading.Event) -> int:
     from carriers.node import EXIT_CODES, CarrierConfig
     from carriers.process import DuplicateCarriers, run_carriers
     from mission.timeouts import pose_interval
+    from planner.jitcache import report_compiles
     from planner.registry import planner_settings
     from wire.zconfig import ConfigError
 
     f, scenario, t = settings.flags, settings.scenario, settings.timeouts()
     log = (lambda line: None) if f.quiet else (lambda line: print(line, flush=True))
+    report_compiles(None if f.quiet else (lambda line: log(f"carriers {','.join(settings.carriers)}: {line}")))
     mode = Mode.DECENTRALISED if f.decentralised else Mode.COORDINATED if f.no_autonomy else Mode.HYBRID
     _, options = planner_settings(scenario, None, f.iterations, f.plan_ms, settings.planner_options)
     poses = pose_interval(scenario.stage_interval, f.realtime) if f.pose_interval is None else f.pose_interval

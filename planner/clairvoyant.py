@@ -37,7 +37,7 @@ import numba
 import numpy as np
 
 from planner.compiled import compile_problem
-from planner.kernels import cache_follows_sources
+from planner.jitcache import cache_follows_sources
 from planner.problem import ClairvoyantResult, Problem, evaluate, warm_up_problem  # noqa: F401 (its home was here)
 
 #: Largest number of options one carrier may have for the exact search.

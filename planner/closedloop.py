@@ -54,7 +54,8 @@ from numba import njit
 from planner import ssap
 from planner.compiled import compile_problem
 from planner.joint import ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, every_combination, sampled_mean
-from planner.kernels import cache_follows_sources, cut, deploys, rank
+from planner.jitcache import cache_follows_sources
+from planner.kernels import cut, deploys, rank
 from planner.problem import Problem, StageView, make_view, point_weights
 from planner.settings import check_budget
 
@@ -202,7 +203,7 @@ def _evaluate(cand, stage, n_stages, net, selection, samples, out, control_varia
     log = np.empty(sel.shape[0] + nbr_idx.shape[0] + 1, np.int64)
     for k in range(n_cand):
         for s in range(n_samples):
-            nlog = 0
+            nlog = np.int64(0)  # not a literal 0 (one compilation of undo_selection)
             total = 0.0
             plain = 0.0
             for i in range(m):
@@ -311,7 +312,7 @@ def _evaluate_weighted(cand, stage, n_stages, net, selection, samples, out, cont
     log = np.empty(sel.shape[0] + nbr_idx.shape[0] + 1, np.int64)
     for k in range(n_cand):
         for s in range(n_samples):
-            nlog = 0
+            nlog = np.int64(0)  # not a literal 0 (one compilation of undo_selection)
             total = 0.0
             plain = 0.0
             ws[:, :] = ws0
@@ -424,7 +425,8 @@ def conflict_values(stage, n_stages, net, left, past, prior, rounds, rule):
             value[r, n_stages, :] = 0.0
             for t in range(n_stages - 1, stage - 1, -1):
                 if not valid[r, t]:
-                    value[r, t, :] = value[r, t + 1, :]
+                    for d in range(d_max + 1):  # element by element: a slice copy compiles a shape check
+                        value[r, t, d] = value[r, t + 1, d]
                     continue
                 n = nleft[r, t]
                 q = r * n_stages + t
@@ -456,7 +458,8 @@ def conflict_values(stage, n_stages, net, left, past, prior, rounds, rule):
         for t in range(stage, n_stages):
             for r in range(n_carriers):
                 q = r * n_stages + t
-                dist[r, t + 1, :] = dist[r, t, :]
+                for d in range(d_max + 1):
+                    dist[r, t + 1, d] = dist[r, t, d]
                 pi[q] = 0.0
                 if not valid[r, t] or left[r] <= 0:
                     continue
@@ -525,10 +528,11 @@ def conflict_values(stage, n_stages, net, left, past, prior, rounds, rule):
                             worth += mass * (h - max(-c, 0.0))
                     s += ak * worth
                 new_ext[q] = s
-        if rnd == 0:
-            ext[:] = new_ext
-        else:  # damped: two points that share an overlap would otherwise swap roles each round
-            ext[:] = 0.5 * (ext + new_ext)
+        for q in range(n_points):
+            if rnd == 0:
+                ext[q] = new_ext[q]
+            else:  # damped: two points that share an overlap would otherwise swap roles each round
+                ext[q] = 0.5 * (ext[q] + new_ext[q])
     return alpha, pi
 
 

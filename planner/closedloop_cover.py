@@ -30,7 +30,7 @@ from numba import njit
 from planner import coverage as cov
 from planner.coverage_plan import plan_for
 from planner.joint import ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, every_combination, sampled_mean
-from planner.kernels import cache_follows_sources
+from planner.jitcache import cache_follows_sources
 from planner.mcts import kernel as _k
 from planner.mcts.fast import cover_state
 from planner.problem import StageView

@@ -31,7 +31,8 @@ from planner.closedloop import (BLOCK, Candidates, ClosedLoopPlanner, Net,
 from planner.comms import CommsSpec, Deliveries, LinkComms, contact, realise
 from planner.compiled import compile_problem
 from planner.joint import ENUMERATE_MAX, SAMPLES_MAX, SAMPLES_MIN, every_combination, sampled_mean
-from planner.kernels import cache_follows_sources, deploys
+from planner.jitcache import cache_follows_sources
+from planner.kernels import deploys
 from planner.problem import (OnlineResult, Problem, StageView, enforce, evaluate, make_view,
                              stage_rng, start_online, valid_stages_left, warm_up_problem)
 from planner.settings import check_budget
@@ -376,7 +377,7 @@ def _evaluate_imputed(cand, unknown, stage, n_stages, net, selection, past, samp
     log = np.empty(sel.shape[0] + nbr_idx.shape[0] + 1, np.int64)
     for k in range(n_cand):
         for s in range(n_samples):
-            nlog = 0
+            nlog = np.int64(0)  # not a literal 0 (one compilation of undo_selection)
             total = 0.0
             plain = 0.0
             for i in range(m):

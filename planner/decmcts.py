@@ -42,7 +42,8 @@ from numba import njit
 from planner import ssap
 from planner.compiled import compile_problem
 from planner.decentralised import Intent, LocalDecision, LocalView
-from planner.kernels import cache_follows_sources, deploys, forced
+from planner.jitcache import cache_follows_sources
+from planner.kernels import deploys, forced
 from planner.mcts.kernel import _random, _sample, weigh
 from planner.problem import Problem, fill_releases, point_weights, valid_stages_left, warm_up_problem
 from planner.settings import DEFAULT_EXPLORATION, check_budget

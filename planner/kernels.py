@@ -1,52 +1,16 @@
-"""Numba twins of planner rules, shared by the MCTS and closed-loop kernels, and the rule that
-ties the planner's on-disk numba cache to its sources (:func:`cache_follows_sources`).
+"""Numba twins of planner rules, shared by the MCTS and closed-loop kernels.
 
 Each function here is the compiled counterpart of exactly one Python definition; nothing else
 in the kernels restates these rules.
 """
 from __future__ import annotations
 
-import functools
-import hashlib
 import math
-from pathlib import Path
 
 from numba import njit
 
+from planner.jitcache import cache_follows_sources
 from planner.ssap import TIE
-
-#: The planner package's directory (whose sources :func:`sources_digest` hashes).
-PACKAGE = Path(__file__).resolve().parent
-
-
-@functools.lru_cache(maxsize=1)
-def sources_digest() -> str:
-    """SHA-256 (hex) of every ``.py`` file of the planner package (relative path and content)."""
-    h = hashlib.sha256()
-    for path in sorted(PACKAGE.rglob("*.py")):
-        h.update(path.relative_to(PACKAGE).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
-    return h.hexdigest()
-
-
-def cache_follows_sources(namespace: dict) -> None:
-    """Make the on-disk cache of every ``cache=True`` function defined in a module (``namespace``
-    is its ``globals()``; call at its end) valid only for today's planner sources.
-
-    numba checks a cached function against its own file's time stamp only: code it compiled in
-    from another file (a rule of this module inlined into a kernel, a constant such as
-    ``planner.ssap.TIE``) stays as cached when that file changes, and a stale cache then decides
-    by yesterday's rule. The index of each function is therefore stamped with
-    :func:`sources_digest` as well, so any change to a planner source recompiles the planner's
-    kernels on first use (relies on numba's ``Cache._cache_file._source_stamp``; numba is pinned
-    in constraints.txt, and tests/test_numba_cache.py checks the mechanism)."""
-    module = namespace["__name__"]
-    for obj in list(namespace.values()):
-        cache_file = getattr(getattr(obj, "_cache", None), "_cache_file", None)
-        if cache_file is None or getattr(getattr(obj, "py_func", None), "__module__", None) != module:
-            continue  # not a cached dispatcher, or one another module defines (and stamps)
-        stamp = cache_file._source_stamp
-        if not (isinstance(stamp, tuple) and len(stamp) == 3 and stamp[0] == "planner-sources"):
-            cache_file._source_stamp = ("planner-sources", sources_digest(), stamp)
 
 
 @njit(cache=True, inline="always")

@@ -341,6 +341,13 @@ RUNS = [
     ), "slow", wall_s=240, mem_mb=1500),
     Run("experiments-check", (S("python -m experiments check"),), "slow", wall_s=900, mem_mb=3000),
     Run("bench-full", (S("python -m coordinator.bench"),), "heavy", wall_s=3600, mem_mb=4000),
+    # Compiles what is not in the machine's cache yet (NUMBA_CACHE_DIR of the run): up to a minute.
+    Run("compile-kernels", (S("python -m planner.cli.compile"),), "slow", wall_s=600, mem_mb=1500),
+    # Fresh venvs (pip install from its cache) and cold fleet runs: minutes each.
+    Run("startup-bench", (S("python -m tools.startup_bench", extra="--work {tmp}/startup"),), "heavy",
+        wall_s=3600, mem_mb=6000),
+    Run("startup-bench-tree", (S("python -m tools.startup_bench --baseline none --grid 0",
+                                 extra="--work {tmp}/startup"),), "heavy", wall_s=1800, mem_mb=4000),
     Run("scale-default", (S("python -m tools.scale", extra="--out {tmp}/scale"),), "heavy", wall_s=7200, mem_mb=12000),
     Run("scale-256-plot", (S("python -m tools.scale --sizes 6,32,128,256 --out runs/scale --plot docs/results/scale.png",
                              OUT, ("docs/results/scale.png", "{tmp}/scale.png")),), "heavy", wall_s=3600, mem_mb=8000),

@@ -1,9 +1,11 @@
-"""The planner's on-disk numba cache is never reused across a change of the planner's sources.
+"""The planner's on-disk numba cache (planner/jitcache.py): never reused across a change of the
+planner's sources, shared by every copy of the same sources on a machine, and filled by one
+process per kernel.
 
 numba checks a cached function against its own file only; a kernel that inlines a rule of
 planner/kernels.py (or reads a constant of planner/ssap.py) would keep yesterday's rule after that
-file changed. planner.kernels.cache_follows_sources stamps every cached function with a digest of
-all planner sources.
+file changed. planner.jitcache.cache_follows_sources stamps every cached function with a digest of
+all planner sources, and keys the cache by that digest rather than by the files' paths.
 """
 from __future__ import annotations
 
@@ -16,7 +18,7 @@ import sys
 from pathlib import Path
 
 import planner
-from planner.kernels import sources_digest
+from planner.jitcache import sources_digest
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -40,6 +42,8 @@ def test_every_cached_planner_function_is_stamped_with_the_sources_digest():
 
 _PROBE = """
 import numpy as np
+from planner import jitcache
+jitcache.report_compiles(lambda line: print("report:", line, flush=True))
 from planner.mcts import kernel
 # points 1, 2 with probability 1/2 each; guide[m] = first index with cdf > m / 8
 print(kernel.quantiles(np.array([0.25]), np.array([1.0, 2.0]), np.array([0.5, 1.0]),
@@ -57,7 +61,7 @@ def test_a_change_to_an_inlined_rule_recompiles_the_kernels_that_inline_it(tmp_p
         out = subprocess.run([sys.executable, "-c", _PROBE], cwd=tmp_path, env=env, capture_output=True,
                              text=True, timeout=120)
         assert out.returncode == 0, out.stderr
-        return out.stdout.strip()
+        return out.stdout.strip().splitlines()[-1]
 
     assert probe() == "1.0"
     assert any((tmp_path / "numba-cache").rglob("*.nbi"))  # the kernel was cached
@@ -66,3 +70,49 @@ def test_a_change_to_an_inlined_rule_recompiles_the_kernels_that_inline_it(tmp_p
     assert text.count("    return points[i]\n") == 1
     kernels.write_text(text.replace("    return points[i]\n", "    return points[i] + 100.0\n"))
     assert probe() == "101.0"
+
+
+def _copy_planner(dest: Path) -> Path:
+    shutil.copytree(ROOT / "planner", dest / "planner", ignore=shutil.ignore_patterns("__pycache__"))
+    return dest
+
+
+def _env(tree: Path, cache_home: Path) -> dict:
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    return {**env, "PYTHONPATH": str(tree), "XDG_CACHE_HOME": str(cache_home)}
+
+
+def _start_probe(tree: Path, cache_home: Path) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-c", _PROBE], cwd=tree, env=_env(tree, cache_home),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _finish(proc: subprocess.Popen) -> list[str]:
+    out, err = proc.communicate(timeout=180)
+    assert proc.returncode == 0, err
+    lines = out.strip().splitlines()
+    assert lines[-1] == "1.0"
+    return [line for line in lines if line.startswith("report: ")]
+
+
+def test_two_copies_of_the_same_planner_share_the_user_cache(tmp_path):
+    """A second checkout or venv of the same sources, elsewhere on the machine, loads what the
+    first compiled: the cache is under the user's cache folder, keyed by versions and digest."""
+    cache_home = tmp_path / "cache"
+    first = _finish(_start_probe(_copy_planner(tmp_path / "a"), cache_home))
+    assert "report: compiling planner.mcts.kernel.quantiles" in first
+    assert any(line.startswith("report: compiled planner.mcts.kernel.quantiles in ") for line in first)
+    kept = list((cache_home / "marsupial-fleet" / "numba").glob("numba-*/planner/mcts/kernel/*quantiles*.nbi"))
+    assert len(kept) == 1, kept
+    assert _finish(_start_probe(_copy_planner(tmp_path / "b"), cache_home)) == []  # loaded, not compiled
+
+
+def test_processes_starting_together_compile_a_kernel_once(tmp_path):
+    """Three processes wanting the same kernel at once on a new machine: one compiles it, the
+    others wait for its lock and load it."""
+    tree, cache_home = _copy_planner(tmp_path), tmp_path / "cache"
+    reports = [_finish(proc) for proc in [_start_probe(tree, cache_home) for _ in range(3)]]
+    compiled = [r for r in reports if "report: compiling planner.mcts.kernel.quantiles" in r]
+    assert len(compiled) == 1, reports
+    assert all(r == [] or r[0].startswith("report: waiting for another process compiling planner.mcts.kernel.")
+               for r in reports if r not in compiled), reports

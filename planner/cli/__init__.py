@@ -2,6 +2,7 @@
 
 * ``python -m planner.cli.solve``    one planner online over an instance file, as one JSON object;
 * ``python -m planner.cli.bench``    the MCTS benchmark;
+* ``python -m planner.cli.compile``  the planner's kernels compiled for this machine ahead of a first run;
 * :mod:`planner.cli.measure`         ``python -m planner.online_optimal`` and ``python -m
   planner.clairvoyant`` (their modules' ``__main__`` blocks forward here);
 * :mod:`planner.cli.conformance`     ``python -m planner.conformance`` (the kit is

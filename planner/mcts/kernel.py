@@ -49,7 +49,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from planner.kernels import cache_follows_sources, deploys, deploys_u, forced, rank
+from planner.jitcache import cache_follows_sources
+from planner.kernels import deploys, deploys_u, forced, rank
 from planner.kernels import quantile as _quantile
 
 #: Index of the root node.
@@ -755,7 +756,7 @@ def search_joint(n_iter, tree, root, model, settings, uct, scratch, max_block):
         node = ROOT
         path[0] = ROOT
         plen = 1
-        n = 0
+        n = np.int64(0)  # not a literal 0: rollout would be compiled for Literal[int](0) as well
         k = j0
         # Invariant: the path's joint actions (stages j0..k-1) are applied to left/mark/pts.
         while k < n_stages:
