@@ -307,14 +307,16 @@ class Coordinator:
 
     def _take(self, heard) -> None:
         """What one inbox item says (:class:`coordinator.inbound.Heard`): when its carrier was heard,
-        a takeover of the higher epoch it heard, its mission event."""
+        the higher epoch it claims (on record, never adopted [P-7.3]), its mission event."""
         if heard.carrier is not None and (heard.progress is None or heard.progress <= self.state.next_stage):
             self.heard[heard.carrier] = heard.at  # when it arrived [P-10.5] (see Heard.progress)
-        if heard.epoch is not None and self.epochs.carrier_heard(heard.carrier, heard.epoch, self.state.next_stage,
-                                                                 self.store):
-            self._refresh_state()  # State and the last Decision again, in the new epoch [P-7.5]
-            if self.state.next_stage > 0:
-                self._publish_decision(self._decision(self.state.next_stage - 1))
+        if heard.epoch is not None:
+            self.epochs.carrier_claimed(heard.carrier, heard.epoch)
+            if heard.carrier in self.state.accepted:
+                # [P-7.3] a claim of an authority this coordinator does not know, from a carrier it
+                # accepted before, changes nothing it holds of it: answered, not applied.
+                self._answer_hello(heard.carrier, heard.event.revision)
+                return
         if heard.event is not None:
             self.apply(heard.event)
 

@@ -28,7 +28,7 @@ def coordinator(settings: Settings, stop: threading.Event) -> int:
     newer coordinator took over, ``STOPPED`` when stopped first."""
     from coordinator.epochs import DuplicateCoordinator
     from coordinator.node import Coordinator, CoordinatorConfig
-    from storage.missiondb import StoreBusy, StoreMismatch
+    from storage.missiondb import EpochsExhausted, StoreBusy, StoreMismatch
 
     f, t = settings.flags, settings.timeouts()
     coord = Coordinator(settings.scenario, CoordinatorConfig(
@@ -44,7 +44,7 @@ def coordinator(settings: Settings, stop: threading.Event) -> int:
         zenoh_config(f, "coordinator"), scenario_path=f.scenario, stop=stop)
     try:
         summary = coord.run()
-    except (StoreMismatch, DuplicateCoordinator) as exc:
+    except (StoreMismatch, DuplicateCoordinator, EpochsExhausted) as exc:
         return refuse(settings, str(exc))
     except StoreBusy as exc:  # stopped while waiting for another process's lock
         say(settings, f"{exc}; stopped while waiting for it")

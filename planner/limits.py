@@ -36,3 +36,6 @@ MAX_TRAIL = 512
 MAX_POINT_REGIONS = 4096
 #: Largest absolute coordinate on the wire, metres (scenario files are stricter).
 MAX_COORD = 1e7
+#: Highest coordinator epoch the wire carries (a msgpack int32). A coordinator that would need a
+#: higher one refuses to open its mission (storage.missiondb.EpochsExhausted) rather than wrap.
+EPOCH_MAX = 2**31 - 1
