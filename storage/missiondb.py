@@ -87,7 +87,7 @@ CREATE TABLE IF NOT EXISTS confirmations (
 #: Event kinds written to ``events``.
 EVENT_KINDS = (
     "open", "hello", "alive", "dead", "observation", "missing", "decision", "published",
-    "confirm", "own", "bye", "rejected", "end", "epoch",
+    "confirm", "own", "bye", "rejected", "end", "epoch", "planner-fault",
 )
 
 
@@ -429,6 +429,12 @@ class MissionStore:
         return [r[0] for r in self.db.execute(
             "SELECT latency_ms FROM confirmations WHERE latency_ms IS NOT NULL ORDER BY seq"
         )]
+
+    def planner_faults(self) -> list[dict]:
+        """Every ``planner-fault`` event: the stages the planner broke a rule at and the on-board
+        fallback decided instead (``stage``, ``rule``, ``detail``, ``fallback``), in order."""
+        return [dict(json.loads(p), stage=stage) for stage, p in self.db.execute(
+            "SELECT stage, payload FROM events WHERE kind = 'planner-fault' ORDER BY seq")]
 
     def newer_epoch(self) -> int | None:
         """The highest epoch another coordinator recorded in this file since the last call (or
