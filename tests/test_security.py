@@ -443,3 +443,40 @@ def test_gen_certs_writes_configs_for_a_scenario(tmp_path, capsys):
     assert (tmp_path / "carrier-a.key").stat().st_mode & 0o077 == 0  # private keys: owner only
     conf = zenoh.Config.from_file(str(tmp_path / "carrier-a.json5"))
     assert json.loads(conf.get_json("transport/link/tls"))["connect_certificate"] == str(tmp_path / "carrier-a.pem")
+
+
+def test_gen_certs_modes_hold_whatever_the_umask_and_fix_an_existing_key(tmp_path, capsys):
+    """Private keys and configs 0600, the folder 0700, certificates 0644, under umask 000, and an
+    existing key left 0644 by an earlier run (or a copy) is brought back to 0600."""
+    import os
+    import stat
+
+    out = tmp_path / "certs"
+    out.mkdir(mode=0o777)
+    (out / "carrier-a.key").write_text("old")
+    os.chmod(out / "carrier-a.key", 0o644)
+    old = os.umask(0)
+    try:
+        assert gen_certs.main(["--out", str(out), "--scenario", str(TINY)]) == 0
+    finally:
+        os.umask(old)
+    mode = lambda p: stat.S_IMODE(p.stat().st_mode)  # noqa: E731
+    assert mode(out) == 0o700
+    for path in out.iterdir():
+        expected = 0o644 if path.suffix == ".pem" else 0o600
+        assert mode(path) == expected, (path.name, oct(mode(path)))
+    assert (out / "carrier-a.key").read_text() != "old"
+
+
+def test_gen_certs_without_cryptography_names_the_extra(tmp_path):
+    """Without the cryptography package gen_certs exits 2 with one line naming the extra."""
+    blocker = tmp_path / "block"
+    blocker.mkdir()
+    (blocker / "cryptography").mkdir()
+    (blocker / "cryptography" / "__init__.py").write_text("raise ImportError('blocked for the test')\n")
+    proc = subprocess.run([sys.executable, str(ROOT / "tools" / "gen_certs.py"), "--out", str(tmp_path / "c"),
+                           "--carriers", "a"], capture_output=True, text=True, timeout=60,
+                          env={**__import__("os").environ, "PYTHONPATH": str(blocker)})
+    assert proc.returncode == 2 and proc.stderr.splitlines() == [
+        f"error: tools/gen_certs.py needs the cryptography package: {gen_certs.INSTALL_HINT}"], proc.stderr
+    assert "[security]" in proc.stderr and not (tmp_path / "c").exists()

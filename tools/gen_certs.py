@@ -29,10 +29,19 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
 
-from cryptography import x509
-from cryptography.hazmat.primitives import hashes, serialization
-from cryptography.hazmat.primitives.asymmetric import ec
-from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+try:  # the `security` extra (pip install -e '.[security]'); main() says so when it is missing
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+except ImportError:  # pragma: no cover - exercised by a subprocess without the package
+    x509 = None  # type: ignore[assignment]
+
+#: What to install for this tool (pyproject.toml's extra).
+INSTALL_HINT = "pip install -e '.[security]' (or: pip install cryptography)"
+#: Modes whatever the umask: private keys and configs (they name the keys) owner-only, the
+#: folder owner-only, certificates world-readable (they are public).
+KEY_MODE, CONFIG_MODE, DIR_MODE, CERT_MODE = 0o600, 0o600, 0o700, 0o644
 
 COORDINATOR_CN = "marsupial-coordinator"
 CA_CN = "marsupial-fleet-ca"
@@ -82,13 +91,20 @@ def _write_key(path: Path, key: ec.EllipticCurvePrivateKey) -> None:
     data = key.private_bytes(
         serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
     )
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    _write_private(path, data, KEY_MODE)
+
+
+def _write_private(path: Path, data: bytes, mode: int) -> None:
+    """Write ``data`` to ``path`` with ``mode`` exactly: set on the open file before anything is
+    written (an existing file's looser mode is fixed first; the umask is not consulted)."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, mode)
+    os.fchmod(fd, mode)
     with os.fdopen(fd, "wb") as f:
         f.write(data)
 
 
 def _write_cert(path: Path, cert: x509.Certificate) -> None:
-    path.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    _write_private(path, cert.public_bytes(serialization.Encoding.PEM), CERT_MODE)
 
 
 def _validity(days: float) -> tuple[datetime.datetime, datetime.datetime]:
@@ -188,6 +204,8 @@ def generate_fleet_certs(
     Returns the `fleet_layout` of OUT made absolute.
     """
     out = Path(out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    os.chmod(out, DIR_MODE)
     layout = fleet_layout(out, carrier_ids)
     ca = make_ca(out, days=days)
     issue(ca, out, "coordinator", COORDINATOR_CN, hosts, days)
@@ -283,7 +301,7 @@ def carrier_config(
 def write_json5(path: Path, config: dict, comment: str = "") -> Path:
     """Write `config` as JSON5 (plain JSON plus a `//` comment header)."""
     header = "".join(f"// {line}\n" for line in comment.splitlines())
-    path.write_text(header + json.dumps(config, indent=2) + "\n")
+    _write_private(Path(path), (header + json.dumps(config, indent=2) + "\n").encode(), CONFIG_MODE)
     return path
 
 
@@ -341,6 +359,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="endpoints carriers connect to (default: the --listen endpoints)")
     parser.add_argument("--days", type=float, default=DEFAULT_DAYS, help="certificate validity, days")
     args = parser.parse_args(argv)
+    if x509 is None:
+        print(f"error: tools/gen_certs.py needs the cryptography package: {INSTALL_HINT}", file=sys.stderr)
+        return 2
     try:
         ids = scenario_carrier_ids(args.scenario) if args.scenario else list(args.carriers)
     except ValueError as exc:
