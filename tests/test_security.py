@@ -480,3 +480,42 @@ def test_gen_certs_without_cryptography_names_the_extra(tmp_path):
     assert proc.returncode == 2 and proc.stderr.splitlines() == [
         f"error: tools/gen_certs.py needs the cryptography package: {gen_certs.INSTALL_HINT}"], proc.stderr
     assert "[security]" in proc.stderr and not (tmp_path / "c").exists()
+
+
+@pytest.mark.parametrize("limited", [True, False], ids=["generated-limit", "control-no-limit"])
+def test_a_10_mib_payload_is_dropped_at_the_first_hop(certs, limited):
+    """The generated configs bound Zenoh's own message size (transport.link.rx.max_message_size,
+    planner.limits.TRANSPORT_MAX_MESSAGE_BYTES): a 10 MiB put on carrier c0's own key, followed by
+    a small marker, reaches neither the coordinator's subscriber nor carrier c1 (the coordinator's
+    link drops it; it is never relayed), while the marker does. Control: with zenoh's default
+    limit (1 GiB) the same payload is relayed in full."""
+    from planner.limits import TRANSPORT_MAX_MESSAGE_BYTES
+
+    port = free_port()
+    coord_conf = gen_certs.coordinator_config(certs)
+    sender_conf = carrier_conf(certs, certs.carriers["c0"])
+    other_conf = carrier_conf(certs, certs.carriers["c1"])
+    if limited:
+        assert coord_conf["transport"]["link"]["rx"]["max_message_size"] == TRANSPORT_MAX_MESSAGE_BYTES
+        sender_conf["transport"]["link"]["rx"] = dict(coord_conf["transport"]["link"]["rx"])
+    else:
+        del coord_conf["transport"]["link"]["rx"]
+    big = bytes(10 * 1024 * 1024)
+    key = keys.carrier_key(MISSION, "c0", "obs")
+    with open_session(coord_conf, port, "listen") as coord:
+        inbox = Inbox()
+        coord.declare_subscriber(f"marsupial/{MISSION}/**", inbox)
+        with open_session(sender_conf, port, "connect") as car, open_session(other_conf, port, "connect") as other:
+            assert wait_connected(car, WAIT_S) and wait_connected(other, WAIT_S)
+            other_inbox = Inbox()
+            other.declare_subscriber(f"marsupial/{MISSION}/**", other_inbox)
+            time.sleep(0.5)  # the subscription has reached the coordinator
+            car.put(key, big)
+            deliver(car, inbox, [], (key, b"marker"))
+            assert other_inbox.wait_for((key, b"marker"))
+            time.sleep(0.5)
+            got = [len(p) for k, p in inbox.items + other_inbox.items if len(p) > 1024]
+            if limited:
+                assert got == [], got
+            else:
+                assert got and set(got) == {len(big)}, got

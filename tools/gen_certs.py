@@ -43,6 +43,8 @@ INSTALL_HINT = "pip install -e '.[security]' (or: pip install cryptography)"
 #: folder owner-only, certificates world-readable (they are public).
 KEY_MODE, CONFIG_MODE, DIR_MODE, CERT_MODE = 0o600, 0o600, 0o700, 0o644
 
+from planner.limits import TRANSPORT_MAX_MESSAGE_BYTES  # noqa: E402
+
 COORDINATOR_CN = "marsupial-coordinator"
 CA_CN = "marsupial-fleet-ca"
 DEFAULT_HOSTS = ("localhost", "127.0.0.1")  # names the coordinator's certificate is valid for
@@ -280,7 +282,8 @@ def coordinator_config(certs: FleetCerts, listen: Sequence[str] = ("tls/127.0.0.
     return {
         "listen": {"endpoints": list(listen)},
         "scouting": {"multicast": {"enabled": False}},
-        "transport": {"link": {"protocols": ["tls"], "tls": tls_section(certs.ca, certs.coordinator)}},
+        "transport": {"link": {"protocols": ["tls"], "tls": tls_section(certs.ca, certs.coordinator),
+                               "rx": {"max_message_size": TRANSPORT_MAX_MESSAGE_BYTES}}},
         "access_control": coordinator_acl(sorted(certs.carriers)),
     }
 
@@ -293,7 +296,8 @@ def carrier_config(
         "connect": {"endpoints": list(connect)},
         "listen": {"endpoints": []},
         "scouting": {"multicast": {"enabled": False}},
-        "transport": {"link": {"protocols": ["tls"], "tls": tls_section(certs.ca, certs.carriers[carrier_id])}},
+        "transport": {"link": {"protocols": ["tls"], "tls": tls_section(certs.ca, certs.carriers[carrier_id]),
+                               "rx": {"max_message_size": TRANSPORT_MAX_MESSAGE_BYTES}}},
         "access_control": carrier_acl(),
     }
 
