@@ -519,3 +519,29 @@ def test_a_10_mib_payload_is_dropped_at_the_first_hop(certs, limited):
                 assert got == [], got
             else:
                 assert got and set(got) == {len(big)}, got
+
+
+def test_acl_a_carrier_reads_only_what_the_protocol_needs(certs):
+    """Least privilege for reads: carrier c1, subscribed to everything of the mission, receives
+    the coordinator's Decision, c0's Observation and its own Accepted, but not c0's Hello, Bye,
+    Pose, Accepted or Refusal (the coordinator's egress rules drop them)."""
+    port = free_port()
+    m = MISSION
+    with open_session(gen_certs.coordinator_config(certs), port, "listen") as coord:
+        with open_session(carrier_conf(certs, certs.carriers["c0"]), port, "connect") as c0, \
+                open_session(carrier_conf(certs, certs.carriers["c1"]), port, "connect") as c1:
+            assert wait_connected(c0, WAIT_S) and wait_connected(c1, WAIT_S)
+            inbox = Inbox()
+            c1.declare_subscriber(f"marsupial/{m}/**", inbox)
+            time.sleep(0.5)
+            hidden = [(keys.carrier_key(m, "c0", topic), b"c0 " + topic.encode()) for topic in ("hello", "bye", "pose")]
+            for key, payload in hidden:
+                c0.put(key, payload)
+            coord.put(keys.accepted_key(m, "c0"), b"c0's answer")
+            coord.put(keys.refusal_key(m, "c0"), b"c0's refusal")
+            deliver(c0, inbox, [], (keys.carrier_key(m, "c0", "obs"), b"c0 obs"))
+            deliver(coord, inbox, [], (keys.decision_key(m), b"decision"))
+            deliver(coord, inbox, [], (keys.accepted_key(m, "c1"), b"c1's answer"))
+            time.sleep(0.3)
+            got = {k for k, _ in inbox.items}
+            assert got == {keys.carrier_key(m, "c0", "obs"), keys.decision_key(m), keys.accepted_key(m, "c1")}, got

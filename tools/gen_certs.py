@@ -58,6 +58,11 @@ ALL_MESSAGES = (
 )
 # What a carrier may send towards the coordinator on any fleet key: interest only, no data.
 CARRIER_READ_MESSAGES = ("declare_subscriber", "query", "liveliness_query", "declare_liveliness_subscriber")
+# What the coordinator forwards to a carrier on any fleet key: routing declarations, no data.
+ROUTING_MESSAGES = ("declare_subscriber", "declare_queryable", "query", "liveliness_query",
+                    "declare_liveliness_subscriber", "delete")
+# The carriers' topics every carrier may read (a carrier deciding alone listens to them).
+PEER_TOPICS = ("obs", "own", "confirm", "progress")
 # What a carrier may send only under its own keys marsupial/<mission>/carrier/<id>/**.
 CARRIER_WRITE_MESSAGES = ("put", "delete", "declare_queryable", "reply", "liveliness_token")
 
@@ -238,26 +243,43 @@ def tls_section(ca_cert: Path, identity: Identity | None, verify_name: bool = Tr
 def coordinator_acl(carrier_ids: Sequence[str], prefix: str = KEY_PREFIX) -> dict:
     """Access control for the coordinator's session (the hub every carrier connects to).
 
-    Default deny. Every carrier certificate may subscribe, query and receive anything under
-    `prefix/**`; carrier `id` may put, delete, reply, declare queryables and liveliness tokens only
-    under `prefix/*/carrier/<id>/**`. Anything else a carrier sends (a decision under
+    Default deny. Every carrier certificate may subscribe and query under `prefix/**`; carrier
+    `id` may put, delete, reply, declare queryables and liveliness tokens only under
+    `prefix/*/carrier/<id>/**`. Anything else a carrier sends (a decision under
     `prefix/<mission>/coordinator/**`, another carrier's observation) is dropped on ingress.
+    Least privilege for reads (egress): carrier `id` receives the Decisions and End, its own
+    Accepted and Refusal, State replies, the carriers' observations, accounts, confirmations and
+    Progress (what a carrier deciding alone reads, docs/protocol.md [P-8.3]) and the liveliness
+    tokens; not another carrier's Hello, Bye, Pose, Accepted or Refusal.
     """
     rules = [
         {"id": "carriers-read", "messages": list(CARRIER_READ_MESSAGES), "flows": ["ingress"],
          "permission": "allow", "key_exprs": [f"{prefix}/**"]},
-        {"id": "carriers-receive", "messages": list(ALL_MESSAGES), "flows": ["egress"],
+        {"id": "carriers-routing", "messages": list(ROUTING_MESSAGES), "flows": ["egress"],
          "permission": "allow", "key_exprs": [f"{prefix}/**"]},
+        {"id": "carriers-receive", "messages": ["put"], "flows": ["egress"], "permission": "allow",
+         "key_exprs": [f"{prefix}/*/coordinator/decision", f"{prefix}/*/coordinator/end",
+                       *(f"{prefix}/*/carrier/*/{topic}" for topic in PEER_TOPICS)]},
+        {"id": "carriers-state", "messages": ["reply"], "flows": ["egress"], "permission": "allow",
+         "key_exprs": [f"{prefix}/*/coordinator/state"]},
+        {"id": "carriers-presence", "messages": ["liveliness_token"], "flows": ["egress"], "permission": "allow",
+         "key_exprs": [f"{prefix}/*/coordinator/alive", f"{prefix}/*/carrier/*/alive"]},
     ]
     subjects = [{"id": "carriers", "cert_common_names": [carrier_cn(c) for c in carrier_ids]}]
-    policies = [{"id": "carriers", "rules": ["carriers-read", "carriers-receive"], "subjects": ["carriers"]}]
+    policies = [{"id": "carriers", "rules": ["carriers-read", "carriers-routing", "carriers-receive", "carriers-state",
+                                             "carriers-presence"], "subjects": ["carriers"]}]
     for cid in carrier_ids:
         rules.append({
             "id": f"own-{cid}", "messages": list(CARRIER_WRITE_MESSAGES), "flows": ["ingress"],
             "permission": "allow", "key_exprs": [f"{prefix}/*/carrier/{cid}/**"],
         })
+        rules.append({
+            "id": f"answers-{cid}", "messages": ["put"], "flows": ["egress"], "permission": "allow",
+            "key_exprs": [f"{prefix}/*/coordinator/accepted/{cid}", f"{prefix}/*/coordinator/refusal/{cid}"],
+        })
         subjects.append({"id": f"carrier-{cid}", "cert_common_names": [carrier_cn(cid)]})
-        policies.append({"id": f"carrier-{cid}", "rules": [f"own-{cid}"], "subjects": [f"carrier-{cid}"]})
+        policies.append({"id": f"carrier-{cid}", "rules": [f"own-{cid}", f"answers-{cid}"],
+                         "subjects": [f"carrier-{cid}"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
 
