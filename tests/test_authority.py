@@ -173,6 +173,8 @@ def test_a_carriers_hello_of_a_newer_epoch_after_a_decision_does_not_depose_the_
     run = _attacked(tmp_path, certs_six, attack)
     _kept(run)
     assert "reports epoch 2" in run["logs"]["coordinator"]  # the claim is on record, not adopted
+    assert run["summary"]["denials"] == [{"sender": "c1", "rule": "P-7.3", "what": "epoch claimed in a Hello",
+                                          "value": 2}]
 
 
 @pytest.mark.slow
@@ -186,3 +188,4 @@ def test_a_carriers_hello_of_the_highest_epoch_before_stage_0_does_not_overflow_
     run = _attacked(tmp_path, certs_six, attack)
     _kept(run)
     assert f"reports epoch {EPOCH_MAX}" in run["logs"]["coordinator"]
+    assert [(d["sender"], d["value"]) for d in run["summary"]["denials"]] == [("c1", EPOCH_MAX)]

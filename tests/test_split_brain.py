@@ -279,6 +279,7 @@ def test_a_coordinator_on_a_fresh_out_keeps_its_epoch_whatever_a_hello_reports(t
     assert all("deposed" not in counts for counts in summary["rejected"]["carriers"].values()), summary["rejected"]
     from storage.missiondb import highest_epoch
     assert highest_epoch(tmp_path / "mission.db") == 1
+    assert [(d["sender"], d["rule"], d["value"]) for d in summary["denials"]] == [("a", "P-7.3", 4)]
 
 
 @pytest.mark.slow
