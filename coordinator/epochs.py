@@ -1,8 +1,11 @@
 """Split brain on the coordinator's side (docs/fleet.md, "Split brain"): opening the session and
 claiming the mission (a live coordinator of it refuses this one, or a standby waits for its token
 to vanish), the epoch this process takes (above every one used before: mission.db's and a live
-primary's), and the reaction to a newer epoch (a carrier heard it, a Decision of it, mission.db
-records it).
+primary's), and the reaction to a newer epoch (a Decision of it, mission.db records it).
+
+Authority comes from coordinators only (docs/protocol.md [P-7.3]): what a carrier says of an
+epoch (its Hello's) is a claim, logged and counted, never adopted: it neither raises this
+coordinator's epoch nor deposes it.
 
 The carrier's rule (a lower epoch's Decision is ``deposed``) is in ``mission.carrier``; what
 needs a session or the store is here. :class:`Epochs` is a collaborator of
@@ -34,10 +37,10 @@ class Epochs:
     """This coordinator's claim on its mission and its epochs.
 
     Attributes:
-        epoch: this process's epoch (set when it opens mission.db, raised when a carrier heard a
-            higher one before this process decided a stage).
+        epoch: this process's epoch (set when it opens mission.db; nothing raises it after).
         known: the highest epoch a live primary reported while this one stood by.
-        first_stage: the first stage this process decides (a newer epoch is taken before it).
+        first_stage: the first stage this process decides.
+        claims: per carrier, the highest epoch above this one its Hellos reported (not adopted).
         deposed_by: the epoch of a newer coordinator that deposed this one (None while not).
 
     Args:
@@ -51,22 +54,17 @@ class Epochs:
         self.known = 0
         self.first_stage = 0
         self.deposed_by: int | None = None
+        self.claims: dict[str, int] = {}
 
-    def carrier_heard(self, cid: str, epoch: int, next_stage: int, store) -> bool:
-        """A carrier has heard a higher epoch than ours (its Hello). Before this process decided a
-        stage (it may have re-published the last decision) a coordinator that had that epoch is
-        gone or out of our reach: take the next epoch (recorded, so a restart goes higher still);
-        True: the caller re-publishes. After it, a newer coordinator decides this mission: we are
-        deposed."""
-        if self.deposed_by is not None:
-            return False
-        if next_stage > self.first_stage:
-            self.deposed(epoch, f"carrier {cid} has heard it")
-            return False
-        self.log(f"coordinator: carrier {cid} has heard epoch {epoch}; this coordinator takes epoch {epoch + 1}")
-        self.epoch = epoch + 1
-        store.raise_epoch(self.epoch)
-        return True
+    def carrier_claimed(self, cid: str, epoch: int) -> None:
+        """A carrier's Hello reports a higher epoch than this coordinator's. A carrier's message
+        never changes who decides [P-7.3]: not adopted, not a deposition; the highest claim per
+        carrier is kept for the record (summary.json ``denials``) and its first one logged."""
+        if epoch > self.claims.get(cid, 0):
+            if cid not in self.claims:
+                self.log(f"coordinator: carrier {cid} reports epoch {epoch} (this coordinator's is {self.epoch}); "
+                         f"a carrier's message does not change who decides: not adopted")
+            self.claims[cid] = epoch
 
     def decision_heard(self, payload: bytes) -> None:
         """A Decision on this mission's decision key (ours come back to us): one of a higher

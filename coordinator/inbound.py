@@ -58,7 +58,8 @@ class Heard(NamedTuple):
         progress: a Progress of this stage (None: not a Progress): heard only while the stage it
             names is not past the stage collected (one past it sends nothing more for that stage:
             its silence ends the wait; found by mission.simulate).
-        epoch: a Hello of a higher epoch than this coordinator's, of its world [P-7.3] (None: none).
+        epoch: the epoch a Hello of its world claims above this coordinator's: on record, never
+            adopted [P-7.3] (None: none).
     """
 
     event: Any = None

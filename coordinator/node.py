@@ -42,6 +42,7 @@ import numpy as np
 import world
 from planner.registry import make_planner, planner_settings, used_options
 from mission.coverage import planning_counts, spec_options
+from planner.guard import PlannerFault
 from planner.online import stage_step
 from coordinator.clock import StageClock
 from coordinator.epochs import Epochs
@@ -59,6 +60,38 @@ from wire.messages import (
 )
 from wire.link_filter import link_filter
 from wire.transport import Node
+
+#: The planner that decides a stage a planner plug-in failed (raised, broke a rule, ran past its
+#: budget): SSAP, the carriers' on-board rule, needs no options and cannot fail.
+FALLBACK_PLANNER = "ssap"
+
+
+def guarded_step(given: tuple, planner: tuple, rest: tuple, log, store):
+    """``stage_step(*given, planner, *rest)`` with the planner's ``plan_ms`` budget; a planner
+    fault (planner.guard: it raised, broke a rule, ran past its budget) is logged, recorded in
+    mission.db (``planner-fault``: summary.json ``planner_faults``) and the stage decided by
+    :data:`FALLBACK_PLANNER` instead: a plug-in is someone else's code."""
+    planner, name = planner
+    try:
+        return stage_step(*given, planner, *rest, getattr(planner, "plan_ms", None))
+    except PlannerFault as fault:
+        log(f"coordinator: {fault.line(name)}; stage {fault.stage} decided by {FALLBACK_PLANNER}")
+        store.event("planner-fault", None, fault.stage, rule=fault.rule, detail=fault.detail, planner=name,
+                    fallback=FALLBACK_PLANNER)
+        return stage_step(*given, make_planner(FALLBACK_PLANNER), *rest)
+
+
+def warm_up(planner: tuple, problem, log) -> None:
+    """The planner's ``warm_up(problem)`` if it has one; a plug-in's that raises is logged (its
+    decisions are guarded one by one: :func:`guarded_step`)."""
+    planner, name = planner
+    warm = getattr(planner, "warm_up", None)
+    if callable(warm):
+        try:
+            warm(problem)
+        except Exception as exc:
+            log(f"coordinator: planner {name!r} warm_up raised {type(exc).__name__}: {exc}")
+
 
 @dataclass(frozen=True)
 class CoordinatorConfig:
@@ -307,14 +340,14 @@ class Coordinator:
 
     def _take(self, heard) -> None:
         """What one inbox item says (:class:`coordinator.inbound.Heard`): when its carrier was heard,
-        a takeover of the higher epoch it heard, its mission event."""
+        the higher epoch it claims (on record, never adopted [P-7.3]), its mission event."""
         if heard.carrier is not None and (heard.progress is None or heard.progress <= self.state.next_stage):
             self.heard[heard.carrier] = heard.at  # when it arrived [P-10.5] (see Heard.progress)
-        if heard.epoch is not None and self.epochs.carrier_heard(heard.carrier, heard.epoch, self.state.next_stage,
-                                                                 self.store):
-            self._refresh_state()  # State and the last Decision again, in the new epoch [P-7.5]
-            if self.state.next_stage > 0:
-                self._publish_decision(self._decision(self.state.next_stage - 1))
+        if heard.epoch is not None:
+            self.epochs.carrier_claimed(heard.carrier, heard.epoch)
+            if heard.carrier in self.state.accepted:  # [P-7.3] answered, changes nothing held of it
+                self._answer_hello(heard.carrier, heard.event.revision)
+                return
         if heard.event is not None:
             self.apply(heard.event)
 
@@ -332,9 +365,10 @@ class Coordinator:
 
     def _plan(self, j: int) -> tuple[tuple[str, ...], float, tuple[int, ...]]:
         """(deploying ids sorted, planning ms, their passengers): the offline loop's stage_step on the mission's view."""
-        step = stage_step(self.problem, self.state.planning_observations(j), self.state.deployed(), self.planner,
-                          self.seed, j, self.state.releases() if self.problem.weights is not None else None,
-                          planning_counts(self.state, self.problem))
+        given = (self.problem, self.state.planning_observations(j), self.state.deployed())
+        rest = (self.seed, j, self.state.releases() if self.problem.weights is not None else None,
+                planning_counts(self.state, self.problem))
+        step = guarded_step(given, (self.planner, self.planner_name), rest, self.log, self.store)
         rs = sorted(np.flatnonzero(step.deploy), key=lambda r: self.ids[r])
         return tuple(self.ids[r] for r in rs), step.decision_ms, tuple(int(step.passengers[r]) for r in rs)
 
@@ -405,9 +439,8 @@ class Coordinator:
         self._serve()
         # Warmed up once State answers and the token is out: carriers that start meanwhile
         # find a coordinator (compiling the planner takes seconds, more on a busy host).
-        warm = getattr(self.planner, "warm_up", None)
-        if callable(warm) and not self._stop.is_set():
-            warm(self.problem)
+        if not self._stop.is_set():
+            warm_up((self.planner, self.planner_name), self.problem, self.log)
         if self.state.next_stage > 0:
             self._publish_decision(self._decision(self.state.next_stage - 1))  # idempotent re-publication
         self.stage_clock.serve(self)  # the carriers' join, the stages, the last Confirms, End

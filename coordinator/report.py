@@ -202,6 +202,11 @@ def run_report(scenario, out, mission: str | None = None, seed: int | None = Non
         from storage.missiondb import highest_epoch
 
         data["epoch"] = highest_epoch(out / "mission.db")
+    # What only the coordinator knew: the stages its planner failed (also in mission.db) and the
+    # denials with their senders; kept from its own summary.
+    for key in ("planner_faults", "denials"):
+        if key in previous:
+            data[key] = previous[key]
     data["report"] = {
         "inputs": (["mission.db"] if merged.db_source else []) + [rec.source for rec in records],
         "skipped": list(skipped), "conflicts": [c.line() for c in merged.conflicts],

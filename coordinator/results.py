@@ -83,6 +83,7 @@ class Results:
         epochs = self.epochs
         deposed = epochs.deposed_by is not None
         rejected = dict(node.rejected) if node else {}
+        self.planner_faults = store.planner_faults()
         if not deposed:
             write_json(out / "summary.json", self.summary(state, problem, epochs, rejected, wall_s, bound=False))
         self.recording.close()
@@ -100,6 +101,11 @@ class Results:
         out = mission_summary(state, problem, dataclasses.replace(self.info, wall_time_s=wall_s, rejected=rejected),
                               bound=bound)
         out["epoch"] = epochs.epoch  # of the coordinator that wrote this summary (docs/fleet.md)
+        # Stages a planner plug-in failed and SSAP decided (coordinator.node.FALLBACK_PLANNER).
+        out["planner_faults"] = list(getattr(self, "planner_faults", []))
+        # Denials with their sender: carriers' claims of an epoch above this coordinator's [P-7.3].
+        out["denials"] = [{"sender": cid, "rule": "P-7.3", "what": "epoch claimed in a Hello", "value": epoch}
+                          for cid, epoch in sorted(epochs.claims.items())]
         if epochs.deposed_by is not None:
             out["deposed_by"] = epochs.deposed_by
         return out

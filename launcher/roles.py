@@ -30,7 +30,7 @@ def coordinator(settings: Settings, stop: threading.Event) -> int:
     from coordinator.epochs import DuplicateCoordinator
     from coordinator.node import Coordinator, CoordinatorConfig
     from planner.jitcache import report_compiles
-    from storage.missiondb import StoreBusy, StoreMismatch
+    from storage.missiondb import EpochsExhausted, StoreBusy, StoreMismatch
 
     f, t = settings.flags, settings.timeouts()
     coord = Coordinator(settings.scenario, CoordinatorConfig(
@@ -48,7 +48,7 @@ def coordinator(settings: Settings, stop: threading.Event) -> int:
     report_compiles(lambda line: coord.log(f"coordinator: {line}"))
     try:
         summary = coord.run()
-    except (StoreMismatch, DuplicateCoordinator) as exc:
+    except (StoreMismatch, DuplicateCoordinator, EpochsExhausted) as exc:
         return refuse(settings, str(exc))
     except StoreBusy as exc:  # stopped while waiting for another process's lock
         say(settings, f"{exc}; stopped while waiting for it")

@@ -42,16 +42,15 @@ from typing import Any, Callable, Mapping
 import numpy as np
 
 from planner import registry
+from planner.guard import (  # noqa: F401 (the kit's names)
+    BUDGET_FACTOR, BUDGET_SLACK_MS, PlannerFault, Violation, budget_limit_ms, classify,
+)
 from planner.instance import Instance, random_instance
 
 #: Spawn key of the kit's instances (family f, instance i: ``(CONFORMANCE_SPAWN_KEY, f, i)``).
 CONFORMANCE_SPAWN_KEY = 4000
 #: Budget of the ``plan_ms`` check, milliseconds per decision.
 PLAN_MS = 20.0
-#: A decision under ``plan_ms`` may take this many times the budget ...
-BUDGET_FACTOR = 4.0
-#: ... plus this much (timer and scheduler noise on a loaded host), milliseconds.
-BUDGET_SLACK_MS = 30.0
 #: Iterations of the ``iterations`` check.
 ITERATIONS = 64
 #: Every reason a check can fail with.
@@ -124,15 +123,6 @@ class Report:
                 "checks": [c.to_dict() for c in self.checks]}
 
 
-class Violation(Exception):
-    """A planner broke a rule: ``reason`` of :data:`REASONS`, ``detail`` one line."""
-
-    def __init__(self, reason: str, detail: str):
-        super().__init__(f"{reason}: {detail}")
-        self.reason = reason
-        self.detail = detail
-
-
 def instances(seed: int, count: int) -> list[tuple[str, int, Instance]]:
     """``count`` instances of every family, ``(family, index, instance)``, from ``seed``."""
     out = []
@@ -141,44 +131,6 @@ def instances(seed: int, count: int) -> list[tuple[str, int, Instance]]:
             rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(CONFORMANCE_SPAWN_KEY, f, i)))
             out.append((name, i, make(rng)))
     return out
-
-
-def classify(decision: Any, view) -> np.ndarray:
-    """A central decision checked against the rules of its view: bool ``[R]``.
-
-    Raises:
-        Violation: ``deploys-twice``, ``beyond-passengers`` or ``infeasible`` (which carriers).
-    """
-    n_carriers = view.problem.n_carriers
-    try:
-        raw = np.asarray(decision)
-    except Exception:  # an object numpy cannot read
-        raise Violation("infeasible", f"stage {view.stage}: a decision numpy cannot read ({type(decision).__name__})")
-    if raw.shape != (n_carriers,):
-        raise Violation("infeasible", f"stage {view.stage}: decision shape {raw.shape}, expected ({n_carriers},)")
-    if raw.dtype != bool:
-        if not np.issubdtype(raw.dtype, np.number) or not np.isfinite(raw.astype(float)).all():
-            raise Violation("infeasible", f"stage {view.stage}: decision of dtype {raw.dtype}, expected bool")
-        values = raw.astype(float)
-        twice = np.flatnonzero(values >= 2)
-        if len(twice):
-            raise Violation("deploys-twice", f"stage {view.stage}: carriers {twice.tolist()} deploy "
-                                             f"{values[twice].tolist()} times at one stage")
-        if ((values != 0) & (values != 1)).any():
-            raise Violation("infeasible", f"stage {view.stage}: decision values {values.tolist()}, expected 0 or 1")
-    deploy = raw.astype(bool)
-    empty = np.flatnonzero(deploy & (view.passengers_left <= 0))
-    if len(empty):
-        raise Violation("beyond-passengers", f"stage {view.stage}: carriers {empty.tolist()} deploy with no "
-                                             f"passenger left")
-    bad = np.flatnonzero(deploy & ~view.can_deploy)
-    if len(bad):
-        raise Violation("infeasible", f"stage {view.stage}: carriers {bad.tolist()} deploy at an empty (∅) stage")
-    missing = np.flatnonzero(view.must_deploy & ~deploy)
-    if len(missing):
-        raise Violation("infeasible", f"stage {view.stage}: carriers {missing.tolist()} must deploy (as many "
-                                      f"valid stages left as passengers) and do not")
-    return deploy
 
 
 class Recorder:
@@ -267,6 +219,9 @@ def _fly(planner, cases, seed: int, onboard: bool = False) -> list[np.ndarray]:
                 result = run_online(inst.problem, inst.observations, planner, seed)
         except Violation as err:
             raise Violation(err.reason, f"{family} #{i}, {err.detail}") from None
+        except PlannerFault as err:  # stage_step's check: the same rules, the same reasons
+            text = err.detail if err.rule != "raises" else err.detail or "(no message)"
+            raise Violation(err.rule, f"{family} #{i}, {text}") from None
         except Exception as err:  # the planner's own failure: named, one line
             text = " ".join(str(err).split()) or "(no message)"
             raise Violation("raises", f"{family} #{i}: {type(err).__name__}: {text}") from None
@@ -353,7 +308,7 @@ def _check_budget(name: str, entry: registry.PlannerEntry, options: Mapping[str,
         except Violation as err:
             return Check("budget", FAIL, err.reason, f"under plan_ms={PLAN_MS:g}: {err.detail}")
         worst = max(recorder.decision_ms)
-        limit = BUDGET_FACTOR * PLAN_MS + BUDGET_SLACK_MS
+        limit = budget_limit_ms(PLAN_MS)
         if worst > limit:
             return Check("budget", FAIL, "over-budget", f"plan_ms={PLAN_MS:g}: a decision took {worst:.1f} ms, more "
                                                         f"than {BUDGET_FACTOR:g} x the budget + {BUDGET_SLACK_MS:g} ms")

@@ -36,3 +36,12 @@ MAX_TRAIL = 512
 MAX_POINT_REGIONS = 4096
 #: Largest absolute coordinate on the wire, metres (scenario files are stricter).
 MAX_COORD = 1e7
+#: Highest coordinator epoch the wire carries (a msgpack int32). A coordinator that would need a
+#: higher one refuses to open its mission (storage.missiondb.EpochsExhausted) rather than wrap.
+EPOCH_MAX = 2**31 - 1
+#: Largest message a Zenoh link of the fleet accepts (``transport.link.rx.max_message_size``, in
+#: wire/zconfig.py and the configs of tools/gen_certs.py), bytes: four payloads, so every message
+#: of the protocol (and a payload a little over the limit, which the protocol itself rejects and
+#: counts as ``oversized``) passes, and a flood of megabytes is dropped by the first hop's
+#: transport instead of being reassembled and routed on.
+TRANSPORT_MAX_MESSAGE_BYTES = 4 * MAX_PAYLOAD_BYTES

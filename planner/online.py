@@ -12,13 +12,13 @@ This module sits above the planners' modules: it routes a decentralised planner 
 """
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
 import numpy as np
 
 from planner.passengers import release
-from planner.problem import OnlineResult, Planner, Problem, enforce, evaluate, make_view, stage_rng, start_online
+from planner.guard import checked_decision
+from planner.problem import OnlineResult, Planner, Problem, evaluate, make_view, stage_rng, start_online
 
 
 @dataclass(frozen=True, eq=False)
@@ -38,7 +38,8 @@ class StageStep:
 
 
 def stage_step(problem: Problem, x: np.ndarray, deployed: np.ndarray, planner: Planner, seed: int,
-               stage: int, released: np.ndarray | None = None, counts: np.ndarray | None = None) -> StageStep:
+               stage: int, released: np.ndarray | None = None, counts: np.ndarray | None = None,
+               budget_ms: float | None = None) -> StageStep:
     """Decide stage ``stage`` of a mission with root seed ``seed``.
 
     Args:
@@ -53,21 +54,21 @@ def stage_step(problem: Problem, x: np.ndarray, deployed: np.ndarray, planner: P
             only for a problem with passenger values; None means index order).
         counts: float ``[M]``: the realised region counts of a coverage problem (required there;
             the view keeps only those the observations up to ``stage`` reveal), else None.
+        budget_ms: the planner's ``plan_ms`` budget, when it has one: a decision later than
+            :func:`planner.guard.budget_limit_ms` of it is a fault.
 
     Raises:
         ValueError: ``stage`` outside the problem's stages, or a coverage problem without counts.
-        AssertionError: the planner broke a feasibility rule (see ``enforce``).
+        planner.guard.PlannerFault: the planner raised, broke a rule or ran past its budget
+            (an AssertionError).
     """
     view = make_view(problem, stage, x, deployed, released, counts)
-    t0 = time.perf_counter()
-    decision = planner.decide(view, stage_rng(seed, stage))
-    decision_ms = (time.perf_counter() - t0) * 1e3
-    deploy = enforce(view, decision)
+    deploy, decision_ms = checked_decision(planner, view, stage_rng(seed, stage), budget_ms)
     return StageStep(deploy, release(planner, view, deploy), decision_ms)
 
 
 def run_online(problem: Problem, x: np.ndarray, planner: Planner, seed: int,
-               counts: np.ndarray | None = None) -> OnlineResult:
+               counts: np.ndarray | None = None, budget_ms: float | None = None) -> OnlineResult:
     """Run ``planner`` stage by stage over realised observations ``x`` (NaN = ∅).
 
     Stage j is :func:`stage_step` (random stream ``stage_rng(seed, j)``). A NaN at a scheduled
@@ -87,7 +88,7 @@ def run_online(problem: Problem, x: np.ndarray, planner: Planner, seed: int,
     deployed = np.zeros(problem.valid.shape, dtype=bool)
     times = []
     for j in range(problem.n_stages):
-        step = stage_step(problem, x, deployed, planner, seed, j, released, counts)
+        step = stage_step(problem, x, deployed, planner, seed, j, released, counts, budget_ms)
         times.append(step.decision_ms)
         deployed[:, j] = step.deploy
         if released is not None:

@@ -42,7 +42,7 @@ def solve_instance(path: str | Path, planner, planner_name: str, seed: int, clai
     """
     (problem, x), counts, sampled = load_instance_counts(path, seed=seed)
     if comms is None:
-        result = run_online(problem, x, planner, seed, counts)
+        result = run_online(problem, x, planner, seed, counts, getattr(planner, "plan_ms", None))
     else:
         from planner.decentralised import run_comms
 

@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from mission import events as ev
+from planner.limits import EPOCH_MAX
 from storage.sqlite import LOCK_TIMEOUT_S, encoded_meta, first_mismatch, open_read_only, open_wal, read_meta
 
 SCHEMA_VERSION = 1
@@ -86,7 +87,7 @@ CREATE TABLE IF NOT EXISTS confirmations (
 #: Event kinds written to ``events``.
 EVENT_KINDS = (
     "open", "hello", "alive", "dead", "observation", "missing", "decision", "published",
-    "confirm", "own", "bye", "rejected", "end", "epoch",
+    "confirm", "own", "bye", "rejected", "end", "epoch", "planner-fault",
 )
 
 
@@ -97,6 +98,12 @@ class StoreMismatch(RuntimeError):
 class StoreBusy(RuntimeError):
     """Another process holds mission.db's write lock longer than the busy timeout (a primary
     that hangs, or was frozen, in the middle of a write): try again later."""
+
+
+class EpochsExhausted(RuntimeError):
+    """The epoch this coordinator would take is above the highest the wire carries
+    (``planner.limits.EPOCH_MAX``): it refuses to open the mission rather than wrap or
+    publish what no carrier can read. Nothing was written."""
 
 
 class StoreFenced(RuntimeError):
@@ -196,6 +203,7 @@ class MissionStore:
         Raises:
             StoreMismatch: when the file holds another mission.
             StoreBusy: when another process holds the write lock for more than ``LOCK_TIMEOUT_S``.
+            EpochsExhausted: when that epoch would be above ``EPOCH_MAX``.
         """
         self.path = Path(path)
         self._batching = False
@@ -215,7 +223,13 @@ class MissionStore:
             with self._tx():
                 self.db.executemany("INSERT OR IGNORE INTO meta (key, value) VALUES (?, ?)", wanted.items())
                 self.epoch = max(int(min_epoch), 1 + _highest_epoch(self.db))
+                if self.epoch > EPOCH_MAX:
+                    raise EpochsExhausted(f"{self.path}: epoch {self.epoch} is above the highest the protocol "
+                                          f"carries ({EPOCH_MAX}); this mission cannot be resumed")
                 self._checked = self._event("open", None, None, {"resumed": bool(stored), "epoch": self.epoch})
+        except EpochsExhausted:
+            self.db.close()
+            raise
         except sqlite3.OperationalError as exc:
             self.db.close()
             if "locked" in str(exc) or "busy" in str(exc):
@@ -416,12 +430,11 @@ class MissionStore:
             "SELECT latency_ms FROM confirmations WHERE latency_ms IS NOT NULL ORDER BY seq"
         )]
 
-    def raise_epoch(self, epoch: int) -> None:
-        """This coordinator takes a higher epoch (learnt from a carrier): an ``epoch`` event
-        (:meth:`newer_epoch` then reports only epochs above it)."""
-        self.epoch = int(epoch)
-        with self._tx():
-            self._event("epoch", None, None, {"epoch": self.epoch})
+    def planner_faults(self) -> list[dict]:
+        """Every ``planner-fault`` event: the stages the planner broke a rule at and the on-board
+        fallback decided instead (``stage``, ``rule``, ``detail``, ``fallback``), in order."""
+        return [dict(json.loads(p), stage=stage) for stage, p in self.db.execute(
+            "SELECT stage, payload FROM events WHERE kind = 'planner-fault' ORDER BY seq")]
 
     def newer_epoch(self) -> int | None:
         """The highest epoch another coordinator recorded in this file since the last call (or
@@ -463,9 +476,10 @@ def load_meta(path: str | Path) -> dict:
 
 def highest_epoch(path: str | Path) -> int:
     """The highest coordinator epoch recorded in the mission.db at ``path`` (read-only; in the
-    ``open`` events and the ``epoch`` events of a coordinator that raised its epoch after a
-    carrier's Hello): 0 when there is no such file or it holds no mission; an ``open`` written before epochs existed
-    counts as epoch 1 (its decisions carried none, which means 1)."""
+    ``open`` events and the ``epoch`` events that coordinators of protocol revisions 1 to 5 wrote
+    when a carrier's Hello raised their epoch; none are written since): 0 when there is no such
+    file or it holds no mission; an ``open`` written before epochs existed counts as epoch 1 (its
+    decisions carried none, which means 1)."""
     path = Path(path)
     if not path.is_file() or path.stat().st_size == 0:
         return 0

@@ -216,8 +216,11 @@ def test_the_command_exits_0_1_and_2(tmp_path, capsys):
     report = json.loads((tmp_path / "r.json").read_text())
     assert report["passed"] is True and report["options"] == {"cut": 2.0}
     assert [c["name"] for c in report["checks"]][:3] == ["declaration", "builds", "feasible"]
-    code, out, _ = _kit(capsys, "planner_plugins:BeyondPassengers", "--instances", "1")
-    assert code == 1 and "FAIL  feasible     [beyond-passengers] paper #0, stage " in out
+    code, out, err = _kit(capsys, "planner_plugins:BeyondPassengers", "--instances", "1")
+    assert code == 2 and "FAIL  feasible     [beyond-passengers] paper #0, stage " in out
+    assert err.splitlines() == [err.strip()] and err.startswith(
+        "python -m planner.conformance: planner 'planner_plugins:BeyondPassengers' broke rule beyond-passengers "
+        "(check feasible): paper #0, stage "), err
     assert out.splitlines()[-1].endswith("1 check(s) failed: feasible (beyond-passengers)")
     for args, words in [(("no_such_module_zz:P",), "PLANNER: planner 'no_such_module_zz:P': cannot import"),
                         (("greedyy",), "PLANNER: expected an entry-point name, package.module:Factory or one of"),
@@ -236,7 +239,8 @@ def test_the_command_exits_0_1_and_2(tmp_path, capsys):
 def test_python_m_planner_conformance_forwards_to_the_command():
     proc = subprocess.run([sys.executable, "-m", "planner.conformance", "planner_plugins:DeploysTwice",
                            "--instances", "1"], cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 1 and "[deploys-twice]" in proc.stdout and proc.stderr == ""
+    assert proc.returncode == 2 and "[deploys-twice]" in proc.stdout
+    assert proc.stderr.splitlines() == [proc.stderr.strip()] and "'planner_plugins:DeploysTwice' broke rule deploys-twice" in proc.stderr
 
 
 def test_solve_runs_a_plugin_by_its_dotted_path(tmp_path, capsys):
@@ -282,3 +286,60 @@ def test_a_scenario_names_a_plugin_and_its_own_options(tmp_path):
         with pytest.raises(world.ScenarioError) as err:
             load(planner)
         assert len(err.value.problems) == 1 and line in err.value.problems[0], err.value.problems
+
+
+@pytest.mark.parametrize("plugin, rule", [
+    ("planner_plugins:Raises", "raises at stage 2: RuntimeError: no plan for stage 2"),
+    ("planner_plugins:DeploysTwice", "deploys-twice at stage"),
+    ("planner_plugins:BeyondPassengers", "beyond-passengers at stage"),
+    ("planner_plugins:IgnoresForced", "infeasible at stage"),
+    ("planner_plugins:OverBudget", "over-budget at stage 0: the decision took"),
+])
+def test_solve_exits_2_with_one_line_naming_the_plugin_and_the_rule(tmp_path, plugin, rule):
+    """A plug-in that raises, returns an infeasible action or runs past its plan_ms: solve exits 2
+    with one line naming it and the rule it broke (planner/guard.py), never a traceback."""
+    from planner.instance import instance_dict, random_instance
+
+    inst = random_instance(np.random.default_rng(3), carriers=3, passengers=2, stages=6, overlaps=4)
+    path = tmp_path / "inst.json"
+    path.write_text(json.dumps(instance_dict(inst)))
+    budget = ["--planner-option", "plan_ms=20"] if "OverBudget" in plugin else []
+    proc = subprocess.run([sys.executable, "-m", "planner.cli.solve", str(path), "--planner", plugin, *budget,
+                           "--no-clairvoyant", "--no-online-optimum", "--no-upper-bound"],
+                          cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and proc.stdout == "", proc.stderr
+    assert proc.stderr.splitlines() == [f"python -m planner.cli.solve: planner {plugin!r} broke rule "
+                                        + proc.stderr.split(" broke rule ")[1].rstrip()], proc.stderr
+    assert f"planner {plugin!r} broke rule {rule}" in proc.stderr, proc.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("plugin, rule, stages", [
+    ("planner_plugins:Raises", "raises", [2]),
+    ("planner_plugins:BeyondPassengers", "beyond-passengers", None),
+])
+def test_a_fleet_survives_a_failing_plugin_and_decides_those_stages_with_ssap(tmp_path, plugin, rule, stages):
+    """Real processes (run_fleet.py on the tiny scenario): the coordinator flies a plug-in that
+    raises at stage 2, or deploys beyond its passengers; it exits 0, every stage decided, each
+    failed stage decided by SSAP (the stage's Decision is SSAP's offline choice), and why is in
+    mission.db and summary.json ``planner_faults``."""
+    from fleet_helpers import db_rows
+
+    out = tmp_path / "run"
+    proc = subprocess.run([sys.executable, str(ROOT / "run_fleet.py"), str(ROOT / "scenarios" / "tiny.yaml"),
+                           "--planner", plugin, "--out", str(out), "--no-map", "--no-record"],
+                          cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["ended"] and summary["stages_decided"] == summary["stages"] == 4
+    faults = summary["planner_faults"]
+    assert faults and {f["rule"] for f in faults} == {rule} and all(f["fallback"] == "ssap" for f in faults)
+    if stages is not None:
+        assert [f["stage"] for f in faults] == stages
+    assert all(f["planner"] == plugin for f in faults)
+    rows = db_rows(out / "mission.db", "SELECT stage FROM events WHERE kind='planner-fault' ORDER BY seq")
+    assert [s for (s,) in rows] == [f["stage"] for f in faults]
+    assert f"planner {plugin!r} broke rule {rule}" in proc.stdout + proc.stderr
+    for cid in ("a", "b"):  # every carrier keeps within its passengers: SSAP decided those stages
+        entry = next(c for c in summary["carriers"] if c["id"] == cid)
+        assert len(entry["deployments"]) <= 2

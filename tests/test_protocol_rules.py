@@ -825,25 +825,34 @@ def test_a_lower_epoch_decision_is_deposed():
     assert after.epoch == 3 and any(isinstance(e, mc.Deploy) for e in effects)
 
 
-def test_takeover_before_deciding_and_deposition_after():
-    """[P-7.3] a Hello of a higher epoch before this process decided a stage: take that epoch + 1
-    and re-publish [P-7.5]; after it decided one: deposed; a coordinator ignores Decisions of its
-    own or a lower epoch on its decision key."""
-    epochs = (ROOT / "coordinator" / "epochs.py").read_text()
-    body_ = epochs.split("def carrier_heard(")[1].split("def decision_heard")[0]
-    assert "if next_stage > self.first_stage:\n            self.deposed(" in body_
-    assert "self.epoch = epoch + 1" in body_ and "return True" in body_
-    inbound = (ROOT / "coordinator" / "inbound.py").read_text().split("def read(")[1]
-    assert "msg.epoch > self.epochs.epoch and msg.fingerprint == self.fingerprint" in inbound
-    take = (ROOT / "coordinator" / "node.py").read_text().split("def _take(")[1]
-    republish = take.split("self.epochs.carrier_heard(")[1].split("self.apply(")[0]
-    assert "self._publish_decision(self._decision(self.state.next_stage - 1))" in republish
-    heard = epochs.split("def decision_heard(")[1].split("def deposed")[0]
-    assert "msg.epoch > self.epoch" in heard and "except ProtocolError:\n            return" in heard
-    node = (ROOT / "coordinator" / "node.py").read_text()
+def test_takeover_and_deposition_come_from_coordinators_only():
+    """[P-7.3] a Hello of a higher epoch is a claim, kept for the record and never adopted: it
+    neither raises the coordinator's epoch nor deposes it; a Decision of a higher epoch on its
+    decision key does; Decisions of its own or a lower epoch there, and what does not decode,
+    are ignored. A resumed coordinator re-publishes its last Decision [P-7.5]."""
+    import threading
+
+    from coordinator.epochs import Epochs
+    from wire.messages import Decision, encode
+
+    lines: list[str] = []
+    stop = threading.Event()
+    epochs = Epochs("m", lines.append, stop, lambda: 0.0)
+    epochs.first_stage = 3
+    for claimed in (2, 2**31 - 1, 5):
+        epochs.carrier_claimed("c1", claimed)
+    assert epochs.epoch == 1 and epochs.deposed_by is None and not stop.is_set()
+    assert epochs.claims == {"c1": 2**31 - 1} and len(lines) == 1 and "not adopted" in lines[0]
+    for payload in (b"\x00garbage", encode(Decision("m", 0, 0.0, (), 0.0, epoch=1)),
+                    encode(Decision("other", 0, 0.0, (), 0.0, epoch=9))):
+        epochs.decision_heard(payload)
+    assert epochs.deposed_by is None and not stop.is_set()
+    epochs.decision_heard(encode(Decision("m", 4, 0.0, (), 0.0, epoch=2)))
+    assert epochs.deposed_by == 2 and stop.is_set()
     clock = (ROOT / "coordinator" / "clock.py").read_text()
     assert "if self.epochs.deposed_by is not None:  # deposed: the newer coordinator ends the mission" in clock
     assert "self.step(c, cl.Deposed())" in clock
+    node = (ROOT / "coordinator" / "node.py").read_text()
     assert "self._publish_decision(self._decision(self.state.next_stage - 1))  # idempotent re-publication" in node
 
 
@@ -985,10 +994,27 @@ def test_choosing_an_epoch(tmp_path):
     first.close()
     second = MissionStore(path, meta)
     assert second.epoch == 2
-    second.raise_epoch(6)  # a carrier's Hello said 5: this process took 6 ([P-7.3])
+    second.event("epoch", epoch=6)  # what revisions 1 to 5 wrote when a carrier's Hello said 5
     second.close()
     assert MissionStore(path, meta).epoch == 7
     assert MissionStore(tmp_path / "standby.db", meta, min_epoch=4).epoch == 4
+
+
+def test_an_epoch_above_the_wires_range_is_never_taken(tmp_path):
+    """[P-7.1], [P-1.6] a coordinator whose next epoch would be above 2^31 - 1 (what a State of
+    the highest epoch would make a standby take) refuses to open the mission, writing nothing,
+    instead of taking an epoch no message can carry."""
+    from storage.missiondb import EpochsExhausted, MissionStore, highest_epoch
+
+    meta = {"mission": "tiny", "seed": 7, "planner": "ssap"}
+    path = tmp_path / "mission.db"
+    MissionStore(path, meta, min_epoch=2**31 - 1).close()
+    assert highest_epoch(path) == 2**31 - 1
+    with pytest.raises(EpochsExhausted, match="above the highest the protocol carries"):
+        MissionStore(path, meta)
+    with pytest.raises(EpochsExhausted):
+        MissionStore(tmp_path / "standby.db", meta, min_epoch=2**31)
+    assert highest_epoch(path) == 2**31 - 1 and highest_epoch(tmp_path / "standby.db") == 0
 
 
 def test_a_decision_of_the_coordinator_that_comes_back_counts_every_own():

@@ -443,3 +443,105 @@ def test_gen_certs_writes_configs_for_a_scenario(tmp_path, capsys):
     assert (tmp_path / "carrier-a.key").stat().st_mode & 0o077 == 0  # private keys: owner only
     conf = zenoh.Config.from_file(str(tmp_path / "carrier-a.json5"))
     assert json.loads(conf.get_json("transport/link/tls"))["connect_certificate"] == str(tmp_path / "carrier-a.pem")
+
+
+def test_gen_certs_modes_hold_whatever_the_umask_and_fix_an_existing_key(tmp_path, capsys):
+    """Private keys and configs 0600, the folder 0700, certificates 0644, under umask 000, and an
+    existing key left 0644 by an earlier run (or a copy) is brought back to 0600."""
+    import os
+    import stat
+
+    out = tmp_path / "certs"
+    out.mkdir(mode=0o777)
+    (out / "carrier-a.key").write_text("old")
+    os.chmod(out / "carrier-a.key", 0o644)
+    old = os.umask(0)
+    try:
+        assert gen_certs.main(["--out", str(out), "--scenario", str(TINY)]) == 0
+    finally:
+        os.umask(old)
+    mode = lambda p: stat.S_IMODE(p.stat().st_mode)  # noqa: E731
+    assert mode(out) == 0o700
+    for path in out.iterdir():
+        expected = 0o644 if path.suffix == ".pem" else 0o600
+        assert mode(path) == expected, (path.name, oct(mode(path)))
+    assert (out / "carrier-a.key").read_text() != "old"
+
+
+def test_gen_certs_without_cryptography_names_the_extra(tmp_path):
+    """Without the cryptography package gen_certs exits 2 with one line naming the extra."""
+    blocker = tmp_path / "block"
+    blocker.mkdir()
+    (blocker / "cryptography").mkdir()
+    (blocker / "cryptography" / "__init__.py").write_text("raise ImportError('blocked for the test')\n")
+    proc = subprocess.run([sys.executable, str(ROOT / "tools" / "gen_certs.py"), "--out", str(tmp_path / "c"),
+                           "--carriers", "a"], capture_output=True, text=True, timeout=60,
+                          env={**__import__("os").environ, "PYTHONPATH": str(blocker)})
+    assert proc.returncode == 2 and proc.stderr.splitlines() == [
+        f"error: tools/gen_certs.py needs the cryptography package: {gen_certs.INSTALL_HINT}"], proc.stderr
+    assert "[security]" in proc.stderr and not (tmp_path / "c").exists()
+
+
+@pytest.mark.parametrize("limited", [True, False], ids=["generated-limit", "control-no-limit"])
+def test_a_10_mib_payload_is_dropped_at_the_first_hop(certs, limited):
+    """The generated configs bound Zenoh's own message size (transport.link.rx.max_message_size,
+    planner.limits.TRANSPORT_MAX_MESSAGE_BYTES): a 10 MiB put on carrier c0's own key, followed by
+    a small marker, reaches neither the coordinator's subscriber nor carrier c1 (the coordinator's
+    link drops it; it is never relayed), while the marker does. Control: with zenoh's default
+    limit (1 GiB) the same payload is relayed in full."""
+    from planner.limits import TRANSPORT_MAX_MESSAGE_BYTES
+
+    port = free_port()
+    coord_conf = gen_certs.coordinator_config(certs)
+    sender_conf = carrier_conf(certs, certs.carriers["c0"])
+    other_conf = carrier_conf(certs, certs.carriers["c1"])
+    if limited:
+        assert coord_conf["transport"]["link"]["rx"]["max_message_size"] == TRANSPORT_MAX_MESSAGE_BYTES
+        sender_conf["transport"]["link"]["rx"] = dict(coord_conf["transport"]["link"]["rx"])
+    else:
+        del coord_conf["transport"]["link"]["rx"]
+    big = bytes(10 * 1024 * 1024)
+    key = keys.carrier_key(MISSION, "c0", "obs")
+    with open_session(coord_conf, port, "listen") as coord:
+        inbox = Inbox()
+        coord.declare_subscriber(f"marsupial/{MISSION}/**", inbox)
+        with open_session(sender_conf, port, "connect") as car, open_session(other_conf, port, "connect") as other:
+            assert wait_connected(car, WAIT_S) and wait_connected(other, WAIT_S)
+            other_inbox = Inbox()
+            other.declare_subscriber(f"marsupial/{MISSION}/**", other_inbox)
+            time.sleep(0.5)  # the subscription has reached the coordinator
+            car.put(key, big)
+            deliver(car, inbox, [], (key, b"marker"))
+            assert other_inbox.wait_for((key, b"marker"))
+            time.sleep(0.5)
+            got = [len(p) for k, p in inbox.items + other_inbox.items if len(p) > 1024]
+            if limited:
+                assert got == [], got
+            else:
+                assert got and set(got) == {len(big)}, got
+
+
+def test_acl_a_carrier_reads_only_what_the_protocol_needs(certs):
+    """Least privilege for reads: carrier c1, subscribed to everything of the mission, receives
+    the coordinator's Decision, c0's Observation and its own Accepted, but not c0's Hello, Bye,
+    Pose, Accepted or Refusal (the coordinator's egress rules drop them)."""
+    port = free_port()
+    m = MISSION
+    with open_session(gen_certs.coordinator_config(certs), port, "listen") as coord:
+        with open_session(carrier_conf(certs, certs.carriers["c0"]), port, "connect") as c0, \
+                open_session(carrier_conf(certs, certs.carriers["c1"]), port, "connect") as c1:
+            assert wait_connected(c0, WAIT_S) and wait_connected(c1, WAIT_S)
+            inbox = Inbox()
+            c1.declare_subscriber(f"marsupial/{m}/**", inbox)
+            time.sleep(0.5)
+            hidden = [(keys.carrier_key(m, "c0", topic), b"c0 " + topic.encode()) for topic in ("hello", "bye", "pose")]
+            for key, payload in hidden:
+                c0.put(key, payload)
+            coord.put(keys.accepted_key(m, "c0"), b"c0's answer")
+            coord.put(keys.refusal_key(m, "c0"), b"c0's refusal")
+            deliver(c0, inbox, [], (keys.carrier_key(m, "c0", "obs"), b"c0 obs"))
+            deliver(coord, inbox, [], (keys.decision_key(m), b"decision"))
+            deliver(coord, inbox, [], (keys.accepted_key(m, "c1"), b"c1's answer"))
+            time.sleep(0.3)
+            got = {k for k, _ in inbox.items}
+            assert got == {keys.carrier_key(m, "c0", "obs"), keys.decision_key(m), keys.accepted_key(m, "c1")}, got

@@ -238,10 +238,10 @@ def test_the_one_host_launcher_through_a_router_refuses_a_live_mission(tmp_path)
             p.wait(10)
 
 
-def test_a_coordinator_on_a_fresh_out_takes_a_higher_epoch_than_its_carriers_heard(tmp_path):
-    """Carriers that heard epoch 4 (a coordinator that is gone): a coordinator on an empty --out
-    (epoch 1) gets a Hello reporting epoch 4 before stage 0, takes epoch 5, records it, and the
-    mission runs with epoch-5 decisions that the carriers accept (no ``deposed`` rejection)."""
+def test_a_coordinator_on_a_fresh_out_keeps_its_epoch_whatever_a_hello_reports(tmp_path):
+    """[P-7.3] a carrier's Hello never changes who decides: a coordinator on an empty --out
+    (epoch 1) gets a Hello reporting epoch 4 before stage 0; it keeps epoch 1 (in mission.db too),
+    logs the claim once, and the mission runs with epoch-1 decisions that fresh carriers accept."""
     from fleet_helpers import InProcessFleet
     from wire.messages import Hello
     from wire.transport import Node
@@ -262,31 +262,32 @@ def test_a_coordinator_on_a_fresh_out_takes_a_higher_epoch_than_its_carriers_hea
             time.sleep(0.05)
         other.put("marsupial/tiny/carrier/a/hello",
                   Hello("tiny", "a", 1, "elsewhere", 2, 0, coordinator.fingerprint, epoch=4))
-        while coordinator.epochs.epoch != 5 and time.monotonic() < deadline:
+        while "a" not in coordinator.epochs.claims and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert coordinator.epochs.epoch == 5
+        assert coordinator.epochs.claims == {"a": 4} and coordinator.epochs.epoch == 1
         for cid in tiny.carrier_ids:
             fleet.start_carrier(cid)
         summary = fleet.join()
     finally:
         other.close()
-    assert summary["ended"] and summary["end_reason"] == "complete" and summary["epoch"] == 5
+    assert summary["ended"] and summary["end_reason"] == "complete" and summary["epoch"] == 1
     assert summary["stages_decided"] == tiny.stages
     epochs = set()
     while not heard.empty():
         epochs.add(heard.get().get("epoch", 1))
-    assert epochs == {5}
+    assert epochs == {1}
     assert all("deposed" not in counts for counts in summary["rejected"]["carriers"].values()), summary["rejected"]
     from storage.missiondb import highest_epoch
-    assert highest_epoch(tmp_path / "mission.db") == 5
+    assert highest_epoch(tmp_path / "mission.db") == 1
+    assert [(d["sender"], d["rule"], d["value"]) for d in summary["denials"]] == [("a", "P-7.3", 4)]
 
 
 @pytest.mark.slow
 def test_a_frozen_primary_that_comes_back_is_deposed(tmp_path):
     """The primary is frozen (SIGSTOP) after stage 2, long enough for Zenoh's lease (3 s here)
     to expire: the standby takes over with epoch 2 and carries on; when the primary runs again
-    (SIGCONT) it learns it was deposed (a newer epoch in mission.db, on the decision key or in a
-    carrier's Hello, whichever comes first) and exits 3 without deciding again; the mission
+    (SIGCONT) it learns it was deposed (a newer epoch in mission.db or on the decision key,
+    whichever comes first; never from a carrier's Hello) and exits 3 without deciding again; the mission
     completes under the standby, every stage decided once."""
     import signal
 

@@ -29,10 +29,21 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
 
-from cryptography import x509
-from cryptography.hazmat.primitives import hashes, serialization
-from cryptography.hazmat.primitives.asymmetric import ec
-from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+try:  # the `security` extra (pip install -e '.[security]'); main() says so when it is missing
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+except ImportError:  # pragma: no cover - exercised by a subprocess without the package
+    x509 = None  # type: ignore[assignment]
+
+#: What to install for this tool (pyproject.toml's extra).
+INSTALL_HINT = "pip install -e '.[security]' (or: pip install cryptography)"
+#: Modes whatever the umask: private keys and configs (they name the keys) owner-only, the
+#: folder owner-only, certificates world-readable (they are public).
+KEY_MODE, CONFIG_MODE, DIR_MODE, CERT_MODE = 0o600, 0o600, 0o700, 0o644
+
+from planner.limits import TRANSPORT_MAX_MESSAGE_BYTES  # noqa: E402
 
 COORDINATOR_CN = "marsupial-coordinator"
 CA_CN = "marsupial-fleet-ca"
@@ -47,6 +58,11 @@ ALL_MESSAGES = (
 )
 # What a carrier may send towards the coordinator on any fleet key: interest only, no data.
 CARRIER_READ_MESSAGES = ("declare_subscriber", "query", "liveliness_query", "declare_liveliness_subscriber")
+# What the coordinator forwards to a carrier on any fleet key: routing declarations, no data.
+ROUTING_MESSAGES = ("declare_subscriber", "declare_queryable", "query", "liveliness_query",
+                    "declare_liveliness_subscriber", "delete")
+# The carriers' topics every carrier may read (a carrier deciding alone listens to them).
+PEER_TOPICS = ("obs", "own", "confirm", "progress")
 # What a carrier may send only under its own keys marsupial/<mission>/carrier/<id>/**.
 CARRIER_WRITE_MESSAGES = ("put", "delete", "declare_queryable", "reply", "liveliness_token")
 
@@ -82,13 +98,20 @@ def _write_key(path: Path, key: ec.EllipticCurvePrivateKey) -> None:
     data = key.private_bytes(
         serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
     )
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    _write_private(path, data, KEY_MODE)
+
+
+def _write_private(path: Path, data: bytes, mode: int) -> None:
+    """Write ``data`` to ``path`` with ``mode`` exactly: set on the open file before anything is
+    written (an existing file's looser mode is fixed first; the umask is not consulted)."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, mode)
+    os.fchmod(fd, mode)
     with os.fdopen(fd, "wb") as f:
         f.write(data)
 
 
 def _write_cert(path: Path, cert: x509.Certificate) -> None:
-    path.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    _write_private(path, cert.public_bytes(serialization.Encoding.PEM), CERT_MODE)
 
 
 def _validity(days: float) -> tuple[datetime.datetime, datetime.datetime]:
@@ -188,6 +211,8 @@ def generate_fleet_certs(
     Returns the `fleet_layout` of OUT made absolute.
     """
     out = Path(out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    os.chmod(out, DIR_MODE)
     layout = fleet_layout(out, carrier_ids)
     ca = make_ca(out, days=days)
     issue(ca, out, "coordinator", COORDINATOR_CN, hosts, days)
@@ -218,26 +243,43 @@ def tls_section(ca_cert: Path, identity: Identity | None, verify_name: bool = Tr
 def coordinator_acl(carrier_ids: Sequence[str], prefix: str = KEY_PREFIX) -> dict:
     """Access control for the coordinator's session (the hub every carrier connects to).
 
-    Default deny. Every carrier certificate may subscribe, query and receive anything under
-    `prefix/**`; carrier `id` may put, delete, reply, declare queryables and liveliness tokens only
-    under `prefix/*/carrier/<id>/**`. Anything else a carrier sends (a decision under
+    Default deny. Every carrier certificate may subscribe and query under `prefix/**`; carrier
+    `id` may put, delete, reply, declare queryables and liveliness tokens only under
+    `prefix/*/carrier/<id>/**`. Anything else a carrier sends (a decision under
     `prefix/<mission>/coordinator/**`, another carrier's observation) is dropped on ingress.
+    Least privilege for reads (egress): carrier `id` receives the Decisions and End, its own
+    Accepted and Refusal, State replies, the carriers' observations, accounts, confirmations and
+    Progress (what a carrier deciding alone reads, docs/protocol.md [P-8.3]) and the liveliness
+    tokens; not another carrier's Hello, Bye, Pose, Accepted or Refusal.
     """
     rules = [
         {"id": "carriers-read", "messages": list(CARRIER_READ_MESSAGES), "flows": ["ingress"],
          "permission": "allow", "key_exprs": [f"{prefix}/**"]},
-        {"id": "carriers-receive", "messages": list(ALL_MESSAGES), "flows": ["egress"],
+        {"id": "carriers-routing", "messages": list(ROUTING_MESSAGES), "flows": ["egress"],
          "permission": "allow", "key_exprs": [f"{prefix}/**"]},
+        {"id": "carriers-receive", "messages": ["put"], "flows": ["egress"], "permission": "allow",
+         "key_exprs": [f"{prefix}/*/coordinator/decision", f"{prefix}/*/coordinator/end",
+                       *(f"{prefix}/*/carrier/*/{topic}" for topic in PEER_TOPICS)]},
+        {"id": "carriers-state", "messages": ["reply"], "flows": ["egress"], "permission": "allow",
+         "key_exprs": [f"{prefix}/*/coordinator/state"]},
+        {"id": "carriers-presence", "messages": ["liveliness_token"], "flows": ["egress"], "permission": "allow",
+         "key_exprs": [f"{prefix}/*/coordinator/alive", f"{prefix}/*/carrier/*/alive"]},
     ]
     subjects = [{"id": "carriers", "cert_common_names": [carrier_cn(c) for c in carrier_ids]}]
-    policies = [{"id": "carriers", "rules": ["carriers-read", "carriers-receive"], "subjects": ["carriers"]}]
+    policies = [{"id": "carriers", "rules": ["carriers-read", "carriers-routing", "carriers-receive", "carriers-state",
+                                             "carriers-presence"], "subjects": ["carriers"]}]
     for cid in carrier_ids:
         rules.append({
             "id": f"own-{cid}", "messages": list(CARRIER_WRITE_MESSAGES), "flows": ["ingress"],
             "permission": "allow", "key_exprs": [f"{prefix}/*/carrier/{cid}/**"],
         })
+        rules.append({
+            "id": f"answers-{cid}", "messages": ["put"], "flows": ["egress"], "permission": "allow",
+            "key_exprs": [f"{prefix}/*/coordinator/accepted/{cid}", f"{prefix}/*/coordinator/refusal/{cid}"],
+        })
         subjects.append({"id": f"carrier-{cid}", "cert_common_names": [carrier_cn(cid)]})
-        policies.append({"id": f"carrier-{cid}", "rules": [f"own-{cid}"], "subjects": [f"carrier-{cid}"]})
+        policies.append({"id": f"carrier-{cid}", "rules": [f"own-{cid}", f"answers-{cid}"],
+                         "subjects": [f"carrier-{cid}"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
 
@@ -262,7 +304,8 @@ def coordinator_config(certs: FleetCerts, listen: Sequence[str] = ("tls/127.0.0.
     return {
         "listen": {"endpoints": list(listen)},
         "scouting": {"multicast": {"enabled": False}},
-        "transport": {"link": {"protocols": ["tls"], "tls": tls_section(certs.ca, certs.coordinator)}},
+        "transport": {"link": {"protocols": ["tls"], "tls": tls_section(certs.ca, certs.coordinator),
+                               "rx": {"max_message_size": TRANSPORT_MAX_MESSAGE_BYTES}}},
         "access_control": coordinator_acl(sorted(certs.carriers)),
     }
 
@@ -275,7 +318,8 @@ def carrier_config(
         "connect": {"endpoints": list(connect)},
         "listen": {"endpoints": []},
         "scouting": {"multicast": {"enabled": False}},
-        "transport": {"link": {"protocols": ["tls"], "tls": tls_section(certs.ca, certs.carriers[carrier_id])}},
+        "transport": {"link": {"protocols": ["tls"], "tls": tls_section(certs.ca, certs.carriers[carrier_id]),
+                               "rx": {"max_message_size": TRANSPORT_MAX_MESSAGE_BYTES}}},
         "access_control": carrier_acl(),
     }
 
@@ -283,7 +327,7 @@ def carrier_config(
 def write_json5(path: Path, config: dict, comment: str = "") -> Path:
     """Write `config` as JSON5 (plain JSON plus a `//` comment header)."""
     header = "".join(f"// {line}\n" for line in comment.splitlines())
-    path.write_text(header + json.dumps(config, indent=2) + "\n")
+    _write_private(Path(path), (header + json.dumps(config, indent=2) + "\n").encode(), CONFIG_MODE)
     return path
 
 
@@ -341,6 +385,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help="endpoints carriers connect to (default: the --listen endpoints)")
     parser.add_argument("--days", type=float, default=DEFAULT_DAYS, help="certificate validity, days")
     args = parser.parse_args(argv)
+    if x509 is None:
+        print(f"error: tools/gen_certs.py needs the cryptography package: {INSTALL_HINT}", file=sys.stderr)
+        return 2
     try:
         ids = scenario_carrier_ids(args.scenario) if args.scenario else list(args.carriers)
     except ValueError as exc:

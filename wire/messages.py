@@ -47,8 +47,8 @@ UNANNOUNCED_REVISION = 1
 #: Size limits (payload, stages, carriers, trail, coordinates, text): one home, shared with the
 #: scenario validation so that a valid scenario's messages always encode.
 from planner.limits import (  # noqa: E402
-    MAX_CARRIERS, MAX_COORD, MAX_PASSENGERS, MAX_PAYLOAD_BYTES, MAX_POINT_REGIONS, MAX_STAGES, MAX_STATE_CARRIERS,
-    MAX_TEXT, MAX_TRAIL,
+    EPOCH_MAX, MAX_CARRIERS, MAX_COORD, MAX_PASSENGERS, MAX_PAYLOAD_BYTES, MAX_POINT_REGIONS, MAX_STAGES,
+    MAX_STATE_CARRIERS, MAX_TEXT, MAX_TRAIL,
 )
 
 #: Every reason code :class:`ProtocolError` can carry (plus node-level ones in docs/protocol.md).
@@ -269,7 +269,7 @@ def _spec(validator: Validator, as_map: bool = False, absent: Any = _NO_DEFAULT,
 
 #: A coordinator's epoch (docs/protocol.md, "Epochs"): 1 for a fresh mission, higher after
 #: every restart or takeover; absent on the wire = 1.
-_EPOCH = _int(1, 2**31 - 1)
+_EPOCH = _int(1, EPOCH_MAX)
 
 #: A protocol revision a peer announces (docs/protocol.md, "Revisions"); absent on the wire = 1.
 _REVISION = _int(1, 2**16 - 1)
@@ -297,7 +297,8 @@ class Hello:
         fingerprint: hex digest of the carrier's scenario (with its seed); must equal the
             coordinator's, else the carrier built another world and is refused.
         epoch: the highest coordinator epoch the carrier has heard (1 when none; omitted on the
-            wire when 1): a coordinator that has not decided yet takes a higher one.
+            wire when 1): informative to a coordinator, which never takes an epoch from a
+            carrier (docs/protocol.md [P-7.3]).
         revision: the newest protocol revision the carrier speaks (absent: 1; sent only to a
             coordinator that announced revision 3 or later in its State).
     """

@@ -17,6 +17,8 @@ from typing import Sequence
 
 import zenoh
 
+from planner.limits import TRANSPORT_MAX_MESSAGE_BYTES
+
 #: Zenoh endpoint syntax accepted on the command line, e.g. ``tcp/127.0.0.1:7447``.
 ENDPOINT_PATTERN = re.compile(r"^[a-z0-9]+/[^\s]+$")
 
@@ -106,6 +108,8 @@ def make_config(
         conf.insert_json5("transport/unicast/max_sessions", str(MAX_SESSIONS))
     if "accept_pending" not in text:
         conf.insert_json5("transport/unicast/accept_pending", str(ACCEPT_PENDING))
+    if "max_message_size" not in text:  # a huge payload is dropped by the first hop's transport
+        conf.insert_json5("transport/link/rx/max_message_size", str(TRANSPORT_MAX_MESSAGE_BYTES))
     if "shared_memory" not in text:
         conf.insert_json5("transport/shared_memory/enabled", json.dumps(SHARED_MEMORY))
     if mode is not None:

@@ -8,8 +8,9 @@ with its named reason, or not applicable) and a verdict. ``--json OUT`` writes t
 JSON object (``planner``, ``options``, ``seed``, ``instances``, ``families``, ``passed``,
 ``checks``: ``name``, ``outcome``, ``reason``, ``detail``).
 
-Exit status: 0 every check passed (or does not apply); 1 a check failed; 2 a usage error (bad
-arguments, a name that does not load, an option the registry refuses, an unwritable
+Exit status: 0 every check passed (or does not apply); 2 a check failed, with one line on
+stderr naming the plug-in and the rule it broke (its first failed check's reason), or a usage
+error (bad arguments, a name that does not load, an option the registry refuses, an unwritable
 ``--json``), with one line on stderr.
 """
 from __future__ import annotations
@@ -21,7 +22,7 @@ from typing import Sequence
 from planner.cli import EXIT_USAGE, OneLineParser, integer_at_least
 
 PROG = "python -m planner.conformance"
-EXIT_OK, EXIT_FAILED = 0, 1
+EXIT_OK, EXIT_FAILED = 0, EXIT_USAGE  # a broken plug-in is bad input: one line, exit 2
 
 
 def build_parser(prog: str = PROG) -> OneLineParser:
@@ -86,7 +87,12 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
                 out.write("\n")
         except OSError as err:
             return _usage(prog, f"--json: cannot write {args.json}: {err.strerror or err}")
-    return EXIT_FAILED if failures else EXIT_OK
+    if failures:
+        first = failures[0]
+        print(f"{prog}: planner {args.planner!r} broke rule {first.reason} (check {first.name}): {first.detail}",
+              file=sys.stderr)
+        return EXIT_FAILED
+    return EXIT_OK
 
 
 def _raw(text: str) -> tuple[str, str]:

@@ -39,7 +39,9 @@ defaults (0, 0, one group) run exactly as without the flags; any other value add
 ``--planner online-optimal`` on an instance beyond the exact solver's limits exits 2 with one line.
 
 Exit codes: 0 success; 2 bad input (unreadable or invalid instance file, bad arguments, unknown
-planner) with one line on stderr; 1 the planner could not be built (e.g. its module is missing).
+planner) with one line on stderr, or a planner that broke a rule while deciding (it raised,
+returned an infeasible action, or ran past ``plan_ms``: planner/guard.py), with one line naming
+the planner, the rule and the stage; 1 the planner could not be built (e.g. its module is missing).
 The instance format is documented in docs/planner.md. ``python -m coordinator.solve`` (the
 earlier spelling) runs this same command.
 """
@@ -52,6 +54,7 @@ import sys
 from typing import Sequence
 
 from planner.cli import OneLineParser, integer_at_least
+from planner.guard import PlannerFault
 from planner.instance import InstanceError
 from planner.learning import UnsupportedPrior
 from planner.online_optimal import TooLarge
@@ -167,6 +170,9 @@ def main(argv: Sequence[str] | None = None, prog: str = PROG) -> int:
                              upper_bound=not args.no_upper_bound)
     except (InstanceError, TooLarge, UnsupportedPrior) as err:
         print(str(err), file=sys.stderr)
+        return EXIT_INPUT
+    except PlannerFault as fault:
+        print(f"{PROG}: {fault.line(args.planner)}", file=sys.stderr)
         return EXIT_INPUT
     try:
         sys.stdout.write(json.dumps(out) + "\n")

@@ -46,7 +46,7 @@ COORDINATOR_RULES = (
     ("end", "[P-9.1]", "End once every stage is decided: stages N, reason complete, every repeat identical, no "
                      "Decision after it; its epoch the Decisions' [P-7.4]"),
     ("hello-epoch", "[P-7.3]", f"after a Hello reporting epoch {HELLO_EPOCH} before its first Decision, its "
-                             f"Decisions carry a higher epoch"),
+                             f"Decisions keep its own epoch, 1 (a carrier's message never changes who decides)"),
     ("takeover", "[P-7.3]", "after a Decision of a higher epoch on its decision key it publishes no Decision "
                           "and no End, and its process exits"),
 )
@@ -263,7 +263,7 @@ def _epochs(seen: Seen, results: dict) -> None:
         return
     real = seen.of(wm.Decision)
     if real:
-        results["hello-epoch"].check(real[0].message.epoch > HELLO_EPOCH,
+        results["hello-epoch"].check(real[0].message.epoch == 1,
                                      f"{seen.name}: first Decision of epoch {real[0].message.epoch} after a Hello "
                                      f"of epoch {HELLO_EPOCH}")
     if "takeover" in seen.faults:
