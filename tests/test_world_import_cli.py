@@ -201,3 +201,57 @@ def test_bad_input_is_one_line_and_leaves_nothing(case, room, tmp_path):
     assert named in lines[0] and "expected" in lines[0], lines[0]
     assert not out.exists() and not rep.exists()
     assert not (out.parent.exists() and any(out.parent.iterdir())), list(out.parent.iterdir())
+
+
+# --------------------------------------------------------------------------- recorded runs graze walls
+
+
+_GRAZING = "[[1.0, 1.0], [3.0, 1.0], [3.0, 0.57], [3.3, 1.0], [6.0, 1.0], [6.0, 3.0]]"  # 3 cm into the south wall
+
+
+def test_a_recorded_route_grazing_a_wall_is_taken_as_driven(room, tmp_path):
+    from world.stages import stage_geometry
+
+    routes, out = tmp_path / "routes.yaml", tmp_path / "o" / "s.yaml"
+    routes.write_text(f"carriers:\n  - {{id: rec, passengers: 2, start: 0, speed: 1, recorded: true, path: {_GRAZING}}}\n")
+    done = _run(room, "--routes", routes, "--stage-spacing", "1", "--radius", "2", "--out", out)
+    assert done.returncode == 0, done.stderr
+    warned = [line for line in done.stdout.splitlines() if line.startswith("warning: carrier 'rec'")]
+    assert len(warned) == 1 and "deepest 0.030 m at (3.00, 0.57)" in warned[0], done.stdout
+    scenario = world.load_scenario(out)
+    # the map written is the map as recorded; the world's walls give way round the graze
+    written = G.read_map_yaml(out.parent / "s.map.yaml")
+    assert written.classes[tuple(written.cell_of([[3.0, 0.57]])[0])] == G.OCCUPIED
+    # the carrier's body follows the route: at every stage where it was planned to be
+    geo = stage_geometry(scenario)
+    trace = world.simulate_mission(scenario)
+    ok = geo.valid
+    assert np.abs(trace.positions[ok] - geo.positions[ok]).max() < 0.05
+    assert [3.0, 0.57] in np.round(np.asarray(scenario.carriers[0].waypoints), 6).tolist()  # the route as driven
+
+    # the same route written by hand stays refused, and says how to take a recorded one
+    routes.write_text(f"carriers:\n  - {{id: rec, passengers: 2, start: 0, speed: 1, path: {_GRAZING}}}\n")
+    refused = _run(room, "--routes", routes, "--stage-spacing", "1", "--out", tmp_path / "h" / "s.yaml")
+    assert refused.returncode == 2 and "occupied cell" in refused.stderr and "recorded: true" in refused.stderr
+    # a recorded route deeper than --graze-depth is refused, naming the depth
+    routes.write_text(f"carriers:\n  - {{id: rec, passengers: 2, start: 0, speed: 1, recorded: true, path: {_GRAZING}}}\n")
+    deep = _run(room, "--routes", routes, "--stage-spacing", "1", "--graze-depth", "0.02", "--out", tmp_path / "d" / "s.yaml")
+    assert deep.returncode == 2 and len(deep.stderr.strip().splitlines()) == 1
+    assert "--graze-depth 0.02 m" in deep.stderr and "0.030 m" in deep.stderr and "(3.00, 0.57)" in deep.stderr
+
+
+def test_grazes_their_depth_and_the_walls_that_give_way():
+    from world import importer as imp
+
+    rows = np.array([[0.0, 1.0, 1.0], [1.0, 3.0, 0.57], [2.0, 5.0, 1.0]])
+    d = np.zeros((20, 80), dtype=np.int8)
+    d[5, :] = 100  # a wall along y in [0.5, 0.6]
+    g = G.OccupancyGrid(d, 0.1)
+    found = g.grazes(rows[:, 1:])
+    assert [f.leg for f in found] == [0, 1] and max(f.depth for f in found) == pytest.approx(0.03)
+    route = imp.Route("c", 1, rows, "bag: topic /c/odom", recorded=True)
+    said = []
+    walls = imp.take_grazes(g, g, route, 0.2, said.append)
+    assert len(said) == 1 and (walls.classes == G.OCCUPIED).sum() < (g.classes == G.OCCUPIED).sum()
+    assert walls.first_blocked(rows[:, 1:]) is None
+    assert imp.take_grazes(g, g, imp.Route("c", 1, rows, "routes.yaml", recorded=False), 0.2, said.append) is g

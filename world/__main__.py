@@ -234,6 +234,16 @@ def _positive(kind):
     return parse
 
 
+def _non_negative(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, found {text!r}") from None
+    if not math.isfinite(v) or v < 0:
+        raise argparse.ArgumentTypeError(f"expected a value >= 0, found {text!r}")
+    return v
+
+
 def _import_parser(sub) -> None:
     from world import importer as imp
 
@@ -280,6 +290,10 @@ def _import_parser(sub) -> None:
     p.add_argument("--prior", choices=imp.PRIOR_CHOICES, default="auto",
                    help="the prior's family, fitted to the values by moments (default auto: negative binomial when "
                         "the variance exceeds the mean, else Poisson)")
+    p.add_argument("--graze-depth", type=_non_negative, default=imp.DEFAULT_GRAZE_DEPTH, metavar="METRES",
+                   help="a recorded route (a bag's poses, or recorded: true in ROUTES.yaml) may go this far into "
+                        f"occupied cells and is taken as driven, with a warning (default {imp.DEFAULT_GRAZE_DEPTH:g} m; "
+                        "0: no graze); a hand-written route may not enter an occupied cell")
     p.add_argument("--free-level", type=int, default=None, metavar="0..100",
                    help="a bag map's cell value at or below which it is free (default 25, map_saver's)")
     p.add_argument("--occupied-level", type=int, default=None, metavar="0..100",
@@ -302,7 +316,8 @@ def _run_import(args) -> int:
         radius=args.radius, replay=args.replay, report=args.report, stage_interval=args.stage_interval,
         align=args.align, name=args.name, seed=args.seed, conflict_radius=args.conflict_radius,
         carrier_radius=args.carrier_radius, path_tolerance=args.path_tolerance,
-        wall_tolerance=args.wall_tolerance, prior=args.prior, free_level=free, occupied_level=occupied)
+        wall_tolerance=args.wall_tolerance, prior=args.prior, free_level=free, occupied_level=occupied,
+        graze_depth=args.graze_depth)
     if args.stages is not None and args.stages < 2:
         print(f"--stages: expected an integer >= 2 (the first and last point of each route), found {args.stages}",
               file=sys.stderr)

@@ -146,10 +146,9 @@ class OccupancyGrid:
         return (float(corners[:, 0].min()), float(corners[:, 1].min()),
                 float(corners[:, 0].max()), float(corners[:, 1].max()))
 
-    def first_blocked(self, polyline) -> tuple[int, str, tuple[float, float]] | None:
-        """Where the polyline (``[K, 2]``, m) first leaves the grid or enters an occupied cell,
-        each leg sampled every quarter cell: ``(leg index, "off the map" | "an occupied cell",
-        (x, y))``, or None when it stays on free and unknown cells."""
+    def _samples(self, polyline) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The polyline (``[K, 2]``, m) sampled every quarter cell along each leg: (leg index
+        ``[S]``, points ``[S, 2]``, off the grid bool ``[S]``, in an occupied cell bool ``[S]``)."""
         pts = np.asarray(polyline, dtype=float).reshape(-1, 2)
         if len(pts) == 1:
             pts = np.concatenate([pts, pts])
@@ -165,12 +164,84 @@ class OccupancyGrid:
         occ = np.zeros(len(samples), dtype=bool)
         inside = ~off
         occ[inside] = self.classes[cells[inside, 0], cells[inside, 1]] == OCCUPIED
+        return leg, samples, off, occ
+
+    def first_blocked(self, polyline) -> tuple[int, str, tuple[float, float]] | None:
+        """Where the polyline (``[K, 2]``, m) first leaves the grid or enters an occupied cell,
+        each leg sampled every quarter cell: ``(leg index, "off the map" | "an occupied cell",
+        (x, y))``, or None when it stays on free and unknown cells."""
+        leg, samples, off, occ = self._samples(polyline)
         bad = np.flatnonzero(off | occ)
         if not len(bad):
             return None
         k = int(bad[0])
         return (int(leg[k]), "off the map" if off[k] else "an occupied cell",
                 (float(samples[k, 0]), float(samples[k, 1])))
+
+    def grazes(self, polyline) -> list[Graze]:
+        """Every leg of the polyline (``[K, 2]``, m, on the grid) that enters occupied cells, with
+        its deepest sample (quarter-cell steps): how far (m) that point lies from the nearest cell
+        that is not occupied (its square; cells beyond the grid's edge are not occupied)."""
+        from scipy import ndimage
+
+        leg, samples, off, occ = self._samples(polyline)
+        inside = np.flatnonzero(occ & ~off)
+        if not len(inside):
+            return []
+        occupied = np.pad(self.classes == OCCUPIED, 1)
+        reach = ndimage.distance_transform_edt(occupied)  # cells to the nearest non-occupied centre
+        local = self.to_local(samples[inside]) / self.resolution + 1.0  # in padded cells
+        best: dict[int, Graze] = {}
+        for k, (ux, uy) in zip(inside, local):
+            r, c = int(math.floor(uy)), int(math.floor(ux))
+            half = int(math.ceil(reach[r, c])) + 3
+            r0, c0 = max(0, r - half), max(0, c - half)
+            window = ~occupied[r0:r + half + 1, c0:c + half + 1]
+            rows, cols = np.nonzero(window)
+            rows, cols = rows + r0, cols + c0
+            dx = np.maximum.reduce([cols - ux, np.zeros(len(cols)), ux - (cols + 1)])
+            dy = np.maximum.reduce([rows - uy, np.zeros(len(rows)), uy - (rows + 1)])
+            depth = float(np.hypot(dx, dy).min()) * self.resolution
+            i = int(leg[k])
+            if i not in best or depth > best[i].depth:
+                best[i] = Graze(i, depth, (float(samples[k, 0]), float(samples[k, 1])))
+        return [best[i] for i in sorted(best)]
+
+    def carved(self, polyline, legs, distance: float) -> "OccupancyGrid":
+        """This grid with the occupied cells whose centre lies within ``distance`` (m) of the
+        polyline's ``legs`` (indices) made free (0): where a robot drove, the wall gives way."""
+        from world import geometry
+
+        pts = np.asarray(polyline, dtype=float).reshape(-1, 2)
+        occupied = self.classes == OCCUPIED
+        rows, cols = np.nonzero(occupied)
+        centres = self.cell_centres(occupied)
+        clear = np.zeros(len(centres), dtype=bool)
+        for i in legs:
+            a, b = pts[i], pts[i + 1]
+            lo, hi = np.minimum(a, b) - distance, np.maximum(a, b) + distance
+            near = np.flatnonzero((centres[:, 0] >= lo[0]) & (centres[:, 0] <= hi[0])
+                                  & (centres[:, 1] >= lo[1]) & (centres[:, 1] <= hi[1]))
+            if len(near):
+                d = geometry.point_segment_distance(centres[near], np.array([[*a, *b]]))[:, 0]
+                clear[near[d <= distance]] = True
+        if not clear.any():
+            return self
+        data = self.data.copy()
+        data[rows[clear], cols[clear]] = 0
+        return OccupancyGrid(data=data, resolution=self.resolution, origin=self.origin, stamp=self.stamp,
+                             free_level=self.free_level, occupied_level=self.occupied_level, source=self.source,
+                             warnings=self.warnings)
+
+
+@dataclass(frozen=True)
+class Graze:
+    """A leg of a route that enters occupied cells: ``leg`` its index, ``depth`` (m) how far its
+    deepest sample ``point`` (x, y m) lies inside them."""
+
+    leg: int
+    depth: float
+    point: tuple[float, float]
 
 
 def check_grid(data: np.ndarray, resolution, where: str) -> None:
