@@ -177,8 +177,9 @@ def test_bad_input_is_one_line_and_leaves_nothing(case, room, tmp_path):
         px[px == 205] = 0
         _map_yaml(tmp_path, px, free_thresh=0.196)
         named = "frontier"
-    elif case == "map-saver-unknown":
-        room.write_text(text.replace("free_thresh: 0.196", "free_thresh: 0.25"))  # nav2 map_saver's
+    elif case == "map-saver-unknown":  # nav2 map_saver's, read literally: 205 is free, no frontier left
+        room.write_text(text.replace("free_thresh: 0.196", "free_thresh: 0.25"))
+        extra = extra + ["--literal-thresholds"]
         named = "205"
     else:
         from tools.synthetic_run import generate, write_bag
@@ -255,3 +256,24 @@ def test_grazes_their_depth_and_the_walls_that_give_way():
     assert len(said) == 1 and (walls.classes == G.OCCUPIED).sum() < (g.classes == G.OCCUPIED).sum()
     assert walls.first_blocked(rows[:, 1:]) is None
     assert imp.take_grazes(g, g, imp.Route("c", 1, rows, "routes.yaml", recorded=False), 0.2, said.append) is g
+
+
+def test_a_nav2_map_saver_map_reads_205_as_unknown_saying_so_once(room, tmp_path):
+    """map_saver writes unknown as 205 beside free_thresh 0.25 (occupancy 0.196: free by the
+    YAML's own rule); its signature reads as the saver meant, --literal-thresholds as map_server."""
+    saver = tmp_path / "saver.yaml"
+    saver.write_text(room.read_text().replace("free_thresh: 0.196", "free_thresh: 0.25"))
+    meant, literal = G.read_map_yaml(saver), G.read_map_yaml(saver, literal=True)
+    assert np.array_equal(meant.classes, G.read_map_yaml(room).classes)
+    assert (literal.classes == G.UNKNOWN).sum() == 0 and len(meant.warnings) == 1
+    done = _run(saver, "--routes", tmp_path / "routes.yaml", "--stage-spacing", "1", "--radius", "2",
+                "--out", tmp_path / "o" / "s.yaml", "--report", tmp_path / "o" / "r.json")
+    assert done.returncode == 0, done.stderr
+    said = [line for line in done.stdout.splitlines() if "205" in line]
+    assert len(said) == 1 and "map_saver" in said[0] and "--literal-thresholds" in said[0], done.stdout
+    assert json.loads((tmp_path / "o" / "r.json").read_text())["frontier_cells"] == 20
+    # not the signature: another grey, or another free_thresh, is read as written
+    px = _room()
+    px[0, 0] = 128
+    other = _map_yaml(tmp_path, px, "grey", free_thresh=0.25)
+    assert (G.read_map_yaml(other).classes == G.UNKNOWN).sum() == 1

@@ -294,6 +294,10 @@ def _import_parser(sub) -> None:
                    help="a recorded route (a bag's poses, or recorded: true in ROUTES.yaml) may go this far into "
                         f"occupied cells and is taken as driven, with a warning (default {imp.DEFAULT_GRAZE_DEPTH:g} m; "
                         "0: no graze); a hand-written route may not enter an occupied cell")
+    p.add_argument("--literal-thresholds", action="store_true",
+                   help="read a map YAML's thresholds exactly as map_server does (by default a map with nav2 "
+                        "map_saver's signature, trinary with free_thresh 0.25 and pixels 0/205/254, reads its 205 "
+                        "pixels as unknown, as the saver meant)")
     p.add_argument("--free-level", type=int, default=None, metavar="0..100",
                    help="a bag map's cell value at or below which it is free (default 25, map_saver's)")
     p.add_argument("--occupied-level", type=int, default=None, metavar="0..100",
@@ -317,7 +321,7 @@ def _run_import(args) -> int:
         align=args.align, name=args.name, seed=args.seed, conflict_radius=args.conflict_radius,
         carrier_radius=args.carrier_radius, path_tolerance=args.path_tolerance,
         wall_tolerance=args.wall_tolerance, prior=args.prior, free_level=free, occupied_level=occupied,
-        graze_depth=args.graze_depth)
+        graze_depth=args.graze_depth, literal_thresholds=args.literal_thresholds)
     if args.stages is not None and args.stages < 2:
         print(f"--stages: expected an integer >= 2 (the first and last point of each route), found {args.stages}",
               file=sys.stderr)

@@ -42,6 +42,8 @@ MAX_CELLS = 100_000_000
 #: them so that a map_server reads the same classes back: occupancy 1 - v / 255.
 PGM_FREE, PGM_OCCUPIED, PGM_UNKNOWN = 254, 0, 205
 WRITE_FREE_THRESH, WRITE_OCCUPIED_THRESH = 0.1, 0.65
+#: nav2 map_saver's ``free_thresh``, part of its signature (:func:`map_saver_signature`).
+MAP_SAVER_FREE_THRESH = 0.25
 
 
 class GridError(ValueError):
@@ -427,14 +429,29 @@ def _number(doc: dict, key: str, where: str, default=None) -> float:
     return float(value)
 
 
+def map_saver_signature(mode: str, negate, free_thresh: float, pixels: np.ndarray) -> bool:
+    """True for a map as nav2's map_saver writes it: ``mode: trinary``, ``negate: 0``,
+    ``free_thresh: 0.25`` and an image of its three values only (254 free, 0 occupied, 205
+    unknown), 205 among them. map_server reads its 205 (occupancy 0.196) as free, which the
+    saver did not mean."""
+    if mode != "trinary" or negate or abs(free_thresh - MAP_SAVER_FREE_THRESH) > 1e-9:
+        return False
+    values = np.unique(pixels)
+    return bool(np.isin(PGM_UNKNOWN, values)) and bool(np.isin(values, (PGM_FREE, PGM_OCCUPIED, PGM_UNKNOWN)).all())
+
+
 def read_map_yaml(path: str | Path, free_level: int = DEFAULT_FREE_LEVEL,
-                  occupied_level: int = DEFAULT_OCCUPIED_LEVEL) -> OccupancyGrid:
+                  occupied_level: int = DEFAULT_OCCUPIED_LEVEL, literal: bool = False) -> OccupancyGrid:
     """A map_server map: its YAML (``image``, ``resolution``, ``origin`` [x, y, yaw],
     ``negate``, ``occupied_thresh``, ``free_thresh``, ``mode``) and the PGM or PNG it names
     (relative to the YAML), by nav2 map_io's rules: shade = the mean of the colour channels
     / 255; occupancy = shade if ``negate`` else 1 - shade; trinary: occupancy above
     ``occupied_thresh`` is 100, below ``free_thresh`` 0, else -1; scale: the same, a pixel not
     fully opaque -1 and in between 1..99 linearly; raw: round(shade x 255) if in 0..100, else -1.
+
+    One exception unless ``literal``: a map with nav2 map_saver's signature
+    (:func:`map_saver_signature`) reads its 205 pixels as unknown, as the saver meant, and says
+    so in the grid's ``warnings``. ``literal=True`` reads it exactly as map_server does.
 
     Raises:
         GridError: naming the file and field (a missing or unreadable image, a format other
@@ -500,9 +517,13 @@ def read_map_yaml(path: str | Path, free_level: int = DEFAULT_FREE_LEVEL,
                 data[alpha < 255] = -1
     warnings = ()
     grey = pixels == PGM_UNKNOWN
-    if mode != "raw" and not negate and grey.any() and (data[grey] == 0).all():
-        # nav2's map_saver writes unknown cells as 205 beside free_thresh 0.25, which reads them
-        # back as free (occupancy 0.196): honoured, and said
+    if not literal and map_saver_signature(mode, negate, free_th, pixels):
+        data[grey] = -1
+        warnings = (f"{file}: nav2 map_saver's map (trinary, pixels 0/205/254, free_thresh 0.25): its "
+                    f"{int(grey.sum())} pixels of 205 read as unknown, as the saver meant (--literal-thresholds "
+                    f"reads them as map_server does: free)",)
+    elif mode != "raw" and not negate and grey.any() and (data[grey] == 0).all():
+        # 205 (map_saver's unknown) read as free by the thresholds as written: honoured, and said
         warnings = (f"{file}: free_thresh {free_th:g} reads the image's {int(grey.sum())} pixels of 205 "
                     f"(map_saver's unknown) as free; with free_thresh below 0.196 they are unknown",)
     # image row 0 is the top of the map; the grid's row 0 is at the origin (the bottom)

@@ -84,6 +84,7 @@ class ImportSettings:
     free_level: int = G.DEFAULT_FREE_LEVEL
     occupied_level: int = G.DEFAULT_OCCUPIED_LEVEL
     graze_depth: float = DEFAULT_GRAZE_DEPTH
+    literal_thresholds: bool = False
 
 
 @dataclass(frozen=True)
@@ -362,7 +363,7 @@ def import_run(st: ImportSettings, progress: Callable[[str], None] = print) -> I
         stamps = [history_stamps[k] for k in order]
         (_, grid), = B.iter_maps(source, st.map_topic, st.free_level, st.occupied_level, {order[-1]})
     else:
-        grid = G.read_map_yaml(source, st.free_level, st.occupied_level)
+        grid = G.read_map_yaml(source, st.free_level, st.occupied_level, literal=st.literal_thresholds)
         stamps, order = [0.0], [0]
     for line in grid.warnings:
         progress(f"warning: {line}")
