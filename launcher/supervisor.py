@@ -260,10 +260,10 @@ def finish(fleet: Fleet, code: int, started: float, stop: threading.Event) -> in
 
 def print_results(settings: Settings, summary: dict, out: Path, started: float) -> None:
     f = settings.flags
-    bound = summary.get("clairvoyant") or {}  # None: the coordinator was stopped before the bound
+    from mission.summary import bound_text
+
     lat = summary.get("latency_ms", {})
-    told = (f"clairvoyant {'optimum' if bound.get('exact') else 'bound'} {bound.get('reward', float('nan')):.3f} "
-            f"({(bound.get('fraction') or 0) * 100:.0f}%)")
+    told = bound_text(summary)  # a percentage only against a bound that means one
     if summary.get("reward") == "coverage":  # the features in the union of the discs (maximum coverage bound)
         told = f"coverage reward over {summary['coverage']['regions']} regions; {told}"
     print(f"total reward {summary['total_reward']:.3f} (features {summary['total_features']:.1f}); "
