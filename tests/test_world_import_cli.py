@@ -277,3 +277,11 @@ def test_a_nav2_map_saver_map_reads_205_as_unknown_saying_so_once(room, tmp_path
     px[0, 0] = 128
     other = _map_yaml(tmp_path, px, "grey", free_thresh=0.25)
     assert (G.read_map_yaml(other).classes == G.UNKNOWN).sum() == 1
+
+
+def test_stages_default_to_the_papers_19(room, tmp_path):
+    rep = tmp_path / "o" / "r.json"
+    done = _run(room, "--routes", tmp_path / "routes.yaml", "--radius", "2", "--out", tmp_path / "o" / "s.yaml",
+                "--report", rep)
+    assert done.returncode == 0, done.stderr
+    assert [len(v) for v in json.loads(rep.read_text())["carriers"].values()] == [19, 19]

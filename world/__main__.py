@@ -262,11 +262,11 @@ def _import_parser(sub) -> None:
                         "(repeat per carrier)")
     p.add_argument("--passengers", action="append", type=_pair(int), default=[], metavar="ID=K",
                    help="passengers of a carrier (default: the routes file's, else 1)")
-    spacing = p.add_mutually_exclusive_group(required=True)
+    spacing = p.add_mutually_exclusive_group()
     spacing.add_argument("--stage-spacing", type=_positive(float), metavar="METRES",
                          help="a candidate point every METRES of travelled distance")
     spacing.add_argument("--stages", type=_positive(int), metavar="N", help="N candidate points evenly along each "
-                         "route, first to last (the paper's)")
+                         f"route, first to last (default {imp.DEFAULT_STAGES}, the paper's, unless --stage-spacing)")
     p.add_argument("--radius", type=_positive(float), default=imp.DEFAULT_RADIUS, metavar="METRES",
                    help="the value of a point counts the frontier cells within this radius (default 10 m, the "
                         "paper's); also the scenario's sensing radius")
@@ -314,6 +314,8 @@ def _run_import(args) -> int:
         print(f"--free-level, --occupied-level: expected 0 <= free < occupied <= 100, found {free}, {occupied}",
               file=sys.stderr)
         return EXIT_BAD_INPUT
+    if args.stages is None and args.stage_spacing is None:
+        args.stages = imp.DEFAULT_STAGES
     settings = imp.ImportSettings(
         source=args.source, out=args.out, routes=args.routes, map_topic=args.map_topic, odom=tuple(args.odom),
         passengers=tuple(args.passengers), stage_spacing=args.stage_spacing, stages=args.stages,

@@ -42,6 +42,9 @@ if TYPE_CHECKING:
 
 #: The paper's sensing radius for frontier values (m).
 DEFAULT_RADIUS = 10.0
+#: Candidate points per route when neither ``--stages`` nor ``--stage-spacing`` is given: the
+#: paper's N = 19.
+DEFAULT_STAGES = 19
 #: Largest carrier body the importer gives a scenario (m): the project's default.
 MAX_CARRIER_RADIUS = 0.4
 #: How deep (m) a recorded route may go into occupied cells and still be taken as driven
