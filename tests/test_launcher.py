@@ -282,3 +282,17 @@ def test_python_m_launcher_is_the_launcher():
     shown = subprocess.run([sys.executable, "-m", "launcher", "--help"], capture_output=True, text=True,
                            timeout=60, cwd=ROOT)
     assert shown.returncode == 0 and shown.stdout == build_parser("python -m launcher").format_help()
+
+
+def test_out_naming_a_file_is_one_line(tmp_path):
+    """--out must be a directory: naming a file (or a path under one) is one line and exit 2,
+    before any process starts (it was a FileExistsError traceback)."""
+    (tmp_path / "notes.txt").write_text("mine\n")
+    for out in ("notes.txt", "notes.txt/run"):
+        proc = subprocess.run([sys.executable, str(ROOT / "run_fleet.py"), "tiny", "--out", out],
+                              cwd=tmp_path, capture_output=True, text=True, timeout=120)
+        assert proc.returncode == EXIT_USAGE and "Traceback" not in proc.stderr, proc.stderr
+        assert proc.stderr.splitlines() == [
+            f"run_fleet.py: --out: expected a results directory (existing or new), found "
+            + ("the file 'notes.txt'" if out == "notes.txt" else "'notes.txt/run' under the file 'notes.txt'")]
+    assert (tmp_path / "notes.txt").read_text() == "mine\n"

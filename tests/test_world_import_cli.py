@@ -285,3 +285,20 @@ def test_stages_default_to_the_papers_19(room, tmp_path):
                 "--report", rep)
     assert done.returncode == 0, done.stderr
     assert [len(v) for v in json.loads(rep.read_text())["carriers"].values()] == [19, 19]
+
+
+def test_too_many_passengers_are_blamed_where_they_were_given(room, tmp_path):
+    routes = tmp_path / "routes.yaml"
+    routes.write_text("carriers:\n  - {id: a, passengers: 9, start: 0, speed: 1.0, path: [[1.0, 1.0], [6.0, 1.0]]}\n")
+    given = _run(room, "--routes", routes, "--stages", "3", "--out", tmp_path / "o" / "s.yaml")
+    assert given.returncode == 2 and given.stderr.startswith(f"{routes}: carriers[0].passengers: expected at most 3"), \
+        given.stderr
+    assert "--passengers" not in given.stderr
+    flag = _run(room, "--routes", routes, "--stages", "3", "--passengers", "a=5", "--out", tmp_path / "o" / "s.yaml")
+    assert flag.returncode == 2 and flag.stderr.startswith("--passengers a: expected at most 3"), flag.stderr
+    # --out naming a directory, or a path under a file: one line, nothing written
+    (tmp_path / "f").write_text("x")
+    for out in (tmp_path, tmp_path / "f" / "s.yaml"):
+        done = _run(room, "--routes", routes, "--out", out)
+        assert done.returncode == 2 and done.stderr.startswith("--out: expected a file path to write"), done.stderr
+        assert len(done.stderr.strip().splitlines()) == 1

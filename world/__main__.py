@@ -304,6 +304,18 @@ def _import_parser(sub) -> None:
                    help="a bag map's cell value at or above which it is occupied (default 65, map_saver's)")
 
 
+def _unwritable(path: str) -> str | None:
+    """Why a file cannot be written at ``path`` (a directory there, or a file among its
+    parents), or None."""
+    from pathlib import Path
+
+    p = Path(path)
+    if p.is_dir():
+        return f"the directory {path!r}"
+    blocker = next((q for q in p.parents if q.exists() and not q.is_dir()), None)
+    return None if blocker is None else f"{path!r} under the file {str(blocker)!r}"
+
+
 def _run_import(args) -> int:
     from world import grid as G
     from world import importer as imp
@@ -314,6 +326,11 @@ def _run_import(args) -> int:
         print(f"--free-level, --occupied-level: expected 0 <= free < occupied <= 100, found {free}, {occupied}",
               file=sys.stderr)
         return EXIT_BAD_INPUT
+    for flag, target in (("--out", args.out), ("--report", args.report)):
+        problem = _unwritable(target) if target else None
+        if problem:
+            print(f"{flag}: expected a file path to write, found {problem}", file=sys.stderr)
+            return EXIT_BAD_INPUT
     if args.stages is None and args.stage_spacing is None:
         args.stages = imp.DEFAULT_STAGES
     settings = imp.ImportSettings(

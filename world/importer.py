@@ -425,8 +425,13 @@ def import_run(st: ImportSettings, progress: Callable[[str], None] = print) -> I
                         f"{n_stages} stages, {len(cands)} carriers")
     for c in cands:
         if c.route.passengers > len(c.points):
-            raise GridError(f"--passengers {c.route.id}", f"at most {len(c.points)} (its candidate points)",
-                            str(c.route.passengers))
+            # blame where the count came from: the flag, the routes file's field, or a bag's default
+            r = c.route
+            where = (f"--passengers {r.id}" if r.id in passengers else
+                     r.where.removesuffix(".path") + ".passengers" if r.where.endswith(".path") else
+                     f"{r.where}: carrier '{r.id}'")
+            raise GridError(where, f"at most {len(c.points)} passengers for carrier '{r.id}' (its candidate points; "
+                            f"more with --stages or a smaller --stage-spacing)", str(r.passengers))
 
     walls = G.wall_lines(walls_grid, st.wall_tolerance)
     segs = np.concatenate([np.column_stack([w[:-1], w[1:]]) for w in walls]) if walls else np.zeros((0, 4))
