@@ -337,7 +337,7 @@ RUNS = [
     Run("experiments-quick", (S("python -m experiments all --quick"),), "slow", wall_s=600, mem_mb=3000),
     Run("report-only", (
         Step(None, raw="cp -r docs/results {tmp}/results"),
-        S("python -m experiments all --report-only", extra="--out {tmp}/results"),
+        S("python -m experiments all --report-only --out docs/results", ("docs/results", "{tmp}/results")),
     ), "slow", wall_s=240, mem_mb=1500),
     Run("experiments-check", (S("python -m experiments check"),), "slow", wall_s=900, mem_mb=3000),
     Run("bench-full", (S("python -m coordinator.bench"),), "heavy", wall_s=3600, mem_mb=4000),
@@ -386,7 +386,7 @@ RUNS = [
         wall_s=900, mem_mb=3000, check=_reproduces(("docs/results/marine_trials.csv", "marine/marine_trials.csv"))),
     Run("coverage-report-only", (
         Step(None, raw="cp -r docs/results {tmp}/results"),
-        S("python -m experiments coverage --report-only", extra="--out {tmp}/results"),
+        S("python -m experiments coverage --report-only --out docs/results", ("docs/results", "{tmp}/results")),
     ), "slow", wall_s=240, mem_mb=1500),
     Run("base-policy-4", (S("python -m tools.base_policy --carriers 4 --trials 60-99"),), "slow", wall_s=600,
         mem_mb=2000),
@@ -432,8 +432,8 @@ IMPORT_REPLAY = ("python -m world import /tmp/myrun/bag --odom c0=/c0/odom --odo
 IMPORT_STATIC = ("python -m world import /tmp/myrun/map.yaml --routes /tmp/myrun/routes.yaml --stage-spacing 2 "
                  "--out /tmp/myrun/static.yaml")
 IMPORT_SYNOPSIS = ("python -m world import SOURCE --out SCENARIO.yaml [--routes ROUTES.yaml] [--map-topic TOPIC] "
-                   "[--odom ID=TOPIC]... [--passengers ID=K]... [--stage-spacing METRES | --stages N] "
-                   "[--radius METRES] [--replay] [--report REPORT.json]")
+                   "[--odom ID=TOPIC]... [--passengers ID=K]... [--stage-spacing METRES | --stages N (default 19)] "
+                   "[--radius METRES] [--replay] [--graze-depth METRES] [--literal-thresholds] [--report REPORT.json]")
 URBAN_IMPORTED = "python -m experiments urban --scenario /tmp/myrun/run.yaml --quick --out /tmp/myrun/urban"
 
 
@@ -462,8 +462,9 @@ RUNS += [
         S(IMPORT_SYNOPSIS, ("SOURCE", "{tmp}/myrun/bag"), ("SCENARIO.yaml", "{tmp}/myrun/syn.yaml"),
           ("[--routes ROUTES.yaml] ", ""), ("[--map-topic TOPIC]", "--map-topic /map"),
           ("[--odom ID=TOPIC]...", "--odom c0=/c0/odom --odom c1=/c1/pose --odom c2=/c2/odom"),
-          ("[--passengers ID=K]...", "--passengers c0=2"), ("[--stage-spacing METRES | --stages N]", "--stage-spacing 2"),
-          ("[--radius METRES]", "--radius 8"), ("[--replay]", "--replay"), ("[--report REPORT.json]",
+          ("[--passengers ID=K]...", "--passengers c0=2"), ("[--stage-spacing METRES | --stages N (default 19)]", "--stage-spacing 2"),
+          ("[--radius METRES]", "--radius 8"), ("[--replay]", "--replay"), ("[--graze-depth METRES]", "--graze-depth 0.1"),
+          ("[--literal-thresholds]", ""), ("[--report REPORT.json]",
                                                                          "--report {tmp}/myrun/syn.json")),
         S("python -m world import SOURCE --out SCENARIO.yaml ...", ("SOURCE", "{tmp}/myrun/map.yaml"),
           ("SCENARIO.yaml ...", "{tmp}/myrun/short.yaml --routes {tmp}/myrun/routes.yaml --stages 5")),
