@@ -268,7 +268,8 @@ def print_results(settings: Settings, summary: dict, out: Path, started: float) 
         told = f"coverage reward over {summary['coverage']['regions']} regions; {told}"
     print(f"total reward {summary['total_reward']:.3f} (features {summary['total_features']:.1f}); "
           f"{told}; decision round trip p50 "
-          f"{_ms(lat.get('p50'))} p99 {_ms(lat.get('p99'))}; wall {time.monotonic() - started:.1f} s")
+          f"{_ms(lat.get('p50'))} p99 {_ms(lat.get('p99'))}; wall {time.monotonic() - started:.1f} s "
+          f"(the whole run; the coordinator's {summary.get('wall_time_s', 0.0):.1f} s is summary.json's wall_time_s)")
     print(f"results: {out}/summary.json, mission.db, merged_log.jsonl"
           + ("" if f.no_record else ", ros2bag/" if f.mcap_profile == "ros2" else ", mission.mcap")
           + ("" if f.no_map else ", map.png"))

@@ -22,6 +22,12 @@ from .state import MissionState
 BOUND_SEARCH_S = 1.0
 
 
+#: What summary.json's ``wall_time_s`` measures (written beside it).
+WALL_TIME_MEANING = ("seconds from the coordinator's start to its summary: the mission as the coordinator saw it; "
+                     "the one-host launcher's 'wall' also counts starting the processes, the carriers' exit and "
+                     "the report")
+
+
 @dataclass(frozen=True)
 class RunInfo:
     """The coordinator process's own facts for summary.json.
@@ -150,7 +156,8 @@ def summary(state: MissionState, problem, run: RunInfo, bound: bool = True) -> d
                          "x": None if math.isnan(x[r, j]) else float(x[r, j]),
                          "position": list(state.deployment_position(cid, int(j))),
                          "by": "carrier" if (cid, int(j)) in state.accounts else "coordinator",
-                         "reward": float(raw[r, j] / problem.scale), "features": float(raw[r, j])})
+                         "reward": float(raw[r, j] / problem.scale), "features": float(raw[r, j]),
+                         "features_over_p": float(raw[r, j])})
             if typed:  # passenger types: which passenger (index, type name, value) went here
                 i = int(released[r, j])
                 names = run.passenger_types[r] if r < len(run.passenger_types) else ()
@@ -190,6 +197,7 @@ def summary(state: MissionState, problem, run: RunInfo, bound: bool = True) -> d
         "clairvoyant": clair,
         **({} if upper is None else {"upper_bound": upper}),
         "wall_time_s": float(run.wall_time_s),
+        "wall_time_meaning": WALL_TIME_MEANING,
         "latency_ms": {"p50": percentile(latencies, 50), "p99": percentile(latencies, 99),
                        "count": len(latencies),
                        "meaning": "decision publication to carrier confirmation, coordinator clock"},

@@ -400,7 +400,9 @@ def planner_settings(scenario: Any, name: str | None = None, iterations: int | N
 
 
 def used_options(name: str, options: Mapping[str, Any]) -> dict[str, Any]:
-    """The options planner ``name`` uses, checked: the others, and ``None`` values, are dropped.
+    """The options planner ``name`` uses, checked: the others, and ``None`` values, are dropped; a
+    plug-in's own options that were not given are there with their defaults, so that a run's
+    recorded options (summary.json's ``planner_options``, mission.db) reproduce it.
 
     Raises:
         ValueError: unknown name or option, or a value out of type or range (one line).
@@ -421,6 +423,9 @@ def used_options(name: str, options: Mapping[str, Any]) -> dict[str, Any]:
             used[key] = option.check(value)
         except ValueError as err:
             raise ValueError(f"{whose}{key} must be {err}, got {value!r}") from None
+    for option in found.own:  # a plug-in's own options it was not given: their defaults, recorded
+        if used.get(option.name) is None and option.default is not None:
+            used[option.name] = option.default
     if used.get("learn_prior") is False:
         used.pop("learn_prior")  # the default: today's planner exactly, and today's recorded options
     return used
