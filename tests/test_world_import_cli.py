@@ -302,3 +302,20 @@ def test_too_many_passengers_are_blamed_where_they_were_given(room, tmp_path):
         done = _run(room, "--routes", routes, "--out", out)
         assert done.returncode == 2 and done.stderr.startswith("--out: expected a file path to write"), done.stderr
         assert len(done.stderr.strip().splitlines()) == 1
+
+
+def test_radii_that_dwarf_the_map_are_warned_of_and_can_come_from_its_size(room, tmp_path):
+    rep = tmp_path / "o" / "r.json"
+    paper = _run(room, "--routes", tmp_path / "routes.yaml", "--out", tmp_path / "o" / "s.yaml", "--report", rep)
+    assert paper.returncode == 0, paper.stderr
+    warned = [line for line in paper.stdout.splitlines() if line.startswith("warning:") and "dwarf" in line]
+    assert len(warned) == 1 and "sensing radius 10 m and conflict radius 30 m" in warned[0] and "--radii map" in warned[0]
+    checked = subprocess.run([sys.executable, "-m", "world", "check", str(tmp_path / "o" / "s.yaml"), "--seeds", "2"],
+                             cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert checked.returncode == 0 and "warning: sensing radius 10 m" in checked.stdout, checked.stderr
+    sized = _run(room, "--routes", tmp_path / "routes.yaml", "--radii", "map", "--out", tmp_path / "m" / "s.yaml",
+                 "--report", tmp_path / "m" / "r.json")
+    assert sized.returncode == 0, sized.stderr
+    assert "warning: sensing" not in sized.stdout and json.loads((tmp_path / "m" / "r.json").read_text())["radius"] == 1.5
+    s = world.load_scenario(tmp_path / "m" / "s.yaml")
+    assert (s.sensing_radius, s.conflict_radius) == (1.5, 3.0)  # a quarter of the 6.2 m side, and twice that

@@ -63,6 +63,11 @@ def check(s: Scenario, seeds: int) -> str:
                      f"carrier radius {s.carrier_radius:g} m")
     lines.append(f"stages: N = {s.stages} every {s.stage_interval:g} s from t0 = {s.first_stage_time:g} s; "
                  f"sensing radius {s.sensing_radius:g} m; conflict radius {s.conflict_radius:g} m")
+    from world.stages import radii_warning
+
+    said = radii_warning(m.bounds, s.sensing_radius, s.conflict_radius)
+    if said:
+        lines.append(f"warning: {said}")
     lines.append(f"carriers: {s.n_carriers}, passengers {int(s.passengers.sum())}")
     lines.append(f"  {'id':<10} {'D':>2} {'start s':>8} {'stop s':>8} {'speed':>6} {'path m':>7}  valid stages")
     for r, c in enumerate(s.carriers):
@@ -270,6 +275,9 @@ def _import_parser(sub) -> None:
     p.add_argument("--radius", type=_positive(float), default=imp.DEFAULT_RADIUS, metavar="METRES",
                    help="the value of a point counts the frontier cells within this radius (default 10 m, the "
                         "paper's); also the scenario's sensing radius")
+    p.add_argument("--radii", choices=("paper", "map"), default="paper",
+                   help="paper (default): --radius (10 m) and --conflict-radius (3 x radius) as given; map: both "
+                        "chosen from the map's size (a quarter of its shorter side, and twice that)")
     p.add_argument("--replay", action="store_true", help="the mission observes the recorded values: each point's "
                    "value in the latest map stamped at or before its time")
     p.add_argument("--report", metavar="REPORT.json", help="write the candidate points and their values")
@@ -340,7 +348,7 @@ def _run_import(args) -> int:
         align=args.align, name=args.name, seed=args.seed, conflict_radius=args.conflict_radius,
         carrier_radius=args.carrier_radius, path_tolerance=args.path_tolerance,
         wall_tolerance=args.wall_tolerance, prior=args.prior, free_level=free, occupied_level=occupied,
-        graze_depth=args.graze_depth, literal_thresholds=args.literal_thresholds)
+        graze_depth=args.graze_depth, literal_thresholds=args.literal_thresholds, radii=args.radii)
     if args.stages is not None and args.stages < 2:
         print(f"--stages: expected an integer >= 2 (the first and last point of each route), found {args.stages}",
               file=sys.stderr)

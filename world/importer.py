@@ -26,6 +26,7 @@ import json
 import math
 import os
 import re
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
@@ -88,6 +89,7 @@ class ImportSettings:
     occupied_level: int = G.DEFAULT_OCCUPIED_LEVEL
     graze_depth: float = DEFAULT_GRAZE_DEPTH
     literal_thresholds: bool = False
+    radii: str = "paper"  # "paper": --radius and --conflict-radius as given; "map": from the map's size
 
 
 @dataclass(frozen=True)
@@ -370,6 +372,12 @@ def import_run(st: ImportSettings, progress: Callable[[str], None] = print) -> I
         stamps, order = [0.0], [0]
     for line in grid.warnings:
         progress(f"warning: {line}")
+    if st.radii == "map":  # the sensing and conflict radii from the map's size (world.stages.map_radii)
+        from world.stages import map_radii
+
+        radius, conflict = map_radii(grid.extent)
+        st = dataclasses.replace(st, radius=radius, conflict_radius=conflict)
+        progress(f"radii from the map's size: sensing {radius:g} m, conflict {conflict:g} m")
     tol = 0.5 * grid.resolution if st.path_tolerance is None else st.path_tolerance
     # the world's walls: the map's, giving way where a recorded route grazed them
     walls_grid = grid
@@ -437,6 +445,11 @@ def import_run(st: ImportSettings, progress: Callable[[str], None] = print) -> I
     segs = np.concatenate([np.column_stack([w[:-1], w[1:]]) for w in walls]) if walls else np.zeros((0, 4))
     body = st.carrier_radius if st.carrier_radius is not None else _carrier_radius(cands, segs)
     observed = np.concatenate([c.values for c in cands]) if st.replay else _sensed(cands, grid, segs, st.radius)
+    from world.stages import radii_warning
+
+    said = radii_warning(grid.extent, st.radius, 3.0 * st.radius if st.conflict_radius is None else st.conflict_radius)
+    if said:
+        progress(f"warning: {said}")
     prior = fit_prior(observed, st.prior)
     name = st.name or Path(st.out).name.split(".")[0]
     text = _scenario_text(st, name, grid, walls, cands, interval, n_stages, body, prior)
