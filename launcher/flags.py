@@ -120,7 +120,8 @@ def _view_flags(p: argparse.ArgumentParser) -> None:
     v.add_argument("--save", metavar="FILE.rrd", help="viewer: also write the stream to this rerun file")
     v.add_argument("--no-web", action="store_true", help="viewer: no web viewer (with --save: only the file)")
     v.add_argument("--linger", type=float, default=-1.0, metavar="SECONDS",
-                   help="viewer: keep serving this long after the mission ends; < 0 = until Ctrl-C (default)")
+                   help="viewer: keep serving the web view this long after the mission ends; < 0 = until Ctrl-C "
+                        "(default; the launcher says so); with --no-web the viewer exits once --save is written")
     v.add_argument("--ready-file", help=argparse.SUPPRESS)  # one-host mode: the viewer is subscribed
 
 

@@ -296,3 +296,22 @@ def test_out_naming_a_file_is_one_line(tmp_path):
             f"run_fleet.py: --out: expected a results directory (existing or new), found "
             + ("the file 'notes.txt'" if out == "notes.txt" else "'notes.txt/run' under the file 'notes.txt'")]
     assert (tmp_path / "notes.txt").read_text() == "mine\n"
+
+
+def test_a_viewer_without_its_web_view_does_not_linger():
+    from launcher.roles import viewer_linger
+
+    assert viewer_linger(flags_of(parse_args([str(TINY), "--view", "--no-web", "--save", "x.rrd"]))) == 0.0
+    assert viewer_linger(flags_of(parse_args([str(TINY), "--view"]))) < 0  # the web view: until Ctrl-C, said
+    assert viewer_linger(flags_of(parse_args([str(TINY), "--view", "--linger", "5"]))) == 5.0
+
+
+@pytest.mark.slow
+def test_the_headless_viewer_exits_with_the_mission(tmp_path):
+    """``--view --no-web --save FILE.rrd`` writes the file and the launcher exits (it waited for
+    Ctrl-C, silently)."""
+    pytest.importorskip("rerun")
+    proc = subprocess.run([sys.executable, str(ROOT / "run_fleet.py"), "tiny", "--view", "--no-web", "--save",
+                           "six.rrd", "--out", "run"], cwd=tmp_path, capture_output=True, text=True, timeout=240)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert (tmp_path / "six.rrd").stat().st_size > 10_000 and "results:" in proc.stdout
