@@ -271,8 +271,9 @@ def entry(name: Any) -> PlannerEntry:
         if found is not None:
             return found
     if not isinstance(name, str) or not name or (":" not in name and name not in _entry_points()):
-        raise ValueError(f"unknown planner {name!r}; expected one of: {', '.join(sorted(known_names()))} "
-                         f"(or package.module:Factory)")
+        names = sorted(known_names())
+        raise ValueError(f"unknown planner {name!r}{did_you_mean(name, names, cutoff=0.5)}; expected one of: "
+                         f"{', '.join(names)} (or package.module:Factory)")
     factory = _load_factory(name)
     used, own = declared_options(name, getattr(factory, "options", ()))
     found = _PLUGINS[name] = PlannerEntry(name, factory, used, own, plugin=True)
@@ -322,7 +323,8 @@ def check_settings(name: Any, options: Mapping[str, Any]) -> list[Problem]:
         opt = OPTIONS.get(key) if found is None else found.option(key)
         if opt is None:
             known = OPTIONS if found is None else found.known()
-            problems.append(Problem(key, f"a planner option ({', '.join(known)}){whose}", value))
+            problems.append(Problem(key, f"a planner option ({', '.join(known)}){whose}{did_you_mean(key, known)}",
+                                    value))
             continue
         if value is None:
             continue
@@ -346,7 +348,8 @@ def parse_option(text: str, name: str | None = None) -> tuple[str, Any]:
     opt = OPTIONS.get(key) if found is None else found.option(key)
     if not sep or opt is None:
         known = OPTIONS if found is None else found.known()
-        raise ValueError(f"expected KEY=VALUE with KEY one of {', '.join(known)}, found {text!r}")
+        hint = did_you_mean(key, known) if sep else ""
+        raise ValueError(f"expected KEY=VALUE with KEY one of {', '.join(known)}, found {text!r}{hint}")
     try:
         return key, opt.parse(raw)
     except ValueError as err:

@@ -315,3 +315,23 @@ def test_the_headless_viewer_exits_with_the_mission(tmp_path):
                            "six.rrd", "--out", "run"], cwd=tmp_path, capture_output=True, text=True, timeout=240)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert (tmp_path / "six.rrd").stat().st_size > 10_000 and "results:" in proc.stdout
+
+
+def test_a_near_miss_gets_a_did_you_mean(tiny, tmp_path):
+    _, problems = check(parse_args([str(TINY), "--planner-option", "layut=binary"]), tiny)
+    assert [p.field for p in problems] == ["--planner-option"] and "(did you mean 'layout'?)" in problems[0].line()
+    _, problems = check(parse_args([str(TINY), "--planner", "mcts-sap"]), tiny)
+    assert "(did you mean 'mcts-ssap'?)" in problems[0].line()
+    proc = subprocess.run([sys.executable, str(ROOT / "run_fleet.py"), "tiny", "--plannr", "ssap"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == EXIT_USAGE and "(did you mean '--planner'?)" in proc.stderr
+    assert "plug-in" in build_parser().format_help()  # --planner's help names the plug-ins
+
+
+def test_a_plugin_that_fails_to_import_exits_2_with_one_line(tmp_path):
+    (tmp_path / "broken_plugin.py").write_text("import no_such_module_here\n")
+    proc = subprocess.run([sys.executable, str(ROOT / "run_fleet.py"), "tiny", "--planner", "broken_plugin:F"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=120,
+                          env={**__import__("os").environ, "PYTHONPATH": f"{tmp_path}:{ROOT}"})
+    assert proc.returncode == EXIT_USAGE and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert "cannot import broken_plugin" in proc.stderr
