@@ -158,7 +158,7 @@ OUT = ("--out runs/", "--out {tmp}/runs/")
 
 SIX = "python run_fleet.py scenarios/six_carriers.yaml"
 TWO_HOSTS_COORD = (SIX + " --role coordinator --listen tcp/0.0.0.0:7447 --out runs/six-two-hosts")
-TWO_HOSTS_CARRIER = SIX + " --role carrier --carrier $c --connect tcp/192.168.1.10:7447 &"
+TWO_HOSTS_CARRIER = SIX + " --role carrier --carrier $c --connect tcp/192.168.1.10:7447 --out runs/six-two-hosts &"
 VIEWER = SIX + " --role viewer --connect tcp/192.168.1.10:7447"
 VIEW = SIX + " --view --realtime 10"
 FRESH_RUN = ("python3 -m venv .venv && . .venv/bin/activate && pip install -e . -c constraints.txt "
@@ -276,7 +276,7 @@ RUNS = [
         S(TWO_HOSTS_COORD, ("0.0.0.0:7447", "127.0.0.1:{port}"), OUT, background=True),
         S(VIEWER, ("192.168.1.10:7447", "127.0.0.1:{port}"), extra="--web-port {port2} --grpc-port {port3}",
           background=True, ready="live view", stop=True, rc=(0, 130)),
-        S(TWO_HOSTS_CARRIER, ("$c", "{c}"), ("192.168.1.10:7447", "127.0.0.1:{port}"), ("&", ""),
+        S(TWO_HOSTS_CARRIER, ("$c", "{c}"), ("192.168.1.10:7447", "127.0.0.1:{port}"), OUT, ("&", ""),
           background=True),
     ), "slow", wall_s=300, mem_mb=3500, check=_summary("runs/six-two-hosts/summary.json")),
     Run("live-view", (
