@@ -178,8 +178,26 @@ def start_carriers(fleet: Fleet) -> None:
             log_sync=f.log_sync or "normal", quiet=not f.verbose)
 
 
+def slow_links_note(settings: Settings) -> str | None:
+    """The line that tells a user a mission over acoustic links runs for minutes of wall time
+    (the fleet waits on its simulated links for real: each stage's messages queue on one
+    half-duplex channel, and a lost one is waited for up to ``decision_s``), and the fast way to
+    see the same mission; None over other links."""
+    scenario = settings.scenario
+    if scenario is None or scenario.links.model != "acoustic":
+        return None
+    wait = settings.timeouts().decision_s
+    return (f"acoustic links: the fleet waits for its messages in wall time, so this mission takes minutes "
+            f"(a lost message is waited for up to {wait:.0f} s; scenarios/marine_survey.yaml takes about 8 to 9 "
+            f"minutes); the same mission in seconds in the deterministic simulator: python -m mission.simulate "
+            f"{scenario.source or 'SCENARIO'} --seeds 0:1 --faults none --json OUT.json (its reward and deployments)")
+
+
 def announce(fleet: Fleet) -> None:
     f = fleet.settings.flags
+    note = slow_links_note(fleet.settings)
+    if note:
+        print(f"{f.name}: {note}", flush=True)
     shown = ", ".join(f"{_short(cids)} pid {p.pid}" for cids, p in fleet.carriers.items())
     coordinator, viewer = fleet.coordinator, fleet.viewer
     print(f"{f.name}: network {', '.join(fleet.connect)}"

@@ -189,6 +189,15 @@ CONFORMANCE = ("python -m wire.conformance scenarios/tiny.yaml --carrier a -- py
                "--no-autonomy --out {workdir}")
 
 
+def _marine_simulated(outputs, tmp):
+    """The simulated marine mission completes with every vessel's three passengers deployed."""
+    import json
+
+    seed = json.loads((tmp / "marine.json").read_text())["per_seed"][0]
+    assert seed["completed"] and seed["reward"] > 0 and not seed["violations"], seed
+    assert sorted(len(v) for v in seed["deployments"].values()) == [3, 3, 3], seed["deployments"]
+
+
 def _summary(path_glob, coordinator=True):
     """The run's summary.json: every carrier released all its passengers (the rule that a carrier
     must), and a coordinator, when there was one, decided every stage and ended complete."""
@@ -297,6 +306,9 @@ RUNS = [
     Run("sensed", (S("python -m tools.sensed SCENARIO --carrier ID [--seed S] [--out FILE]",
                      ("SCENARIO", "scenarios/tiny.yaml"), ("ID", "a"), ("[--seed S]", "--seed 1"),
                      ("[--out FILE]", "--out {tmp}/sensed.json")),), "default", wall_s=60, mem_mb=800),
+    Run("marine-simulated", (S("python -m mission.simulate scenarios/marine_survey.yaml --seeds 0:1 --faults none "
+                               "--json marine.json", ("marine.json", "{tmp}/marine.json")),), "default", wall_s=90,
+        mem_mb=1500, check=_marine_simulated),
     Run("world-check", (S("python -m world check SCENARIO.yaml [--seeds 200]", ("SCENARIO.yaml", "scenarios/tiny.yaml"),
                           ("[--seeds 200]", "--seeds 200")),), "default", wall_s=90, mem_mb=800),
     Run("world-render", (S("python -m world render SCENARIO.yaml -o map.png [--trajectories] [--seed S] "

@@ -335,3 +335,15 @@ def test_a_plugin_that_fails_to_import_exits_2_with_one_line(tmp_path):
                           env={**__import__("os").environ, "PYTHONPATH": f"{tmp_path}:{ROOT}"})
     assert proc.returncode == EXIT_USAGE and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
     assert "cannot import broken_plugin" in proc.stderr
+
+
+def test_a_mission_over_acoustic_links_says_it_takes_minutes_and_the_fast_way(tiny):
+    from launcher.supervisor import slow_links_note
+
+    marine = world.load_scenario(ROOT / "scenarios" / "marine_survey.yaml")
+    settings, problems = check(parse_args([str(ROOT / "scenarios" / "marine_survey.yaml")]), marine)
+    assert not problems
+    note = slow_links_note(settings)
+    assert note and "minutes" in note and "python -m mission.simulate" in note and "marine_survey.yaml" in note
+    plain, _ = check(parse_args([str(TINY)]), tiny)
+    assert slow_links_note(plain) is None
