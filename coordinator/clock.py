@@ -147,11 +147,12 @@ class StageClock:
             if self.spec.valid[r][j]:
                 value = st.reported.get((cid, j))
                 obs.append(f"{cid}={'∅' if value is None else value}")
-        # Confirmations of the previous stage's deployments (stage numbers 1-based, as printed).
+        # Confirmations of the previous stage's deployments. Stage numbers count from 0 everywhere
+        # (the wire, summary.json, map.png and this line): stage j of 0..N-1.
         confirmed = sorted(cid for (cid, jj), conf in st.confirms.items() if jj == j - 1 and conf.deployed)
         self.log(
-            f"stage {j + 1:>3}/{self.spec.n_stages} t={self.spec.stage_times[j]:7.1f} s | obs {' '.join(obs) or '-'} | "
-            f"deploy {' '.join(d.deploy) or '-'} | plan {d.planning_ms:7.1f} ms | "
+            f"stage {j:>3} of 0..{self.spec.n_stages - 1} t={self.spec.stage_times[j]:7.1f} s | "
+            f"obs {' '.join(obs) or '-'} | deploy {' '.join(d.deploy) or '-'} | plan {d.planning_ms:7.1f} ms | "
             f"wait {waited_ms:6.0f} ms"
-            + (f" | deployed@{j}: {' '.join(confirmed) or '-'}" if j > 0 else "")
+            + (f" | deployed@{j - 1}: {' '.join(confirmed) or '-'}" if j > 0 else "")
         )

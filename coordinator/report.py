@@ -161,7 +161,7 @@ def run_report(scenario, out, mission: str | None = None, seed: int | None = Non
         ReportError: the report cannot be made (nothing is written).
     """
     from world import build_problem
-    from coordinator.results import render_map, write_json
+    from coordinator.results import render_map, result_line, write_json
     from mission.coverage import spec_options
     from mission.state import MissionSpec
     from mission.summary import RunInfo, summary as mission_summary
@@ -197,6 +197,8 @@ def run_report(scenario, out, mission: str | None = None, seed: int | None = Non
     data = mission_summary(merged.state, problem, run, bound=reuse is None)
     if reuse is not None:
         data["clairvoyant"] = reuse  # a function of the observations alone, computed already
+        if previous.get("upper_bound") is not None:  # likewise (of the instance and the seed)
+            data["upper_bound"] = previous["upper_bound"]
     data = annotate(data, merged)
     if events is not None:  # the epoch of the last coordinator on record, as its own summary says
         from storage.missiondb import highest_epoch
@@ -225,7 +227,7 @@ def run_report(scenario, out, mission: str | None = None, seed: int | None = Non
     if render:
         try:
             render_map(scenario, merged.state, out / "map.png", trails=merged.trails(),
-                       title=f"{scenario.name}: {planner}, seed {scenario.seed} (report)")
+                       title=f"{scenario.name}: {planner}, seed {scenario.seed} (report)\n{result_line(data)}")
             files.append(out / "map.png")
         except Exception as exc:
             log(f"report: map.png not drawn: {type(exc).__name__}: {exc}")

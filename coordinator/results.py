@@ -33,6 +33,17 @@ def jsonable(value):
     return str(value)
 
 
+def result_line(summary: dict | None) -> str:
+    """The picture's line of results: the reward and how it stands against its bound (the
+    console's words, :func:`mission.summary.bound_text`)."""
+    from mission.summary import bound_text
+
+    if not summary:
+        return ""
+    return (f"reward {summary['total_reward']:.3f} (features {summary['total_features']:.1f}); "
+            + bound_text(summary, short=True))
+
+
 def render_map(scenario, state, path, title: str, trails: dict | None = None) -> None:
     """Draw map.png of a mission state: the deployments a carrier reported (its Confirm or its
     account: ``MissionState.confirmed_deployments``, where it released them; with passenger types
@@ -93,7 +104,7 @@ class Results:
         if node is not None:
             node.close(DEFAULTS.close_s)
         if self.render and not deposed:
-            self._render(state, out / "map.png")
+            self._render(state, out / "map.png", summary)
         store.close()
         return summary
 
@@ -110,10 +121,11 @@ class Results:
             out["deposed_by"] = epochs.deposed_by
         return out
 
-    def _render(self, state, path: Path) -> None:
+    def _render(self, state, path: Path, summary: dict | None = None) -> None:
         try:
             render_map(self.scenario, state, path,
-                       title=f"{self.scenario.name}: {self.info.planner}, seed {self.info.seed}")
+                       title=f"{self.scenario.name}: {self.info.planner}, seed {self.info.seed}\n"
+                             + result_line(summary))
         except Exception as exc:
             self.log(f"coordinator: map.png not drawn: {type(exc).__name__}: {exc}")
 

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments import bound, coverage, marine, priors, report, run, types
+from world.paths import IN_CLONE
 
 #: The columns that name a row (which task it is); the others are its outcome.
 IDENTITY = ("sweep", "case", "config", "level", "trial", "planner", "variant", "prior")
@@ -48,9 +49,9 @@ TRIALS = {"overlap": report.write_trials, "scaling": report.write_trials, "urban
 def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="python -m experiments check", description=__doc__.split("\n\n")[0],
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--out", type=Path, default=run.DEFAULT_OUT,
-                   help=f"results directory to check, with the ones below it (default "
-                        f"{run.DEFAULT_OUT_SHOWN})")
+    p.add_argument("--out", type=Path, default=run.SHIPPED_OUT if IN_CLONE else Path("results"),
+                   help="results directory to check, with the ones below it (default "
+                        + ("docs/results, the shipped results)" if IN_CLONE else "results)"))
     p.add_argument("--sample", type=int, default=2, help="tasks re-run per planner and sweep (default 2)")
     p.add_argument("--sample-seed", type=int, default=0, help="seed of the sample (default 0)")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: all cores)")

@@ -48,6 +48,12 @@ def sem(values) -> float:
     return float(v.std(ddof=1) / math.sqrt(len(v))) if len(v) > 1 else float("nan")
 
 
+def pm(mean: float, err: float, fmt: str = ".2f") -> str:
+    """``mean ± err`` as the tables write it; the mean alone when the error is not a number (one
+    trial has no standard error: never ``± nan``)."""
+    return f"{mean:{fmt}} ± {err:{fmt}}" if math.isfinite(err) else f"{mean:{fmt}}"
+
+
 def write_csv(rows: list[dict], path: Path, fields) -> None:
     """``rows`` (in their order) as a CSV of ``fields``; floats to 6 significant digits."""
     with open(path, "w", newline="") as f:
@@ -159,7 +165,7 @@ def markdown_table(summary: list[dict], level_name: str, features: bool = False)
                 parts.append("")
                 continue
             m, s = (r["features_mean"], r["features_sem"]) if features else (r["reward_mean"], r["reward_sem"])
-            text = f"{m:.2f} ± {s:.2f}"
+            text = pm(m, s)
             if p == CLAIRVOYANT:
                 if r["bound_exact"] and not r["bound_exact"].startswith(str(r["n"])):
                     text += f" (exact {r['bound_exact']}, else upper bound)"
@@ -200,7 +206,7 @@ def paired_table(rows: list[dict], a: str, others: list[str], level_name: str, l
         cells = []
         for o in others:
             d = tables[o].get(k)
-            cells.append("" if d is None else f"{d['mean']:+.3f} ± {d['sem']:.3f} ({d['wins']}/{d['losses']})")
+            cells.append("" if d is None else f"{pm(d['mean'], d['sem'], '+.3f')} ({d['wins']}/{d['losses']})")
         lines.append(f"| {level_label(k[1])} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 

@@ -19,8 +19,9 @@ Usage::
 (experiments.bound), ``coverage`` (experiments.coverage) and ``marine`` (experiments.marine) are not
 part of ``all``.
 
-Each sweep writes to ``--out`` (default ``docs/results``; ``--quick`` runs default to a temporary
-directory so they never overwrite the committed results): ``<sweep>_trials.csv`` (one row per
+Each sweep writes to ``--out`` (default: a fresh folder ``results/<experiment>-<timestamp>`` under
+the current directory, ``--quick`` runs a temporary directory, so that a run never overwrites the
+committed results; ``--out docs/results`` updates them): ``<sweep>_trials.csv`` (one row per
 planner and trial, with the deployments), ``<sweep>_summary.csv`` (mean ± standard error, fraction
 of the clairvoyant bound), ``<sweep>.md`` (the tables), ``<sweep>.png`` (±1 SEM error bars), and
 ``run_info.json`` (settings, wall times). The urban run also draws ``urban_map_<planner>.png``.
@@ -47,13 +48,14 @@ from pathlib import Path
 from experiments import bound, coverage, marine, priors, report, types
 from experiments.trials import CLAIRVOYANT, Sweep, Task, decode, run_trial, urban_trial, warm_up_worker
 from planner.settings import DEFAULT_ITERATIONS
-from world.paths import IN_CLONE, REPO_ROOT as ROOT
+from world.paths import REPO_ROOT as ROOT
 
-#: Default output directory: a clone's docs/results (docs/results.md links the files there); from
-#: an installed wheel, results/ under the current directory (never inside site-packages).
-DEFAULT_OUT = ROOT / "docs" / "results" if IN_CLONE else Path("results")
-#: How ``--help`` names it.
-DEFAULT_OUT_SHOWN = "docs/results" if IN_CLONE else "results"
+#: The results shipped with a clone (docs/results.md links the files there): written only when
+#: named by ``--out``; by default a run writes a fresh folder under the current directory
+#: (:func:`fresh_out`), so it never overwrites them.
+SHIPPED_OUT = ROOT / "docs" / "results"
+#: How ``--help`` names the default.
+DEFAULT_OUT_SHOWN = "results/<experiment>-<timestamp> under the current directory"
 DEFAULT_SCENARIO = ROOT / "scenarios" / "urban_alpha.yaml"
 #: The paper's four planners, plus ours.
 DEFAULT_PLANNERS = ("mcts-ssap", "mcts-random", "ssap", "random", "closed-loop")
@@ -96,6 +98,27 @@ QUICK_OUT = Path(tempfile.gettempdir()) / "marsupial-experiments-quick"
 
 class UsageError(Exception):
     """Bad command-line value; reported as one line with exit code 2."""
+
+
+def fresh_out(what: str) -> Path:
+    """A new folder ``results/<what>-<YYYYmmdd-HHMMSS>`` under the current directory (``-2``,
+    ``-3``, ... when one of that name exists)."""
+    base = Path("results") / f"{what}-{time.strftime('%Y%m%d-%H%M%S')}"
+    out, k = base, 1
+    while out.exists():
+        k += 1
+        out = base.with_name(f"{base.name}-{k}")
+    return out
+
+
+def paper_scenario(path: Path) -> bool:
+    """Whether ``path`` is the paper's Urban Circuit scenario (the only one the paper's column
+    compares with)."""
+    try:
+        return Path(path).resolve() == DEFAULT_SCENARIO.resolve() or \
+            Path(path).read_bytes() == DEFAULT_SCENARIO.read_bytes()
+    except OSError:
+        return False
 
 
 def _int_list(text: str, what: str, minimum: int) -> tuple[int, ...]:
@@ -400,6 +423,7 @@ def _urban_report(rows, summary, out: Path, s: dict, args) -> list[str]:
     import world
 
     scenario = world.load_scenario(args.scenario)
+    paper_run = paper_scenario(args.scenario)  # the paper's column only against the paper's scenario
     trace = world.simulate_mission(scenario)
     n_carriers, n_stages = scenario.n_carriers, scenario.stages
     maps = []
@@ -422,21 +446,23 @@ def _urban_report(rows, summary, out: Path, s: dict, args) -> list[str]:
                 "import --replay`): every world seed observes the same values, and the seeds vary only the "
                 "planners' random streams; the maps draw the occupancy grid under the routes."
                 if scenario.replays else ""), "",
-             "| planner | features (mean ± SEM) | seed 0 | paper | ratio to SSAP (ours / paper) | ratio to Random (ours / paper) |",
-             "|---|---|---|---|---|---|"]
+             *(("| planner | features (mean ± SEM) | seed 0 | paper | ratio to SSAP (ours / paper) "
+                "| ratio to Random (ours / paper) |", "|---|---|---|---|---|---|") if paper_run else
+               ("| planner | features (mean ± SEM) | seed 0 | ratio to SSAP | ratio to Random |",
+                "|---|---|---|---|---|"))]
     seeds_label = lambda _level: f"all {s['urban_trials']}"  # noqa: E731
     base_ssap = np.mean(feats.get("ssap", [np.nan]))
     base_rand = np.mean(feats.get("random", [np.nan]))
     for p in sorted(feats, key=report.planner_order):
         v = np.asarray(feats[p])
-        paper = PAPER_URBAN.get(p)
+        paper = PAPER_URBAN.get(p) if paper_run else None
         r_ssap = (f"{v.mean() / base_ssap:.2f}" if np.isfinite(base_ssap) else "–") + (
             f" / {paper / PAPER_URBAN['ssap']:.2f}" if paper else "")
         r_rand = (f"{v.mean() / base_rand:.2f}" if np.isfinite(base_rand) else "–") + (
             f" / {paper / PAPER_URBAN['random']:.2f}" if paper else "")
         label = report.STYLE.get(p, (p,))[0]
-        lines.append(f"| {label} | {v.mean():.2f} ± {report.sem(v):.2f} | {v[0]:.2f} | {paper if paper else '–'} "
-                     f"| {r_ssap} | {r_rand} |")
+        lines.append(f"| {label} | {report.pm(v.mean(), report.sem(v))} | {v[0]:.2f} | "
+                     + (f"{paper if paper else '–'} | " if paper_run else "") + f"{r_ssap} | {r_rand} |")
     lines += ["", "Paired differences in normalised reward on the same world seeds (mean ± SEM, wins/losses):", "",
               report.paired_table(rows, "closed-loop", ["mcts-ssap", "ssap"], "world seeds", seeds_label), "",
               report.paired_table(rows, "mcts-ssap", ["mcts-random", "ssap", "random"], "world seeds", seeds_label), "",
@@ -486,7 +512,15 @@ def main(argv=None) -> int:
     except UsageError as err:
         print(f"python -m experiments: error: {err}", file=sys.stderr)
         return 2
-    out = args.out if args.out is not None else (QUICK_OUT if args.quick else DEFAULT_OUT)
+    if args.report_only and args.out is None:
+        print("python -m experiments: error: --report-only: expected --out DIR (the results to redraw, e.g. "
+              "docs/results), found none", file=sys.stderr)
+        return 2
+    out = args.out if args.out is not None else (QUICK_OUT if args.quick else fresh_out(args.what))
+    if out.exists() and not out.is_dir() or any(p.exists() and not p.is_dir() for p in out.parents):
+        print(f"python -m experiments: error: --out: expected a results directory (existing or new), found "
+              f"{str(out)!r}, a file or under one", file=sys.stderr)
+        return 2
     args.out = out
     out.mkdir(parents=True, exist_ok=True)
     sweeps = ("overlap", "scaling", "urban") if args.what == "all" else (args.what,)

@@ -23,10 +23,24 @@ EXAMPLES = """\
     python run_fleet.py S.yaml --role report --out runs/m1          # results from whatever logs exist"""
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, with "did you mean" for a misspelt flag (``--plannr`` -> ``--planner``)."""
+
+    def error(self, message: str):
+        from validation import did_you_mean
+
+        if message.startswith("unrecognized arguments: "):
+            flags = [o for a in self._actions for o in a.option_strings if o.startswith("--")]
+            hints = [did_you_mean(w.split("=")[0], flags, cutoff=0.7)
+                     for w in message.split(": ", 1)[1].split() if w.startswith("--")]
+            message += "".join(h for h in hints if h)
+        super().error(message)
+
+
 def build_parser(prog: str = NAME, name: str = NAME) -> argparse.ArgumentParser:
     """The launcher's parser, shown as ``prog`` in usage lines; ``name`` is the default of the
     hidden ``--name`` (what the messages start with)."""
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog=prog, description="Run a marsupial fleet mission over Zenoh.",
         formatter_class=argparse.RawDescriptionHelpFormatter, epilog=EXAMPLES)
     # The order of the calls is the order of --help (the main group's flags, then the groups).
@@ -76,7 +90,10 @@ def _mission_flags(p: argparse.ArgumentParser) -> None:
     """The planner, the seed, the clock, the mission id and where its results go."""
     from mission.timeouts import CLOCKS
 
-    p.add_argument("--planner", help="planner name (overrides the scenario)")
+    p.add_argument("--planner", help="planner name (overrides the scenario): a built-in (random, ssap, mcts-random, "
+                                      "mcts-ssap, closed-loop, ...), an installed plug-in's entry-point name, or a "
+                                      "plug-in as package.module:Factory (docs/planner.md, \"Writing a planner "
+                                      "plug-in\")")
     p.add_argument("--iterations", type=int, help="MCTS iterations per stage (overrides the scenario)")
     p.add_argument("--plan-ms", type=float, help="MCTS time budget per stage, ms (overrides the scenario)")
     p.add_argument("--planner-option", action="append", default=[], metavar="KEY=VALUE",
@@ -120,7 +137,8 @@ def _view_flags(p: argparse.ArgumentParser) -> None:
     v.add_argument("--save", metavar="FILE.rrd", help="viewer: also write the stream to this rerun file")
     v.add_argument("--no-web", action="store_true", help="viewer: no web viewer (with --save: only the file)")
     v.add_argument("--linger", type=float, default=-1.0, metavar="SECONDS",
-                   help="viewer: keep serving this long after the mission ends; < 0 = until Ctrl-C (default)")
+                   help="viewer: keep serving the web view this long after the mission ends; < 0 = until Ctrl-C "
+                        "(default; the launcher says so); with --no-web the viewer exits once --save is written")
     v.add_argument("--ready-file", help=argparse.SUPPRESS)  # one-host mode: the viewer is subscribed
 
 

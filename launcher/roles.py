@@ -131,6 +131,13 @@ def report(settings: Settings, stop: threading.Event | None = None) -> int:
     return 0
 
 
+def viewer_linger(f) -> float:
+    """How long the viewer serves after the mission ends (s; < 0: until Ctrl-C): ``--linger``,
+    except that a viewer without its web view (``--no-web``, the file of ``--save`` only) has
+    nothing left to serve and exits once the file is written."""
+    return 0.0 if f.no_web else f.linger
+
+
 def viewer(settings: Settings, stop: threading.Event) -> int:
     """A passive live view in rerun (viewer/node.py) until the mission ends and ``--linger``."""
     from viewer.node import Viewer, ViewerConfig
@@ -138,8 +145,8 @@ def viewer(settings: Settings, stop: threading.Event) -> int:
     f = settings.flags
     view = Viewer(settings.scenario, ViewerConfig(
         mission=f.mission, seed=f.seed, web=not f.no_web, web_port=f.web_port, grpc_port=f.grpc_port,
-        save=f.save, linger_s=f.linger, open_timeout_s=settings.timeouts().coordinator_s, ready_file=f.ready_file),
-        zenoh_config(f, "viewer"), stop=stop)
+        save=f.save, linger_s=viewer_linger(f), open_timeout_s=settings.timeouts().coordinator_s,
+        ready_file=f.ready_file), zenoh_config(f, "viewer"), stop=stop)
     try:
         return view.run()
     except RuntimeError as exc:  # the rerun server could not start (a port in use, no binary)

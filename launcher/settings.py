@@ -179,6 +179,11 @@ def _roles(f) -> list[Problem]:
         out.append(Problem("--standby", "--role coordinator", Found(f"--role {f.role}")))
     if f.role == "report" and not f.out:
         out.append(Problem("--out", "DIR with --role report (the results directory to read)", Found("nothing")))
+    if f.out and Path(f.out).exists() and not Path(f.out).is_dir():
+        out.append(Problem("--out", "a results directory (existing or new)", Found(f"the file {f.out!r}")))
+    elif f.out and any(p.exists() and not p.is_dir() for p in Path(f.out).parents):
+        parent = next(p for p in Path(f.out).parents if p.exists() and not p.is_dir())
+        out.append(Problem("--out", "a results directory (existing or new)", Found(f"{f.out!r} under the file {str(parent)!r}")))
     return out
 
 

@@ -178,8 +178,26 @@ def start_carriers(fleet: Fleet) -> None:
             log_sync=f.log_sync or "normal", quiet=not f.verbose)
 
 
+def slow_links_note(settings: Settings) -> str | None:
+    """The line that tells a user a mission over acoustic links runs for minutes of wall time
+    (the fleet waits on its simulated links for real: each stage's messages queue on one
+    half-duplex channel, and a lost one is waited for up to ``decision_s``), and the fast way to
+    see the same mission; None over other links."""
+    scenario = settings.scenario
+    if scenario is None or scenario.links.model != "acoustic":
+        return None
+    wait = settings.timeouts().decision_s
+    return (f"acoustic links: the fleet waits for its messages in wall time, so this mission takes minutes "
+            f"(a lost message is waited for up to {wait:.0f} s; scenarios/marine_survey.yaml takes about 8 to 9 "
+            f"minutes); the same mission in seconds in the deterministic simulator: python -m mission.simulate "
+            f"{scenario.source or 'SCENARIO'} --seeds 0:1 --faults none --json OUT.json (its reward and deployments)")
+
+
 def announce(fleet: Fleet) -> None:
     f = fleet.settings.flags
+    note = slow_links_note(fleet.settings)
+    if note:
+        print(f"{f.name}: {note}", flush=True)
     shown = ", ".join(f"{_short(cids)} pid {p.pid}" for cids, p in fleet.carriers.items())
     coordinator, viewer = fleet.coordinator, fleet.viewer
     print(f"{f.name}: network {', '.join(fleet.connect)}"
@@ -260,15 +278,16 @@ def finish(fleet: Fleet, code: int, started: float, stop: threading.Event) -> in
 
 def print_results(settings: Settings, summary: dict, out: Path, started: float) -> None:
     f = settings.flags
-    bound = summary.get("clairvoyant") or {}  # None: the coordinator was stopped before the bound
+    from mission.summary import bound_text
+
     lat = summary.get("latency_ms", {})
-    told = (f"clairvoyant {'optimum' if bound.get('exact') else 'bound'} {bound.get('reward', float('nan')):.3f} "
-            f"({(bound.get('fraction') or 0) * 100:.0f}%)")
+    told = bound_text(summary)  # a percentage only against a bound that means one
     if summary.get("reward") == "coverage":  # the features in the union of the discs (maximum coverage bound)
         told = f"coverage reward over {summary['coverage']['regions']} regions; {told}"
     print(f"total reward {summary['total_reward']:.3f} (features {summary['total_features']:.1f}); "
           f"{told}; decision round trip p50 "
-          f"{_ms(lat.get('p50'))} p99 {_ms(lat.get('p99'))}; wall {time.monotonic() - started:.1f} s")
+          f"{_ms(lat.get('p50'))} p99 {_ms(lat.get('p99'))}; wall {time.monotonic() - started:.1f} s "
+          f"(the whole run; the coordinator's {summary.get('wall_time_s', 0.0):.1f} s is summary.json's wall_time_s)")
     print(f"results: {out}/summary.json, mission.db, merged_log.jsonl"
           + ("" if f.no_record else ", ros2bag/" if f.mcap_profile == "ros2" else ", mission.mcap")
           + ("" if f.no_map else ", map.png"))

@@ -641,8 +641,8 @@ def plan(problem: Problem, budget_s: float = DEFAULT_BUDGET_S, samples: int = DE
         fit = min(samples, int(budget_s // per) - pilot if per > 0 else samples)
         if fit >= MIN_SAMPLES:
             return method, fit
-    raise BoundTooLarge(f"upper bound: {MIN_SAMPLES} samples by lp would take about "
-                        f"{estimate_seconds(problem, 'lp', MIN_SAMPLES):.3g} s, beyond the {budget_s:g} s budget "
+    raise BoundTooLarge(f"upper bound: {MIN_SAMPLES} samples by lp after the {pilot}-sample pilot would take about "
+                        f"{estimate_seconds(problem, 'lp', MIN_SAMPLES + pilot):.3g} s, beyond the {budget_s:g} s budget "
                         f"(R={problem.n_carriers}, N={problem.n_stages})")
 
 

@@ -271,8 +271,9 @@ def entry(name: Any) -> PlannerEntry:
         if found is not None:
             return found
     if not isinstance(name, str) or not name or (":" not in name and name not in _entry_points()):
-        raise ValueError(f"unknown planner {name!r}; expected one of: {', '.join(sorted(known_names()))} "
-                         f"(or package.module:Factory)")
+        names = sorted(known_names())
+        raise ValueError(f"unknown planner {name!r}{did_you_mean(name, names, cutoff=0.5)}; expected one of: "
+                         f"{', '.join(names)} (or package.module:Factory)")
     factory = _load_factory(name)
     used, own = declared_options(name, getattr(factory, "options", ()))
     found = _PLUGINS[name] = PlannerEntry(name, factory, used, own, plugin=True)
@@ -322,7 +323,8 @@ def check_settings(name: Any, options: Mapping[str, Any]) -> list[Problem]:
         opt = OPTIONS.get(key) if found is None else found.option(key)
         if opt is None:
             known = OPTIONS if found is None else found.known()
-            problems.append(Problem(key, f"a planner option ({', '.join(known)}){whose}", value))
+            problems.append(Problem(key, f"a planner option ({', '.join(known)}){whose}{did_you_mean(key, known)}",
+                                    value))
             continue
         if value is None:
             continue
@@ -346,7 +348,8 @@ def parse_option(text: str, name: str | None = None) -> tuple[str, Any]:
     opt = OPTIONS.get(key) if found is None else found.option(key)
     if not sep or opt is None:
         known = OPTIONS if found is None else found.known()
-        raise ValueError(f"expected KEY=VALUE with KEY one of {', '.join(known)}, found {text!r}")
+        hint = did_you_mean(key, known) if sep else ""
+        raise ValueError(f"expected KEY=VALUE with KEY one of {', '.join(known)}, found {text!r}{hint}")
     try:
         return key, opt.parse(raw)
     except ValueError as err:
@@ -400,7 +403,9 @@ def planner_settings(scenario: Any, name: str | None = None, iterations: int | N
 
 
 def used_options(name: str, options: Mapping[str, Any]) -> dict[str, Any]:
-    """The options planner ``name`` uses, checked: the others, and ``None`` values, are dropped.
+    """The options planner ``name`` uses, checked: the others, and ``None`` values, are dropped; a
+    plug-in's own options that were not given are there with their defaults, so that a run's
+    recorded options (summary.json's ``planner_options``, mission.db) reproduce it.
 
     Raises:
         ValueError: unknown name or option, or a value out of type or range (one line).
@@ -421,6 +426,9 @@ def used_options(name: str, options: Mapping[str, Any]) -> dict[str, Any]:
             used[key] = option.check(value)
         except ValueError as err:
             raise ValueError(f"{whose}{key} must be {err}, got {value!r}") from None
+    for option in found.own:  # a plug-in's own options it was not given: their defaults, recorded
+        if used.get(option.name) is None and option.default is not None:
+            used[option.name] = option.default
     if used.get("learn_prior") is False:
         used.pop("learn_prior")  # the default: today's planner exactly, and today's recorded options
     return used

@@ -158,7 +158,7 @@ OUT = ("--out runs/", "--out {tmp}/runs/")
 
 SIX = "python run_fleet.py scenarios/six_carriers.yaml"
 TWO_HOSTS_COORD = (SIX + " --role coordinator --listen tcp/0.0.0.0:7447 --out runs/six-two-hosts")
-TWO_HOSTS_CARRIER = SIX + " --role carrier --carrier $c --connect tcp/192.168.1.10:7447 &"
+TWO_HOSTS_CARRIER = SIX + " --role carrier --carrier $c --connect tcp/192.168.1.10:7447 --out runs/six-two-hosts &"
 VIEWER = SIX + " --role viewer --connect tcp/192.168.1.10:7447"
 VIEW = SIX + " --view --realtime 10"
 FRESH_RUN = ("python3 -m venv .venv && . .venv/bin/activate && pip install -e . -c constraints.txt "
@@ -187,6 +187,15 @@ SOLVE = "python -m planner.cli.solve INSTANCE.json --planner NAME [--iterations 
 CONFORMANCE = ("python -m wire.conformance scenarios/tiny.yaml --carrier a -- python run_fleet.py {scenario} "
                "--role carrier --carrier {carrier} --connect {endpoint} --seed {seed} --mission {mission} "
                "--no-autonomy --out {workdir}")
+
+
+def _marine_simulated(outputs, tmp):
+    """The simulated marine mission completes with every vessel's three passengers deployed."""
+    import json
+
+    seed = json.loads((tmp / "marine.json").read_text())["per_seed"][0]
+    assert seed["completed"] and seed["reward"] > 0 and not seed["violations"], seed
+    assert sorted(len(v) for v in seed["deployments"].values()) == [3, 3, 3], seed["deployments"]
 
 
 def _summary(path_glob, coordinator=True):
@@ -276,7 +285,7 @@ RUNS = [
         S(TWO_HOSTS_COORD, ("0.0.0.0:7447", "127.0.0.1:{port}"), OUT, background=True),
         S(VIEWER, ("192.168.1.10:7447", "127.0.0.1:{port}"), extra="--web-port {port2} --grpc-port {port3}",
           background=True, ready="live view", stop=True, rc=(0, 130)),
-        S(TWO_HOSTS_CARRIER, ("$c", "{c}"), ("192.168.1.10:7447", "127.0.0.1:{port}"), ("&", ""),
+        S(TWO_HOSTS_CARRIER, ("$c", "{c}"), ("192.168.1.10:7447", "127.0.0.1:{port}"), OUT, ("&", ""),
           background=True),
     ), "slow", wall_s=300, mem_mb=3500, check=_summary("runs/six-two-hosts/summary.json")),
     Run("live-view", (
@@ -297,6 +306,9 @@ RUNS = [
     Run("sensed", (S("python -m tools.sensed SCENARIO --carrier ID [--seed S] [--out FILE]",
                      ("SCENARIO", "scenarios/tiny.yaml"), ("ID", "a"), ("[--seed S]", "--seed 1"),
                      ("[--out FILE]", "--out {tmp}/sensed.json")),), "default", wall_s=60, mem_mb=800),
+    Run("marine-simulated", (S("python -m mission.simulate scenarios/marine_survey.yaml --seeds 0:1 --faults none "
+                               "--json marine.json", ("marine.json", "{tmp}/marine.json")),), "default", wall_s=90,
+        mem_mb=1500, check=_marine_simulated),
     Run("world-check", (S("python -m world check SCENARIO.yaml [--seeds 200]", ("SCENARIO.yaml", "scenarios/tiny.yaml"),
                           ("[--seeds 200]", "--seeds 200")),), "default", wall_s=90, mem_mb=800),
     Run("world-render", (S("python -m world render SCENARIO.yaml -o map.png [--trajectories] [--seed S] "
@@ -337,7 +349,7 @@ RUNS = [
     Run("experiments-quick", (S("python -m experiments all --quick"),), "slow", wall_s=600, mem_mb=3000),
     Run("report-only", (
         Step(None, raw="cp -r docs/results {tmp}/results"),
-        S("python -m experiments all --report-only", extra="--out {tmp}/results"),
+        S("python -m experiments all --report-only --out docs/results", ("docs/results", "{tmp}/results")),
     ), "slow", wall_s=240, mem_mb=1500),
     Run("experiments-check", (S("python -m experiments check"),), "slow", wall_s=900, mem_mb=3000),
     Run("bench-full", (S("python -m coordinator.bench"),), "heavy", wall_s=3600, mem_mb=4000),
@@ -393,7 +405,7 @@ RUNS = [
         wall_s=900, mem_mb=3000, check=_reproduces(("docs/results/marine_trials.csv", "marine/marine_trials.csv"))),
     Run("coverage-report-only", (
         Step(None, raw="cp -r docs/results {tmp}/results"),
-        S("python -m experiments coverage --report-only", extra="--out {tmp}/results"),
+        S("python -m experiments coverage --report-only --out docs/results", ("docs/results", "{tmp}/results")),
     ), "slow", wall_s=240, mem_mb=1500),
     Run("base-policy-4", (S("python -m tools.base_policy --carriers 4 --trials 60-99"),), "slow", wall_s=600,
         mem_mb=2000),
@@ -439,8 +451,8 @@ IMPORT_REPLAY = ("python -m world import /tmp/myrun/bag --odom c0=/c0/odom --odo
 IMPORT_STATIC = ("python -m world import /tmp/myrun/map.yaml --routes /tmp/myrun/routes.yaml --stage-spacing 2 "
                  "--out /tmp/myrun/static.yaml")
 IMPORT_SYNOPSIS = ("python -m world import SOURCE --out SCENARIO.yaml [--routes ROUTES.yaml] [--map-topic TOPIC] "
-                   "[--odom ID=TOPIC]... [--passengers ID=K]... [--stage-spacing METRES | --stages N] "
-                   "[--radius METRES] [--replay] [--report REPORT.json]")
+                   "[--odom ID=TOPIC]... [--passengers ID=K]... [--stage-spacing METRES | --stages N (default 19)] "
+                   "[--radius METRES] [--replay] [--graze-depth METRES] [--literal-thresholds] [--report REPORT.json]")
 URBAN_IMPORTED = "python -m experiments urban --scenario /tmp/myrun/run.yaml --quick --out /tmp/myrun/urban"
 
 
@@ -469,8 +481,9 @@ RUNS += [
         S(IMPORT_SYNOPSIS, ("SOURCE", "{tmp}/myrun/bag"), ("SCENARIO.yaml", "{tmp}/myrun/syn.yaml"),
           ("[--routes ROUTES.yaml] ", ""), ("[--map-topic TOPIC]", "--map-topic /map"),
           ("[--odom ID=TOPIC]...", "--odom c0=/c0/odom --odom c1=/c1/pose --odom c2=/c2/odom"),
-          ("[--passengers ID=K]...", "--passengers c0=2"), ("[--stage-spacing METRES | --stages N]", "--stage-spacing 2"),
-          ("[--radius METRES]", "--radius 8"), ("[--replay]", "--replay"), ("[--report REPORT.json]",
+          ("[--passengers ID=K]...", "--passengers c0=2"), ("[--stage-spacing METRES | --stages N (default 19)]", "--stage-spacing 2"),
+          ("[--radius METRES]", "--radius 8"), ("[--replay]", "--replay"), ("[--graze-depth METRES]", "--graze-depth 0.1"),
+          ("[--literal-thresholds]", ""), ("[--report REPORT.json]",
                                                                          "--report {tmp}/myrun/syn.json")),
         S("python -m world import SOURCE --out SCENARIO.yaml ...", ("SOURCE", "{tmp}/myrun/map.yaml"),
           ("SCENARIO.yaml ...", "{tmp}/myrun/short.yaml --routes {tmp}/myrun/routes.yaml --stages 5")),

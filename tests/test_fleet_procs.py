@@ -44,7 +44,7 @@ def test_run_fleet_on_one_host(tiny, tmp_path):
                           capture_output=True, text=True, timeout=180, cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "Traceback" not in proc.stderr
-    assert all(f"stage {j + 1:>3}/{tiny.stages}" in proc.stdout for j in range(tiny.stages))
+    assert all(f"stage {j:>3} of 0..{tiny.stages - 1} " in proc.stdout for j in range(tiny.stages))
     assert (out / "mission.db").exists() and (out / "map.png").stat().st_size > 10_000
     summary = json.loads((out / "summary.json").read_text())
     for field in ("scenario", "planner", "seed", "stages", "carriers", "total_reward", "total_features",
@@ -57,6 +57,10 @@ def test_run_fleet_on_one_host(tiny, tmp_path):
         for dep in carrier["deployments"]:
             assert set(dep) >= {"stage", "x", "position", "reward"}
     assert summary["latency_ms"]["p50"] is not None and summary["latency_ms"]["p99"] >= summary["latency_ms"]["p50"]
+    # one stage-number convention: the console's stage j is summary.json's stage j
+    lines = {int(line.split()[1]): line for line in proc.stdout.splitlines() if line.startswith("stage ")}
+    for j, deploy in enumerate(summary["decisions"]):
+        assert f"| deploy {' '.join(deploy) or '-'} |" in lines[j], (j, lines[j])
     reference, _ = offline(tiny)
     np.testing.assert_array_equal(deployed_matrix(summary, tiny), reference.deployed)
     assert summary["total_reward"] == pytest.approx(reference.reward)
@@ -104,7 +108,7 @@ def test_killed_carrier_becomes_empty_and_the_mission_completes(tiny, tmp_path):
     carriers = {cid: _role("carrier", ["--carrier", cid, "--connect", endpoint, *timing])
                 for cid in tiny.carrier_ids}
     try:
-        _read_until(coordinator, f"stage   2/{tiny.stages}", 120)  # stage index 1 is decided
+        _read_until(coordinator, f"stage   1 of 0..{tiny.stages - 1}", 120)  # stage 1 is decided
         carriers["a"].send_signal(signal.SIGKILL)
         rest, _ = coordinator.communicate(timeout=120)
     finally:
@@ -170,7 +174,7 @@ def test_ctrl_c_stops_every_process_cleanly(tiny, tmp_path):
     proc = subprocess.Popen([sys.executable, RUN_FLEET, str(TINY), "--out", str(out), "--realtime", "1", "--no-map"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
     try:
-        lines = _read_until(proc, f"stage   1/{tiny.stages}", 120)
+        lines = _read_until(proc, f"stage   0 of 0..{tiny.stages - 1}", 120)
         pids = [int(p) for p in re.findall(r"pid (\d+)", "".join(lines))]
         assert len(pids) == 2 + tiny.n_carriers  # the router, the coordinator, the carriers
         os.killpg(proc.pid, signal.SIGINT)

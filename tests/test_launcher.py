@@ -282,3 +282,68 @@ def test_python_m_launcher_is_the_launcher():
     shown = subprocess.run([sys.executable, "-m", "launcher", "--help"], capture_output=True, text=True,
                            timeout=60, cwd=ROOT)
     assert shown.returncode == 0 and shown.stdout == build_parser("python -m launcher").format_help()
+
+
+def test_out_naming_a_file_is_one_line(tmp_path):
+    """--out must be a directory: naming a file (or a path under one) is one line and exit 2,
+    before any process starts (it was a FileExistsError traceback)."""
+    (tmp_path / "notes.txt").write_text("mine\n")
+    for out in ("notes.txt", "notes.txt/run"):
+        proc = subprocess.run([sys.executable, str(ROOT / "run_fleet.py"), "tiny", "--out", out],
+                              cwd=tmp_path, capture_output=True, text=True, timeout=120)
+        assert proc.returncode == EXIT_USAGE and "Traceback" not in proc.stderr, proc.stderr
+        assert proc.stderr.splitlines() == [
+            f"run_fleet.py: --out: expected a results directory (existing or new), found "
+            + ("the file 'notes.txt'" if out == "notes.txt" else "'notes.txt/run' under the file 'notes.txt'")]
+    assert (tmp_path / "notes.txt").read_text() == "mine\n"
+
+
+def test_a_viewer_without_its_web_view_does_not_linger():
+    from launcher.roles import viewer_linger
+
+    assert viewer_linger(flags_of(parse_args([str(TINY), "--view", "--no-web", "--save", "x.rrd"]))) == 0.0
+    assert viewer_linger(flags_of(parse_args([str(TINY), "--view"]))) < 0  # the web view: until Ctrl-C, said
+    assert viewer_linger(flags_of(parse_args([str(TINY), "--view", "--linger", "5"]))) == 5.0
+
+
+@pytest.mark.slow
+def test_the_headless_viewer_exits_with_the_mission(tmp_path):
+    """``--view --no-web --save FILE.rrd`` writes the file and the launcher exits (it waited for
+    Ctrl-C, silently)."""
+    pytest.importorskip("rerun")
+    proc = subprocess.run([sys.executable, str(ROOT / "run_fleet.py"), "tiny", "--view", "--no-web", "--save",
+                           "six.rrd", "--out", "run"], cwd=tmp_path, capture_output=True, text=True, timeout=240)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert (tmp_path / "six.rrd").stat().st_size > 10_000 and "results:" in proc.stdout
+
+
+def test_a_near_miss_gets_a_did_you_mean(tiny, tmp_path):
+    _, problems = check(parse_args([str(TINY), "--planner-option", "layut=binary"]), tiny)
+    assert [p.field for p in problems] == ["--planner-option"] and "(did you mean 'layout'?)" in problems[0].line()
+    _, problems = check(parse_args([str(TINY), "--planner", "mcts-sap"]), tiny)
+    assert "(did you mean 'mcts-ssap'?)" in problems[0].line()
+    proc = subprocess.run([sys.executable, str(ROOT / "run_fleet.py"), "tiny", "--plannr", "ssap"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == EXIT_USAGE and "(did you mean '--planner'?)" in proc.stderr
+    assert "plug-in" in build_parser().format_help()  # --planner's help names the plug-ins
+
+
+def test_a_plugin_that_fails_to_import_exits_2_with_one_line(tmp_path):
+    (tmp_path / "broken_plugin.py").write_text("import no_such_module_here\n")
+    proc = subprocess.run([sys.executable, str(ROOT / "run_fleet.py"), "tiny", "--planner", "broken_plugin:F"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=120,
+                          env={**__import__("os").environ, "PYTHONPATH": f"{tmp_path}:{ROOT}"})
+    assert proc.returncode == EXIT_USAGE and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert "cannot import broken_plugin" in proc.stderr
+
+
+def test_a_mission_over_acoustic_links_says_it_takes_minutes_and_the_fast_way(tiny):
+    from launcher.supervisor import slow_links_note
+
+    marine = world.load_scenario(ROOT / "scenarios" / "marine_survey.yaml")
+    settings, problems = check(parse_args([str(ROOT / "scenarios" / "marine_survey.yaml")]), marine)
+    assert not problems
+    note = slow_links_note(settings)
+    assert note and "minutes" in note and "python -m mission.simulate" in note and "marine_survey.yaml" in note
+    plain, _ = check(parse_args([str(TINY)]), tiny)
+    assert slow_links_note(plain) is None

@@ -656,3 +656,25 @@ def test_a_bye_settles_the_decisions_its_carrier_did_not_answer(listed, deployed
     state, _ = ms.step(state, ev.Bye("a", listed, (), "end", 20.0))
     assert state.deployed()[0, 0] == deployed and state.deployments_of("a") == list(listed)
     assert state.passengers_left()[0] == 2 - len(listed)
+
+
+def test_summary_names_and_defines_its_fields():
+    """A deployment's ``features_over_p`` is its x / p (``features``, kept), summing to
+    ``total_features``; ``wall_time_s`` comes with its definition; a plug-in's defaults are in
+    the recorded options, so the run can be reproduced from its summary."""
+    import numpy as np
+    from scipy import stats
+
+    from mission.summary import RunInfo, WALL_TIME_MEANING, summary
+    from planner.problem import Problem
+    from planner.registry import used_options
+
+    state, _ = run(_mission_events())
+    problem = Problem.build(np.array(SPEC.passengers), np.array(SPEC.valid), [[(0, 0), (1, 1)]], stats.poisson(3.0))
+    out = summary(state, problem, RunInfo("m", "m.yaml", "m", "ssap", {}, 7, 1, "h", 1.0, {}), bound=False)
+    deps = [d for c in out["carriers"] for d in c["deployments"]]
+    assert deps and all(d["features_over_p"] == d["features"] for d in deps)
+    assert sum(d["features_over_p"] for d in deps) == pytest.approx(out["total_features"])
+    assert out["wall_time_meaning"] == WALL_TIME_MEANING and "coordinator" in WALL_TIME_MEANING
+    assert used_options("planner_plugins:Threshold", {}) == {"cut": 3.0}
+    assert used_options("planner_plugins:Threshold", {"cut": 5}) == {"cut": 5.0}

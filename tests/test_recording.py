@@ -145,7 +145,7 @@ def _run_until_stage_2(out, extra=()):
         lines.append(line)
         m = re.search(r"coordinator pid (\d+)", line)
         pid = int(m.group(1)) if m else None
-    while not any("stage   2/" in line for line in lines):
+    while not any("stage   1 of " in line for line in lines):
         line = proc.stdout.readline()
         assert line, "".join(lines)
         lines.append(line)

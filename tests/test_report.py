@@ -350,7 +350,7 @@ def test_one_host_mode_reports_a_mission_whose_coordinator_was_killed(tmp_path):
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
     try:
         lines, pid = [], None
-        while not any("stage   2/" in line for line in lines):
+        while not any("stage   1 of " in line for line in lines):
             line = proc.stdout.readline()
             assert line, "".join(lines)
             lines.append(line)

@@ -32,7 +32,7 @@ CONCURRENT = 4
 #: uniform): the launcher's first line (the children's start-up), the coordinator's first line
 #: (store open, session up: the join), and the first stage's line (the stages and the shutdown;
 #: at --realtime 10 a stage lasts 0.5 s, the whole mission about 2 s).
-LAUNCH_LINE, MISSION_LINE, STAGE_LINE = "run_fleet.py: coordinator pid", "coordinator: mission", "stage   1/"
+LAUNCH_LINE, MISSION_LINE, STAGE_LINE = "run_fleet.py: coordinator pid", "coordinator: mission", "stage   0 of "
 ANCHORS = ((LAUNCH_LINE, 0.2, (0.0, 1.5)), (MISSION_LINE, 0.3, (0.0, 1.5)), (STAGE_LINE, 0.5, (0.0, 2.2)))
 REALTIME = "10"
 

@@ -177,8 +177,9 @@ def test_bad_input_is_one_line_and_leaves_nothing(case, room, tmp_path):
         px[px == 205] = 0
         _map_yaml(tmp_path, px, free_thresh=0.196)
         named = "frontier"
-    elif case == "map-saver-unknown":
-        room.write_text(text.replace("free_thresh: 0.196", "free_thresh: 0.25"))  # nav2 map_saver's
+    elif case == "map-saver-unknown":  # nav2 map_saver's, read literally: 205 is free, no frontier left
+        room.write_text(text.replace("free_thresh: 0.196", "free_thresh: 0.25"))
+        extra = extra + ["--literal-thresholds"]
         named = "205"
     else:
         from tools.synthetic_run import generate, write_bag
@@ -201,3 +202,120 @@ def test_bad_input_is_one_line_and_leaves_nothing(case, room, tmp_path):
     assert named in lines[0] and "expected" in lines[0], lines[0]
     assert not out.exists() and not rep.exists()
     assert not (out.parent.exists() and any(out.parent.iterdir())), list(out.parent.iterdir())
+
+
+# --------------------------------------------------------------------------- recorded runs graze walls
+
+
+_GRAZING = "[[1.0, 1.0], [3.0, 1.0], [3.0, 0.57], [3.3, 1.0], [6.0, 1.0], [6.0, 3.0]]"  # 3 cm into the south wall
+
+
+def test_a_recorded_route_grazing_a_wall_is_taken_as_driven(room, tmp_path):
+    from world.stages import stage_geometry
+
+    routes, out = tmp_path / "routes.yaml", tmp_path / "o" / "s.yaml"
+    routes.write_text(f"carriers:\n  - {{id: rec, passengers: 2, start: 0, speed: 1, recorded: true, path: {_GRAZING}}}\n")
+    done = _run(room, "--routes", routes, "--stage-spacing", "1", "--radius", "2", "--out", out)
+    assert done.returncode == 0, done.stderr
+    warned = [line for line in done.stdout.splitlines() if line.startswith("warning: carrier 'rec'")]
+    assert len(warned) == 1 and "deepest 0.030 m at (3.00, 0.57)" in warned[0], done.stdout
+    scenario = world.load_scenario(out)
+    # the map written is the map as recorded; the world's walls give way round the graze
+    written = G.read_map_yaml(out.parent / "s.map.yaml")
+    assert written.classes[tuple(written.cell_of([[3.0, 0.57]])[0])] == G.OCCUPIED
+    # the carrier's body follows the route: at every stage where it was planned to be
+    geo = stage_geometry(scenario)
+    trace = world.simulate_mission(scenario)
+    ok = geo.valid
+    assert np.abs(trace.positions[ok] - geo.positions[ok]).max() < 0.05
+    assert [3.0, 0.57] in np.round(np.asarray(scenario.carriers[0].waypoints), 6).tolist()  # the route as driven
+
+    # the same route written by hand stays refused, and says how to take a recorded one
+    routes.write_text(f"carriers:\n  - {{id: rec, passengers: 2, start: 0, speed: 1, path: {_GRAZING}}}\n")
+    refused = _run(room, "--routes", routes, "--stage-spacing", "1", "--out", tmp_path / "h" / "s.yaml")
+    assert refused.returncode == 2 and "occupied cell" in refused.stderr and "recorded: true" in refused.stderr
+    # a recorded route deeper than --graze-depth is refused, naming the depth
+    routes.write_text(f"carriers:\n  - {{id: rec, passengers: 2, start: 0, speed: 1, recorded: true, path: {_GRAZING}}}\n")
+    deep = _run(room, "--routes", routes, "--stage-spacing", "1", "--graze-depth", "0.02", "--out", tmp_path / "d" / "s.yaml")
+    assert deep.returncode == 2 and len(deep.stderr.strip().splitlines()) == 1
+    assert "--graze-depth 0.02 m" in deep.stderr and "0.030 m" in deep.stderr and "(3.00, 0.57)" in deep.stderr
+
+
+def test_grazes_their_depth_and_the_walls_that_give_way():
+    from world import importer as imp
+
+    rows = np.array([[0.0, 1.0, 1.0], [1.0, 3.0, 0.57], [2.0, 5.0, 1.0]])
+    d = np.zeros((20, 80), dtype=np.int8)
+    d[5, :] = 100  # a wall along y in [0.5, 0.6]
+    g = G.OccupancyGrid(d, 0.1)
+    found = g.grazes(rows[:, 1:])
+    assert [f.leg for f in found] == [0, 1] and max(f.depth for f in found) == pytest.approx(0.03)
+    route = imp.Route("c", 1, rows, "bag: topic /c/odom", recorded=True)
+    said = []
+    walls = imp.take_grazes(g, g, route, 0.2, said.append)
+    assert len(said) == 1 and (walls.classes == G.OCCUPIED).sum() < (g.classes == G.OCCUPIED).sum()
+    assert walls.first_blocked(rows[:, 1:]) is None
+    assert imp.take_grazes(g, g, imp.Route("c", 1, rows, "routes.yaml", recorded=False), 0.2, said.append) is g
+
+
+def test_a_nav2_map_saver_map_reads_205_as_unknown_saying_so_once(room, tmp_path):
+    """map_saver writes unknown as 205 beside free_thresh 0.25 (occupancy 0.196: free by the
+    YAML's own rule); its signature reads as the saver meant, --literal-thresholds as map_server."""
+    saver = tmp_path / "saver.yaml"
+    saver.write_text(room.read_text().replace("free_thresh: 0.196", "free_thresh: 0.25"))
+    meant, literal = G.read_map_yaml(saver), G.read_map_yaml(saver, literal=True)
+    assert np.array_equal(meant.classes, G.read_map_yaml(room).classes)
+    assert (literal.classes == G.UNKNOWN).sum() == 0 and len(meant.warnings) == 1
+    done = _run(saver, "--routes", tmp_path / "routes.yaml", "--stage-spacing", "1", "--radius", "2",
+                "--out", tmp_path / "o" / "s.yaml", "--report", tmp_path / "o" / "r.json")
+    assert done.returncode == 0, done.stderr
+    said = [line for line in done.stdout.splitlines() if "205" in line]
+    assert len(said) == 1 and "map_saver" in said[0] and "--literal-thresholds" in said[0], done.stdout
+    assert json.loads((tmp_path / "o" / "r.json").read_text())["frontier_cells"] == 20
+    # not the signature: another grey, or another free_thresh, is read as written
+    px = _room()
+    px[0, 0] = 128
+    other = _map_yaml(tmp_path, px, "grey", free_thresh=0.25)
+    assert (G.read_map_yaml(other).classes == G.UNKNOWN).sum() == 1
+
+
+def test_stages_default_to_the_papers_19(room, tmp_path):
+    rep = tmp_path / "o" / "r.json"
+    done = _run(room, "--routes", tmp_path / "routes.yaml", "--radius", "2", "--out", tmp_path / "o" / "s.yaml",
+                "--report", rep)
+    assert done.returncode == 0, done.stderr
+    assert [len(v) for v in json.loads(rep.read_text())["carriers"].values()] == [19, 19]
+
+
+def test_too_many_passengers_are_blamed_where_they_were_given(room, tmp_path):
+    routes = tmp_path / "routes.yaml"
+    routes.write_text("carriers:\n  - {id: a, passengers: 9, start: 0, speed: 1.0, path: [[1.0, 1.0], [6.0, 1.0]]}\n")
+    given = _run(room, "--routes", routes, "--stages", "3", "--out", tmp_path / "o" / "s.yaml")
+    assert given.returncode == 2 and given.stderr.startswith(f"{routes}: carriers[0].passengers: expected at most 3"), \
+        given.stderr
+    assert "--passengers" not in given.stderr
+    flag = _run(room, "--routes", routes, "--stages", "3", "--passengers", "a=5", "--out", tmp_path / "o" / "s.yaml")
+    assert flag.returncode == 2 and flag.stderr.startswith("--passengers a: expected at most 3"), flag.stderr
+    # --out naming a directory, or a path under a file: one line, nothing written
+    (tmp_path / "f").write_text("x")
+    for out in (tmp_path, tmp_path / "f" / "s.yaml"):
+        done = _run(room, "--routes", routes, "--out", out)
+        assert done.returncode == 2 and done.stderr.startswith("--out: expected a file path to write"), done.stderr
+        assert len(done.stderr.strip().splitlines()) == 1
+
+
+def test_radii_that_dwarf_the_map_are_warned_of_and_can_come_from_its_size(room, tmp_path):
+    rep = tmp_path / "o" / "r.json"
+    paper = _run(room, "--routes", tmp_path / "routes.yaml", "--out", tmp_path / "o" / "s.yaml", "--report", rep)
+    assert paper.returncode == 0, paper.stderr
+    warned = [line for line in paper.stdout.splitlines() if line.startswith("warning:") and "dwarf" in line]
+    assert len(warned) == 1 and "sensing radius 10 m and conflict radius 30 m" in warned[0] and "--radii map" in warned[0]
+    checked = subprocess.run([sys.executable, "-m", "world", "check", str(tmp_path / "o" / "s.yaml"), "--seeds", "2"],
+                             cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert checked.returncode == 0 and "warning: sensing radius 10 m" in checked.stdout, checked.stderr
+    sized = _run(room, "--routes", tmp_path / "routes.yaml", "--radii", "map", "--out", tmp_path / "m" / "s.yaml",
+                 "--report", tmp_path / "m" / "r.json")
+    assert sized.returncode == 0, sized.stderr
+    assert "warning: sensing" not in sized.stdout and json.loads((tmp_path / "m" / "r.json").read_text())["radius"] == 1.5
+    s = world.load_scenario(tmp_path / "m" / "s.yaml")
+    assert (s.sensing_radius, s.conflict_radius) == (1.5, 3.0)  # a quarter of the 6.2 m side, and twice that

@@ -99,7 +99,7 @@ def measure(n_carriers: int, seed: int, probes: int, baseline: bool, iterations:
         probe_rng = np.random.default_rng(np.random.SeedSequence([seed, n_carriers, 7]))
         onboard_s = {name: [] for name in variants}
         for j in range(problem.n_stages):
-            log(f"  R={n_carriers} dec-closed-loop on board: stage {j + 1}/{problem.n_stages}")
+            log(f"  R={n_carriers} dec-closed-loop on board: stage {j} of 0..{problem.n_stages - 1}")
             for key, values in _onboard_times(problem, x, deployed, j, probes, onboard, seed, probe_rng).items():
                 onboard_s[key].extend(values)
         for name, values in onboard_s.items():

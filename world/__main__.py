@@ -71,6 +71,11 @@ def check(s: Scenario, seeds: int) -> str:
                      f"carrier radius {s.carrier_radius:g} m")
     lines.append(f"stages: N = {s.stages} every {s.stage_interval:g} s from t0 = {s.first_stage_time:g} s; "
                  f"sensing radius {s.sensing_radius:g} m; conflict radius {s.conflict_radius:g} m")
+    from world.stages import radii_warning
+
+    said = radii_warning(m.bounds, s.sensing_radius, s.conflict_radius)
+    if said:
+        lines.append(f"warning: {said}")
     lines.append(f"carriers: {s.n_carriers}, passengers {int(s.passengers.sum())}")
     lines.append(f"  {'id':<10} {'D':>2} {'start s':>8} {'stop s':>8} {'speed':>6} {'path m':>7}  valid stages")
     for r, c in enumerate(s.carriers):
@@ -250,6 +255,16 @@ def _cloud(text: str) -> tuple[str, str]:
     return cid, topic
 
 
+def _non_negative(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, found {text!r}") from None
+    if not math.isfinite(v) or v < 0:
+        raise argparse.ArgumentTypeError(f"expected a value >= 0, found {text!r}")
+    return v
+
+
 def _import_parser(sub) -> None:
     from world import importer as imp
 
@@ -269,14 +284,17 @@ def _import_parser(sub) -> None:
                         "(repeat per carrier)")
     p.add_argument("--passengers", action="append", type=_pair(int), default=[], metavar="ID=K",
                    help="passengers of a carrier (default: the routes file's, else 1)")
-    spacing = p.add_mutually_exclusive_group(required=True)
+    spacing = p.add_mutually_exclusive_group()
     spacing.add_argument("--stage-spacing", type=_positive(float), metavar="METRES",
                          help="a candidate point every METRES of travelled distance")
     spacing.add_argument("--stages", type=_positive(int), metavar="N", help="N candidate points evenly along each "
-                         "route, first to last (the paper's)")
+                         f"route, first to last (default {imp.DEFAULT_STAGES}, the paper's, unless --stage-spacing)")
     p.add_argument("--radius", type=_positive(float), default=imp.DEFAULT_RADIUS, metavar="METRES",
                    help="the value of a point counts the frontier cells within this radius (default 10 m, the "
                         "paper's); also the scenario's sensing radius")
+    p.add_argument("--radii", choices=("paper", "map"), default="paper",
+                   help="paper (default): --radius (10 m) and --conflict-radius (3 x radius) as given; map: both "
+                        "chosen from the map's size (a quarter of its shorter side, and twice that)")
     p.add_argument("--replay", action="store_true", help="the mission observes the recorded values: each point's "
                    "value in the latest map stamped at or before its time")
     p.add_argument("--report", metavar="REPORT.json", help="write the candidate points and their values")
@@ -316,10 +334,30 @@ def _import_parser(sub) -> None:
                     metavar=("HIT", "MISS", "OCC", "MIN", "MAX"),
                     help="OctoMap's sensor model: prob_hit, prob_miss, occupancy threshold, clamping min and max "
                          "(default OctoMap's 0.7 0.4 0.5 0.1192 0.971)")
+    p.add_argument("--graze-depth", type=_non_negative, default=imp.DEFAULT_GRAZE_DEPTH, metavar="METRES",
+                   help="a recorded route (a bag's poses, or recorded: true in ROUTES.yaml) may go this far into "
+                        f"occupied cells and is taken as driven, with a warning (default {imp.DEFAULT_GRAZE_DEPTH:g} m; "
+                        "0: no graze); a hand-written route may not enter an occupied cell")
+    p.add_argument("--literal-thresholds", action="store_true",
+                   help="read a map YAML's thresholds exactly as map_server does (by default a map with nav2 "
+                        "map_saver's signature, trinary with free_thresh 0.25 and pixels 0/205/254, reads its 205 "
+                        "pixels as unknown, as the saver meant)")
     p.add_argument("--free-level", type=int, default=None, metavar="0..100",
                    help="a bag map's cell value at or below which it is free (default 25, map_saver's)")
     p.add_argument("--occupied-level", type=int, default=None, metavar="0..100",
                    help="a bag map's cell value at or above which it is occupied (default 65, map_saver's)")
+
+
+def _unwritable(path: str) -> str | None:
+    """Why a file cannot be written at ``path`` (a directory there, or a file among its
+    parents), or None."""
+    from pathlib import Path
+
+    p = Path(path)
+    if p.is_dir():
+        return f"the directory {path!r}"
+    blocker = next((q for q in p.parents if q.exists() and not q.is_dir()), None)
+    return None if blocker is None else f"{path!r} under the file {str(blocker)!r}"
 
 
 def _run_import(args) -> int:
@@ -332,6 +370,13 @@ def _run_import(args) -> int:
         print(f"--free-level, --occupied-level: expected 0 <= free < occupied <= 100, found {free}, {occupied}",
               file=sys.stderr)
         return EXIT_BAD_INPUT
+    for flag, target in (("--out", args.out), ("--report", args.report)):
+        problem = _unwritable(target) if target else None
+        if problem:
+            print(f"{flag}: expected a file path to write, found {problem}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+    if args.stages is None and args.stage_spacing is None:
+        args.stages = imp.DEFAULT_STAGES
     settings = imp.ImportSettings(
         source=args.source, out=args.out, routes=args.routes, map_topic=args.map_topic, odom=tuple(args.odom),
         passengers=tuple(args.passengers), stage_spacing=args.stage_spacing, stages=args.stages,
@@ -341,7 +386,8 @@ def _run_import(args) -> int:
         wall_tolerance=args.wall_tolerance, prior=args.prior, free_level=free, occupied_level=occupied,
         cloud_topics=tuple(args.cloud_topic), keep_above=args.keep_above, keep_below=args.keep_below,
         voxel=args.voxel, neighbours=args.neighbours, max_range=args.max_range,
-        sensor_offset=tuple(args.sensor_offset), log_odds=tuple(args.log_odds))
+        sensor_offset=tuple(args.sensor_offset), log_odds=tuple(args.log_odds),
+        graze_depth=args.graze_depth, literal_thresholds=args.literal_thresholds, radii=args.radii)
     if args.stages is not None and args.stages < 2:
         print(f"--stages: expected an integer >= 2 (the first and last point of each route), found {args.stages}",
               file=sys.stderr)

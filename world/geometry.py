@@ -81,6 +81,33 @@ def count_visible(origin: Sequence[float], points: np.ndarray, radius: float, se
     return int(visible(origin, near, segments).sum())
 
 
+def visible_region(origin: Sequence[float], radius: float, segments: np.ndarray, rays: int = 360) -> np.ndarray:
+    """float ``[rays, 2]``: the outline of what ``origin`` sees within ``radius`` (m) past the
+    walls ``segments`` (``[W, 4]``): along each of ``rays`` evenly spaced directions, the point
+    at the radius or at the first wall met, whichever is nearer (the sensing rule's line of
+    sight, drawn)."""
+    x0, y0 = float(origin[0]), float(origin[1])
+    angles = np.linspace(0.0, 2.0 * np.pi, rays, endpoint=False)
+    dx, dy = np.cos(angles)[:, None], np.sin(angles)[:, None]
+    reach = np.full(rays, float(radius))
+    if len(segments):
+        lo_x = np.minimum(segments[:, 0], segments[:, 2])
+        hi_x = np.maximum(segments[:, 0], segments[:, 2])
+        lo_y = np.minimum(segments[:, 1], segments[:, 3])
+        hi_y = np.maximum(segments[:, 1], segments[:, 3])
+        near = segments[(hi_x >= x0 - radius) & (lo_x <= x0 + radius) & (hi_y >= y0 - radius) & (lo_y <= y0 + radius)]
+        if len(near):
+            ax, ay, bx, by = (near[:, i][None, :] for i in range(4))
+            ex, ey = bx - ax, by - ay
+            denom = _cross(dx, dy, ex, ey)  # [rays, W]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = _cross(ax - x0, ay - y0, ex, ey) / denom   # along the ray
+                u = _cross(ax - x0, ay - y0, dx, dy) / denom   # along the wall
+            hit = (denom != 0) & (t >= 0) & (u >= 0) & (u <= 1)
+            reach = np.minimum(reach, np.where(hit, t, np.inf).min(axis=1))
+    return np.column_stack([x0 + reach * dx[:, 0], y0 + reach * dy[:, 0]])
+
+
 def point_segment_distance(points: np.ndarray, segments: np.ndarray) -> np.ndarray:
     """float ``[K, W]``: Euclidean distance from each point to each segment (m)."""
     points = np.asarray(points, dtype=float).reshape(-1, 2)

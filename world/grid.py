@@ -42,6 +42,8 @@ MAX_CELLS = 100_000_000
 #: them so that a map_server reads the same classes back: occupancy 1 - v / 255.
 PGM_FREE, PGM_OCCUPIED, PGM_UNKNOWN = 254, 0, 205
 WRITE_FREE_THRESH, WRITE_OCCUPIED_THRESH = 0.1, 0.65
+#: nav2 map_saver's ``free_thresh``, part of its signature (:func:`map_saver_signature`).
+MAP_SAVER_FREE_THRESH = 0.25
 
 
 class GridError(ValueError):
@@ -146,10 +148,9 @@ class OccupancyGrid:
         return (float(corners[:, 0].min()), float(corners[:, 1].min()),
                 float(corners[:, 0].max()), float(corners[:, 1].max()))
 
-    def first_blocked(self, polyline) -> tuple[int, str, tuple[float, float]] | None:
-        """Where the polyline (``[K, 2]``, m) first leaves the grid or enters an occupied cell,
-        each leg sampled every quarter cell: ``(leg index, "off the map" | "an occupied cell",
-        (x, y))``, or None when it stays on free and unknown cells."""
+    def _samples(self, polyline) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The polyline (``[K, 2]``, m) sampled every quarter cell along each leg: (leg index
+        ``[S]``, points ``[S, 2]``, off the grid bool ``[S]``, in an occupied cell bool ``[S]``)."""
         pts = np.asarray(polyline, dtype=float).reshape(-1, 2)
         if len(pts) == 1:
             pts = np.concatenate([pts, pts])
@@ -165,12 +166,84 @@ class OccupancyGrid:
         occ = np.zeros(len(samples), dtype=bool)
         inside = ~off
         occ[inside] = self.classes[cells[inside, 0], cells[inside, 1]] == OCCUPIED
+        return leg, samples, off, occ
+
+    def first_blocked(self, polyline) -> tuple[int, str, tuple[float, float]] | None:
+        """Where the polyline (``[K, 2]``, m) first leaves the grid or enters an occupied cell,
+        each leg sampled every quarter cell: ``(leg index, "off the map" | "an occupied cell",
+        (x, y))``, or None when it stays on free and unknown cells."""
+        leg, samples, off, occ = self._samples(polyline)
         bad = np.flatnonzero(off | occ)
         if not len(bad):
             return None
         k = int(bad[0])
         return (int(leg[k]), "off the map" if off[k] else "an occupied cell",
                 (float(samples[k, 0]), float(samples[k, 1])))
+
+    def grazes(self, polyline) -> list[Graze]:
+        """Every leg of the polyline (``[K, 2]``, m, on the grid) that enters occupied cells, with
+        its deepest sample (quarter-cell steps): how far (m) that point lies from the nearest cell
+        that is not occupied (its square; cells beyond the grid's edge are not occupied)."""
+        from scipy import ndimage
+
+        leg, samples, off, occ = self._samples(polyline)
+        inside = np.flatnonzero(occ & ~off)
+        if not len(inside):
+            return []
+        occupied = np.pad(self.classes == OCCUPIED, 1)
+        reach = ndimage.distance_transform_edt(occupied)  # cells to the nearest non-occupied centre
+        local = self.to_local(samples[inside]) / self.resolution + 1.0  # in padded cells
+        best: dict[int, Graze] = {}
+        for k, (ux, uy) in zip(inside, local):
+            r, c = int(math.floor(uy)), int(math.floor(ux))
+            half = int(math.ceil(reach[r, c])) + 3
+            r0, c0 = max(0, r - half), max(0, c - half)
+            window = ~occupied[r0:r + half + 1, c0:c + half + 1]
+            rows, cols = np.nonzero(window)
+            rows, cols = rows + r0, cols + c0
+            dx = np.maximum.reduce([cols - ux, np.zeros(len(cols)), ux - (cols + 1)])
+            dy = np.maximum.reduce([rows - uy, np.zeros(len(rows)), uy - (rows + 1)])
+            depth = float(np.hypot(dx, dy).min()) * self.resolution
+            i = int(leg[k])
+            if i not in best or depth > best[i].depth:
+                best[i] = Graze(i, depth, (float(samples[k, 0]), float(samples[k, 1])))
+        return [best[i] for i in sorted(best)]
+
+    def carved(self, polyline, legs, distance: float) -> "OccupancyGrid":
+        """This grid with the occupied cells whose centre lies within ``distance`` (m) of the
+        polyline's ``legs`` (indices) made free (0): where a robot drove, the wall gives way."""
+        from world import geometry
+
+        pts = np.asarray(polyline, dtype=float).reshape(-1, 2)
+        occupied = self.classes == OCCUPIED
+        rows, cols = np.nonzero(occupied)
+        centres = self.cell_centres(occupied)
+        clear = np.zeros(len(centres), dtype=bool)
+        for i in legs:
+            a, b = pts[i], pts[i + 1]
+            lo, hi = np.minimum(a, b) - distance, np.maximum(a, b) + distance
+            near = np.flatnonzero((centres[:, 0] >= lo[0]) & (centres[:, 0] <= hi[0])
+                                  & (centres[:, 1] >= lo[1]) & (centres[:, 1] <= hi[1]))
+            if len(near):
+                d = geometry.point_segment_distance(centres[near], np.array([[*a, *b]]))[:, 0]
+                clear[near[d <= distance]] = True
+        if not clear.any():
+            return self
+        data = self.data.copy()
+        data[rows[clear], cols[clear]] = 0
+        return OccupancyGrid(data=data, resolution=self.resolution, origin=self.origin, stamp=self.stamp,
+                             free_level=self.free_level, occupied_level=self.occupied_level, source=self.source,
+                             warnings=self.warnings)
+
+
+@dataclass(frozen=True)
+class Graze:
+    """A leg of a route that enters occupied cells: ``leg`` its index, ``depth`` (m) how far its
+    deepest sample ``point`` (x, y m) lies inside them."""
+
+    leg: int
+    depth: float
+    point: tuple[float, float]
 
 
 def check_grid(data: np.ndarray, resolution, where: str) -> None:
@@ -356,14 +429,29 @@ def _number(doc: dict, key: str, where: str, default=None) -> float:
     return float(value)
 
 
+def map_saver_signature(mode: str, negate, free_thresh: float, pixels: np.ndarray) -> bool:
+    """True for a map as nav2's map_saver writes it: ``mode: trinary``, ``negate: 0``,
+    ``free_thresh: 0.25`` and an image of its three values only (254 free, 0 occupied, 205
+    unknown), 205 among them. map_server reads its 205 (occupancy 0.196) as free, which the
+    saver did not mean."""
+    if mode != "trinary" or negate or abs(free_thresh - MAP_SAVER_FREE_THRESH) > 1e-9:
+        return False
+    values = np.unique(pixels)
+    return bool(np.isin(PGM_UNKNOWN, values)) and bool(np.isin(values, (PGM_FREE, PGM_OCCUPIED, PGM_UNKNOWN)).all())
+
+
 def read_map_yaml(path: str | Path, free_level: int = DEFAULT_FREE_LEVEL,
-                  occupied_level: int = DEFAULT_OCCUPIED_LEVEL) -> OccupancyGrid:
+                  occupied_level: int = DEFAULT_OCCUPIED_LEVEL, literal: bool = False) -> OccupancyGrid:
     """A map_server map: its YAML (``image``, ``resolution``, ``origin`` [x, y, yaw],
     ``negate``, ``occupied_thresh``, ``free_thresh``, ``mode``) and the PGM or PNG it names
     (relative to the YAML), by nav2 map_io's rules: shade = the mean of the colour channels
     / 255; occupancy = shade if ``negate`` else 1 - shade; trinary: occupancy above
     ``occupied_thresh`` is 100, below ``free_thresh`` 0, else -1; scale: the same, a pixel not
     fully opaque -1 and in between 1..99 linearly; raw: round(shade x 255) if in 0..100, else -1.
+
+    One exception unless ``literal``: a map with nav2 map_saver's signature
+    (:func:`map_saver_signature`) reads its 205 pixels as unknown, as the saver meant, and says
+    so in the grid's ``warnings``. ``literal=True`` reads it exactly as map_server does.
 
     Raises:
         GridError: naming the file and field (a missing or unreadable image, a format other
@@ -429,9 +517,13 @@ def read_map_yaml(path: str | Path, free_level: int = DEFAULT_FREE_LEVEL,
                 data[alpha < 255] = -1
     warnings = ()
     grey = pixels == PGM_UNKNOWN
-    if mode != "raw" and not negate and grey.any() and (data[grey] == 0).all():
-        # nav2's map_saver writes unknown cells as 205 beside free_thresh 0.25, which reads them
-        # back as free (occupancy 0.196): honoured, and said
+    if not literal and map_saver_signature(mode, negate, free_th, pixels):
+        data[grey] = -1
+        warnings = (f"{file}: nav2 map_saver's map (trinary, pixels 0/205/254, free_thresh 0.25): its "
+                    f"{int(grey.sum())} pixels of 205 read as unknown, as the saver meant (--literal-thresholds "
+                    f"reads them as map_server does: free)",)
+    elif mode != "raw" and not negate and grey.any() and (data[grey] == 0).all():
+        # 205 (map_saver's unknown) read as free by the thresholds as written: honoured, and said
         warnings = (f"{file}: free_thresh {free_th:g} reads the image's {int(grey.sum())} pixels of 205 "
                     f"(map_saver's unknown) as free; with free_thresh below 0.196 they are unknown",)
     # image row 0 is the top of the map; the grid's row 0 is at the origin (the bottom)

@@ -26,6 +26,7 @@ import json
 import math
 import os
 import re
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
@@ -42,8 +43,19 @@ if TYPE_CHECKING:
 
 #: The paper's sensing radius for frontier values (m).
 DEFAULT_RADIUS = 10.0
+#: Candidate points per route when neither ``--stages`` nor ``--stage-spacing`` is given: the
+#: paper's N = 19.
+DEFAULT_STAGES = 19
 #: Largest carrier body the importer gives a scenario (m): the project's default.
 MAX_CARRIER_RADIUS = 0.4
+#: How deep (m) a recorded route may go into occupied cells and still be taken as driven
+#: (``--graze-depth``): localisation puts poses a few centimetres into walls and a run recorded
+#: at 1 Hz cuts corners between its poses. Deeper, the route is refused.
+DEFAULT_GRAZE_DEPTH = 0.2
+#: Around every leg of a recorded route that grazes occupied cells, the occupied cells whose
+#: centre lies within this many cells of the leg are free in the world's walls (the wall gives
+#: way where the robot drove); the map written beside the scenario keeps them as recorded.
+GRAZE_CARVE_CELLS = 2.0
 #: Candidate points a carrier may have (planner.limits caps the stages of a scenario).
 _ID = re.compile(r"[A-Za-z0-9_\-]+")
 PRIOR_CHOICES = ("auto", "poisson", "negative_binomial")
@@ -87,6 +99,9 @@ class ImportSettings:
     max_range: float = -1.0
     sensor_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     log_odds: tuple[float, float, float, float, float] = (0.7, 0.4, 0.5, 0.1192, 0.971)
+    graze_depth: float = DEFAULT_GRAZE_DEPTH
+    literal_thresholds: bool = False
+    radii: str = "paper"  # "paper": --radius and --conflict-radius as given; "map": from the map's size
 
 
 @dataclass(frozen=True)
@@ -97,6 +112,7 @@ class Route:
     passengers: int
     poses: np.ndarray
     where: str  # the file and field (or topic) it came from, for messages
+    recorded: bool = False  # driven by a robot (a bag's poses, or ``recorded: true``): grazes taken
 
 
 @dataclass
@@ -140,7 +156,9 @@ class ImportResult:
 
 def read_routes(path: str) -> list[Route]:
     """A routes YAML: ``carriers:`` a list of ``{id, passengers, start (s), speed (m/s), path
-    [[x, y], ...] (m, map frame)}``; a pose's time is ``start + distance along the path / speed``.
+    [[x, y], ...] (m, map frame), recorded (bool, default false)}``; a pose's time is ``start +
+    distance along the path / speed``. ``recorded: true`` marks poses a robot drove (they may
+    graze walls, :func:`grazes`); a hand-written route may not enter an occupied cell.
 
     Raises:
         GridError: naming the file and field, one line.
@@ -163,7 +181,7 @@ def read_routes(path: str) -> list[Route]:
         ck.bad("carriers", "a non-empty list of carriers {id, passengers, start, speed, path}", items)
     for r, item in enumerate(items if isinstance(items, list) else []):
         where = f"carriers[{r}]"
-        m = ck.mapping(item, where, ("id", "passengers", "start", "speed", "path"), ("id", "path"))
+        m = ck.mapping(item, where, ("id", "passengers", "start", "speed", "path", "recorded"), ("id", "path"))
         if m is None or len(ck.problems):
             break
         cid = str(m["id"])
@@ -173,12 +191,15 @@ def read_routes(path: str) -> list[Route]:
         start = ck.number(m.get("start", 0.0), f"{where}.start", minimum=0)
         speed = ck.number(m.get("speed", 1.0), f"{where}.speed", minimum=0, exclusive=True)
         pts = ck.points(m["path"], f"{where}.path", 2)
+        recorded = m.get("recorded", False)
+        if not isinstance(recorded, bool):
+            ck.bad(f"{where}.recorded", "true or false", recorded)
         if ck.problems:
             break
         assert pas is not None and start is not None and speed is not None  # read without a problem
         xy = np.asarray(pts, dtype=float)
         t = start + np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))]) / speed
-        routes.append(Route(cid, int(pas), np.column_stack([t, xy]), f"{path}: {where}.path"))
+        routes.append(Route(cid, int(pas), np.column_stack([t, xy]), f"{path}: {where}.path", recorded))
     if ck.problems:
         raise GridError(*_split(ck.problems[0]))
     ids = [r.id for r in routes]
@@ -237,24 +258,61 @@ def candidates(route: Route, spacing: float | None, count: int | None, tolerance
 
 
 def checked_candidates(grid: G.OccupancyGrid, route: Route, spacing: float | None, count: int | None,
-                       tolerance: float) -> Candidates:
-    """:func:`candidates` of a route on the map: a recorded route off the map or through an
-    occupied cell is refused (naming the point); where only its simplification would cut a wall,
-    it is simplified again within a quarter of the tolerance, down to none."""
+                       tolerance: float, walls: G.OccupancyGrid | None = None) -> Candidates:
+    """:func:`candidates` of a route on the map: a route off the map or through an occupied cell
+    is refused (naming the point); where only its simplification would cut a wall, it is
+    simplified again within a quarter of the tolerance, down to none. ``walls``: the grid the
+    world's walls come from (:func:`take_grazes`; the map itself by default): a recorded route
+    is checked against it, a hand-written one against the map."""
+    walls = grid if walls is None else walls
     poses = _dedup(route.poses)
-    hit = grid.first_blocked(poses[:, 1:])
+    hit = (walls if route.recorded else grid).first_blocked(poses[:, 1:])
     if hit is not None:
         k, what, (x, y) = hit
+        hint = "" if what == "off the map" else \
+            " (a route a robot drove may say recorded: true, and is then taken within --graze-depth)"
         raise GridError(f"{route.where}: carrier '{route.id}'",
                         "a route on the map's free or unknown cells",
                         f"it goes {what if what == 'off the map' else 'into ' + what} at ({x:.2f}, {y:.2f}) "
                         f"between its points {k} ({poses[k, 1]:.2f}, {poses[k, 2]:.2f}) and {k + 1} "
-                        f"({poses[k + 1, 1]:.2f}, {poses[k + 1, 2]:.2f})")
+                        f"({poses[k + 1, 1]:.2f}, {poses[k + 1, 2]:.2f}){hint}")
     c = candidates(route, spacing, count, tolerance)
-    while grid.first_blocked(c.path) is not None and tolerance > 0:
+    while walls.first_blocked(c.path) is not None and tolerance > 0:
         tolerance = tolerance / 4 if tolerance > 1e-6 else 0.0
         c = candidates(route, spacing, count, tolerance)
     return c
+
+
+def take_grazes(grid: G.OccupancyGrid, walls: G.OccupancyGrid, route: Route, limit: float,
+                progress: Callable[[str], None]) -> G.OccupancyGrid:
+    """A recorded route's grazes taken as driven: every leg that enters occupied cells at most
+    ``limit`` (m) deep (:meth:`world.grid.OccupancyGrid.grazes`, on the map ``grid``) is said in
+    one warning naming the deepest graze, and ``walls`` is returned with the occupied cells
+    within :data:`GRAZE_CARVE_CELLS` cells of those legs made free, so that the carrier's body
+    follows the route without colliding. A hand-written route is returned ``walls`` unchanged
+    (:func:`checked_candidates` refuses it if it enters a wall).
+
+    Raises:
+        GridError: a graze deeper than ``limit``, naming the point and the two poses around it.
+    """
+    if not route.recorded:
+        return walls
+    poses = _dedup(route.poses)
+    found = grid.grazes(poses[:, 1:])
+    if not found:
+        return walls
+    deep = max(found, key=lambda g: g.depth)
+    k, (x, y) = deep.leg, deep.point
+    where = (f"at ({x:.2f}, {y:.2f}) between its points {k} ({poses[k, 1]:.2f}, {poses[k, 2]:.2f}) and {k + 1} "
+             f"({poses[k + 1, 1]:.2f}, {poses[k + 1, 2]:.2f})")
+    if deep.depth > limit:
+        raise GridError(f"{route.where}: carrier '{route.id}' (recorded)",
+                        f"a route at most --graze-depth {limit:g} m into the map's occupied cells",
+                        f"it goes {deep.depth:.3f} m into an occupied cell {where}")
+    progress(f"warning: carrier '{route.id}' (recorded) grazes occupied cells on {len(found)} leg(s), deepest "
+             f"{deep.depth:.3f} m {where}; taken as driven (within --graze-depth {limit:g} m): the walls within "
+             f"{GRAZE_CARVE_CELLS:g} cells of those legs give way")
+    return walls.carved(poses[:, 1:], [g.leg for g in found], GRAZE_CARVE_CELLS * grid.resolution)
 
 
 # --------------------------------------------------------------------------- values and prior
@@ -309,12 +367,12 @@ def import_run(st: ImportSettings, progress: Callable[[str], None] = print) -> I
     passengers = dict(st.passengers)
     routes = read_routes(st.routes) if st.routes else []
     for cid, poses in tracks.items():
-        routes.append(Route(cid, passengers.get(cid, 1), poses, f"{source}: topic {dict(st.odom)[cid]}"))
+        routes.append(Route(cid, passengers.get(cid, 1), poses, f"{source}: topic {dict(st.odom)[cid]}", True))
     ids = [r.id for r in routes]
     for cid in passengers:
         if cid not in ids:
             raise GridError(f"--passengers {cid}", f"a carrier id ({', '.join(ids)})", f"unknown carrier '{cid}'")
-    routes = [Route(r.id, passengers.get(r.id, r.passengers), r.poses, r.where) for r in routes]
+    routes = [Route(r.id, passengers.get(r.id, r.passengers), r.poses, r.where, r.recorded) for r in routes]
     if len(set(ids)) != len(ids):
         raise GridError("--odom/--routes", "each carrier once", f"carriers {ids}")
 
@@ -324,12 +382,22 @@ def import_run(st: ImportSettings, progress: Callable[[str], None] = print) -> I
         stamps = [history_stamps[k] for k in order]
         (_, grid), = B.iter_maps(source, st.map_topic, st.free_level, st.occupied_level, {order[-1]})
     else:
-        grid = G.read_map_yaml(source, st.free_level, st.occupied_level)
+        grid = G.read_map_yaml(source, st.free_level, st.occupied_level, literal=st.literal_thresholds)
         stamps, order = [0.0], [0]
     for line in grid.warnings:
         progress(f"warning: {line}")
+    if st.radii == "map":  # the sensing and conflict radii from the map's size (world.stages.map_radii)
+        from world.stages import map_radii
+
+        radius, conflict = map_radii(grid.extent)
+        st = dataclasses.replace(st, radius=radius, conflict_radius=conflict)
+        progress(f"radii from the map's size: sensing {radius:g} m, conflict {conflict:g} m")
     tol = 0.5 * grid.resolution if st.path_tolerance is None else st.path_tolerance
-    cands = [checked_candidates(grid, r, st.stage_spacing, st.stages, tol) for r in routes]
+    # the world's walls: the map's, giving way where a recorded route grazed them
+    walls_grid = grid
+    for r in routes:
+        walls_grid = take_grazes(grid, walls_grid, r, st.graze_depth, progress)
+    cands = [checked_candidates(grid, r, st.stage_spacing, st.stages, tol, walls_grid) for r in routes]
 
     # values: the frontier cells within the radius, in the map given or the latest at each time
     frontier_total = int(G.frontier_mask(grid).sum())
@@ -364,10 +432,15 @@ def import_run(st: ImportSettings, progress: Callable[[str], None] = print) -> I
 
     interval, n_stages = schedule(st, cands)
 
-    walls = G.wall_lines(grid, st.wall_tolerance)
+    walls = G.wall_lines(walls_grid, st.wall_tolerance)
     segs = np.concatenate([np.column_stack([w[:-1], w[1:]]) for w in walls]) if walls else np.zeros((0, 4))
     body = st.carrier_radius if st.carrier_radius is not None else _carrier_radius(cands, segs)
     observed = np.concatenate([c.values for c in cands]) if st.replay else _sensed(cands, grid, segs, st.radius)
+    from world.stages import radii_warning
+
+    said = radii_warning(grid.extent, st.radius, 3.0 * st.radius if st.conflict_radius is None else st.conflict_radius)
+    if said:
+        progress(f"warning: {said}")
     prior = fit_prior(observed, st.prior)
     name = st.name or Path(st.out).name.split(".")[0]
     text = _scenario_text(st, name, grid, walls, cands, interval, n_stages, body, prior)
@@ -415,8 +488,13 @@ def schedule(st: ImportSettings, cands: list[Candidates]) -> tuple[float, int]:
                         f"{n_stages} stages, {len(cands)} carriers")
     for c in cands:
         if c.route.passengers > len(c.points):
-            raise GridError(f"--passengers {c.route.id}", f"at most {len(c.points)} (its candidate points)",
-                            str(c.route.passengers))
+            # blame where the count came from: the flag, the routes file's field, or a bag's default
+            r = c.route
+            where = (f"--passengers {r.id}" if r.id in dict(st.passengers) else
+                     r.where.removesuffix(".path") + ".passengers" if r.where.endswith(".path") else
+                     f"{r.where}: carrier '{r.id}'")
+            raise GridError(where, f"at most {len(c.points)} passengers for carrier '{r.id}' (its candidate points; "
+                            f"more with --stages or a smaller --stage-spacing)", str(r.passengers))
     return interval, n_stages
 
 
@@ -470,7 +548,7 @@ def _scenario_text(st: ImportSettings, name: str, grid: G.OccupancyGrid, walls: 
         f"  bounds: [{_num(xmin - pad)}, {_num(ymin - pad)}, {_num(xmax + pad)}, {_num(ymax + pad)}]",
         f"  occupancy: {{file: {stem}.map.yaml, sha256: {grid.digest}, free_level: {grid.free_level}, "
         f"occupied_level: {grid.occupied_level}}}",
-        "  # the outlines of the occupied cells (world.grid.wall_lines)",
+        "  # the outlines of the occupied cells (world.grid.wall_lines), less those a recorded route grazed",
         "  walls:" + ("" if walls else " []"),
     ]
     lines += ["    - [" + ", ".join(f"[{x:.4f}, {y:.4f}]" for x, y in w) + "]" for w in walls]

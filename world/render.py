@@ -14,6 +14,7 @@ from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Circle, Patch, Polygon, Rectangle  # noqa: E402
 
 from world.features import sample_features  # noqa: E402
+from world.geometry import visible_region  # noqa: E402
 from world.stages import stage_geometry  # noqa: E402
 
 from world.scene import CARRIER_COLOURS, OVERLAP_COLOUR, convex_hull  # noqa: E402  (one home for colours and hulls)
@@ -31,6 +32,37 @@ def _nice_length(span: float) -> float:
         if m * base <= target:
             return m * base
     return base
+
+
+def _stage_labels(ax, scenario, geo, near: float) -> None:
+    """Stage numbers beside the decision points, without overlaps: a carrier's stages at one
+    spot (waiting) are written once as a list or range (``0-3``), and the labels of points
+    within ``near`` (m) of each other are stacked in their carriers' colours."""
+    from scipy.cluster.hierarchy import fcluster, linkage
+
+    entries = []  # (x, y, carrier, stages)
+    for r in range(scenario.n_carriers):
+        js = np.flatnonzero(geo.valid[r])
+        groups: list[list[int]] = []
+        for j in js:
+            if groups and np.hypot(*(geo.positions[r, j] - geo.positions[r, groups[-1][-1]])) <= 1e-6 * max(1.0, near):
+                groups[-1].append(int(j))
+            else:
+                groups.append([int(j)])
+        for g in groups:
+            entries.append((*geo.positions[r, g[0]], r, g))
+    if not entries:
+        return
+    pts = np.array([[e[0], e[1]] for e in entries])
+    cluster = fcluster(linkage(pts, "single"), near, "distance") if len(pts) > 1 else np.array([1])
+    stacked: dict[int, int] = {}
+    for (x, y, r, g), c in zip(entries, cluster):
+        k = stacked[c] = stacked.get(c, -1) + 1
+        text = str(g[0]) if len(g) == 1 else (f"{g[0]}-{g[-1]}" if g[-1] - g[0] == len(g) - 1
+                                              else ",".join(map(str, g)))
+        anchor = pts[cluster == c].mean(axis=0)
+        ax.annotate(text, anchor, xytext=(4, 3 + 7.5 * k), textcoords="offset points", fontsize=6.5,
+                    color=_colour(r), zorder=8)
 
 
 def _deployment_spots(scenario, deployments: Any, positions: np.ndarray) -> list[tuple[int, tuple[float, float]]]:
@@ -218,15 +250,14 @@ def render_map(scenario, path: str | Path, deployments: Any = None, trajectories
         ax.plot(wp[0, 0], wp[0, 1], marker="s", ms=7, color=col, mec="black", mew=0.6, zorder=7)
         key = (round(float(wp[0, 0]), 3), round(float(wp[0, 1]), 3))
         k = starts_seen[key] = starts_seen.get(key, -1) + 1
-        ax.annotate(c.id, wp[0], xytext=(-5, -4 - 10 * k), textcoords="offset points", ha="right", va="top",
-                    fontsize=8, fontweight="bold", color=col, zorder=8)
+        left = wp[0, 0] - xmin < 0.1 * w  # near the left edge the label goes right of the start, inside
+        ax.annotate(c.id, wp[0], xytext=(5 if left else -5, -4 - 10 * k), textcoords="offset points",
+                    ha="left" if left else "right", va="top", fontsize=8, fontweight="bold", color=col, zorder=8)
         ok = geo.valid[r]
         if ok.any():
             ax.scatter(pos[r, ok, 0], pos[r, ok, 1], s=26, c=col, edgecolors="white", linewidths=0.7, zorder=6)
-        if stage_labels:
-            for j in np.flatnonzero(ok):
-                ax.annotate(str(j), pos[r, j], xytext=(3, 3), textcoords="offset points", fontsize=6.5,
-                            color=col, zorder=8)
+    if stage_labels:
+        _stage_labels(ax, scenario, geo, 0.012 * max(w, h))
 
     link_handles = _draw_links(ax, scenario)
 
@@ -240,23 +271,22 @@ def render_map(scenario, path: str | Path, deployments: Any = None, trajectories
     labels = list(deployment_labels) if deployment_labels is not None else []
     for k, (r, (x, y)) in enumerate(spots):
         col = _colour(r)
-        ax.add_patch(Circle((x, y), scenario.sensing_radius, fc=col, alpha=0.15, ec=col, lw=1.2, ls="--", zorder=5))
+        # what the passenger senses: the disc cut by the walls (line of sight, as the world counts)
+        seen = visible_region((x, y), scenario.sensing_radius, segs)
+        ax.add_patch(Polygon(seen, closed=True, fc=col, alpha=0.15, ec=col, lw=1.2, ls="--", zorder=5))
         ax.plot(x, y, marker="*", ms=14, color=col, mec="black", mew=0.7, zorder=9)
         if k < len(labels) and labels[k]:
             ax.text(x + 0.012 * w, y - 0.012 * h, str(labels[k]), fontsize=8, fontweight="bold", color="black",
                     ha="left", va="top", zorder=10,
                     bbox={"boxstyle": "round,pad=0.15", "fc": "white", "ec": col, "lw": 0.8, "alpha": 0.85})
 
-    # scale bar (bottom-left, inside the bounds)
+    # scale bar: outside the map, under the legend, so that it hides nothing
+    from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
+
     bar = _nice_length(w)
-    bx, by = xmin + 0.03 * w, ymin + 0.035 * h
-    ax.add_patch(Rectangle((bx - 0.015 * w, by - 0.025 * h), bar + 0.03 * w, 0.075 * h, fc="white", ec="#999999",
-                           lw=0.6, alpha=0.9, zorder=9.5))
-    ax.plot([bx, bx + bar], [by, by], color="black", lw=3, solid_capstyle="butt", zorder=10)
-    for xx in (bx, bx + bar):
-        ax.plot([xx, xx], [by - 0.008 * h, by + 0.008 * h], color="black", lw=1.2, zorder=10)
-    ax.text(bx + bar / 2, by + 0.012 * h, f"{bar:g} m", ha="center", va="bottom", fontsize=9, fontweight="bold",
-            zorder=10)
+    ax.add_artist(AnchoredSizeBar(ax.transData, bar, f"{bar:g} m", loc="lower left", bbox_to_anchor=(1.02, 0.0),
+                                  bbox_transform=ax.transAxes, frameon=False, size_vertical=0.006 * h,
+                                  borderpad=0.0, sep=4, fontproperties={"size": 9, "weight": "bold"}))
 
     # legend
     handles = [Line2D([], [], color=_colour(r), lw=2, marker="o", ms=5, label=f"{c.id} ({c.passengers} pass.)")
@@ -299,7 +329,7 @@ def render_map(scenario, path: str | Path, deployments: Any = None, trajectories
     fig.tight_layout()
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=dpi)
+    fig.savefig(out, dpi=dpi, bbox_inches="tight", pad_inches=0.15)  # nothing clipped: labels, legend, bar
     plt.close(fig)
     return out
 

@@ -510,7 +510,7 @@ _TOP_REQUIRED = ("name", "seed", "map", "features", "sensing_radius", "stage_int
 _MAP_KEYS = ("bounds", "walls", "obstacles", "building", "occupancy", "storeys", "voxels")
 _STOREY_KEYS = ("name", "base", "walls")
 _VOXELS_KEYS = ("file", "sha256", "neighbours", "keep_above", "keep_below")
-_OCCUPANCY_KEYS = ("file", "sha256", "free_level", "occupied_level")
+_OCCUPANCY_KEYS = ("file", "sha256", "free_level", "occupied_level", "literal_thresholds")
 _BUILDING_KEYS = ("origin", "rooms", "room_size", "corridor_width", "door_width", "entrances")
 _FEATURE_KEYS = ("density", "clusters", "from_map", "replay")
 #: What ``features.from_map`` may name.
@@ -825,7 +825,7 @@ def _parse_voxels(ck: _Checker, node: Any) -> VoxelsSpec | None:
 
 def _parse_occupancy(ck: _Checker, node: Any) -> _grid.OccupancyGrid | None:
     """``map.occupancy``: a map_server map (its YAML, relative to the scenario file), as a file
-    name or ``{file, sha256, free_level, occupied_level}``; ``sha256`` (the grid's
+    name or ``{file, sha256, free_level, occupied_level, literal_thresholds}``; ``sha256`` (the grid's
     :attr:`~world.grid.OccupancyGrid.digest`) ties the scenario's fingerprint to the cells."""
     spec = {"file": node} if isinstance(node, str) else ck.mapping(node, "map.occupancy", _OCCUPANCY_KEYS, ("file",))
     if spec is None or "file" not in spec:
@@ -835,6 +835,10 @@ def _parse_occupancy(ck: _Checker, node: Any) -> _grid.OccupancyGrid | None:
               for key, default in (("free_level", _grid.DEFAULT_FREE_LEVEL),
                                    ("occupied_level", _grid.DEFAULT_OCCUPIED_LEVEL))]
     free, occupied = levels
+    literal = spec.get("literal_thresholds", False)
+    if not isinstance(literal, bool):
+        ck.bad("map.occupancy.literal_thresholds", "true or false", literal)
+        return None
     if name is None or free is None or occupied is None:
         return None
     if free >= occupied:
@@ -843,7 +847,7 @@ def _parse_occupancy(ck: _Checker, node: Any) -> _grid.OccupancyGrid | None:
     base = Path(ck.file).parent if ck.file and not ck.file.startswith("<") else Path(".")
     path = Path(name) if Path(name).is_absolute() else base / name
     try:
-        grid = _grid.read_map_yaml(path, free_level=free, occupied_level=occupied)
+        grid = _grid.read_map_yaml(path, free_level=free, occupied_level=occupied, literal=literal)
     except _grid.GridError as err:
         ck.raw("map.occupancy.file", f"expected a map_server map, found {err}")
         return None

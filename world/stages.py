@@ -99,3 +99,27 @@ def stage_geometry(scenario) -> StageGeometry:
     pos = pos.copy()
     pos[~valid] = np.nan
     return StageGeometry(times=scenario.stage_times(), positions=pos, valid=valid, overlaps=overlaps)
+
+
+#: The radii "dwarf" a map when the sensing disc's diameter exceeds its shorter side, or the
+#: conflict radius its diagonal (every point then conflicts with every other).
+def radii_warning(bounds, sensing_radius: float, conflict_radius: float) -> str | None:
+    """One line when the radii dwarf the map ``bounds`` (xmin, ymin, xmax, ymax; m): a sensing
+    disc wider than the map's shorter side, or a conflict radius beyond its diagonal; None
+    otherwise."""
+    w, h = bounds[2] - bounds[0], bounds[3] - bounds[1]
+    if 2 * sensing_radius <= min(w, h) and conflict_radius <= (w * w + h * h) ** 0.5:
+        return None
+    small, large = map_radii(bounds)
+    return (f"sensing radius {sensing_radius:g} m and conflict radius {conflict_radius:g} m dwarf the "
+            f"{w:.3g} x {h:.3g} m map (the paper's radii are for a mine-sized map): nearly every point conflicts "
+            f"with every other; radii from the map's size would be {small:g} m and {large:g} m "
+            f"(python -m world import --radii map)")
+
+
+def map_radii(bounds) -> tuple[float, float]:
+    """(sensing radius, conflict radius) (m) chosen from the map's size: a quarter of its shorter
+    side (rounded to 0.1 m, at least 0.1 m), and twice that (two sensing discs overlap)."""
+    w, h = bounds[2] - bounds[0], bounds[3] - bounds[1]
+    sensing = max(0.1, round(min(w, h) / 4.0, 1))
+    return sensing, round(2.0 * sensing, 6)
