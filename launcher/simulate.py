@@ -90,13 +90,29 @@ def parse_kinds(text: str) -> tuple[str, ...]:
     return kinds
 
 
-def parse_schedule(text: str) -> tuple[sim.Fault, ...]:
-    try:
-        return tuple(sim.Fault(str(f["kind"]), float(f["at"]), float(f["until"]), str(f.get("who", "")),
-                               float(f.get("size", 0.0))) for f in json.loads(text))
-    except (ValueError, KeyError, TypeError) as exc:
-        raise argparse.ArgumentTypeError(f"--schedule: expected a JSON list of faults "
-                                         f"{{kind, at, until, who, size}}, {exc}") from None
+def parse_schedule(text: str, ids=None) -> tuple[sim.Fault, ...]:
+    """``--schedule``: a schedule file, or its JSON inline (what a shrunk failure prints);
+    :class:`mission.simulate.schedule.ScheduleError` naming the file, the fault and the field."""
+    from mission.simulate import schedule
+
+    if text.lstrip().startswith("["):
+        try:
+            data = json.loads(text)
+        except ValueError as exc:
+            raise schedule.ScheduleError(f"--schedule: not JSON ({exc})") from None
+        return schedule.parse(data, "--schedule", ids)
+    return schedule.load(text, ids)
+
+
+def mission_json(fleet: sim.Fleet, seed: int, kinds, faults=None, plant=None) -> dict:
+    """One mission's report (a row of ``per_seed``): :meth:`mission.simulate.Outcome.as_json`, its
+    faults with the mission points each struck and ended at (:func:`mission.simulate.schedule.with_points`)."""
+    from mission.simulate import schedule
+
+    s = sim.Simulation(fleet, seed, faults=faults, kinds=kinds, plant=plant)
+    out = s.run().as_json()
+    out["faults"] = schedule.with_points(s.faults, s.decided_at)
+    return out
 
 
 def shrink(fleet: sim.Fleet, seed: int, faults, plant=None) -> tuple:
@@ -144,7 +160,7 @@ CLUSTER_CHUNK = 25
 
 def _one(args) -> dict:
     seed, kinds, schedule, plant = args
-    return sim.simulate(_FLEET, seed, kinds=kinds, faults=schedule, plant=plant).as_json()
+    return mission_json(_FLEET, seed, kinds, schedule, plant)
 
 
 def _chunk(build: tuple, tasks: list) -> list[dict]:
@@ -153,8 +169,7 @@ def _chunk(build: tuple, tasks: list) -> list[dict]:
     fleet = _BUILT.get(build)
     if fleet is None:
         fleet = _BUILT[build] = build_fleet(*build)
-    return [sim.simulate(fleet, seed, kinds=kinds, faults=schedule, plant=plant).as_json()
-            for seed, kinds, schedule, plant in tasks]
+    return [mission_json(fleet, seed, kinds, schedule, plant) for seed, kinds, schedule, plant in tasks]
 
 
 def _cpu() -> float:
@@ -219,8 +234,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seeds", type=parse_seeds, default=range(0, 100), help="A:B: missions with seeds A..B-1 (0:100)")
     p.add_argument("--faults", type=parse_kinds, default=sim.FAULT_KINDS,
                    help="all (default), none, or a comma-separated list of: " + ", ".join(sim.FAULT_KINDS))
-    p.add_argument("--schedule", type=parse_schedule, default=None,
-                   help="a JSON list of faults to use instead of drawing them (what a shrunk failure prints)")
+    p.add_argument("--schedule", default=None, metavar="FILE|JSON",
+                   help="a schedule file (a JSON list of faults: the faults of a seed in --json) or the list "
+                        "inline (what a shrunk failure prints), to use instead of drawing them")
     p.add_argument("--mode", choices=("hybrid", "coordinated"), default="hybrid", help="the carriers' mode")
     p.add_argument("--plant", choices=sim.PLANTS, default=None,
                    help="put back a known bug class (the campaign's power test); never for real use")
@@ -250,6 +266,14 @@ def main(argv=None) -> int:
     except (ScenarioError, OSError) as exc:
         print(f"python -m mission.simulate: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    if args.schedule is not None:
+        from mission.simulate.schedule import ScheduleError
+
+        try:
+            args.schedule = parse_schedule(args.schedule, fleet.ids)
+        except ScheduleError as exc:
+            print(f"python -m mission.simulate: {exc}", file=sys.stderr)
+            return EXIT_USAGE
 
     def progress(done: int, total: int, out) -> None:
         if not args.quiet and (done == total or done % max(1, total // 20) == 0):
@@ -279,7 +303,7 @@ def main(argv=None) -> int:
         print(f"seed {seed}: {row['violations'][0]}")
         print(f"  replay: {replay_command(args.scenario, seed, args.faults, args.schedule, args.plant)}")
         if not args.no_shrink:
-            faults = tuple(sim.Fault(**f) for f in row["faults"])
+            faults = parse_schedule(json.dumps(row["faults"]))
             small = shrink(fleet, seed, faults, args.plant)
             print(f"  shrunk to {len(small)} fault(s): {replay_command(args.scenario, seed, args.faults, small, args.plant)}")
     hashes = [r["trace_hash"] for r in report["per_seed"]]
