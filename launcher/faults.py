@@ -15,7 +15,13 @@ takeover             the coordinator SIGKILLed for good; the standby (started wi
 pause                the coordinator SIGSTOPped for ``size`` s (past Zenoh's lease: the standby takes
                      over), then SIGCONT (it is deposed)
 freeze               the carrier's process SIGSTOPped, SIGCONT when the fault ends
+slow                 the carrier's process slowed: SIGSTOPped :data:`SLOW_STOP_S` of every
+                     :data:`SLOW_PERIOD_S` (it still sends Progress, only slower)
 router-lost          the fleet's router SIGKILLed; a new one on the same endpoint when the fault ends
+loss                 every process's receive filter drops each message with probability ``size``
+                     (:mod:`wire.fault_windows`, a Generator of each receiver's from the root seed)
+partition            the carrier's messages dropped by every receiver, and everything it receives
+                     (its liveliness token stays: a real cut's vanishes a lease later)
 ==================== ==========================================================================
 
 Other kinds are refused before anything starts (:data:`FLOWN`). What each struck, at which
@@ -24,16 +30,19 @@ point and when, goes to ``<out>/faults.json``.
 from __future__ import annotations
 
 import json
+import os
 import signal
 import threading
 import time
 
 #: The kinds a real fleet flies, and what it does to which process.
-FLOWN = ("crash", "coordinator-crash", "takeover", "pause", "freeze", "router-lost")
+FLOWN = ("crash", "coordinator-crash", "takeover", "pause", "freeze", "slow", "router-lost", "loss", "partition")
 #: Kinds that need a standby coordinator started with the fleet.
 STANDBY = ("takeover", "pause")
 #: How often the mission's progress is read (s).
 POLL_S = 0.02
+#: A slow carrier: stopped this long of every period (s); it runs the rest, sending Progress.
+SLOW_STOP_S, SLOW_PERIOD_S = 0.8, 1.0
 
 
 def unflown(faults) -> list[str]:
@@ -66,8 +75,12 @@ class Injector:
     def __init__(self, fleet, faults, points, restart: dict, stop: threading.Event):
         self.fleet, self.restart, self.stop = fleet, restart, stop
         self.pending = [(k, f, (p.get("decided") or 0)) for k, (f, p) in enumerate(zip(faults, points))]
-        self.ends: list = []                      # (wall time, fault index, action)
+        self.ends: list = []                      # (wall time, fault index, action, a resume)
         self.log: list = []
+        self.loss: list = []                      # the loss windows in force (their sizes)
+        self.cut: list = []                       # the carriers cut off
+        self.slowed: dict = {}                    # carrier -> the wall time its slowness ends
+        self.write_windows()
         self.thread = threading.Thread(target=self._run, name="faults", daemon=True)
 
     def start(self) -> None:
@@ -85,8 +98,34 @@ class Injector:
                 self.ends.remove(end)
                 end[2]()
                 self._note(end[1], "ended", decided(db))
+            self._slow(now)
             self.stop.wait(POLL_S)
         self.write()
+
+    def _slow(self, now: float) -> None:
+        """Each slow carrier stopped for the first :data:`SLOW_STOP_S` of every period."""
+        for cid, until in list(self.slowed.items()):
+            proc = self.fleet.carriers.get(cid)
+            if now >= until:
+                del self.slowed[cid]
+                _signal(proc, signal.SIGCONT)
+                continue
+            _signal(proc, signal.SIGSTOP if now % SLOW_PERIOD_S < SLOW_STOP_S else signal.SIGCONT)
+
+    def write_windows(self) -> None:
+        """The message faults in force, for every process's receive filter (replaced atomically)."""
+        path = self.fleet.windows
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps({"loss": self.loss, "cut": self.cut}))
+        os.replace(tmp, path)
+
+    def _window(self, kind: str, value, on: bool) -> None:
+        held = self.loss if kind == "loss" else self.cut
+        if on:
+            held.append(value)
+        else:
+            held.remove(value)
+        self.write_windows()
 
     def _note(self, k: int, what: str, reached: int) -> None:
         self.log.append({"fault": k, "what": what, "decided": reached, "wall": round(time.time(), 3)})
@@ -116,6 +155,12 @@ class Injector:
         elif f.kind == "router-lost":
             _signal(fleet.routers[0], signal.SIGKILL)
             end = self.restart["router"]
+        elif f.kind in ("loss", "partition"):
+            value = f.size if f.kind == "loss" else f.who
+            self._window(f.kind, value, True)
+            end = lambda: self._window(f.kind, value, False)  # noqa: E731
+        elif f.kind == "slow":
+            self.slowed[f.who] = max(self.slowed.get(f.who, 0.0), time.monotonic() + length)
         self._note(k, "struck", reached)
         if end is not None:
             self.ends.append((time.monotonic() + length, k, end, resume))
@@ -129,6 +174,9 @@ class Injector:
             if resume:
                 end()
         self.ends.clear()
+        for cid in self.slowed:
+            _signal(self.fleet.carriers.get(cid), signal.SIGCONT)
+        self.slowed.clear()
         self.write()
 
     def write(self) -> None:

@@ -83,13 +83,19 @@ class Fleet:
     carriers: dict = field(default_factory=dict)  # "id,id,..." -> its process
     via: dict = field(default_factory=dict)  # "id,id,..." -> the endpoints its process connects to
     standby: subprocess.Popen | None = None  # a standby coordinator (a schedule's takeover or pause)
+    windows: Path | None = None  # a schedule's message faults in force (wire.fault_windows)
 
     def start(self, role: str, preexec=ignore_sigint, **given) -> subprocess.Popen:
         """A child of ``role`` (SIGINT ignored until it is up); ``given``: its own flag values."""
         if role != "router":
             given.setdefault("out", str(self.out))
+        env = child_env()
+        if self.windows is not None:
+            from wire.fault_windows import ENV
+
+            env[ENV] = str(self.windows)
         return subprocess.Popen([sys.executable, *child_argv(self.settings.flags, role, **given)],
-                                env=child_env(), preexec_fn=preexec,
+                                env=env, preexec_fn=preexec,
                                 stdout=subprocess.DEVNULL if role == "router" else None)
 
     def procs(self) -> list:
@@ -111,6 +117,9 @@ def main(settings: Settings, stop: threading.Event) -> int:
         if problem:
             return refuse(settings, problem)
     fleet = start_network(settings)
+    if settings.schedule:
+        fleet.windows = fleet.out / ".fault-windows.json"
+        fleet.windows.write_text('{"loss": [], "cut": []}')
     started = time.monotonic()
     if not f.decentralised:
         fleet.coordinator = fleet.start("coordinator", connect=fleet.connect)
