@@ -17,7 +17,8 @@ pause                the coordinator SIGSTOPped for ``size`` s (past Zenoh's lea
 freeze               the carrier's process SIGSTOPped, SIGCONT when the fault ends
 slow                 the carrier's process slowed: SIGSTOPped :data:`SLOW_STOP_S` of every
                      :data:`SLOW_PERIOD_S` (it still sends Progress, only slower)
-router-lost          the fleet's router SIGKILLed; a new one on the same endpoint when the fault ends
+router-lost          the fleet's router SIGSTOPped (every session's lease expires, as when it is out of
+                     reach), SIGCONT when the fault ends
 loss                 every process's receive filter drops each message with probability ``size``
                      (:mod:`wire.fault_windows`, a Generator of each receiver's from the root seed)
 partition            the carrier's messages dropped by every receiver, and everything it receives
@@ -153,8 +154,9 @@ class Injector:
             fleet.coordinator, fleet.standby = fleet.standby, paused  # the standby takes over; this one is deposed
             end, resume = (lambda: _signal(paused, signal.SIGCONT)), True
         elif f.kind == "router-lost":
-            _signal(fleet.routers[0], signal.SIGKILL)
-            end = self.restart["router"]
+            router = fleet.routers[0]
+            _signal(router, signal.SIGSTOP)
+            end, resume = (lambda: _signal(router, signal.SIGCONT)), True
         elif f.kind in ("loss", "partition"):
             value = f.size if f.kind == "loss" else f.who
             self._window(f.kind, value, True)
@@ -184,8 +186,15 @@ class Injector:
 
 
 def _signal(proc, sig) -> None:
+    """``sig`` to ``proc`` if it runs; a killed one is waited for (reaped: then it is not
+    running, and a restart at the fault's end, however soon, starts a new one)."""
     if proc is not None and proc.poll() is None:
         try:
             proc.send_signal(sig)
         except ProcessLookupError:
-            pass
+            return
+        if sig == signal.SIGKILL:
+            try:
+                proc.wait(timeout=10.0)
+            except Exception:  # noqa: BLE001 - a process that does not die is the kernel's to end
+                pass

@@ -185,12 +185,8 @@ def scheduled(fleet: Fleet, stop: threading.Event):
         if fleet.carriers[cid].poll() is not None:
             start_carrier(fleet, cid, fleet.via[cid])
 
-    def router():
-        if fleet.routers[0].poll() is not None:
-            fleet.routers[0] = fleet.start("router", listen=fleet.listen)
-
     return Injector(fleet, settings.schedule, settings.points,
-                    {"coordinator": coordinator, "carrier": carrier, "router": router}, threading.Event())
+                    {"coordinator": coordinator, "carrier": carrier}, threading.Event())
 
 
 def start_viewer(fleet: Fleet, stop: threading.Event) -> None:

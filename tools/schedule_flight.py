@@ -25,10 +25,12 @@ import tempfile
 import time
 from pathlib import Path
 
+from launcher.faults import FLOWN
+
 REPO = Path(__file__).resolve().parents[1]
 SIX = REPO / "scenarios" / "six_carriers.yaml"
-#: Every kind the real fleet flies (launcher.faults.FLOWN), in the table's order.
-KINDS = ("crash", "coordinator-crash", "takeover", "pause", "freeze", "router-lost")
+#: Every kind the real fleet flies, in the table's order.
+KINDS = FLOWN
 #: Seeds tried per kind before giving up.
 TRIED = 200
 
@@ -40,14 +42,19 @@ def grid(path: Path, carriers: int = 6, seed: int = 3) -> Path:
     return write_scenario(carriers, path, seed=seed, planner="mcts-ssap")
 
 
-def pick(fleet, kind: str, seeds: int, longest: float) -> list[dict]:
+def pick(fleet, kind: str, seeds: int, longest: float, shared_disk: bool = False) -> list[dict]:
     """The simulated missions (per-seed reports) of the first ``seeds`` seeds drawing only ``kind``
-    whose schedule ends within ``longest`` s and whose mission has no violation."""
+    whose schedule ends within ``longest`` s and whose mission has no violation; ``shared_disk``:
+    only those whose standby (if any) shares the primary's mission.db, as the one-host fleet's
+    does (the simulator gives half its waiting standbys a disk of their own)."""
     from launcher.simulate import mission_json
+    from mission import simulate as sim
 
     out = []
     for seed in range(TRIED):
         row = mission_json(fleet, seed, (kind,))
+        if shared_disk and sim.Simulation(fleet, seed, kinds=(kind,)).separate:
+            continue
         if not row["violations"] and max(f["until"] for f in row["faults"]) <= longest:
             out.append(row)
         if len(out) == seeds:
@@ -90,7 +97,8 @@ def compare(simulated: dict, real: dict) -> dict:
             "code": real["code"], "seconds": real["seconds"], "faults": simulated["faults"]}
 
 
-def agreement(scenarios: dict, kinds, seeds: int, mode: str, longest: float, work: Path, progress=None) -> list[dict]:
+def agreement(scenarios: dict, kinds, seeds: int, mode: str, longest: float, work: Path, progress=None,
+              shared_disk: bool = False) -> list[dict]:
     """Per scenario and kind: the seeds flown and how they compare (:func:`compare`)."""
     from launcher.simulate import build_fleet
 
@@ -98,7 +106,7 @@ def agreement(scenarios: dict, kinds, seeds: int, mode: str, longest: float, wor
     for name, path in scenarios.items():
         fleet = build_fleet(str(path), mode)
         for kind in kinds:
-            picked = pick(fleet, kind, seeds, longest)
+            picked = pick(fleet, kind, seeds, longest, shared_disk)
             flown = []
             for row in picked:
                 real = fly(path, row["faults"], mode, work / f"{name}-{kind}-{row['seed']}")
@@ -129,6 +137,8 @@ def main(argv=None) -> int:
     p.add_argument("--longest", type=float, default=30.0, help="the latest end of a fault of a seed flown (s)")
     p.add_argument("--scenario", action="append", default=None,
                    help="a scenario file (repeatable; default six_carriers and a generated 6-carrier grid)")
+    p.add_argument("--shared-disk", action="store_true",
+                   help="only seeds whose simulated standby shares the primary's mission.db (as the real one does)")
     p.add_argument("--json", dest="json_out", type=Path, default=None, help="write every seed's comparison here")
     args = p.parse_args(argv)
     kinds = [k for k in args.kinds.split(",") if k]
@@ -145,7 +155,7 @@ def main(argv=None) -> int:
         print(f"{name} {kind} seed {r['seed']}: {'equal' if r['equal'] else 'DIFFERENT'} "
               f"(first fault at {r['first_point']} decided; exit {r['code']}, {r['seconds']} s)", file=sys.stderr)
 
-    rows = agreement(scenarios, kinds, args.seeds, args.mode, args.longest, work, progress)
+    rows = agreement(scenarios, kinds, args.seeds, args.mode, args.longest, work, progress, args.shared_disk)
     print(table(rows))
     if args.json_out is not None:
         args.json_out.write_text(json.dumps(rows, indent=1) + "\n")
