@@ -89,7 +89,8 @@ def test_a_simulator_campaign_on_the_cluster_has_the_local_trace_hashes(tmp_path
     local = subprocess.run([sys.executable, *CAMPAIGN, "--json", str(tmp_path / "local.json")], cwd=ROOT,
                            capture_output=True, text=True, timeout=600)
     assert local.returncode == 0, local.stderr
-    remote = subprocess.run([sys.executable, *CAMPAIGN, "--scheduler", cluster, "--json", str(tmp_path / "cluster.json")],
+    remote = subprocess.run([sys.executable, *CAMPAIGN, "--scheduler", cluster,
+                             "--json", str(tmp_path / "cluster.json")],
                             cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert remote.returncode == 0, remote.stderr
     rows = {name: json.loads((tmp_path / f"{name}.json").read_text())["per_seed"] for name in ("local", "cluster")}

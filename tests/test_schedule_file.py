@@ -93,3 +93,14 @@ def test_the_receive_filter_drops_what_the_windows_in_force_lose(tmp_path):
     assert 850 < kept < 1150  # about half, drawn from the receiver's own seeded Generator
     first, second = (FaultWindows(str(path), "m", "b", ids, 7) for _ in range(2))
     assert [first.delay(obs, b"") for _ in range(64)] == [second.delay(obs, b"") for _ in range(64)]  # seeded
+
+
+def test_marsupial_fleet_run_takes_the_same_schedule_flag(tmp_path):
+    path = tmp_path / "F.json"
+    path.write_text(json.dumps([GOOD, {**GOOD, "who": "nobody"}]))
+    proc = subprocess.run([sys.executable, "-c", "import sys; from launcher.cli import main; sys.exit(main())", "run",
+                           str(ROOT / "scenarios" / "tiny.yaml"), "--schedule", str(path)],
+                          cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"{path}: fault 1: field 'who'" in lines[0], proc.stderr

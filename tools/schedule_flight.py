@@ -64,7 +64,8 @@ def pick(fleet, kind: str, seeds: int, longest: float, shared_disk: bool = False
 
 def fly(scenario: Path, faults: list, mode: str, out: Path, timeout_s: float = 600.0) -> dict:
     """``run_fleet.py`` with the schedule ``faults`` on real processes: {deployments (carrier ->
-    stages, from summary.json), code, seconds, log (the launcher's faults.json), output}."""
+    stages, from summary.json), decisions (summary.json's), code, seconds, log (the launcher's
+    faults.json), output}."""
     out.mkdir(parents=True, exist_ok=True)
     schedule = out.parent / f"{out.name}.schedule.json"
     schedule.write_text(json.dumps(faults, indent=1) + "\n")
@@ -73,12 +74,14 @@ def fly(scenario: Path, faults: list, mode: str, out: Path, timeout_s: float = 6
     t0 = time.monotonic()
     proc = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=timeout_s)
     summary = out / "summary.json"
-    deployments = None
+    deployments = decisions = None
     if summary.exists():
-        deployments = {c["id"]: sorted(d["stage"] for d in c["deployments"])
-                       for c in json.loads(summary.read_text())["carriers"]}
+        report = json.loads(summary.read_text())
+        deployments = {c["id"]: sorted(d["stage"] for d in c["deployments"]) for c in report["carriers"]}
+        decisions = report["decisions"]
     log = json.loads((out / "faults.json").read_text()) if (out / "faults.json").exists() else []
-    return {"deployments": deployments, "code": proc.returncode, "seconds": round(time.monotonic() - t0, 1),
+    return {"deployments": deployments, "decisions": decisions, "code": proc.returncode,
+            "seconds": round(time.monotonic() - t0, 1),
             "log": log, "output": (proc.stdout + proc.stderr)[-4000:]}
 
 
