@@ -21,7 +21,7 @@ from tools import schedule_flight as flight
 pytestmark = pytest.mark.slow
 
 #: Kinds whose deployments the schedule determines (with a standby on the primary's disk).
-EXACT = ("coordinator-crash", "takeover", "pause", "freeze", "slow")
+EXACT = ("coordinator-crash", "takeover", "pause", "freeze")
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,8 @@ schedule lasts at most ``--longest`` seconds (a real flight takes as long as its
 whose simulated mission has no violation.
 
 Besides the whole deployments, the table counts the seeds whose deployments agree on the stages
-decided before the first fault struck (what the schedule determines whatever the timing).
+whose Decisions were out before the first fault struck (what the schedule determines whatever
+the timing; the last Decision recorded when it struck may still be in flight, and is not counted).
 """
 from __future__ import annotations
 
@@ -91,11 +92,12 @@ def before(deployments: dict, stage: int) -> dict:
 
 
 def compare(simulated: dict, real: dict) -> dict:
-    """One seed: equal deployments, and equal before the first fault struck."""
+    """One seed: equal deployments, and equal at the stages whose Decisions were out before the
+    first fault struck (the last one recorded then may still be in flight: not counted)."""
     first = min(f["decided"] for f in simulated["faults"])
-    got = real["deployments"] or {}
+    got, out = real["deployments"] or {}, max(0, first - 1)
     return {"seed": simulated["seed"], "equal": got == simulated["deployments"],
-            "equal_before": bool(got) and before(got, first) == before(simulated["deployments"], first),
+            "equal_before": bool(got) and before(got, out) == before(simulated["deployments"], out),
             "first_point": first, "simulated": simulated["deployments"], "real": real["deployments"],
             "code": real["code"], "seconds": real["seconds"], "faults": simulated["faults"]}
 
