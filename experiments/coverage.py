@@ -39,6 +39,7 @@ import numpy as np
 
 from experiments.report import STYLE, planner_order, read_csv, sem, write_csv
 from experiments.trials import CLAIRVOYANT, Task, _planner, encode, seed_of
+from planner.guard import PlannerFault
 
 #: Fleet sizes and the planners of the full experiment; --quick's fleet sizes.
 CARRIER_LEVELS = (4, 8, 16, 32, 64)
@@ -117,7 +118,10 @@ def run_task(task: Task) -> dict:
                deployed_penalty=encode(planned.deployed), decision_ms_penalty=float(np.mean(planned.decision_ms)))
     try:
         covered = run_online(problem, x, planner, planner_seed, counts)
-    except PENDING_ERRORS as err:
+    except PlannerFault as fault:  # the guard names what the planner raised: pending if it cannot plan here
+        err = fault.__cause__
+        if fault.rule != "raises" or not isinstance(err, PENDING_ERRORS):
+            raise
         row["error"] = f"{type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''}"
     else:
         row.update(coverage_reward=covered.reward, coverage_features=covered.features,

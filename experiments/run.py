@@ -45,7 +45,8 @@ from concurrent.futures import ProcessPoolExecutor, as_completed
 from multiprocessing import get_context
 from pathlib import Path
 
-from experiments import bound, coverage, marine, priors, report, types
+from experiments import bound, cluster, coverage, marine, priors, report, types
+from experiments.cluster import UsageError
 from experiments.trials import CLAIRVOYANT, Sweep, Task, decode, run_trial, urban_trial, warm_up_worker
 from planner.settings import DEFAULT_ITERATIONS
 from world.paths import REPO_ROOT as ROOT
@@ -94,10 +95,6 @@ def run_task(task: Task) -> dict:
 
 #: Default output of --quick runs (never the committed results).
 QUICK_OUT = Path(tempfile.gettempdir()) / "marsupial-experiments-quick"
-
-
-class UsageError(Exception):
-    """Bad command-line value; reported as one line with exit code 2."""
 
 
 def fresh_out(what: str) -> Path:
@@ -333,38 +330,10 @@ def local_pool(jobs: int, planners: tuple[str, ...] | None):
 
 
 def cluster_executor(address: str, timeout_s: float, planners: tuple[str, ...] | None = None):
-    """A ``concurrent.futures`` executor running tasks on a Dask distributed cluster.
-
-    The workers must be able to import this project (start them from a checkout with the
-    project installed: ``pip install -e '.[cluster]'``, then ``dask worker ADDRESS``). Every
-    worker loads the planners' compiled kernels before any sweep is timed.
-
-    Returns:
-        (client, executor, workers): the client to close at the end, the executor, and the number
-        of worker threads the scheduler reports.
-
-    Raises:
-        UsageError: dask is not installed, the scheduler is unreachable, or no worker joined
-            within ``timeout_s``.
-    """
-    try:
-        from distributed import Client
-    except ImportError:
-        raise UsageError("--cluster: needs dask's distributed scheduler: pip install -e '.[cluster]'") from None
-    try:
-        client = Client(address, timeout=timeout_s, set_as_default=False)
-    except (OSError, TimeoutError, ValueError) as err:
-        raise UsageError(f"--cluster: expected a reachable Dask scheduler at {address!r}, "
-                         f"found none within {timeout_s:g} s ({type(err).__name__}: {str(err).splitlines()[0] if str(err) else ''})") from None
-    try:
-        client.wait_for_workers(1, timeout=timeout_s)
-    except (OSError, TimeoutError):
-        client.close()
-        raise UsageError(f"--cluster: the scheduler at {address!r} has no worker after {timeout_s:g} s") from None
-    client.run(warm_up_worker, planners)
-    threads = sum(client.nthreads().values())
-    # pure=False: every task runs (a task's result never comes from another's cache).
-    return client, client.get_executor(pure=False), threads
+    """A ``concurrent.futures`` executor running tasks on a Dask distributed cluster
+    (:func:`experiments.cluster.connect`), every worker with the planners' compiled kernels
+    loaded before any sweep is timed: (client, executor, worker threads); UsageError."""
+    return cluster.connect(address, timeout_s, "--cluster", warm_up_worker, planners)
 
 
 def _write_sweep(sweep: str, rows: list[dict], out: Path, seconds: float, jobs: int, s: dict, args) -> dict:

@@ -109,6 +109,10 @@ def _mission_flags(p: argparse.ArgumentParser) -> None:
                         "--peer-timeout are deadlines and a late observation is ∅")
     p.add_argument("--mission", help="mission id, the key-expression prefix (default: the scenario name)")
     p.add_argument("--out", metavar="DIR", help="results directory (default runs/<scenario>-<timestamp>)")
+    p.add_argument("--schedule", metavar="FILE",
+                   help="one-host fleet: fly this fault schedule (the faults of a seed in python -m mission.simulate "
+                        "--json), each fault struck at the mission point it names (docs/fleet.md, \"Fault schedules "
+                        "on real processes\")")
     p.add_argument("--standby", action="store_true",
                    help="coordinator: if the mission already has a live coordinator, wait and take over when "
                         "its liveliness token vanishes (without it: refuse to start, exit 2)")

@@ -39,12 +39,16 @@ class Settings:
         scenario: the loaded ``world.Scenario``; None for the router.
         carriers: ``--carrier``'s ids, in order (empty unless ``--role carrier``).
         planner_options: ``--planner-option``'s (key, checked value) pairs, in order.
+        schedule: ``--schedule``'s faults (``mission.simulate.Fault``), in order; points: each
+            one's mission points (``mission.simulate.schedule.points``).
     """
 
     flags: Any
     scenario: Any = None
     carriers: tuple[str, ...] = ()
     planner_options: tuple[tuple[str, Any], ...] = ()
+    schedule: tuple = ()
+    points: tuple = ()
 
     @property
     def name(self) -> str:
@@ -112,9 +116,37 @@ def check(args: argparse.Namespace, scenario=None) -> tuple[Settings | None, lis
         problems += _mission(flags, scenario)
     if scenario is not None and not problems:  # the planner is built from the other flags
         problems += _planner(flags, scenario, options)
+    schedule, points, schedule_problems = _schedule(flags, scenario)
+    problems += schedule_problems
     if problems:
         return None, problems
-    return Settings(flags, scenario, carriers, options), []
+    return Settings(flags, scenario, carriers, options, schedule, points), []
+
+
+def _schedule(f, scenario) -> tuple[tuple, tuple, list[Problem]]:
+    """``--schedule``: its faults and their mission points, or the one problem of its file (which
+    fault, which field)."""
+    if not f.schedule:
+        return (), (), []
+    if f.role != "all" or f.decentralised:
+        return (), (), [Problem("--schedule", "the one-host fleet with a coordinator (--role all)",
+                                Found(f"--role {f.role}" + (" --decentralised" if f.decentralised else "")))]
+    import json
+
+    from mission.simulate import schedule
+
+    try:
+        faults = schedule.load(f.schedule, scenario.carrier_ids if scenario is not None else None)
+        points = schedule.points(json.loads(Path(f.schedule).read_text()))
+    except schedule.ScheduleError as exc:
+        return (), (), [_said("--schedule", str(exc))]
+    from launcher.faults import FLOWN
+
+    for k, fault in enumerate(faults):
+        if fault.kind not in FLOWN:
+            return (), (), [_said("--schedule", f"{f.schedule}: fault {k}: field 'kind': expected a kind the real "
+                                                f"fleet flies ({', '.join(FLOWN)}), found {fault.kind!r}")]
+    return faults, tuple(points), []
 
 
 #: The numeric flags' checks, in the order their problems are listed (the planner's budgets are

@@ -91,13 +91,29 @@ def parse_kinds(text: str) -> tuple[str, ...]:
     return kinds
 
 
-def parse_schedule(text: str) -> tuple[sim.Fault, ...]:
-    try:
-        return tuple(sim.Fault(str(f["kind"]), float(f["at"]), float(f["until"]), str(f.get("who", "")),
-                               float(f.get("size", 0.0))) for f in json.loads(text))
-    except (ValueError, KeyError, TypeError) as exc:
-        raise argparse.ArgumentTypeError(f"--schedule: expected a JSON list of faults "
-                                         f"{{kind, at, until, who, size}}, {exc}") from None
+def parse_schedule(text: str, ids=None) -> tuple[sim.Fault, ...]:
+    """``--schedule``: a schedule file, or its JSON inline (what a shrunk failure prints);
+    :class:`mission.simulate.schedule.ScheduleError` naming the file, the fault and the field."""
+    from mission.simulate import schedule
+
+    if text.lstrip().startswith("["):
+        try:
+            data = json.loads(text)
+        except ValueError as exc:
+            raise schedule.ScheduleError(f"--schedule: not JSON ({exc})") from None
+        return schedule.parse(data, "--schedule", ids)
+    return schedule.load(text, ids)
+
+
+def mission_json(fleet: sim.Fleet, seed: int, kinds, faults=None, plant=None) -> dict:
+    """One mission's report (a row of ``per_seed``): :meth:`mission.simulate.Outcome.as_json`, its
+    faults with the mission points each struck and ended at (:func:`mission.simulate.schedule.with_points`)."""
+    from mission.simulate import schedule
+
+    s = sim.Simulation(fleet, seed, faults=faults, kinds=kinds, plant=plant)
+    out = s.run().as_json()
+    out["faults"] = schedule.with_points(s.faults, s.decided_at)
+    return out
 
 
 def shrink(fleet: sim.Fleet, seed: int, faults, plant=None) -> tuple:
@@ -137,11 +153,24 @@ def replay_command(scenario: str, seed: int, kinds, faults=None, plant=None) -> 
 
 
 _FLEET: sim.Fleet | None = None  # a worker's fleet (inherited from the parent by fork)
+_BUILT: dict = {}  # a cluster worker's fleets, by the arguments that built them
+
+#: Seeds per task on a cluster (one task per seed would cost the scheduler more than the missions).
+CLUSTER_CHUNK = 25
 
 
 def _one(args) -> dict:
     seed, kinds, schedule, plant = args
-    return sim.simulate(_FLEET, seed, kinds=kinds, faults=schedule, plant=plant).as_json()
+    return mission_json(_FLEET, seed, kinds, schedule, plant)
+
+
+def _chunk(build: tuple, tasks: list) -> list[dict]:
+    """A cluster worker's missions: the fleet built once per worker from ``build`` (the arguments
+    of :func:`build_fleet`; the scenario file read where the worker runs), then the seeds."""
+    fleet = _BUILT.get(build)
+    if fleet is None:
+        fleet = _BUILT[build] = build_fleet(*build)
+    return [mission_json(fleet, seed, kinds, schedule, plant) for seed, kinds, schedule, plant in tasks]
 
 
 def _cpu() -> float:
@@ -151,20 +180,33 @@ def _cpu() -> float:
     return t.user + t.system + t.children_user + t.children_system
 
 
-def campaign(fleet: sim.Fleet, seeds, kinds, schedule=None, plant=None, progress=None, jobs: int = 1) -> dict:
-    """Run every seed (``jobs`` worker processes, each seed's mission the same in any); the
-    report's figures (the keys of ``--json``)."""
+def _on_cluster(executor, build: tuple, tasks: list):
+    """The missions of ``tasks`` run on a cluster's executor, in seed order."""
+    chunks = [tasks[k:k + CLUSTER_CHUNK] for k in range(0, len(tasks), CLUSTER_CHUNK)]
+    for rows in executor.map(_chunk, [build] * len(chunks), chunks):
+        yield from rows
+
+
+def campaign(fleet: sim.Fleet, seeds, kinds, schedule=None, plant=None, progress=None, jobs: int = 1,
+             cluster=None) -> dict:
+    """Run every seed (``jobs`` worker processes, or ``cluster``: (executor, the arguments of
+    :func:`build_fleet` each cluster worker builds its fleet with); each seed's mission the same
+    in any); the report's figures (the keys of ``--json``). On a cluster ``cpu_seconds`` counts
+    this process only."""
     global _FLEET
     t0, cpu0 = time.perf_counter(), _cpu()
     tasks = [(seed, tuple(kinds), schedule, plant) for seed in seeds]
     _FLEET = fleet
-    if jobs > 1:
+    pool = None
+    if cluster is not None:
+        results = _on_cluster(cluster[0], cluster[1], tasks)
+    elif jobs > 1:
         import multiprocessing
 
         pool = multiprocessing.get_context("fork").Pool(jobs)
         results = pool.imap(_one, tasks, chunksize=max(1, min(50, len(tasks) // (8 * jobs))))
     else:
-        pool, results = None, map(_one, tasks)
+        results = map(_one, tasks)
     per_seed, violations, events = [], [], 0
     try:
         for k, out in enumerate(results):
@@ -193,14 +235,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seeds", type=parse_seeds, default=range(0, 100), help="A:B: missions with seeds A..B-1 (0:100)")
     p.add_argument("--faults", type=parse_kinds, default=sim.FAULT_KINDS,
                    help="all (default), none, or a comma-separated list of: " + ", ".join(sim.FAULT_KINDS))
-    p.add_argument("--schedule", type=parse_schedule, default=None,
-                   help="a JSON list of faults to use instead of drawing them (what a shrunk failure prints)")
+    p.add_argument("--schedule", default=None, metavar="FILE|JSON",
+                   help="a schedule file (a JSON list of faults: the faults of a seed in --json) or the list "
+                        "inline (what a shrunk failure prints), to use instead of drawing them")
     p.add_argument("--mode", choices=(Mode.HYBRID.value, Mode.COORDINATED.value), default=Mode.HYBRID.value,
                    help="the carriers' mode")
     p.add_argument("--plant", choices=sim.PLANTS, default=None,
                    help="put back a known bug class (the campaign's power test); never for real use")
     p.add_argument("--json", dest="json_out", type=Path, default=None, help="write the report as JSON here")
     p.add_argument("--jobs", type=int, default=1, help="worker processes (the missions are the same with any)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run the missions on a Dask distributed scheduler (e.g. tcp://10.0.0.5:8786) instead of "
+                        "--jobs local processes: the same missions, the same trace hashes")
+    p.add_argument("--scheduler-timeout", type=float, default=20.0,
+                   help="seconds to wait for the --scheduler and its first worker (default 20)")
     p.add_argument("--onboard-iterations", type=int, default=None,
                    help="the on-board planner's iteration budget (default: its own); a campaign of large "
                         "fleets lowers it: the invariants do not depend on how well carriers decide alone")
@@ -220,20 +268,44 @@ def main(argv=None) -> int:
     except (ScenarioError, OSError) as exc:
         print(f"python -m mission.simulate: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    if args.schedule is not None:
+        from mission.simulate.schedule import ScheduleError
+
+        try:
+            args.schedule = parse_schedule(args.schedule, fleet.ids)
+        except ScheduleError as exc:
+            print(f"python -m mission.simulate: {exc}", file=sys.stderr)
+            return EXIT_USAGE
 
     def progress(done: int, total: int, out) -> None:
         if not args.quiet and (done == total or done % max(1, total // 20) == 0):
             print(f"  {done}/{total} missions, {out['events']} events in the last, "
                   f"{len(out['violations'])} violation(s) in the last", file=sys.stderr, end="\r" if done < total else "\n")
 
-    report = campaign(fleet, args.seeds, args.faults, args.schedule, args.plant, progress, max(1, args.jobs))
+    client = cluster = None
+    if args.scheduler:
+        from experiments.cluster import UsageError, connect
+
+        build = (str(Path(args.scenario).resolve()), args.mode, args.onboard_iterations, None, args.perfect_links)
+        try:
+            client, executor, _ = connect(args.scheduler, args.scheduler_timeout, "--scheduler")
+        except UsageError as exc:
+            print(f"python -m mission.simulate: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+        cluster = (executor, build)
+    try:
+        report = campaign(fleet, args.seeds, args.faults, args.schedule, args.plant, progress, max(1, args.jobs),
+                          cluster)
+    finally:
+        if client is not None:
+            client.close()
     failing = sorted({v["seed"] for v in report["violations"]})
     for seed in failing[:5]:
         row = next(r for r in report["per_seed"] if r["seed"] == seed)
         print(f"seed {seed}: {row['violations'][0]}")
         print(f"  replay: {replay_command(args.scenario, seed, args.faults, args.schedule, args.plant)}")
         if not args.no_shrink:
-            faults = tuple(sim.Fault(**f) for f in row["faults"])
+            faults = parse_schedule(json.dumps(row["faults"]))
             small = shrink(fleet, seed, faults, args.plant)
             print(f"  shrunk to {len(small)} fault(s): {replay_command(args.scenario, seed, args.faults, small, args.plant)}")
     hashes = [r["trace_hash"] for r in report["per_seed"]]

@@ -27,7 +27,7 @@ from mission.exits import EXIT_DEPOSED, EXIT_USAGE, STOPPED
 #: Flags of the one-host launcher itself: a child gets its role, carriers, network and results
 #: directory from the supervisor instead.
 ONE_HOST = ("role", "carrier", "carrier_processes", "routers", "view", "verbose", "listen", "connect", "mode",
-            "standby", "out", "ready_file")
+            "standby", "out", "ready_file", "schedule")
 #: The viewer's own flags.
 VIEWER = ("web_port", "grpc_port", "save", "no_web", "linger")
 #: Per role, the flags a child does not take from the launcher's command line (they keep their
@@ -81,21 +81,30 @@ class Fleet:
     coordinator: subprocess.Popen | None = None
     viewer: subprocess.Popen | None = None
     carriers: dict = field(default_factory=dict)  # "id,id,..." -> its process
+    via: dict = field(default_factory=dict)  # "id,id,..." -> the endpoints its process connects to
+    standby: subprocess.Popen | None = None  # a standby coordinator (a schedule's takeover or pause)
+    windows: Path | None = None  # a schedule's message faults in force (wire.fault_windows)
 
     def start(self, role: str, preexec=ignore_sigint, **given) -> subprocess.Popen:
         """A child of ``role`` (SIGINT ignored until it is up); ``given``: its own flag values."""
         if role != "router":
             given.setdefault("out", str(self.out))
+        env = child_env()
+        if self.windows is not None:
+            from wire.fault_windows import ENV
+
+            env[ENV] = str(self.windows)
         return subprocess.Popen([sys.executable, *child_argv(self.settings.flags, role, **given)],
-                                env=child_env(), preexec_fn=preexec,
+                                env=env, preexec_fn=preexec,
                                 stdout=subprocess.DEVNULL if role == "router" else None)
 
     def procs(self) -> list:
-        return [p for p in (self.coordinator, *self.carriers.values(), *self.routers, self.viewer) if p is not None]
+        return [p for p in (self.coordinator, self.standby, *self.carriers.values(), *self.routers, self.viewer)
+                if p is not None]
 
     def others(self) -> list:
-        """The carriers, the routers and the viewer: what is left once the coordinator is gone."""
-        return [*self.carriers.values(), *self.routers] + ([self.viewer] if self.viewer is not None else [])
+        """The carriers, the routers, the viewer and a standby: what is left once the coordinator is gone."""
+        return [*self.carriers.values(), *self.routers] + [p for p in (self.viewer, self.standby) if p is not None]
 
 
 def main(settings: Settings, stop: threading.Event) -> int:
@@ -108,14 +117,24 @@ def main(settings: Settings, stop: threading.Event) -> int:
         if problem:
             return refuse(settings, problem)
     fleet = start_network(settings)
+    if settings.schedule:
+        fleet.windows = fleet.out / ".fault-windows.json"
+        fleet.windows.write_text('{"loss": [], "cut": []}')
     started = time.monotonic()
     if not f.decentralised:
         fleet.coordinator = fleet.start("coordinator", connect=fleet.connect)
+    injector = scheduled(fleet, stop) if settings.schedule else None
     if f.view:  # subscribed before the carriers start, so the view misses nothing
         start_viewer(fleet, stop)
     start_carriers(fleet)
     announce(fleet)
-    supervise(fleet, stop)
+    if injector is not None:
+        injector.start()
+    try:
+        supervise(fleet, stop)
+    finally:
+        if injector is not None:
+            injector.finish()
     if stop.is_set():
         say(settings, "interrupted; stopping the fleet")
         stop_children(fleet.procs())
@@ -141,6 +160,33 @@ def start_network(settings: Settings) -> Fleet:
     fleet = Fleet(settings, out, listen, [e.replace("0.0.0.0", "127.0.0.1") for e in listen])
     fleet.routers.append(fleet.start("router", listen=listen))
     return fleet
+
+
+def scheduled(fleet: Fleet, stop: threading.Event):
+    """``--schedule``: the standby a takeover or a pause needs (started once the primary has
+    opened mission.db, so that it waits as a standby), and the :class:`launcher.faults.Injector`
+    that strikes each fault at its mission point."""
+    from launcher.faults import STANDBY, Injector
+
+    settings = fleet.settings
+    if any(f.kind in STANDBY for f in settings.schedule):
+        deadline = time.monotonic() + 60
+        while not (fleet.out / "mission.db").exists() and not stop.is_set() and time.monotonic() < deadline:
+            stop.wait(0.05)
+        fleet.standby = fleet.start("coordinator", connect=fleet.connect, standby=True)
+
+    # a process is started again only if it is not running (the simulator's rule: a second
+    # crash of a process already down restarts nothing of its own)
+    def coordinator():
+        if fleet.coordinator.poll() is not None:
+            fleet.coordinator = fleet.start("coordinator", connect=fleet.connect)
+
+    def carrier(cid: str):
+        if fleet.carriers[cid].poll() is not None:
+            start_carrier(fleet, cid, fleet.via[cid])
+
+    return Injector(fleet, settings.schedule, settings.points,
+                    {"coordinator": coordinator, "carrier": carrier}, threading.Event())
 
 
 def start_viewer(fleet: Fleet, stop: threading.Event) -> None:
@@ -171,11 +217,18 @@ def start_carriers(fleet: Fleet) -> None:
         fleet.routers.append(fleet.start("router", listen=[endpoint], connect=fleet.connect))
         fleet.router_endpoints.append(endpoint)
     endpoints = fleet.router_endpoints
-    for g, group in enumerate(carrier_groups(scenario.carrier_ids, f.carrier_processes)):
-        via = [endpoints[g % len(endpoints)]] if endpoints else fleet.connect
-        fleet.carriers[",".join(group)] = fleet.start(
-            "carrier", preexec=carrier_child, carrier=",".join(group), connect=via,
-            log_sync=f.log_sync or "normal", quiet=not f.verbose)
+    # a schedule strikes one carrier at a time: one process per carrier
+    processes = scenario.n_carriers if fleet.settings.schedule else f.carrier_processes
+    for g, group in enumerate(carrier_groups(scenario.carrier_ids, processes)):
+        start_carrier(fleet, ",".join(group), [endpoints[g % len(endpoints)]] if endpoints else fleet.connect)
+
+
+def start_carrier(fleet: Fleet, cids: str, via: list[str]) -> None:
+    """The carrier process of ``cids`` (``id,id,...``), connecting to ``via``."""
+    f = fleet.settings.flags
+    fleet.via[cids] = via
+    fleet.carriers[cids] = fleet.start("carrier", preexec=carrier_child, carrier=cids, connect=via,
+                                       log_sync=f.log_sync or "normal", quiet=not f.verbose)
 
 
 def slow_links_note(settings: Settings) -> str | None:
@@ -217,9 +270,10 @@ def supervise(fleet: Fleet, stop: threading.Event) -> None:
     """Until the mission is over or a stop request. The mission lasts as long as its
     coordinator; decentralised, or when the coordinator died, as long as its carriers (they go
     on without it)."""
-    coordinator, carriers = fleet.coordinator, fleet.carriers
+    carriers = fleet.carriers
     refused = set()
     while not stop.is_set():
+        coordinator = fleet.coordinator  # a schedule's takeover or restart replaces it
         if coordinator is not None and coordinator.poll() is not None and coordinator.returncode == 0:
             break
         if (coordinator is None or coordinator.poll() is not None) and all(p.poll() is not None
@@ -258,7 +312,7 @@ def finish(fleet: Fleet, code: int, started: float, stop: threading.Event) -> in
     while time.monotonic() < deadline and any(p.poll() is None for p in carriers.values()):
         time.sleep(0.05)
     stop_children(list(carriers.values()), grace_s=5.0)
-    stop_children(fleet.routers, grace_s=5.0)
+    stop_children(fleet.routers + ([fleet.standby] if fleet.standby is not None else []), grace_s=5.0)
     bad = {cid: p.returncode for cid, p in carriers.items() if p.returncode not in (0,)}
     if bad:
         say(settings, f"carrier exit codes {bad}")

@@ -3,6 +3,7 @@ on loopback, started by the test; the results equal the local process pool's for
 from __future__ import annotations
 
 import csv
+import json
 import subprocess
 import sys
 import time
@@ -78,3 +79,32 @@ def test_unreachable_cluster_is_one_line_exit_2():
     assert "Traceback" not in proc.stderr
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "--cluster" in lines[0] and str(port) in lines[0], proc.stderr
+
+
+#: A simulator campaign: every fault kind drawn, a few seeds of a small scenario.
+CAMPAIGN = ["-m", "mission.simulate", str(ROOT / "scenarios" / "tiny.yaml"), "--seeds", "0:30", "--quiet"]
+
+
+def test_a_simulator_campaign_on_the_cluster_has_the_local_trace_hashes(tmp_path, cluster):
+    local = subprocess.run([sys.executable, *CAMPAIGN, "--json", str(tmp_path / "local.json")], cwd=ROOT,
+                           capture_output=True, text=True, timeout=600)
+    assert local.returncode == 0, local.stderr
+    remote = subprocess.run([sys.executable, *CAMPAIGN, "--scheduler", cluster,
+                             "--json", str(tmp_path / "cluster.json")],
+                            cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert remote.returncode == 0, remote.stderr
+    rows = {name: json.loads((tmp_path / f"{name}.json").read_text())["per_seed"] for name in ("local", "cluster")}
+    assert [r["seed"] for r in rows["cluster"]] == list(range(30))
+    assert [r["trace_hash"] for r in rows["cluster"]] == [r["trace_hash"] for r in rows["local"]]
+    assert rows["cluster"] == rows["local"]  # faults, deployments, rewards, violations: every field
+    assert local.stdout.splitlines()[-1].split("trace ")[-1] == remote.stdout.splitlines()[-1].split("trace ")[-1]
+
+
+def test_an_unreachable_scheduler_is_one_line_exit_2():
+    port = distinct_free_ports(1)[0]  # nothing listens there
+    proc = subprocess.run([sys.executable, *CAMPAIGN, "--scheduler", f"tcp://127.0.0.1:{port}",
+                           "--scheduler-timeout", "2"], cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2, proc.stderr
+    assert "Traceback" not in proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--scheduler" in lines[0] and str(port) in lines[0], proc.stderr

@@ -163,7 +163,9 @@ def test_a_planner_that_cannot_plan_under_coverage_is_pending_not_invented(monke
     assert summary[0]["coverage_n"] == 0
     assert "pending" in "\n".join(coverage.markdown(summary))
     monkeypatch.setattr(coverage, "_planner", lambda name, iterations: _BlindToCounts(RuntimeError("a bug")))
-    with pytest.raises(RuntimeError):  # only "cannot plan under coverage" errors are recorded
+    from planner.guard import PlannerFault
+
+    with pytest.raises(PlannerFault, match="raises: RuntimeError"):  # only "cannot plan under coverage" is recorded
         coverage.run_task(Task("coverage", 8, 0, "blind", 0, 10, carriers=4, overlaps=8))
 
 

@@ -143,7 +143,8 @@ def test_the_command_writes_the_report_and_a_replay_gives_the_same_trace(tmp_pat
     (["--seeds", "5:3"], "--seeds: expected A:B with 0 <= A < B"),
     (["--seeds", "x"], "--seeds: expected A:B"),
     (["--faults", "crash,meteor"], "--faults: unknown kind(s)"),
-    (["--schedule", "[{\"at\": 1}]"], "--schedule: expected a JSON list of faults"),
+    (["--schedule", "[{\"at\": 1}]"], "--schedule: fault 0: field 'kind'"),
+    (["--schedule", "/nonexistent/f.json"], "/nonexistent/f.json: cannot read the schedule"),
 ])
 def test_bad_flags_get_a_one_line_error(args, says):
     proc = _run(SIX, *args)

@@ -1,28 +1,25 @@
-"""Simulated fault schedules replayed on real processes (issue 33, item 6): a schedule the
-simulator draws from a seed is carried out on the real fleet (run_fleet.py single-role
-processes over real Zenoh, tests/test_faults.py's helpers), each fault placed at the stage it
-struck in the simulated mission and lasting as long, and the real fleet makes the simulated
-mission's decisions.
+"""Simulated fault schedules replayed on real processes: a schedule the simulator draws from a
+seed is carried out on the real fleet over real Zenoh, each fault placed at the stage it struck
+in the simulated mission, and the real fleet makes the simulated mission's decisions.
 
-The kinds replayed are those whose decisions are a function of the schedule alone, not of how
-long each side took: ``coordinator-crash`` with carriers that hold (``--no-autonomy``, the
-simulator's ``coordinated`` mode), and the intruders' messages, ``corrupt`` (garbled ones and
-another mission's, mid-mission) and ``stale`` (a carrier's messages of an earlier run of the
-mission, before its Hello), each published by a Zenoh session of the test at the stage it
-struck in the simulated mission. Carrier crashes and cuts are not replayed: which stages are
-decided without the carrier depends on the real processes' timing, which the simulated one does
-not reproduce.
+``coordinator-crash`` with carriers that hold (``--no-autonomy``, the simulator's
+``coordinated`` mode) is flown by ``run_fleet.py --schedule`` (launcher/faults.py; every other
+kind it flies: tests/test_schedule_flight.py). The intruders' messages, ``corrupt`` (garbled
+ones and another mission's, mid-mission) and ``stale`` (a carrier's messages of an earlier run
+of the mission, before its Hello), which the launcher does not fly, are each published by a
+Zenoh session of the test at the stage it struck in the simulated mission (run_fleet.py
+single-role processes, tests/test_faults.py's helpers).
 """
 from __future__ import annotations
 
 import json
-import time
 
 import pytest
 
-from launcher.simulate import build_fleet
+from launcher.simulate import build_fleet, mission_json
 from mission import simulate as sim
 from test_faults import Fleet, faults_yaml
+from tools import schedule_flight as flight
 from wire import keys
 from wire.messages import Bye, Confirm, Observation, encode
 from wire.transport import Node
@@ -31,51 +28,35 @@ from wire.zconfig import free_port, make_config
 pytestmark = pytest.mark.slow
 
 
-def _crash_stage(fleet, seed: int) -> tuple[int, float, dict]:
-    """The stage after whose Decision the seed's drawn coordinator crash struck in the simulated
-    mission (-1: before the first), how long the coordinator stayed down (s), and the simulated
-    mission's decisions (stage -> ids)."""
-    s = sim.Simulation(fleet, seed, kinds=("coordinator-crash",))
-    out = s.run()
-    assert out.violations == [] and out.completed, out.violations
-    crash = next(f for f in s.faults if f.kind == "coordinator-crash")
-    k = max((j for j, t in s.decided_at.items() if t < crash.at), default=-1)
-    final = next(d for d in s.coordinators.values() if d.phase == "done")
-    return k, crash.until - crash.at, {j: tuple(sorted(d.deploy)) for j, d in final.state.decisions.items()}
-
-
-def test_a_simulated_coordinator_crash_replayed_on_real_processes_makes_the_same_decisions(tmp_path):
+def test_a_simulated_coordinator_crash_flown_on_real_processes_makes_the_same_decisions(tmp_path):
+    """The seeds' schedules flown by ``run_fleet.py --schedule`` (the launcher's injector, the one
+    implementation: tools/schedule_flight.py), the carriers holding while the coordinator is down."""
     path = tmp_path / "faults.yaml"
     path.write_text(faults_yaml(10))
     fleet = build_fleet(str(path), mode="coordinated")
     # the first seeds with one drawn crash, striking mid-mission (stages are left to the restarted
-    # process) and shorter than 20 s (the wall seconds the replay waits before the restart)
+    # process) and shorter than 20 s (the wall seconds the flight keeps it down)
     picked = []
     for seed in range(300):
-        if sum(f.kind == "coordinator-crash" for f in sim.Simulation(fleet, seed, kinds=("coordinator-crash",)).faults) != 1:
+        s = sim.Simulation(fleet, seed, kinds=("coordinator-crash",))
+        out = s.run()
+        crash = [f for f in s.faults if f.kind == "coordinator-crash"]
+        if len(crash) != 1 or out.violations or not out.completed:
             continue
-        k, down, decisions = _crash_stage(fleet, seed)
-        if 1 <= k <= fleet.n_stages - 3 and down < 20.0:
-            picked.append((seed, k, down, decisions))
+        row = mission_json(fleet, seed, ("coordinator-crash",))
+        if 1 <= row["faults"][0]["decided"] <= fleet.n_stages - 3 and crash[0].until - crash[0].at < 20.0:
+            final = next(d for d in s.coordinators.values() if d.phase == "done")
+            picked.append((row, [list(final.state.decisions[j].deploy) for j in range(fleet.n_stages)]))
         if len(picked) == 2:
             break
     assert len(picked) == 2
-    for seed, k, down, decisions in picked:
-        real = Fleet(path, tmp_path / f"run-{seed}", f"tcp/127.0.0.1:{free_port()}")
-        try:
-            real.coordinator("coordinator-1")
-            for cid in fleet.ids:
-                real.carrier(cid, extra=["--no-autonomy"])
-            real.poll(f"stage {k} decided", lambda: real.decided() >= k)
-            real.kill("coordinator-1")
-            time.sleep(down)  # down as long as in the simulated mission (the carriers hold, well within their timeout)
-            real.coordinator("coordinator-2")
-            codes = real.wait_all()
-        finally:
-            real.cleanup()
-        assert all(code == 0 for name, code in codes.items() if name != "coordinator-1"), (codes, real.output())
-        made = {j: tuple(sorted(json.loads(deploy))) for j, deploy in real.rows("SELECT stage, deploy FROM decisions")}
-        assert made == decisions, (seed, k, made, decisions)
+    for row, decisions in picked:
+        real = flight.fly(path, row["faults"], "coordinated", tmp_path / f"run-{row['seed']}")
+        assert real["code"] == 0, real["output"]
+        assert [sorted(d) for d in real["decisions"]] == [sorted(d) for d in decisions], (row, real)
+        assert real["deployments"] == row["deployments"], (row, real)
+        struck = next(e for e in real["log"] if e["what"] == "struck")
+        assert struck["decided"] >= row["faults"][0]["decided"]
 
 
 def _intrusions(fleet, seed: int) -> tuple[list, dict]:

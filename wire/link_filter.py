@@ -31,7 +31,7 @@ import numpy as np
 from planner import links as ch
 from world.fleet_links import FleetLinks
 
-from . import keys
+from .fault_windows import fault_windows, sender_of
 from .sizes import link_sizes
 
 #: Message kinds that are not carried over the links (viewers' traffic).
@@ -64,13 +64,8 @@ class LinkFilter:
 
     # -------------------------------------------------------------- what a message says
     def _sender(self, key: str) -> tuple[str, str]:
-        """(sender, kind) of a key: a carrier's topic, or the coordinator's (``accepted`` and
-        ``refusal`` end with the carrier's id)."""
-        parsed = keys.parse_carrier_key(self.mission, key)
-        if parsed is not None:
-            return parsed
-        parts = key.split("/")
-        return "coordinator", parts[3] if len(parts) > 3 else parts[-1]
+        """(sender, kind) of a key (:func:`wire.fault_windows.sender_of`)."""
+        return sender_of(self.mission, key)
 
     def _learn(self, sender: str, payload: bytes) -> None:
         try:
@@ -123,7 +118,7 @@ class LinkFilter:
 
 def link_filter(scenario, mission: str, receiver: str, here=None, realtime: float = 0.0) -> LinkFilter | None:
     """The receive filter of ``receiver`` on the scenario's links; None on ``perfect`` links (the
-    network untouched)."""
-    if scenario.links.model == "perfect":
-        return None
-    return LinkFilter(scenario, mission, receiver, here, realtime)
+    network untouched). A fault schedule's message faults go in front of it when the one-host
+    launcher flies one (:func:`wire.fault_windows.fault_windows`)."""
+    inner = None if scenario.links.model == "perfect" else LinkFilter(scenario, mission, receiver, here, realtime)
+    return fault_windows(scenario, mission, receiver, inner)

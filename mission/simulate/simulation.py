@@ -404,15 +404,22 @@ class Simulation:
         self.at(self.t + f.size, self._paused_lease, driver, driver.life, True)
         return f.size
 
-    def _paused_lease(self, driver: CoordinatorDriver, life: int, alive: bool) -> None:
-        """A paused process's session lapses and comes back with it; a process killed while paused
-        took its session along (:meth:`CoordinatorDriver.crash`), a restarted one has its own."""
+    def _paused_lease(self, driver, life: int, alive: bool) -> None:
+        """A paused (or frozen) process's session lapses and comes back with it; a process killed
+        while paused took its session along (:meth:`CoordinatorDriver.crash`), a restarted one has
+        its own."""
         if driver.life == life and driver.alive:
-            self._lease((driver.name,), alive, reached=True)
+            self._lease((driver.name if isinstance(driver, CoordinatorDriver) else driver.cid,), alive, reached=True)
 
     def _freeze(self, who: str, until: float) -> None:
+        """Carrier ``who`` stuck until ``until``: alive and silent; stuck longer than a lease, its
+        session lapses too (its token vanishes a lease after, and reappears when it runs again),
+        as a stopped process's does on the real network."""
         self.frozen[who] = until
         driver = self.carriers[who]
+        if until - self.t > LEASE_S and driver.alive:
+            self.at(self.t + LEASE_S, self._paused_lease, driver, driver.life, False)
+            self.at(until, self._paused_lease, driver, driver.life, True)
         self.at(until, lambda: driver.alive and driver.advance(self.now_of(who)))
 
     def _jump(self, host: str, seconds: float) -> None:
