@@ -13,10 +13,11 @@ This module sits above the planners' modules: it routes a decentralised planner 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from planner.constraints import Constraints, apply, constrain, usable
 from planner.passengers import release
 from planner.problem import OnlineResult, Planner, Problem, enforce, evaluate, make_view, stage_rng, start_online
 
@@ -30,15 +31,18 @@ class StageStep:
         passengers: int64 ``[R]``: the passenger index each deploying carrier releases, -1 for
             the others (index order without passenger values).
         decision_ms: wall time of the planner's ``decide`` call, milliseconds.
+        dropped: carrier index -> the reason code of each constraint that could not apply.
     """
 
     deploy: np.ndarray
     passengers: np.ndarray
     decision_ms: float
+    dropped: dict = field(default_factory=dict)
 
 
 def stage_step(problem: Problem, x: np.ndarray, deployed: np.ndarray, planner: Planner, seed: int,
-               stage: int, released: np.ndarray | None = None, counts: np.ndarray | None = None) -> StageStep:
+               stage: int, released: np.ndarray | None = None, counts: np.ndarray | None = None,
+               constraints: Constraints | None = None) -> StageStep:
     """Decide stage ``stage`` of a mission with root seed ``seed``.
 
     Args:
@@ -53,17 +57,28 @@ def stage_step(problem: Problem, x: np.ndarray, deployed: np.ndarray, planner: P
             only for a problem with passenger values; None means index order).
         counts: float ``[M]``: the realised region counts of a coverage problem (required there;
             the view keeps only those the observations up to ``stage`` reveal), else None.
+        constraints: carriers an operator forces or vetoes at the stage
+            (:mod:`planner.constraints`): the planner decides the rest of the stage on the
+            constrained view, with the same random stream; a constraint that cannot apply (a
+            force of a carrier that cannot deploy, a veto of one that must) is dropped and
+            reported in ``StageStep.dropped`` (carrier index -> reason code).
 
     Raises:
         ValueError: ``stage`` outside the problem's stages, or a coverage problem without counts.
         AssertionError: the planner broke a feasibility rule (see ``enforce``).
     """
     view = make_view(problem, stage, x, deployed, released, counts)
+    dropped: dict = {}
+    if constraints:
+        constraints, dropped = usable(view, constraints)
     t0 = time.perf_counter()
-    decision = planner.decide(view, stage_rng(seed, stage))
+    if constraints:
+        decision = apply(planner.decide(constrain(view, constraints), stage_rng(seed, stage)), constraints)
+    else:
+        decision = planner.decide(view, stage_rng(seed, stage))
     decision_ms = (time.perf_counter() - t0) * 1e3
     deploy = enforce(view, decision)
-    return StageStep(deploy, release(planner, view, deploy), decision_ms)
+    return StageStep(deploy, release(planner, view, deploy), decision_ms, dropped)
 
 
 def run_online(problem: Problem, x: np.ndarray, planner: Planner, seed: int,
