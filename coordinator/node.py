@@ -93,6 +93,8 @@ class CoordinatorConfig:
             nothing of ros2/ is imported).
         standby: when another coordinator of this mission is live, wait until its liveliness
             token vanishes and take over (else refuse to start: :class:`coordinator.epochs.DuplicateCoordinator`).
+        operator: operator mode (:class:`console.hold.OperatorSettings`; None: the planner
+            decides alone): each stage's decision waits for the operator's console.
     """
 
     out_dir: str
@@ -118,6 +120,23 @@ class CoordinatorConfig:
     record_profile: str = "foxglove"
     ros2: object = None
     standby: bool = False
+    operator: object = None
+
+
+def plan_step(c: "Coordinator", j: int, constraints=None):
+    """The offline loop's stage_step on coordinator ``c``'s view of stage j, under the operator's
+    ``constraints`` (:class:`planner.constraints.Constraints`; None: none)."""
+    return stage_step(c.problem, c.state.planning_observations(j), c.state.deployed(), c.planner, c.seed, j,
+                      c.state.releases() if c.problem.weights is not None else None,
+                      planning_counts(c.state, c.problem), constraints)
+
+
+def _planned(c: "Coordinator", j: int) -> ev.Decided:
+    """Stage j's decision by the planner alone (deploying ids sorted, with their passengers)."""
+    step = plan_step(c, j)
+    rs = sorted(np.flatnonzero(step.deploy), key=lambda r: c.ids[r])
+    return ev.Decided(j, tuple(c.ids[r] for r in rs), step.decision_ms, time.time(),
+                      tuple(int(step.passengers[r]) for r in rs))
 
 
 class Coordinator:
@@ -184,6 +203,7 @@ class Coordinator:
                                    self.seed, (config.render, self.log, self.epochs, self.recording))
         # When each carrier was last heard (self.clock's s): a slow one (Progress) or a stuck one, sim clock.
         self.heard: dict[str, float] = {}
+        self.console = None  # operator mode: the console (console.run.Console), opened with the mission
 
     # ------------------------------------------------------------------ views of the state
     def log(self, line: str) -> None:
@@ -320,23 +340,16 @@ class Coordinator:
 
     # ------------------------------------------------------------------ the stage clock's calls
     def decide(self, j: int) -> float | None:
-        """Plan stage j, record and publish its Decision: its planning ms (None: deposed, Epochs.fencing)."""
-        deploy, planning_ms, passengers = self._plan(j)
+        """Plan stage j, record and publish its Decision: its planning ms (None: deposed, Epochs.fencing).
+        In operator mode the decision waits for the operator's console (:mod:`console.hold`)."""
+        decided = self.console.decided(j, self) if self.console is not None else _planned(self, j)
         with self.epochs.fencing():
-            self.apply(ev.Decided(j, deploy, planning_ms, time.time(), passengers))  # records, then publishes
-        return planning_ms if self.epochs.deposed_by is None else None
+            self.apply(decided)  # records, then publishes
+        return decided.planning_ms if self.epochs.deposed_by is None else None
 
     def put_end(self, end: End) -> None:
         """End, in the revision every carrier that said Hello reads (as the Decisions are)."""
         self.node.put(keys.end_key(self.mission), end, self.state.common_revision(REVISION))
-
-    def _plan(self, j: int) -> tuple[tuple[str, ...], float, tuple[int, ...]]:
-        """(deploying ids sorted, planning ms, their passengers): the offline loop's stage_step on the mission's view."""
-        step = stage_step(self.problem, self.state.planning_observations(j), self.state.deployed(), self.planner,
-                          self.seed, j, self.state.releases() if self.problem.weights is not None else None,
-                          planning_counts(self.state, self.problem))
-        rs = sorted(np.flatnonzero(step.deploy), key=lambda r: self.ids[r])
-        return tuple(self.ids[r] for r in rs), step.decision_ms, tuple(int(step.passengers[r]) for r in rs)
 
     def _publish_decision(self, decision: Decision) -> None:
         # In the revision every carrier that said Hello reads (docs/protocol.md, "Compatibility").
@@ -371,6 +384,7 @@ class Coordinator:
             self.apply(ev.Ended("stopped", time.time()))
         finally:
             summary = self.results.finish(out, self.clock() - started, self.state, self.problem, self.node, self.store)
+            self.console and self.console.close(self)
         return summary
 
     def _open_mission(self, out: Path) -> None:
@@ -403,6 +417,10 @@ class Coordinator:
             self.apply(ev.Ended("stopped", time.time()))
             return
         self._serve()
+        if self.config.operator is not None:  # operator mode only: nothing of console/ loads otherwise
+            from console.run import open_console
+
+            self.console = open_console(self, Path(self.config.out_dir), lambda j, given: plan_step(self, j, given))
         # Warmed up once State answers and the token is out: carriers that start meanwhile
         # find a coordinator (compiling the planner takes seconds, more on a busy host).
         warm = getattr(self.planner, "warm_up", None)

@@ -95,3 +95,20 @@ def summary_block(state) -> dict | None:
             "actions": actions,
             "meaning": "estimated_gain: the planner's estimate, when it decided, of the normalised reward the "
                        "operator's decision gains over its own recommendation (negative: a cost)"}
+
+
+#: How a stage's hold for the operator ended (``Decided.hold``): the operator approved, the
+#: wait ran out (the recommendation, or the decision under the constraints taken, stands), or
+#: the console only watches (``--operator-timeout 0``).
+HOLDS = ("approved", "timeout", "watching")
+
+
+def hold_wait(opened: float, now: float, wait_s: float, approved: bool):
+    """The stage's wait for the operator ([P-12.3]): over when the operator approved or ``wait_s``
+    seconds have passed since the recommendation was shown (``wait_s`` 0: the console watches,
+    no wait), else a :class:`mission.timers.Wait` until then."""
+    from .timers import GoOn, Wait
+
+    if approved or wait_s <= 0 or now >= opened + wait_s:
+        return GoOn()
+    return Wait(opened + wait_s)
