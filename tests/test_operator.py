@@ -195,3 +195,33 @@ def test_the_operator_channel_in_mission_mcap():
     kinds = [(r["kind"], r["stage"]) for _, r in sink.got]
     assert kinds == [("action", 0), ("action", 0), ("decision", 0), ("action", 1), ("decision", 1), ("decision", 2)]
     assert sink.got[4][1]["vetoed"] == ["a"] and sink.got[4][1]["hold"] == "timeout"
+
+
+# --------------------------------------------------------------------------- the experiment's operators
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_autonomous_operator_is_the_online_loop(seed):
+    """The experiment's loop with an operator who never overrules decides exactly as run_online
+    (two instance families drawn from the seed: no overlaps, many)."""
+    from experiments.operator import run_with_operator
+    from planner.instance import random_instance
+    from planner.online import run_online
+
+    for overlaps in (0, 12):
+        inst = random_instance(np.random.default_rng(seed), 4, 2, 8, overlaps, 3.0)
+        planner = make_planner("mcts-ssap", iterations=100)
+        alone = run_online(inst.problem, inst.observations, planner, seed)
+        out = run_with_operator(inst.problem, inst.observations, planner, seed, "autonomous")
+        assert out["reward"] == pytest.approx(alone.reward) and out["overrides"] == 0
+
+
+def test_a_manual_trigger_operator_replaces_the_planner():
+    """manual-trigger deploys exactly where the count reaches the prior's 75th percentile or the
+    carrier must: the planner's own choice does not show through the constraints."""
+    from experiments.operator import operator_constraints
+
+    view = make_view(PROBLEM, 0, X, NONE)
+    c = operator_constraints("manual-trigger", view, np.array([False, True, False]), np.random.default_rng(0))
+    high = PROBLEM.prior.ppf(0.75)
+    assert c.forced == {r for r in range(3) if X[r, 0] >= high} and c.vetoed == set(range(3)) - c.forced
+    step = stage_step(PROBLEM, X, NONE, make_planner("mcts-ssap", iterations=50), 1, 0, constraints=c)
+    assert set(np.flatnonzero(step.deploy)) == c.forced
