@@ -26,6 +26,10 @@ MAX_BODY = 4096
 LOOPBACK = ("127.0.0.1", "localhost", "::1")
 
 
+class ConsoleUnavailable(RuntimeError):
+    """The console's address cannot be served (the port is taken, the certificate unreadable)."""
+
+
 class ConsoleServer:
     """The page's server in a daemon thread.
 
@@ -35,7 +39,7 @@ class ConsoleServer:
 
     Raises:
         ValueError: a non-loopback address without TLS.
-        OSError: the port is taken.
+        ConsoleUnavailable: the port is taken, or the certificate cannot be loaded.
     """
 
     def __init__(self, desk, view, settings):
@@ -44,11 +48,19 @@ class ConsoleServer:
         self.desk, self.view, self.settings = desk, view, settings
         self.page = resources.files("console").joinpath("page.html").read_bytes()
         handler = type("Handler", (_Handler,), {"console": self})
-        self.httpd = ThreadingHTTPServer((settings.bind, settings.port), handler)
+        try:
+            self.httpd = ThreadingHTTPServer((settings.bind, settings.port), handler)
+        except OSError as exc:
+            raise ConsoleUnavailable(f"--operator-port: cannot serve the console on {settings.bind}:{settings.port} "
+                                     f"({exc.strerror})") from None
         self.httpd.daemon_threads = True
         if settings.tls is not None:
-            context = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
-            context.load_cert_chain(*settings.tls)
+            try:
+                context = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+                context.load_cert_chain(*settings.tls)
+            except (OSError, ssl.SSLError) as exc:
+                self.httpd.server_close()
+                raise ConsoleUnavailable(f"--operator-cert: cannot load {settings.tls[0]} with its key ({exc})") from None
             self.httpd.socket = context.wrap_socket(self.httpd.socket, server_side=True)
         self.credential = None if settings.tls is None else desk.token
         self.port = self.httpd.server_address[1]

@@ -43,9 +43,14 @@ def coordinator(settings: Settings, stop: threading.Event) -> int:
         rejoin_timeout_s=t.rejoin_s, end_repeat_s=t.end_repeat_s, bye_grace_s=t.bye_grace_s,
         operator=operator_settings(settings)),
         zenoh_config(f, "coordinator"), scenario_path=f.scenario, stop=stop)
+    unavailable: tuple = ()  # operator mode: a console that cannot be served is refused like a bad flag
+    if f.operator:
+        from console.server import ConsoleUnavailable
+
+        unavailable = (ConsoleUnavailable,)
     try:
         summary = coord.run()
-    except (StoreMismatch, DuplicateCoordinator) as exc:
+    except (StoreMismatch, DuplicateCoordinator, *unavailable) as exc:
         return refuse(settings, str(exc))
     except StoreBusy as exc:  # stopped while waiting for another process's lock
         say(settings, f"{exc}; stopped while waiting for it")

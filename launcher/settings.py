@@ -201,11 +201,26 @@ def _operator(f) -> list[Problem]:
         out.append(Problem("--operator-bind", "--operator-cert and --operator-key beside an address other than "
                                               "127.0.0.1 (the console is served over TLS there)",
                            Found(f.operator_bind)))
+    if f.operator and f.operator_port and f.role in ("all", "coordinator") and not _port_free(f.operator_bind,
+                                                                                             f.operator_port):
+        out.append(Problem("--operator-port", f"a free port on {f.operator_bind}", Found(f.operator_port),
+                           "in use (another console or server listens there)"))
     for flag in ("operator_cert", "operator_key"):
         path = getattr(f, flag)
         if path and not Path(path).is_file():
             out.append(Problem(f"--{flag.replace('_', '-')}", "a PEM file", Found(path), "no such file"))
     return out
+
+
+def _port_free(host: str, port: int) -> bool:
+    import socket
+
+    try:
+        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as probe:
+            probe.bind((host, int(port)))
+        return True
+    except OSError:
+        return False
 
 
 def operator_settings(settings: "Settings"):

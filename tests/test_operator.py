@@ -225,3 +225,63 @@ def test_a_manual_trigger_operator_replaces_the_planner():
     assert c.forced == {r for r in range(3) if X[r, 0] >= high} and c.vetoed == set(range(3)) - c.forced
     step = stage_step(PROBLEM, X, NONE, make_planner("mcts-ssap", iterations=50), 1, 0, constraints=c)
     assert set(np.flatnonzero(step.deploy)) == c.forced
+
+
+# --------------------------------------------------------------------------- the page's server
+def test_the_console_off_loopback_needs_tls_and_the_credential(tmp_path):
+    """Served over HTTPS (a certificate from tools/gen_certs.py), every request needs HTTP basic
+    authentication with the mission's operator credential; an action's answer says why it was
+    refused; a port in use is refused in one line."""
+    import base64
+    import json
+    import ssl
+    import urllib.error
+    import urllib.request
+
+    import world
+    from console.desk import Desk, new_token
+    from console.hold import OperatorSettings
+    from console.server import ConsoleServer, ConsoleUnavailable
+    from console.view import ConsoleView
+    from fleet_helpers import TINY
+    from tools import gen_certs
+    from world.scene import build_scene
+
+    scenario = world.load_scenario(TINY)
+    state = ms.initial(ms.MissionSpec.build(scenario.carrier_ids, world.build_problem(scenario).valid,
+                                            [c.passengers for c in scenario.carriers], scenario.stage_times(), "fp"))
+    ca = gen_certs.make_ca(tmp_path)
+    cert = gen_certs.issue(ca, tmp_path, "console", "console", ("127.0.0.1",))
+    settings = OperatorSettings(0, 5.0, tls=(str(cert.cert), str(cert.key)))
+    token = new_token(tmp_path)
+    assert (tmp_path / "operator.token").stat().st_mode & 0o077 == 0  # the owner's only
+    view = ConsoleView(build_scene(scenario), world.build_problem(scenario), "tiny", "mcts-ssap", settings)
+    server = ConsoleServer(Desk(lambda: state, token, view), view, settings)
+    context = ssl.create_default_context(cafile=str(ca.cert))
+    try:
+        url = f"https://127.0.0.1:{server.port}"
+
+        def ask(path, password=None, body=None):
+            headers = {"Content-Type": "application/json"}
+            if password is not None:
+                headers["Authorization"] = "Basic " + base64.b64encode(f"operator:{password}".encode()).decode()
+            req = urllib.request.Request(url + path, None if body is None else json.dumps(body).encode(), headers)
+            try:
+                with urllib.request.urlopen(req, context=context, timeout=10) as r:
+                    return r.status, r.read()
+            except urllib.error.HTTPError as exc:
+                return exc.code, exc.read()
+
+        assert ask("/")[0] == 401 and ask("/", "wrong")[0] == 401
+        status, page = ask("/", token)
+        assert status == 200 and b"Approve" in page
+        assert json.loads(ask("/map.json", token)[1])["name"] == "tiny"
+        assert ask("/action", "wrong", {"stage": 0, "action": "approve"})[0] == 401
+        answer = json.loads(ask("/action", token, {"stage": 3, "action": "veto", "carrier": "a"})[1])
+        assert answer["accepted"] is False and answer["reason"] == "future-stage"
+        with pytest.raises(ConsoleUnavailable, match="cannot serve the console"):
+            ConsoleServer(Desk(lambda: state, token, view), view, OperatorSettings(server.port, 5.0, bind="127.0.0.1"))
+    finally:
+        server.close()
+    with pytest.raises(ValueError, match="TLS"):
+        ConsoleServer(Desk(lambda: state, token, view), view, OperatorSettings(0, 5.0, bind="0.0.0.0"))
