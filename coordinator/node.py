@@ -66,19 +66,20 @@ from wire.transport import Node
 FALLBACK_PLANNER = "ssap"
 
 
-def guarded_step(given: tuple, planner: tuple, rest: tuple, log, store):
-    """``stage_step(*given, planner, *rest)`` with the planner's ``plan_ms`` budget; a planner
-    fault (planner.guard: it raised, broke a rule, ran past its budget) is logged, recorded in
-    mission.db (``planner-fault``: summary.json ``planner_faults``) and the stage decided by
-    :data:`FALLBACK_PLANNER` instead: a plug-in is someone else's code."""
+def guarded_step(given: tuple, planner: tuple, rest: tuple, log, store, constraints=None):
+    """``stage_step(*given, planner, *rest)`` with the planner's ``plan_ms`` budget and the
+    operator's ``constraints``; a planner fault (planner.guard: it raised, broke a rule, ran past
+    its budget) is logged, recorded in mission.db (``planner-fault``: summary.json
+    ``planner_faults``) and the stage decided by :data:`FALLBACK_PLANNER` instead, under the same
+    constraints: a plug-in is someone else's code."""
     planner, name = planner
     try:
-        return stage_step(*given, planner, *rest, getattr(planner, "plan_ms", None))
+        return stage_step(*given, planner, *rest, getattr(planner, "plan_ms", None), constraints)
     except PlannerFault as fault:
         log(f"coordinator: {fault.line(name)}; stage {fault.stage} decided by {FALLBACK_PLANNER}")
         store.event("planner-fault", None, fault.stage, rule=fault.rule, detail=fault.detail, planner=name,
                     fallback=FALLBACK_PLANNER)
-        return stage_step(*given, make_planner(FALLBACK_PLANNER), *rest)
+        return stage_step(*given, make_planner(FALLBACK_PLANNER), *rest, None, constraints)
 
 
 def warm_up(planner: tuple, problem, log) -> None:
@@ -126,6 +127,8 @@ class CoordinatorConfig:
             nothing of ros2/ is imported).
         standby: when another coordinator of this mission is live, wait until its liveliness
             token vanishes and take over (else refuse to start: :class:`coordinator.epochs.DuplicateCoordinator`).
+        operator: operator mode (:class:`console.hold.OperatorSettings`; None: the planner
+            decides alone): each stage's decision waits for the operator's console.
     """
 
     out_dir: str
@@ -151,6 +154,24 @@ class CoordinatorConfig:
     record_profile: str = "foxglove"
     ros2: object = None
     standby: bool = False
+    operator: object = None
+
+
+def plan_step(c: "Coordinator", j: int, constraints=None):
+    """The offline loop's stage_step on coordinator ``c``'s view of stage j (guarded:
+    :func:`guarded_step`), under the operator's ``constraints``
+    (:class:`planner.constraints.Constraints`; None: none)."""
+    given = (c.problem, c.state.planning_observations(j), c.state.deployed())
+    rest = (c.seed, j, c.state.releases() if c.problem.weights is not None else None, planning_counts(c.state, c.problem))
+    return guarded_step(given, (c.planner, c.planner_name), rest, c.log, c.store, constraints)
+
+
+def _planned(c: "Coordinator", j: int) -> ev.Decided:
+    """Stage j's decision by the planner alone (deploying ids sorted, with their passengers)."""
+    step = plan_step(c, j)
+    rs = sorted(np.flatnonzero(step.deploy), key=lambda r: c.ids[r])
+    return ev.Decided(j, tuple(c.ids[r] for r in rs), step.decision_ms, time.time(),
+                      tuple(int(step.passengers[r]) for r in rs))
 
 
 class Coordinator:
@@ -217,6 +238,7 @@ class Coordinator:
                                    self.seed, (config.render, self.log, self.epochs, self.recording))
         # When each carrier was last heard (self.clock's s): a slow one (Progress) or a stuck one, sim clock.
         self.heard: dict[str, float] = {}
+        self.console = None  # operator mode: the console (console.run.Console), opened with the mission
 
     # ------------------------------------------------------------------ views of the state
     def log(self, line: str) -> None:
@@ -353,24 +375,16 @@ class Coordinator:
 
     # ------------------------------------------------------------------ the stage clock's calls
     def decide(self, j: int) -> float | None:
-        """Plan stage j, record and publish its Decision: its planning ms (None: deposed, Epochs.fencing)."""
-        deploy, planning_ms, passengers = self._plan(j)
+        """Plan stage j, record and publish its Decision: its planning ms (None: deposed, Epochs.fencing).
+        In operator mode the decision waits for the operator's console (:mod:`console.hold`)."""
+        decided = self.console.decided(j, self) if self.console is not None else _planned(self, j)
         with self.epochs.fencing():
-            self.apply(ev.Decided(j, deploy, planning_ms, time.time(), passengers))  # records, then publishes
-        return planning_ms if self.epochs.deposed_by is None else None
+            self.apply(decided)  # records, then publishes
+        return decided.planning_ms if self.epochs.deposed_by is None else None
 
     def put_end(self, end: End) -> None:
         """End, in the revision every carrier that said Hello reads (as the Decisions are)."""
         self.node.put(keys.end_key(self.mission), end, self.state.common_revision(REVISION))
-
-    def _plan(self, j: int) -> tuple[tuple[str, ...], float, tuple[int, ...]]:
-        """(deploying ids sorted, planning ms, their passengers): the offline loop's stage_step on the mission's view."""
-        given = (self.problem, self.state.planning_observations(j), self.state.deployed())
-        rest = (self.seed, j, self.state.releases() if self.problem.weights is not None else None,
-                planning_counts(self.state, self.problem))
-        step = guarded_step(given, (self.planner, self.planner_name), rest, self.log, self.store)
-        rs = sorted(np.flatnonzero(step.deploy), key=lambda r: self.ids[r])
-        return tuple(self.ids[r] for r in rs), step.decision_ms, tuple(int(step.passengers[r]) for r in rs)
 
     def _publish_decision(self, decision: Decision) -> None:
         # In the revision every carrier that said Hello reads (docs/protocol.md, "Compatibility").
@@ -405,6 +419,7 @@ class Coordinator:
             self.apply(ev.Ended("stopped", time.time()))
         finally:
             summary = self.results.finish(out, self.clock() - started, self.state, self.problem, self.node, self.store)
+            self.console and self.console.close(self)
         return summary
 
     def _open_mission(self, out: Path) -> None:
@@ -437,6 +452,10 @@ class Coordinator:
             self.apply(ev.Ended("stopped", time.time()))
             return
         self._serve()
+        if self.config.operator is not None:  # operator mode only: nothing of console/ loads otherwise
+            from console.run import open_console
+
+            self.console = open_console(self, Path(self.config.out_dir), lambda j, given: plan_step(self, j, given))
         # Warmed up once State answers and the token is out: carriers that start meanwhile
         # find a coordinator (compiling the planner takes seconds, more on a busy host).
         if not self._stop.is_set():

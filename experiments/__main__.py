@@ -1,5 +1,5 @@
 """``python -m experiments``: see :mod:`experiments.run`; ``python -m experiments check``: see
-:mod:`experiments.check`."""
+:mod:`experiments.check`; ``python -m experiments operator``: see :mod:`experiments.operator`."""
 import sys
 
 
@@ -10,6 +10,10 @@ def main(argv=None) -> int:
         from experiments.check import main as check
 
         return check(argv[1:])
+    if argv[:1] == ["operator"]:
+        from experiments.operator import main as operator
+
+        return operator(argv[1:])
     from experiments.run import main as run
 
     return run(argv)

@@ -20,6 +20,7 @@ EXAMPLES = """\
     python run_fleet.py --role router --listen tcp/0.0.0.0:7447
     python run_fleet.py S.yaml --carrier-processes 8                 # R carriers in 8 processes
     python run_fleet.py S.yaml --decentralised                       # no coordinator at all
+    python run_fleet.py S.yaml --operator                            # a person approves, vetoes, forces
     python run_fleet.py S.yaml --role report --out runs/m1          # results from whatever logs exist"""
 
 
@@ -50,6 +51,7 @@ def build_parser(prog: str = NAME, name: str = NAME) -> argparse.ArgumentParser:
     _view_flags(p)
     _onboard_flags(p, _timeout_flags(p))
     _output_flags(p)
+    _operator_flags(p)
     _ros2_flags(p)
     _carrier_output_flags(p)
     p.add_argument("--name", default=name, help=argparse.SUPPRESS)  # the messages' first word, for the children
@@ -200,6 +202,30 @@ def _output_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mcap-profile", choices=PROFILES, default=PROFILES[0],
                    help="coordinator: the recording's profile: foxglove (default: mission.mcap with Foxglove's "
                         "schemas) or ros2 (the rosbag2 bag ros2bag/ that ros2 bag play replays; needs .[ros2])")
+
+
+def _operator_flags(p: argparse.ArgumentParser) -> None:
+    """Operator mode: the console and how long a stage waits for the operator."""
+    import console
+
+    o = p.add_argument_group("operator console (docs/fleet.md, \"The operator console\")")
+    o.add_argument("--operator", action="store_true",
+                   help="coordinator: serve the operator's console; each stage's recommendation waits for the "
+                        "operator to approve it, veto a carrier's deployment or force one")
+    o.add_argument("--operator-port", type=int, default=console.PORT, metavar="PORT",
+                   help="the console's port on 127.0.0.1 (default %(default)s; 0: any free port, printed)")
+    # Not an argparse group of exclusive flags: the launcher's check says which one to drop.
+    o.add_argument("--operator-timeout", type=float, default=None, metavar="SECONDS",
+                   help=f"the recommendation stands after this long without an answer (default {console.TIMEOUT_S:g}; "
+                        "0: autonomous, the console watches)")
+    o.add_argument("--operator-required", action="store_true",
+                   help="instead of --operator-timeout: wait for the operator up to the stage's own wait "
+                        "(--stage-timeout), then the recommendation stands")
+    o.add_argument("--operator-bind", default="127.0.0.1", metavar="ADDR",
+                   help="serve the console on this address (default %(default)s); another address needs "
+                        "--operator-cert and --operator-key, and the operator credential (operator.token)")
+    o.add_argument("--operator-cert", metavar="FILE", help="PEM certificate: serve the console over HTTPS")
+    o.add_argument("--operator-key", metavar="FILE", help="PEM private key of --operator-cert")
 
 
 def _ros2_flags(p: argparse.ArgumentParser) -> None:

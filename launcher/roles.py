@@ -8,7 +8,7 @@ import sys
 import threading
 from pathlib import Path
 
-from launcher.settings import Settings, zenoh_config
+from launcher.settings import Settings, operator_settings, zenoh_config
 from mission.exits import EXIT_DEPOSED, EXIT_USAGE, STOPPED
 from mission.modes import Mode
 
@@ -42,13 +42,19 @@ def coordinator(settings: Settings, stop: threading.Event) -> int:
         # Wall clock: the last stage's Confirms take a round trip, which grows with the fleet's
         # load as the observations' arrival does, so the stage timeout bounds it too.
         confirm_timeout_s=max(t.confirm_s, t.stage_s), standby=f.standby, bye_timeout_s=t.bye_s,
-        rejoin_timeout_s=t.rejoin_s, end_repeat_s=t.end_repeat_s, bye_grace_s=t.bye_grace_s),
+        rejoin_timeout_s=t.rejoin_s, end_repeat_s=t.end_repeat_s, bye_grace_s=t.bye_grace_s,
+        operator=operator_settings(settings)),
         zenoh_config(f, "coordinator"), scenario_path=f.scenario, stop=stop)
     # A kernel compiled on this machine for the first time takes seconds: say which (planner/jitcache.py).
     report_compiles(lambda line: coord.log(f"coordinator: {line}"))
+    unavailable: tuple = ()  # operator mode: a console that cannot be served is refused like a bad flag
+    if f.operator:
+        from console.server import ConsoleUnavailable
+
+        unavailable = (ConsoleUnavailable,)
     try:
         summary = coord.run()
-    except (StoreMismatch, DuplicateCoordinator, EpochsExhausted) as exc:
+    except (StoreMismatch, DuplicateCoordinator, EpochsExhausted, *unavailable) as exc:
         return refuse(settings, str(exc))
     except StoreBusy as exc:  # stopped while waiting for another process's lock
         say(settings, f"{exc}; stopped while waiting for it")

@@ -160,6 +160,8 @@ _NUMBERS: tuple[tuple[str, Check], ...] = (
     *((name, Number(minimum=0, exclusive=True, noun="seconds")) for name in (
         "join_timeout", "stage_timeout", "decision_timeout", "coordinator_timeout", "peer_timeout", "silence_timeout")),
     ("routers", Number(integer=True, minimum=0)),
+    ("operator_timeout", Number(minimum=0, noun="seconds")),
+    ("operator_port", Number(integer=True, minimum=0, maximum=65535)),
     ("carrier_processes", Number(integer=True, minimum=1)),
 )
 
@@ -209,6 +211,7 @@ def _roles(f) -> list[Problem]:
                                "rerun-sdk for the live view (pip install -e '.[view]')", Found("no rerun module")))
     if f.standby and f.role != "coordinator":
         out.append(Problem("--standby", "--role coordinator", Found(f"--role {f.role}")))
+    out += _operator(f)
     if f.role == "report" and not f.out:
         out.append(Problem("--out", "DIR with --role report (the results directory to read)", Found("nothing")))
     if f.out and Path(f.out).exists() and not Path(f.out).is_dir():
@@ -217,6 +220,58 @@ def _roles(f) -> list[Problem]:
         parent = next(p for p in Path(f.out).parents if p.exists() and not p.is_dir())
         out.append(Problem("--out", "a results directory (existing or new)", Found(f"{f.out!r} under the file {str(parent)!r}")))
     return out
+
+
+def _operator(f) -> list[Problem]:
+    """Operator mode's flags: with a coordinator, TLS by pairs, another address only over TLS."""
+    out = []
+    if f.operator and (f.decentralised or f.role not in ("all", "coordinator")):
+        out.append(Problem("--operator", "a coordinator (--role all or coordinator, not --decentralised)",
+                           Found("--decentralised" if f.decentralised else f"--role {f.role}")))
+    if f.operator_required and f.operator_timeout is not None:
+        out.append(Problem("--operator-timeout", "not beside --operator-required (one says how long a stage waits)",
+                           Found("both")))
+    if bool(f.operator_cert) != bool(f.operator_key):
+        out.append(Problem("--operator-cert" if f.operator_key else "--operator-key",
+                           "--operator-cert and --operator-key together", Found("only one of them")))
+    if f.operator and f.operator_bind not in ("127.0.0.1", "localhost", "::1") and not f.operator_cert:
+        out.append(Problem("--operator-bind", "--operator-cert and --operator-key beside an address other than "
+                                              "127.0.0.1 (the console is served over TLS there)",
+                           Found(f.operator_bind)))
+    if f.operator and f.operator_port and f.role in ("all", "coordinator") and not _port_free(f.operator_bind,
+                                                                                             f.operator_port):
+        out.append(Problem("--operator-port", f"a free port on {f.operator_bind}", Found(f.operator_port),
+                           "in use (another console or server listens there)"))
+    for flag in ("operator_cert", "operator_key"):
+        path = getattr(f, flag)
+        if path and not Path(path).is_file():
+            out.append(Problem(f"--{flag.replace('_', '-')}", "a PEM file", Found(path), "no such file"))
+    return out
+
+
+def _port_free(host: str, port: int) -> bool:
+    import socket
+
+    try:
+        with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET) as probe:
+            probe.bind((host, int(port)))
+        return True
+    except OSError:
+        return False
+
+
+def operator_settings(settings: "Settings"):
+    """The coordinator's operator mode (:class:`console.hold.OperatorSettings`), or None without
+    ``--operator``."""
+    f = settings.flags
+    if not f.operator:
+        return None
+    from console import TIMEOUT_S
+    from console.hold import OperatorSettings
+
+    timeout_s = TIMEOUT_S if f.operator_timeout is None else f.operator_timeout
+    return OperatorSettings(f.operator_port, timeout_s, f.operator_required, settings.timeouts().stage_s,
+                            f.operator_bind, (f.operator_cert, f.operator_key) if f.operator_cert else None)
 
 
 def _carriers(f, scenario) -> tuple[tuple[str, ...], list[Problem]]:

@@ -30,13 +30,16 @@ ONE_HOST = ("role", "carrier", "carrier_processes", "routers", "view", "verbose"
             "standby", "out", "ready_file", "schedule")
 #: The viewer's own flags.
 VIEWER = ("web_port", "grpc_port", "save", "no_web", "linger")
+#: Operator mode's flags: the coordinator's alone.
+OPERATOR = ("operator", "operator_port", "operator_timeout", "operator_required", "operator_bind", "operator_cert",
+            "operator_key")
 #: Per role, the flags a child does not take from the launcher's command line (they keep their
 #: defaults there); every other flag is passed on as given.
 EXCLUDED = {
     "coordinator": ONE_HOST + VIEWER + ("quiet", "log_sync"),
-    "carrier": ONE_HOST + VIEWER,
-    "viewer": ONE_HOST,
-    "report": ONE_HOST + VIEWER + ("quiet", "log_sync"),
+    "carrier": ONE_HOST + VIEWER + OPERATOR,
+    "viewer": ONE_HOST + OPERATOR,
+    "report": ONE_HOST + VIEWER + OPERATOR + ("quiet", "log_sync"),
 }
 #: What a router takes: it serves any mission, so nothing of the mission.
 ROUTER_TAKES = ("zenoh_config", "name")

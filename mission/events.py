@@ -72,6 +72,29 @@ class Decided:
     planning_ms: float
     at: float = 0.0
     passengers: tuple[int, ...] = ()  # the passenger each carrier of deploy releases (parallel)
+    # Operator mode (docs/fleet.md, "The operator console"); all at their defaults without it.
+    recommended: tuple[str, ...] | None = None  # the planner's own recommendation (None: deploy, or no operator)
+    forced: tuple[str, ...] = ()  # carriers the operator forced to deploy here
+    vetoed: tuple[str, ...] = ()  # carriers the operator vetoed here
+    hold: str = ""  # how the operator's hold ended: approved, timeout, watching ("": no operator mode)
+    gain: float | None = None  # the planner's estimate of what deploy gains over recommended (normalised)
+
+
+#: What an operator can do at a stage (docs/fleet.md, "The operator console").
+OPERATOR_ACTIONS = ("approve", "veto", "force")
+
+
+@dataclass(frozen=True)
+class OperatorAction:
+    """An operator's action on ``stage``, the stage being decided: ``approve`` its recommendation
+    (``carrier`` None), ``veto`` or ``force`` the deployment of ``carrier`` there. ``operator``: the
+    identity it came from (the console's, or an authorised key's)."""
+
+    stage: int
+    action: str
+    carrier: str | None
+    operator: str
+    at: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -134,4 +157,4 @@ class Ended:
 
 
 Event = (Opened | Hello | Observation | LivelinessChanged | Decided | Published | Confirmed | Accounted | Bye
-         | Ended)
+         | Ended | OperatorAction)

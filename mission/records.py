@@ -21,6 +21,19 @@ def decision_record(stage, deploy, planning_ms) -> dict:
     return {"stage": int(stage), "deploy": list(deploy), "planning_ms": float(planning_ms)}
 
 
+def operator_action_record(e) -> dict:
+    """An operator's action (mission.events.OperatorAction) on the ``/operator`` channel."""
+    return {"kind": "action", "stage": int(e.stage), "action": e.action, "carrier": e.carrier,
+            "operator": e.operator}
+
+
+def operator_decision_record(e) -> dict:
+    """How an operator-mode stage was decided (mission.events.Decided) on the ``/operator`` channel."""
+    return {"kind": "decision", "stage": int(e.stage), "deploy": list(e.deploy),
+            "recommended": list(e.deploy if e.recommended is None else e.recommended),
+            "forced": list(e.forced), "vetoed": list(e.vetoed), "hold": e.hold, "gain": e.gain}
+
+
 def confirm_record(stage, carrier, deployed, status, position, passengers_left) -> dict:
     return {"stage": int(stage), "carrier": carrier, "deployed": bool(deployed), "status": status,
             "position": [float(v) for v in position], "passengers_left": int(passengers_left)}

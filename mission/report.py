@@ -106,11 +106,14 @@ class Merged:
         return not self.added and self.state.accepted == self.base.accepted
 
     def decided_by(self, cid: str, j: int) -> str | None:
-        """Who decided carrier ``cid``'s stage j: the carrier (its own account), a coordinator,
-        or nobody on record (None)."""
+        """Who decided carrier ``cid``'s stage j: the carrier (its own account), the operator (a
+        deployment forced at the console), a coordinator, or nobody on record (None)."""
         if (cid, j) in self.state.accounts and (cid, j) not in self.by_coordinator:
             return BY_CARRIER
-        if j in self.state.decisions or (cid, j) in self.by_coordinator:
+        d = self.state.decisions.get(j)
+        if d is not None and cid in d.forced:
+            return "operator"  # forced at the operator's console
+        if d is not None or (cid, j) in self.by_coordinator:
             return BY_COORDINATOR
         return None
 

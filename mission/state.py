@@ -42,6 +42,7 @@ from types import MappingProxyType
 import numpy as np
 
 from . import events as ev
+from . import operator_rules
 from .timeouts import T_TOLERANCE_S
 
 
@@ -127,6 +128,11 @@ class DecisionRecord:
     deploy: tuple[str, ...]
     planning_ms: float
     passengers: tuple[int, ...] = ()  # parallel to deploy (sorted ids); empty: none named
+    recommended: tuple[str, ...] | None = None  # operator mode: the planner's recommendation (sorted)
+    forced: tuple[str, ...] = ()
+    vetoed: tuple[str, ...] = ()
+    hold: str = ""
+    gain: float | None = None
 
 
 @dataclass(frozen=True)
@@ -237,6 +243,8 @@ class MissionState:
         carrier_rejected: carrier -> its rejection counts, from its last Bye.
         bye_deployments: carrier -> the stages its last Bye lists as deployed.
         ended, end_reason: End was published (``complete`` or ``stopped``).
+        operator_actions: stage -> the operator's accepted actions there, in order
+            (:mod:`mission.operator_rules`).
     """
 
     spec: MissionSpec
@@ -259,6 +267,7 @@ class MissionState:
     ended: bool = False
     end_reason: str | None = None
     counts: PairMap = field(default_factory=PairMap)
+    operator_actions: dict = field(default_factory=dict)
     # Who is still waited for, remembered (the fields are never changed in place, so the same
     # objects give the same answer): :class:`_Expected` is handed from a state to the states made
     # from it (``dataclasses.replace`` passes it on); ``_waited`` is this state's own.
@@ -760,8 +769,10 @@ def _on_decided(state: MissionState, e: ev.Decided):
                     if state.spec.valid[r][j] and (cid, j) not in state.reported)
     order = sorted(range(len(e.deploy)), key=lambda k: e.deploy[k])
     named = tuple(int(e.passengers[k]) for k in order) if len(e.passengers) == len(e.deploy) else ()
-    new = _replace(state, decisions={**state.decisions, j: DecisionRecord(tuple(e.deploy[k] for k in order),
-                                                                          float(e.planning_ms), named)},
+    record = DecisionRecord(tuple(e.deploy[k] for k in order), float(e.planning_ms), named,
+                            None if e.recommended is None else tuple(sorted(e.recommended)), tuple(sorted(e.forced)),
+                            tuple(sorted(e.vetoed)), e.hold, e.gain)
+    new = _replace(state, decisions={**state.decisions, j: record},
                    missing=state.missing | {(cid, j) for cid in missing}, next_stage=j + 1)
     return new, (Record(e, j, missing), Publish(j))
 
@@ -852,8 +863,19 @@ def _on_ended(state: MissionState, e: ev.Ended):
     return _replace(state, ended=True, end_reason=e.reason), (Record(e, state.next_stage),)
 
 
+def _on_operator(state: MissionState, e: ev.OperatorAction):
+    refused = operator_rules.refusal(state, e)
+    if refused is not None:
+        return state, (Reject(*refused),)
+    actions = {**state.operator_actions, e.stage: state.operator_actions.get(e.stage, ()) + (e,)}
+    what = "approved" if e.action == "approve" else f"{e.action} {e.carrier}"
+    return (_replace(state, operator_actions=actions),
+            (Record(e, e.stage), Log(f"coordinator: stage {e.stage}: operator {e.operator} {what}")))
+
+
 _HANDLERS = {
     ev.Opened: _on_opened, ev.Hello: _on_hello, ev.Observation: _on_observation,
     ev.LivelinessChanged: _on_liveliness, ev.Decided: _on_decided, ev.Published: _on_published,
     ev.Confirmed: _on_confirmed, ev.Accounted: _on_accounted, ev.Bye: _on_bye, ev.Ended: _on_ended,
+    ev.OperatorAction: _on_operator,
 }

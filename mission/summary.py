@@ -14,6 +14,7 @@ import numpy as np
 from planner.problem import evaluate, fill_releases, point_weights, rewards
 
 from .coverage import revealed_counts, summary_fields
+from .operator_rules import summary_block
 from .state import MissionState
 
 #: About how long (s) the summary's clairvoyant bound may search, turned into a node limit
@@ -158,7 +159,7 @@ def summary(state: MissionState, problem, run: RunInfo, bound: bool = True) -> d
             deps.append({"stage": int(j), "t": spec.stage_times[int(j)],
                          "x": None if math.isnan(x[r, j]) else float(x[r, j]),
                          "position": list(state.deployment_position(cid, int(j))),
-                         "by": "carrier" if (cid, int(j)) in state.accounts else "coordinator",
+                         "by": _by(state, cid, int(j)),
                          "reward": float(raw[r, j] / problem.scale), "features": float(raw[r, j]),
                          "features_over_p": float(raw[r, j])})
             if typed:  # passenger types: which passenger (index, type name, value) went here
@@ -183,6 +184,7 @@ def summary(state: MissionState, problem, run: RunInfo, bound: bool = True) -> d
     upper = online_upper_bound(problem, run.seed, float(total_reward)) \
         if clair is not None and clair.get("exact") is False else None
     latencies = state.latencies_ms()
+    operator = summary_block(state)
     return {
         "scenario": run.scenario, "scenario_file": run.scenario_file, "mission": run.mission,
         "planner": run.planner, "planner_options": run.planner_options, "seed": run.seed,
@@ -208,4 +210,14 @@ def summary(state: MissionState, problem, run: RunInfo, bound: bool = True) -> d
                         "max": float(np.max(plan)) if plan else None},
         "rejected": {"coordinator": dict(run.rejected),
                      "carriers": {cid: dict(state.carrier_rejected.get(cid, {})) for cid in spec.carriers}},
+        **({} if operator is None else {"operator": operator}),
     }
+
+
+def _by(state: MissionState, cid: str, j: int) -> str:
+    """Who decided carrier ``cid``'s deployment at stage j: ``carrier`` (its own account),
+    ``operator`` (forced at the console), else ``coordinator``."""
+    if (cid, j) in state.accounts:
+        return "carrier"
+    d = state.decisions.get(j)
+    return "operator" if d is not None and cid in d.forced else "coordinator"

@@ -12,10 +12,11 @@ This module sits above the planners' modules: it routes a decentralised planner 
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
+from planner.constraints import Constraints, apply, constrain, usable
 from planner.passengers import release
 from planner.guard import checked_decision
 from planner.problem import OnlineResult, Planner, Problem, evaluate, make_view, stage_rng, start_online
@@ -30,16 +31,18 @@ class StageStep:
         passengers: int64 ``[R]``: the passenger index each deploying carrier releases, -1 for
             the others (index order without passenger values).
         decision_ms: wall time of the planner's ``decide`` call, milliseconds.
+        dropped: carrier index -> the reason code of each constraint that could not apply.
     """
 
     deploy: np.ndarray
     passengers: np.ndarray
     decision_ms: float
+    dropped: dict = field(default_factory=dict)
 
 
 def stage_step(problem: Problem, x: np.ndarray, deployed: np.ndarray, planner: Planner, seed: int,
                stage: int, released: np.ndarray | None = None, counts: np.ndarray | None = None,
-               budget_ms: float | None = None) -> StageStep:
+               budget_ms: float | None = None, constraints: Constraints | None = None) -> StageStep:
     """Decide stage ``stage`` of a mission with root seed ``seed``.
 
     Args:
@@ -56,6 +59,11 @@ def stage_step(problem: Problem, x: np.ndarray, deployed: np.ndarray, planner: P
             the view keeps only those the observations up to ``stage`` reveal), else None.
         budget_ms: the planner's ``plan_ms`` budget, when it has one: a decision later than
             :func:`planner.guard.budget_limit_ms` of it is a fault.
+        constraints: carriers an operator forces or vetoes at the stage
+            (:mod:`planner.constraints`): the planner decides the rest of the stage on the
+            constrained view, with the same random stream; a constraint that cannot apply (a
+            force of a carrier that cannot deploy, a veto of one that must) is dropped and
+            reported in ``StageStep.dropped`` (carrier index -> reason code).
 
     Raises:
         ValueError: ``stage`` outside the problem's stages, or a coverage problem without counts.
@@ -63,8 +71,23 @@ def stage_step(problem: Problem, x: np.ndarray, deployed: np.ndarray, planner: P
             (an AssertionError).
     """
     view = make_view(problem, stage, x, deployed, released, counts)
-    deploy, decision_ms = checked_decision(planner, view, stage_rng(seed, stage), budget_ms)
-    return StageStep(deploy, release(planner, view, deploy), decision_ms)
+    dropped: dict = {}
+    if constraints:
+        constraints, dropped = usable(view, constraints)
+    decider = _Constrained(planner, constraints) if constraints else planner
+    deploy, decision_ms = checked_decision(decider, view, stage_rng(seed, stage), budget_ms)
+    return StageStep(deploy, release(planner, view, deploy), decision_ms, dropped)
+
+
+class _Constrained:
+    """``planner`` deciding the rest of a stage on the view ``constraints`` leave it
+    (:func:`planner.constraints.constrain`), the constraints applied to its decision."""
+
+    def __init__(self, planner: Planner, constraints: Constraints):
+        self.planner, self.constraints = planner, constraints
+
+    def decide(self, view, rng):
+        return apply(self.planner.decide(constrain(view, self.constraints), rng), self.constraints)
 
 
 def run_online(problem: Problem, x: np.ndarray, planner: Planner, seed: int,

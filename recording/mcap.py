@@ -28,6 +28,8 @@ topic              schema                   what
 /confirmations     marsupial.Confirm        one per Confirm accepted (JSON)
 /reward            marsupial.Reward         the reward so far after each decision and
                                             each deployment (JSON)
+/operator          marsupial.Operator       operator mode: each action taken, and how each
+                                            stage's hold ended (JSON)
 /log               foxglove.Log             mission events as text lines
 =================  =======================  ==============================================
 """
@@ -77,6 +79,18 @@ JSON_SCHEMAS = {
             "t": {"type": "number"}, "stage": {"type": "integer"}, "carrier": {"type": "string"},
             "deployed": {"type": "boolean"}, "status": {"type": "string"},
             "position": {"type": "array", "items": {"type": "number"}}, "passengers_left": {"type": "integer"}}}),
+    "/operator": ("marsupial.Operator", {
+        "type": "object", "properties": {
+            "t": {"type": "number", "description": "stage time t_j, s"}, "stage": {"type": "integer"},
+            "kind": {"type": "string", "description": "action (an operator's action) or decision (the stage's outcome)"},
+            "action": {"type": "string", "description": "approve, veto or force"},
+            "carrier": {"type": ["string", "null"]}, "operator": {"type": "string", "description": "who sent it"},
+            "deploy": {"type": "array", "items": {"type": "string"}},
+            "recommended": {"type": "array", "items": {"type": "string"}},
+            "forced": {"type": "array", "items": {"type": "string"}},
+            "vetoed": {"type": "array", "items": {"type": "string"}},
+            "hold": {"type": "string", "description": "approved, timeout or watching"},
+            "gain": {"type": ["number", "null"], "description": "planner's estimate, normalised reward"}}}),
     "/reward": ("marsupial.Reward", {
         "type": "object", "properties": {
             "t": {"type": "number"}, "reward": {"type": "number", "description": "normalised, penalty rule"},
@@ -277,6 +291,12 @@ class McapRecorder(Sink):
     def end(self, t, stages, reason):
         stages = self.decided if stages is None else stages
         self.log(t, "info", f"mission {reason} after {stages} stage(s)")
+
+    def operator(self, t, record):
+        self._json("/operator", t, record)
+        if record.get("kind") == "action":
+            self.log(t, "info", f"stage {record['stage']}: operator {record['operator']} {record['action']}"
+                                f"{' ' + record['carrier'] if record.get('carrier') else ''}")
 
     def _reward(self, t) -> None:
         reward, features = self.tally.reward()

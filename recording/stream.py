@@ -22,7 +22,9 @@ from __future__ import annotations
 import numpy as np
 
 from mission import events as ev
-from mission.records import Tally, confirm_record, decision_record, observation_record  # noqa: F401 (re-exported)
+from mission.records import (  # noqa: F401 (re-exported)
+    Tally, confirm_record, decision_record, observation_record, operator_action_record, operator_decision_record,
+)
 
 
 class Sink:
@@ -40,6 +42,8 @@ class Sink:
     def log(self, t, level, text): ...
 
     def end(self, t, stages, reason): ...
+
+    def operator(self, t, record: dict): ...
 
 
 class Clock:
@@ -88,6 +92,10 @@ def feed_event(sink: Sink, event, clock: Clock) -> None:
                          event.passengers_left)
     elif isinstance(event, ev.Decided):
         sink.decision(clock.stage(event.stage), event.stage, tuple(event.deploy), event.planning_ms)
+        if event.hold:  # operator mode: how the stage's hold ended and what the operator changed
+            sink.operator(clock.stage(event.stage), operator_decision_record(event))
+    elif isinstance(event, ev.OperatorAction):
+        sink.operator(clock.stage(event.stage), operator_action_record(event))
     elif isinstance(event, ev.Confirmed):
         sink.confirm(clock.stage(event.stage), event.stage, event.carrier, event.deployed, event.status,
                      event.position, event.passengers_left)

@@ -87,7 +87,7 @@ CREATE TABLE IF NOT EXISTS confirmations (
 #: Event kinds written to ``events``.
 EVENT_KINDS = (
     "open", "hello", "alive", "dead", "observation", "missing", "decision", "published",
-    "confirm", "own", "bye", "rejected", "end", "epoch", "planner-fault",
+    "confirm", "own", "bye", "rejected", "end", "epoch", "planner-fault", "operator",
 )
 
 
@@ -399,7 +399,7 @@ class MissionStore:
                 value = state.observation(r, e.stage)
                 column[cid] = None if value != value else value  # NaN = ∅
             self.decision(e.stage, e.deploy, e.planning_ms, missing=record.missing, wall_time=e.at,
-                          observations=column, passengers=list(e.passengers))
+                          observations=column, passengers=list(e.passengers), **_operator_fields(e))
         elif isinstance(e, ev.Published):
             self.event("published", None, e.stage, wall_time=e.at)
         elif isinstance(e, ev.Confirmed):
@@ -415,6 +415,8 @@ class MissionStore:
                        deployments=list(e.deployments))
         elif isinstance(e, ev.Ended):
             self.event("end", None, record.stage, wall_time=e.at, reason=e.reason)
+        elif isinstance(e, ev.OperatorAction):
+            self.event("operator", e.carrier, e.stage, wall_time=e.at, action=e.action, operator=e.operator)
         else:
             raise TypeError(f"not a recorded mission event: {e!r}")
 
@@ -517,6 +519,22 @@ def _counts(p: dict) -> tuple[int, ...] | None:
     return None if counts is None else tuple(int(c) for c in counts)
 
 
+def _operator_fields(e: ev.Decided) -> dict:
+    """A decision's operator-mode keys (docs/fleet.md, "The operator console"): written only when
+    the mission runs with an operator, so a mission without one writes the rows it always did."""
+    if not e.hold:
+        return {}
+    return {"hold": e.hold, "forced": list(e.forced), "vetoed": list(e.vetoed), "gain": e.gain,
+            "recommended": None if e.recommended is None else list(e.recommended)}
+
+
+def _decided(cid, stage, p, at) -> ev.Decided:
+    recommended = p.get("recommended")
+    return ev.Decided(stage, tuple(p["deploy"]), p["planning_ms"], at, tuple(p.get("passengers", ())),
+                      None if recommended is None else tuple(recommended), tuple(p.get("forced", ())),
+                      tuple(p.get("vetoed", ())), p.get("hold", ""), p.get("gain"))
+
+
 def _hello(cid, stage, p, at):
     if "fingerprint" not in p:
         return None  # written by an older version: pid and host only
@@ -533,8 +551,8 @@ _EVENT_FROM_ROW = {
     "observation": lambda cid, stage, p, at: ev.Observation(
         cid, stage, p.get("t", 0.0), p["x"], _point(p["position"]), p.get("passengers_left", 0),
         tuple(_point(q) for q in p.get("trail", ())), at, _counts(p)),
-    "decision": lambda cid, stage, p, at: ev.Decided(stage, tuple(p["deploy"]), p["planning_ms"], at,
-                                                     tuple(p.get("passengers", ()))),
+    "decision": _decided,
+    "operator": lambda cid, stage, p, at: ev.OperatorAction(stage, p["action"], cid, p.get("operator", ""), at),
     "published": lambda cid, stage, p, at: ev.Published(stage, at),
     "confirm": lambda cid, stage, p, at: ev.Confirmed(
         cid, stage, p["deployed"], p["status"], _point(p["position"]), p.get("passengers_left", 0), at,

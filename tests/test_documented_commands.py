@@ -271,6 +271,14 @@ RUNS = [
     ), "slow", wall_s=300, mem_mb=2500, check=_summary("runs/m1/summary.json")),
     Run("decentralised", (S(DECENTRALISED, ("S.yaml", "scenarios/tiny.yaml"), extra="--out {tmp}/dec"),),
         "slow", wall_s=240, mem_mb=2000, check=_summary("dec/summary.json", coordinator=False)),
+    Run("operator-console", (
+        S("python run_fleet.py scenarios/six_carriers.yaml --operator",
+          ("--operator", "--operator --operator-port 0 --operator-timeout 0.5"), extra="--out {tmp}/op1"),
+        S("python run_fleet.py S.yaml --operator --operator-timeout 0", ("S.yaml", "scenarios/tiny.yaml"),
+          extra="--operator-port 0 --out {tmp}/op2"),
+        S("python run_fleet.py S.yaml --operator --operator-required", ("S.yaml", "scenarios/tiny.yaml"),
+          extra="--operator-port 0 --stage-timeout 1 --out {tmp}/op3"),
+    ), "slow", wall_s=600, mem_mb=3000, check=_summary("op3/summary.json")),
     Run("carrier-processes", (
         Step(None, raw="python -m tools.scale --write-scenario 8 {tmp}/grid_8.yaml"),
         S(PROCESSES, ("S.yaml", "{tmp}/grid_8.yaml"), extra="--out {tmp}/procs"),
@@ -401,6 +409,10 @@ RUNS = [
         "heavy", wall_s=3600, mem_mb=4000,
         check=_reproduces(("docs/results/coverage_trials.csv", "coverage10/coverage_trials.csv"))),
     Run("experiments-coverage-quick", (S("python -m experiments coverage --quick"),), "slow", wall_s=300, mem_mb=3000),
+    Run("experiments-operator", (S("python -m experiments operator", extra="--out {tmp}/operator"),), "heavy",
+        wall_s=3600, mem_mb=3000),
+    Run("experiments-operator-quick", (S("python -m experiments operator --quick"),), "slow", wall_s=300,
+        mem_mb=3000),
     Run("experiments-marine", (S("python -m experiments marine", extra="--out {tmp}/marine"),), "slow",
         wall_s=900, mem_mb=3000, check=_reproduces(("docs/results/marine_trials.csv", "marine/marine_trials.csv"))),
     Run("coverage-report-only", (

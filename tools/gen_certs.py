@@ -25,7 +25,7 @@ import ipaddress
 import json
 import os
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -67,6 +67,11 @@ PEER_TOPICS = ("obs", "own", "confirm", "progress")
 CARRIER_WRITE_MESSAGES = ("put", "delete", "declare_queryable", "reply", "liveliness_token")
 
 
+def operator_cn(operator_id: str) -> str:
+    """Certificate common name of operator `operator_id` (docs/protocol.md, "Operator actions")."""
+    return f"marsupial-operator-{operator_id}"
+
+
 def carrier_cn(carrier_id: str) -> str:
     """Certificate common name of carrier `carrier_id`; the access-control subject matches it."""
     return f"marsupial-carrier-{carrier_id}"
@@ -88,6 +93,7 @@ class FleetCerts:
     ca: Path
     coordinator: Identity
     carriers: Mapping[str, Identity]
+    operators: Mapping[str, Identity] = field(default_factory=dict)
 
 
 def _name(cn: str) -> x509.Name:
@@ -191,7 +197,7 @@ def issue(
     return identity
 
 
-def fleet_layout(out: Path, carrier_ids: Sequence[str]) -> FleetCerts:
+def fleet_layout(out: Path, carrier_ids: Sequence[str], operator_ids: Sequence[str] = ()) -> FleetCerts:
     """The file names `generate_fleet_certs` uses under OUT, without writing anything."""
     out = Path(out)
     return FleetCerts(
@@ -199,25 +205,29 @@ def fleet_layout(out: Path, carrier_ids: Sequence[str]) -> FleetCerts:
         Identity(COORDINATOR_CN, out / "coordinator.pem", out / "coordinator.key"),
         {cid: Identity(carrier_cn(cid), out / f"carrier-{cid}.pem", out / f"carrier-{cid}.key")
          for cid in carrier_ids},
+        {op: Identity(operator_cn(op), out / f"operator-{op}.pem", out / f"operator-{op}.key") for op in operator_ids},
     )
 
 
 def generate_fleet_certs(
     out: Path, carrier_ids: Sequence[str], hosts: Sequence[str] = DEFAULT_HOSTS,
-    days: float = DEFAULT_DAYS,
+    days: float = DEFAULT_DAYS, operator_ids: Sequence[str] = (),
 ) -> FleetCerts:
-    """Write a CA, the coordinator's certificate (valid for `hosts`) and one per carrier.
+    """Write a CA, the coordinator's certificate (valid for `hosts`), one per carrier and one per
+    operator console (`operator_ids`).
 
     Returns the `fleet_layout` of OUT made absolute.
     """
     out = Path(out).resolve()
     out.mkdir(parents=True, exist_ok=True)
     os.chmod(out, DIR_MODE)
-    layout = fleet_layout(out, carrier_ids)
+    layout = fleet_layout(out, carrier_ids, operator_ids)
     ca = make_ca(out, days=days)
     issue(ca, out, "coordinator", COORDINATOR_CN, hosts, days)
     for cid in carrier_ids:
         issue(ca, out, f"carrier-{cid}", carrier_cn(cid), DEFAULT_HOSTS, days)
+    for op in operator_ids:
+        issue(ca, out, f"operator-{op}", operator_cn(op), DEFAULT_HOSTS, days)
     return layout
 
 
@@ -240,7 +250,7 @@ def tls_section(ca_cert: Path, identity: Identity | None, verify_name: bool = Tr
     return tls
 
 
-def coordinator_acl(carrier_ids: Sequence[str], prefix: str = KEY_PREFIX) -> dict:
+def coordinator_acl(carrier_ids: Sequence[str], prefix: str = KEY_PREFIX, operator_ids: Sequence[str] = ()) -> dict:
     """Access control for the coordinator's session (the hub every carrier connects to).
 
     Default deny. Every carrier certificate may subscribe and query under `prefix/**`; carrier
@@ -280,6 +290,19 @@ def coordinator_acl(carrier_ids: Sequence[str], prefix: str = KEY_PREFIX) -> dic
         subjects.append({"id": f"carrier-{cid}", "cert_common_names": [carrier_cn(cid)]})
         policies.append({"id": f"carrier-{cid}", "rules": [f"own-{cid}", f"answers-{cid}"],
                          "subjects": [f"carrier-{cid}"]})
+    for op in operator_ids:  # an operator puts its actions under its own subtree, reads its answers
+        rules += [
+            {"id": f"operator-{op}-act", "messages": ["put"], "flows": ["ingress"], "permission": "allow",
+             "key_exprs": [f"{prefix}/*/operator/{op}/action"]},
+            {"id": f"operator-{op}-read", "messages": ["declare_subscriber"], "flows": ["ingress"],
+             "permission": "allow", "key_exprs": [f"{prefix}/*/coordinator/operator/{op}"]},
+            {"id": f"operator-{op}-answers", "messages": list(ALL_MESSAGES), "flows": ["egress"],
+             "permission": "allow", "key_exprs": [f"{prefix}/*/coordinator/operator/{op}"]},
+        ]
+        subjects.append({"id": f"operator-{op}", "cert_common_names": [operator_cn(op)]})
+        policies.append({"id": f"operator-{op}", "rules": [f"operator-{op}-act", f"operator-{op}-read",
+                                                           f"operator-{op}-answers"],
+                         "subjects": [f"operator-{op}"]})
     return {"enabled": True, "default_permission": "deny", "rules": rules, "subjects": subjects,
             "policies": policies}
 
@@ -306,19 +329,21 @@ def coordinator_config(certs: FleetCerts, listen: Sequence[str] = ("tls/127.0.0.
         "scouting": {"multicast": {"enabled": False}},
         "transport": {"link": {"protocols": ["tls"], "tls": tls_section(certs.ca, certs.coordinator),
                                "rx": {"max_message_size": TRANSPORT_MAX_MESSAGE_BYTES}}},
-        "access_control": coordinator_acl(sorted(certs.carriers)),
+        "access_control": coordinator_acl(sorted(certs.carriers), operator_ids=sorted(certs.operators)),
     }
 
 
 def carrier_config(
-    certs: FleetCerts, carrier_id: str, connect: Sequence[str] = ("tls/127.0.0.1:7447",)
+    certs: FleetCerts, carrier_id: str, connect: Sequence[str] = ("tls/127.0.0.1:7447",), identity=None,
 ) -> dict:
-    """A whole Zenoh config for carrier `carrier_id`: connects over mutual TLS, listens nowhere."""
+    """A whole Zenoh config for carrier `carrier_id` (or another `identity`: an operator console):
+    connects over mutual TLS, listens nowhere, talks to the coordinator only."""
     return {
         "connect": {"endpoints": list(connect)},
         "listen": {"endpoints": []},
         "scouting": {"multicast": {"enabled": False}},
-        "transport": {"link": {"protocols": ["tls"], "tls": tls_section(certs.ca, certs.carriers[carrier_id]),
+        "transport": {"link": {"protocols": ["tls"], "tls": tls_section(
+            certs.ca, identity if identity is not None else certs.carriers[carrier_id]),
                                "rx": {"max_message_size": TRANSPORT_MAX_MESSAGE_BYTES}}},
         "access_control": carrier_acl(),
     }
@@ -346,6 +371,11 @@ def write_fleet_configs(
         paths[f"carrier-{cid}"] = write_json5(
             out / f"carrier-{cid}.json5", carrier_config(certs, cid, connect),
             f"Zenoh config of carrier {cid}, written by tools/gen_certs.py (docs/security.md).",
+        )
+    for op, identity in certs.operators.items():
+        paths[f"operator-{op}"] = write_json5(
+            out / f"operator-{op}.json5", carrier_config(certs, "", connect, identity),
+            f"Zenoh config of operator console {op}, written by tools/gen_certs.py (docs/security.md).",
         )
     return paths
 
@@ -384,6 +414,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--connect", nargs="+", default=None,
                         help="endpoints carriers connect to (default: the --listen endpoints)")
     parser.add_argument("--days", type=float, default=DEFAULT_DAYS, help="certificate validity, days")
+    parser.add_argument("--operators", nargs="+", default=[], metavar="ID",
+                        help="operator consoles allowed to send operator actions (docs/protocol.md, section 12)")
     args = parser.parse_args(argv)
     if x509 is None:
         print(f"error: tools/gen_certs.py needs the cryptography package: {INSTALL_HINT}", file=sys.stderr)
@@ -398,7 +430,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"error: endpoint {endpoint!r}: expected tls/HOST:PORT, found another protocol", file=sys.stderr)
             return 2
     try:
-        certs = generate_fleet_certs(args.out, ids, args.hosts, args.days)
+        certs = generate_fleet_certs(args.out, ids, args.hosts, args.days, args.operators)
         paths = write_fleet_configs(args.out, certs, args.listen, args.connect)
     except OSError as exc:
         print(f"error: {args.out}: cannot write: {exc.strerror}", file=sys.stderr)

@@ -1,4 +1,5 @@
-"""Screenshot a web page (the live view) with headless Chromium over the DevTools protocol.
+"""Screenshot a web page (the live view) with headless Chromium over the DevTools protocol, and
+drive a page as a person does (:class:`Browser`: clicks with the mouse, the page closed).
 
     python tools/view_screenshot.py URL OUT.png [--wait 60] [--size 1600x900]
 
@@ -68,6 +69,129 @@ class _Cdp:
         self.ws.close()
 
 
+class Browser:
+    """Headless Chromium driven over the DevTools protocol, one page: open a URL, run a script
+    in it, click an element with the mouse as a person does, take screenshots, close the page.
+
+    Args:
+        size: viewport (width, height) in CSS pixels.
+    """
+
+    def __init__(self, size=(1600, 900)):
+        chromium = chromium_path()
+        if chromium is None:
+            raise FileNotFoundError("no chromium found")
+        self.size = size
+        self.port = _free_port()
+        # ignore_cleanup_errors: a browser that is still writing its profile as it exits made the
+        # removal fail ("Directory not empty"), after the screenshot was taken.
+        self._profile = tempfile.TemporaryDirectory(prefix="marsupial-chromium-", ignore_cleanup_errors=True)
+        self.proc = subprocess.Popen(
+            [chromium, *CHROMIUM_FLAGS, f"--user-data-dir={self._profile.name}", f"--remote-debugging-port={self.port}",
+             f"--window-size={size[0]},{size[1]}", "about:blank"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        self.cdp = None
+        try:
+            deadline = time.monotonic() + 30
+            page = None
+            while page is None:
+                try:
+                    with urllib.request.urlopen(f"http://127.0.0.1:{self.port}/json/list", timeout=2) as r:
+                        page = next((t for t in json.load(r) if t.get("type") == "page"), None)
+                except OSError:
+                    pass
+                if page is None:
+                    if time.monotonic() > deadline or self.proc.poll() is not None:
+                        raise RuntimeError("chromium's DevTools endpoint did not come up")
+                    time.sleep(0.2)
+            self.page_id = page["id"]
+            self.cdp = _Cdp(page["webSocketDebuggerUrl"])
+            self.cdp.call("Emulation.setDeviceMetricsOverride", width=size[0], height=size[1], deviceScaleFactor=1,
+                          mobile=False)
+            self.cdp.call("Page.enable")
+        except BaseException:
+            self.close()
+            raise
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def open(self, url: str) -> None:
+        self.cdp.call("Page.navigate", url=url)
+
+    def eval(self, expression: str):
+        """The value of a JavaScript expression in the page (JSON-serialisable values)."""
+        result = self.cdp.call("Runtime.evaluate", expression=expression, returnByValue=True, awaitPromise=True)
+        if "exceptionDetails" in result:
+            raise RuntimeError(f"{expression[:60]}: {result['exceptionDetails'].get('text')}")
+        return result.get("result", {}).get("value")
+
+    def wait_for(self, expression: str, timeout_s: float = 30.0, poll_s: float = 0.2):
+        """Wait until ``expression`` is truthy in the page (one that throws, e.g. while the page
+        loads, counts as false); its value (TimeoutError after ``timeout_s``)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            try:
+                value = self.eval(expression)
+            except RuntimeError:
+                value = None
+            if value:
+                return value
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"waited {timeout_s:g} s for {expression}")
+            time.sleep(poll_s)
+
+    def click(self, selector: str) -> None:
+        """A left click with the mouse at the centre of the element ``selector`` (pressed and
+        released, as a person clicks); ValueError when there is no such element."""
+        box = self.eval(f"(() => {{ const e = document.querySelector({json.dumps(selector)}); if (!e) return null; "
+                        "e.scrollIntoView({block: 'center'}); const r = e.getBoundingClientRect(); "
+                        "return [r.left + r.width / 2, r.top + r.height / 2]; })()")
+        if box is None:
+            raise ValueError(f"no element {selector} on the page")
+        x, y = box
+        self.cdp.call("Input.dispatchMouseEvent", type="mouseMoved", x=x, y=y)
+        for kind in ("mousePressed", "mouseReleased"):
+            self.cdp.call("Input.dispatchMouseEvent", type=kind, x=x, y=y, button="left", clickCount=1)
+
+    def screenshot(self, out=None) -> bytes:
+        png = base64.b64decode(self.cdp.call("Page.captureScreenshot", format="png")["data"])
+        if out is not None:
+            Path(out).parent.mkdir(parents=True, exist_ok=True)
+            Path(out).write_bytes(png)
+        return png
+
+    def close_page(self) -> None:
+        """Close the page (as a person closes the tab): nothing of it runs any more."""
+        if self.cdp is not None:
+            try:
+                self.cdp.close()
+            except Exception:
+                pass
+            self.cdp = None
+        try:
+            urllib.request.urlopen(f"http://127.0.0.1:{self.port}/json/close/{self.page_id}", timeout=5).read()
+        except OSError:
+            pass
+
+    def close(self) -> None:
+        if self.cdp is not None:
+            try:
+                self.cdp.close()
+            except Exception:
+                pass
+            self.cdp = None
+        self.proc.terminate()
+        try:
+            self.proc.wait(10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+        self._profile.cleanup()
+
+
 def capture(url: str, out: str | Path, ready=None, wait_s: float = 60.0, size=(1600, 900), settle_s: float = 3.0,
             log=lambda line: None) -> bytes:
     """Open ``url`` in headless Chromium and save a PNG screenshot to ``out``.
@@ -80,64 +204,25 @@ def capture(url: str, out: str | Path, ready=None, wait_s: float = 60.0, size=(1
     Returns:
         The PNG bytes saved.
     """
-    chromium = chromium_path()
-    if chromium is None:
-        raise FileNotFoundError("no chromium found")
-    port = _free_port()
-    # ignore_cleanup_errors: a browser that is still writing its profile as it exits made the
-    # removal fail ("Directory not empty"), after the screenshot was taken.
-    with tempfile.TemporaryDirectory(prefix="marsupial-chromium-", ignore_cleanup_errors=True) as profile:
-        proc = subprocess.Popen(
-            [chromium, *CHROMIUM_FLAGS, f"--user-data-dir={profile}", f"--remote-debugging-port={port}",
-             f"--window-size={size[0]},{size[1]}", "about:blank"],
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        cdp = None
-        try:
-            deadline = time.monotonic() + 30
-            page = None
-            while page is None:
-                try:
-                    with urllib.request.urlopen(f"http://127.0.0.1:{port}/json/list", timeout=2) as r:
-                        page = next((t for t in json.load(r) if t.get("type") == "page"), None)
-                except OSError:
-                    pass
-                if page is None:
-                    if time.monotonic() > deadline or proc.poll() is not None:
-                        raise RuntimeError("chromium's DevTools endpoint did not come up")
-                    time.sleep(0.2)
-            cdp = _Cdp(page["webSocketDebuggerUrl"])
-            cdp.call("Emulation.setDeviceMetricsOverride", width=size[0], height=size[1], deviceScaleFactor=1,
-                     mobile=False)
-            cdp.call("Page.enable")
-            cdp.call("Page.navigate", url=url)
-            started = time.monotonic()
-            png = b""
-            while True:
-                time.sleep(1.0)
-                png = base64.b64decode(cdp.call("Page.captureScreenshot", format="png")["data"])
-                if ready is None or ready(png):
-                    if ready is not None and settle_s > 0:
-                        time.sleep(settle_s)
-                        png = base64.b64decode(cdp.call("Page.captureScreenshot", format="png")["data"])
-                    log(f"screenshot after {time.monotonic() - started:.1f} s")
-                    break
-                if time.monotonic() - started > wait_s:
-                    log(f"gave up waiting after {wait_s:.0f} s; saving the last screenshot")
-                    break
-            Path(out).parent.mkdir(parents=True, exist_ok=True)
-            Path(out).write_bytes(png)
-            return png
-        finally:
-            if cdp is not None:
-                try:
-                    cdp.close()
-                except Exception:
-                    pass
-            proc.terminate()
-            try:
-                proc.wait(10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
+    with Browser(size) as browser:
+        browser.open(url)
+        started = time.monotonic()
+        png = b""
+        while True:
+            time.sleep(1.0)
+            png = browser.screenshot()
+            if ready is None or ready(png):
+                if ready is not None and settle_s > 0:
+                    time.sleep(settle_s)
+                    png = browser.screenshot()
+                log(f"screenshot after {time.monotonic() - started:.1f} s")
+                break
+            if time.monotonic() - started > wait_s:
+                log(f"gave up waiting after {wait_s:.0f} s; saving the last screenshot")
+                break
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+        Path(out).write_bytes(png)
+        return png
 
 
 def colour_pixels(png: bytes, colours, tolerance: int = 24, box=None) -> list[int]:

@@ -16,10 +16,13 @@ Layout (``<m>`` = mission id, ``<id>`` = carrier id)::
     marsupial/<m>/coordinator/accepted/<id> coordinator -> carrier Accepted (put; revision 3)
     marsupial/<m>/coordinator/state       queryable, replies State (``?carrier=<id>``: scoped)
     marsupial/<m>/coordinator/alive       liveliness token of the coordinator
+    marsupial/<m>/operator/<op>/action    operator -> coordinator  OperatorAction (put)
+    marsupial/<m>/coordinator/operator/<op> coordinator -> operator OperatorAnswer (put)
 
 Invariant: everything a carrier publishes (puts, liveliness token) lies under
 ``marsupial/<m>/carrier/<id>/**`` and everything the coordinator publishes under
-``marsupial/<m>/coordinator/**``, so an access-control rule per subtree is enough.
+``marsupial/<m>/coordinator/**`` (an operator's under ``marsupial/<m>/operator/<op>/**``), so an
+access-control rule per subtree is enough.
 """
 from __future__ import annotations
 
@@ -77,6 +80,18 @@ def carrier_alive_pattern(mission: str) -> str:
 
 def decision_key(mission: str) -> str:
     return f"{prefix(mission)}/coordinator/decision"
+
+
+def operator_action_key(mission: str, operator: str) -> str:
+    return f"{prefix(mission)}/operator/{check_id(operator, 'operator')}/action"
+
+
+def operator_actions_pattern(mission: str) -> str:
+    return f"{prefix(mission)}/operator/*/action"
+
+
+def operator_answer_key(mission: str, operator: str) -> str:
+    return f"{prefix(mission)}/coordinator/operator/{check_id(operator, 'operator')}"
 
 
 def end_key(mission: str) -> str:

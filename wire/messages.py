@@ -714,8 +714,52 @@ def announced(payload: bytes) -> tuple[int, str]:
     return revision, fp[:64] if isinstance(fp, str) else ""
 
 
+@dataclass(frozen=True)
+class OperatorAction:
+    """An operator's action on the stage being decided (revision 5). operator console ->
+    ``operator/<op>/action`` (docs/protocol.md, "Operator actions"). No carrier sends or reads it.
+
+    Attributes:
+        operator: the sender's identity (the ``<op>`` of its key).
+        seq: the sender's number for this action; the answer repeats it.
+        stage: the stage the action is about (the one being decided).
+        action: ``approve`` (the recommendation), ``veto`` or ``force`` (``carrier``'s deployment).
+        carrier: the carrier vetoed or forced (absent with ``approve``).
+        token: the mission's operator credential (the coordinator's ``operator.token``).
+    """
+
+    mission: str = _spec(_ident)
+    operator: str = _spec(_ident)
+    seq: int = _spec(_int(0, 2**31 - 1))
+    stage: int = _spec(_STAGE)
+    action: str = _spec(_text(16))
+    carrier: str | None = _spec(_optional(_ident), absent=None)
+    token: str = _spec(_text(128), absent="")
+    v: int = PROTOCOL_VERSION
+    TYPE = "operator"
+    SINCE = 5
+
+
+@dataclass(frozen=True)
+class OperatorAnswer:
+    """The coordinator's answer to an :class:`OperatorAction`. coordinator ->
+    ``coordinator/operator/<op>``: taken (``accepted``) or refused with a reason code and its
+    detail (docs/protocol.md, "Operator actions")."""
+
+    mission: str = _spec(_ident)
+    operator: str = _spec(_ident)
+    seq: int = _spec(_int(0, 2**31 - 1))
+    stage: int = _spec(_STAGE)
+    accepted: bool = _spec(_bool)
+    reason: str = _spec(_text(40), absent="")
+    detail: str = _spec(_text(200), absent="")
+    v: int = PROTOCOL_VERSION
+    TYPE = "operator-answer"
+    SINCE = 5
+
+
 MESSAGE_TYPES = {cls.TYPE: cls for cls in (Hello, Observation, Decision, Confirm, Own, End, Bye, State, Refusal,
-                                            Pose, Accepted, Progress)}
+                                            Pose, Accepted, Progress, OperatorAction, OperatorAnswer)}
 
 
 def fingerprint(value: object) -> str:

@@ -199,6 +199,8 @@ class CoordinatorDriver:
         if self.disk.epoch > self.epoch:  # a standby took over on the shared disk: deposed, no Decision
             self.depose()
             return
+        for action in self.sim.fleet.operator_actions(self.state, j, now):  # a simulated operator's
+            self.apply(action)
         deploy, passengers = self.sim.fleet.decide(self.state, j)
         paused = self.sim.pause(self)
         if paused:  # the process stops between its epoch check and its record (a GC or VM pause)
@@ -213,7 +215,7 @@ class CoordinatorDriver:
             # while this one was paused after its check; it steps down
             self.depose()
             return
-        self.apply(ev.Decided(j, deploy, 0.0, now, passengers))
+        self.apply(self.sim.fleet.operator_decided(self.state, j, deploy, passengers, now))
         self.apply(ev.Published(j, now))
         self.sim.decided_at.setdefault(j, self.sim.t)
         self.step(cl.Decided(j, now), now)

@@ -26,6 +26,9 @@ class Fleet:
             spec: the network as without one (mission/simulate/links.py).
         timeouts: the fleet's waits (:func:`mission.timeouts.over_links` of the link model's
             latency bound: the defaults on perfect and radio links).
+        operator: a simulated operator's schedule: ``(stage, action, carrier)`` entries
+            (``approve`` with carrier None, ``veto``, ``force``) taken at that stage before it is
+            decided, as the console's actions are (docs/fleet.md, "The operator console").
     """
 
     ids: tuple
@@ -42,6 +45,7 @@ class Fleet:
     decisions: dict = field(default_factory=dict, compare=False, repr=False)  # the planner's memo
     links: object = field(default=None, compare=False, repr=False)
     timeouts: Timeouts = field(default=DEFAULTS, compare=False)
+    operator: tuple = ()
 
     @property
     def n_stages(self) -> int:
@@ -52,20 +56,45 @@ class Fleet:
 
     def decide(self, state: ms.MissionState, j: int) -> tuple[tuple, tuple]:
         """(deploying ids, sorted; the passenger each releases): the coordinator's stage step on
-        the mission's view. Planners are stateless, so the step is a function of its inputs and
-        is memoised on them (the campaign's missions share most of their stages)."""
+        the mission's view, under the operator's constraints of stage j in ``state``. Planners
+        are stateless, so the step is a function of its inputs and is memoised on them (the
+        campaign's missions share most of their stages)."""
+        from planner.constraints import Constraints
         from planner.online import stage_step
+
+        from ..operator_rules import constraints
 
         x, deployed = state.planning_observations(j), state.deployed()
         released = state.releases() if self.problem.weights is not None else None
+        forced, vetoed, _ = constraints(state.operator_actions.get(j, ()))
         key = (j, np.nan_to_num(x[:, : j + 1], nan=-1.0).tobytes(), deployed[:, :j].tobytes(),
-               None if released is None else released[:, :j].tobytes())
+               None if released is None else released[:, :j].tobytes(), forced, vetoed)
         hit = self.decisions.get(key)
         if hit is None:
-            step = stage_step(self.problem, x, deployed, self.planner, self.seed, j, released)
+            given = Constraints(frozenset(self.ids.index(c) for c in forced), frozenset(self.ids.index(c) for c in vetoed))
+            step = stage_step(self.problem, x, deployed, self.planner, self.seed, j, released, constraints=given)
             rs = sorted(np.flatnonzero(step.deploy), key=lambda r: self.ids[r])
             hit = self.decisions[key] = (tuple(self.ids[r] for r in rs), tuple(int(step.passengers[r]) for r in rs))
         return hit
+
+    def operator_actions(self, state: ms.MissionState, j: int, at: float) -> list:
+        """The simulated operator's actions on stage j (:attr:`operator`), unless ``state``
+        already holds actions of j (a resumed coordinator replayed them from its disk)."""
+        if state.operator_actions.get(j):
+            return []
+        return [ev.OperatorAction(j, action, carrier, "simulated", at)
+                for stage, action, carrier in self.operator if stage == j]
+
+    def operator_decided(self, state: ms.MissionState, j: int, deploy, passengers, at: float) -> ev.Decided:
+        """Stage j's Decided with what the operator changed (plain without a simulated operator)."""
+        if not self.operator:
+            return ev.Decided(j, deploy, 0.0, at, passengers)
+        from ..operator_rules import constraints
+
+        forced, vetoed, approved = constraints(state.operator_actions.get(j, ()))
+        forced = tuple(c for c in forced if c in deploy)
+        vetoed = tuple(c for c in vetoed if c not in deploy)
+        return ev.Decided(j, deploy, 0.0, at, passengers, None, forced, vetoed, "approved" if approved else "timeout")
 
     def listened_by(self) -> dict:
         """carrier id -> the ids that listen to it (:func:`mission.peers.listened`: each carrier
@@ -114,7 +143,9 @@ class Fleet:
                 if self.valid[r, j]:
                     xv = None if np.isnan(self.x[r, j]) else int(self.x[r, j])
                     state = ms.step(state, ev.Observation(cid, j, self.stage_times[j], xv, (0.0, 0.0), 0))[0]
+            for action in self.operator_actions(state, j, 0.0):
+                state = ms.step(state, action)[0]
             deploy, passengers = self.decide(state, j)
-            state = ms.step(state, ev.Decided(j, deploy, 0.0, 0.0, passengers))[0]
+            state = ms.step(state, self.operator_decided(state, j, deploy, passengers, 0.0))[0]
             out[j] = deploy
         return out
