@@ -47,6 +47,8 @@ SAMPLES = {
     "pose": wm.Pose(M, "a", 1.0, P0, 0.5, 1),
     "accepted": wm.Accepted(M, "a", "f", 0, 0, 4, epoch=2, clock="wall", silence_timeout_s=7.5, realtime=2.0),
     "progress": wm.Progress(M, "a", 0, 0.0),
+    "operator": wm.OperatorAction(M, "op1", 1, 0, "force", carrier="a", token="t"),
+    "operator-answer": wm.OperatorAnswer(M, "op1", 1, 0, False, reason="stale-stage", detail="stage 0 is decided"),
 }
 
 
@@ -568,8 +570,8 @@ def _raw_peer(endpoint: str) -> Node:
 
 
 def test_a_revision_3_carrier_never_receives_revision_4_fields(tmp_path):
-    """[P-4.2] [P-7.4] [P-10.2] today's coordinator (sim clock, silence 7 s, paced 2x) after
-    learning a higher epoch from a carrier's Hello (epoch 6): carrier ``b`` of revision 4 gets an
+    """[P-4.2] [P-7.4] [P-10.2] today's coordinator (sim clock, silence 7 s, paced 2x), a carrier's
+    Hello claiming epoch 5 kept as a claim and not adopted [P-7.3] (it stays at 1): carrier ``b`` of revision 4 gets an
     Accepted with the clock; carrier ``a`` of revision 3 an Accepted without it, and the End
     (broadcast in the lowest revision accepted, 3) without epoch; every byte reads at revision 3."""
     tiny = world.load_scenario(TINY)
@@ -596,9 +598,9 @@ def test_a_revision_3_carrier_never_receives_revision_4_fields(tmp_path):
             assert item is not None and item.key == keys.accepted_key(M, cid), item
             got[cid].put(item.payload)
         deadline = time.monotonic() + 10
-        while fleet.coordinator.epochs.epoch < 6 and time.monotonic() < deadline:
+        while "b" not in fleet.coordinator.epochs.claims and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert fleet.coordinator.epochs.epoch == 6
+        assert fleet.coordinator.epochs.claims["b"] == 5 and fleet.coordinator.epochs.epoch == 1
         fleet.coordinator.stop()
         for cid, node in peers.items():
             item = node.next(10.0)
@@ -613,7 +615,7 @@ def test_a_revision_3_carrier_never_receives_revision_4_fields(tmp_path):
     accepted_b, end_b = (msgpack.unpackb(got["b"].get()) for _ in range(2))
     accepted_a, end_a = (msgpack.unpackb(got["a"].get()) for _ in range(2))
     told = wm.decode(msgpack.packb(accepted_b), wm.Accepted)
-    assert (told.clock, told.silence_timeout_s, told.realtime, told.epoch) == ("sim", 7.0, 2.0, 6)
+    assert (told.clock, told.silence_timeout_s, told.realtime, told.epoch) == ("sim", 7.0, 2.0, 1)
     assert {"silence_timeout_s", "realtime"} <= set(accepted_b) and told.revision == wm.REVISION
     assert not {"clock", "silence_timeout_s", "realtime"} & set(accepted_a)
     assert end_a == end_b and "epoch" not in end_a  # one broadcast, in the lowest revision
