@@ -17,9 +17,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from planner.constraints import Constraints, apply, constrain, usable
-from planner.passengers import release
 from planner.guard import checked_decision
-from planner.problem import OnlineResult, Planner, Problem, evaluate, make_view, stage_rng, start_online
+from planner.passengers import release
+from planner.problem import OnlineResult, Planner, Problem, StageView, evaluate, make_view, stage_rng, start_online
 
 
 @dataclass(frozen=True, eq=False)
@@ -86,7 +86,7 @@ class _Constrained:
     def __init__(self, planner: Planner, constraints: Constraints):
         self.planner, self.constraints = planner, constraints
 
-    def decide(self, view, rng):
+    def decide(self, view: StageView, rng: np.random.Generator) -> np.ndarray:
         return apply(self.planner.decide(constrain(view, self.constraints), rng), self.constraints)
 
 
