@@ -16,6 +16,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from coordinator.node import Coordinator  # noqa: E402
 
 
+def _patch(owner, name: str, value) -> None:
+    """``owner.name = value``; what a break replaces must exist (a renamed hook would leave the
+    coordinator unbroken and its test passing for the wrong reason)."""
+    if not hasattr(owner, name):
+        raise SystemExit(f"broken_coordinator: {owner.__name__} has no {name!r} to break")
+    setattr(owner, name, value)
+
+
 def no_accepted() -> None:
     """[P-5] Hellos go unanswered: no Accepted (Refusals still go out)."""
     answer = Coordinator._answer_hello
@@ -24,23 +32,24 @@ def no_accepted() -> None:
         if refused is not None:
             answer(self, cid, revision, refused)
 
-    Coordinator._answer_hello = _answer_hello
+    _patch(Coordinator, "_answer_hello", _answer_hello)
 
 
 def select_all() -> None:
     """[P-6] every Decision selects every carrier, observed or not, with passengers or not."""
+    import time
 
-    def _plan(self, j):
-        return tuple(sorted(self.ids)), 0.0, ()
+    import coordinator.node as node
+    from mission import events as ev
 
-    Coordinator._plan = _plan
+    _patch(node, "_planned", lambda c, j: ev.Decided(j, tuple(sorted(c.ids)), 0.0, time.time(), ()))
 
 
 def ignore_takeover() -> None:
     """[P-7] a newer epoch's Decision on its key is ignored: it goes on deciding and ends the mission."""
     from coordinator.epochs import Epochs
 
-    Epochs.decision_heard = lambda self, payload: None
+    _patch(Epochs, "decision_heard", lambda self, payload: None)
 
 
 def no_token() -> None:
@@ -48,7 +57,7 @@ def no_token() -> None:
     from wire.transport import Node
 
     declare = Node.token
-    Node.token = lambda self, key: None if key.endswith("/coordinator/alive") else declare(self, key)
+    _patch(Node, "token", lambda self, key: None if key.endswith("/coordinator/alive") else declare(self, key))
 
 
 BREAKS = {"no-accepted": no_accepted, "select-all": select_all, "ignore-takeover": ignore_takeover,

@@ -21,7 +21,7 @@ FAULT_TEXT = {
                "is published (tried at a later stage if the real one came first)",
 }
 FAULTS = tuple(FAULT_TEXT)
-SETTLE_S = 0.3  # loopback delivers a Decision already published well within this (deposed fault)
+SETTLE_S = 1.0  # loopback delivers a Decision already published well within this, on a busy host too (deposed fault)
 DEPOSED_FREEZE_S = 1.5  # the coordinator stays frozen this long after the fake Decision
 
 
