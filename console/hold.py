@@ -24,8 +24,7 @@ from mission import operator_rules
 from mission import state as ms
 from mission import timers as tm
 from planner.advice import advise, override_gain
-from planner.constraints import Constraints
-from mission.coverage import planning_counts
+from mission.decide import operator_constraints, planning_inputs
 from planner.problem import make_view, stage_rng
 
 #: Longest the hold waits for inbox items before it looks at its clock and the desk again (s).
@@ -100,9 +99,7 @@ class OperatorHold:
     @staticmethod
     def stage_view(j: int, c):
         """The planner's view of stage j in ``c``'s mission (what the reasons are computed on)."""
-        return make_view(c.problem, j, c.state.planning_observations(j), c.state.deployed(),
-                         c.state.releases() if c.problem.weights is not None else None,
-                         planning_counts(c.state, c.problem))
+        return make_view(c.problem, j, *planning_inputs(c.problem, c.state, j))
 
     def decide(self, j: int, c: Held) -> Outcome:
         ids = tuple(c.ids)
@@ -111,7 +108,7 @@ class OperatorHold:
         step, planning_ms = first, first.decision_ms
         forced, vetoed, approved = operator_rules.constraints(c.state.operator_actions.get(j, ()))
         if forced or vetoed:  # a resumed coordinator: the actions taken before it stopped
-            step = self.plan(j, self._constraints(ids, forced, vetoed))
+            step = self.plan(j, operator_constraints(ids, forced, vetoed))
             planning_ms += step.decision_ms
         opened = self.clock()
         wait_s = self.settings.wait_s
@@ -135,7 +132,7 @@ class OperatorHold:
                 now_forced, now_vetoed, approved = operator_rules.constraints(c.state.operator_actions.get(j, ()))
                 if (now_forced, now_vetoed) != (forced, vetoed):
                     forced, vetoed = now_forced, now_vetoed
-                    step = self.plan(j, self._constraints(ids, forced, vetoed))
+                    step = self.plan(j, operator_constraints(ids, forced, vetoed))
                     planning_ms += step.decision_ms
                     for r, why in step.dropped.items():
                         self.log(f"coordinator: stage {j}: the operator's constraint on {ids[r]} cannot apply ({why})")
@@ -160,10 +157,6 @@ class OperatorHold:
         return Outcome(deploy, planning_ms, tuple(int(step.passengers[r]) for r in rs),
                        rec if rec != tuple(sorted(deploy)) else None, forced, vetoed, hold,
                        None if gain is None or math.isnan(gain) else float(gain))
-
-    def _constraints(self, ids, forced, vetoed) -> Constraints:
-        index = {cid: r for r, cid in enumerate(ids)}
-        return Constraints(frozenset(index[c] for c in forced), frozenset(index[c] for c in vetoed))
 
     def _show(self, j, c: Held, step, recommended, constraints, opened, wait_s, status) -> None:
         view = self.stage_view(j, c)

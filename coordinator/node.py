@@ -14,7 +14,8 @@ Stage j (docs/protocol.md, "Stage handshake"):
    (it died, or its link's lease expired) or nothing at all, not even Progress, came from it for
    ``silence_timeout_s`` (it is stuck); on the ``wall`` clock (real robots) also after
    ``stage_timeout_s``;
-3. plan with the offline loop's own stage step (``planner.online.stage_step``: the view
+3. plan with the offline loop's own stage step, guarded (:func:`mission.decide.stage_decision`
+   around ``planner.online.stage_step``: the view
    ``make_view(problem, j, x, deployed)``, the stream ``stage_rng(seed, j)``); the ``Decided``
    event records the decision (and the scheduled carriers without an observation as ∅) before
    it is published; Confirms are collected while the next stage waits.
@@ -41,9 +42,8 @@ import numpy as np
 
 import world
 from planner.registry import make_planner, planner_settings, used_options
-from mission.coverage import planning_counts, spec_options
-from planner.guard import PlannerFault
-from planner.online import stage_step
+from mission.coverage import spec_options
+from mission.decide import FALLBACK_PLANNER, stage_decision
 from coordinator.clock import StageClock
 from coordinator.epochs import Epochs
 from coordinator.inbound import Inbound
@@ -61,30 +61,9 @@ from wire.messages import (
 from wire.link_filter import link_filter
 from wire.transport import Node
 
-#: The planner that decides a stage a planner plug-in failed (raised, broke a rule, ran past its
-#: budget): SSAP, the carriers' on-board rule, needs no options and cannot fail.
-FALLBACK_PLANNER = "ssap"
-
-
-def guarded_step(given: tuple, planner: tuple, rest: tuple, log, store, constraints=None):
-    """``stage_step(*given, planner, *rest)`` with the planner's ``plan_ms`` budget and the
-    operator's ``constraints``; a planner fault (planner.guard: it raised, broke a rule, ran past
-    its budget) is logged, recorded in mission.db (``planner-fault``: summary.json
-    ``planner_faults``) and the stage decided by :data:`FALLBACK_PLANNER` instead, under the same
-    constraints: a plug-in is someone else's code."""
-    planner, name = planner
-    try:
-        return stage_step(*given, planner, *rest, getattr(planner, "plan_ms", None), constraints)
-    except PlannerFault as fault:
-        log(f"coordinator: {fault.line(name)}; stage {fault.stage} decided by {FALLBACK_PLANNER}")
-        store.event("planner-fault", None, fault.stage, rule=fault.rule, detail=fault.detail, planner=name,
-                    fallback=FALLBACK_PLANNER)
-        return stage_step(*given, make_planner(FALLBACK_PLANNER), *rest, None, constraints)
-
-
 def warm_up(planner: tuple, problem, log) -> None:
     """The planner's ``warm_up(problem)`` if it has one; a plug-in's that raises is logged (its
-    decisions are guarded one by one: :func:`guarded_step`)."""
+    decisions are guarded one by one: :func:`plan_step`)."""
     planner, name = planner
     warm = getattr(planner, "warm_up", None)
     if callable(warm):
@@ -158,12 +137,19 @@ class CoordinatorConfig:
 
 
 def plan_step(c: "Coordinator", j: int, constraints=None):
-    """The offline loop's stage_step on coordinator ``c``'s view of stage j (guarded:
-    :func:`guarded_step`), under the operator's ``constraints``
-    (:class:`planner.constraints.Constraints`; None: none)."""
-    given = (c.problem, c.state.planning_observations(j), c.state.deployed())
-    rest = (c.seed, j, c.state.releases() if c.problem.weights is not None else None, planning_counts(c.state, c.problem))
-    return guarded_step(given, (c.planner, c.planner_name), rest, c.log, c.store, constraints)
+    """Stage j's step on coordinator ``c``'s mission state (:func:`mission.decide.stage_decision`:
+    guarded, within the planner's ``plan_ms`` budget), under the operator's ``constraints``
+    (:class:`planner.constraints.Constraints`; None: none). A planner fault is logged and
+    recorded in mission.db (``planner-fault``: summary.json ``planner_faults``); the stage is
+    decided by :data:`mission.decide.FALLBACK_PLANNER`."""
+
+    def fault(f) -> None:
+        c.log(f"coordinator: {f.line(c.planner_name)}; stage {f.stage} decided by {FALLBACK_PLANNER}")
+        c.store.event("planner-fault", None, f.stage, rule=f.rule, detail=f.detail, planner=c.planner_name,
+                      fallback=FALLBACK_PLANNER)
+
+    return stage_decision(c.problem, c.state, j, c.planner, c.seed, constraints,
+                          getattr(c.planner, "plan_ms", None), fault)
 
 
 def _planned(c: "Coordinator", j: int) -> ev.Decided:

@@ -112,7 +112,7 @@ class Results:
         out = mission_summary(state, problem, dataclasses.replace(self.info, wall_time_s=wall_s, rejected=rejected),
                               bound=bound)
         out["epoch"] = epochs.epoch  # of the coordinator that wrote this summary (docs/fleet.md)
-        # Stages a planner plug-in failed and SSAP decided (coordinator.node.FALLBACK_PLANNER).
+        # Stages a planner plug-in failed and SSAP decided (mission.decide.FALLBACK_PLANNER).
         out["planner_faults"] = list(getattr(self, "planner_faults", []))
         # Denials with their sender: carriers' claims of an epoch above this coordinator's [P-7.3].
         out["denials"] = [{"sender": cid, "rule": "P-7.3", "what": "epoch claimed in a Hello", "value": epoch}

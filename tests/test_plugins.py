@@ -343,3 +343,28 @@ def test_a_fleet_survives_a_failing_plugin_and_decides_those_stages_with_ssap(tm
     for cid in ("a", "b"):  # every carrier keeps within its passengers: SSAP decided those stages
         entry = next(c for c in summary["carriers"] if c["id"] == cid)
         assert len(entry["deployments"]) <= 2
+
+
+def test_the_simulator_flies_a_failing_plugin_as_the_fleet_does():
+    """The deterministic simulator's coordinator takes the fleet's guarded step
+    (mission.decide.stage_decision): a plug-in raising at stage 2 has that stage decided by
+    SSAP, the mission completes without a violation, and its stage-2 decision is SSAP's on the
+    same mission state."""
+    import dataclasses
+
+    from launcher.simulate import build_fleet
+    from mission import simulate as sim
+    from mission.decide import stage_decision
+
+    fleet = build_fleet(str(ROOT / "scenarios" / "tiny.yaml"), "coordinated")
+    fleet = dataclasses.replace(fleet, planner=make_planner("planner_plugins:Raises"))
+    s = sim.Simulation(fleet, 0)
+    out = s.run()
+    assert out.completed and out.violations == [], out.violations
+    assert len(fleet.decisions) >= 4  # every stage decided, stage 2 by the fallback
+    heard = []
+    step = stage_decision(fleet.problem, s.coordinators["coordinator"].state, 2, fleet.planner, fleet.seed,
+                          on_fault=heard.append)
+    state = s.coordinators["coordinator"].state
+    ssap = stage_decision(fleet.problem, state, 2, make_planner("ssap"), fleet.seed)
+    assert [f.rule for f in heard] == ["raises"] and np.array_equal(step.deploy, ssap.deploy)

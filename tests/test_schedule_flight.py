@@ -5,7 +5,8 @@ on a generated 6-carrier street grid, with carriers that hold while the coordina
 (``--no-autonomy``, the simulator's ``coordinated`` mode).
 
 Kinds whose outcome the schedule determines (:data:`EXACT`): every carrier's deployed stages in
-summary.json equal the simulated mission's ``deployments``. The others depend on how long real
+summary.json equal the simulated mission's ``deployments`` (unless, on a loaded host, the real
+coordinator timed a carrier out: its ``missing_stages``, a timing no schedule determines). The others depend on how long real
 processes take (docs/fleet.md, "Fault schedules on real processes"): the deployments at the
 stages decided before the first fault struck are equal, and the mission completes.
 """
@@ -44,6 +45,8 @@ def test_a_simulated_schedule_flown_on_real_processes(tmp_path, scenarios, name,
         assert e["decided"] >= simulated["faults"][e["fault"]]["decided"]
     got = flight.compare(simulated, real)
     if kind in EXACT:
-        assert got["equal"], got
+        # exact, unless the real coordinator timed a carrier out (a loaded host: the stages it
+        # missed are in summary.json; the simulator's carriers are never that slow)
+        assert got["equal"] or (got["timed_out"] and got["equal_before"]), got
     else:
         assert got["equal_before"], got

@@ -65,8 +65,9 @@ def pick(fleet, kind: str, seeds: int, longest: float, shared_disk: bool = False
 
 def fly(scenario: Path, faults: list, mode: str, out: Path, timeout_s: float = 600.0) -> dict:
     """``run_fleet.py`` with the schedule ``faults`` on real processes: {deployments (carrier ->
-    stages, from summary.json), decisions (summary.json's), code, seconds, log (the launcher's
-    faults.json), output}."""
+    stages, from summary.json), decisions (summary.json's), timed_out (carrier -> the stages the
+    coordinator decided without its Observation: summary.json ``missing_stages``), code, seconds,
+    log (the launcher's faults.json), output}."""
     out.mkdir(parents=True, exist_ok=True)
     schedule = out.parent / f"{out.name}.schedule.json"
     schedule.write_text(json.dumps(faults, indent=1) + "\n")
@@ -76,12 +77,14 @@ def fly(scenario: Path, faults: list, mode: str, out: Path, timeout_s: float = 6
     proc = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=timeout_s)
     summary = out / "summary.json"
     deployments = decisions = None
+    timed_out: dict = {}
     if summary.exists():
         report = json.loads(summary.read_text())
         deployments = {c["id"]: sorted(d["stage"] for d in c["deployments"]) for c in report["carriers"]}
         decisions = report["decisions"]
+        timed_out = {c["id"]: c["missing_stages"] for c in report["carriers"] if c.get("missing_stages")}
     log = json.loads((out / "faults.json").read_text()) if (out / "faults.json").exists() else []
-    return {"deployments": deployments, "decisions": decisions, "code": proc.returncode,
+    return {"deployments": deployments, "decisions": decisions, "timed_out": timed_out, "code": proc.returncode,
             "seconds": round(time.monotonic() - t0, 1),
             "log": log, "output": (proc.stdout + proc.stderr)[-4000:]}
 
@@ -93,10 +96,13 @@ def before(deployments: dict, stage: int) -> dict:
 
 def compare(simulated: dict, real: dict) -> dict:
     """One seed: equal deployments, and equal at the stages whose Decisions were out before the
-    first fault struck (the last one recorded then may still be in flight: not counted)."""
+    first fault struck (the last one recorded then may still be in flight: not counted); with the
+    carriers the real coordinator timed out (``timed_out``: on a loaded host a carrier can be
+    silent past the silence timeout, a timing no schedule determines)."""
     first = min(f["decided"] for f in simulated["faults"])
     got, out = real["deployments"] or {}, max(0, first - 1)
     return {"seed": simulated["seed"], "equal": got == simulated["deployments"],
+            "timed_out": real.get("timed_out", {}),
             "equal_before": bool(got) and before(got, out) == before(simulated["deployments"], out),
             "first_point": first, "simulated": simulated["deployments"], "real": real["deployments"],
             "code": real["code"], "seconds": real["seconds"], "faults": simulated["faults"]}

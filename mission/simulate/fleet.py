@@ -59,20 +59,19 @@ class Fleet:
         the mission's view, under the operator's constraints of stage j in ``state``. Planners
         are stateless, so the step is a function of its inputs and is memoised on them (the
         campaign's missions share most of their stages)."""
-        from planner.constraints import Constraints
-        from planner.online import stage_step
-
+        from ..decide import operator_constraints, planning_inputs, stage_decision
         from ..operator_rules import constraints
 
-        x, deployed = state.planning_observations(j), state.deployed()
-        released = state.releases() if self.problem.weights is not None else None
+        x, deployed, released, counts = planning_inputs(self.problem, state, j)
         forced, vetoed, _ = constraints(state.operator_actions.get(j, ()))
         key = (j, np.nan_to_num(x[:, : j + 1], nan=-1.0).tobytes(), deployed[:, :j].tobytes(),
-               None if released is None else released[:, :j].tobytes(), forced, vetoed)
+               None if released is None else released[:, :j].tobytes(),
+               None if counts is None else np.nan_to_num(counts, nan=-1.0).tobytes(), forced, vetoed)
         hit = self.decisions.get(key)
         if hit is None:
-            given = Constraints(frozenset(self.ids.index(c) for c in forced), frozenset(self.ids.index(c) for c in vetoed))
-            step = stage_step(self.problem, x, deployed, self.planner, self.seed, j, released, constraints=given)
+            # no budget: the simulated planner's time is not the real one's (its faults of rule are)
+            step = stage_decision(self.problem, state, j, self.planner, self.seed,
+                                  operator_constraints(self.ids, forced, vetoed))
             rs = sorted(np.flatnonzero(step.deploy), key=lambda r: self.ids[r])
             hit = self.decisions[key] = (tuple(self.ids[r] for r in rs), tuple(int(step.passengers[r]) for r in rs))
         return hit
