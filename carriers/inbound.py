@@ -122,7 +122,7 @@ class Inbound:
             return None
         if item.key == keys.end_key(self.mission):
             msg = self._ours(decode(item.payload, End))
-            return mc.EndHeard(msg.epoch)  # a deposed coordinator's is rejected (mission.carrier)
+            return mc.EndHeard(msg.epoch, msg.coordinator)  # a deposed coordinator's is rejected (mission.carrier)
         answer_type = {keys.refusal_key(self.mission, self.cid): Refusal,
                        keys.accepted_key(self.mission, self.cid): Accepted}.get(item.key)
         if answer_type is not None:
@@ -130,10 +130,10 @@ class Inbound:
         if item.key != keys.decision_key(self.mission):
             raise ProtocolError("bad-key", f"message on {item.key[:80]}")
         msg = self._ours(self.broadcasts.decode(item.payload, Decision))  # once per process (SharedDecoder)
-        if msg.stage < self.book.n_stages and mc.current(machine, msg.epoch):  # not a deposed coordinator's
+        if msg.stage < self.book.n_stages and mc.current(machine, msg.epoch, msg.coordinator):  # not a deposed coordinator's
             self.book.decision(msg.stage, msg.deploy)
-        self.releases.name(machine, msg.stage, msg.epoch, msg.passenger_of(self.cid))
-        return mc.DecisionHeard(msg.stage, msg.t, msg.deploy, self.position(), msg.epoch)
+        self.releases.name(machine, msg.stage, msg.epoch, msg.passenger_of(self.cid), msg.coordinator)
+        return mc.DecisionHeard(msg.stage, msg.t, msg.deploy, self.position(), msg.epoch, msg.coordinator)
 
     def _ours(self, msg: Any) -> Any:
         """``msg``, checked to be of this mission."""
@@ -167,7 +167,8 @@ class Inbound:
         if msg.carrier != self.cid:
             raise ProtocolError("key-mismatch", f"answer for carrier {msg.carrier!r}")
         self.answer.answered(msg.fingerprint, msg if isinstance(msg, Refusal) else None)
-        if (isinstance(msg, Accepted) and msg.fingerprint == self.answer.fingerprint and mc.current(machine, msg.epoch)
+        if (isinstance(msg, Accepted) and msg.fingerprint == self.answer.fingerprint
+                and mc.current(machine, msg.epoch, msg.coordinator)
                 and msg.revision >= 4):
             return Follow(mc.Timers(msg.clock, msg.silence_timeout_s, msg.realtime))
         return None

@@ -14,6 +14,7 @@ from typing import Any, Callable, Protocol
 
 from carriers.exits import Exit
 from mission import carrier as mc
+from mission.ballot import Ballot
 from mission.peers import PeerBook, Presence
 from mission.timeouts import DEFAULTS
 from wire import keys
@@ -89,7 +90,7 @@ class Joining:
         if not state.ended:
             self._replay(carrier, mc.replay_plan(carrier.machine, min(state.next_stage, start), recorded, logged))
             self._recall(carrier, [entries[j] for j in recalled])
-        carrier.apply(mc.Joined(start, state.ended, state.epoch))
+        carrier.apply(mc.Joined(start, state.ended, state.epoch, state.coordinator))
         carrier.execute(mc.SendHello(carrier.machine.hello_stage(), carrier.machine.passengers_left))
         # after its Hello (it is accepted first): the deployments on record it never made answered
         # late, its own decisions of the recalled stages said again
@@ -156,13 +157,13 @@ class Joining:
         State). If it still collects j, it may not have our Observation (mission.carrier,
         Collecting). Otherwise the coordinator is still at work: go on waiting."""
         state = self.queries.once(carrier.node)
-        if state is None or not mc.current(carrier.machine, state.epoch):
+        if state is None or not mc.current(carrier.machine, state.epoch, state.coordinator):
             return
         if state.next_stage > j:
             self.log(f"stage {j} was decided but its Decision did not arrive; taking it from State")
             carrier.apply(mc.Resync(self.queries.seen(state), self.motion.position()))
         elif state.next_stage == j:
-            carrier.apply(mc.Collecting(j, state.epoch))
+            carrier.apply(mc.Collecting(j, state.epoch, state.coordinator))
         else:
             # the coordinator is behind this carrier: its Hello or its accounts of the stages
             # since were lost; saying them again lets it go on (found by mission.simulate)
@@ -180,8 +181,12 @@ class Joining:
         carrier.apply(mc.Resync(self.queries.seen(state), self.motion.position(), gap=gap))
 
 
+def _ballot(state: State) -> Ballot:
+    return Ballot(state.epoch, state.coordinator)
+
+
 class StateQueries:
-    """A carrier's State queries ([P-5.2]): one query's reply of the highest epoch, the revision
+    """A carrier's State queries ([P-5.2]): one query's reply of the highest ballot, the revision
     it speaks from then on, and what its machine takes from a State. A collaborator of
     :class:`carriers.node.Carrier`, handed the node each time (it opens with the run)."""
 
@@ -189,7 +194,7 @@ class StateQueries:
         self.mission, self.cid, self.log = mission, cid, log
 
     def once(self, node) -> State | None:
-        """The State reply of the highest epoch (two coordinators may answer across a split)."""
+        """The State reply of the highest ballot (two coordinators may answer across a split)."""
         best = None
         selector = keys.state_selector(self.mission, self.cid, REVISION)
         for payload in node.query(selector, timeout_s=DEFAULTS.state_query_s):
@@ -198,7 +203,7 @@ class StateQueries:
             except ProtocolError as exc:
                 node.reject(exc.reason, exc.detail, self.log)
                 continue
-            if state.mission == self.mission and (best is None or state.epoch > best.epoch):
+            if state.mission == self.mission and (best is None or _ballot(best).below(_ballot(state))):
                 best = state
         if best is not None:  # speak the coordinator's revision from now on (docs/protocol.md, "Compatibility")
             node.revision = min(REVISION, best.revision)
@@ -212,4 +217,4 @@ class StateQueries:
         last = state.last_decision
         return mc.StateSeen(state.next_stage, tuple(mine.deployments) if mine else (),
                             None if last is None else (last.stage, last.t, tuple(last.deploy)), state.ended,
-                            state.epoch)
+                            state.epoch, state.coordinator)

@@ -134,7 +134,7 @@ class StageClock:
             # With its epoch (revision 4: a carrier ignores a deposed coordinator's End), in the
             # revision every carrier that said Hello reads, as the Decisions are.
             self.end_message = End(self.mission, c.state.next_stage, c.state.end_reason or effect.reason,
-                                   self.epochs.epoch)
+                                   self.epochs.epoch, self.epochs.ident)
         elif isinstance(effect, cl.PublishEnd) and self.end_message is not None:
             c.put_end(self.end_message)
         elif isinstance(effect, cl.Note):

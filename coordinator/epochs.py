@@ -17,10 +17,21 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from mission import timers as tm
+from mission.ballot import Ballot
 from mission.timeouts import DEFAULTS
 from storage.missiondb import MissionStore, StoreBusy, StoreFenced
 from wire import keys
 from wire.messages import Decision, ProtocolError, State, decode
+
+
+def default_ident() -> str:
+    """A coordinator id unique to this process: ``<host>-<pid>``, made an id (wire.keys.ID_PATTERN)."""
+    import os
+    import re
+    import socket
+
+    host = re.sub(r"[^A-Za-z0-9_.-]", "-", socket.gethostname()).lstrip(".-") or "host"
+    return f"{host[:50]}-{os.getpid()}"
 
 
 class DuplicateCoordinator(RuntimeError):
@@ -37,6 +48,7 @@ class Epochs:
     """This coordinator's claim on its mission and its epochs.
 
     Attributes:
+        ident: this process's coordinator id: with its epoch, its ballot (:mod:`mission.ballot`).
         epoch: this process's epoch (set when it opens mission.db; nothing raises it after).
         known: the highest epoch a live primary reported while this one stood by.
         first_stage: the first stage this process decides.
@@ -45,16 +57,21 @@ class Epochs:
 
     Args:
         mission: the mission id; log: a callable taking one line; stop: the coordinator's stop
-        request (set when it is deposed); clock: what its standby wait reads.
+        request (set when it is deposed); clock: what its standby wait reads; ident: its id.
     """
 
-    def __init__(self, mission: str, log, stop, clock):
-        self.mission, self.log, self._stop, self.clock = mission, log, stop, clock
+    def __init__(self, mission: str, log, stop, clock, ident: str):
+        self.mission, self.log, self._stop, self.clock, self.ident = mission, log, stop, clock, ident
         self.epoch = 1
         self.known = 0
         self.first_stage = 0
         self.deposed_by: int | None = None
         self.claims: dict[str, int] = {}
+
+    @property
+    def ballot(self) -> Ballot:
+        """This coordinator's authority (docs/protocol.md [P-7.1]): its epoch and its id."""
+        return Ballot(self.epoch, self.ident)
 
     def carrier_claimed(self, cid: str, epoch: int) -> None:
         """A carrier's Hello reports a higher epoch than this coordinator's. A carrier's message
@@ -68,23 +85,25 @@ class Epochs:
 
     def decision_heard(self, payload: bytes) -> None:
         """A Decision on this mission's decision key (ours come back to us): one of a higher
-        epoch means another coordinator took over (e.g. a partition healed after a standby
+        ballot means another coordinator took over (e.g. a partition healed after a standby
         took over): stop deciding, publish no End, exit (docs/fleet.md, "Split brain"). Anything
         else there is not addressed to this coordinator: ignored, not counted (carriers count it)."""
         try:
             msg = decode(payload, Decision)
         except ProtocolError:
             return
-        if msg.mission == self.mission and msg.epoch > self.epoch:
-            self.deposed(msg.epoch, "it decides")
+        theirs = Ballot(msg.epoch, msg.coordinator)
+        if msg.mission == self.mission and self.ballot.below(theirs):
+            self.deposed(theirs, "it decides")
 
-    def deposed(self, epoch: int, how: str) -> None:
-        """Stop deciding: a coordinator of a higher epoch took over (no End, no summary.json)."""
+    def deposed(self, ballot: Ballot, how: str) -> None:
+        """Stop deciding: a coordinator of a higher ballot took over (no End, no summary.json)."""
         if self.deposed_by is not None:
             return
-        self.deposed_by = epoch
-        self.log(f"coordinator: deposed: a coordinator of epoch {epoch} took over mission {self.mission} ({how}; "
-                 f"this one has epoch {self.epoch}); stopping without End")
+        self.deposed_by = ballot.epoch
+        tie = f", its id {ballot.coordinator!r} above this one's {self.ident!r}" if ballot.epoch == self.epoch else ""
+        self.log(f"coordinator: deposed: a coordinator of epoch {ballot.epoch} took over mission {self.mission} ({how}; "
+                 f"this one has epoch {self.epoch}{tie}); stopping without End")
         self._stop.set()
 
     @contextmanager
@@ -96,7 +115,7 @@ class Epochs:
         try:
             yield
         except StoreFenced as exc:
-            self.deposed(exc.epoch, "mission.db records it")
+            self.deposed(exc.ballot, "mission.db records it")
 
     def session(self, open_node, standby: bool) -> tuple:
         """The coordinator's Zenoh session (``open_node()`` opens it; it raises
@@ -161,7 +180,7 @@ class Epochs:
         logged = False
         while True:
             try:
-                store = MissionStore(path, meta, min_epoch=self.known + 1)
+                store = MissionStore(path, meta, min_epoch=self.known + 1, coordinator=self.ident)
                 self.epoch = store.epoch
                 return store
             except StoreBusy as exc:

@@ -45,7 +45,7 @@ from planner.registry import make_planner, planner_settings, used_options
 from mission.coverage import spec_options
 from mission.decide import FALLBACK_PLANNER, stage_decision
 from coordinator.clock import StageClock
-from coordinator.epochs import Epochs
+from coordinator.epochs import Epochs, default_ident
 from coordinator.inbound import Inbound
 from coordinator.recorder import Recording, start as start_recording
 from coordinator.results import results_for
@@ -108,6 +108,8 @@ class CoordinatorConfig:
             token vanishes and take over (else refuse to start: :class:`coordinator.epochs.DuplicateCoordinator`).
         operator: operator mode (:class:`console.hold.OperatorSettings`; None: the planner
             decides alone): each stage's decision waits for the operator's console.
+        coordinator_id: this coordinator's id, with its epoch its ballot (docs/protocol.md,
+            "Epochs"); None: ``<host>-<pid>`` (:func:`coordinator.epochs.default_ident`).
     """
 
     out_dir: str
@@ -134,6 +136,7 @@ class CoordinatorConfig:
     ros2: object = None
     standby: bool = False
     operator: object = None
+    coordinator_id: str | None = None
 
 
 def plan_step(c: "Coordinator", j: int, constraints=None):
@@ -216,7 +219,8 @@ class Coordinator:
         if config.clock not in CLOCKS:
             raise ValueError(f"clock must be one of {CLOCKS}, found {config.clock!r}")
         self.clock = clock  # what its waits read (mission.timers decides); the inbox's clock
-        self.epochs = Epochs(self.mission, self.log, self._stop, self.clock)  # split brain (docs/fleet.md)
+        self.epochs = Epochs(self.mission, self.log, self._stop, self.clock,  # split brain (docs/fleet.md)
+                             config.coordinator_id or default_ident())
         self.inbound = Inbound(self.mission, self.spec.has, self.fingerprint, self.epochs, self.recording)
         self.stage_clock = StageClock(config, self.spec, scenario.stage_interval, self.mission, self.epochs, self._stop,
                                       self.clock, self.log)
@@ -254,7 +258,7 @@ class Coordinator:
         """The Decision of stage j as published: from ``st`` (the current state by default)."""
         d = (self.state if st is None else st).decisions[j]
         return Decision(self.mission, j, self.spec.stage_times[j], d.deploy, d.planning_ms, self.epochs.epoch,
-                        passengers=d.passengers)
+                        passengers=d.passengers, coordinator=self.epochs.ident)
 
     def _refresh_state(self) -> None:
         """From now on State queries answer from the current state (it is stored). O(1): the
@@ -277,7 +281,8 @@ class Coordinator:
         last = self._decision(st.next_stage - 1, st) if (st.next_stage - 1) in st.decisions else None
         return encode(State(
             mission=self.mission, next_stage=st.next_stage, stages=self.n_stages, fingerprint=self.fingerprint,
-            ended=st.ended, carriers=carriers, last_decision=last, epoch=self.epochs.epoch, revision=REVISION), asked)
+            ended=st.ended, carriers=carriers, last_decision=last, epoch=self.epochs.epoch, revision=REVISION,
+            coordinator=self.epochs.ident), asked)
 
     def _carrier_state(self, st, cid: str) -> CarrierState:
         """One carrier's entry: its deployments as the planner sees them (its accounts, its
@@ -337,7 +342,7 @@ class Coordinator:
         answer = Accepted(self.mission, cid, self.fingerprint, self.state.accepted[cid].next_stage,
                           self.state.next_stage, REVISION, self.epochs.epoch, self.config.clock,
                           min(float(self.config.silence_timeout_s), ACCEPTED_MAX),
-                          min(float(self.config.realtime), ACCEPTED_MAX))
+                          min(float(self.config.realtime), ACCEPTED_MAX), coordinator=self.epochs.ident)
         if defined_in(answer, revision):
             self.node.put(keys.accepted_key(self.mission, cid), answer, revision)
 

@@ -118,6 +118,10 @@ def _mission_flags(p: argparse.ArgumentParser) -> None:
     p.add_argument("--standby", action="store_true",
                    help="coordinator: if the mission already has a live coordinator, wait and take over when "
                         "its liveliness token vanishes (without it: refuse to start, exit 2)")
+    p.add_argument("--coordinator-id", metavar="ID",
+                   help="coordinator: this coordinator's id, with its epoch its ballot (docs/protocol.md, \"Epochs\"; "
+                        "ranks two coordinators that took one epoch on different disks); default <host>-<pid>; the "
+                        "one-host fleet names its own coordinator and standby")
 
 
 def _zenoh_flags(p: argparse.ArgumentParser) -> None:

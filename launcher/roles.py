@@ -42,6 +42,7 @@ def coordinator(settings: Settings, stop: threading.Event) -> int:
         # Wall clock: the last stage's Confirms take a round trip, which grows with the fleet's
         # load as the observations' arrival does, so the stage timeout bounds it too.
         confirm_timeout_s=max(t.confirm_s, t.stage_s), standby=f.standby, bye_timeout_s=t.bye_s,
+        coordinator_id=f.coordinator_id,
         rejoin_timeout_s=t.rejoin_s, end_repeat_s=t.end_repeat_s, bye_grace_s=t.bye_grace_s,
         operator=operator_settings(settings)),
         zenoh_config(f, "coordinator"), scenario_path=f.scenario, stop=stop)

@@ -211,6 +211,15 @@ def _roles(f) -> list[Problem]:
                                "rerun-sdk for the live view (pip install -e '.[view]')", Found("no rerun module")))
     if f.standby and f.role != "coordinator":
         out.append(Problem("--standby", "--role coordinator", Found(f"--role {f.role}")))
+    if f.coordinator_id is not None:
+        from wire.keys import ID_PATTERN
+
+        if f.role != "coordinator":
+            out.append(Problem("--coordinator-id", "--role coordinator (the one-host fleet names its own)",
+                               Found(f"--role {f.role}")))
+        elif not ID_PATTERN.match(f.coordinator_id):
+            out.append(Problem("--coordinator-id", "an id: 1 to 64 of letters, digits, '_', '.', '-', not "
+                               "starting with '.' or '-'", Found(repr(f.coordinator_id))))
     out += _operator(f)
     if f.role == "report" and not f.out:
         out.append(Problem("--out", "DIR with --role report (the results directory to read)", Found("nothing")))

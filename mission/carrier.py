@@ -24,9 +24,10 @@ position at that moment) and carries out the effects in order (:class:`Deploy` b
   repeats its answers and its own decisions;
 * a Hello with no answer for its retry time (it was lost on the link) is said again
   (:class:`HelloUnanswered`), with the pending Observation and the answers since the join;
-* a Decision of an epoch lower than the highest the carrier has heard (in a Decision or a
-  State) comes from a deposed coordinator: rejected (``deposed``), never answered; so is an End
-  that states a lower epoch (an End that states none, of an earlier revision, ends the mission);
+* a Decision of a ballot (epoch, coordinator id: :mod:`mission.ballot`) below the highest the
+  carrier has heard (in a Decision or a State) comes from a deposed coordinator: rejected
+  (``deposed``), never answered; so is an End that states a lower one (an End that states no
+  epoch, of an earlier revision, ends the mission);
 * a Decision that arrives while the Decision of an earlier stage the carrier needs never did
   (they arrive in order: that one was lost) makes it ask State first (:class:`AskState`) and
   take the lost stages from it (:class:`Resync` with ``gap``).
@@ -36,6 +37,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
+from .ballot import Ballot
 from .timeouts import T_TOLERANCE_S
 
 Point = tuple[float, float]
@@ -83,6 +85,7 @@ class Joined:
     next_stage: int
     ended: bool = False
     epoch: int = 1
+    coordinator: str = ""
 
 
 @dataclass(frozen=True)
@@ -94,6 +97,7 @@ class DecisionHeard:
     deploy: tuple[str, ...]
     position: Point
     epoch: int = 1
+    coordinator: str = ""
 
 
 @dataclass(frozen=True)
@@ -140,6 +144,7 @@ class StateSeen:
     last_decision: tuple[int, float, tuple[str, ...]] | None  # (stage, t, deploy)
     ended: bool
     epoch: int = 1
+    coordinator: str = ""
 
 
 @dataclass(frozen=True)
@@ -160,6 +165,7 @@ class Collecting:
 
     stage: int
     epoch: int = 1
+    coordinator: str = ""
 
 
 @dataclass(frozen=True)
@@ -174,9 +180,10 @@ class HelloUnanswered:
 @dataclass(frozen=True)
 class EndHeard:
     """End arrived, from a coordinator of ``epoch`` (None: the End states none, as before
-    revision 4)."""
+    revision 4) and ``coordinator`` ("": not stated, as before revision 6)."""
 
     epoch: int | None = None
+    coordinator: str = ""
 
 
 # --------------------------------------------------------------------------- effects
@@ -304,6 +311,10 @@ class Handshake:
         sensed: what the carrier observed at ``pending`` (None = ∅).
         ended: End was heard (or State says the mission ended).
         epoch: the highest coordinator epoch heard (Decision, State); 0 before any.
+        coordinator: the coordinator id of the highest ballot heard ("": none stated).
+        outranked: the last Decision or End heard came from a deposed coordinator (a ballot
+            below the highest heard) and no current Decision or State came since: the live
+            coordinator does not decide (:mod:`mission.carrier_life` takes it as absent).
         flying: it joined (:class:`Joined`): from then on it handles its stages.
     """
 
@@ -321,6 +332,8 @@ class Handshake:
     sensed: int | None = None
     ended: bool = False
     epoch: int = 0
+    coordinator: str = ""
+    outranked: bool = False
     repeats: frozenset = frozenset()
     flying: bool = False
 
@@ -346,11 +359,24 @@ class Handshake:
     def deployments(self) -> tuple[int, ...]:
         return tuple(sorted(j for j, a in self.handled.items() if a.deployed))
 
+    @property
+    def ballot(self) -> Ballot:
+        """The highest ballot heard (docs/protocol.md [P-7.2])."""
+        return Ballot(self.epoch, self.coordinator)
 
-def current(state: Handshake, epoch: int) -> bool:
-    """A Decision or State of ``epoch`` comes from the coordinator that decides now: its epoch is
-    at least the highest the carrier has heard (a lower one is a deposed coordinator's)."""
-    return epoch >= state.epoch
+    def hearing(self, epoch: int, coordinator: str = "") -> "Handshake":
+        """This state once a current Decision or State of ballot ``(epoch, coordinator)`` is heard."""
+        top = self.ballot.highest(Ballot(epoch, coordinator))
+        if top == self.ballot and not self.outranked:
+            return self
+        return dataclasses.replace(self, epoch=top.epoch, coordinator=top.coordinator, outranked=False)
+
+
+def current(state: Handshake, epoch: int, coordinator: str = "") -> bool:
+    """A Decision or State of ballot ``(epoch, coordinator)`` comes from the coordinator that
+    decides now: its ballot is not below the highest the carrier has heard (a lower one is a
+    deposed coordinator's: :meth:`mission.ballot.Ballot.below`)."""
+    return not Ballot(epoch, coordinator).below(state.ballot)
 
 
 def passenger_for(named: int | None, released, count: int) -> int:
@@ -417,10 +443,10 @@ class Releases:
         self.named: dict[int, int] = {}     # stage -> the passenger a Decision named
         self.released: dict[int, int] = {}  # stage -> the passenger released there
 
-    def name(self, state: Handshake, stage: int, epoch: int, passenger: int | None) -> None:
-        """A Decision of ``epoch`` named ``passenger`` (None: none) for this carrier at ``stage``;
-        a deposed coordinator's naming is ignored."""
-        if passenger is not None and current(state, epoch):
+    def name(self, state: Handshake, stage: int, epoch: int, passenger: int | None, coordinator: str = "") -> None:
+        """A Decision of ballot ``(epoch, coordinator)`` named ``passenger`` (None: none) for this
+        carrier at ``stage``; a deposed coordinator's naming is ignored."""
+        if passenger is not None and current(state, epoch, coordinator):
             self.named.setdefault(stage, passenger)
 
     def release(self, stage: int) -> int:
@@ -591,7 +617,7 @@ def _on_collecting(state: Handshake, e: Collecting):
     """State says the coordinator collects the stage this carrier waits at: it may never have
     had this carrier's Observation (rejected as future-stage, or lost in a reconnection); an
     identical repeat is absorbed by the coordinator."""
-    if current(state, e.epoch) and state.pending == e.stage and e.stage not in state.handled:
+    if current(state, e.epoch, e.coordinator) and state.pending == e.stage and e.stage not in state.handled:
         return state, (ResendObservation(e.stage),)
     return state, ()
 
@@ -601,22 +627,22 @@ def _on_joined(state: Handshake, e: Joined):
         return dataclasses.replace(state, ended=True, state_next=max(state.state_next, e.next_stage)), ()
     effects = (Log(f"joined at stage {e.next_stage} ({len(state.handled)} deployment(s) on record)"),) \
         if e.next_stage > 0 else ()
-    return dataclasses.replace(state, stage=e.next_stage, joined=e.next_stage,
-                               state_next=max(state.state_next, e.next_stage),
-                               epoch=max(state.epoch, e.epoch), flying=True), effects
+    return dataclasses.replace(state.hearing(e.epoch, e.coordinator), stage=e.next_stage, joined=e.next_stage,
+                               state_next=max(state.state_next, e.next_stage), flying=True), effects
 
 
 def _on_decision(state: Handshake, e: DecisionHeard):
-    if not current(state, e.epoch):
-        return state, (Reject("deposed", f"decision for stage {e.stage} of epoch {e.epoch}; "
-                                         f"epoch {state.epoch} decides now"),)
+    heard = Ballot(e.epoch, e.coordinator)
+    if heard.below(state.ballot):
+        return dataclasses.replace(state, outranked=True), (Reject("deposed", f"decision for stage {e.stage} of ballot {heard}; "
+                                         f"ballot {state.ballot} decides now"),)
     j = e.stage
     if j >= state.n_stages:  # rejected: it raises nothing, not even the epoch
         return state, (Reject("out-of-range", f"decision for stage {j} >= {state.n_stages}"),)
     if abs(e.t - state.stage_times[j]) > T_TOLERANCE_S:
         return state, (Reject("out-of-range", f"t: stage {j} is at {state.stage_times[j]} s, found {e.t}"),)
-    newer = e.epoch > state.epoch
-    state = dataclasses.replace(state, epoch=e.epoch) if newer else state
+    newer = state.ballot.below(heard)
+    state = state.hearing(e.epoch, e.coordinator)
     if j in state.handled:
         return state, (_already(state, j), *_early_observation(state, j))
     if j < state.stage or j < state.joined:
@@ -625,7 +651,7 @@ def _on_decision(state: Handshake, e: DecisionHeard):
         return new, (*effects, *_early_observation(state, j))
     if j in state.buffered:
         # A repeat (a re-publication) of a stage not reached yet: answered ``already`` once the
-        # first is handled; a newer epoch's decision replaces the one held.
+        # first is handled; a newer ballot's decision replaces the one held.
         buffered = {**state.buffered, j: tuple(e.deploy)} if newer else state.buffered
         return dataclasses.replace(state, buffered=buffered, repeats=state.repeats | {j}), ()
     latest = max(state.latest_decided, j)
@@ -693,11 +719,11 @@ def _on_resync(state: Handshake, e: Resync):
     our reconnection), re-send the pending Observation if its stage is still open, and repeat
     our answers (``already``) so a coordinator that lost Confirms in flight has every outcome."""
     s = e.state
-    if s is not None and s.epoch < state.epoch:
+    if s is not None and not current(state, s.epoch, s.coordinator):
         s = None  # a deposed coordinator's view: nothing to learn from it
     new = state
     if s is not None:
-        new = dataclasses.replace(new, state_next=max(new.state_next, s.next_stage), epoch=max(new.epoch, s.epoch))
+        new = dataclasses.replace(new.hearing(s.epoch, s.coordinator), state_next=max(new.state_next, s.next_stage))
     effects: list = [Log("coordinator is back; re-sending hello and the pending observation") if e.gap is None
                      else Log(f"the Decision of stage {e.gap} came without the one(s) before it; "
                               + ("taking them from State" if s is not None else "no State answered"))]
@@ -715,7 +741,8 @@ def _on_resync(state: Handshake, e: Resync):
                 new, more = _answer(new, j, (new.cid,), e.position, allow=False)
                 effects += more
         if last is not None and last[0] not in new.handled and last[0] not in new.buffered:
-            new, more = _on_decision(new, DecisionHeard(last[0], last[1], tuple(last[2]), e.position, s.epoch))
+            new, more = _on_decision(new, DecisionHeard(last[0], last[1], tuple(last[2]), e.position, s.epoch,
+                                                        s.coordinator))
             effects += more
         if s.ended:
             new = dataclasses.replace(new, ended=True)
@@ -774,8 +801,9 @@ def _dedupe(effects):
 
 
 def _on_end(state: Handshake, e: EndHeard):
-    if e.epoch is not None and not current(state, e.epoch):  # a deposed coordinator cannot end it ([P-7.4])
-        return state, (Reject("deposed", f"End of epoch {e.epoch}; epoch {state.epoch} decides now"),)
+    if e.epoch is not None and not current(state, e.epoch, e.coordinator):  # a deposed coordinator cannot end it [P-7.4]
+        return dataclasses.replace(state, outranked=True), (Reject("deposed", f"End of ballot {Ballot(e.epoch, e.coordinator)}; "
+                                         f"ballot {state.ballot} decides now"),)
     return dataclasses.replace(state, ended=True), ()
 
 

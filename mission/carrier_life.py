@@ -261,6 +261,8 @@ class Life:
         progress_at: when Progress last went out; repeated_at: when the Observation was last
             repeated to the peers (alone); deciding: in a spell of deciding alone.
         reason: done: why it ended.
+        outranked_at: when the handshake machine found the live coordinator outranked
+            (:attr:`mission.carrier.Handshake.outranked`; None: it is not): absent since then.
     """
 
     mode: str
@@ -278,6 +280,7 @@ class Life:
     repeated_at: float | None = None
     deciding: bool = False
     reason: str | None = None
+    outranked_at: float | None = None
 
 
 def initial(mode: str, waits: Timeouts) -> Life:
@@ -427,12 +430,24 @@ def _resolved(life: Life, now: float, view: View):
     return life, (MoveOn(j, answered),)
 
 
+def _deciding_coordinator(life: Life, now: float, view: View) -> tuple[Life, View]:
+    """A coordinator whose Decisions the handshake machine rejects as deposed (a lower ballot:
+    it restarted on a stale disk after a standby's takeover) decides nothing for this carrier:
+    absent since the first rejection, whatever its token says, until a current Decision or State
+    comes (docs/protocol.md [P-7.2])."""
+    if not (view.machine.outranked and view.present):
+        return (dataclasses.replace(life, outranked_at=None) if life.outranked_at is not None else life), view
+    since = now if life.outranked_at is None else life.outranked_at
+    return dataclasses.replace(life, outranked_at=since), dataclasses.replace(view, present=False, absent_since=since)
+
+
 def _wait(life: Life, now: float, view: View):
     m, w, j = view.machine, life.waits, life.stage
     if m.ended:
         return _stage_ended(life, now, view)
     if m.resolved(j):
         return _resolved(life, now, view)
+    life, view = _deciding_coordinator(life, now, view)
     wait = life.wait.tick(now, view.present)
     absent_s = 0.0 if view.present else now - view.absent_since
     rule = tm.decision_wait(view.timers.clock, life.mode, view.present, wait.waited_s, absent_s, w.decision_s,

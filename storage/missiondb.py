@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from mission import events as ev
+from mission.ballot import Ballot
 from planner.limits import EPOCH_MAX
 from storage.sqlite import LOCK_TIMEOUT_S, encoded_meta, first_mismatch, open_read_only, open_wal, read_meta
 
@@ -111,9 +112,10 @@ class StoreFenced(RuntimeError):
     mission.db with a newer epoch (a standby that took over on the same disk while this process
     was paused or cut off between its check and its write). Nothing of it was written."""
 
-    def __init__(self, path, epoch: int):
-        super().__init__(f"{path}: a coordinator of epoch {epoch} took over this mission")
-        self.epoch = epoch
+    def __init__(self, path, ballot: Ballot):
+        super().__init__(f"{path}: a coordinator of epoch {ballot.epoch}"
+                         + (f" ({ballot.coordinator})" if ballot.coordinator else "") + " took over this mission")
+        self.ballot, self.epoch = ballot, ballot.epoch
 
 
 @dataclass
@@ -185,7 +187,8 @@ class _Tx:
 class MissionStore:
     """Append-only mission log. Not thread-safe: use it from the coordinator's main thread only."""
 
-    def __init__(self, path: str | Path, meta: dict, synchronous: str = "FULL", min_epoch: int = 1):
+    def __init__(self, path: str | Path, meta: dict, synchronous: str = "FULL", min_epoch: int = 1,
+                 coordinator: str = ""):
         """Open or create ``path``.
 
         Args:
@@ -194,6 +197,8 @@ class MissionStore:
             synchronous: SQLite ``synchronous`` level; FULL survives power loss, NORMAL a process crash.
             min_epoch: the lowest epoch the opening coordinator may take (one more than an
                 epoch it learnt elsewhere, e.g. from a primary's State).
+            coordinator: the opening coordinator's id ("": none), recorded with its epoch in its
+                ``open`` event: its ballot (mission.ballot), by which this file fences writes.
 
         Attributes:
             epoch: the opening coordinator's epoch: ``min_epoch``, or one more than the highest
@@ -226,7 +231,9 @@ class MissionStore:
                 if self.epoch > EPOCH_MAX:
                     raise EpochsExhausted(f"{self.path}: epoch {self.epoch} is above the highest the protocol "
                                           f"carries ({EPOCH_MAX}); this mission cannot be resumed")
-                self._checked = self._event("open", None, None, {"resumed": bool(stored), "epoch": self.epoch})
+                self.coordinator = coordinator
+                self._checked = self._event("open", None, None, {"resumed": bool(stored), "epoch": self.epoch,
+                                                                 **({"coordinator": coordinator} if coordinator else {})})
         except EpochsExhausted:
             self.db.close()
             raise
@@ -306,11 +313,11 @@ class MissionStore:
     def decision(self, stage: int, deploy, planning_ms: float, *, missing=(), wall_time: float | None = None,
                  **payload) -> None:
         """Record the decision of ``stage``, and in the same transaction the ``missing`` carriers
-        (scheduled, no observation: ∅). Raises :class:`StoreFenced` when a newer epoch opened
+        (scheduled, no observation: ∅). Raises :class:`StoreFenced` when a newer ballot opened
         this file (checked under the write lock, in the decision's transaction), and
         sqlite3.IntegrityError if the stage was decided before."""
         with self._tx():
-            newer = self.newer_epoch()
+            newer = self.newer_ballot()
             if newer is not None:
                 raise StoreFenced(self.path, newer)
             for cid in missing:
@@ -438,17 +445,25 @@ class MissionStore:
         return [dict(json.loads(p), stage=stage) for stage, p in self.db.execute(
             "SELECT stage, payload FROM events WHERE kind = 'planner-fault' ORDER BY seq")]
 
-    def newer_epoch(self) -> int | None:
-        """The highest epoch another coordinator recorded in this file since the last call (or
-        since this store opened), if higher than ours: a standby that took over on the same
-        disk while this process was cut off from everyone (docs/fleet.md, "Split brain"). Reads
-        only the rows added since the last call (a range of the primary key)."""
+    @property
+    def ballot(self) -> Ballot:
+        """The opening coordinator's ballot: its epoch and its id."""
+        return Ballot(self.epoch, self.coordinator)
+
+    def newer_ballot(self) -> Ballot | None:
+        """The highest ballot another coordinator recorded in this file since the last call (or
+        since this store opened), if above ours: a standby that took over on the same disk while
+        this process was cut off from everyone (docs/fleet.md, "Split brain"). Reads only the
+        rows added since the last call (a range of the primary key)."""
         rows = self.db.execute("SELECT seq, payload FROM events WHERE seq > ? AND kind IN ('open', 'epoch')",
                                (self._checked,)).fetchall()
         last = self.db.execute("SELECT MAX(seq) FROM events").fetchone()[0]
         self._checked = max(self._checked, last or 0)
-        newer = max((int(json.loads(p).get("epoch", 1)) for _, p in rows), default=0)
-        return newer if newer > self.epoch else None
+        top = Ballot(0)
+        for _, p in rows:
+            row = json.loads(p)
+            top = top.highest(Ballot(int(row.get("epoch", 1)), str(row.get("coordinator", ""))))
+        return top if self.ballot.below(top) else None
 
     def close(self) -> None:
         try:

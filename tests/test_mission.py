@@ -11,6 +11,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from mission.ballot import Ballot
 from mission import carrier as mc
 from mission import peers as mission_peers
 from mission import events as ev
@@ -427,7 +428,9 @@ def test_carrier_ignores_a_deposed_coordinators_decisions():
     state, _ = carrier(mc.Joined(0, epoch=2), mc.Observed(0))
     assert state.epoch == 2
     new, effects = mc.step(state, mc.DecisionHeard(0, 0.0, ("a",), P0, epoch=1))
-    assert new == state and confirms(effects) == []
+    # nothing changes but the note that the live coordinator is outranked (mission.carrier_life
+    # takes it as absent until a current Decision or State comes)
+    assert new == dataclasses.replace(state, outranked=True) and confirms(effects) == []
     assert [e.reason for e in effects if isinstance(e, mc.Reject)] == ["deposed"]
     new, effects = mc.step(state, mc.DecisionHeard(0, 0.0, ("a",), P0, epoch=3))
     assert confirms(effects) == [(0, "deployed", True)] and new.epoch == 3
@@ -441,6 +444,33 @@ def test_carrier_ignores_a_deposed_coordinators_decisions():
     fresh, _ = carrier(*JOINED, mc.Observed(0))
     _, effects = mc.step(fresh, heard(0))
     assert confirms(effects) == [(0, "deployed", True)]
+
+
+def test_a_ballot_ranks_two_coordinators_of_one_epoch():
+    """Ballots (docs/protocol.md [P-7.2], revision 6): (epoch, coordinator id), compared in that
+    order; an unstated id (a coordinator of revision 5 or earlier, or a broadcast in revision 5)
+    ranks neither above nor below a stated one of its epoch."""
+    assert Ballot(2, "coordinator").below(Ballot(2, "standby"))
+    assert not Ballot(2, "standby").below(Ballot(2, "coordinator"))
+    assert Ballot(2, "standby").below(Ballot(3, "coordinator")) and Ballot(1).below(Ballot(2, "a"))
+    assert not Ballot(2).below(Ballot(2, "standby")) and not Ballot(2, "standby").below(Ballot(2))
+    assert Ballot(2).highest(Ballot(2, "standby")) == Ballot(2, "standby") == Ballot(2, "standby").highest(Ballot(2))
+    # The standby took epoch 2 and decided stage 0; the primary restarted on its staler disk
+    # with epoch 2 again: its Decisions and End are rejected, and the carrier takes the live
+    # coordinator as outranked until a current Decision or State comes.
+    state, _ = carrier(mc.Joined(0, epoch=2, coordinator="standby"), mc.Observed(0))
+    state, effects = mc.step(state, mc.DecisionHeard(0, 0.0, ("a",), P0, 2, "standby"))
+    assert confirms(effects) == [(0, "deployed", True)] and state.ballot == Ballot(2, "standby")
+    stale, effects = mc.step(state, mc.DecisionHeard(1, 5.0, ("a",), P0, 2, "coordinator"))
+    assert confirms(effects) == [] and [e.reason for e in effects if isinstance(e, mc.Reject)] == ["deposed"]
+    assert stale.outranked and 1 not in stale.buffered
+    ended, effects = mc.step(stale, mc.EndHeard(2, "coordinator"))
+    assert not ended.ended and [e.reason for e in effects if isinstance(e, mc.Reject)] == ["deposed"]
+    back, effects = mc.step(stale, mc.DecisionHeard(1, 5.0, (), P0, 3, "coordinator"))
+    assert not back.outranked and back.ballot == Ballot(3, "coordinator")
+    # A revision 5 broadcast (no id) of the same epoch is current, as before ballots.
+    same, effects = mc.step(state, mc.DecisionHeard(1, 5.0, (), P0, 2))
+    assert not same.outranked and same.ballot == Ballot(2, "standby")
 
 
 # --------------------------------------------------------------------------- passengers, epochs, presence

@@ -35,17 +35,19 @@ P0 = (0.0, 0.0)
 SAMPLES = {
     "hello": wm.Hello(M, "a", 1, "h", 1, 0, "f", epoch=2, revision=4),
     "obs": wm.Observation(M, "a", 0, 0.0, 1, P0, 1, (), counts=(1, 0)),
-    "decision": wm.Decision(M, 1, 5.0, ("a",), 1.0, epoch=2, passengers=(1,)),
+    "decision": wm.Decision(M, 1, 5.0, ("a",), 1.0, epoch=2, passengers=(1,), coordinator="standby"),
     "confirm": wm.Confirm(M, "a", 1, True, "deployed", P0, 1, passenger=1),
     "own": wm.Own(M, "a", 0, 0.0, 2, False, P0, 1, counts=(2,)),
-    "end": wm.End(M, 4, "complete", epoch=2),
+    "end": wm.End(M, 4, "complete", epoch=2, coordinator="standby"),
     "bye": wm.Bye(M, "a", (0,), (("deposed", 1),), "end"),
     "state": wm.State(mission=M, next_stage=2, stages=4, fingerprint="f", ended=False,
                       carriers=(("a", wm.CarrierState(1, (0,), True, "world-mismatch", (("duplicate", 1),))),),
-                      last_decision=wm.Decision(M, 1, 5.0, ("a",), 1.0, epoch=2), epoch=2, revision=4),
+                      last_decision=wm.Decision(M, 1, 5.0, ("a",), 1.0, epoch=2), epoch=2, revision=4,
+                      coordinator="standby"),
     "refusal": wm.Refusal(M, "a", "unknown-carrier", "f", "g", detail="not in the scenario"),
     "pose": wm.Pose(M, "a", 1.0, P0, 0.5, 1),
-    "accepted": wm.Accepted(M, "a", "f", 0, 0, 4, epoch=2, clock="wall", silence_timeout_s=7.5, realtime=2.0),
+    "accepted": wm.Accepted(M, "a", "f", 0, 0, 4, epoch=2, clock="wall", silence_timeout_s=7.5, realtime=2.0,
+                            coordinator="standby"),
     "progress": wm.Progress(M, "a", 0, 0.0),
     "operator": wm.OperatorAction(M, "op1", 1, 0, "force", carrier="a", token="t"),
     "operator-answer": wm.OperatorAnswer(M, "op1", 1, 0, False, reason="stale-stage", detail="stage 0 is decided"),
@@ -226,7 +228,7 @@ def test_a_carrier_ignores_a_deposed_coordinators_end(heard, end_epoch, ends):
     assert new.ended is ends
     assert [e.reason for e in effects if isinstance(e, mc.Reject)] == ([] if ends else ["deposed"])
     if not ends:
-        assert new == state
+        assert new == dataclasses.replace(state, outranked=True)  # the live coordinator is outranked
 
 
 # --------------------------------------------------------------------------- [P-10.2] the mission's clock

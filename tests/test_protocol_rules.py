@@ -9,6 +9,7 @@ tests/test_wire_revisions.py and the conformance tests.
 """
 from __future__ import annotations
 
+import dataclasses
 import re
 from pathlib import Path
 
@@ -447,11 +448,11 @@ def test_a_carrier_joins_after_subscribing():
 
 def test_state_is_asked_of_every_coordinator():
     """[P-5.2] a State query asks every matching queryable and keeps every reply (target ALL,
-    consolidation NONE), and the carrier keeps the reply of the highest epoch."""
+    consolidation NONE), and the carrier keeps the reply of the highest ballot (epoch, coordinator)."""
     transport = (ROOT / "wire" / "transport.py").read_text()
     assert "QueryTarget.ALL" in transport and "ConsolidationMode.NONE" in transport
     joining = (ROOT / "carriers" / "joining.py").read_text()
-    assert "state.epoch > best.epoch" in joining
+    assert "_ballot(best).below(_ballot(state))" in joining
 
 
 def test_a_join_into_an_ended_mission():
@@ -820,7 +821,8 @@ def test_a_lower_epoch_decision_is_deposed():
     c, _ = mc.step(c, mc.Joined(0, epoch=2))
     c, _ = mc.step(c, mc.Observed(0, 1, (0.0, 0.0)))
     after, effects = mc.step(c, mc.DecisionHeard(0, 0.0, ("a",), (0.0, 0.0), epoch=1))
-    assert [type(e) for e in effects] == [mc.Reject] and effects[0].reason == "deposed" and after == c
+    assert [type(e) for e in effects] == [mc.Reject] and effects[0].reason == "deposed"
+    assert after == dataclasses.replace(c, outranked=True)  # nothing changes but: the live coordinator is outranked
     after, effects = mc.step(c, mc.DecisionHeard(0, 0.0, ("a",), (0.0, 0.0), epoch=3))
     assert after.epoch == 3 and any(isinstance(e, mc.Deploy) for e in effects)
 
@@ -837,7 +839,7 @@ def test_takeover_and_deposition_come_from_coordinators_only():
 
     lines: list[str] = []
     stop = threading.Event()
-    epochs = Epochs("m", lines.append, stop, lambda: 0.0)
+    epochs = Epochs("m", lines.append, stop, lambda: 0.0, "c")
     epochs.first_stage = 3
     for claimed in (2, 2**31 - 1, 5):
         epochs.carrier_claimed("c1", claimed)
@@ -1063,7 +1065,7 @@ def test_end_is_broadcast_with_its_epoch_in_the_lowest_revision():
     assert msgpack.unpackb(wm.encode(end, 4))["epoch"] == 1
     assert "epoch" not in msgpack.unpackb(wm.encode(end, 3))
     clock = (ROOT / "coordinator" / "clock.py").read_text()
-    assert "c.put_end(self.end_message)" in clock and "self.epochs.epoch)" in clock
+    assert "c.put_end(self.end_message)" in clock and "self.epochs.epoch, self.epochs.ident)" in clock
     life = (ROOT / "mission" / "coordinator_life.py").read_text().split("def _end(")[1]
     assert "tm.end_due(life.last_end, life.ended_at, now, w.end_repeat_s, w.bye_s)" in life
     put = (ROOT / "coordinator" / "node.py").read_text().split("def put_end(")[1].split("def ")[0]

@@ -86,13 +86,16 @@ def test_a_short_campaign_of_coordinated_carriers_finds_no_violation():
 #: Each planted bug class, the fault kinds that expose it, and the seeds searched. ``older-epoch``
 #: (a carrier accepting a deposed coordinator's Decision) needs a standby on its own disk (half
 #: the missions with a standby) and a primary paused past its lease while the mission is still
-#: flying when it resumes (a slow carrier keeps it so).
+#: flying when it resumes (a slow carrier keeps it so). ``no-ballot`` (carriers ranking
+#: coordinators by epoch alone) needs the standby to take over, decide and die, and the primary
+#: to restart on its own staler disk with the standby's epoch while the mission still flies.
 POWER = {
     "confirm-twice": (("duplicate",), 10),
     "forget-on-restart": (("crash",), 60),
     "older-epoch": (("pause", "slow"), 20),
     "slow-as-empty": (("slow",), 15),
     "bye-without-hello": (("stale",), 5),
+    "no-ballot": (("standby-crash", "slow"), 20),
 }
 
 

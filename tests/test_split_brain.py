@@ -335,3 +335,81 @@ def test_a_frozen_primary_that_comes_back_is_deposed(tmp_path):
     assert summary["ended"] and summary["end_reason"] == "complete" and summary["epoch"] == 2
     assert summary["stages_decided"] == scenario.stages
     _check_at_most_once(fleet, scenario, summary)
+
+
+@pytest.mark.slow
+def test_a_primary_restarted_on_a_stale_disk_after_the_standbys_death_is_outranked(tmp_path):
+    """Ballots (docs/protocol.md [P-7.1], [P-7.2]; docs/fleet.md, "Split brain"). A primary
+    (``coordinator``, disk A) and a standby on its own disk (``standby``, disk B); the primary is
+    killed after stage 2, the standby takes over with epoch 2, decides, and is killed in turn;
+    the primary restarts on A, which knows nothing of the standby, and takes epoch 2 again. Its
+    ballot (2, coordinator) is below the standby's (2, standby): both carriers reject its
+    Decisions ``deposed``, confirm none of them, take it as absent and finish deciding on board.
+    Before ballots (epochs compared alone) they took the restarted primary's Decisions, decided
+    from a record without the standby's stages, as the standby's successors."""
+    scenario_file = tmp_path / "faults.yaml"
+    scenario_file.write_text(faults_yaml(16))
+    scenario = world.load_scenario(scenario_file)
+    router = f"tcp/127.0.0.1:{free_port()}"
+    fleet = Fleet(scenario_file, tmp_path / "a", router)
+    disk_b = tmp_path / "b"
+    session = None
+    try:
+        fleet.start("router", ["--role", "router", "--listen", router])
+        session = _raw_session(router)
+        heard: "queue.Queue[dict]" = queue.Queue()
+        sub = session.declare_subscriber("marsupial/faults/coordinator/decision",
+                                         lambda s: heard.put(msgpack.unpackb(s.payload.to_bytes())))
+        primary = ["--role", "coordinator", "--connect", router, "--out", str(fleet.out), "--no-map",
+                   "--join-timeout", "60", "--coordinator-id", "coordinator"]
+        fleet.start("primary", primary)
+        _wait_token(session, "marsupial/faults/coordinator/alive")
+        fleet.start("standby", ["--role", "coordinator", "--connect", router, "--out", str(disk_b), "--no-map",
+                                "--join-timeout", "60", "--standby", "--coordinator-id", "standby"])
+        fleet.poll("the standby waiting", lambda: "standby:" in (fleet.logs / "standby.log").read_text())
+        for cid in scenario.carrier_ids:
+            fleet.carrier(cid)
+        fleet.poll("stage 2 decided", lambda: fleet.decided() >= 2)
+        fleet.kill("primary")
+        k = fleet.decided()
+
+        def b_decided() -> int:
+            try:
+                return db_rows(disk_b / "mission.db", "SELECT MAX(stage) FROM decisions")[0][0] or -1
+            except Exception:  # not created yet, or its schema not written yet
+                return -1
+
+        fleet.poll("the standby decided two stages past the primary's", lambda: b_decided() >= k + 2)
+        fleet.kill("standby")
+        m = b_decided()
+        assert m < scenario.stages - 3, (k, m)  # stages left for the restarted primary
+        fleet.start("restarted", primary)
+        fleet.poll("the primary reopened", lambda: len(fleet.rows("SELECT seq FROM events WHERE kind='open'")) >= 2)
+        codes = {name: fleet.procs[name].wait(120) for name in ("restarted", *scenario.carrier_ids)}
+        sub.undeclare()
+    finally:
+        if session is not None:
+            session.close()
+        fleet.cleanup()
+    assert all(code == 0 for code in codes.values()), (codes, fleet.output())
+    opens = [json.loads(p) for (p,) in fleet.rows("SELECT payload FROM events WHERE kind='open' ORDER BY seq")]
+    assert [(o["epoch"], o["coordinator"]) for o in opens] == [(1, "coordinator"), (2, "coordinator")]
+    b_opens = [json.loads(p) for (p,) in db_rows(disk_b / "mission.db", "SELECT payload FROM events WHERE kind='open'")]
+    assert [(o["epoch"], o["coordinator"]) for o in b_opens] == [(2, "standby")]
+    decisions = []
+    while not heard.empty():
+        decisions.append(heard.get())
+    stale = [d for d in decisions if d.get("epoch", 1) == 2 and d.get("coordinator") == "coordinator"]
+    assert stale, "the restarted primary published no Decision"
+    assert any(d.get("coordinator") == "standby" and d["stage"] > k for d in decisions)
+    # No carrier confirmed a deployment to the restarted primary: its Decisions were rejected.
+    reopened = fleet.rows("SELECT MAX(seq) FROM events WHERE kind='open'")[0][0]
+    fresh = fleet.rows(f"SELECT carrier, stage, payload FROM events WHERE kind='confirm' AND seq > {reopened}")
+    assert all(json.loads(p).get("status") != "deployed" for _, _, p in fresh), fresh
+    summary = _summary(fleet)
+    for cid in scenario.carrier_ids:
+        assert summary["rejected"]["carriers"][cid].get("deposed", 0) >= 1, summary["rejected"]
+        for own in (json.loads(p)["deployments"] for (p,) in
+                    fleet.rows(f"SELECT payload FROM events WHERE kind='bye' AND carrier='{cid}'")):
+            spec = next(c for c in scenario.carriers if c.id == cid)
+            assert len(own) == len(set(own)) <= spec.passengers, (cid, own)

@@ -5,6 +5,7 @@ import sqlite3
 
 import pytest
 
+from mission.ballot import Ballot
 from storage.missiondb import MissionStore, StoreMismatch
 
 META = {"mission": "tiny", "seed": 7, "planner": "ssap"}
@@ -131,12 +132,12 @@ def test_epochs_grow_with_every_open_and_a_newer_one_on_the_same_file_is_seen(tm
 
     path = tmp_path / "mission.db"
     assert highest_epoch(path) == 0
-    first = MissionStore(path, META)
-    assert first.epoch == 1 and first.newer_epoch() is None
+    first = MissionStore(path, META, coordinator="coordinator")
+    assert first.epoch == 1 and first.newer_ballot() is None
     first.event("rejected", reason="x", detail="y")
-    second = MissionStore(path, META)  # the standby, while the first still runs
-    assert second.epoch == 2 and second.newer_epoch() is None
-    assert first.newer_epoch() == 2 and first.newer_epoch() is None  # rows already seen are not read again
+    second = MissionStore(path, META, coordinator="standby")  # the standby, while the first still runs
+    assert second.epoch == 2 and second.newer_ballot() is None and second.ballot == Ballot(2, "standby")
+    assert first.newer_ballot() == Ballot(2, "standby") and first.newer_ballot() is None  # rows seen are not read again
     second.close()
     first.close()
     third = MissionStore(path, META, min_epoch=7)
@@ -156,7 +157,7 @@ def test_a_decision_of_an_older_epoch_is_fenced_in_its_own_transaction(tmp_path)
     second = MissionStore(path, META)
     with pytest.raises(StoreFenced, match="epoch 2") as raised:
         first.decision(1, ["b"], 1.0, missing=["c"])
-    assert raised.value.epoch == 2
+    assert raised.value.epoch == 2 and raised.value.ballot == Ballot(2)
     second.decision(1, ["c"], 2.0)
     assert second.replay().decisions == {0: (("a",), 1.0), 1: (("c",), 2.0)}
     assert ("c", 1) not in second.replay().observations

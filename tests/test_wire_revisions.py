@@ -80,6 +80,8 @@ def test_every_published_revision_is_kept():
     assert page_fields(3)["carrier-state"] == {"passengers_left", "deployments", "live", "refused", "rejected"}
     assert "epoch" not in page_fields(3)["end"] and "clock" not in page_fields(3)["accepted"]
     assert "epoch" in page_fields(4)["end"] and "counts" not in page_fields(4)["obs"] | page_fields(4)["own"]
+    assert "counts" in page_fields(5)["obs"] and all("coordinator" not in page_fields(5)[k]
+                                                     for k in ("decision", "end", "accepted", "state"))
 
 
 def test_region_counts_are_left_out_for_a_revision_4_peer_and_unknown_to_it():
@@ -142,6 +144,8 @@ def test_what_an_older_carrier_accepts_is_what_it_gets(revision):
                 message = dataclasses.replace(message, epoch=3)
             if kind == "accepted" and revision < 4:  # revision 4's mission clock: never sent to an earlier carrier
                 message = dataclasses.replace(message, clock="wall", silence_timeout_s=7.5, realtime=2.0)
+            if kind in ("decision", "end", "accepted", "state") and revision < 6:  # revision 6's ballots
+                message = dataclasses.replace(message, coordinator="standby")
             if kind == "state":
                 message = dataclasses.replace(message, revision=wm.REVISION)
                 if message.last_decision is not None and message.last_decision.deploy:

@@ -37,8 +37,9 @@ PROTOCOL_VERSION = 1
 #: (Decision ``passengers``, Confirm ``passenger``); 3: revisions announced, every Hello answered
 #: (Accepted, Refusal reasons beyond the fingerprint), rejections visible in State; 4: End
 #: ``epoch`` (a deposed coordinator cannot end a mission), the mission's clock on Accepted; 5:
-#: region counts (Observation and Own ``counts``) for missions under the coverage reward.
-REVISION = 5
+#: region counts (Observation and Own ``counts``) for missions under the coverage reward; 6:
+#: ballots, the coordinator's id beside its epoch (Decision, State, Accepted, End ``coordinator``).
+REVISION = 6
 
 #: What a peer that does not announce its revision speaks: revisions 1 and 2 did not announce
 #: theirs, and a revision-2 peer reads every message of revision 1.
@@ -271,6 +272,11 @@ def _spec(validator: Validator, as_map: bool = False, absent: Any = _NO_DEFAULT,
 #: every restart or takeover; absent on the wire = 1.
 _EPOCH = _int(1, EPOCH_MAX)
 
+#: The id of the coordinator that took an epoch (revision 6; docs/protocol.md, "Epochs"): with
+#: the epoch, its ballot (mission.ballot). Absent on the wire = "" (not stated: revision 5 and
+#: earlier; then the epoch alone ranks it).
+_COORDINATOR = _ident
+
 #: A protocol revision a peer announces (docs/protocol.md, "Revisions"); absent on the wire = 1.
 _REVISION = _int(1, 2**16 - 1)
 
@@ -365,6 +371,8 @@ class Decision:
         passengers: the passenger index each carrier of ``deploy`` releases, parallel to it
             (passenger types, docs/planner.md); empty when the decision names none (omitted on
             the wire when empty).
+        coordinator: the deciding coordinator's id (revision 6; "": not stated): with ``epoch``
+            its ballot, compared in that order (docs/protocol.md [P-7.2]).
     """
 
     mission: str = _spec(_ident)
@@ -374,6 +382,7 @@ class Decision:
     planning_ms: float = _spec(_MS)
     epoch: int = _spec(_EPOCH, absent=1)
     passengers: tuple[int, ...] = _spec(_list(_int(0, MAX_PASSENGERS - 1), MAX_CARRIERS), absent=(), since=2)
+    coordinator: str = _spec(_COORDINATOR, absent="", since=6)
     v: int = PROTOCOL_VERSION
     TYPE = "decision"
 
@@ -483,12 +492,14 @@ class End:
             whose stated epoch is lower than the highest it has heard (a deposed coordinator
             cannot end the mission) and acts on one that states none, as before revision 4 (a
             restarted coordinator of revision 3 has epoch 2 and states none).
+        coordinator: the ending coordinator's id (revision 6; "": not stated).
     """
 
     mission: str = _spec(_ident)
     stages: int = _spec(_STAGE_COUNT)
     reason: str = _spec(_text(40))
     epoch: int | None = _spec(_optional(_EPOCH), absent=None, since=4)
+    coordinator: str = _spec(_COORDINATOR, absent="", since=6)
     v: int = PROTOCOL_VERSION
     TYPE = "end"
 
@@ -566,6 +577,7 @@ class Accepted:
         realtime: the mission's pace, simulated seconds per wall second, 0 = unpaced (revision 4;
             absent = 0). The three are read only from an Accepted of ``revision`` >= 4: an earlier
             coordinator says nothing of its clock.
+        coordinator: the coordinator's id (revision 6; "": not stated).
     """
 
     mission: str = _spec(_ident)
@@ -578,6 +590,7 @@ class Accepted:
     clock: str = _spec(_text(16), absent=ACCEPTED_ABSENT[0], since=4, values={"sim": 4, "wall": 4})
     silence_timeout_s: float = _spec(_positive(ACCEPTED_MAX), absent=ACCEPTED_ABSENT[1], since=4)
     realtime: float = _spec(_float(0.0, ACCEPTED_MAX), absent=ACCEPTED_ABSENT[2], since=4)
+    coordinator: str = _spec(_COORDINATOR, absent="", since=6)
     v: int = PROTOCOL_VERSION
     TYPE = "accepted"
     SINCE = 3
@@ -620,6 +633,7 @@ class State:
         epoch: the answering coordinator's epoch (>= 1; omitted on the wire when 1).
         revision: the newest protocol revision the coordinator speaks (absent: 1; left out of
             the reply to a query that announced no revision 3 or later).
+        coordinator: the answering coordinator's id (revision 6; "": not stated).
     """
 
     mission: str = _spec(_ident)
@@ -631,6 +645,7 @@ class State:
     last_decision: Decision | None = _spec(lambda v, n: None if v is None else _nested(Decision, v, n))
     epoch: int = _spec(_EPOCH, absent=1)
     revision: int = _spec(_REVISION, absent=UNANNOUNCED_REVISION, since=3)
+    coordinator: str = _spec(_COORDINATOR, absent="", since=6)
     v: int = PROTOCOL_VERSION
     TYPE = "state"
 

@@ -12,6 +12,7 @@ import numpy as np
 from .. import carrier as mc
 from .. import carrier_life as cl
 from .. import timers as tm
+from ..ballot import Ballot
 from ..peers import PeerBook
 from .model import ROUTER, LogEntry, Msg, msg
 from ..modes import Mode
@@ -41,6 +42,8 @@ class CarrierDriver:
     def start(self, now: float) -> None:
         fleet = self.sim.fleet
         self.alive, self.life = True, self.life + 1
+        self.sender, self.acted = "", Ballot(0)  # the coordinator of the Decision or State heard last; the
+        # highest true ballot of a Decision this process acted on (Simulation.check_carrier)
         self.machine = mc.initial(self.cid, fleet.valid[self.r], fleet.stage_times, fleet.passengers[self.r])
         self.present = False          # a coordinator's token is present
         self.coordinators: set = set()
@@ -119,11 +122,12 @@ class CarrierDriver:
         elif m.kind == "state":
             self._state(m, now)
         elif m.kind == "decision" and (self.machine.flying or self.lifecycle.phase is cl.Phase.JOINING):
-            if g("stage") < self.sim.fleet.n_stages and mc.current(self.machine, g("epoch")):
+            who, self.sender = self.sim.coordinator_of(m), m.src
+            if g("stage") < self.sim.fleet.n_stages and mc.current(self.machine, g("epoch"), who):
                 self.book.decision(g("stage"), tuple(g("deploy")))  # what it decides alone later knows (carriers/inbound.py)
-            self.apply(mc.DecisionHeard(g("stage"), g("t"), tuple(g("deploy")), self.position(), g("epoch")), now)
+            self.apply(mc.DecisionHeard(g("stage"), g("t"), tuple(g("deploy")), self.position(), g("epoch"), who), now)
         elif m.kind == "end":
-            self.apply(mc.EndHeard(g("epoch")), now)
+            self.apply(mc.EndHeard(g("epoch"), self.sim.coordinator_of(m)), now)
         elif m.kind in ("accepted", "refusal"):  # the simulated fleet builds one world: never refused for it
             self.answer.answered(self.sim.fleet.fingerprint)
         elif m.kind in ("peer-obs", "peer-own") and m.src in self.sim.fleet.ids:
@@ -155,7 +159,9 @@ class CarrierDriver:
         g = m.get
         if g("fingerprint") != self.sim.fleet.fingerprint:
             return
-        seen = mc.StateSeen(g("next_stage"), tuple(g("deployments")), g("last_decision"), g("ended"), g("epoch"))
+        self.sender = m.src
+        seen = mc.StateSeen(g("next_stage"), tuple(g("deployments")), g("last_decision"), g("ended"), g("epoch"),
+                            self.sim.coordinator_of(m))
         if self.lifecycle.phase is cl.Phase.JOINING:
             self.present = True  # it answered
             self.join_from_state(seen, now)
@@ -163,7 +169,7 @@ class CarrierDriver:
                 self.listen()
             self.step(cl.Answered(now), now)
             return
-        if not mc.current(self.machine, seen.epoch):
+        if not mc.current(self.machine, seen.epoch, seen.coordinator):
             return
         if self.resync:
             gap, self.gap, self.resync = self.gap, None, False
@@ -171,7 +177,7 @@ class CarrierDriver:
         elif self.lifecycle.phase is cl.Phase.WAIT:
             j = self.lifecycle.stage
             if seen.next_stage == j:
-                self.apply(mc.Collecting(j, seen.epoch), now)
+                self.apply(mc.Collecting(j, seen.epoch, seen.coordinator), now)
             else:
                 # past j: its Decision was lost; behind j: the coordinator never had this
                 # carrier's Hello or accounts of the stages since (lost): both resynchronise
@@ -215,7 +221,7 @@ class CarrierDriver:
                 e = entries[j]
                 self.apply(mc.Recalled(j, e.status, e.deployed, self.position(), e.x), now)
                 self.book.outcome(self.cid, j, e.deployed)
-        self.apply(mc.Joined(start if not forget else seen.next_stage, seen.ended, seen.epoch), now)
+        self.apply(mc.Joined(start if not forget else seen.next_stage, seen.ended, seen.epoch, seen.coordinator), now)
         self.apply_effect_hello(now)
         for j in mc.missed(seen.next_stage, seen.deployments, logged):
             self.apply(mc.Missed(j, self.position()), now)

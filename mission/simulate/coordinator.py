@@ -11,18 +11,19 @@ from .. import coordinator_life as cl
 from .. import events as ev
 from .. import state as ms
 from .. import timers as tm
+from ..ballot import Ballot
 from .model import Msg, msg
 
 @dataclass
 class Disk:
     """A coordinator's mission.db: its durable record (``events``, what :func:`mission.state.fold`
-    reads at a restart) and the highest epoch opened on it (``epoch``: the store fences a write
+    reads at a restart) and the highest ballot opened on it (``ballot``: the store fences a write
     of a lower one). A primary and its standby share one, or each has its own
     (:attr:`Simulation.separate`)."""
 
     name: str
     events: list = field(default_factory=list)
-    epoch: int = 0
+    ballot: Ballot = Ballot(0)
 
 
 
@@ -69,7 +70,8 @@ class CoordinatorDriver:
         learnt from its State: storage.missiondb's ``min_epoch``)."""
         self.disk.events.append(ev.Opened(now))
         self.state = ms.fold(self.sim.spec, self.disk.events)
-        self.epoch = self.disk.epoch = max(self.disk.epoch, known) + 1
+        self.epoch = max(self.disk.ballot.epoch, known) + 1
+        self.disk.ballot = self.ballot
         self.status, self.heard = "open", {}
         self.sim.token(self.name, True)
         self.step(cl.Opened(now), now)
@@ -108,13 +110,23 @@ class CoordinatorDriver:
             self.apply(ev.Bye(cid, tuple(g("deployments", ())), (), g("reason", "finished"), now))
         elif m.kind == "query":
             self.sim.send(self.name, cid, self.state_reply(cid))
-        elif m.kind == "decision" and m.get("epoch") > self.epoch:
-            self.depose()  # coordinator.epochs._heard_decision: a newer coordinator decides
+        elif m.kind == "decision" and self.ballot.below(Ballot(m.get("epoch"), m.get("coordinator", ""))):
+            self.depose()  # coordinator.epochs.Epochs.decision_heard: a newer coordinator decides
             return
         self.advance(now)
 
+    @property
+    def ballot(self) -> Ballot:
+        """Its authority: its epoch and its name (mission.ballot)."""
+        return Ballot(self.epoch, self.name)
+
+    def fenced(self) -> bool:
+        """mission.db records a newer ballot than this process's (a standby took over on the
+        shared disk): the store refuses its writes."""
+        return self.ballot.below(self.disk.ballot)
+
     def depose(self) -> None:
-        """Stop deciding, without End: a coordinator of a newer epoch took over."""
+        """Stop deciding, without End: a coordinator of a newer ballot took over."""
         self.lifecycle, _ = cl.step(self.lifecycle, cl.Deposed(), self.view())
         self.alive, self.resuming = False, None
         self.sim.token(self.name, False)
@@ -135,7 +147,8 @@ class CoordinatorDriver:
         if last in st.decisions:
             decision = (last, float(self.sim.fleet.stage_times[last]), tuple(st.decisions[last].deploy))
         return msg("state", self.name, next_stage=st.next_stage, deployments=tuple(st.deployments_of(cid)),
-                   last_decision=decision, ended=st.ended, epoch=self.epoch, fingerprint=self.sim.fleet.fingerprint)
+                   last_decision=decision, ended=st.ended, epoch=self.epoch, coordinator=self.name,
+                   fingerprint=self.sim.fleet.fingerprint)
 
     def apply(self, event) -> None:
         before = self.state
@@ -146,13 +159,14 @@ class CoordinatorDriver:
                 self.disk.events.append(effect.event)
             elif isinstance(effect, ms.Accept):
                 self.sim.send(self.name, effect.carrier, msg("accepted", self.name, next_stage=effect.next_stage,
-                                                              epoch=self.epoch))
+                                                              epoch=self.epoch, coordinator=self.name))
             elif isinstance(effect, ms.Refuse):
                 self.sim.send(self.name, effect.carrier, msg("refusal", self.name, reason=effect.reason))
             elif isinstance(effect, ms.Publish):
                 d = self.state.decisions[effect.stage]
                 self.sim.broadcast(self.name, msg("decision", self.name, stage=effect.stage, deploy=tuple(d.deploy),
-                                                  t=float(self.sim.fleet.stage_times[effect.stage]), epoch=self.epoch))
+                                                  t=float(self.sim.fleet.stage_times[effect.stage]), epoch=self.epoch,
+                                                  coordinator=self.name))
             elif isinstance(effect, ms.Reject):
                 self.sim.count_reject(effect.reason)
 
@@ -190,13 +204,13 @@ class CoordinatorDriver:
         elif isinstance(effect, cl.RecordEnd):
             self.apply(ev.Ended(effect.reason, now))
         elif isinstance(effect, cl.PublishEnd):
-            self.sim.broadcast(self.name, msg("end", self.name, epoch=self.epoch))
+            self.sim.broadcast(self.name, msg("end", self.name, epoch=self.epoch, coordinator=self.name))
         elif isinstance(effect, cl.Finish):
             self.sim.token(self.name, False)
             self.alive = False
 
     def decide(self, j: int, now: float) -> None:
-        if self.disk.epoch > self.epoch:  # a standby took over on the shared disk: deposed, no Decision
+        if self.fenced():  # a standby took over on the shared disk: deposed, no Decision
             self.depose()
             return
         for action in self.sim.fleet.operator_actions(self.state, j, now):  # a simulated operator's
@@ -210,7 +224,7 @@ class CoordinatorDriver:
         self.publish(j, deploy, passengers, now)
 
     def publish(self, j: int, deploy, passengers, now: float) -> None:
-        if self.disk.epoch > self.epoch:
+        if self.fenced():
             # the store fences a deposed coordinator's write: a newer epoch opened the mission
             # while this one was paused after its check; it steps down
             self.depose()

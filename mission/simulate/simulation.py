@@ -14,6 +14,7 @@ import numpy as np
 from .. import carrier as mc
 from .. import events as ev
 from .. import state as ms
+from ..ballot import Ballot
 from .carrier import CarrierDriver
 from .coordinator import CoordinatorDriver, Disk
 from .fleet import Fleet
@@ -49,7 +50,7 @@ class Simulation:
         self.confirmed: set = set()
         self.listeners: set = set()
         self.listened_by = fleet.listened_by() if fleet.mode != Mode.COORDINATED else {}
-        self.epochs: dict = {}                   # (epoch, stage) -> the coordinator that published it
+        self.epochs: dict = {}                   # (ballot, stage) -> the coordinator that published it
         self.finished_ids: dict = {}
         self.decided_at: dict = {}               # stage -> the true time its first Decision was published
         ids = fleet.ids
@@ -61,7 +62,7 @@ class Simulation:
             self.windows.setdefault(f.kind, []).append(f)
         self.carriers = {cid: CarrierDriver(self, cid) for cid in ids}
         names = ["coordinator"]
-        if any(f.kind in ("takeover", "dual-start", "pause") for f in self.faults):
+        if any(f.kind in ("takeover", "dual-start", "pause", "standby-crash") for f in self.faults):
             names.append("standby")
         # a standby watches the primary (takeover, pause); two coordinators started together
         # (dual-start) both open the mission: the first is deposed at its first decision
@@ -69,8 +70,11 @@ class Simulation:
         # a waiting standby has its own disk in half the missions (from a stream of its own: the
         # draws of the rest stay the same): a deposed primary keeps its stale store, and a
         # Decision of its older epoch can reach a carrier (docs/fleet.md, "Split brain")
+        # (always, when the standby dies after its takeover and the primary restarts: on its
+        # own, staler disk it takes the standby's epoch again; ballots tell the two apart)
         self.separate = ("standby" in names and not together
-                         and np.random.default_rng([int(fleet.seed) & 0xFFFFFFFF, int(seed), 2]).random() < 0.5)
+                         and (np.random.default_rng([int(fleet.seed) & 0xFFFFFFFF, int(seed), 2]).random() < 0.5
+                              or any(f.kind == "standby-crash" for f in self.faults)))
         shared = Disk("mission.db")
         self.coordinators = {n: CoordinatorDriver(self, n, Disk(f"{n}/mission.db") if self.separate and n == "standby"
                                                   else shared, standby=n == "standby" and not together) for n in names}
@@ -194,6 +198,11 @@ class Simulation:
             if cid in self.listeners:
                 self._deliver(src, cid, m)
 
+    def coordinator_of(self, m: Msg) -> str:
+        """The coordinator id a carrier reads in ``m`` (its ballot's; "" under the ``no-ballot``
+        plant, as before revision 6)."""
+        return "" if self.plant == "no-ballot" else m.get("coordinator", "")
+
     def hears(self, dst: str, src: str) -> bool:
         """Carrier ``dst`` is subscribed to carrier ``src``'s messages and token."""
         return dst in self.listeners and dst in self.listened_by.get(src, ())
@@ -289,8 +298,9 @@ class Simulation:
         return new, effects
 
     def carrier_step(self, state, event):
-        if self.plant == "older-epoch" and isinstance(event, mc.DecisionHeard) and event.epoch < state.epoch:
-            event = dataclasses.replace(event, epoch=state.epoch)  # the planted bug: no epoch check
+        if self.plant == "older-epoch" and isinstance(event, mc.DecisionHeard) \
+                and Ballot(event.epoch, event.coordinator).below(state.ballot):
+            event = dataclasses.replace(event, epoch=state.epoch, coordinator=state.coordinator)  # no ballot check
         return mc.step(state, event)
 
     # -------------------------------------------------------------- faults
@@ -306,6 +316,9 @@ class Simulation:
                 self.at(f.at, self._crash, self.coordinators["coordinator"], f.until)
             elif f.kind == "takeover":
                 self.at(f.at, self._crash, self.coordinators["coordinator"], None)
+            elif f.kind == "standby-crash":  # the primary dies, the standby takes over and dies,
+                self.at(f.at, self._crash, self.coordinators["coordinator"], f.until)  # the primary restarts
+                self.at(f.at + f.size, self._crash, self.coordinators["standby"], None)
             elif f.kind == "freeze":
                 self.at(f.at, self._freeze, f.who, f.until)
             elif f.kind == "slow":
@@ -366,10 +379,12 @@ class Simulation:
             self.at(restart, self._restart, driver)
 
     def _restart(self, driver) -> None:
-        if not driver.alive and driver.phase in ("dead", "dead-standby"):
+        # a refused or deposed coordinator exited too (another's token was live at its start, or a
+        # newer one decides): its supervisor starts it again when its restart is due
+        if not driver.alive and driver.phase in ("dead", "dead-standby", "refused", "deposed"):
             self.frozen.pop(driver.name if isinstance(driver, CoordinatorDriver) else driver.cid, None)  # a new process
             if isinstance(driver, CoordinatorDriver):
-                driver.phase = "new" if driver.phase == "dead" else "standby"
+                driver.phase = "standby" if driver.phase == "dead-standby" else "new"
                 self._open(driver, driver.life)
                 return
             driver.start(self.now_of(driver.cid))
@@ -478,9 +493,16 @@ class Simulation:
         for effect in effects:
             if isinstance(effect, mc.Deploy) and effect.stage != before.stage:
                 self.violate(f"carrier {driver.cid} deployed at stage {effect.stage} while at stage {before.stage}")
-            if isinstance(effect, mc.LogOutcome) and isinstance(event, mc.DecisionHeard) and event.epoch < before.epoch:
-                self.violate(f"carrier {driver.cid} acted on a Decision of epoch {event.epoch} for stage "
-                             f"{event.stage} after hearing epoch {before.epoch}")
+            if isinstance(effect, mc.LogOutcome) and isinstance(event, mc.DecisionHeard):
+                said = Ballot(event.epoch, event.coordinator)
+                if said.below(before.ballot):
+                    self.violate(f"carrier {driver.cid} acted on a Decision of ballot {said} for stage "
+                                 f"{event.stage} after hearing ballot {before.ballot}")
+                true = Ballot(event.epoch, driver.sender)  # who sent it, whatever the message says
+                if true.below(driver.acted):
+                    self.violate(f"carrier {driver.cid} acted on a Decision of ballot {true} for stage {event.stage} "
+                                 f"after acting on one of ballot {driver.acted}")
+                driver.acted = driver.acted.highest(true)
 
     def check_on_board(self, driver: CarrierDriver) -> None:
         """A flying carrier counts the passengers it carries (its restarts included)."""
@@ -507,9 +529,9 @@ class Simulation:
                     self.violate(f"{driver.name} recorded a second Confirm of {e.carrier} at stage {e.stage}")
                 self.confirmed.add(key)
             if isinstance(e, ev.Decided):
-                first = self.epochs.setdefault((driver.epoch, e.stage), driver.name)
+                first = self.epochs.setdefault((driver.ballot, e.stage), driver.name)
                 if first != driver.name:
-                    self.violate(f"two coordinators decided stage {e.stage} in epoch {driver.epoch}")
+                    self.violate(f"two coordinators decided stage {e.stage} in ballot {driver.ballot}")
 
     def outcome(self, bound: float) -> Outcome:
         from planner.problem import evaluate
@@ -578,8 +600,9 @@ def simulate(fleet: Fleet, seed: int, kinds=FAULT_KINDS, faults=None, plant: str
 #: The bug classes the campaign's power test puts back, one at a time (docs/fleet.md,
 #: "Deterministic simulation"): an identical repeated Confirm counted twice, a deployment
 #: forgotten on restart, a Decision of an older epoch accepted, a slow carrier taken as ∅ (its
-#: Progress not heard), a Bye without Hello accepted.
-PLANTS = ("confirm-twice", "forget-on-restart", "older-epoch", "slow-as-empty", "bye-without-hello")
+#: Progress not heard), a Bye without Hello accepted, carriers that rank coordinators by their
+#: epoch alone (no ballots: the coordinator id not read).
+PLANTS = ("confirm-twice", "forget-on-restart", "older-epoch", "slow-as-empty", "bye-without-hello", "no-ballot")
 
 
 def combined_hash(hashes) -> str:
