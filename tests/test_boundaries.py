@@ -446,6 +446,16 @@ def test_processes_are_thin():
     assert problems == []
 
 
+def test_no_class_of_the_project_is_over_300_lines():
+    """Every module of the project (the simulator's Simulation and drivers included): a class of
+    more than 300 lines holds jobs that want modules of their own."""
+    paths = [*_project_modules().values(), *(p for d in sorted(UNLAYERED) for p in sorted((REPO / d).rglob("*.py")))]
+    problems = [f"{path.relative_to(REPO)}:{line}: {what} is {length} lines"
+                for path in paths for what, line, length in _too_long(_parsed(path), 10**6, PROCESS_CLASS_MAX)
+                if what.startswith("class ")]
+    assert problems == []
+
+
 #: Most attributes a process object holds (its parts are named structures and collaborators).
 PROCESS_ATTRIBUTES_MAX = 15
 

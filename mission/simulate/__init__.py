@@ -36,7 +36,8 @@ from .coordinator import CoordinatorDriver, Disk
 from .fleet import Fleet
 from .model import (FAITHFUL_KINDS, FAULT_KINDS, LEASE_S, ROUTER, Clock, Fault, LogEntry, Msg, Outcome, draw_faults,
                     msg)
-from .simulation import OVERRUN_S, PLANTS, Simulation, combined_hash, simulate
+from .plants import PLANTS
+from .simulation import OVERRUN_S, Simulation, combined_hash, simulate
 
 __all__ = ["FAITHFUL_KINDS", "FAULT_KINDS", "LEASE_S", "OVERRUN_S", "PLANTS", "ROUTER", "CarrierDriver", "Clock",
            "CoordinatorDriver", "Disk", "Fault", "Fleet", "LogEntry", "Msg", "Outcome", "Simulation", "combined_hash",

@@ -67,44 +67,13 @@ class CarrierDriver:
     def apply(self, event, now: float) -> None:
         before = self.machine
         self.machine, effects = self.sim.carrier_step(before, event)
-        self.sim.check_carrier(self, before, event, effects)
+        self.sim.invariants.check_carrier(self, before, event, effects)
         for effect in effects:
             self.execute(effect, now)
-        self.sim.check_on_board(self)
+        self.sim.invariants.check_on_board(self)
 
     def execute(self, effect, now: float) -> None:
-        s, cid = self.sim, self.cid
-        if isinstance(effect, mc.LogObservation):
-            self.log[effect.stage] = LogEntry(effect.stage, float(s.fleet.stage_times[effect.stage]), effect.x, True,
-                                              effect.position)
-            self.book.observation(cid, effect.stage, effect.x)
-        elif isinstance(effect, mc.LogOutcome):
-            entry = self.log.get(effect.stage) or LogEntry(effect.stage, float(s.fleet.stage_times[effect.stage]))
-            self.log[effect.stage] = dataclasses.replace(entry, position=effect.position, status=effect.status,
-                                                         deployed=effect.deployed,
-                                                         passengers_left=effect.passengers_left)
-            self.book.outcome(cid, effect.stage, effect.deployed)
-        elif isinstance(effect, mc.Deploy):
-            s.released(self, effect.stage)
-        elif isinstance(effect, mc.SendConfirm):
-            s.send(cid, "coordinators", msg("confirm", cid, stage=effect.stage, deployed=effect.deployed,
-                                            status=effect.status, passengers_left=effect.passengers_left))
-            self.book.outcome(cid, effect.stage, effect.deployed)
-        elif isinstance(effect, mc.SendOwn):
-            s.send(cid, "coordinators", msg("own", cid, stage=effect.stage, x=effect.x, deployed=effect.deployed,
-                                            t=float(s.fleet.stage_times[effect.stage]),
-                                            passengers_left=effect.passengers_left))
-            s.to_listeners(cid, msg("peer-own", cid, stage=effect.stage, x=effect.x, deployed=effect.deployed))
-        elif isinstance(effect, mc.SendHello):
-            self.answer.sent(now, effect.again)
-            s.send(cid, "coordinators", msg("hello", cid, next_stage=effect.next_stage,
-                                            passengers_left=effect.passengers_left, fingerprint=s.fleet.fingerprint))
-        elif isinstance(effect, mc.ResendObservation):
-            self.publish_observation(effect.stage)
-        elif isinstance(effect, mc.AskState):
-            self.ask_state(now, effect.stage)
-        elif isinstance(effect, mc.Reject):
-            s.count_reject(effect.reason)
+        carry_out(self, effect, now)
 
     def publish_observation(self, j: int) -> None:
         x = self.machine.sensed if self.machine.pending == j else None
@@ -341,3 +310,39 @@ class CarrierDriver:
         self.alive, self.finished_now = False, True
         self.sim.finished(self, reason)
         self.sim.token(self.cid, False, after=0.05)
+
+
+def carry_out(driver: CarrierDriver, effect, now: float) -> None:
+    """One effect of the handshake machine (:mod:`mission.carrier`) on the simulated host: the
+    durable log, the peer book, a passenger's release, a message sent."""
+    s, cid = driver.sim, driver.cid
+    if isinstance(effect, mc.LogObservation):
+        driver.log[effect.stage] = LogEntry(effect.stage, float(s.fleet.stage_times[effect.stage]), effect.x, True,
+                                            effect.position)
+        driver.book.observation(cid, effect.stage, effect.x)
+    elif isinstance(effect, mc.LogOutcome):
+        entry = driver.log.get(effect.stage) or LogEntry(effect.stage, float(s.fleet.stage_times[effect.stage]))
+        driver.log[effect.stage] = dataclasses.replace(entry, position=effect.position, status=effect.status,
+                                                       deployed=effect.deployed, passengers_left=effect.passengers_left)
+        driver.book.outcome(cid, effect.stage, effect.deployed)
+    elif isinstance(effect, mc.Deploy):
+        s.invariants.released(driver, effect.stage)
+    elif isinstance(effect, mc.SendConfirm):
+        s.send(cid, "coordinators", msg("confirm", cid, stage=effect.stage, deployed=effect.deployed,
+                                        status=effect.status, passengers_left=effect.passengers_left))
+        driver.book.outcome(cid, effect.stage, effect.deployed)
+    elif isinstance(effect, mc.SendOwn):
+        s.send(cid, "coordinators", msg("own", cid, stage=effect.stage, x=effect.x, deployed=effect.deployed,
+                                        t=float(s.fleet.stage_times[effect.stage]),
+                                        passengers_left=effect.passengers_left))
+        s.to_listeners(cid, msg("peer-own", cid, stage=effect.stage, x=effect.x, deployed=effect.deployed))
+    elif isinstance(effect, mc.SendHello):
+        driver.answer.sent(now, effect.again)
+        s.send(cid, "coordinators", msg("hello", cid, next_stage=effect.next_stage,
+                                        passengers_left=effect.passengers_left, fingerprint=s.fleet.fingerprint))
+    elif isinstance(effect, mc.ResendObservation):
+        driver.publish_observation(effect.stage)
+    elif isinstance(effect, mc.AskState):
+        driver.ask_state(now, effect.stage)
+    elif isinstance(effect, mc.Reject):
+        s.count_reject(effect.reason)

@@ -7,6 +7,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from .. import coordinator_life as cl
 from .. import events as ev
 from .. import state as ms
@@ -153,7 +155,7 @@ class CoordinatorDriver:
     def apply(self, event) -> None:
         before = self.state
         self.state, effects = self.sim.coordinator_step(before, event)
-        self.sim.check_coordinator(self, before, event, effects)
+        self.sim.invariants.check_coordinator(self, before, event, effects)
         for effect in effects:
             if isinstance(effect, ms.Record):
                 self.disk.events.append(effect.event)
@@ -216,7 +218,7 @@ class CoordinatorDriver:
         for action in self.sim.fleet.operator_actions(self.state, j, now):  # a simulated operator's
             self.apply(action)
         deploy, passengers = self.sim.fleet.decide(self.state, j)
-        paused = self.sim.pause(self)
+        paused = self.sim.injector.pause(self)
         if paused:  # the process stops between its epoch check and its record (a GC or VM pause)
             self.resuming = (j, deploy, passengers)
             self.sim.at(self.sim.t + paused, self._resume, self.life)
@@ -242,3 +244,25 @@ class CoordinatorDriver:
             now = self.sim.now_of(self.name)
             self.publish(j, deploy, passengers, now)
             self.advance(now)
+
+
+def coordinator_processes(sim, faults) -> tuple[dict, bool]:
+    """The mission's coordinator processes (name -> :class:`CoordinatorDriver`, the primary
+    first) and whether a standby has a disk of its own. A standby watches the primary (takeover,
+    pause, standby-crash); two coordinators started together (dual-start) both open the mission:
+    the first is deposed at its first decision. A waiting standby has its own disk in half the
+    missions (from a stream of its own: the draws of the rest stay the same): a deposed primary
+    keeps its stale store, and a Decision of its older epoch can reach a carrier (docs/fleet.md,
+    "Split brain"); always when it dies after its takeover and the primary restarts
+    (standby-crash): on its own, staler disk the primary takes the standby's epoch again, and
+    ballots tell the two apart."""
+    names = ["coordinator"]
+    if any(f.kind in ("takeover", "dual-start", "pause", "standby-crash") for f in faults):
+        names.append("standby")
+    together = any(f.kind == "dual-start" for f in faults)
+    separate = ("standby" in names and not together
+                and (np.random.default_rng([int(sim.fleet.seed) & 0xFFFFFFFF, sim.seed, 2]).random() < 0.5
+                     or any(f.kind == "standby-crash" for f in faults)))
+    shared = Disk("mission.db")
+    return {n: CoordinatorDriver(sim, n, Disk(f"{n}/mission.db") if separate and n == "standby" else shared,
+                                 standby=n == "standby" and not together) for n in names}, separate
