@@ -99,10 +99,10 @@ class OperatorHold:
     @staticmethod
     def stage_view(j: int, c):
         """The planner's view of stage j in ``c``'s mission (what the reasons are computed on)."""
-        return make_view(c.problem, j, *planning_inputs(c.problem, c.state, j))
+        return make_view(c.setup.problem, j, *planning_inputs(c.setup.problem, c.state, j))
 
     def decide(self, j: int, c: Held) -> Outcome:
-        ids = tuple(c.ids)
+        ids = tuple(c.setup.ids)
         first = self.plan(j, None)
         recommended = first.deploy.copy()
         step, planning_ms = first, first.decision_ms
@@ -162,11 +162,11 @@ class OperatorHold:
         view = self.stage_view(j, c)
         self.desk.show({
             "stage": j, "status": status, "deploy": step.deploy.tolist(), "recommended": recommended.tolist(),
-            "advice": [dict(a, carrier=c.ids[r], conflicts=[c.ids[q] for q in a["conflicts"]])
+            "advice": [dict(a, carrier=c.setup.ids[r], conflicts=[c.setup.ids[q] for q in a["conflicts"]])
                        for r, a in enumerate(advise(view, step.deploy))], "forced": list(constraints[0]), "vetoed": list(constraints[1]),
             # The page counts down on wall time: the deadline as seconds since the epoch.
             "deadline": time.time() + (opened + wait_s - self.clock()) if wait_s > 0 else None, "wait_s": wait_s,
-            "required": self.settings.required, "dropped": {c.ids[r]: why for r, why in step.dropped.items()}})
+            "required": self.settings.required, "dropped": {c.setup.ids[r]: why for r, why in step.dropped.items()}})
 
 
 def _names(ids, deploy) -> str:

@@ -40,13 +40,13 @@ def open_console(c, out_dir, plan) -> Console:
     from world.scene import build_scene
 
     settings = c.config.operator
-    view = ConsoleView(build_scene(c.scenario), c.problem, c.mission, c.planner_name, settings)
+    view = ConsoleView(build_scene(c.setup.scenario), c.setup.problem, c.setup.mission, c.setup.planner_name, settings)
     desk = Desk(lambda: c.state, new_token(out_dir), view, c.log)
     server = ConsoleServer(desk, view, settings)
-    hold = OperatorHold(settings, desk, plan, c.seed, c.clock, c._stop, c.log)
-    desk.listen(c.node, c.mission)
+    hold = OperatorHold(settings, desk, plan, c.setup.seed, c.clock, c._stop, c.log)
+    desk.listen(c.node, c.setup.mission)
     mode = ("watching only (--operator-timeout 0)" if settings.wait_s <= 0 else
             f"waits up to {settings.wait_s:g} s a stage" + (" (--operator-required)" if settings.required else ""))
     c.log(f"coordinator: operator console at {server.url} ({mode}); operator key "
-          f"marsupial/{c.mission}/operator/<id>/action, credential in {out_dir}/operator.token")
+          f"marsupial/{c.setup.mission}/operator/<id>/action, credential in {out_dir}/operator.token")
     return Console(desk, view, hold, server)

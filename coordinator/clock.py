@@ -109,7 +109,7 @@ class StageClock:
     def step(self, c: Clocked, event) -> float | None:
         """Step the lifecycle and carry out its effects: the time to wait until, None when it is to
         be stepped again at once."""
-        self.life, effects = cl.step(self.life, event, cl.View(c.state, c.heard))
+        self.life, effects = cl.step(self.life, event, cl.View(c.state, c.inbound.heard))
         until = None
         for effect in effects:
             if isinstance(effect, tm.Wait):

@@ -81,6 +81,9 @@ class Inbound:
     def __init__(self, mission: str, has, fingerprint: str, epochs, recording):
         self.mission, self.has, self.fingerprint = mission, has, fingerprint
         self.epochs, self.recording = epochs, recording
+        # When each carrier was last heard (the coordinator's clock, s): a slow one (Progress) or
+        # a stuck one, sim clock [P-10.5]; what the stage clock's waits read.
+        self.heard: dict[str, float] = {}
 
     def subscribe(self, node) -> None:
         """The inbox's keys on ``node``: the carriers' messages and tokens, the mission's

@@ -35,20 +35,18 @@ from __future__ import annotations
 import threading
 import time
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-import world
-from planner.registry import make_planner, planner_settings, used_options
-from mission.coverage import spec_options
 from mission.decide import FALLBACK_PLANNER, stage_decision
 from coordinator.clock import StageClock
 from coordinator.epochs import Epochs, default_ident
 from coordinator.inbound import Inbound
 from coordinator.recorder import Recording, start as start_recording
 from coordinator.results import results_for
+from coordinator.setup import MissionSetup
 from storage.missiondb import MissionStore
 from mission import events as ev
 from mission import state as ms
@@ -56,7 +54,7 @@ from mission.timeouts import CLOCKS, DEFAULTS
 from wire import keys
 from wire.messages import (
     ACCEPTED_MAX, MAX_STATE_CARRIERS, REVISION, UNANNOUNCED_REVISION, Accepted, CarrierState, Decision, End, State,
-    defined_in, encode, refusal, scenario_fingerprint,
+    defined_in, encode, refusal,
 )
 from wire.link_filter import link_filter
 from wire.transport import Node
@@ -139,6 +137,20 @@ class CoordinatorConfig:
     coordinator_id: str | None = None
 
 
+@dataclass
+class Told:
+    """What State tells each carrier of what this process refused or rejected of it
+    (docs/protocol.md, "Rejections"): per carrier, counts per reason (``counts``; a new Counter
+    at every change: State reads it from another thread) and its last Hello's refusal."""
+
+    counts: dict = field(default_factory=dict)
+    refusals: dict = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, ids) -> "Told":
+        return cls({cid: Counter() for cid in ids})
+
+
 def plan_step(c: "Coordinator", j: int, constraints=None):
     """Stage j's step on coordinator ``c``'s mission state (:func:`mission.decide.stage_decision`:
     guarded, within the planner's ``plan_ms`` budget), under the operator's ``constraints``
@@ -147,19 +159,19 @@ def plan_step(c: "Coordinator", j: int, constraints=None):
     decided by :data:`mission.decide.FALLBACK_PLANNER`."""
 
     def fault(f) -> None:
-        c.log(f"coordinator: {f.line(c.planner_name)}; stage {f.stage} decided by {FALLBACK_PLANNER}")
-        c.store.event("planner-fault", None, f.stage, rule=f.rule, detail=f.detail, planner=c.planner_name,
+        c.log(f"coordinator: {f.line(c.setup.planner_name)}; stage {f.stage} decided by {FALLBACK_PLANNER}")
+        c.store.event("planner-fault", None, f.stage, rule=f.rule, detail=f.detail, planner=c.setup.planner_name,
                       fallback=FALLBACK_PLANNER)
 
-    return stage_decision(c.problem, c.state, j, c.planner, c.seed, constraints,
-                          getattr(c.planner, "plan_ms", None), fault)
+    return stage_decision(c.setup.problem, c.state, j, c.setup.planner, c.setup.seed, constraints,
+                          getattr(c.setup.planner, "plan_ms", None), fault)
 
 
 def _planned(c: "Coordinator", j: int) -> ev.Decided:
     """Stage j's decision by the planner alone (deploying ids sorted, with their passengers)."""
     step = plan_step(c, j)
-    rs = sorted(np.flatnonzero(step.deploy), key=lambda r: c.ids[r])
-    return ev.Decided(j, tuple(c.ids[r] for r in rs), step.decision_ms, time.time(),
+    rs = sorted(np.flatnonzero(step.deploy), key=lambda r: c.setup.ids[r])
+    return ev.Decided(j, tuple(c.setup.ids[r] for r in rs), step.decision_ms, time.time(),
                       tuple(int(step.passengers[r]) for r in rs))
 
 
@@ -186,53 +198,30 @@ class Coordinator:
 
     def __init__(self, scenario, config: CoordinatorConfig, zconf, scenario_path: str = "",
                  stop: threading.Event | None = None, clock=time.monotonic):
-        if config.seed is not None:
-            scenario = scenario.with_seed(int(config.seed))
-        self.scenario = scenario
+        self.setup = setup = MissionSetup.build(scenario, config, zconf, scenario_path)
         self.config = config
-        self.zconf = zconf
-        self.scenario_path = scenario_path or scenario.source
-        self.seed = int(scenario.seed)
-        self.mission = keys.check_id(config.mission or keys.mission_id_from_name(scenario.name), "mission")
-        self.ids = scenario.carrier_ids
-        self.problem = world.build_problem(scenario)
-        self.n_stages = self.problem.n_stages
-        self.planner_name, options = planner_settings(
-            scenario, config.planner, config.iterations, config.plan_ms, config.planner_options)
-        # Only the options this planner uses are kept (logged, stored in mission.db, summarised).
-        self.planner_options = used_options(self.planner_name, options)
-        self.planner = make_planner(self.planner_name, **self.planner_options)
-        self.fingerprint = scenario_fingerprint(scenario)
-        self.spec = ms.MissionSpec.build(self.ids, self.problem.valid, self.problem.passengers,
-                                         scenario.stage_times(), self.fingerprint, **spec_options(self.problem))
-        self.state = ms.initial(self.spec)
-        self._log = config.log or (lambda line: print(line, flush=True))
+        self.state = ms.initial(self.setup.spec)
         self._served = self.state  # what State queries answer from: stored already
         self._stop = stop if stop is not None else threading.Event()
         self.node: Node | None = None
         self.store: MissionStore | None = None
-        self.recording = Recording(self.mission, self.spec.has, self.log)  # mission.mcap, the ROS 2 topics
-        # What State tells each carrier of what this process refused or rejected of it
-        # (docs/protocol.md, "Rejections"): counts per reason, and its last Hello's refusal.
-        self.told: dict[str, Counter] = {cid: Counter() for cid in self.ids}
-        self.refusals: dict[str, str] = {}
+        self.recording = Recording(self.setup.mission, self.setup.spec.has, self.log)  # mission.mcap, the ROS 2 topics
+        self.told = Told.of(setup.ids)  # what State tells each carrier of what this process refused of it
         if config.clock not in CLOCKS:
             raise ValueError(f"clock must be one of {CLOCKS}, found {config.clock!r}")
         self.clock = clock  # what its waits read (mission.timers decides); the inbox's clock
-        self.epochs = Epochs(self.mission, self.log, self._stop, self.clock,  # split brain (docs/fleet.md)
+        self.epochs = Epochs(self.setup.mission, self.log, self._stop, self.clock,  # split brain (docs/fleet.md)
                              config.coordinator_id or default_ident())
-        self.inbound = Inbound(self.mission, self.spec.has, self.fingerprint, self.epochs, self.recording)
-        self.stage_clock = StageClock(config, self.spec, scenario.stage_interval, self.mission, self.epochs, self._stop,
+        self.inbound = Inbound(self.setup.mission, self.setup.spec.has, self.setup.fingerprint, self.epochs, self.recording)
+        self.stage_clock = StageClock(config, self.setup.spec, scenario.stage_interval, self.setup.mission, self.epochs, self._stop,
                                       self.clock, self.log)
-        self.results = results_for(scenario, self.scenario_path, self.mission, self.planner_name, self.planner_options,
-                                   self.seed, (config.render, self.log, self.epochs, self.recording))
-        # When each carrier was last heard (self.clock's s): a slow one (Progress) or a stuck one, sim clock.
-        self.heard: dict[str, float] = {}
+        self.results = results_for(scenario, self.setup.scenario_path, self.setup.mission, self.setup.planner_name, self.setup.planner_options,
+                                   self.setup.seed, (config.render, self.log, self.epochs, self.recording))
         self.console = None  # operator mode: the console (console.run.Console), opened with the mission
 
     # ------------------------------------------------------------------ views of the state
     def log(self, line: str) -> None:
-        self._log(line)
+        self.setup.log(line)
 
     def stop(self) -> None:
         """Ask the run loop to finish early (publishes End ``stopped``)."""
@@ -257,7 +246,7 @@ class Coordinator:
     def _decision(self, j: int, st: ms.MissionState | None = None) -> Decision:
         """The Decision of stage j as published: from ``st`` (the current state by default)."""
         d = (self.state if st is None else st).decisions[j]
-        return Decision(self.mission, j, self.spec.stage_times[j], d.deploy, d.planning_ms, self.epochs.epoch,
+        return Decision(self.setup.mission, j, self.setup.spec.stage_times[j], d.deploy, d.planning_ms, self.epochs.epoch,
                         passengers=d.passengers, coordinator=self.epochs.ident)
 
     def _refresh_state(self) -> None:
@@ -274,13 +263,13 @@ class Coordinator:
         asked = keys.asked_revision(parameters, REVISION, UNANNOUNCED_REVISION)
         wanted = (parameters or {}).get("carrier")
         if wanted is not None:
-            ids = [wanted] if self.spec.has(wanted) else []
+            ids = [wanted] if self.setup.spec.has(wanted) else []
         else:
-            ids = list(self.ids) if len(self.ids) <= MAX_STATE_CARRIERS else []
+            ids = list(self.setup.ids) if len(self.setup.ids) <= MAX_STATE_CARRIERS else []
         carriers = tuple(sorted((cid, self._carrier_state(st, cid)) for cid in ids))
         last = self._decision(st.next_stage - 1, st) if (st.next_stage - 1) in st.decisions else None
         return encode(State(
-            mission=self.mission, next_stage=st.next_stage, stages=self.n_stages, fingerprint=self.fingerprint,
+            mission=self.setup.mission, next_stage=st.next_stage, stages=self.setup.n_stages, fingerprint=self.setup.fingerprint,
             ended=st.ended, carriers=carriers, last_decision=last, epoch=self.epochs.epoch, revision=REVISION,
             coordinator=self.epochs.ident), asked)
 
@@ -288,10 +277,10 @@ class Coordinator:
         """One carrier's entry: its deployments as the planner sees them (its accounts, its
         Confirms, the decisions nobody answered)."""
         deployments = st.deployments_of(cid)
-        left = self.spec.passengers[self.spec.index(cid)] - len(deployments)
-        refused = None if cid in st.accepted else self.refusals.get(cid, "world-mismatch" if cid in st.refused else None)
+        left = self.setup.spec.passengers[self.setup.spec.index(cid)] - len(deployments)
+        refused = None if cid in st.accepted else self.told.refusals.get(cid, "world-mismatch" if cid in st.refused else None)
         return CarrierState(int(left), tuple(deployments), cid in st.live, refused,
-                            tuple(sorted(self.told[cid].items())))
+                            tuple(sorted(self.told.counts[cid].items())))
 
     # ------------------------------------------------------------------ the one way state changes
     def apply(self, event) -> None:
@@ -321,8 +310,8 @@ class Coordinator:
         self.node.reject(reason, detail, lambda line: self.log(f"coordinator: {line}"))
         if first:
             self.store.event("rejected", reason=reason, detail=detail[:200])
-        if cid in self.told:  # what State tells that carrier (docs/protocol.md, "Rejections")
-            self.told[cid] = self.told[cid] + Counter({reason: 1})  # a new value: State reads it from another thread
+        if cid in self.told.counts:  # what State tells that carrier (docs/protocol.md, "Rejections")
+            self.told.counts[cid] = self.told.counts[cid] + Counter({reason: 1})  # a new value: State reads it from another thread
 
     def _answer_hello(self, cid: str, revision: int, refused: ms.Refuse | None = None) -> None:
         """Every Hello is answered (docs/protocol.md, "Refusal", "Accepted"), in the revision it
@@ -331,20 +320,20 @@ class Coordinator:
         revision = min(revision, REVISION)
         self.store.flush()  # the Hello is on record before its answer goes out
         if refused is not None:
-            if cid in self.told and cid not in self.state.accepted:
-                self.refusals[cid] = refused.reason
-            self.node.put(keys.refusal_key(self.mission, cid), refusal(
-                self.mission, cid, refused.reason, refused.fingerprint, self.fingerprint, refused.detail, revision),
+            if cid in self.told.counts and cid not in self.state.accepted:
+                self.told.refusals[cid] = refused.reason
+            self.node.put(keys.refusal_key(self.setup.mission, cid), refusal(
+                self.setup.mission, cid, refused.reason, refused.fingerprint, self.setup.fingerprint, refused.detail, revision),
                 revision)
             return
-        self.refusals.pop(cid, None)
+        self.told.refusals.pop(cid, None)
         # The mission's clock (revision 4): a carrier times its waits by the coordinator's.
-        answer = Accepted(self.mission, cid, self.fingerprint, self.state.accepted[cid].next_stage,
+        answer = Accepted(self.setup.mission, cid, self.setup.fingerprint, self.state.accepted[cid].next_stage,
                           self.state.next_stage, REVISION, self.epochs.epoch, self.config.clock,
                           min(float(self.config.silence_timeout_s), ACCEPTED_MAX),
                           min(float(self.config.realtime), ACCEPTED_MAX), coordinator=self.epochs.ident)
         if defined_in(answer, revision):
-            self.node.put(keys.accepted_key(self.mission, cid), answer, revision)
+            self.node.put(keys.accepted_key(self.setup.mission, cid), answer, revision)
 
     # ------------------------------------------------------------------ what it receives
     def pump(self, timeout_s: float) -> None:
@@ -355,7 +344,7 @@ class Coordinator:
         """What one inbox item says (:class:`coordinator.inbound.Heard`): when its carrier was heard,
         the higher epoch it claims (on record, never adopted [P-7.3]), its mission event."""
         if heard.carrier is not None and (heard.progress is None or heard.progress <= self.state.next_stage):
-            self.heard[heard.carrier] = heard.at  # when it arrived [P-10.5] (see Heard.progress)
+            self.inbound.heard[heard.carrier] = heard.at  # when it arrived [P-10.5] (see Heard.progress)
         if heard.epoch is not None:
             self.epochs.carrier_claimed(heard.carrier, heard.epoch)
             if heard.carrier in self.state.accepted:  # [P-7.3] answered, changes nothing held of it
@@ -375,12 +364,12 @@ class Coordinator:
 
     def put_end(self, end: End) -> None:
         """End, in the revision every carrier that said Hello reads (as the Decisions are)."""
-        self.node.put(keys.end_key(self.mission), end, self.state.common_revision(REVISION))
+        self.node.put(keys.end_key(self.setup.mission), end, self.state.common_revision(REVISION))
 
     def _publish_decision(self, decision: Decision) -> None:
         # In the revision every carrier that said Hello reads (docs/protocol.md, "Compatibility").
         self.store.flush()
-        self.node.put(keys.decision_key(self.mission), decision, self.state.common_revision(REVISION))
+        self.node.put(keys.decision_key(self.setup.mission), decision, self.state.common_revision(REVISION))
         self.apply(ev.Published(decision.stage, time.time()))
 
     def run(self) -> dict:
@@ -393,11 +382,11 @@ class Coordinator:
 
         out = Path(self.config.out_dir)
         # The session first: a duplicate is refused (or waited for) before mission.db is touched.
-        links = link_filter(self.scenario, self.mission, "coordinator", realtime=self.config.realtime)
-        self.node, claimed = self.epochs.session(lambda: Node(self.zconf, stop=self._stop, links=links),
+        links = link_filter(self.setup.scenario, self.setup.mission, "coordinator", realtime=self.config.realtime)
+        self.node, claimed = self.epochs.session(lambda: Node(self.setup.zconf, stop=self._stop, links=links),
                                                  self.config.standby)
         if not claimed:  # a standby stopped while the primary lived: nothing of ours to record
-            self.log(f"coordinator: standby for mission {self.mission} stopped; it never took over")
+            self.log(f"coordinator: standby for mission {self.setup.mission} stopped; it never took over")
             return {"ended": False, "standby": True}
         started = self.clock()  # the mission's wall time: a standby's wait is not part of it
         out.mkdir(parents=True, exist_ok=True)
@@ -409,14 +398,14 @@ class Coordinator:
                 raise
             self.apply(ev.Ended("stopped", time.time()))
         finally:
-            summary = self.results.finish(out, self.clock() - started, self.state, self.problem, self.node, self.store)
+            summary = self.results.finish(out, self.clock() - started, self.state, self.setup.problem, self.node, self.store)
             self.console and self.console.close(self)
         return summary
 
     def _open_mission(self, out: Path) -> None:
         """mission.db (this process's epoch with it) and the recorder."""
-        meta = {"mission": self.mission, "scenario": self.scenario.name, "fingerprint": self.fingerprint,
-                "seed": self.seed, "planner": self.planner_name, "planner_options": self.planner_options}
+        meta = {"mission": self.setup.mission, "scenario": self.setup.scenario.name, "fingerprint": self.setup.fingerprint,
+                "seed": self.setup.seed, "planner": self.setup.planner_name, "planner_options": self.setup.planner_options}
         # Higher than every epoch used before for this mission: the ones in mission.db and the
         # one a primary reported while this process stood by; 1 for a fresh mission.
         try:
@@ -425,7 +414,7 @@ class Coordinator:
             if self.node is not None:
                 self.node.close(DEFAULTS.close_s)
             raise
-        start_recording(self.recording, self.config, self.node, out, self.scenario, self.problem,
+        start_recording(self.recording, self.config, self.node, out, self.setup.scenario, self.setup.problem,
                         {k: meta[k] for k in ("mission", "scenario", "seed", "planner", "fingerprint")},
                         self.store.mission_events)
 
@@ -433,7 +422,7 @@ class Coordinator:
         """Recover the state, then serve the mission to its end (or record that it was stopped
         before the session opened: nothing to tell anyone, but on record)."""
         # Recovery is the live fold over the stored events (the last one is this process's open).
-        self.state = ms.fold(self.spec, self.store.mission_events())
+        self.state = ms.fold(self.setup.spec, self.store.mission_events())
         self.epochs.first_stage = self.state.next_stage
         if self.state.resumed:
             self.log(f"coordinator: resumed from {self.store.path}: {len(self.state.decisions)} stage(s) "
@@ -450,7 +439,7 @@ class Coordinator:
         # Warmed up once State answers and the token is out: carriers that start meanwhile
         # find a coordinator (compiling the planner takes seconds, more on a busy host).
         if not self._stop.is_set():
-            warm_up((self.planner, self.planner_name), self.problem, self.log)
+            warm_up((self.setup.planner, self.setup.planner_name), self.setup.problem, self.log)
         if self.state.next_stage > 0:
             self._publish_decision(self._decision(self.state.next_stage - 1))  # idempotent re-publication
         self.stage_clock.serve(self)  # the carriers' join, the stages, the last Confirms, End
@@ -458,9 +447,9 @@ class Coordinator:
     def _serve(self) -> None:
         """Subscribe, watch the carriers' tokens, answer State, declare this coordinator's token."""
         self.inbound.subscribe(self.node)
-        self.node.serve(keys.state_key(self.mission), self.state_reply)
-        self.node.token(keys.coordinator_alive(self.mission))
-        self.log(f"coordinator: mission {self.mission}, {len(self.ids)} carriers, {self.n_stages} stages, "
-                 f"planner {self.planner_name} {self.planner_options}, seed {self.seed}, epoch {self.epochs.epoch}, "
+        self.node.serve(keys.state_key(self.setup.mission), self.state_reply)
+        self.node.token(keys.coordinator_alive(self.setup.mission))
+        self.log(f"coordinator: mission {self.setup.mission}, {len(self.setup.ids)} carriers, {self.setup.n_stages} stages, "
+                 f"planner {self.setup.planner_name} {self.setup.planner_options}, seed {self.setup.seed}, epoch {self.epochs.epoch}, "
                  f"{self.config.clock} clock")
 

@@ -460,7 +460,7 @@ def test_no_class_of_the_project_is_over_300_lines():
 PROCESS_ATTRIBUTES_MAX = 15
 
 
-@pytest.mark.parametrize("path, name", [("carriers/node.py", "Carrier")])
+@pytest.mark.parametrize("path, name", [("carriers/node.py", "Carrier"), ("coordinator/node.py", "Coordinator")])
 def test_process_objects_hold_few_attributes(path, name):
     """A process object is a driver: its machines, its collaborators and its I/O, at most
     fifteen attributes (what they hold is theirs: properties name what it reads of them)."""

@@ -268,7 +268,7 @@ def coordinator_waiting(clock_name: str, tmp_path, **timeouts):
     state = coordinator.state
     for cid in TINY.carrier_ids:
         state, _ = ms.step(state, ev.LivelinessChanged(cid, True))
-        state, _ = ms.step(state, ev.Hello(cid, 1, "h", 1, 0, coordinator.fingerprint, 0.0, REVISION))
+        state, _ = ms.step(state, ev.Hello(cid, 1, "h", 1, 0, coordinator.setup.fingerprint, 0.0, REVISION))
     coordinator.state = state
     return coordinator, clock, lines
 
@@ -290,7 +290,7 @@ def test_the_coordinator_waits_for_a_carrier_heard_from_until_its_silence(tmp_pa
     the stage timeout, until the silence timeout after that; then it is stalled (logged)."""
     coordinator, clock, lines = coordinator_waiting("sim", tmp_path, silence_timeout_s=30.0, stage_timeout_s=5.0)
     opened = clock.now
-    coordinator.heard = {cid: opened + 10.0 for cid in TINY.carrier_ids}
+    coordinator.inbound.heard = {cid: opened + 10.0 for cid in TINY.carrier_ids}
     waiting = coordinator.state.waiting(0)
     assert waiting
     decided = stage_0_opened(coordinator, clock)
@@ -303,7 +303,7 @@ def test_the_coordinator_on_the_wall_clock_waits_the_stage_timeout(tmp_path):
     """[P-10.3] wall clock: the stage timeout is a deadline, whoever is heard from."""
     coordinator, clock, lines = coordinator_waiting("wall", tmp_path, silence_timeout_s=30.0, stage_timeout_s=5.0)
     opened = clock.now
-    coordinator.heard = {cid: opened + 4.9 for cid in TINY.carrier_ids}
+    coordinator.inbound.heard = {cid: opened + 4.9 for cid in TINY.carrier_ids}
     decided = stage_0_opened(coordinator, clock)
     coordinator.stage_clock.fly(coordinator)
     assert len(decided) == 1 and 5.0 <= decided[0] - opened < 5.1 and not any("stalled" in line for line in lines)

@@ -86,7 +86,7 @@ def test_bad_messages_are_rejected_counted_and_change_nothing(tiny, tmp_path):
     while fleet.coordinator.node is None and time.monotonic() < deadline:  # planner warm-up first
         time.sleep(0.05)
     intruder = Node(make_config("client", [], [fleet.endpoint]), open_timeout_s=30)
-    m = fleet.coordinator.mission
+    m = fleet.coordinator.setup.mission
     while not intruder.query(keys.state_key(m)) and time.monotonic() < deadline:
         time.sleep(0.05)  # the state queryable is declared after the subscribers
     obs_key = keys.carrier_key(m, "a", "obs")

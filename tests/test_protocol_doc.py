@@ -112,7 +112,7 @@ def test_a_carrier_written_from_the_protocol_document(tmp_path):
     ra = tiny.carrier_index("a")
     result: dict = {}
     thread = threading.Thread(target=foreign_carrier, daemon=True, args=(
-        fleet.endpoint, fleet.coordinator.mission, "a", trace.x[ra], trace.positions[ra],
+        fleet.endpoint, fleet.coordinator.setup.mission, "a", trace.x[ra], trace.positions[ra],
         tiny.carriers[ra].passengers, result))
     thread.start()
     summary = fleet.join()
@@ -221,7 +221,7 @@ def test_hello_is_required_and_a_refused_hello_is_answered(tmp_path):
     tiny = world.load_scenario(TINY)
     fleet = InProcessFleet(tiny, tmp_path, planner="ssap", join_timeout_s=30.0)
     fleet.start_coordinator()
-    m = fleet.coordinator.mission
+    m = fleet.coordinator.setup.mission
     conf = zenoh.Config()
     conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", json.dumps([fleet.endpoint]))

@@ -261,7 +261,7 @@ def test_a_coordinator_on_a_fresh_out_keeps_its_epoch_whatever_a_hello_reports(t
         while not other.query("marsupial/tiny/coordinator/state") and time.monotonic() < deadline:
             time.sleep(0.05)
         other.put("marsupial/tiny/carrier/a/hello",
-                  Hello("tiny", "a", 1, "elsewhere", 2, 0, coordinator.fingerprint, epoch=4))
+                  Hello("tiny", "a", 1, "elsewhere", 2, 0, coordinator.setup.fingerprint, epoch=4))
         while "a" not in coordinator.epochs.claims and time.monotonic() < deadline:
             time.sleep(0.05)
         assert coordinator.epochs.claims == {"a": 4} and coordinator.epochs.epoch == 1

@@ -171,7 +171,7 @@ def test_every_hello_is_answered_over_the_wire(tmp_path):
     tiny = world.load_scenario(TINY)
     fleet = InProcessFleet(tiny, tmp_path, planner="ssap", join_timeout_s=30.0)
     fleet.start_coordinator()
-    m = fleet.coordinator.mission
+    m = fleet.coordinator.setup.mission
     client = Client(fleet.endpoint, m)
     try:
         fp = client.state("a", None)["fingerprint"]

@@ -202,7 +202,7 @@ def test_a_revision1_carrier_flies_six_carriers_next_to_todays(tmp_path):
     for cid in old:
         r = six.carrier_index(cid)
         procs[cid] = subprocess.Popen(
-            [sys.executable, str(CLIENT), "--endpoint", fleet.endpoint, "--mission", fleet.coordinator.mission,
+            [sys.executable, str(CLIENT), "--endpoint", fleet.endpoint, "--mission", fleet.coordinator.setup.mission,
              "--carrier", cid, "--world", str(sensed_world_file(six, trace, r, tmp_path / f"{cid}.json")),
              "--result", str(tmp_path / f"{cid}-result.json"), "--decision-timeout", "20"],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
