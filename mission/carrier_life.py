@@ -430,15 +430,20 @@ def _resolved(life: Life, now: float, view: View):
     return life, (MoveOn(j, answered),)
 
 
-def _deciding_coordinator(life: Life, now: float, view: View) -> tuple[Life, View]:
+def _deciding_coordinator(life: Life, now: float, view: View) -> tuple[Life, View, float]:
     """A coordinator whose Decisions the handshake machine rejects as deposed (a lower ballot:
     it restarted on a stale disk after a standby's takeover) decides nothing for this carrier:
-    absent since the first rejection, whatever its token says, until a current Decision or State
-    comes (docs/protocol.md [P-7.2])."""
+    unless a current Decision or State comes within the decision timeout of the first rejection
+    (:func:`mission.timers.outranked`), it is absent since that rejection, whatever its token
+    says (docs/protocol.md [P-7.2]). Also when to look again (inf: nothing to wait for)."""
     if not (view.machine.outranked and view.present):
-        return (dataclasses.replace(life, outranked_at=None) if life.outranked_at is not None else life), view
+        return (dataclasses.replace(life, outranked_at=None) if life.outranked_at is not None else life), view, math.inf
     since = now if life.outranked_at is None else life.outranked_at
-    return dataclasses.replace(life, outranked_at=since), dataclasses.replace(view, present=False, absent_since=since)
+    life = dataclasses.replace(life, outranked_at=since)
+    rule = tm.outranked(since, now, life.waits.decision_s)
+    if isinstance(rule, tm.Wait):
+        return life, view, rule.until
+    return life, dataclasses.replace(view, present=False, absent_since=since), math.inf
 
 
 def _wait(life: Life, now: float, view: View):
@@ -447,7 +452,7 @@ def _wait(life: Life, now: float, view: View):
         return _stage_ended(life, now, view)
     if m.resolved(j):
         return _resolved(life, now, view)
-    life, view = _deciding_coordinator(life, now, view)
+    life, view, grace_until = _deciding_coordinator(life, now, view)
     wait = life.wait.tick(now, view.present)
     absent_s = 0.0 if view.present else now - view.absent_since
     rule = tm.decision_wait(view.timers.clock, life.mode, view.present, wait.waited_s, absent_s, w.decision_s,
@@ -475,7 +480,7 @@ def _wait(life: Life, now: float, view: View):
                 (*notes, Listen()))
     if isinstance(rule, tm.GiveUp):
         return _finish(life, rule.reason, Note(f"coordinator absent for {w.coordinator_s:.0f} s; exiting"))
-    until = _next_progress(life, view, silence3) if view.present else math.inf
+    until = min(_next_progress(life, view, silence3) if view.present else math.inf, grace_until)
     if view.present:
         until = min(until, now + (w.decision_s - wait.waited_s))
     elif life.mode == Mode.COORDINATED:

@@ -179,6 +179,16 @@ def decision_wait(clock: str, mode: str, present: bool, waited_s: float, absent_
     return Wait()
 
 
+def outranked(rejected_at: float, now: float, grace_s: float) -> Wait | GoOn:
+    """A live coordinator whose Decision (or End) the carrier rejected as deposed ([P-7.2]: a lower
+    ballot) is waited for ``grace_s`` more (the decision timeout: a current coordinator's Decision
+    may follow the stale one, two coordinators live across a healed split); :class:`GoOn` once it
+    has not been heard for that long: absent since the rejection."""
+    if now - rejected_at < grace_s:
+        return Wait(rejected_at + grace_s)
+    return GoOn()
+
+
 @dataclass(frozen=True)
 class DecisionWait:
     """What a carrier's wait for a Decision has counted ([P-10.8]): ``waited_s``, the time the

@@ -265,6 +265,14 @@ def test_hold(live, now, expected):
     assert tm.hold(live, 0.0, now, 20.0) == expected
 
 
+@pytest.mark.parametrize("now, expected", rows([
+    ("[P-7.2] outranked: waited for the grace", 125.0, tm.Wait(150.0)),
+    ("[P-7.2] outranked for the grace: absent", 150.0, tm.GoOn()),
+]))
+def test_outranked(now, expected):
+    assert tm.outranked(120.0, now, 30.0) == expected
+
+
 def test_no_rule_reads_a_clock():
     """Time is an input: mission.timers imports no clock (nor anything that reads one)."""
     import ast
