@@ -39,7 +39,7 @@ def _client(tmp_path, fault=None, *extra) -> list[str]:
 
 
 #: The rules only the kit's own coordinators exercise (flights other than project).
-SCRIPTED_ONLY = {"two-coordinators", "deposed-end", "refusal", "older-revision", "decision-gap", "hello-again"}
+SCRIPTED_ONLY = {"two-coordinators", "two-ballots", "deposed-end", "refusal", "older-revision", "decision-gap", "hello-again"}
 #: The rules a revision-1 carrier is never exercised on (no Accepted, no passengers named, no Progress).
 LATER_REVISIONS = {"accepted", "passenger-named", "progress"}
 
@@ -99,6 +99,33 @@ def test_the_rules_on_a_recorded_flight(tmp_path):
     kit.flight.carrier[1] = wc.Seen(1.0, "obs", msgpack.packb({**body, "colour": "red"}), None, "unknown-field: x")
     failed = {r for r, s in _statuses(kit.evaluate()).items() if s == "FAIL"}
     assert "decode" in failed and failed <= {"decode", "observation-stage"}
+
+
+def test_the_ballot_rule_on_a_recorded_flight(tmp_path):
+    """[P-7.2] two live coordinators of epoch 2 (flight two-ballots): a Confirm of stage 1 between
+    the lower id's contradicting Decision and the higher id's fails ``two-ballots``; one sent to a
+    carrier of revision 5 (no ids on the wire: it ranks by epoch alone) is not judged."""
+    kit = _kit(tmp_path)
+    t = kit.target
+    m, fp = t.mission, t.fingerprint
+
+    def flight(confirm_between: bool, revision: int = wm.REVISION):
+        f = wc.Flight()
+        f.name = "two-ballots"
+        f.carrier.append(_seen(0.0, wm.Hello(m, "a", 1, "h", 2, 0, fp, epoch=2, revision=revision)))
+        fake = wm.Decision(m, 1, t.times[1], ("a",), 0.0, epoch=2, coordinator="kit-a")
+        f.decisions.append(wc.Seen(1.2, "decision", wm.encode(fake, revision), fake, fake=True))
+        if confirm_between:
+            f.carrier.append(_seen(1.3, wm.Confirm(m, "a", 1, True, "deployed", (0.0, 0.0), 1)))
+        f.decisions.append(_seen(1.5, wm.Decision(m, 1, t.times[1], (), 1.0, epoch=2, coordinator="kit-b")))
+        return f
+
+    kit.flight = flight(True)
+    assert _statuses(kit.evaluate())["two-ballots"] == "FAIL"
+    kit.flight = flight(False)
+    assert _statuses(kit.evaluate())["two-ballots"] == "pass"
+    kit.flight = flight(True, revision=5)
+    assert _statuses(kit.evaluate())["two-ballots"] == "-"
 
 
 FIXTURES = sorted((ROOT / "tests" / "fixtures" / "wire").glob("r*/messages.json"))
@@ -281,6 +308,15 @@ def test_the_project_carrier_follows_the_higher_of_two_live_coordinators(tmp_pat
     stage: only the higher epoch's are answered; [P-7.4] the deposed one's End does not end it."""
     results, kit = _flight(tmp_path, PROJECT_CARRIER, "two-coordinators")
     _exercised_and_passed(results, kit, ("two-coordinators", "deposed-end", "confirm-outcome", "bye"))
+
+
+@pytest.mark.slow
+def test_the_project_carrier_follows_the_higher_ballot_of_two_live_coordinators(tmp_path):
+    """[P-7.2] both coordinators of epoch 2 and live, ids kit-a (deposed, its contradicting
+    Decision first at every stage) and kit-b: only the higher ballot's are answered; [P-7.4] the
+    lower ballot's End does not end it."""
+    results, kit = _flight(tmp_path, PROJECT_CARRIER, "two-ballots")
+    _exercised_and_passed(results, kit, ("two-ballots", "deposed-end", "confirm-outcome", "bye"))
 
 
 @pytest.mark.slow

@@ -46,7 +46,7 @@ The parts, each doing one thing (each given its collaborators in its constructor
   test and its placeholders);
 * ``faults``: the project flight's deliberate faults and their triggers;
 * ``scripted``: the coordinators the kit plays itself in the other flights (``--flight``: scripted,
-  progress, refusal, older, gap, two-coordinators);
+  progress, refusal, older, gap, two-coordinators, two-ballots, unanswered);
 * ``rules``: the rules and their evaluation, a pure function of the target and the flight;
 * ``report``: the table and the verdict; ``kit``: ``Kit``, the flight loop tying them together;
 * ``cli``: the command line, ``main(argv)`` (both kits).

@@ -43,6 +43,9 @@ FLIGHT_TEXT = {
            "and published while it waits at 1",
     "two-coordinators": "two coordinators of the kit, both live: epoch 2 truthful, epoch 1 deposed, publishing "
                         "a contradicting Decision of each stage from 1 on first and (revision 4) an End half-way",
+    "two-ballots": "as two-coordinators, both of epoch 2 (revision 6, ballots): id kit-b truthful, id kit-a "
+                   "deposed (its ballot is the lower); at a --revision below 6 the ids are not sent and the "
+                   "flight is not run",
     "unanswered": f"as scripted, the carrier's first {UNANSWERED - 1} Hellos lost on their way (a lossy link): the "
                   f"kit answers the Hello said again {UNANSWERED - 1} times (it must be, [P-5.14]) and reads no "
                   "Observation before it",
@@ -78,8 +81,10 @@ class Kit:
         if flight not in FLIGHTS:
             raise ValueError(f"--flight: unknown flight {flight!r} (one of {', '.join(FLIGHTS)})")
         revision = revision if revision is not None else (1 if flight == "older" else wm.REVISION)
-        if not 1 <= revision <= wm.REVISION or (flight == "older" and revision >= 3):
-            raise ValueError(f"--revision: {revision} (1..{wm.REVISION}; below 3 for the older flight)")
+        if not 1 <= revision <= wm.REVISION or (flight == "older" and revision >= 3) or \
+                (flight == "two-ballots" and revision < 6):
+            raise ValueError(f"--revision: {revision} (1..{wm.REVISION}; below 3 for the older flight, 6 or later "
+                             f"for two-ballots)")
         self.target = Target.load(scenario_path, carrier, seed)
         self.command = list(command)
         self.faults = tuple(faults)
@@ -129,9 +134,13 @@ class Kit:
         def session():
             return Node(make_config("client", connect=[harness.endpoint]))
 
+        hold = {j: 0.3 for j in range(self.target.n)}
         if f.name == "two-coordinators":
             return [ScriptedCoordinator(self.target, f, session(), 1, revision, deposed=True),
-                    ScriptedCoordinator(self.target, f, session(), 2, revision, hold={j: 0.3 for j in range(self.target.n)})]
+                    ScriptedCoordinator(self.target, f, session(), 2, revision, hold=hold)]
+        if f.name == "two-ballots":
+            return [ScriptedCoordinator(self.target, f, session(), 2, revision, deposed=True, ident="kit-a"),
+                    ScriptedCoordinator(self.target, f, session(), 2, revision, hold=hold, ident="kit-b")]
         return [ScriptedCoordinator(self.target, f, session(), 1, revision, refuse=f.name == "refusal",
                                     realtime=PROGRESS_REALTIME if f.name == "progress" else 0.0,
                                     lose=1 if f.name == "gap" else None,

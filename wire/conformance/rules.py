@@ -27,6 +27,8 @@ RULES = (
     ("epochs", "[P-7.2]", "a Decision of a lower epoch than it heard is not answered (deposed)"),
     ("two-coordinators", "[P-7.2]", "with two live coordinators it follows the higher epoch: no answer to the "
                                     "lower epoch's Decisions"),
+    ("two-ballots", "[P-7.2]", "with two live coordinators of one epoch it follows the higher ballot (revision 6): "
+                               "no answer to the lower id's Decisions"),
     ("deposed-end", "[P-7.4]", "an End of a lower epoch than it heard does not end its mission (revision 4)"),
     ("hello-again", "[P-5.14]", "a Hello without an answer is said again, then its pending Observation; no sooner "
                                 "than 1 s, each wait at least the one before (the unanswered flight)"),
@@ -218,12 +220,15 @@ def _scripted(target: Target, flight: Flight, results: dict, msgs: list[Seen], r
     f = flight
     confirms = [s for s in msgs if isinstance(s.message, wm.Confirm)]
     byes = [s for s in msgs if isinstance(s.message, wm.Bye)]
-    for fake in (d for d in f.decisions if d.fake and f.name == "two-coordinators"):
-        j = fake.message.stage
+    for fake in (d for d in f.decisions if d.fake and f.name in ("two-coordinators", "two-ballots")):
+        j, said = fake.message.stage, wm.decode(fake.payload, wm.Decision)  # as sent: at the carrier's revision
+        if f.name == "two-ballots" and not said.coordinator:
+            continue  # a carrier of revision 5 or earlier is sent no ids: it ranks by epoch alone
         truth = next((d.at for d in real if d.message.stage == j), float("inf"))
         wrong = [s for s in confirms if s.message.stage == j and fake.at <= s.at < truth]
-        results["two-coordinators"].check(not wrong, f"answered the epoch {fake.message.epoch} Decision of stage "
-                                                     f"{j}: {wrong[0].show() if wrong else ''}")
+        results[f.name].check(not wrong, f"answered the Decision of stage {j} of epoch {said.epoch}"
+                                         + (f" (id {said.coordinator})" if said.coordinator else "")
+                                         + f": {wrong[0].show() if wrong else ''}")
     if "gap" in f.faults:
         stage, at = f.faults["gap"]
         answered = next((s.at for s in confirms if s.message.stage == stage), float("inf"))

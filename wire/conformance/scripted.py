@@ -49,12 +49,14 @@ class ScriptedCoordinator:
         answer_from: the carrier's Hello of this number is the first it hears: the earlier ones
             are lost on their way (no answer, and no Observation read before it, as a coordinator
             without the carrier's Hello rejects them), noted as the fault ``unanswered``.
+        ident: its coordinator id, stated beside its epoch (revision 6: its ballot); "": none.
     """
 
     def __init__(self, target: Target, flight: Flight, node: Any, epoch: int = 1, revision: int = wm.REVISION,
                  refuse: bool = False, deposed: bool = False, hold: dict | None = None, realtime: float = 0.0,
-                 lose: int | None = None, answer_from: int = 1):
+                 lose: int | None = None, answer_from: int = 1, ident: str = ""):
         self.t, self.flight, self.node = target, flight, node
+        self.ballot = {"coordinator": ident} if ident else {}  # its id, on what states its epoch
         self.epoch, self.revision, self.refuse, self.deposed = int(epoch), int(revision), refuse, deposed
         self.hold, self.realtime, self.lose = dict(hold or {}), float(realtime), lose
         self.answer_from, self.hellos = int(answer_from), 0  # the Hello it first hears, those that came
@@ -84,7 +86,7 @@ class ScriptedCoordinator:
             (t.cid, wm.CarrierState(self.left, tuple(self.deployments), True)),)
         last = self.decisions[max(self.decisions)] if self.decisions else None
         state = wm.State(t.mission, self.next_stage, t.n, t.fingerprint, self.end_from is not None, mine, last,
-                         epoch=self.epoch, revision=self.revision)
+                         epoch=self.epoch, revision=self.revision, **self.ballot)
         return wm.encode(state, asked)
 
     @property
@@ -124,7 +126,7 @@ class ScriptedCoordinator:
         clock = {name: value for name, value in (("clock", "sim"), ("silence_timeout_s", 30.0), ("realtime", self.realtime))
                  if has_field(wm.Accepted, name)}
         answer = wm.Accepted(t.mission, t.cid, t.fingerprint, h.next_stage, self.next_stage, self.revision,
-                             self.epoch, **clock)
+                             self.epoch, **clock, **self.ballot)
         self.node.put(keys.accepted_key(t.mission, t.cid), answer, self.speaks)
 
     def decide(self, j: int) -> wm.Decision:
@@ -143,7 +145,7 @@ class ScriptedCoordinator:
             self.deployments.append(j)
             self.released.add(named[0] if named else on_board[0])
         return wm.Decision(t.mission, j, t.times[j], (t.cid,) if deploy else (), 0.0, epoch=self.epoch,
-                           passengers=named)
+                           passengers=named, **self.ballot)
 
     # ------------------------------------------------------------------ the loop
     def step(self, now: float) -> None:
@@ -162,7 +164,7 @@ class ScriptedCoordinator:
                 and now - self.end_from <= END_FOR_S:
             self.last_end = now
             end = wm.End(self.t.mission, self.next_stage, "complete",
-                         **({"epoch": self.epoch} if has_field(wm.End, "epoch") else {}))
+                         **({"epoch": self.epoch} if has_field(wm.End, "epoch") else {}), **self.ballot)
             if self.deposed:
                 self._fake(keys.end_key(self.t.mission), end, "deposed-end")
             else:
@@ -194,7 +196,7 @@ class ScriptedCoordinator:
     def _publish(self, j: int) -> None:
         if j == self.lose and j + 1 < self.t.n:
             # Decision j is lost on its way; j + 1 is decided without the carrier, who waits at j.
-            self.decisions[j] = wm.Decision(self.t.mission, j, self.t.times[j], (), 0.0, epoch=self.epoch)
+            self.decisions[j] = wm.Decision(self.t.mission, j, self.t.times[j], (), 0.0, epoch=self.epoch, **self.ballot)
             self.flight.faults["lost"] = (j, time.monotonic())
             self._publish(j + 1)
             self.flight.faults["gap"] = (j + 1, time.monotonic())
