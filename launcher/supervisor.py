@@ -30,7 +30,7 @@ ONE_HOST = ("role", "carrier", "carrier_processes", "routers", "view", "verbose"
             "standby", "coordinator_id", "out", "ready_file", "schedule")
 #: The ids the one-host fleet gives its coordinator and its standby (the simulator's names: a
 #: schedule's ballots rank them as in the simulated mission).
-PRIMARY, STANDBY = "coordinator", "standby"
+PRIMARY_ID, STANDBY_ID = "coordinator", "standby"
 #: The viewer's own flags.
 VIEWER = ("web_port", "grpc_port", "save", "no_web", "linger")
 #: Operator mode's flags: the coordinator's alone.
@@ -128,7 +128,7 @@ def main(settings: Settings, stop: threading.Event) -> int:
         fleet.windows.write_text('{"loss": [], "cut": []}')
     started = time.monotonic()
     if not f.decentralised:
-        fleet.coordinator = fleet.start("coordinator", connect=fleet.connect, coordinator_id=PRIMARY)
+        fleet.coordinator = fleet.start("coordinator", connect=fleet.connect, coordinator_id=PRIMARY_ID)
     injector = scheduled(fleet, stop) if settings.schedule else None
     if f.view:  # subscribed before the carriers start, so the view misses nothing
         start_viewer(fleet, stop)
@@ -179,13 +179,13 @@ def scheduled(fleet: Fleet, stop: threading.Event):
         deadline = time.monotonic() + 60
         while not (fleet.out / "mission.db").exists() and not stop.is_set() and time.monotonic() < deadline:
             stop.wait(0.05)
-        fleet.standby = fleet.start("coordinator", connect=fleet.connect, standby=True, coordinator_id=STANDBY)
+        fleet.standby = fleet.start("coordinator", connect=fleet.connect, standby=True, coordinator_id=STANDBY_ID)
 
     # a process is started again only if it is not running (the simulator's rule: a second
     # crash of a process already down restarts nothing of its own)
     def coordinator():
         if fleet.coordinator.poll() is not None:
-            fleet.coordinator = fleet.start("coordinator", connect=fleet.connect, coordinator_id=PRIMARY)
+            fleet.coordinator = fleet.start("coordinator", connect=fleet.connect, coordinator_id=PRIMARY_ID)
 
     def carrier(cid: str):
         if fleet.carriers[cid].poll() is not None:
