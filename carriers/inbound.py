@@ -187,7 +187,7 @@ class Inbound:
         if topic == "progress":
             self.book.progress(cid, msg.stage)  # a peer past a stage is not waited for there
             return
-        if msg.stage >= self.book.n_stages:
+        if not self.book.accepts(msg.stage):
             raise ProtocolError("out-of-range", f"stage {msg.stage} >= {self.book.n_stages}")
         if topic in ("obs", "own"):
             self.book.observation(cid, msg.stage, msg.x, msg.counts)

@@ -145,6 +145,11 @@ class PeerBook:
     def n_stages(self) -> int:
         return self.valid.shape[1]
 
+    def accepts(self, stage: int) -> bool:
+        """A peer's message of ``stage`` is of this mission (0 <= stage < N); one past its end is
+        rejected ``out-of-range`` before it reaches the book."""
+        return 0 <= stage < self.n_stages
+
     def observation(self, cid: str, stage: int, x, counts=None) -> None:
         """Carrier ``cid`` observed ``x`` (None = ∅) at ``stage``; ``counts``: the region counts
         behind it under the coverage reward (in the order of the point's regions), else None."""

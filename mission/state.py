@@ -806,6 +806,9 @@ def _on_confirmed(state: MissionState, e: ev.Confirmed):
         if e.status == "already" or e.deployed == first.deployed:
             return state, ()  # the answer to a re-published decision, or a repeat: nothing new
         return state, (Reject("duplicate", f"second confirmation of carrier {cid} at stage {j}"),)
+    beyond = _beyond_passengers(state, cid, j, e.deployed, "confirms")
+    if beyond:
+        return state, beyond
     latency = (e.at - state.published_at[j]) * 1e3 if j in state.published_at else None
     record = ConfirmRecord(bool(e.deployed), e.status, tuple(e.position), int(e.passengers_left), latency,
                            e.passenger)
@@ -816,6 +819,22 @@ def _on_confirmed(state: MissionState, e: ev.Confirmed):
     if e.deployed and not selected:
         effects.append(Log(f"coordinator: carrier {cid} reports an unrequested deployment at stage {j}"))
     return _replace(state, confirms=state.confirms.set((cid, j), record)), tuple(effects)
+
+
+def _beyond_passengers(state: MissionState, cid: str, j: int, deployed: bool, verb: str) -> tuple:
+    """A deployment carrier ``cid`` reports at stage j while every one of its passengers is
+    already reported released elsewhere (by its Confirms and accounts): no carrier can, so it is
+    refused ``out-of-range`` [P-6.15] (a lying or broken carrier; the planner's view of the
+    passengers on board stays within their number)."""
+    if not deployed:
+        return ()
+    count = state.spec.passengers[state.spec.index(cid)]
+    reported = {k for (c, k), rec in state.confirms.items() if c == cid and rec.deployed and k != j}
+    reported |= {k for (c, k), rec in state.accounts.items() if c == cid and rec.deployed and k != j}
+    if len(reported) < count:
+        return ()
+    return (Reject("out-of-range", f"carrier {cid} {verb} a deployment at stage {j}, but all its {count} "
+                                   f"passenger(s) are reported released (stages {sorted(reported)})"),)
 
 
 def _on_accounted(state: MissionState, e: ev.Accounted):
@@ -837,6 +856,9 @@ def _on_accounted(state: MissionState, e: ev.Accounted):
     confirm = state.confirms.get((cid, j))
     if confirm is not None and confirm.deployed != record.deployed:
         return state, (Reject("duplicate", f"account of carrier {cid} at stage {j} contradicts its confirmation"),)
+    beyond = _beyond_passengers(state, cid, j, e.deployed and confirm is None, "accounts")
+    if beyond:
+        return state, beyond
     effects = [Record(e, j)]
     if e.deployed:
         effects.append(Log(f"coordinator: carrier {cid} deployed on its own at stage {j}"))

@@ -166,6 +166,26 @@ def test_the_clock_predicates_follow_every_event():
                 assert set().union(*st.confirms_awaited(j)) == st.unconfirmed(j)
 
 
+def test_no_carrier_is_taken_to_deploy_more_passengers_than_it_has():
+    """[P-6.15] b carries one passenger and confirmed its release at stage 1: an Own or a
+    Confirm of another deployment (a lying or broken carrier) is refused ``out-of-range`` and
+    the planner's view keeps b within its one passenger."""
+    base = READY + [decide(0), obs("b", 1, 3), decide(1, ("b",)), confirm("b", 1, True, "deployed")]
+    state, _ = run(base)
+    lie = ev.Accounted("b", 2, 10.0, 9, True, (1.0, 2.0), 0, 6.0)
+    after, effects = ms.step(state, lie)
+    assert after is state and [(e.reason) for e in effects if isinstance(e, ms.Reject)] == ["out-of-range"]
+    state, _ = run(base + [obs("b", 2, 4), decide(2, ("b",))])
+    after, effects = ms.step(state, confirm("b", 2, True, "deployed"))
+    assert [e.reason for e in effects if isinstance(e, ms.Reject)] == ["out-of-range"]
+    assert after.deployed()[SPEC.index("b")].sum() <= 1
+    # Not deploying is always believed; a carrier with a passenger left is believed.
+    assert not [e for e in ms.step(state, confirm("b", 2, False, "idle"))[1] if isinstance(e, ms.Reject)]
+    state, _ = run(READY + [decide(0, ("a",)), confirm("a", 0, True, "deployed")])
+    assert not [e for e in ms.step(state, ev.Accounted("a", 1, 5.0, 2, True, (1.0, 2.0), 0, 6.0))[1]
+                if isinstance(e, ms.Reject)]
+
+
 def test_missing_carrier_is_empty_and_recorded_with_the_decision():
     state, effects = run(READY + [decide(0, ())])
     assert (("a", 0) in state.missing) and state.missing_stages("a") == [0]

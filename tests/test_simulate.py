@@ -217,7 +217,23 @@ FOUND = [
             _fault("coordinator-crash", 0.776456, 16.870591, "coordinator")]),
     (7946, [_fault("reorder", 0.763159, 3.204388, "c3", 46.030176), _fault("takeover", 0.961228, 1.44518, "coordinator")]),
     (7796, [_fault("loss", 1.020322, 36.95846, "c6", 0.434418)]),
+    # a compromised carrier's Own and Confirm of more deployments than it has passengers: the
+    # coordinator's planner raised on them ([P-6.15] now refuses them)
+    (596, [_fault("compromised", 0.41351, 8.979159, "c3", 38.0)]),
 ]
+
+
+def test_a_compromised_carrier_changes_nothing_of_who_decides(fleet):
+    """The ``compromised`` kind: every message a carrier's credential allows, with adversarial
+    values (docs/security.md). 40 missions: no violation (the invariant that no carrier's message
+    changes who decides is checked after each of them), and the lies did arrive and were refused."""
+    rejected = 0
+    for seed in range(40):
+        s = sim.Simulation(fleet, seed, kinds=("compromised",))
+        out = s.run()
+        assert out.completed and out.violations == [], (seed, out.violations)
+        rejected += sum(s.rejects.values())
+    assert rejected > 20  # 43 of the lies refused by the rules (the others are believable: a liar may be believed)
 
 
 @pytest.mark.parametrize("seed, faults", FOUND, ids=[str(s) for s, _ in FOUND])

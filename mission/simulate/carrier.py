@@ -101,6 +101,9 @@ class CarrierDriver:
             self.answer.answered(self.sim.fleet.fingerprint)
         elif m.kind in ("peer-obs", "peer-own") and m.src in self.sim.fleet.ids:
             self.heard[m.src] = now
+            if not self.book.accepts(g("stage")):  # carriers/inbound.py: rejected out-of-range
+                self.sim.count_reject("out-of-range")
+                return
             if g("x") is not None or m.kind == "peer-obs":
                 self.book.observation(m.src, g("stage"), g("x"))
             if m.kind == "peer-own":

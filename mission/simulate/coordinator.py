@@ -122,6 +122,11 @@ class CoordinatorDriver:
         """Its authority: its epoch and its name (mission.ballot)."""
         return Ballot(self.epoch, self.name)
 
+    def authority(self) -> tuple:
+        """Who decides, as this process holds it: its ballot, and whether it stepped down without
+        its store recording a newer ballot (the fence is the store's doing, not a message's)."""
+        return self.ballot, self.lifecycle.phase is cl.Phase.DEPOSED and not self.fenced()
+
     def fenced(self) -> bool:
         """mission.db records a newer ballot than this process's (a standby took over on the
         shared disk): the store refuses its writes."""

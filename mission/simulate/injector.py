@@ -50,6 +50,9 @@ class Injector:
                 sim.at(f.at, self.jump, f.who, f.size)
             elif f.kind in ("corrupt", "stale"):
                 self.inject(f)
+            elif f.kind == "compromised":
+                for _ in range(int(f.size)):
+                    sim.at(float(sim.rng.uniform(f.at, f.until)), self.lie, f.who)
 
     # -------------------------------------------------------------- the network
     def cut(self, hosts, until: float) -> None:
@@ -81,6 +84,43 @@ class Injector:
                                         **({"garbled": True} if k % 2 == 0 else {"mission": "other"}))
             dst = "coordinator" if k % 4 != 3 else cid
             sim.at(when, sim.arrive, "intruder", dst, m)
+
+    def lie(self, cid: str) -> None:
+        """One message carrier ``cid``'s credential allows (its own keys: Hello, Observation,
+        Confirm, Own, Bye, Progress, and its copies to the peers listening), with adversarial
+        values inside the wire's ranges: stages past the mission's end or long decided, counts
+        out of all proportion, deployments it never made, statuses that answer nothing, claims of
+        passengers it does not have. The wire's range checks are :mod:`wire.messages`'s; what is
+        left to the mission's rules is what this sends."""
+        sim = self.sim
+        rng, fleet = sim.rng, sim.fleet
+        n = fleet.n_stages
+        j = int(rng.integers(0, n + 3))
+        t = float(fleet.stage_times[j]) if j < n else float(rng.uniform(-1e3, 1e6))
+        x, left, deployed = int(rng.integers(0, 10_000)), int(rng.integers(0, 100)), bool(rng.integers(2))
+        kind = int(rng.integers(8))
+        if kind == 0:
+            m = msg("hello", cid, next_stage=int(rng.integers(0, n + 1)), passengers_left=left,
+                    fingerprint=fleet.fingerprint, epoch=int(rng.integers(1, 2**31)))
+        elif kind == 1:
+            m = msg("obs", cid, stage=j, t=t, x=x if rng.random() < 0.8 else None, passengers_left=left)
+        elif kind == 2:
+            status = ("deployed", "idle", "late", "refused", "already")[int(rng.integers(5))]
+            m = msg("confirm", cid, stage=j, deployed=deployed, status=status, passengers_left=left)
+        elif kind == 3:
+            m = msg("own", cid, stage=j, t=t, x=x, deployed=deployed, passengers_left=left)
+        elif kind == 4:
+            stages = sorted({int(s) for s in rng.integers(0, n + 3, size=int(rng.integers(0, 6)))})
+            m = msg("bye", cid, deployments=tuple(stages), reason="finished")
+        elif kind == 5:
+            m = msg("progress", cid, stage=j)
+        elif kind == 6:
+            sim.to_listeners(cid, msg("peer-obs", cid, stage=j, x=x))
+            return
+        else:
+            sim.to_listeners(cid, msg("peer-own", cid, stage=j, x=x, deployed=deployed))
+            return
+        sim.send(cid, "coordinators", m)
 
     # -------------------------------------------------------------- the processes
     def crash(self, driver, restart: float | None) -> None:

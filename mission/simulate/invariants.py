@@ -82,6 +82,14 @@ class Invariants:
                 if first != driver.name:
                     self.violate(f"two coordinators decided stage {e.stage} in ballot {driver.ballot}")
 
+    def check_authority(self, driver, before: tuple, m) -> None:
+        """No carrier's message changes who decides (docs/protocol.md [P-7.3]): a coordinator's
+        ballot, and its deciding, are the same after it handled a carrier's message."""
+        after = driver.authority()
+        if after != before:
+            self.violate(f"carrier {m.src}'s {m.kind} changed who decides: {driver.name} ballot "
+                         f"{before[0]} -> {after[0]}, deposed unfenced {before[1]} -> {after[1]}")
+
     def check_record(self, record_events) -> None:
         """No deployment lost or counted twice: the mission's record — ``record_events`` (its
         mission.db) merged with the carriers' logs, as the report merges them
@@ -93,7 +101,10 @@ class Invariants:
                 for cid, d in sim.carriers.items()]
         merged = merge(sim.spec, record_events, logs)
         confirmed = merged.state.confirmed_deployments()
+        lying = {f.who for f in sim.faults if f.kind == "compromised"}  # its record holds what it claimed
         for r, cid in enumerate(sim.fleet.ids):
+            if cid in lying:
+                continue
             record, made = merged.state.deployments_of(cid), set(physical[cid])
             sure = set(np.flatnonzero(confirmed[r]).tolist())
             if sim.carriers[cid].phase == "done" and cid in merged.state.byes and record != physical[cid]:

@@ -8,7 +8,8 @@ import numpy as np
 
 #: The fault kinds a schedule draws from (docs/fleet.md, "Deterministic simulation").
 FAULT_KINDS = ("stale", "loss", "duplicate", "reorder", "partition", "router-lost", "crash", "coordinator-crash",
-               "takeover", "dual-start", "pause", "freeze", "slow", "corrupt", "clock-jump", "standby-crash")
+               "takeover", "dual-start", "pause", "freeze", "slow", "corrupt", "clock-jump", "standby-crash",
+               "compromised")
 #: Kinds under which the fleet must decide exactly like the offline planner: nothing is lost for
 #: long and nobody is stuck, only slow, repeated, out of order or spoken to by strangers.
 FAITHFUL_KINDS = frozenset({"duplicate", "reorder", "slow", "corrupt", "stale"})
@@ -84,12 +85,15 @@ def draw_faults(rng: np.random.Generator, kinds, ids, horizon: float) -> tuple[F
         size = {"loss": rng.uniform(0.05, 0.5), "duplicate": rng.uniform(0.1, 0.9), "reorder": rng.uniform(5, 50),
                 "slow": rng.uniform(20.0, 80.0), "corrupt": float(rng.integers(1, 20)),
                 "clock-jump": rng.uniform(1.0, 90.0), "pause": rng.uniform(LEASE_S + 0.5, LEASE_S + 10.0)}.get(kind, 0.0)
+        if kind == "compromised":  # ``size`` lies sent with ``who``'s credential within the window
+            size = float(rng.integers(5, 60))
         if kind == "standby-crash":  # the standby dies ``size`` s after the primary, which restarts at ``until``
             size = rng.uniform(LEASE_S + 5.0, LEASE_S + 40.0)
             length += size
         if kind in ("coordinator-crash", "takeover", "dual-start", "router-lost", "pause", "standby-crash"):
             who = "coordinator"
-        out.append(Fault(kind, at, at + length, who, float(size)))
+        # as the report writes them (Fault.as_json): a schedule read back replays exactly
+        out.append(Fault(kind, round(at, 6), round(at + length, 6), who, round(float(size), 6)))
     return tuple(sorted(out, key=lambda f: (f.at, f.kind, f.who)))
 
 

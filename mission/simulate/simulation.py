@@ -230,6 +230,11 @@ class Simulation:
             return
         self.events += 1
         self.trace.update(f"{self.t:.9f}|{dst}|{m.kind}|{m.src}|{m.body}|{m.mission}|{m.garbled}\n".encode())
+        if isinstance(driver, CoordinatorDriver) and m.src in self.carriers:
+            before = driver.authority()
+            driver.hear(m, self.now_of(dst))
+            self.invariants.check_authority(driver, before, m)
+            return
         driver.hear(m, self.now_of(dst))
 
     def token(self, name: str, alive: bool, after: float = 0.0) -> None:
