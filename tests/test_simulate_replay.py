@@ -64,7 +64,7 @@ def _intrusions(fleet, seed: int) -> tuple[list, dict]:
     as (the stage after whose Decision it arrived, -1 before the first; the message), in time
     order, and the simulated mission's decisions (stage -> ids)."""
     s = sim.Simulation(fleet, seed, kinds=("corrupt", "stale"))
-    sent = sorted((t, args[2]) for t, _, fn, args in s.heap if getattr(fn, "__name__", "") == "_arrive"
+    sent = sorted((t, args[2]) for t, _, fn, args in s.heap if getattr(fn, "__name__", "") == "arrive"
                   and args[0] == "intruder")
     out = s.run()
     assert out.violations == [] and out.completed, out.violations
