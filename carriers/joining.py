@@ -29,11 +29,13 @@ class Joiner(Protocol):
         machine: its :class:`mission.carrier.Handshake` (read: :meth:`apply` changes it).
         node: its wire node (``wire.transport.Node``), open while it runs.
         store: its durable log (``storage.carrierlog.CarrierLog``), None: none.
+        releases: the passenger each stage releases (:class:`mission.carrier.Releases`).
     """
 
     machine: mc.Handshake
     node: Any
     store: Any
+    releases: mc.Releases
 
     def apply(self, event) -> None:
         """Step its machine with ``event`` and carry out the effects."""
@@ -161,6 +163,7 @@ class Joining:
             return
         if state.next_stage > j:
             self.log(f"stage {j} was decided but its Decision did not arrive; taking it from State")
+            _named(carrier, state)
             carrier.apply(mc.Resync(self.queries.seen(state), self.motion.position()))
         elif state.next_stage == j:
             carrier.apply(mc.Collecting(j, state.epoch, state.coordinator))
@@ -178,7 +181,18 @@ class Joining:
         state = self.queries.once(carrier.node)
         if gap is not None and state is not None and state.fingerprint != self.fingerprint:
             state = None
+        if state is not None:
+            _named(carrier, state)
         carrier.apply(mc.Resync(self.queries.seen(state), self.motion.position(), gap=gap))
+
+
+def _named(carrier: Joiner, state: State) -> None:
+    """The passenger State's last Decision names for this carrier, as a Decision heard names it
+    (a Decision taken from State releases the passenger it names, [P-6.9])."""
+    last = state.last_decision
+    if last is not None:
+        carrier.releases.name(carrier.machine, last.stage, state.epoch, last.passenger_of(carrier.machine.cid),
+                              state.coordinator)
 
 
 def _ballot(state: State) -> Ballot:

@@ -927,7 +927,7 @@ def test_what_keeps_a_carrier_heard():
     assert inbound.index("key-mismatch") < inbound.index("Heard(carrier=cid, at=item.received") < inbound.index(
         "Heard(to_event(msg, item.wall), cid, item.received")
     take = (ROOT / "coordinator" / "node.py").read_text().split("def _take(")[1]
-    assert take.index("self.heard[heard.carrier] = heard.at") < take.index("self.apply(heard.event)")
+    assert take.index("self.inbound.heard[heard.carrier] = heard.at") < take.index("self.apply(heard.event)")
     peers = (ROOT / "carriers" / "inbound.py").read_text().split("def _peer(")[1]
     assert peers.index("key-mismatch") < peers.index("self.presence.heard_from(cid")
 
@@ -1069,7 +1069,7 @@ def test_end_is_broadcast_with_its_epoch_in_the_lowest_revision():
     life = (ROOT / "mission" / "coordinator_life.py").read_text().split("def _end(")[1]
     assert "tm.end_due(life.last_end, life.ended_at, now, w.end_repeat_s, w.bye_s)" in life
     put = (ROOT / "coordinator" / "node.py").read_text().split("def put_end(")[1].split("def ")[0]
-    assert "self.node.put(keys.end_key(self.mission), end, self.state.common_revision(REVISION))" in put
+    assert "self.node.put(keys.end_key(self.setup.mission), end, self.state.common_revision(REVISION))" in put
 
 
 @pytest.mark.parametrize("revision", sorted(int(p.name[1:]) for p in (ROOT / "tests" / "fixtures" / "wire").glob("r*")))

@@ -139,8 +139,8 @@ class Kit:
             return [ScriptedCoordinator(self.target, f, session(), 1, revision, deposed=True),
                     ScriptedCoordinator(self.target, f, session(), 2, revision, hold=hold)]
         if f.name == "two-ballots":
-            return [ScriptedCoordinator(self.target, f, session(), 2, revision, deposed=True, ident="kit-a"),
-                    ScriptedCoordinator(self.target, f, session(), 2, revision, hold=hold, ident="kit-b")]
+            return [ScriptedCoordinator(self.target, f, session(), 2, revision, deposed=True).named("kit-a"),
+                    ScriptedCoordinator(self.target, f, session(), 2, revision, hold=hold).named("kit-b")]
         return [ScriptedCoordinator(self.target, f, session(), 1, revision, refuse=f.name == "refusal",
                                     realtime=PROGRESS_REALTIME if f.name == "progress" else 0.0,
                                     lose=1 if f.name == "gap" else None,

@@ -49,14 +49,15 @@ class ScriptedCoordinator:
         answer_from: the carrier's Hello of this number is the first it hears: the earlier ones
             are lost on their way (no answer, and no Observation read before it, as a coordinator
             without the carrier's Hello rejects them), noted as the fault ``unanswered``.
-        ident: its coordinator id, stated beside its epoch (revision 6: its ballot); "": none.
+
+    :meth:`named` gives it a coordinator id, stated beside its epoch (revision 6: its ballot).
     """
 
     def __init__(self, target: Target, flight: Flight, node: Any, epoch: int = 1, revision: int = wm.REVISION,
                  refuse: bool = False, deposed: bool = False, hold: dict | None = None, realtime: float = 0.0,
-                 lose: int | None = None, answer_from: int = 1, ident: str = ""):
+                 lose: int | None = None, answer_from: int = 1):
         self.t, self.flight, self.node = target, flight, node
-        self.ballot = {"coordinator": ident} if ident else {}  # its id, on what states its epoch
+        self.ballot: dict = {}  # its id, on what states its epoch (:meth:`named`)
         self.epoch, self.revision, self.refuse, self.deposed = int(epoch), int(revision), refuse, deposed
         self.hold, self.realtime, self.lose = dict(hold or {}), float(realtime), lose
         self.answer_from, self.hellos = int(answer_from), 0  # the Hello it first hears, those that came
@@ -75,6 +76,11 @@ class ScriptedCoordinator:
         node.subscribe(f"{keys.prefix(m)}/carrier/{target.cid}/*")
         node.serve(keys.state_key(m), self.state_reply)
         node.token(keys.coordinator_alive(m))
+
+    def named(self, ident: str) -> "ScriptedCoordinator":
+        """This coordinator with id ``ident``: its ballot is (epoch, ident) (revision 6)."""
+        self.ballot = {"coordinator": ident}
+        return self
 
     # ------------------------------------------------------------------ what it answers
     def state_reply(self, parameters: dict) -> bytes:
