@@ -2,7 +2,8 @@
 who overrule it through the same constraints the console sends (docs/results.md, "The operator
 in the loop").
 
-    python -m experiments operator [--trials 30] [--iterations 1000] [--seed 0] [--quick] [--out DIR]
+    python -m experiments operator [--trials 30] [--urban-trials 10] [--iterations 1000] [--seed 0]
+        [--scenario [NAME=]S.yaml]... [--only-scenarios] [--quick] [--out DIR]
 
 Operators (:data:`OPERATORS`), each a function of what the console shows at a stage:
 
@@ -19,8 +20,12 @@ Each stage runs :func:`planner.online.stage_step` as the coordinator does: the r
 then the operator's constraints, then the planner's decision of the rest under them; the
 planner's estimate of each override's gain (:func:`planner.advice.override_gain`) is summed per
 trial beside the reward actually gained over the autonomous run of the same trial. Worlds: the
-paper's overlap sweep (4 carriers, 3 passengers, 10 stages, Poisson(3), 0..20 overlap groups)
-and the Urban Circuit run (scenarios/urban_alpha.yaml, a world seed per trial).
+paper's overlap sweep (4 carriers, 3 passengers, 10 stages, Poisson(3), 0..20 overlap groups),
+the Urban Circuit run (scenarios/urban_alpha.yaml, a world seed per trial) and each ``--scenario``
+given (a team's own run as ``python -m world import`` wrote it, named by ``NAME`` or by the file's
+stem), as the urban run is: ``--urban-trials`` world seeds, the first the scenario's own (a run
+imported with ``--replay`` is one world: its trials differ in the planner's and the operator's
+random streams only). ``--only-scenarios`` measures the given runs alone.
 """
 from __future__ import annotations
 
@@ -43,6 +48,8 @@ OUT = ROOT / "docs" / "results" / "operator"
 URBAN = ROOT / "scenarios" / "urban_alpha.yaml"
 OPERATORS = ("autonomous", "manual-trigger", "random-veto", "force-high")
 OVERLAPS = (0, 4, 8, 12, 16, 20)
+#: How the plot names a run world (others by their own name).
+RUN_LABELS = {"urban": "Urban Circuit\n(urban_alpha)"}
 #: Probability that the random-veto operator vetoes a recommended deployment.
 VETO_P = 0.3
 
@@ -95,10 +102,11 @@ def trials(args) -> list[dict]:
     planner = make_planner("mcts-ssap", iterations=args.iterations)
     planner.warm_up(None)
     rows = []
-    worlds = [("overlap", level) for level in args.overlaps] + [("urban", 0)]
-    for world, level in worlds:
+    worlds = [("overlap", level, str(URBAN)) for level in (() if args.only_scenarios else args.overlaps)]
+    worlds += [(name, 0, str(path)) for name, path in args.scenarios]
+    for world, level, scenario in worlds:
         for t in range(args.trials if world == "overlap" else args.urban_trials):
-            task = Task(world, level, t, "mcts-ssap", args.seed, args.iterations, overlaps=level, scenario=str(URBAN))
+            task = Task(world, level, t, "mcts-ssap", args.seed, args.iterations, overlaps=level, scenario=scenario)
             problem, x, seed, _ = (random_trial if world == "overlap" else urban_trial)(task)
             base = None
             for name in OPERATORS:
@@ -111,7 +119,7 @@ def trials(args) -> list[dict]:
 
 def summarise(rows: list[dict]) -> list[dict]:
     out = []
-    for key in sorted({(r["world"], r["level"]) for r in rows}):
+    for key in dict.fromkeys((r["world"], r["level"]) for r in rows):  # in the order the worlds ran
         for name in OPERATORS:
             sel = [r for r in rows if (r["world"], r["level"]) == key and r["operator"] == name]
             rewards = np.array([r["reward"] for r in sel])
@@ -133,22 +141,34 @@ def plot(summary: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [2.2, 1]})
     colours = {"autonomous": "#222222", "manual-trigger": "#b3261e", "random-veto": "#b36b00", "force-high": "#1f4fbf"}
-    for name in OPERATORS:
-        sel = [s for s in summary if s["world"] == "overlap" and s["operator"] == name]
-        ax.errorbar([s["level"] for s in sel], [s["reward"] for s in sel], yerr=[s["se"] for s in sel],
-                    label=name, color=colours[name], marker="o", capsize=3)
-    ax.set_xlabel("overlap groups")
-    ax.set_ylabel("mean normalised reward (MCTS-SSAP + operator)")
-    ax.set_title("Overlap sweep (R = 4, D = 3, N = 10)")
-    ax.legend(frameon=False)
-    urban = [s for s in summary if s["world"] == "urban"]
-    bx.bar(range(len(urban)), [s["reward"] for s in urban], yerr=[s["se"] for s in urban],
-           color=[colours[s["operator"]] for s in urban], capsize=3)
-    bx.set_xticks(range(len(urban)), [s["operator"] for s in urban], rotation=30, ha="right")
-    bx.set_title("Urban Circuit run (urban_alpha)")
-    bx.set_ylabel("mean normalised reward")
+    if any(s["world"] == "overlap" for s in summary):
+        fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [2.2, 1]})
+        for name in OPERATORS:
+            sel = [s for s in summary if s["world"] == "overlap" and s["operator"] == name]
+            ax.errorbar([s["level"] for s in sel], [s["reward"] for s in sel], yerr=[s["se"] for s in sel],
+                        label=name, color=colours[name], marker="o", capsize=3)
+        ax.set_xlabel("overlap groups")
+        ax.set_ylabel("mean normalised reward (MCTS-SSAP + operator)")
+        ax.set_title("Overlap sweep (R = 4, D = 3, N = 10)")
+        ax.legend(frameon=False)
+    else:  # --only-scenarios
+        fig, bx = plt.subplots(figsize=(5.5, 4.2))
+    runs = list(dict.fromkeys(s["world"] for s in summary if s["world"] != "overlap"))
+    width = 0.8 / len(OPERATORS)
+    for k, name in enumerate(OPERATORS):
+        sel = [next(s for s in summary if s["world"] == run and s["operator"] == name) for run in runs]
+        base = [next(s for s in summary if s["world"] == run and s["operator"] == "autonomous")["reward"] for run in runs]
+        bx.bar(np.arange(len(runs)) + (k - (len(OPERATORS) - 1) / 2) * width, [100 * s["kept"] for s in sel],
+               width, yerr=[100 * s["se"] / b if b > 0 else 0.0 for s, b in zip(sel, base)], color=colours[name],
+               capsize=2)
+    bx.axhline(100, color="#888888", lw=0.8, ls=":")
+    bx.set_xticks(range(len(runs)), [RUN_LABELS.get(run, run) for run in runs])
+    bx.set_title("Runs: reward kept against autonomous")
+    bx.set_ylabel("% of the autonomous planner's reward")
+    if not any(s["world"] == "overlap" for s in summary):
+        bx.legend([plt.Rectangle((0, 0), 1, 1, color=colours[n]) for n in OPERATORS], OPERATORS, frameon=False,
+                  loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=2)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -162,8 +182,10 @@ def write(rows, summary, out: Path, args, seconds: float) -> None:
             w.writeheader()
             w.writerows(table)
     plot(summary, out / "operator.png")
+    given = "".join(f" --scenario {name}={path}" for name, path in args.scenarios if path != URBAN)
+    given += " --only-scenarios" if args.only_scenarios else ""
     lines = [f"# The operator in the loop (`python -m experiments operator --trials {args.trials} --urban-trials "
-             f"{args.urban_trials} --iterations {args.iterations} --seed {args.seed}`, {seconds:.0f} s)", "",
+             f"{args.urban_trials} --iterations {args.iterations} --seed {args.seed}{given}`, {seconds:.0f} s)", "",
              "| world | overlaps | operator | trials | reward | ± se | kept vs autonomous | overrides / mission "
              "| planner's estimated gain | realised gain |", "| --- | ---: | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: |"]
     for s in summary:
@@ -173,14 +195,33 @@ def write(rows, summary, out: Path, args, seconds: float) -> None:
     (out / "operator.md").write_text("\n".join(lines) + "\n")
 
 
+def _scenario_problem(path: Path) -> str:
+    """Why the scenario file at ``path`` cannot be measured ('' when it can), in one line."""
+    import world
+
+    if not path.is_file():
+        return f"expected a scenario file, found {'a folder' if path.exists() else 'nothing'} at {path}"
+    try:
+        world.load_scenario(str(path))
+    except (world.ScenarioError, OSError) as e:
+        return str(e).splitlines()[0]
+    return ""
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m experiments operator", description=__doc__.split("\n\n")[0])
     p.add_argument("--trials", type=int, default=30, help="trials per overlap level (default 30; quick 3)")
-    p.add_argument("--urban-trials", type=int, default=10, help="world seeds of the urban run (default 10; quick 2)")
+    p.add_argument("--urban-trials", type=int, default=10,
+                   help="world seeds of the urban run and of each --scenario (default 10; quick 2)")
+    p.add_argument("--scenario", action="append", default=[], metavar="[NAME=]S.yaml",
+                   help="a run of your own (a scenario file, e.g. as `python -m world import` wrote it) measured "
+                        "as the urban run is, named NAME or by the file's stem; repeatable")
     p.add_argument("--iterations", type=int, default=1000, help="MCTS-SSAP iterations per decision (default 1000)")
     p.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
     p.add_argument("--quick", action="store_true", help="tiny settings for a smoke test")
     p.add_argument("--out", type=Path, default=None, help=f"output directory (default {OUT.relative_to(ROOT)})")
+    p.add_argument("--only-scenarios", action="store_true",
+                   help="measure the --scenario runs alone (not the overlap sweep and the urban run)")
     args = p.parse_args(argv)
     for flag in ("trials", "urban_trials", "iterations"):
         if getattr(args, flag) < 1:
@@ -188,6 +229,20 @@ def main(argv=None) -> int:
                       f"found {getattr(args, flag)}\n")
     if args.quick:
         args.trials, args.urban_trials, args.iterations = 3, 2, 200
+    if args.only_scenarios and not args.scenario:
+        p.exit(2, "python -m experiments operator: --only-scenarios: expected at least one --scenario, found none\n")
+    args.scenarios = [] if args.only_scenarios else [("urban", URBAN)]
+    for given in args.scenario:
+        name, _, path = given.rpartition("=") if "=" in given else ("", "", given)
+        path = Path(path)
+        name = name or path.stem
+        problem = _scenario_problem(path)
+        if problem:
+            p.exit(2, f"python -m experiments operator: --scenario {given}: {problem}\n")
+        if name == "overlap" or name in dict(args.scenarios):
+            p.exit(2, f"python -m experiments operator: --scenario {given}: expected a name not yet used "
+                      f"(overlap, {', '.join(dict(args.scenarios))}), found {name!r}; name it NAME=S.yaml\n")
+        args.scenarios.append((name, path))
     args.overlaps = (0, 10, 20) if args.quick else OVERLAPS
     out = args.out or (Path("runs/operator-quick") if args.quick else OUT)
     started = time.perf_counter()

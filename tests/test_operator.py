@@ -227,6 +227,45 @@ def test_a_manual_trigger_operator_replaces_the_planner():
     assert set(np.flatnonzero(step.deploy)) == c.forced
 
 
+@pytest.mark.parametrize("family", ["rooms", "caves"])
+def test_the_experiment_measures_a_run_imported_from_a_bag(tmp_path, family):
+    """`python -m experiments operator --scenario NAME=S.yaml` measures a run as a team brings it (a
+    ROS 2 bag of a generated floor plan, two families, imported by `python -m world import`) beside
+    the paper's worlds: a row per operator, the autonomous one keeping 100 %, the table naming the
+    scenario so the run can be repeated."""
+    import csv
+    import subprocess
+    import sys
+
+    from experiments.operator import main
+    from tools.synthetic_run import generate, write_bag
+
+    topics = write_bag(generate(240, 160, 0.1, carriers=2, snapshots=4, seed=3, family=family), tmp_path / "bag")
+    odom = [a for cid, topic in topics.items() for a in ("--odom", f"{cid}={topic}")]
+    scenario = tmp_path / "run.yaml"
+    subprocess.run([sys.executable, "-m", "world", "import", str(tmp_path / "bag"), *odom, "--passengers", "c0=2",
+                    "--passengers", "c1=2", "--stages", "6", "--radius", "4", "--replay", "--out", str(scenario)],
+                   check=True, capture_output=True, cwd=tmp_path)
+    out = tmp_path / "op"
+    assert main(["--quick", "--scenario", f"{family}={scenario}", "--only-scenarios", "--out", str(out)]) == 0
+    rows = [r for r in csv.DictReader(open(out / "operator_summary.csv")) if r["world"] == family]
+    assert [r["operator"] for r in rows] == ["autonomous", "manual-trigger", "random-veto", "force-high"]
+    assert float(rows[0]["kept"]) == 1.0 and float(rows[0]["reward"]) > 0 and all(r["trials"] == "2" for r in rows)
+    assert f"--scenario {family}={scenario} --only-scenarios" in (out / "operator.md").read_text()
+    assert {r["world"] for r in csv.DictReader(open(out / "operator_summary.csv"))} == {family}
+
+
+@pytest.mark.parametrize("given, named", [("missing.yaml", "missing.yaml"), ("urban=scenarios/tiny.yaml", "urban"),
+                                          ("overlap=scenarios/tiny.yaml", "overlap"), (None, "--only-scenarios")])
+def test_the_experiment_refuses_a_scenario_in_one_line(given, named, capsys):
+    from experiments.operator import main
+
+    with pytest.raises(SystemExit) as e:
+        main(["--quick", "--scenario", given] if given else ["--quick", "--only-scenarios"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert e.value.code == 2 and len(err) == 1 and named in err[0] and "expected" in err[0], err
+
+
 # --------------------------------------------------------------------------- the page's server
 def test_the_console_off_loopback_needs_tls_and_the_credential(tmp_path):
     """Served over HTTPS (a certificate from tools/gen_certs.py), every request needs HTTP basic

@@ -135,3 +135,81 @@ def test_actions_on_the_key_during_a_real_mission(tmp_path):
     assert summary["decisions"][0] == []  # the veto held
     assert summary["operator"]["vetoes"] == 1 and summary["operator"]["approvals"] == 1
     assert [a["operator"] for a in summary["operator"]["actions"]] == ["ops", "ops"]
+
+
+@pytest.mark.slow
+def test_a_force_taken_mid_hold_survives_a_coordinator_restart(tmp_path):
+    """Operator actions are mission events replayed on resume: with ``--operator-required`` the
+    coordinator holds stage 0 for the operator; a force of carrier a on the key is taken (in
+    mission.db), then the coordinator is SIGKILLed before the stage is decided. A new coordinator
+    process on the same --out serves the console again under the same credential, shows the force
+    in the stage's hold, and decides stage 0 with a deployed ``by`` the operator; the mission ends
+    complete, the force counted once."""
+    import urllib.request
+
+    from test_faults import Fleet, _summary, faults_yaml
+
+    scenario_file = tmp_path / "faults.yaml"
+    scenario_file.write_text(faults_yaml(4))
+    router = f"tcp/127.0.0.1:{free_port()}"
+    fleet = Fleet(scenario_file, tmp_path / "run", router)
+    mission = "faults"
+    coordinator = ["--role", "coordinator", "--connect", router, "--out", str(fleet.out), "--no-map",
+                   "--operator", "--operator-port", "0", "--stage-timeout", "120"]
+
+    def console_url(name: str) -> str:
+        log = fleet.logs / f"{name}.log"
+        line = fleet.poll(f"{name}'s console", lambda: next(
+            (ln for ln in log.read_text().splitlines() if "operator console at" in ln), None))
+        return line.split("operator console at ")[1].split()[0]
+
+    session = None
+    try:
+        fleet.start("router", ["--role", "router", "--listen", router])
+        fleet.start("coordinator-1", coordinator + ["--operator-required"])
+        for cid in ("a", "b"):
+            fleet.carrier(cid, extra=["--no-autonomy"])
+        console_url("coordinator-1")
+        token = (fleet.out / "operator.token").read_text().strip()
+        session = zenoh.open(zenoh.Config.from_json5(json.dumps({
+            "mode": "client", "connect": {"endpoints": [router]}, "scouting": {"multicast": {"enabled": False}}})))
+        answers = Answers()
+        session.declare_subscriber(keys.operator_answer_key(mission, "ops"), answers)
+        key = keys.operator_action_key(mission, "ops")
+        time.sleep(1.0)
+        session.put(key, encode(OperatorAction(mission, "ops", 1, 0, "force", "a", token)))
+        taken = answers.of(1)
+        assert taken.accepted and taken.stage == 0, taken
+        fleet.poll("the force in mission.db", lambda: fleet.rows("SELECT seq FROM events WHERE kind='operator'"))
+        assert fleet.decided() == -1  # mid-hold: --operator-required waits for the operator
+        fleet.kill("coordinator-1")
+        assert fleet.decided() == -1
+        fleet.start("coordinator-2", coordinator + ["--operator-timeout", "1"])
+        url = console_url("coordinator-2")
+        assert (fleet.out / "operator.token").read_text().strip() == token
+
+        def held_with_force():
+            with urllib.request.urlopen(url + "state.json", timeout=5) as page:
+                hold = json.loads(page.read())["hold"]
+            return hold is not None and hold.get("stage") == 0 and hold.get("forced") == ["a"]
+
+        seen = False
+        while fleet.decided() < 0:
+            try:
+                seen = seen or held_with_force()
+            except OSError:
+                pass
+            time.sleep(0.05)
+        codes = {name: fleet.procs[name].wait(120) for name in ("coordinator-2", "a", "b")}
+    finally:
+        if session is not None:
+            session.close()
+        fleet.cleanup()
+    assert codes == {"coordinator-2": 0, "a": 0, "b": 0}, (codes, fleet.output())
+    summary = _summary(fleet)
+    assert summary["resumed"] and summary["ended"] and summary["end_reason"] == "complete"
+    assert "a" in summary["decisions"][0]
+    a = next(c for c in summary["carriers"] if c["id"] == "a")
+    assert [d["by"] for d in a["deployments"] if d["stage"] == 0] == ["operator"]
+    assert summary["operator"]["forces"] == 1, summary["operator"]
+    assert seen, "the restarted console never showed the replayed force in stage 0's hold"
