@@ -220,6 +220,12 @@ FOUND = [
     # a compromised carrier's Own and Confirm of more deployments than it has passengers: the
     # coordinator's planner raised on them ([P-6.15] now refuses them)
     (596, [_fault("compromised", 0.41351, 8.979159, "c3", 38.0)]),
+    # a carrier's partition healed inside a router loss: the simulator gave it the coordinator's
+    # token back though the coordinator was still cut off, so the carrier waited for it forever
+    # (the cuts now count: a host reaches nobody until every cut covering it is over)
+    (7849, [_fault("partition", 0.145655, 12.879321, "c6"), _fault("router-lost", 0.827296, 59.184402, "coordinator")]),
+    (6484, [_fault("takeover", 0.182226, 0.64576, "coordinator"), _fault("partition", 0.707782, 12.017297, "c2"),
+            _fault("router-lost", 0.937499, 57.763359, "coordinator")]),
 ]
 
 

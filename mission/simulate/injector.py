@@ -5,6 +5,7 @@ simulation": the fault kinds)."""
 from __future__ import annotations
 
 import dataclasses
+from collections import Counter
 
 from .coordinator import CoordinatorDriver
 from .model import LEASE_S, OPEN_RETRY_S, Fault, msg
@@ -14,7 +15,8 @@ class Injector:
     """Strikes a mission's faults at their times. What a fault changes lives in the simulation
     (cut hosts, frozen processes, clocks, the processes themselves); this class holds only the
     faults still to strike (``paused``: the pauses struck; ``slow``: carrier id -> its slow
-    fault).
+    fault) and how many cuts cover each host (``cuts``: a host partitioned during a router loss
+    reaches nobody until both are over).
 
     Args:
         sim: the :class:`mission.simulate.simulation.Simulation` it strikes.
@@ -24,6 +26,7 @@ class Injector:
         self.sim = sim
         self.paused: set = set()
         self.slow: dict = {}
+        self.cuts: Counter = Counter()
 
     def schedule(self) -> None:
         sim = self.sim
@@ -56,15 +59,23 @@ class Injector:
 
     # -------------------------------------------------------------- the network
     def cut(self, hosts, until: float) -> None:
+        """``hosts`` reach nobody until ``until`` (a partition: one host; a router loss: all):
+        their sessions lapse a lease later (or when the cut heals, if sooner)."""
         sim = self.sim
-        hosts = [h for h in hosts if h not in sim.cut]
-        sim.cut.update(hosts)
-        sim.at(sim.t + min(LEASE_S, until - sim.t), sim.lease, tuple(hosts), False)
+        newly = tuple(h for h in hosts if not self.cuts[h])
+        self.cuts.update(hosts)
+        sim.cut.update(newly)
+        sim.at(sim.t + min(LEASE_S, until - sim.t), sim.lease, newly, False)
         sim.at(until, self.heal, tuple(hosts))
 
     def heal(self, hosts) -> None:
-        self.sim.cut.difference_update(hosts)
-        self.sim.lease(hosts, True)
+        """One cut over: the hosts no other cut covers reach the router again, and the tokens
+        between them and every host the network reaches reappear (a host still cut off learns
+        them when its own cut heals)."""
+        self.cuts.subtract(hosts)
+        healed = tuple(h for h in hosts if not self.cuts[h])
+        self.sim.cut.difference_update(healed)
+        self.sim.lease(healed, True, reached=True)
 
     def inject(self, f: Fault) -> None:
         """Messages nobody of this mission sent: garbled ones, another mission's, and (``stale``)
