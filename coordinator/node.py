@@ -398,7 +398,8 @@ class Coordinator:
                 raise
             self.apply(ev.Ended("stopped", time.time()))
         finally:
-            summary = self.results.finish(out, self.clock() - started, self.state, self.setup.problem, self.node, self.store)
+            summary = self.results.finish(out, self.clock() - started, self.state, self.setup.problem, self.node, self.store,
+                                          self.told.counts)
             self.console and self.console.close(self)
         return summary
 

@@ -14,6 +14,10 @@ import numpy as np
 from mission.summary import RunInfo, summary as mission_summary
 from mission.timeouts import DEFAULTS
 
+#: Rejections that are denials of a carrier's authority, counted per sender in summary.json's
+#: ``denials`` (docs/protocol.md [P-13.2]): a value out of range, a message about another carrier.
+DENIED = {"out-of-range": "P-13.2", "key-mismatch": "P-13.2"}
+
 
 def write_json(path: Path, data: dict) -> None:
     """Replace ``path`` with ``data`` as JSON atomically (a reader sees the old or the new file)."""
@@ -83,8 +87,9 @@ class Results:
     def __init__(self, scenario, info: RunInfo, render: bool, log, epochs, recording):
         self.scenario, self.info, self.render, self.log = scenario, info, render, log
         self.epochs, self.recording = epochs, recording
+        self.told: dict = {}  # carrier id -> its messages rejected, per reason (coordinator.node.Told.counts)
 
-    def finish(self, out: Path, wall_s: float, state, problem, node, store) -> dict:
+    def finish(self, out: Path, wall_s: float, state, problem, node, store, told: dict | None = None) -> dict:
         """summary.json twice: at once without the clairvoyant bound, then with it, each write
         atomic, so a coordinator killed while the bound is computed (its launcher's grace after
         Ctrl-C is a few seconds) still leaves a complete summary.json, and mission.mcap
@@ -94,6 +99,7 @@ class Results:
         epochs = self.epochs
         deposed = epochs.deposed_by is not None
         rejected = dict(node.rejected) if node else {}
+        self.told = told or {}
         self.planner_faults = store.planner_faults()
         if not deposed:
             write_json(out / "summary.json", self.summary(state, problem, epochs, rejected, wall_s, bound=False))
@@ -114,9 +120,13 @@ class Results:
         out["epoch"] = epochs.epoch  # of the coordinator that wrote this summary (docs/fleet.md)
         # Stages a planner plug-in failed and SSAP decided (mission.decide.FALLBACK_PLANNER).
         out["planner_faults"] = list(getattr(self, "planner_faults", []))
-        # Denials with their sender: carriers' claims of an epoch above this coordinator's [P-7.3].
+        # Denials with their sender: carriers' claims of an epoch above this coordinator's [P-7.3],
+        # and their messages refused for range or role ([P-13.2]), counted per reason.
         out["denials"] = [{"sender": cid, "rule": "P-7.3", "what": "epoch claimed in a Hello", "value": epoch}
                           for cid, epoch in sorted(epochs.claims.items())]
+        out["denials"] += [{"sender": cid, "rule": DENIED[reason], "what": reason, "count": n}
+                           for cid, counts in sorted(self.told.items())
+                           for reason, n in sorted(counts.items()) if reason in DENIED]
         if epochs.deposed_by is not None:
             out["deposed_by"] = epochs.deposed_by
         return out

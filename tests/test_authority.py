@@ -29,7 +29,7 @@ import zenoh
 
 from tools import gen_certs
 from wire import keys
-from wire.messages import Hello, State, decode, encode
+from wire.messages import Confirm, Hello, Observation, Own, State, decode, encode
 from wire.zconfig import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -126,6 +126,10 @@ class Attacker:
         msg = Hello(MISSION, self.cid, 4242, "attacker", 2, next_stage, fingerprint, epoch=epoch, revision=5)
         self.session.put(keys.carrier_key(MISSION, self.cid, "hello"), encode(msg))
 
+    def put(self, kind: str, msg) -> None:
+        """``msg`` on c1's own ``kind`` key (what its access list allows)."""
+        self.session.put(keys.carrier_key(MISSION, self.cid, kind), encode(msg))
+
     def close(self) -> None:
         self.session.close()
 
@@ -189,3 +193,32 @@ def test_a_carriers_hello_of_the_highest_epoch_before_stage_0_does_not_overflow_
     _kept(run)
     assert f"reports epoch {EPOCH_MAX}" in run["logs"]["coordinator"]
     assert [(d["sender"], d["value"]) for d in run["summary"]["denials"]] == [("c1", EPOCH_MAX)]
+
+
+@pytest.mark.slow
+def test_a_carriers_messages_out_of_range_change_nothing_and_are_counted(tmp_path, certs_six):
+    """[P-13.2] after stage 1's Decision, c1's credential puts, on c1's own keys, messages the
+    codec accepts and the mission's rules refuse: an Observation of a stage past the end, one of
+    stage 2 at a time that is not t_2, an Own past the end, a Confirm of the highest stage the codec carries.
+    Each is refused ``out-of-range``; the mission earns what it earns undisturbed; summary.json
+    counts them against c1."""
+    lies = []
+
+    def attack(attacker: Attacker) -> None:
+        n = attacker.state().stages
+        attacker.wait_decided(1)
+        lies.extend([
+            ("obs", Observation(MISSION, "c1", n + 2, 0.0, 7, [0.0, 0.0], 3, [])),
+            ("obs", Observation(MISSION, "c1", 2, 12345.0, 7, [0.0, 0.0], 3, [])),
+            ("own", Own(MISSION, "c1", n + 5, 0.0, 9, True, [0.0, 0.0], 0)),
+            ("confirm", Confirm(MISSION, "c1", 99_999, True, "deployed", [0.0, 0.0], 0)),
+        ])
+        for kind, msg in lies:
+            attacker.put(kind, msg)
+
+    run = _attacked(tmp_path, certs_six, attack)
+    _kept(run)
+    denied = [d for d in run["summary"]["denials"] if d["sender"] == "c1" and d["what"] == "out-of-range"]
+    assert len(denied) == 1 and denied[0]["rule"] == "P-13.2" and denied[0]["count"] == len(lies), \
+        run["summary"]["denials"]
+    assert run["summary"]["rejected"]["coordinator"].get("out-of-range", 0) >= len(lies)

@@ -319,3 +319,24 @@ def test_every_citation_of_a_section_resolves():
                 if not any(name.lower() in h for h in headings):
                     unresolved.append((str(path.relative_to(ROOT)), name))
     assert unresolved == []
+
+
+def test_every_role_rule_has_a_row_and_every_row_real_tests():
+    """docs/security.md's "Checks by role" table and docs/protocol.md's section 13 agree: each
+    [P-13.n] rule is one row, each row cites one, and every test a row names exists under tests/
+    (the first of each row opens a real Zenoh session: it is a fleet, security or operator test)."""
+    security = (ROOT / "docs" / "security.md").read_text()
+    section = PROTOCOL[PROTOCOL.index("## 13. Authority by role"):PROTOCOL.index("## Example")]
+    rules = re.findall(r"\*\*\[(P-13\.\d+)\]", section)
+    assert rules == [f"P-13.{n}" for n in range(1, len(rules) + 1)] and len(rules) >= 7
+    table = security[security.index("| kind | who may send (key) |"):]
+    rows = [line for line in table.split("\n\n")[0].splitlines()[2:]]
+    cited = [re.findall(r"\[(P-13\.\d+)\]", row.split("|")[5]) for row in rows]
+    assert cited == [[r] for r in rules], cited
+    for row in rows:
+        tests = re.findall(r"`(test_\w+\.py)::(test_\w+)`", row.split("|")[6])
+        assert tests, row
+        for file, name in tests:
+            text = (ROOT / "tests" / file).read_text()
+            assert re.search(rf"^def {name}\(", text, re.M), (file, name)
+        assert tests[0][0] in {"test_authority.py", "test_security.py", "test_operator_key.py", "test_split_brain.py"}

@@ -46,7 +46,8 @@ def _row(name: str, report: dict, build_s: float, build_cpu: float) -> dict:
             "build_cpu_s": round(build_cpu, 1),
             "missions_per_s": report["missions_per_s"],
             "events_per_s": report["events_per_s"], "violations": len(report["violations"]),
-            "failing_seeds": sorted({v["seed"] for v in report["violations"]})}
+            "failing_seeds": sorted({v["seed"] for v in report["violations"]}),
+            "trace": sim.combined_hash([r["trace_hash"] for r in report["per_seed"]])}
 
 
 def main(argv=None) -> int:
@@ -87,7 +88,7 @@ def main(argv=None) -> int:
             print(f"{name}: {report['missions']} missions, {report['events']:,} events in {report['seconds']:.1f} s "
                   f"(+{build_s:.0f} s to build the world and planners), {report['cpu_seconds']:.0f} CPU s: "
                   f"{report['missions_per_s']} missions/s, {report['events_per_s']:,} events/s; "
-                  f"{len(report['violations'])} violation(s)", flush=True)
+                  f"{len(report['violations'])} violation(s); trace {rows[-1]['trace']}", flush=True)
             if name == "six_carriers" and args.power > 0:
                 for plant, kind in EXPOSED_BY.items():
                     found = {}
@@ -102,7 +103,8 @@ def main(argv=None) -> int:
     seconds = sum(r["seconds"] + r["build_s"] for r in rows)
     cpu = sum(r["cpu_seconds"] for r in rows)
     print(f"total: {total:,} missions in {seconds:.0f} s of campaign, builds included ({total / seconds:.1f} missions/s), "
-          f"{cpu:.0f} CPU s; {sum(r['violations'] for r in rows)} violation(s)")
+          f"{cpu:.0f} CPU s; {sum(r['violations'] for r in rows)} violation(s); "
+          f"trace {sim.combined_hash([r['trace'] for r in rows])}")
     # the full campaign on idle cores: each row's CPU time per mission times its full count over
     # the workers, and the builds (in this process, one after the other)
     idle = sum(r["cpu_seconds"] / r["missions"] * full[r["scenario"]] / max(1, args.jobs) + r["build_cpu_s"]
