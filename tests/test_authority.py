@@ -167,7 +167,7 @@ def _kept(run: dict) -> None:
 
 @pytest.mark.slow
 def test_a_carriers_hello_of_a_newer_epoch_after_a_decision_does_not_depose_the_coordinator(tmp_path, certs_six):
-    """[P-7.3] the deposition attack: after stage 1's Decision, c1's credential says Hello with
+    """[P-7.3], [P-13.1] the deposition attack: after stage 1's Decision, c1's credential says Hello with
     epoch 2 and next_stage 3 (one past the stage being decided)."""
     def attack(attacker: Attacker) -> None:
         fingerprint = attacker.state().fingerprint
