@@ -26,10 +26,11 @@ SHRINK_RUNS = 40
 
 
 def build_fleet(path: str, mode: str = Mode.HYBRID, onboard_iterations: int | None = None,
-                seed: int | None = None, perfect_links: bool = False) -> sim.Fleet:
+                seed: int | None = None, perfect_links: bool = False, workers: int = 1) -> sim.Fleet:
     """The simulator's :class:`mission.simulate.Fleet` of a scenario file (ScenarioError on bad
     input); ``seed``: the world's root seed instead of the scenario's (run_fleet.py's ``--seed``);
-    ``perfect_links``: fly it on perfect links whatever its ``links`` say (a comparison)."""
+    ``perfect_links``: fly it on perfect links whatever its ``links`` say (a comparison);
+    ``workers``: processes for a large fleet's physics (``world.observe_all``)."""
     import numpy as np
 
     import world
@@ -61,7 +62,7 @@ def build_fleet(path: str, mode: str = Mode.HYBRID, onboard_iterations: int | No
     onboard.warm_up(problem)
     sizes = link_sizes(scenario)
     return sim.Fleet(tuple(scenario.carrier_ids), tuple(int(p) for p in problem.passengers), np.asarray(problem.valid),
-                     tuple(float(t) for t in scenario.stage_times()), world.observe_all(scenario), problem, planner,
+                     tuple(float(t) for t in scenario.stage_times()), world.observe_all(scenario, workers=workers), problem, planner,
                      onboard, int(scenario.seed), scenario_fingerprint(scenario), mode,
                      links=FleetLinks(scenario, sizes) if scenario.links.model != "perfect" else None,
                      timeouts=over_links(DEFAULTS, latency_bound(scenario, sizes)))
@@ -264,7 +265,8 @@ def main(argv=None) -> int:
     from world import ScenarioError
 
     try:
-        fleet = build_fleet(args.scenario, args.mode, args.onboard_iterations, perfect_links=args.perfect_links)
+        fleet = build_fleet(args.scenario, args.mode, args.onboard_iterations, perfect_links=args.perfect_links,
+                            workers=args.jobs)
     except (ScenarioError, OSError) as exc:
         print(f"python -m mission.simulate: {exc}", file=sys.stderr)
         return EXIT_USAGE

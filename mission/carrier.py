@@ -34,10 +34,10 @@ position at that moment) and carries out the effects in order (:class:`Deploy` b
 """
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 
 from .ballot import Ballot
+from .evolve import evolve
 from .timeouts import T_TOLERANCE_S
 
 Point = tuple[float, float]
@@ -369,7 +369,7 @@ class Handshake:
         top = self.ballot.highest(Ballot(epoch, coordinator))
         if top == self.ballot and not self.outranked:
             return self
-        return dataclasses.replace(self, epoch=top.epoch, coordinator=top.coordinator, outranked=False)
+        return evolve(self, epoch=top.epoch, coordinator=top.coordinator, outranked=False)
 
 
 def current(state: Handshake, epoch: int, coordinator: str = "") -> bool:
@@ -560,9 +560,9 @@ def _answer(state: Handshake, j: int, deploy, position: Point, allow: bool):
     effects.append(SendConfirm(j, deployed, status, answer.position, left))
     if j in state.repeats:  # the repeat of a decision held until the stage (see _on_decision)
         effects.append(SendConfirm(j, deployed, "already", answer.position, left))
-    new = dataclasses.replace(state, passengers_left=left, handled={**state.handled, j: answer},
-                              buffered={k: v for k, v in state.buffered.items() if k != j},
-                              repeats=state.repeats - {j})
+    new = evolve(state, passengers_left=left, handled={**state.handled, j: answer},
+                 buffered={k: v for k, v in state.buffered.items() if k != j},
+                 repeats=state.repeats - {j})
     return new, effects
 
 
@@ -576,7 +576,7 @@ def _on_replayed(state: Handshake, e: Replayed):
         raise ValueError("no passenger left to replay a deployment")
     left = state.passengers_left - 1
     answer = Answer(True, "deployed", (float(e.position[0]), float(e.position[1])), left)
-    return dataclasses.replace(state, passengers_left=left, handled={**state.handled, e.stage: answer}), ()
+    return evolve(state, passengers_left=left, handled={**state.handled, e.stage: answer}), ()
 
 
 def _early_observation(state: Handshake, j: int) -> tuple:
@@ -597,7 +597,7 @@ def _on_recalled(state: Handshake, e: Recalled):
         raise ValueError("no passenger left for a deployment in the log")
     position = (float(e.position[0]), float(e.position[1]))
     answer = Answer(bool(e.deployed), e.status, position, left, e.x)
-    return dataclasses.replace(state, passengers_left=left, handled={**state.handled, e.stage: answer}), ()
+    return evolve(state, passengers_left=left, handled={**state.handled, e.stage: answer}), ()
 
 
 def accounts(state: Handshake, stages) -> tuple:
@@ -624,18 +624,18 @@ def _on_collecting(state: Handshake, e: Collecting):
 
 def _on_joined(state: Handshake, e: Joined):
     if e.ended:  # its Hello still says State's next stage [P-5.5]
-        return dataclasses.replace(state, ended=True, state_next=max(state.state_next, e.next_stage)), ()
+        return evolve(state, ended=True, state_next=max(state.state_next, e.next_stage)), ()
     effects = (Log(f"joined at stage {e.next_stage} ({len(state.handled)} deployment(s) on record)"),) \
         if e.next_stage > 0 else ()
-    return dataclasses.replace(state.hearing(e.epoch, e.coordinator), stage=e.next_stage, joined=e.next_stage,
-                               state_next=max(state.state_next, e.next_stage), flying=True), effects
+    return evolve(state.hearing(e.epoch, e.coordinator), stage=e.next_stage, joined=e.next_stage,
+                  state_next=max(state.state_next, e.next_stage), flying=True), effects
 
 
 def _on_decision(state: Handshake, e: DecisionHeard):
     heard = Ballot(e.epoch, e.coordinator)
     if heard.below(state.ballot):
-        return dataclasses.replace(state, outranked=True), (Reject("deposed", f"decision for stage {e.stage} of ballot {heard}; "
-                                         f"ballot {state.ballot} decides now"),)
+        return evolve(state, outranked=True), (Reject("deposed", f"decision for stage {e.stage} of ballot {heard}; "
+                            f"ballot {state.ballot} decides now"),)
     j = e.stage
     if j >= state.n_stages:  # rejected: it raises nothing, not even the epoch
         return state, (Reject("out-of-range", f"decision for stage {j} >= {state.n_stages}"),)
@@ -653,13 +653,13 @@ def _on_decision(state: Handshake, e: DecisionHeard):
         # A repeat (a re-publication) of a stage not reached yet: answered ``already`` once the
         # first is handled; a newer ballot's decision replaces the one held.
         buffered = {**state.buffered, j: tuple(e.deploy)} if newer else state.buffered
-        return dataclasses.replace(state, buffered=buffered, repeats=state.repeats | {j}), ()
+        return evolve(state, buffered=buffered, repeats=state.repeats | {j}), ()
     latest = max(state.latest_decided, j)
     if j == state.stage and state.pending == j:
         new, effects = _answer(state, j, e.deploy, e.position, allow=True)
-        return dataclasses.replace(new, latest_decided=latest), tuple(effects)
+        return evolve(new, latest_decided=latest), tuple(effects)
     lost = lost_stages(state, j)
-    new = dataclasses.replace(state, buffered={**state.buffered, j: tuple(e.deploy)}, latest_decided=latest)
+    new = evolve(state, buffered={**state.buffered, j: tuple(e.deploy)}, latest_decided=latest)
     # Decisions arrive in order: a later one with an earlier missing means that one was lost;
     # its outcome comes from State before anything is confirmed ([P-6.6]).
     return new, (AskState(j),) if lost else ()
@@ -678,7 +678,7 @@ def lost_stages(state: Handshake, j: int) -> tuple[int, ...]:
 
 def _on_observed(state: Handshake, e: Observed):
     x = e.x if state.valid[e.stage] else None
-    return (dataclasses.replace(state, stage=e.stage, pending=e.stage, sensed=x),
+    return (evolve(state, stage=e.stage, pending=e.stage, sensed=x),
             (LogObservation(e.stage, x, (float(e.position[0]), float(e.position[1]))),))
 
 
@@ -698,19 +698,19 @@ def _on_decided_own(state: Handshake, e: DecidedOwn):
         effects += [Deploy(j), Log(f"deployed a passenger at stage {j} on its own at ({position[0]:.1f}, "
                                    f"{position[1]:.1f}) m")]
     effects.append(SendOwn(j, state.sensed, deployed, position, left))
-    return dataclasses.replace(state, passengers_left=left, handled={**state.handled, j: answer}), tuple(effects)
+    return evolve(state, passengers_left=left, handled={**state.handled, j: answer}), tuple(effects)
 
 
 def _on_passed(state: Handshake, e: Passed):
     j = e.stage
-    new, effects = dataclasses.replace(state, stage=j), []
+    new, effects = evolve(state, stage=j), []
     if j in state.buffered and j not in state.handled:
         new, effects = _answer(new, j, state.buffered[j], e.position, allow=True)
-    return dataclasses.replace(new, stage=j + 1, pending=None), tuple(effects)
+    return evolve(new, stage=j + 1, pending=None), tuple(effects)
 
 
 def _on_moved_on(state: Handshake, e: MovedOn):
-    return dataclasses.replace(state, stage=e.stage + 1, pending=None), ()
+    return evolve(state, stage=e.stage + 1, pending=None), ()
 
 
 def _on_resync(state: Handshake, e: Resync):
@@ -723,7 +723,7 @@ def _on_resync(state: Handshake, e: Resync):
         s = None  # a deposed coordinator's view: nothing to learn from it
     new = state
     if s is not None:
-        new = dataclasses.replace(new.hearing(s.epoch, s.coordinator), state_next=max(new.state_next, s.next_stage))
+        new = evolve(new.hearing(s.epoch, s.coordinator), state_next=max(new.state_next, s.next_stage))
     effects: list = [Log("coordinator is back; re-sending hello and the pending observation") if e.gap is None
                      else Log(f"the Decision of stage {e.gap} came without the one(s) before it; "
                               + ("taking them from State" if s is not None else "no State answered"))]
@@ -745,7 +745,7 @@ def _on_resync(state: Handshake, e: Resync):
                                                         s.coordinator))
             effects += more
         if s.ended:
-            new = dataclasses.replace(new, ended=True)
+            new = evolve(new, ended=True)
     effects += _said_again(new)
     return new, tuple(_dedupe(effects))
 
@@ -782,7 +782,7 @@ def _take_lost(state: Handshake, s: StateSeen, position: Point):
     for t in range(max(state.stage, state.joined), min(s.next_stage, state.n_stages)):
         if t not in state.handled and t not in held:
             held[t] = (state.cid,) if t in s.deployments else ()
-    new = dataclasses.replace(state, buffered=held)
+    new = evolve(state, buffered=held)
     j = new.pending
     if j is not None and j == new.stage and j in held and j not in new.handled:
         return _answer(new, j, held[j], position, allow=True)
@@ -802,9 +802,9 @@ def _dedupe(effects):
 
 def _on_end(state: Handshake, e: EndHeard):
     if e.epoch is not None and not current(state, e.epoch, e.coordinator):  # a deposed coordinator cannot end it [P-7.4]
-        return dataclasses.replace(state, outranked=True), (Reject("deposed", f"End of ballot {Ballot(e.epoch, e.coordinator)}; "
-                                         f"ballot {state.ballot} decides now"),)
-    return dataclasses.replace(state, ended=True), ()
+        return evolve(state, outranked=True), (Reject("deposed", f"End of ballot {Ballot(e.epoch, e.coordinator)}; "
+                            f"ballot {state.ballot} decides now"),)
+    return evolve(state, ended=True), ()
 
 
 _HANDLERS = {

@@ -30,7 +30,6 @@ In every phase but done, a Hello without an answer is said again ([P-5.14]
 """
 from __future__ import annotations
 
-import dataclasses
 import enum
 import math
 from dataclasses import dataclass, field
@@ -38,6 +37,7 @@ from typing import Any
 
 from . import carrier as mc
 from . import timers as tm
+from .evolve import evolve
 from .timeouts import STATE_RETRY_S, Timeouts
 from .modes import Mode
 
@@ -301,7 +301,7 @@ def step(life: Life, event, view: View) -> tuple[Life, tuple]:
     if isinstance(event, Stopped):
         return _finish(life, "stopped")
     if isinstance(event, Answered):
-        return dataclasses.replace(life, phase=Phase.STARTED, asked=None), ()
+        return evolve(life, phase=Phase.STARTED, asked=None), ()
     if isinstance(event, Arrived):
         return _arrived(life, event, view)
     if isinstance(event, Tick):
@@ -317,14 +317,14 @@ def step(life: Life, event, view: View) -> tuple[Life, tuple]:
 
 
 def _start(life: Life, now: float):
-    life = dataclasses.replace(Life(life.mode, life.waits), opened=now)
+    life = evolve(Life(life.mode, life.waits), opened=now)
     if life.mode == Mode.DECENTRALISED:
-        return dataclasses.replace(life, phase=Phase.GATHERING), (JoinAlone(),)
-    return dataclasses.replace(life, phase=Phase.JOINING, asked=now), (Query(),)
+        return evolve(life, phase=Phase.GATHERING), (JoinAlone(),)
+    return evolve(life, phase=Phase.JOINING, asked=now), (Query(),)
 
 
 def _finish(life: Life, reason: str, *notes) -> tuple[Life, tuple]:
-    return dataclasses.replace(life, phase=Phase.DONE, reason=reason), (*notes, Finish(reason))
+    return evolve(life, phase=Phase.DONE, reason=reason), (*notes, Finish(reason))
 
 
 def _hello_again(life: Life, now: float, view: View):
@@ -342,13 +342,13 @@ def _joining(life: Life, now: float, view: View):
         if now < until:
             return life, (tm.Wait(until),)
         failed = until
-        life = dataclasses.replace(life, asked=None, failed=failed)
+        life = evolve(life, asked=None, failed=failed)
     rule = tm.state_query(life.mode, life.opened, failed, now, w.coordinator_s, STATE_RETRY_S)
     if isinstance(rule, tm.AskState):
-        return dataclasses.replace(life, asked=now), (Query(),)
+        return evolve(life, asked=now), (Query(),)
     if isinstance(rule, tm.DecideAlone):
         note = Note(f"no coordinator answered within {w.coordinator_s:.0f} s; going on without it")
-        return dataclasses.replace(life, phase=Phase.GATHERING, opened=now), (note, JoinAlone())
+        return evolve(life, phase=Phase.GATHERING, opened=now), (note, JoinAlone())
     if isinstance(rule, tm.GiveUp):
         return _finish(life, rule.reason, Note(f"no coordinator answered within {w.coordinator_s:.0f} s"))
     return life, (rule,)
@@ -358,18 +358,18 @@ def _gathering(life: Life, now: float, view: View):
     rule = tm.join_wait("wall", view.gathered, life.opened, life.opened, now, life.waits.join_s)
     if isinstance(rule, tm.Wait):
         return life, (rule,)
-    return dataclasses.replace(life, phase=Phase.STARTED), (Gathered(),)
+    return evolve(life, phase=Phase.STARTED), (Gathered(),)
 
 
 def _started(life: Life, now: float, view: View):
     m = view.machine
     if m.ended or m.stage >= m.n_stages:
         return _to_end(life, now, view)
-    return dataclasses.replace(life, phase=Phase.WORK, stage=m.stage, driving=False, at_once=True), ()
+    return evolve(life, phase=Phase.WORK, stage=m.stage, driving=False, at_once=True), ()
 
 
 def _to_end(life: Life, now: float, view: View):
-    return dataclasses.replace(life, phase=Phase.END, opened=now, end_present=view.present), ()
+    return evolve(life, phase=Phase.END, opened=now, end_present=view.present), ()
 
 
 def _stage_ended(life: Life, now: float, view: View):
@@ -383,7 +383,7 @@ def _progress(life: Life, now: float, view: View, every_s: float) -> tuple[Life,
     if view.timers.clock != "sim" or every_s <= 0:
         return life, ()
     if tm.due(life.progress_at, now, every_s):
-        return dataclasses.replace(life, progress_at=now), (SendProgress(life.stage),)
+        return evolve(life, progress_at=now), (SendProgress(life.stage),)
     return life, ()
 
 
@@ -402,7 +402,7 @@ def _work(life: Life, now: float, view: View):
         return _to_end(life, now, view)
     if not life.driving:
         paced = not (life.at_once or m.behind(j))
-        return dataclasses.replace(life, driving=True), (Drive(j, paced),)
+        return evolve(life, driving=True), (Drive(j, paced),)
     life, sent = _progress(life, now, view, life.waits.progress_s)
     return life, (*sent, tm.Wait(_next_progress(life, view, life.waits.progress_s)))
 
@@ -416,17 +416,17 @@ def _arrived(life: Life, e: Arrived, view: View):
     j = e.stage
     if m.behind(j):
         # decided without its Observation (cut off, or too slow): nothing to publish, go on at once
-        return dataclasses.replace(life, stage=j + 1, driving=False, at_once=True), (Pass(j),)
-    return (dataclasses.replace(life, phase=Phase.WAIT, driving=False, at_once=False,
-                                wait=tm.DecisionWait.opened(e.now)), (Observe(j),))
+        return evolve(life, stage=j + 1, driving=False, at_once=True), (Pass(j),)
+    return (evolve(life, phase=Phase.WAIT, driving=False, at_once=False,
+                   wait=tm.DecisionWait.opened(e.now)), (Observe(j),))
 
 
 def _resolved(life: Life, now: float, view: View):
     """The stage needs nothing more of this carrier: leave it (End: wait for nothing more)."""
     m, j = view.machine, life.stage
     answered = m.resolved(j)
-    life = dataclasses.replace(life, phase=Phase.WORK, stage=j + 1, driving=False,
-                               deciding=life.deciding and not answered)
+    life = evolve(life, phase=Phase.WORK, stage=j + 1, driving=False,
+                  deciding=life.deciding and not answered)
     return life, (MoveOn(j, answered),)
 
 
@@ -437,13 +437,13 @@ def _deciding_coordinator(life: Life, now: float, view: View) -> tuple[Life, Vie
     (:func:`mission.timers.outranked`), it is absent since that rejection, whatever its token
     says (docs/protocol.md [P-7.2]). Also when to look again (inf: nothing to wait for)."""
     if not (view.machine.outranked and view.present):
-        return (dataclasses.replace(life, outranked_at=None) if life.outranked_at is not None else life), view, math.inf
+        return (evolve(life, outranked_at=None) if life.outranked_at is not None else life), view, math.inf
     since = now if life.outranked_at is None else life.outranked_at
-    life = dataclasses.replace(life, outranked_at=since)
+    life = evolve(life, outranked_at=since)
     rule = tm.outranked(since, now, life.waits.decision_s)
     if isinstance(rule, tm.Wait):
         return life, view, rule.until
-    return life, dataclasses.replace(view, present=False, absent_since=since), math.inf
+    return life, evolve(view, present=False, absent_since=since), math.inf
 
 
 def _wait(life: Life, now: float, view: View):
@@ -457,7 +457,7 @@ def _wait(life: Life, now: float, view: View):
     absent_s = 0.0 if view.present else now - view.absent_since
     rule = tm.decision_wait(view.timers.clock, life.mode, view.present, wait.waited_s, absent_s, w.decision_s,
                             w.coordinator_s)
-    life = dataclasses.replace(life, wait=wait)
+    life = evolve(life, wait=wait)
     silence3 = view.timers.silence_timeout_s / 3
     sent: tuple = ()
     if view.present and isinstance(rule, (tm.Wait, tm.AskState)):
@@ -465,18 +465,18 @@ def _wait(life: Life, now: float, view: View):
         # carrier for a stalled one [P-10.6]
         life, sent = _progress(life, now, view, silence3)
     if isinstance(rule, tm.AskState):
-        return dataclasses.replace(life, wait=wait.asked()), (*sent, AskState(j))
+        return evolve(life, wait=wait.asked()), (*sent, AskState(j))
     if isinstance(rule, (tm.MoveOn, tm.DecideAlone)):
         notes: tuple = ()
         if wait.waited_s >= w.decision_s:  # none in time (wall clock)
             notes = (Note(f"no decision for stage {j} within {w.decision_s:.0f} s; "
                           + ("going on" if isinstance(rule, tm.MoveOn) else "deciding on board")),)
         if isinstance(rule, tm.MoveOn):
-            return dataclasses.replace(life, phase=Phase.WORK, stage=j + 1, driving=False), (*notes, MoveOn(j))
+            return evolve(life, phase=Phase.WORK, stage=j + 1, driving=False), (*notes, MoveOn(j))
         if not life.deciding:
             notes += (Note(f"deciding on board from stage {j} (dec-closed-loop, "
                            f"{len(view.peers_live - {m.cid})} other carrier(s) reachable)"),)
-        return (dataclasses.replace(life, phase=Phase.ALONE, opened=now, deciding=True, repeated_at=None),
+        return (evolve(life, phase=Phase.ALONE, opened=now, deciding=True, repeated_at=None),
                 (*notes, Listen()))
     if isinstance(rule, tm.GiveUp):
         return _finish(life, rule.reason, Note(f"coordinator absent for {w.coordinator_s:.0f} s; exiting"))
@@ -498,14 +498,14 @@ def _alone(life: Life, now: float, view: View):
     silence_s = view.timers.silence_timeout_s
     rule = tm.peer_wait(view.timers.clock, waiting, view.heard, life.opened, now, w.peer_s, silence_s)
     if isinstance(rule, tm.GoOn):
-        return dataclasses.replace(life, phase=Phase.WORK, stage=j + 1, driving=False), (DecideOnBoard(j), MoveOn(j))
+        return evolve(life, phase=Phase.WORK, stage=j + 1, driving=False), (DecideOnBoard(j), MoveOn(j))
     effects: tuple = ()
     until = rule.until
     if view.timers.clock == "sim":
         # its peers may wait for its Observation as it waits for theirs, and one was lost: it goes
         # again with each Progress (found by mission.simulate: two carriers heard from forever)
         if tm.due(life.repeated_at, now, silence_s / 3):
-            life = dataclasses.replace(life, repeated_at=now)
+            life = evolve(life, repeated_at=now)
             effects = (RepeatObservation(j),)
         life, sent = _progress(life, now, view, silence_s / 3)
         effects += sent

@@ -27,13 +27,13 @@ A stop request ends join, stage and confirm with End ``stopped``; the end wait r
 """
 from __future__ import annotations
 
-import dataclasses
 import enum
 import math
 from dataclasses import dataclass
 from typing import Any
 
 from . import timers as tm
+from .evolve import evolve
 from .timeouts import Timeouts, resumed_join
 
 
@@ -207,7 +207,7 @@ def step(life: Life, event, view: View) -> tuple[Life, tuple]:
     if life.phase in (Phase.DONE, Phase.DEPOSED):
         return life, (tm.Wait(),)
     if isinstance(event, Deposed):
-        return dataclasses.replace(life, phase=Phase.DEPOSED, deciding=False), ()
+        return evolve(life, phase=Phase.DEPOSED, deciding=False), ()
     if isinstance(event, Stopped):
         if life.phase in (Phase.JOIN, Phase.STAGE, Phase.CONFIRM):
             return _to_end(life, event.now, "stopped")
@@ -221,22 +221,22 @@ def step(life: Life, event, view: View) -> tuple[Life, tuple]:
 
 def _opened(life: Life, now: float, view: View):
     st = view.state
-    life = dataclasses.replace(initial(life.waits, life.clock, life.realtime, life.stage_interval),
-                               phase=Phase.JOIN, opened=now, joined=_joined(st), last_join=now)
+    life = evolve(initial(life.waits, life.clock, life.realtime, life.stage_interval),
+                  phase=Phase.JOIN, opened=now, joined=_joined(st), last_join=now)
     if st.ended:  # a complete mission is final: it only tells late carriers it is over
         return _to_end(life, now, st.end_reason or "complete")
     return life, ()
 
 
 def _to_end(life: Life, now: float, reason: str):
-    return (dataclasses.replace(life, phase=Phase.END, ended_at=now, last_end=None, grace=None, reason=reason,
-                                deciding=False), (RecordEnd(reason),))
+    return (evolve(life, phase=Phase.END, ended_at=now, last_end=None, grace=None, reason=reason,
+                   deciding=False), (RecordEnd(reason),))
 
 
 def _standby(life: Life, now: float, view: View):
     rule = tm.standby(view.primary_present, view.primary_lost, now, life.waits.standby_poll_s)
     if isinstance(rule, tm.TakeOver):
-        return dataclasses.replace(life, phase=Phase.DONE), (TakeOver(),)
+        return evolve(life, phase=Phase.DONE), (TakeOver(),)
     return life, (rule,)
 
 
@@ -244,7 +244,7 @@ def _join(life: Life, now: float, view: View):
     st, w = view.state, life.waits
     count = _joined(st)
     if count > life.joined:  # the wait runs from when the count last grew: a Hello said again does not restart it
-        life = dataclasses.replace(life, joined=count, last_join=now)
+        life = evolve(life, joined=count, last_join=now)
     wait_s = resumed_join(w.join_s, w.stage_s, w.rejoin_s) if st.resumed else w.join_s
     rule = tm.join_wait(life.clock, st.all_joined(), life.opened, life.last_join, now, wait_s)
     if isinstance(rule, tm.Wait):
@@ -258,9 +258,9 @@ def _join(life: Life, now: float, view: View):
 def _next_stage(life: Life, now: float, view: View, effects: tuple = ()):
     st = view.state
     if st.next_stage >= st.spec.n_stages:
-        return dataclasses.replace(life, phase=Phase.CONFIRM, opened=now, deciding=False), effects
-    return (dataclasses.replace(life, phase=Phase.STAGE, stage=st.next_stage, opened=None, held_at=None,
-                                deciding=False), effects)
+        return evolve(life, phase=Phase.CONFIRM, opened=now, deciding=False), effects
+    return (evolve(life, phase=Phase.STAGE, stage=st.next_stage, opened=None, held_at=None,
+                   deciding=False), effects)
 
 
 def _stage(life: Life, now: float, view: View):
@@ -279,18 +279,18 @@ def _stage(life: Life, now: float, view: View):
             # nobody to decide for (cut off, or every carrier gone): hold until one is back (its
             # Hello says where it is), at most the join timeout [P-6.5]
             if life.held_at is None:
-                life = dataclasses.replace(life, held_at=now)
+                life = evolve(life, held_at=now)
                 notes = (Note(f"coordinator: no carrier is live; holding stage {j} (at most {w.join_s:.0f} s)"),)
             rule = tm.hold(False, life.held_at, now, w.join_s)
             if isinstance(rule, tm.Wait):
                 return life, (*notes, rule)
-        life = dataclasses.replace(life, opened=now)
+        life = evolve(life, opened=now)
         if notes:
             return life, notes
     rule = tm.stage_wait(life.clock, *st.waited_for(j), view.heard, life.opened, now, w.stage_s, w.silence_s)
     if isinstance(rule, tm.Wait):
         return life, (rule,)
-    return dataclasses.replace(life, deciding=True), (*_stage_notes(life, j, rule), Decide(j))
+    return evolve(life, deciding=True), (*_stage_notes(life, j, rule), Decide(j))
 
 
 def _stage_notes(life: Life, j: int, done: tm.GoOn) -> tuple:
@@ -314,7 +314,7 @@ def _decided(life: Life, e: Decided, view: View):
         return life, ()
     opened = life.opened if life.opened is not None else e.now
     line = StageLine(e.stage, (e.now - opened) * 1e3 - e.planning_ms)
-    life = dataclasses.replace(life, published=e.now)
+    life = evolve(life, published=e.now)
     return _next_stage(life, e.now, view, (line,))
 
 
@@ -332,14 +332,14 @@ def _end(life: Life, now: float, view: View):
     st, w = view.state, life.waits
     effects: tuple = ()
     if tm.end_due(life.last_end, life.ended_at, now, w.end_repeat_s, w.bye_s):
-        life = dataclasses.replace(life, last_end=now)
+        life = evolve(life, last_end=now)
         effects = (PublishEnd(),)
     if life.grace is None and st.all_said_bye():
-        life = dataclasses.replace(life, grace=now)  # one whose token vanished first may have its Bye on the way
+        life = evolve(life, grace=now)  # one whose token vanished first may have its Bye on the way
     rule = tm.bye_wait(st.all_said_bye(), st.bye_missing(), life.ended_at, life.grace, now, w.bye_s, w.bye_grace_s)
     if isinstance(rule, tm.GoOn):
         line = f"coordinator: mission {st.end_reason or life.reason} after {st.next_stage} stage(s)"
-        return dataclasses.replace(life, phase=Phase.DONE), (*effects, Note(line), Finish())
+        return evolve(life, phase=Phase.DONE), (*effects, Note(line), Finish())
     again = life.last_end + w.end_repeat_s if life.last_end is not None else math.inf
     return life, (*effects, tm.Wait(min(rule.until, again)))
 

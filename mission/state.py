@@ -33,7 +33,6 @@ maps keyed by (carrier, stage) that grow with every Observation and Confirm are
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -43,6 +42,7 @@ import numpy as np
 
 from . import events as ev
 from . import operator_rules
+from .evolve import evolve
 from .timeouts import T_TOLERANCE_S
 
 
@@ -569,7 +569,7 @@ def fold(spec: MissionSpec, events, state: MissionState | None = None) -> Missio
 
 
 def _replace(state: MissionState, **changes) -> MissionState:
-    return dataclasses.replace(state, **changes)
+    return evolve(state, **changes)
 
 
 def _passed(accepted: dict, accounts: dict, cid: str, j: int) -> bool:

@@ -294,4 +294,4 @@ def test_no_lifecycle_reads_a_clock(module):
     tree = ast.parse(inspect.getsource(importlib.import_module(module)))
     imported = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
     imported |= {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module}
-    assert imported <= {"__future__", "math", "dataclasses", "enum", "typing", None, "timeouts", "modes"}, imported
+    assert imported <= {"__future__", "math", "dataclasses", "enum", "typing", None, "timeouts", "modes", "evolve"}, imported

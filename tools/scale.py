@@ -255,32 +255,18 @@ def message_counts(db: Path, n_carriers: int) -> dict:
 START_FLAGS = ("--join-timeout", "300", "--coordinator-timeout", "120")
 
 
-def _observe_rows(path: str, rows: list[int]) -> np.ndarray:
-    """``world.observe_all``'s rows ``rows`` of the scenario at ``path`` (a worker process)."""
-    import world
-
-    return world.simulate_mission(world.load_scenario(path), rows=rows).x[rows]
-
-
 def offline_reference(path: Path, workers: int = 0):
     """What the fleet must reproduce: ``(x, result)``, the fault-free observations
     (``world.observe_all``; the carriers' physics spread over ``workers`` processes, default one
     per core) and ``planner.online.run_online`` with the scenario's planner over them."""
     import os
-    from concurrent.futures import ProcessPoolExecutor
-    import multiprocessing
 
     import world
     from planner.online import run_online
     from planner.registry import make_planner, planner_settings
 
     scenario = world.load_scenario(path)
-    workers = workers or os.cpu_count() or 1
-    chunks = [list(range(k, scenario.n_carriers, workers)) for k in range(workers)]
-    x = np.full((scenario.n_carriers, scenario.stages), np.nan)
-    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        for rows, part in zip(chunks, pool.map(_observe_rows, [str(path)] * workers, chunks)):
-            x[rows] = part
+    x = world.observe_all(scenario, workers=workers or os.cpu_count() or 1)
     name, options = planner_settings(scenario, None, None)
     return x, run_online(world.build_problem(scenario), x, make_planner(name, **options), scenario.seed)
 

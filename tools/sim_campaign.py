@@ -81,7 +81,7 @@ def main(argv=None) -> int:
             if count <= 0:
                 continue
             t0, c0 = time.perf_counter(), time.process_time()
-            fleet = build_fleet(path, onboard_iterations=onboard)
+            fleet = build_fleet(path, onboard_iterations=onboard, workers=args.jobs)
             build_s, build_cpu = time.perf_counter() - t0, time.process_time() - c0
             report = campaign(fleet, range(count), sim.FAULT_KINDS, jobs=args.jobs)
             rows.append(_row(name, report, build_s, build_cpu))
