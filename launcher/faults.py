@@ -14,6 +14,10 @@ coordinator-crash    the coordinator SIGKILLed; a new one on the same results di
 takeover             the coordinator SIGKILLed for good; the standby (started with the fleet) decides
 pause                the coordinator SIGSTOPped for ``size`` s (past Zenoh's lease: the standby takes
                      over), then SIGCONT (it is deposed)
+standby-crash        the coordinator SIGKILLed; the standby (started with the fleet on a results
+                     directory of its own, ``<out>/standby``) takes over and is SIGKILLed ``size`` s
+                     later; at the fault's end the primary starts again on its own, staler directory
+                     (it opens the standby's epoch again: the ballots' case, docs/fleet.md)
 freeze               the carrier's process SIGSTOPped, SIGCONT when the fault ends
 slow                 the carrier's process slowed: SIGSTOPped :data:`SLOW_STOP_S` of every
                      :data:`SLOW_PERIOD_S` (it still sends Progress, only slower)
@@ -37,9 +41,12 @@ import threading
 import time
 
 #: The kinds a real fleet flies, and what it does to which process.
-FLOWN = ("crash", "coordinator-crash", "takeover", "pause", "freeze", "slow", "router-lost", "loss", "partition")
+FLOWN = ("crash", "coordinator-crash", "takeover", "pause", "freeze", "slow", "router-lost", "loss", "partition",
+         "standby-crash")
 #: Kinds that need a standby coordinator started with the fleet.
-STANDBY = ("takeover", "pause")
+STANDBY = ("takeover", "pause", "standby-crash")
+#: Kinds whose standby has a results directory (a disk) of its own: :data:`STANDBY_OUT` under --out.
+OWN_DISK, STANDBY_OUT = ("standby-crash",), "standby"
 #: How often the mission's progress is read (s).
 POLL_S = 0.02
 #: A slow carrier: stopped this long of every period (s); it runs the rest, sending Progress.
@@ -49,6 +56,13 @@ SLOW_STOP_S, SLOW_PERIOD_S = 0.8, 1.0
 def unflown(faults) -> list[str]:
     """The kinds of ``faults`` a real fleet does not fly, in order, once each."""
     return list(dict.fromkeys(f.kind for f in faults if f.kind not in FLOWN))
+
+
+def decided_anywhere(out) -> int:
+    """Stages decided on the mission's records under ``out`` (the primary's, and a standby's on
+    its own disk): the most either holds; -1 while neither exists."""
+    dbs = [db for db in (out / "mission.db", out / STANDBY_OUT / "mission.db") if db.exists()]
+    return max((decided(db) for db in dbs), default=-1)
 
 
 def decided(db_path) -> int:
@@ -88,9 +102,9 @@ class Injector:
         self.thread.start()
 
     def _run(self) -> None:
-        db = self.fleet.out / "mission.db"
+        out = self.fleet.out
         while not self.stop.is_set() and (self.pending or self.ends):
-            reached = decided(db) if db.exists() else -1
+            reached = decided_anywhere(out)
             for item in [p for p in self.pending if reached >= p[2]]:
                 self.pending.remove(item)
                 self._strike(item[0], item[1], reached)
@@ -98,7 +112,7 @@ class Injector:
             for end in sorted((e for e in self.ends if e[0] <= now), key=lambda e: e[:2]):
                 self.ends.remove(end)
                 end[2]()
-                self._note(end[1], "ended", decided(db))
+                self._note(end[1], "ended", decided_anywhere(out))
             self._slow(now)
             self.stop.wait(POLL_S)
         self.write()
@@ -148,6 +162,13 @@ class Injector:
                 fleet.coordinator, fleet.standby = fleet.standby, None  # the standby decides from now on
             else:
                 end = self.restart["coordinator"]
+        elif f.kind == "standby-crash":
+            _signal(fleet.coordinator, signal.SIGKILL)
+            standby = fleet.coordinator = fleet.standby  # it takes over on its own disk
+            fleet.standby = None
+            self.ends.append((time.monotonic() + min(f.size, length), k, lambda: _signal(standby, signal.SIGKILL),
+                              False))
+            end = self.restart["coordinator"]  # the primary, on its own staler disk
         elif f.kind == "pause":
             paused, length = fleet.coordinator, f.size
             _signal(paused, signal.SIGSTOP)

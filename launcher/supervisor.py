@@ -172,14 +172,16 @@ def scheduled(fleet: Fleet, stop: threading.Event):
     """``--schedule``: the standby a takeover or a pause needs (started once the primary has
     opened mission.db, so that it waits as a standby), and the :class:`launcher.faults.Injector`
     that strikes each fault at its mission point."""
-    from launcher.faults import STANDBY, Injector
+    from launcher.faults import OWN_DISK, STANDBY, STANDBY_OUT, Injector
 
     settings = fleet.settings
     if any(f.kind in STANDBY for f in settings.schedule):
         deadline = time.monotonic() + 60
         while not (fleet.out / "mission.db").exists() and not stop.is_set() and time.monotonic() < deadline:
             stop.wait(0.05)
-        fleet.standby = fleet.start("coordinator", connect=fleet.connect, standby=True, coordinator_id=STANDBY_ID)
+        own = {"out": str(fleet.out / STANDBY_OUT)} if any(f.kind in OWN_DISK for f in settings.schedule) else {}
+        fleet.standby = fleet.start("coordinator", connect=fleet.connect, standby=True, coordinator_id=STANDBY_ID,
+                                    **own)
 
     # a process is started again only if it is not running (the simulator's rule: a second
     # crash of a process already down restarts nothing of its own)

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import pytest
 
-from launcher.faults import FLOWN
+from launcher.faults import FLOWN, OWN_DISK, STANDBY_OUT, decided
 from launcher.simulate import build_fleet
 from tools import schedule_flight as flight
 
@@ -38,6 +38,8 @@ def test_a_simulated_schedule_flown_on_real_processes(tmp_path, scenarios, name,
     assert len(picked) == 1, f"no seed of {flight.TRIED} draws only {kind} within 30 s"
     simulated = picked[0]
     real = flight.fly(scenarios[name], simulated["faults"], "coordinated", tmp_path / "out")
+    if kind in OWN_DISK:  # the standby took over on its own disk and decided there
+        assert decided(tmp_path / "out" / STANDBY_OUT / "mission.db") >= 1, real["output"]
     assert real["code"] == 0 and real["deployments"] is not None, real["output"]
     struck = [e for e in real["log"] if e["what"] == "struck"]
     assert len(struck) == len(simulated["faults"]), real["log"]  # every fault struck, at its point

@@ -26,7 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from launcher.faults import FLOWN
+from launcher.faults import FLOWN, OWN_DISK
 
 REPO = Path(__file__).resolve().parents[1]
 SIX = REPO / "scenarios" / "six_carriers.yaml"
@@ -47,14 +47,15 @@ def pick(fleet, kind: str, seeds: int, longest: float, shared_disk: bool = False
     """The simulated missions (per-seed reports) of the first ``seeds`` seeds drawing only ``kind``
     whose schedule ends within ``longest`` s and whose mission has no violation; ``shared_disk``:
     only those whose standby (if any) shares the primary's mission.db, as the one-host fleet's
-    does (the simulator gives half its waiting standbys a disk of their own)."""
+    does (the simulator gives half its waiting standbys a disk of their own), but for the kinds
+    whose standby has its own disk in both (``launcher.faults.OWN_DISK``)."""
     from launcher.simulate import mission_json
     from mission import simulate as sim
 
     out = []
     for seed in range(TRIED):
         row = mission_json(fleet, seed, (kind,))
-        if shared_disk and sim.Simulation(fleet, seed, kinds=(kind,)).separate:
+        if shared_disk and kind not in OWN_DISK and sim.Simulation(fleet, seed, kinds=(kind,)).separate:
             continue
         if not row["violations"] and max(f["until"] for f in row["faults"]) <= longest:
             out.append(row)
