@@ -413,6 +413,20 @@ RUNS = [
         wall_s=3600, mem_mb=3000),
     Run("experiments-operator-quick", (S("python -m experiments operator --quick"),), "slow", wall_s=300,
         mem_mb=3000),
+    Run("experiments-operator-imported", (
+        S("python -m tools.synthetic_run /tmp/oprooms --cells 600x400 --snapshots 16", ("/tmp/oprooms", "{tmp}/oprooms")),
+        S("python -m world import /tmp/oprooms/bag --odom c0=/c0/odom --odom c1=/c1/pose --odom c2=/c2/odom "
+          "--passengers c0=3 --passengers c1=3 --passengers c2=2 --radii map --replay --out /tmp/oprooms/run.yaml",
+          ("/tmp/oprooms", "{tmp}/oprooms")),
+        S("python -m tools.synthetic_run /tmp/opcaves --cells 600x400 --snapshots 16 --family caves --seed 1",
+          ("/tmp/opcaves", "{tmp}/opcaves")),
+        S("python -m world import /tmp/opcaves/bag --odom c0=/c0/odom --odom c1=/c1/pose --odom c2=/c2/odom "
+          "--passengers c0=3 --passengers c1=3 --passengers c2=2 --radii map --replay --out /tmp/opcaves/run.yaml",
+          ("/tmp/opcaves", "{tmp}/opcaves")),
+        S("python -m experiments operator --scenario rooms=/tmp/oprooms/run.yaml --scenario caves=/tmp/opcaves/run.yaml",
+          ("/tmp/oprooms", "{tmp}/oprooms"), ("/tmp/opcaves", "{tmp}/opcaves"), extra="--out {tmp}/operator"),
+    ), "heavy", wall_s=900, mem_mb=3000,
+        check=_reproduces(("docs/results/operator/operator_trials.csv", "operator/operator_trials.csv"))),
     Run("experiments-marine", (S("python -m experiments marine", extra="--out {tmp}/marine"),), "slow",
         wall_s=900, mem_mb=3000, check=_reproduces(("docs/results/marine_trials.csv", "marine/marine_trials.csv"))),
     Run("coverage-report-only", (
