@@ -6,7 +6,7 @@ network namespaces (tools/netns.py), lossy links by iptables.
     python -m tools.faults --out runs/faults      # keep every mission's files there
 
 Every mission runs a zenoh router (the fleet's network), the coordinator (unless decentralised)
-and one process per carrier, paced at ``--realtime`` (one stage per wall second on six_carriers),
+and one process per carrier, paced at ``--realtime`` (one stage per wall second, whatever the scenario),
 with a zenoh lease of 3 s so that a cut link is noticed within a stage or three. Faults:
 
 * ``coordinator-killed``: SIGKILL the coordinator once stage 4 is decided; it is never restarted.
@@ -46,7 +46,8 @@ from world.paths import REPO_ROOT as ROOT
 
 RUN_FLEET = str(ROOT / "run_fleet.py")
 SCENARIO = ROOT / "scenarios" / "six_carriers.yaml"
-#: Simulated seconds per wall second: one six_carriers stage (20 s) per wall second.
+#: Simulated seconds per wall second on six_carriers: one stage (20 s) per wall second; another
+#: scenario flies one of its stages per wall second too (:attr:`Mission.realtime`).
 REALTIME = 20.0
 #: A 3 s lease (keep-alives 4 per lease) and clients retrying their connection every second at
 #: most: a cut link is noticed within 3 s and a restored one rejoined within about a second.
@@ -78,6 +79,7 @@ class Mission:
     planner: str | None = None
     decentralised: bool = False
     carrier_flags: tuple = ()  # more flags for every carrier process (e.g. --onboard-load need)
+    realtime: float = REALTIME  # simulated seconds per wall second: the scenario's stage interval
     procs: dict = field(default_factory=dict)
 
     def start(self, name: str, argv: list[str], host=None) -> subprocess.Popen:
@@ -91,7 +93,7 @@ class Mission:
         return proc
 
     def common(self, zconf: Path) -> list[str]:
-        return [str(self.scenario), "--seed", str(self.seed), "--realtime", str(REALTIME), "--zenoh-config",
+        return [str(self.scenario), "--seed", str(self.seed), "--realtime", str(self.realtime), "--zenoh-config",
                 str(zconf), "--out", str(self.out)]
 
     def launch(self, hosts: dict | None = None) -> None:
@@ -236,7 +238,8 @@ def ssap_substitute(scenario, result: Outcome, cid: str, out: Path) -> float:
 
 def _run(scenario_path: Path, scenario, seed: int, out: Path, *, planner=None, decentralised=False, hosts=None,
          during=None, killed=(), carrier_flags=()) -> tuple[Outcome, dict]:
-    m = Mission(scenario_path, seed, out, tuple(scenario.carrier_ids), planner, decentralised, tuple(carrier_flags))
+    m = Mission(scenario_path, seed, out, tuple(scenario.carrier_ids), planner, decentralised, tuple(carrier_flags),
+                realtime=float(scenario.stage_interval))
     try:
         m.launch(hosts)
         if during is not None:
