@@ -307,8 +307,10 @@ class MissionState:
                    for cid in self.spec.carriers)
 
     def unconfirmed(self, j: int) -> frozenset:
-        """Live carriers without a Confirm of stage j."""
-        return self.live.difference(self.confirms.at(j))
+        """Live carriers without a Confirm of stage j, but those whose accepted Hello named a
+        later stage (one that joined after stage j has nothing of it to confirm)."""
+        return frozenset(cid for cid in self.live.difference(self.confirms.at(j))
+                         if (info := self.accepted.get(cid)) is None or info.next_stage <= j)
 
     def all_said_bye(self) -> bool:
         return self.live <= self.byes

@@ -150,7 +150,8 @@ def test_the_clock_predicates_follow_every_event():
         exp = frozenset(cid for r, cid in enumerate(SPEC.carriers) if SPEC.valid[r][j] and cid in st.live
                         and cid in st.accepted and not st.passed(cid, j))
         return (exp, frozenset(c for c in exp if (c, j) not in st.reported),
-                frozenset(c for c in st.live if (c, j) not in st.confirms))
+                frozenset(c for c in st.live if (c, j) not in st.confirms
+                          and not (c in st.accepted and st.accepted[c].next_stage > j)))
 
     own = ev.Accounted("b", 1, 5.0, 2, False, (1.0, 2.0), 1, 6.0)
     events = READY + [obs("a", 0, 3), decide(0, ("a",)), confirm("a", 0, True, "deployed"), live("b", False),
@@ -164,6 +165,17 @@ def test_the_clock_predicates_follow_every_event():
                 assert (st.expected(j), st.waiting(j), st.unconfirmed(j)) == scratch(st, j), (e, j)
                 assert set().union(*st.waited_for(j)) == st.waiting(j)
                 assert set().union(*st.confirms_awaited(j)) == st.unconfirmed(j)
+
+
+def test_a_carrier_that_joined_after_the_last_stage_is_not_waited_for_its_confirm():
+    """[P-10.3] b's Hello names a stage past the last one: it has nothing to confirm, and the wait
+    for the last stage's Confirms is for a alone (it waited out b's end wait: 10 s)."""
+    last = SPEC.n_stages - 1
+    events = READY[:-1] + [obs("a", 0, 3), decide(0), obs("a", 1, 1), decide(1), obs("a", 2, 0), decide(2),
+                           hello("b", at=20.0, next_stage=SPEC.n_stages)]
+    state, _ = run(events)  # READY without b's Hello of stage 0
+    assert "b" in state.live and state.accepted["b"].next_stage == SPEC.n_stages
+    assert state.unconfirmed(last) == {"a"}
 
 
 def test_no_carrier_is_taken_to_deploy_more_passengers_than_it_has():
