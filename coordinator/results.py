@@ -87,7 +87,6 @@ class Results:
     def __init__(self, scenario, info: RunInfo, render: bool, log, epochs, recording):
         self.scenario, self.info, self.render, self.log = scenario, info, render, log
         self.epochs, self.recording = epochs, recording
-        self.told: dict = {}  # carrier id -> its messages rejected, per reason (coordinator.node.Told.counts)
 
     def finish(self, out: Path, wall_s: float, state, problem, node, store, told: dict | None = None) -> dict:
         """summary.json twice: at once without the clairvoyant bound, then with it, each write
@@ -99,12 +98,12 @@ class Results:
         epochs = self.epochs
         deposed = epochs.deposed_by is not None
         rejected = dict(node.rejected) if node else {}
-        self.told = told or {}
         self.planner_faults = store.planner_faults()
         if not deposed:
-            write_json(out / "summary.json", self.summary(state, problem, epochs, rejected, wall_s, bound=False))
+            write_json(out / "summary.json", self.summary(state, problem, epochs, rejected, wall_s, told,
+                                                                  bound=False))
         self.recording.close()
-        summary = self.summary(state, problem, epochs, rejected, wall_s, bound=not deposed)
+        summary = self.summary(state, problem, epochs, rejected, wall_s, told, bound=not deposed)
         if not deposed:
             write_json(out / "summary.json", summary)
         if node is not None:
@@ -114,7 +113,9 @@ class Results:
         store.close()
         return summary
 
-    def summary(self, state, problem, epochs, rejected: dict, wall_s: float, bound: bool = True) -> dict:
+    def summary(self, state, problem, epochs, rejected: dict, wall_s: float, told: dict | None = None,
+                bound: bool = True) -> dict:
+        """``told``: carrier id -> its messages rejected, per reason (coordinator.node.Told.counts)."""
         out = mission_summary(state, problem, dataclasses.replace(self.info, wall_time_s=wall_s, rejected=rejected),
                               bound=bound)
         out["epoch"] = epochs.epoch  # of the coordinator that wrote this summary (docs/fleet.md)
@@ -125,7 +126,7 @@ class Results:
         out["denials"] = [{"sender": cid, "rule": "P-7.3", "what": "epoch claimed in a Hello", "value": epoch}
                           for cid, epoch in sorted(epochs.claims.items())]
         out["denials"] += [{"sender": cid, "rule": DENIED[reason], "what": reason, "count": n}
-                           for cid, counts in sorted(self.told.items())
+                           for cid, counts in sorted((told or {}).items())
                            for reason, n in sorted(counts.items()) if reason in DENIED]
         if epochs.deposed_by is not None:
             out["deposed_by"] = epochs.deposed_by

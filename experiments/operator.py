@@ -142,7 +142,8 @@ def plot(summary: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     colours = {"autonomous": "#222222", "manual-trigger": "#b3261e", "random-veto": "#b36b00", "force-high": "#1f4fbf"}
-    if any(s["world"] == "overlap" for s in summary):
+    sweep = any(s["world"] == "overlap" for s in summary)
+    if sweep:
         fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.2), gridspec_kw={"width_ratios": [2.2, 1]})
         for name in OPERATORS:
             sel = [s for s in summary if s["world"] == "overlap" and s["operator"] == name]
@@ -156,9 +157,9 @@ def plot(summary: list[dict], path: Path) -> None:
         fig, bx = plt.subplots(figsize=(5.5, 4.2))
     runs = list(dict.fromkeys(s["world"] for s in summary if s["world"] != "overlap"))
     width = 0.8 / len(OPERATORS)
+    base = [next(s for s in summary if s["world"] == run and s["operator"] == "autonomous")["reward"] for run in runs]
     for k, name in enumerate(OPERATORS):
         sel = [next(s for s in summary if s["world"] == run and s["operator"] == name) for run in runs]
-        base = [next(s for s in summary if s["world"] == run and s["operator"] == "autonomous")["reward"] for run in runs]
         bx.bar(np.arange(len(runs)) + (k - (len(OPERATORS) - 1) / 2) * width, [100 * s["kept"] for s in sel],
                width, yerr=[100 * s["se"] / b if b > 0 else 0.0 for s, b in zip(sel, base)], color=colours[name],
                capsize=2)
@@ -166,7 +167,7 @@ def plot(summary: list[dict], path: Path) -> None:
     bx.set_xticks(range(len(runs)), [RUN_LABELS.get(run, run) for run in runs])
     bx.set_title("Runs: reward kept against autonomous")
     bx.set_ylabel("% of the autonomous planner's reward")
-    if not any(s["world"] == "overlap" for s in summary):
+    if not sweep:
         bx.legend([plt.Rectangle((0, 0), 1, 1, color=colours[n]) for n in OPERATORS], OPERATORS, frameon=False,
                   loc="upper center", bbox_to_anchor=(0.5, -0.1), ncol=2)
     fig.tight_layout()
