@@ -8,7 +8,7 @@ nothing else (the flags' help texts use them)."""
 NAME = "run_fleet.py"
 #: What a ROS 2 robot's carrier observes (``--robot-sensing``; ``ros2.robot.SENSING``, written
 #: out here so that parsing the flags imports nothing of ros2/; tests/test_ros2_fleet.py).
-ROBOT_SENSING = ("features", "frontier")
+ROBOT_SENSING = ("features", "frontier", "frontier3d")
 #: How long the launcher waits for carriers after the coordinator exits (s).
 CARRIER_EXIT_GRACE_S = 15.0
 #: Zenoh sessions one node accepts reliably: beyond a few hundred a peer or router refused

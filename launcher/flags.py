@@ -245,8 +245,10 @@ def _ros2_flags(p: argparse.ArgumentParser) -> None:
     r.add_argument("--ros2-namespace", metavar="NS", help="with --ros2-robot: the robot's ROS 2 namespace (default /)")
     r.add_argument("--robot-sensing", choices=ROBOT_SENSING,
                    help="with --ros2-robot: what a stage's observation is: features (default: the number of "
-                        "poses in NS/features) or frontier (the frontier cells of the robot's NS/map within the "
-                        "scenario's sensing radius, the importer's --replay value)")
+                        "poses in NS/features), frontier (the frontier cells of the robot's NS/map within the "
+                        "scenario's sensing radius, the importer's --replay value) or frontier3d (the frontier "
+                        "voxels of its OctoMap on NS/octomap_binary within that radius and the paper's height "
+                        "band, the 3D import's value)")
 
 
 def _carrier_output_flags(p: argparse.ArgumentParser) -> None:

@@ -13,8 +13,9 @@ uint32 length (NUL included), its bytes and a NUL; a sequence a uint32 count the
 fixed array only its elements.
 
 Messages are plain dicts (field -> value, nested messages as dicts, sequences as lists); a field
-left out is encoded as its zero value, and :func:`decode` returns every field. An ``int8[]`` (an
-OccupancyGrid's cells) decodes as a read-only numpy int8 array over the payload, and an
+left out is encoded as its zero value, and :func:`decode` returns every field. An ``int8[]`` or
+``uint8[]`` (an OccupancyGrid's cells, an OctoMap's tree, a PointCloud2's points) decodes as a
+read-only numpy array over the payload, and an
 ``int8[]`` or ``uint8[]`` may be given as bytes or a numpy array: a large map is one copy, never
 a loop over its cells.
 """
@@ -69,6 +70,22 @@ TYPES: dict[str, tuple[tuple[str, str], ...]] = {
                                  ("width", "uint32"), ("height", "uint32"), ("origin", "geometry_msgs/msg/Pose")),
     "nav_msgs/msg/OccupancyGrid": (("header", "std_msgs/msg/Header"), ("info", "nav_msgs/msg/MapMetaData"),
                                    ("data", "int8[]")),
+    "sensor_msgs/msg/PointField": (("name", "string"), ("offset", "uint32"), ("datatype", "uint8"),
+                                   ("count", "uint32")),
+    "sensor_msgs/msg/PointCloud2": (("header", "std_msgs/msg/Header"), ("height", "uint32"), ("width", "uint32"),
+                                    ("fields", "sensor_msgs/msg/PointField[]"), ("is_bigendian", "bool"),
+                                    ("point_step", "uint32"), ("row_step", "uint32"), ("data", "uint8[]"),
+                                    ("is_dense", "bool")),
+    # octomap_msgs (its Jazzy release; not in common_interfaces): OctoMap's tree as octomap_server
+    # publishes it, ``data`` the stream of OcTree::writeBinaryData (binary) or writeData (full)
+    "octomap_msgs/msg/Octomap": (("header", "std_msgs/msg/Header"), ("binary", "bool"), ("id", "string"),
+                                 ("resolution", "float64"), ("data", "int8[]")),
+}
+
+#: The ``.msg`` text of the types above that rosbags' Jazzy typestore lacks (tests register them
+#: there to check the tables and hashes).
+MSG_TEXT = {
+    "octomap_msgs/msg/Octomap": "std_msgs/Header header\nbool binary\nstring id\nfloat64 resolution\nint8[] data\n",
 }
 
 #: RIHS01 type hashes (REP 2011) of the types published or read, as rosidl generates them for
@@ -84,6 +101,8 @@ RIHS01: dict[str, str] = {
     "nav_msgs/msg/Odometry": "RIHS01_3cc97dc7fb7502f8714462c526d369e35b603cfc34d946e3f2eda2766dfec6e0",
     "rosgraph_msgs/msg/Clock": "RIHS01_692f7a66e93a3c83e71765d033b60349ba68023a8c689a79e48078bcb5c58564",
     "nav_msgs/msg/OccupancyGrid": "RIHS01_8d348150c12913a31ee0ec170fbf25089e4745d17035792a1ba94d6f0bc0cfc7",
+    "sensor_msgs/msg/PointCloud2": "RIHS01_9198cabf7da3796ae6fe19c4cb3bdd3525492988c70522628af5daa124bae2b5",
+    "octomap_msgs/msg/Octomap": "RIHS01_9891a19a05b70ec20aa8f45db3f8300b9ab80afff32c61c549d25087da9625b0",
 }
 
 #: The encapsulation header of little-endian plain CDR.
@@ -256,11 +275,12 @@ class _Reader:
         n = self.prim("uint32") if count == -1 else count
         if n > len(self.data):
             raise ValueError("CDR sequence longer than the payload")
-        if base == "int8":
+        if base in _BYTE_ARRAYS:
             if self.pos + n > len(self.data):
-                raise ValueError("CDR int8 sequence longer than the payload")
-            # a read-only view of the payload: a map's cells are never copied or looped over
-            cells = np.frombuffer(self.data, dtype=np.int8, count=n, offset=self.pos)
+                raise ValueError(f"CDR {base} sequence longer than the payload")
+            # a read-only view of the payload: a map's cells or a cloud's points are never copied
+            # or looped over
+            cells = np.frombuffer(self.data, dtype=_BYTE_ARRAYS[base], count=n, offset=self.pos)
             self.pos += n
             return cells
         return [self.one(base) for _ in range(n)]

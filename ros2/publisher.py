@@ -60,8 +60,9 @@ class Ros2Settings:
         ack_timeout_s: how long a robot carrier waits for the robot to acknowledge a deployment.
         robot_timeout_s: how long a robot carrier waits for the robot's odometry, features or map.
         sensing: what a robot carrier observes (``--robot-sensing``, ros2/robot.py
-            :data:`~ros2.robot.SENSING`): ``features`` (the poses in ``NS/features``) or
-            ``frontier`` (the frontier cells of ``NS/map`` within the sensing radius).
+            :data:`~ros2.robot.SENSING`): ``features`` (the poses in ``NS/features``),
+            ``frontier`` (the frontier cells of ``NS/map`` within the sensing radius) or
+            ``frontier3d`` (the frontier voxels of ``NS/octomap_binary`` in the height band).
     """
 
     domain: int = 0

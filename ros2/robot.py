@@ -10,8 +10,9 @@ The robot's topics, in its namespace ``NS`` (docs/fleet.md, "A ROS 2 robot in a 
 =================  ==============================  =====================================================
 topic              type                            what
 =================  ==============================  =====================================================
-``NS/odom``        nav_msgs/msg/Odometry           the robot's pose; ``pose.pose.position`` x, y in the
-                                                   scenario's map frame (m), heading from the orientation
+``NS/odom``        nav_msgs/msg/Odometry           the robot's pose; ``pose.pose.position`` x, y (and z)
+                                                   in the scenario's map frame (m), heading from the
+                                                   orientation
 ``NS/features``    geometry_msgs/msg/PoseArray     ``--robot-sensing features`` (the default): the features
                                                    its detector sees now (within its sensing radius):
                                                    x = ``len(poses)``
@@ -19,6 +20,9 @@ topic              type                            what
                                                    map_server's; reliable, transient local, so a map sent
                                                    before the carrier subscribed arrives too): x = the
                                                    frontier cells within the scenario's sensing radius
+``NS/octomap_``    octomap_msgs/msg/Octomap        ``--robot-sensing frontier3d``: its 3D map (octomap_server's,
+``binary``                                         binary or full; QoS as ``NS/map``): x = the frontier voxels
+                                                   within the sensing radius in the paper's height band
 ``NS/deploy``      std_msgs/msg/UInt32             published by the carrier: release passenger ``data``
                                                    (its index, 0-based, as in the protocol's Decision)
 ``NS/deployed``    std_msgs/msg/UInt32             published by the robot's launcher: passenger ``data``
@@ -42,6 +46,16 @@ at or after the stage time or an odometry stamped after it (maps come now and th
 always); paced, it counts in the latest map. A map that does not convert is logged (one line per
 kind of fault) and ignored. At most :data:`MAX_MAPS` maps wait and as many are kept.
 
+Frontier in 3D. With ``sensing="frontier3d"`` the maps are the robot's OctoMaps and x is the 3D
+import's value of the robot's position (x, y and z from odometry; its storey's base while it has
+sent none): the frontier voxels (a free voxel with an unknown face neighbour, 26 neighbours if
+the scenario's ``map.voxels`` says so) whose centre lies within ``sensing_radius`` (3D) and more
+than ``keep_above`` above or ``keep_below`` below it (``map.voxels``' values, else the paper's
+1 m and 0.1 m), counted by world/voxels.py's :class:`~world.voxels.FrontierCounter3D` in the
+tree as :func:`~world.voxels.octomap_from_message` reads it (the reader of ``python -m world
+import MAP.bt``: a binary message's data is the ``.bt`` stream, a full one's the ``.ot`` stream,
+every pruned leaf expanded to voxels). Which map, the waits and the bad maps are as in 2D.
+
 Deployments. The carrier publishes the command once and waits at most ``ack_timeout_s`` for
 ``NS/deployed`` with the same index. Without it, it logs one line and goes on: the deployment
 was decided and is already in its durable log, and a repeated command could release a second
@@ -60,9 +74,9 @@ from ros2.rmw import TRANSIENT_LOCAL, ForeignFormat, QoS, mangle
 
 #: How often a waiting body looks for the robot's messages (s).
 POLL_S = 0.005
-#: What a robot's carrier observes (``--robot-sensing``): its detector's features, or its map's
-#: frontier cells.
-SENSING = ("features", "frontier")
+#: What a robot's carrier observes (``--robot-sensing``): its detector's features, its 2D map's
+#: frontier cells, or its 3D map's frontier voxels in the paper's height band.
+SENSING = ("features", "frontier", "frontier3d")
 #: Maps a frontier body lets wait in its inbox (the newest) and keeps as grids: a map may have
 #: up to 10^8 cells (world.grid.MAX_CELLS), so both are bounded.
 MAX_MAPS = 8
@@ -133,32 +147,84 @@ def needed_maps(stamps, stage_times, now: float, sync: bool) -> list[int]:
     return sorted(keep)
 
 
+def plane_maps(scenario, where: str):
+    """``--robot-sensing frontier``: (read, counter) for :class:`_Maps` over
+    ``nav_msgs/msg/OccupancyGrid`` messages on ``where``: world/grid.py's classes (an imported
+    scenario's thresholds, else map_saver's) and :class:`~world.grid.FrontierCounter` (x, y)."""
+    from world import grid as G
+
+    occupancy = scenario.map.occupancy  # an imported scenario's thresholds: the importer's classes
+    free, occupied = ((occupancy.free_level, occupancy.occupied_level) if occupancy is not None
+                      else (G.DEFAULT_FREE_LEVEL, G.DEFAULT_OCCUPIED_LEVEL))
+
+    def read(msg):
+        grid = G.grid_from_message(msg, source=where, free_level=free, occupied_level=occupied)
+        if not all(math.isfinite(v) for v in grid.origin):
+            raise G.GridError(f"{where} (stamp {grid.stamp:.3f} s): info.origin", "a finite pose", repr(grid.origin))
+        return grid.stamp, grid
+
+    def counter(grid):
+        c = G.FrontierCounter(grid)
+        return lambda point, radius: int(c.count([point[:2]], radius)[0])
+
+    return read, counter
+
+
+def voxel_maps(scenario, where: str):
+    """``--robot-sensing frontier3d``: (read, counter) for :class:`_Maps` over
+    ``octomap_msgs/msg/Octomap`` messages on ``where``: world/voxels.py's reader (the import's
+    for ``.bt``/``.ot`` files) and :class:`~world.voxels.FrontierCounter3D` (x, y, z) with the
+    scenario's frontier rule (``map.voxels``: neighbours, keep_above, keep_below; the paper's 6,
+    1 m, 0.1 m without it)."""
+    from world import voxels as V
+
+    spec = scenario.map.voxels
+    neighbours, above, below = ((spec.neighbours, spec.keep_above, spec.keep_below) if spec is not None
+                                else (6, V.DEFAULT_KEEP_ABOVE, V.DEFAULT_KEEP_BELOW))
+
+    def read(msg):
+        t = _stamp(msg)
+        return t, V.octomap_from_message(msg, f"{where} (stamp {t:.3f} s)")
+
+    def counter(grid):
+        if grid is None:  # an empty tree
+            return lambda point, radius: 0
+        c = V.FrontierCounter3D(grid, neighbours)
+        return lambda point, radius: int(c.count([point], radius, above, below)[0])
+
+    return read, counter
+
+
+#: The map a ``--robot-sensing`` kind counts in: (topic in the robot's namespace, type, (read,
+#: counter) maker).
+MAP_TOPICS = {"frontier": ("map", "nav_msgs/msg/OccupancyGrid", plane_maps),
+              "frontier3d": ("octomap_binary", "octomap_msgs/msg/Octomap", voxel_maps)}
+
+
 class _Maps:
-    """The robot's maps as world.grid.OccupancyGrid, in stamp order (a later arrival with the
-    same stamp after the earlier, as :class:`world.grid.MapHistory` orders them).
+    """The robot's maps (what ``read`` makes of a message: (stamp, map)), in stamp order (a
+    later arrival with the same stamp after the earlier, as :class:`world.grid.MapHistory`
+    orders them); ``counter(map)`` gives the map's value function ``(point (x, y, z), radius)
+    -> int``.
 
     Invariant: after :meth:`pull` only the maps :func:`needed_maps` names at the body's time are
     held, and at most ``keep`` of them (when more are named, the ``keep - 1`` oldest and the
     newest stay, logged once)."""
 
-    def __init__(self, sub, scenario, now, sync: bool, log, robot: str, where: str, keep: int = MAX_MAPS):
-        from world import grid as G
-
-        occupancy = scenario.map.occupancy  # an imported scenario's thresholds: the importer's classes
-        self.levels = ((occupancy.free_level, occupancy.occupied_level) if occupancy is not None
-                       else (G.DEFAULT_FREE_LEVEL, G.DEFAULT_OCCUPIED_LEVEL))
+    def __init__(self, sub, kind, scenario, now, sync: bool, log, robot: str, where: str, keep: int = MAX_MAPS):
+        self.read, self.counter = kind
         self.sub, self.now, self.sync, self._log, self.keep = sub, now, sync, log, keep
         self.robot, self.where = robot, where  # for the log: the robot's namespace, the map's topic
         self.stage_times = [float(t) for t in scenario.stage_times()]
         self.stamps: list[float] = []
         self.grids: list = []
         self.newest = -math.inf  # the latest stamp that arrived, kept or not (s)
-        self._counters: dict[int, object] = {}  # id(grid) -> its FrontierCounter, for grids held
+        self._counters: dict[int, object] = {}  # id(map) -> its value function, for maps held
         self._faults: set[str] = set()
         self._overflow = False
 
     def pull(self) -> None:
-        from world.grid import GridError, grid_from_message
+        from world.grid import GridError
 
         while True:
             try:
@@ -166,21 +232,17 @@ class _Maps:
             except Exception:
                 break
             try:
-                grid = grid_from_message(msg, source=self.where, free_level=self.levels[0],
-                                         occupied_level=self.levels[1])
-                if not all(math.isfinite(v) for v in grid.origin):
-                    raise GridError(f"{self.where} (stamp {grid.stamp:.3f} s): info.origin", "a finite pose",
-                                    repr(grid.origin))
-            except (GridError, ValueError, TypeError) as exc:
+                stamp, grid = self.read(msg)
+            except (GridError, ValueError, TypeError, KeyError) as exc:
                 kind = exc.expected if isinstance(exc, GridError) else type(exc).__name__
                 if kind not in self._faults:
                     self._faults.add(kind)
                     self._log(f"robot {self.robot}: map ignored (and any later one wrong the same way): {exc}")
                 continue
-            k = bisect.bisect_right(self.stamps, grid.stamp)
-            self.stamps.insert(k, grid.stamp)
+            k = bisect.bisect_right(self.stamps, stamp)
+            self.stamps.insert(k, stamp)
             self.grids.insert(k, grid)
-            self.newest = max(self.newest, grid.stamp)
+            self.newest = max(self.newest, stamp)
         self._prune()
 
     def _prune(self) -> None:
@@ -200,24 +262,24 @@ class _Maps:
     def reached(self, t: float) -> bool:
         return self.newest >= t - 1e-6
 
-    def latest(self):
-        return self.grids[-1] if self.grids else None
+    def latest(self) -> int | None:
+        """The index of the newest map, or None."""
+        return len(self.grids) - 1 if self.grids else None
 
-    def at(self, t: float):
-        """The map stamped last at or before ``t`` (s), or None (world.grid.latest_at)."""
+    def at(self, t: float) -> int | None:
+        """The index of the map stamped last at or before ``t`` (s), or None (world.grid.latest_at)."""
         from world.grid import latest_at
 
         k = latest_at(self.stamps, t)
-        return self.grids[k] if k >= 0 else None
+        return k if k >= 0 else None
 
-    def value(self, grid, point, radius: float) -> int:
-        """Frontier cells of ``grid`` within ``radius`` (m) of ``point`` (m)."""
-        from world.grid import FrontierCounter
-
+    def value(self, k: int, point, radius: float) -> int:
+        """The value of ``point`` (x, y, z; m) in map ``k``: its frontier within ``radius`` (m)."""
+        grid = self.grids[k]
         counter = self._counters.get(id(grid))
         if counter is None:
-            counter = self._counters[id(grid)] = FrontierCounter(grid)
-        return int(counter.count([point], radius)[0])
+            counter = self._counters[id(grid)] = self.counter(grid)
+        return counter(point, radius)
 
 
 class RobotBody:
@@ -250,13 +312,14 @@ class RobotBody:
         keep = QoS(depth=1000)
         # The map first: by the time the robot sees the odometry subscription, the map's exists.
         self.features = self.maps = None
-        if sensing == "frontier":
-            sub = node.subscription(f"{self.ns}/map", "nav_msgs/msg/OccupancyGrid", MAP_QOS, capacity=MAX_MAPS,
-                                    keep_newest=True)
-            self.maps = _Maps(sub, scenario, lambda: self.time, sync, log, self.ns or "/", f"{self.ns}/map")
+        if sensing in MAP_TOPICS:
+            topic, msgtype, kind = MAP_TOPICS[sensing]
+            where = f"{self.ns}/{topic}"
+            sub = node.subscription(where, msgtype, MAP_QOS, capacity=MAX_MAPS, keep_newest=True)
+            self.maps = _Maps(sub, kind(scenario, where), scenario, lambda: self.time, sync, log, self.ns or "/", where)
         self.odom = _History(node.subscription(f"{self.ns}/odom", "nav_msgs/msg/Odometry", keep), lambda m: (
             float(m["pose"]["pose"]["position"]["x"]), float(m["pose"]["pose"]["position"]["y"]),
-            _yaw(m["pose"]["pose"]["orientation"])))
+            _yaw(m["pose"]["pose"]["orientation"]), float(m["pose"]["pose"]["position"]["z"])))
         if sensing == "features":
             self.features = _History(node.subscription(f"{self.ns}/features", "geometry_msgs/msg/PoseArray", keep),
                                      lambda m: len(m["poses"]))
@@ -265,6 +328,9 @@ class RobotBody:
         self._spec = scenario.carriers[scenario.carrier_index(cid)]
         self._left = int(self._spec.passengers)
         self._pos = (float("nan"), float("nan"))
+        self._z = float("nan")  # the robot's height (odometry's z; its storey's base without odometry)
+        storey = scenario.map.storey(self._spec.storey) if self._spec.storey else None
+        self._base = float(storey.base) if storey is not None else 0.0
         self._trace: list[tuple[float, float, float]] = []
         self._silent: set[str] = set()
 
@@ -272,7 +338,7 @@ class RobotBody:
     def ours(self, key: str) -> bool:
         """Whether a graph token is about one of the robot's topics."""
         return any(f"/{mangle(f'{self.ns}/{topic}')}/" in key
-                   for topic in ("odom", "features", "map", "deploy", "deployed"))
+                   for topic in ("odom", "features", *(t for t, _, _ in MAP_TOPICS.values()), "deploy", "deployed"))
 
     def _check_format(self) -> None:
         """Raise :class:`ForeignFormat` (the carrier stops, one line) when the robot's own topics
@@ -314,12 +380,12 @@ class RobotBody:
             self._check_format()
 
     def _pose_at(self, t: float):
-        """(x, y, heading) of the robot at ``t``; its planned position while it has sent no
-        odometry at all (a silent robot, logged by :meth:`_wait`)."""
+        """(x, y, heading, z) of the robot at ``t``; its planned position (on its storey's
+        floor) while it has sent no odometry at all (a silent robot, logged by :meth:`_wait`)."""
         p = self.odom.at(t) if self.sync else self.odom.latest()
         if p is None:
             x, y = (float(v) for v in self._spec.position_at(t))
-            return x, y, 0.0
+            return x, y, 0.0, self._base
         return p
 
     # ------------------------------------------------------------------ what the carrier asks
@@ -332,7 +398,7 @@ class RobotBody:
             p = self._pose_at(float(s))
             self._trace.append((float(s), p[0], p[1]))
         p = self._pose_at(t)
-        self._pos = (p[0], p[1])
+        self._pos, self._z = (p[0], p[1]), p[3]
         self.time = max(self.time, float(t))
 
     def position(self, cid: str) -> tuple[float, float]:
@@ -340,12 +406,12 @@ class RobotBody:
 
     def sense(self, cid: str, stage: int | None = None) -> int:
         """x at the current time: the number of features the robot's detector saw, or of
-        frontier cells within the sensing radius in its map (``stage``, the stage being sensed,
-        is the carrier loop's and not needed here)."""
+        frontier cells (voxels) within the sensing radius in its map (``stage``, the stage being
+        sensed, is the carrier loop's and not needed here)."""
         if self.maps is not None:
             self._wait(self.maps, self.time, "map", or_odometry=True)
-            grid = self.maps.at(self.time) if self.sync else self.maps.latest()
-            return 0 if grid is None else self.maps.value(grid, self._pos, self.radius)
+            k = self.maps.at(self.time) if self.sync else self.maps.latest()
+            return 0 if k is None else self.maps.value(k, (*self._pos, self._z), self.radius)
         self._wait(self.features, self.time, "feature detections")
         x = self.features.at(self.time) if self.sync else self.features.latest()
         return int(x) if x is not None else 0

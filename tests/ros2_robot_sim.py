@@ -13,6 +13,12 @@ instead of the features, every ``MAP_PERIOD_S`` from ``MAP_FIRST_S``, as map_ser
 reliable, transient local, depth 1 — a zenoh-ext AdvancedPublisher with a cache of one sample,
 publisher detection and sporadic heartbeats (rmw_zenoh's rmw_publisher_data.cpp). Each map goes
 out before the odometry of the same second. :attr:`SimulatedRobot.maps` holds what it sent.
+
+With ``sensing="frontier3d"`` it publishes ``NS/octomap_binary`` (octomap_msgs/Octomap) the same
+way, as octomap_server does: its 3D map is an OcTree of the OctoMap library itself (its Python
+binding) into which the robot inserts a LiDAR scan (:func:`lidar_scan`, ray cast in numpy
+against :data:`ROOM`) at every map time, sent as ``writeBinary`` writes it (``binary``) or as
+``write`` does (full, ``binary=False``); its odometry's z is ``ROBOT_Z``.
 """
 from __future__ import annotations
 
@@ -23,13 +29,17 @@ import time
 import numpy as np
 import xxhash
 import zenoh
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from zenoh.ext import Int64, z_serialize
 
 import world
 from wire.zconfig import make_config, open_session
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
+#: octomap_msgs/msg/Octomap (octomap_msgs' .msg file; not in common_interfaces).
+OCTOMAP_TYPE = "octomap_msgs/msg/Octomap"
+STORE.register(get_types_from_msg(
+    "std_msgs/Header header\nbool binary\nstring id\nfloat64 resolution\nint8[] data\n", OCTOMAP_TYPE))
 T = STORE.types
 
 #: The growing map: cells of 0.5 m, 88 x 78 of them from the corner (-2, 1) m, the known part
@@ -72,20 +82,79 @@ def map_message(t: float, cells: np.ndarray | None = None, frame: str = "map"):
         data=np.ascontiguousarray(cells, dtype=np.int8).reshape(-1))
 
 
-def map_publisher(session, domain: int, namespace: str, eid: int = 9, node: str = "map_server"):
-    """``(put, entities)``: ``put(payload: bytes)`` sends a map on ``NS/map`` as a reliable,
+#: The 3D robot's world (m): a floor at z = 0 and a ceiling at z = 3, but for a shaft (x, y in
+#: the box) whose floor is at z = -4. Its LiDAR: ``ROBOT_Z`` (its odometry's z) plus ``LIDAR_UP``,
+#: range ``LIDAR_RANGE`` (no return beyond), voxels of ``VOXEL``.
+ROOM = {"floor": 0.0, "ceiling": 3.0, "shaft": ((20.0, 24.0), (18.0, 22.0)), "shaft_floor": -4.0}
+ROBOT_Z, LIDAR_UP, LIDAR_RANGE, VOXEL = 0.2, 0.8, 7.0, 0.4
+
+
+def lidar_scan(x: float, y: float, rays: int = 2000) -> tuple[np.ndarray, np.ndarray]:
+    """(returns float ``[N, 3]`` within range, origin ``(3,)``) of a scan from the robot at
+    (x, y): rays on a Fibonacci sphere hitting :data:`ROOM`'s floor, shaft or ceiling."""
+    origin = np.array([x, y, ROBOT_Z + LIDAR_UP])
+    k = np.arange(rays) + 0.5
+    zc = 1 - 2 * k / rays
+    phi = k * math.pi * (3 - math.sqrt(5))
+    d = np.column_stack([np.sqrt(1 - zc ** 2) * np.cos(phi), np.sqrt(1 - zc ** 2) * np.sin(phi), zc])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        up = (ROOM["ceiling"] - origin[2]) / d[:, 2]
+        down = (ROOM["floor"] - origin[2]) / d[:, 2]
+        hit = origin + d * down[:, None]
+        (x0, x1), (y0, y1) = ROOM["shaft"]
+        in_shaft = (hit[:, 0] >= x0) & (hit[:, 0] <= x1) & (hit[:, 1] >= y0) & (hit[:, 1] <= y1)
+        down = np.where(in_shaft, (ROOM["shaft_floor"] - origin[2]) / d[:, 2], down)
+        dist = np.where(d[:, 2] > 0, up, np.where(d[:, 2] < 0, down, np.inf))
+    ends = origin + d * np.minimum(dist, 2 * LIDAR_RANGE)[:, None]
+    return ends[dist <= LIDAR_RANGE], origin
+
+
+class OctoMapRobot:
+    """The 3D robot's map: an OctoMap OcTree (the library's binding) of its scans."""
+
+    def __init__(self, binary: bool = True):
+        import octomap
+
+        self.tree, self.binary = octomap.OcTree(VOXEL), binary
+
+    def scan(self, x: float, y: float) -> None:
+        pts, origin = lidar_scan(x, y)
+        self.tree.insertPointCloud(pts, origin, maxrange=LIDAR_RANGE)
+
+    def file_bytes(self, tmp: str) -> bytes:
+        """The tree as a ``.bt`` (binary) or ``.ot`` (full) file, written by OctoMap."""
+        self.tree.updateInnerOccupancy()
+        path = f"{tmp}/map.{'bt' if self.binary else 'ot'}"
+        (self.tree.writeBinary if self.binary else self.tree.write)(path.encode())
+        with open(path, "rb") as f:
+            return f.read()
+
+    def message(self, t: float, tmp: str, frame: str = "map"):
+        """The octomap_msgs/Octomap (a rosbags object) of the tree: what follows the file's
+        ``data`` line, as octomap_msgs' binaryMapToMsg / fullMapToMsg put it."""
+        raw = self.file_bytes(tmp)
+        data = raw[raw.index(b"\ndata\n") + 6:]
+        sec = int(math.floor(t))
+        stamp = T["builtin_interfaces/msg/Time"](sec=sec, nanosec=int(round((t - sec) * 1e9)))
+        return T[OCTOMAP_TYPE](header=T["std_msgs/msg/Header"](stamp=stamp, frame_id=frame), binary=self.binary,
+                               id="OcTree", resolution=VOXEL, data=np.frombuffer(data, dtype=np.int8).copy())
+
+
+def map_publisher(session, domain: int, namespace: str, eid: int = 9, node: str = "map_server",
+                  topic: str = "map", typename: str = "nav_msgs/msg/OccupancyGrid"):
+    """``(put, entities)``: ``put(payload: bytes)`` sends a map on ``NS/topic`` as a reliable,
     transient-local, depth-1 ROS 2 publisher in rmw_zenoh's format; ``entities`` to undeclare."""
     from zenoh import ext
 
     ns = namespace.strip("/")
-    typename = "nav_msgs/msg/OccupancyGrid"
     h = STORE.hash_rihs01(typename)
-    key = f"{domain}/{ns}/map/{_dds(typename)}/{h}"
+    key = f"{domain}/{ns}/{topic}/{_dds(typename)}/{h}"
     zid = str(session.zid())
     pub = ext.declare_advanced_publisher(
         session, key, cache=ext.CacheConfig(max_samples=1), publisher_detection=True,
         sample_miss_detection=ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=0.5))
-    token_key = f"@ros2_lv/{domain}/{zid}/0/{eid}/MP/%/%{ns}/{node}/%{ns}%map/{_dds(typename)}/{h}/{TRANSIENT_LOCAL_DEPTH_1}"
+    token_key = (f"@ros2_lv/{domain}/{zid}/0/{eid}/MP/%/%{ns}/{node}/%{ns}%{topic}/{_dds(typename)}/{h}/"
+                 f"{TRANSIENT_LOCAL_DEPTH_1}")
     token = session.liveliness().declare_token(token_key)
     seq = [0]
     gid = _gid(token_key)
@@ -111,9 +180,13 @@ def _dds(typename: str) -> str:
 
 class SimulatedRobot:
     def __init__(self, scenario, cid: str, endpoint: str, namespace: str = "/robot1", domain: int = 0,
-                 acknowledge: bool = True, sensing: str = "features"):
+                 acknowledge: bool = True, sensing: str = "features", binary: bool = True):
         self.scenario, self.cid, self.ns, self.domain = scenario, cid, namespace.strip("/"), domain
         self.acknowledge, self.sensing = acknowledge, sensing
+        self.z = ROBOT_Z if sensing == "frontier3d" else 0.0
+        self.octomap = OctoMapRobot(binary) if sensing == "frontier3d" else None
+        #: frontier3d: (stamp s, the tree as an OctoMap file's bytes) of every map sent.
+        self.files: list[tuple[float, bytes]] = []
         #: (stamp s, CDR payload) of every map sent, in order.
         self.maps: list[tuple[float, bytes]] = []
         self.session = open_session(make_config("client", [], [endpoint]), 20.0)
@@ -128,10 +201,12 @@ class SimulatedRobot:
         self._gids: dict[str, bytes] = {}
         topics = [("odom", "nav_msgs/msg/Odometry", "MP"), ("features", "geometry_msgs/msg/PoseArray", "MP"),
                   ("deployed", "std_msgs/msg/UInt32", "MP"), ("deploy", "std_msgs/msg/UInt32", "MS")]
-        if sensing == "frontier":
+        if sensing in ("frontier", "frontier3d"):
             del topics[1]
+            topic, typename = (("map", "nav_msgs/msg/OccupancyGrid") if sensing == "frontier"
+                               else ("octomap_binary", OCTOMAP_TYPE))
             self._put_map, entities = map_publisher(self.session, domain, self.ns, eid=len(topics) + 1,
-                                                    node="robot")
+                                                    node="robot", topic=topic, typename=typename)
             self._entities += entities
         for eid, (topic, typename, kind) in enumerate(topics, start=1):
             h = STORE.hash_rihs01(typename)
@@ -157,25 +232,35 @@ class SimulatedRobot:
         return T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](
             sec=sec, nanosec=int(round((t - sec) * 1e9))), frame_id=frame)
 
-    def _pose(self, x: float, y: float):
-        return T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
+    def _pose(self, x: float, y: float, z: float = 0.0):
+        return T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=x, y=y, z=z),
                                            orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0))
 
     def publish_odometry(self, t: float, x: float, y: float) -> None:
-        """``NS/odom`` stamped ``t`` (s): at (x, y) (m), heading east, at rest."""
+        """``NS/odom`` stamped ``t`` (s): at (x, y, :attr:`z`) (m), heading east, at rest."""
         zeros = np.zeros(36)
         self._put("odom", T["nav_msgs/msg/Odometry"](
             header=self._header(t, "map"), child_frame_id="base_link",
-            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=self._pose(x, y), covariance=zeros),
+            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=self._pose(x, y, self.z), covariance=zeros),
             twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=T["geometry_msgs/msg/Twist"](
                 linear=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
                 angular=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)), covariance=zeros)),
             "nav_msgs/msg/Odometry")
 
-    def publish_map(self, t: float, payload: bytes | None = None) -> bytes:
+    def publish_map(self, t: float, payload: bytes | None = None, at: tuple[float, float] | None = None) -> bytes:
         """``NS/map``: :func:`map_message` at ``t`` (s), or any ``payload`` (a malformed one);
-        recorded in :attr:`maps`. Returns the payload."""
-        if payload is None:
+        recorded in :attr:`maps`. frontier3d: ``NS/octomap_binary``, the tree after a scan from
+        ``at`` (x, y; none: no new scan). Returns the payload."""
+        if payload is None and self.octomap is not None:
+            import tempfile
+
+            if at is not None:
+                self.octomap.scan(*at)
+            with tempfile.TemporaryDirectory() as tmp:
+                msg = self.octomap.message(t, tmp)
+                self.files.append((t, self.octomap.file_bytes(tmp)))
+            payload = bytes(STORE.serialize_cdr(msg, OCTOMAP_TYPE))
+        elif payload is None:
             payload = bytes(STORE.serialize_cdr(map_message(t), "nav_msgs/msg/OccupancyGrid"))
         self.maps.append((t, payload))
         self._put_map(payload)
@@ -202,8 +287,8 @@ class SimulatedRobot:
                 return
             sim.advance_to(t)
             x, y = (float(v) for v in sim.position(self.cid))
-            if self.sensing == "frontier" and t >= next_map - 1e-9:
-                self.publish_map(next_map)
+            if self.sensing in ("frontier", "frontier3d") and t >= next_map - 1e-9:
+                self.publish_map(next_map, at=(x, y))
                 next_map += MAP_PERIOD_S
             self.publish_odometry(t, x, y)
             if self.sensing == "features":

@@ -13,6 +13,8 @@ rosbags_typesys = pytest.importorskip("rosbags.typesys")
 from ros2 import msgs  # noqa: E402
 
 STORE = rosbags_typesys.get_typestore(rosbags_typesys.Stores.ROS2_JAZZY)
+for _name, _text in msgs.MSG_TEXT.items():  # types outside common_interfaces, from their .msg files
+    STORE.register(rosbags_typesys.get_types_from_msg(_text, _name))
 
 
 def _their_fields(typename: str) -> tuple:
@@ -108,6 +110,12 @@ SAMPLES = {
         "info": {"map_load_time": {"sec": 14, "nanosec": 0}, "resolution": 0.05, "width": 3, "height": 2,
                  "origin": {"position": {"x": -10.0, "y": 2.5}, "orientation": {"z": 0.6, "w": 0.8}}},
         "data": [-1, 0, 100, 50, -1, 0]},
+    "octomap_msgs/msg/Octomap": {"header": {"stamp": {"sec": 21, "nanosec": 7}, "frame_id": "map"}, "binary": True,
+                                 "id": "OcTree", "resolution": 0.1, "data": [0, 3, -1, 12, 64]},
+    "sensor_msgs/msg/PointCloud2": {
+        "header": {"stamp": {"sec": 5, "nanosec": 0}, "frame_id": "c1/lidar"}, "height": 1, "width": 2,
+        "fields": [{"name": c, "offset": 4 * i, "datatype": 7, "count": 1} for i, c in enumerate("xyz")],
+        "point_step": 12, "row_step": 24, "data": list(range(24)), "is_dense": True},
 }
 
 

@@ -294,3 +294,120 @@ def test_the_maps_a_frontier_body_keeps_are_the_ones_its_stages_need():
             k = latest_at(stamps, t)
             kk = latest_at([stamps[i] for i in kept], t)
             assert (k < 0 and kk < 0) or stamps[k] == stamps[kept[kk]]
+
+
+# --------------------------------------------------------------------------- --robot-sensing frontier3d
+
+
+def _their_octomaps(files, tmp_path) -> list:
+    """(stamp, world.voxels.VoxelGrid) of the maps the simulated robot sent: the trees as OctoMap
+    itself wrote them to files, read by the import's file reader (``python -m world import
+    MAP.bt``), not by the message path."""
+    from world.voxels import read_octomap
+
+    out = []
+    for k, (t, raw) in enumerate(files):
+        path = tmp_path / f"sent{k}.{'bt' if raw.startswith(b'# Octomap OcTree binary') else 'ot'}"
+        path.write_bytes(raw)
+        out.append((t, read_octomap(path)))
+    return out
+
+
+def _value3d(maps, t, point, radius, keep=(1.0, 0.1)):
+    """The import's value of ``point`` (x, y, z) in the latest map stamped at or before ``t``."""
+    from world.voxels import FrontierCounter3D
+
+    before = [g for s, g in maps if s <= t + 1e-9]
+    return 0 if not before else int(FrontierCounter3D(before[-1], 6).count([point], radius, *keep)[0])
+
+
+def test_a_ros2_robot_observes_the_frontier_voxels_of_its_octomap(tmp_path):
+    """--robot-sensing frontier3d: the robot (OctoMap's own OcTree of its LiDAR scans, sent on
+    NS/octomap_binary as octomap_server does) drives carrier a of tiny; every stage's
+    observation is the import's value (its .bt reader, FrontierCounter3D, the paper's height
+    band) of the robot's odometry position, z included, in the latest map stamped at or before
+    the stage time (none at stage 0: x = 0)."""
+    from ros2_robot_sim import ROBOT_Z
+
+    tiny = world.load_scenario(TINY)
+    fleet, robot, summary = _fly(tiny, "a", tmp_path, sensing="frontier3d")
+    assert summary["ended"] and summary["stages_decided"] == tiny.stages
+    assert all(fleet.results[cid] == "end" for cid in tiny.carrier_ids)
+    r = tiny.carrier_index("a")
+    trace = world.simulate_mission(tiny)
+    maps = _their_octomaps(robot.files, tmp_path)
+    assert [t for t, _ in maps] == [2.0, 5.0, 8.0, 11.0, 14.0]
+    points = [(*trace.positions[r, j], ROBOT_Z) for j in range(tiny.stages)]
+    expected = [_value3d(maps, float(t), points[j], tiny.sensing_radius) for j, t in enumerate(tiny.stage_times())]
+    observed = np.array(summary["observations"], dtype=float)
+    assert observed[r].tolist() == expected
+    assert expected[0] == 0 and len({v for v in expected if v}) >= 2, expected
+    # The height band matters here (the shaft below, the ceiling's edge above), and z is the
+    # odometry's: on the floor (z = 0) the band keeps other voxels.
+    counted_all = [_value3d(maps, float(t), points[j], tiny.sensing_radius, (0.0, 0.0))
+                   for j, t in enumerate(tiny.stage_times())]
+    on_floor = [_value3d(maps, float(t), (*points[j][:2], 0.0), tiny.sensing_radius)
+                for j, t in enumerate(tiny.stage_times())]
+    assert counted_all != expected and on_floor != expected, (counted_all, on_floor, expected)
+    b = tiny.carrier_index("b")
+    np.testing.assert_array_equal(observed[b], world.observe_all(tiny)[b])
+    assert len(robot.released) == len(summary["carriers"][r]["deployments"]) == tiny.carriers[r].passengers
+    assert not [ln for ln in fleet.log.lines if "map ignored" in ln or "undecodable" in ln]
+
+
+def test_a_full_octomap_and_a_malformed_one(tmp_path):
+    """A full tree (octomap_msgs' fullMapToMsg: ``binary`` false, OctoMap's .ot stream) counts
+    as the file does; a truncated tree and a tree of another type are logged once each and
+    ignored, and the process goes on."""
+    import time
+
+    import zenoh
+
+    from ros2.graph import Node
+    from ros2.robot import RobotBody
+    from ros2_robot_sim import OCTOMAP_TYPE, ROBOT_Z, STORE, OctoMapRobot
+    from wire.zconfig import free_port, make_config
+
+    tiny = world.load_scenario(TINY)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    session = zenoh.open(make_config("peer", [endpoint]))
+    robot = SimulatedRobot(tiny, "a", endpoint, "/robot7", DOMAIN, sensing="frontier3d", binary=False)
+    lines: list[str] = []
+    stop = threading.Event()
+    try:
+        node = Node(session, DOMAIN, "/a", "carrier", log=lines.append, watch=False)
+        body = RobotBody(tiny, "a", node, "/robot7", sync=False, log=lines.append, stop=threading.Event(),
+                         timeout_s=10.0, sensing="frontier3d")
+        robot.wait_for_subscriber(stop, "octomap_binary", timeout_s=10.0)
+        other = OctoMapRobot(binary=True)
+        other.scan(20.0, 20.0)
+        cut = other.message(7.0, str(tmp_path))
+        cut.data = cut.data[:-5]
+        wrong = other.message(7.0, str(tmp_path))
+        wrong.id = "CountingOcTree"
+        for msg in (cut, wrong, cut):
+            robot.publish_map(7.0, bytes(STORE.serialize_cdr(msg, OCTOMAP_TYPE)))
+        robot.publish_map(8.0, at=(22.0, 20.0))
+        thread = _odometry_until(robot, stop, 8.0, 22.0, 20.0)
+        body.advance_to(8.0)
+        deadline = time.monotonic() + 10
+        while body.maps.newest < 8.0 and time.monotonic() < deadline:  # paced: the newest map counts
+            time.sleep(0.01)
+            body.maps.pull()
+        x = body.sense("a")
+        stop.set()
+        thread.join(2)
+        node.close()
+    finally:
+        stop.set()
+        robot.close()
+        session.close()
+    maps = _their_octomaps(robot.files, tmp_path)
+    assert robot.files[0][1].startswith(b"# Octomap OcTree file")  # the full format
+    assert x == _value3d(maps, 8.0, (22.0, 20.0, ROBOT_Z), tiny.sensing_radius) > 0
+    assert len(body.maps.grids) == 1 and body.maps.stamps == [8.0]
+    ignored = [ln for ln in lines if "map ignored" in ln]
+    assert len(ignored) == 2, lines
+    assert "a whole tree, found the data truncated" in ignored[0], ignored
+    assert "/robot7/octomap_binary (stamp 7.000 s)" in ignored[0], ignored
+    assert "of id OcTree" in ignored[1] and "CountingOcTree" in ignored[1], ignored

@@ -614,6 +614,34 @@ def _fill(out, keys, depth, occ, key0):
                     out[i, j, k] = v
 
 
+def _stream_leaves(buf: np.ndarray, pos: int, tree_id: str, binary: bool, params: OccupancyParams, where: str,
+                   nodes: str, file: bool):
+    """(keys, depth, occupied) of the node stream in ``buf`` from ``pos`` to its end: a ``.bt``
+    stream (``binary``, tree id OcTree) or a full one (OcTree or ColorOcTree); ``nodes`` says
+    what a truncated stream lacks and ``file`` whether it is a file's (else a message's), for
+    the error."""
+    if binary:
+        if tree_id != "OcTree":
+            raise GridError(where, f"a {'.bt file' if file else 'binary OctoMap'} of id OcTree", f"id {tree_id}")
+        keys, depth, occ, end = _bt_leaves(buf, pos)
+    else:
+        extra = {"OcTree": 0, "ColorOcTree": 3}.get(tree_id)
+        if extra is None:
+            raise GridError(where, f"a{'n .ot file' if file else ' full OctoMap'} of id OcTree or ColorOcTree", f"id {tree_id}")
+        keys, depth, occ, end = _ot_leaves(buf, pos, extra, np.float32(params.logs[2]))
+    if end == -1:
+        raise GridError(where, nodes, f"the {'file' if file else 'data'} truncated")
+    if end == -2:
+        raise GridError(where, "a tree of at most 16 levels", "deeper nodes")
+    if end != len(buf):
+        raise GridError(where, "nothing after the tree's nodes", f"{len(buf) - end} bytes more")
+    return keys, depth, occ
+
+
+def _no_leaves():
+    return np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool)
+
+
 def octomap_leaves(path: str | Path, params: OccupancyParams = OccupancyParams()):
     """(resolution, keys int ``[L, 3]`` lower corners, depth ``[L]`` (16: one voxel), occupied
     ``[L]``) of an OctoMap file.
@@ -631,34 +659,16 @@ def octomap_leaves(path: str | Path, params: OccupancyParams = OccupancyParams()
     except OSError as exc:
         raise GridError(where, "a readable OctoMap file", exc.strerror or str(exc)) from None
     tree_id, res, size, pos = _header(data, where, suffix == ".bt")
-    buf = np.frombuffer(data, dtype=np.uint8)
     if size == 0:
-        empty = np.zeros((0, 3), dtype=np.int64)
-        return res, empty, np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool)
-    if suffix == ".bt":
-        if tree_id != "OcTree":
-            raise GridError(where, "a .bt file of id OcTree", f"id {tree_id}")
-        keys, depth, occ, end = _bt_leaves(buf, pos)
-    else:
-        extra = {"OcTree": 0, "ColorOcTree": 3}.get(tree_id)
-        if extra is None:
-            raise GridError(where, "an .ot file of id OcTree or ColorOcTree", f"id {tree_id}")
-        keys, depth, occ, end = _ot_leaves(buf, pos, extra, np.float32(params.logs[2]))
-    if end == -1:
-        raise GridError(where, f"the tree's nodes ({size} by its header)", "the file truncated")
-    if end == -2:
-        raise GridError(where, "a tree of at most 16 levels", "deeper nodes")
-    if end != len(data):
-        raise GridError(where, "nothing after the tree's nodes", f"{len(data) - end} bytes more")
-    return res, keys, depth, occ
+        return (res, *_no_leaves())
+    buf = np.frombuffer(data, dtype=np.uint8)
+    return (res, *_stream_leaves(buf, pos, tree_id, suffix == ".bt", params, where,
+                                 f"the tree's nodes ({size} by its header)", True))
 
 
-def read_octomap(path: str | Path, params: OccupancyParams = OccupancyParams()) -> VoxelGrid:
-    """An OctoMap file as a dense :class:`VoxelGrid`: every leaf (pruned ones too) expanded to
-    voxels at the tree's resolution; ``.ot`` leaves occupied when their log-odds exceed
-    ``params.occupancy``'s, ``.bt`` leaves as stored."""
-    res, keys, depth, occ = octomap_leaves(path, params)
-    where = str(path)
+def leaves_grid(res: float, keys: np.ndarray, depth: np.ndarray, occ: np.ndarray, where: str) -> VoxelGrid:
+    """Leaves (:func:`octomap_leaves`) as a dense :class:`VoxelGrid`, every leaf expanded to
+    voxels, one unknown voxel of margin round them."""
     if not len(keys):
         raise GridError(where, "an OctoMap with at least one known voxel", "an empty tree")
     size = 1 << (TREE_DEPTH - depth)
@@ -669,6 +679,44 @@ def read_octomap(path: str | Path, params: OccupancyParams = OccupancyParams()) 
     out = np.full(shape, UNKNOWN, dtype=np.int8)
     _fill(out, keys, depth, occ, lo.astype(np.int64))
     return VoxelGrid(out, res, tuple(int(v) for v in lo), where)
+
+
+def read_octomap(path: str | Path, params: OccupancyParams = OccupancyParams()) -> VoxelGrid:
+    """An OctoMap file as a dense :class:`VoxelGrid`: every leaf (pruned ones too) expanded to
+    voxels at the tree's resolution; ``.ot`` leaves occupied when their log-odds exceed
+    ``params.occupancy``'s, ``.bt`` leaves as stored."""
+    return leaves_grid(*octomap_leaves(path, params), str(path))
+
+
+def octomap_from_message(msg: dict, where: str, params: OccupancyParams = OccupancyParams()) -> VoxelGrid | None:
+    """An ``octomap_msgs/msg/Octomap`` (a dict: ``binary``, ``id``, ``resolution``, ``data``) as
+    a dense :class:`VoxelGrid`, by the code that reads the files: ``binary`` data is the
+    ``.bt`` stream (``writeBinaryData``), full data the ``.ot`` one (``writeData``); None for an
+    empty tree (no data).
+
+    Raises:
+        GridError: a resolution that is not > 0, another tree type, a truncated stream or bytes
+            left over (``where`` names the topic and stamp).
+    """
+    res = msg.get("resolution")
+    if not (isinstance(res, (int, float)) and math.isfinite(res) and res > 0):
+        raise GridError(f"{where}: resolution", "a voxel size > 0 (m)", repr(res))
+    data = msg.get("data")
+    buf = np.frombuffer(data if isinstance(data, (bytes, bytearray)) else np.asarray(data, dtype=np.int8).tobytes(),
+                        dtype=np.uint8)
+    if not len(buf):
+        return None
+    keys, depth, occ = _stream_leaves(buf, 0, str(msg.get("id", "")), bool(msg.get("binary")), params,
+                                      f"{where}: data", "a whole tree", False)
+    return leaves_grid(float(res), keys, depth, occ, where)
+
+
+def octomap_message(grid: VoxelGrid) -> dict:
+    """``grid`` as an ``octomap_msgs/msg/Octomap``'s fields (no header): a binary OcTree, as
+    octomap_server publishes on ``octomap_binary``."""
+    data = octomap_bytes(grid)
+    return {"binary": True, "id": "OcTree", "resolution": float(grid.resolution),
+            "data": data[data.index(b"\ndata\n") + 6:]}
 
 
 @numba.njit(cache=True)
