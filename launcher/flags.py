@@ -249,6 +249,16 @@ def _ros2_flags(p: argparse.ArgumentParser) -> None:
                         "scenario's sensing radius, the importer's --replay value) or frontier3d (the frontier "
                         "voxels of its OctoMap on NS/octomap_binary within that radius and the paper's height "
                         "band, the 3D import's value)")
+    r.add_argument("--robot-cloud-topic", metavar="TOPIC",
+                   help="with --robot-sensing frontier3d: make the 3D map from the robot's "
+                        "sensor_msgs/msg/PointCloud2 scans on NS/TOPIC (OctoMap's ray casting, the 3D import's) "
+                        "instead of reading its NS/octomap_binary")
+    r.add_argument("--robot-voxel", type=float, metavar="M",
+                   help="with --robot-cloud-topic: that map's voxel size in m (default: the resolution of the "
+                        "scenario's map.voxels OctoMap, else 0.2, the 3D import's)")
+    r.add_argument("--robot-sensor-offset", type=float, nargs=3, metavar=("X", "Y", "Z"),
+                   help="with --robot-cloud-topic: the LiDAR's position in the robot's base frame in m, where each "
+                        "scan's rays start (default 0 0 0; the 3D import's --sensor-offset)")
 
 
 def _carrier_output_flags(p: argparse.ArgumentParser) -> None:
@@ -308,6 +318,8 @@ def to_argv(flags) -> list[str]:
             options.append(flag)
         elif isinstance(action, argparse._AppendAction):
             options += [token for item in value for token in _pair(flag, item)]
+        elif type(action) is argparse._StoreAction and isinstance(action.nargs, int):
+            options += [flag, *(str(v) for v in value)]  # numbers: a negative one reads as a value
         elif type(action) is argparse._StoreAction:
             options += _pair(flag, value)
         else:  # a new kind of flag must say how it is written out

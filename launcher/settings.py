@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import os
+import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -64,7 +66,9 @@ class Settings:
         from ros2.publisher import Ros2Settings
 
         return Ros2Settings(domain=f.ros2_domain, robot=f.ros2_robot, namespace=f.ros2_namespace or "/",
-                            sensing=f.robot_sensing or ROBOT_SENSING[0])
+                            sensing=f.robot_sensing or ROBOT_SENSING[0], cloud_topic=f.robot_cloud_topic or "",
+                            voxel=f.robot_voxel or 0.0,
+                            sensor_offset=tuple(f.robot_sensor_offset or (0.0, 0.0, 0.0)))
 
     def timeouts(self):
         """The mission's waits (:class:`mission.timeouts.Timeouts`; docs/fleet.md, "Waits over
@@ -305,6 +309,7 @@ def _ros2(f, carriers: tuple[str, ...]) -> tuple[int | None, list[Problem]]:
     """The ROS 2 flags: (the domain in force, or None when ROS 2 is off) and their problems."""
     ros2 = f.ros2 or f.ros2_robot
     if (not ros2 and f.ros2_domain is None and f.ros2_namespace is None and f.robot_sensing is None
+            and f.robot_cloud_topic is None and f.robot_voxel is None and f.robot_sensor_offset is None
             and f.mcap_profile == "foxglove"):
         return None, []
     from ros2.publisher import check_domain, check_namespace, default_domain
@@ -330,6 +335,26 @@ def _ros2(f, carriers: tuple[str, ...]) -> tuple[int | None, list[Problem]]:
                 out.append(_said("--ros2-namespace", line))
     if f.robot_sensing is not None and not f.ros2_robot:
         out.append(Problem("--robot-sensing", "", None, "only with --ros2-robot (what the robot's carrier observes)"))
+    if f.robot_cloud_topic is not None:
+        if f.robot_sensing != "frontier3d":
+            out.append(Problem("--robot-cloud-topic", "", None,
+                               "only with --ros2-robot --robot-sensing frontier3d (the scans its 3D map is made of)"))
+        elif not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*", f.robot_cloud_topic):
+            out.append(Problem("--robot-cloud-topic", "a topic in the robot's namespace such as points or "
+                               "lidar/points (tokens of letters, digits and _ starting with a letter)",
+                               f.robot_cloud_topic))
+    if f.robot_voxel is not None:
+        if f.robot_cloud_topic is None:
+            out.append(Problem("--robot-voxel", "", None, "only with --robot-cloud-topic (the voxel size of the map "
+                               "the carrier makes of the robot's scans)"))
+        elif not (math.isfinite(f.robot_voxel) and f.robot_voxel > 0):
+            out.append(Problem("--robot-voxel", "a voxel size > 0 (m)", f.robot_voxel))
+    if f.robot_sensor_offset is not None:
+        if f.robot_cloud_topic is None:
+            out.append(Problem("--robot-sensor-offset", "", None, "only with --robot-cloud-topic (where the scans' "
+                               "rays start on the robot)"))
+        elif not all(math.isfinite(v) for v in f.robot_sensor_offset):
+            out.append(Problem("--robot-sensor-offset", "three finite numbers X Y Z (m)", list(f.robot_sensor_offset)))
     if f.mcap_profile == "ros2" and f.role in ("all", "coordinator"):
         try:
             import rosbags  # noqa: F401

@@ -63,6 +63,12 @@ class Ros2Settings:
             :data:`~ros2.robot.SENSING`): ``features`` (the poses in ``NS/features``),
             ``frontier`` (the frontier cells of ``NS/map`` within the sensing radius) or
             ``frontier3d`` (the frontier voxels of ``NS/octomap_binary`` in the height band).
+        cloud_topic: with ``frontier3d``, the robot's PointCloud2 topic (in its namespace) whose
+            scans the carrier makes its map of (``--robot-cloud-topic``); "" reads the OctoMap.
+        voxel: that map's voxel size (m, ``--robot-voxel``); 0: the scenario's ``map.voxels``
+            map's, else the import's default (0.2 m).
+        sensor_offset: the LiDAR's position in the robot's base frame (m, ``--robot-sensor-offset``):
+            each scan's ray origin.
     """
 
     domain: int = 0
@@ -71,6 +77,9 @@ class Ros2Settings:
     ack_timeout_s: float = 10.0
     robot_timeout_s: float = 30.0
     sensing: str = "features"
+    cloud_topic: str = ""
+    voxel: float = 0.0
+    sensor_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def coordinator_sink(self, session, problem=None, log=print):
         """A factory ``scene -> CoordinatorTopics`` for recording/live.py's extra sinks."""
@@ -158,7 +167,8 @@ class CarrierRos2:
             self.robot = RobotBody(carrier.scenario, carrier.cid, self.node, settings.namespace,
                                    sync=carrier.config.realtime <= 0, log=carrier.log, stop=carrier._stop,
                                    ack_timeout_s=settings.ack_timeout_s, timeout_s=settings.robot_timeout_s,
-                                   sensing=settings.sensing)
+                                   sensing=settings.sensing, cloud_topic=settings.cloud_topic,
+                                   voxel=settings.voxel, sensor_offset=settings.sensor_offset)
             carrier.motion.body = self.robot
             self.node.claimed = self.robot.ours  # the robot's own topics: it refuses them itself
         self.node.watch_graph()

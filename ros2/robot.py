@@ -55,6 +55,9 @@ than ``keep_above`` above or ``keep_below`` below it (``map.voxels``' values, el
 tree as :func:`~world.voxels.octomap_from_message` reads it (the reader of ``python -m world
 import MAP.bt``: a binary message's data is the ``.bt`` stream, a full one's the ``.ot`` stream,
 every pruned leaf expanded to voxels). Which map, the waits and the bad maps are as in 2D.
+With ``cloud_topic`` (``--robot-cloud-topic``) the body makes the map itself from the robot's
+``sensor_msgs/msg/PointCloud2`` scans on ``NS/cloud_topic`` (:class:`_Scans`: the 3D import's
+ray caster and pose interpolation), and a stage counts in the scans stamped at or before it.
 
 Deployments. The carrier publishes the command once and waits at most ``ack_timeout_s`` for
 ``NS/deployed`` with the same index. Without it, it logs one line and goes on: the deployment
@@ -82,6 +85,11 @@ SENSING = ("features", "frontier", "frontier3d")
 MAX_MAPS = 8
 #: The map's QoS as map_server and slam_toolbox publish it (reliable, transient local, depth 1).
 MAP_QOS = QoS(durability=TRANSIENT_LOCAL, depth=1)
+#: Scans a ``--robot-cloud-topic`` body holds before inserting them (those stamped after the
+#: carrier's time), and the scans that may wait in its inbox.
+MAX_SCANS, SCAN_INBOX = 64, 256
+#: How much a scan map's region grows beyond what a scan needs, when it grows (m).
+SCAN_SLACK_M = 5.0
 
 
 def _stamp(msg: dict) -> float:
@@ -100,6 +108,7 @@ class _History:
         self.sub, self.value, self.keep = sub, value, keep
         self.stamps: list[float] = []
         self.values: list = []
+        self.frame = ""  # the latest message's header.frame_id (no leading /)
 
     def pull(self) -> None:
         while True:
@@ -108,6 +117,7 @@ class _History:
             except Exception:
                 return
             t = _stamp(msg)
+            self.frame = str(msg["header"]["frame_id"]).lstrip("/")
             k = bisect.bisect_right(self.stamps, t)
             self.stamps.insert(k, t)
             self.values.insert(k, self.value(msg))
@@ -282,6 +292,112 @@ class _Maps:
         return counter(point, radius)
 
 
+class _Scans:
+    """``--robot-cloud-topic``: the robot's PointCloud2 scans made a 3D map by the import's ray
+    caster (:class:`world.voxels.VoxelMapper`, OctoMap's rules; its region grown as the robot
+    goes), inserted in stamp order, each from the robot's odometry pose at its stamp
+    (:class:`world.clouds.Trajectory`, the import's interpolation): a cloud in the odometry's
+    frame (``header.frame_id``, e.g. ``map``: a SLAM's registered scan) is in the map frame
+    already, any other is taken in the robot's base frame. A stage counts in the scans stamped
+    at or before its time (unpaced; paced: every scan its odometry covers), as ``python -m world
+    import BAG --cloud-topic ... --replay`` does.
+
+    Invariant: :attr:`pending` holds the scans not yet inserted, in stamp order; at most
+    ``keep`` (beyond, the oldest is inserted early, logged once)."""
+
+    def __init__(self, sub, scenario, odom: "_History", sync: bool, log, robot: str, where: str,
+                 voxel: float = 0.0, offset=(0.0, 0.0, 0.0), keep: int = MAX_SCANS):
+        from world import voxels as V
+        from world.import3d import DEFAULT_VOXEL
+
+        spec = scenario.map.voxels
+        self.voxel = (voxel if voxel > 0 else V.octomap_resolution(spec.path) if spec is not None
+                      else DEFAULT_VOXEL)
+        self.rule = ((spec.neighbours, spec.keep_above, spec.keep_below) if spec is not None
+                     else (6, V.DEFAULT_KEEP_ABOVE, V.DEFAULT_KEEP_BELOW))
+        self.sub, self.odom, self.sync, self._log, self.keep = sub, odom, sync, log, keep
+        self.robot, self.where = robot, where
+        self.offset = np.asarray(offset, dtype=float)
+        self.pending: list[tuple[float, np.ndarray, str]] = []  # (stamp, points, frame)
+        self.mapper = None
+        self.newest = -math.inf
+        self._faults: set[str] = set()
+        self._overflow = False
+
+    def _fault(self, kind: str, line: str) -> None:
+        if kind not in self._faults:
+            self._faults.add(kind)
+            self._log(f"robot {self.robot}: scan ignored (and any later one wrong the same way): {line}")
+
+    def pull(self) -> None:
+        from world.clouds import cloud_points
+        from world.grid import GridError
+
+        while True:
+            try:
+                msg, _ = self.sub.inbox.get_nowait()
+            except Exception:
+                break
+            try:
+                t = _stamp(msg)
+                pts = cloud_points(msg, f"{self.where} (stamp {t:.3f} s)").astype(np.float32)
+            except (GridError, ValueError, TypeError, KeyError) as exc:
+                self._fault(exc.expected if isinstance(exc, GridError) else type(exc).__name__, str(exc))
+                continue
+            k = bisect.bisect_right([p[0] for p in self.pending], t)
+            self.pending.insert(k, (t, pts, str(msg["header"]["frame_id"]).lstrip("/")))
+            self.newest = max(self.newest, t)
+        while len(self.pending) > self.keep:
+            if not self._overflow:
+                self._overflow = True
+                self._log(f"robot {self.robot}: more than {self.keep} scans on {self.where} ahead of the carrier's "
+                          f"stages; the oldest go into the map early")
+            self._insert(self.pending.pop(0))
+
+    def reached(self, t: float) -> bool:
+        return self.newest >= t - 1e-6
+
+    def latest(self):
+        return 0 if (self.mapper is not None or self.pending) else None
+
+    def _insert(self, scan) -> None:
+        from world import voxels as V
+        from world.clouds import Trajectory
+        from world.grid import GridError
+
+        t, pts, frame = scan
+        try:
+            if not self.odom.stamps:
+                raise GridError(f"{self.where} (stamp {t:.3f} s)", "odometry at the scan's stamp", "none yet")
+            poses = np.array([[s, v[0], v[1], v[3], *v[4]] for s, v in zip(self.odom.stamps, self.odom.values)])
+            base, rot = Trajectory(poses, "odometry").at(t, f"{self.where} (stamp {t:.3f} s)")
+            origin = base + rot @ self.offset
+            if frame != self.odom.frame:
+                pts = (pts @ rot.T + base).astype(np.float32)
+            if self.mapper is None:
+                self.mapper = V.VoxelMapper(origin, origin, self.voxel, source=self.where)
+            if len(pts):
+                self.mapper.cover(np.minimum(pts.min(axis=0), origin), np.maximum(pts.max(axis=0), origin),
+                                  slack=SCAN_SLACK_M)
+            self.mapper.insert(pts, origin)
+        except GridError as exc:
+            self._fault(exc.expected, str(exc))
+
+    def value(self, t: float, point, radius: float) -> int:
+        """The value of ``point`` (x, y, z; m) in the map of the scans stamped at or before
+        ``t`` (s) that the odometry covers (:meth:`_insert`)."""
+        from world import voxels as V
+
+        last = self.odom.stamps[-1] if self.odom.stamps else -math.inf
+        while self.pending and self.pending[0][0] <= min(t, last) + 1e-6:
+            self._insert(self.pending.pop(0))
+        if self.mapper is None:
+            return 0
+        neighbours, above, below = self.rule
+        win = self.mapper.window(point, radius)
+        return int(V.FrontierCounter3D(win, neighbours).count([point], radius, above, below)[0])
+
+
 class RobotBody:
     """One carrier's body backed by a ROS 2 robot (see the module docstring).
 
@@ -298,28 +414,40 @@ class RobotBody:
     """
 
     def __init__(self, scenario, cid: str, node, namespace: str, sync: bool, log, stop: threading.Event,
-                 ack_timeout_s: float = 10.0, timeout_s: float = 30.0, sensing: str = "features"):
+                 ack_timeout_s: float = 10.0, timeout_s: float = 30.0, sensing: str = "features",
+                 cloud_topic: str = "", voxel: float = 0.0,
+                 sensor_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)):
         if sensing not in SENSING:
             raise ValueError(f"sensing: expected one of {', '.join(SENSING)}, found {sensing!r}")
+        if cloud_topic and sensing != "frontier3d":
+            raise ValueError(f"cloud_topic: only with sensing frontier3d, found sensing {sensing!r}")
         self.cid = cid
         self.ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
         self.node = node
         self.sync, self._log, self._stop = sync, log, stop
         self.ack_timeout_s, self.timeout_s = ack_timeout_s, timeout_s
         self.sensing = sensing
+        self.cloud_topic = ""
         self.radius = float(scenario.sensing_radius)
         self.time = 0.0
         keep = QoS(depth=1000)
         # The map first: by the time the robot sees the odometry subscription, the map's exists.
         self.features = self.maps = None
-        if sensing in MAP_TOPICS:
+        if cloud_topic:
+            self.cloud_topic = f"{self.ns}/{cloud_topic.strip('/')}"
+        elif sensing in MAP_TOPICS:
             topic, msgtype, kind = MAP_TOPICS[sensing]
             where = f"{self.ns}/{topic}"
             sub = node.subscription(where, msgtype, MAP_QOS, capacity=MAX_MAPS, keep_newest=True)
             self.maps = _Maps(sub, kind(scenario, where), scenario, lambda: self.time, sync, log, self.ns or "/", where)
         self.odom = _History(node.subscription(f"{self.ns}/odom", "nav_msgs/msg/Odometry", keep), lambda m: (
             float(m["pose"]["pose"]["position"]["x"]), float(m["pose"]["pose"]["position"]["y"]),
-            _yaw(m["pose"]["pose"]["orientation"]), float(m["pose"]["pose"]["position"]["z"])))
+            _yaw(m["pose"]["pose"]["orientation"]), float(m["pose"]["pose"]["position"]["z"]),
+            tuple(float(m["pose"]["pose"]["orientation"][c]) for c in "xyzw")))
+        if cloud_topic:  # after the odometry's: the scans are placed by it
+            sub = node.subscription(self.cloud_topic, "sensor_msgs/msg/PointCloud2", QoS(depth=10), capacity=SCAN_INBOX)
+            self.maps = _Scans(sub, scenario, self.odom, sync, log, self.ns or "/", self.cloud_topic, voxel,
+                               sensor_offset)
         if sensing == "features":
             self.features = _History(node.subscription(f"{self.ns}/features", "geometry_msgs/msg/PoseArray", keep),
                                      lambda m: len(m["poses"]))
@@ -338,7 +466,8 @@ class RobotBody:
     def ours(self, key: str) -> bool:
         """Whether a graph token is about one of the robot's topics."""
         return any(f"/{mangle(f'{self.ns}/{topic}')}/" in key
-                   for topic in ("odom", "features", *(t for t, _, _ in MAP_TOPICS.values()), "deploy", "deployed"))
+                   for topic in ("odom", "features", *(t for t, _, _ in MAP_TOPICS.values()), "deploy", "deployed",
+                                 *([self.cloud_topic[len(self.ns) + 1:]] if self.cloud_topic else [])))
 
     def _check_format(self) -> None:
         """Raise :class:`ForeignFormat` (the carrier stops, one line) when the robot's own topics
@@ -409,9 +538,12 @@ class RobotBody:
         frontier cells (voxels) within the sensing radius in its map (``stage``, the stage being
         sensed, is the carrier loop's and not needed here)."""
         if self.maps is not None:
-            self._wait(self.maps, self.time, "map", or_odometry=True)
+            self._wait(self.maps, self.time, "scan" if isinstance(self.maps, _Scans) else "map", or_odometry=True)
+            point = (*self._pos, self._z)
+            if isinstance(self.maps, _Scans):
+                return self.maps.value(self.time if self.sync else math.inf, point, self.radius)
             k = self.maps.at(self.time) if self.sync else self.maps.latest()
-            return 0 if k is None else self.maps.value(k, (*self._pos, self._z), self.radius)
+            return 0 if k is None else self.maps.value(k, point, self.radius)
         self._wait(self.features, self.time, "feature detections")
         x = self.features.at(self.time) if self.sync else self.features.latest()
         return int(x) if x is not None else 0

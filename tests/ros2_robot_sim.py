@@ -113,19 +113,28 @@ class OctoMapRobot:
     """The 3D robot's map: an OctoMap OcTree (the library's binding) of its scans."""
 
     def __init__(self, binary: bool = True):
-        import octomap
+        self.binary = binary
+        self.scans: list[tuple[np.ndarray, np.ndarray]] = []
 
-        self.tree, self.binary = octomap.OcTree(VOXEL), binary
-
-    def scan(self, x: float, y: float) -> None:
+    def scan(self, x: float, y: float) -> tuple[np.ndarray, np.ndarray]:
+        """A scan from (x, y) (:func:`lidar_scan`) added to the map; returns it."""
         pts, origin = lidar_scan(x, y)
-        self.tree.insertPointCloud(pts, origin, maxrange=LIDAR_RANGE)
+        self.scans.append((pts, origin))
+        return pts, origin
 
     def file_bytes(self, tmp: str) -> bytes:
-        """The tree as a ``.bt`` (binary) or ``.ot`` (full) file, written by OctoMap."""
-        self.tree.updateInnerOccupancy()
+        """The tree of the scans so far as a ``.bt`` (binary) or ``.ot`` (full) file, written by
+        OctoMap. A new tree each time: the binding's writeBinary turns the tree it writes into
+        its maximum-likelihood estimate (OctoMap's non-const ``writeBinary``), which octomap_server's
+        ``writeBinaryData`` does not, so a tree written once would map the next scans otherwise."""
+        import octomap
+
+        tree = octomap.OcTree(VOXEL)
+        for pts, origin in self.scans:
+            tree.insertPointCloud(pts, origin, maxrange=LIDAR_RANGE)
+        tree.updateInnerOccupancy()
         path = f"{tmp}/map.{'bt' if self.binary else 'ot'}"
-        (self.tree.writeBinary if self.binary else self.tree.write)(path.encode())
+        (tree.writeBinary if self.binary else tree.write)(path.encode())
         with open(path, "rb") as f:
             return f.read()
 
@@ -187,6 +196,8 @@ class SimulatedRobot:
         self.octomap = OctoMapRobot(binary) if sensing == "frontier3d" else None
         #: frontier3d: (stamp s, the tree as an OctoMap file's bytes) of every map sent.
         self.files: list[tuple[float, bytes]] = []
+        #: frontier3d: (stamp s, returns float ``[N, 3]``, origin) of every scan sent on NS/points.
+        self.scans: list[tuple[float, np.ndarray, np.ndarray]] = []
         #: (stamp s, CDR payload) of every map sent, in order.
         self.maps: list[tuple[float, bytes]] = []
         self.session = open_session(make_config("client", [], [endpoint]), 20.0)
@@ -201,6 +212,8 @@ class SimulatedRobot:
         self._gids: dict[str, bytes] = {}
         topics = [("odom", "nav_msgs/msg/Odometry", "MP"), ("features", "geometry_msgs/msg/PoseArray", "MP"),
                   ("deployed", "std_msgs/msg/UInt32", "MP"), ("deploy", "std_msgs/msg/UInt32", "MS")]
+        if sensing == "frontier3d":
+            topics.append(("points", "sensor_msgs/msg/PointCloud2", "MP"))
         if sensing in ("frontier", "frontier3d"):
             del topics[1]
             topic, typename = (("map", "nav_msgs/msg/OccupancyGrid") if sensing == "frontier"
@@ -255,7 +268,7 @@ class SimulatedRobot:
             import tempfile
 
             if at is not None:
-                self.octomap.scan(*at)
+                self.publish_scan(t, *at)
             with tempfile.TemporaryDirectory() as tmp:
                 msg = self.octomap.message(t, tmp)
                 self.files.append((t, self.octomap.file_bytes(tmp)))
@@ -265,6 +278,20 @@ class SimulatedRobot:
         self.maps.append((t, payload))
         self._put_map(payload)
         return payload
+
+    def publish_scan(self, t: float, x: float, y: float, frame: str = "map") -> None:
+        """``NS/points``: a LiDAR scan from (x, y) stamped ``t`` (s), its returns in the map frame
+        (a SLAM's registered cloud), FLOAT32 x, y, z and a padding field; also inserted into the
+        robot's OctoMap."""
+        pts, origin = self.octomap.scan(x, y)
+        self.scans.append((t, pts, origin))
+        rec = np.zeros(len(pts), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("pad", "<f4")])
+        rec["x"], rec["y"], rec["z"] = pts[:, 0], pts[:, 1], pts[:, 2]
+        fields = [T["sensor_msgs/msg/PointField"](name=c, offset=4 * i, datatype=7, count=1) for i, c in enumerate("xyz")]
+        self._put("points", T["sensor_msgs/msg/PointCloud2"](
+            header=self._header(t, frame), height=1, width=len(pts), fields=fields, is_bigendian=False,
+            point_step=16, row_step=16 * len(pts), data=np.frombuffer(rec.tobytes(), dtype=np.uint8), is_dense=True),
+            "sensor_msgs/msg/PointCloud2")
 
     def wait_for_subscriber(self, stop: threading.Event, topic: str = "odom", timeout_s: float = 60.0) -> None:
         """Until the carrier's subscription to NS/``topic`` is in the graph (ROS discovery)."""

@@ -44,6 +44,8 @@ def _other_value(action: argparse.Action):
         return ("tcp/127.0.0.1:7447", "-x=1")
     if action.choices:
         return next(c for c in action.choices if c != action.default)
+    if isinstance(action.nargs, int):
+        return tuple(-2.5 + k for k in range(action.nargs))
     if action.type is int:
         return 7 if action.default != 7 else 8
     if action.type is float:

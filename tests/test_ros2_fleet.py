@@ -236,8 +236,22 @@ def test_off_imports_nothing_of_ros2():
     (["--role", "carrier", "--carrier", "a", "--robot-sensing", "frontier"], "--robot-sensing: only with --ros2-robot"),
     (["--role", "carrier", "--carrier", "a", "--ros2", "--robot-sensing", "features"],
      "--robot-sensing: only with --ros2-robot"),
+    (["--role", "carrier", "--carrier", "a", "--ros2-robot", "--robot-sensing", "frontier", "--robot-cloud-topic", "p"],
+     "--robot-cloud-topic: only with --ros2-robot --robot-sensing frontier3d"),
+    (["--role", "carrier", "--carrier", "a", "--ros2-robot", "--robot-sensing", "frontier3d",
+      "--robot-cloud-topic", "lidar points"], "--robot-cloud-topic: expected a topic in the robot's namespace"),
+    (["--role", "carrier", "--carrier", "a", "--ros2-robot", "--robot-sensing", "frontier3d", "--robot-voxel", "0.2"],
+     "--robot-voxel: only with --robot-cloud-topic"),
+    (["--role", "carrier", "--carrier", "a", "--ros2-robot", "--robot-sensing", "frontier3d",
+      "--robot-cloud-topic", "points", "--robot-voxel", "0"], "--robot-voxel: expected a voxel size > 0 (m), found 0"),
+    (["--role", "carrier", "--carrier", "a", "--ros2-robot", "--robot-sensing", "frontier3d",
+      "--robot-sensor-offset", "0", "0", "1"], "--robot-sensor-offset: only with --robot-cloud-topic"),
+    (["--role", "carrier", "--carrier", "a", "--ros2-robot", "--robot-sensing", "frontier3d",
+      "--robot-cloud-topic", "points", "--robot-sensor-offset", "0", "nan", "1"],
+     "--robot-sensor-offset: expected three finite numbers X Y Z (m)"),
 ], ids=["domain", "robot-role", "robot-two-ids", "namespace", "namespace-without-robot", "sensing-without-robot",
-        "sensing-with-ros2-only"])
+        "sensing-with-ros2-only", "cloud-without-frontier3d", "cloud-topic-name", "voxel-without-cloud", "voxel-zero",
+        "offset-without-cloud", "offset-nan"])
 def test_bad_ros2_flags_get_one_line(tiny, flags, line):
     from launcher.flags import parse_args
     from launcher.settings import check
@@ -257,9 +271,17 @@ def test_robot_sensing_reaches_the_robot_settings(tiny):
 
     assert launcher.ROBOT_SENSING == SENSING
     robot = ["scenarios/tiny.yaml", "--role", "carrier", "--carrier", "a", "--ros2-robot"]
-    for flags, sensing in (([], "features"), (["--robot-sensing", "frontier"], "frontier")):
+    for flags, sensing in (([], "features"), (["--robot-sensing", "frontier"], "frontier"),
+                           (["--robot-sensing", "frontier3d"], "frontier3d")):
         settings, problems = check(parse_args(robot + flags), tiny)
         assert problems == [] and settings.ros2().sensing == sensing
+        assert settings.ros2().cloud_topic == "" and settings.ros2().voxel == 0.0
+    settings, problems = check(parse_args(robot + ["--robot-sensing", "frontier3d", "--robot-cloud-topic", "lidar/points",
+                                                   "--robot-voxel", "0.4", "--robot-sensor-offset", "0.1", "0", "0.8"]),
+                               tiny)
+    assert problems == []
+    r = settings.ros2()
+    assert (r.cloud_topic, r.voxel, r.sensor_offset) == ("lidar/points", 0.4, (0.1, 0.0, 0.8))
 
 
 def test_ros2_domain_defaults_to_ros_domain_id(tiny, monkeypatch):

@@ -20,7 +20,8 @@ from ros2_robot_sim import SimulatedRobot  # noqa: E402
 DOMAIN = 3
 
 
-def _fly(scenario, robot_id, out, acknowledge=True, ack_timeout_s=10.0, sensing="features"):
+def _fly(scenario, robot_id, out, acknowledge=True, ack_timeout_s=10.0, sensing="features", cloud_topic="",
+         voxel=0.0, offset=(0.0, 0.0, 0.0)):
     fleet = InProcessFleet(scenario, out)
     fleet.start_coordinator()
     robot = SimulatedRobot(scenario, robot_id, fleet.endpoint, "/robot1", DOMAIN, acknowledge=acknowledge,
@@ -32,7 +33,9 @@ def _fly(scenario, robot_id, out, acknowledge=True, ack_timeout_s=10.0, sensing=
         for cid in scenario.carrier_ids:
             if cid == robot_id:
                 fleet.start_carrier(cid, ros2=Ros2Settings(domain=DOMAIN, robot=True, namespace="/robot1",
-                                                           ack_timeout_s=ack_timeout_s, sensing=sensing))
+                                                           ack_timeout_s=ack_timeout_s, sensing=sensing,
+                                                           cloud_topic=cloud_topic, voxel=voxel,
+                                                           sensor_offset=offset))
             else:
                 fleet.start_carrier(cid)
         summary = fleet.join(180.0)
@@ -321,16 +324,19 @@ def _value3d(maps, t, point, radius, keep=(1.0, 0.1)):
     return 0 if not before else int(FrontierCounter3D(before[-1], 6).count([point], radius, *keep)[0])
 
 
-def test_a_ros2_robot_observes_the_frontier_voxels_of_its_octomap(tmp_path):
+@pytest.mark.parametrize("cloud_topic", ["", "points"], ids=["octomap", "scans"])
+def test_a_ros2_robot_observes_the_frontier_voxels_of_its_3d_map(tmp_path, cloud_topic):
     """--robot-sensing frontier3d: the robot (OctoMap's own OcTree of its LiDAR scans, sent on
-    NS/octomap_binary as octomap_server does) drives carrier a of tiny; every stage's
-    observation is the import's value (its .bt reader, FrontierCounter3D, the paper's height
-    band) of the robot's odometry position, z included, in the latest map stamped at or before
-    the stage time (none at stage 0: x = 0)."""
-    from ros2_robot_sim import ROBOT_Z
+    NS/octomap_binary as octomap_server does, and each scan on NS/points) drives carrier a of
+    tiny; every stage's observation is the import's value (its .bt reader, FrontierCounter3D,
+    the paper's height band) of the robot's odometry position, z included, in the latest map
+    stamped at or before the stage time (none at stage 0: x = 0) — read from the OctoMap, or
+    (--robot-cloud-topic points) made by the carrier from the scans, voxel for voxel OctoMap's."""
+    from ros2_robot_sim import LIDAR_UP, ROBOT_Z, VOXEL
 
     tiny = world.load_scenario(TINY)
-    fleet, robot, summary = _fly(tiny, "a", tmp_path, sensing="frontier3d")
+    fleet, robot, summary = _fly(tiny, "a", tmp_path, sensing="frontier3d", cloud_topic=cloud_topic,
+                                 voxel=VOXEL if cloud_topic else 0.0, offset=(0.0, 0.0, LIDAR_UP))
     assert summary["ended"] and summary["stages_decided"] == tiny.stages
     assert all(fleet.results[cid] == "end" for cid in tiny.carrier_ids)
     r = tiny.carrier_index("a")
@@ -352,7 +358,7 @@ def test_a_ros2_robot_observes_the_frontier_voxels_of_its_octomap(tmp_path):
     b = tiny.carrier_index("b")
     np.testing.assert_array_equal(observed[b], world.observe_all(tiny)[b])
     assert len(robot.released) == len(summary["carriers"][r]["deployments"]) == tiny.carriers[r].passengers
-    assert not [ln for ln in fleet.log.lines if "map ignored" in ln or "undecodable" in ln]
+    assert not [ln for ln in fleet.log.lines if "ignored" in ln or "undecodable" in ln]
 
 
 def test_a_full_octomap_and_a_malformed_one(tmp_path):

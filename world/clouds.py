@@ -260,7 +260,11 @@ def read_folder(path: str | Path) -> list[Scan]:
 
 def cloud_points(msg, where: str) -> np.ndarray:
     """float64 ``[P, 3]`` of a PointCloud2 (x, y, z as FLOAT32 or FLOAT64 at the offsets its
-    fields give; NaN points dropped)."""
+    fields give; NaN points dropped). ``msg``: a rosbags message, or a dict (ros2/msgs.py's)."""
+    if isinstance(msg, dict):
+        from types import SimpleNamespace
+
+        msg = SimpleNamespace(**{**msg, "fields": [SimpleNamespace(**f) for f in msg["fields"]]})
     fields = {f.name: f for f in msg.fields}
     for name in "xyz":
         f = fields.get(name)

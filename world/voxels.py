@@ -393,6 +393,38 @@ class VoxelMapper:
         hit, miss, self._occ, clo, chi = params.logs
         self._args = (np.float32(hit), np.float32(miss), np.float32(clo), np.float32(chi))
 
+    def cover(self, lower, upper, slack: float = 0.0) -> None:
+        """Grow the region to hold ``lower`` .. ``upper`` (m), keeping every voxel's state (a
+        voxel is an OctoMap key: the map is the same whatever region holds it); when it grows,
+        by ``slack`` (m) more on each side that grows, so that a map built scan by scan is
+        copied now and then, not at every scan.
+
+        Raises:
+            GridError: past OctoMap's key range or :data:`MAX_VOXELS`.
+        """
+        res = self.resolution
+        lo = np.floor(np.asarray(lower, dtype=float) / res).astype(np.int64) + KEY_ZERO - 1
+        hi = np.floor(np.asarray(upper, dtype=float) / res).astype(np.int64) + KEY_ZERO + 2
+        old_hi = self._key0 + np.asarray(self.logodds.shape)
+        if np.all(lo >= self._key0) and np.all(hi <= old_hi):
+            return
+        if np.any(lo < 0) or np.any(hi > 2 * KEY_ZERO):
+            raise GridError(self.source or "scans", f"points within ±{KEY_ZERO * res:g} m of the origin "
+                            "(OctoMap's key range at this voxel size)", f"a region {lower} .. {upper}")
+        extra = int(math.ceil(slack / res))
+        lo = np.where(lo < self._key0, np.maximum(lo - extra, 0), self._key0)
+        hi = np.where(hi > old_hi, np.minimum(hi + extra, 2 * KEY_ZERO), old_hi)
+        shape = tuple(int(v) for v in hi - lo)
+        _check_size(shape, self.source or "--voxel")
+        at = self._key0 - lo
+        sl = tuple(slice(int(a), int(a) + n) for a, n in zip(at, self.logodds.shape))
+        logodds = np.full(shape, np.nan, dtype=np.float32)
+        stamp = np.zeros(shape, dtype=np.int32)
+        logodds[sl], stamp[sl] = self.logodds, self._stamp
+        self.logodds, self._stamp = logodds, stamp
+        self.key0 = tuple(int(v) for v in lo)
+        self._key0 = np.asarray(self.key0, dtype=np.int64)
+
     def insert(self, points, origin) -> None:
         """One scan: float ``[P, 3]`` returns and the sensor ``origin`` ``(3,)``, map frame (m)."""
         pts = np.ascontiguousarray(np.asarray(points, dtype=np.float32).reshape(-1, 3))
@@ -664,6 +696,17 @@ def octomap_leaves(path: str | Path, params: OccupancyParams = OccupancyParams()
     buf = np.frombuffer(data, dtype=np.uint8)
     return (res, *_stream_leaves(buf, pos, tree_id, suffix == ".bt", params, where,
                                  f"the tree's nodes ({size} by its header)", True))
+
+
+def octomap_resolution(path: str | Path) -> float:
+    """The voxel size (m) an OctoMap file's header states (its first 4 KiB read)."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096)
+    except OSError as exc:
+        raise GridError(str(path), "a readable OctoMap file", exc.strerror or str(exc)) from None
+    return _header(head, str(path), path.suffix.lower() == ".bt")[1]
 
 
 def leaves_grid(res: float, keys: np.ndarray, depth: np.ndarray, occ: np.ndarray, where: str) -> VoxelGrid:
