@@ -162,13 +162,14 @@ class CarrierRos2:
         self.robot = None
         self._failed = False
         if settings.robot:
-            from ros2.robot import RobotBody
+            from ros2.robot import RobotBody, ScanSource
 
             self.robot = RobotBody(carrier.scenario, carrier.cid, self.node, settings.namespace,
                                    sync=carrier.config.realtime <= 0, log=carrier.log, stop=carrier._stop,
                                    ack_timeout_s=settings.ack_timeout_s, timeout_s=settings.robot_timeout_s,
-                                   sensing=settings.sensing, cloud_topic=settings.cloud_topic,
-                                   voxel=settings.voxel, sensor_offset=settings.sensor_offset)
+                                   sensing=settings.sensing,
+                                   scans=ScanSource(settings.cloud_topic, settings.voxel, settings.sensor_offset)
+                                   if settings.cloud_topic else None)
             carrier.motion.body = self.robot
             self.node.claimed = self.robot.ours  # the robot's own topics: it refuses them itself
         self.node.watch_graph()

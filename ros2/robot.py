@@ -70,6 +70,7 @@ import bisect
 import math
 import threading
 import time
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -292,6 +293,18 @@ class _Maps:
         return counter(point, radius)
 
 
+@dataclass(frozen=True)
+class ScanSource:
+    """Where a frontier3d body's scans come from (``--robot-cloud-topic``, ``--robot-voxel``,
+    ``--robot-sensor-offset``): the PointCloud2 ``topic`` in the robot's namespace, the map's
+    ``voxel`` size (m; 0: the scenario's ``map.voxels`` map's, else 0.2) and the LiDAR's
+    ``sensor_offset`` in the robot's base frame (m)."""
+
+    topic: str
+    voxel: float = 0.0
+    sensor_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
 class _Scans:
     """``--robot-cloud-topic``: the robot's PointCloud2 scans made a 3D map by the import's ray
     caster (:class:`world.voxels.VoxelMapper`, OctoMap's rules; its region grown as the robot
@@ -411,16 +424,16 @@ class RobotBody:
         stop: the carrier's stop request (ends every wait).
         ack_timeout_s, timeout_s: see the module docstring.
         sensing: one of :data:`SENSING` (see the module docstring).
+        scans: with ``frontier3d``, the robot's scans to make the map of (else its OctoMap).
     """
 
     def __init__(self, scenario, cid: str, node, namespace: str, sync: bool, log, stop: threading.Event,
                  ack_timeout_s: float = 10.0, timeout_s: float = 30.0, sensing: str = "features",
-                 cloud_topic: str = "", voxel: float = 0.0,
-                 sensor_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)):
+                 scans: ScanSource | None = None):
         if sensing not in SENSING:
             raise ValueError(f"sensing: expected one of {', '.join(SENSING)}, found {sensing!r}")
-        if cloud_topic and sensing != "frontier3d":
-            raise ValueError(f"cloud_topic: only with sensing frontier3d, found sensing {sensing!r}")
+        if scans is not None and sensing != "frontier3d":
+            raise ValueError(f"scans: only with sensing frontier3d, found sensing {sensing!r}")
         self.cid = cid
         self.ns = "/" + namespace.strip("/") if namespace.strip("/") else ""
         self.node = node
@@ -433,8 +446,8 @@ class RobotBody:
         keep = QoS(depth=1000)
         # The map first: by the time the robot sees the odometry subscription, the map's exists.
         self.features = self.maps = None
-        if cloud_topic:
-            self.cloud_topic = f"{self.ns}/{cloud_topic.strip('/')}"
+        if scans is not None:
+            self.cloud_topic = f"{self.ns}/{scans.topic.strip('/')}"
         elif sensing in MAP_TOPICS:
             topic, msgtype, kind = MAP_TOPICS[sensing]
             where = f"{self.ns}/{topic}"
@@ -444,10 +457,10 @@ class RobotBody:
             float(m["pose"]["pose"]["position"]["x"]), float(m["pose"]["pose"]["position"]["y"]),
             _yaw(m["pose"]["pose"]["orientation"]), float(m["pose"]["pose"]["position"]["z"]),
             tuple(float(m["pose"]["pose"]["orientation"][c]) for c in "xyzw")))
-        if cloud_topic:  # after the odometry's: the scans are placed by it
+        if scans is not None:  # after the odometry's: the scans are placed by it
             sub = node.subscription(self.cloud_topic, "sensor_msgs/msg/PointCloud2", QoS(depth=10), capacity=SCAN_INBOX)
-            self.maps = _Scans(sub, scenario, self.odom, sync, log, self.ns or "/", self.cloud_topic, voxel,
-                               sensor_offset)
+            self.maps = _Scans(sub, scenario, self.odom, sync, log, self.ns or "/", self.cloud_topic, scans.voxel,
+                               scans.sensor_offset)
         if sensing == "features":
             self.features = _History(node.subscription(f"{self.ns}/features", "geometry_msgs/msg/PoseArray", keep),
                                      lambda m: len(m["poses"]))
