@@ -11,6 +11,7 @@ from carriers.onboard import Onboard, with_onboard_load
 from carriers.shared import SWITCH_INTERVAL_S, PhysicsThread, StageGate, shared_world
 from mission.timeouts import DEFAULTS
 from wire import keys
+from wire.fault_windows import fault_clock
 from wire.messages import SharedDecoder
 
 
@@ -95,7 +96,7 @@ def run_carriers(scenario, configs, zconf, stop: threading.Event | None = None) 
     physics = PhysicsThread() if any(c.ros2 is None for c in configs) else None
     carriers = [Carrier(scenario, c, zconf() if callable(zconf) else zconf, stop=stop, shared=shared, onboard=onboard,
                         gate=gate, broadcasts=broadcasts, session=session,
-                        physics=physics if c.ros2 is None else None) for c in configs]
+                        physics=physics if c.ros2 is None else None, clock=fault_clock(c.carrier)) for c in configs]
     reasons: dict = {}
 
     def body(carrier):

@@ -27,6 +27,8 @@ loss                 every process's receive filter drops each message with prob
                      (:mod:`wire.fault_windows`, a Generator of each receiver's from the root seed)
 partition            the carrier's messages dropped by every receiver, and everything it receives
                      (its liveliness token stays: a real cut's vanishes a lease later)
+clock-jump           the carrier's clock (what its lifecycle and waits read) moved ``size`` s
+                     forward, for good (:func:`wire.fault_windows.fault_clock`)
 ==================== ==========================================================================
 
 Other kinds are refused before anything starts (:data:`FLOWN`). What each struck, at which
@@ -42,7 +44,7 @@ import time
 
 #: The kinds a real fleet flies, and what it does to which process.
 FLOWN = ("crash", "coordinator-crash", "takeover", "pause", "freeze", "slow", "router-lost", "loss", "partition",
-         "standby-crash")
+         "standby-crash", "clock-jump")
 #: Kinds that need a standby coordinator started with the fleet.
 STANDBY = ("takeover", "pause", "standby-crash")
 #: Kinds whose standby has a results directory (a disk) of its own: :data:`STANDBY_OUT` under --out.
@@ -94,6 +96,7 @@ class Injector:
         self.log: list = []
         self.loss: list = []                      # the loss windows in force (their sizes)
         self.cut: list = []                       # the carriers cut off
+        self.jumps: dict = {}                     # host -> its clock's jumps so far (s)
         self.slowed: dict = {}                    # carrier -> the wall time its slowness ends
         self.write_windows()
         self.thread = threading.Thread(target=self._run, name="faults", daemon=True)
@@ -131,7 +134,7 @@ class Injector:
         """The message faults in force, for every process's receive filter (replaced atomically)."""
         path = self.fleet.windows
         tmp = path.with_suffix(".tmp")
-        tmp.write_text(json.dumps({"loss": self.loss, "cut": self.cut}))
+        tmp.write_text(json.dumps({"loss": self.loss, "cut": self.cut, "jumps": self.jumps}))
         os.replace(tmp, path)
 
     def _window(self, kind: str, value, on: bool) -> None:
@@ -184,6 +187,9 @@ class Injector:
             end = lambda: self._window(f.kind, value, False)  # noqa: E731
         elif f.kind == "slow":
             self.slowed[f.who] = max(self.slowed.get(f.who, 0.0), time.monotonic() + length)
+        elif f.kind == "clock-jump":  # instantaneous and for good, as the simulator's
+            self.jumps[f.who] = self.jumps.get(f.who, 0.0) + f.size
+            self.write_windows()
         self._note(k, "struck", reached)
         if end is not None:
             self.ends.append((time.monotonic() + length, k, end, resume))

@@ -181,6 +181,16 @@ def plane_maps(scenario, where: str):
     return read, counter
 
 
+def voxel_rule(scenario) -> tuple[int, float, float]:
+    """(neighbours, keep_above, keep_below) of a scenario's 3D values: its ``map.voxels``', else
+    the paper's (6, 1 m, 0.1 m)."""
+    from world import voxels as V
+
+    spec = scenario.map.voxels
+    return ((spec.neighbours, spec.keep_above, spec.keep_below) if spec is not None
+            else (6, V.DEFAULT_KEEP_ABOVE, V.DEFAULT_KEEP_BELOW))
+
+
 def voxel_maps(scenario, where: str):
     """``--robot-sensing frontier3d``: (read, counter) for :class:`_Maps` over
     ``octomap_msgs/msg/Octomap`` messages on ``where``: world/voxels.py's reader (the import's
@@ -189,9 +199,7 @@ def voxel_maps(scenario, where: str):
     1 m, 0.1 m without it)."""
     from world import voxels as V
 
-    spec = scenario.map.voxels
-    neighbours, above, below = ((spec.neighbours, spec.keep_above, spec.keep_below) if spec is not None
-                                else (6, V.DEFAULT_KEEP_ABOVE, V.DEFAULT_KEEP_BELOW))
+    neighbours, above, below = voxel_rule(scenario)
 
     def read(msg):
         t = _stamp(msg)
@@ -326,8 +334,7 @@ class _Scans:
         spec = scenario.map.voxels
         self.voxel = (voxel if voxel > 0 else V.octomap_resolution(spec.path) if spec is not None
                       else DEFAULT_VOXEL)
-        self.rule = ((spec.neighbours, spec.keep_above, spec.keep_below) if spec is not None
-                     else (6, V.DEFAULT_KEEP_ABOVE, V.DEFAULT_KEEP_BELOW))
+        self.rule = voxel_rule(scenario)
         self.sub, self.odom, self.sync, self._log, self.keep = sub, odom, sync, log, keep
         self.robot, self.where = robot, where
         self.offset = np.asarray(offset, dtype=float)
@@ -399,16 +406,10 @@ class _Scans:
     def value(self, t: float, point, radius: float) -> int:
         """The value of ``point`` (x, y, z; m) in the map of the scans stamped at or before
         ``t`` (s) that the odometry covers (:meth:`_insert`)."""
-        from world import voxels as V
-
         last = self.odom.stamps[-1] if self.odom.stamps else -math.inf
         while self.pending and self.pending[0][0] <= min(t, last) + 1e-6:
             self._insert(self.pending.pop(0))
-        if self.mapper is None:
-            return 0
-        neighbours, above, below = self.rule
-        win = self.mapper.window(point, radius)
-        return int(V.FrontierCounter3D(win, neighbours).count([point], radius, above, below)[0])
+        return 0 if self.mapper is None else self.mapper.value(point, radius, *self.rule)
 
 
 class RobotBody:

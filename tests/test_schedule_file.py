@@ -14,7 +14,7 @@ import pytest
 from mission import simulate as sim
 from mission.simulate import schedule
 from wire import keys
-from wire.fault_windows import FaultWindows
+from wire.fault_windows import ENV, FaultWindows, JumpedClock, fault_clock
 
 from fleet_helpers import ROOT
 
@@ -93,6 +93,33 @@ def test_the_receive_filter_drops_what_the_windows_in_force_lose(tmp_path):
     assert 850 < kept < 1150  # about half, drawn from the receiver's own seeded Generator
     first, second = (FaultWindows(str(path), "m", "b", ids, 7) for _ in range(2))
     assert [first.delay(obs, b"") for _ in range(64)] == [second.delay(obs, b"") for _ in range(64)]  # seeded
+
+
+def test_a_clock_jump_moves_one_hosts_clock_forward_for_good(tmp_path, monkeypatch):
+    """clock-jump on a real fleet: the clock a carrier's lifecycle reads is the base clock plus
+    its host's jumps in the windows' file (the simulator's Clock.jumped), read at most every
+    ``every_s``; another host's clock does not move, and without the launcher's file the base
+    clock is the process's clock itself."""
+    import time
+
+    path = tmp_path / "windows.json"
+    now = [100.0]
+    a = JumpedClock(str(path), "a", base=lambda: now[0], every_s=0.5)
+    b = JumpedClock(str(path), "b", base=lambda: now[0], every_s=0.5)
+    assert a() == 100.0  # no file yet
+    path.write_text(json.dumps({"loss": [], "cut": [], "jumps": {"a": 42.5}}))
+    assert a() == 100.0  # read again only after every_s
+    now[0] = 100.5
+    assert a() == 143.0 and b() == 100.5
+    path.write_text(json.dumps({"jumps": {"a": 50.0}}))
+    os.utime(path, ns=(1, 1))
+    now[0] = 101.0
+    assert a() == 151.0  # the total so far
+    monkeypatch.delenv(ENV, raising=False)
+    assert fault_clock("a") is time.monotonic
+    monkeypatch.setenv(ENV, str(path))
+    clock = fault_clock("a")
+    assert isinstance(clock, JumpedClock) and clock() >= time.monotonic() + 50.0 - 1.0
 
 
 def test_marsupial_fleet_run_takes_the_same_schedule_flag(tmp_path):

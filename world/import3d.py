@@ -393,10 +393,7 @@ def _replay(st: ImportSettings, scans: list[C.Scan], mapper: V.VoxelMapper, poin
         if s_i == 0:
             early += 1
             continue
-        q = points[ci][k, 1:]
-        win = mapper.window(q, st.radius)
-        values[ci][k] = V.FrontierCounter3D(win, st.neighbours).count(q[None, :], st.radius, st.keep_above,
-                                                                      st.keep_below)[0]
+        values[ci][k] = mapper.value(points[ci][k, 1:], st.radius, st.neighbours, st.keep_above, st.keep_below)
     for s in scans[s_i:]:
         mapper.insert(s.points, s.origin)
     return values, mapper.grid(), early

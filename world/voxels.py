@@ -447,6 +447,15 @@ class VoxelMapper:
     def grid(self) -> VoxelGrid:
         return VoxelGrid(self.classes(), self.resolution, self.key0, self.source)
 
+    def value(self, point, radius: float, neighbours: int = 6, keep_above: float = DEFAULT_KEEP_ABOVE,
+              keep_below: float = DEFAULT_KEEP_BELOW) -> int:
+        """The paper's value of ``point`` (x, y, z; m) in the current map
+        (:class:`FrontierCounter3D` in the :meth:`window` round it: the frontier of the whole map
+        within ``radius``)."""
+        q = np.asarray(point, dtype=float).reshape(1, 3)
+        win = self.window(q[0], radius)
+        return int(FrontierCounter3D(win, neighbours).count(q, radius, keep_above, keep_below)[0])
+
     def window(self, centre, radius: float) -> VoxelGrid:
         """The current map within ``radius`` (plus one voxel) of ``centre``: a :class:`VoxelGrid`
         (cut at the region's edge, which is unknown anyway)."""
