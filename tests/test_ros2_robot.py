@@ -417,3 +417,78 @@ def test_a_full_octomap_and_a_malformed_one(tmp_path):
     assert "a whole tree, found the data truncated" in ignored[0], ignored
     assert "/robot7/octomap_binary (stamp 7.000 s)" in ignored[0], ignored
     assert "of id OcTree" in ignored[1] and "CountingOcTree" in ignored[1], ignored
+
+
+def test_scans_made_a_map_and_a_bad_scan(tmp_path):
+    """--robot-cloud-topic, paced: a cloud without a float z field is logged once and ignored; a
+    scan stamped before any odometry has no pose (logged once, ignored); a scan waits until the
+    odometry covers its stamp; the others make the map whose value is the import's in OctoMap's
+    own tree of the same scans."""
+    import time
+
+    import zenoh
+
+    from ros2.graph import Node
+    from ros2.robot import RobotBody, ScanSource
+    from ros2_robot_sim import LIDAR_UP, ROBOT_Z, T, VOXEL
+    from wire.zconfig import free_port, make_config
+    from world.voxels import read_octomap
+
+    tiny = world.load_scenario(TINY)
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    session = zenoh.open(make_config("peer", [endpoint]))
+    robot = SimulatedRobot(tiny, "a", endpoint, "/robot7", DOMAIN, sensing="frontier3d")
+    lines: list[str] = []
+    stop = threading.Event()
+    try:
+        node = Node(session, DOMAIN, "/a", "carrier", log=lines.append, watch=False)
+        body = RobotBody(tiny, "a", node, "/robot7", sync=False, log=lines.append, stop=threading.Event(),
+                         timeout_s=10.0, sensing="frontier3d",
+                         scans=ScanSource("points", VOXEL, (0.0, 0.0, LIDAR_UP)))
+        robot.wait_for_subscriber(stop, "points", timeout_s=10.0)
+        flat = T["sensor_msgs/msg/PointCloud2"](
+            header=robot._header(3.0, "map"), height=1, width=1,
+            fields=[T["sensor_msgs/msg/PointField"](name=c, offset=4 * i, datatype=7, count=1)
+                    for i, c in enumerate("xy")],
+            is_bigendian=False, point_step=8, row_step=8, data=np.zeros(8, dtype=np.uint8), is_dense=True)
+        for _ in range(2):
+            robot._put("points", flat, "sensor_msgs/msg/PointCloud2")
+        robot.publish_scan(1.0, 18.0, 20.0)  # before any odometry: no pose
+        robot.publish_odometry(2.0, 21.0, 20.0)
+        robot.publish_scan(2.0, 21.0, 20.0)
+        robot.publish_scan(4.0, 23.0, 20.0)  # newer than the odometry so far: waits
+        deadline = time.monotonic() + 10
+        while body.maps.newest < 4.0 and time.monotonic() < deadline:
+            time.sleep(0.01)
+            body.maps.pull()
+        body.advance_to(2.0)
+        x2 = body.sense("a")
+        robot.publish_odometry(4.0, 23.0, 20.0)
+        thread = _odometry_until(robot, stop, 4.0, 23.0, 20.0)
+        time.sleep(0.2)
+        body.advance_to(4.0)
+        x4 = body.sense("a")
+        stop.set()
+        thread.join(2)
+        node.close()
+    finally:
+        stop.set()
+        robot.close()
+        session.close()
+    import octomap
+
+    def expected(scans, point):  # OctoMap's own tree of these scans, read as the import reads a file
+        tree = octomap.OcTree(VOXEL)
+        for _, pts, origin in scans:
+            tree.insertPointCloud(pts, origin, maxrange=-1.0)
+        tree.updateInnerOccupancy()
+        path = tmp_path / f"m{len(scans)}.bt"
+        tree.writeBinary(str(path).encode())
+        return _value3d([(0.0, read_octomap(path))], 0.0, point, tiny.sensing_radius)
+
+    assert x2 == expected(robot.scans[1:2], (21.0, 20.0, ROBOT_Z)) > 0
+    assert x4 == expected(robot.scans[1:3], (23.0, 20.0, ROBOT_Z)) > 0
+    ignored = [ln for ln in lines if "scan ignored" in ln]
+    assert len(ignored) == 2, lines
+    assert "a PointCloud2 with float x, y and z fields" in ignored[0] and "/robot7/points (stamp 3.000 s)" in ignored[0]
+    assert "has no pose" in ignored[1], ignored
