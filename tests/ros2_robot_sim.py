@@ -28,7 +28,6 @@ import time
 
 import numpy as np
 import xxhash
-import zenoh
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from zenoh.ext import Int64, z_serialize
 

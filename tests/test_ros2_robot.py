@@ -146,9 +146,9 @@ def test_a_silent_robot_is_taken_where_it_was_planned_and_logged_once():
 # --------------------------------------------------------------------------- --robot-sensing frontier
 
 
-def _their_maps(payloads) -> "MapHistory":
-    """Maps the simulated robot sent (CDR payloads), decoded by rosbags (not ros2/) and made
-    grids by the importer's own code."""
+def _their_maps(payloads):
+    """A world.grid.MapHistory of the maps the simulated robot sent (CDR payloads), decoded by
+    rosbags (not ros2/) and made grids by the importer's own code."""
     from ros2_robot_sim import STORE
     from world.grid import MapHistory, grid_from_message
 
