@@ -234,7 +234,8 @@ class Carrier:
         self.inbound = Inbound(self.mission, cid, config.mode, onboard,
                                broadcasts if broadcasts is not None else SharedDecoder(),  # the process's Decisions
                                book, Presence(self.clock()), mc.HelloAnswer(self.fingerprint),
-                               mc.Releases(scenario.carriers[r].passengers), self.motion.position, self.log)
+                               mc.Releases(scenario.carriers[r].passengers), self.motion.position, self.log,
+                               self.clock)
         self.store: CarrierLog | None = None  # the durable log, open while running
         self.alone = Alone(cid, book, onboard, scenario.seed, self.log)
         self.joining = Joining(cid, self.fingerprint, config, scenario.stage_time,

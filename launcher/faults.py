@@ -2,8 +2,11 @@
 F.json``; docs/fleet.md, "Fault schedules on real processes").
 
 Each fault strikes at its **mission point**: once mission.db holds ``decided`` stages' Decisions
-(the number the simulated mission had decided when it struck; :mod:`mission.simulate.schedule`),
-never at a wall time. It lasts ``until - at`` seconds (the simulated mission's seconds, on the
+(the number the simulated mission had decided when it struck; :mod:`mission.simulate.schedule`)
+and an accepted Hello of each carrier in ``joined`` (those that had joined then), or once the
+mission is past ``decided`` — never at a wall time. A clock jump of a carrier the simulated
+mission had not started yet (not in ``started``) is in force before any carrier starts: that
+carrier's clock is ahead from its start, as the simulated one's was. It lasts ``until - at`` seconds (the simulated mission's seconds, on the
 wall clock: what a timeout of the fleet measures too), or, for a pause, ``size``:
 
 ==================== ==========================================================================
@@ -67,20 +70,33 @@ def decided_anywhere(out) -> int:
     return max((decided(db) for db in dbs), default=-1)
 
 
+def joined_anywhere(out) -> frozenset:
+    """The carriers whose Hello the mission's records (the primary's, a standby's) accepted."""
+    dbs = [db for db in (out / "mission.db", out / STANDBY_OUT / "mission.db") if db.exists()]
+    query = "SELECT DISTINCT carrier FROM events WHERE kind='hello' AND json_extract(payload, '$.compatible')"
+    return frozenset(c for db in dbs for (c,) in _rows(db, query))
+
+
 def decided(db_path) -> int:
     """Stages decided on the mission's record (0 while it does not exist yet)."""
+    rows = _rows(db_path, "SELECT COUNT(*) FROM decisions")
+    return int(rows[0][0]) if rows else 0
+
+
+def _rows(db_path, query: str) -> list:
+    """The rows ``query`` gives on the mission's record (none while it does not exist yet)."""
     from storage.sqlite import open_read_only
 
     if not db_path.exists():
-        return 0
+        return []
     try:
         db = open_read_only(db_path, timeout=1.0)
         try:
-            return int(db.execute("SELECT COUNT(*) FROM decisions").fetchone()[0])
+            return db.execute(query).fetchall()
         finally:
             db.close()
     except Exception:  # noqa: BLE001 - the schema is not written yet
-        return 0
+        return []
 
 
 class Injector:
@@ -91,12 +107,20 @@ class Injector:
 
     def __init__(self, fleet, faults, points, restart: dict, stop: threading.Event):
         self.fleet, self.restart, self.stop = fleet, restart, stop
-        self.pending = [(k, f, (p.get("decided") or 0)) for k, (f, p) in enumerate(zip(faults, points))]
+        self.pending = [(k, f, (p.get("decided") or 0), frozenset(p.get("joined") or ()))
+                        for k, (f, p) in enumerate(zip(faults, points))]
         self.ends: list = []                      # (wall time, fault index, action, a resume)
         self.log: list = []
         self.loss: list = []                      # the loss windows in force (their sizes)
         self.cut: list = []                       # the carriers cut off
         self.jumps: dict = {}                     # host -> its clock's jumps so far (s)
+        for item in list(self.pending):  # in force before the carriers start (they start after this)
+            k, f = item[:2]
+            started = points[k].get("started")
+            if f.kind == "clock-jump" and item[2] == 0 and started is not None and f.who not in started:
+                self.pending.remove(item)
+                self.jumps[f.who] = self.jumps.get(f.who, 0.0) + f.size
+                self._note(k, "struck", 0)
         self.slowed: dict = {}                    # carrier -> the wall time its slowness ends
         self.write_windows()
         self.thread = threading.Thread(target=self._run, name="faults", daemon=True)
@@ -108,7 +132,8 @@ class Injector:
         out = self.fleet.out
         while not self.stop.is_set() and (self.pending or self.ends):
             reached = decided_anywhere(out)
-            for item in [p for p in self.pending if reached >= p[2]]:
+            joined = joined_anywhere(out) if any(reached == p[2] and p[3] for p in self.pending) else frozenset()
+            for item in [p for p in self.pending if reached > p[2] or (reached == p[2] and p[3] <= joined)]:
                 self.pending.remove(item)
                 self._strike(item[0], item[1], reached)
             now = time.monotonic()

@@ -113,7 +113,7 @@ def mission_json(fleet: sim.Fleet, seed: int, kinds, faults=None, plant=None) ->
 
     s = sim.Simulation(fleet, seed, faults=faults, kinds=kinds, plant=plant)
     out = s.run().as_json()
-    out["faults"] = schedule.with_points(s.faults, s.decided_at)
+    out["faults"] = schedule.with_points(s.faults, s.decided_at, s.accepted_at, s.started_at)
     return out
 
 

@@ -24,7 +24,8 @@ GOOD = {"kind": "crash", "at": 0.5, "until": 1.0, "who": "a", "size": 0.0, "deci
 def test_a_reported_schedule_reads_back_as_its_faults():
     faults = schedule.parse([GOOD, {"kind": "loss", "at": 0, "until": 4, "size": 0.25}], "f.json", ("a", "b"))
     assert faults == (sim.Fault("crash", 0.5, 1.0, "a", 0.0), sim.Fault("loss", 0.0, 4.0, "", 0.25))
-    assert schedule.points([GOOD]) == [{"decided": 2, "decided_until": 3}]
+    assert schedule.points([GOOD]) == [{"decided": 2, "decided_until": 3, "joined": None, "started": None}]
+    assert schedule.points([{**GOOD, "joined": ["a"]}])[0]["joined"] == ["a"]
 
 
 @pytest.mark.parametrize("data, says", [
@@ -37,6 +38,8 @@ def test_a_reported_schedule_reads_back_as_its_faults():
     ([{**GOOD, "who": "z"}], "f.json: fault 0: field 'who': expected a carrier id"),
     ([{**GOOD, "decided": -1}], "f.json: fault 0: field 'decided': expected an integer >= 0"),
     ([{**GOOD, "when": 3}], "f.json: fault 0: field 'when': unknown"),
+    ([{**GOOD, "joined": ["a", "z"]}], "f.json: fault 0: field 'joined': expected a list of the scenario's carrier ids"),
+    ([{**GOOD, "joined": 2}], "f.json: fault 0: field 'joined': expected a list"),
 ])
 def test_a_bad_schedule_names_the_fault_and_the_field(data, says):
     with pytest.raises(schedule.ScheduleError) as err:
@@ -46,8 +49,8 @@ def test_a_bad_schedule_names_the_fault_and_the_field(data, says):
 
 def test_the_mission_points_count_the_stages_decided_before():
     faults = (sim.Fault("crash", 0.5, 2.5, "a"), sim.Fault("freeze", 0.0, 0.1, "b"))
-    rows = schedule.with_points(faults, {0: 0.2, 1: 0.6, 2: 2.0, 3: 3.0})
-    assert [(r["decided"], r["decided_until"]) for r in rows] == [(1, 3), (0, 0)]
+    rows = schedule.with_points(faults, {0: 0.2, 1: 0.6, 2: 2.0, 3: 3.0}, {"b": 0.05, "a": 0.3}, {"a": 0.01, "b": 0.02})
+    assert [(r["decided"], r["decided_until"], r["joined"], r["started"]) for r in rows] == [(1, 3, ["a", "b"], ["a", "b"]), (0, 0, [], [])]
     assert rows[0]["kind"] == "crash" and schedule.parse(rows, "r", ("a", "b")) == faults
 
 

@@ -22,7 +22,7 @@ from tools import schedule_flight as flight
 pytestmark = pytest.mark.slow
 
 #: Kinds whose deployments the schedule determines (with a standby on the primary's disk).
-EXACT = ("coordinator-crash", "takeover", "pause")
+EXACT = ("coordinator-crash", "takeover", "pause", "clock-jump")
 
 
 @pytest.fixture(scope="module")

@@ -39,6 +39,12 @@ class Inbound:
     received: float = 0.0
     wall: float = 0.0
 
+    def received_on(self, clock) -> float:
+        """When it was enqueued, on ``clock`` (a process's clock, which may run ahead of
+        ``time.monotonic``: a schedule's clock jump, wire/fault_windows.py): its age on the
+        monotonic clock, before ``clock()`` now. A process compares times of one clock only."""
+        return clock() - (time.monotonic() - self.received)
+
 
 #: Samples one ``wake=False`` subscription holds until drained (then zenoh waits: no sample is
 #: dropped). A carrier drains at least every few seconds; a peer sends a few messages per stage.

@@ -165,6 +165,7 @@ class CoordinatorDriver:
             if isinstance(effect, ms.Record):
                 self.disk.events.append(effect.event)
             elif isinstance(effect, ms.Accept):
+                self.sim.accepted_at.setdefault(effect.carrier, self.sim.t)
                 self.sim.send(self.name, effect.carrier, msg("accepted", self.name, next_stage=effect.next_stage,
                                                               epoch=self.epoch, coordinator=self.name))
             elif isinstance(effect, ms.Refuse):

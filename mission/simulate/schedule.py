@@ -6,8 +6,10 @@ A schedule is a JSON list of faults, each an object with ``kind`` (one of :data:
 ``at`` and ``until`` (seconds of the simulated mission's true time, ``until >= at``), ``who``
 (a carrier id or ``coordinator``; optional) and ``size`` (the kind's probability, factor or
 seconds; optional). The simulator's report adds each fault's **mission points**: ``decided``,
-the number of stages the simulated mission had decided when the fault struck, and
-``decided_until``, when it ended. A real fleet strikes at the mission point, not at a wall time
+the number of stages the simulated mission had decided when the fault struck, ``decided_until``,
+when it ended, ``joined``, the carriers (ids, sorted) a coordinator had accepted when it struck,
+and ``started``, the carriers whose process had started then (which tell "before the first
+Decision" apart: who had joined, who was joining, who had not started yet). A real fleet strikes at the mission point, not at a wall time
 (:mod:`launcher.faults`); both are optional when the simulator reads a schedule back.
 
 Checked field by field: a bad file is one line naming the file, the fault's index and the field
@@ -21,7 +23,7 @@ import math
 from .model import FAULT_KINDS, Fault
 
 #: The mission points a report adds to each fault.
-POINTS = ("decided", "decided_until")
+POINTS = ("decided", "decided_until", "joined", "started")
 
 
 class ScheduleError(ValueError):
@@ -54,10 +56,15 @@ def parse(data, source: str = "--schedule", ids=None) -> tuple[Fault, ...]:
             raise ScheduleError(f"{where}: field 'who': expected a carrier id of the scenario or 'coordinator', "
                                 f"found {who!r}")
         size = _number(f, "size", where) if "size" in f else 0.0
-        for name in POINTS:
+        for name in POINTS[:2]:
             if name in f and (not isinstance(f[name], int) or isinstance(f[name], bool) or f[name] < 0):
                 raise ScheduleError(f"{where}: field {name!r}: expected an integer >= 0 (stages decided), "
                                     f"found {f[name]!r}")
+        for name in POINTS[2:]:
+            listed = f.get(name, [])
+            if not isinstance(listed, list) or not all(isinstance(c, str) and (ids is None or c in ids) for c in listed):
+                raise ScheduleError(f"{where}: field {name!r}: expected a list of the scenario's carrier ids, "
+                                    f"found {listed!r}")
         out.append(Fault(kind, at, until, who, size))
     return tuple(out)
 
@@ -90,9 +97,14 @@ def points(data) -> list[dict]:
     return [{name: f.get(name) for name in POINTS} for f in data]
 
 
-def with_points(faults, decided_at: dict) -> list[dict]:
+def with_points(faults, decided_at: dict, accepted_at: dict | None = None, started_at: dict | None = None
+                ) -> list[dict]:
     """The report's ``faults``: each fault's JSON and its mission points, from the true times the
-    simulated mission decided each stage first (``decided_at``: stage -> time)."""
+    simulated mission decided each stage first (``decided_at``: stage -> time), accepted each
+    carrier first (``accepted_at``: carrier -> time) and started each carrier first
+    (``started_at``)."""
     times = sorted(decided_at.values())
-    return [{**f.as_json(), "decided": sum(t < f.at for t in times), "decided_until": sum(t < f.until for t in times)}
-            for f in faults]
+    accepted, started = accepted_at or {}, started_at or {}
+    return [{**f.as_json(), "decided": sum(t < f.at for t in times), "decided_until": sum(t < f.until for t in times),
+             "joined": sorted(c for c, t in accepted.items() if t < f.at),
+             "started": sorted(c for c, t in started.items() if t < f.at)} for f in faults]

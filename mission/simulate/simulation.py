@@ -47,6 +47,8 @@ class Simulation:
         self.listened_by = fleet.listened_by() if fleet.mode != Mode.COORDINATED else {}
         self.finished_ids: dict = {}
         self.decided_at: dict = {}               # stage -> the true time its first Decision was published
+        self.accepted_at: dict = {}              # carrier -> the true time a coordinator first accepted its Hello
+        self.started_at: dict = {}               # carrier -> the true time its process first started
         ids = fleet.ids
         horizon = 0.5 + 0.05 * fleet.n_stages
         drawn = draw_faults(self.rng, kinds, ids, horizon)  # drawn always: a given schedule replays the same draws after
@@ -80,6 +82,8 @@ class Simulation:
 
     # -------------------------------------------------------------- the loop
     def _start(self, driver, host: str) -> None:
+        if host in self.carriers:
+            self.started_at.setdefault(host, self.t)
         driver.start(self.now_of(host))
 
     def at(self, t: float, fn, *args) -> None:
