@@ -192,9 +192,12 @@ def _tiny(task: Task) -> dict:
     t0 = time.perf_counter()
     problem, rng = tiny_instance(task.seed, task.trial, task.variant)
     best = online_optimal.online_value(problem).expected_reward
-    fixed_strength = duality.choose_strength(problem, copy.deepcopy(rng), "exact")
-    strength = duality.choose_strength(problem, rng, "exact", adaptive=True)  # its pilot samples are discarded
-    discount, fixed_discount = duality.conflict_discount(problem, strength), duality.conflict_discount(problem, fixed_strength)
+    # The fixed penalty's strength as the bound chose it before the adaptive penalty (its own pilot
+    # of PILOT_SAMPLES matrices, the first of the same stream); the pilots' matrices are discarded.
+    fixed_strength = duality.choose_strength(problem, copy.deepcopy(rng), "exact", duality.PILOT_SAMPLES)
+    strength = duality.choose_strength(problem, rng, "exact", adaptive=True)
+    discount = duality.conflict_discount(problem, strength, adaptive=True)
+    fixed_discount = duality.conflict_discount(problem, fixed_strength)
     bound, fixed, dlr, offline = [], [], [], []
     for _ in range(task.samples):
         x = sample_observations(problem, rng)

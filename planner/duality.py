@@ -170,18 +170,24 @@ def _carrier_values(problem: Problem, rho_all: np.ndarray) -> np.ndarray:
 STRENGTHS = (0.0, 0.25, 0.5)
 
 
-def conflict_discount(problem: Problem, strength: float) -> np.ndarray:
+def conflict_discount(problem: Problem, strength: float, adaptive: bool = False) -> np.ndarray:
     """float ``[R, N]``: ``1 / (1 + strength * m)`` at each point, ``m`` the expected number of
     conflicting deployments of the other valid points (each carrier deploying at a uniformly
     random ``min(D_r, valid stages)`` of its valid stages); 1 at invalid points. A guess of the
-    share of ``x`` a deployment keeps; any positive array keeps the penalty's mean zero."""
+    share of ``x`` a deployment keeps; any positive array keeps the penalty's mean zero.
+    ``adaptive``: the discount of the adaptive penalty, whose count ``k`` replaces the guess for
+    the other carriers' points at earlier stages: ``m`` leaves those out."""
     n_carriers, n_stages = problem.valid.shape
     total = problem.valid.sum(axis=1)
     rate = np.minimum(problem.passengers, total) / np.maximum(total, 1)  # [R]
     pi = (problem.valid * rate[:, None]).ravel().astype(float)
     comp = compile_problem(problem)
+    rows, cols = comp.nbr_rows, comp.nbr
+    if adaptive:
+        keep = (rows // n_stages == cols // n_stages) | (cols % n_stages >= rows % n_stages)
+        rows, cols = rows[keep], cols[keep]
     m = np.zeros(n_carriers * n_stages)
-    np.add.at(m, comp.nbr_rows, pi[comp.nbr])
+    np.add.at(m, rows, pi[cols])
     return (1.0 / (1.0 + strength * m)).reshape(n_carriers, n_stages)
 
 
@@ -697,18 +703,26 @@ def choose_strength(problem: Problem, rng: np.random.Generator, method: str, pil
     same matrices for every strength), ties to the first; 0.0 without conflicts. The caller discards
     these matrices: the bound's own samples are then independent of the choice, so its mean stays
     an unbiased estimate of a valid bound (the smallest of several means of the *same* samples
-    would be biased low)."""
-    pilot = PILOT_SAMPLES if pilot is None else pilot
+    would be biased low). ``pilot`` None: :func:`pilot_samples` of ``method``."""
+    pilot = pilot_samples(method) if pilot is None else pilot
     if len(compile_problem(problem).nbr) == 0 or pilot < 1:
         return 0.0
     xs = [sample_observations(problem, rng) for _ in range(pilot)]
-    means = [sum(inner_maximum(problem, x, method, discount=conflict_discount(problem, c), adaptive=adaptive)
-                 for x in xs) for c in STRENGTHS]
+    means = [sum(inner_maximum(problem, x, method, discount=conflict_discount(problem, c, adaptive),
+                               adaptive=adaptive) for x in xs) for c in STRENGTHS]
     return float(STRENGTHS[int(np.argmin(means))])
 
 
-#: Observation matrices of the pilot that chooses the penalty's strength (``strength="auto"``).
+#: Observation matrices of the pilot that chooses the penalty's strength (``strength="auto"``):
+#: ``EXACT_PILOT_SAMPLES`` with ``exact`` inner maxima (cheap, and a larger pilot picks the
+#: better strength more often), ``PILOT_SAMPLES`` otherwise.
 PILOT_SAMPLES = 8
+EXACT_PILOT_SAMPLES = 32
+
+
+def pilot_samples(method: str) -> int:
+    """The default pilot of ``method`` (:data:`EXACT_PILOT_SAMPLES` or :data:`PILOT_SAMPLES`)."""
+    return EXACT_PILOT_SAMPLES if method == "exact" else PILOT_SAMPLES
 
 
 def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAULT_SAMPLES,
@@ -721,7 +735,7 @@ def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAU
     Args:
         method: ``auto`` (:func:`auto_method`) or one of :data:`METHODS`.
         strength: the penalty's conflict discount (:func:`conflict_discount`), or ``auto``: the
-            best of :data:`STRENGTHS` on ``pilot`` (default :data:`PILOT_SAMPLES`) matrices drawn
+            best of :data:`STRENGTHS` on ``pilot`` (default :func:`pilot_samples`) matrices drawn
             first from ``rng`` and discarded (:func:`choose_strength`; no pilot when
             ``penalty_scale`` is 0 or nothing conflicts).
         adaptive: the adaptive penalty (:func:`adaptive_terms`), or ``auto``: adaptive when the
@@ -743,13 +757,13 @@ def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAU
         adaptive = method == "exact" and penalty_scale != 0.0
     adaptive = bool(adaptive) and penalty_scale != 0.0
     start = time.perf_counter()
-    pilot_samples = 0
+    pilot_count = 0
     if strength == "auto":
-        pilot_samples = 0 if penalty_scale == 0.0 or len(compile_problem(problem).nbr) == 0 else (
-            PILOT_SAMPLES if pilot is None else pilot)
-        strength = choose_strength(problem, rng, method, pilot_samples, adaptive) if pilot_samples else 0.0
+        pilot_count = 0 if penalty_scale == 0.0 or len(compile_problem(problem).nbr) == 0 else (
+            pilot_samples(method) if pilot is None else pilot)
+        strength = choose_strength(problem, rng, method, pilot_count, adaptive) if pilot_count else 0.0
     strength = float(strength)
-    discount = conflict_discount(problem, strength) if strength and penalty_scale else None
+    discount = conflict_discount(problem, strength, adaptive) if strength and penalty_scale else None
     values = np.empty(samples)
     for s in range(samples):
         x = sample_observations(problem, rng)
@@ -757,7 +771,7 @@ def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAU
         if deadline_s is not None and time.perf_counter() - start > deadline_s:
             raise BoundTooLarge(f"upper bound: stopped after {s + 1} of {samples} samples at the {deadline_s:g} s deadline")
     return UpperBound(float(values.mean()), float(values.std(ddof=1) / math.sqrt(samples)), method, samples,
-                      penalty_scale, strength if discount is not None else 0.0, pilot_samples, adaptive)
+                      penalty_scale, strength if discount is not None else 0.0, pilot_count, adaptive)
 
 
 #: Fewest samples :func:`plan` accepts (fewer would make the standard error meaningless).
@@ -773,7 +787,7 @@ def plan(problem: Problem, budget_s: float = DEFAULT_BUDGET_S, samples: int = DE
     """``(method, samples)`` for a bound within ``budget_s`` by :func:`estimate_seconds` (sizes
     alone, so the choice is the same on a fast and a loaded machine): :func:`auto_method` or, if
     that does not fit, ``lp``; as many samples as fit, at most ``samples``, after the pilot that
-    chooses the penalty's strength (:data:`STRENGTHS` times :data:`PILOT_SAMPLES` inner maxima).
+    chooses the penalty's strength (:data:`STRENGTHS` times :func:`pilot_samples` inner maxima).
 
     Raises:
         BoundTooLarge: not even :data:`MIN_SAMPLES` samples fit (one line; quick: no solve).
@@ -782,8 +796,9 @@ def plan(problem: Problem, budget_s: float = DEFAULT_BUDGET_S, samples: int = DE
     if problem.weights is not None:
         raise ValueError("upper bound: expected an instance without passenger values, found passenger_values")
     first = auto_method(problem)
-    pilot = len(STRENGTHS) * PILOT_SAMPLES if len(compile_problem(problem).nbr) else 0
+    conflicts = len(compile_problem(problem).nbr) > 0
     for method in dict.fromkeys((first, "mip" if first == "exact" else first, "lp")):
+        pilot = len(STRENGTHS) * pilot_samples(method) if conflicts else 0
         per = estimate_seconds(problem, method, 1)
         fit = min(samples, int(budget_s // per) - pilot if per > 0 else samples)
         if fit >= MIN_SAMPLES:

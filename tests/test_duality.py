@@ -303,7 +303,8 @@ def test_chosen_strength_bound_is_valid_against_the_online_optimum(kind):
     best = online_optimal.online_value(problem).expected_reward
     for strength in ("auto", max(duality.STRENGTHS)):
         bound = duality.upper_bound(problem, np.random.default_rng(7), samples=150, method="exact", strength=strength)
-        assert bound.strength in duality.STRENGTHS and bound.pilot_samples == (8 if strength == "auto" else 0)
+        pilot = duality.EXACT_PILOT_SAMPLES if strength == "auto" else 0
+        assert bound.strength in duality.STRENGTHS and bound.pilot_samples == pilot
         assert bound.adaptive and bound.expected_reward >= best - 3 * bound.stderr, (kind, bound, best)
 
 
@@ -312,7 +313,7 @@ def test_the_pilot_chooses_the_smallest_mean_and_is_discarded():
     chosen = duality.choose_strength(problem, np.random.default_rng(4), "exact", 6, adaptive=True)
     again = np.random.default_rng(4)
     xs = [sample_observations(problem, again) for _ in range(6)]
-    means = [np.mean([duality.inner_maximum(problem, x, "exact", discount=duality.conflict_discount(problem, c),
+    means = [np.mean([duality.inner_maximum(problem, x, "exact", discount=duality.conflict_discount(problem, c, True),
                                             adaptive=True)
                       for x in xs]) for c in duality.STRENGTHS]
     assert chosen == duality.STRENGTHS[int(np.argmin(means))]
@@ -424,3 +425,15 @@ def test_exact_expectation_of_the_adaptive_bound_is_at_least_the_online_optimum(
     best = online_optimal.online_value(problem).expected_reward
     assert adaptive >= best - 1e-9
     assert adaptive < fixed  # tighter than the fixed penalty on this instance
+
+
+def test_adaptive_discount_leaves_out_what_the_count_replaces():
+    """The adaptive penalty's discount guesses only the conflicts its count k does not see: a
+    point whose every conflict is another carrier's point at an earlier stage keeps its x (1)."""
+    valid = np.ones((2, 4), bool)
+    problem = Problem.build(1, valid, [[[0, 0], [1, 2]], [[0, 1], [1, 1]]], stats.poisson(2.0))
+    fixed, adaptive = duality.conflict_discount(problem, 1.0), duality.conflict_discount(problem, 1.0, adaptive=True)
+    assert fixed[1, 2] < 1 and adaptive[1, 2] == 1.0  # (1, 2)'s only conflict is (0, 0), earlier
+    assert adaptive[0, 0] == fixed[0, 0] < 1  # (0, 0)'s conflict is later: still guessed
+    assert adaptive[0, 1] == fixed[0, 1] < 1 and adaptive[1, 1] == fixed[1, 1] < 1  # same stage: guessed
+    assert duality.pilot_samples("exact") == duality.EXACT_PILOT_SAMPLES > duality.pilot_samples("lp")
