@@ -215,6 +215,8 @@ def test_experiment_tasks_report_the_bound_against_v_star_and_the_planners(tmp_p
 
     tiny = experiment.run_task(Task("bound-tiny", 0, 0, experiment.TINY, 0, 0, samples=30))
     assert tiny["reward"] >= tiny["v_star"] - 3 * tiny["stderr"] and tiny["samples"] == 30
+    assert tiny["fixed_bound"] >= tiny["v_star"] - 3 * tiny["fixed_stderr"]  # the bound before the adaptive penalty
+    assert tiny["fixed_strength"] in duality.STRENGTHS
     kind = experiment.run_task(Task("bound-tiny", 1, 6, experiment.TINY, 0, 0, samples=30, variant="gamma"))
     assert kind["prior"] == "gamma" and kind["reward"] >= kind["v_star"] - 3 * kind["stderr"]
     level = 5  # R = 4, 20 overlaps
@@ -226,6 +228,7 @@ def test_experiment_tasks_report_the_bound_against_v_star_and_the_planners(tmp_p
     experiment.write(rows, tmp_path, {"iterations": 100}, 1.0, 1)
     text = (tmp_path / "bound.md").read_text()
     assert "V*" in text and "R = 4, 20 overlaps" in text and (tmp_path / "bound.png").is_file()
+    assert "fixed-penalty bound's excess" in text
     assert "One tiny instance per prior kind" in text and "| gamma |" in text and "### Targets" in text
     again = experiment.read_trials(tmp_path / "bound_trials.csv")
     assert len(again) == 5 and {r["planner"] for r in again} >= {"ssap", experiment.UPPER_BOUND}
