@@ -5,10 +5,11 @@ Two parts:
 
 * **tiny** (sweep ``bound-tiny``): random instances small enough for the exact online optimum V*
   (R = 2 or 3, N = 6, D = 2, Poisson(3), 2 to 4 overlap groups). Per instance: V*, the new bound
-  (``exact`` inner maxima) and the clairvoyant mean on the *same* sampled observation matrices,
-  each with its standard error; their excess over V*. Then one tiny instance per prior kind the
+  (``exact`` inner maxima, the adaptive penalty), the fixed-penalty bound (as the bound was before
+  the adaptive penalty), the DLR-penalty bound and the clairvoyant mean on the *same* sampled
+  observation matrices, each with its standard error; their excess over V*. Then one tiny instance per prior kind the
   exact solver takes (``TINY_PRIORS``: every kind of planner.priors; a continuous prior through
-  V*'s 12-atom stand-in, the prior whose value V* is exactly, and both bounds under the same
+  V*'s 12-atom stand-in, the prior whose value V* is exactly, and every bound under the same
   stand-in) — level 1 of the sweep.
 * **scale** (sweep ``bound``): random paper-style instances (D = 3, N = 10, Poisson(3)) at the
   configurations of :data:`CONFIGS` (R = 4 with 0 to 20 overlaps, R = 6, and R = 32, 128, 256 at
@@ -88,7 +89,7 @@ EXCESS_TARGET_PCT = 1.0
 SPLIT_CARRIERS = (32, 128, 256)
 
 FIELDS = ("sweep", "level", "config", "trial", "planner", "prior", "reward", "stderr", "samples", "method", "strength",
-          "dlr_bound", "dlr_stderr", "exact",
+          "dlr_bound", "dlr_stderr", "fixed_bound", "fixed_stderr", "fixed_strength", "exact",
           "v_star", "clairvoyant_mean", "clairvoyant_stderr", "carriers", "overlaps", "iterations", "seed",
           "planner_seed", "decision_ms_mean", "wall_s")
 
@@ -181,25 +182,36 @@ def tiny_instance(seed: int, k: int, kind: str = ""):
 
 
 def _tiny(task: Task) -> dict:
+    """V*, the bound (adaptive penalty, its strength chosen on a discarded pilot), the fixed-penalty
+    bound (its strength chosen by its own pilot on the same pilot matrices), the DLR-penalty bound
+    and the clairvoyant mean, all on the same observation matrices."""
+    import copy
+
     from planner import clairvoyant, duality, online_optimal
     from planner.problem import sample_observations
 
     t0 = time.perf_counter()
     problem, rng = tiny_instance(task.seed, task.trial, task.variant)
     best = online_optimal.online_value(problem).expected_reward
-    strength = duality.choose_strength(problem, rng, "exact")  # its pilot samples are discarded
-    discount = duality.conflict_discount(problem, strength)
-    bound, dlr, offline = [], [], []
+    # The fixed penalty's strength as the bound chose it before the adaptive penalty (its own pilot
+    # of PILOT_SAMPLES matrices, the first of the same stream); the pilots' matrices are discarded.
+    fixed_strength = duality.choose_strength(problem, copy.deepcopy(rng), "exact", duality.PILOT_SAMPLES)
+    strength = duality.choose_strength(problem, rng, "exact", adaptive=True)
+    discount = duality.conflict_discount(problem, strength, adaptive=True)
+    fixed_discount = duality.conflict_discount(problem, fixed_strength)
+    bound, fixed, dlr, offline = [], [], [], []
     for _ in range(task.samples):
         x = sample_observations(problem, rng)
-        bound.append(duality.inner_maximum(problem, x, "exact", discount=discount) / problem.scale)
+        bound.append(duality.inner_maximum(problem, x, "exact", discount=discount, adaptive=True) / problem.scale)
+        fixed.append(duality.inner_maximum(problem, x, "exact", discount=fixed_discount) / problem.scale)
         dlr.append(duality.inner_maximum(problem, x, "exact") / problem.scale)
         offline.append(clairvoyant.solve(problem, x).reward)
     return {"sweep": task.sweep, "level": task.level, "config": f"R = {problem.n_carriers}, {len(problem.overlaps)} groups",
             "trial": task.trial, "planner": UPPER_BOUND, "prior": task.variant or "poisson(3)",
             "reward": float(np.mean(bound)), "stderr": sem(bound),
             "samples": len(bound), "method": "exact", "strength": strength, "dlr_bound": float(np.mean(dlr)),
-            "dlr_stderr": sem(dlr), "v_star": best, "clairvoyant_mean": float(np.mean(offline)),
+            "dlr_stderr": sem(dlr), "fixed_bound": float(np.mean(fixed)), "fixed_stderr": sem(fixed),
+            "fixed_strength": fixed_strength, "v_star": best, "clairvoyant_mean": float(np.mean(offline)),
             "clairvoyant_stderr": sem(offline), "carriers": problem.n_carriers, "overlaps": len(problem.overlaps),
             "iterations": 0, "seed": task.seed, "wall_s": time.perf_counter() - t0}
 
@@ -211,34 +223,38 @@ def read_trials(path: Path) -> list[dict]:
     rows = read_csv(path, ("level", "trial", "carriers", "overlaps", "iterations", "seed"), ())
     for row in rows:
         for k in ("reward", "stderr", "v_star", "clairvoyant_mean", "clairvoyant_stderr", "wall_s", "decision_ms_mean",
-                  "strength", "dlr_bound", "dlr_stderr"):
+                  "strength", "dlr_bound", "dlr_stderr", "fixed_bound", "fixed_stderr", "fixed_strength"):
             row[k] = float(row[k]) if row.get(k, "") != "" else float("nan")
     return rows
 
 
 def _tiny_lines(tiny: list[dict]) -> tuple[list[str], dict]:
     """Table rows of tiny-instance results and their aggregate (mean excesses, their ratio, validity)."""
-    lines, bound_ex, dlr_ex, clair_ex, valid = [], [], [], [], []
+    lines, bound_ex, fixed_ex, dlr_ex, clair_ex, valid = [], [], [], [], [], []
     for r in tiny:
         v = r["v_star"]
         be, ce = 100 * (r["reward"] / v - 1), 100 * (r["clairvoyant_mean"] / v - 1)
-        de = 100 * (r["dlr_bound"] / v - 1)
+        de, fe = 100 * (r["dlr_bound"] / v - 1), 100 * (r.get("fixed_bound", float("nan")) / v - 1)
         dlr_ex.append(de)
+        fixed_ex.append(fe)
         ok = r["reward"] >= v - VALID_SE * r["stderr"]
         bound_ex.append(be)
         clair_ex.append(ce)
         valid.append(ok)
         lines.append(f"| #{r['trial']} {r['config']} | {r.get('prior') or 'poisson(3)'} | {v:.4f} | "
-                     f"{r['reward']:.4f} ± {r['stderr']:.4f} (c = {r['strength']:g}) | {be:+.2f} % | {de:+.2f} % | "
+                     f"{r['reward']:.4f} ± {r['stderr']:.4f} (c = {r['strength']:g}) | {be:+.2f} % | "
+                     f"{fe:+.2f} % (c = {r.get('fixed_strength', float('nan')):g}) | {de:+.2f} % | "
                      f"{r['clairvoyant_mean']:.4f} ± {r['clairvoyant_stderr']:.4f} | {ce:+.2f} % | "
                      f"{be / ce:.2f} | {'yes' if ok else 'NO'} |")
     agg = {"bound_excess_pct": float(np.mean(bound_ex)) if tiny else float("nan"),
            "clairvoyant_excess_pct": float(np.mean(clair_ex)) if tiny else float("nan"),
            "dlr_excess_pct": float(np.mean(dlr_ex)) if tiny else float("nan"),
+           "fixed_excess_pct": float(np.mean(fixed_ex)) if tiny else float("nan"),
            "valid": f"{sum(valid)}/{len(valid)}", "all_valid": all(valid)}
     if tiny:
         agg["ratio"] = agg["bound_excess_pct"] / agg["clairvoyant_excess_pct"]
-        lines.append(f"| mean over instances | | | | {agg['bound_excess_pct']:+.2f} % | {agg['dlr_excess_pct']:+.2f} % | | "
+        lines.append(f"| mean over instances | | | | {agg['bound_excess_pct']:+.2f} % | {agg['fixed_excess_pct']:+.2f} % | "
+                     f"{agg['dlr_excess_pct']:+.2f} % | | "
                      f"{agg['clairvoyant_excess_pct']:+.2f} % | {agg['ratio']:.2f} | {agg['valid']} |")
     return lines, agg
 
@@ -246,9 +262,9 @@ def _tiny_lines(tiny: list[dict]) -> tuple[list[str], dict]:
 def tiny_table(rows: list[dict]) -> tuple[str, dict]:
     """The tiny part as markdown (the Poisson(3) instances, then one per prior kind), and the
     aggregate figures of each (``poisson``, ``priors``) and of both (``all``)."""
-    head = ["| instance | prior | V* | bound (± SE, strength) | excess over V* | DLR-penalty bound's excess | "
-            "clairvoyant mean (± SE) | excess over V* | "
-            f"excess ratio | valid (bound ≥ V* − {VALID_SE:g} SE) |", "|---|---|---|---|---|---|---|---|---|---|"]
+    head = ["| instance | prior | V* | bound (± SE, strength) | excess over V* | fixed-penalty bound's excess | "
+            "DLR-penalty bound's excess | clairvoyant mean (± SE) | excess over V* | "
+            f"excess ratio | valid (bound ≥ V* − {VALID_SE:g} SE) |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     tiny = sorted((r for r in rows if r["sweep"] == "bound-tiny"), key=lambda r: (r["level"], r["trial"]))
     parts = {"poisson": [r for r in tiny if r["level"] == 0], "priors": [r for r in tiny if r["level"] == 1]}
     text, agg = [], {}
@@ -274,7 +290,8 @@ def targets(summary: list[dict], tiny: dict) -> list[str]:
             if name in tiny:
                 t = tiny[name]
                 ok = t["ratio"] <= EXCESS_RATIO
-                out.append(f"* mean excess over V*, {label}: {t['bound_excess_pct']:+.2f} % (DLR penalty alone "
+                out.append(f"* mean excess over V*, {label}: {t['bound_excess_pct']:+.2f} % (fixed penalty "
+                           f"{t.get('fixed_excess_pct', float('nan')):+.2f} %, DLR penalty alone "
                            f"{t['dlr_excess_pct']:+.2f} %; target ≤ {EXCESS_TARGET_PCT:g} %) — "
                            f"{'met' if t['bound_excess_pct'] <= EXCESS_TARGET_PCT else 'NOT MET'}")
                 out.append(f"* mean excess over V*, {label}: {t['bound_excess_pct']:+.2f} % against clairvoyance's "
@@ -397,8 +414,10 @@ def write(rows: list[dict], out: Path, settings: dict, seconds: float, jobs: int
     tiny, agg = tiny_table(rows)
     text = ["## Upper bound", "",
             "### Tiny instances: the new bound and the clairvoyant bound against V*", "",
-            "R = 2 or 3, N = 6, D = 2, 2 to 4 overlap groups, Poisson(3) or one prior per kind; both bounds on "
-            "the same sampled observation matrices (exact inner maxima); excess = mean / V* − 1.", "", tiny, "",
+            "R = 2 or 3, N = 6, D = 2, 2 to 4 overlap groups, Poisson(3) or one prior per kind; every bound on "
+            "the same sampled observation matrices (exact inner maxima; the bound: the adaptive penalty, the "
+            "fixed-penalty bound: as before it, the DLR-penalty bound: strength 0); excess = mean / V* − 1.", "",
+            tiny, "",
             "### Planners as fractions of the new bound", "",
             f"Random instances, D = 3, N = 10, Poisson(3), {iterations} iterations per decision; the bound by "
             "the LP relaxation from its own samples; fraction = reward / bound per trial, mean ± SEM "

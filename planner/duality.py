@@ -2,10 +2,11 @@
 the information-relaxation (duality) bound of Brown, Smith and Sun (Operations Research, 2010).
 
 ``U = E_x[max_y (R(y, x) - z(y, x))]``, with a penalty ``z`` of mean zero for every
-non-anticipative policy built from the carriers' single-carrier DLR values-to-go; its inner
-maximum split into the conflict graph's components, each solved ``exact``, by HiGHS (``mip``, its
-dual bound), as the LP relaxation (``lp``) or by the ``separable`` fallback, every one a valid
-upper bound. The derivation, the
+non-anticipative policy built from the carriers' single-carrier DLR values-to-go (under ``exact``
+inner maxima, adaptive: a conflicted point's share shrinks with the other carriers' earlier
+deployments in its overlaps); its inner maximum split into the conflict graph's components, each
+solved ``exact``, by HiGHS (``mip``, its dual bound), as the LP relaxation (``lp``) or by the
+``separable`` fallback, every one a valid upper bound. The derivation, the
 model, the methods' limits, the time budget and the API: docs/planner.md, "An upper bound on every
 online policy".
 
@@ -169,18 +170,24 @@ def _carrier_values(problem: Problem, rho_all: np.ndarray) -> np.ndarray:
 STRENGTHS = (0.0, 0.25, 0.5)
 
 
-def conflict_discount(problem: Problem, strength: float) -> np.ndarray:
+def conflict_discount(problem: Problem, strength: float, adaptive: bool = False) -> np.ndarray:
     """float ``[R, N]``: ``1 / (1 + strength * m)`` at each point, ``m`` the expected number of
     conflicting deployments of the other valid points (each carrier deploying at a uniformly
     random ``min(D_r, valid stages)`` of its valid stages); 1 at invalid points. A guess of the
-    share of ``x`` a deployment keeps; any positive array keeps the penalty's mean zero."""
+    share of ``x`` a deployment keeps; any positive array keeps the penalty's mean zero.
+    ``adaptive``: the discount of the adaptive penalty, whose count ``k`` replaces the guess for
+    the other carriers' points at earlier stages: ``m`` leaves those out."""
     n_carriers, n_stages = problem.valid.shape
     total = problem.valid.sum(axis=1)
     rate = np.minimum(problem.passengers, total) / np.maximum(total, 1)  # [R]
     pi = (problem.valid * rate[:, None]).ravel().astype(float)
     comp = compile_problem(problem)
+    rows, cols = comp.nbr_rows, comp.nbr
+    if adaptive:
+        keep = (rows // n_stages == cols // n_stages) | (cols % n_stages >= rows % n_stages)
+        rows, cols = rows[keep], cols[keep]
     m = np.zeros(n_carriers * n_stages)
-    np.add.at(m, comp.nbr_rows, pi[comp.nbr])
+    np.add.at(m, rows, pi[cols])
     return (1.0 / (1.0 + strength * m)).reshape(n_carriers, n_stages)
 
 
@@ -250,12 +257,14 @@ class _Enumeration:
         sel: float ``[C, P]`` 1 where combination c deploys at point p.
         options: per carrier ``(stages [n], left [O, n] passengers left before each stage,
             choice [C] the carrier's option in each combination)``.
+        dleft: int16 ``[C, P]`` passengers left before point p's stage in combination c.
     """
 
     flat: np.ndarray
     conflict: np.ndarray
     sel: np.ndarray
     options: tuple
+    dleft: np.ndarray
 
 
 _ENUMERATIONS: "weakref.WeakKeyDictionary[Problem, dict]" = weakref.WeakKeyDictionary()
@@ -279,24 +288,150 @@ def _enumeration(problem: Problem, part: _Component) -> _Enumeration:
     grids = np.meshgrid(*[np.arange(len(m)) for m in masks], indexing="ij")
     choices = [g.ravel() for g in grids]
     sel = np.zeros((len(choices[0]), len(flat)))
+    dleft = np.zeros(sel.shape, dtype=np.int16)
     options = []
     for i, (r, stages, mask, choice) in enumerate(zip(part.carriers, part.stages, masks, choices)):
         sel[:, offsets[i]:offsets[i + 1]] = mask[choice]
         before = np.concatenate((np.zeros((len(mask), 1), dtype=np.int64), np.cumsum(mask, axis=1)[:, :-1]), axis=1)
         options.append((stages, int(problem.passengers[r]) - before, choice))
-    out = _Enumeration(flat, problem.conflict[np.ix_(flat, flat)].astype(float), sel, tuple(options))
+        dleft[:, offsets[i]:offsets[i + 1]] = options[-1][1][choice]
+    out = _Enumeration(flat, problem.conflict[np.ix_(flat, flat)].astype(float), sel, tuple(options), dleft)
     cache[part.carriers] = out
     return out
 
 
-def _exact_component(problem: Problem, x: np.ndarray, phi: np.ndarray, part: _Component) -> float:
-    """Maximum of (reward - penalty) over every combination of the component's stage sets, raw."""
+def _exact_component(problem: Problem, x: np.ndarray, phi: np.ndarray, part: _Component,
+                     adaptive: "_Adaptive | None" = None, scale: float = 1.0) -> float:
+    """Maximum of (reward - penalty) over every combination of the component's stage sets, raw;
+    with ``adaptive`` (:func:`_adaptive`, of the discount ``phi`` was built with) the penalty is
+    the adaptive one (:func:`adaptive_terms`)."""
     en = _enumeration(problem, part)
     xs = np.asarray(x, dtype=float).ravel()[en.flat]
     value = (en.sel * xs[None, :] / (1.0 + en.sel @ en.conflict)).sum(axis=1)
     for r, (stages, left, choice) in zip(part.carriers, en.options):
         value -= phi[r, stages[None, :], left].sum(axis=1)[choice]
+    if adaptive is not None and len(adaptive.points):
+        terms = scale * adaptive.terms(xs[adaptive.points])  # [L, Dmax + 1, K + 1]
+        late = np.arange(len(adaptive.points))[None, :]
+        d = en.dleft[:, adaptive.points]
+        k = (en.sel @ adaptive.earlier).astype(np.int64)  # [C, L] earlier conflicting deployments
+        value -= (terms[late, d, k] - terms[late, d, 0]).sum(axis=1)
     return float(value.max())
+
+
+# ----------------------------------------------------------------------------- the adaptive penalty
+
+
+@dataclass(frozen=True, eq=False)
+class _Adaptive:
+    """The adaptive penalty's tables for one component and discount (built once per problem).
+
+    ``points``: int ``[L]`` positions (in the component's enumeration) of its *late* points, those
+    that share an overlap with a point of another carrier at an earlier stage; ``earlier``: float
+    ``[P, L]``, 1 where enumeration point a is such an earlier point of late point l. Per late point,
+    passengers left d and earlier deployments k: ``rho [L, K + 1]`` the share ``rho_a / (1 + k)``,
+    ``deploy``/``stay`` ``[L, Dmax + 1]`` the values after the stage (``V(j+1, d-1)``,
+    ``V(j+1, d)``), ``forced`` ``[L, Dmax + 1]``, ``mean [L, Dmax + 1, K + 1]`` the expectation of
+    the one-stage value (``E[g(X)]``); d = 0 earns no term.
+    """
+
+    points: np.ndarray
+    earlier: np.ndarray
+    rho: np.ndarray
+    deploy: np.ndarray
+    stay: np.ndarray
+    forced: np.ndarray
+    mean: np.ndarray
+
+    def terms(self, x: np.ndarray) -> np.ndarray:
+        """float ``[L, Dmax + 1, K + 1]``: ``g(x) - E[g(X)]`` at each late point's observation ``x [L]``."""
+        deploy = self.rho[:, None, :] * x[:, None, None] + self.deploy[:, :, None]
+        value = np.where(self.forced[:, :, None], deploy, np.maximum(deploy, self.stay[:, :, None]))
+        out = value - self.mean
+        out[:, 0, :] = 0.0
+        return out
+
+
+_ADAPTIVE: "weakref.WeakKeyDictionary[Problem, dict]" = weakref.WeakKeyDictionary()
+
+
+def _adaptive(problem: Problem, part: _Component, discount: np.ndarray | None) -> _Adaptive:
+    rho_all = np.ones(problem.valid.shape) if discount is None else np.asarray(discount, dtype=float)
+    cache = _ADAPTIVE.setdefault(problem, {})
+    key = (part.carriers, rho_all.tobytes())
+    if key in cache:
+        return cache[key]
+    en = _enumeration(problem, part)
+    n_stages = problem.n_stages
+    carrier, stage = en.flat // n_stages, en.flat % n_stages
+    earlier = (en.conflict > 0) & (stage[:, None] < stage[None, :]) & (carrier[:, None] != carrier[None, :])
+    points = np.flatnonzero(earlier.any(axis=0))
+    earlier = earlier[:, points].astype(float)
+    dmax = int(problem.passengers.max(initial=0))
+    kmax = int(earlier.sum(axis=0).max(initial=0))
+    values = carrier_values(problem, rho_all)
+    left = valid_stages_left(problem.valid)
+    r, j = carrier[points], stage[points]
+    n = left[r, j][:, None]
+    d = np.arange(dmax + 1)[None, :]
+    dd = np.minimum(d, n)
+    deploy = values[r[:, None], j[:, None] + 1, np.clip(dd - 1, 0, dmax)]
+    stay = values[r[:, None], j[:, None] + 1, np.minimum(dd, dmax)]
+    forced = n <= d
+    rho = rho_all[r, j][:, None] / (1.0 + np.arange(kmax + 1)[None, :])
+    expected_max = _expected_max(problem.prior)
+    rho3 = np.broadcast_to(rho[:, None, :], (len(points), dmax + 1, kmax + 1))
+    a3 = np.broadcast_to(deploy[:, :, None], rho3.shape)
+    b3 = np.broadcast_to(stay[:, :, None], rho3.shape)
+    free_mean = a3 + rho3 * expected_max((b3 - a3) / rho3)
+    mean = np.where(forced[:, :, None], rho3 * float(problem.prior.mean()) + a3, free_mean)
+    out = cache[key] = _Adaptive(points, earlier, rho, deploy, stay, forced, mean)
+    return out
+
+
+def adaptive_terms(problem: Problem, x: np.ndarray, deployed: np.ndarray, discount: np.ndarray | None = None,
+                   scale: float = 1.0) -> np.ndarray:
+    """float ``[R, N, Dmax + 1]``: the adaptive penalty's terms along one deployment set ``deployed``
+    (bool ``[R, N]``): at each valid point a the term of :func:`penalty_terms` with the share
+    ``rho_a / (1 + k_a)`` in place of ``rho_a``, ``k_a`` the points of *other* carriers deployed
+    at stages before a's that share an overlap with a (known before a's observation, so the term
+    keeps its mean zero given the past). The penalty of ``deployed`` is the sum of the terms at each
+    carrier's (stage, passengers left before it); the exact inner maximum subtracts the same terms.
+    The reference implementation the enumeration is tested against (not used by the bound)."""
+    n_carriers, n_stages = problem.valid.shape
+    base = penalty_terms(problem, x, scale, discount)
+    rho_all = np.ones(problem.valid.shape) if discount is None else np.asarray(discount, dtype=float)
+    flat = np.asarray(deployed, bool).ravel()
+    out = base.copy()
+    dmax = base.shape[2] - 1
+    if dmax == 0 or scale == 0.0:
+        return out
+    values = carrier_values(problem, rho_all)
+    left = valid_stages_left(problem.valid)
+    expected_max = None
+    means = _REFERENCE_MEANS.setdefault(problem, {}).setdefault(rho_all.tobytes(), {})  # (r, j, d, k) -> E[g(X)]
+    comp = compile_problem(problem)
+    for a in np.flatnonzero(problem.valid.ravel()):
+        r, j = divmod(int(a), n_stages)
+        nbrs = comp.nbr[comp.indptr[a]:comp.indptr[a + 1]]
+        k = int(sum(flat[b] and b % n_stages < j and b // n_stages != r for b in nbrs.tolist()))
+        if k == 0:
+            continue
+        rho, n = rho_all[r, j] / (1.0 + k), int(left[r, j])
+        for d in range(1, dmax + 1):
+            dd = min(d, n)
+            deploy, stay = values[r, j + 1, dd - 1], values[r, j + 1, min(dd, dmax)]
+            if n <= d:
+                out[r, j, d] = scale * rho * (float(x[r, j]) - float(problem.prior.mean()))
+            else:
+                if (r, j, d, k) not in means:
+                    expected_max = expected_max or _expected_max(problem.prior)
+                    means[r, j, d, k] = deploy + rho * float(expected_max(np.array([(stay - deploy) / rho]))[0])
+                out[r, j, d] = scale * (max(rho * float(x[r, j]) + deploy, stay) - means[r, j, d, k])
+    return out
+
+
+_REFERENCE_MEANS: "weakref.WeakKeyDictionary[Problem, dict]" = weakref.WeakKeyDictionary()
 
 
 def _alone_value(problem: Problem, x: np.ndarray, phi: np.ndarray, r: int, stages: np.ndarray, k: int) -> float:
@@ -335,7 +470,8 @@ def _separable_value(problem: Problem, x: np.ndarray, phi: np.ndarray, parts: li
 
 
 def inner_maximum(problem: Problem, x: np.ndarray, method: str = "exact", penalty_scale: float = 1.0,
-                  mip_time_limit_s: float = MIP_TIME_LIMIT_S, discount: np.ndarray | None = None) -> float:
+                  mip_time_limit_s: float = MIP_TIME_LIMIT_S, discount: np.ndarray | None = None,
+                  adaptive: bool = False) -> float:
     """``max_y (R(y, x) - z(y, x))`` for one observation matrix, or an upper bound on it; raw units.
 
     Args:
@@ -348,9 +484,13 @@ def inner_maximum(problem: Problem, x: np.ndarray, method: str = "exact", penalt
         penalty_scale: 1.0 for the DLR penalty, 0.0 for none (the clairvoyant optimum).
         discount: float ``[R, N]``, the penalty's per-point discount (:func:`penalty_terms`;
             None: the DLR values).
+        adaptive: the adaptive penalty (:func:`adaptive_terms`: a conflicted point's share shrinks
+            with the other carriers' earlier deployments in its overlaps); ``exact`` only.
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
+    if adaptive and method != "exact":
+        raise ValueError(f"the adaptive penalty needs the exact inner maximum, got method {method!r}")
     x = np.asarray(x, dtype=float)
     if np.isnan(x[problem.valid]).any():
         raise ValueError("the bound needs an observation at every scheduled stage (found NaN at a valid stage)")
@@ -367,7 +507,9 @@ def inner_maximum(problem: Problem, x: np.ndarray, method: str = "exact", penalt
             if part.combinations() > MAX_COMBINATIONS:
                 raise BoundTooLarge(f"upper bound: a component of {len(part.carriers)} carriers has "
                                     f"{part.combinations():.3g} stage-set combinations (exact limit {MAX_COMBINATIONS:,})")
-            total += _exact_component(problem, x, phi, part)
+            total += _exact_component(problem, x, phi, part,
+                                      _adaptive(problem, part, discount) if adaptive and penalty_scale else None,
+                                      penalty_scale)
         else:
             value = _highs_value(problem, x, phi, part, integer=False, time_limit_s=LP_TIME_LIMIT_S)
             if method == "mip":
@@ -483,6 +625,7 @@ class UpperBound:
         strength: the penalty's conflict discount (:func:`conflict_discount`; 0: the DLR values).
         pilot_samples: observation matrices drawn first to choose ``strength`` among
             :data:`STRENGTHS`, then discarded (0: no choice made).
+        adaptive: the penalty is the adaptive one (:func:`adaptive_terms`; ``exact`` only).
     """
 
     expected_reward: float
@@ -492,6 +635,7 @@ class UpperBound:
     penalty_scale: float = 1.0
     strength: float = 0.0
     pilot_samples: int = 0
+    adaptive: bool = False
 
 
 def auto_method(problem: Problem) -> str:
@@ -508,7 +652,8 @@ def auto_method(problem: Problem) -> str:
 #: load): per enumerated combination and point (``exact``); per LP column (``lp``; HiGHS is
 #: superlinear, hence the quadratic term) plus ``model`` per HiGHS model; ``mip`` times the LP
 #: (typical; one branch and bound is capped at :data:`MIP_TIME_LIMIT_S`); per decision point
-#: (``separable``).
+#: (``separable``). ``exact`` covers the adaptive penalty too (it takes 1.4 to 2 times the fixed
+#: penalty's time, well within the figure's margin over today's measured time per combination).
 _COST = {"exact": 2e-7, "lp": 4e-5, "lp2": 1.5e-9, "model": 0.01, "mip": 6.0, "separable": 2e-6}
 
 
@@ -551,37 +696,50 @@ def check_budget(problem: Problem, method: str, samples: int, budget_s: float) -
                             f"{budget_s:g} s budget (R={problem.n_carriers}, N={problem.n_stages})")
 
 
-def choose_strength(problem: Problem, rng: np.random.Generator, method: str, pilot: int | None = None) -> float:
-    """The strength of :data:`STRENGTHS` whose penalty gives the smallest mean inner maximum on
-    ``pilot`` observation matrices drawn from ``rng`` (the same matrices for every strength), ties
-    to the first; 0.0 without conflicts. The caller discards these matrices: the bound's own
-    samples are then independent of the choice, so its mean stays an unbiased estimate of a valid
-    bound (the smallest of several means of the *same* samples would be biased low)."""
-    pilot = PILOT_SAMPLES if pilot is None else pilot
+def choose_strength(problem: Problem, rng: np.random.Generator, method: str, pilot: int | None = None,
+                    adaptive: bool = False) -> float:
+    """The strength of :data:`STRENGTHS` whose penalty (``adaptive`` or not, :func:`inner_maximum`)
+    gives the smallest mean inner maximum on ``pilot`` observation matrices drawn from ``rng`` (the
+    same matrices for every strength), ties to the first; 0.0 without conflicts. The caller discards
+    these matrices: the bound's own samples are then independent of the choice, so its mean stays
+    an unbiased estimate of a valid bound (the smallest of several means of the *same* samples
+    would be biased low). ``pilot`` None: :func:`pilot_samples` of ``method``."""
+    pilot = pilot_samples(method) if pilot is None else pilot
     if len(compile_problem(problem).nbr) == 0 or pilot < 1:
         return 0.0
     xs = [sample_observations(problem, rng) for _ in range(pilot)]
-    means = [sum(inner_maximum(problem, x, method, discount=conflict_discount(problem, c)) for x in xs)
-             for c in STRENGTHS]
+    means = [sum(inner_maximum(problem, x, method, discount=conflict_discount(problem, c, adaptive),
+                               adaptive=adaptive) for x in xs) for c in STRENGTHS]
     return float(STRENGTHS[int(np.argmin(means))])
 
 
-#: Observation matrices of the pilot that chooses the penalty's strength (``strength="auto"``).
+#: Observation matrices of the pilot that chooses the penalty's strength (``strength="auto"``):
+#: ``EXACT_PILOT_SAMPLES`` with ``exact`` inner maxima (cheap, and a larger pilot picks the
+#: better strength more often), ``PILOT_SAMPLES`` otherwise.
 PILOT_SAMPLES = 8
+EXACT_PILOT_SAMPLES = 32
+
+
+def pilot_samples(method: str) -> int:
+    """The default pilot of ``method`` (:data:`EXACT_PILOT_SAMPLES` or :data:`PILOT_SAMPLES`)."""
+    return EXACT_PILOT_SAMPLES if method == "exact" else PILOT_SAMPLES
 
 
 def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAULT_SAMPLES,
                 method: str = "auto", penalty_scale: float = 1.0, deadline_s: float | None = None,
-                strength: float | str = "auto", pilot: int | None = None) -> UpperBound:
+                strength: float | str = "auto", pilot: int | None = None,
+                adaptive: bool | str = "auto") -> UpperBound:
     """The information-relaxation bound of ``problem``: the mean of :func:`inner_maximum` over
     ``samples`` observation matrices drawn from the prior with ``rng`` (scheduled stages only).
 
     Args:
         method: ``auto`` (:func:`auto_method`) or one of :data:`METHODS`.
         strength: the penalty's conflict discount (:func:`conflict_discount`), or ``auto``: the
-            best of :data:`STRENGTHS` on ``pilot`` (default :data:`PILOT_SAMPLES`) matrices drawn
+            best of :data:`STRENGTHS` on ``pilot`` (default :func:`pilot_samples`) matrices drawn
             first from ``rng`` and discarded (:func:`choose_strength`; no pilot when
             ``penalty_scale`` is 0 or nothing conflicts).
+        adaptive: the adaptive penalty (:func:`adaptive_terms`), or ``auto``: adaptive when the
+            inner maxima are ``exact`` and the penalty is on (``penalty_scale`` not 0).
         deadline_s: stop with :class:`BoundTooLarge` once this much wall time has passed (checked
             after each sample; None: no limit). The result never depends on timing: it is the
             bound of all ``samples`` or nothing.
@@ -595,22 +753,25 @@ def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAU
     if samples < 2:
         raise ValueError(f"upper bound: expected at least 2 samples (for a standard error), found {samples}")
     method = auto_method(problem) if method == "auto" else method
+    if adaptive == "auto":
+        adaptive = method == "exact" and penalty_scale != 0.0
+    adaptive = bool(adaptive) and penalty_scale != 0.0
     start = time.perf_counter()
-    pilot_samples = 0
+    pilot_count = 0
     if strength == "auto":
-        pilot_samples = 0 if penalty_scale == 0.0 or len(compile_problem(problem).nbr) == 0 else (
-            PILOT_SAMPLES if pilot is None else pilot)
-        strength = choose_strength(problem, rng, method, pilot_samples) if pilot_samples else 0.0
+        pilot_count = 0 if penalty_scale == 0.0 or len(compile_problem(problem).nbr) == 0 else (
+            pilot_samples(method) if pilot is None else pilot)
+        strength = choose_strength(problem, rng, method, pilot_count, adaptive) if pilot_count else 0.0
     strength = float(strength)
-    discount = conflict_discount(problem, strength) if strength and penalty_scale else None
+    discount = conflict_discount(problem, strength, adaptive) if strength and penalty_scale else None
     values = np.empty(samples)
     for s in range(samples):
         x = sample_observations(problem, rng)
-        values[s] = inner_maximum(problem, x, method, penalty_scale, discount=discount) / problem.scale
+        values[s] = inner_maximum(problem, x, method, penalty_scale, discount=discount, adaptive=adaptive) / problem.scale
         if deadline_s is not None and time.perf_counter() - start > deadline_s:
             raise BoundTooLarge(f"upper bound: stopped after {s + 1} of {samples} samples at the {deadline_s:g} s deadline")
     return UpperBound(float(values.mean()), float(values.std(ddof=1) / math.sqrt(samples)), method, samples,
-                      penalty_scale, strength if discount is not None else 0.0, pilot_samples)
+                      penalty_scale, strength if discount is not None else 0.0, pilot_count, adaptive)
 
 
 #: Fewest samples :func:`plan` accepts (fewer would make the standard error meaningless).
@@ -626,7 +787,7 @@ def plan(problem: Problem, budget_s: float = DEFAULT_BUDGET_S, samples: int = DE
     """``(method, samples)`` for a bound within ``budget_s`` by :func:`estimate_seconds` (sizes
     alone, so the choice is the same on a fast and a loaded machine): :func:`auto_method` or, if
     that does not fit, ``lp``; as many samples as fit, at most ``samples``, after the pilot that
-    chooses the penalty's strength (:data:`STRENGTHS` times :data:`PILOT_SAMPLES` inner maxima).
+    chooses the penalty's strength (:data:`STRENGTHS` times :func:`pilot_samples` inner maxima).
 
     Raises:
         BoundTooLarge: not even :data:`MIN_SAMPLES` samples fit (one line; quick: no solve).
@@ -635,8 +796,9 @@ def plan(problem: Problem, budget_s: float = DEFAULT_BUDGET_S, samples: int = DE
     if problem.weights is not None:
         raise ValueError("upper bound: expected an instance without passenger values, found passenger_values")
     first = auto_method(problem)
-    pilot = len(STRENGTHS) * PILOT_SAMPLES if len(compile_problem(problem).nbr) else 0
+    conflicts = len(compile_problem(problem).nbr) > 0
     for method in dict.fromkeys((first, "mip" if first == "exact" else first, "lp")):
+        pilot = len(STRENGTHS) * pilot_samples(method) if conflicts else 0
         per = estimate_seconds(problem, method, 1)
         fit = min(samples, int(budget_s // per) - pilot if per > 0 else samples)
         if fit >= MIN_SAMPLES:

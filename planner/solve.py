@@ -151,7 +151,7 @@ def _upper_bound(problem, seed: int) -> dict | None:
     except duality.BoundTooLarge:
         return None
     return {"expected_reward": bound.expected_reward, "stderr": bound.stderr, "method": bound.method,
-            "samples": bound.samples, "strength": bound.strength}
+            "samples": bound.samples, "strength": bound.strength, "adaptive": bound.adaptive}
 
 
 def _online_optimum(problem, planner_name: str) -> dict | None:

@@ -5,6 +5,8 @@
   priors through the same 12-atom stand-in V* uses); on a three-point prior the bound's
   expectation is computed exactly, by enumerating every observation matrix, and is >= V*;
 * zero penalty: the inner maximum is the clairvoyant optimum on every sample;
+* the adaptive penalty: the enumeration equals a brute force over every deployment set with the
+  reference terms; mean zero along an online rule; exact expectation >= V* on a two-point prior;
 * relaxations: LP, MIP and the separable bound are never below the exact inner maximum;
 * no overlaps: the bound is exact (the sum of the carriers' DLR optima) with zero variance;
 * determinism for a seed; cheap refusal beyond a budget; ``solve`` reports it.
@@ -213,6 +215,8 @@ def test_experiment_tasks_report_the_bound_against_v_star_and_the_planners(tmp_p
 
     tiny = experiment.run_task(Task("bound-tiny", 0, 0, experiment.TINY, 0, 0, samples=30))
     assert tiny["reward"] >= tiny["v_star"] - 3 * tiny["stderr"] and tiny["samples"] == 30
+    assert tiny["fixed_bound"] >= tiny["v_star"] - 3 * tiny["fixed_stderr"]  # the bound before the adaptive penalty
+    assert tiny["fixed_strength"] in duality.STRENGTHS
     kind = experiment.run_task(Task("bound-tiny", 1, 6, experiment.TINY, 0, 0, samples=30, variant="gamma"))
     assert kind["prior"] == "gamma" and kind["reward"] >= kind["v_star"] - 3 * kind["stderr"]
     level = 5  # R = 4, 20 overlaps
@@ -224,6 +228,7 @@ def test_experiment_tasks_report_the_bound_against_v_star_and_the_planners(tmp_p
     experiment.write(rows, tmp_path, {"iterations": 100}, 1.0, 1)
     text = (tmp_path / "bound.md").read_text()
     assert "V*" in text and "R = 4, 20 overlaps" in text and (tmp_path / "bound.png").is_file()
+    assert "fixed-penalty bound's excess" in text
     assert "One tiny instance per prior kind" in text and "| gamma |" in text and "### Targets" in text
     again = experiment.read_trials(tmp_path / "bound_trials.csv")
     assert len(again) == 5 and {r["planner"] for r in again} >= {"ssap", experiment.UPPER_BOUND}
@@ -301,19 +306,137 @@ def test_chosen_strength_bound_is_valid_against_the_online_optimum(kind):
     best = online_optimal.online_value(problem).expected_reward
     for strength in ("auto", max(duality.STRENGTHS)):
         bound = duality.upper_bound(problem, np.random.default_rng(7), samples=150, method="exact", strength=strength)
-        assert bound.strength in duality.STRENGTHS and bound.pilot_samples == (8 if strength == "auto" else 0)
-        assert bound.expected_reward >= best - 3 * bound.stderr, (kind, bound, best)
+        pilot = duality.EXACT_PILOT_SAMPLES if strength == "auto" else 0
+        assert bound.strength in duality.STRENGTHS and bound.pilot_samples == pilot
+        assert bound.adaptive and bound.expected_reward >= best - 3 * bound.stderr, (kind, bound, best)
 
 
 def test_the_pilot_chooses_the_smallest_mean_and_is_discarded():
     problem = random_instance(np.random.default_rng(2), carriers=3, passengers=2, stages=6, overlaps=6).problem
-    chosen = duality.choose_strength(problem, np.random.default_rng(4), "exact", 6)
+    chosen = duality.choose_strength(problem, np.random.default_rng(4), "exact", 6, adaptive=True)
     again = np.random.default_rng(4)
     xs = [sample_observations(problem, again) for _ in range(6)]
-    means = [np.mean([duality.inner_maximum(problem, x, "exact", discount=duality.conflict_discount(problem, c))
+    means = [np.mean([duality.inner_maximum(problem, x, "exact", discount=duality.conflict_discount(problem, c, True),
+                                            adaptive=True)
                       for x in xs]) for c in duality.STRENGTHS]
     assert chosen == duality.STRENGTHS[int(np.argmin(means))]
     # The bound's own samples follow the pilot's: the same as a fixed-strength bound drawn after it.
     auto = duality.upper_bound(problem, np.random.default_rng(4), samples=10, method="exact", pilot=6)
     fixed = duality.upper_bound(problem, again, samples=10, method="exact", strength=chosen)
     assert auto.strength == chosen and auto.expected_reward == pytest.approx(fixed.expected_reward, abs=1e-12)
+    assert auto.adaptive and fixed.adaptive  # exact inner maxima: the adaptive penalty by default
+
+
+# ----------------------------------------------------------------------------- the adaptive penalty
+
+
+def _brute_force_adaptive(problem, x, discount):
+    """max over every deployment set of (reward - the adaptive penalty along it), by
+    :func:`planner.duality.adaptive_terms` (the reference) and the penalty rule itself."""
+    n_carriers, n_stages = problem.valid.shape
+    xv = np.where(problem.valid, x, 0.0)
+    options = [list(itertools.combinations(np.flatnonzero(problem.valid[r]),
+                                           min(int(problem.passengers[r]), int(problem.valid[r].sum()))))
+               for r in range(n_carriers)]
+    best = -np.inf
+    for combo in itertools.product(*options):
+        y = np.zeros((n_carriers, n_stages), bool)
+        for r, stages in enumerate(combo):
+            y[r, list(stages)] = True
+        terms = duality.adaptive_terms(problem, x, y, discount)
+        penalty = 0.0
+        for r in range(n_carriers):
+            d = int(problem.passengers[r])
+            for j in np.flatnonzero(problem.valid[r]):
+                penalty += terms[r, j, d]
+                d -= int(y[r, j])
+        flat = y.ravel().astype(float)
+        reward = float((flat * xv.ravel() / (1.0 + problem.conflict.astype(float) @ flat)).sum())
+        best = max(best, reward - penalty)
+    return best
+
+
+@pytest.mark.parametrize("prior", [stats.poisson(3.0), stats.norm(0.5, 2.0)], ids=["poisson", "normal"])
+def test_adaptive_enumeration_is_the_brute_force_maximum(prior):
+    rng = np.random.default_rng(21)
+    changed = 0
+    for _ in range(3):
+        inst = random_instance(rng, carriers=3, passengers=2, stages=4, overlaps=4)
+        problem = Problem.build(inst.problem.passengers, inst.problem.valid, inst.problem.overlaps, prior,
+                                normalize=1.0)
+        for strength in (0.0, 0.5):
+            discount = duality.conflict_discount(problem, strength) if strength else None
+            for _ in range(2):
+                x = sample_observations(problem, rng)
+                fast = duality.inner_maximum(problem, x, "exact", discount=discount, adaptive=True)
+                assert fast == pytest.approx(_brute_force_adaptive(problem, x, discount), abs=1e-9)
+                changed += abs(fast - duality.inner_maximum(problem, x, "exact", discount=discount)) > 1e-9
+    assert changed  # the adaptive terms do change the inner maximum
+    with pytest.raises(ValueError, match="exact"):
+        duality.inner_maximum(problem, x, "lp", adaptive=True)
+
+
+def test_adaptive_terms_without_earlier_conflicting_deployments_are_the_fixed_terms():
+    problem = Problem.build(2, TINY_VALID, TINY_OVERLAPS, stats.poisson(2.0), normalize=1.0)
+    x = sample_observations(problem, np.random.default_rng(0))
+    discount = duality.conflict_discount(problem, 0.5)
+    np.testing.assert_allclose(duality.adaptive_terms(problem, x, np.zeros(TINY_VALID.shape, bool), discount),
+                               duality.penalty_terms(problem, x, discount=discount), atol=1e-12)
+
+
+@pytest.mark.parametrize("prior", [stats.poisson(2.0), stats.norm(1.0, 1.5)], ids=["poisson", "normal"])
+def test_adaptive_penalty_has_mean_zero_along_a_non_anticipative_policy(prior):
+    """Along a fixed online rule (deploy when x > 2, or when forced), the adaptive penalty's terms
+    at the rule's own (passengers left, earlier conflicting deployments) sum to mean zero."""
+    inst = random_instance(np.random.default_rng(5), carriers=4, passengers=2, stages=6, overlaps=8)
+    problem = Problem.build(inst.problem.passengers, inst.problem.valid, inst.problem.overlaps, prior, normalize=1.0)
+    discount = duality.conflict_discount(problem, 0.5)
+    left_stages = problem.valid[:, ::-1].cumsum(axis=1)[:, ::-1]
+    rng, totals, adapted = np.random.default_rng(8), [], 0
+    for _ in range(2000):
+        x = sample_observations(problem, rng)
+        y = np.zeros(problem.valid.shape, bool)
+        d = problem.passengers.astype(int).copy()
+        for j in range(problem.n_stages):  # the rule, stage by stage
+            for r in np.flatnonzero(problem.valid[:, j]):
+                if d[r] > 0 and (x[r, j] > 2 or left_stages[r, j] <= d[r]):
+                    y[r, j], d[r] = True, d[r] - 1
+        terms = duality.adaptive_terms(problem, x, y, discount)
+        adapted += not np.allclose(terms, duality.penalty_terms(problem, x, discount=discount))
+        total = 0.0
+        for r in range(problem.n_carriers):
+            left = int(problem.passengers[r])
+            for j in np.flatnonzero(problem.valid[r]):
+                total += terms[r, j, left]
+                left -= int(y[r, j])
+        totals.append(total)
+    assert adapted > 100
+    assert abs(np.mean(totals)) <= 4 * np.std(totals) / np.sqrt(len(totals)), np.mean(totals)
+
+
+@pytest.mark.parametrize("strength", [0.0, 0.5])
+def test_exact_expectation_of_the_adaptive_bound_is_at_least_the_online_optimum(strength):
+    problem = Problem.build(2, TINY_VALID, TINY_OVERLAPS, TWO, normalize=1.0)
+    discount = duality.conflict_discount(problem, strength) if strength else None
+    points, probs = priors.support(TWO)
+    adaptive = fixed = 0.0
+    for outcome in itertools.product(range(len(points)), repeat=TINY_VALID.size):
+        x = points[list(outcome)].reshape(TINY_VALID.shape)
+        weight = float(np.prod(probs[list(outcome)]))
+        adaptive += weight * duality.inner_maximum(problem, x, "exact", discount=discount, adaptive=True)
+        fixed += weight * duality.inner_maximum(problem, x, "exact", discount=discount)
+    best = online_optimal.online_value(problem).expected_reward
+    assert adaptive >= best - 1e-9
+    assert adaptive < fixed  # tighter than the fixed penalty on this instance
+
+
+def test_adaptive_discount_leaves_out_what_the_count_replaces():
+    """The adaptive penalty's discount guesses only the conflicts its count k does not see: a
+    point whose every conflict is another carrier's point at an earlier stage keeps its x (1)."""
+    valid = np.ones((2, 4), bool)
+    problem = Problem.build(1, valid, [[[0, 0], [1, 2]], [[0, 1], [1, 1]]], stats.poisson(2.0))
+    fixed, adaptive = duality.conflict_discount(problem, 1.0), duality.conflict_discount(problem, 1.0, adaptive=True)
+    assert fixed[1, 2] < 1 and adaptive[1, 2] == 1.0  # (1, 2)'s only conflict is (0, 0), earlier
+    assert adaptive[0, 0] == fixed[0, 0] < 1  # (0, 0)'s conflict is later: still guessed
+    assert adaptive[0, 1] == fixed[0, 1] < 1 and adaptive[1, 1] == fixed[1, 1] < 1  # same stage: guessed
+    assert duality.pilot_samples("exact") == duality.EXACT_PILOT_SAMPLES > duality.pilot_samples("lp")
