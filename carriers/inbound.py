@@ -53,11 +53,10 @@ class Inbound:
     """
 
     def __init__(self, mission: str, cid: str, mode: str, onboard, broadcasts, book: PeerBook,
-                 presence: Presence, answer: mc.HelloAnswer, releases: mc.Releases, position, log, clock):
+                 presence: Presence, answer: mc.HelloAnswer, releases: mc.Releases, position, log):
         self.mission, self.cid, self.mode, self.onboard, self.broadcasts = mission, cid, mode, onboard, broadcasts
         self.book, self.presence, self.answer, self.releases = book, presence, answer, releases
         self.position, self.log = position, log
-        self.clock = clock  # the carrier's: what the books' times are on
         self.listening: tuple[str, ...] | None = None
 
     def subscribe(self, node) -> None:
@@ -119,7 +118,7 @@ class Inbound:
             return self._token(item)
         parsed = keys.parse_carrier_key(self.mission, item.key)
         if parsed is not None and parsed[1] in PEER_TOPICS:
-            self._peer(parsed[0], parsed[1], item.payload, item.received_on(self.clock))
+            self._peer(parsed[0], parsed[1], item.payload, item.received)
             return None
         if item.key == keys.end_key(self.mission):
             msg = self._ours(decode(item.payload, End))
@@ -153,7 +152,7 @@ class Inbound:
             raise ProtocolError("bad-key", f"liveliness token on {item.key[:80]}")
         if item.kind == "alive":
             return Rejoin() if self.presence.coordinator_alive() else None  # it came back
-        self.presence.coordinator_gone(item.received_on(self.clock))
+        self.presence.coordinator_gone(item.received)
         if self.mode == Mode.HYBRID:
             self.onboard.prepare()  # it may have to decide alone soon
         return mc.Log("coordinator's liveliness token vanished; "

@@ -234,8 +234,7 @@ class Carrier:
         self.inbound = Inbound(self.mission, cid, config.mode, onboard,
                                broadcasts if broadcasts is not None else SharedDecoder(),  # the process's Decisions
                                book, Presence(self.clock()), mc.HelloAnswer(self.fingerprint),
-                               mc.Releases(scenario.carriers[r].passengers), self.motion.position, self.log,
-                               self.clock)
+                               mc.Releases(scenario.carriers[r].passengers), self.motion.position, self.log)
         self.store: CarrierLog | None = None  # the durable log, open while running
         self.alone = Alone(cid, book, onboard, scenario.seed, self.log)
         self.joining = Joining(cid, self.fingerprint, config, scenario.stage_time,
@@ -447,7 +446,8 @@ class Carrier:
         try:
             self.node = Node(self.parts.zconf, open_timeout_s=self.config.coordinator_timeout_s, stop=self._stop,
                              shared=self.parts.session, links=link_filter(self.scenario, self.mission, self.cid,
-                                                                    self.motion.position, self.config.realtime))
+                                                                    self.motion.position, self.config.realtime),
+                             clock=self.clock)  # arrivals on the clock its lifecycle reads
         except OpenStopped:
             return "stopped"
         try:

@@ -29,7 +29,8 @@ class Inbound:
             ``wake`` (no message: :meth:`Node.wake`).
         key: the key expression it arrived on.
         payload: the raw bytes (``sample`` only).
-        received: ``time.monotonic()`` when it was enqueued, seconds.
+        received: when it was enqueued on the node's clock (``time.monotonic()`` unless its owner
+            gives its own, e.g. a carrier's clock under a schedule's clock jump), seconds.
         wall: ``time.time()`` when it was enqueued, seconds since the epoch.
     """
 
@@ -39,25 +40,19 @@ class Inbound:
     received: float = 0.0
     wall: float = 0.0
 
-    def received_on(self, clock) -> float:
-        """When it was enqueued, on ``clock`` (a process's clock, which may run ahead of
-        ``time.monotonic``: a schedule's clock jump, wire/fault_windows.py): its age on the
-        monotonic clock, before ``clock()`` now. A process compares times of one clock only."""
-        return clock() - (time.monotonic() - self.received)
-
 
 #: Samples one ``wake=False`` subscription holds until drained (then zenoh waits: no sample is
 #: dropped). A carrier drains at least every few seconds; a peer sends a few messages per stage.
 QUIET_CAPACITY = 4096
 
 
-def _sample_item(sample) -> Inbound:
+def _sample_item(sample, clock) -> Inbound:
     """The inbox item of a zenoh sample. An oversized payload is not copied: a marker one byte
     over the limit is enough for decode() to reject it as oversized."""
     payload = sample.payload
     limit = messages.MAX_PAYLOAD_BYTES
     data = payload.to_bytes() if len(payload) <= limit else b"\0" * (limit + 1)
-    return Inbound("sample", str(sample.key_expr), data, time.monotonic(), time.time())
+    return Inbound("sample", str(sample.key_expr), data, clock(), time.time())
 
 
 class Held:
@@ -132,11 +127,14 @@ class Node:
             node's own (then ``conf`` is not used); :meth:`close` undeclares only this node's
             entities.
         links: the scenario's links applied to what arrives (:attr:`links`).
+        clock: what an item's ``received`` is read on (its owner's clock: a process compares
+            times of one clock only).
     """
 
     def __init__(self, conf: zenoh.Config | None, open_timeout_s: float = 10.0, stop: threading.Event | None = None,
-                 shared: SharedSession | None = None, links=None):
+                 shared: SharedSession | None = None, links=None, clock=time.monotonic):
         self._shared = shared
+        self.clock = clock
         self.session = (open_session(conf, open_timeout_s, stop=stop) if shared is None
                         else shared.acquire(open_timeout_s, stop))
         self.inbox: "queue.Queue[Inbound]" = queue.Queue()
@@ -168,11 +166,11 @@ class Node:
             self._entities.append(sub)
             self._quiet.append(sub)
             return
-        inbox = self.inbox
+        inbox, clock = self.inbox, self.clock
 
         def on_sample(sample):
             try:
-                inbox.put(_sample_item(sample))
+                inbox.put(_sample_item(sample, clock))
             except Exception:
                 pass  # never raise into zenoh
 
@@ -188,7 +186,7 @@ class Node:
                 sample = sub.try_recv()
                 if sample is None:
                     break
-                item = self._through_links(_sample_item(sample), quiet=True)
+                item = self._through_links(_sample_item(sample, self.clock), quiet=True)
                 if item is not None:
                     out.append(item)
         if self.links is not None:
@@ -213,12 +211,12 @@ class Node:
     def watch_liveliness(self, key_expr: str) -> None:
         """Liveliness tokens matching ``key_expr`` (existing ones included) land in the inbox as
         ``alive`` / ``gone`` items."""
-        inbox = self.inbox
+        inbox, clock = self.inbox, self.clock
 
         def on_token(sample):
             try:
                 kind = "alive" if sample.kind == zenoh.SampleKind.PUT else "gone"
-                inbox.put(Inbound(kind, str(sample.key_expr), b"", time.monotonic(), time.time()))
+                inbox.put(Inbound(kind, str(sample.key_expr), b"", clock(), time.time()))
             except Exception:
                 pass
 

@@ -46,9 +46,8 @@ class Simulation:
         self.listeners: set = set()
         self.listened_by = fleet.listened_by() if fleet.mode != Mode.COORDINATED else {}
         self.finished_ids: dict = {}
-        self.decided_at: dict = {}               # stage -> the true time its first Decision was published
-        self.accepted_at: dict = {}              # carrier -> the true time a coordinator first accepted its Hello
-        self.started_at: dict = {}               # carrier -> the true time its process first started
+        # true times: stage -> its first Decision's; carrier -> its first acceptance, its start
+        self.decided_at, self.accepted_at, self.started_at = {}, {}, {}
         ids = fleet.ids
         horizon = 0.5 + 0.05 * fleet.n_stages
         drawn = draw_faults(self.rng, kinds, ids, horizon)  # drawn always: a given schedule replays the same draws after
@@ -78,12 +77,11 @@ class Simulation:
         if "standby" in self.coordinators:
             self.at(0.002, self._start, self.coordinators["standby"], "standby")
         for cid in ids:
-            self.at(float(self.rng.uniform(0.01, 0.5)), self._start, self.carriers[cid], cid)
+            self.started_at[cid] = float(self.rng.uniform(0.01, 0.5))
+            self.at(self.started_at[cid], self._start, self.carriers[cid], cid)
 
     # -------------------------------------------------------------- the loop
     def _start(self, driver, host: str) -> None:
-        if host in self.carriers:
-            self.started_at.setdefault(host, self.t)
         driver.start(self.now_of(host))
 
     def at(self, t: float, fn, *args) -> None:
