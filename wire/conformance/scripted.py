@@ -204,8 +204,10 @@ class ScriptedCoordinator:
             # Decision j is lost on its way; j + 1 is decided without the carrier, who waits at j.
             self.decisions[j] = wm.Decision(self.t.mission, j, self.t.times[j], (), 0.0, epoch=self.epoch, **self.ballot)
             self.flight.faults["lost"] = (j, time.monotonic())
-            self._publish(j + 1)
+            # the gap's time before Decision j + 1 goes out: the carrier's State query may come
+            # back before this thread runs again (a loaded host)
             self.flight.faults["gap"] = (j + 1, time.monotonic())
+            self._publish(j + 1)
             return
         d = self.decide(j)
         self.decisions[j] = d
