@@ -98,6 +98,37 @@ def _stamp(msg: dict) -> float:
     return s["sec"] + s["nanosec"] * 1e-9
 
 
+def _waiting(sub):
+    """The messages waiting in a subscription's inbox, oldest first (without waiting)."""
+    while True:
+        try:
+            msg, _ = sub.inbox.get_nowait()
+        except Exception:
+            return
+        yield msg
+
+
+class _Faults:
+    """One log line per kind of fault (a GridError's ``expected``, else the exception's type):
+    ``what`` ignored, and any later one wrong the same way, silently."""
+
+    def __init__(self, log, robot: str, what: str):
+        self.log, self.robot, self.what = log, robot, what
+        self.kinds: set[str] = set()
+
+    def __call__(self, exc: Exception) -> None:
+        from world.grid import GridError
+
+        kind = exc.expected if isinstance(exc, GridError) else type(exc).__name__
+        if kind not in self.kinds:
+            self.kinds.add(kind)
+            self.log(f"robot {self.robot}: {self.what} ignored (and any later one wrong the same way): {exc}")
+
+
+#: What a message a map or scan is made of may raise when it is not one.
+_BAD_INPUT = (ValueError, TypeError, KeyError)  # GridError is a ValueError
+
+
 def _yaw(q: dict) -> float:
     return math.atan2(2.0 * (q["w"] * q["z"] + q["x"] * q["y"]), 1.0 - 2.0 * (q["y"] ** 2 + q["z"] ** 2))
 
@@ -112,11 +143,7 @@ class _History:
         self.frame = ""  # the latest message's header.frame_id (no leading /)
 
     def pull(self) -> None:
-        while True:
-            try:
-                msg, _ = self.sub.inbox.get_nowait()
-            except Exception:
-                return
+        for msg in _waiting(self.sub):
             t = _stamp(msg)
             self.frame = str(msg["header"]["frame_id"]).lstrip("/")
             k = bisect.bisect_right(self.stamps, t)
@@ -239,24 +266,15 @@ class _Maps:
         self.grids: list = []
         self.newest = -math.inf  # the latest stamp that arrived, kept or not (s)
         self._counters: dict[int, object] = {}  # id(map) -> its value function, for maps held
-        self._faults: set[str] = set()
+        self._fault = _Faults(log, robot, "map")
         self._overflow = False
 
     def pull(self) -> None:
-        from world.grid import GridError
-
-        while True:
-            try:
-                msg, _ = self.sub.inbox.get_nowait()
-            except Exception:
-                break
+        for msg in _waiting(self.sub):
             try:
                 stamp, grid = self.read(msg)
-            except (GridError, ValueError, TypeError, KeyError) as exc:
-                kind = exc.expected if isinstance(exc, GridError) else type(exc).__name__
-                if kind not in self._faults:
-                    self._faults.add(kind)
-                    self._log(f"robot {self.robot}: map ignored (and any later one wrong the same way): {exc}")
+            except _BAD_INPUT as exc:
+                self._fault(exc)
                 continue
             k = bisect.bisect_right(self.stamps, stamp)
             self.stamps.insert(k, stamp)
@@ -341,28 +359,18 @@ class _Scans:
         self.pending: list[tuple[float, np.ndarray, str]] = []  # (stamp, points, frame)
         self.mapper = None
         self.newest = -math.inf
-        self._faults: set[str] = set()
+        self._fault = _Faults(log, robot, "scan")
         self._overflow = False
-
-    def _fault(self, kind: str, line: str) -> None:
-        if kind not in self._faults:
-            self._faults.add(kind)
-            self._log(f"robot {self.robot}: scan ignored (and any later one wrong the same way): {line}")
 
     def pull(self) -> None:
         from world.clouds import cloud_points
-        from world.grid import GridError
 
-        while True:
-            try:
-                msg, _ = self.sub.inbox.get_nowait()
-            except Exception:
-                break
+        for msg in _waiting(self.sub):
             try:
                 t = _stamp(msg)
                 pts = cloud_points(msg, f"{self.where} (stamp {t:.3f} s)").astype(np.float32)
-            except (GridError, ValueError, TypeError, KeyError) as exc:
-                self._fault(exc.expected if isinstance(exc, GridError) else type(exc).__name__, str(exc))
+            except _BAD_INPUT as exc:
+                self._fault(exc)
                 continue
             k = bisect.bisect_right([p[0] for p in self.pending], t)
             self.pending.insert(k, (t, pts, str(msg["header"]["frame_id"]).lstrip("/")))
@@ -401,7 +409,7 @@ class _Scans:
                                   slack=SCAN_SLACK_M)
             self.mapper.insert(pts, origin)
         except GridError as exc:
-            self._fault(exc.expected, str(exc))
+            self._fault(exc)
 
     def value(self, t: float, point, radius: float) -> int:
         """The value of ``point`` (x, y, z; m) in the map of the scans stamped at or before

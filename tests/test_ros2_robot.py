@@ -182,8 +182,8 @@ def test_a_ros2_robot_observes_the_frontier_of_its_growing_map(tmp_path):
     assert not [ln for ln in fleet.log.lines if "map ignored" in ln or "undecodable" in ln]
 
 
-def _peer_and_robot(tiny):
-    """A zenoh peer on loopback (the carrier's session) and a simulated frontier robot
+def _peer_and_robot(tiny, sensing="frontier", binary=True):
+    """A zenoh peer on loopback (the carrier's session) and a simulated ``sensing`` robot
     (namespace /robot7) connected to it as a client."""
     import zenoh
 
@@ -191,18 +191,19 @@ def _peer_and_robot(tiny):
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     session = zenoh.open(make_config("peer", [endpoint]))
-    robot = SimulatedRobot(tiny, "a", endpoint, "/robot7", DOMAIN, sensing="frontier")
+    robot = SimulatedRobot(tiny, "a", endpoint, "/robot7", DOMAIN, sensing=sensing, binary=binary)
     return session, robot
 
 
-def _body(tiny, session, lines, sync=False, timeout_s=10.0):
-    """The carrier's node on ``session`` and its frontier body of robot /robot7 (paced unless ``sync``)."""
+def _body(tiny, session, lines, sync=False, timeout_s=10.0, sensing="frontier", scans=None):
+    """The carrier's node on ``session`` and its ``sensing`` body of robot /robot7 (paced unless
+    ``sync``)."""
     from ros2.graph import Node
     from ros2.robot import RobotBody
 
     node = Node(session, DOMAIN, "/a", "carrier", log=lines.append, watch=False)
     return node, RobotBody(tiny, "a", node, "/robot7", sync=sync, log=lines.append, stop=threading.Event(),
-                           timeout_s=timeout_s, sensing="frontier")
+                           timeout_s=timeout_s, sensing=sensing, scans=scans)
 
 
 def _odometry_until(robot, stop, t, x, y):
@@ -367,23 +368,14 @@ def test_a_full_octomap_and_a_malformed_one(tmp_path):
     ignored, and the process goes on."""
     import time
 
-    import zenoh
-
-    from ros2.graph import Node
-    from ros2.robot import RobotBody
     from ros2_robot_sim import OCTOMAP_TYPE, ROBOT_Z, STORE, OctoMapRobot
-    from wire.zconfig import free_port, make_config
 
     tiny = world.load_scenario(TINY)
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    session = zenoh.open(make_config("peer", [endpoint]))
-    robot = SimulatedRobot(tiny, "a", endpoint, "/robot7", DOMAIN, sensing="frontier3d", binary=False)
+    session, robot = _peer_and_robot(tiny, "frontier3d", binary=False)
     lines: list[str] = []
     stop = threading.Event()
     try:
-        node = Node(session, DOMAIN, "/a", "carrier", log=lines.append, watch=False)
-        body = RobotBody(tiny, "a", node, "/robot7", sync=False, log=lines.append, stop=threading.Event(),
-                         timeout_s=10.0, sensing="frontier3d")
+        node, body = _body(tiny, session, lines, sensing="frontier3d")
         robot.wait_for_subscriber(stop, "octomap_binary", timeout_s=10.0)
         other = OctoMapRobot(binary=True)
         other.scan(20.0, 20.0)
@@ -426,25 +418,17 @@ def test_scans_made_a_map_and_a_bad_scan(tmp_path):
     own tree of the same scans."""
     import time
 
-    import zenoh
-
-    from ros2.graph import Node
-    from ros2.robot import RobotBody, ScanSource
+    from ros2.robot import ScanSource
     from ros2_robot_sim import LIDAR_UP, ROBOT_Z, T, VOXEL
-    from wire.zconfig import free_port, make_config
     from world.voxels import read_octomap
 
     tiny = world.load_scenario(TINY)
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    session = zenoh.open(make_config("peer", [endpoint]))
-    robot = SimulatedRobot(tiny, "a", endpoint, "/robot7", DOMAIN, sensing="frontier3d")
+    session, robot = _peer_and_robot(tiny, "frontier3d")
     lines: list[str] = []
     stop = threading.Event()
     try:
-        node = Node(session, DOMAIN, "/a", "carrier", log=lines.append, watch=False)
-        body = RobotBody(tiny, "a", node, "/robot7", sync=False, log=lines.append, stop=threading.Event(),
-                         timeout_s=10.0, sensing="frontier3d",
-                         scans=ScanSource("points", VOXEL, (0.0, 0.0, LIDAR_UP)))
+        node, body = _body(tiny, session, lines, sensing="frontier3d",
+                           scans=ScanSource("points", VOXEL, (0.0, 0.0, LIDAR_UP)))
         robot.wait_for_subscriber(stop, "points", timeout_s=10.0)
         flat = T["sensor_msgs/msg/PointCloud2"](
             header=robot._header(3.0, "map"), height=1, width=1,
