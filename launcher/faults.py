@@ -6,8 +6,9 @@ Each fault strikes at its **mission point**: once mission.db holds ``decided`` s
 and an accepted Hello of each carrier in ``joined`` (those that had joined then), or once the
 mission is past ``decided`` — never at a wall time. A clock jump of a carrier the simulated
 mission had not started yet (not in ``started``) is in force before any carrier starts: that
-carrier's clock is ahead from its start, as the simulated one's was. It lasts ``until - at`` seconds (the simulated mission's seconds, on the
-wall clock: what a timeout of the fleet measures too), or, for a pause, ``size``:
+carrier's clock is ahead from its start, as the simulated one's was. A fault lasts ``until -
+at`` seconds (the simulated mission's seconds, on the wall clock: what a timeout of the fleet
+measures too), or, for a pause, ``size``:
 
 ==================== ==========================================================================
 kind                 on the real processes
