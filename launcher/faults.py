@@ -3,8 +3,8 @@ F.json``; docs/fleet.md, "Fault schedules on real processes").
 
 Each fault strikes at its **mission point**: once mission.db holds ``decided`` stages' Decisions
 (the number the simulated mission had decided when it struck; :mod:`mission.simulate.schedule`)
-and an accepted Hello of each carrier in ``joined`` (those that had joined then), or once the
-mission is past ``decided`` — never at a wall time. A clock jump of a carrier the simulated
+and, before the first Decision (``decided`` 0), an accepted Hello of each carrier in ``joined``
+(those that had joined then), or once the mission is past ``decided`` — never at a wall time. A clock jump of a carrier the simulated
 mission had not started yet (not in ``started``) is in force before any carrier starts: that
 carrier's clock is ahead from its start, as the simulated one's was. A fault lasts ``until -
 at`` seconds (the simulated mission's seconds, on the wall clock: what a timeout of the fleet
@@ -53,8 +53,9 @@ FLOWN = ("crash", "coordinator-crash", "takeover", "pause", "freeze", "slow", "r
 STANDBY = ("takeover", "pause", "standby-crash")
 #: Kinds whose standby has a results directory (a disk) of its own: :data:`STANDBY_OUT` under --out.
 OWN_DISK, STANDBY_OUT = ("standby-crash",), "standby"
-#: How often the mission's progress is read (s).
-POLL_S = 0.02
+#: How often the mission's progress is read (s): a mission on the sim clock decides a stage in
+#: milliseconds, and a fault must strike at its point, not a few stages later.
+POLL_S = 0.005
 #: A slow carrier: stopped this long of every period (s); it runs the rest, sending Progress.
 SLOW_STOP_S, SLOW_PERIOD_S = 0.8, 1.0
 
@@ -108,13 +109,16 @@ class Injector:
 
     def __init__(self, fleet, faults, points, restart: dict, stop: threading.Event):
         self.fleet, self.restart, self.stop = fleet, restart, stop
-        self.pending = [(k, f, (p.get("decided") or 0), frozenset(p.get("joined") or ()))
+        # (fault index, fault, decided, joined): who had joined tells apart only the moments
+        # before the first Decision; later, reading it would slow the polls a fast mission outruns
+        self.pending = [(k, f, (p.get("decided") or 0), frozenset((p.get("joined") or ()) if not p.get("decided") else ()))
                         for k, (f, p) in enumerate(zip(faults, points))]
         self.ends: list = []                      # (wall time, fault index, action, a resume)
         self.log: list = []
         self.loss: list = []                      # the loss windows in force (their sizes)
         self.cut: list = []                       # the carriers cut off
         self.jumps: dict = {}                     # host -> its clock's jumps so far (s)
+        self.joined: frozenset = frozenset()      # the carriers seen accepted so far
         for item in list(self.pending):  # in force before the carriers start (they start after this)
             k, f = item[:2]
             started = points[k].get("started")
@@ -133,8 +137,9 @@ class Injector:
         out = self.fleet.out
         while not self.stop.is_set() and (self.pending or self.ends):
             reached = decided_anywhere(out)
-            joined = joined_anywhere(out) if any(reached == p[2] and p[3] for p in self.pending) else frozenset()
-            for item in [p for p in self.pending if reached > p[2] or (reached == p[2] and p[3] <= joined)]:
+            if any(not p[3] <= self.joined for p in self.pending):  # read ahead of the point: it may pass fast
+                self.joined |= joined_anywhere(out)
+            for item in [p for p in self.pending if reached > p[2] or (reached == p[2] and p[3] <= self.joined)]:
                 self.pending.remove(item)
                 self._strike(item[0], item[1], reached)
             now = time.monotonic()

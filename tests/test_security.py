@@ -294,6 +294,12 @@ def test_config_examples_are_what_the_generator_writes():
 FLEET_TIMEOUT_S = 150.0  # upper bound on one fleet run (a hang fails the test instead of blocking)
 
 
+#: The TLS fleets' join wait (s): the forged fleet waits it out for the carrier it refuses, and on
+#: a loaded host (the slow tier's two workers) the other carrier's start and TLS handshake took
+#: more than 8 s once, so it joined after stage 0 and the decisions were not the offline ones.
+JOIN_S = 20
+
+
 def _launch_fleet(tmp: Path, name: str, port: int, certs: FleetCerts, carrier_confs: dict[str, Path]) -> dict:
     """Start the coordinator and one process per carrier of the tiny scenario, each with its own
     --zenoh-config, over tls/127.0.0.1:PORT. Returns the Popen objects and paths."""
@@ -310,10 +316,10 @@ def _launch_fleet(tmp: Path, name: str, port: int, certs: FleetCerts, carrier_co
 
     procs = {"coordinator": start("coordinator", [
         "--role", "coordinator", "--zenoh-config", str(coord_conf), "--listen", f"tls/127.0.0.1:{port}",
-        "--out", str(out / "results"), "--join-timeout", "8", "--no-map"])}
+        "--out", str(out / "results"), "--join-timeout", str(JOIN_S), "--no-map"])}
     for cid, conf in carrier_confs.items():
         procs[cid] = start(cid, ["--role", "carrier", "--carrier", cid, "--zenoh-config", str(conf),
-                                 "--connect", f"tls/127.0.0.1:{port}", "--coordinator-timeout", "8"])
+                                 "--connect", f"tls/127.0.0.1:{port}", "--coordinator-timeout", str(JOIN_S)])
     return {"procs": procs, "logs": logs, "out": out}
 
 
