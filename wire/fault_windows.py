@@ -83,20 +83,12 @@ class FaultWindows:
         self.rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 5, index])
         self.dropped = 0
 
-    @property
-    def loss(self) -> tuple:
-        return self.windows.loss
-
-    @property
-    def cut(self) -> frozenset:
-        return self.windows.cut
-
     def delay(self, key: str, payload: bytes) -> float | None:
         """Wall seconds to hold the message received on ``key`` now, or None to drop it."""
-        self.windows.read()
+        w = self.windows.read()
         sender, kind = sender_of(self.mission, key)
         if kind not in UNFILTERED and sender != self.receiver:
-            if self.receiver in self.cut or sender in self.cut or any(self.rng.random() < p for p in self.loss):
+            if self.receiver in w.cut or sender in w.cut or any(self.rng.random() < p for p in w.loss):
                 self.dropped += 1
                 return None
         return 0.0 if self.inner is None else self.inner.delay(key, payload)

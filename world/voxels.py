@@ -378,11 +378,7 @@ class VoxelMapper:
         self.params = params
         self.maxrange = float(maxrange)
         self.source = source
-        lo = np.floor(np.asarray(lower, dtype=float) / resolution).astype(np.int64) + KEY_ZERO - 1
-        hi = np.floor(np.asarray(upper, dtype=float) / resolution).astype(np.int64) + KEY_ZERO + 2
-        if np.any(lo < 0) or np.any(hi > 2 * KEY_ZERO):
-            raise GridError(source or "scans", f"points within ±{KEY_ZERO * resolution:g} m of the origin "
-                            "(OctoMap's key range at this voxel size)", f"a region {lower} .. {upper}")
+        lo, hi = self._keys(lower, upper)
         shape = tuple(int(v) for v in hi - lo)
         _check_size(shape, source or "--voxel")
         self.key0 = tuple(int(v) for v in lo)
@@ -393,6 +389,21 @@ class VoxelMapper:
         hit, miss, self._occ, clo, chi = params.logs
         self._args = (np.float32(hit), np.float32(miss), np.float32(clo), np.float32(chi))
 
+    def _keys(self, lower, upper) -> tuple[np.ndarray, np.ndarray]:
+        """The key range (lowest, one past the highest) of the region ``lower`` .. ``upper`` (m)
+        with a voxel of margin.
+
+        Raises:
+            GridError: past OctoMap's key range at this voxel size.
+        """
+        res = self.resolution
+        lo = np.floor(np.asarray(lower, dtype=float) / res).astype(np.int64) + KEY_ZERO - 1
+        hi = np.floor(np.asarray(upper, dtype=float) / res).astype(np.int64) + KEY_ZERO + 2
+        if np.any(lo < 0) or np.any(hi > 2 * KEY_ZERO):
+            raise GridError(self.source or "scans", f"points within ±{KEY_ZERO * res:g} m of the origin "
+                            "(OctoMap's key range at this voxel size)", f"a region {lower} .. {upper}")
+        return lo, hi
+
     def cover(self, lower, upper, slack: float = 0.0) -> None:
         """Grow the region to hold ``lower`` .. ``upper`` (m), keeping every voxel's state (a
         voxel is an OctoMap key: the map is the same whatever region holds it); when it grows,
@@ -402,16 +413,11 @@ class VoxelMapper:
         Raises:
             GridError: past OctoMap's key range or :data:`MAX_VOXELS`.
         """
-        res = self.resolution
-        lo = np.floor(np.asarray(lower, dtype=float) / res).astype(np.int64) + KEY_ZERO - 1
-        hi = np.floor(np.asarray(upper, dtype=float) / res).astype(np.int64) + KEY_ZERO + 2
+        lo, hi = self._keys(lower, upper)
         old_hi = self._key0 + np.asarray(self.logodds.shape)
         if np.all(lo >= self._key0) and np.all(hi <= old_hi):
             return
-        if np.any(lo < 0) or np.any(hi > 2 * KEY_ZERO):
-            raise GridError(self.source or "scans", f"points within ±{KEY_ZERO * res:g} m of the origin "
-                            "(OctoMap's key range at this voxel size)", f"a region {lower} .. {upper}")
-        extra = int(math.ceil(slack / res))
+        extra = int(math.ceil(slack / self.resolution))
         lo = np.where(lo < self._key0, np.maximum(lo - extra, 0), self._key0)
         hi = np.where(hi > old_hi, np.minimum(hi + extra, 2 * KEY_ZERO), old_hi)
         shape = tuple(int(v) for v in hi - lo)
@@ -761,14 +767,6 @@ def octomap_from_message(msg: dict, where: str, params: OccupancyParams = Occupa
     keys, depth, occ = _stream_leaves(buf, 0, str(msg.get("id", "")), bool(msg.get("binary")), params,
                                       f"{where}: data", "a whole tree", False)
     return leaves_grid(float(res), keys, depth, occ, where)
-
-
-def octomap_message(grid: VoxelGrid) -> dict:
-    """``grid`` as an ``octomap_msgs/msg/Octomap``'s fields (no header): a binary OcTree, as
-    octomap_server publishes on ``octomap_binary``."""
-    data = octomap_bytes(grid)
-    return {"binary": True, "id": "OcTree", "resolution": float(grid.resolution),
-            "data": data[data.index(b"\ndata\n") + 6:]}
 
 
 @numba.njit(cache=True)
