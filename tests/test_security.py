@@ -515,7 +515,9 @@ def test_a_10_mib_payload_is_dropped_at_the_first_hop(certs, limited):
             assert wait_connected(car, WAIT_S) and wait_connected(other, WAIT_S)
             other_inbox = Inbox()
             other.declare_subscriber(f"marsupial/{MISSION}/**", other_inbox)
-            time.sleep(0.5)  # the subscription has reached the coordinator
+            # c1's subscription has reached the coordinator (a fixed sleep was too short on a
+            # loaded host): a probe is relayed to c1 before the payload is sent.
+            deliver(car, other_inbox, [], (key, b"probe"))
             car.put(key, big)
             deliver(car, inbox, [], (key, b"marker"))
             assert other_inbox.wait_for((key, b"marker"))
