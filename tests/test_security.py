@@ -518,7 +518,7 @@ def test_a_10_mib_payload_is_dropped_at_the_first_hop(certs, limited):
             # c1's subscription has reached the coordinator (a fixed sleep was too short on a
             # loaded host): a probe is relayed to c1 before the payload is sent.
             deliver(car, other_inbox, [], (key, b"probe"))
-            car.put(key, big)
+            car.put(key, big, congestion_control=zenoh.CongestionControl.BLOCK)  # never dropped by the sender
             deliver(car, inbox, [], (key, b"marker"))
             assert other_inbox.wait_for((key, b"marker"))
             time.sleep(0.5)
