@@ -19,6 +19,7 @@ import world
 from fleet_helpers import ROOT, TINY, sensed_world_file
 from wire import conformance as wc
 from wire import messages as wm
+from wire.conformance.rules import CROSSING_S
 
 CLIENT = ROOT / "tests" / "revision1_carrier.py"
 BROKEN_COORDINATOR = ROOT / "tests" / "broken_coordinator.py"
@@ -88,6 +89,14 @@ def test_the_rules_on_a_recorded_flight(tmp_path):
 
     kit.flight = clean()
     kit.flight.carrier.insert(2, obs(2, 1.05))  # stage 2 while stage 0 is collected
+    assert {r for r, s in _statuses(kit.evaluate()).items() if s == "FAIL"} == {"observation-stage"}
+
+    j0 = next(j for j in range(t.n) if t.valid[j])  # a stage it observes
+    kit.flight = clean()  # its repeat crossed Decision j0 on the way: sent before it could hear it
+    kit.flight.carrier.append(obs(j0, 1.5 + j0 + 0.05))
+    assert {r for r, s in _statuses(kit.evaluate()).items() if s == "FAIL"} == set()
+    kit.flight = clean()  # the same repeat long after the Decision: a decided stage observed
+    kit.flight.carrier.append(obs(j0, 1.5 + j0 + CROSSING_S + 0.3))
     assert {r for r, s in _statuses(kit.evaluate()).items() if s == "FAIL"} == {"observation-stage"}
 
     kit.flight = clean()

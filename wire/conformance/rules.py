@@ -13,7 +13,7 @@ RULES = (
                            "up to it accepted, whatever it announced [P-4.5])"),
     ("hello-first", "[P-5.6]", "a Hello comes before its first Observation, Confirm, Own or Bye"),
     ("fingerprint", "[P-2.6]", "its Hello carries the coordinator's fingerprint (no Refusal)"),
-    ("observation-stage", "[P-6.7]", "an Observation is of the stage being collected (not a later or a decided one)"),
+    ("observation-stage", "[P-6.7]", "an Observation is of the stage being collected (not a later or a decided one; a repeat that crossed its Decision on the way, within 2 s, excepted)"),
     ("observation-time", "[P-3.2]", "an Observation's t is t_j of its stage (±0.001 s), stage < N"),
     ("observation-world", "[P-6.12]", "x is the world's: features in sight at t_j, nil where not scheduled"),
     ("passengers", "[P-6.9]", "passengers_left starts at the scenario's count and drops by one per deployment"),
@@ -104,7 +104,7 @@ def _observations(target: Target, flight: Flight, results: dict, msgs: list[Seen
         own_before = {x.message.stage for x in msgs if isinstance(x.message, wm.Own) and x.at <= s.at}
         results["observation-stage"].check(
             m.stage == collecting or (m.stage < collecting and m.x is None and not t.valid[min(m.stage, t.n - 1)])
-            or (m.stage < collecting and _resent(flight, s))
+            or (m.stage < collecting and _resent(flight, s)) or _crossed(msgs, real, s)
             or (m.stage > collecting and set(range(collecting, m.stage)) <= own_before),
             f"stage {m.stage} while stage {collecting} was collected: {s.show()}")
         in_range = m.stage < t.n and abs(m.t - t.times[m.stage]) <= 1e-3
@@ -116,6 +116,23 @@ def _observations(target: Target, flight: Flight, results: dict, msgs: list[Seen
             results["passengers"].check(m.passengers_left == t.passengers - deployed_before,
                                         f"passengers_left {m.passengers_left}, expected "
                                         f"{t.passengers - deployed_before}: {s.show()}")
+
+
+CROSSING_S = 2.0  # how long an Observation sent before its Decision arrived may be on its way
+
+
+def _crossed(msgs: list[Seen], real: list[Seen], seen: Seen) -> bool:
+    """An Observation repeated while it waited (the same stage and x as one that came before its
+    Decision) that crossed that Decision on the way: it reached the kit at most ``CROSSING_S``
+    after the Decision went out, so the carrier sent it before it could have heard it."""
+    m = seen.message
+    decided = [d.at for d in real if d.message.stage == m.stage and d.at <= seen.at]
+    if not decided:
+        return False
+    first = min(decided)
+    return seen.at - first <= CROSSING_S and any(
+        isinstance(o.message, wm.Observation) and o.message.stage == m.stage and o.message.x == m.x and o.at <= first
+        for o in msgs)
 
 
 def _resent(flight: Flight, seen: Seen) -> bool:
