@@ -3,8 +3,9 @@ person and applies the constraints they set.
 
 At stage j, once the observations are in: the planner recommends (:func:`planner.online.stage_step`),
 the page shows the recommendation, its reasons (:func:`planner.advice.advise`) and a countdown;
-the loop goes on taking the carriers' messages (``pump``) and the operator's actions (the
-desk). A veto or a force is a mission event; the planner then decides the rest of the stage
+the coordinator goes on taking the carriers' messages while the hold waits, and applies the
+operator's actions the hold hands it (the hold is a generator of waits and events: it holds no
+coordinator and calls nothing back, :meth:`OperatorHold.decide`). A veto or a force is a mission event; the planner then decides the rest of the stage
 again under every constraint set so far, on the same random stream, with its usual budget. The
 hold ends when the operator approves, when the wait runs out (:func:`mission.operator_rules.hold_wait`:
 ``--operator-timeout``, or with ``--operator-required`` the stage's own wait), or on a stop
@@ -16,7 +17,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Generator
 
 import numpy as np
 
@@ -27,8 +28,12 @@ from planner.advice import advise, override_gain
 from mission.decide import operator_constraints, planning_inputs
 from planner.problem import make_view, stage_rng
 
-#: Longest the hold waits for inbox items before it looks at its clock and the desk again (s).
-POLL_S = 0.05
+@dataclass(frozen=True)
+class Apply:
+    """What the hold asks of its coordinator: apply this mission event (an operator's action)
+    and send back the mission state after it."""
+
+    event: object
 
 
 @dataclass(frozen=True)
@@ -56,18 +61,6 @@ class OperatorSettings:
         return self.stage_wait_s if self.required else self.timeout_s
 
 
-class Held(Protocol):
-    """What the hold drives of a coordinator (:class:`coordinator.node.Coordinator`)."""
-
-    state: ms.MissionState
-    ids: tuple
-
-    def pump(self, timeout_s: float) -> None: ...
-
-    def apply(self, event) -> None: ...
-
-
-
 @dataclass(frozen=True)
 class Outcome:
     """The stage's decision after the hold: the fields of :class:`mission.events.Decided`."""
@@ -87,63 +80,66 @@ class OperatorHold:
 
     Args:
         settings: :class:`OperatorSettings`; desk: the :class:`console.desk.Desk`; plan:
-        ``plan(j, constraints) -> StageStep``, the coordinator's planner step; seed: the mission's
-        root seed (the estimate's stream); clock: the coordinator's clock (s); stop: its stop
-        request; log: a callable taking one line.
+        ``plan(j, state, constraints) -> StageStep``, the coordinator's planner step
+        (:func:`coordinator.node.plan_step`); problem: the planning problem; ids: the carrier
+        ids; seed: the mission's root seed (the estimate's stream); clock: the coordinator's
+        clock (s); stop: its stop request; log: a callable taking one line.
     """
 
-    def __init__(self, settings: OperatorSettings, desk, plan, seed: int, clock, stop, log):
-        self.settings, self.desk, self.plan, self.seed = settings, desk, plan, seed
-        self.clock, self._stop, self.log = clock, stop, log
+    def __init__(self, settings: OperatorSettings, desk, plan, problem, ids, seed: int, clock, stop, log):
+        self.settings, self.desk, self.plan, self.problem, self.ids = settings, desk, plan, problem, tuple(ids)
+        self.seed, self.clock, self._stop, self.log = seed, clock, stop, log
 
-    @staticmethod
-    def stage_view(j: int, c):
-        """The planner's view of stage j in ``c``'s mission (what the reasons are computed on)."""
-        return make_view(c.setup.problem, j, *planning_inputs(c.setup.problem, c.state, j))
+    def stage_view(self, j: int, st: ms.MissionState):
+        """The planner's view of stage j in mission state ``st`` (what the reasons are computed on)."""
+        return make_view(self.problem, j, *planning_inputs(self.problem, st, j))
 
-    def decide(self, j: int, c: Held) -> Outcome:
-        ids = tuple(c.setup.ids)
-        first = self.plan(j, None)
+    def decide(self, j: int, st: ms.MissionState) -> Generator[tm.Wait | Apply, ms.MissionState, Outcome]:
+        """Stage j's hold, from mission state ``st``: a generator of what it asks of its
+        coordinator, a :class:`mission.timers.Wait` (take the inbox until then, or for its
+        poll at most: the desk is looked at again after it) or an :class:`Apply` (an operator's action), each answered with the
+        mission state then; it returns the stage's :class:`Outcome`."""
+        ids = self.ids
+        first = self.plan(j, st, None)
         recommended = first.deploy.copy()
         step, planning_ms = first, first.decision_ms
-        forced, vetoed, approved = operator_rules.constraints(c.state.operator_actions.get(j, ()))
+        forced, vetoed, approved = operator_rules.constraints(st.operator_actions.get(j, ()))
         if forced or vetoed:  # a resumed coordinator: the actions taken before it stopped
-            step = self.plan(j, operator_constraints(ids, forced, vetoed))
+            step = self.plan(j, st, operator_constraints(ids, forced, vetoed))
             planning_ms += step.decision_ms
         opened = self.clock()
         wait_s = self.settings.wait_s
-        self._show(j, c, step, recommended, (forced, vetoed), opened, wait_s, "holding")
+        self._show(j, st, step, recommended, (forced, vetoed), opened, wait_s, "holding")
         while not self._stop.is_set():
-            now = self.clock()
-            rule = operator_rules.hold_wait(opened, now, wait_s, approved)
+            rule = operator_rules.hold_wait(opened, self.clock(), wait_s, approved)
             if not isinstance(rule, tm.Wait):
                 break
-            c.pump(min(POLL_S, max(0.0, rule.until - now)))
+            st = yield rule
             changed = False
             for e, ticket in self.desk.drain():
-                refused = operator_rules.refusal(c.state, e)
+                refused = operator_rules.refusal(st, e)
                 if refused is not None:
                     self.desk.answer(ticket, e, False, *refused)
                     continue
-                c.apply(e)
+                st = yield Apply(e)
                 self.desk.answer(ticket, e, True)
                 changed = True
             if changed:
-                now_forced, now_vetoed, approved = operator_rules.constraints(c.state.operator_actions.get(j, ()))
+                now_forced, now_vetoed, approved = operator_rules.constraints(st.operator_actions.get(j, ()))
                 if (now_forced, now_vetoed) != (forced, vetoed):
                     forced, vetoed = now_forced, now_vetoed
-                    step = self.plan(j, operator_constraints(ids, forced, vetoed))
+                    step = self.plan(j, st, operator_constraints(ids, forced, vetoed))
                     planning_ms += step.decision_ms
                     for r, why in step.dropped.items():
                         self.log(f"coordinator: stage {j}: the operator's constraint on {ids[r]} cannot apply ({why})")
-                self._show(j, c, step, recommended, (forced, vetoed), opened, wait_s, "holding")
+                self._show(j, st, step, recommended, (forced, vetoed), opened, wait_s, "holding")
         kept = {ids[r] for r in step.dropped}
         forced = tuple(cid for cid in forced if cid not in kept)
         vetoed = tuple(cid for cid in vetoed if cid not in kept)
         hold = "watching" if wait_s <= 0 else "approved" if approved else "timeout"
         gain = None
         if forced or vetoed:
-            gain = override_gain(self.stage_view(j, c), recommended, step.deploy, stage_rng(self.seed + 1, j))
+            gain = override_gain(self.stage_view(j, st), recommended, step.deploy, stage_rng(self.seed + 1, j))
             self.log(f"coordinator: stage {j}: operator constraints forced {', '.join(forced) or '-'}, vetoed "
                      f"{', '.join(vetoed) or '-'}; recommended {_names(ids, recommended)}, decided "
                      f"{_names(ids, step.deploy)}; the planner estimates "
@@ -158,15 +154,16 @@ class OperatorHold:
                        rec if rec != tuple(sorted(deploy)) else None, forced, vetoed, hold,
                        None if gain is None or math.isnan(gain) else float(gain))
 
-    def _show(self, j, c: Held, step, recommended, constraints, opened, wait_s, status) -> None:
-        view = self.stage_view(j, c)
+    def _show(self, j, st: ms.MissionState, step, recommended, constraints, opened, wait_s, status) -> None:
+        view = self.stage_view(j, st)
+        ids = self.ids
         self.desk.show({
             "stage": j, "status": status, "deploy": step.deploy.tolist(), "recommended": recommended.tolist(),
-            "advice": [dict(a, carrier=c.setup.ids[r], conflicts=[c.setup.ids[q] for q in a["conflicts"]])
+            "advice": [dict(a, carrier=ids[r], conflicts=[ids[q] for q in a["conflicts"]])
                        for r, a in enumerate(advise(view, step.deploy))], "forced": list(constraints[0]), "vetoed": list(constraints[1]),
             # The page counts down on wall time: the deadline as seconds since the epoch.
             "deadline": time.time() + (opened + wait_s - self.clock()) if wait_s > 0 else None, "wait_s": wait_s,
-            "required": self.settings.required, "dropped": {c.setup.ids[r]: why for r, why in step.dropped.items()}})
+            "required": self.settings.required, "dropped": {ids[r]: why for r, why in step.dropped.items()}})
 
 
 def _names(ids, deploy) -> str:

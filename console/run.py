@@ -21,32 +21,35 @@ class Console:
     hold: OperatorHold
     server: ConsoleServer
 
-    def decided(self, j: int, c):
-        """Stage j's :class:`mission.events.Decided` after the operator's hold."""
-        o = self.hold.decide(j, c)
+    def decide(self, j: int, st):
+        """Stage j's hold (:meth:`console.hold.OperatorHold.decide`): a generator of what it asks
+        of its coordinator that returns the stage's :class:`mission.events.Decided`."""
+        o = yield from self.hold.decide(j, st)
         return ev.Decided(j, o.deploy, o.planning_ms, time.time(), o.passengers, o.recommended, o.forced, o.vetoed,
                           o.hold, o.gain)
 
-    def close(self, c) -> None:
+    def close(self) -> None:
         """The server and the key's worker stop."""
         self.desk.close()
         self.server.close()
 
 
-def open_console(c, out_dir, plan) -> Console:
-    """The console of coordinator ``c`` (:class:`coordinator.node.Coordinator`, its session open):
-    the credential in ``out_dir/operator.token``, the page's server, the operator's Zenoh key;
-    ``plan(j, constraints)`` is its planner's stage step (:func:`coordinator.node.plan_step`)."""
+def open_console(setup, settings, node, served, out_dir, plan, clock, stop) -> Console:
+    """The console of a coordinator's mission (its :class:`coordinator.setup.MissionSetup`, its
+    session ``node`` open): the credential in ``out_dir/operator.token``, the page's server, the
+    operator's Zenoh key. ``settings``: the :class:`console.hold.OperatorSettings`; ``served()``:
+    the mission state as stored (what State answers from); ``plan(j, state, constraints)``: its
+    planner's stage step (:func:`coordinator.node.plan_step`); ``clock``, ``stop``: its clock and
+    stop request."""
     from world.scene import build_scene
 
-    settings = c.config.operator
-    view = ConsoleView(build_scene(c.setup.scenario), c.setup.problem, c.setup.mission, c.setup.planner_name, settings)
-    desk = Desk(lambda: c.state, new_token(out_dir), view, c.log)
+    view = ConsoleView(build_scene(setup.scenario), setup.problem, setup.mission, setup.planner_name, settings)
+    desk = Desk(served, new_token(out_dir), view, setup.log)
     server = ConsoleServer(desk, view, settings)
-    hold = OperatorHold(settings, desk, plan, c.setup.seed, c.clock, c._stop, c.log)
-    desk.listen(c.node, c.setup.mission)
+    hold = OperatorHold(settings, desk, plan, setup.problem, setup.ids, setup.seed, clock, stop, setup.log)
+    desk.listen(node, setup.mission)
     mode = ("watching only (--operator-timeout 0)" if settings.wait_s <= 0 else
             f"waits up to {settings.wait_s:g} s a stage" + (" (--operator-required)" if settings.required else ""))
-    c.log(f"coordinator: operator console at {server.url} ({mode}); operator key "
-          f"marsupial/{c.setup.mission}/operator/<id>/action, credential in {out_dir}/operator.token")
+    setup.log(f"coordinator: operator console at {server.url} ({mode}); operator key "
+              f"marsupial/{setup.mission}/operator/<id>/action, credential in {out_dir}/operator.token")
     return Console(desk, view, hold, server)

@@ -7,8 +7,8 @@ cannot read is rejected (and a Hello it cannot read is answered).
 :class:`Inbound` is a collaborator of :class:`coordinator.node.Coordinator`, given what it needs
 when it is built; it hands a Decision on the decision key to the split-brain collaborator
 (``coordinator.epochs.Epochs``) and a Pose to the recorder (``coordinator.recorder.Recording``),
-and changes nothing of the coordinator's: the coordinator takes what it reads
-(:meth:`coordinator.node.Coordinator.pump`).
+and changes nothing of the coordinator's: it yields what it reads, and the coordinator takes
+it (:meth:`coordinator.node.Coordinator.pump`).
 """
 from __future__ import annotations
 
@@ -44,7 +44,7 @@ def to_event(msg, at: float):
 
 
 
-#: At most this many inbox items share one mission.db commit (:meth:`Inbound.pump`).
+#: At most this many inbox items share one mission.db commit (:meth:`coordinator.node.Coordinator.pump`).
 BATCH_MAX = 1024
 
 
@@ -67,6 +67,18 @@ class Heard(NamedTuple):
     at: float = 0.0
     progress: int | None = None
     epoch: int | None = None
+
+
+class Unreadable(NamedTuple):
+    """An inbox item the coordinator cannot read (:meth:`Inbound.arrivals`): rejected for
+    ``reason`` (``detail``), of carrier ``carrier`` (None: no carrier's key); a Hello among them
+    is refused too (``refuse``, in the ``revision`` it announced; None: not a Hello)."""
+
+    reason: str
+    detail: str
+    carrier: str | None = None
+    refuse: ms.Refuse | None = None
+    revision: int = 0
 
 
 class Inbound:
@@ -92,42 +104,34 @@ class Inbound:
         node.subscribe(keys.decision_key(self.mission))
         node.watch_liveliness(keys.carrier_alive_pattern(self.mission))
 
-    def pump(self, node, store, timeout_s: float, take, reject, answer_hello) -> None:
-        """Wait up to ``timeout_s`` seconds for inbox items on ``node``, then hand what each queued
-        one says to ``take`` (:meth:`read`), their writes to mission.db (``store``, None: none yet)
-        committed together (storage.missiondb, :meth:`MissionStore.batch`). One it cannot read is
-        rejected: ``reject(reason, detail, carrier)``; a Hello among them is answered too:
-        ``answer_hello(carrier, revision, refusal)``. With Poses set aside and an empty inbox,
-        record them instead of waiting, until an item arrives
+    def arrivals(self, node, timeout_s: float):
+        """What arrived on ``node``, one item at a time, waiting up to ``timeout_s`` for the
+        first: what each says (:class:`Heard`, from :meth:`read`), or :class:`Unreadable` for one
+        it cannot read; every queued item is read before it returns. With Poses set aside and an
+        empty inbox, record them instead of waiting, until an item arrives
         (:meth:`coordinator.recorder.Recording.record_poses`)."""
         item = node.next(0.0 if self.recording.poses else max(0.0, timeout_s))
         if item is None:
             self.recording.record_poses(busy=node.pending)
             return
-        if store is None:
-            self._drain(node, store, item, (take, reject, answer_hello))
-            return
-        with store.batch():
-            self._drain(node, store, item, (take, reject, answer_hello))
-
-    def _drain(self, node, store, item, given) -> None:
-        take, reject, answer_hello = given
-        handled = 0
         while item is not None:
-            handled += 1
-            if handled % BATCH_MAX == 0 and store is not None:
-                store.flush()  # a long burst is committed in parts
             try:
                 heard = self.read(item)
                 if heard is not None:
-                    take(heard)
+                    yield heard
             except ProtocolError as exc:
-                parsed = keys.parse_carrier_key(self.mission, item.key) if item.kind == "sample" else None
-                reject(exc.reason, exc.detail, parsed[0] if parsed else None)
-                if parsed is not None and parsed[1] == "hello":  # a Hello it could not read: answered too
-                    revision, fp = announced(item.payload)
-                    answer_hello(parsed[0], revision, ms.Refuse(parsed[0], fp, exc.reason, exc.detail))
+                yield self._unreadable(item, exc)
             item = node.next(0.0)
+
+    def _unreadable(self, item, exc: ProtocolError) -> Unreadable:
+        parsed = keys.parse_carrier_key(self.mission, item.key) if item.kind == "sample" else None
+        if parsed is None:
+            return Unreadable(exc.reason, exc.detail)
+        cid, topic = parsed
+        if topic != "hello":
+            return Unreadable(exc.reason, exc.detail, cid)
+        revision, fp = announced(item.payload)  # a Hello it could not read is answered too
+        return Unreadable(exc.reason, exc.detail, cid, ms.Refuse(cid, fp, exc.reason, exc.detail), revision)
 
     def read(self, item) -> Heard | None:
         """What one inbox item says (wire-level checks only here: key layout, decoding, mission

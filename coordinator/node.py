@@ -32,30 +32,30 @@ in half.
 """
 from __future__ import annotations
 
+import functools
 import threading
 import time
-from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from mission.decide import FALLBACK_PLANNER, stage_decision
-from coordinator.clock import StageClock
+from coordinator.answers import Answers
+from coordinator.clock import POLL_S, progress_line, waits_of
 from coordinator.epochs import Epochs, default_ident
-from coordinator.inbound import Inbound
+from coordinator.inbound import BATCH_MAX, Inbound, Unreadable
 from coordinator.recorder import Recording, start as start_recording
 from coordinator.results import results_for
 from coordinator.setup import MissionSetup
 from storage.missiondb import MissionStore
+from mission import coordinator_life as cl
 from mission import events as ev
 from mission import state as ms
+from mission import timers as tm
 from mission.timeouts import CLOCKS, DEFAULTS
 from wire import keys
-from wire.messages import (
-    ACCEPTED_MAX, MAX_STATE_CARRIERS, REVISION, UNANNOUNCED_REVISION, Accepted, CarrierState, Decision, End, State,
-    defined_in, encode, refusal,
-)
+from wire.messages import REVISION, End
 from wire.link_filter import link_filter
 from wire.transport import Node
 
@@ -137,54 +137,41 @@ class CoordinatorConfig:
     coordinator_id: str | None = None
 
 
-@dataclass
-class Told:
-    """What State tells each carrier of what this process refused or rejected of it
-    (docs/protocol.md, "Rejections"): per carrier, counts per reason (``counts``; a new Counter
-    at every change: State reads it from another thread) and its last Hello's refusal."""
-
-    counts: dict = field(default_factory=dict)
-    refusals: dict = field(default_factory=dict)
-
-    @classmethod
-    def of(cls, ids) -> "Told":
-        return cls({cid: Counter() for cid in ids})
-
-
-def plan_step(c: "Coordinator", j: int, constraints=None):
-    """Stage j's step on coordinator ``c``'s mission state (:func:`mission.decide.stage_decision`:
-    guarded, within the planner's ``plan_ms`` budget), under the operator's ``constraints``
+def plan_step(setup: MissionSetup, store: MissionStore, j: int, st: ms.MissionState, constraints=None):
+    """Stage j's step on mission state ``st`` (:func:`mission.decide.stage_decision`: guarded,
+    within the planner's ``plan_ms`` budget), under the operator's ``constraints``
     (:class:`planner.constraints.Constraints`; None: none). A planner fault is logged and
     recorded in mission.db (``planner-fault``: summary.json ``planner_faults``); the stage is
     decided by :data:`mission.decide.FALLBACK_PLANNER`."""
 
     def fault(f) -> None:
-        c.log(f"coordinator: {f.line(c.setup.planner_name)}; stage {f.stage} decided by {FALLBACK_PLANNER}")
-        c.store.event("planner-fault", None, f.stage, rule=f.rule, detail=f.detail, planner=c.setup.planner_name,
-                      fallback=FALLBACK_PLANNER)
+        setup.log(f"coordinator: {f.line(setup.planner_name)}; stage {f.stage} decided by {FALLBACK_PLANNER}")
+        store.event("planner-fault", None, f.stage, rule=f.rule, detail=f.detail, planner=setup.planner_name,
+                    fallback=FALLBACK_PLANNER)
 
-    return stage_decision(c.setup.problem, c.state, j, c.setup.planner, c.setup.seed, constraints,
-                          getattr(c.setup.planner, "plan_ms", None), fault)
+    return stage_decision(setup.problem, st, j, setup.planner, setup.seed, constraints,
+                          getattr(setup.planner, "plan_ms", None), fault)
 
 
-def _planned(c: "Coordinator", j: int) -> ev.Decided:
+def _planned(setup: MissionSetup, store: MissionStore, j: int, st: ms.MissionState) -> ev.Decided:
     """Stage j's decision by the planner alone (deploying ids sorted, with their passengers)."""
-    step = plan_step(c, j)
-    rs = sorted(np.flatnonzero(step.deploy), key=lambda r: c.setup.ids[r])
-    return ev.Decided(j, tuple(c.setup.ids[r] for r in rs), step.decision_ms, time.time(),
+    step = plan_step(setup, store, j, st)
+    rs = sorted(np.flatnonzero(step.deploy), key=lambda r: setup.ids[r])
+    return ev.Decided(j, tuple(setup.ids[r] for r in rs), step.decision_ms, time.time(),
                       tuple(int(step.passengers[r]) for r in rs))
 
 
 class Coordinator:
-    """One coordinator process: the Zenoh node, the store, the stage clock, and the mission state
-    (``self.state``, a :class:`mission.state.MissionState` changed only by :meth:`apply`).
-
-    Its jobs live in collaborators it holds, each given what it needs: what it receives
-    (:class:`coordinator.inbound.Inbound`, taken by :meth:`pump`), its waits and stage loop
-    (:class:`coordinator.clock.StageClock`), split brain and its session
-    (:class:`coordinator.epochs.Epochs`), the recorder (:class:`coordinator.recorder.Recording`),
-    the results (:class:`coordinator.results.Results`); this class keeps the state, the answers
-    (State, Accepted, Refusal), the planner call and the run's opening.
+    """One coordinator process: an I/O loop around two pure machines, its mission state
+    (``self.state``, :class:`mission.state.MissionState`, changed only by :meth:`apply`) and its
+    lifecycle (``self.life``, :mod:`mission.coordinator_life`, changed only by :meth:`step`).
+    :meth:`fly` feeds the lifecycle its clock and takes the inbox between its waits; the
+    effects of both machines are carried out here. Its collaborators are given what they need
+    and return what they read or build, calling nothing back: the inbox's reader
+    (:class:`coordinator.inbound.Inbound`), the answers (:class:`coordinator.answers.Answers`),
+    split brain and its session (:class:`coordinator.epochs.Epochs`), the recorder
+    (:class:`coordinator.recorder.Recording`), the results (:class:`coordinator.results.Results`),
+    the operator's console (a stage's hold is a generator of waits and events: :meth:`_drive`).
 
     Args:
         scenario: the loaded scenario (its seed is replaced by ``config.seed`` when given).
@@ -193,33 +180,31 @@ class Coordinator:
         scenario_path: shown in summary.json.
         stop: the stop request (a ``threading.Event``; a new one by default), set by
             :meth:`stop` or by a signal handler.
-        clock: what its waits read (monotonic s; a test hands in its own).
+        clock: what it feeds its lifecycle (monotonic s; a test hands in its own).
     """
 
     def __init__(self, scenario, config: CoordinatorConfig, zconf, scenario_path: str = "",
                  stop: threading.Event | None = None, clock=time.monotonic):
-        self.setup = setup = MissionSetup.build(scenario, config, zconf, scenario_path)
-        self.config = config
-        self.state = ms.initial(self.setup.spec)
-        self._served = self.state  # what State queries answer from: stored already
-        self._stop = stop if stop is not None else threading.Event()
-        self.node: Node | None = None
-        self.store: MissionStore | None = None
-        self.recording = Recording(self.setup.mission, self.setup.spec.has, self.log)  # mission.mcap, the ROS 2 topics
-        self.told = Told.of(setup.ids)  # what State tells each carrier of what this process refused of it
         if config.clock not in CLOCKS:
             raise ValueError(f"clock must be one of {CLOCKS}, found {config.clock!r}")
-        self.clock = clock  # what its waits read (mission.timers decides); the inbox's clock
-        self.epochs = Epochs(self.setup.mission, self.log, self._stop, self.clock,  # split brain (docs/fleet.md)
-                             config.coordinator_id or default_ident())
-        self.inbound = Inbound(self.setup.mission, self.setup.spec.has, self.setup.fingerprint, self.epochs, self.recording)
-        self.stage_clock = StageClock(config, self.setup.spec, scenario.stage_interval, self.setup.mission, self.epochs, self._stop,
-                                      self.clock, self.log)
-        self.results = results_for(scenario, self.setup.scenario_path, self.setup.mission, self.setup.planner_name, self.setup.planner_options,
-                                   self.setup.seed, (config.render, self.log, self.epochs, self.recording))
+        self.setup = setup = MissionSetup.build(scenario, config, zconf, scenario_path)
+        self.config, self.clock = config, clock
+        self._stop = stop if stop is not None else threading.Event()
+        self.state = ms.initial(setup.spec)
+        self.life = cl.initial(waits_of(config), config.clock, config.realtime, scenario.stage_interval)
+        self.node: Node | None = None
+        self.store: MissionStore | None = None
+        self.recording = Recording(setup.mission, setup.spec.has, self.log)  # mission.mcap, the ROS 2 topics
+        self.epochs = Epochs(setup.mission, self.log, self._stop, clock, config.coordinator_id or default_ident())
+        self.answers = Answers(setup, self.epochs, config)  # State, Accepted, Refusal, what State tells
+        self.answers.serve(self.state)
+        self.inbound = Inbound(setup.mission, setup.spec.has, setup.fingerprint, self.epochs, self.recording)
+        self.results = results_for(scenario, setup.scenario_path, setup.mission, setup.planner_name,
+                                   setup.planner_options, setup.seed, (config.render, self.log, self.epochs,
+                                                                       self.recording))
         self.console = None  # operator mode: the console (console.run.Console), opened with the mission
+        self.end_message: End | None = None  # the End it repeats, once recorded
 
-    # ------------------------------------------------------------------ views of the state
     def log(self, line: str) -> None:
         self.setup.log(line)
 
@@ -231,58 +216,11 @@ class Coordinator:
     def next_stage(self) -> int:
         return self.state.next_stage
 
-    @property
-    def ended(self) -> bool:
-        return self.state.ended
-
-    @property
-    def resumed(self) -> bool:
-        return self.state.resumed
-
     def deployed(self) -> np.ndarray:
         """bool ``[R, N]``: the planner's view of the past (:meth:`mission.state.MissionState.deployed`)."""
         return self.state.deployed()
 
-    def _decision(self, j: int, st: ms.MissionState | None = None) -> Decision:
-        """The Decision of stage j as published: from ``st`` (the current state by default)."""
-        d = (self.state if st is None else st).decisions[j]
-        return Decision(self.setup.mission, j, self.setup.spec.stage_times[j], d.deploy, d.planning_ms, self.epochs.epoch,
-                        passengers=d.passengers, coordinator=self.epochs.ident)
-
-    def _refresh_state(self) -> None:
-        """From now on State queries answer from the current state (it is stored). O(1): the
-        reply is built when asked (:meth:`state_reply`), not at every event."""
-        self._served = self.state
-
-    def state_reply(self, parameters: dict | None = None) -> bytes:
-        """The encoded State a query gets (docs/protocol.md, "State"): ``?carrier=<id>`` lists
-        that carrier only; an unscoped query lists every carrier of a mission of at most
-        MAX_STATE_CARRIERS carriers, none of a larger one. Runs in the queryable's thread on an
-        immutable snapshot."""
-        st = self._served
-        asked = keys.asked_revision(parameters, REVISION, UNANNOUNCED_REVISION)
-        wanted = (parameters or {}).get("carrier")
-        if wanted is not None:
-            ids = [wanted] if self.setup.spec.has(wanted) else []
-        else:
-            ids = list(self.setup.ids) if len(self.setup.ids) <= MAX_STATE_CARRIERS else []
-        carriers = tuple(sorted((cid, self._carrier_state(st, cid)) for cid in ids))
-        last = self._decision(st.next_stage - 1, st) if (st.next_stage - 1) in st.decisions else None
-        return encode(State(
-            mission=self.setup.mission, next_stage=st.next_stage, stages=self.setup.n_stages, fingerprint=self.setup.fingerprint,
-            ended=st.ended, carriers=carriers, last_decision=last, epoch=self.epochs.epoch, revision=REVISION,
-            coordinator=self.epochs.ident), asked)
-
-    def _carrier_state(self, st, cid: str) -> CarrierState:
-        """One carrier's entry: its deployments as the planner sees them (its accounts, its
-        Confirms, the decisions nobody answered)."""
-        deployments = st.deployments_of(cid)
-        left = self.setup.spec.passengers[self.setup.spec.index(cid)] - len(deployments)
-        refused = None if cid in st.accepted else self.told.refusals.get(cid, "world-mismatch" if cid in st.refused else None)
-        return CarrierState(int(left), tuple(deployments), cid in st.live, refused,
-                            tuple(sorted(self.told.counts[cid].items())))
-
-    # ------------------------------------------------------------------ the one way state changes
+    # ------------------------------------------------------------------ its mission state
     def apply(self, event) -> None:
         """Step the mission state with one event, persist what it says to record, then carry out
         the other effects in order (store before publish)."""
@@ -293,52 +231,51 @@ class Coordinator:
                 self.store.record(effect, self.state, self.recording.event)
             elif isinstance(effect, ms.Reject):
                 self._reject(effect.reason, effect.detail, getattr(event, "carrier", None))
-            elif isinstance(effect, ms.Refuse):
-                self._answer_hello(effect.carrier, effect.revision, effect)
-            elif isinstance(effect, ms.Accept):
-                self._answer_hello(effect.carrier, effect.revision)
+            elif isinstance(effect, (ms.Refuse, ms.Accept)):
+                self._answer_hello(effect.carrier, effect.revision, effect if isinstance(effect, ms.Refuse) else None)
             elif isinstance(effect, ms.Publish):
-                self._refresh_state()
-                self._publish_decision(self._decision(effect.stage))
+                self.answers.serve(self.state)
+                self._publish_decision(effect.stage)
             elif isinstance(effect, ms.Log):
                 self.log(effect.line)
         if self.state is not before:
-            self._refresh_state()
+            self.answers.serve(self.state)
 
     def _reject(self, reason: str, detail: str, cid: str | None = None) -> None:
         first = reason not in self.node.rejected
         self.node.reject(reason, detail, lambda line: self.log(f"coordinator: {line}"))
         if first:
             self.store.event("rejected", reason=reason, detail=detail[:200])
-        if cid in self.told.counts:  # what State tells that carrier (docs/protocol.md, "Rejections")
-            self.told.counts[cid] = self.told.counts[cid] + Counter({reason: 1})  # a new value: State reads it from another thread
+        self.answers.rejected(cid, reason)  # what State tells that carrier (docs/protocol.md, "Rejections")
 
     def _answer_hello(self, cid: str, revision: int, refused: ms.Refuse | None = None) -> None:
-        """Every Hello is answered (docs/protocol.md, "Refusal", "Accepted"), in the revision it
-        announced: a Refusal (to an earlier revision's carrier as ``world-mismatch``, the only
-        reason it has), or Accepted (revision 3 and later; earlier ones learn it from Decisions)."""
-        revision = min(revision, REVISION)
-        self.store.flush()  # the Hello is on record before its answer goes out
-        if refused is not None:
-            if cid in self.told.counts and cid not in self.state.accepted:
-                self.told.refusals[cid] = refused.reason
-            self.node.put(keys.refusal_key(self.setup.mission, cid), refusal(
-                self.setup.mission, cid, refused.reason, refused.fingerprint, self.setup.fingerprint, refused.detail, revision),
-                revision)
-            return
-        self.told.refusals.pop(cid, None)
-        # The mission's clock (revision 4): a carrier times its waits by the coordinator's.
-        answer = Accepted(self.setup.mission, cid, self.setup.fingerprint, self.state.accepted[cid].next_stage,
-                          self.state.next_stage, REVISION, self.epochs.epoch, self.config.clock,
-                          min(float(self.config.silence_timeout_s), ACCEPTED_MAX),
-                          min(float(self.config.realtime), ACCEPTED_MAX), coordinator=self.epochs.ident)
-        if defined_in(answer, revision):
-            self.node.put(keys.accepted_key(self.setup.mission, cid), answer, revision)
+        """Every Hello is answered, once it is on record (:meth:`coordinator.answers.Answers.hello`)."""
+        self.store.flush()
+        answer = self.answers.hello(self.state, cid, revision, refused)
+        if answer is not None:
+            self.node.put(*answer)
+
+    def _publish_decision(self, j: int) -> None:
+        # In the revision every carrier that said Hello reads (docs/protocol.md, "Compatibility").
+        self.store.flush()
+        self.node.put(keys.decision_key(self.setup.mission), self.answers.decision(self.state, j),
+                      self.state.common_revision(REVISION))
+        self.apply(ev.Published(j, time.time()))
 
     # ------------------------------------------------------------------ what it receives
     def pump(self, timeout_s: float) -> None:
-        """Take what arrived, waiting up to ``timeout_s`` for it (:meth:`coordinator.inbound.Inbound.pump`)."""
-        self.inbound.pump(self.node, self.store, timeout_s, self._take, self._reject, self._answer_hello)
+        """Take what arrived, waiting up to ``timeout_s`` for it (:meth:`coordinator.inbound.Inbound.arrivals`),
+        its writes to mission.db committed together (:meth:`storage.missiondb.MissionStore.batch`)."""
+        with self.store.batch():
+            for handled, heard in enumerate(self.inbound.arrivals(self.node, timeout_s), 1):
+                if handled % BATCH_MAX == 0:
+                    self.store.flush()  # a long burst is committed in parts
+                if isinstance(heard, Unreadable):
+                    self._reject(heard.reason, heard.detail, heard.carrier)
+                    if heard.refuse is not None:
+                        self._answer_hello(heard.carrier, heard.revision, heard.refuse)
+                else:
+                    self._take(heard)
 
     def _take(self, heard) -> None:
         """What one inbox item says (:class:`coordinator.inbound.Heard`): when its carrier was heard,
@@ -353,25 +290,85 @@ class Coordinator:
         if heard.event is not None:
             self.apply(heard.event)
 
-    # ------------------------------------------------------------------ the stage clock's calls
+    # ------------------------------------------------------------------ its lifecycle
+    def fly(self, until=None) -> None:
+        """Its lifecycle until it is done or deposed (or ``until(life)`` holds), the clock fed as
+        ticks and the inbox taken in between. A stop request ends the stages with End
+        ``stopped``; the end wait runs to its end. A rule's inputs are the mission state, the
+        time and when carriers were heard, and hearing one only delays a wait's end: so a
+        :class:`mission.timers.Wait` stands until its ``until`` or a new state (most drains apply
+        no event: Progress, Poses, about a thousand a second at R = 1,024)."""
+        wake, seen, stopped = None, None, False
+        while self.life.phase not in (cl.Phase.DONE, cl.Phase.DEPOSED) and not (until and until(self.life)):
+            now = self.clock()
+            if self.epochs.deposed_by is not None:  # deposed: the newer coordinator ends the mission
+                self.step(cl.Deposed())
+                break
+            if self._stop.is_set() and not stopped:
+                stopped, wake = True, None
+                self.step(cl.Stopped(now))
+            if wake is None or self.state is not seen or now >= wake:
+                seen, wake = self.state, self.step(cl.Tick(now))
+                if wake is None:
+                    continue
+            self.pump(max(0.0, min(POLL_S, wake - now)))
+
+    def step(self, event) -> float | None:
+        """Step its lifecycle and carry out the effects: the time to wait until, None when it is
+        to be stepped again at once."""
+        self.life, effects = cl.step(self.life, event, cl.View(self.state, self.inbound.heard))
+        until = None
+        for effect in effects:
+            if isinstance(effect, tm.Wait):
+                until = effect.until
+            elif isinstance(effect, cl.Decide):
+                planning_ms = self.decide(effect.stage)  # records, then publishes
+                if planning_ms is None:
+                    self.step(cl.Deposed())
+                    return None
+                self.step(cl.Decided(effect.stage, self.clock(), planning_ms))
+                self.pump(0.0)
+            elif isinstance(effect, cl.StageLine):
+                self.log(progress_line(self.setup.spec, self.state, effect.stage, effect.waited_ms))
+            elif isinstance(effect, cl.RecordEnd):
+                self.apply(ev.Ended(effect.reason, time.time()))
+                # With its ballot (revision 4: a carrier ignores a deposed coordinator's End).
+                self.end_message = End(self.setup.mission, self.state.next_stage,
+                                       self.state.end_reason or effect.reason, self.epochs.epoch, self.epochs.ident)
+            elif isinstance(effect, cl.PublishEnd) and self.end_message is not None:
+                # in the revision every carrier that said Hello reads, as the Decisions are
+                self.node.put(keys.end_key(self.setup.mission), self.end_message,
+                              self.state.common_revision(REVISION))
+            elif isinstance(effect, cl.Note):
+                self.log(effect.line)
+        return until
+
     def decide(self, j: int) -> float | None:
         """Plan stage j, record and publish its Decision: its planning ms (None: deposed, Epochs.fencing).
         In operator mode the decision waits for the operator's console (:mod:`console.hold`)."""
-        decided = self.console.decided(j, self) if self.console is not None else _planned(self, j)
+        decided = _planned(self.setup, self.store, j, self.state) if self.console is None else \
+            self._drive(self.console.decide(j, self.state))
         with self.epochs.fencing():
             self.apply(decided)  # records, then publishes
         return decided.planning_ms if self.epochs.deposed_by is None else None
 
-    def put_end(self, end: End) -> None:
-        """End, in the revision every carrier that said Hello reads (as the Decisions are)."""
-        self.node.put(keys.end_key(self.setup.mission), end, self.state.common_revision(REVISION))
+    def _drive(self, requests):
+        """Carry out what a generator of a collaborator asks (a :class:`mission.timers.Wait`: the
+        inbox taken until then, for a poll at most; any other: a mission event applied), sending
+        back the mission state after each; what it returns."""
+        reply = None
+        while True:
+            try:
+                request = requests.send(reply)
+            except StopIteration as done:
+                return done.value
+            if isinstance(request, tm.Wait):
+                self.pump(max(0.0, min(POLL_S, request.until - self.clock())))
+            else:
+                self.apply(request.event)
+            reply = self.state
 
-    def _publish_decision(self, decision: Decision) -> None:
-        # In the revision every carrier that said Hello reads (docs/protocol.md, "Compatibility").
-        self.store.flush()
-        self.node.put(keys.decision_key(self.setup.mission), decision, self.state.common_revision(REVISION))
-        self.apply(ev.Published(decision.stage, time.time()))
-
+    # ------------------------------------------------------------------ its run
     def run(self) -> dict:
         """Run (or resume) the mission to its end; write summary.json and map.png.
 
@@ -398,15 +395,16 @@ class Coordinator:
                 raise
             self.apply(ev.Ended("stopped", time.time()))
         finally:
-            summary = self.results.finish(out, self.clock() - started, self.state, self.setup.problem, self.node, self.store,
-                                          self.told.counts)
-            self.console and self.console.close(self)
+            summary = self.results.finish(out, self.clock() - started, self.state, self.setup.problem, self.node,
+                                          self.store, self.answers.counts)
+            self.console and self.console.close()
         return summary
 
     def _open_mission(self, out: Path) -> None:
         """mission.db (this process's epoch with it) and the recorder."""
-        meta = {"mission": self.setup.mission, "scenario": self.setup.scenario.name, "fingerprint": self.setup.fingerprint,
-                "seed": self.setup.seed, "planner": self.setup.planner_name, "planner_options": self.setup.planner_options}
+        setup = self.setup
+        meta = {"mission": setup.mission, "scenario": setup.scenario.name, "fingerprint": setup.fingerprint,
+                "seed": setup.seed, "planner": setup.planner_name, "planner_options": setup.planner_options}
         # Higher than every epoch used before for this mission: the ones in mission.db and the
         # one a primary reported while this process stood by; 1 for a fresh mission.
         try:
@@ -415,42 +413,45 @@ class Coordinator:
             if self.node is not None:
                 self.node.close(DEFAULTS.close_s)
             raise
-        start_recording(self.recording, self.config, self.node, out, self.setup.scenario, self.setup.problem,
+        start_recording(self.recording, self.config, self.node, out, setup.scenario, setup.problem,
                         {k: meta[k] for k in ("mission", "scenario", "seed", "planner", "fingerprint")},
                         self.store.mission_events)
 
     def _mission(self) -> None:
         """Recover the state, then serve the mission to its end (or record that it was stopped
         before the session opened: nothing to tell anyone, but on record)."""
+        setup = self.setup
         # Recovery is the live fold over the stored events (the last one is this process's open).
-        self.state = ms.fold(self.setup.spec, self.store.mission_events())
+        self.state = ms.fold(setup.spec, self.store.mission_events())
         self.epochs.first_stage = self.state.next_stage
         if self.state.resumed:
             self.log(f"coordinator: resumed from {self.store.path}: {len(self.state.decisions)} stage(s) "
                      f"decided, continuing at stage {self.state.next_stage}")
-        self._refresh_state()
+        self.answers.serve(self.state)
         if self.node is None or self._stop.is_set():
             self.apply(ev.Ended("stopped", time.time()))
             return
-        self._serve()
+        # Subscribed, the carriers' tokens watched, State answered, its token declared.
+        self.inbound.subscribe(self.node)
+        self.node.serve(keys.state_key(setup.mission), self.answers.state_reply)
+        self.node.token(keys.coordinator_alive(setup.mission))
+        self.log(f"coordinator: mission {setup.mission}, {len(setup.ids)} carriers, {setup.n_stages} stages, "
+                 f"planner {setup.planner_name} {setup.planner_options}, seed {setup.seed}, epoch "
+                 f"{self.epochs.epoch}, {self.config.clock} clock")
         if self.config.operator is not None:  # operator mode only: nothing of console/ loads otherwise
             from console.run import open_console
 
-            self.console = open_console(self, Path(self.config.out_dir), lambda j, given: plan_step(self, j, given))
+            answers = self.answers
+            self.console = open_console(setup, self.config.operator, self.node, lambda: answers.served,
+                                        Path(self.config.out_dir), functools.partial(plan_step, setup, self.store),
+                                        self.clock, self._stop)
         # Warmed up once State answers and the token is out: carriers that start meanwhile
         # find a coordinator (compiling the planner takes seconds, more on a busy host).
         if not self._stop.is_set():
-            warm_up((self.setup.planner, self.setup.planner_name), self.setup.problem, self.log)
+            warm_up((setup.planner, setup.planner_name), setup.problem, self.log)
         if self.state.next_stage > 0:
-            self._publish_decision(self._decision(self.state.next_stage - 1))  # idempotent re-publication
-        self.stage_clock.serve(self)  # the carriers' join, the stages, the last Confirms, End
-
-    def _serve(self) -> None:
-        """Subscribe, watch the carriers' tokens, answer State, declare this coordinator's token."""
-        self.inbound.subscribe(self.node)
-        self.node.serve(keys.state_key(self.setup.mission), self.state_reply)
-        self.node.token(keys.coordinator_alive(self.setup.mission))
-        self.log(f"coordinator: mission {self.setup.mission}, {len(self.setup.ids)} carriers, {self.setup.n_stages} stages, "
-                 f"planner {self.setup.planner_name} {self.setup.planner_options}, seed {self.setup.seed}, epoch {self.epochs.epoch}, "
-                 f"{self.config.clock} clock")
-
+            self._publish_decision(self.state.next_stage - 1)  # idempotent re-publication
+        # The carriers' join, the stages, the last Confirms, End (not when deposed: the newer
+        # coordinator ends the mission); a resumed complete mission only tells late carriers it is over.
+        self.step(cl.Opened(self.clock()))
+        self.fly()

@@ -115,7 +115,7 @@ class Results:
 
     def summary(self, state, problem, epochs, rejected: dict, wall_s: float, told: dict | None = None,
                 bound: bool = True) -> dict:
-        """``told``: carrier id -> its messages rejected, per reason (coordinator.node.Told.counts)."""
+        """``told``: carrier id -> its messages rejected, per reason (coordinator.answers.Answers.counts)."""
         out = mission_summary(state, problem, dataclasses.replace(self.info, wall_time_s=wall_s, rejected=rejected),
                               bound=bound)
         out["epoch"] = epochs.epoch  # of the coordinator that wrote this summary (docs/fleet.md)

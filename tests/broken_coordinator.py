@@ -42,7 +42,7 @@ def select_all() -> None:
     import coordinator.node as node
     from mission import events as ev
 
-    _patch(node, "_planned", lambda c, j: ev.Decided(j, tuple(sorted(c.setup.ids)), 0.0, time.time(), ()))
+    _patch(node, "_planned", lambda setup, store, j, st: ev.Decided(j, tuple(sorted(setup.ids)), 0.0, time.time(), ()))
 
 
 def ignore_takeover() -> None:

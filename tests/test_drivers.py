@@ -280,8 +280,7 @@ def stage_0_opened(coordinator, clock):
 
     decided = []
     coordinator.decide = lambda j: decided.append(clock.now)
-    coordinator.stage_clock.life = dataclasses.replace(coordinator.stage_clock.life, phase=kl.Phase.STAGE, stage=0,
-                                                       opened=clock.now)
+    coordinator.life = dataclasses.replace(coordinator.life, phase=kl.Phase.STAGE, stage=0, opened=clock.now)
     return decided
 
 
@@ -294,7 +293,7 @@ def test_the_coordinator_waits_for_a_carrier_heard_from_until_its_silence(tmp_pa
     waiting = coordinator.state.waiting(0)
     assert waiting
     decided = stage_0_opened(coordinator, clock)
-    coordinator.stage_clock.fly(coordinator)
+    coordinator.fly()
     assert len(decided) == 1 and 40.0 <= decided[0] - opened < 40.1
     assert any("stalled" in line and all(cid in line for cid in waiting) for line in lines), lines
 
@@ -305,7 +304,7 @@ def test_the_coordinator_on_the_wall_clock_waits_the_stage_timeout(tmp_path):
     opened = clock.now
     coordinator.inbound.heard = {cid: opened + 4.9 for cid in TINY.carrier_ids}
     decided = stage_0_opened(coordinator, clock)
-    coordinator.stage_clock.fly(coordinator)
+    coordinator.fly()
     assert len(decided) == 1 and 5.0 <= decided[0] - opened < 5.1 and not any("stalled" in line for line in lines)
 
 

@@ -851,11 +851,11 @@ def test_takeover_and_deposition_come_from_coordinators_only():
     assert epochs.deposed_by is None and not stop.is_set()
     epochs.decision_heard(encode(Decision("m", 4, 0.0, (), 0.0, epoch=2)))
     assert epochs.deposed_by == 2 and stop.is_set()
-    clock = (ROOT / "coordinator" / "clock.py").read_text()
-    assert "if self.epochs.deposed_by is not None:  # deposed: the newer coordinator ends the mission" in clock
-    assert "self.step(c, cl.Deposed())" in clock
     node = (ROOT / "coordinator" / "node.py").read_text()
-    assert "self._publish_decision(self._decision(self.state.next_stage - 1))  # idempotent re-publication" in node
+    fly = node.split("    def fly(")[1].split("    def ")[0]
+    assert "if self.epochs.deposed_by is not None:  # deposed: the newer coordinator ends the mission" in fly
+    assert "self.step(cl.Deposed())" in fly
+    assert "self._publish_decision(self.state.next_stage - 1)  # idempotent re-publication" in node
 
 
 # --- rules: 9 leaving
@@ -1064,12 +1064,12 @@ def test_end_is_broadcast_with_its_epoch_in_the_lowest_revision():
     end = wm.End(M, 3, "complete", 1)
     assert msgpack.unpackb(wm.encode(end, 4))["epoch"] == 1
     assert "epoch" not in msgpack.unpackb(wm.encode(end, 3))
-    clock = (ROOT / "coordinator" / "clock.py").read_text()
-    assert "c.put_end(self.end_message)" in clock and "self.epochs.epoch, self.epochs.ident)" in clock
     life = (ROOT / "mission" / "coordinator_life.py").read_text().split("def _end(")[1]
     assert "tm.end_due(life.last_end, life.ended_at, now, w.end_repeat_s, w.bye_s)" in life
-    put = (ROOT / "coordinator" / "node.py").read_text().split("def put_end(")[1].split("def ")[0]
-    assert "self.node.put(keys.end_key(self.setup.mission), end, self.state.common_revision(REVISION))" in put
+    step = " ".join((ROOT / "coordinator" / "node.py").read_text().split("    def step(")[1].split("    def ")[0].split())
+    assert "self.state.end_reason or effect.reason, self.epochs.epoch, self.epochs.ident)" in step
+    assert ("self.node.put(keys.end_key(self.setup.mission), self.end_message, "
+            "self.state.common_revision(REVISION))") in step
 
 
 @pytest.mark.parametrize("revision", sorted(int(p.name[1:]) for p in (ROOT / "tests" / "fixtures" / "wire").glob("r*")))
