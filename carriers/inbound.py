@@ -81,29 +81,17 @@ class Inbound:
                 node.subscribe(keys.carrier_key(self.mission, cid, topic), wake=False)
             node.watch_liveliness(keys.carrier_alive(self.mission, cid))
 
-    def pump(self, node, timeout_s: float, machine, apply, execute) -> None:
-        """Handle what arrived on ``node``: the inbox (waiting up to ``timeout_s`` for its first
-        item), then the peers' messages waiting in their channels, one item at a time: what each
-        says (:meth:`read`, against ``machine()``, the carrier's machine then) goes to the
-        carrier, an event to ``apply``, an effect to ``execute``; one it cannot read is rejected."""
+    def arrivals(self, node, timeout_s: float):
+        """What arrived on ``node``, one item at a time: the inbox (waiting up to ``timeout_s``
+        for its first item), then the peers' messages waiting in their channels. The carrier
+        reads each against its machine then (:meth:`read`)."""
         if self.listening is None:
             self.listen(node)
         item = node.next(timeout_s)
         while item is not None:
-            self._handle_safely(node, item, machine, apply, execute)
+            yield item
             item = node.next(0.0)
-        for item in node.drain():
-            self._handle_safely(node, item, machine, apply, execute)
-
-    def _handle_safely(self, node, item, machine, apply, execute) -> None:
-        try:
-            heard = self.read(item, machine())
-            if isinstance(heard, (mc.DecisionHeard, mc.EndHeard)):
-                apply(heard)
-            elif heard is not None:
-                execute(heard)
-        except ProtocolError as exc:
-            node.reject(exc.reason, exc.detail, self.log)
+        yield from node.drain()
 
     def read(self, item, machine: mc.Handshake):
         """Feed the books what one inbox item says and return what the carrier does with it: an

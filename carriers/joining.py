@@ -4,13 +4,16 @@ world (one replay for both paths), and later resynchronising from State when a D
 or the coordinator came back.
 
 :class:`Joining` and :class:`StateQueries` are collaborators of :class:`carriers.node.Carrier`:
-each is given what it needs when it is built; :class:`Joining` drives the carrier through a
-narrow interface (:class:`Joiner`: its machine, effects, body and inbox), handed at each call.
+each is given what it needs when it is built, and the carrier's machine, log and wire node at
+each call. They call nothing back: a join path is a generator of what it asks of the carrier
+(:class:`Apply` an event, answered with the machine after it; :class:`Execute` an effect;
+:class:`Advance` the body), which the carrier carries out (:meth:`carriers.node.Carrier.drive`).
 """
 from __future__ import annotations
 
 import threading
-from typing import Any, Callable, Protocol
+from dataclasses import dataclass
+from typing import Any, Callable, Generator
 
 from carriers.exits import Exit
 from mission import carrier as mc
@@ -22,32 +25,31 @@ from wire.messages import REVISION, ProtocolError, State, decode
 from mission.modes import Mode
 
 
-class Joiner(Protocol):
-    """What the join paths drive of a carrier (:class:`carriers.node.Carrier`).
+@dataclass(frozen=True)
+class Apply:
+    """What a join path asks of its carrier: step its machine with ``event`` (and carry out the
+    effects); the carrier sends back its machine after it."""
 
-    Attributes:
-        machine: its :class:`mission.carrier.Handshake` (read: :meth:`apply` changes it).
-        node: its wire node (``wire.transport.Node``), open while it runs.
-        store: its durable log (``storage.carrierlog.CarrierLog``), None: none.
-        releases: the passenger each stage releases (:class:`mission.carrier.Releases`).
-    """
+    event: Any
 
-    machine: mc.Handshake
-    node: Any
-    store: Any
-    releases: mc.Releases
 
-    def apply(self, event) -> None:
-        """Step its machine with ``event`` and carry out the effects."""
+@dataclass(frozen=True)
+class Execute:
+    """What a join path asks of its carrier: carry out this effect of its machine."""
 
-    def execute(self, effect) -> None:
-        """Carry out one effect of its machine."""
+    effect: Any
 
-    def advance(self, t: float, paced: bool = True) -> None:
-        """Its body to mission time ``t`` (s)."""
 
-    def pump(self, timeout_s: float) -> None:
-        """Wait up to ``timeout_s`` for its messages and take them."""
+@dataclass(frozen=True)
+class Advance:
+    """What a join path asks of its carrier: its body driven to mission time ``t`` (s), unpaced."""
+
+    t: float
+
+
+#: A join path: a generator of what it asks of its carrier, sent the carrier's machine after each
+#: :class:`Apply` (None after the others).
+Steps = Generator[Any, Any, Any]
 
 
 class Joining:
@@ -69,14 +71,16 @@ class Joining:
         self.cid, self.fingerprint, self.config, self.stage_time = cid, fingerprint, config, stage_time
         self.queries, self.book, self.motion, self.inbound = queries, book, motion, inbound
         self.presence: Presence = inbound.presence
+        self.releases: mc.Releases = inbound.releases
         self.clock, self._stop, self.log = clock, stop, log
         self.next_alone = 0  # joining alone: the stage after the last its log resolved
 
-    def from_state(self, carrier: Joiner, state: State) -> None:
+    def from_state(self, machine: mc.Handshake, store, state: State) -> Steps:
         """Join from the coordinator's State (the answer to the lifecycle's
-        :class:`mission.carrier_life.Query`) and the carrier's own durable log: the deployments on
-        record replayed, the stages it resolved itself recalled, its Hello, then the deployments on
-        record it never made answered ``late`` and its own decisions said again."""
+        :class:`mission.carrier_life.Query`) and the carrier's own durable log (``store``, None:
+        none): the deployments on record replayed, the stages it resolved itself recalled, its
+        Hello, then the deployments on record it never made answered ``late`` and its own
+        decisions said again."""
         self.presence.coordinator_answered()  # present, even if its token is not pumped yet
         if state.fingerprint != self.fingerprint:
             self.log(f"the coordinator runs another world (fingerprint {state.fingerprint}, ours "
@@ -84,115 +88,114 @@ class Joining:
             raise Exit("world-mismatch")
         mine = state.carrier(self.cid)
         recorded = tuple(mine.deployments) if mine else ()
-        store = carrier.store
         entries = {e.stage: e for e in store.entries() if e.status is not None} if store is not None else {}
         logged = {j: e.deployed for j, e in entries.items()} or None  # no outcome logged: the record decides
         start = mc.join_stage(state.next_stage, logged)
         recalled = [j for j in sorted(entries) if j >= state.next_stage]
         if not state.ended:
-            self._replay(carrier, mc.replay_plan(carrier.machine, min(state.next_stage, start), recorded, logged))
-            self._recall(carrier, [entries[j] for j in recalled])
-        carrier.apply(mc.Joined(start, state.ended, state.epoch, state.coordinator))
-        carrier.execute(mc.SendHello(carrier.machine.hello_stage(), carrier.machine.passengers_left))
+            machine = yield from self._replay(mc.replay_plan(machine, min(state.next_stage, start), recorded, logged),
+                                              machine)
+            machine = yield from self._recall([entries[j] for j in recalled], machine)
+        machine = yield Apply(mc.Joined(start, state.ended, state.epoch, state.coordinator))
+        yield Execute(mc.SendHello(machine.hello_stage(), machine.passengers_left))
         # after its Hello (it is accepted first): the deployments on record it never made answered
         # late, its own decisions of the recalled stages said again
         for j in mc.missed(state.next_stage, recorded, logged):
-            carrier.apply(mc.Missed(j, self.motion.position()))
-        for effect in mc.accounts(carrier.machine, recalled):
-            carrier.execute(effect)
+            machine = yield Apply(mc.Missed(j, self.motion.position()))
+        for effect in mc.accounts(machine, recalled):
+            yield Execute(effect)
 
-    def _recall(self, carrier: Joiner, entries) -> None:
+    def _recall(self, entries, machine: mc.Handshake) -> Steps:
         """The stages its log resolved that the coordinator has not decided (it decided them on
         board while the coordinator was away): kept as they were (:class:`mission.carrier.Recalled`,
         its Own sent again), a deployment among them replayed in its world."""
         for e in entries:
-            carrier.advance(self.stage_time(e.stage), paced=False)
-            carrier.apply(mc.Recalled(e.stage, e.status, e.deployed, self.motion.position(), e.x))
+            yield Advance(self.stage_time(e.stage))
+            machine = yield Apply(mc.Recalled(e.stage, e.status, e.deployed, self.motion.position(), e.x))
             if e.deployed:
                 self.motion.body.deploy(self.cid)
             self.book.outcome(self.cid, e.stage, e.deployed)
+        return machine
 
-    def _replay(self, carrier: Joiner, stages) -> None:
+    def _replay(self, stages, machine: mc.Handshake) -> Steps:
         """The deployments on record at ``stages`` (ascending, at most the passengers on board:
         :func:`mission.carrier.replay_plan`) replayed in the carrier's world: the body driven to
         each stage time unpaced and a passenger released there."""
         for j in stages:
-            carrier.advance(self.stage_time(j), paced=False)
-            carrier.apply(mc.Replayed(j, self.motion.position()))
+            yield Advance(self.stage_time(j))
+            machine = yield Apply(mc.Replayed(j, self.motion.position()))
             self.motion.body.deploy(self.cid)
             self.book.outcome(self.cid, j, True)
+        return machine
 
-    def alone_from_log(self, carrier: Joiner) -> None:
+    def alone_from_log(self, machine: mc.Handshake, store, node) -> Steps:
         """Join with no coordinator (decentralised, or none answered: hybrid): go on from the
-        carrier's own log (the deployments on record replayed in its world) and listen to its
-        peers; the lifecycle then waits (at most ``join_timeout_s``) for every other carrier's
-        token, so that nobody starts the mission alone (:meth:`gathered`)."""
+        carrier's own log (``store``; the deployments on record replayed in its world) and listen
+        to its peers (on ``node``); the lifecycle then waits (at most ``join_timeout_s``) for
+        every other carrier's token, so that nobody starts the mission alone (:meth:`gathered`)."""
         if self.config.mode == Mode.HYBRID:
             # A coordinator that appears later (one slow to start) is one to resynchronise with:
             # its token's arrival makes this carrier say Hello and hand over what it decided.
             self.presence.coordinator_seen = True
-        store = carrier.store
         entries = [e for e in store.entries() if e.status is not None] if store is not None else []
         for e in entries:
             if e.observed:
                 self.book.observation(self.cid, e.stage, e.x, self.motion.counts(e.stage, e.x))
             self.book.outcome(self.cid, e.stage, e.deployed)
         self.next_alone = max((e.stage + 1 for e in entries), default=0)
-        self._replay(carrier, mc.replay_plan(carrier.machine, self.next_alone,
-                                             [e.stage for e in entries if e.deployed]))
-        self.inbound.listen(carrier.node, wait=True)
+        yield from self._replay(mc.replay_plan(machine, self.next_alone, [e.stage for e in entries if e.deployed]),
+                                machine)
+        self.inbound.listen(node, wait=True)
 
-    def gathered(self, carrier: Joiner) -> None:
+    def gathered(self, node) -> Steps:
         """The wait for the peers' tokens is over: the carrier joins at the stage after the last its
         log resolved; a coordinator whose token came meanwhile is one to resynchronise with."""
         missing = sorted(set(self.inbound.listening or ()) - self.presence.peers_live)
         if missing and self.next_alone == 0:
             self.log(f"starting without carrier(s) {', '.join(missing)} (no token after "
                      f"{self.config.join_timeout_s:.0f} s)")
-        carrier.apply(mc.Joined(self.next_alone))
+        machine = yield Apply(mc.Joined(self.next_alone))
         if self.config.mode == Mode.HYBRID and self.presence.coordinator_present:  # it is back [P-5.12]
-            self.resync(carrier)
+            yield from self.resync(machine, node)
 
-    def recover_decision(self, carrier: Joiner, j: int) -> None:
+    def recover_decision(self, machine: mc.Handshake, node, j: int) -> Steps:
         """Sim clock, a long wait for the Decision of j: if the coordinator's State says it has
         decided j already, the Decision was lost on the way: resynchronise (it is taken from
         State). If it still collects j, it may not have our Observation (mission.carrier,
         Collecting). Otherwise the coordinator is still at work: go on waiting."""
-        state = self.queries.once(carrier.node)
-        if state is None or not mc.current(carrier.machine, state.epoch, state.coordinator):
+        state = self.queries.once(node)
+        if state is None or not mc.current(machine, state.epoch, state.coordinator):
             return
         if state.next_stage > j:
             self.log(f"stage {j} was decided but its Decision did not arrive; taking it from State")
-            _named(carrier, state)
-            carrier.apply(mc.Resync(self.queries.seen(state), self.motion.position()))
+            self._named(machine, state)
+            yield Apply(mc.Resync(self.queries.seen(state), self.motion.position()))
         elif state.next_stage == j:
-            carrier.apply(mc.Collecting(j, state.epoch, state.coordinator))
+            yield Apply(mc.Collecting(j, state.epoch, state.coordinator))
         else:
             # the coordinator is behind this carrier: its Hello or its accounts of the stages
             # since were lost; saying them again lets it go on (found by mission.simulate)
             self.log(f"the coordinator is at stage {state.next_stage}, this carrier at {j}; resynchronising")
-            carrier.apply(mc.Resync(self.queries.seen(state), self.motion.position()))
+            yield Apply(mc.Resync(self.queries.seen(state), self.motion.position()))
 
-    def resync(self, carrier: Joiner, gap: int | None = None) -> None:
+    def resync(self, machine: mc.Handshake, node, gap: int | None = None) -> Steps:
         """Resynchronise from the coordinator's State (:class:`mission.carrier.Resync`): its token
         came back (``gap`` None), or the Decision of stage ``gap`` came without an earlier one
         this carrier needs (:class:`mission.carrier.AskState`): the lost stages are taken from a
         State of its world before it confirms anything more (docs/protocol.md, [P-6.6])."""
-        state = self.queries.once(carrier.node)
+        state = self.queries.once(node)
         if gap is not None and state is not None and state.fingerprint != self.fingerprint:
             state = None
         if state is not None:
-            _named(carrier, state)
-        carrier.apply(mc.Resync(self.queries.seen(state), self.motion.position(), gap=gap))
+            self._named(machine, state)
+        yield Apply(mc.Resync(self.queries.seen(state), self.motion.position(), gap=gap))
 
-
-def _named(carrier: Joiner, state: State) -> None:
-    """The passenger State's last Decision names for this carrier, as a Decision heard names it
-    (a Decision taken from State releases the passenger it names, [P-6.9])."""
-    last = state.last_decision
-    if last is not None:
-        carrier.releases.name(carrier.machine, last.stage, state.epoch, last.passenger_of(carrier.machine.cid),
-                              state.coordinator)
+    def _named(self, machine: mc.Handshake, state: State) -> None:
+        """The passenger State's last Decision names for this carrier, as a Decision heard names it
+        (a Decision taken from State releases the passenger it names, [P-6.9])."""
+        last = state.last_decision
+        if last is not None:
+            self.releases.name(machine, last.stage, state.epoch, last.passenger_of(machine.cid), state.coordinator)
 
 
 def _ballot(state: State) -> Ballot:

@@ -4,7 +4,8 @@ counts behind what the body sensed.
 
 :class:`Motion` is a collaborator of :class:`carriers.node.Carrier`: it owns the body and what
 its motion has published, and is handed, at each call that publishes, what the carrier is now
-(:class:`Moving`: its wire node, clock, timers, stage), and while it paces its inbox wait.
+(:class:`Moving`: its wire node, clock, timers, stage); while it paces, it yields its waits for
+the carrier to take its inbox (:meth:`Motion.advance`).
 """
 from __future__ import annotations
 
@@ -104,14 +105,13 @@ class Motion:
             if self.body.time >= t - 1e-9 or self.stop.is_set():
                 return
 
-    def advance(self, t: float, paced: bool, moving, wait) -> None:
+    def advance(self, t: float, paced: bool, now: Moving):
         """Physics to mission time ``t`` (s) at fixed steps, paced when realtime > 0 (and
         ``paced``); on the sim clock a Progress message at least every ``progress_s`` of wall
         time on the way. Unpaced, in the process's physics thread when it has one
-        (:class:`carriers.shared.PhysicsThread`) while this thread sends the Progress.
-        ``moving()``: what the carrier is now (:class:`Moving`); ``wait(s)``: its inbox wait while
-        it paces (its messages handled meanwhile)."""
-        now = moving()
+        (:class:`carriers.shared.PhysicsThread`) while this thread sends the Progress. ``now``:
+        what the carrier is (:class:`Moving`). A generator: while it paces, it yields how long
+        the carrier is to take its inbox (s) and is sent what the carrier is then."""
         if now.timers.realtime <= 0 or not paced:  # no inbox wait on the way: the carrier stays as it is
             if self.physics is None:
                 self._physics_until(t, lambda: self.progress(now))
@@ -126,15 +126,14 @@ class Motion:
         while self.body.time < t - 1e-9 and not self.stop.is_set():
             target = min(t, self.body.time + PACE_CHUNK_S)
             self.body.advance_to(target)
-            self.publish_poses(moving())
-            self.progress(moving())
+            self.publish_poses(now)
+            self.progress(now)
             while not self.stop.is_set():  # the chunk's wall time (mission.timers.pace)
-                now = moving()
                 at = now.clock()
                 rule = pace(wall0, self.body.time - t0, now.timers.realtime, at)
                 if isinstance(rule, GoOn):
                     break
-                wait(min(0.05, rule.until - at))
+                now = yield min(0.05, rule.until - at)
 
     def progress(self, moving: Moving, every_s: float = DEFAULTS.progress_s, now: float | None = None) -> None:
         """Sim clock: tell the coordinator and the peers that this carrier is working (a

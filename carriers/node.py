@@ -43,7 +43,7 @@ import world
 from carriers.alone import Alone
 from carriers.exits import EXIT_CODES, Exit, refused_exit
 from carriers.inbound import Follow, Inbound, Rejoin
-from carriers.joining import Joining, StateQueries
+from carriers.joining import Advance, Execute, Joining, StateQueries
 from carriers import ONBOARD_LOADS
 from carriers.motion import Motion, Moving
 from carriers.onboard import Onboard
@@ -55,7 +55,9 @@ from mission import timers as tm
 from mission.peers import PeerBook, Presence
 from mission.timeouts import CLOCKS, DEFAULTS, POSE_INTERVAL_S
 from wire import keys
-from wire.messages import REVISION, Bye, Confirm, Hello, Observation, Own, SharedDecoder, scenario_fingerprint
+from wire.messages import (
+    REVISION, Bye, Confirm, Hello, Observation, Own, ProtocolError, SharedDecoder, scenario_fingerprint,
+)
 from wire.link_filter import link_filter
 from wire.sizes import fit_to_links
 from mission.modes import MODES, Mode
@@ -312,9 +314,9 @@ class Carrier:
             if pending is not None and pending.stage == effect.stage:
                 self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), pending)
         elif isinstance(effect, mc.AskState):  # a Decision came without an earlier one
-            self.joining.resync(self, gap=effect.stage)
+            self.drive(self.joining.resync(self.machine, self.node, gap=effect.stage))
         elif isinstance(effect, Rejoin):  # the coordinator is back
-            self.joining.resync(self)
+            self.drive(self.joining.resync(self.machine, self.node))
         elif isinstance(effect, Follow):  # the mission's timers (a robot keeps its own pace)
             self.timers, lines = mc.follow(self.timers, effect.timers, getattr(self.ros2, "robot", None) is None)
             for line in lines:
@@ -329,8 +331,37 @@ class Carrier:
 
     def pump(self, timeout_s: float) -> None:
         """Take what arrived, waiting up to ``timeout_s`` for the inbox's first item
-        (:meth:`carriers.inbound.Inbound.pump`: its events applied, its effects carried out)."""
-        self.inbound.pump(self.node, timeout_s, lambda: self.machine, self.apply, self.execute)
+        (:meth:`carriers.inbound.Inbound.arrivals`), each read against its machine then
+        (:meth:`carriers.inbound.Inbound.read`): an event applied, an effect carried out, one it
+        cannot read rejected."""
+        for item in self.inbound.arrivals(self.node, timeout_s):
+            try:
+                heard = self.inbound.read(item, self.machine)
+            except ProtocolError as exc:
+                self.node.reject(exc.reason, exc.detail, self.log)
+                continue
+            if isinstance(heard, (mc.DecisionHeard, mc.EndHeard)):
+                self.apply(heard)
+            elif heard is not None:
+                self.execute(heard)
+
+    def drive(self, steps) -> None:
+        """Carry out what a join path asks (:mod:`carriers.joining`: an event applied, answered
+        with its machine after it; an effect carried out; its body driven, unpaced)."""
+        reply = None
+        while True:
+            try:
+                step = steps.send(reply)
+            except StopIteration:
+                return
+            reply = None
+            if isinstance(step, Advance):
+                self.advance(step.t, paced=False)
+            elif isinstance(step, Execute):
+                self.execute(step.effect)
+            else:
+                self.apply(step.event)
+                reply = self.machine
 
     def _moving(self) -> Moving:
         """What its motion reads of the carrier now (:class:`carriers.motion.Moving`)."""
@@ -339,7 +370,15 @@ class Carrier:
     def advance(self, t: float, paced: bool = True) -> None:
         """Its body to mission time ``t`` (:meth:`carriers.motion.Motion.advance`); while it paces,
         its messages are handled and a refused Hello ends it."""
-        self.motion.advance(t, paced, self._moving, lambda s: (self.pump(s), self._check_refused()))
+        steps = self.motion.advance(t, paced, self._moving())
+        try:
+            wait_s = next(steps)
+            while True:
+                self.pump(wait_s)
+                self._check_refused()
+                wait_s = steps.send(self._moving())
+        except StopIteration:
+            return
 
     # ------------------------------------------------------------------ its lifecycle
     def view(self) -> cl.View:
@@ -401,11 +440,11 @@ class Carrier:
         elif isinstance(effect, cl.DecideOnBoard):
             self.apply(mc.DecidedOwn(effect.stage, self.alone.deploy(effect.stage), self.motion.position()))
         elif isinstance(effect, cl.AskState):
-            self.joining.recover_decision(self, effect.stage)
+            self.drive(self.joining.recover_decision(self.machine, self.node, effect.stage))
         elif isinstance(effect, cl.Query):
             state = self.joining.queries.once(self.node)
             if state is not None:
-                self.joining.from_state(self, state)
+                self.drive(self.joining.from_state(self.machine, self.store, state))
                 self.step(cl.Answered(self.clock()))
         elif isinstance(effect, cl.SendProgress):
             self.motion.send_progress(self._moving())
@@ -414,9 +453,9 @@ class Carrier:
         elif isinstance(effect, cl.Listen):
             self.inbound.listen(self.node, wait=True)
         elif isinstance(effect, cl.JoinAlone):
-            self.joining.alone_from_log(self)
+            self.drive(self.joining.alone_from_log(self.machine, self.store, self.node))
         elif isinstance(effect, cl.Gathered):
-            self.joining.gathered(self)
+            self.drive(self.joining.gathered(self.node))
         elif isinstance(effect, cl.SayHelloAgain):
             self.apply(mc.HelloUnanswered(self.motion.position()))
         elif isinstance(effect, cl.Note):
@@ -452,7 +491,10 @@ class Carrier:
             return "stopped"
         try:
             if self.config.ros2 is not None:  # its ROS 2 node; a robot's body replaces the simulated one
-                self.ros2 = self.config.ros2.attach(self)
+                self.ros2 = self.config.ros2.attach(self.node.session, self.scenario, self.cid, self.config.realtime,
+                                                    self._stop, self.log)
+                if self.ros2.robot is not None:
+                    self.motion.body = self.ros2.robot
             self.store = open_log(self.config, {
                 "mission": self.mission, "carrier": self.cid, "scenario": self.scenario.name,
                 "fingerprint": self.fingerprint, "seed": int(self.scenario.seed)}, self.log)

@@ -85,9 +85,11 @@ class Ros2Settings:
         """A factory ``scene -> CoordinatorTopics`` for recording/live.py's extra sinks."""
         return lambda scene: CoordinatorTopics(session, scene, self.domain, problem, log)
 
-    def attach(self, carrier) -> "CarrierRos2":
-        """The carrier's ROS 2 node (on its session), and with ``robot`` its robot body."""
-        return CarrierRos2(self, carrier)
+    def attach(self, session, scenario, cid: str, realtime: float, stop, log) -> "CarrierRos2":
+        """Carrier ``cid``'s ROS 2 node on its Zenoh ``session``, and with ``robot`` its robot body
+        (``realtime``: the carrier's pace, 0 unpaced; ``stop``: its stop request; ``log``: where its
+        lines go)."""
+        return CarrierRos2(self, session, scenario, cid, realtime, stop, log)
 
 
 class CoordinatorTopics:
@@ -147,16 +149,16 @@ class CoordinatorTopics:
 
 
 class CarrierRos2:
-    """A carrier's ROS 2 node ``/<id>/carrier``: its pose topics, and with a robot its body.
+    """A carrier's ROS 2 node ``/<id>/carrier``: its pose topics, and with a robot its body
+    (:attr:`robot`, which the carrier then drives instead of its simulated one).
 
     The carrier calls :meth:`pose` for every Pose it publishes, :meth:`release` when it deploys
     (the robot's launcher gets the command), and :meth:`close` when it stops.
     """
 
-    def __init__(self, settings: Ros2Settings, carrier):
-        self.carrier = carrier
-        self.node = Node(carrier.node.session, settings.domain, topics.carrier_namespace(carrier.cid), "carrier",
-                         log=carrier.log, watch=False)
+    def __init__(self, settings: Ros2Settings, session, scenario, cid: str, realtime: float, stop, log):
+        self.cid, self.log = cid, log
+        self.node = Node(session, settings.domain, topics.carrier_namespace(cid), "carrier", log=log, watch=False)
         self.pose_pub = self.node.publisher("pose", *CARRIER_TOPICS["{ns}/pose"])
         self.tf_pub = self.node.publisher("/tf", *CARRIER_TOPICS["/tf"])
         self.robot = None
@@ -164,13 +166,12 @@ class CarrierRos2:
         if settings.robot:
             from ros2.robot import RobotBody, ScanSource
 
-            self.robot = RobotBody(carrier.scenario, carrier.cid, self.node, settings.namespace,
-                                   sync=carrier.config.realtime <= 0, log=carrier.log, stop=carrier._stop,
+            self.robot = RobotBody(scenario, cid, self.node, settings.namespace,
+                                   sync=realtime <= 0, log=log, stop=stop,
                                    ack_timeout_s=settings.ack_timeout_s, timeout_s=settings.robot_timeout_s,
                                    sensing=settings.sensing,
                                    scans=ScanSource(settings.cloud_topic, settings.voxel, settings.sensor_offset)
                                    if settings.cloud_topic else None)
-            carrier.motion.body = self.robot
             self.node.claimed = self.robot.ours  # the robot's own topics: it refuses them itself
         self.node.watch_graph()
 
@@ -179,10 +180,10 @@ class CarrierRos2:
             return
         try:
             self.pose_pub.publish(topics.pose_stamped(t, x, y, heading))
-            self.tf_pub.publish(topics.transform(t, self.carrier.cid, x, y, heading))
+            self.tf_pub.publish(topics.transform(t, self.cid, x, y, heading))
         except Exception as exc:  # never the mission
             self._failed = True
-            self.carrier.log(f"ROS 2 pose topics stopped: {type(exc).__name__}: {exc}")
+            self.log(f"ROS 2 pose topics stopped: {type(exc).__name__}: {exc}")
 
     def release(self, stage: int, passenger: int) -> None:
         """Deploy command to the robot (no-op for a simulated carrier)."""
