@@ -144,6 +144,23 @@ def test_joint_layout_expands_every_root_action_once_in_a_seeded_order():
     assert len(orders) > 1
 
 
+def test_joint_layout_node_count_and_arrays_do_not_depend_on_earlier_decisions():
+    """A decision on the node arrays an earlier, larger one left behind reports the nodes it
+    created, as a fresh planner does; warm_up(problem) allocates the arrays its decisions use."""
+    problem, x = random_instance(np.random.default_rng(4), carriers=6, passengers=3, stages=10, overlaps=10)
+    view = make_view(problem, 0, x, np.zeros(problem.valid.shape, dtype=bool))
+    used = MCTSPlanner("ssap", iterations=3000, layout="joint")
+    used.warm_up(problem)
+    arrays = used._joint_tree
+    used.decide(view, np.random.default_rng(1))
+    assert used._joint_tree is arrays  # sized by warm_up: the decision allocated nothing
+    used.iterations = 40
+    fresh = MCTSPlanner("ssap", iterations=40, layout="joint")
+    assert np.array_equal(used.decide(view, np.random.default_rng(2)), fresh.decide(view, np.random.default_rng(2)))
+    assert used.last_nodes == fresh.last_nodes <= 41
+    assert used.last_reserved == fresh.last_reserved
+
+
 def kernel_first_chunk() -> int:
     from planner.mcts.fast import FIRST_CHUNK
 

@@ -9,7 +9,10 @@ instances from :func:`planner.instance.random_instance` with fixed seeds):
 * speed at stage 0 with ``--iterations`` (10,000; 2,000 with ``--quick``) iterations: iterations per second, median and
   p95 decision time, peak memory of one decision (tracemalloc: every numpy allocation the planner
   makes, tree and scratch included), for ``mcts-ssap`` and, where feasible (R <= 6), for the
-  plain reference implementation (:mod:`planner.mcts.reference`) measured in the same run;
+  plain reference implementation (:mod:`planner.mcts.reference`) measured in the same run; the
+  speed-up pairs the reference's decisions with the fast planner's on the same instances and
+  seeds (median of the per-decision ratios, wall and thread CPU time; both planners prepared
+  with ``warm_up(problem)`` or the threshold table before the clock starts);
 * quality: mean normalised reward (± standard error) of complete online runs over ``--instances``
   seeded instances at the same iterations, with SSAP and Random for context and, for R <= 6, the
   reference on the first ``--reference-instances`` of them (the paired difference ± its standard
@@ -70,18 +73,21 @@ def _prepare(planner, problem) -> None:
         table_for(problem)
 
 
-def stage0_times(planner, carriers: int, count: int) -> tuple[np.ndarray, float]:
-    """Wall time (ms) of ``count`` stage-0 decisions on distinct instances; peak MB of one more
-    (with the planner's retained node arrays released first, so that their allocation counts)."""
-    times = []
+def stage0_times(planner, carriers: int, count: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """Wall time and thread CPU time (ms) of ``count`` stage-0 decisions, decision i on instance i
+    with seed i; peak MB of one more (with the planner's retained node arrays released first, so
+    that their allocation counts)."""
+    times, cpu = [], []
     for i in range(count):
         problem, x = instance(carriers, i)
         view = make_view(problem, 0, x, np.zeros(problem.valid.shape, dtype=bool))
         rng = np.random.default_rng(i)
         _prepare(planner, problem)
+        c0 = time.thread_time()
         t0 = time.perf_counter()
         planner.decide(view, rng)
         times.append((time.perf_counter() - t0) * 1e3)
+        cpu.append((time.thread_time() - c0) * 1e3)
     problem, x = instance(carriers, 0)
     view = make_view(problem, 0, x, np.zeros(problem.valid.shape, dtype=bool))
     release = getattr(planner, "release", None)
@@ -91,7 +97,7 @@ def stage0_times(planner, carriers: int, count: int) -> tuple[np.ndarray, float]
     planner.decide(view, np.random.default_rng(0))
     peak = tracemalloc.get_traced_memory()[1] / 2 ** 20
     tracemalloc.stop()
-    return np.asarray(times), peak
+    return np.asarray(times), np.asarray(cpu), peak
 
 
 def rewards(planner, carriers: int, count: int) -> np.ndarray:
@@ -235,15 +241,23 @@ def speed_section(fast, reference, sizes, iterations, n_timing, n_reference_timi
     print(f"\n## speed at stage 0, {iterations} iterations (mcts-ssap)")
     print(f"{'R':>3} {'impl':>9} {'iter/s':>11} {'median ms':>10} {'p95 ms':>9} {'peak MB':>8} {'speed-up':>9}")
     for r in sizes:
-        times, peak = stage0_times(fast, r, n_timing)
+        times, cpu, peak = stage0_times(fast, r, n_timing)
         med = float(np.median(times))
         print(f"{r:>3} {'fast':>9} {iterations / med * 1e3:>11,.0f} {med:>10.2f} "
               f"{np.percentile(times, 95):>9.2f} {peak:>8.2f} {'':>9}", flush=True)
         if r <= REFERENCE_MAX_R:
-            rtimes, rpeak = stage0_times(reference, r, n_reference_timing)
+            rtimes, rcpu, rpeak = stage0_times(reference, r, n_reference_timing)
             rmed = float(np.median(rtimes))
+            # Paired: the same instances, seeds, stage and iterations (decision i of both on
+            # instance i with seed i), the median of the per-decision ratios.
+            n = min(len(rtimes), len(times))
+            wall = float(np.median(rtimes[:n] / times[:n]))
+            thread = float(np.median(rcpu[:n] / cpu[:n]))
             print(f"{r:>3} {'reference':>9} {iterations / rmed * 1e3:>11,.0f} {rmed:>10.2f} "
-                  f"{np.percentile(rtimes, 95):>9.2f} {rpeak:>8.2f} {rmed / med:>8.0f}x", flush=True)
+                  f"{np.percentile(rtimes, 95):>9.2f} {rpeak:>8.2f} {wall:>8.1f}x", flush=True)
+            print(f"    speed-up on the same {n} decisions (instances 0-{n - 1}, their seeds), median of the"
+                  f" per-decision ratios: wall {wall:.1f}x, thread CPU {thread:.1f}x"
+                  f" (fast {np.median(times[:n]):.2f} ms wall, {np.median(cpu[:n]):.2f} ms CPU)", flush=True)
     print(f"process peak RSS so far: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
 
 

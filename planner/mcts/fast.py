@@ -193,6 +193,26 @@ class _JointTree(_NodeStats):
         self.stats = _stats(capacity)
         self.counter = np.ones(1, dtype=np.int64)  # the root exists
 
+    def touch(self) -> None:
+        """Write every entry once, so that the first decision does not take the page faults of
+        fresh (lazily zeroed) memory inside its search."""
+        for a in (self.base, self.expanded, self.mult, self.offset, *self.stats):
+            a.fill(0)
+
+    def created(self) -> int:
+        """Nodes created: the root and, level by level, the first ``expanded`` ids of each created
+        node's block (the other reserved ids hold whatever an earlier decision left there)."""
+        total = 1
+        level = np.zeros(1, dtype=np.int64)
+        while level.size:
+            n = self.expanded[level]
+            level, n = level[n > 0], n[n > 0]
+            count = int(n.sum())
+            total += count
+            # ids base[v] + 0 .. base[v] + n[v] - 1 of every node v of the level, concatenated
+            level = np.repeat(self.base[level] - (np.cumsum(n) - n), n) + np.arange(count)
+        return total
+
     def reset(self) -> None:
         """An empty tree (the root only). Other entries are garbage until the kernel writes them:
         it reads a node's fields only after creating it (see search_joint)."""
@@ -255,6 +275,13 @@ class MCTSPlanner:
         """Drop the node arrays kept for the next decision (the next one allocates afresh)."""
         self._joint_tree = None
 
+    def _joint_capacity(self, k_max: int) -> int:
+        """Node ids a joint-layout decision allocates first with at most ``k_max`` carriers with a
+        choice (``plan_ms`` mode grows them as it goes)."""
+        max_block = 1 << k_max
+        budget_nodes = self.iterations if self.plan_ms is None else INITIAL_CAPACITY
+        return 1 + max_block + min(16 * budget_nodes, budget_nodes * max_block)
+
     def layout_for(self, problem: Problem) -> str:
         """The layout used on ``problem`` ("joint" or "binary")."""
         if self.layout != "auto":
@@ -266,6 +293,7 @@ class MCTSPlanner:
 
         Call before timing decisions; compiled code is cached on disk across runs.
         """
+        given = problem is not None
         if problem is None:
             problem = warm_up_problem()
         x = np.where(problem.valid, 1.0, np.nan)
@@ -284,6 +312,16 @@ class MCTSPlanner:
         finally:
             self.iterations, self.plan_ms = saved
             self.layout = layout
+        if given and self.layout_for(problem) == "joint":
+            # The node arrays of the problem's decisions (the largest at stage 0: the carriers that
+            # can still choose only decrease), allocated and written now rather than in the first
+            # decision: about 10 MB at R = 6, whose page faults cost that decision about 10 ms.
+            k_max = int(np.count_nonzero((problem.passengers > 0) & problem.valid.any(axis=1)))
+            if k_max <= JOINT_LIMIT:
+                want = self._joint_capacity(k_max)
+                if self._joint_tree is None or self._joint_tree.base.shape[0] < want:
+                    self._joint_tree = _JointTree(want)
+                    self._joint_tree.touch()
 
     def decide(self, view: StageView, rng: np.random.Generator) -> np.ndarray:
         """bool ``[R]``: carriers deploying at ``view.stage``."""
@@ -347,8 +385,7 @@ class MCTSPlanner:
                 raise ValueError(f"layout 'joint' supports at most {JOINT_LIMIT} carriers with a choice, "
                                  f"found {k_max}")
             max_block = 1 << k_max
-            budget_nodes = self.iterations if self.plan_ms is None else INITIAL_CAPACITY
-            want = 1 + max_block + min(16 * budget_nodes, budget_nodes * max_block)
+            want = self._joint_capacity(k_max)
             tree = self._joint_tree
             if tree is None or tree.base.shape[0] < want:
                 # Kept across decisions: a fresh multi-megabyte tree per decision cost page faults.
@@ -391,7 +428,7 @@ class MCTSPlanner:
                 chunk = int(min(CHUNK_GROWTH * chunk, max(1.0, target / per_iteration)))
         self.last_iterations = done
         if layout == "joint":
-            self.last_nodes = 1 + int(tree.expanded[: int(tree.counter[0])].sum())  # created, not reserved
+            self.last_nodes = tree.created()  # created, not reserved
             self.last_reserved = int(tree.counter[0])
             return self._extract_joint(tree, choice, must)
         self.last_nodes = tree.created()
