@@ -7,7 +7,8 @@ or the coordinator came back.
 each is given what it needs when it is built, and the carrier's machine, log and wire node at
 each call. They call nothing back: a join path is a generator of what it asks of the carrier
 (:class:`Apply` an event, answered with the machine after it; :class:`Execute` an effect;
-:class:`Advance` the body), which the carrier carries out (:meth:`carriers.node.Carrier.drive`).
+:class:`Advance` the body), which the carrier carries out (:func:`mission.timers.drive`,
+:meth:`carriers.node.Carrier._asked`).
 """
 from __future__ import annotations
 

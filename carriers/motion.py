@@ -19,6 +19,7 @@ from mission.timeouts import DEFAULTS
 from mission.timers import GoOn, due, pace
 from wire import keys
 from wire.messages import Pose, Progress
+from wire.sizes import fit_to_links
 
 #: Trail points per Observation at most (the protocol's limit).
 MAX_TRAIL = 512
@@ -152,6 +153,15 @@ class Motion:
             return  # a coordinator of an earlier revision has no Progress (it would reject it)
         moving.node.put(keys.carrier_key(self.mission, self.cid, "progress"),
                         Progress(self.mission, self.cid, moving.stage, float(self.body.time)))
+
+    def observe(self, j: int, who, passengers_left: int):
+        """Sense at stage j (x None where it is not scheduled: ``who.valid``) and keep the
+        Observation it publishes (:attr:`pending`; acoustic: the trail fitted to the frame,
+        wire/sizes.py); x."""
+        x = self.body.sense(self.cid, j) if who.valid[j] else None
+        self.pending = fit_to_links(who.observation(j, x, self.position(), passengers_left, self.trail(),
+                                                    self.counts(j, x)), who.scenario.links)
+        return x
 
     def trail(self) -> tuple:
         samples = self.body.trajectory(self.cid)

@@ -32,8 +32,6 @@ steps; the carrier then says Bye (``stopped``).
 """
 from __future__ import annotations
 
-import os
-import socket
 import threading
 import time
 from dataclasses import dataclass
@@ -47,6 +45,7 @@ from carriers.joining import Advance, Execute, Joining, StateQueries
 from carriers import ONBOARD_LOADS
 from carriers.motion import Motion, Moving
 from carriers.onboard import Onboard
+from carriers.who import Who
 from carriers.shared import GATE_HOLD_S, PhysicsThread, SharedWorld, StageGate
 from storage.carrierlog import CarrierLog, LogMismatch, log_path
 from mission import carrier as mc
@@ -55,11 +54,8 @@ from mission import timers as tm
 from mission.peers import PeerBook, Presence
 from mission.timeouts import CLOCKS, DEFAULTS, POSE_INTERVAL_S
 from wire import keys
-from wire.messages import (
-    REVISION, Bye, Confirm, Hello, Observation, Own, ProtocolError, SharedDecoder, scenario_fingerprint,
-)
+from wire.messages import ProtocolError, SharedDecoder, scenario_fingerprint
 from wire.link_filter import link_filter
-from wire.sizes import fit_to_links
 from mission.modes import MODES, Mode
 
 #: Longest sleep (s) of a carrier waiting for a message (a decision, End): any message, and a
@@ -149,19 +145,6 @@ def _print(line: str) -> None:
 
 
 @dataclass(frozen=True)
-class Who:
-    """Which carrier of which mission: its scenario, id and index, the mission id, the world's
-    fingerprint and the stages it is scheduled at."""
-
-    scenario: Any
-    cid: str
-    r: int
-    mission: str
-    fingerprint: str
-    valid: tuple
-
-
-@dataclass(frozen=True)
 class Parts:
     """What a carrier shares with the other carriers of its process (carriers/process.py): its Zenoh
     config, the process's session (None: one of its own), the world derived once
@@ -184,28 +167,46 @@ def waits_of(config: CarrierConfig):
                                hello_s=float(config.hello_timeout_s))
 
 
-def open_log(config: CarrierConfig, meta: dict, log) -> CarrierLog | None:
-    """The carrier's durable log (``<out_dir>/carriers/<id>.db``; None: no ``out_dir``) for the
-    mission ``meta`` describes; one of another mission there ends the run (``log-mismatch``)."""
+def open_log(config: CarrierConfig, who: Who, log) -> CarrierLog | None:
+    """The durable log of carrier ``who`` (``<out_dir>/carriers/<id>.db``; None: no ``out_dir``);
+    one of another mission there ends the run (``log-mismatch``)."""
     if config.out_dir is None:
         return None
+    meta = {"mission": who.mission, "carrier": who.cid, "scenario": who.scenario.name,
+            "fingerprint": who.fingerprint, "seed": int(who.scenario.seed)}
     try:
-        return CarrierLog(log_path(config.out_dir, meta["carrier"]), meta, sync=config.log_sync)
+        return CarrierLog(log_path(config.out_dir, who.cid), meta, sync=config.log_sync)
     except LogMismatch as exc:
         log(str(exc))
         raise Exit("log-mismatch")
 
 
+def _record(store: CarrierLog | None, book: PeerBook, who: Who, effect, counts) -> None:
+    """A :class:`mission.carrier.LogObservation` or :class:`mission.carrier.LogOutcome`: in the
+    durable log (``store``, None: none) before the carrier acts on it, and in its book."""
+    t = who.scenario.stage_time(effect.stage)
+    if isinstance(effect, mc.LogObservation):
+        if store is not None:
+            store.observed(effect.stage, t, effect.x, effect.position)
+        book.observation(who.cid, effect.stage, effect.x, counts)
+        return
+    if store is not None:
+        store.outcome(effect.stage, t, effect.status, effect.deployed, effect.position, effect.passengers_left,
+                      time.time())
+    book.outcome(who.cid, effect.stage, effect.deployed)
+
+
 class Carrier:
     """One carrier. ``run()`` returns its exit reason (a key of :data:`EXIT_CODES`).
 
-    A driver of two pure machines: its lifecycle (``self.life``, :mod:`mission.carrier_life`,
+    An I/O loop around two pure machines: its lifecycle (``self.life``, :mod:`mission.carrier_life`,
     changed only by :meth:`step`) and its stage handshake (``self.machine``,
     :class:`mission.carrier.Handshake`, changed only by :meth:`apply`). :meth:`fly` feeds the
-    clock to the lifecycle and carries out the effects of both; its collaborators execute them
+    lifecycle its ``clock`` (monotonic s; a test hands in its own) and takes the inbox between
+    its waits; the effects of both machines are carried out here. Its collaborators
     (:class:`carriers.inbound.Inbound`, :class:`carriers.joining.Joining`,
-    :class:`carriers.motion.Motion`, :class:`carriers.alone.Alone`). ``clock``: what it feeds its
-    lifecycle (monotonic s; a test hands in its own).
+    :class:`carriers.motion.Motion`, :class:`carriers.alone.Alone`) are given what they need and
+    call nothing back: they return what they read, or yield what they ask of it (:meth:`_asked`).
     """
 
     def __init__(self, scenario, config: CarrierConfig, zconf, stop: threading.Event | None = None,
@@ -263,7 +264,6 @@ class Carrier:
     pending = property(lambda self: self.motion.pending)     # the Observation waiting for its decision
     reason = property(lambda self: self.life.reason or "finished")  # why it ended (carriers/exits.py)
 
-    # ------------------------------------------------------------------ views for tests and logs
     def log(self, line: str) -> None:
         (self.config.log or _print)(f"carrier {self.cid}: {line}")
 
@@ -288,35 +288,22 @@ class Carrier:
             if self.ros2 is not None:  # a robot's launcher gets the command
                 self.ros2.release(effect.stage, released)
         elif isinstance(effect, mc.SendConfirm):
-            self.node.put(keys.carrier_key(self.mission, self.cid, "confirm"), Confirm(
-                self.mission, self.cid, effect.stage, effect.deployed, effect.status, effect.position,
-                effect.passengers_left, self.releases.at(effect.stage) if effect.deployed else None))
-        elif isinstance(effect, mc.LogObservation):
-            if self.store is not None:
-                self.store.observed(effect.stage, self.scenario.stage_time(effect.stage), effect.x, effect.position)
-            self.book.observation(self.cid, effect.stage, effect.x, self.motion.counts(effect.stage, effect.x))
-        elif isinstance(effect, mc.LogOutcome):
-            if self.store is not None:
-                self.store.outcome(effect.stage, self.scenario.stage_time(effect.stage), effect.status,
-                                   effect.deployed, effect.position, effect.passengers_left, time.time())
-            self.book.outcome(self.cid, effect.stage, effect.deployed)
+            self.node.put(*self.who.confirm(effect, self.releases.at(effect.stage)))
+        elif isinstance(effect, (mc.LogObservation, mc.LogOutcome)):
+            _record(self.store, self.book, self.who, effect, self.motion.counts(effect.stage, getattr(effect, "x", None)))
         elif isinstance(effect, mc.SendOwn):
-            self.node.put(keys.carrier_key(self.mission, self.cid, "own"), Own(
-                self.mission, self.cid, effect.stage, float(self.scenario.stage_time(effect.stage)), effect.x,
-                effect.deployed, effect.position, effect.passengers_left, self.motion.counts(effect.stage, effect.x)))
+            self.node.put(*self.who.own(effect, self.motion.counts(effect.stage, effect.x)))
         elif isinstance(effect, mc.SendHello):
             self.answer.sent(self.clock(), effect.again)
-            self.node.put(keys.carrier_key(self.mission, self.cid, "hello"), Hello(
-                self.mission, self.cid, os.getpid(), socket.gethostname()[:255], self.machine.passengers_left,
-                effect.next_stage, self.fingerprint, max(1, self.machine.epoch), REVISION))
+            self.node.put(*self.who.hello(effect, self.machine.passengers_left, self.machine.epoch))
         elif isinstance(effect, mc.ResendObservation):
             pending = self.motion.pending
             if pending is not None and pending.stage == effect.stage:
-                self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), pending)
+                self.node.put(self.who.key("obs"), pending)
         elif isinstance(effect, mc.AskState):  # a Decision came without an earlier one
-            self.drive(self.joining.resync(self.machine, self.node, gap=effect.stage))
+            tm.drive(self.joining.resync(self.machine, self.node, gap=effect.stage), self._asked)
         elif isinstance(effect, Rejoin):  # the coordinator is back
-            self.drive(self.joining.resync(self.machine, self.node))
+            tm.drive(self.joining.resync(self.machine, self.node), self._asked)
         elif isinstance(effect, Follow):  # the mission's timers (a robot keeps its own pace)
             self.timers, lines = mc.follow(self.timers, effect.timers, getattr(self.ros2, "robot", None) is None)
             for line in lines:
@@ -345,23 +332,17 @@ class Carrier:
             elif heard is not None:
                 self.execute(heard)
 
-    def drive(self, steps) -> None:
-        """Carry out what a join path asks (:mod:`carriers.joining`: an event applied, answered
-        with its machine after it; an effect carried out; its body driven, unpaced)."""
-        reply = None
-        while True:
-            try:
-                step = steps.send(reply)
-            except StopIteration:
-                return
-            reply = None
-            if isinstance(step, Advance):
-                self.advance(step.t, paced=False)
-            elif isinstance(step, Execute):
-                self.execute(step.effect)
-            else:
-                self.apply(step.event)
-                reply = self.machine
+    def _asked(self, step) -> mc.Handshake | None:
+        """What a join path asks (:mod:`carriers.joining`): an event applied (its machine after
+        it sent back), an effect carried out, its body driven unpaced."""
+        if isinstance(step, Advance):
+            self.advance(step.t, paced=False)
+        elif isinstance(step, Execute):
+            self.execute(step.effect)
+        else:
+            self.apply(step.event)
+            return self.machine
+        return None
 
     def _moving(self) -> Moving:
         """What its motion reads of the carrier now (:class:`carriers.motion.Moving`)."""
@@ -369,16 +350,13 @@ class Carrier:
 
     def advance(self, t: float, paced: bool = True) -> None:
         """Its body to mission time ``t`` (:meth:`carriers.motion.Motion.advance`); while it paces,
-        its messages are handled and a refused Hello ends it."""
-        steps = self.motion.advance(t, paced, self._moving())
-        try:
-            wait_s = next(steps)
-            while True:
-                self.pump(wait_s)
-                self._check_refused()
-                wait_s = steps.send(self._moving())
-        except StopIteration:
-            return
+        its messages are handled (a refused Hello ends it) and the motion told what it is then."""
+        tm.drive(self.motion.advance(t, paced, self._moving()), self._paced)
+
+    def _paced(self, wait_s: float) -> Moving:
+        self.pump(wait_s)
+        self._check_refused()
+        return self._moving()
 
     # ------------------------------------------------------------------ its lifecycle
     def view(self) -> cl.View:
@@ -426,7 +404,10 @@ class Carrier:
             if not self._stop.is_set():
                 self.step(cl.Arrived(j, self.clock()))
         elif isinstance(effect, cl.Observe):
-            self._observe(effect.stage)
+            x = self.motion.observe(effect.stage, self.who, self.machine.passengers_left)  # sensed, kept
+            self.apply(mc.Observed(effect.stage, x, self.motion.position()))
+            self.node.put(self.who.key("obs"), self.motion.pending)  # then it waits for the stage's decision
+            self.gate.waiting(effect.stage)
         elif isinstance(effect, cl.Pass):
             # decided without its Observation (cut off, or too slow): ∅ for it; publishing it would
             # only be rejected as stale; its decision answered if it reached it
@@ -440,11 +421,11 @@ class Carrier:
         elif isinstance(effect, cl.DecideOnBoard):
             self.apply(mc.DecidedOwn(effect.stage, self.alone.deploy(effect.stage), self.motion.position()))
         elif isinstance(effect, cl.AskState):
-            self.drive(self.joining.recover_decision(self.machine, self.node, effect.stage))
+            tm.drive(self.joining.recover_decision(self.machine, self.node, effect.stage), self._asked)
         elif isinstance(effect, cl.Query):
             state = self.joining.queries.once(self.node)
             if state is not None:
-                self.drive(self.joining.from_state(self.machine, self.store, state))
+                tm.drive(self.joining.from_state(self.machine, self.store, state), self._asked)
                 self.step(cl.Answered(self.clock()))
         elif isinstance(effect, cl.SendProgress):
             self.motion.send_progress(self._moving())
@@ -453,27 +434,15 @@ class Carrier:
         elif isinstance(effect, cl.Listen):
             self.inbound.listen(self.node, wait=True)
         elif isinstance(effect, cl.JoinAlone):
-            self.drive(self.joining.alone_from_log(self.machine, self.store, self.node))
+            tm.drive(self.joining.alone_from_log(self.machine, self.store, self.node), self._asked)
         elif isinstance(effect, cl.Gathered):
-            self.drive(self.joining.gathered(self.node))
+            tm.drive(self.joining.gathered(self.node), self._asked)
         elif isinstance(effect, cl.SayHelloAgain):
             self.apply(mc.HelloUnanswered(self.motion.position()))
         elif isinstance(effect, cl.Note):
             self.log(effect.line)
         elif isinstance(effect, cl.Finish):
             pass  # the lifecycle is done (its reason: :attr:`reason`)
-
-    def _observe(self, j: int) -> None:
-        """Sense at stage j and publish the Observation (acoustic: the trail fitted to the frame,
-        wire/sizes.py); then it waits for the stage's decision."""
-        t_j = self.scenario.stage_time(j)
-        x = self.motion.body.sense(self.cid, j) if self.valid[j] else None
-        self.motion.pending = fit_to_links(Observation(
-            self.mission, self.cid, j, float(t_j), x, self.motion.position(), self.machine.passengers_left,
-            self.motion.trail(), self.motion.counts(j, x)), self.scenario.links)
-        self.apply(mc.Observed(j, x, self.motion.position()))
-        self.node.put(keys.carrier_key(self.mission, self.cid, "obs"), self.motion.pending)
-        self.gate.waiting(j)
 
     def run(self) -> str:
         from wire.transport import Node
@@ -495,9 +464,7 @@ class Carrier:
                                                     self._stop, self.log)
                 if self.ros2.robot is not None:
                     self.motion.body = self.ros2.robot
-            self.store = open_log(self.config, {
-                "mission": self.mission, "carrier": self.cid, "scenario": self.scenario.name,
-                "fingerprint": self.fingerprint, "seed": int(self.scenario.seed)}, self.log)
+            self.store = open_log(self.config, self.who, self.log)
             self.inbound.subscribe(self.node)
             if self.config.mode == Mode.DECENTRALISED or (self.config.mode == Mode.HYBRID
                                                         and (self.config.onboard_load or "start") == "start"):
@@ -519,9 +486,8 @@ class Carrier:
         finally:
             try:
                 if self.answer.said_hello or self.config.mode == Mode.DECENTRALISED:  # a Bye needs a Hello
-                    self.node.put(keys.carrier_key(self.mission, self.cid, "bye"), Bye(
-                        self.mission, self.cid, self.machine.deployments(),
-                        tuple(sorted(self.node.rejected.items())), reason))
+                    self.node.put(*self.who.bye(self.machine.deployments(), tuple(sorted(self.node.rejected.items())),
+                                                reason))
             except Exception:
                 pass
             if self.ros2 is not None:

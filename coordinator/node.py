@@ -171,7 +171,7 @@ class Coordinator:
     (:class:`coordinator.inbound.Inbound`), the answers (:class:`coordinator.answers.Answers`),
     split brain and its session (:class:`coordinator.epochs.Epochs`), the recorder
     (:class:`coordinator.recorder.Recording`), the results (:class:`coordinator.results.Results`),
-    the operator's console (a stage's hold is a generator of waits and events: :meth:`_drive`).
+    the operator's console (a stage's hold is a generator of waits and events: :meth:`_asked`).
 
     Args:
         scenario: the loaded scenario (its seed is replaced by ``config.seed`` when given).
@@ -347,26 +347,20 @@ class Coordinator:
         """Plan stage j, record and publish its Decision: its planning ms (None: deposed, Epochs.fencing).
         In operator mode the decision waits for the operator's console (:mod:`console.hold`)."""
         decided = _planned(self.setup, self.store, j, self.state) if self.console is None else \
-            self._drive(self.console.decide(j, self.state))
+            tm.drive(self.console.decide(j, self.state), self._asked)
         with self.epochs.fencing():
             self.apply(decided)  # records, then publishes
         return decided.planning_ms if self.epochs.deposed_by is None else None
 
-    def _drive(self, requests):
-        """Carry out what a generator of a collaborator asks (a :class:`mission.timers.Wait`: the
-        inbox taken until then, for a poll at most; any other: a mission event applied), sending
-        back the mission state after each; what it returns."""
-        reply = None
-        while True:
-            try:
-                request = requests.send(reply)
-            except StopIteration as done:
-                return done.value
-            if isinstance(request, tm.Wait):
-                self.pump(max(0.0, min(POLL_S, request.until - self.clock())))
-            else:
-                self.apply(request.event)
-            reply = self.state
+    def _asked(self, request) -> ms.MissionState:
+        """What the operator's hold asks (:meth:`console.hold.OperatorHold.decide`): a
+        :class:`mission.timers.Wait` (the inbox taken until then, for a poll at most) or an
+        event applied; the mission state after it."""
+        if isinstance(request, tm.Wait):
+            self.pump(max(0.0, min(POLL_S, request.until - self.clock())))
+        else:
+            self.apply(request.event)
+        return self.state
 
     # ------------------------------------------------------------------ its run
     def run(self) -> dict:
@@ -380,7 +374,7 @@ class Coordinator:
         out = Path(self.config.out_dir)
         # The session first: a duplicate is refused (or waited for) before mission.db is touched.
         links = link_filter(self.setup.scenario, self.setup.mission, "coordinator", realtime=self.config.realtime)
-        self.node, claimed = self.epochs.session(lambda: Node(self.setup.zconf, stop=self._stop, links=links),
+        self.node, claimed = self.epochs.session(functools.partial(Node, self.setup.zconf, stop=self._stop, links=links),
                                                  self.config.standby)
         if not claimed:  # a standby stopped while the primary lived: nothing of ours to record
             self.log(f"coordinator: standby for mission {self.setup.mission} stopped; it never took over")

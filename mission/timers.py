@@ -28,6 +28,20 @@ class Wait:
     until: float = math.inf
 
 
+def drive(steps, handle):
+    """Carry out what a generator of requests asks (a collaborator's waits and events, e.g. the
+    operator's hold or a carrier's join path): each request handled by ``handle(request)``, whose
+    result is sent back to it; what the generator returns. The generator holds no driver and calls
+    nothing back: the driver owns the I/O."""
+    reply = None
+    while True:
+        try:
+            request = steps.send(reply)
+        except StopIteration as done:
+            return done.value
+        reply = handle(request)
+
+
 @dataclass(frozen=True)
 class GoOn:
     """The wait is over. ``stalled``: those waited for taken as stalled (nothing from them for the

@@ -471,6 +471,35 @@ def test_process_objects_hold_few_attributes(path, name):
     assert len(stored) <= PROCESS_ATTRIBUTES_MAX, sorted(stored)
 
 
+@pytest.mark.parametrize("path, name", [("carriers/node.py", "Carrier"), ("coordinator/node.py", "Coordinator")])
+def test_no_collaborator_calls_back_into_a_process_object(path, name):
+    """A process object hands its collaborators data, never itself, its methods or a closure over
+    it (etcd raft's shape: they return what they read, or yield what they ask, and the process
+    carries it out). Allowed: its log (a sink for lines), and its own handler given to
+    :func:`mission.timers.drive`, the loop that carries out a collaborator's requests."""
+    tree = ast.parse((REPO / path).read_text())
+    cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == name)
+    methods = {f.name for f in cls.body if isinstance(f, ast.FunctionDef)}
+
+    def names_self(node) -> bool:
+        return any(isinstance(x, ast.Name) and x.id == "self" for x in ast.walk(node))
+
+    def logs_only(node) -> bool:  # a lambda that only writes a line to its log
+        return isinstance(node.body, ast.Call) and ast.unparse(node.body.func) == "self.log"
+
+    bad = []
+    for call in ast.walk(cls):
+        if not isinstance(call, ast.Call) or ast.unparse(call.func) == "property":
+            continue
+        for arg in [*call.args, *(k.value for k in call.keywords)]:
+            handed = ast.unparse(arg)
+            if handed == "self" or (isinstance(arg, ast.Lambda) and names_self(arg) and not logs_only(arg)) or (
+                    handed.startswith("self.") and handed[5:] in methods and handed != "self.log"
+                    and ast.unparse(call.func) != "tm.drive"):
+                bad.append(f"{path}:{call.lineno}: {ast.unparse(call)[:100]}")
+    assert bad == []
+
+
 #: Most parameters a function of the project may take (numba kernels included): beyond, pass named
 #: structures (NamedTuples of arrays, as planner/mcts/kernel.py does).
 MAX_PARAMETERS = 12

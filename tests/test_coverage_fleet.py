@@ -142,9 +142,9 @@ def test_a_coverage_mission_flies_as_the_offline_planner_decides(tmp_path):
 def revision4(monkeypatch):
     """Today's carriers speaking revision 4 (as a carrier written from that page would)."""
     import carriers.joining
-    import carriers.node
+    import carriers.who
 
-    monkeypatch.setattr(carriers.node, "REVISION", 4)
+    monkeypatch.setattr(carriers.who, "REVISION", 4)
     monkeypatch.setattr(carriers.joining, "REVISION", 4)
 
 

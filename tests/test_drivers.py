@@ -245,14 +245,8 @@ def test_a_paced_body_waits_its_inbox_and_reads_the_carrier_again_after_each_wai
         return Moving(node, None, clock, mc.Timers("sim", 9.0, 2.0), 0, carrier["passengers_left"])
 
     start = clock.now
-    steps = motion.advance(4.0, True, moving())  # the carrier's driver: it waits, then tells what it is
-    wait_s = next(steps, None)
-    while wait_s is not None:
-        wait(wait_s)
-        try:
-            wait_s = steps.send(moving())
-        except StopIteration:
-            wait_s = None
+    # the carrier's driver: it waits, then tells the motion what it is
+    tm.drive(motion.advance(4.0, True, moving()), lambda wait_s: (wait(wait_s), moving())[1])
     assert 2.0 <= clock.now - start < 2.1
     poses = [(msg.t, msg.passengers_left) for _, topic, msg in sent if topic == "pose"]
     assert [t for t, _ in poses] == [0.0, 1.0, 2.0, 3.0, 4.0]
