@@ -1,5 +1,5 @@
 """From a parsed command line to the launcher's settings: every problem with the flags (a
-``validation.Problem`` each: the flag, what it takes, what it was given; one line by its
+``validation.Flaw`` each: the flag, what it takes, what it was given; one line by its
 ``line()``), or a frozen :class:`Settings`. Nothing here changes the parsed
 ``argparse.Namespace``; what validation derives (the carrier ids, the planner options, the ROS
 domain) is a field of the settings.
@@ -22,7 +22,7 @@ from typing import Any
 from launcher import ROBOT_SENSING
 from launcher.flags import flags_of
 from planner.registry import OPTIONS
-from validation import Check, Found, Number, Problem, Problems
+from validation import Check, Found, Number, Flaw, Flaws
 
 
 #: The timeout flags and the :class:`mission.timeouts.Timeouts` field each sets.
@@ -99,13 +99,13 @@ class Settings:
         return str(Path("runs") / f"{keys.mission_id_from_name(self.scenario.name)}-{time.strftime('%Y%m%d-%H%M%S')}")
 
 
-def check(args: argparse.Namespace, scenario=None) -> tuple[Settings | None, list[Problem]]:
+def check(args: argparse.Namespace, scenario=None) -> tuple[Settings | None, list[Flaw]]:
     """The settings of a parsed command line and its loaded scenario (None: the router), or None
     and every problem found (at least one). ``args`` is left as it was."""
     flags = flags_of(args)
     if scenario is not None and scenario.source:
         flags = flags._replace(scenario=scenario.source)
-    problems: list[Problem] = []
+    problems: list[Flaw] = []
     problems += _values(flags)
     options, option_problems = _planner_options(flags, scenario)
     problems += option_problems
@@ -127,13 +127,13 @@ def check(args: argparse.Namespace, scenario=None) -> tuple[Settings | None, lis
     return Settings(flags, scenario, carriers, options, schedule, points), []
 
 
-def _schedule(f, scenario) -> tuple[tuple, tuple, list[Problem]]:
+def _schedule(f, scenario) -> tuple[tuple, tuple, list[Flaw]]:
     """``--schedule``: its faults and their mission points, or the one problem of its file (which
     fault, which field)."""
     if not f.schedule:
         return (), (), []
     if f.role != "all" or f.decentralised:
-        return (), (), [Problem("--schedule", "the one-host fleet with a coordinator (--role all)",
+        return (), (), [Flaw("--schedule", "the one-host fleet with a coordinator (--role all)",
                                 Found(f"--role {f.role}" + (" --decentralised" if f.decentralised else "")))]
     import json
 
@@ -170,9 +170,9 @@ _NUMBERS: tuple[tuple[str, Check], ...] = (
 )
 
 
-def _values(f) -> list[Problem]:
+def _values(f) -> list[Flaw]:
     """Each number in its range."""
-    problems = Problems()
+    problems = Flaws()
     for key, spec in _NUMBERS:
         value = getattr(f, key)
         if value is not None:
@@ -180,7 +180,7 @@ def _values(f) -> list[Problem]:
     return problems.items
 
 
-def _planner_options(f, scenario) -> tuple[tuple, list[Problem]]:
+def _planner_options(f, scenario) -> tuple[tuple, list[Flaw]]:
     """``--planner-option``'s pairs, checked against the planner in force (a plug-in's own options
     included): ``--planner``, else the scenario's."""
     from planner.registry import DEFAULT_PLANNER, is_planner, parse_option
@@ -192,73 +192,73 @@ def _planner_options(f, scenario) -> tuple[tuple, list[Problem]]:
         try:
             options.append(parse_option(text, name))
         except ValueError as exc:
-            out.append(Problem("--planner-option", "KEY=VALUE of planner.registry", text, str(exc)))
+            out.append(Flaw("--planner-option", "KEY=VALUE of planner.registry", text, str(exc)))
     return tuple(options), out
 
 
-def _roles(f) -> list[Problem]:
+def _roles(f) -> list[Flaw]:
     """Flags that go together, and what the live view needs."""
     out = []
     if f.decentralised and f.no_autonomy:
-        out.append(Problem("--decentralised", "no --no-autonomy beside it (they exclude each other)", Found("both")))
+        out.append(Flaw("--decentralised", "no --no-autonomy beside it (they exclude each other)", Found("both")))
     if f.decentralised and f.role == "coordinator":
-        out.append(Problem("--decentralised", "a role other than coordinator (it runs no coordinator)",
+        out.append(Flaw("--decentralised", "a role other than coordinator (it runs no coordinator)",
                            Found("--role coordinator")))
     viewer = f.role == "viewer" or f.view
     if viewer and f.no_web and not f.save:
-        out.append(Problem("--no-web", "--save FILE.rrd beside it (else the viewer shows nothing)", Found("no --save")))
+        out.append(Flaw("--no-web", "--save FILE.rrd beside it (else the viewer shows nothing)", Found("no --save")))
     if viewer:
         try:
             import rerun  # noqa: F401
         except ImportError:
-            out.append(Problem("--view" if f.view else "--role viewer",
+            out.append(Flaw("--view" if f.view else "--role viewer",
                                "rerun-sdk for the live view (pip install -e '.[view]')", Found("no rerun module")))
     if f.standby and f.role != "coordinator":
-        out.append(Problem("--standby", "--role coordinator", Found(f"--role {f.role}")))
+        out.append(Flaw("--standby", "--role coordinator", Found(f"--role {f.role}")))
     if f.coordinator_id is not None:
         from wire.keys import ID_PATTERN
 
         if f.role != "coordinator":
-            out.append(Problem("--coordinator-id", "--role coordinator (the one-host fleet names its own)",
+            out.append(Flaw("--coordinator-id", "--role coordinator (the one-host fleet names its own)",
                                Found(f"--role {f.role}")))
         elif not ID_PATTERN.match(f.coordinator_id):
-            out.append(Problem("--coordinator-id", "an id: 1 to 64 of letters, digits, '_', '.', '-', not "
+            out.append(Flaw("--coordinator-id", "an id: 1 to 64 of letters, digits, '_', '.', '-', not "
                                "starting with '.' or '-'", Found(repr(f.coordinator_id))))
     out += _operator(f)
     if f.role == "report" and not f.out:
-        out.append(Problem("--out", "DIR with --role report (the results directory to read)", Found("nothing")))
+        out.append(Flaw("--out", "DIR with --role report (the results directory to read)", Found("nothing")))
     if f.out and Path(f.out).exists() and not Path(f.out).is_dir():
-        out.append(Problem("--out", "a results directory (existing or new)", Found(f"the file {f.out!r}")))
+        out.append(Flaw("--out", "a results directory (existing or new)", Found(f"the file {f.out!r}")))
     elif f.out and any(p.exists() and not p.is_dir() for p in Path(f.out).parents):
         parent = next(p for p in Path(f.out).parents if p.exists() and not p.is_dir())
-        out.append(Problem("--out", "a results directory (existing or new)", Found(f"{f.out!r} under the file {str(parent)!r}")))
+        out.append(Flaw("--out", "a results directory (existing or new)", Found(f"{f.out!r} under the file {str(parent)!r}")))
     return out
 
 
-def _operator(f) -> list[Problem]:
+def _operator(f) -> list[Flaw]:
     """Operator mode's flags: with a coordinator, TLS by pairs, another address only over TLS."""
     out = []
     if f.operator and (f.decentralised or f.role not in ("all", "coordinator")):
-        out.append(Problem("--operator", "a coordinator (--role all or coordinator, not --decentralised)",
+        out.append(Flaw("--operator", "a coordinator (--role all or coordinator, not --decentralised)",
                            Found("--decentralised" if f.decentralised else f"--role {f.role}")))
     if f.operator_required and f.operator_timeout is not None:
-        out.append(Problem("--operator-timeout", "not beside --operator-required (one says how long a stage waits)",
+        out.append(Flaw("--operator-timeout", "not beside --operator-required (one says how long a stage waits)",
                            Found("both")))
     if bool(f.operator_cert) != bool(f.operator_key):
-        out.append(Problem("--operator-cert" if f.operator_key else "--operator-key",
+        out.append(Flaw("--operator-cert" if f.operator_key else "--operator-key",
                            "--operator-cert and --operator-key together", Found("only one of them")))
     if f.operator and f.operator_bind not in ("127.0.0.1", "localhost", "::1") and not f.operator_cert:
-        out.append(Problem("--operator-bind", "--operator-cert and --operator-key beside an address other than "
+        out.append(Flaw("--operator-bind", "--operator-cert and --operator-key beside an address other than "
                                               "127.0.0.1 (the console is served over TLS there)",
                            Found(f.operator_bind)))
     if f.operator and f.operator_port and f.role in ("all", "coordinator") and not _port_free(f.operator_bind,
                                                                                              f.operator_port):
-        out.append(Problem("--operator-port", f"a free port on {f.operator_bind}", Found(f.operator_port),
+        out.append(Flaw("--operator-port", f"a free port on {f.operator_bind}", Found(f.operator_port),
                            "in use (another console or server listens there)"))
     for flag in ("operator_cert", "operator_key"):
         path = getattr(f, flag)
         if path and not Path(path).is_file():
-            out.append(Problem(f"--{flag.replace('_', '-')}", "a PEM file", Found(path), "no such file"))
+            out.append(Flaw(f"--{flag.replace('_', '-')}", "a PEM file", Found(path), "no such file"))
     return out
 
 
@@ -287,25 +287,25 @@ def operator_settings(settings: "Settings"):
                             f.operator_bind, (f.operator_cert, f.operator_key) if f.operator_cert else None)
 
 
-def _carriers(f, scenario) -> tuple[tuple[str, ...], list[Problem]]:
+def _carriers(f, scenario) -> tuple[tuple[str, ...], list[Flaw]]:
     """``--role carrier``'s ids: given, known to the scenario, each once."""
     if f.role != "carrier":
         return (), []
     if not f.carrier:
-        return (), [Problem("--carrier", "ID (or ID,ID,...) with --role carrier", Found("nothing"))]
+        return (), [Flaw("--carrier", "ID (or ID,ID,...) with --role carrier", Found("nothing"))]
     ids = tuple(c.strip() for c in f.carrier.split(","))
     known = list(scenario.carrier_ids) if scenario is not None else []
     for cid in ids:
         if cid not in known:
             listed = ", ".join(known[:20]) + (", ..." if len(known) > 20 else "")
-            return (), [Problem("--carrier", f"one of {listed} (carriers of {f.scenario})", cid)]
+            return (), [Flaw("--carrier", f"one of {listed} (carriers of {f.scenario})", cid)]
     if len(set(ids)) != len(ids):
-        return (), [Problem("--carrier", "each carrier id once", f.carrier,
+        return (), [Flaw("--carrier", "each carrier id once", f.carrier,
                             f"a carrier id is repeated in {f.carrier!r}")]
     return ids, []
 
 
-def _ros2(f, carriers: tuple[str, ...]) -> tuple[int | None, list[Problem]]:
+def _ros2(f, carriers: tuple[str, ...]) -> tuple[int | None, list[Flaw]]:
     """The ROS 2 flags: (the domain in force, or None when ROS 2 is off) and their problems."""
     ros2 = f.ros2 or f.ros2_robot
     if (not ros2 and f.ros2_domain is None and f.ros2_namespace is None and f.robot_sensing is None
@@ -319,76 +319,76 @@ def _ros2(f, carriers: tuple[str, ...]) -> tuple[int | None, list[Problem]]:
     if domain is None:
         text = os.environ.get("ROS_DOMAIN_ID", "").strip()
         if text and not text.isdigit():
-            return None, [Problem("ROS_DOMAIN_ID", "an integer 0..232", text)]
+            return None, [Flaw("ROS_DOMAIN_ID", "an integer 0..232", text)]
         domain = default_domain()
     line = check_domain(domain)
     if line:
         out.append(_said("--ros2-domain", line))
     if f.ros2_robot and (f.role != "carrier" or len(carriers) != 1):
-        out.append(Problem("--ros2-robot", "", None, "only with --role carrier and one --carrier ID (the robot's carrier)"))
+        out.append(Flaw("--ros2-robot", "", None, "only with --role carrier and one --carrier ID (the robot's carrier)"))
     if f.ros2_namespace is not None:
         if not f.ros2_robot:
-            out.append(Problem("--ros2-namespace", "", None, "only with --ros2-robot (the robot's namespace)"))
+            out.append(Flaw("--ros2-namespace", "", None, "only with --ros2-robot (the robot's namespace)"))
         else:
             line = check_namespace(f.ros2_namespace)
             if line:
                 out.append(_said("--ros2-namespace", line))
     if f.robot_sensing is not None and not f.ros2_robot:
-        out.append(Problem("--robot-sensing", "", None, "only with --ros2-robot (what the robot's carrier observes)"))
+        out.append(Flaw("--robot-sensing", "", None, "only with --ros2-robot (what the robot's carrier observes)"))
     if f.robot_cloud_topic is not None:
         if f.robot_sensing != "frontier3d":
-            out.append(Problem("--robot-cloud-topic", "", None,
+            out.append(Flaw("--robot-cloud-topic", "", None,
                                "only with --ros2-robot --robot-sensing frontier3d (the scans its 3D map is made of)"))
         elif not re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*(/[A-Za-z][A-Za-z0-9_]*)*", f.robot_cloud_topic):
-            out.append(Problem("--robot-cloud-topic", "a topic in the robot's namespace such as points or "
+            out.append(Flaw("--robot-cloud-topic", "a topic in the robot's namespace such as points or "
                                "lidar/points (tokens of letters, digits and _ starting with a letter)",
                                f.robot_cloud_topic))
     if f.robot_voxel is not None:
         if f.robot_cloud_topic is None:
-            out.append(Problem("--robot-voxel", "", None, "only with --robot-cloud-topic (the voxel size of the map "
+            out.append(Flaw("--robot-voxel", "", None, "only with --robot-cloud-topic (the voxel size of the map "
                                "the carrier makes of the robot's scans)"))
         elif not (math.isfinite(f.robot_voxel) and f.robot_voxel > 0):
-            out.append(Problem("--robot-voxel", "a voxel size > 0 (m)", f.robot_voxel))
+            out.append(Flaw("--robot-voxel", "a voxel size > 0 (m)", f.robot_voxel))
     if f.robot_sensor_offset is not None:
         if f.robot_cloud_topic is None:
-            out.append(Problem("--robot-sensor-offset", "", None, "only with --robot-cloud-topic (where the scans' "
+            out.append(Flaw("--robot-sensor-offset", "", None, "only with --robot-cloud-topic (where the scans' "
                                "rays start on the robot)"))
         elif not all(math.isfinite(v) for v in f.robot_sensor_offset):
-            out.append(Problem("--robot-sensor-offset", "three finite numbers X Y Z (m)", list(f.robot_sensor_offset)))
+            out.append(Flaw("--robot-sensor-offset", "three finite numbers X Y Z (m)", list(f.robot_sensor_offset)))
     if f.mcap_profile == "ros2" and f.role in ("all", "coordinator"):
         try:
             import rosbags  # noqa: F401
         except ImportError:
-            out.append(Problem("--mcap-profile", "rosbags for ros2 (pip install -e '.[ros2]')", Found("no rosbags module")))
+            out.append(Flaw("--mcap-profile", "rosbags for ros2 (pip install -e '.[ros2]')", Found("no rosbags module")))
     return (domain if ros2 else None), out
 
 
-def _said(flag: str, line: str) -> Problem:
+def _said(flag: str, line: str) -> Flaw:
     """A problem that another module put in words (``FLAG: ...``)."""
-    return Problem(flag, "", None, line.removeprefix(f"{flag}: "))
+    return Flaw(flag, "", None, line.removeprefix(f"{flag}: "))
 
 
-def _mission(f, scenario) -> list[Problem]:
+def _mission(f, scenario) -> list[Flaw]:
     """Ids usable in key expressions: the scenario's carriers and the mission's."""
     from wire import keys
 
     out = []
     for k, cid in enumerate(scenario.carrier_ids):
         if not keys.ID_PATTERN.match(cid):
-            out.append(Problem(f"{f.scenario}: carriers[{k}].id",
+            out.append(Flaw(f"{f.scenario}: carriers[{k}].id",
                                f"an id usable in key expressions ({keys.ID_PATTERN.pattern})", cid))
     if f.mission is None and not keys.ID_PATTERN.match(keys.mission_id_from_name(scenario.name)):
-        out.append(Problem(f"{f.scenario}: name", "", None, f"cannot derive a mission id from {scenario.name!r}; pass --mission"))
+        out.append(Flaw(f"{f.scenario}: name", "", None, f"cannot derive a mission id from {scenario.name!r}; pass --mission"))
     if f.mission is not None:
         try:
             keys.check_id(f.mission, "--mission")
         except ValueError as exc:
-            out.append(Problem("--mission", f"an id matching {keys.ID_PATTERN.pattern}", f.mission,
+            out.append(Flaw("--mission", f"an id matching {keys.ID_PATTERN.pattern}", f.mission,
                                str(exc).removeprefix("--mission ")))
     return out
 
 
-def _planner(f, scenario, options: tuple) -> list[Problem]:
+def _planner(f, scenario, options: tuple) -> list[Flaw]:
     """The coordinator's planner, built once to check it (the one-host launcher's too)."""
     if f.role in ("carrier", "viewer", "router", "report") or f.decentralised:
         return []
@@ -398,7 +398,7 @@ def _planner(f, scenario, options: tuple) -> list[Problem]:
     try:
         make_planner(name, **kwargs)
     except ValueError as exc:
-        return [Problem("--planner", "a planner of planner.registry with valid options", name, str(exc))]
+        return [Flaw("--planner", "a planner of planner.registry with valid options", name, str(exc))]
     return []
 
 

@@ -46,12 +46,12 @@ class InstanceError(ValueError):
     def __init__(self, source: str, field: str, expected: str, found: str):
         """``found``: the offending value already shown (:func:`_show`) or a description."""
         self.source, self.field, self.expected, self.found = source, field, expected, found
-        self.problem = validation.Problem(field, expected, validation.Found(found))
+        self.problem = validation.Flaw(field, expected, validation.Found(found))
         super().__init__(self.problem.line(source))
 
     @classmethod
-    def of(cls, source: str, problem: validation.Problem) -> InstanceError:
-        """The error of a :class:`validation.Problem` (its found value shown as JSON)."""
+    def of(cls, source: str, problem: validation.Flaw) -> InstanceError:
+        """The error of a :class:`validation.Flaw` (its found value shown as JSON)."""
         return cls(source, problem.field, problem.expected, validation.show(problem.found, "json"))
 
 

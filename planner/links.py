@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from validation import Found, Problem, Problems, did_you_mean
+from validation import Found, Flaw, Flaws, did_you_mean
 
 MODELS = ("perfect", "radio", "acoustic")
 
@@ -124,7 +124,7 @@ _LINK_KEYS = ("model", "base", "relays")
 _RELAY_KEYS = ("count", "carriers", *(p.name for p in RELAY_PARAMS))
 
 
-def _number(pb: Problems, p: Param, value, path: str) -> float | None:
+def _number(pb: Flaws, p: Param, value, path: str) -> float | None:
     ok = (not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value)
           and p.lo <= value <= p.hi and (not p.integer or float(value).is_integer()))
     if not ok:
@@ -135,12 +135,12 @@ def _number(pb: Problems, p: Param, value, path: str) -> float | None:
 
 
 def check_links(node, carrier_ids: tuple[str, ...] | None,
-                bounds: tuple[float, float, float, float] | None = None) -> tuple[LinkSpec | None, list[Problem]]:
+                bounds: tuple[float, float, float, float] | None = None) -> tuple[LinkSpec | None, list[Flaw]]:
     """A scenario's ``links`` value (a model name or a mapping): the spec, or None and the
     problems with their field paths (``links.frame_bytes``, ``links.relays.carriers.c9`` ...).
     ``carrier_ids``: the scenario's carriers, ``bounds`` its map's (xmin, ymin, xmax, ymax) in m
     (None when they have problems of their own)."""
-    pb = Problems()
+    pb = Flaws()
     if node is None:
         return LinkSpec(), []
     if isinstance(node, str):
@@ -181,7 +181,7 @@ def check_links(node, carrier_ids: tuple[str, ...] | None,
     return LinkSpec(model=model, params=tuple(values.items()), base=base, relays=relays), []
 
 
-def _check_relays(pb: Problems, node, carrier_ids: tuple[str, ...] | None) -> RelaySpec:
+def _check_relays(pb: Flaws, node, carrier_ids: tuple[str, ...] | None) -> RelaySpec:
     """``links.relays``: ``count`` (every carrier) and/or ``carriers: {id: count}``, and the rule's
     parameters."""
     if not isinstance(node, dict):

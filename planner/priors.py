@@ -17,7 +17,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from validation import MISSING, Found, Problem
+from validation import MISSING, Found, Flaw
 
 
 def _stats():
@@ -81,7 +81,7 @@ PRIOR_KINDS: dict[str, tuple[dict[str, tuple[Callable[[Any], bool], str]], Calla
 
 
 
-def prior_problems(spec: dict, unknown: bool = True) -> list[Problem]:
+def prior_problems(spec: dict, unknown: bool = True) -> list[Flaw]:
     """Everything wrong with the prior spec ``spec`` (a mapping with a ``kind``); empty if fine.
 
     An unknown kind is reported alone; otherwise missing, malformed and (with ``unknown``) unknown
@@ -89,32 +89,32 @@ def prior_problems(spec: dict, unknown: bool = True) -> list[Problem]:
     """
     kind = spec.get("kind", MISSING)
     if not isinstance(kind, str) or kind not in PRIOR_KINDS:
-        return [Problem("kind", f"one of {', '.join(PRIOR_KINDS)}", kind)]
+        return [Flaw("kind", f"one of {', '.join(PRIOR_KINDS)}", kind)]
     params, _ = PRIOR_KINDS[kind]
     problems = []
     for name, (check, expected) in params.items():
         if name not in spec:
-            problems.append(Problem(name, f"{expected} ({kind} prior)", MISSING))
+            problems.append(Flaw(name, f"{expected} ({kind} prior)", MISSING))
         elif not check(spec[name]):
-            problems.append(Problem(name, expected, spec[name]))
+            problems.append(Flaw(name, expected, spec[name]))
     for name in spec if unknown else ():
         if name != "kind" and name not in params:
-            problems.append(Problem(name, f"only {', '.join(['kind', *params])} for a {kind} prior",
+            problems.append(Flaw(name, f"only {', '.join(['kind', *params])} for a {kind} prior",
                                     Found("an unknown parameter")))
     if problems:
         return problems
     if kind == "discrete_uniform" and spec["high"] < spec["low"]:
-        problems.append(Problem("high", f"an integer >= low ({spec['low']})", spec["high"]))
+        problems.append(Flaw("high", f"an integer >= low ({spec['low']})", spec["high"]))
     if kind == "uniform" and spec["high"] <= spec["low"]:
-        problems.append(Problem("high", f"a number > low ({spec['low']})", spec["high"]))
+        problems.append(Flaw("high", f"a number > low ({spec['low']})", spec["high"]))
     if kind == "table":
         values, probs = spec["values"], spec["probabilities"]
         if len(probs) != len(values):
-            problems.append(Problem("probabilities", f"{len(values)} entries (one per value)", Found(str(len(probs)))))
+            problems.append(Flaw("probabilities", f"{len(values)} entries (one per value)", Found(str(len(probs)))))
         elif abs(sum(probs) - 1.0) > 1e-9:
-            problems.append(Problem("probabilities", "probabilities summing to 1", Found(f"sum {sum(probs):g}")))
+            problems.append(Flaw("probabilities", "probabilities summing to 1", Found(f"sum {sum(probs):g}")))
         if len(set(values)) != len(values):
-            problems.append(Problem("values", "distinct values", values))
+            problems.append(Flaw("values", "distinct values", values))
     return problems
 
 

@@ -7,7 +7,7 @@ take names and options from here:
 * :data:`OPTIONS` — every option with its type, range, default and help text
   (their defaults and choice lists are defined once in :mod:`planner.settings`);
 * :func:`check_settings` — validates a name and an options mapping, returning
-  :class:`validation.Problem` entries with field paths (``layout``, ``iterations``, ...) that callers
+  :class:`validation.Flaw` entries with field paths (``layout``, ``iterations``, ...) that callers
   turn into their own one-line errors; :func:`parse_option` reads ``KEY=VALUE`` text;
 * :func:`make_planner` — builds a planner (heavy modules are imported lazily, on first use).
 
@@ -31,7 +31,7 @@ from typing import Any, Callable, Iterable, Mapping
 
 # The defaults are defined in planner.settings (below the planners); DEFAULT_PLANNER and the others
 # stay importable from here for the registry's callers.
-from validation import Check, Choice, Flag, Number, Problem, did_you_mean
+from validation import Check, Choice, Flag, Number, Flaw, did_you_mean
 from planner.settings import DEFAULT_EXPLORATION, DEFAULT_ITERATIONS, DEFAULT_PLANNER, DEFAULT_SAMPLES, LAYOUTS  # noqa: F401
 
 @dataclass(frozen=True)
@@ -305,7 +305,7 @@ def defaults() -> dict[str, Any]:
     return {name: opt.default for name, opt in OPTIONS.items()}
 
 
-def check_settings(name: Any, options: Mapping[str, Any]) -> list[Problem]:
+def check_settings(name: Any, options: Mapping[str, Any]) -> list[Flaw]:
     """Everything wrong with a planner name and its options (``None`` values mean "default");
     empty when they are fine. A plug-in's name is loaded to know its options; a plug-in's
     problems name it."""
@@ -314,16 +314,16 @@ def check_settings(name: Any, options: Mapping[str, Any]) -> list[Problem]:
     try:
         found = entry(name)
     except PluginError as err:
-        problems.append(Problem("name", f"a loadable planner plug-in ({err})", name))
+        problems.append(Flaw("name", f"a loadable planner plug-in ({err})", name))
     except ValueError:
         names = known_names()
-        problems.append(Problem("name", f"one of {', '.join(names)}{did_you_mean(name, names, cutoff=0.5)}", name))
+        problems.append(Flaw("name", f"one of {', '.join(names)}{did_you_mean(name, names, cutoff=0.5)}", name))
     whose = f" (an option of planner {name!r})" if found is not None and found.plugin else ""
     for key, value in options.items():
         opt = OPTIONS.get(key) if found is None else found.option(key)
         if opt is None:
             known = OPTIONS if found is None else found.known()
-            problems.append(Problem(key, f"a planner option ({', '.join(known)}){whose}{did_you_mean(key, known)}",
+            problems.append(Flaw(key, f"a planner option ({', '.join(known)}){whose}{did_you_mean(key, known)}",
                                     value))
             continue
         if value is None:
@@ -331,7 +331,7 @@ def check_settings(name: Any, options: Mapping[str, Any]) -> list[Problem]:
         try:
             opt.check(value)
         except ValueError as err:
-            problems.append(Problem(key, f"{err}{whose}", value))
+            problems.append(Flaw(key, f"{err}{whose}", value))
     return problems
 
 

@@ -39,7 +39,7 @@ def test_booleans_are_not_numbers_and_command_line_text_parses():
 
 
 def test_the_collector_keeps_paths_hints_and_missing_fields():
-    problems = v.Problems()
+    problems = v.Flaws()
     problems.unknown_keys({"speeed": 1, "zzz": 2, "speed": 1}, "carriers[0]", ("speed", "waypoints"))
     problems.missing({"speed": 1}, "carriers[0]", ("speed", "waypoints"))
     assert problems.check(v.Number(minimum=0, exclusive=True), -1, "carriers[0].speed") is None
@@ -57,8 +57,8 @@ def test_found_values_show_in_the_style_of_their_input():
     assert v.show(None) == "nothing (null)" and v.show(None, "json") == "null"
     assert v.show({"a": 1}) == "a mapping" and v.show(list(range(100))) == "a list of 100 items"
     assert v.show(v.Found("3 carriers"), "json") == "3 carriers"
-    assert v.Problem("mean", "a number > 0", -1).within("prior").line("i.json") == "i.json: prior.mean: expected a number > 0, found -1"
-    assert v.Problem("", "a mapping", 3).line("f") == "f: (top level): expected a mapping, found 3"
+    assert v.Flaw("mean", "a number > 0", -1).within("prior").line("i.json") == "i.json: prior.mean: expected a number > 0, found -1"
+    assert v.Flaw("", "a mapping", 3).line("f") == "f: (top level): expected a mapping, found 3"
 
 
 def test_scenario_instance_prior_and_wire_errors_are_toolkit_problems():
@@ -69,10 +69,10 @@ def test_scenario_instance_prior_and_wire_errors_are_toolkit_problems():
 
     with pytest.raises(InstanceError) as err:
         parse_instance({"carriers": 2, "passengers": 1, "stages": 3, "observation": []}, "i.json")
-    assert err.value.problem == v.Problem("observation", err.value.expected, v.Found("an unknown field"))
+    assert err.value.problem == v.Flaw("observation", err.value.expected, v.Found("an unknown field"))
     assert "(did you mean 'observations'?)" in str(err.value)
 
-    assert prior_problems({"kind": "poisson", "mean": -2}) == [v.Problem("mean", "a number > 0", -2)]
+    assert prior_problems({"kind": "poisson", "mean": -2}) == [v.Flaw("mean", "a number > 0", -2)]
     with pytest.raises(InstanceError) as err:
         parse_instance({"carriers": 1, "passengers": 1, "stages": 2, "prior": {"kind": "poisson", "mean": -2}}, "i.json")
     assert str(err.value) == "i.json: prior.mean: expected a number > 0, found -2"

@@ -5,10 +5,10 @@ and wire messages — is checked with these parts, so that every error reads the
 
     SOURCE: field.path[3]: expected WHAT, found WHAT-IT-WAS
 
-* :class:`Problem` — one thing wrong: ``field`` (a path such as ``carriers[2].speed``; ``""`` is
+* :class:`Flaw` — one thing wrong: ``field`` (a path such as ``carriers[2].speed``; ``""`` is
   the top level), ``expected`` and ``found`` (the offending value, or a :class:`Found` text
   shown verbatim);
-* :class:`Problems` — the collector: ``add``, ``unknown_keys`` (with a "did you mean" hint),
+* :class:`Flaws` — the collector: ``add``, ``unknown_keys`` (with a "did you mean" hint),
   ``missing``, then ``lines(source)`` or ``raise_first``;
 * declarative checks :class:`Number`, :class:`Choice`, :class:`Flag` and :class:`Text`: each
   says what it expects (``expected()``) and normalises a value or raises :class:`Invalid`;
@@ -67,7 +67,7 @@ def did_you_mean(word: Any, choices: Iterable[str], cutoff: float = 0.6) -> str:
 
 
 @dataclass(frozen=True)
-class Problem:
+class Flaw:
     """One thing wrong with an input.
 
     Attributes:
@@ -93,25 +93,25 @@ class Problem:
         head = f"{source}: " if source else ""
         return f"{head}{self.field or '(top level)'}: {self.message(style)}"
 
-    def within(self, path: str) -> Problem:
+    def within(self, path: str) -> Flaw:
         """The same problem with its field under ``path`` (``prior`` + ``mean`` -> ``prior.mean``)."""
-        return Problem(join(path, self.field) if self.field else path, self.expected, self.found, self.text)
+        return Flaw(join(path, self.field) if self.field else path, self.expected, self.found, self.text)
 
 
-class Problems:
-    """Collects :class:`Problem` entries; checks add to it and return the value or None."""
+class Flaws:
+    """Collects :class:`Flaw` entries; checks add to it and return the value or None."""
 
     def __init__(self) -> None:
-        self.items: list[Problem] = []
+        self.items: list[Flaw] = []
 
     def add(self, field: str, expected: str, found: Any) -> None:
-        self.items.append(Problem(field, expected, found))
+        self.items.append(Flaw(field, expected, found))
 
     def note(self, field: str, text: str) -> None:
         """A problem that is a whole sentence (``field: TEXT``)."""
-        self.items.append(Problem(field, "", None, text))
+        self.items.append(Flaw(field, "", None, text))
 
-    def extend(self, problems: Iterable[Problem], within: str = "") -> None:
+    def extend(self, problems: Iterable[Flaw], within: str = "") -> None:
         self.items.extend(p.within(within) if within else p for p in problems)
 
     def check(self, spec: Check, value: Any, field: str) -> Any:
@@ -144,7 +144,7 @@ class Problems:
     def __bool__(self) -> bool:
         return bool(self.items)
 
-    def __iter__(self) -> Iterator[Problem]:
+    def __iter__(self) -> Iterator[Flaw]:
         return iter(self.items)
 
 
@@ -261,6 +261,6 @@ class Text:
 #: Any of the declarative checks.
 Check = Number | Choice | Flag | Text
 
-__all__ = ["BOOL_TEXT", "Check", "Choice", "Flag", "Found", "Invalid", "MISSING", "Number", "Problem",
-           "Problems", "Style", "Text", "did_you_mean", "join", "show"]
+__all__ = ["BOOL_TEXT", "Check", "Choice", "Flag", "Found", "Invalid", "MISSING", "Number", "Flaw",
+           "Flaws", "Style", "Text", "did_you_mean", "join", "show"]
 

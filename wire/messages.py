@@ -19,7 +19,7 @@ from typing import Any, Callable, TypeVar, cast, overload
 
 import msgpack
 
-from validation import Found, Problem
+from validation import Found, Flaw
 
 from .keys import ID_PATTERN
 
@@ -68,7 +68,7 @@ class ProtocolError(ValueError):
         detail: one human-readable line.
     """
 
-    def __init__(self, reason: str, detail: str = "", problem: Problem | None = None):
+    def __init__(self, reason: str, detail: str = "", problem: Flaw | None = None):
         super().__init__(f"{reason}: {detail}" if detail else reason)
         self.reason = reason
         self.detail = detail
@@ -78,7 +78,7 @@ class ProtocolError(ValueError):
 def _refused(reason: str, name: str, expected: str, found: str) -> ProtocolError:
     """The error of a field that is not what its type says (``name: expected E, found F``, the
     toolkit's problem line; ``found`` is a description such as a type name)."""
-    problem = Problem(name, expected, Found(found))
+    problem = Flaw(name, expected, Found(found))
     return ProtocolError(reason, problem.line(), problem)
 
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from planner.limits import MAX_TRAIL
-from validation import Found, Problem
+from validation import Found, Flaw
 from world.grid import simplify_mask
 
 from . import messages as wm
@@ -134,7 +134,7 @@ def link_sizes(scenario) -> dict:
     return sizes
 
 
-def frame_problems(scenario) -> list[Problem]:
+def frame_problems(scenario) -> list[Flaw]:
     """Under ``links.model: acoustic``: ``links.frame_bytes`` must hold every message that crosses
     the links (all but :data:`UNCHECKED_KINDS`); one problem per
     kind that does not fit, naming its size, or one saying the frame holds no message at all.
@@ -145,10 +145,10 @@ def frame_problems(scenario) -> list[Problem]:
     sizes = message_sizes(scenario)
     smallest = min((s for s in sizes if s.kind not in UNCHECKED_KINDS), key=lambda s: s.size)
     if frame < smallest.size:
-        return [Problem("links.frame_bytes", f"at least {smallest.size} bytes (the smallest message of this fleet, "
+        return [Flaw("links.frame_bytes", f"at least {smallest.size} bytes (the smallest message of this fleet, "
                         f"{smallest.kind}, takes {smallest.size}; a stage needs up to "
                         f"{max(s.size for s in sizes if s.stage and s.kind not in UNCHECKED_KINDS)})", Found(f"{frame} bytes: no message fits"))]
-    return [Problem("links.frame_bytes", f"at least {s.size} bytes: "
+    return [Flaw("links.frame_bytes", f"at least {s.size} bytes: "
                     + (f"every stage sends the {s.kind} message, " if s.stage else f"the fleet sends the {s.kind} message, ")
                     + f"{s.size} bytes for this fleet ({s.note})", Found(f"{frame} bytes"))
             for s in sizes if s.kind not in UNCHECKED_KINDS and s.size > frame]

@@ -14,7 +14,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from validation import Problem
+from validation import Flaw
 from world.scenario import Scenario, ScenarioError, load_scenario
 
 EXIT_BAD_INPUT = 2
@@ -154,7 +154,7 @@ def export(s: Scenario, seed: int | None = None) -> dict:
     return out
 
 
-def main(argv: list[str] | None = None, checks: Sequence[Callable[[Scenario], list[Problem]]] = ()) -> int:
+def main(argv: list[str] | None = None, checks: Sequence[Callable[[Scenario], list[Flaw]]] = ()) -> int:
     """The command. ``checks``: further checks of a loaded scenario that ``check`` runs, each
     returning problems with field paths (launcher/scenario_check.py passes the wire's frame
     check, which world/ cannot import)."""

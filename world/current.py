@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from validation import Problem, Problems
+from validation import Flaw, Flaws
 
 #: Largest current speed a file may give (m/s): a drift or a vortex's peak speed.
 MAX_CURRENT_SPEED = 10.0
@@ -52,14 +52,14 @@ class CurrentSpec:
         return u, v
 
 
-def _speed(pb: Problems, value, path: str) -> float | None:
+def _speed(pb: Flaws, value, path: str) -> float | None:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not abs(value) <= MAX_CURRENT_SPEED:
         pb.add(path, f"a speed from -{MAX_CURRENT_SPEED:g} to {MAX_CURRENT_SPEED:g} m/s", value)
         return None
     return float(value)
 
 
-def _pair(pb: Problems, value, path: str, what: str, limit: float) -> tuple[float, float] | None:
+def _pair(pb: Flaws, value, path: str, what: str, limit: float) -> tuple[float, float] | None:
     if (not isinstance(value, (list, tuple)) or len(value) != 2
             or any(isinstance(v, bool) or not isinstance(v, (int, float)) or not abs(v) <= limit for v in value)):
         pb.add(path, what, value)
@@ -67,10 +67,10 @@ def _pair(pb: Problems, value, path: str, what: str, limit: float) -> tuple[floa
     return (float(value[0]), float(value[1]))
 
 
-def check_current(node) -> tuple[CurrentSpec | None, list[Problem]]:
+def check_current(node) -> tuple[CurrentSpec | None, list[Flaw]]:
     """A scenario's ``current`` mapping ``{drift: [u, v], vortices: [{center, radius, speed}]}``:
     the spec, or None and the problems (``current.vortices[1].radius`` ...)."""
-    pb = Problems()
+    pb = Flaws()
     if not isinstance(node, dict):
         pb.add("current", "a mapping {drift: [u, v], vortices: [{center: [x, y], radius: R, speed: s}]}", node)
         return None, list(pb)

@@ -25,7 +25,7 @@ from planner import links as _links
 from planner import priors
 from planner import registry as planners
 from planner.limits import MAX_CARRIERS, MAX_PASSENGERS, MAX_STAGES
-from validation import MISSING, Found, Number, Problems, Text, did_you_mean
+from validation import MISSING, Found, Number, Flaws, Text, did_you_mean
 from world import building as _building
 from world import geometry
 from world.current import CurrentSpec, check_current
@@ -438,8 +438,8 @@ class Scenario:
 # --------------------------------------------------------------------------- validation
 
 
-class _Checker(Problems):
-    """Collects a scenario file's problems (:class:`validation.Problems`); ``problems`` are the
+class _Checker(Flaws):
+    """Collects a scenario file's problems (:class:`validation.Flaws`); ``problems`` are the
     ``FILE: path: expected ..., found ...`` lines."""
 
     def __init__(self, file: str):
