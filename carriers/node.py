@@ -41,7 +41,7 @@ import world
 from carriers.alone import Alone
 from carriers.exits import EXIT_CODES, Exit, refused_exit
 from carriers.inbound import Follow, Inbound, Rejoin
-from carriers.joining import Advance, Execute, Joining, StateQueries
+from carriers.joining import Joining, StateQueries
 from carriers import ONBOARD_LOADS
 from carriers.motion import Motion, Moving
 from carriers.onboard import Onboard
@@ -50,6 +50,7 @@ from carriers.shared import GATE_HOLD_S, PhysicsThread, SharedWorld, StageGate
 from storage.carrierlog import CarrierLog, LogMismatch, log_path
 from mission import carrier as mc
 from mission import carrier_life as cl
+from mission import joins
 from mission import timers as tm
 from mission.peers import PeerBook, Presence
 from mission.timeouts import CLOCKS, DEFAULTS, POSE_INTERVAL_S
@@ -240,9 +241,8 @@ class Carrier:
                                mc.Releases(scenario.carriers[r].passengers), self.motion.position, self.log)
         self.store: CarrierLog | None = None  # the durable log, open while running
         self.alone = Alone(cid, book, onboard, scenario.seed, self.log)
-        self.joining = Joining(cid, self.fingerprint, config, scenario.stage_time,
-                               StateQueries(self.mission, cid, self.log), book, self.motion, self.inbound, self.clock,
-                               self._stop, self.log)
+        self.joining = Joining(self.fingerprint, config, StateQueries(self.mission, cid, self.log), self.motion.counts,
+                               self.inbound, self.log)
         self.ros2 = None  # its ROS 2 node (ros2/publisher.py) while running with config.ros2
         # What it times its waits by: its own settings until the coordinator's Accepted tells it
         # the mission's (docs/protocol.md, [P-10.2]; :func:`mission.carrier.follow`).
@@ -260,8 +260,6 @@ class Carrier:
     answer = property(lambda self: self.inbound.answer)      # the coordinator's answer to its latest Hello
     releases = property(lambda self: self.inbound.releases)  # the passenger each stage releases
     book = property(lambda self: self.inbound.book)          # what it heard of every carrier's stages
-    gate = property(lambda self: self.parts.gate)
-    pending = property(lambda self: self.motion.pending)     # the Observation waiting for its decision
     reason = property(lambda self: self.life.reason or "finished")  # why it ended (carriers/exits.py)
 
     def log(self, line: str) -> None:
@@ -332,16 +330,19 @@ class Carrier:
             elif heard is not None:
                 self.execute(heard)
 
-    def _asked(self, step) -> mc.Handshake | None:
-        """What a join path asks (:mod:`carriers.joining`): an event applied (its machine after
-        it sent back), an effect carried out, its body driven unpaced."""
-        if isinstance(step, Advance):
-            self.advance(step.t, paced=False)
-        elif isinstance(step, Execute):
-            self.execute(step.effect)
-        else:
+    def _asked(self, step):
+        """What a join path asks (:mod:`mission.joins`), carried out; what it is answered."""
+        if isinstance(step, joins.Drive):
+            self.advance(self.scenario.stage_time(step.stage), paced=False)
+        if isinstance(step, (joins.Drive, joins.Here)):
+            return self.motion.position()
+        if isinstance(step, joins.Apply):
             self.apply(step.event)
             return self.machine
+        if isinstance(step, joins.Execute):
+            self.execute(step.effect)
+        elif isinstance(step, joins.Release):
+            self.motion.body.deploy(self.cid)
         return None
 
     def _moving(self) -> Moving:
@@ -407,15 +408,15 @@ class Carrier:
             x = self.motion.observe(effect.stage, self.who, self.machine.passengers_left)  # sensed, kept
             self.apply(mc.Observed(effect.stage, x, self.motion.position()))
             self.node.put(self.who.key("obs"), self.motion.pending)  # then it waits for the stage's decision
-            self.gate.waiting(effect.stage)
+            self.parts.gate.waiting(effect.stage)
         elif isinstance(effect, cl.Pass):
             # decided without its Observation (cut off, or too slow): ∅ for it; publishing it would
             # only be rejected as stale; its decision answered if it reached it
             self.apply(mc.Passed(effect.stage, self.motion.position()))
         elif isinstance(effect, cl.MoveOn):
-            self.gate.answered(effect.stage)
+            self.parts.gate.answered(effect.stage)
             if effect.answered:
-                self.gate.hold(effect.stage, GATE_HOLD_S)  # the process's other carriers confirm first
+                self.parts.gate.hold(effect.stage, GATE_HOLD_S)  # the process's other carriers confirm first
             self.apply(mc.MovedOn(effect.stage))
             self.motion.pending = None
         elif isinstance(effect, cl.DecideOnBoard):

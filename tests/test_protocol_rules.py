@@ -462,8 +462,8 @@ def test_a_join_into_an_ended_mission():
     c = mc.initial("a", (True,) * 2, (0.0, 5.0), 1)
     c, effects = mc.step(c, mc.Joined(2, ended=True))
     assert c.ended and effects == ()
-    joining = (ROOT / "carriers" / "joining.py").read_text().split("def from_state(")[1].split("def _recall")[0]
-    assert joining.index("mc.Joined(start, state.ended") < joining.index("mc.SendHello(")
+    joining = (ROOT / "mission" / "joins.py").read_text().split("def from_state(")[1].split("def alone(")[0]
+    assert joining.index("mc.Joined(start, seen.ended") < joining.index("mc.SendHello(")
 
 
 def test_hello_is_required():

@@ -11,6 +11,7 @@ import numpy as np
 
 from .. import carrier as mc
 from .. import carrier_life as cl
+from .. import joins
 from .. import timers as tm
 from ..ballot import Ballot
 from ..peers import PeerBook
@@ -177,28 +178,26 @@ class CarrierDriver:
         self.advance(now)
 
     def join_from_state(self, seen: mc.StateSeen, now: float) -> None:
-        """Join from the coordinator's State and the carrier's own log (carriers/joining.py's
-        path): the deployments replayed, the stages it resolved itself recalled, the deployments
-        on record it never made answered ``late``."""
-        entries = {e.stage: e for e in self.log.values() if e.status is not None}
-        logged = {j: e.deployed for j, e in entries.items()} or None  # no outcome logged: the record decides
-        start = mc.join_stage(seen.next_stage, logged)
-        forget = self.sim.plant == "forget-on-restart" and self.life > 1
-        recalled = [j for j in sorted(entries) if j >= seen.next_stage]
-        if not forget:
-            for j in mc.replay_plan(self.machine, min(seen.next_stage, start), seen.deployments, logged):
-                self.apply(mc.Replayed(j, self.position()), now)
-                self.book.outcome(self.cid, j, True)
-            for j in recalled:
-                e = entries[j]
-                self.apply(mc.Recalled(j, e.status, e.deployed, self.position(), e.x), now)
-                self.book.outcome(self.cid, j, e.deployed)
-        self.apply(mc.Joined(start if not forget else seen.next_stage, seen.ended, seen.epoch, seen.coordinator), now)
-        self.apply_effect_hello(now)
-        for j in mc.missed(seen.next_stage, seen.deployments, logged):
-            self.apply(mc.Missed(j, self.position()), now)
-        for effect in mc.accounts(self.machine, recalled):
-            self.execute(effect, now)
+        """Join from the coordinator's State and the carrier's own log: the processes' path
+        (:func:`mission.joins.from_state`), driven here. Planted ``forget-on-restart``: a
+        restarted carrier forgets its log and the deployments on record."""
+        if self.sim.plant == "forget-on-restart" and self.life > 1:
+            seen, entries = dataclasses.replace(seen, deployments=()), ()
+        else:
+            entries = self.log.values()
+        tm.drive(joins.from_state(self.machine, seen, entries, self.book), lambda asked: self._asked(asked, now))
+
+    def _asked(self, asked, now: float):
+        """What a join path asks (:mod:`mission.joins`): the simulated carrier has no body (its
+        position is its stage), nothing to drive and nothing to release."""
+        if isinstance(asked, (joins.Drive, joins.Here)):
+            return self.position()
+        if isinstance(asked, joins.Execute):
+            self.execute(asked.effect, now)
+        elif isinstance(asked, joins.Apply):
+            self.apply(asked.event, now)
+            return self.machine
+        return None
 
     def apply_effect_hello(self, now: float) -> None:
         self.execute(mc.SendHello(self.machine.hello_stage(), self.machine.passengers_left), now)
@@ -295,16 +294,10 @@ class CarrierDriver:
 
     def join_alone(self, now: float) -> None:
         """No coordinator answered: go on from the durable log (hybrid), once its peers' tokens
-        are there (:class:`mission.carrier_life.Gathered`)."""
-        done = [e for e in self.log.values() if e.status is not None]
-        for e in done:  # its own log is what its on-board decisions know of its past (carriers/joining.py)
-            if e.observed:
-                self.book.observation(self.cid, e.stage, e.x)
-            self.book.outcome(self.cid, e.stage, e.deployed)
-        self.alone_next = max((e.stage + 1 for e in done), default=0)
-        for j in mc.replay_plan(self.machine, self.alone_next, [e.stage for e in done if e.deployed]):
-            self.apply(mc.Replayed(j, self.position()), now)
-            self.book.outcome(self.cid, j, True)
+        are there (:class:`mission.carrier_life.Gathered`): the processes' path
+        (:func:`mission.joins.alone`), driven here."""
+        self.alone_next = tm.drive(joins.alone(self.machine, self.log.values(), self.book),
+                                   lambda asked: self._asked(asked, now))
         self.listen()
 
     def finish(self, reason: str) -> None:
