@@ -92,14 +92,9 @@ class Joining:
         if state.next_stage > j:
             self.log(f"stage {j} was decided but its Decision did not arrive; taking it from State")
             self._named(machine, state)
-            yield joins.Apply(mc.Resync(self.queries.seen(state), (yield joins.Here())))
-        elif state.next_stage == j:
-            yield joins.Apply(mc.Collecting(j, state.epoch, state.coordinator))
-        else:
-            # the coordinator is behind this carrier: its Hello or its accounts of the stages
-            # since were lost; saying them again lets it go on (found by mission.simulate)
+        elif state.next_stage < j:
             self.log(f"the coordinator is at stage {state.next_stage}, this carrier at {j}; resynchronising")
-            yield joins.Apply(mc.Resync(self.queries.seen(state), (yield joins.Here())))
+        yield joins.Apply(mc.waited_state(self.queries.seen(state), j, (yield joins.Here())))
 
     def resync(self, machine: mc.Handshake, node, gap: int | None = None) -> Steps:
         """Resynchronise from the coordinator's State (:class:`mission.carrier.Resync`): its token

@@ -513,6 +513,17 @@ def replay_plan(state: Handshake, next_stage: int, deployments, logged=None) -> 
     return sorted(j for j in stages if j < next_stage)[: state.passengers_left]
 
 
+def waited_state(seen: StateSeen, j: int, position: Point) -> "Collecting | Resync":
+    """What a State says to a carrier that waited long for the Decision of stage j (sim clock,
+    [P-10.8]): still collecting j, the coordinator may not have its Observation
+    (:class:`Collecting`: it is said again); past j, the Decision was lost on the way; behind j,
+    the coordinator lost its Hello or its accounts of the stages since: both resynchronise
+    (:class:`Resync`, found by mission.simulate)."""
+    if seen.next_stage == j:
+        return Collecting(j, seen.epoch, seen.coordinator)
+    return Resync(seen, position)
+
+
 def join_stage(next_stage: int, logged) -> int:
     """Where a joining carrier goes on from: State's ``next_stage``, or after the last stage its
     own log (``logged``: stage -> deployed, None: none) resolved, if later — the stages it

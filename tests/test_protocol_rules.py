@@ -940,8 +940,12 @@ def test_a_carrier_waiting_on_the_sim_clock_asks_state():
     c, _ = mc.step(c, mc.Observed(0, 1, (0.0, 0.0)))
     _, effects = mc.step(c, mc.Collecting(0))
     assert effects == (mc.ResendObservation(0),)
+    seen = mc.StateSeen(3, (), None, False)  # decided past the stage it waits at: resync
+    assert mc.waited_state(seen, 2, (0.0, 0.0)) == mc.Resync(seen, (0.0, 0.0))
+    assert mc.waited_state(seen, 3, (0.0, 0.0)) == mc.Collecting(3, 1, "")
+    assert mc.waited_state(seen, 5, (0.0, 0.0)) == mc.Resync(seen, (0.0, 0.0))  # the coordinator behind it
     joining = (ROOT / "carriers" / "joining.py").read_text().split("def recover_decision(")[1]
-    assert "if state.next_stage > j:" in joining and "mc.Resync(" in joining
+    assert "mc.waited_state(" in joining.split("def resync(")[0]
 
 
 def test_presence_follows_the_token():

@@ -148,13 +148,7 @@ class CarrierDriver:
             gap, self.gap, self.resync = self.gap, None, False
             self.apply(mc.Resync(seen, self.position(), gap=gap), now)
         elif self.lifecycle.phase is cl.Phase.WAIT:
-            j = self.lifecycle.stage
-            if seen.next_stage == j:
-                self.apply(mc.Collecting(j, seen.epoch, seen.coordinator), now)
-            else:
-                # past j: its Decision was lost; behind j: the coordinator never had this
-                # carrier's Hello or accounts of the stages since (lost): both resynchronise
-                self.apply(mc.Resync(seen, self.position()), now)
+            self.apply(mc.waited_state(seen, self.lifecycle.stage, self.position()), now)
 
     def ask_state(self, now: float, gap: int | None = None) -> None:
         """Resynchronise from State (the coordinator's token came back, or a Decision came after a
