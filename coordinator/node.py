@@ -325,7 +325,7 @@ class Coordinator:
                 planning_ms = self.decide(effect.stage)  # records, then publishes
                 if planning_ms is None:
                     self.step(cl.Deposed())
-                    return None
+                    continue
                 self.step(cl.Decided(effect.stage, self.clock(), planning_ms))
                 self.pump(0.0)
             elif isinstance(effect, cl.StageLine):
