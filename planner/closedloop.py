@@ -38,6 +38,11 @@ future below it (a one-step rollout algorithm, i.e. policy improvement over its 
    estimate of a candidate is ``mean(aware - plain) + exact(plain)``: unbiased, with far less
    variance, and exact when nothing conflicts.
 
+``closed-loop-gated`` (:class:`GatedClosedLoopPlanner`) is this planner with two changes in what
+it does with the estimates and the base action: a candidate is chosen over the base (or current)
+action only when its estimated gain clears :data:`GATE` standard errors of the paired difference,
+and the base action decides a stage's free carriers by margin (:func:`base_action`).
+
 Budget: ``iterations`` full-fleet rollouts per decision (the MCTS meaning of an iteration), i.e.
 ``iterations * R`` single-carrier trajectories split over the blocks that need a search; or
 ``plan_ms`` milliseconds. Feasibility (at most one deployment per stage, at most D, none at ∅,
@@ -67,6 +72,14 @@ BLOCK = 32
 #: Alternations of :func:`conflict_values` behind the rollouts' base policy (0: DLR's thresholds
 #: without externalities, the conflict-aware SSAP rule).
 RULE_ROUNDS = 6
+#: ``closed-loop-gated``'s gate: the standard errors a candidate's estimated gain over the base
+#: action (or, in the coordinate ascent, over the current action) must clear to be chosen; a
+#: candidate is ranked by its estimate minus ``GATE`` standard errors of its paired difference
+#: from candidate 0 on the same sampled futures. ``closed-loop`` has no gate (0: the largest
+#: estimate), and there the largest of many noisy estimates is largely noise (the winner's
+#: curse): its search gained nothing over its own base action at R = 32 (docs/planner.md,
+#: "closed-loop-gated").
+GATE = 2.0
 
 
 # ----------------------------------------------------------------------------- numba kernels
@@ -617,15 +630,23 @@ class ClosedLoopPlanner:
         plan_ms: time budget per decision, milliseconds (anytime; not bit-reproducible).
         block: :data:`BLOCK`.
         rule_rounds: :data:`RULE_ROUNDS` (0: the previous base policy, DLR's thresholds).
+        gate: standard errors of its paired gap to the base (or current) action a candidate's
+            estimate is lowered by before the search takes the largest (0, closed-loop's: the
+            largest estimate; :data:`GATE`, closed-loop-gated's).
+        by_margin: the base action decides the free carriers of a stage in decreasing order of
+            their margin over the rule's threshold (closed-loop-gated) or in index order (False,
+            closed-loop); see :func:`base_action`.
     """
 
     name = "closed-loop"
 
     def __init__(self, iterations: int | None = None, plan_ms: float | None = None, block: int = BLOCK,
-                 rule_rounds: int = RULE_ROUNDS, **_ignored):
+                 rule_rounds: int = RULE_ROUNDS, gate: float = 0.0, by_margin: bool = False, **_ignored):
         self.iterations, self.plan_ms = check_budget(iterations, plan_ms)
         self.block = int(block)
         self.rule_rounds = int(rule_rounds)
+        self.gate = float(gate)
+        self.by_margin = bool(by_margin)
 
     def warm_up(self, problem: Problem) -> None:
         """Compile the kernels (cached on disk) and prepare the problem's constants."""
@@ -701,7 +722,8 @@ class ClosedLoopPlanner:
         plans = []
         for comp in search:
             typed = None if problem.weights is None else _typed_state(view, comp, prep.table)
-            decision[comp] = base_action(comp, view.stage, prep, state, nleft, left, xnow, must, free, typed, rule)
+            decision[comp] = base_action(comp, view.stage, prep, state, nleft, left, xnow, must, free, typed, rule,
+                                         by_margin=self.by_margin)
             for block, members in _blocks(comp, adjacency, self.block):
                 flip = np.flatnonzero(np.isin(members, block[free[block]]))
                 k = len(flip)
@@ -765,6 +787,9 @@ class ClosedLoopPlanner:
 
         With ``control_variate`` (the default) the estimate is ``mean(aware - plain) + exact(plain)``;
         without, the plain Monte Carlo mean of the aware rollouts (for tests: same expectation).
+        With ``control_variate`` and ``self.gate > 0`` each candidate's estimate is lowered by
+        ``gate`` standard errors of its paired difference from ``actions[0]`` (the base or current
+        action, which keeps its estimate): the score the search maximises (:data:`GATE`).
         """
         view, prep, selection, valid, nleft, left, xnow, rule = ctx
         problem = view.problem
@@ -786,9 +811,14 @@ class ClosedLoopPlanner:
                                    rule)
             return out
 
-        mean = sampled_mean(len(actions), samples, deadline, evaluate)
         if not control_variate:
-            return mean
+            return sampled_mean(len(actions), samples, deadline, evaluate)
+        gated = self.gate > 0.0 and len(actions) > 1
+        if gated:
+            mean, gap_se = sampled_mean(len(actions), samples, deadline, evaluate, spread=True)
+            mean = mean - self.gate * gap_se
+        else:
+            mean = sampled_mean(len(actions), samples, deadline, evaluate)
         if typed is not None:
             _, _, stay, go = typed
             return mean + np.where(actions, go[None, :], stay[None, :]).sum(axis=1)
@@ -797,6 +827,20 @@ class ClosedLoopPlanner:
         d_after = np.minimum(comp_left[None, :] - actions.astype(np.int64), n_stages)
         exact = prep.slot_value[n_after[None, :], d_after].sum(axis=1)
         return mean + exact
+
+
+class GatedClosedLoopPlanner(ClosedLoopPlanner):
+    """``closed-loop-gated``: closed-loop whose search takes a candidate over the base (or current)
+    action only when its estimated gain clears :data:`GATE` standard errors of the paired
+    difference, and whose base action lets a stage's free carriers decide in decreasing order of
+    their margin over the rule's threshold (docs/planner.md, "closed-loop-gated"). The same
+    rollouts, candidates, blocks and budget as closed-loop."""
+
+    name = "closed-loop-gated"
+
+    def __init__(self, iterations: int | None = None, plan_ms: float | None = None, block: int = BLOCK,
+                 rule_rounds: int = RULE_ROUNDS, gate: float = GATE, by_margin: bool = True, **_ignored):
+        super().__init__(iterations, plan_ms, block, rule_rounds, gate, by_margin)
 
 
 def _dlr_rule(prep, q: int, n: int) -> Rule:
@@ -833,12 +877,20 @@ def _past_values(view: StageView) -> np.ndarray:
 
 
 def base_action(comp: np.ndarray, stage: int, prep, state, nleft: np.ndarray, left: np.ndarray, xnow: np.ndarray,
-                must: np.ndarray, free: np.ndarray, typed=None, rule: Rule | None = None) -> np.ndarray:
-    """The base policy's action of the carriers ``comp`` at ``stage`` (in index order), given the
-    chosen points ``state = (sel, p, xv)``: bool ``[len(comp)]``. ``typed`` is :func:`_typed_state`
-    of the view for a problem with passenger values (None: the unweighted rule). ``rule``: the
-    base policy's :class:`Rule` (None: DLR's thresholds without externalities, the previous
-    conflict-aware SSAP rule, which dec-closed-loop's partial-information path uses)."""
+                must: np.ndarray, free: np.ndarray, typed=None, rule: Rule | None = None,
+                by_margin: bool = False) -> np.ndarray:
+    """The base policy's action of the carriers ``comp`` at ``stage``, given the chosen points
+    ``state = (sel, p, xv)``: bool ``[len(comp)]``. ``typed`` is :func:`_typed_state` of the view
+    for a problem with passenger values (None: the unweighted rule). ``rule``: the base policy's
+    :class:`Rule` (None: DLR's thresholds without externalities, the previous conflict-aware SSAP
+    rule, which dec-closed-loop's partial-information path uses).
+
+    The carriers decide one after another, each against the deployments chosen before it (the
+    marginal gain): in index order, or with ``by_margin`` and a ``rule`` the forced carriers first
+    and then the free ones in decreasing order of their margin ``w x - ext[q] - thr[q, d]`` (its
+    value now, the released passenger's weight ``w`` with passenger values, over what it would
+    need alone; ties in index order), so a carrier barely over its threshold no longer takes an
+    overlap from a neighbour far over its own just because its index is lower."""
     sel, p, xv = state
     n_stages = prep.n_stages
     j = stage
@@ -847,7 +899,17 @@ def base_action(comp: np.ndarray, stage: int, prep, state, nleft: np.ndarray, le
     pp = p.copy()
     vv = xv.copy()
     log = np.empty(len(sel) + len(prep.nbr) + 1, dtype=np.int64)
-    for i, r in enumerate(comp):
+    order = range(len(comp))
+    if by_margin and rule is not None:
+        margin = np.full(len(comp), np.inf)  # forced (and idle) carriers first, in index order
+        for i, r in enumerate(comp):
+            if free[r]:
+                q = int(r) * n_stages + j
+                value = float(xnow[r]) if typed is None else float(xnow[r]) * typed[0][i, typed[1][i]]
+                margin[i] = value - rule.ext[q] - rule.thr[q, int(left[r])]
+        order = np.argsort(-margin, kind="stable")
+    for i in order:
+        r = comp[i]
         q = int(r) * n_stages + j
         value = float(xnow[r])
         if typed is not None:
@@ -925,7 +987,7 @@ def estimate(view: StageView, actions: np.ndarray, samples: int, rng: np.random.
     sel = view.deployed.ravel().copy()
     p = prep.penalties(sel)
     xv = np.where(view.deployed, _past_values(view), 0.0).ravel()
-    planner = ClosedLoopPlanner()
+    planner = ClosedLoopPlanner(gate=0.0)  # the estimates themselves, not the search's gated scores
     rule = base_rule(view, prep, valid, nleft, left, sel, planner.rule_rounds)
     ctx = _Stage(view, prep, Selection(sel, p, xv), valid, nleft, left, xnow, rule)
     return planner._score(np.asarray(actions, dtype=bool), np.arange(n_carriers, dtype=np.int64),

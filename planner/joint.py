@@ -28,17 +28,35 @@ def every_combination(base: np.ndarray, flip: np.ndarray) -> np.ndarray:
 
 
 
-def sampled_mean(n_candidates: int, samples: int, deadline: float | None, evaluate) -> np.ndarray:
+def sampled_mean(n_candidates: int, samples: int, deadline: float | None, evaluate, spread: bool = False):
     """The closed-loop planners' anytime sampling loop: the mean over sampled futures of
     ``evaluate(batch)``, float ``[n_candidates, batch]`` values of ``batch`` fresh futures (it
     draws them). Without a ``deadline`` one batch of ``samples``; with one (``time.perf_counter``
-    seconds), batches of :data:`BATCH` until it passes (at least one)."""
+    seconds), batches of :data:`BATCH` until it passes (at least one).
+
+    With ``spread`` it returns ``(mean, gap_se)``: also the standard error of each candidate's
+    mean difference from candidate 0 on the same futures (float ``[n_candidates]``, 0 for
+    candidate 0; from the paired per-sample differences)."""
     sums = np.zeros(n_candidates)
+    gap_sums = np.zeros(n_candidates)
+    gap_squares = np.zeros(n_candidates)
     count = 0
     while True:
         batch = samples if deadline is None else BATCH
-        sums += evaluate(batch).sum(axis=1)
+        values = evaluate(batch)
+        sums += values.sum(axis=1)
+        if spread:
+            gaps = values - values[:1]
+            gap_sums += gaps.sum(axis=1)
+            gap_squares += np.square(gaps).sum(axis=1)
         count += batch
         if deadline is None or time.perf_counter() >= deadline:
             break
-    return sums / count
+    mean = sums / count
+    if not spread:
+        return mean
+    if count < 2:
+        return mean, np.zeros(n_candidates)
+    gap_mean = gap_sums / count
+    variance = np.maximum(gap_squares - count * np.square(gap_mean), 0.0) / (count - 1)
+    return mean, np.sqrt(variance / count)

@@ -465,6 +465,12 @@ def _closed_loop(**options: Any) -> object:
     return ClosedLoopPlanner(**options)
 
 
+def _closed_loop_gated(**options: Any) -> object:
+    from planner.closedloop import GatedClosedLoopPlanner  # see docs/planner.md, "closed-loop-gated"
+
+    return GatedClosedLoopPlanner(**options)
+
+
 def _dec_mcts(**options: Any) -> object:
     from planner.decmcts import DecMCTSPlanner  # decentralised: see planner/decentralised.py
 
@@ -490,6 +496,7 @@ register("ssap", _ssap, options=())
 register("mcts-random", _mcts("random"), options=_MCTS_OPTIONS)
 register("mcts-ssap", _mcts("ssap"), options=_MCTS_OPTIONS)
 register("closed-loop", _closed_loop, options=("iterations", "plan_ms"))
+register("closed-loop-gated", _closed_loop_gated, options=("iterations", "plan_ms"))
 register("online-optimal", _online_optimal, options=())
 # Decentralised planners (each carrier decides on board; ``decide_local``): run them under a
 # communication model with planner.decentralised.run_comms (run_online does so with perfect links).

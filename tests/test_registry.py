@@ -38,7 +38,7 @@ def test_layout_reaches_the_mcts_planner_and_others_ignore_it():
 def test_check_settings_reports_field_paths():
     problems = check_settings("mcts-sap", {"layout": "tree", "iterations": 0, "samples": None})
     assert [(p.field, p.expected) for p in problems] == [
-        ("name", "one of random, ssap, mcts-random, mcts-ssap, closed-loop, online-optimal, dec-mcts, dec-closed-loop (did you mean 'mcts-ssap'?)"),
+        ("name", "one of random, ssap, mcts-random, mcts-ssap, closed-loop, closed-loop-gated, online-optimal, dec-mcts, dec-closed-loop (did you mean 'mcts-ssap'?)"),
         ("layout", "one of auto, joint, binary"),
         ("iterations", "an integer >= 1 and <= 1e+09"),
     ]

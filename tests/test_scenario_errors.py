@@ -95,7 +95,7 @@ CASES = [
     ("missing-prior-parameter", _set(["prior"], {"kind": "normal", "mean": 3}),
      "prior.std: expected a number > 0 (normal prior), found nothing (missing)"),
     ("unknown-planner", _set(["planner", "name"], "mcts-sap"),
-     "planner.name: expected one of random, ssap, mcts-random, mcts-ssap, closed-loop, online-optimal, dec-mcts, dec-closed-loop (did you mean 'mcts-ssap'?), found 'mcts-sap'"),
+     "planner.name: expected one of random, ssap, mcts-random, mcts-ssap, closed-loop, closed-loop-gated, online-optimal, dec-mcts, dec-closed-loop (did you mean 'mcts-ssap'?), found 'mcts-sap'"),
     ("room-cluster-without-building", _set(["features", "clusters"], [{"room": [0, 0], "density": 1}]),
      "features.clusters[0].room: expected a map.building to take the room from, found no building in map"),
     ("carriers-not-a-list", _set(["carriers"], {"id": "a"}), "carriers: expected a non-empty list of carriers, found a mapping"),
