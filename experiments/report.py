@@ -34,6 +34,7 @@ STYLE = {
     "dec-closed-loop": ("Dec-closed-loop (ours)", "#66a61e", "P", "-"),
     "dec-mcts": ("Dec-MCTS", "#e6ab02", "X", "-"),
     "closed-loop": ("Closed-loop (ours)", "#1b9e77", "D", "-"),
+    "closed-loop-gated": ("Closed-loop gated (ours)", "#0b5e47", "d", "-"),
     "mcts-ssap": ("MCTS-SSAP", "#d95f02", "o", "-"),
     "mcts-random": ("MCTS-Random", "#7570b3", "s", "-"),
     "ssap": ("SSAP", "#e7298a", "^", "-"),
