@@ -24,6 +24,8 @@ import time
 
 import numpy as np
 
+from experiments.report import sem
+
 #: Bound samples per trial by R (experiments.bound.CONFIGS); 6 for other sizes.
 BOUND_SAMPLES = {32: 12, 128: 6, 256: 4}
 
@@ -35,11 +37,6 @@ def parse_trials(text: str) -> list[int]:
         lo, _, hi = part.partition("-")
         out.extend(range(int(lo), int(hi or lo) + 1))
     return out
-
-
-def sem(values) -> float:
-    values = np.asarray(values, dtype=float)
-    return float(values.std(ddof=1) / np.sqrt(len(values))) if len(values) > 1 else float("nan")
 
 
 def run_pair(carriers: int, trial: int, iterations: int, seed: int, bound_samples: int) -> dict:

@@ -35,25 +35,14 @@ import time
 
 import numpy as np
 
+from experiments.report import sem
+from tools.base_policy import parse_trials
+
 #: Bound samples per trial by R (experiments.bound.CONFIGS); 6 for other sizes.
 BOUND_SAMPLES = {4: 30, 6: 30, 32: 12, 128: 6, 256: 4}
 FAMILIES = ("paper", "dense")
 #: The two planners: (column, registered name).
 PLANNERS = (("previous", "closed-loop"), ("new", "closed-loop-gated"))
-
-
-def parse_trials(text: str) -> list[int]:
-    """``"20-39"`` or ``"20,22,30-33"``: trial indices, in order."""
-    out = []
-    for part in text.split(","):
-        lo, _, hi = part.partition("-")
-        out.extend(range(int(lo), int(hi or lo) + 1))
-    return out
-
-
-def sem(values) -> float:
-    values = np.asarray(values, dtype=float)
-    return float(values.std(ddof=1) / np.sqrt(len(values))) if len(values) > 1 else float("nan")
 
 
 def instance(family: str, carriers: int, trial: int, seed: int = 0):
