@@ -36,6 +36,10 @@ def shared_world(scenario) -> SharedWorld:
 
     features = sample_features(scenario)
     features = features[np.argsort(features[:, 0], kind="stable")]  # sorted by x: see Simulation.sense
+    if scenario.reward == "coverage":  # the regions too, before any carrier says it is live
+        from world.regions import scenario_regions
+
+        scenario_regions(scenario)
     return SharedWorld(scenario.valid(), scenario_fingerprint(scenario), features)
 
 

@@ -37,13 +37,38 @@ from typing import Any, Sequence
 import numpy as np
 
 
+class PoissonPriors(Sequence):
+    """Poisson(mean) priors of M regions, each a frozen ``scipy.stats.poisson`` made only when asked
+    for (then kept): freezing one costs milliseconds (scipy builds its docstrings), seconds over
+    the thousands of regions of a large coverage world, and the Poisson paths read the means alone."""
+
+    def __init__(self, means):
+        self.means = np.array(means, dtype=float)
+        self.means.setflags(write=False)
+        self._frozen: dict[int, Any] = {}
+
+    def __len__(self) -> int:
+        return len(self.means)
+
+    def __getitem__(self, m):
+        if isinstance(m, slice):
+            return [self[i] for i in range(len(self))[m]]
+        m = range(len(self))[m]  # IndexError past the end, as a tuple's
+        frozen = self._frozen.get(m)
+        if frozen is None:
+            from scipy import stats
+
+            frozen = self._frozen.setdefault(m, stats.poisson(float(self.means[m])))
+        return frozen
+
+
 @dataclass(frozen=True, eq=False)
 class Coverage:
     """The regions and which decision points explore them (everything known in advance).
 
     Attributes:
         priors: one frozen scipy.stats distribution per region (M of them), the prior of its
-            feature count.
+            feature count (:class:`PoissonPriors`: frozen when asked for).
         means: float ``[M]``: each region's prior mean count.
         ptr: int64 ``[R*N + 1]`` and idx: int64 ``[ptr[-1]]``: CSR lists; the regions explored
             by a passenger released at flat point ``a = r * N + j`` are ``idx[ptr[a]:ptr[a+1]]``
@@ -51,7 +76,7 @@ class Coverage:
         poisson: whether every region prior is Poisson (drawn in one vectorised call).
     """
 
-    priors: tuple[Any, ...]
+    priors: Sequence[Any]
     means: np.ndarray
     ptr: np.ndarray
     idx: np.ndarray
@@ -59,7 +84,8 @@ class Coverage:
 
     @staticmethod
     def build(covers: Sequence[Sequence[Sequence[int] | None]], priors: Sequence[Any]) -> "Coverage":
-        """From ``covers[r][j]`` (region indices, or None at an invalid stage) and the region priors.
+        """From ``covers[r][j]`` (region indices, or None at an invalid stage) and the region priors
+        (frozen scipy.stats distributions, or :class:`PoissonPriors`).
 
         Raises:
             ValueError: a region index outside ``0..M-1``.
@@ -72,11 +98,15 @@ class Coverage:
         ptr = np.zeros(len(lists) + 1, dtype=np.int64)
         ptr[1:] = np.cumsum([len(regions) for regions in lists])
         idx = np.array([m for regions in lists for m in regions], dtype=np.int64)
-        means = np.array([float(p.mean()) for p in priors])
-        poisson = all(getattr(p.dist, "name", "") == "poisson" for p in priors)
+        if isinstance(priors, PoissonPriors):
+            means, poisson = priors.means, True
+        else:
+            priors = tuple(priors)
+            means = np.array([float(p.mean()) for p in priors])
+            poisson = all(getattr(p.dist, "name", "") == "poisson" for p in priors)
         for arr in (ptr, idx, means):
             arr.setflags(write=False)
-        return Coverage(tuple(priors), means, ptr, idx, poisson)
+        return Coverage(priors, means, ptr, idx, poisson)
 
     @property
     def n_regions(self) -> int:

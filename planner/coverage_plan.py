@@ -57,7 +57,9 @@ def sum_support(coverage, regions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     if len(regions) == 0:
         return np.zeros(1), np.ones(1)
     if coverage.poisson:
-        return _region_support(priors.build_prior({"kind": "poisson", "mean": float(coverage.means[regions].sum())}))
+        points, mass = priors.poisson_support(float(coverage.means[regions].sum()))
+        keep = mass > 0
+        return points[keep], mass[keep]
     points, mass = np.zeros(1), np.ones(1)
     for m in regions.tolist():
         rp, rm = _region_support(coverage.priors[m])

@@ -183,3 +183,53 @@ def test_check_reports_the_regions(capsys):
     assert main(["check", str(COVERAGE), "--seeds", "2"]) == 0
     text = capsys.readouterr().out
     assert "reward: coverage; regions: " in text and "regions per point" in text
+
+
+def test_the_carriers_of_one_process_compute_the_regions_once(monkeypatch):
+    """Threads asking at once (a process's carriers at their first observation) wait for one
+    arrangement instead of each computing it."""
+    import threading
+
+    scenario = world.load_scenario(COVERAGE).with_seed(5)
+    rg._scenario_regions.cache_clear()
+    calls = []
+    real = rg.arrangement
+
+    def counted(*args, **kwargs):
+        calls.append(threading.get_ident())
+        time.sleep(0.2)  # long enough for every thread to ask while it runs
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(rg, "arrangement", counted)
+    got = []
+    threads = [threading.Thread(target=lambda: got.append(rg.scenario_regions(scenario))) for _ in range(8)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    rg._scenario_regions.cache_clear()
+    assert len(calls) == 1 and len(got) == 8 and all(g is got[0] for g in got)
+
+
+def test_the_lazy_poisson_priors_give_the_frozen_priors_numbers():
+    from scipy import stats
+
+    from planner import priors
+    from planner.coverage import Coverage, PoissonPriors
+
+    scenario = world.load_scenario(COVERAGE)
+    means = rg.region_means(scenario)
+    lazy = rg.coverage(scenario)
+    eager = Coverage.build(rg.scenario_regions(scenario).covers, [stats.poisson(m) for m in means])
+    assert lazy.poisson and eager.poisson and len(lazy.priors) == len(eager.priors) == len(means)
+    np.testing.assert_array_equal(lazy.means, eager.means)
+    np.testing.assert_array_equal(lazy.idx, eager.idx)
+    for m in (0, len(means) // 2, -1):
+        assert lazy.priors[m].mean() == eager.priors[m].mean() and lazy.priors[m].dist.name == "poisson"
+        assert lazy.priors[m] is lazy.priors[m]  # frozen once
+    with pytest.raises(IndexError):
+        PoissonPriors([1.0])[1]
+    for mean in (0.01, 0.7, 3.3, 41.5):
+        a, b = priors.support(stats.poisson(mean)), priors.poisson_support(mean)
+        np.testing.assert_array_equal(a[0], b[0])
+        np.testing.assert_array_equal(a[1], b[1])

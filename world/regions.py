@@ -18,6 +18,7 @@ paired; work and memory grow with the number of meeting pairs, which is bounded 
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -261,10 +262,18 @@ def _scenario_regions(scenario) -> Regions:
     return arrangement(positions, valid, scenario.sensing_radius)
 
 
+#: One arrangement computed at a time in a process: the carriers of one process (one thread each,
+#: carriers/process.py) ask for it at once at their first observation, and without the lock each
+#: thread computed it again (a 256-carrier coverage grid's 32 carriers per process stalled a
+#: minute at stage 0 on a loaded host).
+_REGIONS_LOCK = threading.Lock()
+
+
 def scenario_regions(scenario) -> Regions:
     """The regions of a ``reward: coverage`` scenario's candidate discs (the schedules fix them:
-    the same for every seed; cached)."""
-    return _scenario_regions(scenario.with_seed(0))
+    the same for every seed; cached, computed once per process however many threads ask)."""
+    with _REGIONS_LOCK:
+        return _scenario_regions(scenario.with_seed(0))
 
 
 def region_means(scenario) -> np.ndarray:
@@ -285,9 +294,6 @@ def region_counts(scenario, features: np.ndarray | None = None, seed: int | None
 def coverage(scenario):
     """The planner core's :class:`planner.coverage.Coverage` of a coverage scenario: its regions'
     covers and Poisson(mean) priors."""
-    from scipy import stats
+    from planner.coverage import Coverage, PoissonPriors
 
-    from planner.coverage import Coverage
-
-    regions = scenario_regions(scenario)
-    return Coverage.build(regions.covers, [stats.poisson(mu) for mu in region_means(scenario)])
+    return Coverage.build(scenario_regions(scenario).covers, PoissonPriors(region_means(scenario)))
