@@ -382,7 +382,8 @@ RUNS = [
                              "docs/results/decision_scale.json --plot docs/results/decision_scale.png",
                              ("docs/results/", "{tmp}/")),),
         "heavy", wall_s=3600, mem_mb=8000),
-    Run("experiments-all", (S("python -m experiments all", extra="--out {tmp}/all"),), "slow", wall_s=1800,
+    # every sweep's code path and published rows are checked in the slow tier by experiments-check
+    Run("experiments-all", (S("python -m experiments all", extra="--out {tmp}/all"),), "heavy", wall_s=1800,
         mem_mb=4000, check=_reproduces(*((f"docs/results/{s}_trials.csv", f"all/{s}_trials.csv")
                                          for s in ("overlap", "scaling", "urban")))),
     Run("experiments-overlap", (S("python -m experiments overlap", extra="--out {tmp}/overlap"),), "slow",
@@ -427,7 +428,7 @@ RUNS = [
           ("/tmp/oprooms", "{tmp}/oprooms"), ("/tmp/opcaves", "{tmp}/opcaves"), extra="--out {tmp}/operator"),
     ), "heavy", wall_s=900, mem_mb=3000,
         check=_reproduces(("docs/results/operator/operator_trials.csv", "operator/operator_trials.csv"))),
-    Run("experiments-marine", (S("python -m experiments marine", extra="--out {tmp}/marine"),), "slow",
+    Run("experiments-marine", (S("python -m experiments marine", extra="--out {tmp}/marine"),), "heavy",
         wall_s=900, mem_mb=3000, check=_reproduces(("docs/results/marine_trials.csv", "marine/marine_trials.csv"))),
     Run("coverage-report-only", (
         Step(None, raw="cp -r docs/results {tmp}/results"),
