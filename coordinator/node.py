@@ -439,10 +439,14 @@ class Coordinator:
             self.console = open_console(setup, self.config.operator, self.node, lambda: answers.served,
                                         Path(self.config.out_dir), functools.partial(plan_step, setup, self.store),
                                         self.clock, self._stop)
-        # Warmed up once State answers and the token is out: carriers that start meanwhile
-        # find a coordinator (compiling the planner takes seconds, more on a busy host).
-        if not self._stop.is_set():
-            warm_up((setup.planner, setup.planner_name), setup.problem, self.log)
+        # Warmed up once State answers and the token is out, while the inbox is taken: carriers
+        # that start meanwhile find a coordinator and their Hellos are answered (compiling the
+        # planner's kernels on a machine's first run takes seconds, more on a busy host).
+        warming = threading.Thread(target=warm_up, args=((setup.planner, setup.planner_name), setup.problem, self.log),
+                                   name="planner-warm-up", daemon=True)
+        warming.start()
+        while warming.is_alive() and not self._stop.is_set():
+            self.pump(POLL_S)
         if self.state.next_stage > 0:
             self._publish_decision(self.state.next_stage - 1)  # idempotent re-publication
         # The carriers' join, the stages, the last Confirms, End (not when deposed: the newer

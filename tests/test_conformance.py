@@ -430,6 +430,17 @@ def test_the_project_coordinator_passes_a_plain_flight(tmp_path):
 
 
 @pytest.mark.slow
+def test_the_project_coordinator_answers_hellos_while_it_compiles(tmp_path, monkeypatch):
+    """[P-5.8] on a machine's first run (no compiled kernels: an empty NUMBA_CACHE_DIR) the
+    coordinator compiles its planner in a thread while it takes its inbox: the kit's Hellos are
+    answered at once, not after the compile."""
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cold-cache"))
+    results, kit = _coordinator_kit(tmp_path, PROJECT_COORDINATOR, ())
+    assert wc.passed(results), wc.table(results, wc.COORDINATOR_RULES) + kit.flights[0].output
+    assert _statuses(results)["hello-answered"] == "pass"
+
+
+@pytest.mark.slow
 def test_a_coordinator_deploying_every_carrier_fails_feasible(tmp_path):
     """[P-6.3] a Decision selecting carriers that did not observe the stage fails ``feasible``."""
     results, kit = _coordinator_kit(tmp_path, [sys.executable, str(BROKEN_COORDINATOR), "select-all",
