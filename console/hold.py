@@ -81,7 +81,7 @@ class OperatorHold:
     Args:
         settings: :class:`OperatorSettings`; desk: the :class:`console.desk.Desk`; plan:
         ``plan(j, state, constraints) -> StageStep``, the coordinator's planner step
-        (:func:`coordinator.node.plan_step`); problem: the planning problem; ids: the carrier
+        (:func:`coordinator.planning.plan_step`); problem: the planning problem; ids: the carrier
         ids; seed: the mission's root seed (the estimate's stream); clock: the coordinator's
         clock (s); stop: its stop request; log: a callable taking one line.
     """

@@ -39,7 +39,7 @@ def open_console(setup, settings, node, served, out_dir, plan, clock, stop) -> C
     session ``node`` open): the credential in ``out_dir/operator.token``, the page's server, the
     operator's Zenoh key. ``settings``: the :class:`console.hold.OperatorSettings`; ``served()``:
     the mission state as stored (what State answers from); ``plan(j, state, constraints)``: its
-    planner's stage step (:func:`coordinator.node.plan_step`); ``clock``, ``stop``: its clock and
+    planner's stage step (:func:`coordinator.planning.plan_step`); ``clock``, ``stop``: its clock and
     stop request."""
     from world.scene import build_scene
 

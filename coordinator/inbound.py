@@ -104,6 +104,16 @@ class Inbound:
         node.subscribe(keys.decision_key(self.mission))
         node.watch_liveliness(keys.carrier_alive_pattern(self.mission))
 
+    def note(self, heard: Heard, stage: int) -> None:
+        """What one item it read tells of its sender: when its carrier was heard (when it arrived
+        [P-10.5]; a Progress only while the stage it names is not past ``stage``, the stage
+        collected: see :class:`Heard`), and the higher epoch it claims, on record
+        (:meth:`coordinator.epochs.Epochs.carrier_claimed`, never adopted [P-7.3])."""
+        if heard.carrier is not None and (heard.progress is None or heard.progress <= stage):
+            self.heard[heard.carrier] = heard.at
+        if heard.epoch is not None:
+            self.epochs.carrier_claimed(heard.carrier, heard.epoch)
+
     def arrivals(self, node, timeout_s: float):
         """What arrived on ``node``, one item at a time, waiting up to ``timeout_s`` for the
         first: what each says (:class:`Heard`, from :meth:`read`), or :class:`Unreadable` for one

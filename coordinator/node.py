@@ -1,8 +1,10 @@
 """The coordinator process: a thin loop around the mission state machine and the planner core.
 
 receive (wire/) → decode → mission event → ``mission.state.step`` → persist (mission.db) →
-effects (publish, refuse, log). The mission rules live in mission/state.py; this module keeps
-the stage clock and timers, calls the planner, and moves bytes.
+effects (publish, refuse, log). The mission rules live in mission/state.py; this module feeds
+the machines their messages and clock ticks and carries out their effects: the I/O among them by
+coordinator/effects.py, the planner call by coordinator/planning.py, the mission's opening by
+coordinator/opening.py.
 
 Stage j (docs/protocol.md, "Stage handshake"):
 
@@ -32,7 +34,6 @@ in half.
 """
 from __future__ import annotations
 
-import functools
 import threading
 import time
 from dataclasses import dataclass
@@ -40,35 +41,20 @@ from pathlib import Path
 
 import numpy as np
 
-from mission.decide import FALLBACK_PLANNER, stage_decision
+from coordinator import opening, planning
 from coordinator.answers import Answers
-from coordinator.clock import POLL_S, progress_line, waits_of
+from coordinator.clock import POLL_S, waits_of
+from coordinator.effects import MissionEffects
 from coordinator.epochs import Epochs, default_ident
 from coordinator.inbound import BATCH_MAX, Inbound, Unreadable
-from coordinator.recorder import Recording, start as start_recording
+from coordinator.recorder import Recording
 from coordinator.results import results_for
 from coordinator.setup import MissionSetup
-from storage.missiondb import MissionStore
 from mission import coordinator_life as cl
 from mission import events as ev
 from mission import state as ms
 from mission import timers as tm
 from mission.timeouts import CLOCKS, DEFAULTS
-from wire import keys
-from wire.messages import REVISION, End
-from wire.link_filter import link_filter
-from wire.transport import Node
-
-def warm_up(planner: tuple, problem, log) -> None:
-    """The planner's ``warm_up(problem)`` if it has one; a plug-in's that raises is logged (its
-    decisions are guarded one by one: :func:`plan_step`)."""
-    planner, name = planner
-    warm = getattr(planner, "warm_up", None)
-    if callable(warm):
-        try:
-            warm(problem)
-        except Exception as exc:
-            log(f"coordinator: planner {name!r} warm_up raised {type(exc).__name__}: {exc}")
 
 
 @dataclass(frozen=True)
@@ -137,41 +123,20 @@ class CoordinatorConfig:
     coordinator_id: str | None = None
 
 
-def plan_step(setup: MissionSetup, store: MissionStore, j: int, st: ms.MissionState, constraints=None):
-    """Stage j's step on mission state ``st`` (:func:`mission.decide.stage_decision`: guarded,
-    within the planner's ``plan_ms`` budget), under the operator's ``constraints``
-    (:class:`planner.constraints.Constraints`; None: none). A planner fault is logged and
-    recorded in mission.db (``planner-fault``: summary.json ``planner_faults``); the stage is
-    decided by :data:`mission.decide.FALLBACK_PLANNER`."""
-
-    def fault(f) -> None:
-        setup.log(f"coordinator: {f.line(setup.planner_name)}; stage {f.stage} decided by {FALLBACK_PLANNER}")
-        store.event("planner-fault", None, f.stage, rule=f.rule, detail=f.detail, planner=setup.planner_name,
-                    fallback=FALLBACK_PLANNER)
-
-    return stage_decision(setup.problem, st, j, setup.planner, setup.seed, constraints,
-                          getattr(setup.planner, "plan_ms", None), fault)
-
-
-def _planned(setup: MissionSetup, store: MissionStore, j: int, st: ms.MissionState) -> ev.Decided:
-    """Stage j's decision by the planner alone (deploying ids sorted, with their passengers)."""
-    step = plan_step(setup, store, j, st)
-    rs = sorted(np.flatnonzero(step.deploy), key=lambda r: setup.ids[r])
-    return ev.Decided(j, tuple(setup.ids[r] for r in rs), step.decision_ms, time.time(),
-                      tuple(int(step.passengers[r]) for r in rs))
-
-
 class Coordinator:
     """One coordinator process: an I/O loop around two pure machines, its mission state
     (``self.state``, :class:`mission.state.MissionState`, changed only by :meth:`apply`) and its
     lifecycle (``self.life``, :mod:`mission.coordinator_life`, changed only by :meth:`step`).
-    :meth:`fly` feeds the lifecycle its clock and takes the inbox between its waits; the
-    effects of both machines are carried out here. Its collaborators are given what they need
+    :meth:`fly` feeds the lifecycle its clock and takes the inbox between its waits; both
+    machines' effects are carried out here, their I/O by its hands on the world
+    (:class:`coordinator.effects.MissionEffects`). Its collaborators are given what they need
     and return what they read or build, calling nothing back: the inbox's reader
     (:class:`coordinator.inbound.Inbound`), the answers (:class:`coordinator.answers.Answers`),
     split brain and its session (:class:`coordinator.epochs.Epochs`), the recorder
     (:class:`coordinator.recorder.Recording`), the results (:class:`coordinator.results.Results`),
-    the operator's console (a stage's hold is a generator of waits and events: :meth:`_asked`).
+    the mission's opening (:mod:`coordinator.opening`), the planner call
+    (:mod:`coordinator.planning`), the operator's console (a stage's hold is a generator of
+    waits and events: :meth:`_asked`).
 
     Args:
         scenario: the loaded scenario (its seed is replaced by ``config.seed`` when given).
@@ -192,8 +157,6 @@ class Coordinator:
         self._stop = stop if stop is not None else threading.Event()
         self.state = ms.initial(setup.spec)
         self.life = cl.initial(waits_of(config), config.clock, config.realtime, scenario.stage_interval)
-        self.node: Node | None = None
-        self.store: MissionStore | None = None
         self.recording = Recording(setup.mission, setup.spec.has, self.log)  # mission.mcap, the ROS 2 topics
         self.epochs = Epochs(setup.mission, self.log, self._stop, clock, config.coordinator_id or default_ident())
         self.answers = Answers(setup, self.epochs, config)  # State, Accepted, Refusal, what State tells
@@ -202,8 +165,12 @@ class Coordinator:
         self.results = results_for(scenario, setup.scenario_path, setup.mission, setup.planner_name,
                                    setup.planner_options, setup.seed, (config.render, self.log, self.epochs,
                                                                        self.recording))
+        # mission.db, the session and what it publishes, once the mission opens (:meth:`run`)
+        self.effects = MissionEffects(setup.mission, setup.spec, self.answers, self.recording, self.log)
         self.console = None  # operator mode: the console (console.run.Console), opened with the mission
-        self.end_message: End | None = None  # the End it repeats, once recorded
+
+    node = property(lambda self: self.effects.node)    # its session, once the mission opens
+    store = property(lambda self: self.effects.store)  # mission.db, once the mission opens
 
     def log(self, line: str) -> None:
         self.setup.log(line)
@@ -222,45 +189,17 @@ class Coordinator:
 
     # ------------------------------------------------------------------ its mission state
     def apply(self, event) -> None:
-        """Step the mission state with one event, persist what it says to record, then carry out
-        the other effects in order (store before publish)."""
+        """Step the mission state with one event, then carry out its effects in order (store
+        before publish: :meth:`coordinator.effects.MissionEffects.carry_out`), an event that
+        follows one (a Decision published) applied at once."""
         before = self.state
         self.state, effects = ms.step(self.state, event)
         for effect in effects:
-            if isinstance(effect, ms.Record):  # the recorder gets it once mission.db has it
-                self.store.record(effect, self.state, self.recording.event)
-            elif isinstance(effect, ms.Reject):
-                self._reject(effect.reason, effect.detail, getattr(event, "carrier", None))
-            elif isinstance(effect, (ms.Refuse, ms.Accept)):
-                self._answer_hello(effect.carrier, effect.revision, effect if isinstance(effect, ms.Refuse) else None)
-            elif isinstance(effect, ms.Publish):
-                self.answers.serve(self.state)
-                self._publish_decision(effect.stage)
-            elif isinstance(effect, ms.Log):
-                self.log(effect.line)
+            then = self.effects.carry_out(effect, self.state, getattr(event, "carrier", None))
+            if then is not None:
+                self.apply(then)
         if self.state is not before:
             self.answers.serve(self.state)
-
-    def _reject(self, reason: str, detail: str, cid: str | None = None) -> None:
-        first = reason not in self.node.rejected
-        self.node.reject(reason, detail, lambda line: self.log(f"coordinator: {line}"))
-        if first:
-            self.store.event("rejected", reason=reason, detail=detail[:200])
-        self.answers.rejected(cid, reason)  # what State tells that carrier (docs/protocol.md, "Rejections")
-
-    def _answer_hello(self, cid: str, revision: int, refused: ms.Refuse | None = None) -> None:
-        """Every Hello is answered, once it is on record (:meth:`coordinator.answers.Answers.hello`)."""
-        self.store.flush()
-        answer = self.answers.hello(self.state, cid, revision, refused)
-        if answer is not None:
-            self.node.put(*answer)
-
-    def _publish_decision(self, j: int) -> None:
-        # In the revision every carrier that said Hello reads (docs/protocol.md, "Compatibility").
-        self.store.flush()
-        self.node.put(keys.decision_key(self.setup.mission), self.answers.decision(self.state, j),
-                      self.state.common_revision(REVISION))
-        self.apply(ev.Published(j, time.time()))
 
     # ------------------------------------------------------------------ what it receives
     def pump(self, timeout_s: float) -> None:
@@ -270,24 +209,18 @@ class Coordinator:
             for handled, heard in enumerate(self.inbound.arrivals(self.node, timeout_s), 1):
                 if handled % BATCH_MAX == 0:
                     self.store.flush()  # a long burst is committed in parts
-                if isinstance(heard, Unreadable):
-                    self._reject(heard.reason, heard.detail, heard.carrier)
-                    if heard.refuse is not None:
-                        self._answer_hello(heard.carrier, heard.revision, heard.refuse)
+                if isinstance(heard, Unreadable):  # rejected (a Hello among them refused)
+                    self.effects.unreadable(heard, self.state)
                 else:
                     self._take(heard)
 
     def _take(self, heard) -> None:
-        """What one inbox item says (:class:`coordinator.inbound.Heard`): when its carrier was heard,
-        the higher epoch it claims (on record, never adopted [P-7.3]), its mission event."""
-        if heard.carrier is not None and (heard.progress is None or heard.progress <= self.state.next_stage):
-            self.inbound.heard[heard.carrier] = heard.at  # when it arrived [P-10.5] (see Heard.progress)
-        if heard.epoch is not None:
-            self.epochs.carrier_claimed(heard.carrier, heard.epoch)
-            if heard.carrier in self.state.accepted:  # [P-7.3] answered, changes nothing held of it
-                self._answer_hello(heard.carrier, heard.event.revision)
-                return
-        if heard.event is not None:
+        """What one inbox item says (:class:`coordinator.inbound.Heard`): when its carrier was heard
+        and the higher epoch it claims (:meth:`coordinator.inbound.Inbound.note`), its mission event."""
+        self.inbound.note(heard, self.state.next_stage)
+        if heard.epoch is not None and heard.carrier in self.state.accepted:  # [P-7.3] answered, changes nothing held of it
+            self.effects.answer_hello(self.state, heard.carrier, heard.event.revision)
+        elif heard.event is not None:
             self.apply(heard.event)
 
     # ------------------------------------------------------------------ its lifecycle
@@ -328,25 +261,17 @@ class Coordinator:
                     continue
                 self.step(cl.Decided(effect.stage, self.clock(), planning_ms))
                 self.pump(0.0)
-            elif isinstance(effect, cl.StageLine):
-                self.log(progress_line(self.setup.spec, self.state, effect.stage, effect.waited_ms))
             elif isinstance(effect, cl.RecordEnd):
                 self.apply(ev.Ended(effect.reason, time.time()))
-                # With its ballot (revision 4: a carrier ignores a deposed coordinator's End).
-                self.end_message = End(self.setup.mission, self.state.next_stage,
-                                       self.state.end_reason or effect.reason, self.epochs.epoch, self.epochs.ident)
-            elif isinstance(effect, cl.PublishEnd) and self.end_message is not None:
-                # in the revision every carrier that said Hello reads, as the Decisions are
-                self.node.put(keys.end_key(self.setup.mission), self.end_message,
-                              self.state.common_revision(REVISION))
-            elif isinstance(effect, cl.Note):
-                self.log(effect.line)
+                self.effects.end_recorded(self.state, effect.reason, self.epochs)
+            else:  # the stage's line, End published, a note
+                self.effects.life(effect, self.state)
         return until
 
     def decide(self, j: int) -> float | None:
         """Plan stage j, record and publish its Decision: its planning ms (None: deposed, Epochs.fencing).
         In operator mode the decision waits for the operator's console (:mod:`console.hold`)."""
-        decided = _planned(self.setup, self.store, j, self.state) if self.console is None else \
+        decided = planning.planned(self.setup, self.store, j, self.state) if self.console is None else \
             tm.drive(self.console.decide(j, self.state), self._asked)
         with self.epochs.fencing():
             self.apply(decided)  # records, then publishes
@@ -364,91 +289,44 @@ class Coordinator:
 
     # ------------------------------------------------------------------ its run
     def run(self) -> dict:
-        """Run (or resume) the mission to its end; write summary.json and map.png.
+        """Run (or resume) the mission to its end (:mod:`coordinator.opening`); write summary.json
+        and map.png.
 
         Returns:
             The summary dict.
         """
         from wire.zconfig import OpenStopped
 
-        out = Path(self.config.out_dir)
-        # The session first: a duplicate is refused (or waited for) before mission.db is touched.
-        links = link_filter(self.setup.scenario, self.setup.mission, "coordinator", realtime=self.config.realtime)
-        self.node, claimed = self.epochs.session(functools.partial(Node, self.setup.zconf, stop=self._stop, links=links),
-                                                 self.config.standby)
-        if not claimed:  # a standby stopped while the primary lived: nothing of ours to record
-            self.log(f"coordinator: standby for mission {self.setup.mission} stopped; it never took over")
+        opened = opening.open_mission(self.setup, self.config, self.epochs, self.recording, self._stop, self.clock)
+        if opened is None:
             return {"ended": False, "standby": True}
-        started = self.clock()  # the mission's wall time: a standby's wait is not part of it
-        out.mkdir(parents=True, exist_ok=True)
-        self._open_mission(out)
+        self.effects.open(opened.node, opened.store)
         try:
-            self._mission()
-        except Exception as exc:
-            if not isinstance(exc, OpenStopped):
-                raise
+            self._serve()
+        except OpenStopped:
             self.apply(ev.Ended("stopped", time.time()))
         finally:
-            summary = self.results.finish(out, self.clock() - started, self.state, self.setup.problem, self.node,
-                                          self.store, self.answers.counts)
+            summary = self.results.finish(Path(self.config.out_dir), self.clock() - opened.started, self.state,
+                                          self.setup.problem, self.node, self.store, self.answers.counts)
             self.console and self.console.close()
         return summary
 
-    def _open_mission(self, out: Path) -> None:
-        """mission.db (this process's epoch with it) and the recorder."""
-        setup = self.setup
-        meta = {"mission": setup.mission, "scenario": setup.scenario.name, "fingerprint": setup.fingerprint,
-                "seed": setup.seed, "planner": setup.planner_name, "planner_options": setup.planner_options}
-        # Higher than every epoch used before for this mission: the ones in mission.db and the
-        # one a primary reported while this process stood by; 1 for a fresh mission.
-        try:
-            self.store = self.epochs.open_store(out / "mission.db", meta)
-        except BaseException:
-            if self.node is not None:
-                self.node.close(DEFAULTS.close_s)
-            raise
-        start_recording(self.recording, self.config, self.node, out, setup.scenario, setup.problem,
-                        {k: meta[k] for k in ("mission", "scenario", "seed", "planner", "fingerprint")},
-                        self.store.mission_events)
-
-    def _mission(self) -> None:
+    def _serve(self) -> None:
         """Recover the state, then serve the mission to its end (or record that it was stopped
         before the session opened: nothing to tell anyone, but on record)."""
-        setup = self.setup
-        # Recovery is the live fold over the stored events (the last one is this process's open).
-        self.state = ms.fold(setup.spec, self.store.mission_events())
-        self.epochs.first_stage = self.state.next_stage
-        if self.state.resumed:
-            self.log(f"coordinator: resumed from {self.store.path}: {len(self.state.decisions)} stage(s) "
-                     f"decided, continuing at stage {self.state.next_stage}")
+        self.state = opening.recovered(self.setup, self.store, self.epochs)
         self.answers.serve(self.state)
         if self.node is None or self._stop.is_set():
             self.apply(ev.Ended("stopped", time.time()))
             return
-        # Subscribed, the carriers' tokens watched, State answered, its token declared.
-        self.inbound.subscribe(self.node)
-        self.node.serve(keys.state_key(setup.mission), self.answers.state_reply)
-        self.node.token(keys.coordinator_alive(setup.mission))
-        self.log(f"coordinator: mission {setup.mission}, {len(setup.ids)} carriers, {setup.n_stages} stages, "
-                 f"planner {setup.planner_name} {setup.planner_options}, seed {setup.seed}, epoch "
-                 f"{self.epochs.epoch}, {self.config.clock} clock")
-        if self.config.operator is not None:  # operator mode only: nothing of console/ loads otherwise
-            from console.run import open_console
-
-            answers = self.answers
-            self.console = open_console(setup, self.config.operator, self.node, lambda: answers.served,
-                                        Path(self.config.out_dir), functools.partial(plan_step, setup, self.store),
-                                        self.clock, self._stop)
+        self.console = opening.serve(self.node, self.setup, self.config, self.inbound, self.answers, self.epochs,
+                                     self.store, self.clock, self._stop)
         # Warmed up once State answers and the token is out, while the inbox is taken: carriers
         # that start meanwhile find a coordinator and their Hellos are answered (compiling the
         # planner's kernels on a machine's first run takes seconds, more on a busy host).
-        warming = threading.Thread(target=warm_up, args=((setup.planner, setup.planner_name), setup.problem, self.log),
-                                   name="planner-warm-up", daemon=True)
-        warming.start()
-        while warming.is_alive() and not self._stop.is_set():
-            self.pump(POLL_S)
+        tm.drive(opening.warming(self.setup, self.clock, self._stop), self._asked)
         if self.state.next_stage > 0:
-            self._publish_decision(self.state.next_stage - 1)  # idempotent re-publication
+            self.apply(self.effects.publish_decision(self.state, self.state.next_stage - 1))  # idempotent re-publication
         # The carriers' join, the stages, the last Confirms, End (not when deposed: the newer
         # coordinator ends the mission); a resumed complete mission only tells late carriers it is over.
         self.step(cl.Opened(self.clock()))

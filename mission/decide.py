@@ -1,5 +1,5 @@
 """A coordinator's decision of stage j on its mission state: the one step the real coordinator
-(:func:`coordinator.node.plan_step`, the operator console's holds) and the simulator's coordinator
+(:func:`coordinator.planning.plan_step`, the operator console's holds) and the simulator's coordinator
 (:meth:`mission.simulate.fleet.Fleet.decide`) both take.
 
 It is :func:`planner.online.stage_step` on the state's view of the stage (the observations it

@@ -13,7 +13,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from coordinator.node import Coordinator  # noqa: E402
+from coordinator.effects import MissionEffects  # noqa: E402
 
 
 def _patch(owner, name: str, value) -> None:
@@ -26,23 +26,23 @@ def _patch(owner, name: str, value) -> None:
 
 def no_accepted() -> None:
     """[P-5] Hellos go unanswered: no Accepted (Refusals still go out)."""
-    answer = Coordinator._answer_hello
+    answer = MissionEffects.answer_hello
 
-    def _answer_hello(self, cid, revision, refused=None):
+    def answer_hello(self, state, cid, revision, refused=None):
         if refused is not None:
-            answer(self, cid, revision, refused)
+            answer(self, state, cid, revision, refused)
 
-    _patch(Coordinator, "_answer_hello", _answer_hello)
+    _patch(MissionEffects, "answer_hello", answer_hello)
 
 
 def select_all() -> None:
     """[P-6] every Decision selects every carrier, observed or not, with passengers or not."""
     import time
 
-    import coordinator.node as node
+    import coordinator.planning as planning
     from mission import events as ev
 
-    _patch(node, "_planned", lambda setup, store, j, st: ev.Decided(j, tuple(sorted(setup.ids)), 0.0, time.time(), ()))
+    _patch(planning, "planned", lambda setup, store, j, st: ev.Decided(j, tuple(sorted(setup.ids)), 0.0, time.time(), ()))
 
 
 def ignore_takeover() -> None:

@@ -149,12 +149,12 @@ def test_restarted_coordinator_recovers_from_mission_db(tiny, tmp_path):
     fleet = InProcessFleet(tiny, tmp_path)
     crashing = fleet.coordinator
 
-    def publish_or_crash(j, original=crashing._publish_decision):
+    def publish_or_crash(state, j, original=crashing.effects.publish_decision):
         if j == 1:
             raise _Crash()
-        original(j)
+        return original(state, j)
 
-    crashing._publish_decision = publish_or_crash
+    crashing.effects.publish_decision = publish_or_crash
     fleet._spawn("crashed", lambda: pytest.raises(_Crash, crashing.run))
     for cid in tiny.carrier_ids:
         fleet.start_carrier(cid, mode="coordinated")

@@ -855,7 +855,7 @@ def test_takeover_and_deposition_come_from_coordinators_only():
     fly = node.split("    def fly(")[1].split("    def ")[0]
     assert "if self.epochs.deposed_by is not None:  # deposed: the newer coordinator ends the mission" in fly
     assert "self.step(cl.Deposed())" in fly
-    assert "self._publish_decision(self.state.next_stage - 1)  # idempotent re-publication" in node
+    assert "self.apply(self.effects.publish_decision(self.state, self.state.next_stage - 1))  # idempotent re-publication" in node
 
 
 # --- rules: 9 leaving
@@ -927,7 +927,9 @@ def test_what_keeps_a_carrier_heard():
     assert inbound.index("key-mismatch") < inbound.index("Heard(carrier=cid, at=item.received") < inbound.index(
         "Heard(to_event(msg, item.wall), cid, item.received")
     take = (ROOT / "coordinator" / "node.py").read_text().split("def _take(")[1]
-    assert take.index("self.inbound.heard[heard.carrier] = heard.at") < take.index("self.apply(heard.event)")
+    assert take.index("self.inbound.note(heard, self.state.next_stage)") < take.index("self.apply(heard.event)")
+    note = (ROOT / "coordinator" / "inbound.py").read_text().split("def note(")[1].split("    def ")[0]
+    assert "self.heard[heard.carrier] = heard.at" in note
     peers = (ROOT / "carriers" / "inbound.py").read_text().split("def _peer(")[1]
     assert peers.index("key-mismatch") < peers.index("self.presence.heard_from(cid")
 
@@ -1071,9 +1073,10 @@ def test_end_is_broadcast_with_its_epoch_in_the_lowest_revision():
     life = (ROOT / "mission" / "coordinator_life.py").read_text().split("def _end(")[1]
     assert "tm.end_due(life.last_end, life.ended_at, now, w.end_repeat_s, w.bye_s)" in life
     step = " ".join((ROOT / "coordinator" / "node.py").read_text().split("    def step(")[1].split("    def ")[0].split())
-    assert "self.state.end_reason or effect.reason, self.epochs.epoch, self.epochs.ident)" in step
-    assert ("self.node.put(keys.end_key(self.setup.mission), self.end_message, "
-            "self.state.common_revision(REVISION))") in step
+    assert "self.effects.end_recorded(self.state, effect.reason, self.epochs)" in step
+    effects = " ".join((ROOT / "coordinator" / "effects.py").read_text().split())
+    assert "state.end_reason or reason, epochs.epoch, epochs.ident)" in effects
+    assert "self.node.put(keys.end_key(self.mission), self.end_message, state.common_revision(REVISION))" in effects
 
 
 @pytest.mark.parametrize("revision", sorted(int(p.name[1:]) for p in (ROOT / "tests" / "fixtures" / "wire").glob("r*")))
