@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from carriers.exits import Exit
 from mission import carrier as mc
+from mission import carrier_life as cl
 from mission import joins
 from mission.joins import Steps
 from mission.ballot import Ballot
@@ -22,6 +23,10 @@ from mission.timeouts import DEFAULTS
 from wire import keys
 from wire.messages import REVISION, ProtocolError, State, decode
 from mission.modes import Mode
+
+
+#: The lifecycle's effects that are a join or resynchronisation path (:meth:`Joining.path`).
+PATHS = (cl.AskState, cl.Query, cl.JoinAlone, cl.Gathered)
 
 
 class Joining:
@@ -44,6 +49,26 @@ class Joining:
         self.releases: mc.Releases = inbound.releases
         self.log = log
         self.next_alone = 0  # joining alone: the stage after the last its log resolved
+
+    def path(self, effect, machine: mc.Handshake, node, store) -> Steps:
+        """The join or resynchronisation path one lifecycle effect of :data:`PATHS` asks for
+        (``machine``: the handshake machine now, ``node``: its wire node, ``store``: its durable
+        log, None: none): a Decision recovered from State (``AskState``), a join from State
+        (``Query``: State asked once), from its log alone (``JoinAlone``), its peers gathered
+        (``Gathered``). Returns whether a State answered the Query."""
+        if isinstance(effect, cl.AskState):
+            yield from self.recover_decision(machine, node, effect.stage)
+        elif isinstance(effect, cl.Query):
+            state = self.queries.once(node)
+            if state is None:
+                return False
+            yield from self.from_state(machine, store, state)
+            return True
+        elif isinstance(effect, cl.JoinAlone):
+            yield from self.alone_from_log(machine, store, node)
+        elif isinstance(effect, cl.Gathered):
+            yield from self.gathered(node)
+        return False
 
     def from_state(self, machine: mc.Handshake, store, state: State) -> Steps:
         """Join from the coordinator's State (the answer to the lifecycle's

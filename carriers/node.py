@@ -38,25 +38,25 @@ from dataclasses import dataclass
 from typing import Any
 
 import world
+from carriers import opening
 from carriers.alone import Alone
+from carriers.effects import CarrierEffects
 from carriers.exits import EXIT_CODES, Exit, refused_exit
 from carriers.inbound import Follow, Inbound, Rejoin
-from carriers.joining import Joining, StateQueries
+from carriers.joining import PATHS, Joining, StateQueries
 from carriers import ONBOARD_LOADS
 from carriers.motion import Motion, Moving
 from carriers.onboard import Onboard
 from carriers.who import Who
-from carriers.shared import GATE_HOLD_S, PhysicsThread, SharedWorld, StageGate
-from storage.carrierlog import CarrierLog, LogMismatch, log_path
+from carriers.shared import PhysicsThread, SharedWorld, StageGate
+from carriers.stage import WORK, StageWork
 from mission import carrier as mc
 from mission import carrier_life as cl
 from mission import joins
 from mission import timers as tm
 from mission.peers import PeerBook, Presence
 from mission.timeouts import CLOCKS, DEFAULTS, POSE_INTERVAL_S
-from wire import keys
-from wire.messages import ProtocolError, SharedDecoder, scenario_fingerprint
-from wire.link_filter import link_filter
+from wire.messages import ProtocolError, SharedDecoder
 from mission.modes import MODES, Mode
 
 #: Longest sleep (s) of a carrier waiting for a message (a decision, End): any message, and a
@@ -168,35 +168,6 @@ def waits_of(config: CarrierConfig):
                                hello_s=float(config.hello_timeout_s))
 
 
-def open_log(config: CarrierConfig, who: Who, log) -> CarrierLog | None:
-    """The durable log of carrier ``who`` (``<out_dir>/carriers/<id>.db``; None: no ``out_dir``);
-    one of another mission there ends the run (``log-mismatch``)."""
-    if config.out_dir is None:
-        return None
-    meta = {"mission": who.mission, "carrier": who.cid, "scenario": who.scenario.name,
-            "fingerprint": who.fingerprint, "seed": int(who.scenario.seed)}
-    try:
-        return CarrierLog(log_path(config.out_dir, who.cid), meta, sync=config.log_sync)
-    except LogMismatch as exc:
-        log(str(exc))
-        raise Exit("log-mismatch")
-
-
-def _record(store: CarrierLog | None, book: PeerBook, who: Who, effect, counts) -> None:
-    """A :class:`mission.carrier.LogObservation` or :class:`mission.carrier.LogOutcome`: in the
-    durable log (``store``, None: none) before the carrier acts on it, and in its book."""
-    t = who.scenario.stage_time(effect.stage)
-    if isinstance(effect, mc.LogObservation):
-        if store is not None:
-            store.observed(effect.stage, t, effect.x, effect.position)
-        book.observation(who.cid, effect.stage, effect.x, counts)
-        return
-    if store is not None:
-        store.outcome(effect.stage, t, effect.status, effect.deployed, effect.position, effect.passengers_left,
-                      time.time())
-    book.outcome(who.cid, effect.stage, effect.deployed)
-
-
 class Carrier:
     """One carrier. ``run()`` returns its exit reason (a key of :data:`EXIT_CODES`).
 
@@ -218,12 +189,9 @@ class Carrier:
             scenario = scenario.with_seed(int(config.seed))
         check_config(config)
         self.config = config
-        cid = keys.check_id(config.carrier, "carrier")
-        r = scenario.carrier_index(cid)  # KeyError for an unknown id (checked by the CLI)
-        valid = scenario.valid() if shared is None else shared.valid
-        self.who = Who(scenario, cid, r, keys.check_id(config.mission or keys.mission_id_from_name(scenario.name),
-                                                       "mission"),
-                       scenario_fingerprint(scenario) if shared is None else shared.fingerprint, tuple(valid[r]))
+        valid = scenario.valid() if shared is None else shared.valid  # every carrier's schedule [R, N]
+        self.who = Who.of(scenario, config.carrier, config.mission, valid, None if shared is None else shared.fingerprint)
+        cid, r = self.who.cid, self.who.r
         # what it shares with the other carriers of its process (carriers/process.py)
         self.parts = Parts(zconf, session, shared, gate if gate is not None else StageGate())
         self.machine = mc.initial(cid, self.valid, scenario.stage_times(), scenario.carriers[r].passengers)
@@ -239,11 +207,12 @@ class Carrier:
                                broadcasts if broadcasts is not None else SharedDecoder(),  # the process's Decisions
                                book, Presence(self.clock()), mc.HelloAnswer(self.fingerprint),
                                mc.Releases(scenario.carriers[r].passengers), self.motion.position, self.log)
-        self.store: CarrierLog | None = None  # the durable log, open while running
         self.alone = Alone(cid, book, onboard, scenario.seed, self.log)
+        self.work = StageWork(self.who, self.motion, self.parts.gate, self.alone)  # sense, pass, move on, decide alone
         self.joining = Joining(self.fingerprint, config, StateQueries(self.mission, cid, self.log), self.motion.counts,
                                self.inbound, self.log)
-        self.ros2 = None  # its ROS 2 node (ros2/publisher.py) while running with config.ros2
+        # Its hands on the world: what it sends, logs and releases for its machines' effects.
+        self.effects = CarrierEffects(self.who, self.motion, self.inbound, self.clock, self.log)
         # What it times its waits by: its own settings until the coordinator's Accepted tells it
         # the mission's (docs/protocol.md, [P-10.2]; :func:`mission.carrier.follow`).
         self.timers = mc.Timers(config.clock, float(config.silence_timeout_s), float(config.realtime))
@@ -260,6 +229,8 @@ class Carrier:
     answer = property(lambda self: self.inbound.answer)      # the coordinator's answer to its latest Hello
     releases = property(lambda self: self.inbound.releases)  # the passenger each stage releases
     book = property(lambda self: self.inbound.book)          # what it heard of every carrier's stages
+    store = property(lambda self: self.effects.store)        # its durable log, open while running
+    ros2 = property(lambda self: self.effects.ros2)          # its ROS 2 node while running with config.ros2
     reason = property(lambda self: self.life.reason or "finished")  # why it ended (carriers/exits.py)
 
     def log(self, line: str) -> None:
@@ -279,26 +250,9 @@ class Carrier:
             self.execute(effect)
 
     def execute(self, effect) -> None:
-        """Carry out one effect of the carrier machine."""
-        if isinstance(effect, mc.Deploy):
-            self.motion.body.deploy(self.cid)
-            released = self.releases.release(effect.stage)
-            if self.ros2 is not None:  # a robot's launcher gets the command
-                self.ros2.release(effect.stage, released)
-        elif isinstance(effect, mc.SendConfirm):
-            self.node.put(*self.who.confirm(effect, self.releases.at(effect.stage)))
-        elif isinstance(effect, (mc.LogObservation, mc.LogOutcome)):
-            _record(self.store, self.book, self.who, effect, self.motion.counts(effect.stage, getattr(effect, "x", None)))
-        elif isinstance(effect, mc.SendOwn):
-            self.node.put(*self.who.own(effect, self.motion.counts(effect.stage, effect.x)))
-        elif isinstance(effect, mc.SendHello):
-            self.answer.sent(self.clock(), effect.again)
-            self.node.put(*self.who.hello(effect, self.machine.passengers_left, self.machine.epoch))
-        elif isinstance(effect, mc.ResendObservation):
-            pending = self.motion.pending
-            if pending is not None and pending.stage == effect.stage:
-                self.node.put(self.who.key("obs"), pending)
-        elif isinstance(effect, mc.AskState):  # a Decision came without an earlier one
+        """Carry out one effect of the carrier machine: a resynchronisation or the mission's
+        timers here, its I/O by its hands (:meth:`carriers.effects.CarrierEffects.carry_out`)."""
+        if isinstance(effect, mc.AskState):  # a Decision came without an earlier one
             tm.drive(self.joining.resync(self.machine, self.node, gap=effect.stage), self._asked)
         elif isinstance(effect, Rejoin):  # the coordinator is back
             tm.drive(self.joining.resync(self.machine, self.node), self._asked)
@@ -306,10 +260,8 @@ class Carrier:
             self.timers, lines = mc.follow(self.timers, effect.timers, getattr(self.ros2, "robot", None) is None)
             for line in lines:
                 self.log(line)
-        elif isinstance(effect, mc.Reject):
-            self.node.reject(effect.reason, effect.detail, self.log)
-        elif isinstance(effect, mc.Log):
-            self.log(effect.line)
+        else:
+            self.effects.carry_out(effect, self.node, self.machine)
 
     def _check_refused(self) -> None:
         refused_exit(self.answer.refused, self.fingerprint, self.log)
@@ -397,83 +349,42 @@ class Carrier:
             self.pump(max(0.0, min(poll, wake - now)))
 
     def run_effect(self, effect) -> None:
-        """Carry out one effect of its lifecycle machine."""
+        """Carry out one effect of its lifecycle machine: its body driven to a stage, Progress,
+        a join path (:meth:`carriers.joining.Joining.path`) and a stage's work
+        (:meth:`carriers.stage.StageWork.steps`) carried out, the rest by its hands
+        (:meth:`carriers.effects.CarrierEffects.life`)."""
         if isinstance(effect, cl.Drive):
             j = effect.stage
             self.advance(self.scenario.stage_time(j), paced=effect.paced)
             self.motion.publish_poses(self._moving())
             if not self._stop.is_set():
                 self.step(cl.Arrived(j, self.clock()))
-        elif isinstance(effect, cl.Observe):
-            x = self.motion.observe(effect.stage, self.who, self.machine.passengers_left)  # sensed, kept
-            self.apply(mc.Observed(effect.stage, x, self.motion.position()))
-            self.node.put(self.who.key("obs"), self.motion.pending)  # then it waits for the stage's decision
-            self.parts.gate.waiting(effect.stage)
-        elif isinstance(effect, cl.Pass):
-            # decided without its Observation (cut off, or too slow): ∅ for it; publishing it would
-            # only be rejected as stale; its decision answered if it reached it
-            self.apply(mc.Passed(effect.stage, self.motion.position()))
-        elif isinstance(effect, cl.MoveOn):
-            self.parts.gate.answered(effect.stage)
-            if effect.answered:
-                self.parts.gate.hold(effect.stage, GATE_HOLD_S)  # the process's other carriers confirm first
-            self.apply(mc.MovedOn(effect.stage))
-            self.motion.pending = None
-        elif isinstance(effect, cl.DecideOnBoard):
-            self.apply(mc.DecidedOwn(effect.stage, self.alone.deploy(effect.stage), self.motion.position()))
-        elif isinstance(effect, cl.AskState):
-            tm.drive(self.joining.recover_decision(self.machine, self.node, effect.stage), self._asked)
-        elif isinstance(effect, cl.Query):
-            state = self.joining.queries.once(self.node)
-            if state is not None:
-                tm.drive(self.joining.from_state(self.machine, self.store, state), self._asked)
-                self.step(cl.Answered(self.clock()))
         elif isinstance(effect, cl.SendProgress):
             self.motion.send_progress(self._moving())
-        elif isinstance(effect, cl.RepeatObservation):
-            self.execute(mc.ResendObservation(effect.stage))
-        elif isinstance(effect, cl.Listen):
-            self.inbound.listen(self.node, wait=True)
-        elif isinstance(effect, cl.JoinAlone):
-            tm.drive(self.joining.alone_from_log(self.machine, self.store, self.node), self._asked)
-        elif isinstance(effect, cl.Gathered):
-            tm.drive(self.joining.gathered(self.node), self._asked)
-        elif isinstance(effect, cl.SayHelloAgain):
-            self.apply(mc.HelloUnanswered(self.motion.position()))
-        elif isinstance(effect, cl.Note):
-            self.log(effect.line)
-        elif isinstance(effect, cl.Finish):
-            pass  # the lifecycle is done (its reason: :attr:`reason`)
+        elif isinstance(effect, PATHS):
+            if tm.drive(self.joining.path(effect, self.machine, self.node, self.store), self._asked):
+                self.step(cl.Answered(self.clock()))  # a State answered its Query: it joined
+        elif isinstance(effect, WORK):
+            tm.drive(self.work.steps(effect, self.node, self.machine), self._asked)
+        else:  # its Observation again, its peers listened to, a note; Finish (its reason: :attr:`reason`)
+            self.effects.life(effect, self.node, self.machine)
 
     def run(self) -> str:
-        from wire.transport import Node
+        """Its run from its session's opening to its Bye (:mod:`carriers.opening`): its exit reason."""
         from wire.zconfig import OpenStopped
 
         reason = "finished"
         self.motion.body = world.Simulation(self.scenario, carriers=[self.cid],
-                                    features=None if self.parts.shared is None else self.parts.shared.features)
+                                            features=None if self.parts.shared is None else self.parts.shared.features)
         try:
-            self.node = Node(self.parts.zconf, open_timeout_s=self.config.coordinator_timeout_s, stop=self._stop,
-                             shared=self.parts.session, links=link_filter(self.scenario, self.mission, self.cid,
-                                                                    self.motion.position, self.config.realtime),
-                             clock=self.clock)  # arrivals on the clock its lifecycle reads
+            self.node = opening.open_node(self.parts, self.config, self.who, self.motion.position, self._stop,
+                                          self.clock)
         except OpenStopped:
             return "stopped"
         try:
-            if self.config.ros2 is not None:  # its ROS 2 node; a robot's body replaces the simulated one
-                self.ros2 = self.config.ros2.attach(self.node.session, self.scenario, self.cid, self.config.realtime,
-                                                    self._stop, self.log)
-                if self.ros2.robot is not None:
-                    self.motion.body = self.ros2.robot
-            self.store = open_log(self.config, self.who, self.log)
-            self.inbound.subscribe(self.node)
-            if self.config.mode == Mode.DECENTRALISED or (self.config.mode == Mode.HYBRID
-                                                        and (self.config.onboard_load or "start") == "start"):
-                self.alone.onboard.prepare()
-            if self.config.mode == Mode.DECENTRALISED:
-                # Subscribed before its token appears: a carrier that sees the token can reach it.
-                self.inbound.listen(self.node, wait=True)
-            self.node.token(keys.carrier_alive(self.mission, self.cid))
+            self.effects.ros2 = opening.attach_ros2(self.config, self.node, self.who, self.motion, self._stop, self.log)
+            self.effects.store = opening.open_log(self.config, self.who, self.log)
+            opening.announce(self.config, self.node, self.who, self.inbound, self.alone.onboard)
             self.step(cl.Start(self.clock()))  # it joins: State asked, or (decentralised) its log
             self.fly()
             reason = "stopped" if self._stop.is_set() else self.reason
@@ -485,15 +396,5 @@ class Carrier:
                 raise
             self.log(str(exc))
         finally:
-            try:
-                if self.answer.said_hello or self.config.mode == Mode.DECENTRALISED:  # a Bye needs a Hello
-                    self.node.put(*self.who.bye(self.machine.deployments(), tuple(sorted(self.node.rejected.items())),
-                                                reason))
-            except Exception:
-                pass
-            if self.ros2 is not None:
-                self.ros2.close()
-            self.node.close(DEFAULTS.close_s)
-            if self.store is not None:
-                self.store.close()
+            opening.close(self.config, self.node, self.who, self.machine, self.answer, reason, self.ros2, self.store)
         return reason

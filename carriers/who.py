@@ -9,7 +9,7 @@ from typing import Any
 
 from mission import carrier as mc
 from wire import keys
-from wire.messages import REVISION, Bye, Confirm, Hello, Observation, Own
+from wire.messages import REVISION, Bye, Confirm, Hello, Observation, Own, scenario_fingerprint
 
 
 @dataclass(frozen=True)
@@ -23,6 +23,16 @@ class Who:
     mission: str
     fingerprint: str
     valid: tuple
+
+    @classmethod
+    def of(cls, scenario, carrier: str, mission: str | None, valid, fingerprint: str | None = None) -> "Who":
+        """Carrier ``carrier`` of ``scenario`` (a ``KeyError`` for an unknown id, checked by the
+        command line) in mission ``mission`` (None: the scenario's name); ``valid``: every
+        carrier's schedule, bool ``[R, N]``; ``fingerprint``: the world's (None: computed here)."""
+        cid = keys.check_id(carrier, "carrier")
+        r = scenario.carrier_index(cid)
+        return cls(scenario, cid, r, keys.check_id(mission or keys.mission_id_from_name(scenario.name), "mission"),
+                   scenario_fingerprint(scenario) if fingerprint is None else fingerprint, tuple(valid[r]))
 
     def key(self, topic: str) -> str:
         """Its key of ``topic`` (docs/protocol.md, "Keys")."""

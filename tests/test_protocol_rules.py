@@ -439,8 +439,9 @@ def test_a_carrier_joins_after_subscribing():
     """[P-5.1] the project's carrier subscribes to its coordinator keys and declares its token
     before it joins (the order of run's statements: subscribe, token, join)."""
     source = (ROOT / "carriers" / "node.py").read_text().split("def run(")[1]
-    order = [source.index(s) for s in ("self.inbound.subscribe(self.node)", "node.token(", "self.step(cl.Start(")]
-    assert order == sorted(order)
+    assert source.index("opening.announce(") < source.index("self.step(cl.Start(")
+    announce = (ROOT / "carriers" / "opening.py").read_text().split("def announce(")[1].split("\ndef ")[0]
+    assert announce.index("inbound.subscribe(node)") < announce.index("node.token(")
     subscribe = (ROOT / "carriers" / "inbound.py").read_text().split("def subscribe(")[1].split("def listen(")[0]
     assert all(f"subscribe(keys.{key}" in subscribe for key in ("decision_key", "end_key", "refusal_key",
                                                                  "accepted_key"))
@@ -866,8 +867,10 @@ def test_bye_only_after_hello():
     Hello at the coordinator."""
     from carriers.exits import EXIT_CODES
 
-    node = (ROOT / "carriers" / "node.py").read_text()
-    assert 'if self.answer.said_hello or self.config.mode == Mode.DECENTRALISED:  # a Bye needs a Hello' in node
+    node = (ROOT / "carriers" / "node.py").read_text().split("def run(")[1]
+    assert "opening.close(self.config, self.node, self.who, self.machine, self.answer, reason" in node
+    closing = (ROOT / "carriers" / "opening.py").read_text().split("def close(")[1]
+    assert 'if answer.said_hello or config.mode == Mode.DECENTRALISED:  # a Bye needs a Hello' in closing
     table = PAGE.split("**[P-9.4]")[1].split("\n\n", 2)[1]
     documented = set(re.findall(r"^\| `([a-z0-9-]+)` \|", table, re.M))
     assert documented == set(EXIT_CODES) - {"log-mismatch"}  # a log mismatch stops before the Hello
