@@ -4,8 +4,9 @@ The carrier builds the same world as every other process from the scenario (dete
 its seed) but simulates only its own body (carriers never collide with each other, so its
 motion equals ``world.observe_all``'s). The handshake rules (which stage it is at, decisions
 handled at most once, late / idle / already, resynchronisation) live in mission/carrier.py; this
-module drives the physics, keeps the clocks (pacing, decision and coordinator timeouts) and
-moves bytes. Per stage j (docs/protocol.md, "Stage handshake"):
+module feeds its machines their messages and clock ticks and dispatches their effects: the I/O
+among them by carriers/effects.py, a stage's work by carriers/stage.py, the physics by
+carriers/motion.py, the run's opening and closing by carriers/opening.py. Per stage j (docs/protocol.md, "Stage handshake"):
 
 1. advance the physics at fixed steps to t_j (paced at ``realtime`` × wall time when > 0),
    sending Progress at least every ``progress_s`` of wall time on the sim clock;
@@ -175,10 +176,13 @@ class Carrier:
     changed only by :meth:`step`) and its stage handshake (``self.machine``,
     :class:`mission.carrier.Handshake`, changed only by :meth:`apply`). :meth:`fly` feeds the
     lifecycle its ``clock`` (monotonic s; a test hands in its own) and takes the inbox between
-    its waits; the effects of both machines are carried out here. Its collaborators
+    its waits; the effects of both machines are dispatched here, their I/O carried out by its
+    hands (:class:`carriers.effects.CarrierEffects`). Its collaborators
     (:class:`carriers.inbound.Inbound`, :class:`carriers.joining.Joining`,
-    :class:`carriers.motion.Motion`, :class:`carriers.alone.Alone`) are given what they need and
-    call nothing back: they return what they read, or yield what they ask of it (:meth:`_asked`).
+    :class:`carriers.motion.Motion`, :class:`carriers.alone.Alone`,
+    :class:`carriers.stage.StageWork`, its run's opening and closing :mod:`carriers.opening`) are
+    given what they need and call nothing back: they return what they read, or yield what they
+    ask of it (:meth:`_asked`).
     """
 
     def __init__(self, scenario, config: CarrierConfig, zconf, stop: threading.Event | None = None,
@@ -227,7 +231,6 @@ class Carrier:
     valid = property(lambda self: self.who.valid)
     presence = property(lambda self: self.inbound.presence)  # the coordinator's and the peers' tokens
     answer = property(lambda self: self.inbound.answer)      # the coordinator's answer to its latest Hello
-    releases = property(lambda self: self.inbound.releases)  # the passenger each stage releases
     book = property(lambda self: self.inbound.book)          # what it heard of every carrier's stages
     store = property(lambda self: self.effects.store)        # its durable log, open while running
     ros2 = property(lambda self: self.effects.ros2)          # its ROS 2 node while running with config.ros2
