@@ -3,7 +3,8 @@ Hello, liveliness tokens) and the messages of the peers it listens to, checked a
 (key layout, decoding, mission id, the carrier id in the key), fed to the books of what it heard
 (:class:`mission.peers.PeerBook`, :class:`mission.peers.Presence`,
 :class:`mission.carrier.HelloAnswer`, :class:`mission.carrier.Releases`) and turned into events of
-``mission.carrier`` or effects for the carrier to carry out.
+``mission.carrier`` or effects for the carrier to carry out; what the carrier's lifecycle reads
+of them (:meth:`Inbound.view`).
 
 :class:`Inbound` is a collaborator of :class:`carriers.node.Carrier`, given those books and what
 else it needs when it is built; the carrier's machine and timers change only in the carrier, by
@@ -15,6 +16,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from mission import carrier as mc
+from mission import carrier_life as cl
 from mission.peers import PeerBook, Presence
 from wire import keys
 from wire.messages import Accepted, Confirm, Decision, End, Observation, Own, Progress, ProtocolError, Refusal, decode
@@ -58,6 +60,16 @@ class Inbound:
         self.book, self.presence, self.answer, self.releases = book, presence, answer, releases
         self.position, self.log = position, log
         self.listening: tuple[str, ...] | None = None
+
+    def view(self, machine: mc.Handshake, timers: mc.Timers, revision: int) -> cl.View:
+        """What the carrier's lifecycle machine reads now (:class:`mission.carrier_life.View`):
+        its handshake ``machine`` and ``timers``, and what it heard: who is there, whether it
+        listens to every live peer, its Hello's answer (``revision``: its session's, 3 and later
+        answer Hellos)."""
+        p, a = self.presence, self.answer
+        return cl.View(machine, p.coordinator_present, p.absent_since, timers, frozenset(p.peers_live),
+                       p.heard, self.book, set(self.listening or ()) <= p.peers_live,
+                       cl.Hello(bool(a.unanswered), revision >= 3, a.at, a.tries))
 
     def subscribe(self, node) -> None:
         """The inbox's keys on ``node``: the mission's Decisions and End, the answers to this

@@ -6,7 +6,8 @@ motion equals ``world.observe_all``'s). The handshake rules (which stage it is a
 handled at most once, late / idle / already, resynchronisation) live in mission/carrier.py; this
 module feeds its machines their messages and clock ticks and dispatches their effects: the I/O
 among them by carriers/effects.py, a stage's work by carriers/stage.py, the physics by
-carriers/motion.py, the run's opening and closing by carriers/opening.py. Per stage j (docs/protocol.md, "Stage handshake"):
+carriers/motion.py, the run's opening and closing by carriers/opening.py.
+Per stage j (docs/protocol.md, "Stage handshake"):
 
 1. advance the physics at fixed steps to t_j (paced at ``realtime`` × wall time when > 0),
    sending Progress at least every ``progress_s`` of wall time on the sim clock;
@@ -194,7 +195,8 @@ class Carrier:
         check_config(config)
         self.config = config
         valid = scenario.valid() if shared is None else shared.valid  # every carrier's schedule [R, N]
-        self.who = Who.of(scenario, config.carrier, config.mission, valid, None if shared is None else shared.fingerprint)
+        self.who = Who.of(scenario, config.carrier, config.mission, valid,
+                          None if shared is None else shared.fingerprint)
         cid, r = self.who.cid, self.who.r
         # what it shares with the other carriers of its process (carriers/process.py)
         self.parts = Parts(zconf, session, shared, gate if gate is not None else StageGate())
@@ -315,18 +317,11 @@ class Carrier:
         return self._moving()
 
     # ------------------------------------------------------------------ its lifecycle
-    def view(self) -> cl.View:
-        """What its lifecycle machine reads now (:class:`mission.carrier_life.View`)."""
-        p, a = self.presence, self.answer
-        listened = self.inbound.listening
-        return cl.View(self.machine, p.coordinator_present, p.absent_since, self.timers, frozenset(p.peers_live),
-                       p.heard, self.book, set(listened or ()) <= p.peers_live,
-                       cl.Hello(bool(a.unanswered), self.node.revision >= 3, a.at, a.tries))
-
     def step(self, event) -> float | None:
         """Step its lifecycle with ``event`` and carry out the effects: the time to wait until
         (the :class:`mission.timers.Wait`), None when it is to be stepped again at once."""
-        self.life, effects = cl.step(self.life, event, self.view())
+        view = self.inbound.view(self.machine, self.timers, self.node.revision)  # what it reads now
+        self.life, effects = cl.step(self.life, event, view)
         until = None
         for effect in effects:
             if isinstance(effect, tm.Wait):

@@ -218,7 +218,8 @@ class Coordinator:
         """What one inbox item says (:class:`coordinator.inbound.Heard`): when its carrier was heard
         and the higher epoch it claims (:meth:`coordinator.inbound.Inbound.note`), its mission event."""
         self.inbound.note(heard, self.state.next_stage)
-        if heard.epoch is not None and heard.carrier in self.state.accepted:  # [P-7.3] answered, changes nothing held of it
+        # [P-7.3] a higher epoch claimed by an accepted carrier: answered, changes nothing held of it
+        if heard.epoch is not None and heard.carrier in self.state.accepted:
             self.effects.answer_hello(self.state, heard.carrier, heard.event.revision)
         elif heard.event is not None:
             self.apply(heard.event)
@@ -325,8 +326,8 @@ class Coordinator:
         # that start meanwhile find a coordinator and their Hellos are answered (compiling the
         # planner's kernels on a machine's first run takes seconds, more on a busy host).
         tm.drive(opening.warming(self.setup, self.clock, self._stop), self._asked)
-        if self.state.next_stage > 0:
-            self.apply(self.effects.publish_decision(self.state, self.state.next_stage - 1))  # idempotent re-publication
+        if self.state.next_stage > 0:  # idempotent re-publication
+            self.apply(self.effects.publish_decision(self.state, self.state.next_stage - 1))
         # The carriers' join, the stages, the last Confirms, End (not when deposed: the newer
         # coordinator ends the mission); a resumed complete mission only tells late carriers it is over.
         self.step(cl.Opened(self.clock()))

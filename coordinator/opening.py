@@ -77,8 +77,8 @@ def recovered(setup: MissionSetup, store: MissionStore, epochs: Epochs) -> ms.Mi
     return state
 
 
-def serve(node: Node, setup: MissionSetup, config, inbound: Inbound, answers: Answers, epochs: Epochs, store: MissionStore,
-          clock, stop: threading.Event):
+def serve(node: Node, setup: MissionSetup, config, inbound: Inbound, answers: Answers, epochs: Epochs,
+          store: MissionStore, clock, stop: threading.Event):
     """Subscribed, the carriers' tokens watched, State answered, its token declared, the line
     that says so; then operator mode's console (:func:`console.run.open_console`, its stage steps
     :func:`coordinator.planning.plan_step`), returned (None without operator mode: nothing of

@@ -856,7 +856,8 @@ def test_takeover_and_deposition_come_from_coordinators_only():
     fly = node.split("    def fly(")[1].split("    def ")[0]
     assert "if self.epochs.deposed_by is not None:  # deposed: the newer coordinator ends the mission" in fly
     assert "self.step(cl.Deposed())" in fly
-    assert "self.apply(self.effects.publish_decision(self.state, self.state.next_stage - 1))  # idempotent re-publication" in node
+    assert ("if self.state.next_stage > 0:  # idempotent re-publication\n"
+            "            self.apply(self.effects.publish_decision(self.state, self.state.next_stage - 1))") in node
 
 
 # --- rules: 9 leaving
