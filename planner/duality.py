@@ -27,7 +27,7 @@ from planner.compiled import compile_problem
 from planner.problem import Problem, sample_observations, valid_stages_left
 
 #: Methods of the inner maximisation (see the module docstring).
-METHODS = ("exact", "mip", "lp", "separable")
+METHODS = ("exact", "mip", "lp", "separable", "mixed")
 #: Largest number of stage-set combinations of one component that ``exact`` enumerates.
 MAX_COMBINATIONS = 200_000
 #: Default samples (observation matrices) of the Monte Carlo mean.
@@ -270,13 +270,18 @@ class _Enumeration:
 _ENUMERATIONS: "weakref.WeakKeyDictionary[Problem, dict]" = weakref.WeakKeyDictionary()
 
 
+def _flat_points(problem: Problem, part: _Component) -> np.ndarray:
+    """int64 ``[P]``: the component's valid flat points, carrier by carrier, stages ascending (the
+    order of :class:`_Enumeration` and :class:`_Adaptive`)."""
+    return np.concatenate([r * problem.n_stages + s for r, s in zip(part.carriers, part.stages)])
+
+
 def _enumeration(problem: Problem, part: _Component) -> _Enumeration:
     cache = _ENUMERATIONS.setdefault(problem, {})
     found = cache.get(part.carriers)
     if found is not None:
         return found
-    n_stages = problem.n_stages
-    flat = np.concatenate([r * n_stages + s for r, s in zip(part.carriers, part.stages)])
+    flat = _flat_points(problem, part)
     offsets = np.concatenate(([0], np.cumsum([len(s) for s in part.stages])))
     masks = []
     for stages, k in zip(part.stages, part.ks):
@@ -361,10 +366,11 @@ def _adaptive(problem: Problem, part: _Component, discount: np.ndarray | None) -
     key = (part.carriers, rho_all.tobytes())
     if key in cache:
         return cache[key]
-    en = _enumeration(problem, part)
     n_stages = problem.n_stages
-    carrier, stage = en.flat // n_stages, en.flat % n_stages
-    earlier = (en.conflict > 0) & (stage[:, None] < stage[None, :]) & (carrier[:, None] != carrier[None, :])
+    flat = _flat_points(problem, part)  # the enumeration's point order, without enumerating
+    carrier, stage = flat // n_stages, flat % n_stages
+    conflict = problem.conflict[np.ix_(flat, flat)]
+    earlier = conflict & (stage[:, None] < stage[None, :]) & (carrier[:, None] != carrier[None, :])
     points = np.flatnonzero(earlier.any(axis=0))
     earlier = earlier[:, points].astype(float)
     dmax = int(problem.passengers.max(initial=0))
@@ -489,47 +495,75 @@ def inner_maximum(problem: Problem, x: np.ndarray, method: str = "exact", penalt
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
-    if adaptive and method != "exact":
-        raise ValueError(f"the adaptive penalty needs the exact inner maximum, got method {method!r}")
     x = np.asarray(x, dtype=float)
     if np.isnan(x[problem.valid]).any():
         raise ValueError("the bound needs an observation at every scheduled stage (found NaN at a valid stage)")
     x = np.where(problem.valid, x, 0.0)
     phi = penalty_terms(problem, x, penalty_scale, discount)
     parts = _components(problem)
+    adaptive = bool(adaptive) and penalty_scale != 0.0
+
+    def tables(part):  # the adaptive penalty's tables of a multi-carrier component, or None
+        return _adaptive(problem, part, discount) if adaptive else None
+
     if method == "separable":
-        return _separable_value(problem, x, phi, parts)
+        return sum(_separable_value(problem, x, _separable_phi(problem, x, phi, part, tables(part), penalty_scale),
+                                    [part]) for part in parts)
+    # Components are independent given x (the penalty and, with the adaptive penalty, its counts
+    # k are per component), so the sum of per-component upper bounds bounds the whole maximum.
     total = 0.0
     for part in parts:
+        how = method
+        if method == "mixed":
+            how = "exact" if part.combinations() <= MAX_COMBINATIONS else "mip"
         if len(part.carriers) == 1:
             total += _alone_value(problem, x, phi, part.carriers[0], part.stages[0], part.ks[0])
-        elif method == "exact":
+        elif how == "exact":
             if part.combinations() > MAX_COMBINATIONS:
                 raise BoundTooLarge(f"upper bound: a component of {len(part.carriers)} carriers has "
                                     f"{part.combinations():.3g} stage-set combinations (exact limit {MAX_COMBINATIONS:,})")
-            total += _exact_component(problem, x, phi, part,
-                                      _adaptive(problem, part, discount) if adaptive and penalty_scale else None,
-                                      penalty_scale)
+            total += _exact_component(problem, x, phi, part, tables(part), penalty_scale)
         else:
-            value = _highs_value(problem, x, phi, part, integer=False, time_limit_s=LP_TIME_LIMIT_S)
-            if method == "mip":
-                value = min(value, _highs_value(problem, x, phi, part, integer=True, time_limit_s=mip_time_limit_s))
+            value = _highs_value(problem, x, phi, part, False, LP_TIME_LIMIT_S, tables(part), penalty_scale)
+            if how == "mip":
+                value = min(value, _highs_value(problem, x, phi, part, True, mip_time_limit_s, tables(part),
+                                                penalty_scale))
             if not np.isfinite(value):  # HiGHS did not finish: the interaction-free bound of this part
-                value = _separable_value(problem, x, phi, [part])
+                value = _separable_value(problem, x, _separable_phi(problem, x, phi, part, tables(part),
+                                                                    penalty_scale), [part])
             total += value
     return total
+
+
+def _separable_phi(problem: Problem, x: np.ndarray, phi: np.ndarray, part: _Component,
+                   adaptive: "_Adaptive | None", scale: float) -> np.ndarray:
+    """``phi``, or with ``adaptive`` a lower bound on the adaptive penalty's term at each late
+    point of ``part`` (the fixed term plus the smallest adaptive correction over k), so that
+    :func:`_separable_value` of it stays >= the component's inner maximum under the adaptive penalty."""
+    if adaptive is None or not len(adaptive.points):
+        return phi
+    flat = _flat_points(problem, part)[adaptive.points]
+    terms = scale * adaptive.terms(np.asarray(x, dtype=float).ravel()[flat])  # [L, Dmax + 1, K + 1]
+    kmax = adaptive.earlier.sum(axis=0).astype(np.int64)  # [L] the counts each late point can reach
+    reach = np.arange(terms.shape[2])[None, None, :] <= kmax[:, None, None]
+    low = np.where(reach, terms - terms[:, :, :1], np.inf).min(axis=2)  # [L, Dmax + 1], <= 0
+    out = phi.copy()
+    r, j = np.divmod(flat, problem.n_stages)
+    out[r, j, :] += low
+    return out
 
 
 # ----------------------------------------------------------------------------- the HiGHS model
 
 
 def carrier_flow(model, problem: Problem, r: int, stages: np.ndarray, k: int, phi: np.ndarray,
-                 integer: bool) -> dict[int, list[int]]:
+                 integer: bool, nodes: dict | None = None) -> dict[int, list[int]]:
     """Carrier r's deployments as a unit flow through its (stage, passengers left) network in
     ``model`` (a :class:`planner.highs.Model`): one arc per move (stay, or deploy: one passenger
     fewer) from each reachable node, each costing ``-phi[r, j, d]``; the carrier deploys exactly
     ``k`` times. Returns ``{flat point: [its deploy arcs]}`` (a point is deployed at when one of
-    its arcs carries the flow)."""
+    its arcs carries the flow). ``nodes``: filled with ``{(flat point, d): [the arcs out of node
+    (its stage, d passengers left)]}`` (the flow passes one node per stage)."""
     n_stages = problem.n_stages
     d0 = int(problem.passengers[r])
     end, n = d0 - k, len(stages)
@@ -549,6 +583,8 @@ def carrier_flow(model, problem: Problem, r: int, stages: np.ndarray, k: int, ph
                 out.append(model.var(cost, is_int=integer))
                 inflow.setdefault((t + 1, d - 1), []).append(out[-1])
                 deploy_arcs.setdefault(a, []).append(out[-1])
+            if nodes is not None:
+                nodes[(a, d)] = out
             if t == 0:
                 model.row(1.0, 1.0, out, [1.0] * len(out))
             else:
@@ -558,9 +594,11 @@ def carrier_flow(model, problem: Problem, r: int, stages: np.ndarray, k: int, ph
 
 
 def _highs_value(problem: Problem, x: np.ndarray, phi: np.ndarray, part: _Component, integer: bool,
-                 time_limit_s: float) -> float:
+                 time_limit_s: float, adaptive: "_Adaptive | None" = None, scale: float = 1.0) -> float:
     """The component's model (module docstring) solved by HiGHS: the MIP's dual bound
-    (``integer``) or the LP optimum; raw units. Both are >= the component's inner maximum."""
+    (``integer``) or the LP optimum; raw units. Both are >= the component's inner maximum. With
+    ``adaptive`` (:func:`_adaptive`, of the discount ``phi`` was built with) the penalty is the
+    adaptive one (:func:`_adaptive_rows`)."""
     from planner.highs import Model
 
     n_stages = problem.n_stages
@@ -572,8 +610,11 @@ def _highs_value(problem: Problem, x: np.ndarray, phi: np.ndarray, part: _Compon
     comp = compile_problem(problem)
     xs = np.asarray(x, dtype=float).ravel()
     deploy_arcs: dict[int, list[int]] = {}
+    nodes: dict[tuple[int, int], list[int]] | None = {} if adaptive is not None else None
     for r, stages, k in zip(part.carriers, part.stages, part.ks):
-        deploy_arcs.update(carrier_flow(model, problem, r, stages, k, phi, integer))
+        deploy_arcs.update(carrier_flow(model, problem, r, stages, k, phi, integer, nodes))
+    if adaptive is not None and len(adaptive.points):
+        _adaptive_rows(model, problem, x, part, adaptive, scale, nodes, deploy_arcs, integer)
     cols_cost = model.cost
     y = {}
     for a, arcs in deploy_arcs.items():
@@ -605,6 +646,34 @@ def _highs_value(problem: Problem, x: np.ndarray, phi: np.ndarray, part: _Compon
     # The MIP's dual bound (+inf when stopped before the root LP); the LP's optimum, +inf when not
     # solved in time (the caller then falls back to the separable bound).
     return model.solve(integer, time_limit_s).bound
+
+
+def _adaptive_rows(model, problem: Problem, x: np.ndarray, part: _Component, adaptive: "_Adaptive", scale: float,
+                   nodes: dict, deploy_arcs: dict, integer: bool) -> None:
+    """The adaptive penalty in the flow model: at each late point l (carrier r's stage j) binary
+    ``u[l, d, k]`` = "r is at node (j, d) and k earlier conflicting points of other carriers are
+    deployed at", with ``Σ_k u[l, d, k]`` = the flow through node (j, d) and
+    ``Σ_{d,k} k u[l, d, k]`` = the deploy arcs at those earlier points; ``u[l, d, k]`` earns
+    ``-(term(d, k) - term(d, 0))``, the adaptive term in place of the fixed one the arcs already
+    pay. At integer flows the u are forced (one node, one k): the exact adaptive penalty; every
+    true deployment set is feasible, so the LP and the MIP's dual bound stay >= the maximum."""
+    flat = _flat_points(problem, part)
+    xs = np.asarray(x, dtype=float).ravel()[flat]
+    terms = scale * adaptive.terms(xs[adaptive.points])  # [L, Dmax + 1, K + 1]
+    for late, point in enumerate(adaptive.points.tolist()):
+        a = int(flat[point])
+        earlier_arcs = [arc for b in flat[adaptive.earlier[:, late] > 0].tolist() for arc in deploy_arcs.get(b, [])]
+        kmax = int(adaptive.earlier[:, late].sum())
+        count_cols, count_coefs = [], []
+        for d in range(terms.shape[1]):
+            out = nodes.get((a, d))
+            if out is None:
+                continue  # node unreachable
+            us = [model.var(-float(terms[late, d, k] - terms[late, d, 0]), is_int=integer) for k in range(kmax + 1)]
+            model.row(0.0, 0.0, us + out, [1.0] * len(us) + [-1.0] * len(out))
+            count_cols += us[1:]
+            count_coefs += list(range(1, kmax + 1))
+        model.row(0.0, 0.0, count_cols + earlier_arcs, [float(c) for c in count_coefs] + [-1.0] * len(earlier_arcs))
 
 
 # ----------------------------------------------------------------------------- the bound
