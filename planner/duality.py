@@ -2,11 +2,11 @@
 the information-relaxation (duality) bound of Brown, Smith and Sun (Operations Research, 2010).
 
 ``U = E_x[max_y (R(y, x) - z(y, x))]``, with a penalty ``z`` of mean zero for every
-non-anticipative policy built from the carriers' single-carrier DLR values-to-go (under ``exact``
-inner maxima, adaptive: a conflicted point's share shrinks with the other carriers' earlier
-deployments in its overlaps); its inner maximum split into the conflict graph's components, each
-solved ``exact``, by HiGHS (``mip``, its dual bound), as the LP relaxation (``lp``) or by the
-``separable`` fallback, every one a valid upper bound. The derivation, the
+non-anticipative policy built from the carriers' single-carrier DLR values-to-go (or adaptive: a
+conflicted point's share shrinks with the other carriers' earlier deployments in its overlaps);
+its inner maximum split into the conflict graph's components, each solved ``exact``, by HiGHS
+(``mip``, its dual bound), as the LP relaxation (``lp``) or by the ``separable`` fallback, or
+``mixed`` (``exact`` where a component fits, ``mip`` elsewhere), every one a valid upper bound. The derivation, the
 model, the methods' limits, the time budget and the API: docs/planner.md, "An upper bound on every
 online policy".
 
@@ -26,7 +26,7 @@ import numpy as np
 from planner.compiled import compile_problem
 from planner.problem import Problem, sample_observations, valid_stages_left
 
-#: Methods of the inner maximisation (see the module docstring).
+#: Methods of the inner maximisation (see the module docstring); ``mixed`` picks one per component.
 METHODS = ("exact", "mip", "lp", "separable", "mixed")
 #: Largest number of stage-set combinations of one component that ``exact`` enumerates.
 MAX_COMBINATIONS = 200_000
@@ -485,13 +485,15 @@ def inner_maximum(problem: Problem, x: np.ndarray, method: str = "exact", penalt
         method: ``exact`` (enumeration; :class:`BoundTooLarge` for a component beyond
             :data:`MAX_COMBINATIONS`), ``mip`` (the smaller of the HiGHS dual bound, exact when the
             search finishes within ``mip_time_limit_s``, and the LP), ``lp`` (the linear
-            relaxation) or ``separable`` (interactions ignored; the fallback of an LP HiGHS cannot
-            finish within :data:`LP_TIME_LIMIT_S`).
+            relaxation), ``separable`` (interactions ignored; the fallback of an LP HiGHS cannot
+            finish within :data:`LP_TIME_LIMIT_S`) or ``mixed`` (per component: ``exact`` within
+            :data:`MAX_COMBINATIONS`, else ``mip``).
         penalty_scale: 1.0 for the DLR penalty, 0.0 for none (the clairvoyant optimum).
         discount: float ``[R, N]``, the penalty's per-point discount (:func:`penalty_terms`;
             None: the DLR values).
         adaptive: the adaptive penalty (:func:`adaptive_terms`: a conflicted point's share shrinks
-            with the other carriers' earlier deployments in its overlaps); ``exact`` only.
+            with the other carriers' earlier deployments in its overlaps), under every method
+            (HiGHS: :func:`_adaptive_rows`; ``separable``: :func:`_separable_phi`).
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
@@ -674,6 +676,15 @@ def _adaptive_rows(model, problem: Problem, x: np.ndarray, part: _Component, ada
             count_cols += us[1:]
             count_coefs += list(range(1, kmax + 1))
         model.row(0.0, 0.0, count_cols + earlier_arcs, [float(c) for c in count_coefs] + [-1.0] * len(earlier_arcs))
+        if kmax > 1:
+            # Valid at integer points, tightening the LP: "k >= 1" is at most the count and at
+            # least each earlier deployment.
+            ones = [1.0] * len(count_cols)
+            model.row(-np.inf, 0.0, count_cols + earlier_arcs, ones + [-1.0] * len(earlier_arcs))
+            for b in flat[adaptive.earlier[:, late] > 0].tolist():
+                arcs = deploy_arcs.get(b, [])
+                if arcs:
+                    model.row(0.0, np.inf, count_cols + arcs, ones + [-1.0] * len(arcs))
 
 
 # ----------------------------------------------------------------------------- the bound
@@ -694,7 +705,7 @@ class UpperBound:
         strength: the penalty's conflict discount (:func:`conflict_discount`; 0: the DLR values).
         pilot_samples: observation matrices drawn first to choose ``strength`` among
             :data:`STRENGTHS`, then discarded (0: no choice made).
-        adaptive: the penalty is the adaptive one (:func:`adaptive_terms`; ``exact`` only).
+        adaptive: the penalty is the adaptive one (:func:`adaptive_terms`).
     """
 
     expected_reward: float
@@ -746,14 +757,24 @@ def estimate_seconds(problem: Problem, method: str, samples: int) -> float:
     parts = _components(problem)
     points = int(problem.valid.sum())
     per = _COST["separable"] * max(points, 1)
-    if method == "exact":
-        per += sum(_COST["exact"] * p.combinations() * sum(len(s) for s in p.stages)
-                   for p in parts if len(p.carriers) > 1)
-    elif method in ("lp", "mip"):
-        columns = _lp_columns(problem, parts)
-        models = sum(len(p.carriers) > 1 for p in parts)
+
+    def enumerated(some):
+        return sum(_COST["exact"] * p.combinations() * sum(len(s) for s in p.stages)
+                   for p in some if len(p.carriers) > 1)
+
+    def highs(some, mip):
+        columns = _lp_columns(problem, some)
+        models = sum(len(p.carriers) > 1 for p in some)
         lp = _COST["lp"] * columns + _COST["lp2"] * columns ** 2 + _COST["model"] * models
-        per += lp * (_COST["mip"] if method == "mip" else 1.0)
+        return lp * (_COST["mip"] if mip else 1.0)
+
+    if method == "exact":
+        per += enumerated(parts)
+    elif method in ("lp", "mip"):
+        per += highs(parts, method == "mip")
+    elif method == "mixed":
+        big = [p for p in parts if p.combinations() > MAX_COMBINATIONS]
+        per += enumerated([p for p in parts if p.combinations() <= MAX_COMBINATIONS]) + (highs(big, True) if big else 0.0)
     return per * samples
 
 
@@ -766,7 +787,7 @@ def check_budget(problem: Problem, method: str, samples: int, budget_s: float) -
 
 
 def choose_strength(problem: Problem, rng: np.random.Generator, method: str, pilot: int | None = None,
-                    adaptive: bool = False) -> float:
+                    adaptive: bool = False, mip_time_limit_s: float = MIP_TIME_LIMIT_S) -> float:
     """The strength of :data:`STRENGTHS` whose penalty (``adaptive`` or not, :func:`inner_maximum`)
     gives the smallest mean inner maximum on ``pilot`` observation matrices drawn from ``rng`` (the
     same matrices for every strength), ties to the first; 0.0 without conflicts. The caller discards
@@ -778,7 +799,7 @@ def choose_strength(problem: Problem, rng: np.random.Generator, method: str, pil
         return 0.0
     xs = [sample_observations(problem, rng) for _ in range(pilot)]
     means = [sum(inner_maximum(problem, x, method, discount=conflict_discount(problem, c, adaptive),
-                               adaptive=adaptive) for x in xs) for c in STRENGTHS]
+                               adaptive=adaptive, mip_time_limit_s=mip_time_limit_s) for x in xs) for c in STRENGTHS]
     return float(STRENGTHS[int(np.argmin(means))])
 
 
@@ -797,7 +818,7 @@ def pilot_samples(method: str) -> int:
 def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAULT_SAMPLES,
                 method: str = "auto", penalty_scale: float = 1.0, deadline_s: float | None = None,
                 strength: float | str = "auto", pilot: int | None = None,
-                adaptive: bool | str = "auto") -> UpperBound:
+                adaptive: bool | str = "auto", mip_time_limit_s: float = MIP_TIME_LIMIT_S) -> UpperBound:
     """The information-relaxation bound of ``problem``: the mean of :func:`inner_maximum` over
     ``samples`` observation matrices drawn from the prior with ``rng`` (scheduled stages only).
 
@@ -808,7 +829,12 @@ def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAU
             first from ``rng`` and discarded (:func:`choose_strength`; no pilot when
             ``penalty_scale`` is 0 or nothing conflicts).
         adaptive: the adaptive penalty (:func:`adaptive_terms`), or ``auto``: adaptive when the
-            inner maxima are ``exact`` and the penalty is on (``penalty_scale`` not 0).
+            method is ``exact`` or ``mixed`` and the penalty is on (``penalty_scale`` not 0). (The
+            LP relaxation of the adaptive model is looser than the fixed penalty's LP, and its MIP
+            is several times slower than the fixed one's: ``lp`` and ``mip`` keep the fixed
+            penalty unless asked.)
+        mip_time_limit_s: time limit of one HiGHS branch and bound (``mip``, ``mixed``), seconds;
+            a search stopped by it gives its dual bound, valid but timing-dependent.
         deadline_s: stop with :class:`BoundTooLarge` once this much wall time has passed (checked
             after each sample; None: no limit). The result never depends on timing: it is the
             bound of all ``samples`` or nothing.
@@ -823,20 +849,20 @@ def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAU
         raise ValueError(f"upper bound: expected at least 2 samples (for a standard error), found {samples}")
     method = auto_method(problem) if method == "auto" else method
     if adaptive == "auto":
-        adaptive = method == "exact" and penalty_scale != 0.0
+        adaptive = method in ("exact", "mixed") and penalty_scale != 0.0
     adaptive = bool(adaptive) and penalty_scale != 0.0
     start = time.perf_counter()
     pilot_count = 0
     if strength == "auto":
         pilot_count = 0 if penalty_scale == 0.0 or len(compile_problem(problem).nbr) == 0 else (
             pilot_samples(method) if pilot is None else pilot)
-        strength = choose_strength(problem, rng, method, pilot_count, adaptive) if pilot_count else 0.0
+        strength = choose_strength(problem, rng, method, pilot_count, adaptive, mip_time_limit_s) if pilot_count else 0.0
     strength = float(strength)
     discount = conflict_discount(problem, strength, adaptive) if strength and penalty_scale else None
     values = np.empty(samples)
     for s in range(samples):
         x = sample_observations(problem, rng)
-        values[s] = inner_maximum(problem, x, method, penalty_scale, discount=discount, adaptive=adaptive) / problem.scale
+        values[s] = inner_maximum(problem, x, method, penalty_scale, mip_time_limit_s, discount, adaptive) / problem.scale
         if deadline_s is not None and time.perf_counter() - start > deadline_s:
             raise BoundTooLarge(f"upper bound: stopped after {s + 1} of {samples} samples at the {deadline_s:g} s deadline")
     return UpperBound(float(values.mean()), float(values.std(ddof=1) / math.sqrt(samples)), method, samples,
