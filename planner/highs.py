@@ -47,14 +47,12 @@ class Solved:
         bound: an upper bound on the optimum: the MIP's dual bound, or the LP optimum (+inf when
             the run stopped before having one).
         values: float ``[columns]`` the best primal solution (None when none).
-        nodes: branch-and-bound nodes explored (0 for an LP).
     """
 
     optimal: bool
     objective: float
     bound: float
     values: np.ndarray | None
-    nodes: int = 0
 
 
 @dataclass
@@ -82,11 +80,9 @@ class Model:
     def nonzeros(self) -> int:
         return sum(len(r[2]) for r in self.rows)
 
-    def solve(self, integer: bool, time_limit_s: float, node_limit: int | None = None) -> Solved:
+    def solve(self, integer: bool, time_limit_s: float) -> Solved:
         """Solve with HiGHS (one thread, ``time_limit_s``); ``integer``: as a MIP (the columns
-        marked integer) with a relative gap of 0, else the LP relaxation. ``node_limit``: stop the
-        branch and bound after this many nodes (a limit that, unlike time, gives the same dual
-        bound on a fast and a loaded machine; None: none)."""
+        marked integer) with a relative gap of 0, else the LP relaxation."""
         import highspy  # the only HiGHS import of the planner core
 
         h = new_highs(highspy)
@@ -94,8 +90,6 @@ class Model:
         h.setOptionValue("time_limit", float(time_limit_s))
         if integer:
             h.setOptionValue("mip_rel_gap", 0.0)
-            if node_limit is not None:
-                h.setOptionValue("mip_max_nodes", int(node_limit))
         lp = highspy.HighsLp()
         lp.num_col_ = len(self.cost)
         lp.num_row_ = len(self.rows)
@@ -128,4 +122,4 @@ class Model:
             bound = float(info.mip_dual_bound)  # +inf when the search stopped before the root LP
         else:
             bound = objective if optimal else np.inf
-        return Solved(optimal, objective, bound, values, int(info.mip_node_count) if integer else 0)
+        return Solved(optimal, objective, bound, values)
