@@ -236,6 +236,28 @@ def test_experiment_tasks_report_the_bound_against_v_star_and_the_planners(tmp_p
     assert len(again) == 5 and {r["planner"] for r in again} >= {"ssap", experiment.UPPER_BOUND}
 
 
+def test_bound_experiment_mixed_method_up_to_its_fleet_size():
+    """``--bound-method mixed``: the scale rows' bound by ``mixed`` up to MIXED_MAX_CARRIERS, the
+    LP beyond; the default run's tasks are unchanged (the committed results stay reproducible)."""
+    from experiments import bound as experiment
+    from experiments import run
+    from experiments.trials import Task
+
+    def bound_tasks(*flags):
+        settings = run.settings_of(run.parse_args(["bound", "--quick", *flags]))
+        return [t for t in experiment.build_tasks(settings) if t.planner == experiment.UPPER_BOUND]
+
+    assert all(t.variant == "" for t in bound_tasks())
+    mixed = bound_tasks("--bound-method", "mixed")
+    assert {t.carriers for t in mixed if t.variant == "mixed"} == {c for c in (t.carriers for t in mixed)
+                                                                   if c <= experiment.MIXED_MAX_CARRIERS}
+    level = 3  # R = 4, 12 overlaps
+    _, carriers, overlaps, _, _ = experiment.CONFIGS[level]
+    row = experiment.run_task(Task("bound", level, 0, experiment.UPPER_BOUND, 0, 0, carriers=carriers,
+                                   overlaps=overlaps, samples=3, variant="mixed"))
+    assert row["method"] == "mixed" and row["samples"] == 3 and row["reward"] > 0
+
+
 @pytest.mark.slow
 def test_bound_experiment_quick_run(tmp_path):
     import subprocess
@@ -494,18 +516,19 @@ def test_mixed_solves_each_component_by_its_own_method(monkeypatch, adaptive):
         assert mixed <= lp + 1e-7
 
 
-@pytest.mark.parametrize("kind", ["poisson", "normal", "table"])
+@pytest.mark.parametrize("kind", ["poisson", "normal"])
 def test_mixed_adaptive_bound_is_valid_against_the_online_optimum(monkeypatch, kind):
     """The bound with the adaptive penalty and the component solved by HiGHS (the exact limit
     lowered below its 36 combinations) stays >= V* - 3 SE, and is the exact bound's estimate."""
     prior = _stand_in(priors.build_prior(KIND_SPECS[kind]))
     problem = Problem.build(2, TINY_VALID, TINY_OVERLAPS, prior, normalize=1.0)
     best = online_optimal.online_value(problem).expected_reward
-    exact = duality.upper_bound(problem, np.random.default_rng(7), samples=150, method="exact", pilot=8)
+    exact = duality.upper_bound(problem, np.random.default_rng(7), samples=120, method="exact", pilot=4)
     monkeypatch.setattr(duality, "MAX_COMBINATIONS", 10)
-    bound = duality.upper_bound(problem, np.random.default_rng(7), samples=150, method="mixed", pilot=8)
-    assert bound.method == "mixed" and bound.adaptive and bound.samples == 150
+    bound = duality.upper_bound(problem, np.random.default_rng(7), samples=120, method="mixed", pilot=4)
+    assert bound.method == "mixed" and bound.adaptive and bound.samples == 120
     assert bound.expected_reward >= best - 3 * bound.stderr, (bound, best)
     assert bound.expected_reward == pytest.approx(exact.expected_reward, abs=1e-6)
-    again = duality.upper_bound(problem, np.random.default_rng(7), samples=150, method="mixed", pilot=8)
-    assert again == bound  # same seed, same bound
+    small = [duality.upper_bound(problem, np.random.default_rng(7), samples=4, method="mixed", pilot=2)
+             for _ in range(2)]
+    assert small[0] == small[1]  # same seed, same bound
