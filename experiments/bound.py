@@ -17,8 +17,8 @@ Two parts:
   the trial's observations (the experiments' common random numbers), the clairvoyant bound of the
   same observations and the new bound of the instance (an expectation over the prior, from its own
   samples, by the LP relaxation; ``--bound-method mixed``: up to R = 32 by ``mixed``, the adaptive
-  penalty with exact or MIP inner maxima, tighter and slower). A planner's fraction of the bound is its reward over the bound,
-  per trial, averaged over trials (± SEM).
+  penalty with exact or MIP inner maxima, tighter and slower). A planner's fraction of the bound is
+  its reward over the bound, per trial, averaged over trials (± SEM).
 
 Streams: trial t's instance and observations ``(1000, t)`` and planner seed ``(1000, t, 1)`` as the
 other random sweeps; the bound's samples ``(1000, t, 2)``; tiny instance k ``(1002, k, a)`` (the first a within V*'s limits);

@@ -774,7 +774,8 @@ def estimate_seconds(problem: Problem, method: str, samples: int) -> float:
         per += highs(parts, method == "mip")
     elif method == "mixed":
         big = [p for p in parts if p.combinations() > MAX_COMBINATIONS]
-        per += enumerated([p for p in parts if p.combinations() <= MAX_COMBINATIONS]) + (highs(big, True) if big else 0.0)
+        per += enumerated([p for p in parts if p.combinations() <= MAX_COMBINATIONS])
+        per += highs(big, True) if big else 0.0
     return per * samples
 
 
@@ -856,13 +857,15 @@ def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAU
     if strength == "auto":
         pilot_count = 0 if penalty_scale == 0.0 or len(compile_problem(problem).nbr) == 0 else (
             pilot_samples(method) if pilot is None else pilot)
-        strength = choose_strength(problem, rng, method, pilot_count, adaptive, mip_time_limit_s) if pilot_count else 0.0
+        strength = (choose_strength(problem, rng, method, pilot_count, adaptive, mip_time_limit_s)
+                    if pilot_count else 0.0)
     strength = float(strength)
     discount = conflict_discount(problem, strength, adaptive) if strength and penalty_scale else None
     values = np.empty(samples)
     for s in range(samples):
         x = sample_observations(problem, rng)
-        values[s] = inner_maximum(problem, x, method, penalty_scale, mip_time_limit_s, discount, adaptive) / problem.scale
+        values[s] = inner_maximum(problem, x, method, penalty_scale, mip_time_limit_s, discount,
+                                  adaptive) / problem.scale
         if deadline_s is not None and time.perf_counter() - start > deadline_s:
             raise BoundTooLarge(f"upper bound: stopped after {s + 1} of {samples} samples at the {deadline_s:g} s deadline")
     return UpperBound(float(values.mean()), float(values.std(ddof=1) / math.sqrt(samples)), method, samples,
