@@ -73,6 +73,8 @@ def sweep_args(sweep: str, entry: dict, out: Path) -> argparse.Namespace:
     if sweep == "bound":
         if entry.get("bound_trials"):
             argv += ["--trials", str(entry["bound_trials"])]
+        if entry.get("bound_method"):
+            argv += ["--bound-method", str(entry["bound_method"])]
     elif sweep == "urban":
         argv += ["--urban-trials", str(entry["trials"])]
         if "scenario" in entry:

@@ -43,7 +43,9 @@ class Task:
             planner seed, so every planner of a trial meets the same ones).
         variant, prior_factor, oracle: priors sweep only (experiments.priors): ``stated``,
             ``learned`` or ``oracle``; factor on the stated (derived Poisson) prior's mean; the
-            world's observed (mean, variance) the oracle prior is fitted to.
+            world's observed (mean, variance) the oracle prior is fitted to. Bound sweep
+            (experiments.bound): ``variant`` is a tiny instance's prior kind, or ``mixed`` for an
+            upper-bound task by that method.
         samples: sampled observation matrices of a bound task (experiments.bound).
     """
 

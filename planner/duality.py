@@ -2,11 +2,11 @@
 the information-relaxation (duality) bound of Brown, Smith and Sun (Operations Research, 2010).
 
 ``U = E_x[max_y (R(y, x) - z(y, x))]``, with a penalty ``z`` of mean zero for every
-non-anticipative policy built from the carriers' single-carrier DLR values-to-go (under ``exact``
-inner maxima, adaptive: a conflicted point's share shrinks with the other carriers' earlier
-deployments in its overlaps); its inner maximum split into the conflict graph's components, each
-solved ``exact``, by HiGHS (``mip``, its dual bound), as the LP relaxation (``lp``) or by the
-``separable`` fallback, every one a valid upper bound. The derivation, the
+non-anticipative policy built from the carriers' single-carrier DLR values-to-go (or adaptive: a
+conflicted point's share shrinks with the other carriers' earlier deployments in its overlaps);
+its inner maximum split into the conflict graph's components, each solved ``exact``, by HiGHS
+(``mip``, its dual bound), as the LP relaxation (``lp``) or by the ``separable`` fallback, or
+``mixed`` (``exact`` where a component fits, ``mip`` elsewhere), every one a valid upper bound. The derivation, the
 model, the methods' limits, the time budget and the API: docs/planner.md, "An upper bound on every
 online policy".
 
@@ -26,8 +26,8 @@ import numpy as np
 from planner.compiled import compile_problem
 from planner.problem import Problem, sample_observations, valid_stages_left
 
-#: Methods of the inner maximisation (see the module docstring).
-METHODS = ("exact", "mip", "lp", "separable")
+#: Methods of the inner maximisation (see the module docstring); ``mixed`` picks one per component.
+METHODS = ("exact", "mip", "lp", "separable", "mixed")
 #: Largest number of stage-set combinations of one component that ``exact`` enumerates.
 MAX_COMBINATIONS = 200_000
 #: Default samples (observation matrices) of the Monte Carlo mean.
@@ -270,13 +270,18 @@ class _Enumeration:
 _ENUMERATIONS: "weakref.WeakKeyDictionary[Problem, dict]" = weakref.WeakKeyDictionary()
 
 
+def _flat_points(problem: Problem, part: _Component) -> np.ndarray:
+    """int64 ``[P]``: the component's valid flat points, carrier by carrier, stages ascending (the
+    order of :class:`_Enumeration` and :class:`_Adaptive`)."""
+    return np.concatenate([r * problem.n_stages + s for r, s in zip(part.carriers, part.stages)])
+
+
 def _enumeration(problem: Problem, part: _Component) -> _Enumeration:
     cache = _ENUMERATIONS.setdefault(problem, {})
     found = cache.get(part.carriers)
     if found is not None:
         return found
-    n_stages = problem.n_stages
-    flat = np.concatenate([r * n_stages + s for r, s in zip(part.carriers, part.stages)])
+    flat = _flat_points(problem, part)
     offsets = np.concatenate(([0], np.cumsum([len(s) for s in part.stages])))
     masks = []
     for stages, k in zip(part.stages, part.ks):
@@ -361,10 +366,11 @@ def _adaptive(problem: Problem, part: _Component, discount: np.ndarray | None) -
     key = (part.carriers, rho_all.tobytes())
     if key in cache:
         return cache[key]
-    en = _enumeration(problem, part)
     n_stages = problem.n_stages
-    carrier, stage = en.flat // n_stages, en.flat % n_stages
-    earlier = (en.conflict > 0) & (stage[:, None] < stage[None, :]) & (carrier[:, None] != carrier[None, :])
+    flat = _flat_points(problem, part)  # the enumeration's point order, without enumerating
+    carrier, stage = flat // n_stages, flat % n_stages
+    conflict = problem.conflict[np.ix_(flat, flat)]
+    earlier = conflict & (stage[:, None] < stage[None, :]) & (carrier[:, None] != carrier[None, :])
     points = np.flatnonzero(earlier.any(axis=0))
     earlier = earlier[:, points].astype(float)
     dmax = int(problem.passengers.max(initial=0))
@@ -479,57 +485,87 @@ def inner_maximum(problem: Problem, x: np.ndarray, method: str = "exact", penalt
         method: ``exact`` (enumeration; :class:`BoundTooLarge` for a component beyond
             :data:`MAX_COMBINATIONS`), ``mip`` (the smaller of the HiGHS dual bound, exact when the
             search finishes within ``mip_time_limit_s``, and the LP), ``lp`` (the linear
-            relaxation) or ``separable`` (interactions ignored; the fallback of an LP HiGHS cannot
-            finish within :data:`LP_TIME_LIMIT_S`).
+            relaxation), ``separable`` (interactions ignored; the fallback of an LP HiGHS cannot
+            finish within :data:`LP_TIME_LIMIT_S`) or ``mixed`` (per component: ``exact`` within
+            :data:`MAX_COMBINATIONS`, else ``mip``).
         penalty_scale: 1.0 for the DLR penalty, 0.0 for none (the clairvoyant optimum).
         discount: float ``[R, N]``, the penalty's per-point discount (:func:`penalty_terms`;
             None: the DLR values).
         adaptive: the adaptive penalty (:func:`adaptive_terms`: a conflicted point's share shrinks
-            with the other carriers' earlier deployments in its overlaps); ``exact`` only.
+            with the other carriers' earlier deployments in its overlaps), under every method
+            (HiGHS: :func:`_adaptive_rows`; ``separable``: :func:`_separable_phi`).
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
-    if adaptive and method != "exact":
-        raise ValueError(f"the adaptive penalty needs the exact inner maximum, got method {method!r}")
     x = np.asarray(x, dtype=float)
     if np.isnan(x[problem.valid]).any():
         raise ValueError("the bound needs an observation at every scheduled stage (found NaN at a valid stage)")
     x = np.where(problem.valid, x, 0.0)
     phi = penalty_terms(problem, x, penalty_scale, discount)
     parts = _components(problem)
+    adaptive = bool(adaptive) and penalty_scale != 0.0
+
+    def tables(part):  # the adaptive penalty's tables of a multi-carrier component, or None
+        return _adaptive(problem, part, discount) if adaptive else None
+
     if method == "separable":
-        return _separable_value(problem, x, phi, parts)
+        return sum(_separable_value(problem, x, _separable_phi(problem, x, phi, part, tables(part), penalty_scale),
+                                    [part]) for part in parts)
+    # Components are independent given x (the penalty and, with the adaptive penalty, its counts
+    # k are per component), so the sum of per-component upper bounds bounds the whole maximum.
     total = 0.0
     for part in parts:
+        how = method
+        if method == "mixed":
+            how = "exact" if part.combinations() <= MAX_COMBINATIONS else "mip"
         if len(part.carriers) == 1:
             total += _alone_value(problem, x, phi, part.carriers[0], part.stages[0], part.ks[0])
-        elif method == "exact":
+        elif how == "exact":
             if part.combinations() > MAX_COMBINATIONS:
                 raise BoundTooLarge(f"upper bound: a component of {len(part.carriers)} carriers has "
                                     f"{part.combinations():.3g} stage-set combinations (exact limit {MAX_COMBINATIONS:,})")
-            total += _exact_component(problem, x, phi, part,
-                                      _adaptive(problem, part, discount) if adaptive and penalty_scale else None,
-                                      penalty_scale)
+            total += _exact_component(problem, x, phi, part, tables(part), penalty_scale)
         else:
-            value = _highs_value(problem, x, phi, part, integer=False, time_limit_s=LP_TIME_LIMIT_S)
-            if method == "mip":
-                value = min(value, _highs_value(problem, x, phi, part, integer=True, time_limit_s=mip_time_limit_s))
+            value = _highs_value(problem, x, phi, part, False, LP_TIME_LIMIT_S, tables(part), penalty_scale)
+            if how == "mip":
+                value = min(value, _highs_value(problem, x, phi, part, True, mip_time_limit_s, tables(part),
+                                                penalty_scale))
             if not np.isfinite(value):  # HiGHS did not finish: the interaction-free bound of this part
-                value = _separable_value(problem, x, phi, [part])
+                value = _separable_value(problem, x, _separable_phi(problem, x, phi, part, tables(part),
+                                                                    penalty_scale), [part])
             total += value
     return total
+
+
+def _separable_phi(problem: Problem, x: np.ndarray, phi: np.ndarray, part: _Component,
+                   adaptive: "_Adaptive | None", scale: float) -> np.ndarray:
+    """``phi``, or with ``adaptive`` a lower bound on the adaptive penalty's term at each late
+    point of ``part`` (the fixed term plus the smallest adaptive correction over k), so that
+    :func:`_separable_value` of it stays >= the component's inner maximum under the adaptive penalty."""
+    if adaptive is None or not len(adaptive.points):
+        return phi
+    flat = _flat_points(problem, part)[adaptive.points]
+    terms = scale * adaptive.terms(np.asarray(x, dtype=float).ravel()[flat])  # [L, Dmax + 1, K + 1]
+    kmax = adaptive.earlier.sum(axis=0).astype(np.int64)  # [L] the counts each late point can reach
+    reach = np.arange(terms.shape[2])[None, None, :] <= kmax[:, None, None]
+    low = np.where(reach, terms - terms[:, :, :1], np.inf).min(axis=2)  # [L, Dmax + 1], <= 0
+    out = phi.copy()
+    r, j = np.divmod(flat, problem.n_stages)
+    out[r, j, :] += low
+    return out
 
 
 # ----------------------------------------------------------------------------- the HiGHS model
 
 
 def carrier_flow(model, problem: Problem, r: int, stages: np.ndarray, k: int, phi: np.ndarray,
-                 integer: bool) -> dict[int, list[int]]:
+                 integer: bool, nodes: dict | None = None) -> dict[int, list[int]]:
     """Carrier r's deployments as a unit flow through its (stage, passengers left) network in
     ``model`` (a :class:`planner.highs.Model`): one arc per move (stay, or deploy: one passenger
     fewer) from each reachable node, each costing ``-phi[r, j, d]``; the carrier deploys exactly
     ``k`` times. Returns ``{flat point: [its deploy arcs]}`` (a point is deployed at when one of
-    its arcs carries the flow)."""
+    its arcs carries the flow). ``nodes``: filled with ``{(flat point, d): [the arcs out of node
+    (its stage, d passengers left)]}`` (the flow passes one node per stage)."""
     n_stages = problem.n_stages
     d0 = int(problem.passengers[r])
     end, n = d0 - k, len(stages)
@@ -549,6 +585,8 @@ def carrier_flow(model, problem: Problem, r: int, stages: np.ndarray, k: int, ph
                 out.append(model.var(cost, is_int=integer))
                 inflow.setdefault((t + 1, d - 1), []).append(out[-1])
                 deploy_arcs.setdefault(a, []).append(out[-1])
+            if nodes is not None:
+                nodes[(a, d)] = out
             if t == 0:
                 model.row(1.0, 1.0, out, [1.0] * len(out))
             else:
@@ -558,9 +596,11 @@ def carrier_flow(model, problem: Problem, r: int, stages: np.ndarray, k: int, ph
 
 
 def _highs_value(problem: Problem, x: np.ndarray, phi: np.ndarray, part: _Component, integer: bool,
-                 time_limit_s: float) -> float:
+                 time_limit_s: float, adaptive: "_Adaptive | None" = None, scale: float = 1.0) -> float:
     """The component's model (module docstring) solved by HiGHS: the MIP's dual bound
-    (``integer``) or the LP optimum; raw units. Both are >= the component's inner maximum."""
+    (``integer``) or the LP optimum; raw units. Both are >= the component's inner maximum. With
+    ``adaptive`` (:func:`_adaptive`, of the discount ``phi`` was built with) the penalty is the
+    adaptive one (:func:`_adaptive_rows`)."""
     from planner.highs import Model
 
     n_stages = problem.n_stages
@@ -572,8 +612,11 @@ def _highs_value(problem: Problem, x: np.ndarray, phi: np.ndarray, part: _Compon
     comp = compile_problem(problem)
     xs = np.asarray(x, dtype=float).ravel()
     deploy_arcs: dict[int, list[int]] = {}
+    nodes: dict[tuple[int, int], list[int]] | None = {} if adaptive is not None else None
     for r, stages, k in zip(part.carriers, part.stages, part.ks):
-        deploy_arcs.update(carrier_flow(model, problem, r, stages, k, phi, integer))
+        deploy_arcs.update(carrier_flow(model, problem, r, stages, k, phi, integer, nodes))
+    if adaptive is not None and len(adaptive.points):
+        _adaptive_rows(model, problem, x, part, adaptive, scale, nodes, deploy_arcs, integer)
     cols_cost = model.cost
     y = {}
     for a, arcs in deploy_arcs.items():
@@ -607,6 +650,43 @@ def _highs_value(problem: Problem, x: np.ndarray, phi: np.ndarray, part: _Compon
     return model.solve(integer, time_limit_s).bound
 
 
+def _adaptive_rows(model, problem: Problem, x: np.ndarray, part: _Component, adaptive: "_Adaptive", scale: float,
+                   nodes: dict, deploy_arcs: dict, integer: bool) -> None:
+    """The adaptive penalty in the flow model: at each late point l (carrier r's stage j) binary
+    ``u[l, d, k]`` = "r is at node (j, d) and k earlier conflicting points of other carriers are
+    deployed at", with ``Σ_k u[l, d, k]`` = the flow through node (j, d) and
+    ``Σ_{d,k} k u[l, d, k]`` = the deploy arcs at those earlier points; ``u[l, d, k]`` earns
+    ``-(term(d, k) - term(d, 0))``, the adaptive term in place of the fixed one the arcs already
+    pay. At integer flows the u are forced (one node, one k): the exact adaptive penalty; every
+    true deployment set is feasible, so the LP and the MIP's dual bound stay >= the maximum."""
+    flat = _flat_points(problem, part)
+    xs = np.asarray(x, dtype=float).ravel()[flat]
+    terms = scale * adaptive.terms(xs[adaptive.points])  # [L, Dmax + 1, K + 1]
+    for late, point in enumerate(adaptive.points.tolist()):
+        a = int(flat[point])
+        earlier_arcs = [arc for b in flat[adaptive.earlier[:, late] > 0].tolist() for arc in deploy_arcs.get(b, [])]
+        kmax = int(adaptive.earlier[:, late].sum())
+        count_cols, count_coefs = [], []
+        for d in range(terms.shape[1]):
+            out = nodes.get((a, d))
+            if out is None:
+                continue  # node unreachable
+            us = [model.var(-float(terms[late, d, k] - terms[late, d, 0]), is_int=integer) for k in range(kmax + 1)]
+            model.row(0.0, 0.0, us + out, [1.0] * len(us) + [-1.0] * len(out))
+            count_cols += us[1:]
+            count_coefs += list(range(1, kmax + 1))
+        model.row(0.0, 0.0, count_cols + earlier_arcs, [float(c) for c in count_coefs] + [-1.0] * len(earlier_arcs))
+        if kmax > 1:
+            # Valid at integer points, tightening the LP: "k >= 1" is at most the count and at
+            # least each earlier deployment.
+            ones = [1.0] * len(count_cols)
+            model.row(-np.inf, 0.0, count_cols + earlier_arcs, ones + [-1.0] * len(earlier_arcs))
+            for b in flat[adaptive.earlier[:, late] > 0].tolist():
+                arcs = deploy_arcs.get(b, [])
+                if arcs:
+                    model.row(0.0, np.inf, count_cols + arcs, ones + [-1.0] * len(arcs))
+
+
 # ----------------------------------------------------------------------------- the bound
 
 
@@ -625,7 +705,7 @@ class UpperBound:
         strength: the penalty's conflict discount (:func:`conflict_discount`; 0: the DLR values).
         pilot_samples: observation matrices drawn first to choose ``strength`` among
             :data:`STRENGTHS`, then discarded (0: no choice made).
-        adaptive: the penalty is the adaptive one (:func:`adaptive_terms`; ``exact`` only).
+        adaptive: the penalty is the adaptive one (:func:`adaptive_terms`).
     """
 
     expected_reward: float
@@ -677,14 +757,25 @@ def estimate_seconds(problem: Problem, method: str, samples: int) -> float:
     parts = _components(problem)
     points = int(problem.valid.sum())
     per = _COST["separable"] * max(points, 1)
-    if method == "exact":
-        per += sum(_COST["exact"] * p.combinations() * sum(len(s) for s in p.stages)
-                   for p in parts if len(p.carriers) > 1)
-    elif method in ("lp", "mip"):
-        columns = _lp_columns(problem, parts)
-        models = sum(len(p.carriers) > 1 for p in parts)
+
+    def enumerated(some):
+        return sum(_COST["exact"] * p.combinations() * sum(len(s) for s in p.stages)
+                   for p in some if len(p.carriers) > 1)
+
+    def highs(some, mip):
+        columns = _lp_columns(problem, some)
+        models = sum(len(p.carriers) > 1 for p in some)
         lp = _COST["lp"] * columns + _COST["lp2"] * columns ** 2 + _COST["model"] * models
-        per += lp * (_COST["mip"] if method == "mip" else 1.0)
+        return lp * (_COST["mip"] if mip else 1.0)
+
+    if method == "exact":
+        per += enumerated(parts)
+    elif method in ("lp", "mip"):
+        per += highs(parts, method == "mip")
+    elif method == "mixed":
+        big = [p for p in parts if p.combinations() > MAX_COMBINATIONS]
+        per += enumerated([p for p in parts if p.combinations() <= MAX_COMBINATIONS])
+        per += highs(big, True) if big else 0.0
     return per * samples
 
 
@@ -697,7 +788,7 @@ def check_budget(problem: Problem, method: str, samples: int, budget_s: float) -
 
 
 def choose_strength(problem: Problem, rng: np.random.Generator, method: str, pilot: int | None = None,
-                    adaptive: bool = False) -> float:
+                    adaptive: bool = False, mip_time_limit_s: float = MIP_TIME_LIMIT_S) -> float:
     """The strength of :data:`STRENGTHS` whose penalty (``adaptive`` or not, :func:`inner_maximum`)
     gives the smallest mean inner maximum on ``pilot`` observation matrices drawn from ``rng`` (the
     same matrices for every strength), ties to the first; 0.0 without conflicts. The caller discards
@@ -709,7 +800,7 @@ def choose_strength(problem: Problem, rng: np.random.Generator, method: str, pil
         return 0.0
     xs = [sample_observations(problem, rng) for _ in range(pilot)]
     means = [sum(inner_maximum(problem, x, method, discount=conflict_discount(problem, c, adaptive),
-                               adaptive=adaptive) for x in xs) for c in STRENGTHS]
+                               adaptive=adaptive, mip_time_limit_s=mip_time_limit_s) for x in xs) for c in STRENGTHS]
     return float(STRENGTHS[int(np.argmin(means))])
 
 
@@ -728,7 +819,7 @@ def pilot_samples(method: str) -> int:
 def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAULT_SAMPLES,
                 method: str = "auto", penalty_scale: float = 1.0, deadline_s: float | None = None,
                 strength: float | str = "auto", pilot: int | None = None,
-                adaptive: bool | str = "auto") -> UpperBound:
+                adaptive: bool | str = "auto", mip_time_limit_s: float = MIP_TIME_LIMIT_S) -> UpperBound:
     """The information-relaxation bound of ``problem``: the mean of :func:`inner_maximum` over
     ``samples`` observation matrices drawn from the prior with ``rng`` (scheduled stages only).
 
@@ -739,7 +830,12 @@ def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAU
             first from ``rng`` and discarded (:func:`choose_strength`; no pilot when
             ``penalty_scale`` is 0 or nothing conflicts).
         adaptive: the adaptive penalty (:func:`adaptive_terms`), or ``auto``: adaptive when the
-            inner maxima are ``exact`` and the penalty is on (``penalty_scale`` not 0).
+            method is ``exact`` or ``mixed`` and the penalty is on (``penalty_scale`` not 0). (The
+            LP relaxation of the adaptive model is looser than the fixed penalty's LP, and its MIP
+            is several times slower than the fixed one's: ``lp`` and ``mip`` keep the fixed
+            penalty unless asked.)
+        mip_time_limit_s: time limit of one HiGHS branch and bound (``mip``, ``mixed``), seconds;
+            a search stopped by it gives its dual bound, valid but timing-dependent.
         deadline_s: stop with :class:`BoundTooLarge` once this much wall time has passed (checked
             after each sample; None: no limit). The result never depends on timing: it is the
             bound of all ``samples`` or nothing.
@@ -754,20 +850,22 @@ def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAU
         raise ValueError(f"upper bound: expected at least 2 samples (for a standard error), found {samples}")
     method = auto_method(problem) if method == "auto" else method
     if adaptive == "auto":
-        adaptive = method == "exact" and penalty_scale != 0.0
+        adaptive = method in ("exact", "mixed") and penalty_scale != 0.0
     adaptive = bool(adaptive) and penalty_scale != 0.0
     start = time.perf_counter()
     pilot_count = 0
     if strength == "auto":
         pilot_count = 0 if penalty_scale == 0.0 or len(compile_problem(problem).nbr) == 0 else (
             pilot_samples(method) if pilot is None else pilot)
-        strength = choose_strength(problem, rng, method, pilot_count, adaptive) if pilot_count else 0.0
+        strength = (choose_strength(problem, rng, method, pilot_count, adaptive, mip_time_limit_s)
+                    if pilot_count else 0.0)
     strength = float(strength)
     discount = conflict_discount(problem, strength, adaptive) if strength and penalty_scale else None
     values = np.empty(samples)
     for s in range(samples):
         x = sample_observations(problem, rng)
-        values[s] = inner_maximum(problem, x, method, penalty_scale, discount=discount, adaptive=adaptive) / problem.scale
+        values[s] = inner_maximum(problem, x, method, penalty_scale, mip_time_limit_s, discount,
+                                  adaptive) / problem.scale
         if deadline_s is not None and time.perf_counter() - start > deadline_s:
             raise BoundTooLarge(f"upper bound: stopped after {s + 1} of {samples} samples at the {deadline_s:g} s deadline")
     return UpperBound(float(values.mean()), float(values.std(ddof=1) / math.sqrt(samples)), method, samples,

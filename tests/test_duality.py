@@ -7,7 +7,9 @@
 * zero penalty: the inner maximum is the clairvoyant optimum on every sample;
 * the adaptive penalty: the enumeration equals a brute force over every deployment set with the
   reference terms; mean zero along an online rule; exact expectation >= V* on a two-point prior;
-* relaxations: LP, MIP and the separable bound are never below the exact inner maximum;
+* relaxations: LP, MIP and the separable bound are never below the exact inner maximum, with the
+  adaptive penalty too; ``mixed`` (exact per component where it fits, MIP elsewhere) is ``exact``
+  when every component fits, never below it otherwise, and valid against V*;
 * no overlaps: the bound is exact (the sum of the carriers' DLR optima) with zero variance;
 * determinism for a seed; cheap refusal beyond a budget; ``solve`` reports it.
 """
@@ -234,6 +236,28 @@ def test_experiment_tasks_report_the_bound_against_v_star_and_the_planners(tmp_p
     assert len(again) == 5 and {r["planner"] for r in again} >= {"ssap", experiment.UPPER_BOUND}
 
 
+def test_bound_experiment_mixed_method_up_to_its_fleet_size():
+    """``--bound-method mixed``: the scale rows' bound by ``mixed`` up to MIXED_MAX_CARRIERS, the
+    LP beyond; the default run's tasks are unchanged (the committed results stay reproducible)."""
+    from experiments import bound as experiment
+    from experiments import run
+    from experiments.trials import Task
+
+    def bound_tasks(*flags):
+        settings = run.settings_of(run.parse_args(["bound", "--quick", *flags]))
+        return [t for t in experiment.build_tasks(settings) if t.planner == experiment.UPPER_BOUND]
+
+    assert all(t.variant == "" for t in bound_tasks())
+    mixed = bound_tasks("--bound-method", "mixed")
+    assert {t.carriers for t in mixed if t.variant == "mixed"} == {c for c in (t.carriers for t in mixed)
+                                                                   if c <= experiment.MIXED_MAX_CARRIERS}
+    level = 3  # R = 4, 12 overlaps
+    _, carriers, overlaps, _, _ = experiment.CONFIGS[level]
+    row = experiment.run_task(Task("bound", level, 0, experiment.UPPER_BOUND, 0, 0, carriers=carriers,
+                                   overlaps=overlaps, samples=3, variant="mixed"))
+    assert row["method"] == "mixed" and row["samples"] == 3 and row["reward"] > 0
+
+
 @pytest.mark.slow
 def test_bound_experiment_quick_run(tmp_path):
     import subprocess
@@ -372,8 +396,6 @@ def test_adaptive_enumeration_is_the_brute_force_maximum(prior):
                 assert fast == pytest.approx(_brute_force_adaptive(problem, x, discount), abs=1e-9)
                 changed += abs(fast - duality.inner_maximum(problem, x, "exact", discount=discount)) > 1e-9
     assert changed  # the adaptive terms do change the inner maximum
-    with pytest.raises(ValueError, match="exact"):
-        duality.inner_maximum(problem, x, "lp", adaptive=True)
 
 
 def test_adaptive_terms_without_earlier_conflicting_deployments_are_the_fixed_terms():
@@ -440,3 +462,73 @@ def test_adaptive_discount_leaves_out_what_the_count_replaces():
     assert adaptive[0, 0] == fixed[0, 0] < 1  # (0, 0)'s conflict is later: still guessed
     assert adaptive[0, 1] == fixed[0, 1] < 1 and adaptive[1, 1] == fixed[1, 1] < 1  # same stage: guessed
     assert duality.pilot_samples("exact") == duality.EXACT_PILOT_SAMPLES > duality.pilot_samples("lp")
+
+
+# ----------------------------------------------------------------------------- per component, adaptive in HiGHS
+
+
+@pytest.mark.parametrize("prior", [stats.poisson(3.0), stats.norm(0.5, 2.0)], ids=["poisson", "normal"])
+def test_adaptive_relaxations_are_never_below_the_exact_adaptive_maximum(prior):
+    """The adaptive penalty in the flow model: the MIP is the enumeration's maximum, the LP and the
+    separable fallback never below it; ``mixed`` is ``exact`` when every component fits."""
+    rng = np.random.default_rng(11)
+    for _ in range(3):
+        inst = random_instance(rng, carriers=3, passengers=2, stages=5, overlaps=5)
+        problem = Problem.build(inst.problem.passengers, inst.problem.valid, inst.problem.overlaps, prior,
+                                normalize=1.0)
+        for strength in (0.0, 0.5):
+            discount = duality.conflict_discount(problem, strength, adaptive=True) if strength else None
+            for _ in range(3):
+                x = sample_observations(problem, rng)
+                exact = duality.inner_maximum(problem, x, "exact", discount=discount, adaptive=True)
+                mip = duality.inner_maximum(problem, x, "mip", discount=discount, adaptive=True)
+                assert mip == pytest.approx(exact, abs=1e-6)
+                assert duality.inner_maximum(problem, x, "lp", discount=discount, adaptive=True) >= exact - 1e-7
+                assert duality.inner_maximum(problem, x, "separable", discount=discount, adaptive=True) >= exact - 1e-9
+                assert duality.inner_maximum(problem, x, "mixed", discount=discount, adaptive=True) == exact
+
+
+#: Two multi-carrier components, of 36 and 216 stage-set combinations, and a carrier alone.
+MIXED_INSTANCE = dict(carriers=5, passengers=2, stages=4, overlaps=4)
+
+
+@pytest.mark.parametrize("adaptive", [False, True], ids=["fixed", "adaptive"])
+def test_mixed_solves_each_component_by_its_own_method(monkeypatch, adaptive):
+    """With the exact limit between the two components' sizes, ``mixed`` enumerates the small one
+    and takes the MIP of the large one: never below ``exact`` (computed under the usual limit) on
+    any sample, equal to it here (the MIPs finish), below ``lp``'s value."""
+    problem = random_instance(np.random.default_rng(23), **MIXED_INSTANCE).problem
+    sizes = sorted(p.combinations() for p in duality._components(problem) if len(p.carriers) > 1)
+    assert sizes == [36.0, 216.0]
+    discount = duality.conflict_discount(problem, 0.5, adaptive)
+    rng = np.random.default_rng(3)
+    for _ in range(6):
+        x = sample_observations(problem, rng)
+        exact = duality.inner_maximum(problem, x, "exact", discount=discount, adaptive=adaptive)
+        lp = duality.inner_maximum(problem, x, "lp", discount=discount, adaptive=adaptive)
+        with monkeypatch.context() as m:
+            m.setattr(duality, "MAX_COMBINATIONS", 100)
+            with pytest.raises(duality.BoundTooLarge):
+                duality.inner_maximum(problem, x, "exact", discount=discount, adaptive=adaptive)
+            mixed = duality.inner_maximum(problem, x, "mixed", discount=discount, adaptive=adaptive)
+        assert mixed >= exact - 1e-7
+        assert mixed == pytest.approx(exact, abs=1e-6)
+        assert mixed <= lp + 1e-7
+
+
+@pytest.mark.parametrize("kind", ["poisson", "normal"])
+def test_mixed_adaptive_bound_is_valid_against_the_online_optimum(monkeypatch, kind):
+    """The bound with the adaptive penalty and the component solved by HiGHS (the exact limit
+    lowered below its 36 combinations) stays >= V* - 3 SE, and is the exact bound's estimate."""
+    prior = _stand_in(priors.build_prior(KIND_SPECS[kind]))
+    problem = Problem.build(2, TINY_VALID, TINY_OVERLAPS, prior, normalize=1.0)
+    best = online_optimal.online_value(problem).expected_reward
+    exact = duality.upper_bound(problem, np.random.default_rng(7), samples=120, method="exact", pilot=4)
+    monkeypatch.setattr(duality, "MAX_COMBINATIONS", 10)
+    bound = duality.upper_bound(problem, np.random.default_rng(7), samples=120, method="mixed", pilot=4)
+    assert bound.method == "mixed" and bound.adaptive and bound.samples == 120
+    assert bound.expected_reward >= best - 3 * bound.stderr, (bound, best)
+    assert bound.expected_reward == pytest.approx(exact.expected_reward, abs=1e-6)
+    small = [duality.upper_bound(problem, np.random.default_rng(7), samples=4, method="mixed", pilot=2)
+             for _ in range(2)]
+    assert small[0] == small[1]  # same seed, same bound
