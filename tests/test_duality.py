@@ -472,13 +472,13 @@ def test_adaptive_relaxations_are_never_below_the_exact_adaptive_maximum(prior):
     """The adaptive penalty in the flow model: the MIP is the enumeration's maximum, the LP and the
     separable fallback never below it; ``mixed`` is ``exact`` when every component fits."""
     rng = np.random.default_rng(11)
-    for _ in range(3):
+    for _ in range(2):
         inst = random_instance(rng, carriers=3, passengers=2, stages=5, overlaps=5)
         problem = Problem.build(inst.problem.passengers, inst.problem.valid, inst.problem.overlaps, prior,
                                 normalize=1.0)
         for strength in (0.0, 0.5):
             discount = duality.conflict_discount(problem, strength, adaptive=True) if strength else None
-            for _ in range(3):
+            for _ in range(2):
                 x = sample_observations(problem, rng)
                 exact = duality.inner_maximum(problem, x, "exact", discount=discount, adaptive=True)
                 mip = duality.inner_maximum(problem, x, "mip", discount=discount, adaptive=True)
