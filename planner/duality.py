@@ -464,7 +464,6 @@ def _separable_value(problem: Problem, x: np.ndarray, phi: np.ndarray, parts: li
     """An upper bound on the inner maximum that ignores how carriers' deployments interact: each
     point earns at most ``x`` (``x >= 0``) or ``x / (1 + M)`` (``x < 0``, ``M`` its valid conflicting
     points), then every carrier's best stage set by :func:`_alone_value`; raw units."""
-    n_stages = problem.n_stages
     flat_valid = problem.valid.ravel()
     comp = compile_problem(problem)
     rows, cols = comp.nbr_rows, comp.nbr
