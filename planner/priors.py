@@ -129,7 +129,7 @@ def build_prior(spec: dict) -> Any:
 TAIL = 1e-15
 
 
-@functools.lru_cache(maxsize=65536)
+@functools.lru_cache(maxsize=16384)  # a few MB: the ~6,000 distinct sums of a 256-carrier grid fit
 def poisson_support(mean: float, tail: float = TAIL) -> tuple[np.ndarray, np.ndarray]:
     """:func:`support` of a Poisson prior of ``mean``, the same numbers without freezing a
     distribution (a frozen scipy.stats distribution builds its docstrings: ~6 ms each, most of a
