@@ -507,9 +507,10 @@ def inner_maximum(problem: Problem, x: np.ndarray, method: str = "exact", penalt
     def tables(part):  # the adaptive penalty's tables of a multi-carrier component, or None
         return _adaptive(problem, part, discount) if adaptive else None
 
-    if method == "separable":
-        return sum(_separable_value(problem, x, _separable_phi(problem, x, phi, part, tables(part), penalty_scale),
-                                    [part]) for part in parts)
+    if method == "separable":  # each component's adaptive lower terms on its own points, then one pass
+        for part in parts:
+            phi = _separable_phi(problem, x, phi, part, tables(part), penalty_scale)
+        return _separable_value(problem, x, phi, parts)
     # Components are independent given x (the penalty and, with the adaptive penalty, its counts
     # k are per component), so the sum of per-component upper bounds bounds the whole maximum.
     total = 0.0
