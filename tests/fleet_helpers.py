@@ -11,10 +11,6 @@ import numpy as np
 import world
 from carriers.node import Carrier, CarrierConfig
 from coordinator.node import Coordinator, CoordinatorConfig
-from planner.registry import planner_settings
-from world import build_problem
-from planner.registry import make_planner
-from planner.online import run_online
 from wire.zconfig import free_port, make_config
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -35,12 +31,7 @@ class Quiet:
 
 def offline(scenario, planner=None, iterations=None, seed=None):
     """The planner core run over world.observe_all: what the fleet must reproduce."""
-    if seed is not None:
-        scenario = scenario.with_seed(seed)
-    name, options = planner_settings(scenario, planner, iterations)
-    x = world.observe_all(scenario)
-    return run_online(build_problem(scenario), x, make_planner(name, **options), scenario.seed,
-                      counts=world.observe_counts(scenario)), x
+    return world.offline_mission(scenario if seed is None else scenario.with_seed(seed), planner, iterations)
 
 
 class InProcessFleet:

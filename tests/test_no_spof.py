@@ -22,15 +22,23 @@ needs_netns = pytest.mark.skipif(_NO_NETNS is not None, reason=f"network namespa
 
 
 @pytest.fixture(scope="module")
-def base(tmp_path_factory):
-    """The uninterrupted mission per (seed, planner), run once for the whole module."""
-    root = tmp_path_factory.mktemp("uninterrupted")
+def base():
+    """The uninterrupted mission per (seed, planner): the offline planner's, which the fleet's
+    uninterrupted mission reproduces exactly (held by the next test on this host, and by
+    tests/test_fidelity.py on a saturated one), so each fault's reward kept is measured against it
+    without flying a baseline per seed."""
+    return lru_cache(maxsize=None)(lambda seed, planner=None: faults.offline_baseline(SCENARIO, seed, planner))
 
-    @lru_cache(maxsize=None)
-    def run(seed: int, planner: str | None = None) -> faults.Outcome:
-        return faults.baseline(faults.SCENARIO, SCENARIO, seed, root / f"{seed}-{planner}", planner)
 
-    return run
+@pytest.mark.parametrize("planner", [None, "closed-loop"])
+def test_the_uninterrupted_fleet_is_the_offline_baseline(base, planner, tmp_path):
+    """The fleet flown as tools.faults flies it (paced, its timeouts), uninterrupted: every carrier
+    deploys exactly where the offline planner does, with the same reward."""
+    flown = faults.baseline(faults.SCENARIO, SCENARIO, 1, tmp_path / "uninterrupted", planner)
+    offline = base(1, planner)
+    np.testing.assert_array_equal(flown.deployed, offline.deployed)
+    assert flown.reward == pytest.approx(offline.reward, abs=1e-9)
+    assert flown.own == 0 and flown.unresolved == 0
 
 
 def _fault(name, seed, tmp_path):

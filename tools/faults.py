@@ -258,6 +258,16 @@ def baseline(scenario_path, scenario, seed, out, planner=None) -> Outcome:
     return _run(scenario_path, scenario, seed, out, planner=planner)[0]
 
 
+def offline_baseline(scenario, seed: int, planner=None) -> Outcome:
+    """The uninterrupted mission on seed ``seed`` as the planner core decides it offline
+    (:func:`world.offline_mission`): what :func:`baseline`'s fleet reproduces exactly, without
+    flying it (tests/test_no_spof.py holds the two equal)."""
+    import world
+
+    result, x = world.offline_mission(scenario.with_seed(seed), planner)
+    return Outcome(x, np.asarray(result.deployed, dtype=bool), float(result.reward), 0, 0)
+
+
 def fault_run(name: str, scenario_path: Path, scenario, seed: int, out: Path,
               carrier_flags=()) -> tuple[Outcome, dict]:
     """Run the mission under fault ``name``; (outcome, details). ``carrier_flags``: more flags for

@@ -262,13 +262,9 @@ def offline_reference(path: Path, workers: int = 0):
     import os
 
     import world
-    from planner.online import run_online
-    from planner.registry import make_planner, planner_settings
 
-    scenario = world.load_scenario(path)
-    x = world.observe_all(scenario, workers=workers or os.cpu_count() or 1)
-    name, options = planner_settings(scenario, None, None)
-    return x, run_online(world.build_problem(scenario), x, make_planner(name, **options), scenario.seed)
+    result, x = world.offline_mission(world.load_scenario(path), workers=workers or os.cpu_count() or 1)
+    return x, result
 
 
 def fidelity(summary: dict, x: np.ndarray, reference) -> dict:

@@ -43,6 +43,21 @@ def observe_counts(scenario, seed=None):
     return region_counts(scenario, seed=seed)
 
 
+def offline_mission(scenario, planner=None, iterations=None, workers: int = 1):
+    """``(result, x)``: what a fault-free fleet flying ``scenario`` must reproduce exactly — the
+    planner core (:func:`planner.online.run_online`, the scenario's planner unless ``planner`` or
+    ``iterations`` say otherwise) over the fault-free observations ``x``
+    (:func:`observe_all`, the carriers' physics spread over ``workers`` processes). The fleet's
+    fidelity tests hold the fleet to it (tests/test_fidelity.py, on a saturated host too)."""
+    from planner.online import run_online
+    from planner.registry import make_planner, planner_settings
+
+    name, options = planner_settings(scenario, planner, iterations)
+    x = observe_all(scenario, workers=workers)
+    return run_online(build_problem(scenario), x, make_planner(name, **options), scenario.seed,
+                      counts=observe_counts(scenario)), x
+
+
 def render_map(scenario, path, deployments=None, trajectories=None, title=None, **kwargs):
     """Draw the map PNG; see :func:`world.render.render_map` (matplotlib is imported lazily)."""
     from world.render import render_map as _render
@@ -54,5 +69,5 @@ __all__ = [
     "Building", "CarrierSpec", "build_problem", "Cluster", "Deployment", "FEATURES_SPAWN_KEY", "FeatureSpec", "MapSpec",
     "MissionTrace", "PHYSICS_DT", "PlannerSpec", "PriorSpec", "SUBSTEPS", "Scenario", "ScenarioError",
     "Simulation", "StageGeometry", "load_scenario", "observe_all", "parse_scenario", "render_map",
-    "observe_counts", "sample_features", "simulate_mission", "stage_geometry",
+    "observe_counts", "offline_mission", "sample_features", "simulate_mission", "stage_geometry",
 ]
