@@ -353,7 +353,8 @@ RUNS = [
                              ("/tmp/grid_256.yaml", "{tmp}/grid_256.yaml")),), "default", wall_s=60, mem_mb=800),
     # ---- benchmarks and experiments
     Run("bench-quick", (S("python -m coordinator.bench --quick"),), "slow", wall_s=600, mem_mb=2500),
-    Run("bench-coverage", (S("python -m planner.cli.bench_coverage --instances 6"),), "slow", wall_s=900, mem_mb=2500),
+    # its code path and table on one world per family: tests/test_bench_coverage.py (default suite)
+    Run("bench-coverage", (S("python -m planner.cli.bench_coverage --instances 6"),), "heavy", wall_s=900, mem_mb=2500),
     Run("experiments-quick", (S("python -m experiments all --quick"),), "slow", wall_s=600, mem_mb=3000),
     Run("report-only", (
         Step(None, raw="cp -r docs/results {tmp}/results"),
