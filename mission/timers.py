@@ -301,6 +301,14 @@ def hold(live: bool, opened: float, now: float, join_s: float) -> Wait | GoOn:
     return Wait(opened + join_s)
 
 
+def lapses(silent_from: float, until: float, lease_s: float) -> bool:
+    """A session silent from ``silent_from`` to ``until`` (a stopped or frozen process) lapses:
+    silent for longer than its Zenoh lease, its liveliness token vanishes a lease after it fell
+    silent (and a process that runs again has it back). The simulated network's model of the
+    lease (:mod:`mission.simulate.injector`)."""
+    return until - silent_from > lease_s
+
+
 def due(last: float | None, now: float, interval_s: float) -> bool:
     """A periodic message (Progress [P-10.6], Pose, End's repetition [P-9.1]) is due: never sent, or ``interval_s``
     since the last one (an interval of 0 or less: never periodic)."""

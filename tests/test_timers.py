@@ -273,6 +273,36 @@ def test_outranked(now, expected):
     assert tm.outranked(120.0, now, 30.0) == expected
 
 
+@pytest.mark.parametrize("rule, until, expected", [
+    ("[network] silent for less than the lease: the session holds", 1.5, False),
+    ("[network] silent for the lease exactly: it holds", 3.0, False),
+    ("[network] silent past the lease: it lapses", 3.5, True),
+])
+def test_lapses(rule, until, expected):
+    assert tm.lapses(0.0, until, 3.0) is expected
+
+
+def test_no_time_difference_is_compared_outside_the_rules():
+    """Every wait of a carrier, a coordinator and the simulator is a rule of mission.timers: no
+    comparison of a difference of two times (``now - self.opened >= t.coordinator_s``) is left in
+    carriers/, coordinator/ or mission/simulate/ (a difference with a constant, an index's ``j -
+    1`` or a tolerance, is not one)."""
+    import ast
+    from pathlib import Path
+
+    root = Path(tm.__file__).resolve().parents[1]
+    found = []
+    for folder in ("carriers", "coordinator", "mission/simulate"):
+        for path in sorted((root / folder).rglob("*.py")):
+            for node in ast.walk(ast.parse(path.read_text())):
+                if isinstance(node, ast.Compare):
+                    found += [f"{path.relative_to(root)}:{node.lineno}: {ast.unparse(node)}"
+                              for side in (node.left, *node.comparators)
+                              if isinstance(side, ast.BinOp) and isinstance(side.op, ast.Sub)
+                              and not isinstance(side.left, ast.Constant) and not isinstance(side.right, ast.Constant)]
+    assert not found, found
+
+
 def test_no_rule_reads_a_clock():
     """Time is an input: mission.timers imports no clock (nor anything that reads one)."""
     import ast

@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 from collections import Counter
 
+from .. import timers
 from .coordinator import CoordinatorDriver
 from .model import LEASE_S, OPEN_RETRY_S, Fault, msg
 
@@ -205,7 +206,7 @@ class Injector:
         sim = self.sim
         sim.frozen[who] = until
         driver = sim.carriers[who]
-        if until - sim.t > LEASE_S and driver.alive:
+        if timers.lapses(sim.t, until, LEASE_S) and driver.alive:
             sim.at(sim.t + LEASE_S, self.paused_lease, driver, driver.life, False)
             sim.at(until, self.paused_lease, driver, driver.life, True)
         sim.at(until, lambda: driver.alive and driver.advance(sim.now_of(who)))
