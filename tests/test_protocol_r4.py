@@ -600,9 +600,9 @@ def test_a_revision_3_carrier_never_receives_revision_4_fields(tmp_path):
             assert item is not None and item.key == keys.accepted_key(M, cid), item
             got[cid].put(item.payload)
         deadline = time.monotonic() + 10
-        while "b" not in fleet.coordinator.epochs.claims and time.monotonic() < deadline:
+        while "b" not in fleet.coordinator.crew.epochs.claims and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert fleet.coordinator.epochs.claims["b"] == 5 and fleet.coordinator.epochs.epoch == 1
+        assert fleet.coordinator.crew.epochs.claims["b"] == 5 and fleet.coordinator.crew.epochs.epoch == 1
         fleet.coordinator.stop()
         for cid, node in peers.items():
             item = node.next(10.0)
