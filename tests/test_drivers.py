@@ -71,7 +71,7 @@ def carrier_at_stage_0(mode: str, clock_name: str = "sim", **timeouts):
                            **timeouts)
     clock = FakeClock()
     carrier = Carrier(TINY, config, None, stop=stop, clock=clock)  # its presence and motion made on that clock
-    carrier.motion.body = SimpleNamespace(time=0.0, position=lambda cid: (0.0, 0.0),  # a body standing still
+    carrier.crew.motion.body = SimpleNamespace(time=0.0, position=lambda cid: (0.0, 0.0),  # a body standing still
                                           deploy=lambda cid: None)
     carrier.node = QuietNode(clock, stop)
     carrier.timers = mc.Timers(clock_name, config.silence_timeout_s, 0.0)
@@ -129,7 +129,7 @@ def test_a_carrier_on_the_wall_clock_stops_waiting_after_the_decision_timeout(mo
     carrier.config = dataclasses.replace(carrier.config, log=lines.append)
     carrier.presence.coordinator_alive()
     start = clock.now
-    carrier.inbound.listening = ()  # deciding alone: nobody to listen to (its node is quiet)
+    carrier.crew.inbound.listening = ()  # deciding alone: nobody to listen to (its node is quiet)
     carrier.fly(until=at_stage_0)
     assert carrier.node.asked == [] and 30.0 <= clock.now - start < 32.0
     assert carrier.life.phase is (cl.Phase.WORK if mode == "coordinated" else cl.Phase.ALONE)
@@ -169,11 +169,11 @@ def alone_at_stage_1(clock_name: str, peer_timeout_s: float = 5.0, silence_timeo
     me, peer = TINY.carrier_ids[:2]
     carrier.machine, _ = mc.step(carrier.machine, mc.MovedOn(0))
     carrier.machine, _ = mc.step(carrier.machine, mc.Observed(1, 1, (0.0, 0.0)))
-    carrier.motion.pending = SimpleNamespace(stage=1)
-    carrier.inbound.listening = (peer,)
+    carrier.crew.motion.pending = SimpleNamespace(stage=1)
+    carrier.crew.inbound.listening = (peer,)
     carrier.presence.peer(peer, True)
     carrier.presence.heard_from(peer, clock())
-    carrier.alone.deploy = lambda j: True  # the planner's choice is not what is tested here
+    carrier.crew.alone.deploy = lambda j: True  # the planner's choice is not what is tested here
     carrier.life = dataclasses.replace(carrier.life, phase=cl.Phase.ALONE, stage=1, opened=clock.now, deciding=True)
     resent = lambda: [t for t, topic in carrier.node.puts if topic == "obs"]
     return carrier, clock, resent
@@ -292,7 +292,7 @@ def test_the_coordinator_waits_for_a_carrier_heard_from_until_its_silence(tmp_pa
     the stage timeout, until the silence timeout after that; then it is stalled (logged)."""
     coordinator, clock, lines = coordinator_waiting("sim", tmp_path, silence_timeout_s=30.0, stage_timeout_s=5.0)
     opened = clock.now
-    coordinator.inbound.heard = {cid: opened + 10.0 for cid in TINY.carrier_ids}
+    coordinator.crew.inbound.heard = {cid: opened + 10.0 for cid in TINY.carrier_ids}
     waiting = coordinator.state.waiting(0)
     assert waiting
     decided = stage_0_opened(coordinator, clock)
@@ -305,7 +305,7 @@ def test_the_coordinator_on_the_wall_clock_waits_the_stage_timeout(tmp_path):
     """[P-10.3] wall clock: the stage timeout is a deadline, whoever is heard from."""
     coordinator, clock, lines = coordinator_waiting("wall", tmp_path, silence_timeout_s=30.0, stage_timeout_s=5.0)
     opened = clock.now
-    coordinator.inbound.heard = {cid: opened + 4.9 for cid in TINY.carrier_ids}
+    coordinator.crew.inbound.heard = {cid: opened + 4.9 for cid in TINY.carrier_ids}
     decided = stage_0_opened(coordinator, clock)
     coordinator.fly()
     assert len(decided) == 1 and 5.0 <= decided[0] - opened < 5.1 and not any("stalled" in line for line in lines)
