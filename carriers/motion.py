@@ -114,10 +114,11 @@ class Motion:
         time on the way. Unpaced, in the process's physics thread when it has one
         (:class:`carriers.shared.PhysicsThread`) while this thread sends the Progress. ``now``:
         what the carrier is (:class:`Moving`). A generator: while it paces, it yields how long
-        the carrier is to take its inbox (s) and is sent what the carrier is then."""
+        the carrier is to take its inbox (s) and is sent what the carrier is then; it returns
+        what the carrier is at its end."""
         if now.timers.realtime <= 0 or not paced:  # no inbox wait on the way: the carrier stays as it is
             self.run_to(t, now)
-            return
+            return now
         wall0, t0 = now.clock(), self.body.time
         while self.body.time < t - 1e-9 and not self.stop.is_set():
             target = min(t, self.body.time + PACE_CHUNK_S)
@@ -130,6 +131,14 @@ class Motion:
                 if isinstance(rule, GoOn):
                     break
                 now = yield min(0.05, rule.until - at)
+        return now
+
+    def drive(self, j: int, who, paced: bool, now: Moving):
+        """Its body to stage j's time (:meth:`advance`, a generator as it is; ``who``: the carrier,
+        :class:`carriers.who.Who`), then a Pose for every pose tick it passed
+        (:meth:`publish_poses`, told what the carrier is at the end of the drive)."""
+        now = yield from self.advance(who.scenario.stage_time(j), paced, now)
+        self.publish_poses(now)
 
     def run_to(self, t: float, now: Moving) -> None:
         """Physics to mission time ``t`` (s) at fixed steps, unpaced, in the process's physics

@@ -41,7 +41,7 @@ from typing import Any
 
 from carriers import ONBOARD_LOADS, opening
 from carriers.crew import Crew
-from carriers.exits import EXIT_CODES, exit_reason
+from carriers.exits import EXIT_CODES, exit_reason  # EXIT_CODES: the keys run() returns (the launcher's)
 from carriers.inbound import Follow
 from carriers.joining import PATHS, RESYNCS
 from carriers.motion import Moving
@@ -187,8 +187,7 @@ class Carrier:
         self.config = config
         self.clock = clock  # the one clock its lifecycle is fed, once per look (mission.timers rules decide)
         self._stop = stop if stop is not None else threading.Event()
-        # what it shares with the other carriers of its process (carriers/process.py)
-        self.parts = Parts(zconf, session, shared, gate if gate is not None else StageGate())
+        self.parts = Parts(zconf, session, shared, gate if gate is not None else StageGate())  # shared in its process
         self.crew = Crew.build(scenario, config, self.parts, onboard, broadcasts, physics, self._stop, clock, self.log)
         self.machine = self.crew.who.handshake()
         self.node = None
@@ -199,13 +198,8 @@ class Carrier:
         self.life = cl.initial(config.mode, waits_of(config))
 
     # ------------------------------------------------------------------ its parts, by name
-    scenario = property(lambda self: self.crew.who.scenario)
     cid = property(lambda self: self.crew.who.cid)
-    valid = property(lambda self: self.crew.who.valid)
-    presence = property(lambda self: self.crew.inbound.presence)  # the coordinator's and the peers' tokens
-    answer = property(lambda self: self.crew.inbound.answer)      # the coordinator's answer to its latest Hello
-    store = property(lambda self: self.crew.effects.store)        # its durable log, open while running
-    ros2 = property(lambda self: self.crew.effects.ros2)          # its ROS 2 node while running with config.ros2
+    ros2 = property(lambda self: self.crew.effects.ros2)  # its ROS 2 node while running with config.ros2
     reason = property(lambda self: self.life.reason or "finished")  # why it ended (carriers/exits.py)
 
     def log(self, line: str) -> None:
@@ -253,8 +247,6 @@ class Carrier:
         return Moving(self.node, self.ros2, self.clock, self.timers, self.machine.stage, self.machine.passengers_left)
 
     def _paced(self, wait_s: float) -> Moving:
-        """While its body paces (:meth:`carriers.motion.Motion.advance`): its messages handled (a
-        refused Hello ends it), and what it is then."""
         self.pump(wait_s)
         self.crew.inbound.check_refused()
         return self._moving()
@@ -290,22 +282,21 @@ class Carrier:
             self.pump(max(0.0, min(poll, wake - now)))
 
     def execute(self, effect) -> None:
-        """Carry out one effect of either machine: its body driven to a stage (paced: its inbox
-        taken on the way, :meth:`_paced`) and its Poses, Progress, a join or resynchronisation
-        path (:meth:`carriers.joining.Joining.path`), a stage's work
+        """Carry out one effect of either machine: its body driven to a stage and its Poses
+        (:meth:`carriers.motion.Motion.drive`; paced, its messages handled on the way and a
+        refused Hello ending it: :meth:`_paced`), Progress, a join or resynchronisation path
+        (:meth:`carriers.joining.Joining.path`), a stage's work
         (:meth:`carriers.stage.StageWork.steps`), the mission's timers followed; the rest, I/O, by
         its hands (:meth:`carriers.effects.CarrierEffects.carry_out`; Finish: its reason is
         :attr:`reason`)."""
-        motion = self.crew.motion
         if isinstance(effect, cl.Drive):
-            tm.drive(motion.advance(self.scenario.stage_time(effect.stage), effect.paced, self._moving()), self._paced)
-            motion.publish_poses(self._moving())
+            tm.drive(self.crew.motion.drive(effect.stage, self.crew.who, effect.paced, self._moving()), self._paced)
             if not self._stop.is_set():
                 self.step(cl.Arrived(effect.stage, self.clock()))
         elif isinstance(effect, cl.SendProgress):
-            motion.send_progress(self._moving())
+            self.crew.motion.send_progress(self._moving())
         elif isinstance(effect, (*PATHS, *RESYNCS)):
-            if tm.drive(self.crew.joining.path(effect, self.machine, self.node, self.store), self._asked):
+            if tm.drive(self.crew.joining.path(effect, self.machine, self.node, self.crew.effects.store), self._asked):
                 self.step(cl.Answered(self.clock()))  # a State answered its Query: it joined
         elif isinstance(effect, WORK):
             tm.drive(self.crew.work.steps(effect, self.node, self.machine), self._asked)

@@ -91,7 +91,7 @@ def test_a_carrier_waiting_on_the_sim_clock_asks_state_every_decision_timeout():
     the carrier's clock (the query's own 2 s count as waiting), never deciding alone; Progress
     every third of the silence timeout meanwhile [P-10.6]."""
     carrier, clock = carrier_at_stage_0("coordinated", decision_timeout_s=30.0, silence_timeout_s=9.0)
-    carrier.presence.coordinator_alive()
+    carrier.crew.inbound.presence.coordinator_alive()
     start = clock.now
     carrier.fly(until=at_stage_0)
     asked = [t - start for t in carrier.node.asked]
@@ -112,7 +112,7 @@ def test_a_carrier_says_an_unanswered_hello_again(revision, present, expected):
     carrier, clock = carrier_at_stage_0("coordinated", decision_timeout_s=30.0, hello_timeout_s=10.0)
     carrier.node.revision = revision
     if present:
-        carrier.presence.coordinator_alive()
+        carrier.crew.inbound.presence.coordinator_alive()
     start = clock.now
     carrier.execute(mc.SendHello(0, 1))
     carrier.fly(until=lambda life: at_stage_0(life) or clock.now - start >= 100.0)
@@ -127,7 +127,7 @@ def test_a_carrier_on_the_wall_clock_stops_waiting_after_the_decision_timeout(mo
     carrier, clock = carrier_at_stage_0(mode, "wall", decision_timeout_s=30.0)
     lines = []
     carrier.config = dataclasses.replace(carrier.config, log=lines.append)
-    carrier.presence.coordinator_alive()
+    carrier.crew.inbound.presence.coordinator_alive()
     start = clock.now
     carrier.crew.inbound.listening = ()  # deciding alone: nobody to listen to (its node is quiet)
     carrier.fly(until=at_stage_0)
@@ -140,9 +140,9 @@ def test_a_coordinated_carrier_exits_after_the_coordinator_timeout():
     """[P-8.1] the coordinator's token gone: a coordinated carrier holds, then exits
     coordinator-lost once it has been absent for the coordinator timeout of its clock."""
     carrier, clock = carrier_at_stage_0("coordinated", coordinator_timeout_s=30.0)
-    carrier.presence.coordinator_alive()
+    carrier.crew.inbound.presence.coordinator_alive()
     gone = clock.now
-    carrier.presence.coordinator_gone(gone)
+    carrier.crew.inbound.presence.coordinator_gone(gone)
     carrier.fly()
     assert carrier.reason == "coordinator-lost" and 30.0 <= clock.now - gone < 32.0
 
@@ -151,7 +151,7 @@ def test_a_joining_carrier_asks_state_again_until_the_coordinator_timeout():
     """[P-5.2] no reply: asked again 0.2 s after the last query's end, until the coordinator
     timeout since the first; then [P-5.5] 4 a coordinated carrier exits coordinator-lost."""
     carrier, clock = carrier_at_stage_0("coordinated", coordinator_timeout_s=10.0)
-    carrier.machine = mc.initial(carrier.cid, carrier.valid, TINY.stage_times(), 1)
+    carrier.machine = mc.initial(carrier.cid, carrier.crew.who.valid, TINY.stage_times(), 1)
     carrier.node.queries = 1000
     start = clock.now
     carrier.step(cl.Start(start))
@@ -171,8 +171,8 @@ def alone_at_stage_1(clock_name: str, peer_timeout_s: float = 5.0, silence_timeo
     carrier.machine, _ = mc.step(carrier.machine, mc.Observed(1, 1, (0.0, 0.0)))
     carrier.crew.motion.pending = SimpleNamespace(stage=1)
     carrier.crew.inbound.listening = (peer,)
-    carrier.presence.peer(peer, True)
-    carrier.presence.heard_from(peer, clock())
+    carrier.crew.inbound.presence.peer(peer, True)
+    carrier.crew.inbound.presence.heard_from(peer, clock())
     carrier.crew.alone.deploy = lambda j: True  # the planner's choice is not what is tested here
     carrier.life = dataclasses.replace(carrier.life, phase=cl.Phase.ALONE, stage=1, opened=clock.now, deciding=True)
     resent = lambda: [t for t, topic in carrier.node.puts if topic == "obs"]

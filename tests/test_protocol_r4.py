@@ -514,7 +514,7 @@ def test_each_answer_only_on_its_own_key_and_for_its_own_carrier():
         coordinator.put(keys.refusal_key(M, "a"), mine, 4)
         coordinator.put(keys.accepted_key(M, "a"), dataclasses.replace(mine, carrier="b"), 4)
         time.sleep(0.5)
-        assert carrier.answer.unanswered is True
+        assert carrier.crew.inbound.answer.unanswered is True
         coordinator.put(keys.accepted_key(M, "a"), mine, 4)
         assert coordinator.expect(wm.Observation) is not None
         coordinator.put(keys.end_key(M), wm.End(M, 0, "complete", epoch=1), 4)
@@ -558,7 +558,7 @@ def test_a_revision_4_carrier_with_a_revision_3_coordinator():
         assert coordinator.expect(wm.Observation) is not None
         time.sleep(0.5)
         assert carrier.timers == mc.Timers("wall", 12.0, 0.0)
-        assert carrier.answer.unanswered is False  # the Accepted was taken
+        assert carrier.crew.inbound.answer.unanswered is False  # the Accepted was taken
         coordinator.put(keys.end_key(M), wm.End(M, 0, "complete", epoch=2), 3)  # encoded for revision 3: no epoch
         bye = coordinator.expect(wm.Bye)
         thread.join(30)
