@@ -6,7 +6,8 @@ motion equals ``world.observe_all``'s). The handshake rules (which stage it is a
 handled at most once, late / idle / already, resynchronisation) live in mission/carrier.py; this
 module feeds its machines their messages and clock ticks and dispatches their effects: the I/O
 among them by carriers/effects.py, a stage's work by carriers/stage.py, the physics by
-carriers/motion.py, the run's opening and closing by carriers/opening.py.
+carriers/motion.py, the run's opening and closing by carriers/opening.py, each collaborator
+built once by carriers/crew.py.
 Per stage j (docs/protocol.md, "Stage handshake"):
 
 1. advance the physics at fixed steps to t_j (paced at ``realtime`` × wall time when > 0),
@@ -219,10 +220,9 @@ class Carrier:
             self.execute(effect)
 
     def pump(self, timeout_s: float) -> None:
-        """Take what arrived, waiting up to ``timeout_s`` for the inbox's first item
-        (:meth:`carriers.inbound.Inbound.arrivals`), each read against its machine then
-        (:meth:`carriers.inbound.Inbound.read`): an event applied, an effect carried out (one it
-        cannot read rejected)."""
+        """Take what arrived (:meth:`carriers.inbound.Inbound.arrivals`, waiting up to ``timeout_s``
+        for the inbox's first item), each read against its machine then (``Inbound.read``): an
+        event applied, an effect carried out (one it cannot read rejected)."""
         for item in self.crew.inbound.arrivals(self.node, timeout_s):
             heard = self.crew.inbound.read(item, self.machine)
             if isinstance(heard, (mc.DecisionHeard, mc.EndHeard)):

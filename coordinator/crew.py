@@ -57,5 +57,6 @@ class Crew:
         epochs = Epochs(setup.mission, setup.log, stop, clock, config.coordinator_id or default_ident())
         answers = Answers(setup, epochs, config)
         inbound = Inbound(setup.mission, setup.spec.has, setup.fingerprint, epochs, recording)
-        return cls(recording, epochs, answers, inbound, results_for(scenario, setup, config, epochs, recording),
+        results = results_for(scenario, setup, config, epochs, recording, answers)
+        return cls(recording, epochs, answers, inbound, results,
                    MissionEffects(setup.mission, setup.spec, answers, recording, setup.log))

@@ -4,7 +4,7 @@ receive (wire/) → decode → mission event → ``mission.state.step`` → pers
 effects (publish, refuse, log). The mission rules live in mission/state.py; this module feeds
 the machines their messages and clock ticks and carries out their effects: the I/O among them by
 coordinator/effects.py, the planner call by coordinator/planning.py, the mission's opening by
-coordinator/opening.py.
+coordinator/opening.py, each collaborator built once by coordinator/crew.py.
 
 Stage j (docs/protocol.md, "Stage handshake"):
 
@@ -171,10 +171,9 @@ class Coordinator:
             self.crew.answers.serve(self.state)
 
     def pump(self, timeout_s: float) -> None:
-        """Take what arrived, waiting up to ``timeout_s`` for it (:meth:`coordinator.inbound.Inbound.arrivals`),
-        its writes to mission.db committed together (:meth:`storage.missiondb.MissionStore.batch`):
-        each item's mission event applied, or what it asks instead carried out (a rejection, a
-        claim's answer: :meth:`coordinator.inbound.Inbound.take`)."""
+        """Take what arrived, waiting up to ``timeout_s`` for it, in one mission.db batch
+        (:meth:`coordinator.inbound.Inbound.arrivals`): each item's mission event applied, or what
+        it asks instead carried out (a rejection, a claim's answer: ``Inbound.take``)."""
         with self.store.batch():
             for heard in self.crew.inbound.arrivals(self.node, timeout_s, self.store):
                 said = self.crew.inbound.take(heard, self.state)
@@ -186,11 +185,10 @@ class Coordinator:
     # ------------------------------------------------------------------ its lifecycle
     def fly(self, until=None) -> None:
         """Its lifecycle until it is done or deposed (or ``until(life)`` holds), the clock fed as
-        ticks and the inbox taken in between. A stop request ends the stages with End
-        ``stopped``; the end wait runs to its end. A rule's inputs are the mission state, the
-        time and when carriers were heard, and hearing one only delays a wait's end: so a
-        :class:`mission.timers.Wait` stands until its ``until`` or a new state (most drains apply
-        no event: Progress, Poses, about a thousand a second at R = 1,024)."""
+        ticks (a stop request as ``Stopped``) and the inbox taken in between. A rule's inputs are
+        the mission state, the time and when carriers were heard, and hearing one only delays a
+        wait's end: so a :class:`mission.timers.Wait` stands until its ``until`` or a new state
+        (most drains apply no event: Progress, Poses, about a thousand a second at R = 1,024)."""
         wake, seen, stopped = None, None, False
         while self.life.phase not in (cl.Phase.DONE, cl.Phase.DEPOSED) and not (until and until(self.life)):
             now = self.clock()
@@ -227,19 +225,18 @@ class Coordinator:
         return until
 
     def decide(self, j: int) -> cl.Decided | None:
-        """Plan stage j, record and publish its Decision: the lifecycle's ``Decided`` with its
-        planning ms (None: deposed, Epochs.fencing). In operator mode the decision waits for the
-        operator's console (:mod:`console.hold`)."""
-        decided = planning.planned(self.setup, self.store, j, self.state) if self.console is None else \
-            tm.drive(self.console.decide(j, self.state), self._asked)
+        """Plan stage j (:func:`coordinator.planning.deciding`: in operator mode the decision waits
+        for the operator's console), record and publish its Decision: the lifecycle's ``Decided``
+        with its planning ms (None: deposed, Epochs.fencing)."""
+        decided = tm.drive(planning.deciding(self.setup, self.store, j, self.state, self.console), self._asked)
         with self.crew.epochs.fencing():
             self.apply(decided)  # records, then publishes
         return cl.Decided(j, self.clock(), decided.planning_ms) if self.crew.epochs.deposed_by is None else None
 
     def _asked(self, request) -> ms.MissionState:
-        """What the operator's hold asks (:meth:`console.hold.OperatorHold.decide`): a
-        :class:`mission.timers.Wait` (the inbox taken until then, for a poll at most) or an
-        event applied; the mission state after it."""
+        """What the stage's decision asks (the operator's hold: :meth:`console.hold.OperatorHold.decide`)
+        and the planner's warm-up: a :class:`mission.timers.Wait` (the inbox taken until then, for
+        a poll at most) or an event applied; the mission state after it."""
         if isinstance(request, tm.Wait):
             self.pump(max(0.0, min(POLL_S, request.until - self.clock())))
         else:
@@ -257,8 +254,7 @@ class Coordinator:
         try:
             self._serve()
         finally:
-            summary = self.crew.results.finish(self.clock() - opened.started, self.state, self.node, self.store,
-                                               self.crew.answers.counts)
+            summary = self.crew.results.finish(self.clock() - opened.started, self.state, self.node, self.store)
             self.console and self.console.close()
         return summary
 

@@ -149,17 +149,17 @@ def test_restarted_coordinator_recovers_from_mission_db(tiny, tmp_path):
     fleet = InProcessFleet(tiny, tmp_path)
     crashing = fleet.coordinator
 
-    def publish_or_crash(state, j, original=crashing.effects.publish_decision):
+    def publish_or_crash(state, j, original=crashing.crew.effects.publish_decision):
         if j == 1:
             raise _Crash()
         return original(state, j)
 
-    crashing.effects.publish_decision = publish_or_crash
+    crashing.crew.effects.publish_decision = publish_or_crash
     fleet._spawn("crashed", lambda: pytest.raises(_Crash, crashing.run))
     for cid in tiny.carrier_ids:
         fleet.start_carrier(cid, mode="coordinated")
     fleet.threads[0].join(30)
-    assert crashing.next_stage == 2 and not crashing.state.ended
+    assert crashing.state.next_stage == 2 and not crashing.state.ended
     time.sleep(0.5)
     restarted = Coordinator(tiny, CoordinatorConfig(out_dir=str(tmp_path), log=fleet.log, render=False),
                             make_config("peer", [fleet.endpoint]))
