@@ -79,9 +79,9 @@ def recovered(setup: MissionSetup, store: MissionStore, crew: Crew) -> ms.Missio
 
 def serve(node: Node, setup: MissionSetup, config, crew: Crew, store: MissionStore, clock, stop: threading.Event):
     """Subscribed (``crew.inbound``), the carriers' tokens watched, State answered
-    (``crew.answers``), its token declared, the line that says so; then operator mode's console (:func:`console.run.open_console`, its stage steps
-    :func:`coordinator.planning.plan_step`), returned (None without operator mode: nothing of
-    console/ loads then)."""
+    (``crew.answers``), its token declared, the line that says so; then operator mode's console
+    (:func:`console.run.open_console`, its stage steps :func:`coordinator.planning.plan_step`),
+    returned (None without operator mode: nothing of console/ loads then)."""
     answers = crew.answers
     crew.inbound.subscribe(node)
     node.serve(keys.state_key(setup.mission), answers.state_reply)
