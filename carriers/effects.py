@@ -1,7 +1,7 @@
 """What a carrier does for its machines' effects that is I/O and nothing else: a passenger
 released (its body, its robot's launcher), an observation or an outcome in its durable log and
 its book, a message sent (Hello, Confirm, Own, its Observation again), a message rejected, a line
-logged, its peers listened to.
+logged, its peers listened to; both machines' in one place (:meth:`CarrierEffects.carry_out`).
 
 :class:`CarrierEffects` is a collaborator of :class:`carriers.node.Carrier`, given what it needs
 when it is built and, while the carrier runs, its durable log and its ROS 2 node; it is handed
@@ -53,8 +53,10 @@ class CarrierEffects:
         self.ros2 = None  # its ROS 2 node (ros2/publisher.py) while running with config.ros2
 
     def carry_out(self, effect, node, machine: mc.Handshake) -> None:
-        """One I/O effect of the handshake machine (:func:`mission.carrier.step`), sent on
-        ``node``, ``machine`` the machine now."""
+        """One I/O effect of the handshake machine (:func:`mission.carrier.step`) or of the
+        lifecycle (:func:`mission.carrier_life.step`: its Observation sent again, its peers
+        listened to, a note; the end, ``Finish``, is nothing to carry out: its reason is the
+        lifecycle's), sent on ``node``, ``machine`` the handshake machine now."""
         if isinstance(effect, mc.Deploy):
             self.motion.body.deploy(self.who.cid)
             released = self.inbound.releases.release(effect.stage)
@@ -70,22 +72,13 @@ class CarrierEffects:
         elif isinstance(effect, mc.SendHello):
             self.inbound.answer.sent(self.clock(), effect.again)
             node.put(*self.who.hello(effect, machine.passengers_left, machine.epoch))
-        elif isinstance(effect, mc.ResendObservation):
+        elif isinstance(effect, (mc.ResendObservation, cl.RepeatObservation)):
             pending = self.motion.pending
             if pending is not None and pending.stage == effect.stage:
                 node.put(self.who.key("obs"), pending)
         elif isinstance(effect, mc.Reject):
             node.reject(effect.reason, effect.detail, self.log)
-        elif isinstance(effect, mc.Log):
-            self.log(effect.line)
-
-    def life(self, effect, node, machine: mc.Handshake) -> None:
-        """One I/O effect of the lifecycle machine (:func:`mission.carrier_life.step`): its
-        Observation sent again, its peers listened to, a note; the end (``Finish``: its reason is
-        the lifecycle's)."""
-        if isinstance(effect, cl.RepeatObservation):
-            self.carry_out(mc.ResendObservation(effect.stage), node, machine)
         elif isinstance(effect, cl.Listen):
             self.inbound.listen(node, wait=True)
-        elif isinstance(effect, cl.Note):
+        elif isinstance(effect, (mc.Log, cl.Note)):
             self.log(effect.line)

@@ -1,5 +1,5 @@
-"""How a carrier's run ends: its exit reasons, the process exit code each maps to, and the exit a
-refused Hello means."""
+"""How a carrier's run ends: its exit reasons, the process exit code each maps to, the exit a
+refused Hello means and the exit reason of a run an exception ended."""
 from __future__ import annotations
 
 from mission.exits import STOPPED
@@ -29,3 +29,16 @@ def refused_exit(refused, fingerprint: str, log) -> None:
     log(f"the coordinator refused our Hello ({refused.reason}: fingerprint {fingerprint}, "
         f"the coordinator's {refused.expected}): use the same scenario file and --seed")
     raise Exit("world-mismatch")
+
+
+def exit_reason(exc: Exception, log) -> str:
+    """The exit reason of a run that ``exc`` ended: an :class:`Exit`'s, or the one a body's error
+    names (its ``exit_reason``: a robot of another ROS 2 format), logged (``log``: a callable
+    taking one line); any other exception is raised again."""
+    if isinstance(exc, Exit):
+        return exc.reason
+    reason = getattr(exc, "exit_reason", None)
+    if reason not in EXIT_CODES:
+        raise exc
+    log(str(exc))
+    return reason

@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from carriers.exits import refused_exit
 from mission import carrier as mc
 from mission import carrier_life as cl
 from mission.peers import PeerBook, Presence
@@ -109,9 +110,16 @@ class Inbound:
         """Feed the books what one inbox item says and return what the carrier does with it: an
         event of its machine (:class:`mission.carrier.DecisionHeard`,
         :class:`mission.carrier.EndHeard`), an effect (:class:`Rejoin`, :class:`Follow`,
-        :class:`mission.carrier.Log`) or None. ``machine``: the carrier's machine now (a
-        deposed coordinator's Decision names nothing, its Accepted tells no timers). Raises
-        :class:`ProtocolError` for a message it cannot read."""
+        :class:`mission.carrier.Log`; :class:`mission.carrier.Reject` for a message it cannot
+        read: its :class:`ProtocolError`'s reason and detail) or None. ``machine``: the carrier's
+        machine now (a deposed coordinator's Decision names nothing, its Accepted tells no timers)."""
+        try:
+            return self._read(item, machine)
+        except ProtocolError as exc:
+            return mc.Reject(exc.reason, exc.detail)
+
+    def _read(self, item, machine: mc.Handshake):
+        """:meth:`read`, a message it cannot read raising :class:`ProtocolError`."""
         if item.kind == "wake":
             return None
         if item.kind in ("alive", "gone"):
@@ -134,6 +142,11 @@ class Inbound:
             self.book.decision(msg.stage, msg.deploy)
         self.releases.name(machine, msg.stage, msg.epoch, msg.passenger_of(self.cid), msg.coordinator)
         return mc.DecisionHeard(msg.stage, msg.t, msg.deploy, self.position(), msg.epoch, msg.coordinator)
+
+    def check_refused(self) -> None:
+        """End the run when the coordinator refused its latest Hello
+        (:func:`carriers.exits.refused_exit`: ``world-mismatch`` or ``refused``, logged)."""
+        refused_exit(self.answer.refused, self.answer.fingerprint, self.log)
 
     def _ours(self, msg: Any) -> Any:
         """``msg``, checked to be of this mission."""

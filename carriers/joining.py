@@ -13,6 +13,7 @@ an event applied, an effect carried out, the body driven), which the carrier car
 from __future__ import annotations
 
 from carriers.exits import Exit
+from carriers.inbound import Rejoin
 from mission import carrier as mc
 from mission import carrier_life as cl
 from mission import joins
@@ -27,6 +28,10 @@ from mission.modes import Mode
 
 #: The lifecycle's effects that are a join or resynchronisation path (:meth:`Joining.path`).
 PATHS = (cl.AskState, cl.Query, cl.JoinAlone, cl.Gathered)
+#: What else asks for a resynchronisation from State (:meth:`Joining.path`): the handshake
+#: machine's :class:`mission.carrier.AskState` (a Decision came without an earlier one) and
+#: :class:`carriers.inbound.Rejoin` (the coordinator is back).
+RESYNCS = (mc.AskState, Rejoin)
 
 
 class Joining:
@@ -51,12 +56,16 @@ class Joining:
         self.next_alone = 0  # joining alone: the stage after the last its log resolved
 
     def path(self, effect, machine: mc.Handshake, node, store) -> Steps:
-        """The join or resynchronisation path one lifecycle effect of :data:`PATHS` asks for
-        (``machine``: the handshake machine now, ``node``: its wire node, ``store``: its durable
-        log, None: none): a Decision recovered from State (``AskState``), a join from State
-        (``Query``: State asked once), from its log alone (``JoinAlone``), its peers gathered
-        (``Gathered``). Returns whether a State answered the Query."""
-        if isinstance(effect, cl.AskState):
+        """The join or resynchronisation path one effect of :data:`PATHS` or :data:`RESYNCS` asks
+        for (``machine``: the handshake machine now, ``node``: its wire node, ``store``: its
+        durable log, None: none): a Decision recovered from State (the lifecycle's ``AskState``),
+        a join from State (``Query``: State asked once), from its log alone (``JoinAlone``), its
+        peers gathered (``Gathered``), a resynchronisation (:meth:`resync`: the gap of the
+        handshake's ``AskState``, or none for a ``Rejoin``). Returns whether a State answered the
+        Query."""
+        if isinstance(effect, RESYNCS):
+            yield from self.resync(machine, node, gap=effect.stage if isinstance(effect, mc.AskState) else None)
+        elif isinstance(effect, cl.AskState):
             yield from self.recover_decision(machine, node, effect.stage)
         elif isinstance(effect, cl.Query):
             state = self.queries.once(node)

@@ -5,7 +5,8 @@ counts behind what the body sensed.
 :class:`Motion` is a collaborator of :class:`carriers.node.Carrier`: it owns the body and what
 its motion has published, and is handed, at each call that publishes, what the carrier is now
 (:class:`Moving`: its wire node, clock, timers, stage); while it paces, it yields its waits for
-the carrier to take its inbox (:meth:`Motion.advance`).
+the carrier to take its inbox (:meth:`Motion.advance`). It carries out what a join path asks of
+the body (:meth:`Motion.asked`).
 """
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from mission import joins
 from mission.timeouts import DEFAULTS
 from mission.timers import GoOn, due, pace
 from wire import keys
@@ -112,17 +114,11 @@ class Motion:
         time on the way. Unpaced, in the process's physics thread when it has one
         (:class:`carriers.shared.PhysicsThread`) while this thread sends the Progress. ``now``:
         what the carrier is (:class:`Moving`). A generator: while it paces, it yields how long
-        the carrier is to take its inbox (s) and is sent what the carrier is then."""
+        the carrier is to take its inbox (s) and is sent what the carrier is then; it returns
+        what the carrier is at its end."""
         if now.timers.realtime <= 0 or not paced:  # no inbox wait on the way: the carrier stays as it is
-            if self.physics is None:
-                self._physics_until(t, lambda: self.progress(now))
-                return
-            job = self.physics.submit(self._physics_until, t)
-            while not futures.wait((job,), DEFAULTS.progress_s).done:
-                self.progress(now)
-            self.progress(now)
-            job.result()
-            return
+            self.run_to(t, now)
+            return now
         wall0, t0 = now.clock(), self.body.time
         while self.body.time < t - 1e-9 and not self.stop.is_set():
             target = min(t, self.body.time + PACE_CHUNK_S)
@@ -135,6 +131,39 @@ class Motion:
                 if isinstance(rule, GoOn):
                     break
                 now = yield min(0.05, rule.until - at)
+        return now
+
+    def drive(self, j: int, who, paced: bool, now: Moving):
+        """Its body to stage j's time (:meth:`advance`, a generator as it is; ``who``: the carrier,
+        :class:`carriers.who.Who`), then a Pose for every pose tick it passed
+        (:meth:`publish_poses`, told what the carrier is at the end of the drive)."""
+        now = yield from self.advance(who.scenario.stage_time(j), paced, now)
+        self.publish_poses(now)
+
+    def run_to(self, t: float, now: Moving) -> None:
+        """Physics to mission time ``t`` (s) at fixed steps, unpaced, in the process's physics
+        thread when it has one (:class:`carriers.shared.PhysicsThread`) while this thread sends
+        the Progress (sim clock) that falls due on the way. ``now``: what the carrier is."""
+        if self.physics is None:
+            self._physics_until(t, lambda: self.progress(now))
+            return
+        job = self.physics.submit(self._physics_until, t)
+        while not futures.wait((job,), DEFAULTS.progress_s).done:
+            self.progress(now)
+        self.progress(now)
+        job.result()
+
+    def asked(self, step, who, now: Moving):
+        """What a join path asks of the body (:mod:`mission.joins`), carried out: ``Drive`` it
+        (unpaced) to a stage's time, ``Here``, a passenger released (``Release``); what the path
+        is answered (where the body is; None for a release). ``who``: the carrier
+        (:class:`carriers.who.Who`); ``now``: what the carrier is (:class:`Moving`)."""
+        if isinstance(step, joins.Release):
+            self.body.deploy(self.cid)
+            return None
+        if isinstance(step, joins.Drive):
+            self.run_to(who.scenario.stage_time(step.stage), now)
+        return self.position()
 
     def progress(self, moving: Moving, every_s: float = DEFAULTS.progress_s, now: float | None = None) -> None:
         """Sim clock: tell the coordinator and the peers that this carrier is working (a

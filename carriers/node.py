@@ -6,7 +6,8 @@ motion equals ``world.observe_all``'s). The handshake rules (which stage it is a
 handled at most once, late / idle / already, resynchronisation) live in mission/carrier.py; this
 module feeds its machines their messages and clock ticks and dispatches their effects: the I/O
 among them by carriers/effects.py, a stage's work by carriers/stage.py, the physics by
-carriers/motion.py, the run's opening and closing by carriers/opening.py.
+carriers/motion.py, the run's opening and closing by carriers/opening.py, each collaborator
+built once by carriers/crew.py.
 Per stage j (docs/protocol.md, "Stage handshake"):
 
 1. advance the physics at fixed steps to t_j (paced at ``realtime`` × wall time when > 0),
@@ -39,27 +40,22 @@ import time
 from dataclasses import dataclass
 from typing import Any
 
-import world
-from carriers import opening
-from carriers.alone import Alone
-from carriers.effects import CarrierEffects
-from carriers.exits import EXIT_CODES, Exit, refused_exit
-from carriers.inbound import Follow, Inbound, Rejoin
-from carriers.joining import PATHS, Joining, StateQueries
-from carriers import ONBOARD_LOADS
-from carriers.motion import Motion, Moving
+from carriers import ONBOARD_LOADS, opening
+from carriers.crew import Crew
+from carriers.exits import EXIT_CODES, exit_reason  # EXIT_CODES: the keys run() returns (the launcher's)
+from carriers.inbound import Follow
+from carriers.joining import PATHS, RESYNCS
+from carriers.motion import Moving
 from carriers.onboard import Onboard
-from carriers.who import Who
 from carriers.shared import PhysicsThread, SharedWorld, StageGate
-from carriers.stage import WORK, StageWork
+from carriers.stage import WORK
 from mission import carrier as mc
 from mission import carrier_life as cl
 from mission import joins
 from mission import timers as tm
-from mission.peers import PeerBook, Presence
-from mission.timeouts import CLOCKS, DEFAULTS, POSE_INTERVAL_S
-from wire.messages import ProtocolError, SharedDecoder
 from mission.modes import MODES, Mode
+from mission.timeouts import CLOCKS, DEFAULTS, POSE_INTERVAL_S
+from wire.messages import SharedDecoder
 
 #: Longest sleep (s) of a carrier waiting for a message (a decision, End): any message, and a
 #: stop request (:meth:`Carrier.stop`, :func:`run_carriers`), wakes it at once, so this only sets
@@ -177,48 +173,25 @@ class Carrier:
     changed only by :meth:`step`) and its stage handshake (``self.machine``,
     :class:`mission.carrier.Handshake`, changed only by :meth:`apply`). :meth:`fly` feeds the
     lifecycle its ``clock`` (monotonic s; a test hands in its own) and takes the inbox between
-    its waits; the effects of both machines are dispatched here, their I/O carried out by its
-    hands (:class:`carriers.effects.CarrierEffects`). Its collaborators
-    (:class:`carriers.inbound.Inbound`, :class:`carriers.joining.Joining`,
-    :class:`carriers.motion.Motion`, :class:`carriers.alone.Alone`,
-    :class:`carriers.stage.StageWork`, its run's opening and closing :mod:`carriers.opening`) are
-    given what they need and call nothing back: they return what they read, or yield what they
-    ask of it (:meth:`_asked`).
+    its waits; the effects of both machines are dispatched here (:meth:`execute`), their I/O
+    carried out by its hands (:class:`carriers.effects.CarrierEffects`). Its collaborators
+    (``self.crew``, :class:`carriers.crew.Crew`) and its run's opening and closing
+    (:mod:`carriers.opening`) are given what they need and call nothing back: they return what
+    they read, or yield what they ask of it (:meth:`_asked`).
     """
 
     def __init__(self, scenario, config: CarrierConfig, zconf, stop: threading.Event | None = None,
                  shared: SharedWorld | None = None, onboard: Onboard | None = None, gate: StageGate | None = None,
                  broadcasts: SharedDecoder | None = None, session=None, physics: PhysicsThread | None = None,
                  clock=time.monotonic):
-        if config.seed is not None and shared is None:
-            scenario = scenario.with_seed(int(config.seed))
         check_config(config)
         self.config = config
-        valid = scenario.valid() if shared is None else shared.valid  # every carrier's schedule [R, N]
-        self.who = Who.of(scenario, config.carrier, config.mission, valid,
-                          None if shared is None else shared.fingerprint)
-        cid, r = self.who.cid, self.who.r
-        # what it shares with the other carriers of its process (carriers/process.py)
-        self.parts = Parts(zconf, session, shared, gate if gate is not None else StageGate())
-        self.machine = mc.initial(cid, self.valid, scenario.stage_times(), scenario.carriers[r].passengers)
-        self._stop = stop if stop is not None else threading.Event()
-        self.node = None
         self.clock = clock  # the one clock its lifecycle is fed, once per look (mission.timers rules decide)
-        self.motion = Motion(self.mission, cid, config.pose_interval_s, self._stop, physics, self.clock())
-        onboard = onboard if onboard is not None else Onboard(scenario, config.planner_options)
-        book = PeerBook(scenario.carrier_ids, valid)  # what it heard of every carrier's stages
-        # What it receives and the books it feeds: who is there, the answer to its latest Hello, the
-        # passenger each Decision named for it (docs/protocol.md, Decision).
-        self.inbound = Inbound(self.mission, cid, config.mode, onboard,
-                               broadcasts if broadcasts is not None else SharedDecoder(),  # the process's Decisions
-                               book, Presence(self.clock()), mc.HelloAnswer(self.fingerprint),
-                               mc.Releases(scenario.carriers[r].passengers), self.motion.position, self.log)
-        self.alone = Alone(cid, book, onboard, scenario.seed, self.log)
-        self.work = StageWork(self.who, self.motion, self.parts.gate, self.alone)  # sense, pass, move on, decide alone
-        self.joining = Joining(self.fingerprint, config, StateQueries(self.mission, cid, self.log), self.motion.counts,
-                               self.inbound, self.log)
-        # Its hands on the world: what it sends, logs and releases for its machines' effects.
-        self.effects = CarrierEffects(self.who, self.motion, self.inbound, self.clock, self.log)
+        self._stop = stop if stop is not None else threading.Event()
+        self.parts = Parts(zconf, session, shared, gate if gate is not None else StageGate())  # shared in its process
+        self.crew = Crew.build(scenario, config, self.parts, onboard, broadcasts, physics, self._stop, clock, self.log)
+        self.machine = self.crew.who.handshake()
+        self.node = None
         # What it times its waits by: its own settings until the coordinator's Accepted tells it
         # the mission's (docs/protocol.md, [P-10.2]; :func:`mission.carrier.follow`).
         self.timers = mc.Timers(config.clock, float(config.silence_timeout_s), float(config.realtime))
@@ -226,16 +199,8 @@ class Carrier:
         self.life = cl.initial(config.mode, waits_of(config))
 
     # ------------------------------------------------------------------ its parts, by name
-    scenario = property(lambda self: self.who.scenario)
-    cid = property(lambda self: self.who.cid)
-    mission = property(lambda self: self.who.mission)
-    fingerprint = property(lambda self: self.who.fingerprint)
-    valid = property(lambda self: self.who.valid)
-    presence = property(lambda self: self.inbound.presence)  # the coordinator's and the peers' tokens
-    answer = property(lambda self: self.inbound.answer)      # the coordinator's answer to its latest Hello
-    book = property(lambda self: self.inbound.book)          # what it heard of every carrier's stages
-    store = property(lambda self: self.effects.store)        # its durable log, open while running
-    ros2 = property(lambda self: self.effects.ros2)          # its ROS 2 node while running with config.ros2
+    cid = property(lambda self: self.crew.who.cid)
+    ros2 = property(lambda self: self.crew.effects.ros2)  # its ROS 2 node while running with config.ros2
     reason = property(lambda self: self.life.reason or "finished")  # why it ended (carriers/exits.py)
 
     def log(self, line: str) -> None:
@@ -254,80 +219,50 @@ class Carrier:
         for effect in effects:
             self.execute(effect)
 
-    def execute(self, effect) -> None:
-        """Carry out one effect of the carrier machine: a resynchronisation or the mission's
-        timers here, its I/O by its hands (:meth:`carriers.effects.CarrierEffects.carry_out`)."""
-        if isinstance(effect, mc.AskState):  # a Decision came without an earlier one
-            tm.drive(self.joining.resync(self.machine, self.node, gap=effect.stage), self._asked)
-        elif isinstance(effect, Rejoin):  # the coordinator is back
-            tm.drive(self.joining.resync(self.machine, self.node), self._asked)
-        elif isinstance(effect, Follow):  # the mission's timers (a robot keeps its own pace)
-            self.timers, lines = mc.follow(self.timers, effect.timers, getattr(self.ros2, "robot", None) is None)
-            for line in lines:
-                self.log(line)
-        else:
-            self.effects.carry_out(effect, self.node, self.machine)
-
-    def _check_refused(self) -> None:
-        refused_exit(self.answer.refused, self.fingerprint, self.log)
-
     def pump(self, timeout_s: float) -> None:
-        """Take what arrived, waiting up to ``timeout_s`` for the inbox's first item
-        (:meth:`carriers.inbound.Inbound.arrivals`), each read against its machine then
-        (:meth:`carriers.inbound.Inbound.read`): an event applied, an effect carried out, one it
-        cannot read rejected."""
-        for item in self.inbound.arrivals(self.node, timeout_s):
-            try:
-                heard = self.inbound.read(item, self.machine)
-            except ProtocolError as exc:
-                self.node.reject(exc.reason, exc.detail, self.log)
-                continue
+        """Take what arrived (:meth:`carriers.inbound.Inbound.arrivals`, waiting up to ``timeout_s``
+        for the inbox's first item), each read against its machine then (``Inbound.read``): an
+        event applied, an effect carried out (one it cannot read rejected)."""
+        for item in self.crew.inbound.arrivals(self.node, timeout_s):
+            heard = self.crew.inbound.read(item, self.machine)
             if isinstance(heard, (mc.DecisionHeard, mc.EndHeard)):
                 self.apply(heard)
             elif heard is not None:
                 self.execute(heard)
 
     def _asked(self, step):
-        """What a join path asks (:mod:`mission.joins`), carried out; what it is answered."""
-        if isinstance(step, joins.Drive):
-            self.advance(self.scenario.stage_time(step.stage), paced=False)
-        if isinstance(step, (joins.Drive, joins.Here)):
-            return self.motion.position()
+        """What a join path asks (:mod:`mission.joins`), carried out: an event applied (answered
+        with the machine then), an effect carried out, the rest asked of its body
+        (:meth:`carriers.motion.Motion.asked`); what it is answered."""
         if isinstance(step, joins.Apply):
             self.apply(step.event)
             return self.machine
         if isinstance(step, joins.Execute):
             self.execute(step.effect)
-        elif isinstance(step, joins.Release):
-            self.motion.body.deploy(self.cid)
-        return None
+            return None
+        return self.crew.motion.asked(step, self.crew.who, self._moving())
 
     def _moving(self) -> Moving:
         """What its motion reads of the carrier now (:class:`carriers.motion.Moving`)."""
         return Moving(self.node, self.ros2, self.clock, self.timers, self.machine.stage, self.machine.passengers_left)
 
-    def advance(self, t: float, paced: bool = True) -> None:
-        """Its body to mission time ``t`` (:meth:`carriers.motion.Motion.advance`); while it paces,
-        its messages are handled (a refused Hello ends it) and the motion told what it is then."""
-        tm.drive(self.motion.advance(t, paced, self._moving()), self._paced)
-
     def _paced(self, wait_s: float) -> Moving:
         self.pump(wait_s)
-        self._check_refused()
+        self.crew.inbound.check_refused()
         return self._moving()
 
     # ------------------------------------------------------------------ its lifecycle
     def step(self, event) -> float | None:
         """Step its lifecycle with ``event`` and carry out the effects: the time to wait until
         (the :class:`mission.timers.Wait`), None when it is to be stepped again at once."""
-        view = self.inbound.view(self.machine, self.timers, self.node.revision)  # what it reads now
+        view = self.crew.inbound.view(self.machine, self.timers, self.node.revision)  # what it reads now
         self.life, effects = cl.step(self.life, event, view)
         until = None
         for effect in effects:
             if isinstance(effect, tm.Wait):
                 until = effect.until
             else:
-                self.run_effect(effect)
+                self.execute(effect)
         return until
 
     def fly(self, until=None) -> None:
@@ -339,60 +274,53 @@ class Carrier:
             if self._stop.is_set():
                 self.step(cl.Stopped(now))
                 break
-            self._check_refused()
+            self.crew.inbound.check_refused()
             wake = self.step(cl.Tick(now))
             if wake is None:
                 continue
             poll = PEER_POLL_S if self.life.phase is cl.Phase.ALONE else IDLE_POLL_S
             self.pump(max(0.0, min(poll, wake - now)))
 
-    def run_effect(self, effect) -> None:
-        """Carry out one effect of its lifecycle machine: its body driven to a stage, Progress,
-        a join path (:meth:`carriers.joining.Joining.path`) and a stage's work
-        (:meth:`carriers.stage.StageWork.steps`) carried out, the rest by its hands
-        (:meth:`carriers.effects.CarrierEffects.life`)."""
+    def execute(self, effect) -> None:
+        """Carry out one effect of either machine: its body driven to a stage and its Poses
+        (:meth:`carriers.motion.Motion.drive`; paced, its messages handled on the way and a
+        refused Hello ending it: :meth:`_paced`), Progress, a join or resynchronisation path
+        (:meth:`carriers.joining.Joining.path`), a stage's work
+        (:meth:`carriers.stage.StageWork.steps`), the mission's timers followed; the rest, I/O, by
+        its hands (:meth:`carriers.effects.CarrierEffects.carry_out`; Finish: its reason is
+        :attr:`reason`)."""
         if isinstance(effect, cl.Drive):
-            j = effect.stage
-            self.advance(self.scenario.stage_time(j), paced=effect.paced)
-            self.motion.publish_poses(self._moving())
+            tm.drive(self.crew.motion.drive(effect.stage, self.crew.who, effect.paced, self._moving()), self._paced)
             if not self._stop.is_set():
-                self.step(cl.Arrived(j, self.clock()))
+                self.step(cl.Arrived(effect.stage, self.clock()))
         elif isinstance(effect, cl.SendProgress):
-            self.motion.send_progress(self._moving())
-        elif isinstance(effect, PATHS):
-            if tm.drive(self.joining.path(effect, self.machine, self.node, self.store), self._asked):
+            self.crew.motion.send_progress(self._moving())
+        elif isinstance(effect, (*PATHS, *RESYNCS)):
+            if tm.drive(self.crew.joining.path(effect, self.machine, self.node, self.crew.effects.store), self._asked):
                 self.step(cl.Answered(self.clock()))  # a State answered its Query: it joined
         elif isinstance(effect, WORK):
-            tm.drive(self.work.steps(effect, self.node, self.machine), self._asked)
-        else:  # its Observation again, its peers listened to, a note; Finish (its reason: :attr:`reason`)
-            self.effects.life(effect, self.node, self.machine)
+            tm.drive(self.crew.work.steps(effect, self.node, self.machine), self._asked)
+        elif isinstance(effect, Follow):  # the mission's timers (a robot keeps its own pace)
+            self.timers, lines = mc.follow(self.timers, effect.timers, getattr(self.ros2, "robot", None) is None)
+            for line in lines:
+                self.log(line)
+        else:
+            self.crew.effects.carry_out(effect, self.node, self.machine)
 
     def run(self) -> str:
         """Its run from its session's opening to its Bye (:mod:`carriers.opening`): its exit reason."""
-        from wire.zconfig import OpenStopped
-
-        reason = "finished"
-        self.motion.body = world.Simulation(self.scenario, carriers=[self.cid],
-                                            features=None if self.parts.shared is None else self.parts.shared.features)
-        try:
-            self.node = opening.open_node(self.parts, self.config, self.who, self.motion.position, self._stop,
-                                          self.clock)
-        except OpenStopped:
+        crew, reason = self.crew, "finished"
+        crew.motion.body = opening.simulated_body(crew.who, self.parts)
+        self.node = opening.open_node(self.parts, self.config, crew.who, crew.motion.position, self._stop, self.clock)
+        if self.node is None:  # stopped while its session opened
             return "stopped"
         try:
-            self.effects.ros2 = opening.attach_ros2(self.config, self.node, self.who, self.motion, self._stop, self.log)
-            self.effects.store = opening.open_log(self.config, self.who, self.log)
-            opening.announce(self.config, self.node, self.who, self.inbound, self.alone.onboard)
+            opening.begin(self.config, self.node, crew, self._stop, self.log)  # its ROS 2 node, log, token
             self.step(cl.Start(self.clock()))  # it joins: State asked, or (decentralised) its log
             self.fly()
             reason = "stopped" if self._stop.is_set() else self.reason
-        except Exit as exc:
-            reason = exc.reason
-        except Exception as exc:  # a body that names its exit reason (a robot of another ROS 2 format)
-            reason = getattr(exc, "exit_reason", None)
-            if reason not in EXIT_CODES:
-                raise
-            self.log(str(exc))
+        except Exception as exc:  # an Exit, or a body that names its exit reason (carriers/exits.py)
+            reason = exit_reason(exc, self.log)
         finally:
-            opening.close(self.config, self.node, self.who, self.machine, self.answer, reason, self.ros2, self.store)
+            opening.close(self.config, self.node, crew, self.machine, reason)
         return reason

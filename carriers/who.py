@@ -34,6 +34,10 @@ class Who:
         return cls(scenario, cid, r, keys.check_id(mission or keys.mission_id_from_name(scenario.name), "mission"),
                    scenario_fingerprint(scenario) if fingerprint is None else fingerprint, tuple(valid[r]))
 
+    def handshake(self) -> mc.Handshake:
+        """Its stage handshake machine at the start (:func:`mission.carrier.initial`)."""
+        return mc.initial(self.cid, self.valid, self.scenario.stage_times(), self.scenario.carriers[self.r].passengers)
+
     def key(self, topic: str) -> str:
         """Its key of ``topic`` (docs/protocol.md, "Keys")."""
         return keys.carrier_key(self.mission, self.cid, topic)

@@ -46,13 +46,17 @@ class MissionEffects:
 
     # ------------------------------------------------------------------ of its mission state
     def carry_out(self, effect, state: ms.MissionState, carrier: str | None = None) -> ev.Published | None:
-        """One effect of :func:`mission.state.step`, ``state`` the state that step made and
-        ``carrier`` the carrier of the event stepped (a rejection's); the event that follows it
-        (``Published``, the coordinator applies it at once), or None."""
+        """One effect of :func:`mission.state.step` or of what the inbox said
+        (:meth:`coordinator.inbound.Inbound.take`: an item it cannot read, a claim's answer),
+        ``state`` the state that step made (or the state now) and ``carrier`` the carrier of the
+        event stepped (a rejection's); the event that follows it (``Published``, the coordinator
+        applies it at once), or None."""
         if isinstance(effect, ms.Record):  # the recorder gets it once mission.db has it
             self.store.record(effect, state, self.recording.event)
         elif isinstance(effect, ms.Reject):
             self.reject(effect.reason, effect.detail, carrier)
+        elif isinstance(effect, Unreadable):
+            self.unreadable(effect, state)
         elif isinstance(effect, (ms.Refuse, ms.Accept)):
             self.answer_hello(state, effect.carrier, effect.revision, effect if isinstance(effect, ms.Refuse) else None)
         elif isinstance(effect, ms.Publish):

@@ -44,7 +44,7 @@ def to_event(msg, at: float):
 
 
 
-#: At most this many inbox items share one mission.db commit (:meth:`coordinator.node.Coordinator.pump`).
+#: At most this many inbox items share one mission.db commit (:meth:`Inbound.arrivals`).
 BATCH_MAX = 1024
 
 
@@ -114,24 +114,43 @@ class Inbound:
         if heard.epoch is not None:
             self.epochs.carrier_claimed(heard.carrier, heard.epoch)
 
-    def arrivals(self, node, timeout_s: float):
+    def arrivals(self, node, timeout_s: float, store):
         """What arrived on ``node``, one item at a time, waiting up to ``timeout_s`` for the
         first: what each says (:class:`Heard`, from :meth:`read`), or :class:`Unreadable` for one
-        it cannot read; every queued item is read before it returns. With Poses set aside and an
+        it cannot read; every queued item is read before it returns. The coordinator takes them
+        in one mission.db batch (``store``: :meth:`storage.missiondb.MissionStore.batch`); a long
+        burst is committed in parts, every :data:`BATCH_MAX` items. With Poses set aside and an
         empty inbox, record them instead of waiting, until an item arrives
         (:meth:`coordinator.recorder.Recording.record_poses`)."""
         item = node.next(0.0 if self.recording.poses else max(0.0, timeout_s))
         if item is None:
             self.recording.record_poses(busy=node.pending)
             return
+        handled = 0
         while item is not None:
             try:
                 heard = self.read(item)
-                if heard is not None:
-                    yield heard
             except ProtocolError as exc:
-                yield self._unreadable(item, exc)
+                heard = self._unreadable(item, exc)
+            if heard is not None:
+                handled += 1
+                if handled % BATCH_MAX == 0:
+                    store.flush()  # the items before it committed together
+                yield heard
             item = node.next(0.0)
+
+    def take(self, heard: Heard | Unreadable, state: ms.MissionState):
+        """What the coordinator does with one item of :meth:`arrivals` in mission state ``state``:
+        its mission event to apply, its sender noted first (:meth:`note`); for a higher epoch
+        claimed by a carrier already accepted, the :class:`mission.state.Accept` its Hello gets
+        instead ([P-7.3]: answered, it changes nothing held of the carrier); an
+        :class:`Unreadable` as it is (rejected, a Hello among them refused); None: nothing."""
+        if isinstance(heard, Unreadable):
+            return heard
+        self.note(heard, state.next_stage)
+        if heard.epoch is not None and heard.carrier in state.accepted:
+            return ms.Accept(heard.carrier, state.next_stage, heard.event.revision)
+        return heard.event
 
     def _unreadable(self, item, exc: ProtocolError) -> Unreadable:
         parsed = keys.parse_carrier_key(self.mission, item.key) if item.kind == "sample" else None

@@ -4,7 +4,7 @@ receive (wire/) → decode → mission event → ``mission.state.step`` → pers
 effects (publish, refuse, log). The mission rules live in mission/state.py; this module feeds
 the machines their messages and clock ticks and carries out their effects: the I/O among them by
 coordinator/effects.py, the planner call by coordinator/planning.py, the mission's opening by
-coordinator/opening.py.
+coordinator/opening.py, each collaborator built once by coordinator/crew.py.
 
 Stage j (docs/protocol.md, "Stage handshake"):
 
@@ -37,24 +37,17 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass
-from pathlib import Path
-
-import numpy as np
 
 from coordinator import opening, planning
-from coordinator.answers import Answers
 from coordinator.clock import POLL_S, waits_of
-from coordinator.effects import MissionEffects
-from coordinator.epochs import Epochs, default_ident
-from coordinator.inbound import BATCH_MAX, Inbound, Unreadable
-from coordinator.recorder import Recording
-from coordinator.results import results_for
+from coordinator.crew import Crew
+from coordinator.inbound import Unreadable
 from coordinator.setup import MissionSetup
 from mission import coordinator_life as cl
 from mission import events as ev
 from mission import state as ms
 from mission import timers as tm
-from mission.timeouts import CLOCKS, DEFAULTS
+from mission.timeouts import DEFAULTS
 
 
 @dataclass(frozen=True)
@@ -129,14 +122,11 @@ class Coordinator:
     lifecycle (``self.life``, :mod:`mission.coordinator_life`, changed only by :meth:`step`).
     :meth:`fly` feeds the lifecycle its clock and takes the inbox between its waits; both
     machines' effects are carried out here, their I/O by its hands on the world
-    (:class:`coordinator.effects.MissionEffects`). Its collaborators are given what they need
-    and return what they read or build, calling nothing back: the inbox's reader
-    (:class:`coordinator.inbound.Inbound`), the answers (:class:`coordinator.answers.Answers`),
-    split brain and its session (:class:`coordinator.epochs.Epochs`), the recorder
-    (:class:`coordinator.recorder.Recording`), the results (:class:`coordinator.results.Results`),
-    the mission's opening (:mod:`coordinator.opening`), the planner call
-    (:mod:`coordinator.planning`), the operator's console (a stage's hold is a generator of
-    waits and events: :meth:`_asked`).
+    (:class:`coordinator.effects.MissionEffects`). Its collaborators (``self.crew``,
+    :class:`coordinator.crew.Crew`) are given what they need and return what they read or
+    build, calling nothing back; so do the mission's opening (:mod:`coordinator.opening`), the
+    planner call (:mod:`coordinator.planning`) and the operator's console (a stage's hold is a
+    generator of waits and events: :meth:`_asked`).
 
     Args:
         scenario: the loaded scenario (its seed is replaced by ``config.seed`` when given).
@@ -150,42 +140,21 @@ class Coordinator:
 
     def __init__(self, scenario, config: CoordinatorConfig, zconf, scenario_path: str = "",
                  stop: threading.Event | None = None, clock=time.monotonic):
-        if config.clock not in CLOCKS:
-            raise ValueError(f"clock must be one of {CLOCKS}, found {config.clock!r}")
-        self.setup = setup = MissionSetup.build(scenario, config, zconf, scenario_path)
+        self.setup = setup = MissionSetup.build(scenario, config, zconf, scenario_path)  # its config checked
         self.config, self.clock = config, clock
         self._stop = stop if stop is not None else threading.Event()
+        self.crew = Crew.build(scenario, setup, config, self._stop, clock)
         self.state = ms.initial(setup.spec)
+        self.crew.answers.serve(self.state)
         self.life = cl.initial(waits_of(config), config.clock, config.realtime, scenario.stage_interval)
-        self.recording = Recording(setup.mission, setup.spec.has, self.log)  # mission.mcap, the ROS 2 topics
-        self.epochs = Epochs(setup.mission, self.log, self._stop, clock, config.coordinator_id or default_ident())
-        self.answers = Answers(setup, self.epochs, config)  # State, Accepted, Refusal, what State tells
-        self.answers.serve(self.state)
-        self.inbound = Inbound(setup.mission, setup.spec.has, setup.fingerprint, self.epochs, self.recording)
-        self.results = results_for(scenario, setup.scenario_path, setup.mission, setup.planner_name,
-                                   setup.planner_options, setup.seed, (config.render, self.log, self.epochs,
-                                                                       self.recording))
-        # mission.db, the session and what it publishes, once the mission opens (:meth:`run`)
-        self.effects = MissionEffects(setup.mission, setup.spec, self.answers, self.recording, self.log)
         self.console = None  # operator mode: the console (console.run.Console), opened with the mission
 
-    node = property(lambda self: self.effects.node)    # its session, once the mission opens
-    store = property(lambda self: self.effects.store)  # mission.db, once the mission opens
-
-    def log(self, line: str) -> None:
-        self.setup.log(line)
+    node = property(lambda self: self.crew.effects.node)    # its session, once the mission opens
+    store = property(lambda self: self.crew.effects.store)  # mission.db, once the mission opens
 
     def stop(self) -> None:
         """Ask the run loop to finish early (publishes End ``stopped``)."""
         self._stop.set()
-
-    @property
-    def next_stage(self) -> int:
-        return self.state.next_stage
-
-    def deployed(self) -> np.ndarray:
-        """bool ``[R, N]``: the planner's view of the past (:meth:`mission.state.MissionState.deployed`)."""
-        return self.state.deployed()
 
     # ------------------------------------------------------------------ its mission state
     def apply(self, event) -> None:
@@ -195,47 +164,35 @@ class Coordinator:
         before = self.state
         self.state, effects = ms.step(self.state, event)
         for effect in effects:
-            then = self.effects.carry_out(effect, self.state, getattr(event, "carrier", None))
+            then = self.crew.effects.carry_out(effect, self.state, getattr(event, "carrier", None))
             if then is not None:
                 self.apply(then)
         if self.state is not before:
-            self.answers.serve(self.state)
+            self.crew.answers.serve(self.state)
 
-    # ------------------------------------------------------------------ what it receives
     def pump(self, timeout_s: float) -> None:
-        """Take what arrived, waiting up to ``timeout_s`` for it (:meth:`coordinator.inbound.Inbound.arrivals`),
-        its writes to mission.db committed together (:meth:`storage.missiondb.MissionStore.batch`)."""
+        """Take what arrived, waiting up to ``timeout_s`` for it, in one mission.db batch
+        (:meth:`coordinator.inbound.Inbound.arrivals`): each item's mission event applied, or what
+        it asks instead carried out (a rejection, a claim's answer: ``Inbound.take``)."""
         with self.store.batch():
-            for handled, heard in enumerate(self.inbound.arrivals(self.node, timeout_s), 1):
-                if handled % BATCH_MAX == 0:
-                    self.store.flush()  # a long burst is committed in parts
-                if isinstance(heard, Unreadable):  # rejected (a Hello among them refused)
-                    self.effects.unreadable(heard, self.state)
-                else:
-                    self._take(heard)
-
-    def _take(self, heard) -> None:
-        """What one inbox item says (:class:`coordinator.inbound.Heard`): when its carrier was heard
-        and the higher epoch it claims (:meth:`coordinator.inbound.Inbound.note`), its mission event."""
-        self.inbound.note(heard, self.state.next_stage)
-        # [P-7.3] a higher epoch claimed by an accepted carrier: answered, changes nothing held of it
-        if heard.epoch is not None and heard.carrier in self.state.accepted:
-            self.effects.answer_hello(self.state, heard.carrier, heard.event.revision)
-        elif heard.event is not None:
-            self.apply(heard.event)
+            for heard in self.crew.inbound.arrivals(self.node, timeout_s, self.store):
+                said = self.crew.inbound.take(heard, self.state)
+                if isinstance(said, (Unreadable, ms.Accept)):
+                    self.crew.effects.carry_out(said, self.state)
+                elif said is not None:
+                    self.apply(said)
 
     # ------------------------------------------------------------------ its lifecycle
     def fly(self, until=None) -> None:
         """Its lifecycle until it is done or deposed (or ``until(life)`` holds), the clock fed as
-        ticks and the inbox taken in between. A stop request ends the stages with End
-        ``stopped``; the end wait runs to its end. A rule's inputs are the mission state, the
-        time and when carriers were heard, and hearing one only delays a wait's end: so a
-        :class:`mission.timers.Wait` stands until its ``until`` or a new state (most drains apply
-        no event: Progress, Poses, about a thousand a second at R = 1,024)."""
+        ticks (a stop request as ``Stopped``) and the inbox taken in between. A rule's inputs are
+        the mission state, the time and when carriers were heard, and hearing one only delays a
+        wait's end: so a :class:`mission.timers.Wait` stands until its ``until`` or a new state
+        (most drains apply no event: Progress, Poses, about a thousand a second at R = 1,024)."""
         wake, seen, stopped = None, None, False
         while self.life.phase not in (cl.Phase.DONE, cl.Phase.DEPOSED) and not (until and until(self.life)):
             now = self.clock()
-            if self.epochs.deposed_by is not None:  # deposed: the newer coordinator ends the mission
+            if self.crew.epochs.deposed_by is not None:  # deposed: the newer coordinator ends the mission
                 self.step(cl.Deposed())
                 break
             if self._stop.is_set() and not stopped:
@@ -250,38 +207,36 @@ class Coordinator:
     def step(self, event) -> float | None:
         """Step its lifecycle and carry out the effects: the time to wait until, None when it is
         to be stepped again at once."""
-        self.life, effects = cl.step(self.life, event, cl.View(self.state, self.inbound.heard))
+        self.life, effects = cl.step(self.life, event, cl.View(self.state, self.crew.inbound.heard))
         until = None
         for effect in effects:
             if isinstance(effect, tm.Wait):
                 until = effect.until
             elif isinstance(effect, cl.Decide):
-                planning_ms = self.decide(effect.stage)  # records, then publishes
-                if planning_ms is None:
-                    self.step(cl.Deposed())
-                    continue
-                self.step(cl.Decided(effect.stage, self.clock(), planning_ms))
-                self.pump(0.0)
+                decided = self.decide(effect.stage)  # recorded, then published (None: deposed)
+                self.step(decided or cl.Deposed())
+                if decided is not None:
+                    self.pump(0.0)
             elif isinstance(effect, cl.RecordEnd):
                 self.apply(ev.Ended(effect.reason, time.time()))
-                self.effects.end_recorded(self.state, effect.reason, self.epochs)
+                self.crew.effects.end_recorded(self.state, effect.reason, self.crew.epochs)
             else:  # the stage's line, End published, a note
-                self.effects.life(effect, self.state)
+                self.crew.effects.life(effect, self.state)
         return until
 
-    def decide(self, j: int) -> float | None:
-        """Plan stage j, record and publish its Decision: its planning ms (None: deposed, Epochs.fencing).
-        In operator mode the decision waits for the operator's console (:mod:`console.hold`)."""
-        decided = planning.planned(self.setup, self.store, j, self.state) if self.console is None else \
-            tm.drive(self.console.decide(j, self.state), self._asked)
-        with self.epochs.fencing():
+    def decide(self, j: int) -> cl.Decided | None:
+        """Plan stage j (:func:`coordinator.planning.deciding`: in operator mode the decision waits
+        for the operator's console), record and publish its Decision: the lifecycle's ``Decided``
+        with its planning ms (None: deposed, Epochs.fencing)."""
+        decided = tm.drive(planning.deciding(self.setup, self.store, j, self.state, self.console), self._asked)
+        with self.crew.epochs.fencing():
             self.apply(decided)  # records, then publishes
-        return decided.planning_ms if self.epochs.deposed_by is None else None
+        return cl.Decided(j, self.clock(), decided.planning_ms) if self.crew.epochs.deposed_by is None else None
 
     def _asked(self, request) -> ms.MissionState:
-        """What the operator's hold asks (:meth:`console.hold.OperatorHold.decide`): a
-        :class:`mission.timers.Wait` (the inbox taken until then, for a poll at most) or an
-        event applied; the mission state after it."""
+        """What the stage's decision asks (the operator's hold: :meth:`console.hold.OperatorHold.decide`)
+        and the planner's warm-up: a :class:`mission.timers.Wait` (the inbox taken until then, for
+        a poll at most) or an event applied; the mission state after it."""
         if isinstance(request, tm.Wait):
             self.pump(max(0.0, min(POLL_S, request.until - self.clock())))
         else:
@@ -291,43 +246,29 @@ class Coordinator:
     # ------------------------------------------------------------------ its run
     def run(self) -> dict:
         """Run (or resume) the mission to its end (:mod:`coordinator.opening`); write summary.json
-        and map.png.
-
-        Returns:
-            The summary dict.
-        """
-        from wire.zconfig import OpenStopped
-
-        opened = opening.open_mission(self.setup, self.config, self.epochs, self.recording, self._stop, self.clock)
+        and map.png (:meth:`coordinator.results.Results.finish`): the summary dict."""
+        opened = opening.open_mission(self.setup, self.config, self.crew, self._stop, self.clock)
         if opened is None:
             return {"ended": False, "standby": True}
-        self.effects.open(opened.node, opened.store)
+        self.crew.effects.open(opened.node, opened.store)
         try:
             self._serve()
-        except OpenStopped:
-            self.apply(ev.Ended("stopped", time.time()))
         finally:
-            summary = self.results.finish(Path(self.config.out_dir), self.clock() - opened.started, self.state,
-                                          self.setup.problem, self.node, self.store, self.answers.counts)
+            summary = self.crew.results.finish(self.clock() - opened.started, self.state, self.node, self.store)
             self.console and self.console.close()
         return summary
 
     def _serve(self) -> None:
         """Recover the state, then serve the mission to its end (or record that it was stopped
         before the session opened: nothing to tell anyone, but on record)."""
-        self.state = opening.recovered(self.setup, self.store, self.epochs)
-        self.answers.serve(self.state)
+        self.state = opening.recovered(self.setup, self.store, self.crew)  # State answers from it
         if self.node is None or self._stop.is_set():
             self.apply(ev.Ended("stopped", time.time()))
             return
-        self.console = opening.serve(self.node, self.setup, self.config, self.inbound, self.answers, self.epochs,
-                                     self.store, self.clock, self._stop)
-        # Warmed up once State answers and the token is out, while the inbox is taken: carriers
-        # that start meanwhile find a coordinator and their Hellos are answered (compiling the
-        # planner's kernels on a machine's first run takes seconds, more on a busy host).
-        tm.drive(opening.warming(self.setup, self.clock, self._stop), self._asked)
+        self.console = opening.serve(self.node, self.setup, self.config, self.crew, self.store, self.clock, self._stop)
+        tm.drive(opening.warming(self.setup, self.clock, self._stop), self._asked)  # Hellos answered meanwhile
         if self.state.next_stage > 0:  # idempotent re-publication
-            self.apply(self.effects.publish_decision(self.state, self.state.next_stage - 1))
+            self.apply(self.crew.effects.publish_decision(self.state, self.state.next_stage - 1))
         # The carriers' join, the stages, the last Confirms, End (not when deposed: the newer
         # coordinator ends the mission); a resumed complete mission only tells late carriers it is over.
         self.step(cl.Opened(self.clock()))

@@ -1,6 +1,7 @@
 """The coordinator's planner call: the planner warmed up (:func:`warm_up`), stage j's step on
-the mission state (:func:`plan_step`, guarded and within its budget, a fault on record) and the
-decision of the planner alone as a mission event (:func:`planned`). The coordinator
+the mission state (:func:`plan_step`, guarded and within its budget, a fault on record), the
+decision of the planner alone as a mission event (:func:`planned`) and the stage's decision,
+the planner's or, in operator mode, the console's (:func:`deciding`). The coordinator
 (:meth:`coordinator.node.Coordinator.decide`) and the operator's console (:mod:`console.hold`,
 under the operator's constraints) call them; each is given what it needs and returns what it
 decided."""
@@ -43,6 +44,17 @@ def plan_step(setup: MissionSetup, store: MissionStore, j: int, st: ms.MissionSt
 
     return stage_decision(setup.problem, st, j, setup.planner, setup.seed, constraints,
                           getattr(setup.planner, "plan_ms", None), fault)
+
+
+def deciding(setup: MissionSetup, store: MissionStore, j: int, st: ms.MissionState, console=None):
+    """Stage j's decision in mission state ``st``: the planner's alone (:func:`planned`), or, in
+    operator mode, the operator's console's (``console``: ``console.run.Console``, None: none;
+    its stage's hold, :meth:`console.hold.OperatorHold.decide`). A generator of what the hold
+    asks its coordinator (waits, events to apply; answered with the mission state), returning
+    the decision as a mission event (:class:`mission.events.Decided`)."""
+    if console is None:
+        return planned(setup, store, j, st)
+    return (yield from console.decide(j, st))
 
 
 def planned(setup: MissionSetup, store: MissionStore, j: int, st: ms.MissionState) -> ev.Decided:

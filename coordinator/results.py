@@ -81,21 +81,24 @@ class Results:
     Args:
         scenario: the scenario (map.png, the title); render: draw map.png; log: a callable taking
         one line; epochs: the coordinator's :class:`coordinator.epochs.Epochs` (its epoch, whether
-        it was deposed); recording: its :class:`coordinator.recorder.Recording`.
+        it was deposed); recording: its :class:`coordinator.recorder.Recording`; out: the results
+        directory; problem: the planning problem (the summary's bound); answers: its
+        :class:`coordinator.answers.Answers` (what it rejected of each carrier, read at the end).
     """
 
-    def __init__(self, scenario, info: RunInfo, render: bool, log, epochs, recording):
+    def __init__(self, scenario, info: RunInfo, render: bool, log, epochs, recording, out: Path, problem, answers):
         self.scenario, self.info, self.render, self.log = scenario, info, render, log
-        self.epochs, self.recording = epochs, recording
+        self.epochs, self.recording, self.out, self.problem = epochs, recording, Path(out), problem
+        self.answers = answers
 
-    def finish(self, out: Path, wall_s: float, state, problem, node, store, told: dict | None = None) -> dict:
+    def finish(self, wall_s: float, state, node, store) -> dict:
         """summary.json twice: at once without the clairvoyant bound, then with it, each write
         atomic, so a coordinator killed while the bound is computed (its launcher's grace after
         Ctrl-C is a few seconds) still leaves a complete summary.json, and mission.mcap
         (``recording``) is finalised in between; map.png; then the session (``node``) and the
         store are closed. A deposed coordinator writes no summary.json or map.png: the results
         are the newer coordinator's (which may share this --out directory)."""
-        epochs = self.epochs
+        epochs, out, problem, told = self.epochs, self.out, self.problem, self.answers.counts
         deposed = epochs.deposed_by is not None
         rejected = dict(node.rejected) if node else {}
         self.planner_faults = store.planner_faults()
@@ -141,11 +144,12 @@ class Results:
             self.log(f"coordinator: map.png not drawn: {type(exc).__name__}: {exc}")
 
 
-def results_for(scenario, scenario_path: str, mission: str, planner: str, planner_options: dict, seed: int,
-                given: tuple) -> Results:
-    """The coordinator's :class:`Results`, with this process's facts (pid, host); ``given``: the
-    rest of :class:`Results`'s arguments (render, log, epochs, recording)."""
+def results_for(scenario, setup, config, epochs, recording, answers) -> Results:
+    """The :class:`Results` of a coordinator of ``setup`` (:class:`coordinator.setup.MissionSetup`)
+    and ``config`` (its ``CoordinatorConfig``: the results directory, whether to draw map.png),
+    with this process's facts (pid, host); ``scenario``: the scenario map.png is drawn from."""
     return Results(scenario, RunInfo(
-        scenario=scenario.name, scenario_file=str(scenario_path), mission=mission, planner=planner,
-        planner_options=planner_options, seed=seed, pid=os.getpid(), host=socket.gethostname(),
-        passenger_types=tuple(c.passenger_types for c in scenario.carriers)), *given)
+        scenario=scenario.name, scenario_file=str(setup.scenario_path), mission=setup.mission,
+        planner=setup.planner_name, planner_options=setup.planner_options, seed=setup.seed, pid=os.getpid(),
+        host=socket.gethostname(), passenger_types=tuple(c.passenger_types for c in scenario.carriers)),
+        config.render, setup.log, epochs, recording, Path(config.out_dir), setup.problem, answers)

@@ -10,6 +10,7 @@ from typing import Any, Callable
 import world
 from mission import state as ms
 from mission.coverage import spec_options
+from mission.timeouts import CLOCKS
 from planner.registry import make_planner, planner_settings, used_options
 from wire import keys
 from wire.messages import scenario_fingerprint
@@ -50,7 +51,10 @@ class MissionSetup:
     @classmethod
     def build(cls, scenario, config, zconf, scenario_path: str = "") -> "MissionSetup":
         """From the loaded ``scenario`` (its seed replaced by ``config.seed`` when given) and the
-        coordinator's ``config`` (:class:`coordinator.node.CoordinatorConfig`)."""
+        coordinator's ``config`` (:class:`coordinator.node.CoordinatorConfig`; a ``ValueError``
+        for a clock out of :data:`mission.timeouts.CLOCKS`)."""
+        if config.clock not in CLOCKS:
+            raise ValueError(f"clock must be one of {CLOCKS}, found {config.clock!r}")
         if config.seed is not None:
             scenario = scenario.with_seed(int(config.seed))
         mission = keys.check_id(config.mission or keys.mission_id_from_name(scenario.name), "mission")

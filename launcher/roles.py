@@ -47,7 +47,7 @@ def coordinator(settings: Settings, stop: threading.Event) -> int:
         operator=operator_settings(settings)),
         zenoh_config(f, "coordinator"), scenario_path=f.scenario, stop=stop)
     # A kernel compiled on this machine for the first time takes seconds: say which (planner/jitcache.py).
-    report_compiles(lambda line: coord.log(f"coordinator: {line}"))
+    report_compiles(lambda line: coord.setup.log(f"coordinator: {line}"))
     unavailable: tuple = ()  # operator mode: a console that cannot be served is refused like a bad flag
     if f.operator:
         from console.server import ConsoleUnavailable

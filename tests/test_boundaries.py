@@ -471,6 +471,22 @@ def test_process_objects_hold_few_attributes(path, name):
     assert len(stored) <= PROCESS_ATTRIBUTES_MAX, sorted(stored)
 
 
+#: Most lines a process object may span (docs/architecture.md, "Thin processes"): an I/O loop that
+#: feeds its machines their messages and clock ticks and carries out their effects, about 150
+#: lines; what is not the loop lives in its crew, its opening and closing, and its machines.
+PROCESS_OBJECT_MAX = 160
+
+
+@pytest.mark.parametrize("path, name", [("carriers/node.py", "Carrier"), ("coordinator/node.py", "Coordinator")])
+def test_process_objects_are_io_loops(path, name):
+    """``Carrier`` and ``Coordinator`` span at most 160 lines each, counted by ``ast`` from the
+    ``class`` line to the last line of its body (docstrings and comments included)."""
+    tree = ast.parse((REPO / path).read_text())
+    cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == name)
+    length = cls.end_lineno - cls.lineno + 1
+    assert length <= PROCESS_OBJECT_MAX, f"{path}: class {name} is {length} lines"
+
+
 @pytest.mark.parametrize("path, name", [("carriers/node.py", "Carrier"), ("coordinator/node.py", "Coordinator")])
 def test_no_collaborator_calls_back_into_a_process_object(path, name):
     """A process object hands its collaborators data, never itself, its methods or a closure over

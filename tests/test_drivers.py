@@ -71,7 +71,7 @@ def carrier_at_stage_0(mode: str, clock_name: str = "sim", **timeouts):
                            **timeouts)
     clock = FakeClock()
     carrier = Carrier(TINY, config, None, stop=stop, clock=clock)  # its presence and motion made on that clock
-    carrier.motion.body = SimpleNamespace(time=0.0, position=lambda cid: (0.0, 0.0),  # a body standing still
+    carrier.crew.motion.body = SimpleNamespace(time=0.0, position=lambda cid: (0.0, 0.0),  # a body standing still
                                           deploy=lambda cid: None)
     carrier.node = QuietNode(clock, stop)
     carrier.timers = mc.Timers(clock_name, config.silence_timeout_s, 0.0)
@@ -91,7 +91,7 @@ def test_a_carrier_waiting_on_the_sim_clock_asks_state_every_decision_timeout():
     the carrier's clock (the query's own 2 s count as waiting), never deciding alone; Progress
     every third of the silence timeout meanwhile [P-10.6]."""
     carrier, clock = carrier_at_stage_0("coordinated", decision_timeout_s=30.0, silence_timeout_s=9.0)
-    carrier.presence.coordinator_alive()
+    carrier.crew.inbound.presence.coordinator_alive()
     start = clock.now
     carrier.fly(until=at_stage_0)
     asked = [t - start for t in carrier.node.asked]
@@ -112,7 +112,7 @@ def test_a_carrier_says_an_unanswered_hello_again(revision, present, expected):
     carrier, clock = carrier_at_stage_0("coordinated", decision_timeout_s=30.0, hello_timeout_s=10.0)
     carrier.node.revision = revision
     if present:
-        carrier.presence.coordinator_alive()
+        carrier.crew.inbound.presence.coordinator_alive()
     start = clock.now
     carrier.execute(mc.SendHello(0, 1))
     carrier.fly(until=lambda life: at_stage_0(life) or clock.now - start >= 100.0)
@@ -127,9 +127,9 @@ def test_a_carrier_on_the_wall_clock_stops_waiting_after_the_decision_timeout(mo
     carrier, clock = carrier_at_stage_0(mode, "wall", decision_timeout_s=30.0)
     lines = []
     carrier.config = dataclasses.replace(carrier.config, log=lines.append)
-    carrier.presence.coordinator_alive()
+    carrier.crew.inbound.presence.coordinator_alive()
     start = clock.now
-    carrier.inbound.listening = ()  # deciding alone: nobody to listen to (its node is quiet)
+    carrier.crew.inbound.listening = ()  # deciding alone: nobody to listen to (its node is quiet)
     carrier.fly(until=at_stage_0)
     assert carrier.node.asked == [] and 30.0 <= clock.now - start < 32.0
     assert carrier.life.phase is (cl.Phase.WORK if mode == "coordinated" else cl.Phase.ALONE)
@@ -140,9 +140,9 @@ def test_a_coordinated_carrier_exits_after_the_coordinator_timeout():
     """[P-8.1] the coordinator's token gone: a coordinated carrier holds, then exits
     coordinator-lost once it has been absent for the coordinator timeout of its clock."""
     carrier, clock = carrier_at_stage_0("coordinated", coordinator_timeout_s=30.0)
-    carrier.presence.coordinator_alive()
+    carrier.crew.inbound.presence.coordinator_alive()
     gone = clock.now
-    carrier.presence.coordinator_gone(gone)
+    carrier.crew.inbound.presence.coordinator_gone(gone)
     carrier.fly()
     assert carrier.reason == "coordinator-lost" and 30.0 <= clock.now - gone < 32.0
 
@@ -151,7 +151,7 @@ def test_a_joining_carrier_asks_state_again_until_the_coordinator_timeout():
     """[P-5.2] no reply: asked again 0.2 s after the last query's end, until the coordinator
     timeout since the first; then [P-5.5] 4 a coordinated carrier exits coordinator-lost."""
     carrier, clock = carrier_at_stage_0("coordinated", coordinator_timeout_s=10.0)
-    carrier.machine = mc.initial(carrier.cid, carrier.valid, TINY.stage_times(), 1)
+    carrier.machine = mc.initial(carrier.cid, carrier.crew.who.valid, TINY.stage_times(), 1)
     carrier.node.queries = 1000
     start = clock.now
     carrier.step(cl.Start(start))
@@ -169,11 +169,11 @@ def alone_at_stage_1(clock_name: str, peer_timeout_s: float = 5.0, silence_timeo
     me, peer = TINY.carrier_ids[:2]
     carrier.machine, _ = mc.step(carrier.machine, mc.MovedOn(0))
     carrier.machine, _ = mc.step(carrier.machine, mc.Observed(1, 1, (0.0, 0.0)))
-    carrier.motion.pending = SimpleNamespace(stage=1)
-    carrier.inbound.listening = (peer,)
-    carrier.presence.peer(peer, True)
-    carrier.presence.heard_from(peer, clock())
-    carrier.alone.deploy = lambda j: True  # the planner's choice is not what is tested here
+    carrier.crew.motion.pending = SimpleNamespace(stage=1)
+    carrier.crew.inbound.listening = (peer,)
+    carrier.crew.inbound.presence.peer(peer, True)
+    carrier.crew.inbound.presence.heard_from(peer, clock())
+    carrier.crew.alone.deploy = lambda j: True  # the planner's choice is not what is tested here
     carrier.life = dataclasses.replace(carrier.life, phase=cl.Phase.ALONE, stage=1, opened=clock.now, deciding=True)
     resent = lambda: [t for t, topic in carrier.node.puts if topic == "obs"]
     return carrier, clock, resent
@@ -292,7 +292,7 @@ def test_the_coordinator_waits_for_a_carrier_heard_from_until_its_silence(tmp_pa
     the stage timeout, until the silence timeout after that; then it is stalled (logged)."""
     coordinator, clock, lines = coordinator_waiting("sim", tmp_path, silence_timeout_s=30.0, stage_timeout_s=5.0)
     opened = clock.now
-    coordinator.inbound.heard = {cid: opened + 10.0 for cid in TINY.carrier_ids}
+    coordinator.crew.inbound.heard = {cid: opened + 10.0 for cid in TINY.carrier_ids}
     waiting = coordinator.state.waiting(0)
     assert waiting
     decided = stage_0_opened(coordinator, clock)
@@ -305,7 +305,7 @@ def test_the_coordinator_on_the_wall_clock_waits_the_stage_timeout(tmp_path):
     """[P-10.3] wall clock: the stage timeout is a deadline, whoever is heard from."""
     coordinator, clock, lines = coordinator_waiting("wall", tmp_path, silence_timeout_s=30.0, stage_timeout_s=5.0)
     opened = clock.now
-    coordinator.inbound.heard = {cid: opened + 4.9 for cid in TINY.carrier_ids}
+    coordinator.crew.inbound.heard = {cid: opened + 4.9 for cid in TINY.carrier_ids}
     decided = stage_0_opened(coordinator, clock)
     coordinator.fly()
     assert len(decided) == 1 and 5.0 <= decided[0] - opened < 5.1 and not any("stalled" in line for line in lines)

@@ -58,9 +58,9 @@ def test_staggered_start_catches_up_from_the_mission_state(tiny, tmp_path):
     fleet.start_coordinator()
     fleet.start_carrier("a", realtime=5.0)
     deadline = time.monotonic() + 30
-    while fleet.coordinator.next_stage < 1 and time.monotonic() < deadline:
+    while fleet.coordinator.state.next_stage < 1 and time.monotonic() < deadline:
         time.sleep(0.01)
-    assert fleet.coordinator.next_stage >= 1
+    assert fleet.coordinator.state.next_stage >= 1
     fleet.start_carrier("b", realtime=5.0)
     summary = fleet.join()
     reference, x = offline(tiny)
@@ -149,17 +149,17 @@ def test_restarted_coordinator_recovers_from_mission_db(tiny, tmp_path):
     fleet = InProcessFleet(tiny, tmp_path)
     crashing = fleet.coordinator
 
-    def publish_or_crash(state, j, original=crashing.effects.publish_decision):
+    def publish_or_crash(state, j, original=crashing.crew.effects.publish_decision):
         if j == 1:
             raise _Crash()
         return original(state, j)
 
-    crashing.effects.publish_decision = publish_or_crash
+    crashing.crew.effects.publish_decision = publish_or_crash
     fleet._spawn("crashed", lambda: pytest.raises(_Crash, crashing.run))
     for cid in tiny.carrier_ids:
         fleet.start_carrier(cid, mode="coordinated")
     fleet.threads[0].join(30)
-    assert crashing.next_stage == 2 and not crashing.state.ended
+    assert crashing.state.next_stage == 2 and not crashing.state.ended
     time.sleep(0.5)
     restarted = Coordinator(tiny, CoordinatorConfig(out_dir=str(tmp_path), log=fleet.log, render=False),
                             make_config("peer", [fleet.endpoint]))
@@ -184,10 +184,10 @@ def test_restarted_carrier_rejoins_with_its_recorded_deployments(tiny, tmp_path)
     first = fleet.start_carrier("a", realtime=5.0)
     fleet.start_carrier("b", realtime=5.0)
     deadline = time.monotonic() + 60
-    while fleet.coordinator.next_stage < 2 and time.monotonic() < deadline:
+    while fleet.coordinator.state.next_stage < 2 and time.monotonic() < deadline:
         time.sleep(0.01)
     ra = tiny.carrier_index("a")
-    before = int(fleet.coordinator.deployed()[ra].sum())
+    before = int(fleet.coordinator.state.deployed()[ra].sum())
     assert before >= 1  # tiny.yaml: a deploys at stage 0 (x = 8), so there is something to replay
     first.stop()
     fleet.threads[1].join(30)

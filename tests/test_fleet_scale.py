@@ -129,11 +129,11 @@ def test_state_reply_is_scoped_to_the_asking_carrier(tiny, tmp_path):
     from coordinator.node import Coordinator, CoordinatorConfig
 
     coord = Coordinator(tiny, CoordinatorConfig(out_dir=str(tmp_path), render=False), None)
-    full = decode(coord.answers.state_reply({}), State)
+    full = decode(coord.crew.answers.state_reply({}), State)
     assert [cid for cid, _ in full.carriers] == sorted(tiny.carrier_ids)
-    mine = decode(coord.answers.state_reply({"carrier": "b"}), State)
+    mine = decode(coord.crew.answers.state_reply({"carrier": "b"}), State)
     assert [cid for cid, _ in mine.carriers] == ["b"] and mine.carrier("b") == full.carrier("b")
-    assert decode(coord.answers.state_reply({"carrier": "nobody"}), State).carriers == ()
+    assert decode(coord.crew.answers.state_reply({"carrier": "nobody"}), State).carriers == ()
     assert keys.state_selector("tiny", "b") == "marsupial/tiny/coordinator/state?carrier=b"
 
 
@@ -144,9 +144,9 @@ def test_an_unscoped_state_of_a_large_mission_lists_no_carrier(tmp_path):
 
     big = world.load_scenario(write_scenario(MAX_STATE_CARRIERS + 1, tmp_path / "big.yaml", planner="ssap"))
     coord = Coordinator(big, CoordinatorConfig(out_dir=str(tmp_path), render=False), None)
-    assert decode(coord.answers.state_reply({}), State).carriers == ()
+    assert decode(coord.crew.answers.state_reply({}), State).carriers == ()
     last = big.carrier_ids[-1]
-    assert [cid for cid, _ in decode(coord.answers.state_reply({"carrier": last}), State).carriers] == [last]
+    assert [cid for cid, _ in decode(coord.crew.answers.state_reply({"carrier": last}), State).carriers] == [last]
     assert MAX_CARRIERS >= 1024
 
 

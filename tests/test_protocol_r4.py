@@ -514,7 +514,7 @@ def test_each_answer_only_on_its_own_key_and_for_its_own_carrier():
         coordinator.put(keys.refusal_key(M, "a"), mine, 4)
         coordinator.put(keys.accepted_key(M, "a"), dataclasses.replace(mine, carrier="b"), 4)
         time.sleep(0.5)
-        assert carrier.answer.unanswered is True
+        assert carrier.crew.inbound.answer.unanswered is True
         coordinator.put(keys.accepted_key(M, "a"), mine, 4)
         assert coordinator.expect(wm.Observation) is not None
         coordinator.put(keys.end_key(M), wm.End(M, 0, "complete", epoch=1), 4)
@@ -558,7 +558,7 @@ def test_a_revision_4_carrier_with_a_revision_3_coordinator():
         assert coordinator.expect(wm.Observation) is not None
         time.sleep(0.5)
         assert carrier.timers == mc.Timers("wall", 12.0, 0.0)
-        assert carrier.answer.unanswered is False  # the Accepted was taken
+        assert carrier.crew.inbound.answer.unanswered is False  # the Accepted was taken
         coordinator.put(keys.end_key(M), wm.End(M, 0, "complete", epoch=2), 3)  # encoded for revision 3: no epoch
         bye = coordinator.expect(wm.Bye)
         thread.join(30)
@@ -600,9 +600,9 @@ def test_a_revision_3_carrier_never_receives_revision_4_fields(tmp_path):
             assert item is not None and item.key == keys.accepted_key(M, cid), item
             got[cid].put(item.payload)
         deadline = time.monotonic() + 10
-        while "b" not in fleet.coordinator.epochs.claims and time.monotonic() < deadline:
+        while "b" not in fleet.coordinator.crew.epochs.claims and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert fleet.coordinator.epochs.claims["b"] == 5 and fleet.coordinator.epochs.epoch == 1
+        assert fleet.coordinator.crew.epochs.claims["b"] == 5 and fleet.coordinator.crew.epochs.epoch == 1
         fleet.coordinator.stop()
         for cid, node in peers.items():
             item = node.next(10.0)

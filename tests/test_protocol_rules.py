@@ -439,7 +439,9 @@ def test_a_carrier_joins_after_subscribing():
     """[P-5.1] the project's carrier subscribes to its coordinator keys and declares its token
     before it joins (the order of run's statements: subscribe, token, join)."""
     source = (ROOT / "carriers" / "node.py").read_text().split("def run(")[1]
-    assert source.index("opening.announce(") < source.index("self.step(cl.Start(")
+    assert source.index("opening.begin(") < source.index("self.step(cl.Start(")
+    begin = (ROOT / "carriers" / "opening.py").read_text().split("def begin(")[1].split("\ndef ")[0]
+    assert "announce(config, node, crew)" in begin
     announce = (ROOT / "carriers" / "opening.py").read_text().split("def announce(")[1].split("\ndef ")[0]
     assert announce.index("inbound.subscribe(node)") < announce.index("node.token(")
     subscribe = (ROOT / "carriers" / "inbound.py").read_text().split("def subscribe(")[1].split("def listen(")[0]
@@ -854,10 +856,10 @@ def test_takeover_and_deposition_come_from_coordinators_only():
     assert epochs.deposed_by == 2 and stop.is_set()
     node = (ROOT / "coordinator" / "node.py").read_text()
     fly = node.split("    def fly(")[1].split("    def ")[0]
-    assert "if self.epochs.deposed_by is not None:  # deposed: the newer coordinator ends the mission" in fly
+    assert "if self.crew.epochs.deposed_by is not None:  # deposed: the newer coordinator ends the mission" in fly
     assert "self.step(cl.Deposed())" in fly
     assert ("if self.state.next_stage > 0:  # idempotent re-publication\n"
-            "            self.apply(self.effects.publish_decision(self.state, self.state.next_stage - 1))") in node
+            "            self.apply(self.crew.effects.publish_decision(self.state, self.state.next_stage - 1))") in node
 
 
 # --- rules: 9 leaving
@@ -869,7 +871,7 @@ def test_bye_only_after_hello():
     from carriers.exits import EXIT_CODES
 
     node = (ROOT / "carriers" / "node.py").read_text().split("def run(")[1]
-    assert "opening.close(self.config, self.node, self.who, self.machine, self.answer, reason" in node
+    assert "opening.close(self.config, self.node, crew, self.machine, reason" in node
     closing = (ROOT / "carriers" / "opening.py").read_text().split("def close(")[1]
     assert 'if answer.said_hello or config.mode == Mode.DECENTRALISED:  # a Bye needs a Hello' in closing
     table = PAGE.split("**[P-9.4]")[1].split("\n\n", 2)[1]
@@ -930,8 +932,8 @@ def test_what_keeps_a_carrier_heard():
     inbound = (ROOT / "coordinator" / "inbound.py").read_text().split("def read(")[1]
     assert inbound.index("key-mismatch") < inbound.index("Heard(carrier=cid, at=item.received") < inbound.index(
         "Heard(to_event(msg, item.wall), cid, item.received")
-    take = (ROOT / "coordinator" / "node.py").read_text().split("def _take(")[1]
-    assert take.index("self.inbound.note(heard, self.state.next_stage)") < take.index("self.apply(heard.event)")
+    take = (ROOT / "coordinator" / "inbound.py").read_text().split("def take(")[1].split("    def ")[0]
+    assert take.index("self.note(heard, state.next_stage)") < take.index("return heard.event")
     note = (ROOT / "coordinator" / "inbound.py").read_text().split("def note(")[1].split("    def ")[0]
     assert "self.heard[heard.carrier] = heard.at" in note
     peers = (ROOT / "carriers" / "inbound.py").read_text().split("def _peer(")[1]
@@ -1077,7 +1079,7 @@ def test_end_is_broadcast_with_its_epoch_in_the_lowest_revision():
     life = (ROOT / "mission" / "coordinator_life.py").read_text().split("def _end(")[1]
     assert "tm.end_due(life.last_end, life.ended_at, now, w.end_repeat_s, w.bye_s)" in life
     step = " ".join((ROOT / "coordinator" / "node.py").read_text().split("    def step(")[1].split("    def ")[0].split())
-    assert "self.effects.end_recorded(self.state, effect.reason, self.epochs)" in step
+    assert "self.crew.effects.end_recorded(self.state, effect.reason, self.crew.epochs)" in step
     effects = " ".join((ROOT / "coordinator" / "effects.py").read_text().split())
     assert "state.end_reason or reason, epochs.epoch, epochs.ident)" in effects
     assert "self.node.put(keys.end_key(self.mission), self.end_message, state.common_revision(REVISION))" in effects

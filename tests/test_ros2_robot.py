@@ -55,7 +55,7 @@ def _check(scenario, robot_id, fleet, robot, summary):
     assert summary["total_reward"] == pytest.approx(reference.reward)
     from ros2.robot import RobotBody
 
-    assert isinstance(fleet.carriers[robot_id].motion.body, RobotBody)  # its body was the robot, not the physics
+    assert isinstance(fleet.carriers[robot_id].crew.motion.body, RobotBody)  # its body was the robot, not the physics
     r = scenario.carrier_index(robot_id)
     mine = summary["carriers"][r]
     assert sorted(p for _, p in robot.released) == sorted(d.get("passenger", i) for i, d in

@@ -262,9 +262,9 @@ def test_a_coordinator_on_a_fresh_out_keeps_its_epoch_whatever_a_hello_reports(t
             time.sleep(0.05)
         other.put("marsupial/tiny/carrier/a/hello",
                   Hello("tiny", "a", 1, "elsewhere", 2, 0, coordinator.setup.fingerprint, epoch=4))
-        while "a" not in coordinator.epochs.claims and time.monotonic() < deadline:
+        while "a" not in coordinator.crew.epochs.claims and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert coordinator.epochs.claims == {"a": 4} and coordinator.epochs.epoch == 1
+        assert coordinator.crew.epochs.claims == {"a": 4} and coordinator.crew.epochs.epoch == 1
         for cid in tiny.carrier_ids:
             fleet.start_carrier(cid)
         summary = fleet.join()
