@@ -15,4 +15,6 @@ def test_one_world_per_family_gives_a_row_each_with_both_models_timed(capsys):
         assert r[1].strip() == "6"
         penalty, coverage, ratio = float(r[3].split()[0]), float(r[4].split()[0]), float(r[5])
         assert penalty > 0 and coverage > 0
-        assert abs(ratio - coverage / penalty) <= 0.01 + 0.01 * ratio
+        # the ratio of the medians, which the table rounds to 0.1 ms (and the ratio to 0.01)
+        low, high = (coverage - 0.05) / (penalty + 0.05), (coverage + 0.05) / max(penalty - 0.05, 1e-9)
+        assert low - 0.005 <= ratio <= high + 0.005, (ratio, penalty, coverage)
