@@ -48,15 +48,14 @@ class Crew:
     effects: MissionEffects
 
     @classmethod
-    def build(cls, scenario, setup: MissionSetup, config, stop: threading.Event, clock) -> "Crew":
+    def build(cls, setup: MissionSetup, config, stop: threading.Event, clock) -> "Crew":
         """The collaborators of a coordinator of ``setup`` and ``config``
-        (:class:`coordinator.node.CoordinatorConfig`): ``scenario`` the scenario as the process
-        was given it (the results draw map.png from it), ``stop`` its stop request (set when it
-        is deposed), ``clock`` its clock (what a standby's wait reads)."""
+        (:class:`coordinator.node.CoordinatorConfig`): ``stop`` its stop request (set when it is
+        deposed), ``clock`` its clock (what a standby's wait reads)."""
         recording = Recording(setup.mission, setup.spec.has, setup.log)
         epochs = Epochs(setup.mission, setup.log, stop, clock, config.coordinator_id or default_ident())
         answers = Answers(setup, epochs, config)
         inbound = Inbound(setup.mission, setup.spec.has, setup.fingerprint, epochs, recording)
-        results = results_for(scenario, setup, config, epochs, recording, answers)
+        results = results_for(setup, config, epochs, recording, answers)
         return cls(recording, epochs, answers, inbound, results,
                    MissionEffects(setup.mission, setup.spec, answers, recording, setup.log))

@@ -143,7 +143,7 @@ class Coordinator:
         self.setup = setup = MissionSetup.build(scenario, config, zconf, scenario_path)  # its config checked
         self.config, self.clock = config, clock
         self._stop = stop if stop is not None else threading.Event()
-        self.crew = Crew.build(scenario, setup, config, self._stop, clock)
+        self.crew = Crew.build(setup, config, self._stop, clock)
         self.state = ms.initial(setup.spec)
         self.crew.answers.serve(self.state)
         self.life = cl.initial(waits_of(config), config.clock, config.realtime, scenario.stage_interval)

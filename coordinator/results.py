@@ -144,10 +144,12 @@ class Results:
             self.log(f"coordinator: map.png not drawn: {type(exc).__name__}: {exc}")
 
 
-def results_for(scenario, setup, config, epochs, recording, answers) -> Results:
+def results_for(setup, config, epochs, recording, answers) -> Results:
     """The :class:`Results` of a coordinator of ``setup`` (:class:`coordinator.setup.MissionSetup`)
     and ``config`` (its ``CoordinatorConfig``: the results directory, whether to draw map.png),
-    with this process's facts (pid, host); ``scenario``: the scenario map.png is drawn from."""
+    with this process's facts (pid, host). map.png is drawn from the run's scenario (its seed the
+    run's: the features the carriers observed)."""
+    scenario = setup.scenario
     return Results(scenario, RunInfo(
         scenario=scenario.name, scenario_file=str(setup.scenario_path), mission=setup.mission,
         planner=setup.planner_name, planner_options=setup.planner_options, seed=setup.seed, pid=os.getpid(),

@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 
 import world
+from coordinator.node import Coordinator, CoordinatorConfig
 from wire import keys
 from wire.messages import MAX_PAYLOAD_BYTES, Decision, Observation, encode
 from wire.transport import Node
-from wire.zconfig import make_config
+from wire.zconfig import free_port, make_config
 
 from fleet_helpers import TINY, InProcessFleet, db_rows, deployed_matrix, offline
 
@@ -143,8 +144,6 @@ def test_restarted_coordinator_recovers_from_mission_db(tiny, tmp_path):
     finishes the mission exactly as the offline planner would. (Carriers that hold while the
     coordinator is away, ``coordinated``: hybrid carriers would go on without it, see
     test_hybrid.py.)"""
-    from coordinator.node import Coordinator, CoordinatorConfig
-    from wire.zconfig import make_config
 
     fleet = InProcessFleet(tiny, tmp_path)
     crashing = fleet.coordinator
@@ -204,3 +203,11 @@ def test_restarted_carrier_rejoins_with_its_recorded_deployments(tiny, tmp_path)
     assert len(stages) == len(set(stages)) <= tiny.carriers[ra].passengers
     confirmed = db_rows(tmp_path / "mission.db", "SELECT stage FROM confirmations WHERE carrier='a' AND deployed=1")
     assert len(confirmed) == len({s for (s,) in confirmed})
+
+
+def test_the_map_is_drawn_from_the_runs_seed(tiny, tmp_path):
+    """A run with ``--seed`` draws map.png from the features of that seed, those its carriers
+    observed (not the scenario file's)."""
+    coordinator = Coordinator(tiny, CoordinatorConfig(out_dir=str(tmp_path), seed=tiny.seed + 7, render=False),
+                              make_config("peer", [f"tcp/127.0.0.1:{free_port()}"]))
+    assert coordinator.crew.results.scenario.seed == tiny.seed + 7 == coordinator.setup.seed
