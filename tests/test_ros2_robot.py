@@ -206,6 +206,18 @@ def _body(tiny, session, lines, sync=False, timeout_s=10.0, sensing="frontier", 
                            timeout_s=timeout_s, sensing=sensing, scans=scans)
 
 
+def _arrived(history, t, timeout_s=10.0):
+    """Until ``history`` (a body's odometry) holds a message stamped ``t`` or later."""
+    import time
+
+    deadline = time.monotonic() + timeout_s
+    history.pull()
+    while not history.reached(t) and time.monotonic() < deadline:
+        time.sleep(0.01)
+        history.pull()
+    assert history.reached(t), f"no message stamped {t} s within {timeout_s} s"
+
+
 def _odometry_until(robot, stop, t, x, y):
     """The robot's odometry at (x, y) stamped ``t``, 20 times a second until ``stop``."""
     def run():
@@ -445,11 +457,12 @@ def test_scans_made_a_map_and_a_bad_scan(tmp_path):
         while body.maps.newest < 4.0 and time.monotonic() < deadline:
             time.sleep(0.01)
             body.maps.pull()
+        _arrived(body.odom, 2.0)  # paced: a stage counts what has arrived
         body.advance_to(2.0)
         x2 = body.sense("a")
         robot.publish_odometry(4.0, 23.0, 20.0)
         thread = _odometry_until(robot, stop, 4.0, 23.0, 20.0)
-        time.sleep(0.2)
+        _arrived(body.odom, 4.0)
         body.advance_to(4.0)
         x4 = body.sense("a")
         stop.set()
