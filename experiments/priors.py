@@ -25,6 +25,7 @@ import numpy as np
 
 from experiments.report import STYLE, Variants, planner_order, read_csv, sem, variant_bars, write_csv
 from experiments.trials import Sweep, Task, replace_prior, urban_trial
+from planner.priors import Poisson
 from world.paths import REPO_ROOT as ROOT
 
 #: (label, scenario file, factor on the stated prior's mean).
@@ -57,7 +58,7 @@ def oracle_prior(mean: float, var: float):
     import scipy.stats
 
     if var <= mean:
-        return scipy.stats.poisson(mean)
+        return Poisson(mean)
     return scipy.stats.nbinom(mean * mean / (var - mean), mean / var)
 
 
@@ -65,14 +66,12 @@ def trial(task: Task):
     """The urban-style world trial with the task's prior variant: the stated prior (the scenario's,
     its Poisson mean scaled by ``prior_factor``) for ``stated`` and ``learned``, the oracle for
     ``oracle``; every variant keeps the stated prior's normalisation scale."""
-    import scipy.stats
-
     problem, x, planner_seed, extra = urban_trial(task)
     if task.prior_factor != 1.0:
         stated = problem.prior
         if getattr(stated.dist, "name", None) != "poisson":
             raise ValueError(f"prior_factor needs a Poisson stated prior, found {stated.dist.name}")
-        problem = replace_prior(problem, scipy.stats.poisson(float(stated.mean()) * task.prior_factor))
+        problem = replace_prior(problem, Poisson(float(stated.mean()) * task.prior_factor))
     extra = {**extra, "scale": problem.scale, "stated_mean": float(problem.prior.mean()),
              "oracle_mean": task.oracle[0], "oracle_var": task.oracle[1]}
     if task.variant == "oracle":

@@ -92,9 +92,13 @@ class Fleet:
     windows: Path | None = None  # a schedule's message faults in force (wire.fault_windows)
 
     def start(self, role: str, preexec=ignore_sigint, **given) -> subprocess.Popen:
-        """A child of ``role`` (SIGINT ignored until it is up); ``given``: its own flag values."""
+        """A child of ``role`` (SIGINT ignored until it is up); ``given``: its own flag values. A
+        coordinator draws no map.png: the report draws it once, at the end, from the merged logs
+        (the coordinator's drawing was a second of CPU and its import another, before it exits)."""
         if role != "router":
             given.setdefault("out", str(self.out))
+        if role == "coordinator":
+            given["no_map"] = True
         env = child_env()
         if self.windows is not None:
             from wire.fault_windows import ENV

@@ -38,9 +38,8 @@ import numpy as np
 
 
 class PoissonPriors(Sequence):
-    """Poisson(mean) priors of M regions, each a frozen ``scipy.stats.poisson`` made only when asked
-    for (then kept): freezing one costs milliseconds (scipy builds its docstrings), seconds over
-    the thousands of regions of a large coverage world, and the Poisson paths read the means alone."""
+    """Poisson(mean) priors of M regions, each a :class:`planner.priors.Poisson` made only when
+    asked for (then kept): the Poisson paths read the means alone."""
 
     def __init__(self, means):
         self.means = np.array(means, dtype=float)
@@ -56,9 +55,9 @@ class PoissonPriors(Sequence):
         m = range(len(self))[m]  # IndexError past the end, as a tuple's
         frozen = self._frozen.get(m)
         if frozen is None:
-            from scipy import stats
+            from planner.priors import Poisson
 
-            frozen = self._frozen.setdefault(m, stats.poisson(float(self.means[m])))
+            frozen = self._frozen.setdefault(m, Poisson(float(self.means[m])))
         return frozen
 
 

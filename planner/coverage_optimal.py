@@ -74,10 +74,8 @@ class CoverageOptimum:
 def _distribution(coverage, regions: list[int]) -> tuple[np.ndarray, np.ndarray]:
     """(values, probabilities) of the summed count of ``regions`` (priors' supports cut at
     :data:`planner.priors.TAIL`; Poisson regions as one Poisson)."""
-    from scipy import stats
-
     poisson = [m for m in regions if getattr(coverage.priors[m].dist, "name", "") == "poisson"]
-    parts = [priors_mod.support(stats.poisson(float(coverage.means[poisson].sum())))] if poisson else []
+    parts = [priors_mod.support(priors_mod.Poisson(float(coverage.means[poisson].sum())))] if poisson else []
     parts += [priors_mod.support(coverage.priors[m]) for m in regions if m not in poisson]
     values, probs = np.zeros(1), np.ones(1)
     for v, p in parts:

@@ -116,7 +116,7 @@ def fit_prior(stated, obs, weight: float = PRIOR_WEIGHT) -> Fit:
         v = max(v, 1e-12)
         return Fit(scipy.stats.gamma(m * m / v, scale=v / m), "gamma", m, v, int(obs.size))
     if v <= m * (1.0 + POISSON_TOLERANCE):
-        return Fit(scipy.stats.poisson(m), "poisson", m, v, int(obs.size))
+        return Fit(priors.Poisson(m), "poisson", m, v, int(obs.size))
     # Negative binomial with mean m and variance v: n = m² / (v - m), p = m / v.
     return Fit(scipy.stats.nbinom(m * m / (v - m), m / v), "negative_binomial", m, v, int(obs.size))
 

@@ -52,9 +52,131 @@ def _table(p: dict) -> Any:
     return _stats().rv_discrete(values=(np.asarray(p["values"], float), np.asarray(p["probabilities"], float)))()
 
 
+class Poisson:
+    """The Poisson prior of mean ``mu``: what the frozen ``scipy.stats.poisson(mu)`` gives, to the
+    bit, for what the planner and the fleet ask of a prior (``pmf``, ``cdf``, ``sf``, ``ppf``,
+    ``support``, ``mean``, ``var``, ``std``, and ``rvs`` drawn from a numpy Generator or
+    RandomState), by scipy's own formulas over ``scipy.special``, without importing
+    ``scipy.stats``. That import is 1-2 s of CPU, and every fleet process (each carrier's
+    on-board planner, the coordinator, the report) builds the problem's prior, Poisson by default
+    (a scenario's derived prior). Whatever else is asked (``expect``, ``interval``, ...) comes
+    from ``scipy.stats.poisson(mu)``, built on first use. tests/test_priors.py holds the two
+    equal."""
+
+    def __init__(self, mu):
+        self.args, self.kwds, self.dist = (mu,), {}, POISSON_FAMILY
+        self.mu = mu
+
+    def __reduce__(self):
+        return Poisson, self.args
+
+    def __repr__(self) -> str:
+        return f"Poisson({self.mu!r})"
+
+    def __getattr__(self, name: str):
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return getattr(self._frozen(), name)
+
+    def _frozen(self):
+        """``scipy.stats.poisson(mu)``, built once."""
+        if "_scipy" not in self.__dict__:
+            self.__dict__["_scipy"] = _stats().poisson(*self.args)
+        return self.__dict__["_scipy"]
+
+    @staticmethod
+    def _out(output: np.ndarray):
+        return output[()] if output.ndim == 0 else output
+
+    def pmf(self, k):
+        from scipy import special
+
+        k = np.asarray(k)
+        cond = (k >= 0) & (k <= np.inf) & (np.floor(k) == k)
+        output = np.zeros(np.shape(cond), "d")
+        np.place(output, np.isnan(k), np.nan)
+        if np.any(cond):
+            good = np.extract(cond, k)
+            np.place(output, cond, np.clip(np.exp(special.xlogy(good, self.mu) - special.gammaln(good + 1) - self.mu),
+                                           0, 1))
+        return self._out(output)
+
+    def _tail(self, k, upper: bool):
+        from scipy import special
+
+        k = np.asarray(k)
+        cond = (k >= 0) & (k < np.inf) & np.isfinite(k)
+        output = np.zeros(np.shape(cond), "d")
+        if upper:
+            np.place(output, np.isnan(k), np.nan)
+            np.place(output, (k < 0) | np.isneginf(k), 1.0)
+        else:
+            np.place(output, k >= np.inf, 1.0)
+            np.place(output, np.isneginf(k), 0.0)
+            np.place(output, np.isnan(k), np.nan)
+        if np.any(cond):
+            good = np.floor(np.extract(cond, k))
+            np.place(output, cond, np.clip((special.pdtrc if upper else special.pdtr)(good, self.mu), 0, 1))
+        return self._out(output)
+
+    def cdf(self, k):
+        return self._tail(k, upper=False)
+
+    def sf(self, k):
+        return self._tail(k, upper=True)
+
+    def ppf(self, q):
+        from scipy import special
+
+        q = np.asarray(q)
+        cond = (q > 0) & (q < 1)
+        output = np.full(np.shape(cond), fill_value=np.nan, dtype="d")
+        np.place(output, q == 0, -1)
+        np.place(output, q == 1, np.inf)
+        if np.any(cond):
+            good = np.extract(cond, q)
+            vals = np.ceil(special.pdtrik(good, self.mu))
+            vals1 = np.maximum(vals - 1, 0)
+            np.place(output, cond, np.where(special.pdtr(vals1, self.mu) >= good, vals1, vals) + 0)
+        return self._out(output)
+
+    def support(self):
+        return np.int64(0), np.float64(np.inf)
+
+    def mean(self):
+        return np.float64(self.mu)
+
+    def var(self):
+        return np.float64(self.mu)
+
+    def std(self):
+        return np.sqrt(self.var())
+
+    def rvs(self, size=None, random_state=None):
+        if not isinstance(random_state, (np.random.Generator, np.random.RandomState)):
+            return self._frozen().rvs(size=size, random_state=random_state)
+        shape = () if size is None else tuple(size) if np.iterable(size) else (int(size),)
+        vals = random_state.poisson(np.asarray(self.mu), shape) * 1 + 0
+        return int(vals) if shape == () else vals.astype(np.int64)
+
+
+class _PoissonFamily:
+    """What :class:`Poisson`'s ``dist`` says of its family (the checks read ``name`` and
+    whether it has a ``pmf``)."""
+
+    name = "poisson"
+
+    @staticmethod
+    def pmf(k, mu):
+        return Poisson(mu).pmf(k)
+
+
+POISSON_FAMILY = _PoissonFamily()
+
+
 #: kind -> ({parameter: (check, "expected ..." text)}, builder(spec) -> frozen distribution).
 PRIOR_KINDS: dict[str, tuple[dict[str, tuple[Callable[[Any], bool], str]], Callable[[dict], Any]]] = {
-    "poisson": ({"mean": (is_positive, "a number > 0")}, lambda p: _stats().poisson(p["mean"])),
+    "poisson": ({"mean": (is_positive, "a number > 0")}, lambda p: Poisson(p["mean"])),
     "binomial": ({"n": (lambda v: is_integer(v) and v >= 1, "an integer >= 1"), "p": (is_probability, "a number in (0, 1]")},
                  lambda p: _stats().binom(p["n"], p["p"])),
     # failures before the first success: support 0, 1, 2, ...
@@ -134,9 +256,9 @@ def poisson_support(mean: float, tail: float = TAIL) -> tuple[np.ndarray, np.nda
     """:func:`support` of a Poisson prior of ``mean``, the same numbers without freezing a
     distribution (a frozen scipy.stats distribution builds its docstrings: ~6 ms each, most of a
     coverage planner's warm-up over thousands of regions); cached, read-only arrays."""
-    stats = _stats()
-    points = np.arange(0.0, stats.poisson.ppf(1.0 - tail, mean) + 1.0)
-    mass = stats.poisson.pmf(points, mean)
+    prior = Poisson(mean)
+    points = np.arange(0.0, prior.ppf(1.0 - tail) + 1.0)
+    mass = prior.pmf(points)
     points.setflags(write=False)
     mass.setflags(write=False)
     return points, mass

@@ -21,7 +21,8 @@ from functools import cached_property
 from typing import Any, Protocol, Sequence
 
 import numpy as np
-import scipy  # scipy.stats is loaded on first use: its import is slow and most processes never need it
+
+from planner.priors import Poisson
 
 #: Quantile of the prior whose value normalises rewards for planning (the paper's 90th percentile).
 NORMALIZE_QUANTILE = 0.9
@@ -93,7 +94,7 @@ class Problem:
     passengers: np.ndarray
     valid: np.ndarray
     overlaps: tuple[np.ndarray, ...]
-    prior: Any  # a frozen scipy.stats distribution (scipy ships no types)
+    prior: Any  # a frozen scipy.stats distribution or planner.priors.Poisson (scipy ships no types)
     scale: float
     conflict: np.ndarray = field(repr=False)
     weights: np.ndarray | None = field(default=None, repr=False)
@@ -147,7 +148,7 @@ class Problem:
                 )
             groups.append(arr)
         w = None if weights is None else _weight_matrix(weights, d)
-        prior = scipy.stats.poisson(3.0) if prior is None else prior
+        prior = Poisson(3.0) if prior is None else prior
         scale = normalisation_scale(prior, normalize)
         conflict = _conflict_matrix(n_carriers, n_stages, groups)
         # Instances are shared between planners and caches: make their arrays immutable.

@@ -25,7 +25,7 @@ import math
 import numpy as np
 import scipy  # scipy.integrate is loaded on first use
 
-from planner.priors import is_discrete, support
+from planner.priors import Poisson, is_discrete, support
 
 #: Relative tie margin of the threshold rule: ``x`` exceeds a threshold ``t`` iff
 #: ``x > t + TIE * max(1, |t|)`` (:func:`cut`). Far above the rounding error of a threshold (a few
@@ -51,7 +51,7 @@ def _poisson_clipped_mean(lam: float):
     """Closed form for X ~ Poisson(lam), no truncation. With A = floor(a), B = floor(b) and F the
     CDF: E[min(max(X, a), b)] = a F(A) + sum_{k=A+1..B} k p(k) + b (1 - F(B)), and
     sum_{k=m..n} k p(k) = lam (F(n - 1) - F(m - 2)) because k p(k) = lam p(k - 1)."""
-    cdf = scipy.stats.poisson(lam).cdf
+    cdf = Poisson(lam).cdf
 
     def clipped_mean(a: float, b: float) -> float:
         total = 0.0
@@ -62,7 +62,7 @@ def _poisson_clipped_mean(lam: float):
             total += a * fa
             lower = float(cdf(np.floor(a) - 1))
         if np.isfinite(b):
-            total += b * float(scipy.stats.poisson(lam).sf(np.floor(b)))
+            total += b * float(Poisson(lam).sf(np.floor(b)))
             upper = float(cdf(np.floor(b) - 1))
         return total + lam * max(upper - lower, 0.0)
 

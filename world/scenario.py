@@ -42,13 +42,6 @@ MAX_MISSION_TIME = 1e5  # s, time of the last stage (the physics runs at 20 step
 CARRIER_RADIUS = 0.4
 
 
-def _stats() -> Any:
-    """scipy.stats, imported on first use (it takes a second to import; carriers rarely need it)."""
-    from scipy import stats
-
-    return stats
-
-
 #: Explicit prior kinds (shared with the planner's instance format, see planner/priors.py).
 PRIOR_KINDS = tuple(priors.PRIOR_KINDS)
 
@@ -409,9 +402,10 @@ class Scenario:
         return dataclasses.replace(self, seed=int(seed))
 
     def prior_distribution(self) -> Any:
-        """The frozen ``scipy.stats`` prior of a valid stage's feature count."""
+        """The prior of a valid stage's feature count: a frozen ``scipy.stats`` distribution, or
+        :class:`planner.priors.Poisson` (its numbers without the scipy.stats import)."""
         if self.prior.kind == "derived":
-            return _stats().poisson(self.derived_prior_mean())
+            return priors.Poisson(self.derived_prior_mean())
         return priors.build_prior({"kind": self.prior.kind, **{k: list(v) if isinstance(v, tuple) else v
                                                                for k, v in self.prior.params}})
 
