@@ -262,22 +262,19 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
+    from mission.simulate.schedule import ScheduleError
     from world import ScenarioError
 
     try:
+        if args.schedule is not None:  # its form first: refused before the fleet's seconds of building
+            parse_schedule(args.schedule)
         fleet = build_fleet(args.scenario, args.mode, args.onboard_iterations, perfect_links=args.perfect_links,
                             workers=args.jobs)
-    except (ScenarioError, OSError) as exc:
+        if args.schedule is not None:  # then its carrier ids
+            args.schedule = parse_schedule(args.schedule, fleet.ids)
+    except (ScenarioError, ScheduleError, OSError) as exc:
         print(f"python -m mission.simulate: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    if args.schedule is not None:
-        from mission.simulate.schedule import ScheduleError
-
-        try:
-            args.schedule = parse_schedule(args.schedule, fleet.ids)
-        except ScheduleError as exc:
-            print(f"python -m mission.simulate: {exc}", file=sys.stderr)
-            return EXIT_USAGE
 
     def progress(done: int, total: int, out) -> None:
         if not args.quiet and (done == total or done % max(1, total // 20) == 0):
