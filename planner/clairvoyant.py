@@ -29,6 +29,11 @@ Exact method (branch and bound, compiled with numba):
 """
 from __future__ import annotations
 
+if __name__ == "__main__":  # a forward, first: this file's body runs once, under its own name
+    from planner.cli.measure import clairvoyant_times
+
+    raise SystemExit(clairvoyant_times())
+
 import math
 from itertools import combinations
 from typing import NamedTuple
@@ -401,9 +406,3 @@ def warm_up() -> None:
 
 
 cache_follows_sources(globals())  # the on-disk cache follows every planner source
-
-
-if __name__ == "__main__":  # a forward only: the command line is planner.cli.measure's
-    from planner.cli.measure import clairvoyant_times
-
-    raise SystemExit(clairvoyant_times())

@@ -32,6 +32,11 @@ i))`` for family f's instance i) and the planner's stage streams (``stage_rng(se
 """
 from __future__ import annotations
 
+if __name__ == "__main__":  # a forward, first: this file's body runs once, under its own name
+    from planner.cli.conformance import main
+
+    raise SystemExit(main())
+
 import contextlib
 import math
 import random
@@ -397,9 +402,3 @@ def _check_onboard(planner, cases, seed: int) -> Check:
     if where:
         return Check("onboard", FAIL, "nondeterministic", f"on board: {where}")
     return Check("onboard", PASS, detail=f"{len(cases)} missions under loss 0.3 and delay 1: carriers' rules kept")
-
-
-if __name__ == "__main__":  # a forward only: the command line is planner.cli.conformance's
-    from planner.cli.conformance import main
-
-    raise SystemExit(main())

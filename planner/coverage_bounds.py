@@ -32,6 +32,11 @@ docs/planner.md, "Coverage bounds".
 """
 from __future__ import annotations
 
+if __name__ == "__main__":  # a forward, first: this file's body runs once, under its own name
+    from planner.cli.measure import coverage_bound_times
+
+    raise SystemExit(coverage_bound_times())
+
 import heapq
 import math
 import weakref
@@ -500,9 +505,3 @@ def seeded_bound(problem: Problem, seed: int, budget_s: float | None = None, sam
     method, count = plan(problem, budget_s, duality.DEFAULT_SAMPLES if samples is None else samples)
     rng = np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=duality.BOUND_SPAWN_KEY))
     return upper_bound(problem, rng, count, method, deadline_s=duality.DEADLINE_FACTOR * budget_s)
-
-
-if __name__ == "__main__":  # a forward only: the command line is planner.cli.measure's
-    from planner.cli.measure import coverage_bound_times
-
-    raise SystemExit(coverage_bound_times())

@@ -54,6 +54,11 @@ Pure: numpy and scipy only.
 """
 from __future__ import annotations
 
+if __name__ == "__main__":  # a forward, first: this file's body runs once, under its own name
+    from planner.cli.measure import optimal_table
+
+    raise SystemExit(optimal_table())
+
 import math
 import weakref
 from dataclasses import dataclass
@@ -791,9 +796,3 @@ def _component_decision(solver: _Solver, view: StageView) -> list[int]:
         if score > best + 1e-12 * max(1.0, abs(best)) or best_action is None:
             best_action, best = action, score
     return [int(carriers[can[i]]) for i in best_action]
-
-
-if __name__ == "__main__":  # a forward only: the command line is planner.cli.measure's
-    from planner.cli.measure import optimal_table
-
-    raise SystemExit(optimal_table())

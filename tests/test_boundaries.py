@@ -141,7 +141,9 @@ def test_planner_package_and_limits_are_light():
 #: The core has no command line: the planner's command lines live in planner/cli/ (the one place in
 #: planner/ with argparse and ``__main__`` blocks of any shape). ``python -m`` runs the file it
 #: names, so the planner modules whose commands the docs show keep a ``__main__`` block that only
-#: forwards there: exactly ``from planner.cli.M import F`` and ``raise SystemExit(F())``.
+#: forwards there: exactly ``from planner.cli.M import F`` and ``raise SystemExit(F())``, as the
+#: file's first statement (after its docstring and ``from __future__``): the command's own import
+#: of the module then runs its body once, under its name, never a second time as ``__main__``.
 FORWARDS = {"planner/online_optimal.py": ("planner.cli.measure", "optimal_table"),
             "planner/clairvoyant.py": ("planner.cli.measure", "clairvoyant_times"),
             "planner/coverage_bounds.py": ("planner.cli.measure", "coverage_bound_times"),
@@ -183,6 +185,9 @@ def test_the_core_has_no_command_line(path):
         return
     module, function = FORWARDS[rel]
     assert len(blocks) == 1
+    first = [node for node in tree.body if not (isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant))
+             and not (isinstance(node, ast.ImportFrom) and node.module == "__future__")][0]
+    assert first is blocks[0], f"{rel}: the forward is not the first statement"
     body = blocks[0].body
     assert len(body) == 2 and not blocks[0].orelse
     imp, stop = body

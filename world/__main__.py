@@ -6,6 +6,10 @@ Exit codes: 0 success, 2 bad input (each problem on one line on stderr, no trace
 """
 from __future__ import annotations
 
+if __name__ == "__main__":  # a forward, first: this file's body runs once, under its own name
+    from launcher.scenario_check import world_command
+    raise SystemExit(world_command())
+
 import argparse
 import math
 import sys
@@ -410,8 +414,3 @@ def _run_import(args) -> int:
         print(line)
     print("wrote " + ", ".join(written))
     return 0
-
-
-if __name__ == "__main__":
-    from launcher.scenario_check import world_command
-    raise SystemExit(world_command())
