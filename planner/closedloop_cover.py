@@ -62,7 +62,7 @@ def score_actions(actions, counts, root, scratch, cover, out):
             cover.marks[_k.STAMP, m] = -1
         for c in range(actions.shape[0]):
             cover.tick[0] += 1  # a new trajectory: nothing of the previous one is covered
-            n = 0
+            n = np.int64(0)  # not a literal 0: rollout_cover would be compiled for Literal[int](0) as well
             total = 0.0
             for r in range(n_carriers):
                 left[r] = root.d0[r]

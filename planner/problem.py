@@ -424,6 +424,17 @@ def warm_up_problem() -> Problem:
     return Problem.build(1, np.ones((2, 3), dtype=bool), [[[0, 1], [1, 2]]])
 
 
+def warm_up_coverage_problem() -> Problem:
+    """:func:`warm_up_problem` under the coverage reward: each point explores a region of its own
+    and carrier 0's stage 1 and carrier 1's stage 2 share one more (the install step's instance
+    for the coverage kernels, ``python -m planner.cli.compile``)."""
+    from planner.coverage import Coverage, PoissonPriors
+
+    covers = [[[0], [1, 6], [2]], [[3], [4], [5, 6]]]
+    return Problem.build(1, np.ones((2, 3), dtype=bool), [[[0, 1], [1, 2]]],
+                         coverage=Coverage.build(covers, PoissonPriors(np.full(7, 2.0))))
+
+
 def stage_rng(seed: int, stage: int) -> np.random.Generator:
     """The planner's random stream for one stage of a mission with root seed ``seed``.
 

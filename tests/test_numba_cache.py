@@ -17,6 +17,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 import planner
 from planner.jitcache import sources_digest
 
@@ -116,3 +118,40 @@ def test_processes_starting_together_compile_a_kernel_once(tmp_path):
     assert len(compiled) == 1, reports
     assert all(r == [] or r[0].startswith("report: waiting for another process compiling planner.mcts.kernel.")
                for r in reports if r not in compiled), reports
+
+
+#: Missions flown after the install step (``python -m planner.cli.compile``): the default planner
+#: in both layouts, closed-loop, the on-board planner and a coverage mission's planner.
+AFTER_INSTALL = """
+import numpy as np
+import world
+from planner import clairvoyant, jitcache
+from planner.online import run_online
+from planner.registry import make_planner
+lines = []
+jitcache.report_compiles(lines.append)
+six = world.load_scenario("scenarios/six_carriers.yaml")
+problem, x = world.build_problem(six), world.observe_all(six)
+for name, options in (("mcts-ssap", {}), ("mcts-ssap", {"layout": "binary"}), ("closed-loop", {}),
+                      ("dec-closed-loop", {})):
+    run_online(problem, x, make_planner(name, **options), six.seed)
+clairvoyant.solve(problem, np.where(problem.valid, x, np.nan))  # the summary's bound
+world.offline_mission(world.load_scenario("scenarios/six_carriers_coverage.yaml"))
+print("\\n".join(line for line in lines if line.startswith("compiling")))
+"""
+
+
+@pytest.mark.slow
+def test_after_the_install_step_a_mission_compiles_nothing(tmp_path):
+    """docs/performance.md's promise: after ``python -m planner.cli.compile`` on a new machine, a
+    mission compiles no kernel. A kernel called with arrays of another writability, or with a
+    literal where the install step passed a variable, would be compiled again (numba types both
+    apart): each is seconds of CPU before a first decision."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    install = subprocess.run([sys.executable, "-m", "planner.cli.compile"], cwd=ROOT, env=env, capture_output=True,
+                             text=True, timeout=900)
+    assert install.returncode == 0, install.stderr
+    run = subprocess.run([sys.executable, "-c", AFTER_INSTALL], cwd=ROOT, env=env, capture_output=True, text=True,
+                         timeout=900)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.strip() == "", "compiled after the install step:\n" + run.stdout

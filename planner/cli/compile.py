@@ -3,8 +3,10 @@ this machine ahead of a first run (a robot host's provisioning, an image build),
 fleet's first run loads them instead of compiling (planner/jitcache.py: one cache per machine).
 
 Default planners: the default (mcts-ssap, joint and binary layouts), closed-loop and the
-on-board planner (dec-closed-loop); the clairvoyant bound of the summary always. Prints a line
-per kernel compiled and one at the end; kernels already cached are loaded silently.
+on-board planner (dec-closed-loop), each under the paper's penalty reward and the coverage
+reward; the clairvoyant bound of the summary always. Prints a line per kernel compiled and one at
+the end; kernels already cached are loaded silently. After it a mission compiles nothing
+(tests/test_numba_cache.py, slow).
 """
 from __future__ import annotations
 
@@ -30,7 +32,7 @@ def main(argv=None) -> int:
     start = time.monotonic()
 
     from planner import clairvoyant
-    from planner.problem import warm_up_problem
+    from planner.problem import warm_up_coverage_problem, warm_up_problem
     from planner.registry import make_planner
 
     for name in names:
@@ -40,6 +42,7 @@ def main(argv=None) -> int:
             warm = getattr(planner, "warm_up", None)
             if callable(warm):
                 warm(warm_up_problem())
+                warm(warm_up_coverage_problem())
     clairvoyant.warm_up()
     count = sum(line.startswith("compiling planner.") for line in compiled)
     print(f"planner kernels ready in {jitcache.cache_dir()}: {count} compiled, {time.monotonic() - start:.1f} s",

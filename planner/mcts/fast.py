@@ -83,19 +83,38 @@ JOINT_MAX_CARRIERS = 8
 JOINT_LIMIT = 16
 
 
+def read_only(a: np.ndarray) -> np.ndarray:
+    """``a`` read-only (itself if it is, else a read-only view). numba types a read-only array
+    apart from a writable one and compiles a kernel once per combination it is called with:
+    every per-problem input the kernels only read is passed read-only, so that each kernel is
+    compiled once (a problem's cached arrays are read-only, a prior's table or a placeholder may
+    not be; mixing them compiled ``search_joint`` three times, 8 s of CPU each on a new machine)."""
+    if not a.flags.writeable:
+        return a
+    view = a.view()
+    view.setflags(write=False)
+    return view
+
+
 def _model(problem: Problem, cover: _k.Cover | None = None) -> _k.Model:
     """The compiled problem as the kernels read it (``cover``: the coverage reward's arrays, None
-    for the penalty rule)."""
+    for the penalty rule); its arrays read-only (:func:`read_only`)."""
     cp = compile_problem(problem)
     s = cp.sampler
-    return _k.Model(cp.table, cp.ucut, s.points, s.cdf, s.guide, cp.indptr, cp.nbr, float(cp.scale),
-                    _NO_COVER if cover is None else cover)
+    return _k.Model(*map(read_only, (cp.table, cp.ucut, s.points, s.cdf, s.guide, cp.indptr, cp.nbr)),
+                    float(cp.scale), _NO_COVER if cover is None else cover)
+
+
+def _cover(on: bool, *arrays, past_value: float) -> _k.Cover:
+    """A :class:`~planner.mcts.kernel.Cover`: its per-problem arrays (all but the last three, which
+    the kernels write) read-only (:func:`read_only`)."""
+    return _k.Cover(on, *map(read_only, arrays[:-3]), *arrays[-3:], past_value)
 
 
 _I0, _F0 = np.zeros(1, dtype=np.int64), np.zeros(1)
 #: The penalty rule's placeholder (same types as a real one: one compiled kernel serves both).
-_NO_COVER = _k.Cover(False, _I0, _I0, _I0, _F0, _F0, np.zeros(1, dtype=np.uint8), _I0, _F0, _F0, _I0, _I0, _F0,
-                     np.zeros((2, 1), dtype=np.int64), _I0, 0.0)
+_NO_COVER = _cover(False, _I0, _I0, _I0, _F0, _F0, np.zeros(1, dtype=np.uint8), _I0, _F0, _F0, _I0, _I0, _F0,
+                   np.zeros((2, 1), dtype=np.int64), np.zeros(1, dtype=np.int64), past_value=0.0)
 
 
 def cover_state(view: StageView) -> _k.Cover:
@@ -116,9 +135,9 @@ def cover_arrays(problem: Problem, known: np.ndarray, deployed: np.ndarray) -> _
         covered[plan.pidx[plan.pptr[a]:plan.pptr[a + 1]]] = -1
     past_value = float(cnt[(covered < 0) & revealed].sum())
     stamp = np.where(revealed, -1, 0).astype(np.int64)  # -1: revealed; 0: no sample drew it yet
-    return _k.Cover(True, plan.pptr, plan.pidx, plan.tptr, plan.thr, plan.ucut, plan.solo, plan.rptr, plan.rpoints,
-                    plan.rcdf, plan.gptr, plan.guide, np.ascontiguousarray(np.nan_to_num(cnt, nan=0.0)),
-                    np.ascontiguousarray(np.stack([covered, stamp])), np.zeros(1, dtype=np.int64), past_value)
+    return _cover(True, plan.pptr, plan.pidx, plan.tptr, plan.thr, plan.ucut, plan.solo, plan.rptr, plan.rpoints,
+                  plan.rcdf, plan.gptr, plan.guide, np.ascontiguousarray(np.nan_to_num(cnt, nan=0.0)),
+                  np.ascontiguousarray(np.stack([covered, stamp])), np.zeros(1, dtype=np.int64), past_value=past_value)
 
 
 @functools.lru_cache(maxsize=1)

@@ -633,7 +633,7 @@ def search_binary(n_iter, tree, root, model, settings, uct, scratch):
         node = ROOT
         path[0] = ROOT
         plen = 1
-        q, n = _advance(0, 0, j0, left, valid, vs_left, mark, pts)
+        q, n = _advance(np.int64(0), np.int64(0), j0, left, valid, vs_left, mark, pts)  # not literal 0s: one compilation
         # Invariant: q == point[node] and the path's actions are applied to left/mark/pts.
         while q < end:
             first = base[node]
