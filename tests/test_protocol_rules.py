@@ -320,6 +320,61 @@ def test_rejections_are_counted_for_state():
     assert msgpack.unpackb(wm.encode(bye))["rejected"] == {"deposed": 1}
 
 
+def test_a_refused_hello_is_counted_under_its_reason():
+    """[P-3.4] every refused Hello is a rejection too, counted for its carrier under the reason of
+    the check it failed (a Hello accepted before still stands [P-5.9]); CarrierState rejected
+    shows the count."""
+    from types import SimpleNamespace
+
+    from coordinator.answers import Answers
+
+    s = ms.initial(spec())
+    for hello in (ev.Hello("a", 1, "h", 1, 0, "other", 0.0), ev.Hello("a", 1, "h", 1, 9, "f", 0.0)):
+        effects = ms.step(s, hello)[1]
+        refused = [e.reason for e in effects if isinstance(e, ms.Refuse)]
+        assert refused and rejections(effects) == refused
+    s = accepted(s, "a")
+    effects = ms.step(s, ev.Hello("a", 1, "h", 1, 0, "other", 0.0))[1]
+    assert rejections(effects) == ["world-mismatch"] and any(isinstance(e, ms.Refuse) for e in effects)
+    setup = SimpleNamespace(mission=M, spec=s.spec, ids=("a", "b"), n_stages=3, fingerprint="f")
+    answers = Answers(setup, SimpleNamespace(epoch=1, ident=""), None)
+    answers.serve(s)
+    answers.rejected("a", "world-mismatch")
+    reply = msgpack.unpackb(answers.state_reply({"carrier": "a", "revision": "3"}))
+    assert reply["carriers"]["a"]["rejected"] == {"world-mismatch": 1}
+
+
+def test_last_decision_is_in_the_replys_revision():
+    """[P-5.3] State's last_decision is the Decision as published, with the coordinator's ballot,
+    encoded in the reply's revision only: with a revision-1 carrier in the mission the broadcast
+    leaves passengers out, a reply to a query of revision 3 or later names them."""
+    from types import SimpleNamespace
+
+    from coordinator.answers import Answers
+
+    s = accepted(accepted(ms.initial(spec()), "a", revision=1), "b")
+    s, _ = ms.step(s, ev.Decided(0, ("b",), 1.0, 0.0, (0,)))
+    setup = SimpleNamespace(mission=M, spec=s.spec, ids=("a", "b"), n_stages=3, fingerprint="f")
+    answers = Answers(setup, SimpleNamespace(epoch=2, ident="c1"), None)
+    answers.serve(s)
+    broadcast = msgpack.unpackb(wm.encode(answers.decision(s, 0), s.common_revision(wm.REVISION)))
+    assert "passengers" not in broadcast and "coordinator" not in broadcast and broadcast["epoch"] == 2
+    last = msgpack.unpackb(answers.state_reply({"carrier": "b", "revision": str(wm.REVISION)}))["last_decision"]
+    assert last["passengers"] == [0] and last["coordinator"] == "c1" and last["epoch"] == 2
+    assert {k: v for k, v in last.items() if k not in ("passengers", "coordinator")} == broadcast
+    old = msgpack.unpackb(answers.state_reply({"carrier": "a"}))["last_decision"]
+    assert old == broadcast
+
+
+def test_epoch_1_is_carried_by_its_absence_but_in_end():
+    """[P-7.1] every Decision, State and Accepted carries the epoch as [P-1.4] says: epoch 1 is
+    left out; End states it, 1 included [P-7.4]."""
+    assert "epoch" not in msgpack.unpackb(wm.encode(wm.Decision(M, 0, 0.0, (), 1.0, 1)))
+    assert "epoch" not in msgpack.unpackb(wm.encode(wm.State(M, 0, 1, "f", False, (), None, epoch=1)))
+    assert "epoch" not in msgpack.unpackb(wm.encode(wm.Accepted(M, "a", "f", 0, 0, wm.REVISION, 1)))
+    assert msgpack.unpackb(wm.encode(wm.End(M, 1, "complete", 1)))["epoch"] == 1
+
+
 def test_the_observation_box():
     """[P-3.3] an Observation's own rules: an identical repeat absorbed (before and after its
     stage is decided), a different one duplicate, then stale-stage once decided."""
@@ -748,6 +803,13 @@ def test_scheduled_is_the_time_window():
     expected = np.array([[c.start_time <= tj <= c.stop_time for tj in t] for c in tiny.carriers])
     assert (tiny.valid() == expected).all()
     assert wm.scenario_fingerprint(tiny) != wm.scenario_fingerprint(tiny.with_seed(tiny.seed + 1))
+    # the defaults a peer applies itself: t_j from first_stage_time (0) and stage_interval, and a
+    # stop_time the entry does not give is start_time + the waypoints' length / speed
+    assert t.tolist() == [0.0 + j * tiny.stage_interval for j in range(tiny.stages)]
+    b = tiny.carriers[1]  # tiny.yaml gives b no stop_time: legs of 18 m and 14 m at 2 m/s from t = 5
+    assert "stop_time" not in (ROOT / "scenarios" / "tiny.yaml").read_text()
+    assert (b.start_time, b.speed, b.stop_time) == (5.0, 2.0, 5.0 + (18.0 + 14.0) / 2.0)
+    assert [c.passengers for c in tiny.carriers] == [2, 1]  # a count: D passengers alike
 
 
 def test_when_a_carrier_decides_alone():
@@ -785,6 +847,9 @@ def test_a_stage_is_held_while_no_carrier_is_live():
     loop = (ROOT / "mission" / "coordinator_life.py").read_text().split("def _stage(")[1]
     assert "if j > 0 and not st.live:" in loop
     assert "tm.hold(False, life.held_at, now, w.join_s)" in loop  # the lifecycle's table: tests/test_coordinator_life.py
+    # live is the token alone: a carrier without an accepted Hello ends the hold
+    s, _ = ms.step(ms.initial(spec()), ev.LivelinessChanged("a", True))
+    assert s.live == {"a"} and "a" not in s.accepted
 
 
 def test_decisions_name_sorted_carriers_and_passengers():
@@ -797,6 +862,54 @@ def test_decisions_name_sorted_carriers_and_passengers():
     assert any(isinstance(e, ms.Publish) for e in effects)
     rec = [e for e in effects if isinstance(e, ms.Record)]
     assert effects.index(rec[0]) < effects.index(next(e for e in effects if isinstance(e, ms.Publish)))
+
+
+def test_a_stage_counts_as_decided_once_committed():
+    """[P-6.1] stage j is decided when its Decision is committed, before it is published: the
+    Observation of j + 1 that a carrier sends on the Decision is stored, not future-stage, and
+    State (served before the put) says next_stage j + 1; the pace is skipped when every live
+    carrier is past j."""
+    s = accepted(accepted(ms.initial(spec(3)), "a"), "b")
+    s, effects = ms.step(s, ev.Decided(0, (), 1.0))
+    assert [type(e) for e in effects] == [ms.Record, ms.Publish] and s.next_stage == 1
+    after, effects = ms.step(s, ev.Observation("a", 1, 5.0, 1, (0.0, 0.0), 1))  # no Published yet
+    assert rejections(effects) == [] and ("a", 1) in after.reported
+    carry = (ROOT / "coordinator" / "effects.py").read_text().split("def carry_out(")[1].split("def reject(")[0]
+    assert "self.answers.serve(state)\n            return self.publish_decision(state, effect.stage)" in carry
+    # the pace's exception: every live carrier past j (an Own of j, or a Hello with a later next_stage)
+    for cid in ("a", "b"):
+        s, _ = ms.step(s, ev.LivelinessChanged(cid, True))
+    assert not s.behind(1)
+    s = accepted(s, "b", next_stage=2)
+    s, _ = ms.step(s, ev.Accounted("a", 1, 5.0, 1, False, (0.0, 0.0), 1))
+    assert s.behind(1)
+    loop = (ROOT / "mission" / "coordinator_life.py").read_text().split("def _stage(")[1]
+    assert "if life.published is not None and not st.behind(j):" in loop
+
+
+def test_which_passenger_a_decision_names():
+    """[P-6.4] without passenger lists, the lowest-index passenger on board as the coordinator
+    counts them; nobody deploying, passengers is left out (never []), and [] reads as absent."""
+    import numpy as np
+
+    from planner import passengers as pg
+    from planner import problem as pp
+
+    import world
+
+    problem = world.build_problem(world.load_scenario(ROOT / "scenarios" / "tiny.yaml"))
+    assert problem.weights is None  # tiny.yaml lists no passengers: a carries 2 alike
+    x = np.ones(problem.valid.shape)
+    deployed = np.zeros(problem.valid.shape, dtype=bool)
+    r = 0
+    j = int(np.flatnonzero(problem.valid[r])[1])
+    deployed[r, int(np.flatnonzero(problem.valid[r])[0])] = True  # one passenger released before j
+    deploy = np.zeros(problem.n_carriers, dtype=bool)
+    deploy[r] = True
+    assert pg.choose(pp.make_view(problem, j, x, deployed), deploy)[r] == 1
+    raw = msgpack.unpackb(wm.encode(wm.Decision(M, 0, 0.0, (), 1.0)))
+    assert "passengers" not in raw
+    assert wm.decode(msgpack.packb({**raw, "passengers": []})).passengers == ()
 
 
 def test_collect_waits_for_the_expected_carriers():
@@ -890,6 +1003,26 @@ def test_a_carrier_that_hears_end_stops():
 
 
 # --- rules: 10 time
+
+def test_who_the_wait_for_the_last_confirms_covers():
+    """[P-10.3] after the last stage the coordinator waits for every live carrier without a
+    Confirm of N - 1 (a Hello accepted or not, an Own of N - 1 not counting), but one whose
+    accepted Hello named next_stage N; a vanished token ends the wait for it."""
+    s = ms.initial(spec(2, ("a", "b", "c")))
+    for cid in ("a", "b", "c"):
+        s, _ = ms.step(s, ev.LivelinessChanged(cid, True))
+    s = accepted(accepted(s, "a"), "b", next_stage=2)
+    s, _ = ms.step(s, ev.Decided(0, (), 1.0))
+    s, _ = ms.step(s, ev.Decided(1, (), 1.0))
+    assert s.unconfirmed(1) == {"a", "c"}
+    s, _ = ms.step(s, ev.Accounted("a", 1, 5.0, 1, False, (0.0, 0.0), 1))
+    assert s.unconfirmed(1) == {"a", "c"}
+    s, _ = ms.step(s, ev.Confirmed("a", 1, False, "already", (0.0, 0.0), 1))
+    s, _ = ms.step(s, ev.LivelinessChanged("c", False))
+    assert s.unconfirmed(1) == frozenset()
+    life = (ROOT / "mission" / "coordinator_life.py").read_text().split("def _confirm(")[1]
+    assert "st.confirms_awaited(last)" in life
+
 
 def test_silence_is_measured_from_the_stage_opening_and_the_last_message():
     """[P-10.3] on the sim clock a carrier is taken as stalled only when the silence timeout has
