@@ -1,6 +1,8 @@
 """Shared test fixtures and the list of online planners that generic tests run over."""
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pytest
 
@@ -25,3 +27,19 @@ def pytest_generate_tests(metafunc):
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(12345)
+
+
+#: pytest keeps the test modules it rewrites (for its assertion messages) only where bytecode may be
+#: written: on a host that sets PYTHONDONTWRITEBYTECODE every worker of every run rewrote all of
+#: them again (about 10 s of each worker's start on a 2-core host). Collection writes them beside
+#: the tests (``tests/__pycache__``, as an unset variable would); the tests run with the host's
+#: setting.
+_DONT_WRITE_BYTECODE = sys.dont_write_bytecode
+
+
+def pytest_collection(session):
+    sys.dont_write_bytecode = False
+
+
+def pytest_collection_finish(session):
+    sys.dont_write_bytecode = _DONT_WRITE_BYTECODE
