@@ -164,7 +164,7 @@ VIEW = SIX + " --view --realtime 10"
 FRESH_RUN = ("python3 -m venv .venv && . .venv/bin/activate && pip install -e . -c constraints.txt "
              "&& python run_fleet.py scenarios/six_carriers.yaml")
 FRESH_TEST = ("python3 -m venv .venv && . .venv/bin/activate && pip install -e '.[test]' -c constraints.txt "
-              "&& python -m pytest -q -n 2")
+              "&& python -m pytest -q -n 3")
 ROLES_COORD = "python run_fleet.py S.yaml --role coordinator --listen tcp/0.0.0.0:7447 --out runs/m1"
 ROLES_ONE = "python run_fleet.py S.yaml --role carrier --carrier c2 --connect tcp/10.0.0.5:7447"
 ROLES_SOME = "python run_fleet.py S.yaml --role carrier --carrier c2,c3,c4 --connect tcp/10.0.0.5:7447"
