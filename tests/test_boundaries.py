@@ -403,6 +403,20 @@ def _documented_layers() -> list[set[str]]:
     return layers
 
 
+def test_nothing_layered_imports_the_unlayered_folders():
+    """tools/ and tests/ sit above every layer: no package imports them (a benchmark of a package
+    lives in tools/)."""
+    def absolute(node):
+        if isinstance(node, ast.Import):
+            return [alias.name for alias in node.names]
+        return [] if node.level else [node.module or ""]
+
+    bad = [f"{name} -> {target}" for name, path in sorted(_project_modules().items())
+           for node in _import_nodes(_parsed(path)) for target in absolute(node)
+           if target.split(".")[0] in UNLAYERED]
+    assert bad == []
+
+
 def test_every_package_is_in_the_documented_layers_once():
     layers = _documented_layers()
     named = [p for layer in layers for p in layer]

@@ -1,4 +1,5 @@
-"""Timing figures of the world (printed, never asserted): ``python -m world.bench [SCENARIO ...]``.
+"""Timing figures of the world (printed, never asserted): ``python -m tools.world_bench
+[SCENARIO ...]``.
 
 For each scenario: the first ``observe_all`` (physics of every carrier plus sensing), a further
 seed (features redrawn and sensed; the physics is cached) and ``stage_geometry`` (overlaps).
