@@ -125,3 +125,38 @@ def test_poisson_closed_form_equals_enumeration(mean):
     finite = np.isfinite(closed)
     assert np.array_equal(finite, np.isfinite(summed))
     assert np.allclose(closed[finite], summed[finite], rtol=1e-12, atol=1e-12)
+
+
+#: Two parameter sets per continuous prior kind of planner.priors (one with a location away from 0).
+CONTINUOUS_SPECS = {
+    "gamma": ({"kind": "gamma", "shape": 2.0, "scale": 1.5}, {"kind": "gamma", "shape": 0.7, "scale": 3.0}),
+    "exponential": ({"kind": "exponential", "mean": 3.0}, {"kind": "exponential", "mean": 0.4}),
+    "lognormal": ({"kind": "lognormal", "mu": 1.0, "sigma": 0.5}, {"kind": "lognormal", "mu": -0.3, "sigma": 1.2}),
+    "normal": ({"kind": "normal", "mean": 1.0, "std": 2.0}, {"kind": "normal", "mean": -4.0, "std": 0.3}),
+    "uniform": ({"kind": "uniform", "low": 0.0, "high": 6.0}, {"kind": "uniform", "low": 2.5, "high": 3.0}),
+}
+
+
+def test_every_continuous_prior_kind_has_pointwise_specs():
+    from experiments.bound import TINY_PRIORS  # one spec per prior kind
+
+    assert set(TINY_PRIORS) == set(priors.PRIOR_KINDS)
+    assert {k for k, spec in TINY_PRIORS.items() if not priors.is_discrete(priors.build_prior(spec))} == set(CONTINUOUS_SPECS)
+
+
+@pytest.mark.parametrize("spec", [s for pair in CONTINUOUS_SPECS.values() for s in pair],
+                         ids=[f"{k}-{i}" for k, pair in CONTINUOUS_SPECS.items() for i in range(len(pair))])
+def test_the_quadratures_pointwise_cdf_and_sf_are_the_frozen_distributions_bit_for_bit(spec):
+    """The threshold tables' quadrature calls ``ssap._pointwise`` (without the frozen
+    distribution's per-call argument handling): the same bits as ``prior.cdf`` and ``prior.sf`` at
+    points inside, on the edges of and outside the support, and so the same table."""
+    prior = priors.build_prior(spec)
+    lo, hi = prior.support()
+    rng = np.random.default_rng(4)
+    points = [*rng.normal(prior.mean(), 3 * prior.std() + 1, 600).tolist(), *rng.uniform(-20, 20, 200).tolist(),
+              float(lo), float(hi), float(np.nextafter(lo, np.inf)), float(np.nextafter(hi, -np.inf)), -1e300, 1e300]
+    for name in ("cdf", "sf"):
+        fast, frozen = ssap._pointwise(prior, name), getattr(prior, name)
+        with np.errstate(over="ignore"):  # the frozen method's division at +-1e300
+            mismatched = [(x, fast(x), float(frozen(x))) for x in points if np.isfinite(x) and fast(x) != float(frozen(x))]
+        assert mismatched == [], (name, mismatched[:3])
