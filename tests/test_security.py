@@ -373,18 +373,10 @@ def strangers_tiny(tmp_path_factory) -> dict[str, Identity]:
 def offline_decisions(x_override=None) -> tuple[list[list[str]], list]:
     """Per stage, the carriers the planner core deploys offline on the tiny scenario's
     observations (optionally with some replaced), with the scenario's seed."""
-    import numpy as np
-
     import world
-    from world import build_problem
-    from planner.registry import make_planner, planner_settings
-    from planner.online import run_online
 
     scenario = world.load_scenario(str(TINY))
-    problem = build_problem(scenario)
-    x = world.observe_all(scenario) if x_override is None else np.asarray(x_override, dtype=float)
-    name, options = planner_settings(scenario)
-    result = run_online(problem, x, make_planner(name, **options), scenario.seed)
+    result, x = world.offline_mission(scenario, x=x_override)
     ids = list(scenario.carrier_ids)
     return [[ids[r] for r in range(len(ids)) if result.deployed[r, j]] for j in range(scenario.stages)], x
 

@@ -43,17 +43,21 @@ def observe_counts(scenario, seed=None):
     return region_counts(scenario, seed=seed)
 
 
-def offline_mission(scenario, planner=None, iterations=None, workers: int = 1):
+def offline_mission(scenario, planner=None, iterations=None, workers: int = 1, x=None):
     """``(result, x)``: what a fault-free fleet flying ``scenario`` must reproduce exactly — the
     planner core (:func:`planner.online.run_online`, the scenario's planner unless ``planner`` or
     ``iterations`` say otherwise) over the fault-free observations ``x``
     (:func:`observe_all`, the carriers' physics spread over ``workers`` processes). The fleet's
-    fidelity tests hold the fleet to it (tests/test_fidelity.py, on a saturated host too)."""
+    fidelity tests hold the fleet to it (tests/test_fidelity.py, on a saturated host too).
+    ``x`` given: the observations the coordinator had instead (float ``[R, N]``, NaN = ∅: a late
+    or refused one), what the fleet must then reproduce."""
+    import numpy as np
+
     from planner.online import run_online
     from planner.registry import make_planner, planner_settings
 
     name, options = planner_settings(scenario, planner, iterations)
-    x = observe_all(scenario, workers=workers)
+    x = observe_all(scenario, workers=workers) if x is None else np.asarray(x, dtype=float)
     return run_online(build_problem(scenario), x, make_planner(name, **options), scenario.seed,
                       counts=observe_counts(scenario)), x
 
