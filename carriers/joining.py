@@ -76,7 +76,7 @@ class Joining:
         elif isinstance(effect, cl.JoinAlone):
             yield from self.alone_from_log(machine, store, node)
         elif isinstance(effect, cl.Gathered):
-            yield from self.gathered(node)
+            yield from self.gathered(node, effect.resync)
         return False
 
     def from_state(self, machine: mc.Handshake, store, state: State) -> Steps:
@@ -104,15 +104,16 @@ class Joining:
         self.next_alone = yield from joins.alone(machine, entries, self.book, self.counts)
         self.inbound.listen(node, wait=True)
 
-    def gathered(self, node) -> Steps:
+    def gathered(self, node, resync: bool) -> Steps:
         """The wait for the peers' tokens is over: the carrier joins at the stage after the last its
-        log resolved; a coordinator whose token came meanwhile is one to resynchronise with."""
+        log resolved; ``resync`` (the lifecycle's :class:`mission.carrier_life.Gathered`): the
+        coordinator came back meanwhile, resynchronise with it."""
         missing = sorted(set(self.inbound.listening or ()) - self.presence.peers_live)
         if missing and self.next_alone == 0:
             self.log(f"starting without carrier(s) {', '.join(missing)} (no token after "
                      f"{self.config.join_timeout_s:.0f} s)")
         machine = yield joins.Apply(mc.Joined(self.next_alone))
-        if self.config.mode == Mode.HYBRID and self.presence.coordinator_present:  # it is back [P-5.12]
+        if resync:
             yield from self.resync(machine, node)
 
     def recover_decision(self, machine: mc.Handshake, node, j: int) -> Steps:

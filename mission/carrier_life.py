@@ -117,7 +117,13 @@ class JoinAlone:
 @dataclass(frozen=True)
 class Gathered:
     """The wait for the peers' tokens is over (some may have none): the handshake machine joins at
-    the stage after the last its log resolved (:class:`mission.carrier.Joined`)."""
+    the stage after the last its log resolved (:class:`mission.carrier.Joined`). ``resync``: a
+    hybrid carrier whose coordinator's token came while no State answered (its State query timed
+    out as the token came back): the coordinator is back, resynchronise from its State at once
+    ([P-5.12]; without it the carrier, its return already seen, went on alone and never said
+    Hello)."""
+
+    resync: bool = False
 
 
 @dataclass(frozen=True)
@@ -358,7 +364,7 @@ def _gathering(life: Life, now: float, view: View):
     rule = tm.join_wait("wall", view.gathered, life.opened, life.opened, now, life.waits.join_s)
     if isinstance(rule, tm.Wait):
         return life, (rule,)
-    return evolve(life, phase=Phase.STARTED), (Gathered(),)
+    return evolve(life, phase=Phase.STARTED), (Gathered(resync=life.mode == Mode.HYBRID and view.present),)
 
 
 def _started(life: Life, now: float, view: View):

@@ -87,6 +87,25 @@ def test_gathering(gathered, now, phase, expected):
     assert new.phase is phase and kinds(effects) == expected
 
 
+@pytest.mark.parametrize("mode, present, resync", [
+    pytest.param("hybrid", True, True, id="[P-5.12] hybrid: its token came back during the wait, resync at once"),
+    pytest.param("hybrid", False, False, id="[P-5.12] hybrid: still absent, alone"),
+    pytest.param("decentralised", True, False, id="decentralised: no coordinator to resync with"),
+])
+def test_a_coordinator_back_when_the_gathering_ends_is_resynchronised_with(mode, present, resync):
+    """Found by the simulator (docs/fleet.md, "Findings"): a hybrid carrier whose State query timed
+    out just as the coordinator's token came back went on alone and never said Hello. The machine
+    names the resynchronisation in its Gathered; both drivers carry it out."""
+    if mode == "hybrid":  # its last State query went unanswered: it goes on alone
+        joined, effects = cl.step(life(mode, phase=P.JOINING, opened=100.0, failed=129.0), cl.Tick(130.0),
+                                  view(present=False))
+    else:
+        joined, effects = cl.step(life(mode), cl.Start(130.0), view(present=False))
+    assert joined.phase is P.GATHERING and kinds(effects)[-1] == "JoinAlone"
+    new, effects = cl.step(joined, cl.Tick(131.0), view(present=present, gathered=True))
+    assert new.phase is P.STARTED and effects == (cl.Gathered(resync=resync),)
+
+
 def test_work_drives_then_observes_or_passes():
     """A stage: the body driven to t_j (not paced at the first stage after a join or behind),
     Progress while it drives (sim clock, [P-10.6]); there, Observe, or Pass when the stage was

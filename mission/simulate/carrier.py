@@ -261,7 +261,7 @@ class CarrierDriver:
             self.join_alone(now)
         elif isinstance(effect, cl.Gathered):
             self.apply(mc.Joined(self.alone_next), now)
-            if self.present:  # its token came while no State answered: it is back, resynchronise [P-5.12]
+            if effect.resync:
                 self.ask_state(now)
         elif isinstance(effect, cl.SayHelloAgain):
             self.apply(mc.HelloUnanswered(self.position()), now)
