@@ -127,7 +127,7 @@ def test_poisson_closed_form_equals_enumeration(mean):
     assert np.allclose(closed[finite], summed[finite], rtol=1e-12, atol=1e-12)
 
 
-#: Two parameter sets per continuous prior kind of planner.priors (one with a location away from 0).
+#: Two parameter sets per continuous prior kind of planner.priors.
 CONTINUOUS_SPECS = {
     "gamma": ({"kind": "gamma", "shape": 2.0, "scale": 1.5}, {"kind": "gamma", "shape": 0.7, "scale": 3.0}),
     "exponential": ({"kind": "exponential", "mean": 3.0}, {"kind": "exponential", "mean": 0.4}),
@@ -146,7 +146,7 @@ def test_every_continuous_prior_kind_has_pointwise_specs():
 
 @pytest.mark.parametrize("spec", [s for pair in CONTINUOUS_SPECS.values() for s in pair],
                          ids=[f"{k}-{i}" for k, pair in CONTINUOUS_SPECS.items() for i in range(len(pair))])
-def test_the_quadratures_pointwise_cdf_and_sf_are_the_frozen_distributions_bit_for_bit(spec):
+def test_the_quadratures_pointwise_cdf_and_sf_are_the_frozen_distributions_bit_for_bit(spec, monkeypatch):
     """The threshold tables' quadrature calls ``ssap._pointwise`` (without the frozen
     distribution's per-call argument handling): the same bits as ``prior.cdf`` and ``prior.sf`` at
     points inside, on the edges of and outside the support, and so the same table."""
@@ -160,3 +160,6 @@ def test_the_quadratures_pointwise_cdf_and_sf_are_the_frozen_distributions_bit_f
         with np.errstate(over="ignore"):  # the frozen method's division at +-1e300
             mismatched = [(x, fast(x), float(frozen(x))) for x in points if np.isfinite(x) and fast(x) != float(frozen(x))]
         assert mismatched == [], (name, mismatched[:3])
+    fast_table = ssap.thresholds(prior, 5)
+    monkeypatch.setattr(ssap, "_pointwise", lambda prior, name: getattr(prior, name))
+    assert np.array_equal(fast_table, ssap.thresholds(prior, 5), equal_nan=True)
