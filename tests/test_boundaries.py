@@ -309,9 +309,10 @@ def _import_nodes(tree: ast.AST, skip: set[int] = frozenset()):
         stack.extend(ast.iter_child_nodes(node))
 
 
-def _targets(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
-    """Project modules that module ``name`` imports. ``from P import n`` counts as ``P.n`` when
-    that is a module (else as ``P``); a relative import is resolved against the module's package."""
+def _imported(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
+    """Absolute dotted names that module ``name`` imports, project or not. ``from P import n``
+    counts as ``P.n`` when that is one of ``modules`` (else as ``P``); a relative import is
+    resolved against the module's package."""
     package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
     wanted = set()
     for node in _import_nodes(_parsed(path), _forward_lines(path)):
@@ -325,6 +326,13 @@ def _targets(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
         wanted.update(subs)
         if len(subs) < len(node.names):
             wanted.add(base)
+    return wanted
+
+
+def _targets(name: str, path: Path, modules: dict[str, Path]) -> set[str]:
+    """Project modules that module ``name`` imports (:func:`_imported`, each name cut back to the
+    module it names)."""
+    wanted = _imported(name, path, modules)
     out = set()
     for target in wanted:
         while target and target not in modules:
@@ -406,14 +414,9 @@ def _documented_layers() -> list[set[str]]:
 def test_nothing_layered_imports_the_unlayered_folders():
     """tools/ and tests/ sit above every layer: no package imports them (a benchmark of a package
     lives in tools/)."""
-    def absolute(node):
-        if isinstance(node, ast.Import):
-            return [alias.name for alias in node.names]
-        return [] if node.level else [node.module or ""]
-
-    bad = [f"{name} -> {target}" for name, path in sorted(_project_modules().items())
-           for node in _import_nodes(_parsed(path)) for target in absolute(node)
-           if target.split(".")[0] in UNLAYERED]
+    modules = _project_modules()
+    bad = [f"{name} -> {target}" for name, path in sorted(modules.items())
+           for target in sorted(_imported(name, path, modules)) if target.split(".")[0] in UNLAYERED]
     assert bad == []
 
 
