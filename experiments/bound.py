@@ -16,8 +16,9 @@ Two parts:
   the paper's density of five overlap groups per carrier). Per trial: every planner's reward on
   the trial's observations (the experiments' common random numbers), the clairvoyant bound of the
   same observations and the new bound of the instance (an expectation over the prior, from its own
-  samples, by the LP relaxation; ``--bound-method mixed``: up to R = 32 by ``mixed``, the adaptive
-  penalty with exact or MIP inner maxima, tighter and slower). A planner's fraction of the bound is
+  samples: up to R = 128 by ``mixed``, the adaptive penalty with exact or MIP inner maxima, the LP
+  relaxation beyond; ``--bound-method lp``: the LP relaxation everywhere, looser and faster). A
+  planner's fraction of the bound is
   its reward over the bound, per trial, averaged over trials (± SEM).
 
 Streams: trial t's instance and observations ``(1000, t)`` and planner seed ``(1000, t, 1)`` as the
@@ -79,7 +80,7 @@ TINY_PRIOR_SAMPLES = 200
 #: Planning budget of the comparison (iterations per decision).
 DEFAULT_ITERATIONS = 2000
 QUICK = {"configs": (0, 5, 7), "trials": 2, "samples": 4, "tiny": 2, "tiny_samples": 40,
-         "priors": ("binomial", "gamma"), "clairvoyant_max_carriers": 6}
+         "priors": ("binomial", "gamma"), "clairvoyant_max_carriers": 6, "mixed_max_carriers": 6}
 #: The targets of the comparison (docs/results.md): the bound never below V* by more than
 #: ``VALID_SE`` standard errors; its mean excess over V* at most ``EXCESS_RATIO`` of clairvoyance's;
 #: our centralised planners (``OURS``) at least ``FRACTION_TARGET`` of the bound from R = 4 on.
@@ -87,12 +88,16 @@ VALID_SE, EXCESS_RATIO, FRACTION_TARGET, FRACTION_MIN_CARRIERS = 3.0, 1 / 3, 0.9
 OURS = ("closed-loop", "closed-loop-gated")
 #: The bound's mean excess over V* on the tiny instances it aims at, percent.
 EXCESS_TARGET_PCT = 1.0
-#: ``--bound-method mixed``: the scale rows' bound by ``duality.upper_bound(method="mixed")`` (exact
-#: per component where it fits, else the MIP; the adaptive penalty) up to this R, the LP beyond
-#: (there the adaptive MIP does not finish within the limit, and a stopped MIP's dual bound depends
-#: on the machine's speed); one MIP's time limit, seconds.
-MIXED_MAX_CARRIERS = 32
-MIXED_MIP_TIME_LIMIT_S = 60.0
+#: ``--bound-method mixed`` (the default): the scale rows' bound by
+#: ``duality.upper_bound(method="mixed")`` (exact per component where it fits, else the MIP; the
+#: adaptive penalty) up to this R, the LP beyond (at R = 256 one adaptive MIP does not finish in
+#: 400 s, and a stopped MIP's dual bound depends on the machine's speed); one MIP's time limit,
+#: seconds (R = 128's finish in 25 to 45 s); the strength pilot's inner maxima (the adaptive LP:
+#: 2 s at R = 128 where the MIP takes 30 s; the pilot only picks the strength, every strength's
+#: bound is valid).
+MIXED_MAX_CARRIERS = 128
+MIXED_MIP_TIME_LIMIT_S = 300.0
+MIXED_PILOT_METHOD = "lp"
 #: Fleet sizes of the split table (best bound, best planner, the gap between them).
 SPLIT_CARRIERS = (32, 128, 256)
 
@@ -111,8 +116,10 @@ def build_tasks(settings: dict) -> list[Task]:
                    samples=QUICK["tiny_samples"] if quick else TINY_PRIOR_SAMPLES)
               for i, kind in enumerate(TINY_PRIORS) if not quick or kind in QUICK["priors"]]
     levels = QUICK["configs"] if quick else range(len(CONFIGS))
-    # --quick leaves out R = 32's clairvoyant search (seconds per trial at its node limit)
+    # --quick leaves out R = 32's clairvoyant search (seconds per trial at its node limit) and its
+    # adaptive MIPs (seconds per sample)
     clairvoyant_max = QUICK["clairvoyant_max_carriers"] if quick else CLAIRVOYANT_MAX_CARRIERS
+    mixed_max = QUICK["mixed_max_carriers"] if quick else MIXED_MAX_CARRIERS
     for level in levels:
         _, carriers, overlaps, trials, samples = CONFIGS[level]
         trials = QUICK["trials"] if quick else (settings.get("bound_trials") or trials)
@@ -122,7 +129,7 @@ def build_tasks(settings: dict) -> list[Task]:
             for name in (*names, *((CLAIRVOYANT,) if carriers <= clairvoyant_max else ())):
                 tasks.append(Task("bound", level, t, name, settings["seed"], settings["iterations"], carriers=carriers,
                                   overlaps=overlaps))
-            mixed = settings.get("bound_method", "lp") == "mixed" and carriers <= MIXED_MAX_CARRIERS
+            mixed = settings.get("bound_method", "lp") == "mixed" and carriers <= mixed_max
             tasks.append(Task("bound", level, t, UPPER_BOUND, settings["seed"], 0, carriers=carriers,
                               overlaps=overlaps, samples=samples, variant="mixed" if mixed else ""))
     return tasks
@@ -149,7 +156,8 @@ def run_task(task: Task) -> dict:
     t0 = time.perf_counter()
     rng = np.random.default_rng(np.random.SeedSequence(task.seed, spawn_key=(1000, task.trial, 2)))
     bound = duality.upper_bound(problem, rng, samples=task.samples, method=task.variant or "lp",
-                                pilot=max(2, task.samples // 2), mip_time_limit_s=MIXED_MIP_TIME_LIMIT_S)
+                                pilot=max(2, task.samples // 2), mip_time_limit_s=MIXED_MIP_TIME_LIMIT_S,
+                                pilot_method=MIXED_PILOT_METHOD if task.variant == "mixed" else None)
     return {"sweep": task.sweep, "level": task.level, "config": CONFIGS[task.level][0], "trial": task.trial,
             "planner": UPPER_BOUND, "reward": bound.expected_reward, "stderr": bound.stderr, "samples": bound.samples,
             "method": bound.method, "strength": bound.strength, "carriers": problem.n_carriers, "overlaps": len(problem.overlaps),
@@ -433,7 +441,8 @@ def write(rows: list[dict], out: Path, settings: dict, seconds: float, jobs: int
             "### Planners as fractions of the new bound", "",
             f"Random instances, D = 3, N = 10, Poisson(3), {iterations} iterations per decision; the bound by "
             + ("the LP relaxation" if settings.get("bound_method", "lp") == "lp" else
-               f"method mixed (the adaptive penalty; exact or MIP inner maxima) up to R = {MIXED_MAX_CARRIERS}, "
+               "method mixed (the adaptive penalty; exact or MIP inner maxima) up to R = "
+               f"{QUICK['mixed_max_carriers'] if settings.get('quick') else MIXED_MAX_CARRIERS}, "
                "the LP relaxation beyond,") + " from its own samples; fraction = reward / bound per trial, mean ± SEM "
             "(the clairvoyant column: the clairvoyant bound over the new one, the conflict-free bound where "
             f"its exact search stops). dec-closed-loop and the clairvoyant bound run up to R = {DEC_MAX_CARRIERS}.", "", scale_table(summary), "", "![fractions of the bound](bound.png)", "",

@@ -73,8 +73,7 @@ def sweep_args(sweep: str, entry: dict, out: Path) -> argparse.Namespace:
     if sweep == "bound":
         if entry.get("bound_trials"):
             argv += ["--trials", str(entry["bound_trials"])]
-        if entry.get("bound_method"):
-            argv += ["--bound-method", str(entry["bound_method"])]
+        argv += ["--bound-method", str(entry.get("bound_method", "lp"))]  # lp: the default until 2026-12-07
     elif sweep == "urban":
         argv += ["--urban-trials", str(entry["trials"])]
         if "scenario" in entry:

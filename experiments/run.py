@@ -162,10 +162,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--scaling-overlaps", type=int, default=10, help="overlaps in the scaling sweep (default 10)")
     p.add_argument("--urban-trials", type=int, default=None, help="world seeds of the urban run (default 20; quick 2)")
     p.add_argument("--scenario", type=Path, default=DEFAULT_SCENARIO, help="scenario of the urban run")
-    p.add_argument("--bound-method", choices=("lp", "mixed"), default="lp",
-                   help="inner maxima of the bound sweep's scale rows up to R = 32 (experiments.bound."
-                        "MIXED_MAX_CARRIERS): lp (the LP relaxation, fixed penalty; default) or mixed (exact "
-                        "per component where it fits, else the MIP, adaptive penalty: tighter, slower)")
+    p.add_argument("--bound-method", choices=("lp", "mixed"), default="mixed",
+                   help="inner maxima of the bound sweep's scale rows up to R = 128 (experiments.bound."
+                        "MIXED_MAX_CARRIERS; --quick: R = 6): mixed (exact per component where it fits, else "
+                        "the MIP, adaptive penalty; default) or lp (the LP relaxation, fixed penalty: looser, "
+                        "faster; the default before 2026-12-07)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--report-only", action="store_true",
                    help="rewrite summaries, tables and plots from the CSVs already in --out (no planning)")
@@ -292,9 +293,8 @@ def rebuild_settings(sweep: str, s: dict, args) -> dict:
     if sweep == "urban":
         scenario = args.scenario.resolve()
         return {"scenario": str(scenario.relative_to(ROOT) if scenario.is_relative_to(ROOT) else scenario)}
-    if sweep == "bound":  # bound_method recorded only when not the default (older records lack it)
-        return {"bound_trials": s["bound_trials"],
-                **({"bound_method": s["bound_method"]} if s["bound_method"] != "lp" else {})}
+    if sweep == "bound":  # a record without bound_method was written when lp was the default
+        return {"bound_trials": s["bound_trials"], "bound_method": s["bound_method"]}
     if sweep == "coverage":
         return {"carriers": list(s["carriers"])}
     return {}

@@ -819,7 +819,8 @@ def pilot_samples(method: str) -> int:
 def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAULT_SAMPLES,
                 method: str = "auto", penalty_scale: float = 1.0, deadline_s: float | None = None,
                 strength: float | str = "auto", pilot: int | None = None,
-                adaptive: bool | str = "auto", mip_time_limit_s: float = MIP_TIME_LIMIT_S) -> UpperBound:
+                adaptive: bool | str = "auto", mip_time_limit_s: float = MIP_TIME_LIMIT_S,
+                pilot_method: str | None = None) -> UpperBound:
     """The information-relaxation bound of ``problem``: the mean of :func:`inner_maximum` over
     ``samples`` observation matrices drawn from the prior with ``rng`` (scheduled stages only).
 
@@ -829,6 +830,9 @@ def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAU
             best of :data:`STRENGTHS` on ``pilot`` (default :func:`pilot_samples`) matrices drawn
             first from ``rng`` and discarded (:func:`choose_strength`; no pilot when
             ``penalty_scale`` is 0 or nothing conflicts).
+        pilot_method: the inner maxima of that pilot (None: ``method``). A cheaper method only
+            changes which strength is chosen, never the validity: the pilot's matrices are
+            discarded and every strength gives a valid bound.
         adaptive: the adaptive penalty (:func:`adaptive_terms`), or ``auto``: adaptive when the
             method is ``exact`` or ``mixed`` and the penalty is on (``penalty_scale`` not 0). (The
             LP relaxation of the adaptive model is looser than the fixed penalty's LP, and its MIP
@@ -855,9 +859,10 @@ def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAU
     start = time.perf_counter()
     pilot_count = 0
     if strength == "auto":
+        pilot_method = method if pilot_method is None else pilot_method
         pilot_count = 0 if penalty_scale == 0.0 or len(compile_problem(problem).nbr) == 0 else (
-            pilot_samples(method) if pilot is None else pilot)
-        strength = (choose_strength(problem, rng, method, pilot_count, adaptive, mip_time_limit_s)
+            pilot_samples(pilot_method) if pilot is None else pilot)
+        strength = (choose_strength(problem, rng, pilot_method, pilot_count, adaptive, mip_time_limit_s)
                     if pilot_count else 0.0)
     strength = float(strength)
     discount = conflict_discount(problem, strength, adaptive) if strength and penalty_scale else None

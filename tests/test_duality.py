@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import itertools
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -237,20 +238,26 @@ def test_experiment_tasks_report_the_bound_against_v_star_and_the_planners(tmp_p
 
 
 def test_bound_experiment_mixed_method_up_to_its_fleet_size():
-    """``--bound-method mixed``: the scale rows' bound by ``mixed`` up to MIXED_MAX_CARRIERS, the
-    LP beyond; the default run's tasks are unchanged (the committed results stay reproducible)."""
+    """The scale rows' bound by ``mixed`` (the default) up to MIXED_MAX_CARRIERS (--quick: its own
+    smaller limit), the LP beyond; ``--bound-method lp`` everywhere; a run_info.json record without
+    ``bound_method`` (written when lp was the default) is rebuilt with lp."""
     from experiments import bound as experiment
-    from experiments import run
+    from experiments import check, run
     from experiments.trials import Task
 
     def bound_tasks(*flags):
-        settings = run.settings_of(run.parse_args(["bound", "--quick", *flags]))
+        settings = run.settings_of(run.parse_args(["bound", *flags]))
         return [t for t in experiment.build_tasks(settings) if t.planner == experiment.UPPER_BOUND]
 
-    assert all(t.variant == "" for t in bound_tasks())
-    mixed = bound_tasks("--bound-method", "mixed")
-    assert {t.carriers for t in mixed if t.variant == "mixed"} == {c for c in (t.carriers for t in mixed)
-                                                                   if c <= experiment.MIXED_MAX_CARRIERS}
+    assert all(t.variant == "" for t in bound_tasks("--quick", "--bound-method", "lp"))
+    for flags, limit in ((("--quick",), experiment.QUICK["mixed_max_carriers"]), ((), experiment.MIXED_MAX_CARRIERS)):
+        tasks = bound_tasks(*flags)
+        assert {t.carriers for t in tasks if t.variant == "mixed"} == {t.carriers for t in tasks if t.carriers <= limit}
+        assert any(t.variant == "" for t in tasks)  # the LP beyond the limit
+    assert experiment.MIXED_MAX_CARRIERS >= 128
+    old = {"iterations": 40, "seed": 0, "planners": ["ssap"], "levels": [0], "bound_trials": None}
+    assert check.sweep_args("bound", old, Path("out")).bound_method == "lp"
+    assert check.sweep_args("bound", {**old, "bound_method": "mixed"}, Path("out")).bound_method == "mixed"
     level = 3  # R = 4, 12 overlaps
     _, carriers, overlaps, _, _ = experiment.CONFIGS[level]
     row = experiment.run_task(Task("bound", level, 0, experiment.UPPER_BOUND, 0, 0, carriers=carriers,
