@@ -162,7 +162,7 @@ TWO_HOSTS_CARRIER = SIX + " --role carrier --carrier $c --connect tcp/192.168.1.
 VIEWER = SIX + " --role viewer --connect tcp/192.168.1.10:7447"
 VIEW = SIX + " --view --realtime 10"
 FRESH_RUN = ("python3 -m venv .venv && . .venv/bin/activate && pip install -e . -c constraints.txt "
-             "&& python run_fleet.py scenarios/six_carriers.yaml")
+             "&& python -m planner.cli.compile && python run_fleet.py scenarios/six_carriers.yaml")
 FRESH_TEST = ("python3 -m venv .venv && . .venv/bin/activate && pip install -e '.[test]' -c constraints.txt "
               "&& python -m pytest -q -n 3")
 ROLES_COORD = "python run_fleet.py S.yaml --role coordinator --listen tcp/0.0.0.0:7447 --out runs/m1"

@@ -148,9 +148,13 @@ def test_after_the_install_step_a_mission_compiles_nothing(tmp_path):
     literal where the install step passed a variable, would be compiled again (numba types both
     apart): each is seconds of CPU before a first decision."""
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
-    install = subprocess.run([sys.executable, "-m", "planner.cli.compile"], cwd=ROOT, env=env, capture_output=True,
-                             text=True, timeout=900)
+    install = subprocess.run([sys.executable, "-m", "planner.cli.compile", "--jobs", "2"], cwd=ROOT, env=env,
+                             capture_output=True, text=True, timeout=900)
     assert install.returncode == 0, install.stderr
+    # its processes (one per planner, two at a time here) compile each kernel once between them
+    compiling = [line for line in install.stdout.splitlines() if line.startswith("compiling planner.")]
+    assert compiling and len(compiling) == len(set(compiling)), install.stdout
+    assert f"{len(compiling)} compiled" in install.stdout.splitlines()[-1], install.stdout
     run = subprocess.run([sys.executable, "-c", AFTER_INSTALL], cwd=ROOT, env=env, capture_output=True, text=True,
                          timeout=900)
     assert run.returncode == 0, run.stderr
