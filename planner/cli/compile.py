@@ -45,24 +45,29 @@ def _compile_unit(unit: str) -> None:
 
 def _in_processes(units: list[str], jobs: int, say) -> bool:
     """Each unit in its own ``python -m planner.cli.compile --unit U`` process, ``jobs`` at a
-    time; their lines go to ``say`` as they arrive. Processes wanting the same kernel compile it
-    once (planner/jitcache.py's per-kernel lock). True when every process succeeded."""
+    time; their lines go to ``say`` as they arrive (one loop over the pipes). Processes wanting
+    the same kernel compile it once (planner/jitcache.py's per-kernel lock). True when every
+    process succeeded."""
+    import selectors
     import subprocess
-    import threading
-    from concurrent.futures import ThreadPoolExecutor
 
-    lock = threading.Lock()
-
-    def one(unit: str) -> int:
-        proc = subprocess.Popen([sys.executable, "-m", "planner.cli.compile", "--unit", unit],
-                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-        for line in proc.stdout:
-            with lock:
-                say(line.rstrip("\n"))
-        return proc.wait()
-
-    with ThreadPoolExecutor(max_workers=jobs) as pool:
-        codes = list(pool.map(one, units))
+    pending, running, codes = list(units), 0, []
+    with selectors.DefaultSelector() as pipes:
+        while pending or running:
+            while pending and running < jobs:
+                proc = subprocess.Popen([sys.executable, "-m", "planner.cli.compile", "--unit", pending.pop(0)],
+                                        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                pipes.register(proc.stdout, selectors.EVENT_READ, proc)
+                running += 1
+            for key, _ in pipes.select():
+                line = key.fileobj.readline()
+                if line:
+                    say(line.rstrip("\n"))
+                    continue
+                pipes.unregister(key.fileobj)
+                key.fileobj.close()
+                codes.append(key.data.wait())
+                running -= 1
     return all(code == 0 for code in codes)
 
 
@@ -84,6 +89,8 @@ def main(argv=None) -> int:
     compiled = []
 
     def say(line: str) -> None:
+        if line.startswith("compiling the planner's kernels") and line in compiled:
+            return  # each process's heading: once
         compiled.append(line)
         print(line, flush=True)
 
