@@ -21,7 +21,7 @@ Families (D = 3, N = 10):
 Observation matrix k of trial t: k = 0 the trial's own, k >= 1 stream ``(7000, t, k, f)`` (f = 0
 paper, 1 dense); planner seed ``(1000, t, 1, k)``. Per trial the planners' rewards are averaged
 over ``--obs`` matrices, and the bound of the instance (``planner.duality.upper_bound``, LP
-relaxation, ``BOUND_SAMPLES`` samples) divides them. It prints one line per trial and the summary:
+relaxation or ``--bound-method mixed``, ``BOUND_SAMPLES`` samples) divides them. It prints one line per trial and the summary:
 the paired difference new - previous as mean ± SEM over trials with wins and losses, each
 planner's fraction of the bound (mean ± SEM over trials) and its mean decision time (one
 process; the times are the machine's, and only comparable when nothing else runs on its core).
@@ -75,9 +75,10 @@ def observations(family: str, problem, x0: np.ndarray, trial: int, k: int, seed:
 
 
 def run_trial(family: str, carriers: int, trial: int, obs: int, iterations: int, seed: int,
-              bound_samples: int) -> dict:
+              bound_samples: int, bound_method: str = "lp") -> dict:
     """One trial: both planners' mean rewards over ``obs`` observation matrices, their decision
     times, and the instance's bound."""
+    from experiments.bound import MIXED_MIP_TIME_LIMIT_S, MIXED_PILOT_METHOD
     from experiments.trials import seed_of
     from planner import duality
     from planner.online import run_online
@@ -101,7 +102,9 @@ def run_trial(family: str, carriers: int, trial: int, obs: int, iterations: int,
         row[name + "_ms_median"] = float(np.median(times[name]))
     key = (1000, trial, 2) if family == "paper" else (5000, trial, 2)
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
-    bound = duality.upper_bound(problem, rng, samples=bound_samples, method="lp", pilot=max(2, bound_samples // 2))
+    bound = duality.upper_bound(problem, rng, samples=bound_samples, method=bound_method,
+                                pilot=max(2, bound_samples // 2), mip_time_limit_s=MIXED_MIP_TIME_LIMIT_S,
+                                pilot_method=MIXED_PILOT_METHOD if bound_method == "mixed" else None)
     row["bound"] = bound.expected_reward
     row["bound_stderr"] = bound.stderr
     return row
@@ -134,6 +137,10 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=0, help="root seed of the trials (default 0)")
     parser.add_argument("--bound-samples", type=int, default=None,
                         help="sampled observation matrices of the bound (default: the experiment's)")
+    parser.add_argument("--bound-method", default="lp", choices=("lp", "mixed"),
+                        help="inner maxima of the bound: lp (the LP relaxation, fixed penalty; default) or mixed "
+                             "(the adaptive penalty, exact or MIP per component, its strength by an LP pilot: "
+                             "experiments bound's method up to R = 128)")
     parser.add_argument("--out", default=None, help="also write the per-trial rows to this CSV")
     args = parser.parse_args(argv)
     if args.carriers < 2 or args.iterations < 1 or args.obs < 1:
@@ -146,7 +153,8 @@ def main(argv=None) -> int:
     rows = []
     t0 = time.perf_counter()
     for t in trials:
-        row = run_trial(args.family, args.carriers, t, args.obs, args.iterations, args.seed, samples)
+        row = run_trial(args.family, args.carriers, t, args.obs, args.iterations, args.seed, samples,
+                        args.bound_method)
         rows.append(row)
         print(f"trial {t}: previous {row['previous']:.3f}  new {row['new']:.3f}  "
               f"difference {row['new'] - row['previous']:+.3f}  bound {row['bound']:.2f} ± {row['bound_stderr']:.2f}",
