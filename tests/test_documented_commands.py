@@ -405,7 +405,7 @@ RUNS = [
     Run("experiments-types", (S("python -m experiments types", extra="--out {tmp}/types"),), "heavy",
         wall_s=1800, mem_mb=4000, check=_reproduces(("docs/results/types_trials.csv", "types/types_trials.csv"))),
     Run("experiments-bound", (S("python -m experiments bound", extra="--out {tmp}/bound"),), "heavy",
-        wall_s=3600, mem_mb=4000, check=_reproduces(("docs/results/bound_trials.csv", "bound/bound_trials.csv"))),
+        wall_s=10800, mem_mb=4000, check=_reproduces(("docs/results/bound_trials.csv", "bound/bound_trials.csv"))),
     Run("experiments-coverage", (S("python -m experiments coverage", extra="--out {tmp}/coverage"),), "heavy",
         wall_s=7200, mem_mb=4000),
     Run("experiments-coverage-10", (S("python -m experiments coverage --trials 10", extra="--out {tmp}/coverage10"),),
