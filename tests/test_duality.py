@@ -539,3 +539,18 @@ def test_mixed_adaptive_bound_is_valid_against_the_online_optimum(monkeypatch, k
     small = [duality.upper_bound(problem, np.random.default_rng(7), samples=4, method="mixed", pilot=2)
              for _ in range(2)]
     assert small[0] == small[1]  # same seed, same bound
+
+
+def test_a_cheaper_pilot_only_chooses_the_strength():
+    """``pilot_method``: the pilot's inner maxima by that method choose the strength
+    (``choose_strength`` on the same matrices); the bound itself is the method's own, on the
+    matrices after the pilot's, exactly as with that strength given."""
+    problem = random_instance(np.random.default_rng(23), **MIXED_INSTANCE).problem
+    pilot = 3
+    bound = duality.upper_bound(problem, np.random.default_rng(5), samples=4, method="mixed", pilot=pilot,
+                                pilot_method="lp")
+    rng = np.random.default_rng(5)
+    chosen = duality.choose_strength(problem, rng, "lp", pilot, adaptive=True)
+    assert bound.strength == chosen and bound.method == "mixed" and bound.adaptive
+    given = duality.upper_bound(problem, rng, samples=4, method="mixed", strength=chosen)
+    assert bound.expected_reward == given.expected_reward and bound.stderr == given.stderr
