@@ -143,6 +143,17 @@ def _config_columns(task: Task, extra: dict, result) -> dict:
 SWEEP = Sweep(columns=_config_columns)
 
 
+def scale_bound(problem, rng: np.random.Generator, samples: int, method: str):
+    """The scale rows' bound of ``problem`` by ``method`` (``lp`` or ``mixed``): ``samples``
+    matrices after a pilot of half as many (at least 2), one MIP's limit
+    :data:`MIXED_MIP_TIME_LIMIT_S`, and under ``mixed`` the pilot by :data:`MIXED_PILOT_METHOD`."""
+    from planner import duality
+
+    return duality.upper_bound(problem, rng, samples=samples, method=method, pilot=max(2, samples // 2),
+                               mip_time_limit_s=MIXED_MIP_TIME_LIMIT_S,
+                               pilot_method=MIXED_PILOT_METHOD if method == "mixed" else None)
+
+
 def run_task(task: Task) -> dict:
     """One task of either part (see the module docstring); planners through ``run_trial``."""
     if task.planner == TINY:
@@ -150,14 +161,11 @@ def run_task(task: Task) -> dict:
     if task.planner != UPPER_BOUND:
         return run_trial(task, SWEEP)
     from experiments.trials import random_trial
-    from planner import duality
 
     problem, _, planner_seed, _ = random_trial(task)
     t0 = time.perf_counter()
     rng = np.random.default_rng(np.random.SeedSequence(task.seed, spawn_key=(1000, task.trial, 2)))
-    bound = duality.upper_bound(problem, rng, samples=task.samples, method=task.variant or "lp",
-                                pilot=max(2, task.samples // 2), mip_time_limit_s=MIXED_MIP_TIME_LIMIT_S,
-                                pilot_method=MIXED_PILOT_METHOD if task.variant == "mixed" else None)
+    bound = scale_bound(problem, rng, task.samples, task.variant or "lp")
     return {"sweep": task.sweep, "level": task.level, "config": CONFIGS[task.level][0], "trial": task.trial,
             "planner": UPPER_BOUND, "reward": bound.expected_reward, "stderr": bound.stderr, "samples": bound.samples,
             "method": bound.method, "strength": bound.strength, "carriers": problem.n_carriers, "overlaps": len(problem.overlaps),

@@ -78,9 +78,8 @@ def run_trial(family: str, carriers: int, trial: int, obs: int, iterations: int,
               bound_samples: int, bound_method: str = "lp") -> dict:
     """One trial: both planners' mean rewards over ``obs`` observation matrices, their decision
     times, and the instance's bound."""
-    from experiments.bound import MIXED_MIP_TIME_LIMIT_S, MIXED_PILOT_METHOD
+    from experiments.bound import scale_bound
     from experiments.trials import seed_of
-    from planner import duality
     from planner.online import run_online
     from planner.registry import make_planner
 
@@ -102,9 +101,7 @@ def run_trial(family: str, carriers: int, trial: int, obs: int, iterations: int,
         row[name + "_ms_median"] = float(np.median(times[name]))
     key = (1000, trial, 2) if family == "paper" else (5000, trial, 2)
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
-    bound = duality.upper_bound(problem, rng, samples=bound_samples, method=bound_method,
-                                pilot=max(2, bound_samples // 2), mip_time_limit_s=MIXED_MIP_TIME_LIMIT_S,
-                                pilot_method=MIXED_PILOT_METHOD if bound_method == "mixed" else None)
+    bound = scale_bound(problem, rng, bound_samples, bound_method)
     row["bound"] = bound.expected_reward
     row["bound_stderr"] = bound.stderr
     return row
