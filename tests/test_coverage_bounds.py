@@ -221,7 +221,8 @@ def test_v_star_values_a_shared_region_once():
     assert best.expected_reward * problem.scale == pytest.approx(3.5, abs=best.truncation_error * problem.scale + 1e-9)
 
 
-@pytest.mark.parametrize("seed", [0, pytest.param(1, marks=pytest.mark.slow)])
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [0, 1])
 def test_v_star_lies_between_the_planners_and_the_bounds(seed):
     """planners' means <= V* <= the information-relaxation bound <= the clairvoyant mean (the last
     two on the same counts; each up to 3 standard errors)."""
@@ -261,6 +262,7 @@ def test_v_star_refuses_beyond_its_limits_in_one_line():
         co.online_value(small, max_nodes=10)
 
 
+@pytest.mark.slow
 def test_solve_reports_the_coverage_bounds_with_fractions(monkeypatch):
     from planner.solve import solve_instance
 

@@ -536,7 +536,7 @@ RUNS += [
                                                                          "--report {tmp}/myrun/syn.json")),
         S("python -m world import SOURCE --out SCENARIO.yaml ...", ("SOURCE", "{tmp}/myrun/map.yaml"),
           ("SCENARIO.yaml ...", "{tmp}/myrun/short.yaml --routes {tmp}/myrun/routes.yaml --stages 5")),
-    ), "default", wall_s=120, mem_mb=1500, check=_replayed_as_reported),
+    ), "slow", wall_s=120, mem_mb=1500, check=_replayed_as_reported),
     Run("world-import-urban", (
         S(SYNTHETIC, MYRUN),
         S(IMPORT_REPLAY, MYRUN),

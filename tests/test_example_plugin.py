@@ -79,6 +79,7 @@ def test_solve_runs_it_by_entry_point_name_and_by_dotted_path(installed, tmp_pat
     assert missing.returncode == 2 and missing.stderr.count("\n") == 1 and "expected one of" in missing.stderr
 
 
+@pytest.mark.slow
 def test_a_fleet_mission_flies_with_it(installed, tmp_path, monkeypatch):
     """The launcher on scenarios/tiny.yaml with --planner greedy: real processes (the coordinator
     builds the plug-in from its entry point; a few seconds, so not marked slow), the same

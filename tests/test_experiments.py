@@ -182,6 +182,7 @@ def _run(*args, timeout=240):
                           text=True, timeout=timeout)
 
 
+@pytest.mark.slow
 def test_entry_point_smoke(tmp_path):
     out = tmp_path / "results"
     proc = _run("all", "--quick", "--trials", "2", "--iterations", "64", "--urban-trials", "1", "--jobs", "2",

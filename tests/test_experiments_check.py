@@ -15,6 +15,10 @@ import pytest
 
 from experiments import check, run
 
+#: The whole module flies every sweep kind end to end and then the check over it (about 25 s of
+#: CPU, most of it one module fixture): the slow tier's (.ci/run).
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parent.parent
 #: One small run of every sweep kind the check rebuilds, with settings away from the defaults where
 #: the sweep records its own (scaling's overlaps, the urban scenario, bound's quick configuration).

@@ -196,6 +196,7 @@ def test_run_fleet_py_is_a_shim():
     assert shown.returncode == 0 and shown.stdout == build_parser().format_help()
 
 
+@pytest.mark.slow
 def test_run_fleet_py_runs_a_mission_from_another_directory(tmp_path):
     """python /clone/run_fleet.py from elsewhere: the children (python -m launcher) find the
     clone's packages, the default --out is under the current directory, and the report leaves

@@ -53,6 +53,7 @@ print(kernel.quantiles(np.array([0.25]), np.array([1.0, 2.0]), np.array([0.5, 1.
 """
 
 
+@pytest.mark.slow
 def test_a_change_to_an_inlined_rule_recompiles_the_kernels_that_inline_it(tmp_path):
     """mcts.kernel.quantiles inlines planner.kernels.quantile: after editing only kernels.py, the
     next process must run the edited rule, not the cached kernel."""
@@ -97,6 +98,7 @@ def _finish(proc: subprocess.Popen) -> list[str]:
     return [line for line in lines if line.startswith("report: ")]
 
 
+@pytest.mark.slow
 def test_two_copies_of_the_same_planner_share_the_user_cache(tmp_path):
     """A second checkout or venv of the same sources, elsewhere on the machine, loads what the
     first compiled: the cache is under the user's cache folder, keyed by versions and digest."""
@@ -109,6 +111,7 @@ def test_two_copies_of_the_same_planner_share_the_user_cache(tmp_path):
     assert _finish(_start_probe(_copy_planner(tmp_path / "b"), cache_home)) == []  # loaded, not compiled
 
 
+@pytest.mark.slow
 def test_processes_starting_together_compile_a_kernel_once(tmp_path):
     """Three processes wanting the same kernel at once on a new machine: one compiles it, the
     others wait for its lock and load it."""

@@ -261,6 +261,7 @@ def test_an_unpaced_carrier_sends_at_most_twenty_poses_a_stage_by_default(stage_
         assert stage_interval / got <= POSES_PER_STAGE
 
 
+@pytest.mark.slow
 def test_the_default_pose_interval_reaches_the_carrier_processes(tmp_path):
     # run_fleet.py without --pose-interval: its carrier processes resolve the default from the
     # scenario (60-s stages, unpaced: a Pose every 3 s), and the recording has what they sent.

@@ -121,6 +121,7 @@ def _run(*args, timeout=300, env=None):
                           text=True, timeout=timeout, env=env)
 
 
+@pytest.mark.slow
 def test_the_command_writes_the_report_and_a_replay_gives_the_same_trace(fleet, tmp_path):
     """The command's report, its traces those of this process under another hash seed (its
     workers' and this process's: the traces depend on no ``hash()``), and a replay of one seed's

@@ -43,6 +43,7 @@ def _refused(argv: list[str]) -> subprocess.CompletedProcess:
                           cwd=str(ROOT), timeout=60)
 
 
+@pytest.mark.slow
 def test_a_second_coordinator_and_a_second_carrier_process_refuse_to_start(tmp_path):
     """[P-2.5] one liveliness token per role and id. Primary coordinator and carrier a live (the coordinator waits for b before stage 0): a
     second coordinator exits 2 with one stderr line and creates nothing in its --out; a process

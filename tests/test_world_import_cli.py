@@ -3,6 +3,8 @@ cells counted by hand, the report's format, the fleet's world from it, and every
 the issue refused with one line and nothing left behind."""
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import math
 import subprocess
@@ -14,14 +16,29 @@ import pytest
 from PIL import Image
 
 import world
+from launcher.scenario_check import world_command
 from world import grid as G
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _run(*args, cwd=ROOT):
+def _process(*args, cwd=ROOT):
+    """``python -m world import ARGS`` as a separate process."""
     return subprocess.run([sys.executable, "-m", "world", "import", *map(str, args)], cwd=cwd, capture_output=True,
                           text=True, timeout=120)
+
+
+def _run(*args, cwd=ROOT):
+    """``python -m world import ARGS`` through the command's own entry point in this process (its
+    exit code and its two streams, as :func:`_process` gets them: the half second of a new
+    interpreter's imports saved per call); test_static_import_report_and_world runs it as a process."""
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), contextlib.chdir(cwd):
+        try:
+            code = world_command(["import", *map(str, args)])
+        except SystemExit as exit_:  # argparse's usage errors
+            code = exit_.code if isinstance(exit_.code, int) else 1
+    return subprocess.CompletedProcess(list(args), code, out.getvalue(), err.getvalue())
 
 
 def _map_yaml(tmp: Path, pixels: np.ndarray, name="m", fmt="PPM", suffix=".pgm", **fields) -> Path:
@@ -121,8 +138,8 @@ def room(tmp_path):
 
 def test_static_import_report_and_world(room, tmp_path):
     out, rep = tmp_path / "out" / "s.yaml", tmp_path / "out" / "r.json"
-    done = _run(room, "--routes", tmp_path / "routes.yaml", "--stage-spacing", "1", "--radius", "2",
-                "--out", out, "--report", rep)
+    done = _process(room, "--routes", tmp_path / "routes.yaml", "--stage-spacing", "1", "--radius", "2",
+                    "--out", out, "--report", rep)
     assert done.returncode == 0, done.stderr
     report = json.loads(rep.read_text())
     grid = G.read_map_yaml(room)
