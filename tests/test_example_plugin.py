@@ -49,6 +49,7 @@ def _run(args, target, cwd=ROOT, timeout=300):
                           timeout=timeout)
 
 
+@pytest.mark.slow
 def test_the_installed_plugin_passes_the_conformance_kit(installed, tmp_path):
     report = tmp_path / "report.json"
     proc = _run(["-m", "planner.conformance", "greedy", "--option", "q=0.8", "--json", str(report)], installed)

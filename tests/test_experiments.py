@@ -147,6 +147,7 @@ def test_without_overlaps_it_is_ssap():
     assert np.mean(closed) >= np.mean(plain)
 
 
+@pytest.mark.slow
 def test_beats_ssap_and_mcts_ssap_with_many_overlaps():
     """Paired on 50 seeded instances (R = 4, D = 3, N = 10, 20 overlaps), the paper's 10,000 iterations."""
     rewards = {name: [] for name in ("closed-loop", "mcts-ssap", "ssap")}
@@ -277,6 +278,7 @@ def test_control_variate_estimator_agrees_with_plain_monte_carlo():
         assert np.abs((cv - cv[0]) - (mc - mc[0])).max() < 0.08
 
 
+@pytest.mark.slow
 def test_your_own_scenario_writes_a_fresh_folder_without_the_papers_column(tmp_path):
     """``python -m experiments urban --scenario mine.yaml`` without --out: a fresh folder under the
     current directory (never the shipped docs/results), no paper's column on another scenario and
