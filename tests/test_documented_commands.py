@@ -315,7 +315,7 @@ RUNS = [
                      ("SCENARIO", "scenarios/tiny.yaml"), ("ID", "a"), ("[--seed S]", "--seed 1"),
                      ("[--out FILE]", "--out {tmp}/sensed.json")),), "default", wall_s=60, mem_mb=800),
     Run("marine-simulated", (S("python -m mission.simulate scenarios/marine_survey.yaml --seeds 0:1 --faults none "
-                               "--json marine.json", ("marine.json", "{tmp}/marine.json")),), "default", wall_s=90,
+                               "--json marine.json", ("marine.json", "{tmp}/marine.json")),), "slow", wall_s=90,
         mem_mb=1500, check=_marine_simulated),
     Run("world-check", (S("python -m world check SCENARIO.yaml [--seeds 200]", ("SCENARIO.yaml", "scenarios/tiny.yaml"),
                           ("[--seeds 200]", "--seeds 200")),), "default", wall_s=90, mem_mb=800),

@@ -143,6 +143,7 @@ def test_tiny_conflicted_instances_against_full_history_expectimax(case):
     assert best.expected_reward >= online_value(problem, "random").expected_reward - 1e-12
 
 
+@pytest.mark.slow
 def test_random_policy_value_matches_its_simulation():
     problem = Problem.build(2, np.ones((2, 4), bool), [[[0, 1], [1, 1], [1, 2]], [[0, 3], [1, 0]]], THREE)
     exact = online_value(problem, "random").expected_reward
@@ -171,6 +172,7 @@ def test_online_optimum_lies_between_ssap_and_the_clairvoyant_mean(poisson_insta
     assert best < mean  # not knowing the future has a price here
 
 
+@pytest.mark.slow
 def test_simulated_policy_reproduces_the_online_optimum(poisson_instance):
     problem = poisson_instance
     best = online_value(problem).expected_reward

@@ -227,6 +227,7 @@ def test_a_manual_trigger_operator_replaces_the_planner():
     assert set(np.flatnonzero(step.deploy)) == c.forced
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("family", ["rooms", "caves"])
 def test_the_experiment_measures_a_run_imported_from_a_bag(tmp_path, family):
     """`python -m experiments operator --scenario NAME=S.yaml` measures a run as a team brings it (a
