@@ -65,7 +65,7 @@ def _offending(loaded: list[str], forbidden: tuple[str, ...]) -> list[str]:
 def _imports(path: Path) -> list[tuple[int, str]]:
     """(line, absolute module name) of every import statement in a file, function bodies included."""
     out = []
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+    for node in ast.walk(_parsed(path)):
         if isinstance(node, ast.Import):
             out += [(node.lineno, alias.name) for alias in node.names]
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
@@ -87,7 +87,7 @@ def _module_level_import_lines(path: Path) -> set[int]:
                 lines.add(child.lineno)
             visit(child)
 
-    visit(ast.parse(path.read_text(), str(path)))
+    visit(_parsed(path))
     return lines
 
 
@@ -481,7 +481,7 @@ def test_processes_are_thin():
     assert len(files) > 10  # the folders are where this test thinks they are
     problems = [f"{path.relative_to(REPO)}:{line}: {what} is {length} lines"
                 for path in files for what, line, length in _too_long(
-                    ast.parse(path.read_text()), PROCESS_FUNCTION_MAX, PROCESS_CLASS_MAX)]
+                    _parsed(path), PROCESS_FUNCTION_MAX, PROCESS_CLASS_MAX)]
     assert problems == []
 
 
@@ -503,7 +503,7 @@ PROCESS_ATTRIBUTES_MAX = 15
 def test_process_objects_hold_few_attributes(path, name):
     """A process object is a driver: its machines, its collaborators and its I/O, at most
     fifteen attributes (what they hold is theirs: properties name what it reads of them)."""
-    tree = ast.parse((REPO / path).read_text())
+    tree = _parsed(REPO / path)
     cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == name)
     stored = {n.attr for n in ast.walk(cls) if isinstance(n, ast.Attribute) and isinstance(n.ctx, ast.Store)
               and isinstance(n.value, ast.Name) and n.value.id == "self"}
@@ -520,7 +520,7 @@ PROCESS_OBJECT_MAX = 160
 def test_process_objects_are_io_loops(path, name):
     """``Carrier`` and ``Coordinator`` span at most 160 lines each, counted by ``ast`` from the
     ``class`` line to the last line of its body (docstrings and comments included)."""
-    tree = ast.parse((REPO / path).read_text())
+    tree = _parsed(REPO / path)
     cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == name)
     length = cls.end_lineno - cls.lineno + 1
     assert length <= PROCESS_OBJECT_MAX, f"{path}: class {name} is {length} lines"
@@ -532,7 +532,7 @@ def test_no_collaborator_calls_back_into_a_process_object(path, name):
     it (etcd raft's shape: they return what they read, or yield what they ask, and the process
     carries it out). Allowed: its log (a sink for lines), and its own handler given to
     :func:`mission.timers.drive`, the loop that carries out a collaborator's requests."""
-    tree = ast.parse((REPO / path).read_text())
+    tree = _parsed(REPO / path)
     cls = next(n for n in tree.body if isinstance(n, ast.ClassDef) and n.name == name)
     methods = {f.name for f in cls.body if isinstance(f, ast.FunctionDef)}
 

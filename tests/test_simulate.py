@@ -52,10 +52,11 @@ def test_the_same_seed_gives_the_same_trace_and_another_seed_another(fleet):
 KNOWN_OPEN: dict = {}
 
 
+@pytest.mark.slow
 def test_a_short_campaign_with_every_fault_kind_finds_no_new_violation(fleet):
-    """40 missions, every kind drawn: the developer's check. .ci/run flies seeds 0 to 1,999 of the
-    same campaign and fails on any violation (an unfinished mission is one), tools.sim_campaign
-    10,000."""
+    """40 missions, every kind drawn, and the open findings' list kept exact (the slow tier: about
+    10 s of CPU). .ci/run then flies seeds 0 to 1,999 of the same campaign and fails on any
+    violation (an unfinished mission is one), tools.sim_campaign 10,000."""
     report = campaign(fleet, range(0, 40), sim.FAULT_KINDS)
     failing = {v["seed"]: v["violation"] for v in report["violations"]}
     assert set(failing) == set(KNOWN_OPEN), failing
@@ -68,6 +69,7 @@ def test_a_short_campaign_with_every_fault_kind_finds_no_new_violation(fleet):
     assert set(report["per_seed"][0]) >= {"seed", "trace_hash", "faults", "deployments", "reward"}
 
 
+@pytest.mark.slow
 def test_a_short_campaign_of_coordinated_carriers_finds_no_violation():
     """Carriers that hold without a coordinator (--no-autonomy): give up after its absence, the
     join wait of a standby on its own disk (found: a Hello said again restarted it). 25 missions;
