@@ -5,8 +5,6 @@ model, causality, determinism, the reductions to SSAP, the solve flags and the c
 """
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import sys
 from pathlib import Path
@@ -14,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cli_helpers import in_process
 from planner.comms import NEVER, CommsSpec, parse_groups, realise
 from planner.decentralised import LocalDecision, run_comms
 from planner.decmcts import optimise_distribution
@@ -262,13 +261,8 @@ def test_decentralised_planners_run_centrally_with_full_information():
 def _solve(*args):
     from planner.cli import solve as cli
 
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
-        try:
-            code = cli.main(list(args))
-        except SystemExit as exc:
-            code = exc.code
-    return code, out.getvalue(), err.getvalue()
+    done = in_process(cli.main, args)
+    return done.returncode, done.stdout, done.stderr
 
 
 def test_solve_message_flags(tmp_path):

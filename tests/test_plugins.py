@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cli_helpers import in_process
 from planner import conformance, registry
 from planner.cli import conformance as kit_cli
 from planner.cli import solve
@@ -204,19 +205,18 @@ def test_classify_names_each_rule():
 
 # ----------------------------------------------------------------------------- its command line
 
-def _kit(capsys, *args):
-    code = kit_cli.main(list(args))
-    out, err = capsys.readouterr()
-    return code, out, err
+def _kit(*args):
+    done = in_process(kit_cli.main, args)
+    return done.returncode, done.stdout, done.stderr
 
 
-def test_the_command_exits_0_1_and_2(tmp_path, capsys):
-    code, out, err = _kit(capsys, THRESHOLD, "--option", "cut=2", "--instances", "1", "--json", str(tmp_path / "r.json"))
+def test_the_command_exits_0_1_and_2(tmp_path):
+    code, out, err = _kit(THRESHOLD, "--option", "cut=2", "--instances", "1", "--json", str(tmp_path / "r.json"))
     assert code == 0 and err == "" and out.splitlines()[-1] == f"planner '{THRESHOLD}': conformant (7 checks)"
     report = json.loads((tmp_path / "r.json").read_text())
     assert report["passed"] is True and report["options"] == {"cut": 2.0}
     assert [c["name"] for c in report["checks"]][:3] == ["declaration", "builds", "feasible"]
-    code, out, err = _kit(capsys, "planner_plugins:BeyondPassengers", "--instances", "1")
+    code, out, err = _kit("planner_plugins:BeyondPassengers", "--instances", "1")
     assert code == 2 and "FAIL  feasible     [beyond-passengers] paper #0, stage " in out
     assert err.splitlines() == [err.strip()] and err.startswith(
         "python -m planner.conformance: planner 'planner_plugins:BeyondPassengers' broke rule beyond-passengers "
@@ -228,10 +228,7 @@ def test_the_command_exits_0_1_and_2(tmp_path, capsys):
                         ((THRESHOLD, "--option", "q=1"), "--option: expected KEY=VALUE with KEY one of"),
                         ((THRESHOLD, "--instances", "0"), "--instances: expected an integer >= 1, found '0'"),
                         ((THRESHOLD, "--instances", "1", "--json", str(tmp_path / "no" / "r.json")), "--json: cannot write")]:
-        try:
-            code, out, err = _kit(capsys, *args)
-        except SystemExit as stop:  # argparse's own usage errors
-            code, (out, err) = stop.code, capsys.readouterr()
+        code, out, err = _kit(*args)  # argparse's own usage errors included
         assert code == 2 and len(err.splitlines()) == 1 and words in err, (args, err)
         assert err.startswith("python -m planner.conformance: error: ")
 

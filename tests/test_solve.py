@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cli_helpers import in_process
 from planner.cli import solve
 from planner.instance import PRIOR_KINDS, InstanceError, instance_dict, load_instance, make_prior, random_instance
 from planner.problem import evaluate
@@ -50,24 +51,10 @@ def _run_many(arg_lists: list[list[str]], module: str = SPELLINGS[1]) -> list[tu
     return results
 
 
-class _InProcess:
-    """The CLI's main() in this interpreter: same code path minus the interpreter start."""
-
-    def __init__(self, capsys):
-        self.capsys = capsys
-
-    def __call__(self, *args: str) -> subprocess.CompletedProcess:
-        try:
-            code = solve.main(list(args))
-        except SystemExit as stop:  # argparse
-            code = stop.code
-        out, err = self.capsys.readouterr()
-        return subprocess.CompletedProcess(args, code, out, err)
-
-
 @pytest.fixture
-def cli(capsys):
-    return _InProcess(capsys)
+def cli():
+    """The CLI's main() in this interpreter: same code path minus the interpreter start."""
+    return lambda *args: in_process(solve.main, args)
 
 
 def _write(tmp_path: Path, data, name: str = "instance.json") -> Path:

@@ -3,8 +3,6 @@ cells counted by hand, the report's format, the fleet's world from it, and every
 the issue refused with one line and nothing left behind."""
 from __future__ import annotations
 
-import contextlib
-import io
 import json
 import math
 import subprocess
@@ -16,6 +14,7 @@ import pytest
 from PIL import Image
 
 import world
+from cli_helpers import in_process
 from launcher.scenario_check import world_command
 from world import grid as G
 
@@ -29,16 +28,9 @@ def _process(*args, cwd=ROOT):
 
 
 def _run(*args, cwd=ROOT):
-    """``python -m world import ARGS`` through the command's own entry point in this process (its
-    exit code and its two streams, as :func:`_process` gets them: the half second of a new
-    interpreter's imports saved per call); test_static_import_report_and_world runs it as a process."""
-    out, err = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err), contextlib.chdir(cwd):
-        try:
-            code = world_command(["import", *map(str, args)])
-        except SystemExit as exit_:  # argparse's usage errors
-            code = exit_.code if isinstance(exit_.code, int) else 1
-    return subprocess.CompletedProcess(list(args), code, out.getvalue(), err.getvalue())
+    """``python -m world import ARGS`` through the command's own entry point in this process
+    (:func:`cli_helpers.in_process`); test_static_import_report_and_world runs it as a process."""
+    return in_process(world_command, ["import", *args], cwd)
 
 
 def _map_yaml(tmp: Path, pixels: np.ndarray, name="m", fmt="PPM", suffix=".pgm", **fields) -> Path:
