@@ -45,6 +45,9 @@ def test_run_fleet_on_one_host(tiny, tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert "Traceback" not in proc.stderr
     assert all(f"stage {j:>3} of 0..{tiny.stages - 1} " in proc.stdout for j in range(tiny.stages))
+    # tools.startup_bench times the first of these lines and compares their deploy columns
+    from tools.startup_bench import STAGE_LINE
+    assert sum(bool(STAGE_LINE.match(line)) for line in proc.stdout.splitlines()) == tiny.stages
     assert (out / "mission.db").exists() and (out / "map.png").stat().st_size > 10_000
     summary = json.loads((out / "summary.json").read_text())
     for field in ("scenario", "planner", "seed", "stages", "carriers", "total_reward", "total_features",

@@ -45,8 +45,9 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 #: Targets (s from the command to the first decided stage): a freshly installed machine, warm.
 COLD_TARGET_S, WARM_TARGET_S = 5.0, 3.0
-#: A decided stage's console line (whatever its numbering).
-STAGE_LINE = re.compile(r"^stage\s+\d+/\d+ ")
+#: A decided stage's console line, in either numbering a baseline may print: ``stage   0 of 0..11``
+#: (coordinator.clock.progress_line; stages count from 0 everywhere) or the earlier ``stage 1/12``.
+STAGE_LINE = re.compile(r"^stage\s+\d+(/\d+| of \d+\.\.\d+) ")
 #: A run that has not ended after this long is stopped (s).
 RUN_TIMEOUT_S = 600.0
 
@@ -199,10 +200,18 @@ def main(argv=None) -> int:
                   f"{_fmt(b.first_stage_s) if b else '-'} | {f'{b.silence_s:.1f}' if b else '-'} | {ratio} | "
                   f"≤ {target:.0f} s: {'met' if met else 'not met'} |")
             ok &= t.returncode == 0
+            for run in (t, b):
+                if run is not None and run.returncode == 0 and run.first_stage_s is None:
+                    print(f"startup_bench: {run.tree} {run.scenario} {mode}: the run exited 0 but printed no "
+                          f"stage line this benchmark recognises ({STAGE_LINE.pattern}); its last lines: "
+                          f"{[line for _, line in run.log[-3:]]}", file=sys.stderr)
+                    ok = False
     for scenario in scenarios:
         same = {tuple(r.decisions) for r in runs if r.scenario == scenario.name}
-        print(f"{scenario.stem}: decisions {'identical' if len(same) == 1 else 'DIFFER'} across trees and runs")
-        ok &= len(same) == 1
+        decided = all(same)  # no run without a decided stage: an empty list compares equal to any other
+        print(f"{scenario.stem}: decisions {'identical' if len(same) == 1 and decided else 'DIFFER' if decided else 'MISSING'}"
+              " across trees and runs")
+        ok &= len(same) == 1 and decided
     if args.json:
         args.json.write_text(json.dumps([asdict(r) for r in runs], indent=1))
     return 0 if ok else 1
