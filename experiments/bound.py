@@ -16,8 +16,10 @@ Two parts:
   the paper's density of five overlap groups per carrier). Per trial: every planner's reward on
   the trial's observations (the experiments' common random numbers), the clairvoyant bound of the
   same observations and the new bound of the instance (an expectation over the prior, from its own
-  samples: up to R = 128 by ``mixed``, the adaptive penalty with exact or MIP inner maxima, the LP
-  relaxation beyond; ``--bound-method lp``: the LP relaxation everywhere, looser and faster). A
+  samples: by ``mixed``, the adaptive penalty with exact or MIP inner maxima, up to R = 128 with
+  every MIP solved (or stopped by its time limit) and beyond with every MIP stopped after its root
+  node (``--bound-method mixed-root``, the default; ``mixed``: the LP relaxation beyond R = 128, the
+  default before 2026-12-07; ``lp``: the LP relaxation everywhere, looser and faster). A
   planner's fraction of the bound is
   its reward over the bound, per trial, averaged over trials (± SEM).
 
@@ -88,14 +90,23 @@ VALID_SE, EXCESS_RATIO, FRACTION_TARGET, FRACTION_MIN_CARRIERS = 3.0, 1 / 3, 0.9
 OURS = ("closed-loop", "closed-loop-gated")
 #: The bound's mean excess over V* on the tiny instances it aims at, percent.
 EXCESS_TARGET_PCT = 1.0
-#: ``--bound-method mixed`` (the default): the scale rows' bound by
+#: ``--bound-method mixed`` and ``mixed-root``: the scale rows' bound by
 #: ``duality.upper_bound(method="mixed")`` (exact per component where it fits, else the MIP; the
-#: adaptive penalty) up to this R, the LP beyond (at R = 256 one adaptive MIP does not finish in
-#: 400 s, and a stopped MIP's dual bound depends on the machine's speed); one MIP's time limit,
+#: adaptive penalty) up to this R; beyond it ``mixed`` takes the LP (at R = 256 one adaptive MIP
+#: does not finish in 400 s, and a MIP stopped by its time limit has a dual bound that depends on
+#: the machine's speed) and ``mixed-root`` the same ``mixed`` with every MIP stopped after
+#: :data:`ROOT_NODES` node (its root: about 140 s a sample at R = 256, 1.2 % below the LP, and the
+#: same bound on every machine, tools.bound_nodes); one MIP's time limit,
 #: seconds (R = 128's finish in 25 to 45 s); the strength pilot's inner maxima (the adaptive LP:
 #: 2 s at R = 128 where the MIP takes 30 s; the pilot only picks the strength, every strength's
 #: bound is valid).
 MIXED_MAX_CARRIERS = 128
+ROOT_NODES = 1
+#: One root-node MIP's time limit, seconds: far above its time (141 s at R = 256 on a quiet core),
+#: so that the node limit, not the machine's speed, stops it.
+ROOT_TIME_LIMIT_S = 3600.0
+#: ``--bound-method`` choices (``mixed-root`` the default; run_info.json records the one a run used).
+BOUND_METHODS = ("mixed-root", "mixed", "lp")
 MIXED_MIP_TIME_LIMIT_S = 300.0
 MIXED_PILOT_METHOD = "lp"
 #: Fleet sizes of the split table (best bound, best planner, the gap between them).
@@ -129,10 +140,19 @@ def build_tasks(settings: dict) -> list[Task]:
             for name in (*names, *((CLAIRVOYANT,) if carriers <= clairvoyant_max else ())):
                 tasks.append(Task("bound", level, t, name, settings["seed"], settings["iterations"], carriers=carriers,
                                   overlaps=overlaps))
-            mixed = settings.get("bound_method", "lp") == "mixed" and carriers <= mixed_max
             tasks.append(Task("bound", level, t, UPPER_BOUND, settings["seed"], 0, carriers=carriers,
-                              overlaps=overlaps, samples=samples, variant="mixed" if mixed else ""))
+                              overlaps=overlaps, samples=samples,
+                              variant=bound_variant(settings.get("bound_method", "lp"), carriers, mixed_max)))
     return tasks
+
+
+def bound_variant(method: str, carriers: int, mixed_max: int) -> str:
+    """How a scale row's bound task of ``carriers`` computes its bound under ``--bound-method
+    method`` (its ``variant``): ``mixed`` (every MIP solved), ``mixed-root`` (every MIP stopped after
+    :data:`ROOT_NODES`) or ``""`` (the LP relaxation)."""
+    if method in ("mixed", "mixed-root") and carriers <= mixed_max:
+        return "mixed"
+    return "mixed-root" if method == "mixed-root" else ""
 
 
 def _config_columns(task: Task, extra: dict, result) -> dict:
@@ -143,15 +163,23 @@ def _config_columns(task: Task, extra: dict, result) -> dict:
 SWEEP = Sweep(columns=_config_columns)
 
 
-def scale_bound(problem, rng: np.random.Generator, samples: int, method: str):
+def scale_bound(problem, rng: np.random.Generator, samples: int, method: str, mip_max_nodes: int | None = None):
     """The scale rows' bound of ``problem`` by ``method`` (``lp`` or ``mixed``): ``samples``
     matrices after a pilot of half as many (at least 2), one MIP's limit
-    :data:`MIXED_MIP_TIME_LIMIT_S`, and under ``mixed`` the pilot by :data:`MIXED_PILOT_METHOD`."""
+    :data:`MIXED_MIP_TIME_LIMIT_S` (with ``mip_max_nodes``, the limit of ``mixed-root`` and
+    tools.bound_nodes: that many nodes, and :data:`ROOT_TIME_LIMIT_S`), and under ``mixed`` the
+    pilot by :data:`MIXED_PILOT_METHOD`."""
     from planner import duality
 
     return duality.upper_bound(problem, rng, samples=samples, method=method, pilot=max(2, samples // 2),
-                               mip_time_limit_s=MIXED_MIP_TIME_LIMIT_S,
-                               pilot_method=MIXED_PILOT_METHOD if method == "mixed" else None)
+                               mip_time_limit_s=MIXED_MIP_TIME_LIMIT_S if mip_max_nodes is None else ROOT_TIME_LIMIT_S,
+                               pilot_method=MIXED_PILOT_METHOD if method == "mixed" else None,
+                               mip_max_nodes=mip_max_nodes)
+
+
+def bound_rng(seed: int, trial: int) -> np.random.Generator:
+    """The observation stream of trial ``trial``'s bound (``(1000, trial, 2)`` of the root seed)."""
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1000, trial, 2)))
 
 
 def run_task(task: Task) -> dict:
@@ -164,11 +192,12 @@ def run_task(task: Task) -> dict:
 
     problem, _, planner_seed, _ = random_trial(task)
     t0 = time.perf_counter()
-    rng = np.random.default_rng(np.random.SeedSequence(task.seed, spawn_key=(1000, task.trial, 2)))
-    bound = scale_bound(problem, rng, task.samples, task.variant or "lp")
+    root = task.variant == "mixed-root"
+    bound = scale_bound(problem, bound_rng(task.seed, task.trial), task.samples, "mixed" if root else task.variant or "lp",
+                        mip_max_nodes=ROOT_NODES if root else None)
     return {"sweep": task.sweep, "level": task.level, "config": CONFIGS[task.level][0], "trial": task.trial,
             "planner": UPPER_BOUND, "reward": bound.expected_reward, "stderr": bound.stderr, "samples": bound.samples,
-            "method": bound.method, "strength": bound.strength, "carriers": problem.n_carriers, "overlaps": len(problem.overlaps),
+            "method": task.variant if root else bound.method, "strength": bound.strength, "carriers": problem.n_carriers, "overlaps": len(problem.overlaps),
             "iterations": 0, "seed": task.seed, "planner_seed": planner_seed, "wall_s": time.perf_counter() - t0}
 
 
@@ -432,6 +461,17 @@ def write_trials(rows: list[dict], path: Path) -> None:
               FIELDS)
 
 
+def _method_text(settings: dict) -> str:
+    """How the scale rows' bound was computed, for bound.md (``--bound-method``)."""
+    method = settings.get("bound_method", "lp")
+    if method == "lp":
+        return "the LP relaxation"
+    limit = QUICK["mixed_max_carriers"] if settings.get("quick") else MIXED_MAX_CARRIERS
+    beyond = ("the same with every MIP stopped after its root node beyond (method mixed-root)," if method == "mixed-root"
+              else "the LP relaxation beyond,")
+    return f"method mixed (the adaptive penalty; exact or MIP inner maxima) up to R = {limit}, {beyond}"
+
+
 def write(rows: list[dict], out: Path, settings: dict, seconds: float, jobs: int) -> dict:
     write_trials(rows, out / "bound_trials.csv")
     summary = summarise(rows)
@@ -448,10 +488,7 @@ def write(rows: list[dict], out: Path, settings: dict, seconds: float, jobs: int
             tiny, "",
             "### Planners as fractions of the new bound", "",
             f"Random instances, D = 3, N = 10, Poisson(3), {iterations} iterations per decision; the bound by "
-            + ("the LP relaxation" if settings.get("bound_method", "lp") == "lp" else
-               "method mixed (the adaptive penalty; exact or MIP inner maxima) up to R = "
-               f"{QUICK['mixed_max_carriers'] if settings.get('quick') else MIXED_MAX_CARRIERS}, "
-               "the LP relaxation beyond,") + " from its own samples; fraction = reward / bound per trial, mean ± SEM "
+            + _method_text(settings) + " from its own samples; fraction = reward / bound per trial, mean ± SEM "
             "(the clairvoyant column: the clairvoyant bound over the new one, the conflict-free bound where "
             f"its exact search stops). dec-closed-loop and the clairvoyant bound run up to R = {DEC_MAX_CARRIERS}.", "", scale_table(summary), "", "![fractions of the bound](bound.png)", "",
             "### Where the gap is", "", split_table(summary), "", "### Targets", "",

@@ -162,11 +162,13 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--scaling-overlaps", type=int, default=10, help="overlaps in the scaling sweep (default 10)")
     p.add_argument("--urban-trials", type=int, default=None, help="world seeds of the urban run (default 20; quick 2)")
     p.add_argument("--scenario", type=Path, default=DEFAULT_SCENARIO, help="scenario of the urban run")
-    p.add_argument("--bound-method", choices=("lp", "mixed"), default="mixed",
-                   help="inner maxima of the bound sweep's scale rows up to R = 128 (experiments.bound."
-                        "MIXED_MAX_CARRIERS; --quick: R = 6): mixed (exact per component where it fits, else "
-                        "the MIP, adaptive penalty; default) or lp (the LP relaxation, fixed penalty: looser, "
-                        "faster; the default before 2026-12-07)")
+    p.add_argument("--bound-method", choices=bound.BOUND_METHODS, default=bound.BOUND_METHODS[0],
+                   help="inner maxima of the bound sweep's scale rows: mixed-root (default): up to R = 128 "
+                        "(experiments.bound.MIXED_MAX_CARRIERS; --quick: R = 6) exact per component where it "
+                        "fits, else the MIP (adaptive penalty), and beyond the same with every MIP stopped after "
+                        "its root node; mixed: the same up to R = 128 and the LP relaxation beyond (the default "
+                        "until 2026-12-07); lp: the LP relaxation, fixed penalty, everywhere (looser, faster; the "
+                        "default before that)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--report-only", action="store_true",
                    help="rewrite summaries, tables and plots from the CSVs already in --out (no planning)")

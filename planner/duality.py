@@ -476,7 +476,7 @@ def _separable_value(problem: Problem, x: np.ndarray, phi: np.ndarray, parts: li
 
 def inner_maximum(problem: Problem, x: np.ndarray, method: str = "exact", penalty_scale: float = 1.0,
                   mip_time_limit_s: float = MIP_TIME_LIMIT_S, discount: np.ndarray | None = None,
-                  adaptive: bool = False) -> float:
+                  adaptive: bool = False, mip_max_nodes: int | None = None) -> float:
     """``max_y (R(y, x) - z(y, x))`` for one observation matrix, or an upper bound on it; raw units.
 
     Args:
@@ -493,6 +493,10 @@ def inner_maximum(problem: Problem, x: np.ndarray, method: str = "exact", penalt
         adaptive: the adaptive penalty (:func:`adaptive_terms`: a conflicted point's share shrinks
             with the other carriers' earlier deployments in its overlaps), under every method
             (HiGHS: :func:`_adaptive_rows`; ``separable``: :func:`_separable_phi`).
+        mip_max_nodes: the HiGHS branch and bound (``mip``, ``mixed``) stops after this many
+            nodes and gives its dual bound (1: the root node's; None: no limit). Valid like a
+            search stopped by ``mip_time_limit_s``, and the same on every machine as long as that
+            limit is not reached first.
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
@@ -529,7 +533,7 @@ def inner_maximum(problem: Problem, x: np.ndarray, method: str = "exact", penalt
             value = _highs_value(problem, x, phi, part, False, LP_TIME_LIMIT_S, tables(part), penalty_scale)
             if how == "mip":
                 value = min(value, _highs_value(problem, x, phi, part, True, mip_time_limit_s, tables(part),
-                                                penalty_scale))
+                                                penalty_scale, mip_max_nodes))
             if not np.isfinite(value):  # HiGHS did not finish: the interaction-free bound of this part
                 value = _separable_value(problem, x, _separable_phi(problem, x, phi, part, tables(part),
                                                                     penalty_scale), [part])
@@ -596,7 +600,8 @@ def carrier_flow(model, problem: Problem, r: int, stages: np.ndarray, k: int, ph
 
 
 def _highs_value(problem: Problem, x: np.ndarray, phi: np.ndarray, part: _Component, integer: bool,
-                 time_limit_s: float, adaptive: "_Adaptive | None" = None, scale: float = 1.0) -> float:
+                 time_limit_s: float, adaptive: "_Adaptive | None" = None, scale: float = 1.0,
+                 max_nodes: int | None = None) -> float:
     """The component's model (module docstring) solved by HiGHS: the MIP's dual bound
     (``integer``) or the LP optimum; raw units. Both are >= the component's inner maximum. With
     ``adaptive`` (:func:`_adaptive`, of the discount ``phi`` was built with) the penalty is the
@@ -647,7 +652,7 @@ def _highs_value(problem: Problem, x: np.ndarray, phi: np.ndarray, part: _Compon
         model.row(lo, hi, ws + pairs, list(range(len(ws))) + [-1.0] * len(pairs))
     # The MIP's dual bound (+inf when stopped before the root LP); the LP's optimum, +inf when not
     # solved in time (the caller then falls back to the separable bound).
-    return model.solve(integer, time_limit_s).bound
+    return model.solve(integer, time_limit_s, max_nodes).bound
 
 
 def _adaptive_rows(model, problem: Problem, x: np.ndarray, part: _Component, adaptive: "_Adaptive", scale: float,
@@ -788,7 +793,8 @@ def check_budget(problem: Problem, method: str, samples: int, budget_s: float) -
 
 
 def choose_strength(problem: Problem, rng: np.random.Generator, method: str, pilot: int | None = None,
-                    adaptive: bool = False, mip_time_limit_s: float = MIP_TIME_LIMIT_S) -> float:
+                    adaptive: bool = False, mip_time_limit_s: float = MIP_TIME_LIMIT_S,
+                    mip_max_nodes: int | None = None) -> float:
     """The strength of :data:`STRENGTHS` whose penalty (``adaptive`` or not, :func:`inner_maximum`)
     gives the smallest mean inner maximum on ``pilot`` observation matrices drawn from ``rng`` (the
     same matrices for every strength), ties to the first; 0.0 without conflicts. The caller discards
@@ -800,7 +806,8 @@ def choose_strength(problem: Problem, rng: np.random.Generator, method: str, pil
         return 0.0
     xs = [sample_observations(problem, rng) for _ in range(pilot)]
     means = [sum(inner_maximum(problem, x, method, discount=conflict_discount(problem, c, adaptive),
-                               adaptive=adaptive, mip_time_limit_s=mip_time_limit_s) for x in xs) for c in STRENGTHS]
+                               adaptive=adaptive, mip_time_limit_s=mip_time_limit_s, mip_max_nodes=mip_max_nodes)
+                     for x in xs) for c in STRENGTHS]
     return float(STRENGTHS[int(np.argmin(means))])
 
 
@@ -820,7 +827,7 @@ def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAU
                 method: str = "auto", penalty_scale: float = 1.0, deadline_s: float | None = None,
                 strength: float | str = "auto", pilot: int | None = None,
                 adaptive: bool | str = "auto", mip_time_limit_s: float = MIP_TIME_LIMIT_S,
-                pilot_method: str | None = None) -> UpperBound:
+                pilot_method: str | None = None, mip_max_nodes: int | None = None) -> UpperBound:
     """The information-relaxation bound of ``problem``: the mean of :func:`inner_maximum` over
     ``samples`` observation matrices drawn from the prior with ``rng`` (scheduled stages only).
 
@@ -840,6 +847,7 @@ def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAU
             penalty unless asked.)
         mip_time_limit_s: time limit of one HiGHS branch and bound (``mip``, ``mixed``), seconds;
             a search stopped by it gives its dual bound, valid but timing-dependent.
+        mip_max_nodes: nodes of one HiGHS branch and bound (:func:`inner_maximum`; None: no limit).
         deadline_s: stop with :class:`BoundTooLarge` once this much wall time has passed (checked
             after each sample; None: no limit). The result never depends on timing: it is the
             bound of all ``samples`` or nothing.
@@ -862,7 +870,7 @@ def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAU
         pilot_method = method if pilot_method is None else pilot_method
         pilot_count = 0 if penalty_scale == 0.0 or len(compile_problem(problem).nbr) == 0 else (
             pilot_samples(pilot_method) if pilot is None else pilot)
-        strength = (choose_strength(problem, rng, pilot_method, pilot_count, adaptive, mip_time_limit_s)
+        strength = (choose_strength(problem, rng, pilot_method, pilot_count, adaptive, mip_time_limit_s, mip_max_nodes)
                     if pilot_count else 0.0)
     strength = float(strength)
     discount = conflict_discount(problem, strength, adaptive) if strength and penalty_scale else None
@@ -870,7 +878,7 @@ def upper_bound(problem: Problem, rng: np.random.Generator, samples: int = DEFAU
     for s in range(samples):
         x = sample_observations(problem, rng)
         values[s] = inner_maximum(problem, x, method, penalty_scale, mip_time_limit_s, discount,
-                                  adaptive) / problem.scale
+                                  adaptive, mip_max_nodes) / problem.scale
         if deadline_s is not None and time.perf_counter() - start > deadline_s:
             raise BoundTooLarge(f"upper bound: stopped after {s + 1} of {samples} samples at the {deadline_s:g} s deadline")
     return UpperBound(float(values.mean()), float(values.std(ddof=1) / math.sqrt(samples)), method, samples,

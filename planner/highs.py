@@ -80,9 +80,12 @@ class Model:
     def nonzeros(self) -> int:
         return sum(len(r[2]) for r in self.rows)
 
-    def solve(self, integer: bool, time_limit_s: float) -> Solved:
+    def solve(self, integer: bool, time_limit_s: float, max_nodes: int | None = None) -> Solved:
         """Solve with HiGHS (one thread, ``time_limit_s``); ``integer``: as a MIP (the columns
-        marked integer) with a relative gap of 0, else the LP relaxation."""
+        marked integer) with a relative gap of 0, else the LP relaxation. ``max_nodes``: the MIP's
+        branch and bound stops after this many nodes (1: the root node, its cuts and heuristics;
+        None: no limit); a search stopped by it, unlike one stopped by the time limit, ends
+        at the same dual bound on every machine."""
         import highspy  # the only HiGHS import of the planner core
 
         h = new_highs(highspy)
@@ -90,6 +93,8 @@ class Model:
         h.setOptionValue("time_limit", float(time_limit_s))
         if integer:
             h.setOptionValue("mip_rel_gap", 0.0)
+            if max_nodes is not None:
+                h.setOptionValue("mip_max_nodes", int(max_nodes))
         lp = highspy.HighsLp()
         lp.num_col_ = len(self.cost)
         lp.num_row_ = len(self.rows)

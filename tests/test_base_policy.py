@@ -140,3 +140,23 @@ def test_measurement_command_prints_the_paired_figures(capsys):
     out = capsys.readouterr().out
     assert out.count("trial ") >= 2
     assert "paired difference new - previous" in out and "fraction of the bound" in out
+
+
+@pytest.mark.slow
+def test_bound_nodes_pairs_the_mixed_bound_with_the_node_limited_one(tmp_path):
+    """tools.bound_nodes on the experiment's R = 6 configuration (every component within the exact
+    limit, so both bounds are the same numbers), its CSV, and a size the experiment does not have."""
+    import csv
+
+    from cli_helpers import in_process
+    from tools import bound_nodes
+
+    out = tmp_path / "rows.csv"
+    run = in_process(bound_nodes.main, ["--carriers", "6", "--trials", "0", "--out", out])
+    assert run.returncode == 0, run.stderr
+    assert "bound at 1 node(s) / mixed bound = 1.0000" in run.stdout
+    [row] = list(csv.DictReader(out.open()))
+    assert row["config"] == "R = 6, 10 overlaps" and row["mixed_method"] == "mixed"
+    assert float(row["mixed"]) == float(row["nodes"]) > 0
+    bad = in_process(bound_nodes.main, ["--carriers", "7"])
+    assert bad.returncode == 1 and "expected one of the experiment's sizes" in bad.stderr

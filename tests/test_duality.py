@@ -238,8 +238,9 @@ def test_experiment_tasks_report_the_bound_against_v_star_and_the_planners(tmp_p
 
 
 def test_bound_experiment_mixed_method_up_to_its_fleet_size():
-    """The scale rows' bound by ``mixed`` (the default) up to MIXED_MAX_CARRIERS (--quick: its own
-    smaller limit), the LP beyond; ``--bound-method lp`` everywhere; a run_info.json record without
+    """The scale rows' bound by ``mixed`` up to MIXED_MAX_CARRIERS (--quick: its own smaller limit);
+    beyond it, under ``mixed-root`` (the default) the same with every MIP stopped at its root node,
+    under ``mixed`` the LP; ``--bound-method lp`` everywhere; a run_info.json record without
     ``bound_method`` (written when lp was the default) is rebuilt with lp."""
     from experiments import bound as experiment
     from experiments import check, run
@@ -251,18 +252,23 @@ def test_bound_experiment_mixed_method_up_to_its_fleet_size():
 
     assert all(t.variant == "" for t in bound_tasks("--quick", "--bound-method", "lp"))
     for flags, limit in ((("--quick",), experiment.QUICK["mixed_max_carriers"]), ((), experiment.MIXED_MAX_CARRIERS)):
-        tasks = bound_tasks(*flags)
-        assert {t.carriers for t in tasks if t.variant == "mixed"} == {t.carriers for t in tasks if t.carriers <= limit}
-        assert any(t.variant == "" for t in tasks)  # the LP beyond the limit
+        for method, beyond in (("mixed", ""), ("mixed-root", "mixed-root")):
+            tasks = bound_tasks(*flags, *(("--bound-method", method) if method == "mixed" else ()))
+            assert {t.carriers for t in tasks if t.variant == "mixed"} == {t.carriers for t in tasks if t.carriers <= limit}
+            assert {t.variant for t in tasks if t.carriers > limit} == {beyond}  # the LP, or the root node's MIP
     assert experiment.MIXED_MAX_CARRIERS >= 128
     old = {"iterations": 40, "seed": 0, "planners": ["ssap"], "levels": [0], "bound_trials": None}
     assert check.sweep_args("bound", old, Path("out")).bound_method == "lp"
     assert check.sweep_args("bound", {**old, "bound_method": "mixed"}, Path("out")).bound_method == "mixed"
+    assert run.parse_args(["bound"]).bound_method == "mixed-root"
     level = 3  # R = 4, 12 overlaps
     _, carriers, overlaps, _, _ = experiment.CONFIGS[level]
     row = experiment.run_task(Task("bound", level, 0, experiment.UPPER_BOUND, 0, 0, carriers=carriers,
                                    overlaps=overlaps, samples=3, variant="mixed"))
     assert row["method"] == "mixed" and row["samples"] == 3 and row["reward"] > 0
+    root = experiment.run_task(Task("bound", level, 0, experiment.UPPER_BOUND, 0, 0, carriers=carriers,
+                                    overlaps=overlaps, samples=3, variant="mixed-root"))
+    assert root["method"] == "mixed-root" and root["reward"] >= row["reward"] - 1e-9  # a root node's bound: never tighter
 
 
 @pytest.mark.slow
@@ -521,6 +527,55 @@ def test_mixed_solves_each_component_by_its_own_method(monkeypatch, adaptive):
         assert mixed >= exact - 1e-7
         assert mixed == pytest.approx(exact, abs=1e-6)
         assert mixed <= lp + 1e-7
+
+
+def _knapsack(seed: int, items: int = 70, rows: int = 10):
+    """A 0-1 multidimensional knapsack whose root node does not close (HiGHS branches)."""
+    from planner.highs import Model
+
+    rng = np.random.default_rng(seed)
+    weights, values = rng.integers(10, 60, size=(rows, items)), rng.integers(10, 60, size=items)
+    model = Model()
+    cols = [model.var(float(v), is_int=True) for v in values]
+    for w in weights:
+        model.row(-np.inf, float(w.sum() // 2), cols, [float(a) for a in w])
+    return model
+
+
+def test_a_node_limited_mip_stops_at_a_valid_dual_bound_the_same_every_time():
+    """``max_nodes``: the branch and bound stops after the root node, not optimal, at a dual bound
+    above the optimum and at least its best solution; the same bound on every run (no clock in it)."""
+    for seed in range(2):
+        full = _knapsack(seed).solve(True, 60.0)
+        root = [_knapsack(seed).solve(True, 60.0, max_nodes=1) for _ in range(2)]
+        assert full.optimal and not root[0].optimal
+        assert root[0].bound > full.bound + 0.5 >= full.objective + 0.5 > root[0].objective - 1e-9
+        assert root[0].bound == root[1].bound and root[0].objective == root[1].objective
+
+
+def test_the_node_limit_reaches_every_branch_and_bound_of_the_bound(monkeypatch):
+    """``mip_max_nodes`` of ``upper_bound`` and ``inner_maximum`` is the limit of every MIP they
+    solve (the pilot's included), and the node-limited bound stays between the exact and the LP."""
+    from planner import highs
+
+    problem = random_instance(np.random.default_rng(23), **MIXED_INSTANCE).problem
+    seen = []
+    solve = highs.Model.solve
+
+    def recorded(self, integer, time_limit_s, max_nodes=None):
+        if integer:
+            seen.append(max_nodes)
+        return solve(self, integer, time_limit_s, max_nodes)
+
+    monkeypatch.setattr(highs.Model, "solve", recorded)
+    bound = duality.upper_bound(problem, np.random.default_rng(3), samples=3, method="mip", pilot=2, mip_max_nodes=1)
+    assert seen and set(seen) == {1} and bound.method == "mip"
+    discount = duality.conflict_discount(problem, 0.5, True)
+    x = sample_observations(problem, np.random.default_rng(4))
+    exact = duality.inner_maximum(problem, x, "exact", discount=discount, adaptive=True)
+    lp = duality.inner_maximum(problem, x, "lp", discount=discount, adaptive=True)
+    root = duality.inner_maximum(problem, x, "mip", discount=discount, adaptive=True, mip_max_nodes=1)
+    assert exact - 1e-7 <= root <= lp + 1e-7
 
 
 @pytest.mark.parametrize("kind", ["poisson", "normal"])
