@@ -95,14 +95,14 @@ EXCESS_TARGET_PCT = 1.0
 #: adaptive penalty) up to this R; beyond it ``mixed`` takes the LP (at R = 256 one adaptive MIP
 #: does not finish in 400 s, and a MIP stopped by its time limit has a dual bound that depends on
 #: the machine's speed) and ``mixed-root`` the same ``mixed`` with every MIP stopped after
-#: :data:`ROOT_NODES` node (its root: about 140 s a sample at R = 256, 1.2 % below the LP, and the
+#: :data:`ROOT_NODES` node (its root: 60 to 140 s a sample at R = 256, 1.1 % below the LP, and the
 #: same bound on every machine, tools.bound_nodes); one MIP's time limit,
 #: seconds (R = 128's finish in 25 to 45 s); the strength pilot's inner maxima (the adaptive LP:
 #: 2 s at R = 128 where the MIP takes 30 s; the pilot only picks the strength, every strength's
 #: bound is valid).
 MIXED_MAX_CARRIERS = 128
 ROOT_NODES = 1
-#: One root-node MIP's time limit, seconds: far above its time (141 s at R = 256 on a quiet core),
+#: One root-node MIP's time limit, seconds: far above its time (at most 141 s seen at R = 256),
 #: so that the node limit, not the machine's speed, stops it.
 ROOT_TIME_LIMIT_S = 3600.0
 #: ``--bound-method`` choices (``mixed-root`` the default; run_info.json records the one a run used).
