@@ -102,6 +102,12 @@ def test_measurement_command_prints_the_paired_figures(capsys):
         out = capsys.readouterr().out
         assert out.count("trial ") >= 2
         assert "paired difference new - previous" in out and "fraction of the bound" in out
+    bounds = {}
+    for method in ("mixed", "mixed-root"):  # R = 4: every component exact, so the root node changes nothing
+        assert gated_search.main(["--family", "dense", "--carriers", "4", "--trials", "0", "--obs", "1",
+                                  "--iterations", "30", "--bound-samples", "2", "--bound-method", method]) == 0
+        bounds[method] = float(capsys.readouterr().out.split("bound   : ")[1].split()[0])
+    assert bounds["mixed-root"] == bounds["mixed"] > 0
     problem, x = gated_search.instance("dense", 6, 0)
     assert len(problem.overlaps) == 48 and problem.prior.dist.name == "nbinom"
     again = gated_search.observations("dense", problem, x, 0, 1)
