@@ -475,6 +475,10 @@ RUNS = [
         "heavy", wall_s=900, mem_mb=2000),
     Run("gated-search-dense-32", (S("python -m tools.gated_search --family dense --carriers 32 --trials 20-39 --obs 8"),),
         "heavy", wall_s=1200, mem_mb=3000),
+    Run("gated-search-dense-32-root-a", (S("python -m tools.gated_search --family dense --carriers 32 --trials 20-29 "
+                                           "--obs 8 --bound-method mixed-root"),), "heavy", wall_s=3600, mem_mb=3000),
+    Run("gated-search-dense-32-root-b", (S("python -m tools.gated_search --family dense --carriers 32 --trials 30-39 "
+                                           "--obs 8 --bound-method mixed-root"),), "heavy", wall_s=3600, mem_mb=3000),
     Run("gated-search-dense-128", (S("python -m tools.gated_search --family dense --carriers 128 --trials 20-35 --obs 4"),),
         "heavy", wall_s=3600, mem_mb=3000),
     Run("gated-search-dense-256", (S("python -m tools.gated_search --family dense --carriers 256 --trials 20-27 --obs 2"),),
