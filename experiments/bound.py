@@ -164,13 +164,15 @@ SWEEP = Sweep(columns=_config_columns)
 
 
 def scale_bound(problem, rng: np.random.Generator, samples: int, method: str, mip_max_nodes: int | None = None):
-    """The scale rows' bound of ``problem`` by ``method`` (``lp`` or ``mixed``): ``samples``
-    matrices after a pilot of half as many (at least 2), one MIP's limit
-    :data:`MIXED_MIP_TIME_LIMIT_S` (with ``mip_max_nodes``, the limit of ``mixed-root`` and
-    tools.bound_nodes: that many nodes, and :data:`ROOT_TIME_LIMIT_S`), and under ``mixed`` the
-    pilot by :data:`MIXED_PILOT_METHOD`."""
+    """The scale rows' bound of ``problem`` by ``method`` (``lp``, ``mixed`` or ``mixed-root``:
+    ``mixed`` with :data:`ROOT_NODES`): ``samples`` matrices after a pilot of half as many (at least
+    2), one MIP's limit :data:`MIXED_MIP_TIME_LIMIT_S` (with a node limit, ``mip_max_nodes`` of
+    tools.bound_nodes or ``mixed-root``'s: that many nodes, and :data:`ROOT_TIME_LIMIT_S`), and
+    under ``mixed`` the pilot by :data:`MIXED_PILOT_METHOD`."""
     from planner import duality
 
+    if method == "mixed-root":
+        method, mip_max_nodes = "mixed", ROOT_NODES
     return duality.upper_bound(problem, rng, samples=samples, method=method, pilot=max(2, samples // 2),
                                mip_time_limit_s=MIXED_MIP_TIME_LIMIT_S if mip_max_nodes is None else ROOT_TIME_LIMIT_S,
                                pilot_method=MIXED_PILOT_METHOD if method == "mixed" else None,
@@ -192,12 +194,10 @@ def run_task(task: Task) -> dict:
 
     problem, _, planner_seed, _ = random_trial(task)
     t0 = time.perf_counter()
-    root = task.variant == "mixed-root"
-    bound = scale_bound(problem, bound_rng(task.seed, task.trial), task.samples, "mixed" if root else task.variant or "lp",
-                        mip_max_nodes=ROOT_NODES if root else None)
+    bound = scale_bound(problem, bound_rng(task.seed, task.trial), task.samples, task.variant or "lp")
     return {"sweep": task.sweep, "level": task.level, "config": CONFIGS[task.level][0], "trial": task.trial,
             "planner": UPPER_BOUND, "reward": bound.expected_reward, "stderr": bound.stderr, "samples": bound.samples,
-            "method": task.variant if root else bound.method, "strength": bound.strength, "carriers": problem.n_carriers, "overlaps": len(problem.overlaps),
+            "method": task.variant or bound.method, "strength": bound.strength, "carriers": problem.n_carriers, "overlaps": len(problem.overlaps),
             "iterations": 0, "seed": task.seed, "planner_seed": planner_seed, "wall_s": time.perf_counter() - t0}
 
 

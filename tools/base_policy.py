@@ -39,8 +39,17 @@ def parse_trials(text: str) -> list[int]:
     return out
 
 
+def write_rows(rows: list[dict], path) -> None:
+    """The per-trial rows as CSV, their first row's keys as the header (the measuring tools' ``--out``)."""
+    with open(path, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
 def run_pair(carriers: int, trial: int, iterations: int, seed: int, bound_samples: int) -> dict:
     """One trial: rewards and decision times of both planners, and the bound."""
+    from experiments.bound import bound_rng
     from experiments.trials import Task, random_trial
     from planner import duality
     from planner.closedloop import ClosedLoopPlanner
@@ -54,8 +63,7 @@ def run_pair(carriers: int, trial: int, iterations: int, seed: int, bound_sample
         result = run_online(problem, x, planner, planner_seed)  # warms the planner up first
         row[name] = result.reward
         row[name + "_ms"] = float(np.mean(result.decision_ms))
-    rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1000, trial, 2)))
-    bound = duality.upper_bound(problem, rng, samples=bound_samples, method="lp")
+    bound = duality.upper_bound(problem, bound_rng(seed, trial), samples=bound_samples, method="lp")
     row["bound"] = bound.expected_reward
     row["bound_stderr"] = bound.stderr
     return row
@@ -103,10 +111,7 @@ def main(argv=None) -> int:
     print("\n".join(summary(rows)))
     print(f"  ({time.perf_counter() - t0:.0f} s)")
     if args.out:
-        with open(args.out, "w", newline="") as fh:
-            writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
+        write_rows(rows, args.out)
     return 0
 
 

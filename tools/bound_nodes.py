@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from experiments.report import sem
-from tools.base_policy import parse_trials
+from tools.base_policy import parse_trials, write_rows
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED_TRIALS = ROOT / "docs" / "results" / "bound_trials.csv"
@@ -102,10 +102,7 @@ def main(argv=None) -> int:
         print(f"  {planner:18} fraction of the mixed bound {old.mean():.4f} ± {sem(old):.4f}, "
               f"of the bound at {args.nodes} node(s) {new.mean():.4f} ± {sem(new):.4f}")
     if args.out:
-        with args.out.open("w", newline="") as f:
-            w = csv.DictWriter(f, fieldnames=list(rows[0]))
-            w.writeheader()
-            w.writerows(rows)
+        write_rows(rows, args.out)
     return 0
 
 

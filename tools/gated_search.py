@@ -29,14 +29,13 @@ process; the times are the machine's, and only comparable when nothing else runs
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 import time
 
 import numpy as np
 
 from experiments.report import sem
-from tools.base_policy import parse_trials
+from tools.base_policy import parse_trials, write_rows
 
 #: Bound samples per trial by R (experiments.bound.CONFIGS); 6 for other sizes.
 BOUND_SAMPLES = {4: 30, 6: 30, 32: 12, 128: 6, 256: 4}
@@ -78,7 +77,7 @@ def run_trial(family: str, carriers: int, trial: int, obs: int, iterations: int,
               bound_samples: int, bound_method: str = "lp") -> dict:
     """One trial: both planners' mean rewards over ``obs`` observation matrices, their decision
     times, and the instance's bound."""
-    from experiments.bound import ROOT_NODES, scale_bound
+    from experiments.bound import scale_bound
     from experiments.trials import seed_of
     from planner.online import run_online
     from planner.registry import make_planner
@@ -101,9 +100,7 @@ def run_trial(family: str, carriers: int, trial: int, obs: int, iterations: int,
         row[name + "_ms_median"] = float(np.median(times[name]))
     key = (1000, trial, 2) if family == "paper" else (5000, trial, 2)
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
-    root = bound_method == "mixed-root"  # every MIP stopped after its root node (experiments.bound.ROOT_NODES)
-    bound = scale_bound(problem, rng, bound_samples, "mixed" if root else bound_method,
-                        mip_max_nodes=ROOT_NODES if root else None)
+    bound = scale_bound(problem, rng, bound_samples, bound_method)
     row["bound"] = bound.expected_reward
     row["bound_stderr"] = bound.stderr
     return row
@@ -162,10 +159,7 @@ def main(argv=None) -> int:
     print("\n".join(summary(rows)))
     print(f"  ({time.perf_counter() - t0:.0f} s)")
     if args.out:
-        with open(args.out, "w", newline="") as fh:
-            writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
+        write_rows(rows, args.out)
     return 0
 
 
