@@ -483,6 +483,16 @@ RUNS = [
         "heavy", wall_s=3600, mem_mb=3000),
     Run("gated-search-dense-256", (S("python -m tools.gated_search --family dense --carriers 256 --trials 20-27 --obs 2"),),
         "heavy", wall_s=5400, mem_mb=4000),
+    # docs/results.md, "Where the gap is, where V* is known": about 3 minutes each on a 2-core host.
+    Run("tiny-split-paper", (S("python -m tools.tiny_split --family paper --trials 0-39 --out "
+                               "docs/results/tiny_split_paper.csv", ("--out docs/results/", "--out {tmp}/")),),
+        "heavy", wall_s=1200, mem_mb=2000, check=_reproduces(("docs/results/tiny_split_paper.csv", "tiny_split_paper.csv"))),
+    Run("tiny-split-dense", (S("python -m tools.tiny_split --family dense --trials 0-39 --out "
+                               "docs/results/tiny_split_dense.csv", ("--out docs/results/", "--out {tmp}/")),),
+        "heavy", wall_s=1200, mem_mb=2000, check=_reproduces(("docs/results/tiny_split_dense.csv", "tiny_split_dense.csv"))),
+    Run("tiny-split-plot", (S("python -m tools.tiny_split --plot docs/results/tiny_split.png --rows "
+                              "docs/results/tiny_split_paper.csv docs/results/tiny_split_dense.csv",
+                              ("--plot docs/results/", "--plot {tmp}/")),), "slow", wall_s=120, mem_mb=1000),
     Run("experiments-cluster", (
         S("dask scheduler --port 8786", ("8786", "{port}"), background=True, ready="Scheduler at", stop=True,
           rc=(0, 130, -2, 1)),

@@ -44,23 +44,33 @@ FAMILIES = ("paper", "dense")
 PLANNERS = (("previous", "closed-loop"), ("new", "closed-loop-gated"))
 
 
-def instance(family: str, carriers: int, trial: int, seed: int = 0):
-    """``(problem, observations)`` of trial ``trial`` of ``family`` (module docstring)."""
+def family_problem(family: str, rng: np.random.Generator, carriers: int, passengers: int = 3, stages: int = 10,
+                   groups: int | None = None):
+    """``(problem, observations)``: one instance of ``family`` (module docstring) drawn from ``rng``
+    (the instance, then its observations, on the same stream), with ``passengers`` per carrier,
+    ``stages`` stages and ``groups`` overlap groups (None: the family's, 5 R or 8 R)."""
     from scipy import stats
 
     from planner.instance import random_instance
     from planner.problem import Problem, sample_observations
 
     if family == "paper":
-        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(1000, trial)))
-        inst = random_instance(rng, carriers, 3, 10, 5 * carriers if carriers >= 6 else 20, 3.0)
+        groups = groups or (5 * carriers if carriers >= 6 else 20)
+        inst = random_instance(rng, carriers, passengers, stages, groups, 3.0)
         return inst.problem, inst.observations
     if family == "dense":
-        rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(5000, trial)))
-        base = random_instance(rng, carriers, 3, 10, 8 * carriers, 3.0).problem
+        base = random_instance(rng, carriers, passengers, stages, groups or 8 * carriers, 3.0).problem
         problem = Problem.build(base.passengers, base.valid, base.overlaps, stats.nbinom(2, 0.4))
         return problem, sample_observations(problem, rng)
     raise ValueError(f"family: expected one of {', '.join(FAMILIES)}, found {family!r}")
+
+
+def instance(family: str, carriers: int, trial: int, seed: int = 0):
+    """``(problem, observations)`` of trial ``trial`` of ``family`` (module docstring)."""
+    if family not in FAMILIES:
+        raise ValueError(f"family: expected one of {', '.join(FAMILIES)}, found {family!r}")
+    key = (1000, trial) if family == "paper" else (5000, trial)
+    return family_problem(family, np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key)), carriers)
 
 
 def observations(family: str, problem, x0: np.ndarray, trial: int, k: int, seed: int = 0) -> np.ndarray:
