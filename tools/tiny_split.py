@@ -8,9 +8,9 @@
 Trial t of a family is its instance (``tools.gated_search.family_problem``: Poisson(3) for
 ``paper``, the negative binomial (n = 2, p = 0.4) for ``dense``) at R = ``--carriers`` (default 2),
 N = 6, D = 2, with the family's density of overlap groups per decision point (``DENSITY``: 0.5 and
-0.8, the families' 5 R and 8 R groups over their 10 R points; ``--density`` changes it), drawn from stream ``(9100 + f, t, a)`` (f = 0 paper,
-1 dense) for the first a = 0, 1, ... whose exact solve the solver admits
-(``planner.online_optimal.estimate`` within its ``MAX_SECONDS``). Per trial:
+0.8, the families' 5 R and 8 R groups over their 10 R points; ``--density`` changes it), drawn
+from stream ``(9100 + f, t, a)`` (f = 0 paper, 1 dense) for the first a = 0, 1, ... whose exact
+solve the solver admits (``planner.online_optimal.estimate`` within its ``MAX_SECONDS``). Per trial:
 
 * V*, the exact value of the best online policy (``planner.online_optimal.online_value``);
 * the bound, ``planner.duality.upper_bound`` with its defaults for an instance this small (exact
@@ -45,7 +45,7 @@ STAGES = 6
 PASSENGERS = 2
 #: Overlap groups per decision point of each family at N = 10 (5 R and 8 R groups over 10 R points).
 DENSITY = {"paper": 0.5, "dense": 0.8}
-#: The issue's target fraction of the bound, drawn for reference.
+#: The planners' target fraction of the bound (docs/planner.md), drawn for reference.
 TARGET = 0.975
 ATTEMPTS = 100
 
