@@ -27,6 +27,7 @@ import time
 from pathlib import Path
 
 from launcher.faults import FLOWN, OWN_DISK
+from mission.modes import Mode
 
 REPO = Path(__file__).resolve().parents[1]
 SIX = REPO / "scenarios" / "six_carriers.yaml"
@@ -73,7 +74,7 @@ def fly(scenario: Path, faults: list, mode: str, out: Path, timeout_s: float = 6
     schedule = out.parent / f"{out.name}.schedule.json"
     schedule.write_text(json.dumps(faults, indent=1) + "\n")
     argv = [sys.executable, str(REPO / "run_fleet.py"), str(scenario), "--schedule", str(schedule), "--out", str(out),
-            "--no-map", "--no-record", *(["--no-autonomy"] if mode == "coordinated" else [])]
+            "--no-map", "--no-record", *(["--no-autonomy"] if mode == Mode.COORDINATED else [])]
     t0 = time.monotonic()
     proc = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=timeout_s)
     summary = out / "summary.json"
@@ -144,7 +145,7 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m tools.schedule_flight", description=__doc__.split("\n\n")[0])
     p.add_argument("--kinds", default=",".join(KINDS), help="comma-separated kinds (default: every flown kind)")
     p.add_argument("--seeds", type=int, default=1, help="seeds per kind and scenario (default 1)")
-    p.add_argument("--mode", choices=("coordinated", "hybrid"), default="coordinated",
+    p.add_argument("--mode", choices=(Mode.COORDINATED.value, Mode.HYBRID.value), default=Mode.COORDINATED.value,
                    help="the carriers' mode, in the simulator and on the real fleet (coordinated: --no-autonomy)")
     p.add_argument("--longest", type=float, default=30.0, help="the latest end of a fault of a seed flown (s)")
     p.add_argument("--scenario", action="append", default=None,
