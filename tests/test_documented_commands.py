@@ -490,8 +490,13 @@ RUNS = [
     Run("tiny-split-dense", (S("python -m tools.tiny_split --family dense --trials 0-39 --out "
                                "docs/results/tiny_split_dense.csv", ("--out docs/results/", "--out {tmp}/")),),
         "heavy", wall_s=1200, mem_mb=2000, check=_reproduces(("docs/results/tiny_split_dense.csv", "tiny_split_dense.csv"))),
+    Run("tiny-split-paper-3", (S("python -m tools.tiny_split --family paper --carriers 3 --trials 0-19 --out "
+                                 "docs/results/tiny_split_paper_r3.csv", ("--out docs/results/", "--out {tmp}/")),),
+        "heavy", wall_s=2400, mem_mb=2000,
+        check=_reproduces(("docs/results/tiny_split_paper_r3.csv", "tiny_split_paper_r3.csv"))),
     Run("tiny-split-plot", (S("python -m tools.tiny_split --plot docs/results/tiny_split.png --rows "
-                              "docs/results/tiny_split_paper.csv docs/results/tiny_split_dense.csv",
+                              "docs/results/tiny_split_paper.csv docs/results/tiny_split_paper_r3.csv "
+                              "docs/results/tiny_split_dense.csv",
                               ("--plot docs/results/", "--plot {tmp}/")),), "slow", wall_s=120, mem_mb=1000),
     Run("experiments-cluster", (
         S("dask scheduler --port 8786", ("8786", "{port}"), background=True, ready="Scheduler at", stop=True,

@@ -133,6 +133,7 @@ def plot(tables: list[list[dict]], path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
 
     fig, axes = plt.subplots(1, len(tables), figsize=(6.2 * len(tables), 4.4), sharey=True, squeeze=False)
     for ax, rows in zip(axes[0], tables):
@@ -152,6 +153,7 @@ def plot(tables: list[list[dict]], path) -> None:
         ax.set_title(f"{first['family']}: R = {first['carriers']}, {first['groups']} overlap groups, "
                      f"{len(rows)} instances")
         ax.set_xlabel("instance (sorted by the bound's excess over V*)")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8, loc="upper left")
     axes[0][0].set_ylabel("value / V* (exact online optimum)")
