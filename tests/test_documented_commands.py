@@ -479,6 +479,10 @@ RUNS = [
                                            "--obs 8 --bound-method mixed-root"),), "heavy", wall_s=3600, mem_mb=3000),
     Run("gated-search-dense-32-root-b", (S("python -m tools.gated_search --family dense --carriers 32 --trials 30-39 "
                                            "--obs 8 --bound-method mixed-root"),), "heavy", wall_s=3600, mem_mb=3000),
+    Run("gated-search-dense-128-root", (S("python -m tools.gated_search --family dense --carriers 128 --trials 20-27 "
+                                          "--obs 4 --bound-method mixed-root"),), "heavy", wall_s=7200, mem_mb=3000),
+    Run("gated-search-dense-256-root", (S("python -m tools.gated_search --family dense --carriers 256 --trials 20-23 "
+                                          "--obs 2 --bound-method mixed-root"),), "heavy", wall_s=10800, mem_mb=4000),
     Run("gated-search-dense-128", (S("python -m tools.gated_search --family dense --carriers 128 --trials 20-35 --obs 4"),),
         "heavy", wall_s=3600, mem_mb=3000),
     Run("gated-search-dense-256", (S("python -m tools.gated_search --family dense --carriers 256 --trials 20-27 --obs 2"),),
