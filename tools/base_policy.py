@@ -47,6 +47,23 @@ def write_rows(rows: list[dict], path) -> None:
         writer.writerows(rows)
 
 
+def run_trials(trials: list[int], run, line, summary, out=None) -> list[dict]:
+    """The measuring tools' loop: each trial's row ``run(t)``, printed as ``trial t: line(row)`` as
+    it comes, then the lines of ``summary(rows)``, the wall time and, with ``out``, the rows as CSV
+    (:func:`write_rows`)."""
+    rows = []
+    t0 = time.perf_counter()
+    for t in trials:
+        row = run(t)
+        rows.append(row)
+        print(f"trial {t}: {line(row)}", flush=True)
+    print("\n".join(summary(rows)))
+    print(f"  ({time.perf_counter() - t0:.0f} s)")
+    if out:
+        write_rows(rows, out)
+    return rows
+
+
 def run_pair(carriers: int, trial: int, iterations: int, seed: int, bound_samples: int) -> dict:
     """One trial: rewards and decision times of both planners, and the bound."""
     from experiments.bound import bound_rng
@@ -100,18 +117,10 @@ def main(argv=None) -> int:
     except ValueError:
         parser.error(f"--trials: expected indices like 60-71 or 50,52, found {args.trials!r}")
     samples = args.bound_samples or BOUND_SAMPLES.get(args.carriers, 6)
-    rows = []
-    t0 = time.perf_counter()
-    for t in trials:
-        row = run_pair(args.carriers, t, args.iterations, args.seed, samples)
-        rows.append(row)
-        print(f"trial {t}: previous {row['previous']:.2f}  new {row['new']:.2f}  "
-              f"difference {row['new'] - row['previous']:+.2f}  bound {row['bound']:.2f} ± {row['bound_stderr']:.2f}",
-              flush=True)
-    print("\n".join(summary(rows)))
-    print(f"  ({time.perf_counter() - t0:.0f} s)")
-    if args.out:
-        write_rows(rows, args.out)
+    run_trials(trials, lambda t: run_pair(args.carriers, t, args.iterations, args.seed, samples),
+               lambda row: f"previous {row['previous']:.2f}  new {row['new']:.2f}  difference "
+                           f"{row['new'] - row['previous']:+.2f}  bound {row['bound']:.2f} ± {row['bound_stderr']:.2f}",
+               summary, args.out)
     return 0
 
 

@@ -30,12 +30,11 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 
 import numpy as np
 
 from experiments.report import sem
-from tools.base_policy import parse_trials, write_rows
+from tools.base_policy import parse_trials, run_trials
 
 #: Bound samples per trial by R (experiments.bound.CONFIGS); 6 for other sizes.
 BOUND_SAMPLES = {4: 30, 6: 30, 32: 12, 128: 6, 256: 4}
@@ -157,19 +156,11 @@ def main(argv=None) -> int:
     except ValueError:
         parser.error(f"--trials: expected indices like 20-39 or 20,22, found {args.trials!r}")
     samples = args.bound_samples or BOUND_SAMPLES.get(args.carriers, 6)
-    rows = []
-    t0 = time.perf_counter()
-    for t in trials:
-        row = run_trial(args.family, args.carriers, t, args.obs, args.iterations, args.seed, samples,
-                        args.bound_method)
-        rows.append(row)
-        print(f"trial {t}: previous {row['previous']:.3f}  new {row['new']:.3f}  "
-              f"difference {row['new'] - row['previous']:+.3f}  bound {row['bound']:.2f} ± {row['bound_stderr']:.2f}",
-              flush=True)
-    print("\n".join(summary(rows)))
-    print(f"  ({time.perf_counter() - t0:.0f} s)")
-    if args.out:
-        write_rows(rows, args.out)
+    run_trials(trials, lambda t: run_trial(args.family, args.carriers, t, args.obs, args.iterations, args.seed, samples,
+                                           args.bound_method),
+               lambda row: f"previous {row['previous']:.3f}  new {row['new']:.3f}  difference "
+                           f"{row['new'] - row['previous']:+.3f}  bound {row['bound']:.2f} ± {row['bound_stderr']:.2f}",
+               summary, args.out)
     return 0
 
 
